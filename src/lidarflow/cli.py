@@ -1,0 +1,238 @@
+"""The ``lidarflow`` command: argument parsing only.
+
+Every sub-command turns lidarflow errors into one line on stderr and exit status 1; usage errors
+exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see tracebacks.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from lidarflow.errors import LidarflowError
+
+app = typer.Typer(
+    name="lidarflow",
+    help=(
+        "Predict the next 2-D LiDAR occupancy map by estimating motion flow (LiDAR-FlowNet).\n\n"
+        "Inputs may be recordings (.npz from `lidarflow convert`) or bags directly: ROS 1 .bag "
+        "(or .bag.zip), ROS 2 bag folders (sqlite3/mcap) and .mcap files."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+TopicOpt = Annotated[
+    str | None,
+    typer.Option("--topic", "-t", help="LaserScan topic (needed only when the bag has several)."),
+]
+OdomOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--odom-topic",
+        help="Odometry (nav_msgs/Odometry or PoseStamped) topic for sensor poses; by default the "
+        "bag's only Odometry topic, if it has one.",
+    ),
+]
+GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
+ResOpt = Annotated[float, typer.Option("--res", help="Cell size in metres.", min=1e-4)]
+
+
+def _progress(total: int | None, desc: str) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="scan", disable=None, leave=False)
+
+
+def _load(path: Path, topic: str | None = None, odom_topic: str | None = None) -> Any:
+    from lidarflow.data import load_any
+
+    with _progress(None, f"reading {path.name}") as bar:
+        return load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
+
+
+@app.command()
+def convert(
+    input: Annotated[Path, typer.Argument(help="Bag (.bag, .bag.zip), ROS 2 bag folder or .mcap.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Recording to write (.npz).")],
+    topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+) -> None:
+    """Convert a LaserScan topic into a lidarflow recording (raw scans, stamps, poses).
+
+    The raw ranges are kept, so maps can be rasterized later on any grid; --grid/--res only set
+    the grid recorded as this recording's default and checked here by rasterizing every scan.
+    """
+    from lidarflow.scan import GridSpec
+
+    recording = _load(input, topic, odom_topic)
+    spec = GridSpec(grid, grid, res)
+    recording.maps(spec)  # fail now, not in training, if any scan cannot be rasterized
+    recording.meta["grid"] = spec.to_dict()
+    path = recording.save(output)
+    poses = "with poses" if recording.has_poses else "no poses"
+    typer.echo(
+        f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at "
+        f"{recording.frame_rate:.2f} Hz, {poses}"
+    )
+
+
+@app.command()
+def info(
+    input: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP.")],
+    topic: TopicOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of text.")] = False,
+) -> None:
+    """List topics (bags), scan counts, frame rate, field of view, range limits, invalid beams
+    and time gaps."""
+    from lidarflow.data import describe_recording, list_topics
+    from lidarflow.data.sources import is_recording_file
+
+    report: dict[str, Any] = {"path": str(input)}
+    if not is_recording_file(input):
+        topics = list_topics(input)
+        report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
+        scan_topics = [t.topic for t in topics if t.msgtype.endswith("LaserScan")]
+        if topic is None and len(scan_topics) != 1:
+            report["scan_topics"] = scan_topics
+            _print_info(report, as_json)
+            if scan_topics:
+                typer.echo("several LaserScan topics: name one with --topic for its details")
+            return
+    recording = _load(input, topic)
+    report["topic"] = recording.meta.get("topic")
+    report.update(describe_recording(recording))
+    _print_info(report, as_json)
+
+
+def _print_info(report: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        typer.echo(json.dumps(report, indent=2))
+        return
+    for key, value in report.items():
+        if key == "topics":
+            typer.echo("topics:")
+            for t in value:
+                typer.echo(f"  {t['topic']:<40} {t['type']:<40} {t['count']:>8}")
+        elif key == "beams":
+            typer.echo("beams: " + ", ".join(f"{k}={v}" for k, v in value.items()))
+        elif key == "gaps":
+            shown = ", ".join(f"{g['seconds']}s before frame {g['before_frame']}" for g in value[:10])
+            more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
+            typer.echo(f"gaps: {len(value)}" + (f": {shown}{more}" if value else ""))
+        else:
+            typer.echo(f"{key}: {value}")
+
+
+@app.command()
+def show(
+    recording: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP.")],
+    frame: Annotated[int, typer.Option("--frame", "-f", help="Frame index (negative counts from the end).")] = 0,
+    output: Annotated[Path, typer.Option("--output", "-o", help="PNG to write.")] = Path("maps.png"),
+    topic: TopicOpt = None,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+    flow: Annotated[
+        bool, typer.Option("--flow/--no-flow", help="Overlay ground-truth flow when the recording has it.")
+    ] = True,
+) -> None:
+    """Draw the occupancy and visibility maps of one frame (sensor at the bottom middle)."""
+    from lidarflow.errors import RecordingError
+    from lidarflow.scan import GridSpec
+    from lidarflow.viz.maps import draw_maps
+
+    rec = _load(recording, topic)
+    if not -len(rec) <= frame < len(rec):
+        raise RecordingError(f"{recording}: frame {frame} out of range (it has {len(rec)} frames)")
+    index = frame % len(rec)
+    spec = GridSpec(grid, grid, res)
+    occ, vis = rec.maps(spec, index, index + 1)
+    gt_flow = None
+    if flow and "flow_backward" in rec.extras:
+        stored = rec.extras["flow_backward"]
+        if stored.shape[-2:] == spec.shape:
+            gt_flow = stored[index].astype(float)
+    title = f"{recording.name}  frame {index}/{len(rec)}  t={rec.stamps_ns[index] / 1e9:.3f}s"
+    path = draw_maps(occ[0], vis[0], output, spec, title=title, flow=gt_flow)
+    typer.echo(f"wrote {path}")
+
+
+@app.command()
+def demo(
+    output: Annotated[Path, typer.Option("--output", "-o", help="Folder for the demo's outputs.")] = Path(
+        "demo_out"
+    ),
+) -> None:
+    """Run the main job on the bundled sample recording: convert it, summarise it, draw a frame,
+    and score the copy-last-map baseline (the number every model must beat)."""
+    from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
+    from lidarflow.evaluate.metrics import confusion
+    from lidarflow.scan import GridSpec
+    from lidarflow.viz.maps import draw_maps
+
+    output.mkdir(parents=True, exist_ok=True)
+    bag = sample_bag_path()
+    recording = _load(bag, SAMPLE_TOPIC)
+    rec_path = recording.save(output / "sample.npz")
+    summary = describe_recording(recording)
+    typer.echo(
+        f"sample: {bag.name} ({summary['scans']} scans, {summary['frame_rate_hz']} Hz, "
+        f"{summary['beams_per_scan']} beams) -> {rec_path}"
+    )
+    spec = GridSpec()
+    occ, vis = recording.maps(spec)
+    frame = len(recording) // 2
+    png = draw_maps(occ[frame], vis[frame], output / "maps.png", spec, title=f"{bag.name} frame {frame}")
+    warm = 10
+    counts = confusion(occ[warm:-1], occ[warm + 1 :])
+    changed = occ[warm:-1] != occ[warm + 1 :]
+    changed_counts = confusion(occ[warm:-1], occ[warm + 1 :], changed)
+    results = {
+        "recording": str(bag),
+        "frames_evaluated": int(len(recording) - 1 - warm),
+        "copy_last": {**counts.to_dict(), "changed_f1": changed_counts.f1},
+    }
+    (output / "results.json").write_text(json.dumps(results, indent=2))
+    typer.echo(f"maps of frame {frame}: {png}")
+    typer.echo(
+        f"copy-last-map baseline: F1 {counts.f1:.3f} (precision {counts.precision:.3f}, "
+        f"recall {counts.recall:.3f}), changed-cell F1 {changed_counts.f1:.3f}"
+    )
+    typer.echo(f"results: {output / 'results.json'}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script."""
+    debug = os.environ.get("LIDARFLOW_DEBUG") == "1"
+    try:
+        app(args=argv, prog_name="lidarflow", standalone_mode=True)
+    except LidarflowError as err:
+        if debug:
+            raise
+        typer.echo(f"lidarflow: error: {err}", err=True)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        typer.echo("lidarflow: interrupted", err=True)
+        sys.exit(130)
+    except Exception as err:  # a bug: still one line, with the way to the traceback
+        if debug:
+            raise
+        typer.echo(
+            f"lidarflow: internal error: {type(err).__name__}: {err} "
+            "(rerun with LIDARFLOW_DEBUG=1 for the traceback, and please report it)",
+            err=True,
+        )
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,249 @@
+"""Read LaserScan topics (and optional odometry) from ROS 1 bags, ROS 2 bags and MCAP files.
+
+Uses ``rosbags`` (pure Python, no ROS install). Accepted inputs: a ROS 1 ``.bag``, a zipped
+``.bag.zip`` (extracted to a temporary folder), a ROS 2 bag folder (sqlite3 or mcap storage), or
+a bare ``.mcap`` file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import tempfile
+import zipfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarflow.data.recording import Recording
+from lidarflow.errors import BagError, ScanError
+from lidarflow.scan import BeamGeometry, Scan
+
+__all__ = ["LASERSCAN", "POSE_TYPES", "TopicInfo", "list_topics", "open_bag", "read_bag"]
+
+LASERSCAN = "sensor_msgs/msg/LaserScan"
+POSE_TYPES = (
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+)
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    topic: str
+    msgtype: str
+    count: int
+
+
+def _is_bag_like(path: Path) -> bool:
+    name = path.name.lower()
+    return path.is_dir() or name.endswith((".bag", ".bag.zip", ".mcap", ".db3"))
+
+
+@contextlib.contextmanager
+def open_bag(path: str | Path) -> Iterator[Any]:
+    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``.
+
+    Raises :class:`BagError` for missing, unsupported or corrupt inputs.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"{path}: no such file or folder")
+    if not _is_bag_like(path):
+        raise BagError(
+            f"{path}: not a bag; expected a ROS 1 .bag (or .bag.zip), a ROS 2 bag folder, "
+            "or an .mcap file"
+        )
+    with contextlib.ExitStack() as stack:
+        target = path
+        if path.name.lower().endswith(".bag.zip"):
+            target = _extract_zipped_bag(path, Path(stack.enter_context(tempfile.TemporaryDirectory())))
+        elif path.suffix.lower() == ".db3":
+            target = path.parent  # a ROS 2 sqlite3 bag is read through its folder
+        ros1 = target.suffix.lower() == ".bag"
+        store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+        try:
+            reader = stack.enter_context(AnyReader([target], default_typestore=store))
+        except Exception as err:  # rosbags raises many types for damaged files
+            raise BagError(f"{path}: cannot open as a bag ({_why(err)}); is it complete?") from err
+        yield reader
+
+
+def _extract_zipped_bag(path: Path, folder: Path) -> Path:
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = [m for m in zf.namelist() if m.lower().endswith(".bag")]
+            if len(members) != 1:
+                raise BagError(f"{path}: expected exactly one .bag inside, found {len(members)}")
+            out = folder / Path(members[0]).name
+            with zf.open(members[0]) as src, out.open("wb") as dst:
+                while chunk := src.read(1 << 20):
+                    dst.write(chunk)
+    except (zipfile.BadZipFile, OSError, EOFError) as err:
+        raise BagError(f"{path}: corrupt zip archive ({err})") from err
+    return out
+
+
+def _why(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
+
+
+def list_topics(path: str | Path) -> list[TopicInfo]:
+    """Every topic of the bag with its message type and count."""
+    with open_bag(path) as reader:
+        counts: dict[tuple[str, str], int] = {}
+        for c in reader.connections:
+            key = (c.topic, c.msgtype)
+            counts[key] = counts.get(key, 0) + c.msgcount
+    return [TopicInfo(t, m, n) for (t, m), n in sorted(counts.items())]
+
+
+def _choose_topic(path: Path, reader: Any, topic: str | None) -> str:
+    scan_topics = sorted({c.topic for c in reader.connections if c.msgtype == LASERSCAN})
+    if topic is not None:
+        if topic in scan_topics:
+            return topic
+        others = {c.topic: c.msgtype for c in reader.connections}
+        if topic in others:
+            raise BagError(f"{path}: topic {topic} is {others[topic]}, not a LaserScan")
+        hint = f"scan topics here: {', '.join(scan_topics)}" if scan_topics else "it has none"
+        raise BagError(f"{path}: no topic {topic}; {hint}")
+    if not scan_topics:
+        raise BagError(f"{path}: no sensor_msgs/LaserScan topic in this bag")
+    if len(scan_topics) > 1:
+        raise BagError(
+            f"{path}: several LaserScan topics ({', '.join(scan_topics)}); pick one with --topic"
+        )
+    return scan_topics[0]
+
+
+def _choose_pose_topic(path: Path, reader: Any, odom_topic: str | None) -> str | None:
+    pose_topics = {c.topic: c.msgtype for c in reader.connections if c.msgtype in POSE_TYPES}
+    if odom_topic is None:
+        odometry = [t for t, m in pose_topics.items() if m == POSE_TYPES[0]]
+        return odometry[0] if len(odometry) == 1 else None
+    if odom_topic not in pose_topics:
+        hint = ", ".join(sorted(pose_topics)) or "none"
+        raise BagError(
+            f"{path}: no odometry/pose topic {odom_topic} (pose topics here: {hint})"
+        )
+    return odom_topic
+
+
+def _stamp_ns(msg: Any, fallback: int) -> int:
+    stamp = msg.header.stamp
+    ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return ns if ns > 0 else int(fallback)
+
+
+def _pose_of(msg: Any) -> tuple[float, float, float]:
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    q = pose.orientation
+    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return float(pose.position.x), float(pose.position.y), yaw
+
+
+def interpolate_poses(
+    stamps_ns: np.ndarray, pose_stamps_ns: np.ndarray, poses: np.ndarray
+) -> np.ndarray:
+    """Poses ``(x, y, yaw)`` at ``stamps_ns`` by linear interpolation (yaw unwrapped first);
+    NaN outside the span of the pose messages."""
+    out = np.full((len(stamps_ns), 3), np.nan)
+    if len(pose_stamps_ns) == 0:
+        return out
+    order = np.argsort(pose_stamps_ns, kind="stable")
+    t, p = pose_stamps_ns[order].astype(np.float64), poses[order]
+    inside = (stamps_ns >= t[0]) & (stamps_ns <= t[-1])
+    q = stamps_ns[inside].astype(np.float64)
+    yaw = np.unwrap(p[:, 2])
+    out[inside, 0] = np.interp(q, t, p[:, 0])
+    out[inside, 1] = np.interp(q, t, p[:, 1])
+    out[inside, 2] = (np.interp(q, t, yaw) + math.pi) % (2 * math.pi) - math.pi
+    return out
+
+
+def read_bag(
+    path: str | Path,
+    topic: str | None = None,
+    odom_topic: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> Recording:
+    """Read one LaserScan topic (and optionally the poses of an odometry topic) as a recording.
+
+    Args:
+        path: the bag (see module docstring for accepted kinds).
+        topic: the scan topic; may be omitted when the bag has exactly one.
+        odom_topic: an Odometry/PoseStamped topic; by default the bag's only
+            ``nav_msgs/Odometry`` topic, if it has exactly one. Poses are those of the odometry
+            frame's child (usually the robot base), interpolated at the scan stamps.
+        progress: called with the number of scans read since the last call.
+    """
+    path = Path(path)
+    with open_bag(path) as reader:
+        scan_topic = _choose_topic(path, reader, topic)
+        pose_topic = _choose_pose_topic(path, reader, odom_topic)
+        wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
+        scans: list[Scan] = []
+        pose_stamps: list[int] = []
+        pose_values: list[tuple[float, float, float]] = []
+        frame_id = ""
+        try:
+            for conn, log_time, raw in reader.messages(connections=wanted):
+                msg = reader.deserialize(raw, conn.msgtype)
+                if conn.topic == pose_topic:
+                    pose_stamps.append(_stamp_ns(msg, log_time))
+                    pose_values.append(_pose_of(msg))
+                    continue
+                frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
+                ranges = np.asarray(msg.ranges, dtype=np.float32)
+                if ranges.size == 0:
+                    continue  # an empty scan carries nothing; counted below
+                geometry = BeamGeometry(
+                    count=int(ranges.size),
+                    angle_min=float(msg.angle_min),
+                    angle_increment=float(msg.angle_increment),
+                    range_min=float(msg.range_min),
+                    range_max=float(msg.range_max),
+                )
+                scans.append(Scan(ranges, geometry, _stamp_ns(msg, log_time)))
+                if progress is not None:
+                    progress(1)
+        except ScanError as err:
+            raise BagError(f"{path}: topic {scan_topic}: malformed LaserScan ({err})") from err
+        except BagError:
+            raise
+        except Exception as err:  # truncated chunks, bad CDR, ... all end here
+            raise BagError(
+                f"{path}: cannot read messages on {scan_topic} ({_why(err)}); "
+                "the bag may be truncated or corrupt"
+            ) from err
+        total = sum(c.msgcount for c in reader.connections if c.topic == scan_topic)
+    if not scans:
+        raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
+    order = np.argsort([s.stamp_ns for s in scans], kind="stable")
+    scans = [scans[i] for i in order]
+    poses = None
+    if pose_topic is not None:
+        poses = interpolate_poses(
+            np.array([s.stamp_ns for s in scans]),
+            np.array(pose_stamps, dtype=np.int64),
+            np.array(pose_values, dtype=np.float64).reshape(-1, 3),
+        )
+    meta = {
+        "source": str(path),
+        "topic": scan_topic,
+        "frame_id": frame_id,
+        "pose_topic": pose_topic,
+        "empty_scans_dropped": int(total - len(scans)),
+    }
+    recording = Recording.from_scans(scans, poses=poses, meta=meta)
+    recording.meta["frame_rate_hz"] = round(recording.frame_rate, 3)
+    return recording

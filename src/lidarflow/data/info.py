@@ -1,0 +1,75 @@
+"""Summaries of a recording: what `lidarflow info` prints."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from lidarflow.data.recording import Recording
+from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, beam_status
+
+__all__ = ["describe_recording", "find_gaps"]
+
+
+def find_gaps(recording: Recording, max_gap_periods: float = 2.5) -> list[tuple[int, float]]:
+    """``(frame index after the gap, gap in seconds)`` for every gap longer than
+    ``max_gap_periods`` median frame periods (or a stamp that goes backwards)."""
+    if len(recording) < 2:
+        return []
+    dt = np.diff(recording.stamps_ns).astype(np.float64)
+    positive = dt[dt > 0]
+    if positive.size == 0:
+        return [(i + 1, float(d) / 1e9) for i, d in enumerate(dt)]
+    period = float(np.median(positive))
+    bad = (dt > max_gap_periods * period) | (dt <= 0)
+    return [(int(i) + 1, float(dt[i]) / 1e9) for i in np.nonzero(bad)[0]]
+
+
+def describe_recording(recording: Recording) -> dict[str, Any]:
+    """Scan count, duration, rate, field of view, range limits, beam statistics and gaps."""
+    n = len(recording)
+    status = np.concatenate(
+        [
+            beam_status(
+                recording.ranges[recording.offsets[a] : recording.offsets[b]],
+                float(recording.range_min[a]),
+                float(recording.range_max[a]),
+            )
+            for a, b in recording.geometry_runs()
+        ]
+    ) if n else np.zeros(0, np.uint8)
+    raw = recording.ranges
+    counts = np.diff(recording.offsets)
+    fov = np.abs(recording.angle_increment) * np.maximum(counts - 1, 0)
+    duration = float(recording.stamps_ns[-1] - recording.stamps_ns[0]) / 1e9 if n > 1 else 0.0
+    gaps = find_gaps(recording)
+    return {
+        "scans": n,
+        "duration_s": round(duration, 3),
+        "frame_rate_hz": round(recording.frame_rate, 3),
+        "beams_per_scan": sorted({int(c) for c in counts}),
+        "field_of_view_deg": sorted({round(math.degrees(float(f)), 2) for f in np.unique(fov)}),
+        "angle_min_deg": sorted({round(math.degrees(float(a)), 2) for a in np.unique(recording.angle_min)}),
+        "range_min_m": sorted({round(float(r), 3) for r in np.unique(recording.range_min)}),
+        "range_max_m": sorted({round(float(r), 3) for r in np.unique(recording.range_max)}),
+        "beams": {
+            "total": int(raw.size),
+            "returns": int(np.sum(status == RETURN)),
+            "no_return_inf_or_beyond_max": int(np.sum(status == NO_RETURN)),
+            "unknown": int(np.sum(status == UNKNOWN)),
+            "nan": int(np.isnan(raw).sum()),
+            "neg_inf": int(np.isneginf(raw).sum()),
+            "zero": int(np.sum(raw == 0)),
+            "below_range_min": int(
+                np.sum(status == UNKNOWN)
+                - np.isnan(raw).sum()
+                - np.isneginf(raw).sum()
+                - np.sum(raw == 0)
+            ),
+        },
+        "gaps": [{"before_frame": i, "seconds": round(s, 3)} for i, s in gaps],
+        "geometry_changes": len(recording.geometry_runs()) - 1 if n else 0,
+        "has_poses": recording.has_poses,
+    }

@@ -1,0 +1,262 @@
+"""The recording: raw scans with their beam geometry, stamps, optional poses, and metadata.
+
+A recording keeps the raw ranges rather than maps, so the grid can change later without
+re-reading the bag. Scans may change beam count mid-recording, so ranges are stored ragged (one
+flat array plus offsets). On disk it is a single ``.npz`` (NumPy, no pickle) with the metadata as
+JSON; extra per-frame arrays (the simulator's ground truth, for instance) travel in ``extras``.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import RecordingError, ScanError
+from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch
+
+__all__ = ["FORMAT_VERSION", "Recording", "load_recording"]
+
+FORMAT_VERSION = 1
+_EXTRA_PREFIX = "extra__"
+
+
+@dataclass
+class Recording:
+    """A sequence of 2-D LiDAR scans.
+
+    Attributes:
+        ranges: all ranges of all scans, concatenated (float32, metres).
+        offsets: ``(N + 1,)`` scan ``i`` is ``ranges[offsets[i]:offsets[i + 1]]``.
+        angle_min, angle_increment, range_min, range_max: ``(N,)`` per-scan beam geometry.
+        stamps_ns: ``(N,)`` integer nanoseconds.
+        poses: ``(N, 3)`` sensor pose ``(x, y, yaw)`` in a fixed frame, NaN where unknown,
+            or ``None`` when the recording has no odometry.
+        meta: JSON-serialisable metadata (source, topic, frame_id, ...).
+        extras: per-recording arrays carried along unchanged (e.g. ground truth).
+    """
+
+    ranges: np.ndarray
+    offsets: np.ndarray
+    angle_min: np.ndarray
+    angle_increment: np.ndarray
+    range_min: np.ndarray
+    range_max: np.ndarray
+    stamps_ns: np.ndarray
+    poses: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.stamps_ns)
+        if self.offsets.shape != (n + 1,):
+            raise RecordingError(f"offsets must be ({n + 1},), got {self.offsets.shape}")
+        for name in ("angle_min", "angle_increment", "range_min", "range_max"):
+            if getattr(self, name).shape != (n,):
+                raise RecordingError(f"{name} must be ({n},), got {getattr(self, name).shape}")
+        if self.poses is not None and self.poses.shape != (n, 3):
+            raise RecordingError(f"poses must be ({n}, 3), got {self.poses.shape}")
+        if n and (self.offsets[0] != 0 or self.offsets[-1] != len(self.ranges)):
+            raise RecordingError("offsets do not match the ranges array")
+        if np.any(np.diff(self.offsets) <= 0):
+            raise RecordingError("every scan must have at least one beam")
+
+    # ----------------------------------------------------------------- construction
+    @classmethod
+    def from_scans(
+        cls,
+        scans: Sequence[Scan],
+        poses: np.ndarray | None = None,
+        meta: dict[str, Any] | None = None,
+        extras: dict[str, np.ndarray] | None = None,
+    ) -> Recording:
+        """Build a recording from scans (in time order)."""
+        counts = np.array([s.geometry.count for s in scans], dtype=np.int64)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        ranges = (
+            np.concatenate([np.asarray(s.ranges, dtype=np.float32) for s in scans])
+            if scans
+            else np.zeros(0, np.float32)
+        )
+
+        def column(attr: str) -> np.ndarray:
+            return np.array([getattr(s.geometry, attr) for s in scans], dtype=np.float64)
+
+        return cls(
+            ranges=ranges,
+            offsets=offsets,
+            angle_min=column("angle_min"),
+            angle_increment=column("angle_increment"),
+            range_min=column("range_min"),
+            range_max=column("range_max"),
+            stamps_ns=np.array([s.stamp_ns for s in scans], dtype=np.int64),
+            poses=None if poses is None else np.asarray(poses, dtype=np.float64),
+            meta=dict(meta or {}),
+            extras=dict(extras or {}),
+        )
+
+    # ----------------------------------------------------------------- access
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    def geometry(self, i: int) -> BeamGeometry:
+        return BeamGeometry(
+            count=int(self.offsets[i + 1] - self.offsets[i]),
+            angle_min=float(self.angle_min[i]),
+            angle_increment=float(self.angle_increment[i]),
+            range_min=float(self.range_min[i]),
+            range_max=float(self.range_max[i]),
+        )
+
+    def scan(self, i: int) -> Scan:
+        if not -len(self) <= i < len(self):
+            raise RecordingError(f"frame {i} is out of range: the recording has {len(self)}")
+        i %= len(self)
+        return Scan(
+            self.ranges[self.offsets[i] : self.offsets[i + 1]],
+            self.geometry(i),
+            int(self.stamps_ns[i]),
+        )
+
+    def __iter__(self) -> Iterator[Scan]:
+        for i in range(len(self)):
+            yield self.scan(i)
+
+    def geometry_runs(self) -> list[tuple[int, int]]:
+        """Half-open ``(start, stop)`` frame ranges over which the beam geometry is constant."""
+        n = len(self)
+        if n == 0:
+            return []
+        counts = np.diff(self.offsets)
+        keys = np.stack(
+            [counts, self.angle_min, self.angle_increment, self.range_min, self.range_max], 1
+        )
+        change = np.any(keys[1:] != keys[:-1], axis=1)
+        starts = np.concatenate([[0], np.nonzero(change)[0] + 1])
+        stops = np.concatenate([starts[1:], [n]])
+        return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
+
+    @property
+    def frame_rate(self) -> float:
+        """Median frame rate in Hz (0 when it cannot be told)."""
+        if len(self) < 2:
+            return 0.0
+        dt = np.diff(self.stamps_ns)
+        dt = dt[dt > 0]
+        return float(1e9 / np.median(dt)) if dt.size else 0.0
+
+    @property
+    def has_poses(self) -> bool:
+        return self.poses is not None and bool(np.isfinite(self.poses).all(axis=1).any())
+
+    def maps(
+        self, grid: GridSpec | None = None, start: int = 0, stop: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Rasterize frames ``[start, stop)`` into boolean ``(occupancy, visibility)``, each
+        ``(n, H, W)``; frames sharing a geometry are rasterized as one batch."""
+        grid = grid or GridSpec()
+        stop = len(self) if stop is None else min(stop, len(self))
+        n = max(stop - start, 0)
+        occ = np.zeros((n, *grid.shape), dtype=bool)
+        vis = np.zeros((n, *grid.shape), dtype=bool)
+        for a, b in self.geometry_runs():
+            a, b = max(a, start), min(b, stop)
+            if a >= b:
+                continue
+            geom = self.geometry(a)
+            block = self.ranges[self.offsets[a] : self.offsets[b]].reshape(b - a, geom.count)
+            try:
+                occ[a - start : b - start], vis[a - start : b - start] = rasterize_batch(
+                    block, geom, grid
+                )
+            except ScanError as err:
+                raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
+        return occ, vis
+
+    def slice(self, start: int, stop: int) -> Recording:
+        """Frames ``[start, stop)`` as a new recording (per-frame extras are sliced too)."""
+        a, b = int(self.offsets[start]), int(self.offsets[stop])
+        n = len(self)
+        extras = {
+            k: (v[start:stop] if v.ndim and v.shape[0] == n else v) for k, v in self.extras.items()
+        }
+        return Recording(
+            ranges=self.ranges[a:b],
+            offsets=self.offsets[start : stop + 1] - a,
+            angle_min=self.angle_min[start:stop],
+            angle_increment=self.angle_increment[start:stop],
+            range_min=self.range_min[start:stop],
+            range_max=self.range_max[start:stop],
+            stamps_ns=self.stamps_ns[start:stop],
+            poses=None if self.poses is None else self.poses[start:stop],
+            meta={**self.meta, "sliced_from": [start, stop]},
+            extras=extras,
+        )
+
+    # ----------------------------------------------------------------- persistence
+    def save(self, path: str | Path) -> Path:
+        """Write the recording to ``path`` (``.npz`` is appended when missing)."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays: dict[str, np.ndarray] = {
+            "ranges": self.ranges.astype(np.float32),
+            "offsets": self.offsets,
+            "angle_min": self.angle_min,
+            "angle_increment": self.angle_increment,
+            "range_min": self.range_min,
+            "range_max": self.range_max,
+            "stamps_ns": self.stamps_ns,
+            "meta_json": np.frombuffer(
+                json.dumps({**self.meta, "format_version": FORMAT_VERSION}).encode(), np.uint8
+            ),
+        }
+        if self.poses is not None:
+            arrays["poses"] = self.poses
+        for key, value in self.extras.items():
+            arrays[_EXTRA_PREFIX + key] = value
+        np.savez_compressed(path, **arrays)
+        return path
+
+
+def load_recording(path: str | Path) -> Recording:
+    """Read a recording written by :meth:`Recording.save`."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
+        raise RecordingError(f"{path}: not a readable lidarflow recording ({err})") from err
+    required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
+    missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]
+    if missing:
+        raise RecordingError(f"{path}: not a lidarflow recording (missing {', '.join(missing)})")
+    try:
+        meta = json.loads(bytes(data["meta_json"]).decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RecordingError(f"{path}: corrupt metadata ({err})") from err
+    if meta.get("format_version", 0) > FORMAT_VERSION:
+        raise RecordingError(
+            f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
+        )
+    extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
+    return Recording(
+        ranges=data["ranges"],
+        offsets=data["offsets"].astype(np.int64),
+        angle_min=data["angle_min"],
+        angle_increment=data["angle_increment"],
+        range_min=data["range_min"],
+        range_max=data["range_max"],
+        stamps_ns=data["stamps_ns"].astype(np.int64),
+        poses=data.get("poses"),
+        meta=meta,
+        extras=extras,
+    )

@@ -1,0 +1,111 @@
+"""Training sequences: fixed-length windows of consecutive, evenly spaced frames.
+
+A recording is first cut into *segments* at time gaps longer than ``max_gap_periods`` frame
+periods and wherever the sensor (beam geometry) changes; windows never cross a segment border.
+Frames that fit in no window are reported as dropped, never silently lost.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidarflow.data.info import find_gaps
+from lidarflow.data.recording import Recording
+from lidarflow.errors import RecordingError
+from lidarflow.scan import GridSpec
+
+__all__ = ["SequenceReport", "SequenceSet", "split_segments", "window_starts"]
+
+
+def split_segments(recording: Recording, max_gap_periods: float = 2.5) -> list[tuple[int, int]]:
+    """Half-open ``(start, stop)`` frame ranges with no long gap and one beam geometry."""
+    cuts = {0, len(recording)}
+    cuts.update(i for i, _ in find_gaps(recording, max_gap_periods))
+    cuts.update(a for a, _ in recording.geometry_runs())
+    edges = sorted(cuts)
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+
+
+def window_starts(start: int, stop: int, length: int, stride: int) -> list[int]:
+    """Start frames of the windows of ``length`` frames inside ``[start, stop)``."""
+    return list(range(start, stop - length + 1, stride))
+
+
+@dataclass
+class SequenceReport:
+    """What happened to every frame of every recording when windows were cut."""
+
+    recordings: int = 0
+    frames: int = 0
+    segments: int = 0
+    windows: int = 0
+    frames_used: int = 0
+    frames_dropped: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        return (
+            f"{self.windows} sequences from {self.recordings} recordings "
+            f"({self.frames} frames in {self.segments} segments; "
+            f"{self.frames_dropped} frames dropped)"
+        )
+
+
+class SequenceSet:
+    """Windows of ``length`` frames over one or many recordings, rasterized once up front.
+
+    ``set[i]`` is a ``(length, 2, H, W)`` float32 array: channel 0 occupancy, 1 visibility.
+    """
+
+    def __init__(
+        self,
+        recordings: Sequence[Recording],
+        length: int = 20,
+        stride: int | None = None,
+        grid: GridSpec | None = None,
+        max_gap_periods: float = 2.5,
+    ) -> None:
+        if length < 2:
+            raise RecordingError(f"a sequence needs at least 2 frames, got length={length}")
+        self.length = length
+        self.stride = stride or length
+        self.grid = grid or GridSpec()
+        self.maps: list[np.ndarray] = []
+        self.index: list[tuple[int, int]] = []
+        report = SequenceReport(recordings=len(recordings))
+        for rec_id, recording in enumerate(recordings):
+            occ, vis = recording.maps(self.grid)
+            self.maps.append(np.stack([occ, vis], axis=1))  # (N, 2, H, W) bool: 8x smaller
+            report.frames += len(recording)
+            used = np.zeros(len(recording), dtype=bool)
+            for a, b in split_segments(recording, max_gap_periods):
+                report.segments += 1
+                starts = window_starts(a, b, length, self.stride)
+                if not starts:
+                    name = recording.meta.get("source", f"recording {rec_id}")
+                    report.notes.append(
+                        f"{name}: frames {a}..{b - 1} ({b - a}) shorter than a sequence"
+                    )
+                for s in starts:
+                    self.index.append((rec_id, s))
+                    used[s : s + length] = True
+            report.frames_used += int(used.sum())
+        report.windows = len(self.index)
+        report.frames_dropped = report.frames - report.frames_used
+        self.report = report
+        if not self.index:
+            raise RecordingError(
+                f"no sequence of {length} frames fits in the given recordings "
+                f"({report.frames} frames in {report.segments} segments); "
+                "use longer recordings or a shorter --seq-len"
+            )
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        rec_id, start = self.index[i]
+        return self.maps[rec_id][start : start + self.length].astype(np.float32)

@@ -1,0 +1,37 @@
+"""One entry point for every input a command accepts: a recording ``.npz`` or any bag."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from lidarflow.data.bags import read_bag
+from lidarflow.data.recording import Recording, load_recording
+from lidarflow.errors import BagError, RecordingError
+
+__all__ = ["is_recording_file", "load_any"]
+
+
+def is_recording_file(path: str | Path) -> bool:
+    return Path(path).suffix.lower() == ".npz"
+
+
+def load_any(
+    path: str | Path,
+    topic: str | None = None,
+    odom_topic: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> Recording:
+    """Load a recording, converting a bag/MCAP on the fly.
+
+    ``topic`` and ``odom_topic`` only apply to bags; naming them for a recording is an error
+    rather than being silently ignored.
+    """
+    path = Path(path)
+    if is_recording_file(path):
+        if topic is not None or odom_topic is not None:
+            raise RecordingError(f"{path}: --topic/--odom-topic apply to bags, not recordings")
+        return load_recording(path)
+    if not path.exists():
+        raise BagError(f"{path}: no such file or folder")
+    return read_bag(path, topic=topic, odom_topic=odom_topic, progress=progress)

@@ -1,0 +1,237 @@
+"""LaserScan -> occupancy and visibility maps (design notes, section 2).
+
+Grid convention (sensor frame, REP 103: x forward, y left): cell ``(r, c)`` has its centre at
+``x = (H - r - 0.5) * res``, ``y = (W / 2 - c - 0.5) * res``; row 0 is the far edge, column 0
+the left edge, and the sensor sits at the middle of the bottom edge.
+
+Beam validity: a finite ``rho`` with ``range_min <= rho <= range_max`` is a *return*; ``+inf``
+or ``rho > range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
+or ``rho < range_min`` are *unknown* (the beam says nothing).
+
+Visibility: a cell is visible when the beam nearest to the bearing of its centre exists and
+either returned beyond the centre's distance, or had no return and the centre lies within
+``range_max``. Occupied cells are always visible.
+
+Everything here is pure NumPy. The per-cell beam lookup depends only on the grid and the beam
+geometry, so it is computed once per geometry and cached; a scan then costs one gather and one
+comparison per cell, which is what makes batch rasterization fast.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from lidarflow.errors import ScanError
+
+__all__ = [
+    "BeamGeometry",
+    "GridSpec",
+    "Scan",
+    "beam_status",
+    "cell_centres",
+    "rasterize",
+    "rasterize_batch",
+]
+
+# Beam status codes (see beam_status).
+UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """The map grid: ``height`` rows along x (forward), ``width`` columns along y, cell ``res`` m.
+
+    The defaults are the paper's: 100 x 100 cells of 0.1 m.
+    """
+
+    height: int = 100
+    width: int = 100
+    res: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.height <= 0 or self.width <= 0:
+            raise ScanError(f"grid must have positive size, got {self.height} x {self.width}")
+        if not (self.res > 0 and math.isfinite(self.res)):
+            raise ScanError(f"grid resolution must be a positive number of metres, got {self.res}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.height, self.width)
+
+    def to_dict(self) -> dict[str, float | int]:
+        return {"height": self.height, "width": self.width, "res": self.res}
+
+
+@dataclass(frozen=True)
+class BeamGeometry:
+    """Where the beams of a scan point: ``count`` beams from ``angle_min`` in steps of
+    ``angle_increment`` radians (which may be negative), valid returns in
+    ``[range_min, range_max]`` metres."""
+
+    count: int
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+
+    def __post_init__(self) -> None:
+        if self.count <= 0:
+            raise ScanError(f"a scan needs at least one beam, got {self.count}")
+        values = (self.angle_min, self.angle_increment, self.range_min, self.range_max)
+        if not all(math.isfinite(v) for v in values):
+            raise ScanError(f"beam geometry must be finite, got {self}")
+        if self.angle_increment == 0 and self.count > 1:
+            raise ScanError("angle_increment is 0 but the scan has more than one beam")
+        if self.range_max <= 0 or self.range_min < 0 or self.range_min > self.range_max:
+            raise ScanError(
+                f"range limits must satisfy 0 <= range_min <= range_max, 0 < range_max; "
+                f"got range_min={self.range_min}, range_max={self.range_max}"
+            )
+
+    @property
+    def angles(self) -> np.ndarray:
+        return self.angle_min + self.angle_increment * np.arange(self.count, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One LaserScan: ranges in metres, its beam geometry, a stamp in integer nanoseconds."""
+
+    ranges: np.ndarray
+    geometry: BeamGeometry
+    stamp_ns: int = 0
+
+    def __post_init__(self) -> None:
+        if self.ranges.ndim != 1 or self.ranges.shape[0] != self.geometry.count:
+            raise ScanError(
+                f"ranges must be a 1-D array of {self.geometry.count} beams, "
+                f"got shape {tuple(self.ranges.shape)}"
+            )
+
+
+def cell_centres(grid: GridSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(x, y)`` of every cell centre in metres, each of shape ``(H, W)``.
+
+    >>> x, y = cell_centres(GridSpec(2, 2, 1.0))
+    >>> x.tolist(), y.tolist()
+    ([[1.5, 1.5], [0.5, 0.5]], [[0.5, -0.5], [0.5, -0.5]])
+    """
+    rows = np.arange(grid.height, dtype=np.float64)[:, None]
+    cols = np.arange(grid.width, dtype=np.float64)[None, :]
+    x = (grid.height - rows - 0.5) * grid.res
+    y = (grid.width / 2 - cols - 0.5) * grid.res
+    return np.broadcast_to(x, grid.shape).copy(), np.broadcast_to(y, grid.shape).copy()
+
+
+def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """Classify each beam as ``UNKNOWN`` (0), ``RETURN`` (1) or ``NO_RETURN`` (2).
+
+    >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0]), 0.1, 10.0).tolist()
+    [1, 2, 0, 0, 2]
+    """
+    r = np.asarray(ranges)
+    status = np.zeros(r.shape, dtype=np.uint8)
+    with np.errstate(invalid="ignore"):
+        status[(r >= range_min) & (r <= range_max)] = RETURN
+        status[r > range_max] = NO_RETURN  # +inf included; NaN compares False
+    return status
+
+
+@lru_cache(maxsize=64)
+def _cell_lookup(grid: GridSpec, geometry: BeamGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """For every cell: the index of the beam nearest its centre's bearing (``count`` when no
+    beam covers it) and the centre's distance from the sensor, both flattened to ``H*W``."""
+    x, y = cell_centres(grid)
+    bearing = np.arctan2(y, x).ravel()
+    dist = np.hypot(x, y).ravel()
+    # A lone beam with no increment is given a 0.1-degree width rather than the whole circle.
+    step = abs(geometry.angle_increment) or math.radians(0.1)
+    sign = 1.0 if geometry.angle_increment >= 0 else -1.0
+    # Offset along the sweep direction, shifted by half a step so that floor() picks the nearest
+    # beam, and wrapped so that 360-degree scans cover the seam.
+    offset = np.mod(sign * (bearing - geometry.angle_min) + step / 2, 2 * math.pi)
+    index = np.floor(offset / step).astype(np.int64)
+    index[(index < 0) | (index >= geometry.count)] = geometry.count
+    index.setflags(write=False)
+    dist.setflags(write=False)
+    return index, dist
+
+
+@lru_cache(maxsize=64)
+def _beam_directions(geometry: BeamGeometry) -> tuple[np.ndarray, np.ndarray]:
+    angles = geometry.angles
+    cos, sin = np.cos(angles), np.sin(angles)
+    cos.setflags(write=False)
+    sin.setflags(write=False)
+    return cos, sin
+
+
+def _check_ranges(ranges: np.ndarray, geometry: BeamGeometry) -> np.ndarray:
+    r = np.asarray(ranges)
+    if r.ndim != 2 or r.shape[1] != geometry.count:
+        raise ScanError(
+            f"ranges must be (N, {geometry.count}) for this beam geometry, got {tuple(r.shape)}"
+        )
+    if not np.issubdtype(r.dtype, np.floating):
+        r = r.astype(np.float64)
+    return r
+
+
+def rasterize_batch(
+    ranges: np.ndarray, geometry: BeamGeometry, grid: GridSpec | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rasterize ``N`` scans that share one beam geometry.
+
+    Args:
+        ranges: ``(N, geometry.count)`` ranges in metres (any float dtype; NaN/inf allowed).
+        geometry: the beams' angles and range limits.
+        grid: the map grid (default: the paper's 100 x 100 at 0.1 m).
+
+    Returns:
+        ``(occupancy, visibility)``, each a boolean array ``(N, H, W)``.
+
+    >>> g = BeamGeometry(3, -0.1, 0.1, 0.05, 10.0)
+    >>> occ, vis = rasterize_batch(np.array([[5.0, 5.0, 5.0]]), g, GridSpec(100, 100, 0.1))
+    >>> bool(occ[0, 50, 50]), bool(vis[0, 60, 50]), bool(vis[0, 40, 50])
+    (True, True, False)
+    """
+    grid = grid or GridSpec()
+    r = _check_ranges(ranges, geometry)
+    n = r.shape[0]
+    height, width = grid.shape
+    index, dist = _cell_lookup(grid, geometry)
+
+    status = beam_status(r, geometry.range_min, geometry.range_max)
+    # "Visible iff the centre is nearer than the beam's reach": a return reaches rho (strict), a
+    # no-return reaches range_max (inclusive, hence nextafter), an unknown beam reaches nowhere.
+    reach = np.full((n, geometry.count + 1), -1.0, dtype=np.float64)
+    body = reach[:, : geometry.count]
+    ret = status == RETURN
+    body[ret] = r[ret]
+    body[status == NO_RETURN] = np.nextafter(geometry.range_max, math.inf)
+    visibility = (dist[None, :] < reach[:, index]).reshape(n, height, width)
+
+    occupancy = np.zeros((n, height * width), dtype=bool)
+    scan_idx, beam_idx = np.nonzero(ret)
+    if scan_idx.size:
+        cos, sin = _beam_directions(geometry)
+        rho = r[scan_idx, beam_idx].astype(np.float64)
+        px = rho * cos[beam_idx]
+        py = rho * sin[beam_idx]
+        row = np.floor(height - px / grid.res).astype(np.int64)
+        col = np.floor(width / 2 - py / grid.res).astype(np.int64)
+        inside = (row >= 0) & (row < height) & (col >= 0) & (col < width)
+        occupancy[scan_idx[inside], row[inside] * width + col[inside]] = True
+    occupancy = occupancy.reshape(n, height, width)
+    visibility |= occupancy
+    return occupancy, visibility
+
+
+def rasterize(scan: Scan, grid: GridSpec | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rasterize one scan into ``(occupancy, visibility)`` boolean maps of shape ``(H, W)``."""
+    occ, vis = rasterize_batch(scan.ranges[None, :], scan.geometry, grid)
+    return occ[0], vis[0]
