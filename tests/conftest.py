@@ -21,7 +21,9 @@ def make_recording(
     geom = BeamGeometry(beams, -np.pi / 2, np.pi / (beams - 1), 0.05, 8.0)
     scans = []
     for i in range(n):
-        ranges = np.full(beams, 4.0, dtype=np.float32) + rng.normal(0, 0.01, beams).astype(np.float32)
+        ranges = np.full(beams, 4.0, dtype=np.float32) + rng.normal(0, 0.01, beams).astype(
+            np.float32
+        )
         ranges[rng.integers(0, beams, 5)] = np.inf
         ranges[rng.integers(0, beams, 3)] = np.nan
         scans.append(Scan(ranges, geom, int(1_000_000_000 + i * 1e9 / rate_hz)))

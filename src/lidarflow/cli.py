@@ -60,7 +60,9 @@ def _load(path: Path, topic: str | None = None, odom_topic: str | None = None) -
 
 @app.command()
 def convert(
-    input: Annotated[Path, typer.Argument(help="Bag (.bag, .bag.zip), ROS 2 bag folder or .mcap.")],
+    input: Annotated[
+        Path, typer.Argument(help="Bag (.bag, .bag.zip), ROS 2 bag folder or .mcap.")
+    ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Recording to write (.npz).")],
     topic: TopicOpt = None,
     odom_topic: OdomOpt = None,
@@ -100,7 +102,9 @@ def info(
     report: dict[str, Any] = {"path": str(input)}
     if not is_recording_file(input):
         topics = list_topics(input)
-        report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
+        report["topics"] = [
+            {"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics
+        ]
         scan_topics = [t.topic for t in topics if t.msgtype.endswith("LaserScan")]
         if topic is None and len(scan_topics) != 1:
             report["scan_topics"] = scan_topics
@@ -126,7 +130,9 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
         elif key == "beams":
             typer.echo("beams: " + ", ".join(f"{k}={v}" for k, v in value.items()))
         elif key == "gaps":
-            shown = ", ".join(f"{g['seconds']}s before frame {g['before_frame']}" for g in value[:10])
+            shown = ", ".join(
+                f"{g['seconds']}s before frame {g['before_frame']}" for g in value[:10]
+            )
             more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
             typer.echo(f"gaps: {len(value)}" + (f": {shown}{more}" if value else ""))
         else:
@@ -136,13 +142,18 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
 @app.command()
 def show(
     recording: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP.")],
-    frame: Annotated[int, typer.Option("--frame", "-f", help="Frame index (negative counts from the end).")] = 0,
-    output: Annotated[Path, typer.Option("--output", "-o", help="PNG to write.")] = Path("maps.png"),
+    frame: Annotated[
+        int, typer.Option("--frame", "-f", help="Frame index (negative counts from the end).")
+    ] = 0,
+    output: Annotated[Path, typer.Option("--output", "-o", help="PNG to write.")] = Path(
+        "maps.png"
+    ),
     topic: TopicOpt = None,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     flow: Annotated[
-        bool, typer.Option("--flow/--no-flow", help="Overlay ground-truth flow when the recording has it.")
+        bool,
+        typer.Option("--flow/--no-flow", help="Overlay ground-truth flow if the recording has it."),
     ] = True,
 ) -> None:
     """Draw the occupancy and visibility maps of one frame (sensor at the bottom middle)."""
@@ -168,9 +179,9 @@ def show(
 
 @app.command()
 def demo(
-    output: Annotated[Path, typer.Option("--output", "-o", help="Folder for the demo's outputs.")] = Path(
-        "demo_out"
-    ),
+    output: Annotated[
+        Path, typer.Option("--output", "-o", help="Folder for the demo's outputs.")
+    ] = Path("demo_out"),
 ) -> None:
     """Run the main job on the bundled sample recording: convert it, summarise it, draw a frame,
     and score the copy-last-map baseline (the number every model must beat)."""
@@ -191,7 +202,9 @@ def demo(
     spec = GridSpec()
     occ, vis = recording.maps(spec)
     frame = len(recording) // 2
-    png = draw_maps(occ[frame], vis[frame], output / "maps.png", spec, title=f"{bag.name} frame {frame}")
+    png = draw_maps(
+        occ[frame], vis[frame], output / "maps.png", spec, title=f"{bag.name} frame {frame}"
+    )
     warm = 10
     counts = confusion(occ[warm:-1], occ[warm + 1 :])
     changed = occ[warm:-1] != occ[warm + 1 :]

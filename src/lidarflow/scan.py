@@ -187,7 +187,8 @@ def rasterize_batch(
     """Rasterize ``N`` scans that share one beam geometry.
 
     Args:
-        ranges: ``(N, geometry.count)`` ranges in metres (any float dtype; NaN/inf allowed).
+        ranges: ``(N, geometry.count)`` ranges in metres (float32 or float64; NaN/inf allowed).
+            Comparisons run in this dtype.
         geometry: the beams' angles and range limits.
         grid: the map grid (default: the paper's 100 x 100 at 0.1 m).
 
@@ -202,33 +203,49 @@ def rasterize_batch(
     grid = grid or GridSpec()
     r = _check_ranges(ranges, geometry)
     n = r.shape[0]
+    occupancy = np.empty((n, *grid.shape), dtype=bool)
+    visibility = np.empty((n, *grid.shape), dtype=bool)
+    # Chunks keep the per-cell temporaries in cache; larger batches only cost memory traffic.
+    for a in range(0, n, _CHUNK):
+        b = min(a + _CHUNK, n)
+        occupancy[a:b], visibility[a:b] = _rasterize_chunk(r[a:b], geometry, grid)
+    return occupancy, visibility
+
+
+_CHUNK = 64
+
+
+def _rasterize_chunk(
+    r: np.ndarray, geometry: BeamGeometry, grid: GridSpec
+) -> tuple[np.ndarray, np.ndarray]:
+    n = r.shape[0]
     height, width = grid.shape
     index, dist = _cell_lookup(grid, geometry)
-
-    status = beam_status(r, geometry.range_min, geometry.range_max)
+    dtype = r.dtype
+    with np.errstate(invalid="ignore"):
+        is_return = (r >= geometry.range_min) & (r <= geometry.range_max)
+        beyond = r > geometry.range_max  # +inf included; NaN compares False
     # "Visible iff the centre is nearer than the beam's reach": a return reaches rho (strict), a
-    # no-return reaches range_max (inclusive, hence nextafter), an unknown beam reaches nowhere.
-    reach = np.full((n, geometry.count + 1), -1.0, dtype=np.float64)
-    body = reach[:, : geometry.count]
-    ret = status == RETURN
-    body[ret] = r[ret]
-    body[status == NO_RETURN] = np.nextafter(geometry.range_max, math.inf)
-    visibility = (dist[None, :] < reach[:, index]).reshape(n, height, width)
+    # no-return reaches range_max (inclusive, hence nextafter), an unknown beam reaches nowhere,
+    # and the extra last column is the "no beam covers this cell" sentinel.
+    reach = np.full((n, geometry.count + 1), -1.0, dtype=dtype)
+    no_return_reach = np.nextafter(dtype.type(geometry.range_max), dtype.type(math.inf))
+    reach[:, :-1] = np.where(is_return, r, np.where(beyond, no_return_reach, dtype.type(-1.0)))
+    visibility = dist.astype(dtype, copy=False)[None, :] < reach[:, index]
 
-    occupancy = np.zeros((n, height * width), dtype=bool)
-    scan_idx, beam_idx = np.nonzero(ret)
-    if scan_idx.size:
-        cos, sin = _beam_directions(geometry)
-        rho = r[scan_idx, beam_idx].astype(np.float64)
-        px = rho * cos[beam_idx]
-        py = rho * sin[beam_idx]
-        row = np.floor(height - px / grid.res).astype(np.int64)
-        col = np.floor(width / 2 - py / grid.res).astype(np.int64)
-        inside = (row >= 0) & (row < height) & (col >= 0) & (col < width)
-        occupancy[scan_idx[inside], row[inside] * width + col[inside]] = True
-    occupancy = occupancy.reshape(n, height, width)
+    # Occupancy in float64 whatever the input, so a point lands in the cell that contains it.
+    cos, sin = _beam_directions(geometry)
+    rho = np.where(is_return, r, 0.0).astype(np.float64)
+    row = np.floor(height - rho * cos / grid.res)
+    col = np.floor(width / 2 - rho * sin / grid.res)
+    inside = is_return & (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    flat = (row * width + col)[inside].astype(np.int64)
+    flat += np.nonzero(inside)[0] * (height * width)
+    occupancy = np.zeros(n * height * width, dtype=bool)
+    occupancy[flat] = True
+    occupancy = occupancy.reshape(n, height * width)
     visibility |= occupancy
-    return occupancy, visibility
+    return occupancy.reshape(n, height, width), visibility.reshape(n, height, width)
 
 
 def rasterize(scan: Scan, grid: GridSpec | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -64,7 +64,9 @@ def open_bag(path: str | Path) -> Iterator[Any]:
     with contextlib.ExitStack() as stack:
         target = path
         if path.name.lower().endswith(".bag.zip"):
-            target = _extract_zipped_bag(path, Path(stack.enter_context(tempfile.TemporaryDirectory())))
+            target = _extract_zipped_bag(
+                path, Path(stack.enter_context(tempfile.TemporaryDirectory()))
+            )
         elif path.suffix.lower() == ".db3":
             target = path.parent  # a ROS 2 sqlite3 bag is read through its folder
         ros1 = target.suffix.lower() == ".bag"
@@ -132,9 +134,7 @@ def _choose_pose_topic(path: Path, reader: Any, odom_topic: str | None) -> str |
         return odometry[0] if len(odometry) == 1 else None
     if odom_topic not in pose_topics:
         hint = ", ".join(sorted(pose_topics)) or "none"
-        raise BagError(
-            f"{path}: no odometry/pose topic {odom_topic} (pose topics here: {hint})"
-        )
+        raise BagError(f"{path}: no odometry/pose topic {odom_topic} (pose topics here: {hint})")
     return odom_topic
 
 

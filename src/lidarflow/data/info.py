@@ -30,16 +30,20 @@ def find_gaps(recording: Recording, max_gap_periods: float = 2.5) -> list[tuple[
 def describe_recording(recording: Recording) -> dict[str, Any]:
     """Scan count, duration, rate, field of view, range limits, beam statistics and gaps."""
     n = len(recording)
-    status = np.concatenate(
-        [
-            beam_status(
-                recording.ranges[recording.offsets[a] : recording.offsets[b]],
-                float(recording.range_min[a]),
-                float(recording.range_max[a]),
-            )
-            for a, b in recording.geometry_runs()
-        ]
-    ) if n else np.zeros(0, np.uint8)
+    status = (
+        np.concatenate(
+            [
+                beam_status(
+                    recording.ranges[recording.offsets[a] : recording.offsets[b]],
+                    float(recording.range_min[a]),
+                    float(recording.range_max[a]),
+                )
+                for a, b in recording.geometry_runs()
+            ]
+        )
+        if n
+        else np.zeros(0, np.uint8)
+    )
     raw = recording.ranges
     counts = np.diff(recording.offsets)
     fov = np.abs(recording.angle_increment) * np.maximum(counts - 1, 0)
@@ -51,7 +55,9 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         "frame_rate_hz": round(recording.frame_rate, 3),
         "beams_per_scan": sorted({int(c) for c in counts}),
         "field_of_view_deg": sorted({round(math.degrees(float(f)), 2) for f in np.unique(fov)}),
-        "angle_min_deg": sorted({round(math.degrees(float(a)), 2) for a in np.unique(recording.angle_min)}),
+        "angle_min_deg": sorted(
+            {round(math.degrees(float(a)), 2) for a in np.unique(recording.angle_min)}
+        ),
         "range_min_m": sorted({round(float(r), 3) for r in np.unique(recording.range_min)}),
         "range_max_m": sorted({round(float(r), 3) for r in np.unique(recording.range_max)}),
         "beams": {

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -26,7 +27,7 @@ def split_segments(recording: Recording, max_gap_periods: float = 2.5) -> list[t
     cuts.update(i for i, _ in find_gaps(recording, max_gap_periods))
     cuts.update(a for a, _ in recording.geometry_runs())
     edges = sorted(cuts)
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+    return [(a, b) for a, b in pairwise(edges) if b > a]
 
 
 def window_starts(start: int, stop: int, length: int, stride: int) -> list[int]:

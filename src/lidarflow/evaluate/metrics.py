@@ -52,9 +52,7 @@ class Counts:
         }
 
 
-def confusion(
-    predicted: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None
-) -> Counts:
+def confusion(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> Counts:
     """Counts of a boolean prediction against a boolean target, optionally within ``mask``.
 
     >>> confusion(np.array([1, 1, 0], bool), np.array([1, 0, 1], bool))

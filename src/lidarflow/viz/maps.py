@@ -36,7 +36,9 @@ def draw_maps(
     grid = grid or GridSpec(*occupancy.shape)
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.4), constrained_layout=True)
     extent = _extent(grid)
-    for ax, image, name in zip(axes, (occupancy, visibility), ("occupancy", "visibility"), strict=True):
+    for ax, image, name in zip(
+        axes, (occupancy, visibility), ("occupancy", "visibility"), strict=True
+    ):
         ax.imshow(image, cmap="gray_r", vmin=0, vmax=1, extent=extent, interpolation="nearest")
         ax.plot([0], [0], marker="^", color="tab:red", markersize=10, clip_on=False)
         ax.set_title(name)
@@ -48,8 +50,15 @@ def draw_maps(
         y = (grid.width / 2 - cols - 0.5) * grid.res
         # A flow of +1 column moves towards smaller y; +1 row towards smaller x.
         axes[0].quiver(
-            y, x, -flow[0, rows, cols] * grid.res, -flow[1, rows, cols] * grid.res,
-            color="tab:blue", angles="xy", scale_units="xy", scale=1, width=0.004,
+            y,
+            x,
+            -flow[0, rows, cols] * grid.res,
+            -flow[1, rows, cols] * grid.res,
+            color="tab:blue",
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            width=0.004,
         )
     if title:
         fig.suptitle(title)

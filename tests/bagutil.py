@@ -1,0 +1,112 @@
+"""Write small real bags (ROS 1, ROS 2 sqlite3/mcap) with rosbags, for tests."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+
+
+def _header(ts, stamp_ns: int, frame: str):
+    Header = ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    if "seq" in Header.__dataclass_fields__:  # ROS 1 headers carry a sequence number
+        return Header(seq=0, stamp=stamp, frame_id=frame)
+    return Header(stamp=stamp, frame_id=frame)
+
+
+def _scan_msg(ts, ranges: np.ndarray, stamp_ns: int, frame: str = "laser", inc: float = 0.01):
+    LaserScan = ts.types["sensor_msgs/msg/LaserScan"]
+    n = len(ranges)
+    return LaserScan(
+        header=_header(ts, stamp_ns, frame),
+        angle_min=-inc * (n - 1) / 2,
+        angle_max=inc * (n - 1) / 2,
+        angle_increment=inc,
+        time_increment=0.0,
+        scan_time=0.1,
+        range_min=0.05,
+        range_max=8.0,
+        ranges=np.asarray(ranges, dtype=np.float32),
+        intensities=np.zeros(0, dtype=np.float32),
+    )
+
+
+def _odom_msg(ts, stamp_ns: int, x: float, y: float, yaw: float):
+    t = ts.types
+    Odometry = t["nav_msgs/msg/Odometry"]
+    Pose, PoseWC = t["geometry_msgs/msg/Pose"], t["geometry_msgs/msg/PoseWithCovariance"]
+    Point, Quat = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"]
+    Twist, TwistWC = t["geometry_msgs/msg/Twist"], t["geometry_msgs/msg/TwistWithCovariance"]
+    Vec = t["geometry_msgs/msg/Vector3"]
+    pose = Pose(
+        position=Point(x=x, y=y, z=0.0),
+        orientation=Quat(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2))),
+    )
+    zero = Vec(x=0.0, y=0.0, z=0.0)
+    return Odometry(
+        header=_header(ts, stamp_ns, "odom"),
+        child_frame_id="base_link",
+        pose=PoseWC(pose=pose, covariance=np.zeros(36)),
+        twist=TwistWC(twist=Twist(linear=zero, angular=zero), covariance=np.zeros(36)),
+    )
+
+
+def write_bag(
+    path: Path,
+    kind: str = "ros1",
+    scans: dict[str, Sequence[np.ndarray]] | None = None,
+    rate_hz: float = 10.0,
+    odom: bool = False,
+    extra_string_topic: bool = False,
+) -> Path:
+    """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
+
+    kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder).
+    """
+    scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
+    ros1 = kind == "ros1"
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    ser = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        writer = Writer(path)
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer(path, version=9, storage_plugin=plugin)
+    t0 = 1_700_000_000 * 10**9
+    period = int(1e9 / rate_hz)
+    with writer:
+
+        def conn(topic, msgtype):
+            if ros1:
+                return writer.add_connection(topic, msgtype, typestore=ts)
+            return writer.add_connection(topic, msgtype, typestore=ts)
+
+        for topic, frames in scans.items():
+            c = conn(topic, "sensor_msgs/msg/LaserScan")
+            for i, ranges in enumerate(frames):
+                stamp = t0 + i * period
+                writer.write(
+                    c,
+                    stamp,
+                    ser(_scan_msg(ts, np.asarray(ranges), stamp), "sensor_msgs/msg/LaserScan"),
+                )
+        if odom:
+            c = conn("/odom", "nav_msgs/msg/Odometry")
+            n = max(len(f) for f in scans.values()) if scans else 10
+            for i in range(2 * n + 1):
+                stamp = t0 + i * period // 2
+                msg = _odom_msg(ts, stamp, 0.05 * i, 0.0, 0.01 * i)
+                writer.write(c, stamp, ser(msg, "nav_msgs/msg/Odometry"))
+        if extra_string_topic:
+            c = conn("/chatter", "std_msgs/msg/String")
+            String = ts.types["std_msgs/msg/String"]
+            writer.write(c, t0, ser(String(data="hello"), "std_msgs/msg/String"))
+    return path

@@ -1,0 +1,130 @@
+"""Reading bags of every kind, topic choice, odometry, and every bad input."""
+
+from __future__ import annotations
+
+import shutil
+import zipfile
+
+import numpy as np
+import pytest
+
+from lidarflow.data import list_topics, load_any, read_bag, sample_bag_path
+from lidarflow.errors import BagError, RecordingError
+from tests.bagutil import write_bag
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+def test_every_bag_kind_reads_back_what_was_written(tmp_path, kind):
+    frames = [np.linspace(1.0, 5.0, 40) + i * 0.01 for i in range(12)]
+    frames[3][5] = np.nan
+    path = tmp_path / ("b.bag" if kind == "ros1" else "b")
+    write_bag(path, kind, {"/scan": frames}, rate_hz=10.0)
+    rec = read_bag(path)
+    assert len(rec) == 12
+    assert rec.meta["topic"] == "/scan" and rec.meta["frame_id"] == "laser"
+    np.testing.assert_allclose(rec.scan(7).ranges, frames[7].astype(np.float32))
+    assert np.isnan(rec.scan(3).ranges[5])
+    assert rec.frame_rate == pytest.approx(10.0)
+    assert rec.geometry(0).count == 40
+    assert rec.poses is None
+
+
+def test_bare_mcap_file_and_db3_file_are_accepted(tmp_path):
+    write_bag(tmp_path / "m", "mcap")
+    write_bag(tmp_path / "s", "sqlite3")
+    assert len(read_bag(next((tmp_path / "m").glob("*.mcap")))) == 25
+    assert len(read_bag(next((tmp_path / "s").glob("*.db3")))) == 25
+
+
+def test_zipped_bag(tmp_path):
+    bag = write_bag(tmp_path / "z.bag", "ros1")
+    with zipfile.ZipFile(tmp_path / "z.bag.zip", "w") as zf:
+        zf.write(bag, "z.bag")
+    assert len(read_bag(tmp_path / "z.bag.zip")) == 25
+
+
+def test_odometry_is_interpolated_at_scan_stamps(tmp_path):
+    path = write_bag(tmp_path / "o.bag", "ros1", odom=True)
+    rec = read_bag(path)
+    assert rec.meta["pose_topic"] == "/odom" and rec.has_poses
+    # odometry: x = 0.05 i at t0 + i * period / 2, so x = 0.1 k at scan k
+    np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(25), atol=1e-9)
+    np.testing.assert_allclose(rec.poses[:, 2], 0.02 * np.arange(25), atol=1e-9)
+
+
+def test_several_scan_topics_need_a_choice(tmp_path):
+    path = write_bag(
+        tmp_path / "two.bag", "ros1", {"/front": [np.ones(10)] * 3, "/rear": [np.ones(10)] * 4}
+    )
+    with pytest.raises(BagError, match=r"several LaserScan topics.*/front.*/rear.*--topic"):
+        read_bag(path)
+    assert len(read_bag(path, topic="/rear")) == 4
+    with pytest.raises(BagError, match=r"no topic /side; scan topics here: /front, /rear"):
+        read_bag(path, topic="/side")
+
+
+def test_no_laserscan_topic(tmp_path):
+    path = write_bag(tmp_path / "none.bag", "ros1", scans={}, extra_string_topic=True)
+    with pytest.raises(BagError, match="no sensor_msgs/LaserScan topic"):
+        read_bag(path)
+    with pytest.raises(BagError, match=r"/chatter is std_msgs/msg/String, not a LaserScan"):
+        read_bag(path, topic="/chatter")
+
+
+def test_empty_scans(tmp_path):
+    path = write_bag(tmp_path / "empty.bag", "ros1", {"/scan": [np.zeros(0)] * 5})
+    with pytest.raises(BagError, match="holds no non-empty scans"):
+        read_bag(path)
+
+
+def test_missing_file_and_not_a_bag(tmp_path):
+    with pytest.raises(BagError, match="no such file"):
+        load_any(tmp_path / "nope.bag")
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(BagError, match="not a bag"):
+        read_bag(tmp_path / "notes.txt")
+    with pytest.raises(RecordingError, match="no such file"):
+        load_any(tmp_path / "nope.npz")
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9])
+def test_truncated_bag_is_a_clear_error(tmp_path, keep):
+    data = sample_bag_path().read_bytes()
+    broken = tmp_path / "broken.bag"
+    broken.write_bytes(data[: int(len(data) * keep)])
+    with pytest.raises(BagError, match=r"broken\.bag"):
+        read_bag(broken)
+
+
+def test_garbage_bag_is_a_clear_error(tmp_path):
+    junk = tmp_path / "junk.bag"
+    junk.write_bytes(b"#ROSBAG V2.0\n" + bytes(range(256)) * 40)
+    with pytest.raises(BagError, match=r"junk\.bag"):
+        read_bag(junk)
+    folder = tmp_path / "ros2"
+    folder.mkdir()
+    with pytest.raises(BagError, match="cannot open"):
+        read_bag(folder)
+
+
+def test_real_sample_converts(sample_recording):
+    rec = sample_recording
+    assert len(rec) == 243
+    assert rec.meta["topic"] == "right_scan" and rec.meta["frame_id"] == "right_laser"
+    assert rec.geometry(0).count == 768
+    assert rec.frame_rate == pytest.approx(7.5, abs=0.1)
+    occ, vis = rec.maps()
+    assert occ.shape == (243, 100, 100)
+    assert 50 < occ.sum(axis=(1, 2)).mean() < 2000
+    assert (vis | ~occ).all()
+
+
+def test_topics_of_the_sample():
+    topics = list_topics(sample_bag_path())
+    assert [(t.topic, t.msgtype) for t in topics] == [("right_scan", "sensor_msgs/msg/LaserScan")]
+
+
+def test_copying_a_folder_bag_keeps_it_readable(tmp_path):
+    src = write_bag(tmp_path / "a", "sqlite3")
+    shutil.copytree(src, tmp_path / "b")
+    assert len(read_bag(tmp_path / "b")) == 25

@@ -1,0 +1,126 @@
+"""The recording format: round trip, ragged scans, slicing, corrupt files, sequences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarflow.data import (
+    Recording,
+    SequenceSet,
+    describe_recording,
+    load_recording,
+    split_segments,
+)
+from lidarflow.errors import RecordingError
+from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
+from tests.conftest import make_recording
+
+
+def test_save_load_round_trip(tmp_path):
+    rec = make_recording(poses=True)
+    rec.extras["flow_backward"] = np.ones((len(rec), 2, 4, 4), np.float16)
+    back = load_recording(rec.save(tmp_path / "r"))
+    assert (tmp_path / "r.npz").exists()
+    for name in (
+        "ranges",
+        "offsets",
+        "angle_min",
+        "angle_increment",
+        "range_min",
+        "range_max",
+        "stamps_ns",
+        "poses",
+    ):
+        np.testing.assert_array_equal(getattr(back, name), getattr(rec, name))
+    assert back.meta["source"] == "synthetic" and back.meta["format_version"] == 1
+    np.testing.assert_array_equal(back.extras["flow_backward"], rec.extras["flow_backward"])
+
+
+def test_changing_beam_count_mid_recording_is_rasterized_per_scan():
+    g1 = BeamGeometry(181, -np.pi / 2, np.pi / 180, 0.05, 8.0)
+    g2 = BeamGeometry(361, -np.pi / 2, np.pi / 360, 0.05, 8.0)
+    scans = [Scan(np.full(181, 3.0), g1, i) for i in range(3)]
+    scans += [Scan(np.full(361, 2.0), g2, 3 + i) for i in range(2)]
+    rec = Recording.from_scans(scans)
+    assert rec.geometry_runs() == [(0, 3), (3, 5)]
+    occ, vis = rec.maps()
+    for i, scan in enumerate(scans):
+        o, v = rasterize(scan)
+        assert np.array_equal(occ[i], o) and np.array_equal(vis[i], v)
+    occ_part, _ = rec.maps(start=2, stop=4)
+    assert np.array_equal(occ_part, occ[2:4])
+
+
+def test_slice_keeps_frames_and_per_frame_extras():
+    rec = make_recording(n=10, poses=True)
+    rec.extras["moving"] = np.arange(10)
+    rec.extras["constant"] = np.arange(3)
+    part = rec.slice(4, 7)
+    assert len(part) == 3
+    np.testing.assert_array_equal(part.scan(0).ranges, rec.scan(4).ranges)
+    np.testing.assert_array_equal(part.extras["moving"], [4, 5, 6])
+    np.testing.assert_array_equal(part.extras["constant"], [0, 1, 2])
+
+
+def test_corrupt_and_foreign_files(tmp_path):
+    (tmp_path / "bad.npz").write_bytes(b"this is not a zip")
+    with pytest.raises(RecordingError, match="not a readable lidarflow recording"):
+        load_recording(tmp_path / "bad.npz")
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(RecordingError, match="missing ranges"):
+        load_recording(tmp_path / "other.npz")
+    good = make_recording().save(tmp_path / "good.npz")
+    data = good.read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(RecordingError):
+        load_recording(tmp_path / "cut.npz")
+
+
+def test_out_of_range_frame():
+    with pytest.raises(RecordingError, match="frame 30 is out of range"):
+        make_recording(n=30).scan(30)
+
+
+def test_describe_counts_invalid_beams_and_gaps():
+    rec = make_recording(n=20, beams=50)
+    rec.stamps_ns[10:] += 2_000_000_000  # a 2.1 s hole in a 10 Hz recording
+    rec.ranges[0] = -np.inf
+    rec.ranges[1] = 0.0
+    info = describe_recording(rec)
+    assert info["scans"] == 20 and info["beams_per_scan"] == [50]
+    assert info["gaps"] == [{"before_frame": 10, "seconds": 2.1}]
+    beams = info["beams"]
+    assert beams["neg_inf"] == 1 and beams["zero"] >= 1
+    assert (
+        beams["returns"] + beams["no_return_inf_or_beyond_max"] + beams["unknown"] == beams["total"]
+    )
+    assert info["field_of_view_deg"] == [180.0]
+
+
+def test_segments_split_at_gaps_and_sensor_changes():
+    rec = make_recording(n=50)
+    rec.stamps_ns[20:] += 300_000_000  # gap of 4 periods at 10 Hz: > 2.5
+    rec.stamps_ns[35:] += 200_000_000  # gap of 3 periods
+    assert split_segments(rec) == [(0, 20), (20, 35), (35, 50)]
+    rec2 = make_recording(n=10)
+    rec2.stamps_ns[5:] += 100_000_000  # 2 periods: not a gap
+    assert split_segments(rec2) == [(0, 10)]
+
+
+def test_sequences_windows_and_dropped_frames():
+    rec = make_recording(n=50)
+    rec.stamps_ns[20:] += 300_000_000
+    seqs = SequenceSet([rec, make_recording(n=45)], length=20, grid=GridSpec(16, 16, 0.5))
+    # recording 1: segments of 20 and 30 -> 1 + 1 windows, 10 frames dropped; recording 2: 2 windows
+    assert len(seqs) == 4
+    assert seqs.report.frames == 95 and seqs.report.frames_dropped == 10 + 5
+    item = seqs[0]
+    assert item.shape == (20, 2, 16, 16) and item.dtype == np.float32
+    assert set(np.unique(item)) <= {0.0, 1.0}
+    assert "shorter than a sequence" not in " ".join(seqs.report.notes)
+
+
+def test_recording_shorter_than_a_sequence():
+    with pytest.raises(RecordingError, match="no sequence of 20 frames fits"):
+        SequenceSet([make_recording(n=12)], length=20)

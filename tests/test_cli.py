@@ -1,0 +1,111 @@
+"""The command line: every sub-command works, explains itself, and fails in one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from lidarflow.cli import app, main
+from lidarflow.data import load_recording, sample_bag_path
+from tests.bagutil import write_bag
+
+
+def run(argv, capsys):
+    """Run the CLI in-process; return (exit code, stdout, stderr)."""
+    try:
+        main(argv)
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def subcommands() -> list[str]:
+    import typer.main
+
+    return sorted(typer.main.get_command(app).commands)
+
+
+def test_help_of_every_subcommand(capsys):
+    code, out, _ = run(["--help"], capsys)
+    assert code == 0
+    for name in subcommands():
+        assert name in out
+        code, sub, _ = run([name, "--help"], capsys)
+        assert code == 0 and "Usage" in sub and len(sub.splitlines()) > 4, name
+
+
+def test_convert_info_show_on_the_real_sample(tmp_path, capsys):
+    out_npz = tmp_path / "s.npz"
+    code, out, err = run(["convert", str(sample_bag_path()), "-o", str(out_npz)], capsys)
+    assert code == 0, err
+    assert "243 scans from right_scan" in out
+    rec = load_recording(out_npz)
+    assert len(rec) == 243 and rec.meta["grid"] == {"height": 100, "width": 100, "res": 0.1}
+
+    code, out, _ = run(["info", str(out_npz), "--json"], capsys)
+    info = json.loads(out)
+    assert code == 0 and info["scans"] == 243 and info["beams_per_scan"] == [768]
+
+    code, out, _ = run(["info", str(sample_bag_path())], capsys)
+    assert code == 0 and "right_scan" in out and "frame_rate_hz: 7.5" in out
+
+    png = tmp_path / "m.png"
+    code, out, _ = run(["show", str(out_npz), "--frame", "-1", "-o", str(png)], capsys)
+    assert code == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_info_on_a_bag_with_two_scan_topics_lists_them(tmp_path, capsys):
+    path = write_bag(tmp_path / "two.bag", "ros1", {"/a": [np.ones(8)] * 3, "/b": [np.ones(8)] * 3})
+    code, out, _ = run(["info", str(path)], capsys)
+    assert code == 0 and "/a" in out and "/b" in out and "--topic" in out
+    code, out, _ = run(["info", str(path), "--topic", "/b", "--json"], capsys)
+    assert code == 0 and json.loads(out)["scans"] == 3
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["convert", "{tmp}/missing.bag", "-o", "{tmp}/o.npz"], "missing.bag: no such file"),
+        (["convert", "{two}", "-o", "{tmp}/o.npz"], "several LaserScan topics"),
+        (["convert", "{two}", "-o", "{tmp}/o.npz", "--topic", "/c"], "no topic /c"),
+        (["show", "{rec}", "--frame", "99", "-o", "{tmp}/x.png"], "frame 99 out of range"),
+        (["info", "{tmp}/junk.bag"], "junk.bag: cannot open as a bag"),
+        (["show", "{tmp}/junk.npz"], "junk.npz: not a readable lidarflow recording"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_1(tmp_path, capsys, argv, message):
+    two = write_bag(tmp_path / "two.bag", "ros1", {"/a": [np.ones(8)] * 3, "/b": [np.ones(8)] * 3})
+    rec = tmp_path / "rec.npz"
+    run(["convert", str(two), "--topic", "/a", "-o", str(rec)], capsys)
+    (tmp_path / "junk.bag").write_bytes(b"garbage" * 100)
+    (tmp_path / "junk.npz").write_bytes(b"garbage" * 100)
+    argv = [a.format(tmp=tmp_path, two=two, rec=rec) for a in argv]
+    code, _, err = run(argv, capsys)
+    assert code == 1
+    assert err.startswith("lidarflow: error: ") and message in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_usage_error_exits_2(capsys):
+    code, _, _ = run(["convert"], capsys)
+    assert code == 2
+
+
+def test_console_script_demo_end_to_end(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "lidarflow.cli", "demo", "-o", str(tmp_path / "d")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    results = json.loads((tmp_path / "d" / "results.json").read_text())
+    copy_last = results["copy_last"]
+    assert 0.5 < copy_last["f1"] < 1.0 and copy_last["changed_f1"] == 0.0
+    assert (tmp_path / "d" / "maps.png").exists()

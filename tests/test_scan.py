@@ -1,0 +1,225 @@
+"""Rasterization: exact cell placement, visibility along beams, invalid beams, geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lidarflow.errors import ScanError
+from lidarflow.scan import (
+    BeamGeometry,
+    GridSpec,
+    Scan,
+    cell_centres,
+    rasterize,
+    rasterize_batch,
+)
+
+GRID = GridSpec(100, 100, 0.1)
+SMALL = GridSpec(40, 40, 0.25)
+
+
+def cell_of(x: float, y: float, grid: GridSpec) -> tuple[int, int] | None:
+    r = math.floor(grid.height - x / grid.res)
+    c = math.floor(grid.width / 2 - y / grid.res)
+    return (r, c) if 0 <= r < grid.height and 0 <= c < grid.width else None
+
+
+def one_beam_scan(theta: float, rho: float, n: int = 721) -> tuple[np.ndarray, BeamGeometry, int]:
+    """A 360-degree scan in which only the beam nearest ``theta`` returns."""
+    inc = 2 * math.pi / n
+    geom = BeamGeometry(n, -math.pi, inc, 0.05, 20.0)
+    k = round((theta + math.pi) / inc) % n
+    ranges = np.full(n, np.nan)
+    ranges[k] = rho
+    return ranges, geom, k
+
+
+def test_cell_centres_follow_design_convention():
+    x, y = cell_centres(GRID)
+    assert x[0, 0] == pytest.approx(9.95) and y[0, 0] == pytest.approx(4.95)
+    assert x[99, 49] == pytest.approx(0.05) and y[99, 49] == pytest.approx(0.05)
+    assert y[99, 50] == pytest.approx(-0.05)
+
+
+def test_known_cell_straight_ahead_and_to_the_left():
+    geom = BeamGeometry(2, 0.0, math.pi / 2, 0.05, 10.0)
+    occ, vis = rasterize(Scan(np.array([5.0, 2.0]), geom), GRID)
+    # (5, 0) -> r = floor(100 - 50) = 50, c = floor(50 - 0) = 50; (0, 2) lies on x = 0: row 100,
+    # just outside the map (the map covers x in [0, 10) but floor(100 - 0) = 100).
+    assert np.argwhere(occ).tolist() == [[50, 50]]
+    assert vis[50, 50] and vis[60, 50] and not vis[40, 50]
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    theta=st.floats(-math.pi, math.pi, allow_nan=False),
+    rho=st.floats(0.06, 14.0, allow_nan=False),
+)
+def test_single_return_lands_in_the_cell_containing_its_point(theta, rho):
+    ranges, geom, k = one_beam_scan(theta, rho)
+    angle = geom.angle_min + k * geom.angle_increment
+    occ, vis = rasterize(Scan(ranges, geom), GRID)
+    expected = cell_of(rho * math.cos(angle), rho * math.sin(angle), GRID)
+    got = [tuple(rc) for rc in np.argwhere(occ).tolist()]
+    assert got == ([expected] if expected else [])
+    assert not (occ & ~vis).any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(rho=st.floats(0.3, 9.0), half_fov=st.floats(0.3, math.pi), n=st.integers(50, 800))
+def test_visible_exactly_in_front_of_a_ring_of_returns(rho, half_fov, n):
+    inc = 2 * half_fov / (n - 1)
+    geom = BeamGeometry(n, -half_fov, inc, 0.05, 10.0)
+    occ, vis = rasterize(Scan(np.full(n, rho), geom), GRID)
+    x, y = cell_centres(GRID)
+    dist, bearing = np.hypot(x, y), np.arctan2(y, x)
+    inside_fov = np.abs(bearing) <= half_fov + inc / 2 - 1e-9
+    clearly_in = inside_fov & (np.abs(bearing) < half_fov)
+    # Between the sensor and the return: visible; behind it: not (unless occupied).
+    assert vis[clearly_in & (dist < rho)].all()
+    assert not vis[~occ & (dist >= rho)].any()
+    # Occupied implies visible; nothing outside the field of view is visible.
+    assert vis[occ].all()
+    assert not vis[~inside_fov & ~occ].any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    lo=st.floats(-1.4, 1.2),
+    width=st.floats(0.05, 0.6),
+    n=st.integers(2, 200),
+    range_max=st.floats(1.0, 12.0),
+)
+def test_nothing_outside_a_narrow_field_of_view_is_visible(lo, width, n, range_max):
+    inc = width / (n - 1)
+    geom = BeamGeometry(n, lo, inc, 0.05, range_max)
+    occ, vis = rasterize(Scan(np.full(n, np.inf), geom), GRID)  # no returns: free to range_max
+    x, y = cell_centres(GRID)
+    bearing, dist = np.arctan2(y, x), np.hypot(x, y)
+    covered = (bearing >= lo - inc / 2 - 1e-9) & (bearing <= lo + width + inc / 2 + 1e-9)
+    assert not occ.any()
+    assert not vis[~covered].any()
+    strictly = (bearing > lo - inc / 2 + 1e-9) & (bearing < lo + width + inc / 2 - 1e-9)
+    assert vis[strictly & (dist <= range_max - 1e-9)].all()
+    assert not vis[dist > range_max + 1e-9].any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.sampled_from([360, 720, 1440]),
+    shift=st.integers(1, 5),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_rotating_a_full_circle_scan_by_beam_steps_equals_rolling_its_ranges(n, shift, seed):
+    rng = np.random.default_rng(seed)
+    ranges = rng.uniform(0.5, 9.0, n)
+    ranges[rng.random(n) < 0.1] = np.inf
+    ranges[rng.random(n) < 0.05] = np.nan
+    inc = 2 * math.pi / n
+    # Beams along the axes put their points exactly on cell borders, where one ulp decides the
+    # cell; they are made unknown so the comparison below can be exact.
+    angles = -math.pi + shift * inc + inc * np.arange(n)
+    on_border = (np.abs(np.sin(angles)) < 1e-9) | (np.abs(np.cos(angles)) < 1e-9)
+    ranges[on_border] = np.nan
+    rotated = Scan(ranges, BeamGeometry(n, -math.pi + shift * inc, inc, 0.05, 10.0))
+    rolled = Scan(np.roll(ranges, shift), BeamGeometry(n, -math.pi, inc, 0.05, 10.0))
+    occ_a, vis_a = rasterize(rotated, GRID)
+    occ_b, vis_b = rasterize(rolled, GRID)
+    assert np.array_equal(occ_a, occ_b)
+    assert np.array_equal(vis_a, vis_b)
+
+
+def test_rotation_by_one_step_moves_occupied_cells_with_the_points():
+    n = 360
+    inc = 2 * math.pi / n
+    ranges = np.linspace(2.0, 6.0, n)
+    base = BeamGeometry(n, -math.pi, inc, 0.05, 10.0)
+    turned = BeamGeometry(n, -math.pi + inc, inc, 0.05, 10.0)
+    occ, _ = rasterize(Scan(ranges, turned), GRID)
+    angles = turned.angles
+    expected = {
+        cell_of(r * math.cos(a), r * math.sin(a), GRID) for r, a in zip(ranges, angles, strict=True)
+    } - {None}
+    assert {tuple(rc) for rc in np.argwhere(occ).tolist()} == expected
+    occ0, _ = rasterize(Scan(ranges, base), GRID)
+    assert not np.array_equal(occ0, occ)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(3, 400))
+def test_negative_increment_is_the_same_scan_reversed(seed, n):
+    rng = np.random.default_rng(seed)
+    ranges = rng.uniform(0.1, 12.0, n)
+    ranges[rng.random(n) < 0.2] = np.inf
+    lo, inc = -2.3, 4.6 / (n - 1)
+    forward = Scan(ranges, BeamGeometry(n, lo, inc, 0.05, 11.0))
+    backward = Scan(ranges[::-1].copy(), BeamGeometry(n, lo + (n - 1) * inc, -inc, 0.05, 11.0))
+    (oa, va), (ob, vb) = rasterize(forward, GRID), rasterize(backward, GRID)
+    # Beam angles differ by float rounding between the two descriptions: a point or a cell
+    # bearing exactly on a border may fall either way, so allow a few border cells.
+    assert np.count_nonzero(oa != ob) <= 2
+    assert np.count_nonzero(va != vb) <= 4
+
+
+def test_invalid_beams_follow_the_design_notes():
+    n = 7
+    geom = BeamGeometry(n, -0.3, 0.1, 0.5, 6.0)
+    ranges = np.array([np.nan, -np.inf, 0.0, 0.2, np.inf, 9.0, 3.0])
+    occ, vis = rasterize(Scan(ranges, geom), SMALL)
+    x, y = cell_centres(SMALL)
+    bearing, dist = np.arctan2(y, x), np.hypot(x, y)
+    beam = np.rint((bearing - geom.angle_min) / geom.angle_increment)
+    on = [(beam == k) & (np.abs(bearing - geom.angles[k]) < 0.05) & (dist > 0.5) for k in range(n)]
+    for k in range(4):  # NaN, -inf, 0, below range_min: unknown
+        assert not vis[on[k]].any(), k
+    for k in (4, 5):  # +inf and beyond range_max: free out to range_max
+        assert vis[on[k] & (dist <= 5.9)].all(), k
+        assert not vis[on[k] & (dist > 6.0)].any(), k
+    assert occ.sum() == 1  # only the 3 m return
+    assert vis[on[6] & (dist < 2.9)].all() and not vis[on[6] & (dist > 3.2) & ~occ].any()
+
+
+def test_batch_equals_one_at_a_time():
+    rng = np.random.default_rng(0)
+    geom = BeamGeometry(512, -math.pi / 2, math.pi / 511, 0.02, 5.6)
+    ranges = rng.uniform(0.0, 7.0, (6, 512))
+    ranges[:, ::7] = np.nan
+    occ, vis = rasterize_batch(ranges, geom, GRID)
+    for i in range(6):
+        o, v = rasterize(Scan(ranges[i], geom), GRID)
+        assert np.array_equal(o, occ[i]) and np.array_equal(v, vis[i])
+
+
+def test_wide_scan_is_cropped_to_the_map():
+    geom = BeamGeometry(768, -2.356, 4.7 / 767, 0.03, 11.0)
+    occ, vis = rasterize(Scan(np.full(768, 3.0), geom), GRID)
+    assert occ.any() and vis.any()
+    assert occ.shape == (100, 100)
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: BeamGeometry(0, 0.0, 0.1, 0.1, 1.0),
+        lambda: BeamGeometry(3, math.nan, 0.1, 0.1, 1.0),
+        lambda: BeamGeometry(3, 0.0, 0.0, 0.1, 1.0),
+        lambda: BeamGeometry(3, 0.0, 0.1, 2.0, 1.0),
+        lambda: GridSpec(0, 10, 0.1),
+        lambda: GridSpec(10, 10, -0.1),
+        lambda: Scan(np.zeros(4), BeamGeometry(3, 0.0, 0.1, 0.1, 1.0)),
+    ],
+)
+def test_bad_geometry_is_a_scan_error(make):
+    with pytest.raises(ScanError):
+        make()
+
+
+def test_wrong_batch_shape_is_a_scan_error():
+    geom = BeamGeometry(3, 0.0, 0.1, 0.1, 1.0)
+    with pytest.raises(ScanError, match=r"\(N, 3\)"):
+        rasterize_batch(np.zeros((2, 4)), geom)
