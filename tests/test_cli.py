@@ -109,3 +109,17 @@ def test_console_script_demo_end_to_end(tmp_path):
     copy_last = results["copy_last"]
     assert 0.5 < copy_last["f1"] < 1.0 and copy_last["changed_f1"] == 0.0
     assert (tmp_path / "d" / "maps.png").exists()
+
+
+def test_evaluate_writes_the_documented_json(tmp_path, capsys):
+    out = tmp_path / "e.json"
+    code, text, err = run(["evaluate", str(sample_bag_path()), "--json", str(out)], capsys)
+    assert code == 0, err
+    assert "copy_last" in text and "temporal_average" in text and "constant_velocity" in text
+    report = json.loads(out.read_text())
+    entry = report["recordings"][0]
+    assert entry["frames_evaluated"] == 243 - 1 - 10
+    for name in ("copy_last", "temporal_average", "constant_velocity"):
+        assert set(entry["methods"][name]) >= {"f1", "precision", "recall", "ap", "changed_f1"}
+        assert report["overall"][name]["f1"] == entry["methods"][name]["f1"]
+    assert entry["methods"]["copy_last"]["changed_f1"] == 0.0

@@ -223,6 +223,62 @@ def demo(
     typer.echo(f"results: {output / 'results.json'}")
 
 
+@app.command()
+def evaluate(
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
+    ],
+    topic: TopicOpt = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write the full report (JSON) here.")
+    ] = None,
+    warmup: Annotated[
+        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+    ] = 10,
+    ta_window: Annotated[
+        int, typer.Option(help="Temporal-average baseline: frames averaged.", min=1)
+    ] = 5,
+    ta_threshold: Annotated[
+        float, typer.Option(help="Temporal-average baseline: occupied when mean >= this.")
+    ] = 0.4,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+) -> None:
+    """Score next-map prediction on each recording, streaming (one step per frame, state
+    carried across the recording), with F1 at 0.4, precision, recall, average precision and
+    changed-cell F1, for the baselines copy-last, temporal average and constant velocity."""
+    from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.evaluate.report import build_report, format_table
+    from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.scan import GridSpec
+
+    spec = GridSpec(grid, grid, res)
+    methods = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    results = []
+    for path in inputs:
+        recording = _load(path, topic)
+        with _progress(len(recording) - 1, f"evaluating {path.name}") as bar:
+            scorers = evaluate_recording(recording, methods, spec, warmup, bar.update)
+        results.append((str(path), scorers))
+    config = {
+        "warmup": warmup,
+        "threshold": 0.4,
+        "grid": spec.to_dict(),
+        "temporal_average": {"window": ta_window, "threshold": ta_threshold},
+        "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+    }
+    report = build_report(results, config)
+    for entry in report["recordings"]:
+        title = f"{entry['path']} ({entry['frames_evaluated']} frames)"
+        typer.echo(format_table(entry["methods"], title) + "\n")
+    if len(report["recordings"]) > 1:
+        typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(report, indent=2))
+        typer.echo(f"wrote {json_out}")
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script."""
     debug = os.environ.get("LIDARFLOW_DEBUG") == "1"

@@ -1,0 +1,130 @@
+"""Flow-free baselines that every model is reported beside (design notes §5, issue 11).
+
+Each is a streaming predictor: ``reset()`` at the start of a recording, then
+``update(occupancy, visibility)`` once per frame returns the probability map of the *next*
+frame's occupancy, ``(H, W)`` float32 in [0, 1].
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Protocol
+
+import numpy as np
+
+__all__ = [
+    "ConstantVelocity",
+    "CopyLast",
+    "Method",
+    "TemporalAverage",
+    "best_rigid_shift",
+    "shift_map",
+]
+
+
+class Method(Protocol):
+    """A next-map predictor run one frame at a time."""
+
+    name: str
+
+    def reset(self) -> None: ...
+
+    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray: ...
+
+
+class CopyLast:
+    """Predict that the next map equals the current one."""
+
+    name = "copy_last"
+
+    def reset(self) -> None:
+        pass
+
+    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+        return occupancy.astype(np.float32)
+
+
+class TemporalAverage:
+    """Mean of the last ``window`` occupancy maps; occupied where the mean >= ``threshold`` at
+    the shared decision threshold, so the mean is rescaled so that ``threshold`` maps to 0.4
+    (the metric's threshold) while keeping the ranking of cells for the PR curve.
+
+    Defaults (5 frames, 0.4) were chosen on the development recordings (see docs/results).
+    """
+
+    name = "temporal_average"
+
+    def __init__(self, window: int = 5, threshold: float = 0.4) -> None:
+        if window < 1 or not 0.0 < threshold <= 1.0:
+            raise ValueError(f"need window >= 1 and 0 < threshold <= 1, got {window}, {threshold}")
+        self.window = window
+        self.threshold = threshold
+        self._maps: deque[np.ndarray] = deque(maxlen=window)
+
+    def reset(self) -> None:
+        self._maps.clear()
+
+    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+        self._maps.append(occupancy.astype(np.float32))
+        mean = np.mean(self._maps, axis=0)
+        # Piecewise-linear rescale: [0, threshold] -> [0, 0.4], [threshold, 1] -> [0.4, 1].
+        low = mean * (0.4 / self.threshold)
+        high = 0.4 + (mean - self.threshold) * (0.6 / max(1.0 - self.threshold, 1e-9))
+        return np.where(mean < self.threshold, low, high).astype(np.float32)
+
+
+def shift_map(image: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
+    """Move the content of ``image`` by ``d_col`` columns and ``d_row`` rows (zeros enter).
+
+    >>> shift_map(np.eye(3, dtype=int), 1, 0).tolist()
+    [[0, 1, 0], [0, 0, 1], [0, 0, 0]]
+    """
+    out = np.zeros_like(image)
+    h, w = image.shape
+    src_r = slice(max(0, -d_row), min(h, h - d_row))
+    dst_r = slice(max(0, d_row), min(h, h + d_row))
+    src_c = slice(max(0, -d_col), min(w, w - d_col))
+    dst_c = slice(max(0, d_col), min(w, w + d_col))
+    if src_r.start < src_r.stop and src_c.start < src_c.stop:
+        out[dst_r, dst_c] = image[src_r, src_c]
+    return out
+
+
+def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3) -> tuple[int, int]:
+    """The integer shift ``(d_col, d_row)`` within ``radius`` that best maps ``previous`` onto
+    ``current`` (most overlapping occupied cells; ties prefer the smallest shift)."""
+    prev = previous.astype(bool)
+    cur = current.astype(bool)
+    best, best_key = (0, 0), (-1, 0)
+    for d_row in range(-radius, radius + 1):
+        for d_col in range(-radius, radius + 1):
+            overlap = int(np.count_nonzero(shift_map(prev, d_col, d_row) & cur))
+            key = (overlap, -(abs(d_col) + abs(d_row)))
+            if key > best_key:
+                best, best_key = (d_col, d_row), key
+    return best
+
+
+class ConstantVelocity:
+    """Extrapolate the scene's last rigid motion: find the integer shift that best maps the
+    previous map onto the current one, and apply it once more.
+
+    Flow-free and whole-map: it captures a moving platform's translation (and is copy-last when
+    nothing moves), not individual people. Rotation is not modelled.
+    """
+
+    name = "constant_velocity"
+
+    def __init__(self, radius: int = 3) -> None:
+        self.radius = radius
+        self._previous: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._previous = None
+
+    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+        shift = (0, 0)
+        if self._previous is not None:
+            shift = best_rigid_shift(self._previous, occupancy, self.radius)
+        self._previous = occupancy.copy()
+        return shift_map(occupancy.astype(np.float32), *shift)

@@ -1,0 +1,86 @@
+"""Accumulate predictions against truth: counts at the 0.4 threshold, changed cells, PR/AP.
+
+One :class:`Scorer` per method and recording; scorers add up (micro-averaging) for "overall".
+Probabilities are binned into ``BINS`` equal bins for the precision-recall curve, which makes
+the curve exact for binary predictors and within 1/BINS in threshold otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+
+__all__ = ["BINS", "Scorer"]
+
+BINS = 200
+
+
+@dataclass
+class Scorer:
+    counts: Counts = field(default_factory=Counts)
+    changed: Counts = field(default_factory=Counts)
+    frames: int = 0
+    epe_sum: float = 0.0
+    epe_cells: int = 0
+    positives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
+    negatives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
+
+    def add(self, probability: np.ndarray, current: np.ndarray, target: np.ndarray) -> None:
+        """Score one predicted map against the true next map ``target``; ``current`` is the
+        map the prediction was made from (for the changed-cell mask)."""
+        target = target.astype(bool)
+        predicted = probability >= THRESHOLD
+        self.counts = self.counts + confusion(predicted, target)
+        self.changed = self.changed + confusion(predicted, target, current.astype(bool) != target)
+        # Bin index = floor(p * BINS), so "p >= k / BINS" is exactly "bin >= k".
+        bins = np.clip(np.floor(np.asarray(probability, np.float64) * BINS), 0, BINS).astype(int)
+        self.positives += np.bincount(bins[target], minlength=BINS + 1)
+        self.negatives += np.bincount(bins[~target], minlength=BINS + 1)
+        self.frames += 1
+
+    def add_epe(self, error_sum: float, cells: int) -> None:
+        self.epe_sum += error_sum
+        self.epe_cells += cells
+
+    def __add__(self, other: Scorer) -> Scorer:
+        return Scorer(
+            counts=self.counts + other.counts,
+            changed=self.changed + other.changed,
+            frames=self.frames + other.frames,
+            epe_sum=self.epe_sum + other.epe_sum,
+            epe_cells=self.epe_cells + other.epe_cells,
+            positives=self.positives + other.positives,
+            negatives=self.negatives + other.negatives,
+        )
+
+    def pr_curve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(thresholds, precision, recall)`` for thresholds ``k / BINS``, high to low."""
+        tp = np.cumsum(self.positives[::-1])
+        fp = np.cumsum(self.negatives[::-1])
+        total = max(int(self.positives.sum()), 1)
+        precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+        recall = tp / total
+        thresholds = np.arange(BINS, -1, -1) / BINS
+        return thresholds, precision, recall
+
+    def average_precision(self) -> float:
+        """Sum over thresholds of precision times the recall gained (as scikit-learn)."""
+        _, precision, recall = self.pr_curve()
+        gained = np.diff(np.concatenate([[0.0], recall]))
+        return float(np.sum(gained * precision))
+
+    def summary(self) -> dict[str, float | int]:
+        out: dict[str, float | int] = {
+            "f1": self.counts.f1,
+            "precision": self.counts.precision,
+            "recall": self.counts.recall,
+            "ap": self.average_precision(),
+            "changed_f1": self.changed.f1,
+            "frames": self.frames,
+        }
+        if self.epe_cells:
+            out["epe"] = self.epe_sum / self.epe_cells
+        return out

@@ -1,0 +1,132 @@
+"""Baselines, scoring and the streaming evaluator on maps whose answers are known."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from lidarflow.errors import EvaluateError
+from lidarflow.evaluate.baselines import (
+    ConstantVelocity,
+    CopyLast,
+    TemporalAverage,
+    best_rigid_shift,
+    shift_map,
+)
+from lidarflow.evaluate.report import build_report, format_table
+from lidarflow.evaluate.scoring import Scorer
+from lidarflow.evaluate.stream import evaluate_maps
+
+
+def moving_square(n: int = 20, size: int = 24, step: int = 1) -> np.ndarray:
+    maps = np.zeros((n, size, size), bool)
+    for t in range(n):
+        c = 2 + (t * step) % (size - 6)
+        maps[t, 8:12, c : c + 3] = True
+    maps[:, 20, 2:20] = True  # a static wall
+    return maps
+
+
+class Oracle:
+    """Knows the future: predicts exactly the next map."""
+
+    name = "oracle"
+
+    def __init__(self, maps: np.ndarray) -> None:
+        self.maps = maps
+        self.t = 0
+
+    def reset(self) -> None:
+        self.t = 0
+
+    def update(self, occupancy, visibility):
+        self.t += 1
+        return self.maps[min(self.t, len(self.maps) - 1)].astype(np.float32)
+
+
+def test_shift_map_moves_content_and_fills_zeros():
+    image = np.arange(9).reshape(3, 3) + 1
+    assert shift_map(image, 0, 1).tolist() == [[0, 0, 0], [1, 2, 3], [4, 5, 6]]
+    assert shift_map(image, -1, 0).tolist() == [[2, 3, 0], [5, 6, 0], [8, 9, 0]]
+    assert not shift_map(image, 5, 0).any()
+
+
+@pytest.mark.parametrize("shift", [(0, 0), (2, -1), (-3, 3)])
+def test_best_rigid_shift_recovers_a_known_shift(shift):
+    rng = np.random.default_rng(1)
+    prev = rng.random((30, 30)) < 0.1
+    cur = shift_map(prev, *shift)
+    assert best_rigid_shift(prev, cur) == shift
+
+
+def test_constant_velocity_extrapolates_a_rigid_motion():
+    maps = np.zeros((3, 20, 20), bool)
+    for t in range(3):
+        maps[t, 5:8, 3 + 2 * t : 5 + 2 * t] = True
+    cv = ConstantVelocity()
+    cv.update(maps[0], maps[0])
+    prediction = cv.update(maps[1], maps[1])
+    assert np.array_equal(prediction >= 0.4, maps[2])
+
+
+def test_temporal_average_threshold_maps_to_decision_threshold():
+    ta = TemporalAverage(window=5, threshold=0.4)
+    frames = [np.array([[1, 0]], bool), np.array([[1, 0]], bool), np.array([[0, 0]], bool)]
+    for f in frames:
+        p = ta.update(f, f)
+    assert p[0, 0] >= 0.4 and p[0, 1] == 0.0  # mean 2/3 >= 0.4
+    ta = TemporalAverage(window=5, threshold=0.8)
+    for f in frames:
+        p = ta.update(f, f)
+    assert p[0, 0] < 0.4  # mean 2/3 < 0.8
+
+
+def test_oracle_scores_one_and_copy_last_scores_zero_on_changed_cells():
+    maps = moving_square()
+    scorers = evaluate_maps(maps, maps, [Oracle(maps), CopyLast()], warmup=3)
+    oracle, copy = scorers["oracle"].summary(), scorers["copy_last"].summary()
+    assert oracle["f1"] == 1.0 and oracle["changed_f1"] == 1.0 and oracle["ap"] == 1.0
+    assert copy["changed_f1"] == 0.0 and 0.5 < copy["f1"] < 1.0
+    assert scorers["oracle"].frames == len(maps) - 1 - 3
+
+
+def test_copy_last_counts_by_hand():
+    maps = np.zeros((4, 1, 4), bool)
+    maps[:, 0, 0] = True
+    maps[3, 0, 1] = True  # appears in the last frame only
+    s = evaluate_maps(maps, maps, [CopyLast()], warmup=1)["copy_last"]
+    # predictions after frames 1 and 2: frame 1 -> 2 all right; frame 2 -> 3 misses one cell
+    assert (s.counts.tp, s.counts.fp, s.counts.fn) == (2, 0, 1)
+    assert (s.changed.tp, s.changed.fp, s.changed.fn) == (0, 0, 1)
+
+
+def test_average_precision_of_a_binary_predictor():
+    s = Scorer()
+    prob = np.array([1.0, 1.0, 0.0, 0.0])
+    target = np.array([True, False, True, False])
+    s.add(prob, target, target)
+    # one operating point (P=0.5, R=0.5), then everything (P=0.5, R=1): AP = 0.5
+    assert s.average_precision() == pytest.approx(0.5)
+    _, precision, recall = s.pr_curve()
+    assert recall[-1] == 1.0 and precision[0] == 0.5
+
+
+def test_micro_average_over_recordings_and_json_shape(tmp_path):
+    a = evaluate_maps(moving_square(), moving_square(), [CopyLast()], warmup=2)
+    b = evaluate_maps(moving_square(step=2), moving_square(step=2), [CopyLast()], warmup=2)
+    report = build_report([("a", a), ("b", b)])
+    total = a["copy_last"].counts + b["copy_last"].counts
+    assert report["overall"]["copy_last"]["f1"] == total.f1
+    entry = report["recordings"][0]
+    assert entry["path"] == "a" and entry["frames_evaluated"] == 17
+    assert set(entry["methods"]["copy_last"]) >= {"f1", "precision", "recall", "ap", "changed_f1"}
+    json.dumps(report)
+    assert "copy_last" in format_table(report["overall"])
+
+
+def test_too_short_recording_is_an_evaluate_error():
+    maps = np.zeros((11, 4, 4), bool)
+    with pytest.raises(EvaluateError, match="at least 12 frames"):
+        evaluate_maps(maps, maps, [CopyLast()], warmup=10)
