@@ -2,16 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from lidarflow.data import Recording, read_bag, sample_bag_path
 from lidarflow.scan import BeamGeometry, Scan
-
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-
 
 def make_recording(
     n: int = 30, beams: int = 181, rate_hz: float = 10.0, seed: int = 0, poses: bool = False
