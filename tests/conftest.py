@@ -8,6 +8,7 @@ import pytest
 from lidarflow.data import Recording, read_bag, sample_bag_path
 from lidarflow.scan import BeamGeometry, Scan
 
+
 def make_recording(
     n: int = 30, beams: int = 181, rate_hz: float = 10.0, seed: int = 0, poses: bool = False
 ) -> Recording:

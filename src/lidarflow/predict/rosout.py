@@ -1,0 +1,193 @@
+"""Write scans and predicted maps into ROS 1 bags, ROS 2 bags and MCAP files (design notes §8).
+
+Maps become ``nav_msgs/OccupancyGrid`` laid in the scan's own frame so that they line up with the
+scan in RViz and Foxglove: ``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x
+(forward), ``height = W`` cells along y, grid cell ``(i, j)`` (``data[j * width + i]``) is map
+cell ``r = H - 1 - i``, ``c = W - 1 - j``. Values are occupancy probability x 100 (int8 0..100),
+-1 where unknown.
+
+Flow goes out as ``sensor_msgs/Image`` with encoding ``32FC2``: per map cell (row 0 the far edge,
+as in the map arrays), the two channels ``(column, row)`` displacement in cells.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import PredictError
+from lidarflow.scan import GridSpec, Scan
+
+__all__ = ["BagOutput", "grid_data", "map_from_grid_data", "output_kind"]
+
+
+def grid_data(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
+    """OccupancyGrid ``data`` (int8, ``H * W``) of a probability map ``(H, W)`` in [0, 1].
+
+    >>> m = np.zeros((2, 3)); m[0, 0] = 1.0  # far-left cell
+    >>> grid_data(m).reshape(3, 2).tolist()  # rows j (along y), columns i (along x)
+    [[0, 0], [0, 0], [0, 100]]
+    """
+    p = np.clip(np.nan_to_num(np.asarray(probability, np.float64)), 0.0, 1.0)
+    values = np.rint(p * 100).astype(np.int8)
+    if unknown is not None:
+        values[np.asarray(unknown, bool)] = -1
+    return np.ascontiguousarray(values[::-1, ::-1].T).ravel()
+
+
+def map_from_grid_data(data: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Inverse of :func:`grid_data`: the ``(H, W)`` int8 map (-1 unknown, 0..100)."""
+    return np.asarray(data, np.int8).reshape(width, height).T[::-1, ::-1].copy()
+
+
+def output_kind(path: Path) -> str:
+    """``ros1`` for ``.bag``, ``mcap`` for a ``.mcap`` file, ``ros2`` (a ROS 2 bag folder with
+    MCAP storage) for anything else."""
+    suffix = path.suffix.lower()
+    return {".bag": "ros1", ".mcap": "mcap"}.get(suffix, "ros2")
+
+
+class BagOutput:
+    """A bag being written: LaserScans, OccupancyGrids and flow images, by topic.
+
+    ``with BagOutput(path) as out: out.write_scan("/scan", scan, "laser")`` ... The target
+    must not exist yet. A ``.mcap`` target is written as a ROS 2 bag in a temporary folder and
+    its single MCAP file moved into place (Foxglove opens it directly).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = Path(path)
+        if self.path.exists():
+            raise PredictError(f"{self.path}: already exists; choose a new output path")
+        if not self.path.parent.exists():
+            raise PredictError(f"{self.path.parent}: no such folder for the output")
+        self.kind = output_kind(self.path)
+        self.ros1 = self.kind == "ros1"
+        self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
+        self._serialize = (
+            self.typestore.serialize_ros1 if self.ros1 else self.typestore.serialize_cdr
+        )
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._writer: Any = None
+        self._connections: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> BagOutput:
+        from rosbags.rosbag1 import Writer as Writer1
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Writer2
+
+        if self.ros1:
+            self._writer = Writer1(self.path)
+        else:
+            target = self.path
+            if self.kind == "mcap":
+                self._tmp = tempfile.TemporaryDirectory(dir=self.path.parent)
+                target = Path(self._tmp.name) / self.path.stem
+            self._writer = Writer2(target, version=9, storage_plugin=StoragePlugin.MCAP)
+        try:
+            self._writer.open()
+        except Exception as err:
+            raise PredictError(f"{self.path}: cannot open for writing ({err})") from err
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._writer.close()
+        if self._tmp is not None:
+            if exc is None:
+                written = sorted(Path(self._tmp.name).rglob("*.mcap"))
+                shutil.move(str(written[0]), self.path)
+            self._tmp.cleanup()
+
+    # ------------------------------------------------------------------ messages
+    def _types(self) -> dict[str, Any]:
+        return self.typestore.types
+
+    def _header(self, stamp_ns: int, frame_id: str) -> Any:
+        types = self._types()
+        stamp = types["builtin_interfaces/msg/Time"](
+            sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)
+        )
+        if self.ros1:
+            return types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame_id)
+        return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+    def _write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
+        conn = self._connections.get(topic)
+        if conn is None:
+            conn = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
+            self._connections[topic] = conn
+        self._writer.write(conn, int(stamp_ns), self._serialize(msg, msgtype))
+
+    def write_scan(self, topic: str, scan: Scan, frame_id: str) -> None:
+        g = scan.geometry
+        msg = self._types()["sensor_msgs/msg/LaserScan"](
+            header=self._header(scan.stamp_ns, frame_id),
+            angle_min=g.angle_min,
+            angle_max=g.angle_min + g.angle_increment * (g.count - 1),
+            angle_increment=g.angle_increment,
+            time_increment=0.0,
+            scan_time=0.0,
+            range_min=g.range_min,
+            range_max=g.range_max,
+            ranges=np.asarray(scan.ranges, np.float32),
+            intensities=np.zeros(0, np.float32),
+        )
+        self._write(topic, "sensor_msgs/msg/LaserScan", scan.stamp_ns, msg)
+
+    def write_grid(
+        self,
+        topic: str,
+        probability: np.ndarray,
+        grid: GridSpec,
+        stamp_ns: int,
+        frame_id: str,
+        unknown: np.ndarray | None = None,
+    ) -> None:
+        types = self._types()
+        if probability.shape != grid.shape:
+            raise PredictError(f"map {probability.shape} does not match the grid {grid.shape}")
+        origin = types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=0.0, y=-grid.width / 2 * grid.res, z=0.0),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        info = types["nav_msgs/msg/MapMetaData"](
+            map_load_time=self._header(stamp_ns, frame_id).stamp,
+            resolution=float(grid.res),
+            width=grid.height,
+            height=grid.width,
+            origin=origin,
+        )
+        msg = types["nav_msgs/msg/OccupancyGrid"](
+            header=self._header(stamp_ns, frame_id), info=info, data=grid_data(probability, unknown)
+        )
+        self._write(topic, "nav_msgs/msg/OccupancyGrid", stamp_ns, msg)
+
+    def write_flow(self, topic: str, flow: np.ndarray, stamp_ns: int, frame_id: str) -> None:
+        """Flow ``(2, H, W)`` in cells as a ``32FC2`` image (row 0 the map's far edge)."""
+        if flow.ndim != 3 or flow.shape[0] != 2:
+            raise PredictError(f"flow must be (2, H, W), got {tuple(flow.shape)}")
+        _, h, w = flow.shape
+        pixels = np.ascontiguousarray(np.moveaxis(flow.astype("<f4"), 0, -1))
+        msg = self._types()["sensor_msgs/msg/Image"](
+            header=self._header(stamp_ns, frame_id),
+            height=h,
+            width=w,
+            encoding="32FC2",
+            is_bigendian=0,
+            step=w * 8,
+            data=pixels.view(np.uint8).ravel(),
+        )
+        self._write(topic, "sensor_msgs/msg/Image", stamp_ns, msg)

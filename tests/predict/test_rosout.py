@@ -1,0 +1,93 @@
+"""Predicted maps written as OccupancyGrid line up with the scan: checked on asymmetric maps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lidarflow.data import read_bag
+from lidarflow.errors import PredictError
+from lidarflow.predict.rosout import BagOutput, grid_data, map_from_grid_data
+from lidarflow.scan import BeamGeometry, GridSpec, Scan, cell_centres
+
+GRID = GridSpec(6, 4, 0.5)  # deliberately not square
+
+
+def asymmetric_map() -> np.ndarray:
+    m = np.zeros(GRID.shape)
+    m[0, 0] = 1.0  # far left
+    m[5, 3] = 0.5  # near right
+    m[2, 1] = 0.25
+    return m
+
+
+def test_grid_cell_centres_land_on_the_map_cell_centres():
+    data = grid_data(asymmetric_map()).reshape(GRID.width, GRID.height)  # [j, i]
+    x, y = cell_centres(GRID)
+    origin_y = -GRID.width / 2 * GRID.res
+    for r, c in [(0, 0), (5, 3), (2, 1)]:
+        hits = np.argwhere(data == round(asymmetric_map()[r, c] * 100))
+        ((j, i),) = hits
+        assert (i + 0.5) * GRID.res == pytest.approx(x[r, c])
+        assert origin_y + (j + 0.5) * GRID.res == pytest.approx(y[r, c])
+
+
+def test_grid_data_round_trip_and_unknown():
+    unknown = np.zeros(GRID.shape, bool)
+    unknown[1, 2] = True
+    data = grid_data(asymmetric_map(), unknown)
+    assert data.dtype == np.int8 and data.size == GRID.height * GRID.width
+    back = map_from_grid_data(data, GRID.height, GRID.width)
+    assert back[1, 2] == -1
+    expected = np.rint(asymmetric_map() * 100).astype(np.int8)
+    expected[1, 2] = -1
+    np.testing.assert_array_equal(back, expected)
+
+
+def read_all(path: Path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.ROS2_HUMBLE)
+    out: dict[str, list] = {}
+    with AnyReader([path], default_typestore=store) as reader:
+        for conn, _, raw in reader.messages():
+            out.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    return out
+
+
+@pytest.mark.parametrize("name", ["out.bag", "out.mcap", "outdir"])
+def test_every_output_kind_reads_back(tmp_path, name):
+    path = tmp_path / name
+    geom = BeamGeometry(5, -0.2, 0.1, 0.05, 8.0)
+    flow = np.stack([np.full(GRID.shape, 1.5), np.arange(24, dtype=float).reshape(GRID.shape)])
+    with BagOutput(path) as out:
+        for k in range(3):
+            scan = Scan(np.full(5, 2.0 + k, np.float32), geom, 1_000_000_000 + k * 100_000_000)
+            out.write_scan("/scan", scan, "laser")
+            out.write_grid("/pred", asymmetric_map(), GRID, scan.stamp_ns, "laser")
+            out.write_flow("/flow", flow, scan.stamp_ns, "laser")
+    msgs = read_all(path)
+    assert len(msgs["/scan"]) == 3 and len(msgs["/pred"]) == 3
+    grid = msgs["/pred"][0]
+    assert grid.header.frame_id == "laser"
+    assert (grid.info.width, grid.info.height) == (GRID.height, GRID.width)
+    assert grid.info.resolution == pytest.approx(0.5)
+    assert grid.info.origin.position.y == pytest.approx(-1.0)
+    back = map_from_grid_data(grid.data, GRID.height, GRID.width)
+    np.testing.assert_array_equal(back, np.rint(asymmetric_map() * 100))
+    image = msgs["/flow"][0]
+    pixels = np.frombuffer(bytes(image.data), "<f4").reshape(image.height, image.width, 2)
+    np.testing.assert_array_equal(np.moveaxis(pixels, -1, 0), flow.astype(np.float32))
+    rec = read_bag(path, topic="/scan")
+    assert len(rec) == 3 and rec.scan(2).ranges[0] == pytest.approx(4.0)
+
+
+def test_existing_output_is_refused(tmp_path):
+    (tmp_path / "x.bag").write_bytes(b"")
+    with pytest.raises(PredictError, match="already exists"):
+        BagOutput(tmp_path / "x.bag")
+    with pytest.raises(PredictError, match="no such folder"):
+        BagOutput(tmp_path / "missing" / "x.mcap")
