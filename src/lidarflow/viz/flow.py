@@ -1,0 +1,60 @@
+"""Flow pictures: the standard optical-flow colour wheel (Baker et al., as in Middlebury and
+RAFT's ``flow_to_image``) and arrows on occupied cells."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["flow_to_rgb"]
+
+
+def _colour_wheel() -> np.ndarray:
+    # Segment lengths of the Middlebury wheel: red-yellow-green-cyan-blue-magenta.
+    ry, yg, gc, cb, bm, mr = 15, 6, 4, 11, 13, 6
+    wheel = np.zeros((ry + yg + gc + cb + bm + mr, 3))
+    col = 0
+    for length, start, ramp_up in (
+        (ry, (255, 0, 0), (0, 1, 0)),
+        (yg, (255, 255, 0), (-1, 0, 0)),
+        (gc, (0, 255, 0), (0, 0, 1)),
+        (cb, (0, 255, 255), (0, -1, 0)),
+        (bm, (0, 0, 255), (1, 0, 0)),
+        (mr, (255, 0, 255), (0, 0, -1)),
+    ):
+        ramp = np.floor(255 * np.arange(length) / length)
+        wheel[col : col + length] = np.array(start, float)
+        for ch in range(3):
+            if ramp_up[ch] == 1:
+                wheel[col : col + length, ch] = ramp
+            elif ramp_up[ch] == -1:
+                wheel[col : col + length, ch] = 255 - ramp
+        col += length
+    return wheel
+
+
+_WHEEL = _colour_wheel()
+
+
+def flow_to_rgb(flow: np.ndarray, max_magnitude: float | None = None) -> np.ndarray:
+    """Colour-code flow ``(2, H, W)`` (channel 0 column, 1 row displacement): hue is the
+    direction, saturation the magnitude (normalised by ``max_magnitude``, default the largest).
+
+    >>> flow_to_rgb(np.zeros((2, 1, 1)))[0, 0].tolist()
+    [255, 255, 255]
+    """
+    u = np.nan_to_num(np.asarray(flow[0], np.float64))
+    v = np.nan_to_num(np.asarray(flow[1], np.float64))
+    magnitude = np.hypot(u, v)
+    scale = max_magnitude or float(magnitude.max())
+    if scale > 0:
+        u, v, magnitude = u / scale, v / scale, magnitude / scale
+    n = len(_WHEEL)
+    angle = np.arctan2(-v, -u) / np.pi
+    position = (angle + 1) / 2 * (n - 1)
+    k0 = np.floor(position).astype(int)
+    k1 = (k0 + 1) % n
+    frac = (position - k0)[..., None]
+    colour = ((1 - frac) * _WHEEL[k0] + frac * _WHEEL[k1]) / 255
+    radius = np.clip(magnitude, 0, 1)[..., None]
+    colour = 1 - radius * (1 - colour)
+    return np.floor(255 * colour).astype(np.uint8)

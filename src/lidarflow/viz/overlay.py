@@ -1,0 +1,48 @@
+"""Prediction overlays as the paper shows them: truth green, prediction red, both yellow."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["overlay_rgb", "write_gif"]
+
+_GREEN = np.array([40, 180, 40], np.uint8)
+_RED = np.array([220, 40, 40], np.uint8)
+_YELLOW = np.array([240, 200, 0], np.uint8)
+_UNSEEN = np.array([225, 225, 225], np.uint8)
+
+
+def overlay_rgb(
+    predicted: np.ndarray,
+    truth: np.ndarray,
+    visibility: np.ndarray | None = None,
+    scale: int = 4,
+) -> np.ndarray:
+    """``(H*scale, W*scale, 3)`` uint8 image: truth only green, prediction only red, both
+    yellow, free white, and (if ``visibility`` is given) cells not visible light grey.
+
+    >>> overlay_rgb(np.array([[1, 0]], bool), np.array([[1, 1]], bool), scale=1)[0].tolist()
+    [[240, 200, 0], [40, 180, 40]]
+    """
+    p = np.asarray(predicted, bool)
+    t = np.asarray(truth, bool)
+    image = np.full((*p.shape, 3), 255, np.uint8)
+    if visibility is not None:
+        image[~np.asarray(visibility, bool)] = _UNSEEN
+    image[t & ~p] = _GREEN
+    image[p & ~t] = _RED
+    image[p & t] = _YELLOW
+    return np.repeat(np.repeat(image, scale, axis=0), scale, axis=1)
+
+
+def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 7.5) -> Path:
+    """Write RGB frames as an animated GIF that loops."""
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    imageio.mimsave(path, list(frames), duration=1.0 / fps, loop=0)
+    return path

@@ -1,0 +1,37 @@
+"""Plots of evaluation results: precision-recall curves of every method on one figure."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["plot_pr_curves"]
+
+
+def plot_pr_curves(
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray, float]], path: str | Path, title: str = ""
+) -> Path:
+    """``curves`` maps a method name to ``(precision, recall, average_precision)``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 5), constrained_layout=True)
+    for name, (precision, recall, ap) in curves.items():
+        ax.plot(recall, precision, label=f"{name} (AP {ap:.3f})", drawstyle="steps-post")
+    ax.set_xlabel("recall")
+    ax.set_ylabel("precision")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left")
+    if title:
+        ax.set_title(title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
