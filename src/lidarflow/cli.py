@@ -232,6 +232,17 @@ def evaluate(
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the full report (JSON) here.")
     ] = None,
+    report_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--report",
+            help="Folder for a self-contained HTML report (index.html) with PR curves and "
+            "overlay GIFs (truth green, prediction red, both yellow), plus report.json.",
+        ),
+    ] = None,
+    gif_frames: Annotated[
+        int, typer.Option(help="Frames per overlay GIF in the report.", min=1)
+    ] = 100,
     warmup: Annotated[
         int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
     ] = 10,
@@ -255,11 +266,26 @@ def evaluate(
     spec = GridSpec(grid, grid, res)
     methods = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
     results = []
+    figures: dict[str, list[tuple[str, Path]]] = {}
     for path in inputs:
         recording = _load(path, topic)
+        collector = None
+        if report_dir is not None:
+            from lidarflow.viz.evaluation import OverlayCollector
+
+            collector = OverlayCollector(*recording.maps(spec), max_frames=gif_frames)
         with _progress(len(recording) - 1, f"evaluating {path.name}") as bar:
-            scorers = evaluate_recording(recording, methods, spec, warmup, bar.update)
+            scorers = evaluate_recording(
+                recording, methods, spec, warmup, bar.update, on_prediction=collector
+            )
         results.append((str(path), scorers))
+        if report_dir is not None and collector is not None:
+            from lidarflow.viz.evaluation import pr_figure, safe_stem
+
+            stem = safe_stem(path)
+            pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", f"{path.name}: PR curves")
+            gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
+            figures[str(path)] = [("precision-recall", pr), *gifs]
     config = {
         "warmup": warmup,
         "threshold": 0.4,
@@ -277,6 +303,12 @@ def evaluate(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(report, indent=2))
         typer.echo(f"wrote {json_out}")
+    if report_dir is not None:
+        from lidarflow.viz.html import write_html_report
+
+        (report_dir / "report.json").write_text(json.dumps(report, indent=2))
+        page = write_html_report(report, report_dir / "index.html", figures)
+        typer.echo(f"wrote {page}")
 
 
 def main(argv: list[str] | None = None) -> None:

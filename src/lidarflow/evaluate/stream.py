@@ -37,8 +37,12 @@ def evaluate_maps(
     warmup: int = WARMUP,
     gt_flow: np.ndarray | None = None,
     progress: Callable[[int], None] | None = None,
+    on_prediction: Callable[[str, int, np.ndarray], None] | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
+
+    ``on_prediction(method_name, t, probability)`` is called for every scored prediction (the
+    map predicted for frame ``t + 1``), e.g. to draw overlays.
 
     A method that exposes ``backward_flow`` (``(2, H, W)`` cells, after ``update``) is also
     scored for end-point error against ``gt_flow`` on the cells occupied in the next frame.
@@ -58,6 +62,8 @@ def evaluate_maps(
             if t < warmup:
                 continue
             scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
+            if on_prediction is not None:
+                on_prediction(m.name, t, probability)
             flow = getattr(m, "backward_flow", None)
             if gt_flow is not None and flow is not None:
                 cells = occupancy[t + 1]
@@ -74,15 +80,10 @@ def evaluate_recording(
     grid: GridSpec | None = None,
     warmup: int = WARMUP,
     progress: Callable[[int], None] | None = None,
+    on_prediction: Callable[[str, int, np.ndarray], None] | None = None,
 ) -> dict[str, Scorer]:
     """Rasterize ``recording`` on ``grid`` and score every method on it."""
     grid = grid or GridSpec()
     occupancy, visibility = recording.maps(grid)
-    return evaluate_maps(
-        occupancy,
-        visibility,
-        methods,
-        warmup,
-        ground_truth_backward_flow(recording, grid),
-        progress,
-    )
+    gt_flow = ground_truth_backward_flow(recording, grid)
+    return evaluate_maps(occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction)

@@ -1,0 +1,95 @@
+"""A self-contained HTML page of an evaluation: tables, PR curves, overlay animations.
+
+Images are embedded as base64 data URIs so the one file can be mailed or attached to an issue.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = ["write_html_report"]
+
+_STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
+th, td { padding: 0.3em 0.8em; border-bottom: 1px solid #ddd; text-align: right; }
+th:first-child, td:first-child { text-align: left; }
+td.best { font-weight: bold; background: #eef7ee; }
+figure { display: inline-block; margin: 0.5em; text-align: center; }
+figcaption { font-size: 0.85em; color: #555; }
+.legend span { padding: 0 0.5em; margin-right: 0.5em; }
+"""
+_COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "epe")
+
+
+def _data_uri(path: Path) -> str:
+    mime = {".png": "image/png", ".gif": "image/gif"}[path.suffix.lower()]
+    return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode()
+
+
+def _table(methods: Mapping[str, Mapping[str, float]]) -> str:
+    present = [c for c in _COLUMNS if any(c in m for m in methods.values())]
+    best = {c: max(m.get(c, float("-inf")) for m in methods.values()) for c in ("f1", "changed_f1")}
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in present)
+    rows = []
+    for name, metrics in methods.items():
+        cells = []
+        for c in present:
+            if c not in metrics:
+                cells.append("<td>-</td>")
+                continue
+            cls = ' class="best"' if c in best and metrics[c] == best[c] else ""
+            cells.append(f"<td{cls}>{metrics[c]:.4f}</td>")
+        rows.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
+    return f"<table><tr><th>method</th>{head}</tr>{''.join(rows)}</table>"
+
+
+def write_html_report(
+    report: Mapping[str, Any],
+    path: str | Path,
+    figures: Mapping[str, Sequence[tuple[str, Path]]] | None = None,
+    title: str = "lidarflow evaluation",
+) -> Path:
+    """Write ``report`` (the evaluate JSON) as one HTML page.
+
+    ``figures`` maps a recording's path to ``(caption, image file)`` pairs shown under its
+    table (PNG or GIF).
+    """
+    figures = figures or {}
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        "<p>F1 at threshold 0.4, micro-averaged over all cells of all frames after the warm-up; "
+        "changed-cell F1 counts only cells that differ between the current and the next map "
+        "(copying the last map scores 0 there). Best F1 and changed-cell F1 in bold.</p>",
+        "<p class='legend'>Overlays: <span style='background:#28b428'>truth only</span>"
+        "<span style='background:#dc2828;color:white'>prediction only</span>"
+        "<span style='background:#f0c800'>both</span>"
+        "<span style='background:#e1e1e1'>not visible</span></p>",
+    ]
+    if len(report.get("recordings", [])) > 1:
+        parts += ["<h2>Overall (micro-averaged)</h2>", _table(report["overall"])]
+    for entry in report.get("recordings", []):
+        name = html.escape(Path(entry["path"]).name)
+        parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated</p>")
+        parts.append(_table(entry["methods"]))
+        for caption, image in figures.get(entry["path"], []):
+            parts.append(
+                f"<figure><img src='{_data_uri(Path(image))}' alt='{html.escape(caption)}'>"
+                f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+            )
+    if "config" in report:
+        parts.append("<h2>Configuration</h2><pre>")
+        parts.append(html.escape(json.dumps(report["config"], indent=2)))
+        parts.append("</pre>")
+    parts.append("</body></html>")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(parts), encoding="utf-8")
+    return path
