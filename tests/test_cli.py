@@ -135,3 +135,37 @@ def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     assert page.count("data:image/gif;base64,") == 3 and "data:image/png;base64," in page
     assert "copy_last" in page and "changed_f1" in page and "src='/" not in page
     assert json.loads((out / "report.json").read_text())["recordings"][0]["frames_evaluated"] == 232
+
+
+def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):
+    from safetensors.torch import save_file
+
+    from lidarflow.models import build_model
+
+    run_dir = tmp_path / "untrained"
+    run_dir.mkdir()
+    net = build_model("flownet")
+    save_file(
+        {k: v.contiguous() for k, v in net.state_dict().items()}, run_dir / "model.safetensors"
+    )
+    (run_dir / "model.json").write_text(json.dumps({"model": "flownet", "model_kwargs": {}}))
+    out = tmp_path / "e.json"
+    code, _, err = run(
+        ["evaluate", str(sample_bag_path()), "--model", str(run_dir), "--json", str(out)], capsys
+    )
+    assert code == 0, err
+    methods = json.loads(out.read_text())["overall"]
+    # zero flow head: warping by zero flow is the identity, so the prediction is the last map
+    for key in ("f1", "precision", "recall", "changed_f1"):
+        assert methods["untrained"][key] == methods["copy_last"][key]
+
+
+def test_evaluate_with_a_missing_or_broken_model(tmp_path, capsys):
+    code, _, err = run(["evaluate", str(sample_bag_path()), "--model", str(tmp_path / "x")], capsys)
+    assert code == 1 and "no such model" in err
+    (tmp_path / "m.safetensors").write_bytes(b"junk")
+    (tmp_path / "m.json").write_text(json.dumps({"model": "flownet"}))
+    code, _, err = run(
+        ["evaluate", str(sample_bag_path()), "-m", str(tmp_path / "m.safetensors")], capsys
+    )
+    assert code == 1 and "unreadable weights" in err and len(err.strip().splitlines()) == 1

@@ -229,6 +229,15 @@ def evaluate(
         list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
     ],
     topic: TopicOpt = None,
+    model: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--model",
+            "-m",
+            help="Trained model to evaluate beside the baselines: a run folder from "
+            "`lidarflow train` or a .safetensors file with its .json. Repeat for several.",
+        ),
+    ] = None,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the full report (JSON) here.")
     ] = None,
@@ -257,14 +266,26 @@ def evaluate(
 ) -> None:
     """Score next-map prediction on each recording, streaming (one step per frame, state
     carried across the recording), with F1 at 0.4, precision, recall, average precision and
-    changed-cell F1, for the baselines copy-last, temporal average and constant velocity."""
+    changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
+    for every --model given (and flow end-point error where the recording has ground truth)."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.report import build_report, format_table
     from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.models.streaming import StreamingModel
+    from lidarflow.models.weights import describe_source, load_trained
     from lidarflow.scan import GridSpec
 
     spec = GridSpec(grid, grid, res)
-    methods = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    models_used = {}
+    for source in model or []:
+        net, card = load_trained(source)
+        name = describe_source(source)
+        while name in {m.name for m in methods}:
+            name += "_"
+        methods.append(ModelMethod(name, StreamingModel(net)))
+        models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
     results = []
     figures: dict[str, list[tuple[str, Path]]] = {}
     for path in inputs:
@@ -292,6 +313,7 @@ def evaluate(
         "grid": spec.to_dict(),
         "temporal_average": {"window": ta_window, "threshold": ta_threshold},
         "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+        "models": models_used,
     }
     report = build_report(results, config)
     for entry in report["recordings"]:

@@ -1,0 +1,48 @@
+"""A trained model run one frame at a time on NumPy maps, its recurrent state kept inside."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from lidarflow.models.recurrent import RecurrentMapModel
+
+__all__ = ["StepResult", "StreamingModel"]
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One step's prediction: next-map probability ``(H, W)`` and, for flow models, the flow
+    ``(4, H, W)`` in cells (``B_col, B_row, F_col, F_row``), else ``None``."""
+
+    probability: np.ndarray
+    flow: np.ndarray | None
+
+
+class StreamingModel:
+    """Feeds ``(occupancy, visibility)`` frames through ``model.step`` with the state carried.
+
+    ``reset()`` starts a new stream (zero state); the grid size is taken from the first frame
+    after a reset.
+    """
+
+    def __init__(self, model: RecurrentMapModel, device: str | torch.device = "cpu") -> None:
+        self.model = model.to(device).eval()
+        self.device = torch.device(device)
+        self._state: tuple[torch.Tensor, ...] | None = None
+
+    def reset(self) -> None:
+        self._state = None
+
+    @torch.inference_mode()
+    def step(self, occupancy: np.ndarray, visibility: np.ndarray) -> StepResult:
+        maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
+        x = torch.from_numpy(maps).to(self.device)
+        if self._state is None:
+            self._state = self.model.init_state(1, maps.shape[-2], maps.shape[-1])
+        out, self._state = self.model.step(x, self._state)
+        probability = self.model.predict_next(x, out)[0, 0].float().cpu().numpy()
+        flow = out[0].float().cpu().numpy() if self.model.out_channels == 4 else None
+        return StepResult(probability, flow)
