@@ -1,0 +1,53 @@
+"""The HTML report renders in a real browser (headless Chromium, where installed)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from lidarflow.evaluate.baselines import CopyLast
+from lidarflow.evaluate.report import build_report
+from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.viz.html import write_html_report
+from lidarflow.viz.overlay import overlay_rgb, write_gif
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium is not installed")
+def test_report_renders_in_headless_chromium(tmp_path):
+    import imageio.v2 as imageio
+
+    maps = np.zeros((14, 20, 20), bool)
+    maps[:, 5:9, 5:9] = True
+    report = build_report([("rec.npz", evaluate_maps(maps, maps, [CopyLast()], warmup=2))])
+    gif = write_gif([overlay_rgb(maps[0], maps[1], scale=8)] * 2, tmp_path / "o.gif")
+    page = write_html_report(report, tmp_path / "index.html", {"rec.npz": [("overlay", gif)]})
+    shot = tmp_path / "shot.png"
+    subprocess.run(
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--user-data-dir={tmp_path / 'profile'}",
+            f"--screenshot={shot}",
+            "--window-size=800,600",
+            page.as_uri(),
+        ],
+        capture_output=True,
+        timeout=120,
+        check=False,
+    )
+    image = imageio.imread(shot)
+    assert image.shape[0] == 600 and image.shape[1] == 800
+    colours = {tuple(c) for c in image[..., :3].reshape(-1, 3)[::97]}
+    assert len(colours) > 5  # text, table lines and the yellow overlay, not a blank page
+    assert (np.abs(image[..., :3].astype(int) - [240, 200, 0]).sum(-1) < 30).any()
