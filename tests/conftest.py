@@ -35,3 +35,28 @@ def synthetic_recording() -> Recording:
 @pytest.fixture(scope="session")
 def sample_recording() -> Recording:
     return read_bag(sample_bag_path())
+
+
+def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):
+    """A run folder as `lidarflow train` leaves it, holding an untrained (random) model."""
+    import json
+
+    import torch
+    from safetensors.torch import save_file
+
+    from lidarflow.models import build_model
+
+    torch.manual_seed(seed)
+    net = build_model(name, **kwargs)
+    folder.mkdir(parents=True, exist_ok=True)
+    save_file(
+        {k: v.contiguous() for k, v in net.state_dict().items()}, folder / "model.safetensors"
+    )
+    (folder / "model.json").write_text(json.dumps({"model": name, "model_kwargs": kwargs}))
+    return folder
+
+
+@pytest.fixture
+def random_flownet_dir(tmp_path):
+    """A flownet whose flow head is random (not zero), so its flow is not trivially zero."""
+    return make_model_dir(tmp_path / "random_flownet", zero_init_flow=False)

@@ -169,3 +169,44 @@ def test_evaluate_with_a_missing_or_broken_model(tmp_path, capsys):
         ["evaluate", str(sample_bag_path()), "-m", str(tmp_path / "m.safetensors")], capsys
     )
     assert code == 1 and "unreadable weights" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("suffix", ["out.mcap", "out.bag"])
+def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_dir, suffix):
+    from tests.predict.test_rosout import read_all
+
+    rec = tmp_path / "short.npz"
+    from lidarflow.data import read_bag
+
+    read_bag(sample_bag_path()).slice(0, 12).save(rec)
+    out = tmp_path / suffix
+    code, _, err = run(
+        ["predict", str(rec), "-o", str(out), "--model", str(random_flownet_dir), "--horizon", "2"],
+        capsys,
+    )
+    assert code == 0, err
+    msgs = read_all(out)
+    assert len(msgs["/right_scan"]) == 12
+    for topic in ("occupancy", "predicted", "predicted_k2", "flow_backward", "flow_forward"):
+        assert len(msgs[f"/lidarflow/{topic}"]) == 12, topic
+    grid = msgs["/lidarflow/predicted"][0]
+    assert grid.header.frame_id == "right_laser"
+    assert (grid.info.width, grid.info.height, len(grid.data)) == (100, 100, 10000)
+
+
+def test_export_then_predict_with_onnx(tmp_path, capsys, random_flownet_dir):
+    onnx = tmp_path / "m.onnx"
+    code, _, err = run(["export", "--onnx", str(onnx), "--model", str(random_flownet_dir)], capsys)
+    assert code == 0, err
+    rec = tmp_path / "short.npz"
+    from lidarflow.data import read_bag
+
+    read_bag(sample_bag_path()).slice(0, 5).save(rec)
+    code, _, err = run(
+        ["predict", str(rec), "-o", str(tmp_path / "o.mcap"), "-m", str(onnx)], capsys
+    )
+    assert code == 0, err
+    code, _, err = run(
+        ["predict", str(rec), "-o", str(tmp_path / "o.mcap"), "-m", str(onnx)], capsys
+    )
+    assert code == 1 and "already exists" in err

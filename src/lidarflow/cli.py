@@ -333,6 +333,65 @@ def evaluate(
         typer.echo(f"wrote {page}")
 
 
+ModelOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--model",
+        "-m",
+        help="Run folder from `lidarflow train`, a .safetensors file, or an .onnx file; "
+        "default: the bundled pretrained model.",
+    ),
+]
+
+
+@app.command()
+def predict(
+    input: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP to predict on.")],
+    output: Annotated[
+        Path,
+        typer.Option(
+            "--output",
+            "-o",
+            help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag).",
+        ),
+    ],
+    topic: TopicOpt = None,
+    model: ModelOpt = None,
+    horizon: Annotated[
+        int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
+    ] = 1,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+) -> None:
+    """Write the input scans plus, per scan, the predicted next map (nav_msgs/OccupancyGrid in
+    the scan's frame, ready for RViz/Foxglove) and the flow (32FC2 images) to a new bag."""
+    from lidarflow.predict import Predictor
+    from lidarflow.predict.job import predict_to_bag
+    from lidarflow.scan import GridSpec
+
+    recording = _load(input, topic)
+    predictor = Predictor(model, GridSpec(grid, grid, res), horizon=horizon)
+    with _progress(len(recording), f"predicting {input.name}") as bar:
+        counts = predict_to_bag(recording, predictor, output, bar.update)
+    typer.echo(f"wrote {output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))
+
+
+@app.command()
+def export(
+    onnx: Annotated[Path, typer.Option("--onnx", help="ONNX file to write.")],
+    model: ModelOpt = None,
+    grid: GridOpt = 100,
+) -> None:
+    """Export one streaming step (hidden state as explicit inputs/outputs) to ONNX, for
+    onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.predict.export import export_onnx
+
+    net, card = resolve_model(model)
+    path = export_onnx(net, onnx, grid, grid)
+    typer.echo(f"wrote {path} ({card.get('model')}, {grid}x{grid} grid)")
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script."""
     debug = os.environ.get("LIDARFLOW_DEBUG") == "1"

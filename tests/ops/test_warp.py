@@ -159,3 +159,14 @@ def test_low_precision_flow_is_sampled_in_the_maps_precision():
     out = warp(maps, flow)
     assert out.dtype == torch.float32
     torch.testing.assert_close(out, _shift_reference(maps, 1, 1))
+
+
+def test_warp_used_in_inference_mode_first_still_trains():
+    # Regression: the cached sampling grid was created as an inference tensor when the first
+    # call ran under torch.inference_mode, and every later autograd call then failed.
+    size = (1, 1, 13, 17)  # a size no other test uses, so the cache starts empty for it
+    with torch.inference_mode():
+        warp(torch.zeros(size), torch.zeros(1, 2, 13, 17))
+    flow = torch.zeros(1, 2, 13, 17, requires_grad=True)
+    warp(torch.rand(size), flow).sum().backward()
+    assert flow.grad is not None

@@ -33,9 +33,7 @@ def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
     try:
         builder = _BUILDERS[name]
     except KeyError as err:
-        raise ModelError(
-            f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}"
-        ) from err
+        raise ModelError(f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}") from err
     try:
         return builder(**kwargs)
     except (TypeError, ValueError) as err:

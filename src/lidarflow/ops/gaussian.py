@@ -70,10 +70,18 @@ def gaussian_blur(maps: Tensor, kernel_size: int, sigma: float | None = None) ->
     k = _kernel(kernel_size, sigma, maps.device, maps.dtype)
     pad = kernel_size // 2
     # Depthwise, separable: k*k -> 2k multiply-adds per cell.
-    out = F.conv2d(maps, k.view(1, 1, kernel_size, 1).expand(channels, 1, kernel_size, 1),
-                   padding=(pad, 0), groups=channels)
-    return F.conv2d(out, k.view(1, 1, 1, kernel_size).expand(channels, 1, 1, kernel_size),
-                    padding=(0, pad), groups=channels)
+    out = F.conv2d(
+        maps,
+        k.view(1, 1, kernel_size, 1).expand(channels, 1, kernel_size, 1),
+        padding=(pad, 0),
+        groups=channels,
+    )
+    return F.conv2d(
+        out,
+        k.view(1, 1, 1, kernel_size).expand(channels, 1, 1, kernel_size),
+        padding=(0, pad),
+        groups=channels,
+    )
 
 
 def _kernel(

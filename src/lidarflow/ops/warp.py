@@ -28,10 +28,13 @@ def _base_grid(
     cached = _BASE_GRIDS.get(key)
     if cached is not None:
         return cached
-    cols = torch.linspace(-1.0, 1.0, width, device=device, dtype=dtype)
-    rows = torch.linspace(-1.0, 1.0, height, device=device, dtype=dtype)
-    grid = torch.stack(torch.meshgrid(cols, rows, indexing="xy"), dim=-1).unsqueeze(0)
-    scale = torch.tensor([2.0 / (width - 1), 2.0 / (height - 1)], device=device, dtype=dtype)
+    # Built outside inference mode: a cached inference tensor would break every later call
+    # that autograd tracks (training, ONNX tracing) in the same process.
+    with torch.inference_mode(False):
+        cols = torch.linspace(-1.0, 1.0, width, device=device, dtype=dtype)
+        rows = torch.linspace(-1.0, 1.0, height, device=device, dtype=dtype)
+        grid = torch.stack(torch.meshgrid(cols, rows, indexing="xy"), dim=-1).unsqueeze(0)
+        scale = torch.tensor([2.0 / (width - 1), 2.0 / (height - 1)], device=device, dtype=dtype)
     if len(_BASE_GRIDS) >= _MAX_CACHED:
         _BASE_GRIDS.clear()
     _BASE_GRIDS[key] = (grid, scale)
@@ -81,7 +84,10 @@ def warp(maps: Tensor, flow: Tensor) -> Tensor:
         # Under autocast the flow may come out in a lower precision than the maps; sample in the
         # maps' precision so the occupancy is not rounded.
         flow = flow.to(maps.dtype)
-    base, scale = _base_grid(h, w, maps.device, maps.dtype)
+    # int(): under ONNX tracing the sizes arrive as tensors; as ints they hit the cache and the
+    # grid becomes a float32 constant (traced from linspace, the exporter types it as double,
+    # which onnxruntime's GridSample rejects).
+    base, scale = _base_grid(int(h), int(w), maps.device, maps.dtype)
     # One fused op (and one allocation) for base + flow * scale, in grid_sample's (B, H, W, 2).
     grid = torch.addcmul(base, flow.permute(0, 2, 3, 1), scale)
     return F.grid_sample(maps, grid, mode="bilinear", padding_mode="zeros", align_corners=True)

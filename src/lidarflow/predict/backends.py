@@ -1,0 +1,80 @@
+"""Inference backends for :class:`~lidarflow.predict.predictor.Predictor`: PyTorch or ONNX Runtime.
+
+Both run one step ``(maps (1, 2, H, W), state) -> (probability, out, state)`` on NumPy in and
+out; the state is opaque to the caller (tensors for torch, arrays for onnxruntime).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import PredictError
+
+__all__ = ["OnnxBackend", "TorchBackend"]
+
+
+class TorchBackend:
+    """Runs a :class:`~lidarflow.models.recurrent.RecurrentMapModel` with PyTorch."""
+
+    def __init__(self, model: Any, device: str = "cpu", threads: int | None = None) -> None:
+        import torch
+
+        if threads:
+            torch.set_num_threads(threads)
+        self.torch = torch
+        self.device = torch.device(device)
+        self.model = model.to(self.device).eval()
+        self.out_channels = int(model.out_channels)
+
+    def init_state(self, height: int, width: int) -> Any:
+        return self.model.init_state(1, height, width, device=self.device)
+
+    def run(self, maps: np.ndarray, state: Any) -> tuple[np.ndarray, np.ndarray, Any]:
+        with self.torch.inference_mode():
+            x = self.torch.from_numpy(maps).to(self.device)
+            out, state = self.model.step(x, state)
+            probability = self.model.predict_next(x, out)
+        return probability.float().cpu().numpy(), out.float().cpu().numpy(), state
+
+
+class OnnxBackend:
+    """Runs an ONNX file written by :func:`~lidarflow.predict.export.export_onnx` with
+    onnxruntime (no PyTorch needed)."""
+
+    def __init__(self, path: str | Path, threads: int | None = None) -> None:
+        import onnxruntime as ort
+
+        path = Path(path)
+        if not path.exists():
+            raise PredictError(f"{path}: no such ONNX file")
+        options = ort.SessionOptions()
+        if threads:
+            options.intra_op_num_threads = threads
+        try:
+            self.session = ort.InferenceSession(
+                str(path), options, providers=["CPUExecutionProvider"]
+            )
+        except Exception as err:  # onnxruntime raises its own exception classes
+            raise PredictError(f"{path}: not a loadable ONNX model ({err})") from err
+        inputs = self.session.get_inputs()
+        if not inputs or inputs[0].name != "maps":
+            raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
+        self.state_shapes = [tuple(i.shape) for i in inputs[1:]]
+        self.grid_shape = tuple(inputs[0].shape[-2:])
+        self.out_channels = int(self.session.get_outputs()[1].shape[1])
+
+    def init_state(self, height: int, width: int) -> Any:
+        if (height, width) != self.grid_shape:
+            raise PredictError(
+                f"this ONNX model was exported for a {self.grid_shape[0]}x{self.grid_shape[1]} "
+                f"grid, not {height}x{width}; export again with --grid"
+            )
+        return [np.zeros(s, np.float32) for s in self.state_shapes]
+
+    def run(self, maps: np.ndarray, state: Any) -> tuple[np.ndarray, np.ndarray, Any]:
+        feeds = {"maps": maps, **{f"state{i}": s for i, s in enumerate(state)}}
+        probability, out, *next_state = self.session.run(None, feeds)
+        return probability, out, next_state

@@ -1,0 +1,65 @@
+"""ONNX export of one streaming step, the recurrent state as explicit inputs and outputs.
+
+Graph: inputs ``maps (1, 2, H, W)``, ``state0..stateN-1``; outputs ``probability (1, 1, H, W)``
+(next-map occupancy), ``out (1, C, H, W)`` (flow channels for LiDAR-FlowNet, the logit for
+DeepTracking) and ``next_state0..``. The grid size is fixed at export time (the warp's sampling
+grid is a constant of the graph).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from lidarflow.errors import PredictError
+from lidarflow.models.recurrent import RecurrentMapModel
+
+__all__ = ["OPSET", "StepGraph", "export_onnx"]
+
+OPSET = 17
+
+
+class StepGraph(nn.Module):
+    """``forward(maps, *state) -> (probability, out, *next_state)``: what the ONNX file holds."""
+
+    def __init__(self, model: RecurrentMapModel) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, maps: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
+        out, next_state = self.model.step(maps, tuple(state))
+        return (self.model.predict_next(maps, out), out, *next_state)
+
+
+def export_onnx(
+    model: RecurrentMapModel, path: str | Path, height: int = 100, width: int = 100
+) -> Path:
+    """Write ``model``'s streaming step to ``path`` as ONNX (opset :data:`OPSET`)."""
+    path = Path(path)
+    if not path.parent.exists():
+        raise PredictError(f"{path.parent}: no such folder for the ONNX file")
+    model = model.eval()
+    graph = StepGraph(model)
+    state = model.init_state(1, height, width)
+    maps = torch.zeros(1, 2, height, width)
+    names_in = ["maps", *[f"state{i}" for i in range(len(state))]]
+    names_out = ["probability", "out", *[f"next_state{i}" for i in range(len(state))]]
+    with warnings.catch_warnings():
+        # The tracer warns that the grid size becomes a constant: that is intended (see above).
+        warnings.simplefilter("ignore")
+        try:
+            torch.onnx.export(
+                graph,
+                (maps, *state),
+                str(path),
+                input_names=names_in,
+                output_names=names_out,
+                opset_version=OPSET,
+                dynamo=False,
+            )
+        except Exception as err:  # the exporter raises many types
+            raise PredictError(f"ONNX export failed: {type(err).__name__}: {err}") from err
+    return path

@@ -1,0 +1,75 @@
+"""``lidarflow predict``: a recording in, a bag out with the scans and their predictions.
+
+Topics written (all stamped with the scan's stamp, in the scan's frame):
+
+- the input scan topic: the scans themselves (ranges and geometry; intensities are not kept);
+- ``/lidarflow/occupancy``: the current occupancy map (``nav_msgs/OccupancyGrid``);
+- ``/lidarflow/predicted``: the predicted next map, probability x 100 (``-1`` where the current
+  scan saw nothing and nothing is predicted);
+- ``/lidarflow/predicted_k{K}``: K frames ahead, for ``--horizon`` K > 1;
+- ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image`` ``32FC2``,
+  per map cell the (column, row) displacement in cells (flow models only).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from lidarflow.data.recording import Recording
+from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.predict.predictor import Predictor
+from lidarflow.predict.rosout import BagOutput
+
+__all__ = ["TOPIC_PREFIX", "predict_to_bag"]
+
+TOPIC_PREFIX = "/lidarflow"
+
+
+def predict_to_bag(
+    recording: Recording,
+    predictor: Predictor,
+    output: str | Path,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, int]:
+    """Run ``predictor`` over ``recording`` and write everything to ``output``; returns the
+    number of messages per topic."""
+    scan_topic = recording.meta.get("topic") or "/scan"
+    if not scan_topic.startswith("/"):
+        scan_topic = "/" + scan_topic  # ROS 2 requires absolute names; ROS 1 accepts them
+    frame_id = recording.meta.get("frame_id") or "laser"
+    grid = predictor.grid
+    counts: dict[str, int] = {}
+
+    def count(topic: str) -> None:
+        counts[topic] = counts.get(topic, 0) + 1
+
+    predictor.reset()
+    with BagOutput(output) as out:
+        for scan in recording:
+            p = predictor.update(scan)
+            stamp = scan.stamp_ns
+            out.write_scan(scan_topic, scan, frame_id)
+            count(scan_topic)
+            out.write_grid(
+                f"{TOPIC_PREFIX}/occupancy",
+                p.occupancy.astype(float),
+                grid,
+                stamp,
+                frame_id,
+                unknown=~p.visibility,
+            )
+            count(f"{TOPIC_PREFIX}/occupancy")
+            for k, probability in enumerate(p.horizon, start=1):
+                topic = f"{TOPIC_PREFIX}/predicted" + (f"_k{k}" if k > 1 else "")
+                unknown = ~p.visibility & (probability < THRESHOLD)
+                out.write_grid(topic, probability, grid, stamp, frame_id, unknown=unknown)
+                count(topic)
+            if p.backward_flow is not None and p.forward_flow is not None:
+                out.write_flow(f"{TOPIC_PREFIX}/flow_backward", p.backward_flow, stamp, frame_id)
+                out.write_flow(f"{TOPIC_PREFIX}/flow_forward", p.forward_flow, stamp, frame_id)
+                count(f"{TOPIC_PREFIX}/flow_backward")
+                count(f"{TOPIC_PREFIX}/flow_forward")
+            if progress is not None:
+                progress(1)
+    return counts

@@ -1,0 +1,120 @@
+"""The streaming predictor a robot calls once per scan.
+
+>>> from lidarflow.predict import Predictor                     # doctest: +SKIP
+>>> predictor = Predictor()            # bundled model; Predictor("run_dir") or ("m.onnx")
+>>> for scan in scans:                 # lidarflow.scan.Scan, or (occupancy, visibility) maps
+...     p = predictor.update(scan)
+...     p.probability, p.occupied, p.backward_flow, p.forward_flow
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import PredictError
+from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.predict.backends import OnnxBackend, TorchBackend
+from lidarflow.scan import GridSpec, Scan, rasterize
+
+__all__ = ["Prediction", "Predictor"]
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """What one update returns.
+
+    Attributes:
+        probability: ``(H, W)`` probability that each cell is occupied in the next frame.
+        occupied: ``probability >= 0.4`` (the project's decision threshold).
+        backward_flow, forward_flow: ``(2, H, W)`` flow in cells (column, row), ``None`` for
+            models that predict occupancy directly (DeepTracking).
+        horizon: ``(K, H, W)`` probabilities 1..K frames ahead (``horizon[0] is probability``).
+        occupancy, visibility: the maps of the frame just given.
+    """
+
+    probability: np.ndarray
+    occupied: np.ndarray
+    backward_flow: np.ndarray | None
+    forward_flow: np.ndarray | None
+    horizon: np.ndarray
+    occupancy: np.ndarray
+    visibility: np.ndarray
+
+
+class Predictor:
+    """Stateful next-map predictor.
+
+    Args:
+        model: a run folder or ``.safetensors`` file (PyTorch), an ``.onnx`` file (onnxruntime,
+            no PyTorch needed), or ``None`` for the bundled pretrained model.
+        grid: the map grid (default 100 x 100 at 0.1 m, the grid the model was trained on).
+        horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
+        threads: CPU threads for inference (default: the library's choice).
+    """
+
+    def __init__(
+        self,
+        model: str | Path | None = None,
+        grid: GridSpec | None = None,
+        horizon: int = 1,
+        threads: int | None = None,
+        device: str = "cpu",
+    ) -> None:
+        if horizon < 1:
+            raise PredictError(f"horizon must be >= 1, got {horizon}")
+        self.grid = grid or GridSpec()
+        self.horizon = horizon
+        self.backend: Any
+        if model is not None and Path(model).suffix.lower() == ".onnx":
+            self.backend = OnnxBackend(model, threads)
+            self.card: dict[str, Any] = {"model": "onnx", "weights_path": str(model)}
+        else:
+            from lidarflow.models.presets import resolve_model
+
+            net, self.card = resolve_model(model)
+            self.backend = TorchBackend(net, device, threads)
+        self._state: Any = None
+
+    def reset(self) -> None:
+        """Forget the past: the next update starts from a zero state."""
+        self._state = None
+
+    def _maps(self, item: Scan | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        if isinstance(item, Scan):
+            return rasterize(item, self.grid)
+        occupancy, visibility = (np.asarray(a) for a in item)
+        if occupancy.shape != self.grid.shape or visibility.shape != self.grid.shape:
+            raise PredictError(
+                f"maps must be {self.grid.shape}, got {occupancy.shape} and {visibility.shape}"
+            )
+        return occupancy, visibility
+
+    def update(self, item: Scan | tuple[np.ndarray, np.ndarray]) -> Prediction:
+        """Feed one scan (or its ``(occupancy, visibility)`` maps) and predict what comes next."""
+        occupancy, visibility = self._maps(item)
+        maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
+        if self._state is None:
+            self._state = self.backend.init_state(*self.grid.shape)
+        probability, out, self._state = self.backend.run(maps, self._state)
+        future = [probability[0, 0]]
+        # Roll forward on a copy of the state: the fed-back predictions must not leak into
+        # the state that the next real scan continues from.
+        state = self._state
+        for _ in range(self.horizon - 1):
+            fed = np.stack([future[-1], visibility.astype(np.float32)])[None]
+            next_probability, _, state = self.backend.run(fed.astype(np.float32), state)
+            future.append(next_probability[0, 0])
+        flow = out[0] if self.backend.out_channels == 4 else None
+        return Prediction(
+            probability=future[0],
+            occupied=future[0] >= THRESHOLD,
+            backward_flow=None if flow is None else flow[:2],
+            forward_flow=None if flow is None else flow[2:],
+            horizon=np.stack(future),
+            occupancy=np.asarray(occupancy, bool),
+            visibility=np.asarray(visibility, bool),
+        )

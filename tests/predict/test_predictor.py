@@ -1,0 +1,83 @@
+"""The streaming Predictor: shapes, state, horizon, and ONNX parity with PyTorch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarflow.errors import PredictError
+from lidarflow.models.presets import resolve_model
+from lidarflow.predict import Predictor
+from lidarflow.predict.export import export_onnx
+from tests.conftest import make_model_dir
+
+
+def frames(recording, n=15):
+    return [recording.scan(i) for i in range(n)]
+
+
+def test_update_shapes_and_threshold(random_flownet_dir, sample_recording):
+    predictor = Predictor(random_flownet_dir)
+    p = predictor.update(sample_recording.scan(0))
+    assert p.probability.shape == (100, 100) and p.horizon.shape == (1, 100, 100)
+    assert p.backward_flow.shape == (2, 100, 100) and p.forward_flow.shape == (2, 100, 100)
+    np.testing.assert_array_equal(p.occupied, p.probability >= 0.4)
+    assert p.probability.min() >= 0.0 and p.probability.max() <= 1.0
+
+
+def test_reset_replays_identically_and_state_matters(random_flownet_dir, sample_recording):
+    predictor = Predictor(random_flownet_dir)
+    first = [predictor.update(s).backward_flow for s in frames(sample_recording)]
+    predictor.reset()
+    again = [predictor.update(s).backward_flow for s in frames(sample_recording)]
+    np.testing.assert_array_equal(first[-1], again[-1])
+    fresh = Predictor(random_flownet_dir).update(sample_recording.scan(14)).backward_flow
+    assert not np.allclose(fresh, first[-1])  # the recurrent state carries the past
+
+
+def test_horizon_rollout_does_not_leak_into_the_state(random_flownet_dir, sample_recording):
+    one = Predictor(random_flownet_dir, horizon=1)
+    three = Predictor(random_flownet_dir, horizon=3)
+    for scan in frames(sample_recording, 8):
+        a, b = one.update(scan), three.update(scan)
+    np.testing.assert_allclose(a.probability, b.probability, atol=1e-6)
+    assert b.horizon.shape == (3, 100, 100)
+    assert not np.allclose(b.horizon[0], b.horizon[2])
+
+
+def test_maps_input_and_wrong_shape(random_flownet_dir):
+    predictor = Predictor(random_flownet_dir)
+    occ = np.zeros((100, 100), bool)
+    assert predictor.update((occ, occ)).probability.shape == (100, 100)
+    with pytest.raises(PredictError, match=r"maps must be \(100, 100\)"):
+        predictor.update((np.zeros((50, 50)), np.zeros((50, 50))))
+
+
+def test_onnx_matches_pytorch_over_a_recording(tmp_path, random_flownet_dir, sample_recording):
+    net, _ = resolve_model(random_flownet_dir)
+    onnx_path = export_onnx(net, tmp_path / "m.onnx")
+    torch_p, onnx_p = Predictor(random_flownet_dir), Predictor(onnx_path)
+    worst_flow = worst_prob = 0.0
+    for scan in frames(sample_recording, 30):
+        a, b = torch_p.update(scan), onnx_p.update(scan)
+        worst_flow = max(worst_flow, float(np.abs(a.backward_flow - b.backward_flow).max()))
+        worst_flow = max(worst_flow, float(np.abs(a.forward_flow - b.forward_flow).max()))
+        worst_prob = max(worst_prob, float(np.abs(a.probability - b.probability).max()))
+    assert worst_flow < 1e-4 and worst_prob < 1e-4
+
+
+def test_deeptracking_has_no_flow(tmp_path, sample_recording):
+    folder = make_model_dir(tmp_path / "dt", name="deeptracking")
+    p = Predictor(folder).update(sample_recording.scan(0))
+    assert p.backward_flow is None and p.forward_flow is None
+    assert p.probability.shape == (100, 100)
+
+
+def test_onnx_grid_mismatch_is_explained(tmp_path, random_flownet_dir):
+    from lidarflow.scan import GridSpec
+
+    net, _ = resolve_model(random_flownet_dir)
+    path = export_onnx(net, tmp_path / "m.onnx")
+    predictor = Predictor(path, grid=GridSpec(64, 64, 0.1))
+    with pytest.raises(PredictError, match="exported for a 100x100 grid"):
+        predictor.update((np.zeros((64, 64)), np.zeros((64, 64))))
