@@ -198,8 +198,11 @@ def main() -> None:
     report = {
         "benchmark": "train_step",
         "unit": "frame-steps/s (one frame through forward + backward, loss included)",
-        "config": {**{k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-                   "loss": "LossConfig.paper()", "warmup_frames": warmup},
+        "config": {
+            **{k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+            "loss": "LossConfig.paper()",
+            "warmup_frames": warmup,
+        },
         "reference_frame_steps_per_s": ref,
         "results": results,
         "environment": {

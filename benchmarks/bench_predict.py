@@ -1,0 +1,119 @@
+"""Scan-to-prediction latency of the streaming Predictor (rasterization included), per backend.
+
+Single stream: median and p99 milliseconds per scan over a real recording's scans, for the
+PyTorch eager backend (the reference, measured in the same run) and onnxruntime, each at the
+given thread counts. Batched: scans/s for B streams stepped together (many robots at once).
+Writes JSON (default ``benchmarks/results/predict.json``).
+
+    python benchmarks/bench_predict.py [--scans 200] [--threads 1 2] [--batch 32]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.torch import load_file
+
+from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.models import build_model
+from lidarflow.predict import Predictor
+from lidarflow.predict.export import export_onnx
+
+
+def model_dir(folder: Path) -> Path:
+    from safetensors.torch import save_file
+
+    torch.manual_seed(0)
+    net = build_model("flownet", zero_init_flow=False)
+    save_file(
+        {k: v.contiguous() for k, v in net.state_dict().items()}, folder / "model.safetensors"
+    )
+    (folder / "model.json").write_text(
+        json.dumps({"model": "flownet", "model_kwargs": {"zero_init_flow": False}})
+    )
+    return folder
+
+
+def latency(predictor: Predictor, scans: list, warm: int = 10) -> dict[str, float]:
+    for s in scans[:warm]:
+        predictor.update(s)
+    times = []
+    for s in scans:
+        t0 = time.perf_counter()
+        predictor.update(s)
+        times.append(time.perf_counter() - t0)
+    ms = np.array(times) * 1e3
+    return {"median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99))}
+
+
+def batched(model: torch.nn.Module, batch: int, steps: int, threads: int) -> float:
+    torch.set_num_threads(threads)
+    x = (torch.rand(batch, 2, 100, 100) > 0.9).float()
+    state = model.init_state(batch, 100, 100)
+    with torch.inference_mode():
+        for _ in range(2):
+            out, state = model.step(x, state)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            out, state = model.step(x, state)
+            model.predict_next(x, out)
+        return batch * steps / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scans", type=int, default=200)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/predict.json"))
+    args = parser.parse_args()
+    recording = read_bag(sample_bag_path())
+    scans = [recording.scan(i % len(recording)) for i in range(args.scans)]
+    results: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = model_dir(Path(tmp))
+        net = build_model("flownet", zero_init_flow=False)
+        net.load_state_dict(load_file(folder / "model.safetensors"))
+        onnx_path = export_onnx(net.eval(), Path(tmp) / "m.onnx")
+        for threads in args.threads:
+            torch.set_num_threads(threads)
+            ref = latency(Predictor(folder, threads=threads), scans)
+            ort = latency(Predictor(onnx_path, threads=threads), scans)
+            results[f"threads={threads}"] = {
+                "torch_eager_fp32": ref,
+                "onnxruntime_fp32": ort,
+                "onnxruntime_speedup_vs_torch": ref["median_ms"] / ort["median_ms"],
+            }
+            print(
+                f"threads={threads}: torch {ref['median_ms']:.2f} ms (p99 {ref['p99_ms']:.2f}), "
+                f"onnxruntime {ort['median_ms']:.2f} ms (p99 {ort['p99_ms']:.2f})"
+            )
+        rate = batched(net.eval(), args.batch, 5, max(args.threads))
+        results["batched"] = {"batch": args.batch, "torch_scans_per_s": rate}
+        print(f"batched B={args.batch}: {rate:,.0f} scans/s (torch, {max(args.threads)} threads)")
+    out = {
+        "benchmark": "predict",
+        "scans": args.scans,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "torch": torch.__version__,
+        },
+        "note": "latency includes rasterization; absolute times are indicative on a shared CPU",
+        "results": results,
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(out, indent=2))
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
