@@ -243,7 +243,8 @@ class Crowd:
             force = self._forces(idx, sensor, robot_radius)
             vel = self.vel[idx] + h * force
             speed = np.hypot(vel[:, 0], vel[:, 1])
-            cap = np.where(self.state[idx] == WALK, 1.3 * self.speed0[idx], 0.6)
+            cap = np.where(self.state[idx] == WALK,
+                           np.minimum(1.3 * self.speed0[idx], self.cfg.speed_range[1]), 0.6)
             vel *= np.minimum(1.0, cap / np.maximum(speed, 1e-9))[:, None]
             self.vel[idx] = vel
             self.pos[idx] += h * vel
