@@ -46,31 +46,24 @@ def _points(ranges: np.ndarray, geometry: BeamGeometry, grid: GridSpec) -> tuple
     return f[inside], b[inside], px[inside], py[inside], (row * width + col)[inside]
 
 
-def _displace(
-    ranges: np.ndarray, ids: np.ndarray, src_poses: np.ndarray, dst_poses: np.ndarray,
-    motion: np.ndarray, geometry: BeamGeometry, grid: GridSpec,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Flow of the points of scans ``ranges (n, B)`` taken at ``src_poses (n, 3)`` once their
-    objects moved by ``motion (n, L, 2)`` (world frame, per dynamic object) and they are seen
-    from ``dst_poses``. Returns frame, flat cell, ``(K, 2)`` flow in cells, moved distance."""
-    f, b, px, py, cell = _points(ranges, geometry, grid)
-    obj = ids[f, b]
-    c0, s0 = np.cos(src_poses[f, 2]), np.sin(src_poses[f, 2])
-    wx = src_poses[f, 0] + c0 * px - s0 * py
-    wy = src_poses[f, 1] + s0 * px + c0 * py
-    dynamic = obj > STATIC_ID
-    step = np.zeros((len(f), 2))
-    if dynamic.any() and motion.shape[1]:
-        step[dynamic] = motion[f[dynamic], obj[dynamic]]
-    step[~np.isfinite(step).all(1)] = 0.0  # an object that is gone does not move
-    wx, wy = wx + step[:, 0], wy + step[:, 1]
-    c1, s1 = np.cos(dst_poses[f, 2]), np.sin(dst_poses[f, 2])
-    dx, dy = wx - dst_poses[f, 0], wy - dst_poses[f, 1]
-    qx = c1 * dx + s1 * dy
-    qy = -s1 * dx + c1 * dy
+def _to_frame(
+    f: np.ndarray, wx: np.ndarray, wy: np.ndarray, poses: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World points seen from ``poses[f]``: sensor-frame ``(x, y)``."""
+    c, s = np.cos(poses[:, 2])[f], np.sin(poses[:, 2])[f]
+    dx, dy = wx - poses[f, 0], wy - poses[f, 1]
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def _flow(
+    px: np.ndarray, py: np.ndarray, wx: np.ndarray, wy: np.ndarray, step: np.ndarray,
+    f_dst: np.ndarray, poses: np.ndarray, res: float,
+) -> np.ndarray:
+    """``(K, 2)`` flow in cells of points at sensor ``(px, py)`` / world ``(wx, wy)`` that move
+    by ``step (K, 2)`` in the world and are then seen from ``poses[f_dst]``."""
+    qx, qy = _to_frame(f_dst, wx + step[:, 0], wy + step[:, 1], poses)
     # Column index grows towards -y, row index towards -x.
-    flow = np.column_stack([-(qy - py) / grid.res, -(qx - px) / grid.res])
-    return f, cell, flow, np.hypot(step[:, 0], step[:, 1])
+    return np.column_stack([(py - qy) / res, (px - qx) / res])
 
 
 def _cell_mean(
@@ -124,14 +117,31 @@ def ground_truth(
     if has_next is None:
         has_next = np.ones(n, dtype=bool)
     keep = np.asarray(has_next, dtype=bool)
+    # Every return of the n + 1 scans, once: sensor frame, world frame, object hit.
+    f, b, px, py, cell = _points(ranges, geometry, grid)
+    c, s = np.cos(poses[:, 2])[f], np.sin(poses[:, 2])[f]
+    wx = poses[f, 0] + c * px - s * py
+    wy = poses[f, 1] + s * px + c * py
+    obj = ids[f, b]
     motion = objects[1:] - objects[:-1]  # (n, L, 2): frame t -> t + 1
-    fw_f, fw_cell, fw, moved = _displace(
-        ranges[:-1], ids[:-1], poses[:-1], poses[1:], motion, geometry, grid)
-    bw_f, bw_cell, bw, _ = _displace(
-        ranges[1:], ids[1:], poses[1:], poses[:-1], -motion, geometry, grid)
-    on = moved > MOVING_THRESHOLD
-    moving[fw_f[on], *np.divmod(fw_cell[on], grid.width)] = True
-    fw_keep, bw_keep = keep[fw_f], keep[bw_f]
-    _cell_mean(forward, fw_f[fw_keep], fw_cell[fw_keep], fw[fw_keep], grid)
-    _cell_mean(backward, bw_f[bw_keep], bw_cell[bw_keep], bw[bw_keep], grid)
+    motion = np.where(np.isfinite(motion), motion, 0.0)  # an object that is gone does not move
+    dynamic = obj > STATIC_ID
+
+    # Forward: points of scan t < n, moved t -> t + 1, seen from t + 1.
+    sel = (f < n) & keep[np.minimum(f, n - 1)]
+    step = np.zeros((int(sel.sum()), 2))
+    dyn = dynamic[sel]
+    step[dyn] = motion[f[sel][dyn], obj[sel][dyn]]
+    fw = _flow(px[sel], py[sel], wx[sel], wy[sel], step, f[sel] + 1, poses, grid.res)
+    _cell_mean(forward, f[sel], cell[sel], fw, grid)
+    on = np.hypot(step[:, 0], step[:, 1]) > MOVING_THRESHOLD
+    moving[f[sel][on], *np.divmod(cell[sel][on], grid.width)] = True
+
+    # Backward: points of scan t + 1, moved back t + 1 -> t, seen from t; stored at index t.
+    sel = (f > 0) & keep[np.maximum(f - 1, 0)]
+    step = np.zeros((int(sel.sum()), 2))
+    dyn = dynamic[sel]
+    step[dyn] = -motion[f[sel][dyn] - 1, obj[sel][dyn]]
+    bw = _flow(px[sel], py[sel], wx[sel], wy[sel], step, f[sel] - 1, poses, grid.res)
+    _cell_mean(backward, f[sel] - 1, cell[sel], bw, grid)
     return backward, forward, moving

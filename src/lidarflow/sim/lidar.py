@@ -165,16 +165,13 @@ def _beam_ranges(
 
 
 def _expand(firsts: np.ndarray, lasts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Item index and beam index of every (item, beam) pair in the given ranges; ranges are
-    ``(2, M)`` (two candidate ranges per item)."""
-    counts = (lasts - firsts + 1).ravel()
-    counts[counts < 0] = 0
-    items = np.tile(np.arange(firsts.shape[1]), 2)
+    """Pair counts ``(2M,)`` and beam index of every (item, beam) pair in the given ranges;
+    ranges are ``(2, M)`` (two candidate ranges per item), pairs ordered by range then item.
+    Per-item values ``v (M,)`` expand to pairs as ``np.repeat(np.tile(v, 2), counts)``."""
+    counts = np.maximum(lasts - firsts + 1, 0).ravel()
     total = int(counts.sum())
-    item = np.repeat(items, counts)
-    starts = np.repeat(np.cumsum(counts) - counts, counts)
-    beam = np.arange(total) - starts + np.repeat(firsts.ravel(), counts)
-    return item, beam
+    starts = np.repeat(np.cumsum(counts) - counts - firsts.ravel(), counts)
+    return counts, np.arange(total) - starts
 
 
 def cast_rays(
@@ -229,16 +226,21 @@ def cast_rays(
         d = np.mod(a1 - a0 + math.pi, _TWO_PI) - math.pi
         lo = np.where(d >= 0, a0, a1)
         firsts, lasts = _beam_ranges(lo, np.abs(d), geometry)
-        item, beam = _expand(firsts, lasts)
+        counts, beam = _expand(firsts, lasts)
+
+        def rep(v: np.ndarray) -> np.ndarray:
+            return np.repeat(np.tile(v, 2), counts)
+
         dx, dy = cos_b[beam], sin_b[beam]
-        px, py, ex, ey = p[item, 0], p[item, 1], e[item, 0], e[item, 1]
+        px, py, ex, ey = rep(p[:, 0]), rep(p[:, 1]), rep(e[:, 0]), rep(e[:, 1])
         den = dx * ey - dy * ex
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (px * ey - py * ex) / den
+            t = rep(p[:, 0] * e[:, 1] - p[:, 1] * e[:, 0]) / den
             s = (px * dy - py * dx) / den
-        ok = (t > 0) & (s >= 0) & (s <= 1) & np.isfinite(t)
+        # den == 0 gives inf/NaN, which fail these tests.
+        ok = (t > 0) & (s >= 0) & (s <= 1)
         cand_t.append(t[ok])
-        cand_key.append(f_idx[item[ok]] * beams + beam[ok])
+        cand_key.append(rep(f_idx * beams)[ok] + beam[ok])
         cand_id.append(np.full(int(ok.sum()), STATIC_ID, dtype=np.int32))
 
     if circles is not None and np.size(circles):
@@ -258,15 +260,19 @@ def cast_rays(
         half = np.arcsin(np.clip(r / dist, 0.0, 1.0))
         lo = np.arctan2(c[:, 1], c[:, 0]) - half
         firsts, lasts = _beam_ranges(lo, 2 * half, geometry)
-        item, beam = _expand(firsts, lasts)
-        cx, cy, rr = c[item, 0], c[item, 1], r[item]
+        counts, beam = _expand(firsts, lasts)
+
+        def rep_c(v: np.ndarray) -> np.ndarray:
+            return np.repeat(np.tile(v, 2), counts)
+
+        cx, cy, rr = rep_c(c[:, 0]), rep_c(c[:, 1]), rep_c(r)
         proj = cx * cos_b[beam] + cy * sin_b[beam]
         disc = rr * rr - (cx * cx + cy * cy - proj * proj)
         ok = (disc >= 0) & (proj > 0)
         t = proj[ok] - np.sqrt(disc[ok])
         cand_t.append(t)
-        cand_key.append(f_idx[item[ok]] * beams + beam[ok])
-        cand_id.append(cid[c_idx[item[ok]]])
+        cand_key.append(rep_c(f_idx * beams)[ok] + beam[ok])
+        cand_id.append(rep_c(cid[c_idx])[ok])
 
     if cand_t:
         t = np.concatenate(cand_t)

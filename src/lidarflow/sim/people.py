@@ -25,7 +25,7 @@ import numpy as np
 from lidarflow.errors import SimError
 from lidarflow.sim.world import World
 
-__all__ = ["Crowd", "PeopleConfig"]
+__all__ = ["Crowd", "PeopleConfig", "legs_from"]
 
 WALK, STOP, OFF = 0, 1, 2
 
@@ -59,6 +59,23 @@ class PeopleConfig:
             raise SimError(f"people: count must be >= 0 and 0 < speed_min <= speed_max: {self}")
 
 
+def legs_from(snapshots: np.ndarray, hip: np.ndarray, leg_r: np.ndarray) -> np.ndarray:
+    """Leg circles ``(T, 2P, 3)`` as ``(x, y, r)`` from ``(T, P, 5)`` snapshots
+    (:meth:`Crowd.snapshot`); person ``i`` owns rows ``2i`` (left) and ``2i + 1`` (right); people
+    who are not there have NaN rows."""
+    x, y, heading, phase, speed = np.moveaxis(snapshots, -1, 0)
+    cycle = 0.8 + 0.45 * speed
+    swing = cycle / (2 * math.pi) * np.minimum(1.0, speed / 0.3) * np.sin(phase)
+    hx, hy = np.cos(heading), np.sin(heading)
+    out = np.empty((*x.shape, 2, 3))
+    out[..., 0, 0] = x - hip * hy + swing * hx
+    out[..., 0, 1] = y + hip * hx + swing * hy
+    out[..., 1, 0] = x + hip * hy - swing * hx
+    out[..., 1, 1] = y - hip * hx - swing * hy
+    out[..., 2] = np.where(np.isnan(x), np.nan, leg_r)[..., None]
+    return out.reshape(*x.shape[:-1], -1, 3)
+
+
 def _wrap(a: np.ndarray | float) -> np.ndarray | float:
     return np.mod(np.asarray(a) + math.pi, 2 * math.pi) - math.pi
 
@@ -88,6 +105,9 @@ class Crowd:
         self.turn = np.zeros(n)
         self.leaving = np.zeros(n, dtype=bool)
         self.routes: list[list[np.ndarray]] = [[] for _ in range(n)]
+        self._speed = np.zeros(n)
+        self.target = np.zeros((n, 2))
+        self.final = np.zeros(n, dtype=bool)
         self.check_pos = np.zeros((n, 2))
         self.check_timer = np.zeros(n)
         for i in range(n):
@@ -154,35 +174,35 @@ class Crowd:
 
     def _update_states(self, dt: float, sensor: np.ndarray) -> None:
         rng, cfg = self.rng, self.cfg
+        self.timer[self.state != WALK] -= dt
         for i in range(len(self.pos)):
             state = self.state[i]
             if state == OFF:
-                self.timer[i] -= dt
                 if self.timer[i] <= 0:
                     p = self.world.sample_free(rng, tries=8)
-                    if p is not None and np.hypot(*(p - sensor[:2])) > 1.5 and self._hidden(
+                    if p is not None and math.dist(p, sensor[:2]) > 1.5 and self._hidden(
                             sensor, p)[0]:
                         self._activate(i, p, sensor)
                     else:
                         self.timer[i] = 0.5
                 continue
             if state == STOP:
-                self.timer[i] -= dt
                 if self.timer[i] <= 0:
                     self._new_goal(i, sensor)
                 continue
             route = self.routes[i]
-            while len(route) > 1 and np.hypot(*(route[0] - self.pos[i])) < 0.5:
+            here = (float(self.pos[i, 0]), float(self.pos[i, 1]))
+            while len(route) > 1 and math.dist(route[0], here) < 0.5:
                 route.pop(0)
             self.check_timer[i] += dt
             if self.check_timer[i] > 2.5:  # no progress: give up this goal
-                stuck = np.hypot(*(self.pos[i] - self.check_pos[i])) < 0.3
-                self.check_pos[i] = self.pos[i]
+                stuck = math.dist(here, self.check_pos[i]) < 0.3
+                self.check_pos[i] = here
                 self.check_timer[i] = 0.0
                 if stuck:
                     self._new_goal(i, sensor)
                     continue
-            if np.hypot(*(route[-1] - self.pos[i])) < 0.4 and len(route) == 1:
+            if len(route) == 1 and math.dist(route[0], here) < 0.4:
                 if self.leaving[i]:
                     if self._hidden(sensor, self.pos[i])[0]:
                         self.state[i] = OFF
@@ -193,20 +213,22 @@ class Crowd:
                     self._stop(i)
                 else:
                     self._new_goal(i, sensor)
+        # Where each walker heads now, for the vectorised forces.
+        for i in np.flatnonzero(self.state == WALK):
+            route = self.routes[i]
+            self.target[i] = route[0]
+            self.final[i] = len(route) == 1
 
     # ------------------------------------------------------------- dynamics
     def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
         cfg = self.cfg
         pos, vel = self.pos[idx], self.vel[idx]
-        desired = np.zeros_like(pos)
-        for k, i in enumerate(idx):
-            if self.state[i] == WALK and self.routes[i]:
-                d = self.routes[i][0] - pos[k]
-                n = math.hypot(d[0], d[1])
-                # Slow down on the last metre before a goal.
-                v0 = self.speed0[i] * (min(1.0, n / 1.0) if len(self.routes[i]) == 1 else 1.0)
-                if n > 1e-6:
-                    desired[k] = d / n * v0
+        d = self.target[idx] - pos
+        n = np.hypot(d[:, 0], d[:, 1])
+        # Walk at the preferred speed, slowing down on the last metre before a goal.
+        v0 = self.speed0[idx] * np.where(self.final[idx], np.minimum(1.0, n), 1.0)
+        v0 *= self.state[idx] == WALK
+        desired = d * (v0 / np.maximum(n, 1e-6))[:, None]
         force = (desired - vel) / cfg.relax_time
         speed = np.hypot(vel[:, 0], vel[:, 1])
         facing = np.where(speed[:, None] > 0.1, vel / np.maximum(speed, 1e-9)[:, None],
@@ -262,25 +284,19 @@ class Crowd:
         self.heading[idx] = _wrap(self.heading[idx] + turn)
         cycle = 0.8 + 0.45 * speed
         self.phase[idx] = np.mod(self.phase[idx] + 2 * math.pi * speed * dt / cycle, 2 * math.pi)
-        self._speed = np.zeros(len(self.pos))
+        self._speed[:] = 0.0
         self._speed[idx] = speed
 
+    def snapshot(self) -> np.ndarray:
+        """The state the legs are drawn from, ``(count, 5)``: x, y, heading, gait phase, speed
+        (NaN rows for people who are not there); see :func:`legs_from`."""
+        snap = np.column_stack([self.pos, self.heading, self.phase, self._speed])
+        snap[self.state == OFF] = np.nan
+        return snap
+
     def legs(self) -> np.ndarray:
-        """Leg circles ``(2 * count, 3)`` as ``(x, y, r)``; person ``i`` owns rows ``2i`` (left)
-        and ``2i + 1`` (right); people who are not there have NaN rows."""
-        speed = getattr(self, "_speed", np.zeros(len(self.pos)))
-        cycle = 0.8 + 0.45 * speed
-        amp = cycle / (2 * math.pi) * np.minimum(1.0, speed / 0.3)
-        swing = amp * np.sin(self.phase)
-        h = np.column_stack([np.cos(self.heading), np.sin(self.heading)])
-        n = np.column_stack([-h[:, 1], h[:, 0]])
-        left = self.pos + self.hip[:, None] * n + swing[:, None] * h
-        right = self.pos - self.hip[:, None] * n - swing[:, None] * h
-        out = np.empty((len(self.pos), 2, 3))
-        out[:, 0, :2], out[:, 1, :2] = left, right
-        out[:, :, 2] = self.leg_r[:, None]
-        out[self.state == OFF] = np.nan
-        return out.reshape(-1, 3)
+        """Leg circles ``(2 * count, 3)`` now; see :func:`legs_from`."""
+        return legs_from(self.snapshot()[None], self.hip, self.leg_r)[0]
 
     def walking(self) -> np.ndarray:
         """Which people are present, ``(count,)`` bool."""

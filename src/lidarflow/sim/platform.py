@@ -60,6 +60,10 @@ def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], 2 * math.pi)])
 
 
+def _clamp(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else hi if x > hi else x
+
+
 def _open_heading(world: World, xy: np.ndarray) -> float:
     """The direction with the most free space around ``xy`` (a 72-beam look around)."""
     geom = BeamGeometry(72, -math.pi, 2 * math.pi / 72, 0.0, 12.0)
@@ -122,9 +126,9 @@ class Platform:
                 self._new_goal()
             return 0.0, self.pause_turn * cfg.max_turn_rate
         xy, yaw = self.pose[:2], self.pose[2]
-        while len(self.route) > 1 and np.hypot(*(self.route[0] - xy)) < 0.5:
+        while len(self.route) > 1 and math.dist(self.route[0], xy) < 0.5:
             self.route.pop(0)
-        if not self.route or (len(self.route) == 1 and np.hypot(*(self.route[0] - xy)) < 0.4):
+        if not self.route or (len(self.route) == 1 and math.dist(self.route[0], xy) < 0.4):
             if self.rng.random() < cfg.pause_prob:
                 self._pause()
             else:
@@ -132,11 +136,11 @@ class Platform:
             return 0.0, 0.0
         self.check_timer += dt
         if self.check_timer > 4.0:
-            if np.hypot(*(xy - self.check_pos)) < 0.3:
+            if math.dist(xy, self.check_pos) < 0.3:
                 self._new_goal()
             self.check_pos, self.check_timer = xy.copy(), 0.0
         to_wp = self.route[0] - xy
-        direction = to_wp / max(np.hypot(*to_wp), 1e-6)
+        direction = to_wp / max(math.hypot(*to_wp), 1e-6)
         # Keep clear of walls and furniture.
         d, away = self.world.field.lookup(xy)
         if d[0] < 0.9:
@@ -148,16 +152,16 @@ class Platform:
             ahead = (rel @ np.array([math.cos(yaw), math.sin(yaw)])) > 0
             close = dist < 1.5
             if (close & ahead).any():
-                slow = float(np.clip((dist[close & ahead].min() - 0.5) / 1.0, 0.0, 1.0))
+                slow = _clamp(float(dist[close & ahead].min()) - 0.5, 0.0, 1.0)
             if close.any():
                 away = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
                 direction = direction + (0.8 * np.exp((0.8 - dist[close]) / 0.3)[:, None]
                                          * away).sum(0)
         err = math.remainder(math.atan2(direction[1], direction[0]) - yaw, 2 * math.pi)
-        w = float(np.clip(2.0 * err, -cfg.max_turn_rate, cfg.max_turn_rate))
+        w = _clamp(2.0 * err, -cfg.max_turn_rate, cfg.max_turn_rate)
         v = self.cruise * max(0.0, math.cos(err)) ** 2 * slow
         if len(self.route) == 1:
-            v = min(v, 0.3 + np.hypot(*to_wp))  # ease into the goal
+            v = min(v, 0.3 + math.hypot(*to_wp))  # ease into the goal
         return min(v, cfg.max_speed), w
 
     def step(self, dt: float, people: np.ndarray) -> None:
@@ -166,8 +170,8 @@ class Platform:
             return
         cfg = self.cfg
         v_cmd, w_cmd = self._command(dt, people)
-        self.v += float(np.clip(v_cmd - self.v, -cfg.accel * dt, cfg.accel * dt))
-        self.w += float(np.clip(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt))
+        self.v += _clamp(v_cmd - self.v, -cfg.accel * dt, cfg.accel * dt)
+        self.w += _clamp(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt)
         yaw = self.pose[2]
         mid = yaw + self.w * dt / 2
         new = np.array([self.pose[0] + self.v * dt * math.cos(mid),

@@ -35,7 +35,7 @@ from lidarflow.errors import SimError
 from lidarflow.scan import GridSpec
 from lidarflow.sim.groundtruth import ground_truth
 from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset, measure
-from lidarflow.sim.people import Crowd, PeopleConfig
+from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
 from lidarflow.sim.platform import Platform, PlatformConfig
 from lidarflow.sim.world import WorldConfig, build_world
 
@@ -59,7 +59,7 @@ class SimConfig:
     platform: PlatformConfig = field(default_factory=PlatformConfig)
     grid: GridSpec = field(default_factory=GridSpec)
     episode_frames: int = 1500
-    block_frames: int = 128
+    block_frames: int = 32
 
     def __post_init__(self) -> None:
         if self.scenario not in SCENARIOS:
@@ -97,13 +97,13 @@ def _dynamics(config: SimConfig, rng: np.random.Generator, frames: int) -> tuple
     dt = 1.0 / sensor.rate_hz
     poses = np.empty((frames, 3))
     odom = np.empty((frames, 3))
-    legs = np.empty((frames, 2 * config.people.count, 3))
+    snaps = np.empty((frames, config.people.count, 5))
     for t in range(frames):
-        poses[t], odom[t], legs[t] = platform.pose, platform.odom, crowd.legs()
+        poses[t], odom[t], snaps[t] = platform.pose, platform.odom, crowd.snapshot()
         people = crowd.pos[crowd.walking()]
         crowd.step(dt, platform.pose, config.platform.radius)
         platform.step(dt, people)
-    return world, poses, odom, legs
+    return world, poses, odom, legs_from(snaps, crowd.hip, crowd.leg_r)
 
 
 def simulate_episode(config: SimConfig, seed: int, episode: int, frames: int) -> Episode:

@@ -81,8 +81,9 @@ class DistanceField:
         self.origin = np.array([bounds[0] - cap, bounds[1] - cap])
         nx = math.ceil((bounds[2] - bounds[0] + 2 * cap) / res)
         ny = math.ceil((bounds[3] - bounds[1] + 2 * cap) / res)
-        self.dist = np.full((ny, nx), cap, dtype=np.float32)
-        self.away = np.zeros((ny, nx, 2), dtype=np.float32)
+        self.dist = np.full((ny, nx), cap)
+        self.away = np.zeros((ny, nx, 2))
+        self._last = np.array([nx - 1, ny - 1])
         for x0, y0, x1, y1 in segments:
             self._stamp(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1),
                         lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a))
@@ -109,11 +110,9 @@ class DistanceField:
     def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(distance (N,), away (N, 2))`` at points ``(N, 2)`` (nearest grid point)."""
         xy = np.atleast_2d(xy)
-        i = np.clip(((xy[:, 0] - self.origin[0]) / self.res).astype(np.int64), 0,
-                    self.dist.shape[1] - 1)
-        j = np.clip(((xy[:, 1] - self.origin[1]) / self.res).astype(np.int64), 0,
-                    self.dist.shape[0] - 1)
-        return self.dist[j, i].astype(np.float64), self.away[j, i].astype(np.float64)
+        ij = ((xy - self.origin) / self.res).astype(np.int64)
+        np.minimum(np.maximum(ij, 0, out=ij), self._last, out=ij)
+        return self.dist[ij[:, 1], ij[:, 0]], self.away[ij[:, 1], ij[:, 0]]
 
 
 def _to_segment(px: np.ndarray, py: np.ndarray, x0: float, y0: float, x1: float,
