@@ -34,14 +34,14 @@ WALK, STOP, OFF = 0, 1, 2
 class PeopleConfig:
     """People's numbers, sizes and behaviour (SI units)."""
 
-    count: int = 6
+    count: int = 8
     speed_range: tuple[float, float] = (0.3, 1.8)
     speed_mean: float = 1.2
     speed_std: float = 0.35
     leg_radius: tuple[float, float] = (0.06, 0.08)
     hip_half_width: tuple[float, float] = (0.08, 0.12)
     body_radius: float = 0.25
-    near_goal_prob: float = 0.55
+    near_goal_prob: float = 0.6
     near_range: tuple[float, float] = (1.0, 5.0)
     stop_prob: float = 0.3
     stop_time: tuple[float, float] = (1.0, 6.0)

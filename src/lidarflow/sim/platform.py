@@ -97,8 +97,11 @@ class Platform:
         self.pause_turn = 0.0
         self.check_pos = self.pose[:2].copy()
         self.check_timer = 0.0
+        # Odometry errors come from their own generator, so the true motion is the same with
+        # or without drift.
+        self.odom_rng = np.random.default_rng(int(rng.integers(2**62)))
         drift = config.odom_drift
-        self.scale = np.array([1 + rng.normal(0, drift), 1 + rng.normal(0, drift)])
+        self.scale = 1 + self.odom_rng.normal(0, drift, 2) if drift > 0 else np.ones(2)
         if config.moving:
             self._new_goal()
 
@@ -183,7 +186,7 @@ class Platform:
         if cfg.odom_drift > 0:
             inc = relative(self.pose, new)
             dist = math.hypot(inc[0], inc[1])
-            noise = self.rng.normal(0, cfg.odom_drift, 3) * np.array(
+            noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * np.array(
                 [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist])
             measured = np.array([inc[0] * self.scale[0], inc[1] * self.scale[0],
                                  inc[2] * self.scale[1]]) + noise
