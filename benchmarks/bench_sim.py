@@ -18,16 +18,28 @@ import os
 import platform
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
+from lidarflow.data import Recording
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
+from lidarflow.sim.storage import to_sparse
 
 
 def _timed(fn):
     wall, cpu = time.perf_counter(), time.process_time()
     out = fn()
     return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _sparse_copy(rec: Recording) -> Recording:
+    """The recording as ``--flow-storage sparse`` would have written it."""
+    extras = dict(rec.extras)
+    for name in ("flow_backward", "flow_forward"):
+        cells, values = to_sparse(extras.pop(name))
+        extras[f"{name}_cells"], extras[f"{name}_values"] = cells, values
+    return replace(rec, extras=extras, meta={**rec.meta, "flow_storage": "sparse"})
 
 
 def main() -> None:
@@ -62,6 +74,8 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             _, save_s, _ = _timed(lambda r=rec, t=tmp: r.save(Path(t) / "sim.npz"))
             size = (Path(tmp) / "sim.npz").stat().st_size
+            _, sparse_s, _ = _timed(lambda r=rec, t=tmp: _sparse_copy(r).save(Path(t) / "sp.npz"))
+            sparse_size = (Path(tmp) / "sp.npz").stat().st_size
         _, raster_wall, raster_cpu = _timed(lambda r=rec: r.maps(GridSpec()))
         n = args.frames
         results[scenario] = {
@@ -71,6 +85,9 @@ def main() -> None:
             "save_s": round(save_s, 2),
             "scans_per_s_including_save": round(n / (wall + save_s), 1),
             "file_mb": round(size / 1e6, 1),
+            "sparse_convert_and_save_s": round(sparse_s, 2),
+            "sparse_file_mb": round(sparse_size / 1e6, 1),
+            "scans_per_s_including_sparse_save": round(n / (wall + sparse_s), 1),
             "reference_rasterize_scans_per_s": round(n / raster_wall, 1),
             "reference_rasterize_scans_per_s_cpu_time": round(n / raster_cpu, 1),
             "ratio_sim_to_rasterize": round(raster_wall / wall, 3),
