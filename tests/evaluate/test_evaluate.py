@@ -18,6 +18,7 @@ from lidarflow.evaluate.baselines import (
 from lidarflow.evaluate.report import build_report, format_table
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.scan import GridSpec
 
 
 def moving_square(n: int = 20, size: int = 24, step: int = 1) -> np.ndarray:
@@ -130,3 +131,40 @@ def test_too_short_recording_is_an_evaluate_error():
     maps = np.zeros((11, 4, 4), bool)
     with pytest.raises(EvaluateError, match="at least 12 frames"):
         evaluate_maps(maps, maps, [CopyLast()], warmup=10)
+
+
+class FlowOracle:
+    """Copies the last map but reports the simulator's true backward flow."""
+
+    name = "flow_oracle"
+
+    def __init__(self, flow_of):
+        self.flow_of, self.t = flow_of, -1
+        self.backward_flow = None
+
+    def reset(self):
+        self.t = -1
+
+    def update(self, occupancy, visibility):
+        self.t += 1
+        self.backward_flow = self.flow_of(self.t)
+        return occupancy.astype(np.float32)
+
+
+def test_flow_end_point_error_on_simulated_data():
+    from lidarflow.evaluate.stream import evaluate_recording, ground_truth_backward_flow
+    from lidarflow.sim import SimConfig, simulate
+
+    rec = simulate(16, seed=3, config=SimConfig(scenario="dynamic"))
+    truth = ground_truth_backward_flow(rec, GridSpec())
+    assert truth is not None
+    zero = FlowOracle(lambda t: np.zeros((2, 100, 100)))
+    zero.name = "zero_flow"
+    scores = evaluate_recording(rec, [FlowOracle(truth), zero], GridSpec(), warmup=2)
+    assert scores["flow_oracle"].summary()["epe"] == pytest.approx(0.0, abs=1e-6)
+    assert scores["zero_flow"].summary()["epe"] > 0.05  # the robot drives: the world moves
+    assert (
+        "epe"
+        not in evaluate_recording(rec, [CopyLast()], GridSpec(), warmup=2)["copy_last"].summary()
+    )
+    assert ground_truth_backward_flow(rec, GridSpec(50, 50, 0.2)) is None

@@ -16,18 +16,26 @@ from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.scan import GridSpec
+from lidarflow.sim.storage import dense_flow
 
 __all__ = ["WARMUP", "evaluate_maps", "evaluate_recording", "ground_truth_backward_flow"]
 
 WARMUP = 10
 
 
-def ground_truth_backward_flow(recording: Recording, grid: GridSpec) -> np.ndarray | None:
-    """The simulator's backward flow ``(N, 2, H, W)`` if the recording has it on ``grid``."""
-    flow = recording.extras.get("flow_backward")
-    if flow is None or flow.ndim != 4 or flow.shape[-2:] != grid.shape:
+def ground_truth_backward_flow(
+    recording: Recording, grid: GridSpec
+) -> Callable[[int], np.ndarray] | None:
+    """``t -> B^t`` ``(2, H, W)`` from the simulator's ground truth, or ``None`` when the
+    recording has none or it was made on another grid than ``grid``."""
+    extras = recording.extras
+    if "flow_backward" not in extras and "flow_backward_cells" not in extras:
         return None
-    return flow
+    stored = recording.meta.get("grid") or {}
+    made_on = (stored.get("height"), stored.get("width"), stored.get("res"))
+    if made_on != (grid.height, grid.width, grid.res):
+        return None
+    return lambda t: dense_flow(recording, t)[0]
 
 
 def evaluate_maps(
@@ -35,7 +43,7 @@ def evaluate_maps(
     visibility: np.ndarray,
     methods: Sequence[Method],
     warmup: int = WARMUP,
-    gt_flow: np.ndarray | None = None,
+    gt_flow: Callable[[int], np.ndarray] | None = None,
     progress: Callable[[int], None] | None = None,
     on_prediction: Callable[[str, int, np.ndarray], None] | None = None,
 ) -> dict[str, Scorer]:
@@ -45,7 +53,8 @@ def evaluate_maps(
     map predicted for frame ``t + 1``), e.g. to draw overlays.
 
     A method that exposes ``backward_flow`` (``(2, H, W)`` cells, after ``update``) is also
-    scored for end-point error against ``gt_flow`` on the cells occupied in the next frame.
+    scored for end-point error against ``gt_flow(t)`` (``B^t``) on the cells occupied in the
+    next frame.
     """
     n = len(occupancy)
     if n < warmup + 2:
@@ -67,7 +76,7 @@ def evaluate_maps(
             flow = getattr(m, "backward_flow", None)
             if gt_flow is not None and flow is not None:
                 cells = occupancy[t + 1]
-                error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow[t]))[cells]
+                error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow(t)))[cells]
                 scorers[m.name].add_epe(float(error.sum()), int(cells.sum()))
         if progress is not None:
             progress(1)
