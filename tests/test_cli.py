@@ -106,7 +106,8 @@ def test_console_script_demo_end_to_end(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     results = json.loads((tmp_path / "d" / "results.json").read_text())
-    copy_last = results["copy_last"]
+    copy_last = results["recordings"][0]["methods"]["copy_last"]
+    assert (tmp_path / "d" / "report" / "index.html").exists()
     assert 0.5 < copy_last["f1"] < 1.0 and copy_last["changed_f1"] == 0.0
     assert (tmp_path / "d" / "maps.png").exists()
 

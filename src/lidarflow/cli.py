@@ -51,6 +51,10 @@ def _progress(total: int | None, desc: str) -> Any:
     return tqdm(total=total, desc=desc, unit="scan", disable=None, leave=False)
 
 
+def _eval_progress(name: str, total: int) -> Any:
+    return _progress(total, f"evaluating {Path(name).name}")
+
+
 def _load(path: Path, topic: str | None = None, odom_topic: str | None = None) -> Any:
     from lidarflow.data import load_any
 
@@ -198,11 +202,14 @@ def demo(
         Path, typer.Option("--output", "-o", help="Folder for the demo's outputs.")
     ] = Path("demo_out"),
 ) -> None:
-    """Run the main job on the bundled sample recording: convert it, summarise it, draw a frame,
-    and score the copy-last-map baseline (the number every model must beat)."""
+    """Run the main job on the bundled sample recording: convert it, draw a frame, predict
+    every next map with the bundled model, score it beside the baselines (report.json and an
+    HTML page), and write the predictions as an MCAP file for Foxglove."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
-    from lidarflow.evaluate.metrics import confusion
+    from lidarflow.evaluate.report import format_table
+    from lidarflow.models.presets import bundled_model_dir
     from lidarflow.scan import GridSpec
+    from lidarflow.viz.evaluation import evaluate_and_report
     from lidarflow.viz.maps import draw_maps
 
     output.mkdir(parents=True, exist_ok=True)
@@ -215,27 +222,63 @@ def demo(
         f"{summary['beams_per_scan']} beams) -> {rec_path}"
     )
     spec = GridSpec()
-    occ, vis = recording.maps(spec)
     frame = len(recording) // 2
-    png = draw_maps(
-        occ[frame], vis[frame], output / "maps.png", spec, title=f"{bag.name} frame {frame}"
-    )
-    warm = 10
-    counts = confusion(occ[warm:-1], occ[warm + 1 :])
-    changed = occ[warm:-1] != occ[warm + 1 :]
-    changed_counts = confusion(occ[warm:-1], occ[warm + 1 :], changed)
-    results = {
-        "recording": str(bag),
-        "frames_evaluated": int(len(recording) - 1 - warm),
-        "copy_last": {**counts.to_dict(), "changed_f1": changed_counts.f1},
-    }
-    (output / "results.json").write_text(json.dumps(results, indent=2))
+    occ, vis = recording.maps(spec, frame, frame + 1)
+    png = draw_maps(occ[0], vis[0], output / "maps.png", spec, title=f"{bag.name} frame {frame}")
     typer.echo(f"maps of frame {frame}: {png}")
-    typer.echo(
-        f"copy-last-map baseline: F1 {counts.f1:.3f} (precision {counts.precision:.3f}, "
-        f"recall {counts.recall:.3f}), changed-cell F1 {changed_counts.f1:.3f}"
+    has_model = (bundled_model_dir() / "model.safetensors").exists()
+    if not has_model:
+        typer.echo("no bundled model in this installation: scoring the baselines only")
+    methods, config = _methods_and_config([None] if has_model else [])
+    config.update({"warmup": 10, "grid": spec.to_dict()})
+    report = evaluate_and_report(
+        [(str(bag), recording)], methods, spec, 10, config, output / "report", 60, _eval_progress
     )
-    typer.echo(f"results: {output / 'results.json'}")
+    (output / "results.json").write_text(json.dumps(report, indent=2))
+    entry = report["recordings"][0]
+    title = f"next-map prediction, {entry['frames_evaluated']} frames"
+    typer.echo(format_table(entry["methods"], title))
+    typer.echo(f"results: {output / 'results.json'}; report: {output / 'report' / 'index.html'}")
+    if has_model:
+        from lidarflow.predict import Predictor
+        from lidarflow.predict.job import predict_to_bag
+
+        target = output / "predictions.mcap"
+        if target.exists():
+            target.unlink()
+        predictor = Predictor(None, spec)
+        with _progress(len(recording), "writing predictions") as bar:
+            predict_to_bag(recording, predictor, target, bar.update)
+        typer.echo(f"predictions for Foxglove: {target}")
+
+
+def _methods_and_config(
+    sources: list[Path | None], ta_window: int = 5, ta_threshold: float = 0.4
+) -> tuple[list[Any], dict[str, Any]]:
+    """The baselines plus one method per model source (``None``: the bundled model), and the
+    configuration that describes them for the report."""
+    from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.models.streaming import StreamingModel
+    from lidarflow.models.weights import describe_source
+
+    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    models_used = {}
+    for source in sources:
+        net, card = resolve_model(source)
+        name = "bundled" if source is None else describe_source(source)
+        while name in {m.name for m in methods}:
+            name += "_"
+        methods.append(ModelMethod(name, StreamingModel(net)))
+        models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
+    config = {
+        "threshold": 0.4,
+        "temporal_average": {"window": ta_window, "threshold": ta_threshold},
+        "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+        "models": models_used,
+    }
+    return methods, config
 
 
 @app.command()
@@ -283,54 +326,17 @@ def evaluate(
     carried across the recording), with F1 at 0.4, precision, recall, average precision and
     changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
     for every --model given (and flow end-point error where the recording has ground truth)."""
-    from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
-    from lidarflow.evaluate.model_method import ModelMethod
-    from lidarflow.evaluate.report import build_report, format_table
-    from lidarflow.evaluate.stream import evaluate_recording
-    from lidarflow.models.streaming import StreamingModel
-    from lidarflow.models.weights import describe_source, load_trained
+    from lidarflow.evaluate.report import format_table
     from lidarflow.scan import GridSpec
+    from lidarflow.viz.evaluation import evaluate_and_report
 
     spec = GridSpec(grid, grid, res)
-    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
-    models_used = {}
-    for source in model or []:
-        net, card = load_trained(source)
-        name = describe_source(source)
-        while name in {m.name for m in methods}:
-            name += "_"
-        methods.append(ModelMethod(name, StreamingModel(net)))
-        models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
-    results = []
-    figures: dict[str, list[tuple[str, Path]]] = {}
-    for path in inputs:
-        recording = _load(path, topic)
-        collector = None
-        if report_dir is not None:
-            from lidarflow.viz.evaluation import OverlayCollector
-
-            collector = OverlayCollector(*recording.maps(spec), max_frames=gif_frames)
-        with _progress(len(recording) - 1, f"evaluating {path.name}") as bar:
-            scorers = evaluate_recording(
-                recording, methods, spec, warmup, bar.update, on_prediction=collector
-            )
-        results.append((str(path), scorers))
-        if report_dir is not None and collector is not None:
-            from lidarflow.viz.evaluation import pr_figure, safe_stem
-
-            stem = safe_stem(path)
-            pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", f"{path.name}: PR curves")
-            gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
-            figures[str(path)] = [("precision-recall", pr), *gifs]
-    config = {
-        "warmup": warmup,
-        "threshold": 0.4,
-        "grid": spec.to_dict(),
-        "temporal_average": {"window": ta_window, "threshold": ta_threshold},
-        "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
-        "models": models_used,
-    }
-    report = build_report(results, config)
+    methods, config = _methods_and_config(list(model or []), ta_window, ta_threshold)
+    config.update({"warmup": warmup, "grid": spec.to_dict()})
+    named = [(str(path), _load(path, topic)) for path in inputs]
+    report = evaluate_and_report(
+        named, methods, spec, warmup, config, report_dir, gif_frames, _eval_progress
+    )
     for entry in report["recordings"]:
         title = f"{entry['path']} ({entry['frames_evaluated']} frames)"
         typer.echo(format_table(entry["methods"], title) + "\n")
@@ -341,11 +347,7 @@ def evaluate(
         json_out.write_text(json.dumps(report, indent=2))
         typer.echo(f"wrote {json_out}")
     if report_dir is not None:
-        from lidarflow.viz.html import write_html_report
-
-        (report_dir / "report.json").write_text(json.dumps(report, indent=2))
-        page = write_html_report(report, report_dir / "index.html", figures)
-        typer.echo(f"wrote {page}")
+        typer.echo(f"wrote {report_dir / 'index.html'}")
 
 
 ModelOpt = Annotated[

@@ -2,18 +2,27 @@
 
 from __future__ import annotations
 
+import contextlib
+import json
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from lidarflow.data.recording import Recording
+from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.report import build_report
 from lidarflow.evaluate.scoring import Scorer
+from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.scan import GridSpec
+from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import overlay_rgb, write_gif
 from lidarflow.viz.plots import plot_pr_curves
 
-__all__ = ["OverlayCollector", "pr_figure", "safe_stem"]
+__all__ = ["OverlayCollector", "evaluate_and_report", "pr_figure", "safe_stem"]
 
 
 def safe_stem(path: str | Path) -> str:
@@ -66,3 +75,43 @@ def pr_figure(scorers: Mapping[str, Scorer], path: Path, title: str) -> Path:
         _, precision, recall = scorer.pr_curve()
         curves[name] = (precision, recall, scorer.average_precision())
     return plot_pr_curves(curves, path, title)
+
+
+def evaluate_and_report(
+    named_recordings: Sequence[tuple[str, Recording]],
+    methods: Sequence[Method],
+    grid: GridSpec,
+    warmup: int,
+    config: dict[str, Any],
+    report_dir: Path | None = None,
+    gif_frames: int = 100,
+    progress: Callable[[str, int], Any] | None = None,
+) -> dict[str, Any]:
+    """Score ``methods`` on each recording; with ``report_dir``, also write PR curves, overlay
+    GIFs, ``report.json`` and a self-contained ``index.html`` there. Returns the report.
+
+    ``progress(name, total)`` may return a context manager with ``update(n)`` (a tqdm bar)."""
+    results = []
+    figures: dict[str, list[tuple[str, Path]]] = {}
+    for name, recording in named_recordings:
+        collector = None
+        if report_dir is not None:
+            collector = OverlayCollector(*recording.maps(grid), max_frames=gif_frames)
+        bar = progress(name, len(recording) - 1) if progress else contextlib.nullcontext()
+        with bar as b:
+            scorers = evaluate_recording(
+                recording, methods, grid, warmup, getattr(b, "update", None), collector
+            )
+        results.append((name, scorers))
+        if report_dir is not None and collector is not None:
+            stem = safe_stem(name)
+            title = f"{Path(name).name}: PR curves"
+            pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", title)
+            gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
+            figures[name] = [("precision-recall", pr), *gifs]
+    report = build_report(results, config)
+    if report_dir is not None:
+        report_dir.mkdir(parents=True, exist_ok=True)
+        (report_dir / "report.json").write_text(json.dumps(report, indent=2))
+        write_html_report(report, report_dir / "index.html", figures)
+    return report

@@ -59,9 +59,15 @@ def draw_maps(
         y = (grid.width / 2 - cols - 0.5) * grid.res
         # A flow of +1 column moves towards smaller y; +1 row towards smaller x.
         axes[0].quiver(
-            y, x, -flow[0, rows, cols] * grid.res * flow_scale,
+            y,
+            x,
+            -flow[0, rows, cols] * grid.res * flow_scale,
             -flow[1, rows, cols] * grid.res * flow_scale,
-            color="tab:blue", angles="xy", scale_units="xy", scale=1, width=0.004,
+            color="tab:blue",
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            width=0.004,
         )
     if title:
         fig.suptitle(title)
