@@ -161,6 +161,14 @@ def test_cli_simulate_then_show(tmp_path, capsys):
     with pytest.raises(SystemExit) as done:
         main(["simulate", "--scenario", "nope", "-o", str(out)])
     assert done.value.code == 2
+    sparse = tmp_path / "sp.npz"
+    with pytest.raises(SystemExit) as done:
+        main(["simulate", "--frames", "20", "-o", str(sparse), "--flow-storage", "sparse",
+              "--grid", "60"])
+    assert done.value.code == 0 and load_recording(sparse).meta["flow_storage"] == "sparse"
+    with pytest.raises(SystemExit) as done:
+        main(["show", str(sparse), "-f", "3", "--grid", "60", "-o", str(tmp_path / "s.png")])
+    assert done.value.code == 0
 
 
 def test_sparse_storage_gives_back_the_dense_flow(tmp_path):
