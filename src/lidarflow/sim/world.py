@@ -84,12 +84,15 @@ class DistanceField:
         self.dist = np.full((ny, nx), cap)
         self.away = np.zeros((ny, nx, 2))
         self._last = np.array([nx - 1, ny - 1])
+        self._ox, self._oy = float(self.origin[0]), float(self.origin[1])
+        self._nx, self._ny = nx - 1, ny - 1
         for x0, y0, x1, y1 in segments:
             self._stamp(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1),
                         lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a))
         for cx, cy, r in circles:
             self._stamp(cx - r, cy - r, cx + r, cy + r,
                         lambda px, py, c=(cx, cy, r): _to_circle(px, py, *c))
+
 
     def _stamp(self, x0: float, y0: float, x1: float, y1: float, nearest: Any) -> None:
         res, cap = self.res, self.cap
@@ -106,6 +109,13 @@ class DistanceField:
         view[better] = d[better]
         self.away[j0:j1, i0:i1, 0][better] = ax[better]
         self.away[j0:j1, i0:i1, 1][better] = ay[better]
+
+    def at(self, x: float, y: float) -> tuple[float, float, float]:
+        """``(distance, away_x, away_y)`` at one point: the scalar :meth:`lookup`, without
+        array overhead (the robot asks several times per step)."""
+        i = min(max(int((x - self._ox) / self.res), 0), self._nx)
+        j = min(max(int((y - self._oy) / self.res), 0), self._ny)
+        return self.dist.item(j, i), self.away.item(j, i, 0), self.away.item(j, i, 1)
 
     def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(distance (N,), away (N, 2))`` at points ``(N, 2)`` (nearest grid point)."""
