@@ -1,0 +1,60 @@
+"""Models: LiDAR-FlowNet, the DeepTracking baseline, their ConvGRU cell, and the builder.
+
+Interface (train, evaluate and predict depend on it; details in
+:mod:`lidarflow.models.recurrent`): every model has ``out_channels``, ``init_state``, ``step``,
+``forward`` and ``predict_next``. ``build_model(name, **kwargs)`` builds one by name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from torch import nn
+
+from lidarflow.errors import ModelError
+from lidarflow.models.convgru import ConvGRUCell
+from lidarflow.models.deeptracking import DeepTracking, deeptracking
+from lidarflow.models.flownet import LidarFlowNet, lidar_flownet
+from lidarflow.models.recurrent import RecurrentMapModel
+
+_BUILDERS: dict[str, Callable[..., RecurrentMapModel]] = {
+    "flownet": LidarFlowNet,
+    "deeptracking": DeepTracking,
+}
+MODEL_NAMES: tuple[str, ...] = tuple(_BUILDERS)
+
+
+def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
+    """Build the model called ``name`` (one of :data:`MODEL_NAMES`); ``kwargs`` go to its class.
+
+    Raises:
+        ModelError: unknown name, or arguments the model does not take.
+    """
+    try:
+        builder = _BUILDERS[name]
+    except KeyError as err:
+        raise ModelError(
+            f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}"
+        ) from err
+    try:
+        return builder(**kwargs)
+    except (TypeError, ValueError) as err:
+        raise ModelError(f"cannot build model {name!r} with {kwargs}: {err}") from err
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters of ``model``."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+__all__ = [
+    "MODEL_NAMES",
+    "ConvGRUCell",
+    "DeepTracking",
+    "LidarFlowNet",
+    "RecurrentMapModel",
+    "build_model",
+    "count_parameters",
+    "deeptracking",
+    "lidar_flownet",
+]

@@ -1,0 +1,67 @@
+"""The interface every map-prediction model of lidarflow offers (train, evaluate and predict code
+depends on it; see :mod:`lidarflow.models`).
+
+- ``out_channels``: channels of one step's output (4 flow channels, or 1 occupancy logit).
+- ``init_state(batch, height, width, device=None, dtype=None) -> tuple[Tensor, ...]``: zeros.
+- ``step(maps (B, 2, H, W), state) -> (out (B, C, H, W), state)``: one frame, for streaming.
+- ``forward(seq (B, T, 2, H, W), state=None) -> (out (B, T, C, H, W), state)``: ``step`` over T.
+- ``predict_next(maps (B, 2, H, W), out (B, C, H, W)) -> (B, 1, H, W)``: probability that each
+  cell is occupied in the next frame.
+
+Maps are ``(O, V)``: channel 0 occupancy, channel 1 visibility, values in {0, 1}.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+
+class RecurrentMapModel(nn.Module):
+    """Base of the recurrent map predictors: state handling and the sequence loop."""
+
+    out_channels: int
+
+    def state_channels(self) -> tuple[int, ...]:
+        """Channels of each state tensor, in state order."""
+        raise NotImplementedError
+
+    def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
+        raise NotImplementedError
+
+    def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
+        raise NotImplementedError
+
+    def init_state(
+        self,
+        batch: int,
+        height: int,
+        width: int,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> tuple[Tensor, ...]:
+        """Zero state ``(batch, c, height, width)`` per state tensor; device and dtype default
+        to the model's parameters'."""
+        ref = next(self.parameters())
+        device = ref.device if device is None else device
+        dtype = ref.dtype if dtype is None else dtype
+        return tuple(
+            torch.zeros(batch, c, height, width, device=device, dtype=dtype)
+            for c in self.state_channels()
+        )
+
+    def forward(
+        self, seq: Tensor, state: tuple[Tensor, ...] | None = None
+    ) -> tuple[Tensor, tuple[Tensor, ...]]:
+        """Run ``step`` over ``seq`` ``(B, T, 2, H, W)``; returns ``(B, T, C, H, W)`` and the state
+        after the last frame. ``state=None`` starts from zeros."""
+        if seq.dim() != 5:
+            raise ValueError(f"seq must be (B, T, C, H, W), got {tuple(seq.shape)}")
+        b, t, _, h, w = seq.shape
+        if state is None:
+            state = self.init_state(b, h, w, device=seq.device, dtype=seq.dtype)
+        outs = []
+        for i in range(t):
+            out, state = self.step(seq[:, i], state)
+            outs.append(out)
+        return torch.stack(outs, dim=1), state

@@ -1,0 +1,182 @@
+"""Tests of LiDAR-FlowNet, the DeepTracking baseline and the common model interface."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lidarflow.errors import ModelError
+from lidarflow.models import (
+    MODEL_NAMES,
+    DeepTracking,
+    LidarFlowNet,
+    build_model,
+    count_parameters,
+)
+
+PAPER_PARAMETERS = 42_500  # Table I, "about 42.5 K"
+
+
+def _seq(b=2, t=4, h=12, w=10, seed=0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    occ = (torch.rand(b, t, 1, h, w, generator=g) > 0.8).float()
+    vis = torch.maximum(occ, (torch.rand(b, t, 1, h, w, generator=g) > 0.3).float())
+    return torch.cat([occ, vis], dim=2)
+
+
+def _randomise_head(model: torch.nn.Module) -> None:
+    torch.manual_seed(5)
+    head = model.conv_flow if isinstance(model, LidarFlowNet) else model.decoder
+    with torch.no_grad():
+        head.weight.normal_(0, 0.5)
+        head.bias.normal_(0, 0.5)
+
+
+def test_model_names_and_builder():
+    assert set(MODEL_NAMES) == {"flownet", "deeptracking"}
+    assert isinstance(build_model("flownet"), LidarFlowNet)
+    assert isinstance(build_model("deeptracking"), DeepTracking)
+    assert build_model("flownet", hidden_channels=8).hidden_channels == 8
+    with pytest.raises(ModelError, match="unknown model 'raft'"):
+        build_model("raft")
+    with pytest.raises(ModelError, match="cannot build"):
+        build_model("flownet", nonsense=1)
+    with pytest.raises(ModelError, match="conv0_activation"):
+        build_model("flownet", conv0_activation="gelu")
+
+
+def test_flownet_has_the_papers_parameter_count():
+    net = build_model("flownet")
+    assert count_parameters(net) == PAPER_PARAMETERS
+    per_layer = {name: sum(p.numel() for p in m.parameters()) for name, m in net.named_children()}
+    assert per_layer["conv0"] == 2 * 16 * 9 + 16
+    assert per_layer["conv_flow"] == 16 * 4 * 9 + 4
+
+
+def test_deeptracking_budget_is_close_to_flownets():
+    n = count_parameters(build_model("deeptracking"))
+    assert 40_000 <= n <= 60_000
+
+
+def test_count_parameters_ignores_frozen_ones():
+    net = build_model("flownet")
+    net.conv0.requires_grad_(False)
+    assert count_parameters(net) == PAPER_PARAMETERS - (2 * 16 * 9 + 16)
+
+
+@pytest.mark.parametrize(("name", "channels"), [("flownet", 4), ("deeptracking", 1)])
+def test_shapes_and_state_of_both_models(name, channels):
+    model = build_model(name)
+    assert model.out_channels == channels
+    state = model.init_state(3, 13, 7)
+    assert len(state) == 3
+    assert all(s.shape == (3, 16, 13, 7) and s.abs().sum() == 0 for s in state)
+    assert state[0].dtype == torch.float32
+    assert model.init_state(1, 5, 5, dtype=torch.float64)[0].dtype == torch.float64
+    out, new_state = model.step(_seq(3, 1, 13, 7)[:, 0], state)
+    assert out.shape == (3, channels, 13, 7)
+    assert [s.shape for s in new_state] == [s.shape for s in state]
+    seq_out, _ = model(_seq(3, 5, 13, 7))
+    assert seq_out.shape == (3, 5, channels, 13, 7)
+    p = model.predict_next(_seq(3, 1, 13, 7)[:, 0], out)
+    assert p.shape == (3, 1, 13, 7)
+    assert p.min() >= 0 and p.max() <= 1
+
+
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_step_over_time_equals_forward_and_forward_resumes(name):
+    model = build_model(name)
+    _randomise_head(model)
+    seq = _seq(2, 6)
+    expected, expected_state = model(seq)
+    state = model.init_state(2, 12, 10)
+    for t in range(6):
+        out, state = model.step(seq[:, t], state)
+        torch.testing.assert_close(out, expected[:, t])
+    for a, b in zip(state, expected_state, strict=True):
+        torch.testing.assert_close(a, b)
+    # split in two calls, carrying the state, gives the same outputs
+    first, mid_state = model(seq[:, :2])
+    second, _ = model(seq[:, 2:], mid_state)
+    torch.testing.assert_close(torch.cat([first, second], dim=1), expected)
+
+
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_state_carries_history(name):
+    model = build_model(name)
+    _randomise_head(model)
+    seq = _seq(1, 3, seed=1)
+    out_with_history, _ = model(seq)
+    out_alone, _ = model(seq[:, 2:])
+    assert not torch.allclose(out_with_history[:, 2], out_alone[:, 0])
+
+
+def test_untrained_flownet_predicts_copy_last():
+    net = build_model("flownet")
+    seq = _seq(2, 5, 20, 17, seed=3)
+    flows, _ = net(seq)
+    assert flows.abs().max() == 0
+    for t in range(5):
+        torch.testing.assert_close(net.predict_next(seq[:, t], flows[:, t]), seq[:, t, 0:1])
+
+
+def test_flownet_predict_next_warps_occupancy_by_the_backward_flow():
+    net = build_model("flownet")
+    maps = torch.zeros(1, 2, 6, 8)
+    maps[0, 0, 2, 3] = 1.0
+    out = torch.zeros(1, 4, 6, 8)
+    out[:, 0] = -1.0  # B_col: each cell samples one column to its left, so things move right
+    out[:, 2:] = 7.0  # the forward flow must not matter
+    expected = torch.zeros(1, 1, 6, 8)
+    expected[0, 0, 2, 4] = 1.0
+    torch.testing.assert_close(net.predict_next(maps, out), expected)
+
+
+def test_untrained_deeptracking_predicts_the_prior_on_empty_maps():
+    net = build_model("deeptracking")
+    seq = torch.zeros(1, 3, 2, 9, 9)
+    logits, _ = net(seq)
+    p = net.predict_next(seq[:, -1], logits[:, -1])
+    assert 0.001 < p.mean() < 0.2
+
+
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_gradients_reach_every_parameter(name):
+    model = build_model(name)
+    _randomise_head(model)
+    out, _ = model(_seq(2, 3))
+    out.square().mean().backward()
+    for pname, p in model.named_parameters():
+        assert p.grad is not None and p.grad.abs().sum() > 0, pname
+
+
+def test_zero_initialised_flow_head_still_learns():
+    net = build_model("flownet")
+    out, _ = net(_seq(2, 3))
+    (out - 1.0).square().mean().backward()
+    assert net.conv_flow.weight.grad.abs().sum() > 0
+
+
+def test_conv0_activation_option():
+    torch.manual_seed(0)
+    linear = build_model("flownet", conv0_activation="none")
+    assert isinstance(linear.act0, torch.nn.Identity)
+    assert count_parameters(linear) == PAPER_PARAMETERS
+
+
+def test_step_exports_without_data_dependent_branches():
+    net = build_model("flownet")
+    maps = _seq(1, 1, 12, 10)[:, 0]
+
+    class Step(torch.nn.Module):
+        def __init__(self, model):
+            super().__init__()
+            self.model = model
+
+        def forward(self, maps, s0, s1, s2):
+            out, state = self.model.step(maps, (s0, s1, s2))
+            return (self.model.predict_next(maps, out), out, *state)
+
+    exported = torch.export.export(Step(net), (maps, *net.init_state(1, 12, 10)))
+    result = exported.module()(maps, *net.init_state(1, 12, 10))
+    torch.testing.assert_close(result[0], maps[:, 0:1])
