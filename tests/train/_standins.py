@@ -115,11 +115,11 @@ def count_parameters(model):
 
 
 def install() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("lidarflow.losses") is not None:
+        return
     losses = types.ModuleType("lidarflow.losses")
     for obj in (LossConfig, gaussian_schedule, flow_loss, deeptracking_loss):
         setattr(losses, obj.__name__, obj)
-    models = types.ModuleType("lidarflow.models")
-    models.build_model = build_model
-    models.count_parameters = count_parameters
     sys.modules["lidarflow.losses"] = losses
-    sys.modules["lidarflow.models"] = models

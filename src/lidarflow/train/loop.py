@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lidarflow.errors import TrainError
+from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule
 from lidarflow.models import build_model, count_parameters
 from lidarflow.train import checkpoint as ckpt
@@ -202,7 +202,7 @@ def _train(
 
     try:
         model = build_model(config.model.name, **config.model.kwargs)
-    except (TypeError, ValueError) as err:
+    except ModelError as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
     model = model.to(ctx.device)
     if rt.channels_last:
