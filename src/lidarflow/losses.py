@@ -1,0 +1,205 @@
+"""The self-supervised losses: LiDAR-FlowNet's warp loss (paper eq. 3, design notes section 4)
+and DeepTracking's cross-entropy.
+
+Indexing (both losses). ``seq`` is ``(B, T, 2, H, W)`` with channels ``(O, V)``; the model's
+output at index ``t`` (0-based) has seen frames ``0..t`` and speaks about the pair ``(t, t+1)``.
+The loss counts pairs ``t = warmup .. T-2``: with the paper's ``T = 20`` and ``warmup = 10``,
+frames 0-9 (the first ten) only warm up the hidden state, and the loss starts with the output
+at the 11th frame (index 10), which predicts the 12th; 9 pairs per sequence. Every counted
+cell of every pair and sequence weighs the same (a pooled mean over batch, pairs and cells; with
+masks or weights, the pooled weighted mean), so plain MSE is the mean of the per-pair MSEs.
+
+Flow loss variants are configuration (:class:`LossConfig`), not forks; the literal paper loss is
+``LossConfig.paper()`` (also the default, as every config's defaults are the paper's):
+
+    L = MSE(O^t, W(G(O^{t+1}, k), F^t)) + MSE(O^{t+1}, W(G(O^t, k), B^t))
+
+Issue 11 measured this literal form to collapse on real recordings (a blurred source against a
+binary target rewards flow that samples from empty space); ``LossConfig.blurred_both()`` blurs
+the target too, so that zero flow is the minimum at every filter size when nothing moves.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch.nn.functional as F
+from torch import Tensor
+
+from lidarflow.ops.gaussian import gaussian_blur
+from lidarflow.ops.warp import warp
+
+_EPS = 1e-6
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """What the flow loss blurs, masks, weights and adds. Defaults = the paper's loss.
+
+    Attributes:
+        blur_source: filter the map being warped, ``W(G(O^t, k), B)`` (the paper).
+        blur_target: filter the map compared against, ``G(O^{t+1}, k)`` (not in the paper).
+        smoothness: weight of a first-order L1 flow smoothness term,
+            ``mean |d flow / d col| + mean |d flow / d row|`` over all four flow channels.
+        visible_only: count only the cells visible in the target frame (``V^{t+1}`` for the
+            backward term, ``V^t`` for the forward term).
+        occupied_weight: weight of cells occupied in the (unblurred) target relative to free
+            ones; the data term is the weighted mean ``sum(w e) / sum(w)``, so 1 is plain MSE.
+        bce: binary cross-entropy of the warped map (clamped to [eps, 1 - eps]) against the
+            target instead of the squared error.
+        forward_term: include ``MSE(O^t, W(G(O^{t+1}, k), F^t))`` (the paper does).
+    """
+
+    blur_source: bool = True
+    blur_target: bool = False
+    smoothness: float = 0.0
+    visible_only: bool = False
+    occupied_weight: float = 1.0
+    bce: bool = False
+    forward_term: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.smoothness >= 0.0:
+            raise ValueError(f"smoothness must be >= 0, got {self.smoothness}")
+        if not self.occupied_weight > 0.0:
+            raise ValueError(f"occupied_weight must be > 0, got {self.occupied_weight}")
+
+    @classmethod
+    def paper(cls) -> LossConfig:
+        """The literal paper loss: filter on the warped (source) side only, MSE, both terms."""
+        return cls()
+
+    @classmethod
+    def blurred_both(cls) -> LossConfig:
+        """Source and target both filtered: ``MSE(G(O^{t+1}), W(G(O^t), B))`` and the forward
+        term alike (issue 11: no collapse where the literal loss collapsed)."""
+        return cls(blur_target=True)
+
+    def replace(self, **changes: object) -> LossConfig:
+        """A copy with ``changes`` applied (validated)."""
+        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
+
+
+def flow_loss(
+    seq: Tensor,
+    flows: Tensor,
+    kernel_size: int,
+    config: LossConfig | None = None,
+    warmup: int = 10,
+) -> Tensor:
+    """Self-supervised warp loss of LiDAR-FlowNet, a scalar.
+
+    Args:
+        seq: ``(B, T, 2, H, W)`` maps, channels ``(O, V)``.
+        flows: ``(B, T, 4, H, W)`` model outputs, channels ``B_col, B_row, F_col, F_row`` (cells);
+            ``flows[:, t]`` relates frames ``t`` and ``t + 1``.
+        kernel_size: Gaussian filter size ``k`` (odd; 1 = no filter), see
+            :func:`gaussian_schedule`.
+        config: loss variant; ``None`` = :meth:`LossConfig.paper`.
+        warmup: pairs ``t < warmup`` are not counted (module docstring: indexing).
+
+    Returns:
+        Mean over the pairs ``t = warmup .. T-2`` of the backward term, plus the forward term
+        (if enabled), plus ``smoothness`` x the smoothness term.
+    """
+    config = LossConfig.paper() if config is None else config
+    _check(seq, flows, 4, warmup)
+    b, t, _, h, w = seq.shape
+    n = t - 1 - warmup
+    # All pairs at once: (B, n, ...) -> (B * n, ...), one blur and one warp per direction.
+    cur = seq[:, warmup : t - 1].reshape(b * n, 2, h, w)
+    nxt = seq[:, warmup + 1 :].reshape(b * n, 2, h, w)
+    flow = flows[:, warmup : t - 1].reshape(b * n, 4, h, w).to(seq.dtype)
+
+    loss = _warp_term(cur, nxt, flow[:, 0:2], kernel_size, config)
+    if config.forward_term:
+        loss = loss + _warp_term(nxt, cur, flow[:, 2:4], kernel_size, config)
+    if config.smoothness > 0.0:
+        dcol = (flow[..., :, 1:] - flow[..., :, :-1]).abs().mean()
+        drow = (flow[..., 1:, :] - flow[..., :-1, :]).abs().mean()
+        loss = loss + config.smoothness * (dcol + drow)
+    return loss
+
+
+def _warp_term(
+    source: Tensor, target: Tensor, flow: Tensor, kernel_size: int, config: LossConfig
+) -> Tensor:
+    """Data term of one direction: compare ``target``'s occupancy with ``W(G(source O), flow)``."""
+    src_occ = source[:, 0:1]
+    tgt_occ = target[:, 0:1]
+    if config.blur_source:
+        src_occ = gaussian_blur(src_occ, kernel_size)
+    predicted = warp(src_occ, flow)
+    reference = gaussian_blur(tgt_occ, kernel_size) if config.blur_target else tgt_occ
+    if config.bce:
+        err = F.binary_cross_entropy(
+            predicted.clamp(_EPS, 1.0 - _EPS), reference.clamp(0.0, 1.0), reduction="none"
+        )
+    else:
+        err = (predicted - reference).square()
+    weight = None
+    if config.occupied_weight != 1.0:
+        weight = 1.0 + (config.occupied_weight - 1.0) * (tgt_occ > 0.5).to(err.dtype)
+    if config.visible_only:
+        vis = target[:, 1:2].to(err.dtype)
+        weight = vis if weight is None else weight * vis
+    if weight is None:
+        return err.mean()
+    return (err * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def deeptracking_loss(
+    seq: Tensor, logits: Tensor, warmup: int = 10, visible_only: bool = True
+) -> Tensor:
+    """DeepTracking's published loss: binary cross-entropy of the predicted next occupancy.
+
+    ``logits[:, t]`` ``(B, T, 1, H, W)`` predicts ``O^{t+1}``; pairs ``t = warmup .. T-2`` as in
+    :func:`flow_loss`. As Ondruska & Posner (2016) and Dequaire et al. (2018) do, only the cells
+    visible in the target frame (``V^{t+1} = 1``) count: an occluded cell's true state is not
+    observed, so it must not be taught as free. The result is the mean over those cells (over
+    all cells with ``visible_only=False``).
+    """
+    _check(seq, logits, 1, warmup)
+    t = seq.shape[1]
+    target = seq[:, warmup + 1 :, 0:1]
+    pred = logits[:, warmup : t - 1].to(seq.dtype)
+    err = F.binary_cross_entropy_with_logits(pred, target, reduction="none")
+    if not visible_only:
+        return err.mean()
+    vis = seq[:, warmup + 1 :, 1:2]
+    return (err * vis).sum() / vis.sum().clamp_min(1.0)
+
+
+def gaussian_schedule(epoch: int, start: int = 9, step_epochs: int = 25, minimum: int = 1) -> int:
+    """The paper's filter size at 0-based ``epoch``: ``start``, minus 2 every ``step_epochs``
+    epochs, never below ``minimum``: 9 (epochs 0-24), 7, 5, 3, then 1 from epoch 100 on.
+
+    >>> [gaussian_schedule(e) for e in (0, 24, 25, 50, 75, 99, 100, 199)]
+    [9, 9, 7, 5, 3, 3, 1, 1]
+    """
+    if epoch < 0:
+        raise ValueError(f"epoch must be >= 0, got {epoch}")
+    if start % 2 == 0 or minimum % 2 == 0 or minimum < 1 or start < minimum:
+        raise ValueError(
+            f"start and minimum must be odd with 1 <= minimum <= start, got {start}, {minimum}"
+        )
+    if step_epochs < 1:
+        raise ValueError(f"step_epochs must be >= 1, got {step_epochs}")
+    return max(minimum, start - 2 * (epoch // step_epochs))
+
+
+def _check(seq: Tensor, out: Tensor, channels: int, warmup: int) -> None:
+    if seq.dim() != 5 or seq.shape[2] != 2:
+        raise ValueError(f"seq must be (B, T, 2, H, W), got {tuple(seq.shape)}")
+    b, t, _, h, w = seq.shape
+    if out.shape != (b, t, channels, h, w):
+        raise ValueError(
+            f"model output must be (B, T, {channels}, H, W) = {(b, t, channels, h, w)} to match "
+            f"seq {tuple(seq.shape)}, got {tuple(out.shape)}"
+        )
+    if not 0 <= warmup <= t - 2:
+        raise ValueError(
+            f"warmup must be in [0, T - 2] so at least one pair is counted; got warmup={warmup} "
+            f"with T={t}: use longer sequences or a shorter warm-up"
+        )
