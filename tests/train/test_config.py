@@ -25,7 +25,12 @@ def test_defaults_are_the_papers_recipe():
     assert (c.optim.batch_size, c.optim.lr, c.optim.epochs) == (32, 0.01, 200)
     assert (c.schedule.lr_step_epochs, c.schedule.lr_gamma) == (25, 0.5)
     s = c.schedule
-    assert (s.gaussian, s.gaussian_start, s.gaussian_step_epochs, s.gaussian_min) == (True, 9, 25, 1)
+    assert (s.gaussian, s.gaussian_start, s.gaussian_step_epochs, s.gaussian_min) == (
+        True,
+        9,
+        25,
+        1,
+    )
     assert c.loss == LossConfig.paper()
     assert (c.data.grid, c.data.res) == (100, 0.1)
 
@@ -34,7 +39,11 @@ def test_recipes_differ_only_where_they_should():
     assert set(RECIPES) >= {"paper", "blurred"}
     paper, blurred = recipe("paper"), recipe("blurred")
     assert blurred.loss == LossConfig.blurred_both() != paper.loss
-    assert (blurred.optim, blurred.data, blurred.schedule) == (paper.optim, paper.data, paper.schedule)
+    assert (blurred.optim, blurred.data, blurred.schedule) == (
+        paper.optim,
+        paper.data,
+        paper.schedule,
+    )
     with pytest.raises(TrainError, match="unknown recipe 'nope'"):
         recipe("nope")
 
@@ -56,7 +65,7 @@ def test_overrides_are_typed():
             "data.mix=0.7,0.3",
             "data.topic=/scan",
             "optim.grad_clip=1",  # an int where a float is expected is fine
-            "model.kwargs={\"conv0_activation\": \"none\"}",
+            'model.kwargs={"conv0_activation": "none"}',
         ],
     )
     assert c.optim.lr == 0.003 and isinstance(c.optim.lr, float)
@@ -75,6 +84,7 @@ def test_overrides_are_typed():
         ("optim.epochs=2.5", "optim.epochs: expected int"),
         ("schedule.gaussian=maybe", "expected bool"),
         ("optim=3", "expected a table"),
+        ("loss.smoothness=-1", "smoothness must be >= 0"),
     ],
 )
 def test_bad_overrides_name_the_setting(item, message):
@@ -104,9 +114,9 @@ def test_bad_config_files_and_values(tmp_path):
         build_config(None, bad)
     with pytest.raises(TrainError, match="cannot read"):
         build_config(None, tmp_path / "missing.json")
-    with pytest.raises(TrainError, match="data.warmup"):
+    with pytest.raises(TrainError, match=r"data\.warmup"):
         build_config(None, None, {"data.seq_len": 5, "data.warmup": 4})
     with pytest.raises(TrainError, match="Gaussian sizes must be odd"):
         build_config(None, None, {"schedule.gaussian_start": 8})
-    with pytest.raises(TrainError, match="model.name"):
+    with pytest.raises(TrainError, match=r"model\.name"):
         build_config(None, None, {"model.name": "resnet"})

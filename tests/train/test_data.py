@@ -7,11 +7,11 @@ from collections import Counter
 import numpy as np
 import pytest
 import torch
-from conftest import blob_recording
 
 from lidarflow.errors import TrainError
 from lidarflow.train.config import DataConfig
 from lidarflow.train.data import MixSampler, expand_source, load_train_data, make_loader
+from tests.train.blobs import blob_recording
 
 
 def _cfg(sources, **kw) -> DataConfig:
@@ -43,7 +43,9 @@ def test_tail_split_holds_out_the_end_of_each_recording(blob_files):
 
 
 def test_recordings_split_and_explicit_validation(blob_files, tmp_path):
-    data = load_train_data(_cfg([tmp_path / "blob_*.npz"], val_split="recordings", val_fraction=0.5))
+    data = load_train_data(
+        _cfg([tmp_path / "blob_*.npz"], val_split="recordings", val_fraction=0.5)
+    )
     assert [len(s) for s in data.sources] == [6] and len(data.val) == 6  # one whole recording each
     data = load_train_data(_cfg(blob_files[:1], val_sources=[str(blob_files[1])]))
     assert [len(s) for s in data.sources] == [6] and len(data.val) == 6

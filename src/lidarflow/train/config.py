@@ -266,7 +266,10 @@ def _from_dict(cls: type, data: dict[str, Any], where: str = "") -> Any:
             f"known: {', '.join(sorted(names))}"
         )
     kwargs = {k: _coerce(v, hints[k], f"{where}.{k}".lstrip(".")) for k, v in data.items()}
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as err:
+        raise TrainError(f"config {where or 'top level'}: {err}") from err
 
 
 def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
@@ -285,7 +288,10 @@ def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
             changes[key] = _merge(current, value, path)
         else:
             changes[key] = _coerce(value, hints[key], path)
-    return dataclasses.replace(base, **changes)
+    try:
+        return dataclasses.replace(base, **changes)
+    except (TypeError, ValueError) as err:  # a section's own checks (e.g. LossConfig's)
+        raise TrainError(f"config {where or 'top level'}: {err}") from err
 
 
 def config_from_dict(data: dict[str, Any]) -> TrainConfig:

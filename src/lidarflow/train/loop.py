@@ -359,5 +359,7 @@ def _describe(row: dict[str, Any]) -> str:
         "val_changed_f1",
         "val_epe",
         "val_epe_zero",
+        "val_epe_moving",
+        "val_epe_moving_zero",
     )
     return ", ".join(f"{k} {row[k]:.4g}" for k in keys if k in row)
