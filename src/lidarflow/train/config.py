@@ -132,6 +132,9 @@ class RuntimeConfig:
     eval_before_training: bool = True
     final_weights: str = "last"  # which weights become model.safetensors: "last" (paper) or "best"
     tensorboard: bool = True  # used only when tensorboard is installed
+    # |loss|, gradient norm or |model output| beyond this stops the run as diverged: a flow of
+    # a million cells (or a logit of a million) is divergence in all but name
+    divergence_limit: float = 1e6
 
 
 @dataclass

@@ -251,6 +251,7 @@ def _train(
 
     params = [p for p in model.parameters() if p.requires_grad]
     clip = config.optim.grad_clip if config.optim.grad_clip > 0 else math.inf
+    limit = rt.divergence_limit
     for epoch in range(start, config.optim.epochs):
         sampler.set_epoch(epoch)
         kernel = gaussian_size(config, epoch)
@@ -274,15 +275,16 @@ def _train(
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
-            loss_value = float(loss.detach())
-            if any_flag(ctx, not (math.isfinite(loss_value) and math.isfinite(float(grad_norm)))):
-                last = ckpt.latest_epoch(run_dir)
+            # One sync for all three checks. The output is checked too: a flow blown up to 1e30
+            # cells still gives a finite loss (the warp samples zeros far outside the map), so a
+            # magnitude beyond runtime.divergence_limit counts as divergence as well.
+            health = torch.stack(
+                [loss.detach().float(), grad_norm.float(), out.detach().float().abs().amax()]
+            ).tolist()
+            loss_value = health[0]
+            if any_flag(ctx, not all(_healthy(v, limit) for v in health)):
                 raise TrainError(
-                    f"training diverged: non-finite loss ({loss_value:.4g}) or gradient norm "
-                    f"({float(grad_norm):.4g}) at epoch {epoch + 1}, step {step} of {len(loader)} "
-                    f"(lr {lr:.3g}, Gaussian size {kernel}); nothing of this epoch was saved"
-                    + (f", the last good checkpoint is epoch {last} in {run_dir}" if last else "")
-                    + "; lower --lr, set --grad-clip, or drop --amp"
+                    _diverged(health, limit, epoch, step, len(loader), lr, kernel, run_dir)
                 )
             optimizer.step()
             total += loss_value * len(seq)
@@ -327,6 +329,34 @@ def _train(
         book.close()
     barrier(ctx)
     return TrainResult(run_dir, book.rows if book else [], model, extra)
+
+
+def _healthy(value: float, limit: float) -> bool:
+    return math.isfinite(value) and abs(value) <= limit
+
+
+def _diverged(
+    health: list[float],
+    limit: float,
+    epoch: int,
+    step: int,
+    steps: int,
+    lr: float,
+    kernel: int,
+    run_dir: Path,
+) -> str:
+    """The one-line story of a divergence: what went non-finite, where, and what to do."""
+    names = ("loss", "gradient norm", "largest model output")
+    bad = ", ".join(
+        f"{n} {v:.4g}" for n, v in zip(names, health, strict=True) if not _healthy(v, limit)
+    )
+    last = ckpt.latest_epoch(run_dir)
+    where = f"the last good checkpoint is epoch {last} in {run_dir}" if last else "none finished"
+    return (
+        f"training diverged at epoch {epoch + 1}, step {step} of {steps} (lr {lr:.3g}, Gaussian "
+        f"size {kernel}): non-finite or absurd (> {limit:.0g}) {bad}; nothing of this epoch "
+        f"was saved ({where}); lower --lr, set --grad-clip, or drop --amp"
+    )
 
 
 def _mean_over_ranks(ctx: Dist, total: float, count: int) -> float:
