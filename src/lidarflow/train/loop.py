@@ -282,6 +282,8 @@ def _train(
                 [loss.detach().float(), grad_norm.float(), out.detach().float().abs().amax()]
             ).tolist()
             loss_value = health[0]
+            if math.isfinite(clip) and math.isfinite(health[1]):
+                health[1] = min(health[1], limit)  # with clipping on, only NaN/inf is fatal
             if any_flag(ctx, not all(_healthy(v, limit) for v in health)):
                 raise TrainError(
                     _diverged(health, limit, epoch, step, len(loader), lr, kernel, run_dir)
