@@ -31,7 +31,7 @@ def tiny_config(sources, **flags):
     return build_config("blurred", None, {**base, **flags})
 
 
-class Stop(Exception):
+class KilledError(Exception):
     pass
 
 
@@ -96,9 +96,9 @@ def test_resume_continues_exactly(blob_files, tmp_path):
 
     def kill_after_first(epoch, row):
         if epoch == 1:
-            raise Stop
+            raise KilledError
 
-    with pytest.raises(Stop):
+    with pytest.raises(KilledError):
         train(tiny_config(blob_files, **flags), tmp_path / "b", on_epoch_end=kill_after_first)
     assert latest_epoch(tmp_path / "b") == 1 and not (tmp_path / "b" / "model.safetensors").exists()
     resumed = train(tiny_config(blob_files, **flags), tmp_path / "b", resume=True)
