@@ -235,6 +235,7 @@ def _train(
     )
     is_flow = config.model.name == "flownet"
     book = Logbook(run_dir, rt.tensorboard, start if resume else None) if ctx.is_main else None
+    rows: list[dict[str, Any]] = []  # this process's rows (every rank computes the same ones)
 
     def evaluate(kernel: int) -> dict[str, float]:
         if val_loader is None:
@@ -245,6 +246,7 @@ def _train(
 
     if start == 0 and rt.eval_before_training and val_loader is not None:
         row = {"epoch": 0, **evaluate(gaussian_size(config, 0))}
+        rows.append(row)
         if book is not None and not book.rows:
             book.log(row)
         say("untrained: " + _describe(row))
@@ -321,6 +323,7 @@ def _train(
                 ckpt.save_weights(model, run_dir / "best.safetensors", {"epoch": epoch + 1})
             ckpt.save_checkpoint(run_dir, epoch + 1, model, optimizer, scheduler, extra)
             book.log(row)
+        rows.append(row)
         barrier(ctx)
         say(f"epoch {epoch + 1}/{config.optim.epochs}: " + _describe(row))
         if on_epoch_end is not None:
@@ -330,7 +333,7 @@ def _train(
         _write_final(run_dir, config, model, data, extra)
         book.close()
     barrier(ctx)
-    return TrainResult(run_dir, book.rows if book else [], model, extra)
+    return TrainResult(run_dir, book.rows if book else rows, model, extra)
 
 
 def _healthy(value: float, limit: float) -> bool:

@@ -1,0 +1,107 @@
+"""``lidarflow train`` from the command line: help, a run, resume, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lidarflow.cli import main
+
+TINY = [
+    "--grid",
+    "32",
+    "--seq-len",
+    "8",
+    "--warmup",
+    "3",
+    "--batch-size",
+    "3",
+    "--val-fraction",
+    "0.25",
+    "--set",
+    "runtime.tensorboard=false",
+]
+
+
+def run_cli(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    out = capsys.readouterr()
+    return exc.value.code, out.out, out.err
+
+
+def test_help_explains_the_options(capsys):
+    code, out, _ = run_cli(["train", "--help"], capsys)
+    assert code == 0
+    for option in (
+        "--model",
+        "--recipe",
+        "--resume",
+        "--no-gaussian",
+        "--mix",
+        "--set",
+        "--amp",
+        "--val-fraction",
+        "torchrun",
+    ):
+        assert option in out
+
+
+def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
+    run = tmp_path / "run"
+    code, out, err = run_cli(
+        [
+            "train",
+            *map(str, blob_files),
+            "-o",
+            str(run),
+            "--epochs",
+            "1",
+            "--no-gaussian",
+            "--lr",
+            "0.003",
+            "--mix",
+            "0.75",
+            *TINY,
+        ],
+        capsys,
+    )
+    assert code in (0, None), err
+    assert "model.safetensors" in out
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["schedule"]["gaussian"] is False and cfg["data"]["mix"] == [0.75]
+    assert cfg["optim"]["lr"] == 0.003 and cfg["recipe"] == "paper"
+    code, out, err = run_cli(["train", "--resume", str(run), "--epochs", "2"], capsys)
+    assert code in (0, None), err
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]
+    assert [r["gaussian_size"] for r in rows[1:]] == [1, 1]
+    assert json.loads((run / "config.json").read_text())["optim"]["epochs"] == 1  # as started
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--lr", "1e30", "--epochs", "2"], "training diverged at epoch 1, step 2"),
+        (["--set", "optim.nope=1"], "unknown setting 'optim.nope'"),
+        (["--model", "resnet"], "model.name must be one of"),
+    ],
+)
+def test_failures_are_one_line_with_exit_1(blob_files, tmp_path, capsys, extra, message):
+    code, _, err = run_cli(
+        ["train", str(blob_files[0]), "-o", str(tmp_path / "r"), *TINY, *extra], capsys
+    )
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("lidarflow: error: ") and message in lines[0]
+    assert "Traceback" not in err
+
+
+def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):
+    code, _, err = run_cli(["train", "--resume", str(tmp_path), "--lr", "0.1"], capsys)
+    assert code == 1 and "a resumed run keeps its config" in err
+    code, _, err = run_cli(["train", "--resume", str(tmp_path)], capsys)
+    assert code == 1 and "cannot read the config file" in err
+    code, _, err = run_cli(["train", "x.npz"], capsys)
+    assert code == 1 and "-o RUN_DIR" in err
