@@ -21,6 +21,8 @@ TINY = [
     "0.25",
     "--set",
     "runtime.tensorboard=false",
+    "--threads",
+    "1",
 ]
 
 

@@ -27,6 +27,7 @@ def tiny_config(sources, **flags):
         "optim.epochs": 2,
         "optim.lr": 0.003,
         "runtime.tensorboard": False,
+        "runtime.threads": 1,
     }
     return build_config("blurred", None, {**base, **flags})
 
@@ -89,7 +90,6 @@ def test_resume_continues_exactly(blob_files, tmp_path):
         "optim.epochs": 3,
         "schedule.lr_step_epochs": 1,
         "schedule.gaussian_step_epochs": 1,
-        "data.stride": 4,
         "optim.lr": 0.01,
     }
     straight = train(tiny_config(blob_files, **flags), tmp_path / "a")
