@@ -144,8 +144,14 @@ def show(
     flow: Annotated[
         bool, typer.Option("--flow/--no-flow", help="Overlay ground-truth flow when the recording has it.")
     ] = True,
+    flow_scale: Annotated[
+        float, typer.Option("--flow-scale", help="Draw flow arrows N times longer.", min=0.0)
+    ] = 1.0,
 ) -> None:
-    """Draw the occupancy and visibility maps of one frame (sensor at the bottom middle)."""
+    """Draw the occupancy and visibility maps of one frame (sensor at the bottom middle).
+
+    On a simulated recording the ground truth is overlaid: cells on moving objects in red, and
+    the forward flow F^t (where each occupied cell of this frame goes in the next) as arrows."""
     from lidarflow.errors import RecordingError
     from lidarflow.scan import GridSpec
     from lidarflow.viz.maps import draw_maps
@@ -156,13 +162,21 @@ def show(
     index = frame % len(rec)
     spec = GridSpec(grid, grid, res)
     occ, vis = rec.maps(spec, index, index + 1)
-    gt_flow = None
-    if flow and "flow_backward" in rec.extras:
-        stored = rec.extras["flow_backward"]
+    gt_flow = moving = None
+    # Forward flow F^t lives on the occupied cells of O^t (design notes, section 3): it is the
+    # one that belongs on this frame's map. (B^t lives on O^{t+1}'s cells.)
+    if flow and "flow_forward" in rec.extras:
+        stored = rec.extras["flow_forward"]
         if stored.shape[-2:] == spec.shape:
             gt_flow = stored[index].astype(float)
+            if "moving" in rec.extras:
+                moving = rec.extras["moving"][index]
+        else:
+            typer.echo(f"note: ground truth is on a {stored.shape[-2:]} grid, not drawn here")
     title = f"{recording.name}  frame {index}/{len(rec)}  t={rec.stamps_ns[index] / 1e9:.3f}s"
-    path = draw_maps(occ[0], vis[0], output, spec, title=title, flow=gt_flow)
+    path = draw_maps(
+        occ[0], vis[0], output, spec, title, flow=gt_flow, moving=moving, flow_scale=flow_scale
+    )
     typer.echo(f"wrote {path}")
 
 
@@ -371,6 +385,102 @@ def train(
 
     result = run_training(cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write)
     typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")
+
+
+_SENSOR_HELP = (
+    "LiDAR preset: tim561 (paper: 15 Hz, 270 deg, 811 beams, 10 m), hokuyo-urg (10 Hz, 180 deg, "
+    "512 beams, 5.6 m), hokuyo-utm (7.5 Hz, 270 deg, 768 beams, 11 m), rplidar (10 Hz, 360 deg, "
+    "360 beams, 8 m)."
+)
+
+
+@app.command()
+def simulate(
+    output: Annotated[
+        Path,
+        typer.Option(
+            "--output", "-o", help="Recording to write (.npz); long runs: STEM-000.npz, ..."
+        ),
+    ],
+    scenario: Annotated[
+        str,
+        typer.Option("--scenario", "-s", help="static (robot stands still) or dynamic (drives)."),
+    ] = "dynamic",
+    frames: Annotated[int, typer.Option("--frames", "-n", help="Number of scans.", min=1)] = 1000,
+    seed: Annotated[int, typer.Option("--seed", help="Same seed, same data.")] = 0,
+    sensor: Annotated[str, typer.Option("--sensor", help=_SENSOR_HELP)] = "tim561",
+    people: Annotated[
+        int, typer.Option("--people", help="People in the building at once.", min=0)
+    ] = 8,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+    odom_drift: Annotated[
+        float,
+        typer.Option(
+            "--odom-drift", help="Odometry error per metre driven (0: poses are exact).", min=0.0
+        ),
+    ] = 0.0,
+    episode_frames: Annotated[
+        int,
+        typer.Option("--episode-frames", help="Frames per world before a new one is built.", min=2),
+    ] = 1500,
+    chunk_frames: Annotated[
+        int,
+        typer.Option(
+            "--chunk-frames",
+            help="Write runs longer than this as several files of whole episodes (0: one file); "
+            "dense ground-truth flow takes 80 kB per frame in memory.",
+            min=0,
+        ),
+    ] = 6000,
+    workers: Annotated[
+        int, typer.Option("--workers", "-j", help="Processes to simulate with.", min=1)
+    ] = 1,
+) -> None:
+    """Simulate 2-D LiDAR scans of people walking in offices, with exact ground-truth flow.
+
+    Writes recordings like `convert`, plus the ground truth in extras: flow_backward and
+    flow_forward (N, 2, H, W) float16 in cells (channel 0 column, 1 row; index t holds B^t or
+    F^t; the last frame of each episode is zero), moving (N, H, W) and true_poses (N, 3); the
+    recording's poses are the odometry. Every episode is a new floor plan; the data depend only
+    on the seed. The paper's sets: --frames 36000 (training) and --frames 7200 (validation).
+    """
+    import time
+
+    from lidarflow.scan import GridSpec
+    from lidarflow.sim import (
+        PRESETS,
+        PeopleConfig,
+        PlatformConfig,
+        SimConfig,
+        lidar_preset,
+        write_simulation,
+    )
+
+    if scenario not in ("static", "dynamic"):
+        raise typer.BadParameter(f"static or dynamic, not {scenario!r}", param_hint="--scenario")
+    if sensor not in PRESETS:
+        choices = ", ".join(PRESETS)
+        raise typer.BadParameter(f"one of {choices}, not {sensor!r}", param_hint="--sensor")
+    config = SimConfig(
+        scenario=scenario,
+        sensor=lidar_preset(sensor),
+        people=PeopleConfig(count=people),
+        platform=PlatformConfig(odom_drift=odom_drift),
+        grid=GridSpec(grid, grid, res),
+        episode_frames=episode_frames,
+    )
+    start = time.perf_counter()
+    with _progress(frames, f"simulating {scenario}") as bar:
+        paths = write_simulation(
+            output, frames, seed, config, chunk_frames, workers, progress=bar.update
+        )
+    seconds = time.perf_counter() - start
+    shown = str(paths[0]) if len(paths) == 1 else f"{len(paths)} files {paths[0]}..{paths[-1].name}"
+    typer.echo(
+        f"wrote {shown}: {frames} {sensor} scans ({scenario}, seed {seed}) with ground-truth "
+        f"flow in {seconds:.1f} s ({frames / seconds:.0f} scans/s)"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:

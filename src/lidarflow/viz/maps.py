@@ -25,9 +25,15 @@ def draw_maps(
     grid: GridSpec | None = None,
     title: str = "",
     flow: np.ndarray | None = None,
+    moving: np.ndarray | None = None,
+    flow_scale: float = 1.0,
 ) -> Path:
-    """Draw occupancy and visibility side by side (plus ground-truth flow arrows if given:
-    ``flow`` is ``(2, H, W)`` in cells, channel 0 column, channel 1 row) and save a PNG."""
+    """Draw occupancy and visibility side by side and save a PNG.
+
+    ``flow`` (optional) is a ``(2, H, W)`` flow in cells (channel 0 column, channel 1 row) that
+    lives on ``occupancy``'s cells, i.e. the forward flow ``F^t`` of this frame: each occupied cell
+    gets an arrow to where its content is in the next frame, drawn ``flow_scale`` times longer.
+    ``moving`` (optional, ``(H, W)`` bool) marks occupied cells on moving objects in red."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -36,19 +42,25 @@ def draw_maps(
     grid = grid or GridSpec(*occupancy.shape)
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.4), constrained_layout=True)
     extent = _extent(grid)
-    for ax, image, name in zip(axes, (occupancy, visibility), ("occupancy", "visibility"), strict=True):
+    panels = zip(axes, (occupancy, visibility), ("occupancy", "visibility"), strict=True)
+    for ax, image, name in panels:
         ax.imshow(image, cmap="gray_r", vmin=0, vmax=1, extent=extent, interpolation="nearest")
         ax.plot([0], [0], marker="^", color="tab:red", markersize=10, clip_on=False)
         ax.set_title(name)
         ax.set_xlabel("y (m, left positive)")
         ax.set_ylabel("x (m, forward)")
+    if moving is not None and (moving & occupancy).any():
+        overlay = np.zeros((*occupancy.shape, 4))
+        overlay[moving & occupancy] = (0.85, 0.1, 0.1, 1.0)
+        axes[0].imshow(overlay, extent=extent, interpolation="nearest")
     if flow is not None:
         rows, cols = np.nonzero(occupancy & (np.hypot(flow[0], flow[1]) > 1e-3))
         x = (grid.height - rows - 0.5) * grid.res
         y = (grid.width / 2 - cols - 0.5) * grid.res
         # A flow of +1 column moves towards smaller y; +1 row towards smaller x.
         axes[0].quiver(
-            y, x, -flow[0, rows, cols] * grid.res, -flow[1, rows, cols] * grid.res,
+            y, x, -flow[0, rows, cols] * grid.res * flow_scale,
+            -flow[1, rows, cols] * grid.res * flow_scale,
             color="tab:blue", angles="xy", scale_units="xy", scale=1, width=0.004,
         )
     if title:

@@ -1,0 +1,193 @@
+"""The robot carrying the LiDAR: standing still, or driving smoothly through the floor plan.
+
+A driving robot is a unicycle (forward speed ``v``, turn rate ``w``) with acceleration limits,
+up to ~1 m/s and ~1 rad/s. It drives to random goals along routes through doors, steering towards
+the next waypoint while pushed away from walls, furniture and people; it slows down to turn and
+near people, pauses now and then, and sometimes turns on the spot. The sensor sits at the robot's
+origin, so the robot's pose is the sensor's pose ``(x, y, yaw)``.
+
+Odometry: the true pose, or (``odom_drift > 0``) the pose integrated from the true motion
+increments with a per-episode scale error and random-walk noise, so that it drifts the way wheel
+odometry does: ``odom_drift`` is roughly the relative error per metre driven.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidarflow.errors import SimError
+from lidarflow.scan import BeamGeometry
+from lidarflow.sim.lidar import cast_rays
+from lidarflow.sim.world import World
+
+__all__ = ["Platform", "PlatformConfig", "compose", "relative"]
+
+
+@dataclass(frozen=True)
+class PlatformConfig:
+    """The robot's motion limits and habits (SI units)."""
+
+    moving: bool = True
+    max_speed: float = 1.0
+    max_turn_rate: float = 1.0
+    accel: float = 0.8
+    turn_accel: float = 2.5
+    cruise: tuple[float, float] = (0.4, 1.0)
+    pause_prob: float = 0.35
+    pause_time: tuple[float, float] = (0.5, 4.0)
+    radius: float = 0.3
+    odom_drift: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.max_speed <= 0 or self.max_turn_rate <= 0 or self.odom_drift < 0:
+            raise SimError(f"platform limits must be positive and drift >= 0: {self}")
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pose ``a`` followed by the relative pose ``b`` (both ``(x, y, yaw)``)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1],
+                     math.remainder(a[2] + b[2], 2 * math.pi)])
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The pose of ``b`` in the frame of ``a``."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return np.array([c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], 2 * math.pi)])
+
+
+def _clamp(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else hi if x > hi else x
+
+
+def _open_heading(world: World, xy: np.ndarray) -> float:
+    """The direction with the most free space around ``xy`` (a 72-beam look around)."""
+    geom = BeamGeometry(72, -math.pi, 2 * math.pi / 72, 0.0, 12.0)
+    ranges, _ = cast_rays(np.array([[xy[0], xy[1], 0.0]]), geom, world.segments, world.circles)
+    r = np.minimum(ranges[0], 12.0)
+    window = np.convolve(np.concatenate([r[-8:], r, r[:8]]), np.ones(17), "valid")
+    return float(geom.angles[int(np.argmax(window))])
+
+
+class Platform:
+    """The robot in ``world``: ``pose`` (true) and ``odom`` (as odometry reports it)."""
+
+    def __init__(self, world: World, config: PlatformConfig, rng: np.random.Generator) -> None:
+        self.world, self.cfg, self.rng = world, config, rng
+        start = None
+        for _ in range(20):
+            start = world.sample_free(rng, clearance=0.6)
+            if start is not None:
+                break
+        if start is None:
+            raise SimError("no free spot for the robot in this world; use another seed")
+        yaw = _open_heading(world, start) + rng.normal(0, 0.3) if rng.random() < 0.7 else (
+            rng.uniform(-math.pi, math.pi))
+        self.pose = np.array([start[0], start[1], math.remainder(yaw, 2 * math.pi)])
+        self.odom = self.pose.copy()
+        self.v = 0.0
+        self.w = 0.0
+        self.route: list[np.ndarray] = []
+        self.cruise = 0.0
+        self.pause = 0.0
+        self.pause_turn = 0.0
+        self.check_pos = self.pose[:2].copy()
+        self.check_timer = 0.0
+        drift = config.odom_drift
+        self.scale = np.array([1 + rng.normal(0, drift), 1 + rng.normal(0, drift)])
+        if config.moving:
+            self._new_goal()
+
+    def _new_goal(self) -> None:
+        for _ in range(5):
+            goal = self.world.sample_free(self.rng, clearance=0.6)
+            route = None if goal is None else self.world.route(self.pose[:2], goal)
+            if route:
+                self.route = route
+                self.cruise = self.rng.uniform(*self.cfg.cruise)
+                return
+        self.route = []
+        self._pause()
+
+    def _pause(self) -> None:
+        self.pause = self.rng.uniform(*self.cfg.pause_time)
+        self.pause_turn = self.rng.choice([-1, 1]) * self.rng.uniform(0.3, 1.0) * (
+            self.rng.random() < 0.4)
+
+    def _command(self, dt: float, people: np.ndarray) -> tuple[float, float]:
+        cfg = self.cfg
+        if self.pause > 0:
+            self.pause -= dt
+            if self.pause <= 0:
+                self._new_goal()
+            return 0.0, self.pause_turn * cfg.max_turn_rate
+        xy, yaw = self.pose[:2], self.pose[2]
+        while len(self.route) > 1 and math.dist(self.route[0], xy) < 0.5:
+            self.route.pop(0)
+        if not self.route or (len(self.route) == 1 and math.dist(self.route[0], xy) < 0.4):
+            if self.rng.random() < cfg.pause_prob:
+                self._pause()
+            else:
+                self._new_goal()
+            return 0.0, 0.0
+        self.check_timer += dt
+        if self.check_timer > 4.0:
+            if math.dist(xy, self.check_pos) < 0.3:
+                self._new_goal()
+            self.check_pos, self.check_timer = xy.copy(), 0.0
+        to_wp = self.route[0] - xy
+        direction = to_wp / max(math.hypot(*to_wp), 1e-6)
+        # Keep clear of walls and furniture.
+        d, away = self.world.field.lookup(xy)
+        if d[0] < 0.9:
+            direction = direction + 0.6 * math.exp((0.45 - d[0]) / 0.2) * away[0]
+        slow = 1.0
+        if len(people):
+            rel = people - xy
+            dist = np.hypot(rel[:, 0], rel[:, 1])
+            ahead = (rel @ np.array([math.cos(yaw), math.sin(yaw)])) > 0
+            close = dist < 1.5
+            if (close & ahead).any():
+                slow = _clamp(float(dist[close & ahead].min()) - 0.5, 0.0, 1.0)
+            if close.any():
+                away = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
+                direction = direction + (0.8 * np.exp((0.8 - dist[close]) / 0.3)[:, None]
+                                         * away).sum(0)
+        err = math.remainder(math.atan2(direction[1], direction[0]) - yaw, 2 * math.pi)
+        w = _clamp(2.0 * err, -cfg.max_turn_rate, cfg.max_turn_rate)
+        v = self.cruise * max(0.0, math.cos(err)) ** 2 * slow
+        if len(self.route) == 1:
+            v = min(v, 0.3 + math.hypot(*to_wp))  # ease into the goal
+        return min(v, cfg.max_speed), w
+
+    def step(self, dt: float, people: np.ndarray) -> None:
+        """Advance by ``dt`` seconds; ``people`` are the ``(M, 2)`` positions of people nearby."""
+        if not self.cfg.moving:
+            return
+        cfg = self.cfg
+        v_cmd, w_cmd = self._command(dt, people)
+        self.v += _clamp(v_cmd - self.v, -cfg.accel * dt, cfg.accel * dt)
+        self.w += _clamp(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt)
+        yaw = self.pose[2]
+        mid = yaw + self.w * dt / 2
+        new = np.array([self.pose[0] + self.v * dt * math.cos(mid),
+                        self.pose[1] + self.v * dt * math.sin(mid),
+                        math.remainder(yaw + self.w * dt, 2 * math.pi)])
+        if self.world.clearance(new[:2])[0] < cfg.radius:
+            new[:2] = self.pose[:2]  # bumper: turn on the spot instead of hitting anything
+            self.v = 0.0
+        if cfg.odom_drift > 0:
+            inc = relative(self.pose, new)
+            dist = math.hypot(inc[0], inc[1])
+            noise = self.rng.normal(0, cfg.odom_drift, 3) * np.array(
+                [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist])
+            measured = np.array([inc[0] * self.scale[0], inc[1] * self.scale[0],
+                                 inc[2] * self.scale[1]]) + noise
+            self.odom = compose(self.odom, measured)
+        else:
+            self.odom = new.copy()
+        self.pose = new

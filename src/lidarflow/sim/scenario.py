@@ -1,0 +1,271 @@
+"""Scenario assembly: episodes of a world, a robot and people, turned into a recording.
+
+A simulation is a run of *episodes*: each builds a new world from ``(seed, episode index)``, so
+the result is the same for a seed however it is cut into files or spread over processes. Between
+episodes the stamps jump by one second, so :func:`lidarflow.data.split_segments` never lets a
+training window cross from one world into the next, and the last frame of every episode has zero
+flow (it has no next frame).
+
+The recording carries the ground truth in ``extras`` (design notes, section 3; flow in cells,
+channel 0 column, channel 1 row):
+
+* ``flow_backward`` float16 ``(N, 2, H, W)``: index ``t`` holds ``B^t`` (on ``O^{t+1}``'s cells),
+* ``flow_forward`` float16 ``(N, 2, H, W)``: index ``t`` holds ``F^t`` (on ``O^t``'s cells),
+* ``moving`` bool ``(N, H, W)``: cells of ``O^t`` hit on a moving object,
+* ``true_poses`` float64 ``(N, 3)``: the true sensor pose; ``Recording.poses`` is the odometry,
+* ``episode`` int32 ``(N,)``: the episode (world) of each frame.
+
+Flow is stored dense: 2 x 100 x 100 float16 = 40 kB per frame and array, mostly zeros, which the
+compressed ``.npz`` shrinks well; long runs are written as several files of whole episodes
+(``write_simulation``) so that no process ever holds more than one file's worth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarflow.data.recording import Recording
+from lidarflow.errors import SimError
+from lidarflow.scan import GridSpec
+from lidarflow.sim.groundtruth import ground_truth
+from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset, measure
+from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
+from lidarflow.sim.platform import Platform, PlatformConfig
+from lidarflow.sim.world import WorldConfig, build_world
+
+__all__ = ["Episode", "SimConfig", "simulate", "simulate_episode", "write_simulation"]
+
+SCENARIOS = ("static", "dynamic")
+_START_NS = 1_000_000_000
+_EPISODE_GAP_NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """What to simulate. ``scenario`` is ``"static"`` (the robot stands still) or ``"dynamic"``
+    (it drives); the defaults give the paper's setting: a SICK TIM561 at 15 Hz and the
+    100 x 100 x 0.1 m grid."""
+
+    scenario: str = "dynamic"
+    sensor: LidarConfig = field(default_factory=lambda: lidar_preset("tim561"))
+    people: PeopleConfig = field(default_factory=PeopleConfig)
+    world: WorldConfig = field(default_factory=WorldConfig)
+    platform: PlatformConfig = field(default_factory=PlatformConfig)
+    grid: GridSpec = field(default_factory=GridSpec)
+    episode_frames: int = 1500
+    block_frames: int = 32
+
+    def __post_init__(self) -> None:
+        if self.scenario not in SCENARIOS:
+            raise SimError(f"scenario must be one of {SCENARIOS}, got {self.scenario!r}")
+        if self.episode_frames < 2 or self.block_frames < 1:
+            raise SimError("episode_frames must be >= 2 and block_frames >= 1")
+        if self.platform.moving != (self.scenario == "dynamic"):
+            object.__setattr__(
+                self, "platform", replace(self.platform, moving=self.scenario == "dynamic"))
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["grid"] = self.grid.to_dict()
+        return d
+
+
+@dataclass
+class Episode:
+    """One simulated episode: ``n`` frames of ranges and ground truth (see the module doc)."""
+
+    ranges: np.ndarray
+    odom: np.ndarray
+    true_poses: np.ndarray
+    flow_backward: np.ndarray
+    flow_forward: np.ndarray
+    moving: np.ndarray
+
+
+def _dynamics(config: SimConfig, rng: np.random.Generator, frames: int) -> tuple[Any, ...]:
+    world = build_world(rng, config.world)
+    platform = Platform(world, config.platform, rng)
+    sensor = config.sensor
+    reach = sensor.range_max
+    crowd = Crowd(world, config.people, rng, platform.pose, math.radians(sensor.fov_deg), reach)
+    dt = 1.0 / sensor.rate_hz
+    poses = np.empty((frames, 3))
+    odom = np.empty((frames, 3))
+    snaps = np.empty((frames, config.people.count, 5))
+    for t in range(frames):
+        poses[t], odom[t], snaps[t] = platform.pose, platform.odom, crowd.snapshot()
+        people = crowd.pos[crowd.walking()]
+        crowd.step(dt, platform.pose, config.platform.radius)
+        platform.step(dt, people)
+    return world, poses, odom, legs_from(snaps, crowd.hip, crowd.leg_r)
+
+
+def simulate_episode(config: SimConfig, seed: int, episode: int, frames: int) -> Episode:
+    """Simulate episode ``episode`` of the run with ``seed``: ``frames`` frames."""
+    if frames < 1:
+        raise SimError(f"an episode needs at least one frame, got {frames}")
+    rng = np.random.default_rng([seed, episode])
+    total = frames + 1  # one more state, so the last frame's motion is known for `moving`
+    world, poses, odom, legs = _dynamics(config, rng, total)
+    geom = config.sensor.geometry()
+    leg_ids = np.arange(legs.shape[1], dtype=np.int32)
+    static_scene = None
+    if not config.platform.moving:
+        static_scene = cast_rays(poses[:1], geom, world.segments, world.circles)
+    true = np.empty((total, geom.count))
+    ids = np.empty((total, geom.count), dtype=np.int32)
+    for a in range(0, total, config.block_frames):
+        b = min(a + config.block_frames, total)
+        if static_scene is None:
+            circles = np.concatenate(
+                [np.broadcast_to(world.circles, (b - a, *world.circles.shape)), legs[a:b]], 1)
+            cid = np.concatenate([np.full(len(world.circles), STATIC_ID, np.int32), leg_ids])
+            true[a:b], ids[a:b] = cast_rays(poses[a:b], geom, world.segments, circles, cid)
+        else:
+            lr, lid = cast_rays(poses[a:b], geom, np.zeros((0, 4)), legs[a:b], leg_ids)
+            closer = lr < static_scene[0]
+            true[a:b] = np.where(closer, lr, static_scene[0])
+            ids[a:b] = np.where(closer, lid, static_scene[1])
+    ranges = measure(true, config.sensor, rng)
+    shape = (frames, 2, *config.grid.shape)
+    backward = np.zeros(shape, dtype=np.float16)
+    forward = np.zeros(shape, dtype=np.float16)
+    moving = np.zeros((frames, *config.grid.shape), dtype=bool)
+    for a in range(0, frames, config.block_frames):
+        b = min(a + config.block_frames, frames)
+        ground_truth(ranges[a:b + 1], ids[a:b + 1], poses[a:b + 1], legs[a:b + 1, :, :2],
+                     geom, config.grid, out=(backward[a:b], forward[a:b], moving[a:b]))
+    backward[-1] = 0.0  # the episode's last frame has no next frame
+    forward[-1] = 0.0
+    return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
+
+
+def _episode_plan(frames: int, episode_frames: int) -> list[tuple[int, int, int]]:
+    """``(episode, first frame, frame count)`` of every episode of a run."""
+    return [(e, a, min(episode_frames, frames - a))
+            for e, a in enumerate(range(0, frames, episode_frames))]
+
+
+def _run_one(args: tuple[SimConfig, int, int, int]) -> Episode:
+    return simulate_episode(*args)
+
+
+def _episodes(
+    config: SimConfig, seed: int, plan: list[tuple[int, int, int]], workers: int
+) -> Iterator[Episode]:
+    jobs = [(config, seed, e, n) for e, _, n in plan]
+    if workers <= 1 or len(jobs) <= 1:
+        yield from map(_run_one, jobs)
+        return
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(workers) as pool:
+        yield from pool.imap(_run_one, jobs)
+
+
+def _assemble(
+    config: SimConfig, seed: int, plan: list[tuple[int, int, int]], episodes: list[Episode],
+) -> Recording:
+    geom = config.sensor.geometry()
+    n = sum(p[2] for p in plan)
+    period = round(1e9 / config.sensor.rate_hz)
+    stamps = np.concatenate([
+        _START_NS + (a + np.arange(k)) * period + e * _EPISODE_GAP_NS for e, a, k in plan])
+    ranges = np.concatenate([ep.ranges for ep in episodes]).astype(np.float32)
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(ep, name) for ep in episodes])
+
+    extras = {
+        "flow_backward": cat("flow_backward"),
+        "flow_forward": cat("flow_forward"),
+        "moving": cat("moving"),
+        "true_poses": cat("true_poses"),
+        "episode": np.concatenate([np.full(k, e, np.int32) for e, _, k in plan]),
+    }
+    meta = {
+        "source": f"simulator:{config.scenario}:seed{seed}",
+        "topic": "/scan",
+        "frame_id": "laser",
+        "simulated": True,
+        "scenario": config.scenario,
+        "seed": seed,
+        "sensor": config.sensor.name,
+        "sim_config": config.to_dict(),
+        "grid": config.grid.to_dict(),
+        "flow_storage": "dense",
+        "episodes": [[e, a, k] for e, a, k in plan],
+    }
+    return Recording(
+        ranges=ranges.ravel(),
+        offsets=np.arange(n + 1, dtype=np.int64) * geom.count,
+        angle_min=np.full(n, geom.angle_min),
+        angle_increment=np.full(n, geom.angle_increment),
+        range_min=np.full(n, geom.range_min),
+        range_max=np.full(n, geom.range_max),
+        stamps_ns=stamps.astype(np.int64),
+        poses=cat("odom"),
+        meta=meta,
+        extras=extras,
+    )
+
+
+def simulate(
+    frames: int, seed: int = 0, config: SimConfig | None = None, workers: int = 1,
+    progress: Callable[[int], object] | None = None,
+) -> Recording:
+    """Simulate ``frames`` frames into one in-memory recording (with ground truth in
+    ``extras``); ``progress`` is called with the number of frames finished after each episode."""
+    config = config or SimConfig()
+    if frames < 1:
+        raise SimError(f"frames must be >= 1, got {frames}")
+    plan = _episode_plan(frames, config.episode_frames)
+    episodes = []
+    for (_, _, k), ep in zip(plan, _episodes(config, seed, plan, workers), strict=True):
+        episodes.append(ep)
+        if progress:
+            progress(k)
+    return _assemble(config, seed, plan, episodes)
+
+
+def write_simulation(
+    output: str | Path, frames: int, seed: int = 0, config: SimConfig | None = None,
+    chunk_frames: int = 0, workers: int = 1, progress: Callable[[int], object] | None = None,
+) -> list[Path]:
+    """Simulate and write ``frames`` frames. With ``chunk_frames > 0`` and more frames than
+    that, the run is written as ``STEM-000.npz``, ``STEM-001.npz``... each holding whole
+    episodes (at most ``max(chunk_frames, episode_frames)`` frames); otherwise as one file."""
+    config = config or SimConfig()
+    if frames < 1:
+        raise SimError(f"frames must be >= 1, got {frames}")
+    output = Path(output)
+    plan = _episode_plan(frames, config.episode_frames)
+    groups: list[list[tuple[int, int, int]]] = [[]]
+    for item in plan:
+        size = sum(k for _, _, k in groups[-1])
+        if groups[-1] and chunk_frames > 0 and size + item[2] > chunk_frames:
+            groups.append([])
+        groups[-1].append(item)
+    stem = output.name[:-4] if output.name.endswith(".npz") else output.name
+    paths = []
+    stream = _episodes(config, seed, plan, workers)
+    for i, group in enumerate(groups):
+        episodes = []
+        for _, _, k in group:
+            episodes.append(next(stream))
+            if progress:
+                progress(k)
+        recording = _assemble(config, seed, group, episodes)
+        if len(groups) > 1:
+            recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
+            path = output.with_name(f"{stem}-{i:03d}.npz")
+        else:
+            path = output
+        paths.append(recording.save(path))
+    return paths

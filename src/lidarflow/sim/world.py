@@ -1,0 +1,517 @@
+"""The static world: an indoor floor plan of rooms and corridors with doors and furniture.
+
+Everything is in a fixed world frame, metres. The floor plan is a binary space partition of a
+rectangle into rooms (3-12 m) and corridors; neighbouring rooms share a wall with a door, a wide
+opening or no wall at all, chosen so that every room is reachable. Furniture is what a LiDAR
+mounted at shin height sees: cabinets and desks against walls (boxes), tables and chairs (their
+legs, as small circles), pillars, bins and plants (circles), and open door leaves (segments).
+
+Two geometries are kept: what the LiDAR sees (``segments``, ``circles``) and what people and the
+robot keep clear of (``avoid_segments``, ``avoid_circles``): a table is four thin legs to the
+sensor but a whole rectangle to someone walking.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import SimError
+
+__all__ = [
+    "DistanceField",
+    "Door",
+    "World",
+    "WorldConfig",
+    "build_world",
+    "point_segment_distance",
+]
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Floor plan and furniture parameters (metres)."""
+
+    size_min: float = 10.0
+    size_max: float = 26.0
+    room_min: float = 3.0
+    room_max: float = 12.0
+    corridor_width: tuple[float, float] = (1.6, 3.0)
+    corridor_prob: float = 0.4
+    door_width: tuple[float, float] = (0.8, 1.3)
+    wide_opening_prob: float = 0.2
+    no_wall_prob: float = 0.08
+    extra_door_prob: float = 0.3
+    door_leaf_prob: float = 0.4
+    clutter: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.room_min * 2 <= self.size_min <= self.size_max:
+            raise SimError(f"world sizes need 0 < 2*room_min <= size_min <= size_max: {self}")
+        if self.room_max < 2 * self.room_min:
+            raise SimError("room_max must be at least twice room_min so that rooms can be split")
+
+
+@dataclass(frozen=True)
+class Door:
+    """A passage between rooms ``a`` and ``b``: centre, unit normal pointing from ``a`` to ``b``,
+    and width."""
+
+    a: int
+    b: int
+    centre: tuple[float, float]
+    normal: tuple[float, float]
+    width: float
+
+
+class DistanceField:
+    """Distance (m, capped at ``cap``) from every point of a fine grid to the nearest segment or
+    circle, and the unit vector pointing away from it: a table lookup replaces testing every wall
+    at every simulation step. Built segment by segment over each one's neighbourhood only."""
+
+    def __init__(
+        self, segments: np.ndarray, circles: np.ndarray,
+        bounds: tuple[float, float, float, float], res: float = 0.05, cap: float = 1.5,
+    ) -> None:
+        self.res, self.cap = res, cap
+        self.origin = np.array([bounds[0] - cap, bounds[1] - cap])
+        nx = math.ceil((bounds[2] - bounds[0] + 2 * cap) / res)
+        ny = math.ceil((bounds[3] - bounds[1] + 2 * cap) / res)
+        self.dist = np.full((ny, nx), cap)
+        self.away = np.zeros((ny, nx, 2))
+        self._last = np.array([nx - 1, ny - 1])
+        for x0, y0, x1, y1 in segments:
+            self._stamp(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1),
+                        lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a))
+        for cx, cy, r in circles:
+            self._stamp(cx - r, cy - r, cx + r, cy + r,
+                        lambda px, py, c=(cx, cy, r): _to_circle(px, py, *c))
+
+    def _stamp(self, x0: float, y0: float, x1: float, y1: float, nearest: Any) -> None:
+        res, cap = self.res, self.cap
+        i0 = max(int((x0 - cap - self.origin[0]) / res), 0)
+        i1 = min(int((x1 + cap - self.origin[0]) / res) + 1, self.dist.shape[1])
+        j0 = max(int((y0 - cap - self.origin[1]) / res), 0)
+        j1 = min(int((y1 + cap - self.origin[1]) / res) + 1, self.dist.shape[0])
+        px = self.origin[0] + (np.arange(i0, i1) + 0.5) * res
+        py = self.origin[1] + (np.arange(j0, j1) + 0.5) * res
+        px, py = np.meshgrid(px, py)
+        d, ax, ay = nearest(px, py)
+        view = self.dist[j0:j1, i0:i1]
+        better = d < view
+        view[better] = d[better]
+        self.away[j0:j1, i0:i1, 0][better] = ax[better]
+        self.away[j0:j1, i0:i1, 1][better] = ay[better]
+
+    def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(distance (N,), away (N, 2))`` at points ``(N, 2)`` (nearest grid point)."""
+        xy = np.atleast_2d(xy)
+        ij = ((xy - self.origin) / self.res).astype(np.int64)
+        np.minimum(np.maximum(ij, 0, out=ij), self._last, out=ij)
+        return self.dist[ij[:, 1], ij[:, 0]], self.away[ij[:, 1], ij[:, 0]]
+
+
+def _to_segment(px: np.ndarray, py: np.ndarray, x0: float, y0: float, x1: float,
+                y1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ex, ey = x1 - x0, y1 - y0
+    u = np.clip(((px - x0) * ex + (py - y0) * ey) / max(ex * ex + ey * ey, 1e-12), 0.0, 1.0)
+    dx, dy = px - x0 - u * ex, py - y0 - u * ey
+    d = np.maximum(np.hypot(dx, dy), 1e-9)
+    return d, dx / d, dy / d
+
+
+def _to_circle(px: np.ndarray, py: np.ndarray, cx: float, cy: float,
+               r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    dx, dy = px - cx, py - cy
+    n = np.maximum(np.hypot(dx, dy), 1e-9)
+    return np.maximum(n - r, 1e-9), dx / n, dy / n
+
+
+@dataclass
+class World:
+    """A built world. ``segments (S, 4)`` and ``circles (C, 3)`` are what the LiDAR sees;
+    ``avoid_segments``/``avoid_circles`` what walkers keep clear of; ``rooms (R, 4)`` are
+    ``(x0, y0, x1, y1)`` with ``corridor`` flags; ``reachable`` marks rooms joined to room 0's
+    component by passages."""
+
+    segments: np.ndarray
+    circles: np.ndarray
+    avoid_segments: np.ndarray
+    avoid_circles: np.ndarray
+    rooms: np.ndarray
+    corridor: np.ndarray
+    doors: list[Door]
+    reachable: np.ndarray
+    bounds: tuple[float, float, float, float]
+    _adjacency: dict[int, list[int]] = field(default_factory=dict, repr=False)
+    _field: DistanceField | None = field(default=None, repr=False)
+
+    @property
+    def field(self) -> DistanceField:
+        """Distance to what walkers avoid, as a lookup table (built on first use)."""
+        if self._field is None:
+            self._field = DistanceField(self.avoid_segments, self.avoid_circles, self.bounds)
+        return self._field
+
+    def __post_init__(self) -> None:
+        adjacency: dict[int, list[int]] = {i: [] for i in range(len(self.rooms))}
+        for k, d in enumerate(self.doors):
+            adjacency[d.a].append(k)
+            adjacency[d.b].append(k)
+        self._adjacency = adjacency
+
+    # ------------------------------------------------------------- queries
+    def room_of(self, xy: np.ndarray) -> np.ndarray:
+        """Index of the room containing each point ``(N, 2)`` (``-1`` outside every room)."""
+        xy = np.atleast_2d(xy)
+        r = self.rooms
+        inside = (
+            (xy[:, None, 0] >= r[None, :, 0]) & (xy[:, None, 0] < r[None, :, 2])
+            & (xy[:, None, 1] >= r[None, :, 1]) & (xy[:, None, 1] < r[None, :, 3])
+        )
+        return np.where(inside.any(1), inside.argmax(1), -1)
+
+    def clearance(self, xy: np.ndarray) -> np.ndarray:
+        """Distance (m, at most 1.5) from each point ``(N, 2)`` to the nearest thing walkers
+        avoid, to within the 0.05 m lookup grid."""
+        return self.field.lookup(xy)[0]
+
+    def sample_free(
+        self, rng: np.random.Generator, room: int | None = None, clearance: float = 0.45,
+        tries: int = 30,
+    ) -> np.ndarray | None:
+        """A random point at least ``clearance`` m from obstacles in ``room`` (a random
+        reachable room when None), or None when none was found."""
+        rooms = np.flatnonzero(self.reachable) if room is None else np.array([room])
+        choice = rooms[rng.integers(0, len(rooms), tries)]
+        r = self.rooms[choice]
+        pts = np.column_stack([rng.uniform(r[:, 0], r[:, 2]), rng.uniform(r[:, 1], r[:, 3])])
+        ok = np.flatnonzero(self.clearance(pts) >= clearance)
+        return pts[ok[0]].copy() if ok.size else None
+
+    def occluded(self, origin: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """Whether the straight line from ``origin (2,)`` to each point ``(N, 2)`` crosses a
+        wall or piece of furniture the LiDAR sees."""
+        xy = np.atleast_2d(xy)
+        s = self.segments
+        p = np.asarray(origin, np.float64)
+        r = xy - p  # N,2
+        q = s[:, :2] - p  # S,2
+        e = s[:, 2:] - s[:, :2]  # S,2
+        den = r[:, None, 0] * e[None, :, 1] - r[:, None, 1] * e[None, :, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (q[None, :, 0] * e[None, :, 1] - q[None, :, 1] * e[None, :, 0]) / den
+            u = (q[None, :, 0] * r[:, None, 1] - q[None, :, 1] * r[:, None, 0]) / den
+        return ((t > 0) & (t < 1) & (u >= 0) & (u <= 1)).any(1)
+
+    def route(self, start: np.ndarray, goal: np.ndarray) -> list[np.ndarray] | None:
+        """Waypoints from ``start`` to ``goal`` through doors (the goal last), or None when the
+        goal cannot be reached."""
+        a, b = (int(v) for v in self.room_of(np.stack([start, goal])))
+        if a < 0 or b < 0:
+            return None
+        prev: dict[int, tuple[int, int]] = {a: (-1, -1)}
+        todo = deque([a])
+        while todo and b not in prev:
+            room = todo.popleft()
+            for k in self._adjacency[room]:
+                d = self.doors[k]
+                other = d.b if d.a == room else d.a
+                if other not in prev:
+                    prev[other] = (room, k)
+                    todo.append(other)
+        if b not in prev:
+            return None
+        path: list[np.ndarray] = [np.asarray(goal, np.float64)]
+        room = b
+        while room != a:
+            parent, k = prev[room]
+            d = self.doors[k]
+            n = np.array(d.normal) * (1.0 if d.a == parent else -1.0)  # from parent to room
+            c = np.array(d.centre)
+            path[:0] = [c - 0.5 * n, c + 0.5 * n]
+            room = parent
+        return path
+
+
+def point_segment_distance(xy: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Distance ``(N, S)`` from points ``(N, 2)`` to segments ``(S, 4)``."""
+    p = xy[:, None, :]
+    a = segments[None, :, :2]
+    e = segments[None, :, 2:] - segments[None, :, :2]
+    ee = np.maximum((e * e).sum(-1), 1e-12)
+    u = np.clip(((p - a) * e).sum(-1) / ee, 0.0, 1.0)
+    d = p - a - u[..., None] * e
+    return np.hypot(d[..., 0], d[..., 1])
+
+
+# ------------------------------------------------------------------ floor plan
+def _partition(
+    rng: np.random.Generator, cfg: WorldConfig, rect: tuple[float, float, float, float],
+    depth: int, out: list[tuple[tuple[float, float, float, float], bool]],
+) -> None:
+    x0, y0, x1, y1 = rect
+    w, h = x1 - x0, y1 - y0
+    long_x = w >= h
+    long_len, short_len = (w, h) if long_x else (h, w)
+    cw = rng.uniform(*cfg.corridor_width)
+    if (depth < 3 and long_len >= 6.0 and short_len >= cfg.room_min + cw
+            and rng.random() < cfg.corridor_prob):
+        # A corridor along the long side, rooms on one or both sides of it.
+        lo = short_len - cw
+        both = lo >= 2 * cfg.room_min
+        first = rng.uniform(cfg.room_min, lo - cfg.room_min) if both else (
+            lo if rng.random() < 0.5 else 0.0)
+        cuts = [first, first + cw]
+        base = y0 if long_x else x0
+        bands = [(base, base + cuts[0]), (base + cuts[0], base + cuts[1]),
+                 (base + cuts[1], base + short_len)]
+        for k, (a, b) in enumerate(bands):
+            if b - a < 1e-6:
+                continue
+            sub = (x0, a, x1, b) if long_x else (a, y0, b, y1)
+            if k == 1:
+                out.append((sub, True))
+            else:
+                _partition(rng, cfg, sub, depth + 1, out)
+        return
+    must = long_len > cfg.room_max
+    may = long_len >= 2 * cfg.room_min and rng.random() < 0.55
+    if not (must or may):
+        out.append((rect, False))
+        return
+    cut = rng.uniform(cfg.room_min, long_len - cfg.room_min)
+    if long_x:
+        parts = [(x0, y0, x0 + cut, y1), (x0 + cut, y0, x1, y1)]
+    else:
+        parts = [(x0, y0, x1, y0 + cut), (x0, y0 + cut, x1, y1)]
+    for sub in parts:
+        _partition(rng, cfg, sub, depth + 1, out)
+
+
+def _shared_edge(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The boundary segment two rooms share (start, end), or None."""
+    eps = 1e-6
+    for ax in (0, 1):
+        other = 1 - ax
+        for ea, eb in ((a[ax + 2], b[ax]), (a[ax], b[ax + 2])):
+            if abs(ea - eb) < eps:
+                lo = max(a[other], b[other])
+                hi = min(a[other + 2], b[other + 2])
+                if hi - lo > eps:
+                    p, q = np.zeros(2), np.zeros(2)
+                    p[ax] = q[ax] = ea
+                    p[other], q[other] = lo, hi
+                    return p, q
+    return None
+
+
+def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> World:
+    """Build a random floor plan with furniture (deterministic for the generator's state)."""
+    cfg = config or WorldConfig()
+    width = rng.uniform(cfg.size_min, cfg.size_max)
+    height = rng.uniform(cfg.size_min, cfg.size_max)
+    leaves: list[tuple[tuple[float, float, float, float], bool]] = []
+    _partition(rng, cfg, (0.0, 0.0, width, height), 0, leaves)
+    rooms = np.array([r for r, _ in leaves], dtype=np.float64)
+    corridor = np.array([c for _, c in leaves], dtype=bool)
+
+    # Shared walls; a random spanning tree of them gets passages so every room is reachable.
+    edges = []
+    for i in range(len(rooms)):
+        for j in range(i + 1, len(rooms)):
+            shared = _shared_edge(rooms[i], rooms[j])
+            if shared is not None:
+                edges.append((i, j, *shared))
+    order = rng.permutation(len(edges))
+    parent = list(range(len(rooms)))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    segments: list[list[float]] = [
+        [0, 0, width, 0], [width, 0, width, height], [width, height, 0, height], [0, height, 0, 0]
+    ]
+    doors: list[Door] = []
+    for k in order:
+        i, j, p, q = edges[k]
+        length = float(np.hypot(*(q - p)))
+        joins = find(i) != find(j)
+        corr = corridor[i] or corridor[j]
+        wants = joins or rng.random() < (0.85 if corr else cfg.extra_door_prob)
+        dw = rng.uniform(*cfg.door_width)
+        if not wants or length < dw + 0.6:
+            segments.append([*p, *q])
+            continue
+        parent[find(i)] = find(j)
+        along = (q - p) / length
+        normal = np.array([along[1], -along[0]])
+        centre_i = (rooms[i, :2] + rooms[i, 2:]) / 2
+        if normal @ (p - centre_i) < 0:
+            normal = -normal  # from room i towards room j
+        roll = rng.random()
+        if roll < cfg.no_wall_prob and not corr:
+            gap = (0.0, length)
+        elif roll < cfg.no_wall_prob + cfg.wide_opening_prob and length > 3.0:
+            w = rng.uniform(2.0, min(4.0, length - 0.6))
+            s = rng.uniform(0.3, length - 0.3 - w)
+            gap = (s, s + w)
+        else:
+            s = rng.uniform(0.3, length - 0.3 - dw)
+            gap = (s, s + dw)
+        if gap[0] > 1e-6:
+            segments.append([*p, *(p + along * gap[0])])
+        if gap[1] < length - 1e-6:
+            segments.append([*(p + along * gap[1]), *q])
+        centre = p + along * (gap[0] + gap[1]) / 2
+        doors.append(Door(int(i), int(j), (float(centre[0]), float(centre[1])),
+                          (float(normal[0]), float(normal[1])), gap[1] - gap[0]))
+        if gap[1] - gap[0] < 1.5 and rng.random() < cfg.door_leaf_prob:
+            # An open door leaf, hinged at one jamb, swung 75-100 degrees into one room.
+            hinge_at_start = rng.random() < 0.5
+            hinge = p + along * (gap[0] if hinge_at_start else gap[1])
+            towards = along if hinge_at_start else -along
+            side = normal if rng.random() < 0.5 else -normal
+            ang = math.radians(rng.uniform(75, 100))
+            leaf = (math.cos(ang) * towards + math.sin(ang) * side) * (gap[1] - gap[0] - 0.05)
+            segments.append([*hinge, *(hinge + leaf)])
+
+    # The largest group of rooms joined by passages is where people and the robot go.
+    roots = [find(i) for i in range(len(rooms))]
+    best = max(set(roots), key=roots.count)
+    reachable = np.array([r == best for r in roots])
+
+    furniture = _Furniture(rng, doors)
+    for i, room in enumerate(rooms):
+        furniture.furnish(room, bool(corridor[i]), cfg.clutter)
+    seg = np.array(segments + furniture.segments, dtype=np.float64).reshape(-1, 4)
+    avoid = np.array(segments + furniture.segments + furniture.avoid_segments,
+                     dtype=np.float64).reshape(-1, 4)
+    circles = np.array(furniture.circles, dtype=np.float64).reshape(-1, 3)
+    avoid_circles = np.array(furniture.avoid_circles, dtype=np.float64).reshape(-1, 3)
+    return World(seg, circles, avoid, avoid_circles, rooms, corridor, doors, reachable,
+                 (0.0, 0.0, width, height))
+
+
+def _box(cx: float, cy: float, length: float, depth: float, angle: float) -> list[list[float]]:
+    c, s = math.cos(angle), math.sin(angle)
+    corners = [(dx * length / 2, dy * depth / 2) for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    pts = [(cx + c * x - s * y, cy + s * x + c * y) for x, y in corners]
+    return [[*pts[k], *pts[(k + 1) % 4]] for k in range(4)]
+
+
+class _Furniture:
+    """Places furniture room by room, keeping doors and a walking passage clear."""
+
+    def __init__(self, rng: np.random.Generator, doors: list[Door]) -> None:
+        self.rng = rng
+        self.door_centres = np.array([d.centre for d in doors]).reshape(-1, 2)
+        self.segments: list[list[float]] = []
+        self.avoid_segments: list[list[float]] = []
+        self.circles: list[list[float]] = []
+        self.avoid_circles: list[list[float]] = []
+        self.taken: list[tuple[float, float, float]] = []  # footprint circles
+
+    def _free(self, x: float, y: float, radius: float, gap: float = 0.6) -> bool:
+        if len(self.door_centres):
+            d = np.hypot(self.door_centres[:, 0] - x, self.door_centres[:, 1] - y)
+            if d.min() < radius + 0.9:
+                return False
+        return all(math.hypot(x - a, y - b) > radius + r + gap for a, b, r in self.taken)
+
+    def furnish(self, room: np.ndarray, corridor: bool, clutter: float) -> None:
+        rng = self.rng
+        x0, y0, x1, y1 = room
+        w, h = x1 - x0, y1 - y0
+        count = rng.poisson(clutter * (w * h / (14.0 if corridor else 5.0)))
+        for _ in range(count):
+            kind = rng.choice(["wall_box", "table", "chair", "round", "box"],
+                              p=[0.1, 0.0, 0.0, 0.9, 0.0] if corridor else
+                              [0.3, 0.2, 0.2, 0.15, 0.15])
+            if kind == "wall_box":
+                self._wall_box(room)
+            elif kind == "round":
+                r = rng.uniform(0.1, 0.3)
+                self._place_circle(room, r, margin=0.0 if rng.random() < 0.5 else 1.0)
+            else:
+                self._free_standing(room, kind)
+
+    def _wall_box(self, room: np.ndarray) -> None:
+        rng = self.rng
+        x0, y0, x1, y1 = room
+        length, depth = rng.uniform(0.6, 2.0), rng.uniform(0.4, 0.8)
+        side = rng.integers(4)
+        horizontal = side in (0, 2)
+        span = (x1 - x0) if horizontal else (y1 - y0)
+        if span < length + 0.2:
+            return
+        t = rng.uniform(length / 2 + 0.05, span - length / 2 - 0.05)
+        if horizontal:
+            cx = x0 + t
+            cy = y0 + depth / 2 + 0.02 if side == 0 else y1 - depth / 2 - 0.02
+            angle = 0.0
+        else:
+            cy = y0 + t
+            cx = x0 + depth / 2 + 0.02 if side == 3 else x1 - depth / 2 - 0.02
+            angle = math.pi / 2
+        radius = math.hypot(length, depth) / 2
+        if not self._free(cx, cy, radius, gap=0.0):
+            return
+        self.taken.append((cx, cy, radius))
+        self.segments.extend(_box(cx, cy, length, depth, angle))
+
+    def _free_standing(self, room: np.ndarray, kind: str) -> None:
+        rng = self.rng
+        if kind == "table":
+            length, depth = rng.uniform(1.0, 1.8), rng.uniform(0.6, 0.9)
+            leg = rng.uniform(0.02, 0.035)
+        elif kind == "chair":
+            length = depth = rng.uniform(0.38, 0.48)
+            leg = rng.uniform(0.012, 0.02)
+        else:
+            length, depth, leg = rng.uniform(0.3, 1.0), rng.uniform(0.3, 1.0), 0.0
+        radius = math.hypot(length, depth) / 2
+        spot = self._spot(room, radius, margin=0.3 if kind == "box" else 0.5)
+        if spot is None:
+            return
+        cx, cy = spot
+        angle = rng.choice([0.0, math.pi / 2]) + rng.normal(0, 0.1) if rng.random() < 0.7 else (
+            rng.uniform(0, math.pi))
+        outline = _box(cx, cy, length, depth, angle)
+        self.taken.append((cx, cy, radius))
+        if kind == "box":
+            self.segments.extend(outline)
+            return
+        self.avoid_segments.extend(outline)
+        inset = 0.04
+        c, s = math.cos(angle), math.sin(angle)
+        for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+            lx, ly = dx * (length / 2 - inset), dy * (depth / 2 - inset)
+            self.circles.append([cx + c * lx - s * ly, cy + s * lx + c * ly, leg])
+
+    def _spot(self, room: np.ndarray, radius: float, margin: float) -> tuple[float, float] | None:
+        x0, y0, x1, y1 = room
+        lo_x, hi_x = x0 + radius + margin, x1 - radius - margin
+        lo_y, hi_y = y0 + radius + margin, y1 - radius - margin
+        if lo_x >= hi_x or lo_y >= hi_y:
+            return None
+        for _ in range(8):
+            x, y = self.rng.uniform(lo_x, hi_x), self.rng.uniform(lo_y, hi_y)
+            if self._free(x, y, radius):
+                return x, y
+        return None
+
+    def _place_circle(self, room: np.ndarray, r: float, margin: float) -> None:
+        spot = self._spot(room, r, margin + 0.05)
+        if spot is None:
+            return
+        self.taken.append((*spot, r))
+        self.circles.append([*spot, r])
+        self.avoid_circles.append([*spot, r])
