@@ -362,17 +362,19 @@ def train(
     if resume is not None:
         if output is not None and output.resolve() != resume.resolve():
             raise TrainError(f"--resume {resume} and -o {output} name different runs; give one")
-        changed = [k for k, v in flags.items() if v is not None and k != "optim.epochs"]
+        # how the run executes may change (device, amp, threads...), not what it computes
+        free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
+        changed = [k for k, v in flags.items() if v is not None and k not in free]
         if changed or recipe or config or set_:
             raise TrainError(
-                "a resumed run keeps its config (only --epochs may extend it); "
+                "a resumed run keeps its config (only --epochs and runtime options may change); "
                 f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run"
             )
-        cfg = config_from_dict(load_config_file(resume / "config.json"))
-        if data and list(data) != cfg.data.sources:
-            raise TrainError(f"{resume} was trained on {cfg.data.sources}, not {list(data)}")
-        if epochs is not None:
-            cfg.optim.epochs = epochs
+        saved = config_from_dict(load_config_file(resume / "config.json"))
+        if data and list(data) != saved.data.sources:
+            raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
+        cfg = build_config(saved.recipe, resume / "config.json",
+                           {k: v for k, v in flags.items() if k in free})
         run_dir = resume
     else:
         if output is None:

@@ -79,7 +79,7 @@ def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == [0, 1, 2]
     assert [r["gaussian_size"] for r in rows[1:]] == [1, 1]
-    assert json.loads((run / "config.json").read_text())["optim"]["epochs"] == 1  # as started
+    assert json.loads((run / "config.json").read_text())["optim"]["epochs"] == 2  # extended
 
 
 @pytest.mark.parametrize(

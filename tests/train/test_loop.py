@@ -111,6 +111,8 @@ def test_resume_continues_exactly(blob_files, tmp_path):
     rows_a = [{k: v for k, v in r.items() if k not in strip} for r in straight.rows]
     rows_b = [{k: v for k, v in r.items() if k not in strip} for r in resumed.rows]
     assert rows_a == rows_b  # losses, lr, Gaussian size and metrics of every epoch
+    with pytest.raises(TrainError, match=r"cannot resume with a different config \(optim changed"):
+        train(tiny_config(blob_files, **{**flags, "optim.lr": 0.5}), tmp_path / "b", resume=True)
 
 
 def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, monkeypatch):
@@ -134,3 +136,16 @@ def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, m
     assert not (run / "model.safetensors").exists()
     weights = load_file(run / "last.safetensors")
     assert all(torch.isfinite(v).all() for v in weights.values())
+
+
+def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_path):
+    cfg = tiny_config(
+        blob_files[:1],
+        **{"optim.epochs": 1, "runtime.amp": "bf16", "runtime.channels_last": True},
+    )
+    result = train(cfg, tmp_path / "bf16")
+    row = result.rows[-1]
+    assert all(v == v for v in row.values())  # no NaN anywhere
+    assert 0 < row["train_loss"] < 1 and 0 < row["val_loss"] < 1
+    weights = load_file(tmp_path / "bf16" / "model.safetensors")
+    assert {v.dtype for v in weights.values()} == {torch.float32}

@@ -14,6 +14,8 @@ only steps after ``data.warmup`` frames.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import json
 import math
 import platform
 import random
@@ -33,7 +35,12 @@ from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule
 from lidarflow.models import build_model, count_parameters
 from lidarflow.train import checkpoint as ckpt
-from lidarflow.train.config import TrainConfig, config_to_dict
+from lidarflow.train.config import (
+    TrainConfig,
+    config_from_dict,
+    config_to_dict,
+    load_config_file,
+)
 from lidarflow.train.data import TrainData, load_train_data, make_loader, make_val_loader
 from lidarflow.train.distributed import Dist, any_flag, barrier, setup
 from lidarflow.train.logbook import Logbook
@@ -130,10 +137,56 @@ def _model_record(
     }
 
 
+def _run_facts(ctx: Dist) -> dict[str, Any]:
+    return {
+        "command": sys.argv,
+        "world_size": ctx.world_size,
+        "device": str(ctx.device),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "commit": _git_commit(),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
+    """A resumed run must keep what shaped its weights; only the epoch count (and how it runs:
+    device, threads, amp...) may change."""
+    path = run_dir / "config.json"
+    if not path.exists():
+        raise TrainError(f"{run_dir}: not a training run (no config.json), nothing to resume")
+    saved = config_from_dict(load_config_file(path))
+    saved = dataclasses.replace(
+        saved, optim=dataclasses.replace(saved.optim, epochs=config.optim.epochs)
+    )
+    changed = [
+        name
+        for name in ("recipe", "model", "data", "optim", "schedule", "loss")
+        if getattr(saved, name) != getattr(config, name)
+    ]
+    if saved.runtime.seed != config.runtime.seed:
+        changed.append("runtime.seed")
+    if changed:
+        raise TrainError(
+            f"{run_dir}: cannot resume with a different config ({', '.join(changed)} changed); "
+            "only the number of epochs may change; start a new run instead"
+        )
+
+
 def _prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
     if resume:
-        if not (run_dir / "config.json").exists():
-            raise TrainError(f"{run_dir}: not a training run (no config.json) — nothing to resume")
+        _check_resumable(run_dir, config)
+        if ctx.is_main:  # the config on disk says how many epochs the run is now meant to have
+            ckpt.write_json(run_dir / "config.json", config_to_dict(config))
+            facts = (
+                json.loads((run_dir / "run.json").read_text())
+                if (run_dir / "run.json").exists()
+                else {}
+            )
+            facts.setdefault("resumed", []).append(
+                {**_run_facts(ctx), "after_epoch": ckpt.latest_epoch(run_dir)}
+            )
+            ckpt.write_json(run_dir / "run.json", facts)
         return
     if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
         raise TrainError(
@@ -142,18 +195,7 @@ def _prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist
         )
     if ctx.is_main:
         ckpt.write_json(run_dir / "config.json", config_to_dict(config))
-        ckpt.write_json(
-            run_dir / "run.json",
-            {
-                "command": sys.argv,
-                "world_size": ctx.world_size,
-                "device": str(ctx.device),
-                "torch": torch.__version__,
-                "python": platform.python_version(),
-                "commit": _git_commit(),
-                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            },
-        )
+        ckpt.write_json(run_dir / "run.json", _run_facts(ctx))
 
 
 def train(
