@@ -107,3 +107,31 @@ def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):
     assert code == 1 and "cannot read the config file" in err
     code, _, err = run_cli(["train", "x.npz"], capsys)
     assert code == 1 and "-o RUN_DIR" in err
+
+
+def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, capsys):
+    from lidarflow.data import SAMPLE_TOPIC, sample_bag_path
+
+    run = tmp_path / "mixed"
+    args = [
+        "train",
+        str(sample_bag_path()),
+        str(blob_files[0]),
+        "--topic",
+        SAMPLE_TOPIC,
+        "--mix",
+        "0.5",
+        "--model",
+        "deeptracking",
+        "--epochs",
+        "1",
+        "-o",
+        str(run),
+        *TINY,
+    ]
+    code, out, err = run_cli(args, capsys)
+    assert code in (0, None), err
+    record = json.loads((run / "model.json").read_text())
+    assert record["model"] == "deeptracking"
+    assert record["training"]["sources"] == [str(sample_bag_path()), str(blob_files[0])]
+    assert "weight 0.50" in out
