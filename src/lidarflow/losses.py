@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import torch
 import torch.nn.functional as F
 from torch import Tensor
 
@@ -105,12 +106,21 @@ def flow_loss(
     """
     config = LossConfig.paper() if config is None else config
     _check(seq, flows, 4, warmup)
+    # The loss is always computed in the maps' precision (fp32), also under bf16 autocast: the
+    # blur and the warp would otherwise round occupancy differences the loss is made of.
+    with torch.autocast(seq.device.type, enabled=False):
+        return _flow_loss(seq, flows.to(seq.dtype), kernel_size, config, warmup)
+
+
+def _flow_loss(
+    seq: Tensor, flows: Tensor, kernel_size: int, config: LossConfig, warmup: int
+) -> Tensor:
     b, t, _, h, w = seq.shape
     n = t - 1 - warmup
     # All pairs at once: (B, n, ...) -> (B * n, ...), one blur and one warp per direction.
     cur = seq[:, warmup : t - 1].reshape(b * n, 2, h, w)
     nxt = seq[:, warmup + 1 :].reshape(b * n, 2, h, w)
-    flow = flows[:, warmup : t - 1].reshape(b * n, 4, h, w).to(seq.dtype)
+    flow = flows[:, warmup : t - 1].reshape(b * n, 4, h, w)
 
     loss = _warp_term(cur, nxt, flow[:, 0:2], kernel_size, config)
     if config.forward_term:
@@ -164,7 +174,8 @@ def deeptracking_loss(
     t = seq.shape[1]
     target = seq[:, warmup + 1 :, 0:1]
     pred = logits[:, warmup : t - 1].to(seq.dtype)
-    err = F.binary_cross_entropy_with_logits(pred, target, reduction="none")
+    with torch.autocast(seq.device.type, enabled=False):
+        err = F.binary_cross_entropy_with_logits(pred, target, reduction="none")
     if not visible_only:
         return err.mean()
     vis = seq[:, warmup + 1 :, 1:2]

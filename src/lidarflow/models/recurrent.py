@@ -41,12 +41,20 @@ class RecurrentMapModel(nn.Module):
         dtype: torch.dtype | None = None,
     ) -> tuple[Tensor, ...]:
         """Zero state ``(batch, c, height, width)`` per state tensor; device and dtype default
-        to the model's parameters'."""
-        ref = next(self.parameters())
+        to the model's parameters'. The memory format follows the convolution weights', so a
+        model moved to ``torch.channels_last`` runs its recurrence in channels-last throughout
+        (no layout conversion per step)."""
+        ref = next(p for p in self.parameters() if p.dim() == 4)
         device = ref.device if device is None else device
         dtype = ref.dtype if dtype is None else dtype
+        channels_last = ref.is_contiguous(memory_format=torch.channels_last) and not (
+            ref.is_contiguous()
+        )
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
         return tuple(
-            torch.zeros(batch, c, height, width, device=device, dtype=dtype)
+            torch.zeros(batch, c, height, width, device=device, dtype=dtype).contiguous(
+                memory_format=fmt
+            )
             for c in self.state_channels()
         )
 

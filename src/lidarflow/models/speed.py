@@ -1,0 +1,47 @@
+"""Speed options for the recurrent models, kept out of the models themselves so the plain eager
+fp32 path stays the reference (issue 5).
+
+Measured on the 2-core CPU (benchmarks/bench_train_step.py): channels-last memory format makes
+oneDNN's convolutions faster, bf16 autocast (AVX512-BF16) faster still, and ``torch.compile``
+fuses the ConvGRU's gate arithmetic (sigmoid, tanh, products, and their backward) into a few
+kernels where eager PyTorch makes a pass over memory per operation.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+
+from lidarflow.models.recurrent import RecurrentMapModel
+
+CompileMode = Literal["none", "cells", "step"]
+COMPILE_MODES: tuple[str, ...] = ("none", "cells", "step")
+
+
+def accelerate(
+    model: RecurrentMapModel, channels_last: bool = False, compile: CompileMode = "none"
+) -> RecurrentMapModel:
+    """Apply speed options in place and return ``model``.
+
+    Args:
+        channels_last: store the convolution weights channels-last; ``init_state`` then makes
+            channels-last states, so the whole recurrence runs in that layout.
+        compile: ``"cells"`` compiles each ConvGRU cell (small graphs, quick to compile),
+            ``"step"`` compiles the whole ``step`` (one graph per model); ``"none"`` stays eager.
+            The first call of a compiled model takes tens of seconds on a small CPU.
+
+    bf16 is not set here: wrap the forward pass and loss in
+    ``torch.autocast(device_type, dtype=torch.bfloat16)``; the losses compute in fp32 anyway.
+    """
+    if compile not in COMPILE_MODES:
+        raise ValueError(f"compile must be one of {COMPILE_MODES}, got {compile!r}")
+    if channels_last:
+        model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    if compile == "cells":
+        for cell in model.grus:  # type: ignore[union-attr]
+            cell.compile()
+    elif compile == "step":
+        # An instance attribute shadows the method; forward() calls self.step, so it follows.
+        model.step = torch.compile(model.step)  # type: ignore[method-assign]
+    return model
