@@ -120,12 +120,15 @@ class RuntimeConfig:
     """How the run executes; none of it changes the maths of the fp32 eager reference path.
 
     ``device``: ``auto`` (CUDA when available), ``cpu``, ``cuda``; ``amp``: ``none`` or
-    ``bf16`` autocast; ``threads``: torch intra-op threads, 0 = torch's default.
+    ``bf16`` autocast; ``channels_last`` / ``compile``: see
+    :func:`lidarflow.models.speed.accelerate` (compiling costs tens of seconds up front on a
+    small CPU, so it pays on long runs only); ``threads``: torch intra-op threads, 0 = torch's
+    default.
     """
 
     device: str = "auto"
     amp: str = "none"
-    compile: bool = False
+    compile: str = "none"  # torch.compile: "cells" (each ConvGRU cell) or "step" (whole step)
     channels_last: bool = False
     threads: int = 0
     seed: int = 0
@@ -183,6 +186,7 @@ class TrainConfig:
                 "runtime.device must be auto, cpu or cuda[:N]",
             ),
             (r.amp in ("none", "bf16"), "runtime.amp must be none or bf16"),
+            (r.compile in ("none", "cells", "step"), "runtime.compile must be none, cells or step"),
             (r.final_weights in ("last", "best"), "runtime.final_weights must be last or best"),
         ]
         for ok, message in checks:

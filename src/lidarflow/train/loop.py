@@ -34,6 +34,7 @@ from torch import Tensor
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule
 from lidarflow.models import build_model, count_parameters
+from lidarflow.models.speed import accelerate
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import (
     TrainConfig,
@@ -246,9 +247,7 @@ def _train(
         model = build_model(config.model.name, **config.model.kwargs)
     except ModelError as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
-    model = model.to(ctx.device)
-    if rt.channels_last:
-        model = model.to(memory_format=torch.channels_last)
+    model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
     optimizer = _optimizer(config, model.parameters())
     scheduler = torch.optim.lr_scheduler.StepLR(
         optimizer, config.schedule.lr_step_epochs, config.schedule.lr_gamma
@@ -265,8 +264,6 @@ def _train(
     if ctx.enabled:
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=ids)
-    if rt.compile:
-        net = torch.compile(net)
     autocast = _autocast(config, ctx.device)
     B = config.optim.batch_size
     loader, sampler = make_loader(
