@@ -78,11 +78,14 @@ def test_short_training_writes_its_files(blob_files, tmp_path):
 
 
 def test_deeptracking_trains_with_its_own_loss(blob_files, tmp_path):
-    cfg = tiny_config(blob_files[:1], **{"model.name": "deeptracking", "optim.epochs": 1})
-    result = train(cfg, tmp_path / "dt")
+    flags = {"model.name": "deeptracking", "optim.epochs": 1, "data.val_fraction": 0.0}
+    result = train(tiny_config(blob_files[:1], **flags), tmp_path / "dt")
     record = json.loads((tmp_path / "dt" / "model.json").read_text())
     assert record["model"] == "deeptracking" and record["out_channels"] == 1
-    assert result.rows[-1]["train_loss"] > 0 and "val_epe" not in result.rows[-1]
+    # no validation: no epoch-0 row, no val metrics, "best" falls back to the training loss
+    assert [r["epoch"] for r in result.rows] == [1]
+    assert result.rows[0]["train_loss"] > 0 and "val_loss" not in result.rows[0]
+    assert record["training"]["best"]["metric"] == "-train_loss"
 
 
 def test_resume_continues_exactly(blob_files, tmp_path):
