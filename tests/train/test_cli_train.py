@@ -135,3 +135,46 @@ def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, c
     assert record["model"] == "deeptracking"
     assert record["training"]["sources"] == [str(sample_bag_path()), str(blob_files[0])]
     assert "weight 0.50" in out
+
+
+def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    run = tmp_path / "killed"
+    env = {**os.environ, "PYTHONPATH": str(root / "src"), "OMP_NUM_THREADS": "1"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "lidarflow.cli",
+        "train",
+        str(blob_files[0]),
+        "-o",
+        str(run),
+        "--epochs",
+        "500",
+        *TINY,
+    ]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    pointer = run / "checkpoints" / "latest.json"
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if pointer.exists() and json.loads(pointer.read_text())["epoch"] >= 1:
+                break
+            time.sleep(0.05)
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)  # no clean-up, possibly mid-write
+        proc.wait()
+    done = json.loads(pointer.read_text())["epoch"]
+    assert done >= 1, proc.stderr.read().decode()[-2000:]
+    code, _, err = run_cli(["train", "--resume", str(run), "--epochs", str(done + 1)], capsys)
+    assert code in (0, None), err
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == list(range(done + 2))
+    assert not list(run.glob("**/.*.tmp"))  # what the kill left half-written is gone

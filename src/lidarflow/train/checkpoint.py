@@ -39,6 +39,7 @@ __all__ = [
     "latest_epoch",
     "load_checkpoint",
     "load_weights",
+    "remove_temporaries",
     "restore_rng",
     "save_checkpoint",
     "save_weights",
@@ -63,6 +64,14 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def remove_temporaries(run_dir: Path) -> int:
+    """Delete what a killed writer left behind (``.NAME.*.tmp``); returns how many."""
+    stale = [*run_dir.glob(".*.tmp"), *_ckpt_dir(run_dir).glob(".*.tmp")]
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return len(stale)
 
 
 def write_json(path: Path, data: Any) -> Path:

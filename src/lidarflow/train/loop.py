@@ -177,7 +177,9 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
 def _prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
     if resume:
         _check_resumable(run_dir, config)
-        if ctx.is_main:  # the config on disk says how many epochs the run is now meant to have
+        if ctx.is_main:
+            ckpt.remove_temporaries(run_dir)  # what a killed run left half-written
+            # the config on disk says how many epochs the run is now meant to have
             ckpt.write_json(run_dir / "config.json", config_to_dict(config))
             facts = (
                 json.loads((run_dir / "run.json").read_text())
