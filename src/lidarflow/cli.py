@@ -165,14 +165,15 @@ def show(
     gt_flow = moving = None
     # Forward flow F^t lives on the occupied cells of O^t (design notes, section 3): it is the
     # one that belongs on this frame's map. (B^t lives on O^{t+1}'s cells.)
-    if flow and "flow_forward" in rec.extras:
-        stored = rec.extras["flow_forward"]
-        if stored.shape[-2:] == spec.shape:
-            gt_flow = stored[index].astype(float)
-            if "moving" in rec.extras:
-                moving = rec.extras["moving"][index]
+    if flow and rec.meta.get("simulated"):
+        from lidarflow.sim import dense_flow
+
+        _, forward = dense_flow(rec, index)
+        if forward.shape[-2:] == spec.shape:
+            gt_flow = forward
+            moving = rec.extras.get("moving", [None] * len(rec))[index]
         else:
-            typer.echo(f"note: ground truth is on a {stored.shape[-2:]} grid, not drawn here")
+            typer.echo(f"note: ground truth is on a {forward.shape[-2:]} grid, not drawn here")
     title = f"{recording.name}  frame {index}/{len(rec)}  t={rec.stamps_ns[index] / 1e9:.3f}s"
     path = draw_maps(
         occ[0], vis[0], output, spec, title, flow=gt_flow, moving=moving, flow_scale=flow_scale
@@ -442,6 +443,14 @@ def simulate(
     workers: Annotated[
         int, typer.Option("--workers", "-j", help="Processes to simulate with.", min=1)
     ] = 1,
+    flow_storage: Annotated[
+        str,
+        typer.Option(
+            "--flow-storage",
+            help="dense: flow_backward/flow_forward (N, 2, H, W); sparse: only non-zero cells "
+            "(flow_*_cells, flow_*_values; read with lidarflow.sim.dense_flow), far smaller.",
+        ),
+    ] = "dense",
 ) -> None:
     """Simulate 2-D LiDAR scans of people walking in offices, with exact ground-truth flow.
 
@@ -468,8 +477,12 @@ def simulate(
     if sensor not in PRESETS:
         choices = ", ".join(PRESETS)
         raise typer.BadParameter(f"one of {choices}, not {sensor!r}", param_hint="--sensor")
+    if flow_storage not in ("dense", "sparse"):
+        hint = "--flow-storage"
+        raise typer.BadParameter(f"dense or sparse, not {flow_storage!r}", param_hint=hint)
     config = SimConfig(
         scenario=scenario,
+        flow_storage=flow_storage,
         sensor=lidar_preset(sensor),
         people=PeopleConfig(count=people),
         platform=PlatformConfig(odom_drift=odom_drift),

@@ -161,3 +161,33 @@ def test_cli_simulate_then_show(tmp_path, capsys):
     with pytest.raises(SystemExit) as done:
         main(["simulate", "--scenario", "nope", "-o", str(out)])
     assert done.value.code == 2
+    sparse = tmp_path / "sp.npz"
+    with pytest.raises(SystemExit) as done:
+        main(["simulate", "--frames", "20", "-o", str(sparse), "--flow-storage", "sparse",
+              "--grid", "60"])
+    assert done.value.code == 0 and load_recording(sparse).meta["flow_storage"] == "sparse"
+    with pytest.raises(SystemExit) as done:
+        main(["show", str(sparse), "-f", "3", "--grid", "60", "-o", str(tmp_path / "s.png")])
+    assert done.value.code == 0
+
+
+def test_sparse_storage_gives_back_the_dense_flow(tmp_path):
+    from dataclasses import replace
+
+    from lidarflow.sim import dense_flow
+
+    dense = simulate(60, seed=9, config=SMALL)
+    sparse = simulate(60, seed=9, config=replace(SMALL, flow_storage="sparse"))
+    assert "flow_forward" not in sparse.extras and sparse.meta["flow_storage"] == "sparse"
+    loaded = load_recording(sparse.save(tmp_path / "sparse.npz"))
+    part = loaded.slice(20, 60)
+    for t in (0, 17, 38, 39, 59):
+        bw, fw = dense_flow(loaded, t)
+        np.testing.assert_array_equal(bw, dense.extras["flow_backward"][t].astype(np.float32))
+        np.testing.assert_array_equal(fw, dense.extras["flow_forward"][t].astype(np.float32))
+        np.testing.assert_array_equal(dense_flow(dense, t)[1], fw)
+        if t >= 20:
+            np.testing.assert_array_equal(dense_flow(part, t - 20)[1], fw)
+    assert sparse.extras["flow_forward_cells"].shape[1] <= sparse.geometry(0).count
+    with pytest.raises(SimError, match="flow_storage"):
+        replace(SMALL, flow_storage="zip")

@@ -11,6 +11,7 @@ from lidarflow.sim.lidar import PRESETS, LidarConfig, cast_rays, lidar_preset, m
 from lidarflow.sim.people import PeopleConfig
 from lidarflow.sim.platform import PlatformConfig
 from lidarflow.sim.scenario import SimConfig, simulate, simulate_episode, write_simulation
+from lidarflow.sim.storage import dense_flow
 from lidarflow.sim.world import WorldConfig, build_world
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     "WorldConfig",
     "build_world",
     "cast_rays",
+    "dense_flow",
     "ground_truth",
     "lidar_preset",
     "measure",

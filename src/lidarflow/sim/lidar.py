@@ -96,22 +96,23 @@ class LidarConfig:
 
 
 PRESETS: dict[str, LidarConfig] = {
-    # The paper's sensor: 811 beams is what the sick_tim driver publishes for a TIM561.
-    "tim561": LidarConfig(),
+    # The paper's sensor: 811 beams is what the sick_tim driver publishes for a TIM561. Mixed
+    # pixels at depth edges are common on real scanners (the URG-04LX is notorious for them).
+    "tim561": LidarConfig(mixed_pixel_prob=0.1),
     # Hokuyo URG-04LX-like, as in demo_stationary_simple_environment.bag.
     "hokuyo-urg": LidarConfig(
         name="hokuyo-urg", rate_hz=10.0, fov_deg=180.0, beams=512, range_min=0.02, range_max=5.6,
-        noise_std=0.02, dropout_prob=0.01, dropout_value="zero",
+        noise_std=0.02, dropout_prob=0.01, dropout_value="zero", mixed_pixel_prob=0.3,
     ),
     # Hokuyo UTM-30LX-like at 768 beams over 270°, as in the leg_tracker positive_*.bag.
     "hokuyo-utm": LidarConfig(
         name="hokuyo-utm", rate_hz=7.5, fov_deg=270.0, beams=768, range_min=0.02, range_max=11.0,
-        noise_std=0.01, dropout_prob=0.005, dropout_value="mixed",
+        noise_std=0.01, dropout_prob=0.005, dropout_value="mixed", mixed_pixel_prob=0.15,
     ),
     # RPLidar-like 360° sensor, as in datmo_overtakes.bag.
     "rplidar": LidarConfig(
         name="rplidar", rate_hz=10.0, fov_deg=360.0, beams=360, range_min=0.15, range_max=8.0,
-        noise_std=0.02, dropout_prob=0.02, dropout_value="zero",
+        noise_std=0.02, dropout_prob=0.02, dropout_value="zero", mixed_pixel_prob=0.1,
     ),
 }
 
@@ -293,12 +294,13 @@ def measure(
     r = np.array(true_ranges, dtype=np.float64)
     if config.mixed_pixel_prob > 0:
         nxt = np.roll(r, -1, axis=1)
-        edge = np.abs(nxt - r) > config.mixed_pixel_jump
+        with np.errstate(invalid="ignore"):  # inf - inf where neither beam hits anything
+            edge = np.abs(nxt - r) > config.mixed_pixel_jump
         edge[:, -1] = False
-        edge &= np.isfinite(r) & np.isfinite(nxt)
+        edge &= (r <= config.range_max) & (nxt <= config.range_max)
         edge &= rng.random(r.shape) < config.mixed_pixel_prob
         alpha = rng.uniform(0.15, 0.85, r.shape)
-        r = np.where(edge, r + alpha * (nxt - r), r)
+        r[edge] += alpha[edge] * (nxt[edge] - r[edge])
     beyond = ~(r <= config.range_max)
     if config.noise_std > 0:
         r = r + rng.normal(0.0, config.noise_std, r.shape)

@@ -34,7 +34,7 @@ WALK, STOP, OFF = 0, 1, 2
 class PeopleConfig:
     """People's numbers, sizes and behaviour (SI units)."""
 
-    count: int = 6
+    count: int = 8
     speed_range: tuple[float, float] = (0.3, 1.8)
     speed_mean: float = 1.2
     speed_std: float = 0.35
@@ -126,6 +126,25 @@ class Crowd:
         behind = np.abs(_wrap(np.arctan2(d[:, 1], d[:, 0]) - sensor[2])) > self.fov / 2 + 0.1
         return far | behind | self.world.occluded(sensor[:2], xy)
 
+    def _spawn_point(self, sensor: np.ndarray) -> np.ndarray | None:
+        """A free place the sensor cannot see, preferably close to it (behind it, or behind a
+        wall or a door), so that people walk into view from where real people would."""
+        rng, world = self.rng, self.world
+        k = 12
+        dist = rng.uniform(1.5, 7.0, k)
+        bearing = rng.uniform(-math.pi, math.pi, k)
+        pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
+        rooms = world.room_of(pts)
+        ok = (rooms >= 0) & world.reachable[np.maximum(rooms, 0)]
+        ok &= world.clearance(pts) >= 0.45
+        ok[ok] = self._hidden(sensor, pts[ok])
+        if ok.any():
+            return pts[np.argmax(ok)]
+        p = world.sample_free(rng, tries=8)
+        if p is not None and math.dist(p, sensor[:2]) > 1.5 and self._hidden(sensor, p)[0]:
+            return p
+        return None
+
     def _activate(self, i: int, p: np.ndarray, sensor: np.ndarray) -> None:
         self.pos[i] = p
         self.vel[i] = 0.0
@@ -179,9 +198,8 @@ class Crowd:
             state = self.state[i]
             if state == OFF:
                 if self.timer[i] <= 0:
-                    p = self.world.sample_free(rng, tries=8)
-                    if p is not None and math.dist(p, sensor[:2]) > 1.5 and self._hidden(
-                            sensor, p)[0]:
+                    p = self._spawn_point(sensor)
+                    if p is not None:
                         self._activate(i, p, sensor)
                     else:
                         self.timer[i] = 0.5

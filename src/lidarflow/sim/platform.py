@@ -91,14 +91,18 @@ class Platform:
         self.odom = self.pose.copy()
         self.v = 0.0
         self.w = 0.0
+        self.direction = np.array([math.cos(yaw), math.sin(yaw)])
         self.route: list[np.ndarray] = []
         self.cruise = 0.0
         self.pause = 0.0
         self.pause_turn = 0.0
         self.check_pos = self.pose[:2].copy()
         self.check_timer = 0.0
+        # Odometry errors come from their own generator, so the true motion is the same with
+        # or without drift.
+        self.odom_rng = np.random.default_rng(int(rng.integers(2**62)))
         drift = config.odom_drift
-        self.scale = np.array([1 + rng.normal(0, drift), 1 + rng.normal(0, drift)])
+        self.scale = 1 + self.odom_rng.normal(0, drift, 2) if drift > 0 else np.ones(2)
         if config.moving:
             self._new_goal()
 
@@ -141,25 +145,33 @@ class Platform:
             self.check_pos, self.check_timer = xy.copy(), 0.0
         to_wp = self.route[0] - xy
         direction = to_wp / max(math.hypot(*to_wp), 1e-6)
-        # Keep clear of walls and furniture.
+        # Keep clear of walls and furniture (gently: the speed limit below does the rest).
         d, away = self.world.field.lookup(xy)
-        if d[0] < 0.9:
-            direction = direction + 0.6 * math.exp((0.45 - d[0]) / 0.2) * away[0]
+        if d[0] < 0.8:
+            direction = direction + 0.4 * math.exp((0.4 - d[0]) / 0.2) * away[0]
+        heading = np.array([math.cos(yaw), math.sin(yaw)])
         slow = 1.0
         if len(people):
             rel = people - xy
             dist = np.hypot(rel[:, 0], rel[:, 1])
-            ahead = (rel @ np.array([math.cos(yaw), math.sin(yaw)])) > 0
-            close = dist < 1.5
-            if (close & ahead).any():
-                slow = _clamp(float(dist[close & ahead].min()) - 0.5, 0.0, 1.0)
+            along = rel @ heading
+            across = np.abs(rel @ np.array([-heading[1], heading[0]]))
+            in_path = (along > 0) & (across < 0.5) & (dist < 1.2)
+            if in_path.any():
+                slow = _clamp((float(dist[in_path].min()) - 0.45) / 0.6, 0.0, 1.0)
+            close = dist < 1.2
             if close.any():
-                away = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
-                direction = direction + (0.8 * np.exp((0.8 - dist[close]) / 0.3)[:, None]
-                                         * away).sum(0)
-        err = math.remainder(math.atan2(direction[1], direction[0]) - yaw, 2 * math.pi)
-        w = _clamp(2.0 * err, -cfg.max_turn_rate, cfg.max_turn_rate)
-        v = self.cruise * max(0.0, math.cos(err)) ** 2 * slow
+                push = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
+                direction = direction + (0.5 * np.exp((0.7 - dist[close]) / 0.3)[:, None]
+                                         * push).sum(0)
+        # Low-pass the steering direction: a driver does not twitch at every push.
+        self.direction = 0.75 * self.direction + 0.25 * direction
+        err = math.remainder(math.atan2(self.direction[1], self.direction[0]) - yaw, 2 * math.pi)
+        w = _clamp(1.5 * err, -cfg.max_turn_rate, cfg.max_turn_rate)
+        # Slow down where the way ahead is narrow, so the bumper rarely has to act.
+        ahead, _ = self.world.field.lookup(xy + 0.5 * heading)
+        room = _clamp(0.2 + 3.0 * (float(ahead[0]) - cfg.radius), 0.0, 1.0)
+        v = self.cruise * max(0.0, math.cos(err)) ** 2 * slow * max(room, 0.15)
         if len(self.route) == 1:
             v = min(v, 0.3 + math.hypot(*to_wp))  # ease into the goal
         return min(v, cfg.max_speed), w
@@ -177,13 +189,14 @@ class Platform:
         new = np.array([self.pose[0] + self.v * dt * math.cos(mid),
                         self.pose[1] + self.v * dt * math.sin(mid),
                         math.remainder(yaw + self.w * dt, 2 * math.pi)])
-        if self.world.clearance(new[:2])[0] < cfg.radius:
+        clear_new = self.world.clearance(new[:2])[0]
+        if clear_new < cfg.radius and clear_new < self.world.clearance(self.pose[:2])[0]:
             new[:2] = self.pose[:2]  # bumper: turn on the spot instead of hitting anything
             self.v = 0.0
         if cfg.odom_drift > 0:
             inc = relative(self.pose, new)
             dist = math.hypot(inc[0], inc[1])
-            noise = self.rng.normal(0, cfg.odom_drift, 3) * np.array(
+            noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * np.array(
                 [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist])
             measured = np.array([inc[0] * self.scale[0], inc[1] * self.scale[0],
                                  inc[2] * self.scale[1]]) + noise

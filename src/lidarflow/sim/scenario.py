@@ -15,15 +15,17 @@ channel 0 column, channel 1 row):
 * ``true_poses`` float64 ``(N, 3)``: the true sensor pose; ``Recording.poses`` is the odometry,
 * ``episode`` int32 ``(N,)``: the episode (world) of each frame.
 
-Flow is stored dense: 2 x 100 x 100 float16 = 40 kB per frame and array, mostly zeros, which the
-compressed ``.npz`` shrinks well; long runs are written as several files of whole episodes
-(``write_simulation``) so that no process ever holds more than one file's worth.
+Flow is stored dense by default: 2 x 100 x 100 float16 = 40 kB per frame and array, mostly zeros,
+which the compressed ``.npz`` shrinks well; ``flow_storage="sparse"`` keeps only the non-zero
+cells instead (see :mod:`lidarflow.sim.storage`; :func:`lidarflow.sim.dense_flow` reads either).
+Long runs are written as several files of whole episodes (``write_simulation``) so that no
+process ever holds more than one file's worth of dense flow.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -37,6 +39,7 @@ from lidarflow.sim.groundtruth import ground_truth
 from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset, measure
 from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
 from lidarflow.sim.platform import Platform, PlatformConfig
+from lidarflow.sim.storage import FLOW_STORAGES, to_sparse
 from lidarflow.sim.world import WorldConfig, build_world
 
 __all__ = ["Episode", "SimConfig", "simulate", "simulate_episode", "write_simulation"]
@@ -60,10 +63,14 @@ class SimConfig:
     grid: GridSpec = field(default_factory=GridSpec)
     episode_frames: int = 1500
     block_frames: int = 32
+    flow_storage: str = "dense"
 
     def __post_init__(self) -> None:
         if self.scenario not in SCENARIOS:
             raise SimError(f"scenario must be one of {SCENARIOS}, got {self.scenario!r}")
+        if self.flow_storage not in FLOW_STORAGES:
+            raise SimError(
+                f"flow_storage must be one of {FLOW_STORAGES}, got {self.flow_storage!r}")
         if self.episode_frames < 2 or self.block_frames < 1:
             raise SimError("episode_frames must be >= 2 and block_frames >= 1")
         if self.platform.moving != (self.scenario == "dynamic"):
@@ -106,8 +113,12 @@ def _dynamics(config: SimConfig, rng: np.random.Generator, frames: int) -> tuple
     return world, poses, odom, legs_from(snaps, crowd.hip, crowd.leg_r)
 
 
-def simulate_episode(config: SimConfig, seed: int, episode: int, frames: int) -> Episode:
-    """Simulate episode ``episode`` of the run with ``seed``: ``frames`` frames."""
+def simulate_episode(
+    config: SimConfig, seed: int, episode: int, frames: int,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> Episode:
+    """Simulate episode ``episode`` of the run with ``seed``: ``frames`` frames. ``out``: zeroed
+    ``(flow_backward, flow_forward, moving)`` arrays of ``frames`` frames to fill in place."""
     if frames < 1:
         raise SimError(f"an episode needs at least one frame, got {frames}")
     rng = np.random.default_rng([seed, episode])
@@ -133,10 +144,7 @@ def simulate_episode(config: SimConfig, seed: int, episode: int, frames: int) ->
             true[a:b] = np.where(closer, lr, static_scene[0])
             ids[a:b] = np.where(closer, lid, static_scene[1])
     ranges = measure(true, config.sensor, rng)
-    shape = (frames, 2, *config.grid.shape)
-    backward = np.zeros(shape, dtype=np.float16)
-    forward = np.zeros(shape, dtype=np.float16)
-    moving = np.zeros((frames, *config.grid.shape), dtype=bool)
+    backward, forward, moving = out or _zeros(config, frames)
     for a in range(0, frames, config.block_frames):
         b = min(a + config.block_frames, frames)
         ground_truth(ranges[a:b + 1], ids[a:b + 1], poses[a:b + 1], legs[a:b + 1, :, :2],
@@ -146,31 +154,75 @@ def simulate_episode(config: SimConfig, seed: int, episode: int, frames: int) ->
     return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
 
 
+def _zeros(config: SimConfig, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    shape = (frames, 2, *config.grid.shape)
+    return (np.zeros(shape, np.float16), np.zeros(shape, np.float16),
+            np.zeros((frames, *config.grid.shape), bool))
+
+
 def _episode_plan(frames: int, episode_frames: int) -> list[tuple[int, int, int]]:
     """``(episode, first frame, frame count)`` of every episode of a run."""
     return [(e, a, min(episode_frames, frames - a))
             for e, a in enumerate(range(0, frames, episode_frames))]
 
 
-def _run_one(args: tuple[SimConfig, int, int, int]) -> Episode:
-    return simulate_episode(*args)
+def _run_one(args: tuple[SimConfig, int, int, int]) -> tuple[Episode, tuple[np.ndarray, ...]]:
+    """A worker's episode, its flows sent back sparse (a tenth of the bytes to pickle)."""
+    ep = simulate_episode(*args)
+    packed = (*to_sparse(ep.flow_backward), *to_sparse(ep.flow_forward))
+    return replace(ep, flow_backward=None, flow_forward=None), packed
 
 
-def _episodes(
-    config: SimConfig, seed: int, plan: list[tuple[int, int, int]], workers: int
-) -> Iterator[Episode]:
-    jobs = [(config, seed, e, n) for e, _, n in plan]
-    if workers <= 1 or len(jobs) <= 1:
-        yield from map(_run_one, jobs)
-        return
-    import multiprocessing
+class _Source:
+    """Episodes of a run in order: simulated here straight into the caller's arrays, or in a
+    pool of processes and copied in."""
 
-    with multiprocessing.get_context("fork").Pool(workers) as pool:
-        yield from pool.imap(_run_one, jobs)
+    def __init__(self, config: SimConfig, seed: int, plan: list[tuple[int, int, int]],
+                 workers: int) -> None:
+        self.config, self.seed = config, seed
+        self.pool = None
+        if workers > 1 and len(plan) > 1:
+            import multiprocessing
+
+            self.pool = multiprocessing.get_context("fork").Pool(workers)
+            jobs = [(config, seed, e, k) for e, _, k in plan]
+            self.results = self.pool.imap(_run_one, jobs)
+
+    def next(self, episode: int, frames: int,
+             out: tuple[np.ndarray, np.ndarray, np.ndarray]) -> Episode:
+        if self.pool is None:
+            return simulate_episode(self.config, self.seed, episode, frames, out)
+        ep, (bw_cells, bw_values, fw_cells, fw_values) = next(self.results)
+        for dst, cells, values in ((out[0], bw_cells, bw_values), (out[1], fw_cells, fw_values)):
+            flat = dst.reshape(len(dst), 2, -1)
+            f, k = np.nonzero(cells >= 0)
+            flat[f, :, cells[f, k]] = values[f, k]
+        out[2][...] = ep.moving
+        return Episode(ep.ranges, ep.odom, ep.true_poses, *out)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+            self.pool.join()
+
+
+def _group(
+    config: SimConfig, seed: int, group: list[tuple[int, int, int]], source: _Source,
+    progress: Callable[[int], object] | None,
+) -> Recording:
+    flows = _zeros(config, sum(k for _, _, k in group))
+    episodes, at = [], 0
+    for e, _, k in group:
+        episodes.append(source.next(e, k, tuple(f[at:at + k] for f in flows)))
+        at += k
+        if progress:
+            progress(k)
+    return _assemble(config, seed, group, episodes, flows)
 
 
 def _assemble(
     config: SimConfig, seed: int, plan: list[tuple[int, int, int]], episodes: list[Episode],
+    flows: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> Recording:
     geom = config.sensor.geometry()
     n = sum(p[2] for p in plan)
@@ -182,10 +234,15 @@ def _assemble(
     def cat(name: str) -> np.ndarray:
         return np.concatenate([getattr(ep, name) for ep in episodes])
 
+    if config.flow_storage == "sparse":
+        (bw_cells, bw_values), (fw_cells, fw_values) = to_sparse(flows[0]), to_sparse(flows[1])
+        stored = {"flow_backward_cells": bw_cells, "flow_backward_values": bw_values,
+                  "flow_forward_cells": fw_cells, "flow_forward_values": fw_values}
+    else:
+        stored = {"flow_backward": flows[0], "flow_forward": flows[1]}
     extras = {
-        "flow_backward": cat("flow_backward"),
-        "flow_forward": cat("flow_forward"),
-        "moving": cat("moving"),
+        **stored,
+        "moving": flows[2],
         "true_poses": cat("true_poses"),
         "episode": np.concatenate([np.full(k, e, np.int32) for e, _, k in plan]),
     }
@@ -199,7 +256,7 @@ def _assemble(
         "sensor": config.sensor.name,
         "sim_config": config.to_dict(),
         "grid": config.grid.to_dict(),
-        "flow_storage": "dense",
+        "flow_storage": config.flow_storage,
         "episodes": [[e, a, k] for e, a, k in plan],
     }
     return Recording(
@@ -226,12 +283,11 @@ def simulate(
     if frames < 1:
         raise SimError(f"frames must be >= 1, got {frames}")
     plan = _episode_plan(frames, config.episode_frames)
-    episodes = []
-    for (_, _, k), ep in zip(plan, _episodes(config, seed, plan, workers), strict=True):
-        episodes.append(ep)
-        if progress:
-            progress(k)
-    return _assemble(config, seed, plan, episodes)
+    source = _Source(config, seed, plan, workers)
+    try:
+        return _group(config, seed, plan, source, progress)
+    finally:
+        source.close()
 
 
 def write_simulation(
@@ -254,18 +310,16 @@ def write_simulation(
         groups[-1].append(item)
     stem = output.name[:-4] if output.name.endswith(".npz") else output.name
     paths = []
-    stream = _episodes(config, seed, plan, workers)
-    for i, group in enumerate(groups):
-        episodes = []
-        for _, _, k in group:
-            episodes.append(next(stream))
-            if progress:
-                progress(k)
-        recording = _assemble(config, seed, group, episodes)
-        if len(groups) > 1:
-            recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
-            path = output.with_name(f"{stem}-{i:03d}.npz")
-        else:
-            path = output
-        paths.append(recording.save(path))
+    source = _Source(config, seed, plan, workers)
+    try:
+        for i, group in enumerate(groups):
+            recording = _group(config, seed, group, source, progress)
+            if len(groups) > 1:
+                recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
+                path = output.with_name(f"{stem}-{i:03d}.npz")
+            else:
+                path = output
+            paths.append(recording.save(path))
+    finally:
+        source.close()
     return paths
