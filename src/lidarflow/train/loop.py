@@ -14,13 +14,8 @@ only steps after ``data.warmup`` frames.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import json
 import math
-import platform
 import random
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,18 +28,16 @@ from torch import Tensor
 
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule
-from lidarflow.models import build_model, count_parameters
+from lidarflow.models import build_model
 from lidarflow.models.speed import accelerate
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import (
     TrainConfig,
-    config_from_dict,
-    config_to_dict,
-    load_config_file,
 )
-from lidarflow.train.data import TrainData, load_train_data, make_loader, make_val_loader
+from lidarflow.train.data import load_train_data, make_loader, make_val_loader
 from lidarflow.train.distributed import Dist, any_flag, barrier, setup
 from lidarflow.train.logbook import Logbook
+from lidarflow.train.rundir import prepare_run_dir, write_final
 from lidarflow.train.validate import validate
 
 __all__ = ["TrainResult", "gaussian_size", "make_loss", "train"]
@@ -92,113 +85,10 @@ def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def _git_commit() -> str | None:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=5,
-            cwd=Path(__file__).parent,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None
-
-
 def _autocast(config: TrainConfig, device: torch.device) -> Callable[[], Any]:
     if config.runtime.amp == "bf16":
         return lambda: torch.autocast(device.type, dtype=torch.bfloat16)
     return contextlib.nullcontext
-
-
-def _model_record(
-    config: TrainConfig, model: torch.nn.Module, data: TrainData, extra: dict[str, Any]
-) -> dict[str, Any]:
-    """What ``model.json`` says: enough to rebuild the net and to know where it came from."""
-    return {
-        "model": config.model.name,
-        "model_kwargs": config.model.kwargs,
-        "out_channels": int(getattr(model, "out_channels", 0)),
-        "parameters": int(count_parameters(model)),
-        "grid": data.grid.to_dict(),
-        "threshold": 0.4,
-        "warmup": config.data.warmup,
-        "weights": "model.safetensors",
-        "recipe": config.recipe,
-        "training": {
-            "sources": config.data.sources,
-            "mix": config.data.mix,
-            "epochs": config.optim.epochs,
-            "final_weights": config.runtime.final_weights,
-            "best": extra.get("best"),
-            "commit": _git_commit(),
-        },
-        "config": config_to_dict(config),
-    }
-
-
-def _run_facts(ctx: Dist) -> dict[str, Any]:
-    return {
-        "command": sys.argv,
-        "world_size": ctx.world_size,
-        "device": str(ctx.device),
-        "torch": torch.__version__,
-        "python": platform.python_version(),
-        "commit": _git_commit(),
-        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
-
-
-def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
-    """A resumed run must keep what shaped its weights; only the epoch count (and how it runs:
-    device, threads, amp...) may change."""
-    path = run_dir / "config.json"
-    if not path.exists():
-        raise TrainError(f"{run_dir}: not a training run (no config.json), nothing to resume")
-    saved = config_from_dict(load_config_file(path))
-    saved = dataclasses.replace(
-        saved, optim=dataclasses.replace(saved.optim, epochs=config.optim.epochs)
-    )
-    changed = [
-        name
-        for name in ("recipe", "model", "data", "optim", "schedule", "loss")
-        if getattr(saved, name) != getattr(config, name)
-    ]
-    if saved.runtime.seed != config.runtime.seed:
-        changed.append("runtime.seed")
-    if changed:
-        raise TrainError(
-            f"{run_dir}: cannot resume with a different config ({', '.join(changed)} changed); "
-            "only the number of epochs may change; start a new run instead"
-        )
-
-
-def _prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
-    if resume:
-        _check_resumable(run_dir, config)
-        if ctx.is_main:
-            ckpt.remove_temporaries(run_dir)  # what a killed run left half-written
-            # the config on disk says how many epochs the run is now meant to have
-            ckpt.write_json(run_dir / "config.json", config_to_dict(config))
-            facts = (
-                json.loads((run_dir / "run.json").read_text())
-                if (run_dir / "run.json").exists()
-                else {}
-            )
-            facts.setdefault("resumed", []).append(
-                {**_run_facts(ctx), "after_epoch": ckpt.latest_epoch(run_dir)}
-            )
-            ckpt.write_json(run_dir / "run.json", facts)
-        return
-    if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
-        raise TrainError(
-            f"{run_dir} already holds a training run; use --resume {run_dir} to continue it, "
-            "or another -o folder"
-        )
-    if ctx.is_main:
-        ckpt.write_json(run_dir / "config.json", config_to_dict(config))
-        ckpt.write_json(run_dir / "run.json", _run_facts(ctx))
 
 
 def train(
@@ -239,7 +129,7 @@ def _train(
     if rt.threads > 0:
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
-    _prepare_run_dir(run_dir, config, resume, ctx)
+    prepare_run_dir(run_dir, config, resume, ctx)
     data = load_train_data(config.data)
     say(data.summary())
     for note in data.notes:
@@ -371,7 +261,7 @@ def _train(
             on_epoch_end(epoch + 1, row)
 
     if ctx.is_main:
-        _write_final(run_dir, config, model, data, extra)
+        write_final(run_dir, config, model, data, extra)
         book.close()
     barrier(ctx)
     return TrainResult(run_dir, book.rows if book else rows, model, extra)
@@ -410,20 +300,6 @@ def _mean_over_ranks(ctx: Dist, total: float, count: int) -> float:
 
     s, n = all_reduce_sum(ctx, [total, float(count)])
     return s / n if n else float("nan")
-
-
-def _write_final(
-    run_dir: Path,
-    config: TrainConfig,
-    model: torch.nn.Module,
-    data: TrainData,
-    extra: dict[str, Any],
-) -> None:
-    if config.runtime.final_weights == "best" and (run_dir / "best.safetensors").exists():
-        ckpt.load_weights(model, run_dir / "best.safetensors")
-    record = _model_record(config, model, data, extra)
-    ckpt.save_weights(model, run_dir / "model.safetensors", {"model": config.model.name})
-    ckpt.write_json(run_dir / "model.json", record)
 
 
 def _describe(row: dict[str, Any]) -> str:
