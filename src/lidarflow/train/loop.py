@@ -249,11 +249,13 @@ def _train(
                 "metric": "val_f1" if "val_f1" in metrics else "-train_loss",
             }
         if ctx.is_main:
+            # The checkpoint goes last: until it is complete, a resume starts from the epoch
+            # before, and drops this row and overwrites these weights.
+            book.log(row)
             ckpt.save_weights(model, run_dir / "last.safetensors", {"epoch": epoch + 1})
             if improved:
                 ckpt.save_weights(model, run_dir / "best.safetensors", {"epoch": epoch + 1})
             ckpt.save_checkpoint(run_dir, epoch + 1, model, optimizer, scheduler, extra)
-            book.log(row)
         rows.append(row)
         barrier(ctx)
         say(f"epoch {epoch + 1}/{config.optim.epochs}: " + _describe(row))
