@@ -7,10 +7,12 @@ import contextlib
 import numpy as np
 import pytest
 
+from lidarflow.data import load_recording
 from lidarflow.evaluate.metrics import confusion
 from lidarflow.models import build_model
 from lidarflow.scan import GridSpec
 from lidarflow.sim.scenario import SimConfig, simulate
+from lidarflow.sim.storage import to_sparse
 from lidarflow.train.config import DataConfig
 from lidarflow.train.data import load_train_data, make_val_loader
 from lidarflow.train.distributed import Dist
@@ -24,10 +26,20 @@ def sim_file(tmp_path_factory):
     return simulate(80, seed=0, config=config).save(tmp_path_factory.mktemp("sim") / "sim.npz")
 
 
-def test_untrained_flownet_scores_copy_last_and_zero_flow_epe(sim_file):
-    cfg = DataConfig(
-        sources=[str(sim_file)], grid=32, res=0.3, seq_len=10, warmup=3, val_fraction=0.5
-    )
+@pytest.fixture(scope="module")
+def sparse_sim_file(sim_file):
+    rec = load_recording(sim_file)
+    for key in ("flow_backward", "flow_forward"):
+        cells, values = to_sparse(rec.extras.pop(key))
+        rec.extras[f"{key}_cells"], rec.extras[f"{key}_values"] = cells, values
+    rec.meta["flow_storage"] = "sparse"
+    return rec.save(sim_file.with_name("sparse.npz"))
+
+
+@pytest.mark.parametrize("layout", ["dense", "sparse"])
+def test_untrained_flownet_scores_copy_last_and_zero_flow_epe(sim_file, sparse_sim_file, layout):
+    path = sim_file if layout == "dense" else sparse_sim_file
+    cfg = DataConfig(sources=[str(path)], grid=32, res=0.3, seq_len=10, warmup=3, val_fraction=0.5)
     data = load_train_data(cfg)
     assert data.val is not None and data.val.has_flow
     model = build_model("flownet")  # zero flow head: predicts the last map exactly
@@ -42,9 +54,10 @@ def test_untrained_flownet_scores_copy_last_and_zero_flow_epe(sim_file):
     )
     # independent: every val window, pairs t = warmup .. T-2, B^t on the cells of O^{t+1}
     errs, copy = [], None
+    dense_val = load_train_data(DataConfig(**{**cfg.__dict__, "sources": [str(sim_file)]})).val
     for rec, start in data.val.index:
         occ = data.val.maps[rec][start : start + cfg.seq_len, 0]
-        flow = data.val.flows[rec][start : start + cfg.seq_len].astype(np.float64)
+        flow = dense_val.flows[rec][start : start + cfg.seq_len].astype(np.float64)
         for t in range(cfg.warmup, cfg.seq_len - 1):
             errs.append(np.hypot(flow[t, 0], flow[t, 1])[occ[t + 1]])
             c = confusion(occ[t], occ[t + 1])

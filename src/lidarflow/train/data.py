@@ -53,6 +53,8 @@ __all__ = [
 ]
 
 FLOW_KEY = "flow_backward"
+# ground-truth backward flow of a recording: dense (N, 2, H, W), sparse (cells, values) or none
+Flow = np.ndarray | tuple[np.ndarray, np.ndarray] | None
 
 
 def expand_source(spec: str) -> list[Path]:
@@ -82,7 +84,7 @@ class Windows(Dataset):
         maps: Sequence[np.ndarray],
         index: Sequence[tuple[int, int]],
         length: int,
-        flows: Sequence[np.ndarray | None] = (),
+        flows: Sequence[Flow] = (),
         with_flow: bool = False,
     ) -> None:
         self.maps = list(maps)
@@ -101,8 +103,15 @@ class Windows(Dataset):
         if not self.with_flow:
             return maps
         flow = self.flows[rec]
+        shape = window.shape[-2:]
         if flow is None:
-            return maps, torch.zeros((self.length, 2, *window.shape[-2:])), False
+            return maps, torch.zeros((self.length, 2, *shape)), False
+        if isinstance(flow, tuple):  # sparse: (cells (N, K), values (N, K, 2))
+            cells, values = (a[start : start + self.length] for a in flow)
+            dense = np.zeros((len(cells), 2, shape[0] * shape[1]), dtype=np.float32)
+            frame, slot = np.nonzero(cells >= 0)
+            dense[frame, :, cells[frame, slot]] = values[frame, slot]
+            return maps, torch.from_numpy(dense.reshape(len(cells), 2, *shape)), True
         return maps, torch.from_numpy(flow[start : start + self.length].astype(np.float32)), True
 
     @property
@@ -134,23 +143,44 @@ class TrainData:
         return f"training: {'; '.join(parts)}; {val}"
 
 
+def _ground_truth(rec: Recording, grid: GridSpec) -> tuple[Flow, str | None]:
+    """The recording's ground-truth ``B^t`` (simulator extras, dense or sparse layout, see
+    :mod:`lidarflow.sim.storage`) if it is on ``grid``; else ``None`` and why."""
+    extras = rec.extras
+    flow: Flow = None
+    if FLOW_KEY in extras:
+        flow = extras[FLOW_KEY]
+        shape = tuple(flow.shape[-2:])
+    elif f"{FLOW_KEY}_cells" in extras and f"{FLOW_KEY}_values" in extras:
+        flow = (extras[f"{FLOW_KEY}_cells"], extras[f"{FLOW_KEY}_values"])
+        spec = rec.meta.get("grid") or {}
+        shape = (spec.get("height"), spec.get("width"))
+    else:
+        return None, None
+    stored = rec.meta.get("grid") or {}
+    res = stored.get("res", grid.res)
+    if shape != grid.shape or not np.isclose(res, grid.res):
+        return (
+            None,
+            f"ground-truth flow is on a {shape} grid of {res} m, not {grid.shape} of "
+            f"{grid.res} m: no EPE for it",
+        )
+    return flow, None
+
+
 def _windows(
     recordings: list[Recording], cfg: DataConfig, grid: GridSpec, with_flow: bool
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods
     )
-    flows: list[np.ndarray | None] = []
+    flows: list[Flow] = []
     notes = list(seqs.report.notes)
     for rec in recordings:
-        flow = rec.extras.get(FLOW_KEY)
-        if flow is not None and flow.shape[1:] != (2, *grid.shape):
-            notes.append(
-                f"{rec.meta.get('source', 'a recording')}: ground-truth flow is on a "
-                f"{flow.shape[-2:]} grid, not {grid.shape}: no EPE for it"
-            )
-            flow = None
+        flow, note = _ground_truth(rec, grid)
         flows.append(flow)
+        if note:
+            notes.append(f"{rec.meta.get('source', 'a recording')}: {note}")
     return Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow), notes
 
 
