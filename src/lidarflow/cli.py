@@ -351,7 +351,7 @@ def train(
         "data.warmup": warmup,
         "schedule.gaussian": False if no_gaussian else None,
         "data.mix": mix or None,
-        "data.val_sources": val or None,
+        "data.val_sources": [os.path.abspath(v) for v in val] if val else None,
         "data.val_fraction": val_fraction,
         "data.val_split": val_split,
         "data.topic": topic,
@@ -376,7 +376,7 @@ def train(
                 f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run"
             )
         saved = config_from_dict(load_config_file(resume / "config.json"))
-        if data and list(data) != saved.data.sources:
+        if data and [os.path.abspath(d) for d in data] != saved.data.sources:
             raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
         cfg = build_config(saved.recipe, resume / "config.json",
                            {k: v for k, v in flags.items() if k in free})
@@ -384,8 +384,8 @@ def train(
     else:
         if output is None:
             raise TrainError("name the run directory with -o RUN_DIR (or --resume RUN_DIR)")
-        if data:
-            flags["data.sources"] = list(data)
+        if data:  # absolute, so that --resume works from any folder (globs too)
+            flags["data.sources"] = [os.path.abspath(d) for d in data]
         cfg = build_config(recipe, config, flags, set_ or ())
         run_dir = output
     from tqdm import tqdm
