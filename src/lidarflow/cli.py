@@ -495,10 +495,26 @@ def simulate(
             output, frames, seed, config, chunk_frames, workers, progress=bar.update
         )
     seconds = time.perf_counter() - start
+    # The run's record beside its outputs: what was asked, what came out, how fast.
+    record = output.with_name(output.name.removesuffix(".npz") + ".json")
+    record.write_text(
+        json.dumps(
+            {
+                "command": "lidarflow " + " ".join(sys.argv[1:]),
+                "frames": frames,
+                "seed": seed,
+                "files": [str(p) for p in paths],
+                "seconds": round(seconds, 2),
+                "scans_per_s": round(frames / seconds, 1),
+                "config": config.to_dict(),
+            },
+            indent=2,
+        )
+    )
     shown = str(paths[0]) if len(paths) == 1 else f"{len(paths)} files {paths[0]}..{paths[-1].name}"
     typer.echo(
-        f"wrote {shown}: {frames} {sensor} scans ({scenario}, seed {seed}) with ground-truth "
-        f"flow in {seconds:.1f} s ({frames / seconds:.0f} scans/s)"
+        f"wrote {shown} (+ {record.name}): {frames} {sensor} scans ({scenario}, seed {seed}) "
+        f"with ground-truth flow in {seconds:.1f} s ({frames / seconds:.0f} scans/s)"
     )
 
 

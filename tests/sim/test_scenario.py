@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -155,6 +156,8 @@ def test_cli_simulate_then_show(tmp_path, capsys):
     assert done.value.code == 0
     rec = load_recording(out)
     assert len(rec) == 30 and rec.geometry(0).count == 512 and rec.meta["seed"] == 2
+    record = json.loads((tmp_path / "s.json").read_text())
+    assert record["files"] == [str(out)] and record["config"]["scenario"] == "static"
     with pytest.raises(SystemExit) as done:
         main(["show", str(out), "-f", "5", "-o", str(tmp_path / "m.png")])
     assert done.value.code == 0 and (tmp_path / "m.png").stat().st_size > 0

@@ -146,9 +146,10 @@ class Platform:
         to_wp = self.route[0] - xy
         direction = to_wp / max(math.hypot(*to_wp), 1e-6)
         # Keep clear of walls and furniture (gently: the speed limit below does the rest).
-        d, away = self.world.field.lookup(xy)
-        if d[0] < 0.8:
-            direction = direction + 0.4 * math.exp((0.4 - d[0]) / 0.2) * away[0]
+        field = self.world.field
+        d, away_x, away_y = field.at(xy[0], xy[1])
+        if d < 0.8:
+            direction = direction + 0.4 * math.exp((0.4 - d) / 0.2) * np.array([away_x, away_y])
         heading = np.array([math.cos(yaw), math.sin(yaw)])
         slow = 1.0
         if len(people):
@@ -169,8 +170,8 @@ class Platform:
         err = math.remainder(math.atan2(self.direction[1], self.direction[0]) - yaw, 2 * math.pi)
         w = _clamp(1.5 * err, -cfg.max_turn_rate, cfg.max_turn_rate)
         # Slow down where the way ahead is narrow, so the bumper rarely has to act.
-        ahead, _ = self.world.field.lookup(xy + 0.5 * heading)
-        room = _clamp(0.2 + 3.0 * (float(ahead[0]) - cfg.radius), 0.0, 1.0)
+        ahead = field.at(xy[0] + 0.5 * heading[0], xy[1] + 0.5 * heading[1])[0]
+        room = _clamp(0.2 + 3.0 * (ahead - cfg.radius), 0.0, 1.0)
         v = self.cruise * max(0.0, math.cos(err)) ** 2 * slow * max(room, 0.15)
         if len(self.route) == 1:
             v = min(v, 0.3 + math.hypot(*to_wp))  # ease into the goal
@@ -189,8 +190,9 @@ class Platform:
         new = np.array([self.pose[0] + self.v * dt * math.cos(mid),
                         self.pose[1] + self.v * dt * math.sin(mid),
                         math.remainder(yaw + self.w * dt, 2 * math.pi)])
-        clear_new = self.world.clearance(new[:2])[0]
-        if clear_new < cfg.radius and clear_new < self.world.clearance(self.pose[:2])[0]:
+        field = self.world.field
+        clear_new = field.at(new[0], new[1])[0]
+        if clear_new < cfg.radius and clear_new < field.at(self.pose[0], self.pose[1])[0]:
             new[:2] = self.pose[:2]  # bumper: turn on the spot instead of hitting anything
             self.v = 0.0
         if cfg.odom_drift > 0:

@@ -16,14 +16,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from lidarflow.errors import SimError
+from lidarflow.sim.field import DistanceField
+from lidarflow.sim.furniture import Furniture
 
 __all__ = [
-    "DistanceField",
     "Door",
     "World",
     "WorldConfig",
@@ -66,69 +66,6 @@ class Door:
     centre: tuple[float, float]
     normal: tuple[float, float]
     width: float
-
-
-class DistanceField:
-    """Distance (m, capped at ``cap``) from every point of a fine grid to the nearest segment or
-    circle, and the unit vector pointing away from it: a table lookup replaces testing every wall
-    at every simulation step. Built segment by segment over each one's neighbourhood only."""
-
-    def __init__(
-        self, segments: np.ndarray, circles: np.ndarray,
-        bounds: tuple[float, float, float, float], res: float = 0.05, cap: float = 1.5,
-    ) -> None:
-        self.res, self.cap = res, cap
-        self.origin = np.array([bounds[0] - cap, bounds[1] - cap])
-        nx = math.ceil((bounds[2] - bounds[0] + 2 * cap) / res)
-        ny = math.ceil((bounds[3] - bounds[1] + 2 * cap) / res)
-        self.dist = np.full((ny, nx), cap)
-        self.away = np.zeros((ny, nx, 2))
-        self._last = np.array([nx - 1, ny - 1])
-        for x0, y0, x1, y1 in segments:
-            self._stamp(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1),
-                        lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a))
-        for cx, cy, r in circles:
-            self._stamp(cx - r, cy - r, cx + r, cy + r,
-                        lambda px, py, c=(cx, cy, r): _to_circle(px, py, *c))
-
-    def _stamp(self, x0: float, y0: float, x1: float, y1: float, nearest: Any) -> None:
-        res, cap = self.res, self.cap
-        i0 = max(int((x0 - cap - self.origin[0]) / res), 0)
-        i1 = min(int((x1 + cap - self.origin[0]) / res) + 1, self.dist.shape[1])
-        j0 = max(int((y0 - cap - self.origin[1]) / res), 0)
-        j1 = min(int((y1 + cap - self.origin[1]) / res) + 1, self.dist.shape[0])
-        px = self.origin[0] + (np.arange(i0, i1) + 0.5) * res
-        py = self.origin[1] + (np.arange(j0, j1) + 0.5) * res
-        px, py = np.meshgrid(px, py)
-        d, ax, ay = nearest(px, py)
-        view = self.dist[j0:j1, i0:i1]
-        better = d < view
-        view[better] = d[better]
-        self.away[j0:j1, i0:i1, 0][better] = ax[better]
-        self.away[j0:j1, i0:i1, 1][better] = ay[better]
-
-    def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(distance (N,), away (N, 2))`` at points ``(N, 2)`` (nearest grid point)."""
-        xy = np.atleast_2d(xy)
-        ij = ((xy - self.origin) / self.res).astype(np.int64)
-        np.minimum(np.maximum(ij, 0, out=ij), self._last, out=ij)
-        return self.dist[ij[:, 1], ij[:, 0]], self.away[ij[:, 1], ij[:, 0]]
-
-
-def _to_segment(px: np.ndarray, py: np.ndarray, x0: float, y0: float, x1: float,
-                y1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    ex, ey = x1 - x0, y1 - y0
-    u = np.clip(((px - x0) * ex + (py - y0) * ey) / max(ex * ex + ey * ey, 1e-12), 0.0, 1.0)
-    dx, dy = px - x0 - u * ex, py - y0 - u * ey
-    d = np.maximum(np.hypot(dx, dy), 1e-9)
-    return d, dx / d, dy / d
-
-
-def _to_circle(px: np.ndarray, py: np.ndarray, cx: float, cy: float,
-               r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    dx, dy = px - cx, py - cy
-    n = np.maximum(np.hypot(dx, dy), 1e-9)
-    return np.maximum(n - r, 1e-9), dx / n, dy / n
 
 
 @dataclass
@@ -388,7 +325,7 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
     best = max(set(roots), key=roots.count)
     reachable = np.array([r == best for r in roots])
 
-    furniture = _Furniture(rng, doors)
+    furniture = Furniture(rng, [d.centre for d in doors])
     for i, room in enumerate(rooms):
         furniture.furnish(room, bool(corridor[i]), cfg.clutter)
     seg = np.array(segments + furniture.segments, dtype=np.float64).reshape(-1, 4)
@@ -398,120 +335,3 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
     avoid_circles = np.array(furniture.avoid_circles, dtype=np.float64).reshape(-1, 3)
     return World(seg, circles, avoid, avoid_circles, rooms, corridor, doors, reachable,
                  (0.0, 0.0, width, height))
-
-
-def _box(cx: float, cy: float, length: float, depth: float, angle: float) -> list[list[float]]:
-    c, s = math.cos(angle), math.sin(angle)
-    corners = [(dx * length / 2, dy * depth / 2) for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    pts = [(cx + c * x - s * y, cy + s * x + c * y) for x, y in corners]
-    return [[*pts[k], *pts[(k + 1) % 4]] for k in range(4)]
-
-
-class _Furniture:
-    """Places furniture room by room, keeping doors and a walking passage clear."""
-
-    def __init__(self, rng: np.random.Generator, doors: list[Door]) -> None:
-        self.rng = rng
-        self.door_centres = np.array([d.centre for d in doors]).reshape(-1, 2)
-        self.segments: list[list[float]] = []
-        self.avoid_segments: list[list[float]] = []
-        self.circles: list[list[float]] = []
-        self.avoid_circles: list[list[float]] = []
-        self.taken: list[tuple[float, float, float]] = []  # footprint circles
-
-    def _free(self, x: float, y: float, radius: float, gap: float = 0.6) -> bool:
-        if len(self.door_centres):
-            d = np.hypot(self.door_centres[:, 0] - x, self.door_centres[:, 1] - y)
-            if d.min() < radius + 0.9:
-                return False
-        return all(math.hypot(x - a, y - b) > radius + r + gap for a, b, r in self.taken)
-
-    def furnish(self, room: np.ndarray, corridor: bool, clutter: float) -> None:
-        rng = self.rng
-        x0, y0, x1, y1 = room
-        w, h = x1 - x0, y1 - y0
-        count = rng.poisson(clutter * (w * h / (14.0 if corridor else 5.0)))
-        for _ in range(count):
-            kind = rng.choice(["wall_box", "table", "chair", "round", "box"],
-                              p=[0.1, 0.0, 0.0, 0.9, 0.0] if corridor else
-                              [0.3, 0.2, 0.2, 0.15, 0.15])
-            if kind == "wall_box":
-                self._wall_box(room)
-            elif kind == "round":
-                r = rng.uniform(0.1, 0.3)
-                self._place_circle(room, r, margin=0.0 if rng.random() < 0.5 else 1.0)
-            else:
-                self._free_standing(room, kind)
-
-    def _wall_box(self, room: np.ndarray) -> None:
-        rng = self.rng
-        x0, y0, x1, y1 = room
-        length, depth = rng.uniform(0.6, 2.0), rng.uniform(0.4, 0.8)
-        side = rng.integers(4)
-        horizontal = side in (0, 2)
-        span = (x1 - x0) if horizontal else (y1 - y0)
-        if span < length + 0.2:
-            return
-        t = rng.uniform(length / 2 + 0.05, span - length / 2 - 0.05)
-        if horizontal:
-            cx = x0 + t
-            cy = y0 + depth / 2 + 0.02 if side == 0 else y1 - depth / 2 - 0.02
-            angle = 0.0
-        else:
-            cy = y0 + t
-            cx = x0 + depth / 2 + 0.02 if side == 3 else x1 - depth / 2 - 0.02
-            angle = math.pi / 2
-        radius = math.hypot(length, depth) / 2
-        if not self._free(cx, cy, radius, gap=0.0):
-            return
-        self.taken.append((cx, cy, radius))
-        self.segments.extend(_box(cx, cy, length, depth, angle))
-
-    def _free_standing(self, room: np.ndarray, kind: str) -> None:
-        rng = self.rng
-        if kind == "table":
-            length, depth = rng.uniform(1.0, 1.8), rng.uniform(0.6, 0.9)
-            leg = rng.uniform(0.02, 0.035)
-        elif kind == "chair":
-            length = depth = rng.uniform(0.38, 0.48)
-            leg = rng.uniform(0.012, 0.02)
-        else:
-            length, depth, leg = rng.uniform(0.3, 1.0), rng.uniform(0.3, 1.0), 0.0
-        radius = math.hypot(length, depth) / 2
-        spot = self._spot(room, radius, margin=0.3 if kind == "box" else 0.5)
-        if spot is None:
-            return
-        cx, cy = spot
-        angle = rng.choice([0.0, math.pi / 2]) + rng.normal(0, 0.1) if rng.random() < 0.7 else (
-            rng.uniform(0, math.pi))
-        outline = _box(cx, cy, length, depth, angle)
-        self.taken.append((cx, cy, radius))
-        if kind == "box":
-            self.segments.extend(outline)
-            return
-        self.avoid_segments.extend(outline)
-        inset = 0.04
-        c, s = math.cos(angle), math.sin(angle)
-        for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-            lx, ly = dx * (length / 2 - inset), dy * (depth / 2 - inset)
-            self.circles.append([cx + c * lx - s * ly, cy + s * lx + c * ly, leg])
-
-    def _spot(self, room: np.ndarray, radius: float, margin: float) -> tuple[float, float] | None:
-        x0, y0, x1, y1 = room
-        lo_x, hi_x = x0 + radius + margin, x1 - radius - margin
-        lo_y, hi_y = y0 + radius + margin, y1 - radius - margin
-        if lo_x >= hi_x or lo_y >= hi_y:
-            return None
-        for _ in range(8):
-            x, y = self.rng.uniform(lo_x, hi_x), self.rng.uniform(lo_y, hi_y)
-            if self._free(x, y, radius):
-                return x, y
-        return None
-
-    def _place_circle(self, room: np.ndarray, r: float, margin: float) -> None:
-        spot = self._spot(room, r, margin + 0.05)
-        if spot is None:
-            return
-        self.taken.append((*spot, r))
-        self.circles.append([*spot, r])
-        self.avoid_circles.append([*spot, r])
