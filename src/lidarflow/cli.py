@@ -366,14 +366,18 @@ def train(
     }
     if resume is not None:
         if output is not None and output.resolve() != resume.resolve():
-            raise TrainError(f"--resume {resume} and -o {output} name different runs; give one")
+            raise typer.BadParameter(
+                f"--resume {resume} and -o {output} name different runs; give one",
+                param_hint="--resume",
+            )
         # how the run executes may change (device, amp, threads...), not what it computes
         free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
         changed = [k for k, v in flags.items() if v is not None and k not in free]
         if changed or recipe or config or set_:
-            raise TrainError(
+            raise typer.BadParameter(
                 "a resumed run keeps its config (only --epochs and runtime options may change); "
-                f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run"
+                f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run",
+                param_hint="--resume",
             )
         saved = config_from_dict(load_config_file(resume / "config.json"))
         if data and [os.path.abspath(d) for d in data] != saved.data.sources:
@@ -383,7 +387,11 @@ def train(
         run_dir = resume
     else:
         if output is None:
-            raise TrainError("name the run directory with -o RUN_DIR (or --resume RUN_DIR)")
+            raise typer.BadParameter(
+                "name the run directory with -o RUN_DIR (or --resume RUN_DIR)", param_hint="-o"
+            )
+        if not data and config is None:
+            raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
         if data:  # absolute, so that --resume works from any folder (globs too)
             flags["data.sources"] = [os.path.abspath(d) for d in data]
         cfg = build_config(recipe, config, flags, set_ or ())

@@ -102,11 +102,13 @@ def test_failures_are_one_line_with_exit_1(blob_files, tmp_path, capsys, extra, 
 
 def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):
     code, _, err = run_cli(["train", "--resume", str(tmp_path), "--lr", "0.1"], capsys)
-    assert code == 1 and "a resumed run keeps its config" in err
+    assert code == 2 and "a resumed run keeps its config" in err  # usage error
     code, _, err = run_cli(["train", "--resume", str(tmp_path)], capsys)
     assert code == 1 and "cannot read the config file" in err
     code, _, err = run_cli(["train", "x.npz"], capsys)
-    assert code == 1 and "-o RUN_DIR" in err
+    assert code == 2 and "-o RUN_DIR" in err
+    code, _, err = run_cli(["train", "-o", str(tmp_path / "r")], capsys)
+    assert code == 2 and "give training data" in err
 
 
 def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, capsys):
