@@ -1,0 +1,319 @@
+"""The training loop: model and loss per model type, schedules, metrics, checkpoints, DDP.
+
+``train(config, run_dir)`` runs the whole recipe and returns a :class:`TrainResult`;
+``train(..., resume=True)`` continues the run in ``run_dir`` from its newest checkpoint, exactly
+as if it had never stopped (same weights, optimizer moments, learning rate, Gaussian size, RNG
+state and data order). Non-finite losses or gradients stop the run with :class:`TrainError`
+naming the epoch and step; nothing of the failing epoch is written.
+
+Loss per model: ``flownet`` -> :func:`lidarflow.losses.flow_loss` with the epoch's Gaussian size
+(``config.loss`` says which variant); ``deeptracking`` -> :func:`deeptracking_loss`. Both count
+only steps after ``data.warmup`` frames.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import random
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lidarflow.errors import ModelError, TrainError
+from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule
+from lidarflow.models import build_model
+from lidarflow.models.speed import accelerate
+from lidarflow.train import checkpoint as ckpt
+from lidarflow.train.config import (
+    TrainConfig,
+)
+from lidarflow.train.data import load_train_data, make_loader, make_val_loader
+from lidarflow.train.distributed import Dist, any_flag, barrier, setup
+from lidarflow.train.logbook import Logbook
+from lidarflow.train.rundir import prepare_run_dir, write_final
+from lidarflow.train.validate import validate
+
+__all__ = ["TrainResult", "gaussian_size", "make_loss", "train"]
+
+EpochHook = Callable[[int, dict[str, Any]], None]
+
+
+@dataclass
+class TrainResult:
+    """What a finished run leaves: its folder, per-epoch rows, and the trained (unwrapped) model."""
+
+    run_dir: Path
+    rows: list[dict[str, Any]]
+    model: torch.nn.Module
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def gaussian_size(config: TrainConfig, epoch: int) -> int:
+    """Filter size of 0-based ``epoch``: the paper's 9 -> 1 schedule, 1 for ``--no-gaussian``."""
+    s = config.schedule
+    if not s.gaussian:
+        return 1
+    return gaussian_schedule(epoch, s.gaussian_start, s.gaussian_step_epochs, s.gaussian_min)
+
+
+def make_loss(config: TrainConfig, kernel: int) -> Callable[[Tensor, Tensor], Tensor]:
+    """``loss(seq (B,T,2,H,W), out (B,T,C,H,W)) -> scalar`` for the configured model."""
+    warmup = config.data.warmup
+    if config.model.name == "deeptracking":
+        return lambda seq, out: deeptracking_loss(seq, out, warmup=warmup)
+    return lambda seq, out: flow_loss(seq, out, kernel, config.loss, warmup=warmup)
+
+
+def _optimizer(config: TrainConfig, params: Any) -> torch.optim.Optimizer:
+    o = config.optim
+    if o.name == "sgd":
+        return torch.optim.SGD(params, lr=o.lr, momentum=o.momentum, weight_decay=o.weight_decay)
+    cls = torch.optim.AdamW if o.name == "adamw" else torch.optim.Adam
+    return cls(params, lr=o.lr, weight_decay=o.weight_decay)
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _autocast(config: TrainConfig, device: torch.device) -> Callable[[], Any]:
+    if config.runtime.amp == "bf16":
+        return lambda: torch.autocast(device.type, dtype=torch.bfloat16)
+    return contextlib.nullcontext
+
+
+def train(
+    config: TrainConfig,
+    run_dir: str | Path,
+    resume: bool = False,
+    echo: Callable[[str], None] | None = None,
+    on_epoch_end: EpochHook | None = None,
+) -> TrainResult:
+    """Train ``config`` into ``run_dir`` (see the module docstring). ``echo`` receives one-line
+    progress messages (rank 0 only); ``on_epoch_end(epoch, row)`` runs after each checkpoint."""
+    from lidarflow.train.distributed import teardown
+
+    config.validate()
+    run_dir = Path(run_dir)
+    ctx = setup(config.runtime.device)
+    try:
+        return _train(config, run_dir, resume, ctx, echo, on_epoch_end)
+    finally:
+        teardown()
+
+
+def _train(
+    config: TrainConfig,
+    run_dir: Path,
+    resume: bool,
+    ctx: Dist,
+    echo: Callable[[str], None] | None,
+    on_epoch_end: EpochHook | None,
+) -> TrainResult:
+    from tqdm import tqdm
+
+    def say(message: str) -> None:
+        if ctx.is_main and echo is not None:
+            echo(message)
+
+    rt = config.runtime
+    if rt.threads > 0:
+        torch.set_num_threads(rt.threads)
+    _seed_everything(rt.seed)
+    prepare_run_dir(run_dir, config, resume, ctx)
+    data = load_train_data(config.data)
+    say(data.summary())
+    for note in data.notes:
+        say(f"note: {note}")
+
+    try:
+        model = build_model(config.model.name, **config.model.kwargs)
+    except ModelError as err:
+        raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
+    model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
+    optimizer = _optimizer(config, model.parameters())
+    scheduler = torch.optim.lr_scheduler.StepLR(
+        optimizer, config.schedule.lr_step_epochs, config.schedule.lr_gamma
+    )
+    start, extra = 0, {"best": None}
+    if resume:
+        start, extra = ckpt.load_checkpoint(run_dir, model, optimizer, scheduler)
+        say(f"resuming {run_dir} after epoch {start}")
+        if start >= config.optim.epochs:
+            say(f"{run_dir}: already trained {start} of {config.optim.epochs} epochs")
+    barrier(ctx)
+
+    net: torch.nn.Module = model
+    if ctx.enabled:
+        ids = [ctx.device.index] if ctx.device.type == "cuda" else None
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=ids)
+    autocast = _autocast(config, ctx.device)
+    B = config.optim.batch_size
+    loader, sampler = make_loader(
+        data, config.data, B, rt.seed, ctx.rank, ctx.world_size, ctx.device.type == "cuda"
+    )
+    val_loader = (
+        make_val_loader(data.val, B, ctx.rank, ctx.world_size) if data.val is not None else None
+    )
+    is_flow = config.model.name == "flownet"
+    book = Logbook(run_dir, rt.tensorboard, start if resume else None) if ctx.is_main else None
+    rows: list[dict[str, Any]] = []  # this process's rows (every rank computes the same ones)
+
+    def evaluate(kernel: int) -> dict[str, float]:
+        if val_loader is None:
+            return {}
+        return validate(
+            model, val_loader, make_loss(config, kernel), config.data.warmup, ctx, autocast, is_flow
+        )
+
+    if start == 0 and rt.eval_before_training and val_loader is not None:
+        row = {"epoch": 0, **evaluate(gaussian_size(config, 0))}
+        rows.append(row)
+        if book is not None and not book.rows:
+            book.log(row)
+        say("untrained: " + _describe(row))
+
+    params = [p for p in model.parameters() if p.requires_grad]
+    clip = config.optim.grad_clip if config.optim.grad_clip > 0 else math.inf
+    limit = rt.divergence_limit
+    for epoch in range(start, config.optim.epochs):
+        sampler.set_epoch(epoch)
+        kernel = gaussian_size(config, epoch)
+        loss_fn = make_loss(config, kernel)
+        lr = optimizer.param_groups[0]["lr"]
+        net.train()
+        total = frames = 0.0
+        t0 = time.perf_counter()
+        bar = tqdm(
+            loader,
+            desc=f"epoch {epoch + 1}/{config.optim.epochs}",
+            unit="batch",
+            leave=False,
+            disable=None if ctx.is_main else True,
+        )
+        for step, maps_u8 in enumerate(bar, 1):
+            seq = maps_u8.to(ctx.device, non_blocking=True).float()
+            with autocast():
+                out, _ = net(seq)
+            loss = loss_fn(seq, out.float())
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
+            # One sync for all three checks. The output is checked too: a flow blown up to 1e30
+            # cells still gives a finite loss (the warp samples zeros far outside the map), so a
+            # magnitude beyond runtime.divergence_limit counts as divergence as well.
+            health = torch.stack(
+                [loss.detach().float(), grad_norm.float(), out.detach().float().abs().amax()]
+            ).tolist()
+            loss_value = health[0]
+            if math.isfinite(clip) and math.isfinite(health[1]):
+                health[1] = min(health[1], limit)  # with clipping on, only NaN/inf is fatal
+            if any_flag(ctx, not all(_healthy(v, limit) for v in health)):
+                raise TrainError(
+                    _diverged(health, limit, epoch, step, len(loader), lr, kernel, run_dir)
+                )
+            optimizer.step()
+            total += loss_value * len(seq)
+            frames += seq.shape[0] * seq.shape[1] * ctx.world_size
+            speed = frames / (time.perf_counter() - t0)
+            bar.set_postfix(loss=f"{total / (step * B):.4g}", k=kernel, fps=f"{speed:.0f}")
+        bar.close()
+        train_seconds = time.perf_counter() - t0
+        scheduler.step()
+        train_loss = _mean_over_ranks(ctx, total, len(loader.sampler))
+        metrics = evaluate(kernel)
+        row = {
+            "epoch": epoch + 1,
+            "train_loss": train_loss,
+            **metrics,
+            "lr": lr,
+            "gaussian_size": kernel,
+            "train_seconds": train_seconds,
+            "frame_steps_per_s": frames / train_seconds if train_seconds > 0 else 0.0,
+        }
+        score = metrics.get("val_f1", -train_loss)
+        improved = extra.get("best") is None or score > extra["best"]["score"]
+        if improved:
+            extra["best"] = {
+                "epoch": epoch + 1,
+                "score": score,
+                "metric": "val_f1" if "val_f1" in metrics else "-train_loss",
+            }
+        if ctx.is_main:
+            # The checkpoint goes last: until it is complete, a resume starts from the epoch
+            # before, and drops this row and overwrites these weights.
+            book.log(row)
+            ckpt.save_weights(model, run_dir / "last.safetensors", {"epoch": epoch + 1})
+            if improved:
+                ckpt.save_weights(model, run_dir / "best.safetensors", {"epoch": epoch + 1})
+            ckpt.save_checkpoint(run_dir, epoch + 1, model, optimizer, scheduler, extra)
+        rows.append(row)
+        barrier(ctx)
+        say(f"epoch {epoch + 1}/{config.optim.epochs}: " + _describe(row))
+        if on_epoch_end is not None:
+            on_epoch_end(epoch + 1, row)
+
+    if ctx.is_main:
+        write_final(run_dir, config, model, data, extra)
+        book.close()
+    barrier(ctx)
+    return TrainResult(run_dir, book.rows if book else rows, model, extra)
+
+
+def _healthy(value: float, limit: float) -> bool:
+    return math.isfinite(value) and abs(value) <= limit
+
+
+def _diverged(
+    health: list[float],
+    limit: float,
+    epoch: int,
+    step: int,
+    steps: int,
+    lr: float,
+    kernel: int,
+    run_dir: Path,
+) -> str:
+    """The one-line story of a divergence: what went non-finite, where, and what to do."""
+    names = ("loss", "gradient norm", "largest model output")
+    bad = ", ".join(
+        f"{n} {v:.4g}" for n, v in zip(names, health, strict=True) if not _healthy(v, limit)
+    )
+    last = ckpt.latest_epoch(run_dir)
+    where = f"the last good checkpoint is epoch {last} in {run_dir}" if last else "none finished"
+    return (
+        f"training diverged at epoch {epoch + 1}, step {step} of {steps} (lr {lr:.3g}, Gaussian "
+        f"size {kernel}): non-finite or absurd (> {limit:.0g}) {bad}; nothing of this epoch "
+        f"was saved ({where}); lower --lr, set --grad-clip, or drop --amp"
+    )
+
+
+def _mean_over_ranks(ctx: Dist, total: float, count: int) -> float:
+    from lidarflow.train.distributed import all_reduce_sum
+
+    s, n = all_reduce_sum(ctx, [total, float(count)])
+    return s / n if n else float("nan")
+
+
+def _describe(row: dict[str, Any]) -> str:
+    keys = (
+        "train_loss",
+        "val_loss",
+        "val_f1",
+        "val_copy_last_f1",
+        "val_changed_f1",
+        "val_epe",
+        "val_epe_zero",
+        "val_epe_moving",
+        "val_epe_moving_zero",
+    )
+    return ", ".join(f"{k} {row[k]:.4g}" for k in keys if k in row)

@@ -1,0 +1,153 @@
+"""The run directory: creating it, checking a resume, and the final model files.
+
+What a run directory holds is listed in :mod:`lidarflow.train.checkpoint`. Here: ``config.json``
+and ``run.json`` at the start (the command, commit, device; every resume appended), the check
+that a resumed run keeps the config that shaped its weights, and at the end ``model.safetensors``
++ ``model.json`` — the pair :func:`lidarflow.models.weights.load_trained` reads: ``model`` and
+``model_kwargs`` rebuild the net, ``grid`` / ``warmup`` / ``threshold`` say how to run it, and
+``training`` / ``config`` where it came from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from lidarflow.errors import TrainError
+from lidarflow.models import count_parameters
+from lidarflow.train import checkpoint as ckpt
+from lidarflow.train.config import (
+    TrainConfig,
+    config_from_dict,
+    config_to_dict,
+    load_config_file,
+)
+from lidarflow.train.data import TrainData
+from lidarflow.train.distributed import Dist
+
+__all__ = ["model_record", "prepare_run_dir", "write_final"]
+
+
+def _git_commit() -> str | None:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            cwd=Path(__file__).parent,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def model_record(
+    config: TrainConfig, model: torch.nn.Module, data: TrainData, extra: dict[str, Any]
+) -> dict[str, Any]:
+    """What ``model.json`` says: enough to rebuild the net and to know where it came from."""
+    return {
+        "model": config.model.name,
+        "model_kwargs": config.model.kwargs,
+        "out_channels": int(getattr(model, "out_channels", 0)),
+        "parameters": int(count_parameters(model)),
+        "grid": data.grid.to_dict(),
+        "threshold": 0.4,
+        "warmup": config.data.warmup,
+        "weights": "model.safetensors",
+        "recipe": config.recipe,
+        "training": {
+            "sources": config.data.sources,
+            "mix": config.data.mix,
+            "epochs": config.optim.epochs,
+            "final_weights": config.runtime.final_weights,
+            "best": extra.get("best"),
+            "commit": _git_commit(),
+        },
+        "config": config_to_dict(config),
+    }
+
+
+def _run_facts(ctx: Dist) -> dict[str, Any]:
+    return {
+        "command": sys.argv,
+        "world_size": ctx.world_size,
+        "device": str(ctx.device),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "commit": _git_commit(),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
+    """A resumed run must keep what shaped its weights; only the epoch count (and how it runs:
+    device, threads, amp...) may change."""
+    path = run_dir / "config.json"
+    if not path.exists():
+        raise TrainError(f"{run_dir}: not a training run (no config.json), nothing to resume")
+    saved = config_from_dict(load_config_file(path))
+    saved = dataclasses.replace(
+        saved, optim=dataclasses.replace(saved.optim, epochs=config.optim.epochs)
+    )
+    changed = [
+        name
+        for name in ("recipe", "model", "data", "optim", "schedule", "loss")
+        if getattr(saved, name) != getattr(config, name)
+    ]
+    if saved.runtime.seed != config.runtime.seed:
+        changed.append("runtime.seed")
+    if changed:
+        raise TrainError(
+            f"{run_dir}: cannot resume with a different config ({', '.join(changed)} changed); "
+            "only the number of epochs may change; start a new run instead"
+        )
+
+
+def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
+    if resume:
+        _check_resumable(run_dir, config)
+        if ctx.is_main:
+            ckpt.remove_temporaries(run_dir)  # what a killed run left half-written
+            # the config on disk says how many epochs the run is now meant to have
+            ckpt.write_json(run_dir / "config.json", config_to_dict(config))
+            facts = (
+                json.loads((run_dir / "run.json").read_text())
+                if (run_dir / "run.json").exists()
+                else {}
+            )
+            facts.setdefault("resumed", []).append(
+                {**_run_facts(ctx), "after_epoch": ckpt.latest_epoch(run_dir)}
+            )
+            ckpt.write_json(run_dir / "run.json", facts)
+        return
+    if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
+        raise TrainError(
+            f"{run_dir} already holds a training run; use --resume {run_dir} to continue it, "
+            "or another -o folder"
+        )
+    if ctx.is_main:
+        ckpt.write_json(run_dir / "config.json", config_to_dict(config))
+        ckpt.write_json(run_dir / "run.json", _run_facts(ctx))
+
+
+def write_final(
+    run_dir: Path,
+    config: TrainConfig,
+    model: torch.nn.Module,
+    data: TrainData,
+    extra: dict[str, Any],
+) -> None:
+    if config.runtime.final_weights == "best" and (run_dir / "best.safetensors").exists():
+        ckpt.load_weights(model, run_dir / "best.safetensors")
+    record = model_record(config, model, data, extra)
+    ckpt.save_weights(model, run_dir / "model.safetensors", {"model": config.model.name})
+    ckpt.write_json(run_dir / "model.json", record)

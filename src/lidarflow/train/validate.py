@@ -1,0 +1,109 @@
+"""Validation metrics of one epoch (design notes §5), summed over DDP ranks.
+
+For every validation window and every step ``t`` from ``warmup`` to ``T - 2`` (the frames after
+the warm-up, as everywhere in the project), the net's predicted next map ``P^{t+1}`` thresholded
+at 0.4 is compared with ``O^{t+1}`` (micro-averaged counts, :func:`confusion`), beside the
+copy-last prediction ``O^t``. ``changed_f1`` counts only cells where ``O^t != O^{t+1}``.
+
+With ground-truth flow (simulated recordings, extras ``flow_backward``), the flow end-point error
+of ``B^t`` against the truth is averaged over the occupied cells of ``O^{t+1}`` (where ``B^t``
+is defined) — ``epe`` — and over the cells that truly move (``|B| > 0``) — ``epe_moving``;
+``epe_zero`` / ``epe_moving_zero`` are the same for zero flow (what the untrained net outputs).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.train.distributed import Dist, all_reduce_sum
+
+__all__ = ["validate"]
+
+
+def _counts(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> Counts:
+    return confusion(
+        pred.cpu().numpy(), target.cpu().numpy(), None if mask is None else mask.cpu().numpy()
+    )
+
+
+@torch.no_grad()
+def validate(
+    model: torch.nn.Module,
+    loader: torch.utils.data.DataLoader,
+    loss_fn: Callable[[Tensor, Tensor], Tensor],
+    warmup: int,
+    ctx: Dist,
+    autocast: Callable[[], AbstractContextManager[Any]],
+    is_flow: bool,
+) -> dict[str, float]:
+    """Loss and prediction metrics of ``model`` (the unwrapped module) over ``loader``."""
+    model.eval()
+    loss_sum = windows = 0.0
+    net, copy, net_changed = Counts(), Counts(), Counts()
+    epe = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]  # err, err_zero, n, err_moving, err_moving_zero, n_moving
+    for maps_u8, flow_gt, has_flow in loader:
+        seq = maps_u8.to(ctx.device).float()
+        with autocast():
+            out, _ = model(seq)
+        out = out.float()
+        loss_sum += float(loss_fn(seq, out)) * len(seq)
+        windows += len(seq)
+        t_idx = range(warmup, seq.shape[1] - 1)
+        now = seq[:, warmup:-1]  # (B, n, 2, H, W)
+        b, n, _, h, w = now.shape
+        step_out = out[:, warmup:-1].reshape(b * n, -1, h, w)
+        prob = model.predict_next(now.reshape(b * n, 2, h, w), step_out).reshape(b, n, h, w)
+        occ_now = now[:, :, 0] > 0.5
+        occ_next = seq[:, warmup + 1 :, 0] > 0.5
+        changed = occ_now != occ_next
+        predicted = prob >= THRESHOLD
+        net += _counts(predicted, occ_next)
+        copy += _counts(occ_now, occ_next)
+        net_changed += _counts(predicted, occ_next, changed)
+        if is_flow and bool(has_flow.any()):
+            keep = has_flow.to(ctx.device)
+            gt = flow_gt.to(ctx.device)[keep][:, list(t_idx)]  # B^t for t in t_idx
+            est = out[keep][:, list(t_idx), 0:2]
+            occupied = occ_next[keep]
+            moving = gt.norm(dim=2) > 0
+            err = (est - gt).norm(dim=2)
+            zero = gt.norm(dim=2)
+            epe[0] += float(err[occupied].sum())
+            epe[1] += float(zero[occupied].sum())
+            epe[2] += float(occupied.sum())
+            epe[3] += float(err[moving].sum())
+            epe[4] += float(zero[moving].sum())
+            epe[5] += float(moving.sum())
+    model.train()
+    sums = all_reduce_sum(
+        ctx,
+        [
+            loss_sum,
+            windows,
+            *(float(getattr(c, k)) for c in (net, copy, net_changed) for k in ("tp", "fp", "fn")),
+            *epe,
+        ],
+    )
+    loss_sum, windows = sums[0], sums[1]
+    net, copy, net_changed = (Counts(*map(int, sums[2 + 3 * i : 5 + 3 * i])) for i in range(3))
+    e = sums[11:]
+    metrics = {
+        "val_loss": loss_sum / windows if windows else float("nan"),
+        "val_f1": net.f1,
+        "val_copy_last_f1": copy.f1,
+        "val_changed_f1": net_changed.f1,
+    }
+    if e[2] > 0:
+        metrics["val_epe"] = e[0] / e[2]
+        metrics["val_epe_zero"] = e[1] / e[2]
+    if e[5] > 0:
+        metrics["val_epe_moving"] = e[3] / e[5]
+        metrics["val_epe_moving_zero"] = e[4] / e[5]
+    return {k: float(np.float64(v)) for k, v in metrics.items()}

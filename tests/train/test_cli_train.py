@@ -1,0 +1,182 @@
+"""``lidarflow train`` from the command line: help, a run, resume, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lidarflow.cli import main
+
+TINY = [
+    "--grid",
+    "32",
+    "--seq-len",
+    "8",
+    "--warmup",
+    "3",
+    "--batch-size",
+    "3",
+    "--val-fraction",
+    "0.25",
+    "--set",
+    "runtime.tensorboard=false",
+    "--threads",
+    "1",
+]
+
+
+def run_cli(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    out = capsys.readouterr()
+    return exc.value.code, out.out, out.err
+
+
+def test_help_explains_the_options(capsys):
+    code, out, _ = run_cli(["train", "--help"], capsys)
+    assert code == 0
+    for option in (
+        "--model",
+        "--recipe",
+        "--resume",
+        "--no-gaussian",
+        "--mix",
+        "--set",
+        "--amp",
+        "--val-fraction",
+        "torchrun",
+    ):
+        assert option in out
+
+
+def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
+    run = tmp_path / "run"
+    code, out, err = run_cli(
+        [
+            "train",
+            *map(str, blob_files),
+            "-o",
+            str(run),
+            "--epochs",
+            "1",
+            "--no-gaussian",
+            "--lr",
+            "0.003",
+            "--mix",
+            "0.75",
+            *TINY,
+        ],
+        capsys,
+    )
+    assert code in (0, None), err
+    assert "model.safetensors" in out
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["schedule"]["gaussian"] is False and cfg["data"]["mix"] == [0.75]
+    assert cfg["optim"]["lr"] == 0.003 and cfg["recipe"] == "paper"
+    code, out, err = run_cli(["train", "--resume", str(run), "--epochs", "2"], capsys)
+    assert code in (0, None), err
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]
+    assert [r["gaussian_size"] for r in rows[1:]] == [1, 1]
+    assert json.loads((run / "config.json").read_text())["optim"]["epochs"] == 2  # extended
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--lr", "1e30", "--epochs", "2"], "training diverged at epoch 1, step 2"),
+        (["--set", "optim.nope=1"], "unknown setting 'optim.nope'"),
+        (["--model", "resnet"], "model.name must be one of"),
+    ],
+)
+def test_failures_are_one_line_with_exit_1(blob_files, tmp_path, capsys, extra, message):
+    code, _, err = run_cli(
+        ["train", str(blob_files[0]), "-o", str(tmp_path / "r"), *TINY, *extra], capsys
+    )
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("lidarflow: error: ") and message in lines[0]
+    assert "Traceback" not in err
+
+
+def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):
+    code, _, err = run_cli(["train", "--resume", str(tmp_path), "--lr", "0.1"], capsys)
+    assert code == 2 and "a resumed run keeps its config" in err  # usage error
+    code, _, err = run_cli(["train", "--resume", str(tmp_path)], capsys)
+    assert code == 1 and "cannot read the config file" in err
+    code, _, err = run_cli(["train", "x.npz"], capsys)
+    assert code == 2 and "-o RUN_DIR" in err
+    code, _, err = run_cli(["train", "-o", str(tmp_path / "r")], capsys)
+    assert code == 2 and "give training data" in err
+
+
+def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, capsys):
+    from lidarflow.data import SAMPLE_TOPIC, sample_bag_path
+
+    run = tmp_path / "mixed"
+    args = [
+        "train",
+        str(sample_bag_path()),
+        str(blob_files[0]),
+        "--topic",
+        SAMPLE_TOPIC,
+        "--mix",
+        "0.5",
+        "--model",
+        "deeptracking",
+        "--epochs",
+        "1",
+        "-o",
+        str(run),
+        *TINY,
+    ]
+    code, out, err = run_cli(args, capsys)
+    assert code in (0, None), err
+    record = json.loads((run / "model.json").read_text())
+    assert record["model"] == "deeptracking"
+    assert record["training"]["sources"] == [str(sample_bag_path()), str(blob_files[0])]
+    assert "weight 0.50" in out
+
+
+def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    run = tmp_path / "killed"
+    env = {**os.environ, "PYTHONPATH": str(root / "src"), "OMP_NUM_THREADS": "1"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "lidarflow.cli",
+        "train",
+        str(blob_files[0]),
+        "-o",
+        str(run),
+        "--epochs",
+        "500",
+        *TINY,
+    ]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    pointer = run / "checkpoints" / "latest.json"
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if pointer.exists() and json.loads(pointer.read_text())["epoch"] >= 1:
+                break
+            time.sleep(0.05)
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)  # no clean-up, possibly mid-write
+        proc.wait()
+    done = json.loads(pointer.read_text())["epoch"]
+    assert done >= 1, proc.stderr.read().decode()[-2000:]
+    code, _, err = run_cli(["train", "--resume", str(run), "--epochs", str(done + 1)], capsys)
+    assert code in (0, None), err
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == list(range(done + 2))
+    assert not list(run.glob("**/.*.tmp"))  # what the kill left half-written is gone

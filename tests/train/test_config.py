@@ -1,0 +1,122 @@
+"""Training config: paper defaults, recipes, file/flag/--set layering, JSON round trip."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lidarflow.errors import TrainError
+from lidarflow.losses import LossConfig
+from lidarflow.train.config import (
+    RECIPES,
+    TrainConfig,
+    apply_overrides,
+    build_config,
+    config_from_dict,
+    config_to_dict,
+    recipe,
+)
+
+
+def test_defaults_are_the_papers_recipe():
+    c = TrainConfig()
+    assert (c.data.seq_len, c.data.warmup) == (20, 10)
+    assert (c.optim.batch_size, c.optim.lr, c.optim.epochs) == (32, 0.01, 200)
+    assert (c.schedule.lr_step_epochs, c.schedule.lr_gamma) == (25, 0.5)
+    s = c.schedule
+    assert (s.gaussian, s.gaussian_start, s.gaussian_step_epochs, s.gaussian_min) == (
+        True,
+        9,
+        25,
+        1,
+    )
+    assert c.loss == LossConfig.paper()
+    assert (c.data.grid, c.data.res) == (100, 0.1)
+
+
+def test_recipes_differ_only_where_they_should():
+    assert set(RECIPES) >= {"paper", "blurred"}
+    paper, blurred = recipe("paper"), recipe("blurred")
+    assert blurred.loss == LossConfig.blurred_both() != paper.loss
+    assert (blurred.optim, blurred.data, blurred.schedule) == (
+        paper.optim,
+        paper.data,
+        paper.schedule,
+    )
+    with pytest.raises(TrainError, match="unknown recipe 'nope'"):
+        recipe("nope")
+
+
+def test_json_round_trip_of_every_recipe():
+    for name in RECIPES:
+        c = apply_overrides(recipe(name), ["optim.lr=0.003", "data.sources=a.npz,b.npz"])
+        again = config_from_dict(json.loads(json.dumps(config_to_dict(c))))
+        assert again == c
+
+
+def test_overrides_are_typed():
+    c = apply_overrides(
+        TrainConfig(),
+        [
+            "optim.lr=3e-3",
+            "optim.epochs=5",
+            "schedule.gaussian=false",
+            "data.mix=0.7,0.3",
+            "data.topic=/scan",
+            "optim.grad_clip=1",  # an int where a float is expected is fine
+            'model.kwargs={"conv0_activation": "none"}',
+        ],
+    )
+    assert c.optim.lr == 0.003 and isinstance(c.optim.lr, float)
+    assert c.optim.epochs == 5 and c.schedule.gaussian is False
+    assert c.data.mix == [0.7, 0.3] and c.data.topic == "/scan"
+    assert c.optim.grad_clip == 1.0 and isinstance(c.optim.grad_clip, float)
+    assert c.model.kwargs == {"conv0_activation": "none"}
+    assert apply_overrides(c, ["data.topic=null"]).data.topic is None
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("optim.lr", "section.field=value"),
+        ("optim.nope=1", "unknown setting 'optim.nope'"),
+        ("optim.epochs=2.5", "optim.epochs: expected int"),
+        ("schedule.gaussian=maybe", "expected bool"),
+        ("optim=3", "expected a table"),
+        ("loss.smoothness=-1", "smoothness must be >= 0"),
+    ],
+)
+def test_bad_overrides_name_the_setting(item, message):
+    with pytest.raises(TrainError, match=message):
+        apply_overrides(TrainConfig(), [item])
+
+
+def test_layering_recipe_file_flags_set(tmp_path):
+    toml = tmp_path / "c.toml"
+    toml.write_text('recipe = "blurred"\n[optim]\nlr = 0.002\nepochs = 7\n[data]\nseq_len = 12\n')
+    c = build_config(None, toml, {"optim.epochs": 9, "optim.batch_size": None}, ["data.seq_len=14"])
+    assert c.recipe == "blurred" and c.loss == LossConfig.blurred_both()
+    assert (c.optim.lr, c.optim.epochs, c.optim.batch_size, c.data.seq_len) == (0.002, 9, 32, 14)
+    # a recipe named on the command line beats the file's, and the file still applies
+    c2 = build_config("paper", toml)
+    assert c2.loss == LossConfig.paper() and c2.optim.lr == 0.002
+    # a saved config.json loads back to the same config
+    js = tmp_path / "config.json"
+    js.write_text(json.dumps(config_to_dict(c)))
+    assert build_config(None, js) == c
+
+
+def test_bad_config_files_and_values(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(TrainError, match="not valid json"):
+        build_config(None, bad)
+    with pytest.raises(TrainError, match="cannot read"):
+        build_config(None, tmp_path / "missing.json")
+    with pytest.raises(TrainError, match=r"data\.warmup"):
+        build_config(None, None, {"data.seq_len": 5, "data.warmup": 4})
+    with pytest.raises(TrainError, match="Gaussian sizes must be odd"):
+        build_config(None, None, {"schedule.gaussian_start": 8})
+    with pytest.raises(TrainError, match=r"model\.name"):
+        build_config(None, None, {"model.name": "resnet"})

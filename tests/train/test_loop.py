@@ -1,0 +1,154 @@
+"""The training loop on tiny data: run files, exact resume, divergence detection."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+import lidarflow.train.loop as loop
+from lidarflow.errors import TrainError
+from lidarflow.models import build_model
+from lidarflow.train import build_config, train
+from lidarflow.train.checkpoint import latest_epoch
+from lidarflow.train.config import config_from_dict
+
+
+def tiny_config(sources, **flags):
+    base = {
+        "data.sources": [str(s) for s in sources],
+        "data.grid": 32,
+        "data.seq_len": 8,
+        "data.warmup": 3,
+        "data.val_fraction": 0.25,
+        "optim.batch_size": 3,
+        "optim.epochs": 2,
+        "optim.lr": 0.003,
+        "runtime.tensorboard": False,
+        "runtime.threads": 1,
+    }
+    return build_config("blurred", None, {**base, **flags})
+
+
+class KilledError(Exception):
+    pass
+
+
+def test_short_training_writes_its_files(blob_files, tmp_path):
+    cfg = tiny_config(
+        blob_files, **{"schedule.gaussian_step_epochs": 1, "schedule.lr_step_epochs": 1}
+    )
+    result = train(cfg, tmp_path / "run")
+    run = tmp_path / "run"
+    for name in (
+        "config.json",
+        "run.json",
+        "metrics.csv",
+        "metrics.jsonl",
+        "last.safetensors",
+        "best.safetensors",
+        "model.safetensors",
+        "model.json",
+    ):
+        assert (run / name).is_file(), name
+    assert config_from_dict(json.loads((run / "config.json").read_text())) == cfg
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]  # 0: the untrained net
+    assert [r["gaussian_size"] for r in rows[1:]] == [9, 7]
+    assert [r["lr"] for r in rows[1:]] == pytest.approx([0.003, 0.0015])
+    assert rows[0]["val_f1"] == pytest.approx(rows[0]["val_copy_last_f1"])  # zero flow = copy
+    assert all(r["train_loss"] > 0 and r["frame_steps_per_s"] > 0 for r in rows[1:])
+    assert "val_epe" in rows[-1] and "val_epe_moving" in rows[-1]
+    header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert {"epoch", "train_loss", "val_loss", "val_f1", "val_copy_last_f1", "val_epe"} <= set(
+        header
+    )
+    record = json.loads((run / "model.json").read_text())
+    assert record["model"] == "flownet" and record["parameters"] == 42_500
+    assert record["grid"] == {"height": 32, "width": 32, "res": 0.1}
+    assert latest_epoch(run) == 2
+    net = build_model(record["model"], **record["model_kwargs"])
+    net.load_state_dict(load_file(run / "model.safetensors"))
+    for key, value in result.model.state_dict().items():
+        assert torch.equal(net.state_dict()[key], value)
+    with pytest.raises(TrainError, match="already holds a training run"):
+        train(cfg, run)
+
+
+def test_deeptracking_trains_with_its_own_loss(blob_files, tmp_path):
+    flags = {"model.name": "deeptracking", "optim.epochs": 1, "data.val_fraction": 0.0}
+    result = train(tiny_config(blob_files[:1], **flags), tmp_path / "dt")
+    record = json.loads((tmp_path / "dt" / "model.json").read_text())
+    assert record["model"] == "deeptracking" and record["out_channels"] == 1
+    # no validation: no epoch-0 row, no val metrics, "best" falls back to the training loss
+    assert [r["epoch"] for r in result.rows] == [1]
+    assert result.rows[0]["train_loss"] > 0 and "val_loss" not in result.rows[0]
+    assert record["training"]["best"]["metric"] == "-train_loss"
+
+
+def test_resume_continues_exactly(blob_files, tmp_path):
+    flags = {
+        "optim.epochs": 3,
+        "schedule.lr_step_epochs": 1,
+        "schedule.gaussian_step_epochs": 1,
+        "optim.lr": 0.01,
+    }
+    straight = train(tiny_config(blob_files, **flags), tmp_path / "a")
+
+    def kill_after_first(epoch, row):
+        if epoch == 1:
+            raise KilledError
+
+    with pytest.raises(KilledError):
+        train(tiny_config(blob_files, **flags), tmp_path / "b", on_epoch_end=kill_after_first)
+    assert latest_epoch(tmp_path / "b") == 1 and not (tmp_path / "b" / "model.safetensors").exists()
+    resumed = train(tiny_config(blob_files, **flags), tmp_path / "b", resume=True)
+    a = load_file(tmp_path / "a" / "model.safetensors")
+    b = load_file(tmp_path / "b" / "model.safetensors")
+    assert a.keys() == b.keys()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert any(not torch.equal(a[k], torch.zeros_like(a[k])) for k in a if "conv_flow" in k)
+    strip = ("train_seconds", "frame_steps_per_s")
+    rows_a = [{k: v for k, v in r.items() if k not in strip} for r in straight.rows]
+    rows_b = [{k: v for k, v in r.items() if k not in strip} for r in resumed.rows]
+    assert rows_a == rows_b  # losses, lr, Gaussian size and metrics of every epoch
+    with pytest.raises(TrainError, match=r"cannot resume with a different config \(optim changed"):
+        train(tiny_config(blob_files, **{**flags, "optim.lr": 0.5}), tmp_path / "b", resume=True)
+
+
+def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, monkeypatch):
+    real = loop.flow_loss
+    calls = {"n": 0}
+
+    def poisoned(seq, flows, kernel_size, config, warmup=10):
+        loss = real(seq, flows, kernel_size, config, warmup)
+        calls["n"] += 1
+        return loss * float("nan") if calls["n"] == 7 else loss
+
+    monkeypatch.setattr(loop, "flow_loss", poisoned)
+    cfg = tiny_config(blob_files, **{"runtime.eval_before_training": False, "optim.epochs": 3})
+    # per epoch: 10 training windows in batches of 3 (4 steps) + 1 validation batch = 5 calls
+    with pytest.raises(TrainError, match=r"epoch 2, step 2 of 4 .*non-finite .*loss nan"):
+        train(cfg, tmp_path / "run")
+    run = tmp_path / "run"
+    assert latest_epoch(run) == 1
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [1]
+    assert not (run / "model.safetensors").exists()
+    weights = load_file(run / "last.safetensors")
+    assert all(torch.isfinite(v).all() for v in weights.values())
+
+
+def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_path):
+    cfg = tiny_config(
+        blob_files[:1],
+        **{"optim.epochs": 1, "runtime.amp": "bf16", "runtime.channels_last": True},
+    )
+    result = train(cfg, tmp_path / "bf16")
+    row = result.rows[-1]
+    assert all(v == v for v in row.values())  # no NaN anywhere
+    assert 0 < row["train_loss"] < 1 and 0 < row["val_loss"] < 1
+    weights = load_file(tmp_path / "bf16" / "model.safetensors")
+    assert {v.dtype for v in weights.values()} == {torch.float32}
