@@ -8,6 +8,7 @@ LiDAR-FlowNet, ``O^{t+1}(p) = O^t(p + B^t(p))``, i.e. ``O^{t+1} = warp(O^t, B^t)
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -24,20 +25,28 @@ def _base_grid(
 ) -> tuple[Tensor, Tensor]:
     """The identity sampling grid ``(1, H, W, 2)`` in normalised coordinates and the
     per-axis scale ``(2,)`` that turns a displacement in cells into normalised units."""
+    # While a tracer runs (torch.export, torch.compile, the ONNX exporter) the tensors made here
+    # belong to the trace: they must neither come from nor go into the cache.
+    tracing = torch.jit.is_tracing() or torch.compiler.is_compiling()
     key = (height, width, str(device), dtype)
-    cached = _BASE_GRIDS.get(key)
+    cached = None if tracing else _BASE_GRIDS.get(key)
     if cached is not None:
         return cached
-    # Built outside inference mode: a cached inference tensor would break every later call
-    # that autograd tracks (training, ONNX tracing) in the same process.
+    # Made in NumPy so that a tracer records a constant (traced from torch.linspace, the ONNX
+    # exporter types the grid as double, which onnxruntime's GridSample rejects), and outside
+    # inference mode: a cached inference tensor would break every later call that autograd
+    # tracks (training, tracing) in the same process.
+    cols = np.linspace(-1.0, 1.0, width)
+    rows = np.linspace(-1.0, 1.0, height)
+    grid_np = np.stack(np.meshgrid(cols, rows, indexing="xy"), axis=-1)[None]
+    scale_np = np.array([2.0 / (width - 1), 2.0 / (height - 1)])
     with torch.inference_mode(False):
-        cols = torch.linspace(-1.0, 1.0, width, device=device, dtype=dtype)
-        rows = torch.linspace(-1.0, 1.0, height, device=device, dtype=dtype)
-        grid = torch.stack(torch.meshgrid(cols, rows, indexing="xy"), dim=-1).unsqueeze(0)
-        scale = torch.tensor([2.0 / (width - 1), 2.0 / (height - 1)], device=device, dtype=dtype)
-    if len(_BASE_GRIDS) >= _MAX_CACHED:
-        _BASE_GRIDS.clear()
-    _BASE_GRIDS[key] = (grid, scale)
+        grid = torch.from_numpy(grid_np).to(device=device, dtype=dtype)
+        scale = torch.from_numpy(scale_np).to(device=device, dtype=dtype)
+    if not tracing:
+        if len(_BASE_GRIDS) >= _MAX_CACHED:
+            _BASE_GRIDS.clear()
+        _BASE_GRIDS[key] = (grid, scale)
     return grid, scale
 
 
@@ -84,9 +93,8 @@ def warp(maps: Tensor, flow: Tensor) -> Tensor:
         # Under autocast the flow may come out in a lower precision than the maps; sample in the
         # maps' precision so the occupancy is not rounded.
         flow = flow.to(maps.dtype)
-    # int(): under ONNX tracing the sizes arrive as tensors; as ints they hit the cache and the
-    # grid becomes a float32 constant (traced from linspace, the exporter types it as double,
-    # which onnxruntime's GridSample rejects).
+    # int(): under tracing the sizes may arrive as tensors or symbols; the grid size is a
+    # constant of an exported graph.
     base, scale = _base_grid(int(h), int(w), maps.device, maps.dtype)
     # One fused op (and one allocation) for base + flow * scale, in grid_sample's (B, H, W, 2).
     grid = torch.addcmul(base, flow.permute(0, 2, 3, 1), scale)
