@@ -81,5 +81,5 @@ def test_bad_sigma_and_shape_raise():
 
 
 def test_gradcheck():
-    maps = torch.rand(1, 2, 6, 7, dtype=torch.float64, requires_grad=True)
+    maps = torch.rand(1, 1, 5, 6, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda m: gaussian_blur(m, 5, sigma=1.3), (maps,))
