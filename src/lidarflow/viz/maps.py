@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from lidarflow.scan import GridSpec
+from lidarflow.viz.figures import pyplot, save_figure
 
 __all__ = ["draw_maps"]
 
@@ -34,10 +35,7 @@ def draw_maps(
     lives on ``occupancy``'s cells, i.e. the forward flow ``F^t`` of this frame: each occupied cell
     gets an arrow to where its content is in the next frame, drawn ``flow_scale`` times longer.
     ``moving`` (optional, ``(H, W)`` bool) marks occupied cells on moving objects in red."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     grid = grid or GridSpec(*occupancy.shape)
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.4), constrained_layout=True)
@@ -71,8 +69,4 @@ def draw_maps(
         )
     if title:
         fig.suptitle(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

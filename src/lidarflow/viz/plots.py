@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lidarflow.viz.figures import pyplot, save_figure
+
 __all__ = ["plot_pr_curves"]
 
 
@@ -14,10 +16,7 @@ def plot_pr_curves(
     curves: Mapping[str, tuple[np.ndarray, np.ndarray, float]], path: str | Path, title: str = ""
 ) -> Path:
     """``curves`` maps a method name to ``(precision, recall, average_precision)``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(5.5, 5), constrained_layout=True)
     for name, (precision, recall, ap) in curves.items():
@@ -30,8 +29,4 @@ def plot_pr_curves(
     ax.legend(loc="lower left")
     if title:
         ax.set_title(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
