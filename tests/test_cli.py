@@ -211,3 +211,17 @@ def test_export_then_predict_with_onnx(tmp_path, capsys, random_flownet_dir):
         ["predict", str(rec), "-o", str(tmp_path / "o.mcap"), "-m", str(onnx)], capsys
     )
     assert code == 1 and "already exists" in err
+
+
+def test_report_on_simulated_data_has_flow_pictures_and_epe(tmp_path, capsys, random_flownet_dir):
+    sim = tmp_path / "sim.npz"
+    code, _, err = run(["simulate", "--frames", "16", "--seed", "2", "-o", str(sim)], capsys)
+    assert code == 0, err
+    out = tmp_path / "r"
+    argv = ["evaluate", str(sim), "-m", str(random_flownet_dir), "--report", str(out)]
+    code, _, err = run([*argv, "--warmup", "2", "--gif-frames", "3"], capsys)
+    assert code == 0, err
+    assert (out / "sim_random_flownet_flow.gif").exists() and (out / "sim_epe.png").exists()
+    methods = json.loads((out / "report.json").read_text())["overall"]
+    assert "epe" in methods["random_flownet"] and "epe" not in methods["copy_last"]
+    assert "backward flow (colour wheel" in (out / "index.html").read_text()

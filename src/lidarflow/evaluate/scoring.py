@@ -25,6 +25,7 @@ class Scorer:
     frames: int = 0
     epe_sum: float = 0.0
     epe_cells: int = 0
+    epe_per_frame: list[float] = field(default_factory=list)
     positives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
     negatives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
 
@@ -44,6 +45,7 @@ class Scorer:
     def add_epe(self, error_sum: float, cells: int) -> None:
         self.epe_sum += error_sum
         self.epe_cells += cells
+        self.epe_per_frame.append(error_sum / cells if cells else float("nan"))
 
     def __add__(self, other: Scorer) -> Scorer:
         return Scorer(
@@ -52,6 +54,7 @@ class Scorer:
             frames=self.frames + other.frames,
             epe_sum=self.epe_sum + other.epe_sum,
             epe_cells=self.epe_cells + other.epe_cells,
+            epe_per_frame=self.epe_per_frame + other.epe_per_frame,
             positives=self.positives + other.positives,
             negatives=self.negatives + other.negatives,
         )

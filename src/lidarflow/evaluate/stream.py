@@ -45,12 +45,12 @@ def evaluate_maps(
     warmup: int = WARMUP,
     gt_flow: Callable[[int], np.ndarray] | None = None,
     progress: Callable[[int], None] | None = None,
-    on_prediction: Callable[[str, int, np.ndarray], None] | None = None,
+    on_prediction: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
-    ``on_prediction(method_name, t, probability)`` is called for every scored prediction (the
-    map predicted for frame ``t + 1``), e.g. to draw overlays.
+    ``on_prediction(method_name, t, probability, backward_flow_or_None)`` is called for every
+    scored prediction (the map predicted for frame ``t + 1``), e.g. to draw overlays.
 
     A method that exposes ``backward_flow`` (``(2, H, W)`` cells, after ``update``) is also
     scored for end-point error against ``gt_flow(t)`` (``B^t``) on the cells occupied in the
@@ -71,9 +71,9 @@ def evaluate_maps(
             if t < warmup:
                 continue
             scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
-            if on_prediction is not None:
-                on_prediction(m.name, t, probability)
             flow = getattr(m, "backward_flow", None)
+            if on_prediction is not None:
+                on_prediction(m.name, t, probability, flow)
             if gt_flow is not None and flow is not None:
                 cells = occupancy[t + 1]
                 error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow(t)))[cells]
@@ -89,7 +89,7 @@ def evaluate_recording(
     grid: GridSpec | None = None,
     warmup: int = WARMUP,
     progress: Callable[[int], None] | None = None,
-    on_prediction: Callable[[str, int, np.ndarray], None] | None = None,
+    on_prediction: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
 ) -> dict[str, Scorer]:
     """Rasterize ``recording`` on ``grid`` and score every method on it."""
     grid = grid or GridSpec()

@@ -18,9 +18,10 @@ from lidarflow.evaluate.report import build_report
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.evaluate.stream import evaluate_recording
 from lidarflow.scan import GridSpec
+from lidarflow.viz.flow import flow_to_rgb
 from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import overlay_rgb, write_gif
-from lidarflow.viz.plots import plot_pr_curves
+from lidarflow.viz.plots import plot_epe_per_frame, plot_pr_curves
 
 __all__ = ["OverlayCollector", "evaluate_and_report", "pr_figure", "safe_stem"]
 
@@ -47,8 +48,20 @@ class OverlayCollector:
         self.max_frames = max_frames
         self.scale = scale
         self.frames: dict[str, list[np.ndarray]] = {}
+        self.flow_frames: dict[str, list[np.ndarray]] = {}
 
-    def __call__(self, method: str, t: int, probability: np.ndarray) -> None:
+    def add_flow(self, method: str, flow: np.ndarray) -> None:
+        """Colour-code a backward flow ``(2, H, W)`` (colour wheel, 3 cells = full colour)."""
+        frames = self.flow_frames.setdefault(method, [])
+        if len(frames) < self.max_frames:
+            rgb = flow_to_rgb(flow, max_magnitude=3.0)
+            frames.append(np.repeat(np.repeat(rgb, self.scale, axis=0), self.scale, axis=1))
+
+    def __call__(
+        self, method: str, t: int, probability: np.ndarray, flow: np.ndarray | None = None
+    ) -> None:
+        if flow is not None:
+            self.add_flow(method, flow)
         frames = self.frames.setdefault(method, [])
         if len(frames) < self.max_frames:
             frames.append(
@@ -66,6 +79,10 @@ class OverlayCollector:
             if frames:
                 path = write_gif(frames, folder / f"{stem}_{method}.gif", fps=fps)
                 out.append((f"{method}: prediction vs next map", path))
+        for method, frames in self.flow_frames.items():
+            if frames:
+                path = write_gif(frames, folder / f"{stem}_{method}_flow.gif", fps=fps)
+                out.append((f"{method}: backward flow (colour wheel, 3 cells = full colour)", path))
         return out
 
 
@@ -109,6 +126,10 @@ def evaluate_and_report(
             pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", title)
             gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
             figures[name] = [("precision-recall", pr), *gifs]
+            epe = {m: s.epe_per_frame for m, s in scorers.items() if s.epe_per_frame}
+            if epe:
+                plot = plot_epe_per_frame(epe, report_dir / f"{stem}_epe.png", f"{Path(name).name}")
+                figures[name].append(("flow end-point error per frame", plot))
     report = build_report(results, config)
     if report_dir is not None:
         report_dir.mkdir(parents=True, exist_ok=True)
