@@ -51,7 +51,7 @@ def verdict(methods: dict[str, dict[str, float]]) -> str:
         f"changed-cell F1 {'above' if wins_changed else 'below'} the best baseline "
         f"({best_changed:.3f})",
     ]
-    return "loses: " + "; ".join(parts)
+    return "does not win: " + "; ".join(parts)
 
 
 def main() -> None:

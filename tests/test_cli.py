@@ -108,6 +108,8 @@ def test_console_script_demo_end_to_end(tmp_path):
     results = json.loads((tmp_path / "d" / "results.json").read_text())
     copy_last = results["recordings"][0]["methods"]["copy_last"]
     assert (tmp_path / "d" / "report" / "index.html").exists()
+    assert "bundled" in results["recordings"][0]["methods"]  # the bundled model is scored
+    assert (tmp_path / "d" / "predictions.mcap").stat().st_size > 100_000
     assert 0.5 < copy_last["f1"] < 1.0 and copy_last["changed_f1"] == 0.0
     assert (tmp_path / "d" / "maps.png").exists()
 

@@ -1,0 +1,45 @@
+"""The bundled model: present, intact (checksum as recorded), loadable, documented."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from lidarflow.errors import ModelError
+from lidarflow.models import presets
+from lidarflow.models.presets import BUNDLED, bundled_model_dir, resolve_model
+
+
+def test_bundled_model_loads_and_matches_its_record():
+    net, card = resolve_model(None)
+    assert card["model"] == "flownet" and card["weights_sha256"] == BUNDLED.weights_sha256
+    assert sum(p.numel() for p in net.parameters()) == 42_500
+    card_text = (bundled_model_dir() / "MODEL_CARD.md").read_text()
+    assert "Held-out recordings" in card_text and "copy_last" in card_text
+
+
+def test_bundled_predictor_runs_on_the_sample(sample_recording):
+    from lidarflow.predict import Predictor
+
+    predictor = Predictor()
+    for i in range(12):
+        p = predictor.update(sample_recording.scan(i))
+    assert p.probability.shape == (100, 100) and p.backward_flow is not None
+
+
+def test_damaged_bundled_weights_are_refused(tmp_path, monkeypatch):
+    folder = tmp_path / "model"
+    shutil.copytree(bundled_model_dir(), folder)
+    data = bytearray((folder / "model.safetensors").read_bytes())
+    data[-1] ^= 0xFF
+    (folder / "model.safetensors").write_bytes(bytes(data))
+    monkeypatch.setattr(presets, "bundled_model_dir", lambda: folder)
+    with pytest.raises(ModelError, match="checksum"):
+        resolve_model(None)
+
+
+def test_missing_bundled_model_is_explained(tmp_path, monkeypatch):
+    monkeypatch.setattr(presets, "bundled_model_dir", lambda: tmp_path)
+    with pytest.raises(ModelError, match="no bundled model"):
+        resolve_model(None)
