@@ -443,14 +443,20 @@ def train(
     recipe: Annotated[
         str | None,
         typer.Option(
-            help="Named preset: paper (the loss exactly as published, default) or blurred (both "
-            "sides of the loss blurred)."
+            help="Named preset: paper (the loss exactly as published, default), blurred (both "
+            "sides of the loss blurred) or residual (blurred + occupancy head trained by "
+            "cross-entropy; sized for ~1 CPU-hour)."
         ),
     ] = None,
     config: Annotated[
         Path | None,
         typer.Option("--config", help="JSON or TOML file of settings (partial is fine); "
                      "a run's config.json works."),
+    ] = None,
+    init: Annotated[
+        str | None,
+        typer.Option("--init", help="Start from these weights (run folder, weights file, or "
+                     "'bundled') instead of from scratch: fine-tuning."),
     ] = None,
     resume: Annotated[
         Path | None,
@@ -526,6 +532,7 @@ def train(
 
     flags = {
         "model.name": model,
+        "model.init": init if init in (None, "bundled") else os.path.abspath(init),
         "optim.epochs": epochs,
         "optim.batch_size": batch_size,
         "optim.lr": lr,

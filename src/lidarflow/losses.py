@@ -50,6 +50,10 @@ class LossConfig:
         bce: binary cross-entropy of the warped map (clamped to [eps, 1 - eps]) against the
             target instead of the squared error.
         forward_term: include ``MSE(O^t, W(G(O^{t+1}, k), F^t))`` (the paper does).
+        occupancy_bce: weight of the cross-entropy of the predicted next map against
+            ``O^{t+1}`` (models with an occupancy head, :func:`next_map_bce`); 0 = off.
+        occupancy_visible_only: count only cells visible in ``O^{t+1}`` in that term. Off by
+            default: the metric scores every cell, an occluded one as free.
     """
 
     blur_source: bool = True
@@ -59,12 +63,16 @@ class LossConfig:
     occupied_weight: float = 1.0
     bce: bool = False
     forward_term: bool = True
+    occupancy_bce: float = 0.0
+    occupancy_visible_only: bool = False
 
     def __post_init__(self) -> None:
         if not self.smoothness >= 0.0:
             raise ValueError(f"smoothness must be >= 0, got {self.smoothness}")
         if not self.occupied_weight > 0.0:
             raise ValueError(f"occupied_weight must be > 0, got {self.occupied_weight}")
+        if not self.occupancy_bce >= 0.0:
+            raise ValueError(f"occupancy_bce must be >= 0, got {self.occupancy_bce}")
 
     @classmethod
     def paper(cls) -> LossConfig:
@@ -162,7 +170,8 @@ def _warp_term(
 def deeptracking_loss(
     seq: Tensor, logits: Tensor, warmup: int = 10, visible_only: bool = True
 ) -> Tensor:
-    """DeepTracking's published loss: binary cross-entropy of the predicted next occupancy.
+    """DeepTracking's published loss: binary cross-entropy of the predicted next occupancy
+    (also the occupancy-head term of LiDAR-FlowNet, ``next_map_bce``).
 
     ``logits[:, t]`` ``(B, T, 1, H, W)`` predicts ``O^{t+1}``; pairs ``t = warmup .. T-2`` as in
     :func:`flow_loss`. As Ondruska & Posner (2016) and Dequaire et al. (2018) do, only the cells
@@ -180,6 +189,9 @@ def deeptracking_loss(
         return err.mean()
     vis = seq[:, warmup + 1 :, 1:2]
     return (err * vis).sum() / vis.sum().clamp_min(1.0)
+
+
+next_map_bce = deeptracking_loss
 
 
 def gaussian_schedule(epoch: int, start: int = 9, step_epochs: int = 25, minimum: int = 1) -> int:

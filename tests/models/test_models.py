@@ -180,3 +180,34 @@ def test_step_exports_without_data_dependent_branches():
     exported = torch.export.export(Step(net), (maps, *net.init_state(1, 12, 10)))
     result = exported.module()(maps, *net.init_state(1, 12, 10))
     torch.testing.assert_close(result[0], maps[:, 0:1])
+
+
+def test_occupancy_head_starts_as_copy_last_and_adds_one_channel():
+    net = build_model("flownet", occupancy_head=True)
+    assert net.out_channels == 5
+    assert count_parameters(net) == PAPER_PARAMETERS + 16 * 9 + 1 + 1  # 5th channel + gain
+    seq = _seq(2, 4, 20, 17, seed=4)
+    out, _ = net(seq)
+    assert out.shape == (2, 4, 5, 20, 17) and out[:, :, :4].abs().max() == 0
+    for t in range(4):
+        prob = net.predict_next(seq[:, t], out[:, t])
+        assert torch.equal(prob >= 0.4, seq[:, t, 0:1] > 0.5)
+        torch.testing.assert_close(prob.max(), torch.tensor(0.9))
+        torch.testing.assert_close(prob.min(), torch.tensor(0.01))
+
+
+def test_occupancy_head_residual_moves_the_probability_and_flow_still_warps():
+    net = build_model("flownet", occupancy_head=True)
+    maps = torch.zeros(1, 2, 6, 8)
+    maps[0, 0, 2, 3] = 1.0
+    out = torch.zeros(1, 5, 6, 8)
+    out[:, 0] = -1.0  # move right by one column, as in the flow-only test
+    out[0, 4, 0, 0] = 10.0  # a residual logit alone turns a free cell occupied
+    logit = net.next_logit(maps, out)
+    expected = torch.zeros(1, 1, 6, 8)
+    expected[0, 0, 2, 4] = net.warp_gain.item()
+    expected[0, 0, 0, 0] = 10.0
+    torch.testing.assert_close(logit, expected)
+    torch.testing.assert_close(net.predict_next(maps, out), torch.sigmoid(expected))
+    with pytest.raises(ValueError, match="occupancy_head"):
+        build_model("flownet").next_logit(maps, out[:, :4])

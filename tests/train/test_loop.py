@@ -152,3 +152,45 @@ def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_p
     assert 0 < row["train_loss"] < 1 and 0 < row["val_loss"] < 1
     weights = load_file(tmp_path / "bf16" / "model.safetensors")
     assert {v.dtype for v in weights.values()} == {torch.float32}
+
+
+def test_residual_recipe_trains_the_head_and_needs_one(blob_files, tmp_path):
+    flags = {
+        "data.sources": [str(blob_files[0])],
+        "data.grid": 32,
+        "data.seq_len": 8,
+        "data.warmup": 3,
+        "data.stride": 0,
+        "data.epoch_windows": 0,
+        "data.val_fraction": 0.0,
+        "optim.batch_size": 3,
+        "optim.epochs": 1,
+        "runtime.tensorboard": False,
+        "runtime.threads": 1,
+    }
+    cfg = build_config("residual", None, flags)
+    assert cfg.model.kwargs == {"occupancy_head": True} and cfg.loss.occupancy_bce == 1.0
+    result = train(cfg, tmp_path / "res")
+    gain = result.model.warp_gain.item()
+    assert gain != pytest.approx(build_model("flownet", occupancy_head=True).warp_gain.item())
+    record = json.loads((tmp_path / "res" / "model.json").read_text())
+    assert record["out_channels"] == 5 and record["model_kwargs"] == {"occupancy_head": True}
+    without_head = build_config("residual", None, {"model.kwargs": {}})
+    with pytest.raises(TrainError, match="occupancy head"):
+        loop.make_loss(without_head, 1, build_model("flownet"))
+
+
+def test_init_starts_from_given_weights(blob_files, tmp_path):
+    first = train(tiny_config(blob_files[:1], **{"optim.epochs": 1}), tmp_path / "a")
+    cfg = tiny_config(blob_files[:1], **{"optim.epochs": 1, "model.init": str(tmp_path / "a")})
+    cfg.runtime.eval_before_training = True
+    second = train(cfg, tmp_path / "b")
+    # epoch 0 of the second run evaluates the first run's weights, not a fresh copy-last net
+    assert second.rows[0]["val_loss"] == pytest.approx(first.rows[-1]["val_loss"])
+    assert second.rows[0]["val_loss"] != pytest.approx(first.rows[0]["val_loss"])
+    bad = tiny_config(
+        blob_files[:1],
+        **{"model.init": str(tmp_path / "a"), "model.kwargs": {"occupancy_head": True}},
+    )
+    with pytest.raises(TrainError, match="cannot start from these weights"):
+        train(bad, tmp_path / "c")

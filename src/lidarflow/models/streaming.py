@@ -44,5 +44,5 @@ class StreamingModel:
             self._state = self.model.init_state(1, maps.shape[-2], maps.shape[-1])
         out, self._state = self.model.step(x, self._state)
         probability = self.model.predict_next(x, out)[0, 0].float().cpu().numpy()
-        flow = out[0].float().cpu().numpy() if self.model.out_channels == 4 else None
+        flow = out[0, :4].float().cpu().numpy() if self.model.out_channels >= 4 else None
         return StepResult(probability, flow)

@@ -108,7 +108,7 @@ class Predictor:
             fed = np.stack([future[-1], visibility.astype(np.float32)])[None]
             next_probability, _, state = self.backend.run(fed.astype(np.float32), state)
             future.append(next_probability[0, 0])
-        flow = out[0] if self.backend.out_channels == 4 else None
+        flow = out[0, :4] if self.backend.out_channels >= 4 else None
         return Prediction(
             probability=future[0],
             occupied=future[0] >= THRESHOLD,

@@ -7,8 +7,9 @@ state and data order). Non-finite losses or gradients stop the run with :class:`
 naming the epoch and step; nothing of the failing epoch is written.
 
 Loss per model: ``flownet`` -> :func:`lidarflow.losses.flow_loss` with the epoch's Gaussian size
-(``config.loss`` says which variant); ``deeptracking`` -> :func:`deeptracking_loss`. Both count
-only steps after ``data.warmup`` frames.
+(``config.loss`` says which variant), plus ``loss.occupancy_bce`` x the cross-entropy of the
+occupancy head's next map when the model has one; ``deeptracking`` -> :func:`deeptracking_loss`.
+All count only steps after ``data.warmup`` frames.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import torch
 from torch import Tensor
 
 from lidarflow.errors import ModelError, TrainError
-from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule
+from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
 from lidarflow.models import build_model
 from lidarflow.models.speed import accelerate
 from lidarflow.train import checkpoint as ckpt
@@ -63,12 +64,48 @@ def gaussian_size(config: TrainConfig, epoch: int) -> int:
     return gaussian_schedule(epoch, s.gaussian_start, s.gaussian_step_epochs, s.gaussian_min)
 
 
-def make_loss(config: TrainConfig, kernel: int) -> Callable[[Tensor, Tensor], Tensor]:
-    """``loss(seq (B,T,2,H,W), out (B,T,C,H,W)) -> scalar`` for the configured model."""
+def make_loss(
+    config: TrainConfig, kernel: int, model: torch.nn.Module | None = None
+) -> Callable[[Tensor, Tensor], Tensor]:
+    """``loss(seq (B,T,2,H,W), out (B,T,C,H,W)) -> scalar`` for the configured model (the
+    unwrapped ``model`` is needed for the occupancy head's cross-entropy)."""
     warmup = config.data.warmup
     if config.model.name == "deeptracking":
         return lambda seq, out: deeptracking_loss(seq, out, warmup=warmup)
-    return lambda seq, out: flow_loss(seq, out, kernel, config.loss, warmup=warmup)
+    weight = config.loss.occupancy_bce
+    head = model is not None and getattr(model, "occupancy_head", False)
+    if weight > 0.0 and not head:
+        raise TrainError(
+            "loss.occupancy_bce needs a model with an occupancy head: add "
+            "--set model.kwargs.occupancy_head=true (or use --recipe residual)"
+        )
+
+    def loss(seq: Tensor, out: Tensor) -> Tensor:
+        value = flow_loss(seq, out[:, :, :4], kernel, config.loss, warmup=warmup)
+        if weight > 0.0:
+            b, t, c, h, w = out.shape
+            logits = model.next_logit(seq.reshape(b * t, 2, h, w), out.reshape(b * t, c, h, w))
+            value = value + weight * next_map_bce(
+                seq,
+                logits.reshape(b, t, 1, h, w),
+                warmup=warmup,
+                visible_only=config.loss.occupancy_visible_only,
+            )
+        return value
+
+    return loss
+
+
+def _load_init(model: torch.nn.Module, source: str) -> None:
+    """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``."""
+    from lidarflow.models.presets import resolve_model
+
+    try:
+        init, _ = resolve_model(None if source == "bundled" else source)
+        model.load_state_dict(init.state_dict())
+    except (ModelError, RuntimeError) as err:
+        first = str(err).strip().splitlines()[0]
+        raise TrainError(f"model.init {source}: cannot start from these weights ({first})") from err
 
 
 def _optimizer(config: TrainConfig, params: Any) -> torch.optim.Optimizer:
@@ -139,6 +176,9 @@ def _train(
         model = build_model(config.model.name, **config.model.kwargs)
     except ModelError as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
+    if config.model.init and not resume:
+        _load_init(model, config.model.init)
+        say(f"starting from the weights of {config.model.init}")
     model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
     optimizer = _optimizer(config, model.parameters())
     scheduler = torch.optim.lr_scheduler.StepLR(
@@ -172,7 +212,13 @@ def _train(
         if val_loader is None:
             return {}
         return validate(
-            model, val_loader, make_loss(config, kernel), config.data.warmup, ctx, autocast, is_flow
+            model,
+            val_loader,
+            make_loss(config, kernel, model),
+            config.data.warmup,
+            ctx,
+            autocast,
+            is_flow,
         )
 
     if start == 0 and rt.eval_before_training and val_loader is not None:
@@ -188,7 +234,7 @@ def _train(
     for epoch in range(start, config.optim.epochs):
         sampler.set_epoch(epoch)
         kernel = gaussian_size(config, epoch)
-        loss_fn = make_loss(config, kernel)
+        loss_fn = make_loss(config, kernel, model)
         lr = optimizer.param_groups[0]["lr"]
         net.train()
         total = frames = 0.0
