@@ -81,3 +81,14 @@ def test_onnx_grid_mismatch_is_explained(tmp_path, random_flownet_dir):
     predictor = Predictor(path, grid=GridSpec(64, 64, 0.1))
     with pytest.raises(PredictError, match="exported for a 100x100 grid"):
         predictor.update((np.zeros((64, 64)), np.zeros((64, 64))))
+
+
+def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sample_recording):
+    folder = make_model_dir(tmp_path / "head", occupancy_head=True, zero_init_flow=False)
+    net, _ = resolve_model(folder)
+    torch_p, onnx_p = Predictor(folder), Predictor(export_onnx(net, tmp_path / "h.onnx"))
+    for scan in frames(sample_recording, 12):
+        a, b = torch_p.update(scan), onnx_p.update(scan)
+    assert a.backward_flow.shape == (2, 100, 100) and a.forward_flow.shape == (2, 100, 100)
+    np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
+    np.testing.assert_allclose(a.forward_flow, b.forward_flow, atol=1e-4)
