@@ -8,10 +8,21 @@ from typing import Any
 
 from lidarflow.evaluate.scoring import Scorer
 
-__all__ = ["BASELINES", "build_report", "format_table"]
+__all__ = [
+    "BASELINES",
+    "UNCERTAINTY_COLUMNS",
+    "build_report",
+    "format_table",
+    "format_uncertainty_table",
+    "uncertainty_row",
+    "uncertainty_rows",
+]
 
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 _COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "epe")
+#: Columns of the second table: calibration of the probabilities (lower is better) and
+#: moving-object segmentation of the moving class (flow models on simulated data).
+UNCERTAINTY_COLUMNS = ("ece", "brier", "moving_iou", "moving_precision", "moving_recall")
 
 
 def build_report(
@@ -61,5 +72,58 @@ def format_table(methods: dict[str, dict[str, float]], title: str = "") -> str:
                 continue
             mark = "*" if best.get(c) is not None and metrics[c] == best[c] else " "
             cells.append(f"{metrics[c]:>9.4f}{mark}")
+        lines.append(f"{name:<{width}}  " + "  ".join(cells))
+    return "\n".join(lines)
+
+
+def uncertainty_row(metrics: dict[str, Any]) -> dict[str, float]:
+    """The :data:`UNCERTAINTY_COLUMNS` present in one method's metrics (from the nested
+    ``calibration`` and ``segmentation`` entries of the report)."""
+    row: dict[str, float] = {}
+    calibration = metrics.get("calibration")
+    if calibration:
+        row["ece"] = calibration["ece"]
+        row["brier"] = calibration["brier"]
+    segmentation = metrics.get("segmentation")
+    if segmentation:
+        row["moving_iou"] = segmentation["iou"]
+        row["moving_precision"] = segmentation["precision"]
+        row["moving_recall"] = segmentation["recall"]
+    return row
+
+
+def uncertainty_rows(
+    methods: dict[str, dict[str, Any]],
+) -> tuple[list[str], dict[str, dict[str, float]], dict[str, float]]:
+    """``(columns present, {method: row}, {column: best value})`` of the uncertainty table:
+    the best ECE and Brier are the lowest, the best segmentation scores the highest."""
+    rows = {name: uncertainty_row(m) for name, m in methods.items()}
+    present = [c for c in UNCERTAINTY_COLUMNS if any(c in r for r in rows.values())]
+    best = {}
+    for c in present:
+        values = [r[c] for r in rows.values() if c in r]
+        best[c] = min(values) if c in ("ece", "brier") else max(values)
+    return present, rows, best
+
+
+def format_uncertainty_table(methods: dict[str, dict[str, Any]], title: str = "") -> str:
+    """Calibration (ECE, Brier: lower is better, best marked *) and moving-object
+    segmentation (IoU, precision, recall of the moving class: higher is better); "" when no
+    method has any of them."""
+    present, rows, best = uncertainty_rows(methods)
+    if not present:
+        return ""
+    width = max([len(n) for n in rows] + [6])
+    cw = max(len(c) for c in present) + 1
+    lines = [title] if title else []
+    lines.append(f"{'method':<{width}}  " + "  ".join(f"{c:>{cw}}" for c in present))
+    for name, row in rows.items():
+        cells = []
+        for c in present:
+            if c not in row:
+                cells.append(f"{'-':>{cw}}")
+                continue
+            mark = "*" if row[c] == best[c] else " "
+            cells.append(f"{row[c]:>{cw - 1}.4f}{mark}")
         lines.append(f"{name:<{width}}  " + "  ".join(cells))
     return "\n".join(lines)
