@@ -96,13 +96,15 @@ def uncertainty_rows(
     methods: dict[str, dict[str, Any]],
 ) -> tuple[list[str], dict[str, dict[str, float]], dict[str, float]]:
     """``(columns present, {method: row}, {column: best value})`` of the uncertainty table:
-    the best ECE and Brier are the lowest, the best segmentation scores the highest."""
+    the best ECE and Brier are the lowest, the best segmentation scores the highest; a column
+    that only one method has gets no best."""
     rows = {name: uncertainty_row(m) for name, m in methods.items()}
     present = [c for c in UNCERTAINTY_COLUMNS if any(c in r for r in rows.values())]
     best = {}
     for c in present:
         values = [r[c] for r in rows.values() if c in r]
-        best[c] = min(values) if c in ("ece", "brier") else max(values)
+        if len(values) > 1:
+            best[c] = min(values) if c in ("ece", "brier") else max(values)
     return present, rows, best
 
 
@@ -114,16 +116,16 @@ def format_uncertainty_table(methods: dict[str, dict[str, Any]], title: str = ""
     if not present:
         return ""
     width = max([len(n) for n in rows] + [6])
-    cw = max(len(c) for c in present) + 1
+    cw = {c: max(len(c), 9) + 1 for c in present}
     lines = [title] if title else []
-    lines.append(f"{'method':<{width}}  " + "  ".join(f"{c:>{cw}}" for c in present))
+    lines.append(f"{'method':<{width}}  " + "  ".join(f"{c:>{cw[c]}}" for c in present))
     for name, row in rows.items():
         cells = []
         for c in present:
             if c not in row:
-                cells.append(f"{'-':>{cw}}")
+                cells.append(f"{'-':>{cw[c]}}")
                 continue
-            mark = "*" if row[c] == best[c] else " "
-            cells.append(f"{row[c]:>{cw - 1}.4f}{mark}")
+            mark = "*" if row[c] == best.get(c) else " "
+            cells.append(f"{row[c]:>{cw[c] - 1}.4f}{mark}")
         lines.append(f"{name:<{width}}  " + "  ".join(cells))
     return "\n".join(lines)

@@ -64,7 +64,7 @@ def _uncertainty_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
             if c not in row:
                 cells.append("<td>-</td>")
                 continue
-            cls = ' class="best"' if row[c] == best[c] else ""
+            cls = ' class="best"' if row[c] == best.get(c) else ""
             cells.append(f"<td{cls}>{row[c]:.4f}</td>")
         body.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
     return f"<table><tr><th>method</th>{head}</tr>{''.join(body)}</table>"
