@@ -31,7 +31,7 @@ def test_evaluate_on_simulated_data_reports_calibration_and_moving(
     assert "calibration and moving segmentation" in text and "moving_iou" in text
     result = json.loads(report.read_text())
     methods = result["recordings"][0]["methods"]
-    assert {"ece", "brier", "bins"} <= set(methods["copy_last"]["calibration"])
+    assert {"ece", "ece_active", "brier", "bins"} <= set(methods["copy_last"]["calibration"])
     assert "segmentation" not in methods["copy_last"]
     seg = methods["random_flownet"]["segmentation"]
     assert 0.0 <= seg["iou"] <= 1.0 and seg["frames"] == 16 - 1 - 2

@@ -81,3 +81,17 @@ def test_bad_inputs():
         Calibration(bins=0)
     with pytest.raises(ValueError, match="cannot add"):
         Calibration(bins=5) + Calibration(bins=10)
+
+
+def test_active_ece_ignores_the_lowest_bin():
+    p = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.45, 0.45])
+    y = np.array([0, 0, 0, 1, 1, 0, 1, 1], bool)
+    cal = Calibration()
+    cal.add(p, y)
+    # above the lowest bin: p=1 -> freq 1/2 (2 cells), p=0.45 -> freq 1 (2 cells)
+    assert cal.ece_active() == pytest.approx((2 * 0.5 + 2 * 0.55) / 4)
+    assert cal.ece() == pytest.approx((1 + 2 * 0.5 + 2 * 0.55) / 8)
+    assert cal.summary()["ece_active"] == cal.ece_active()
+    empty = Calibration()
+    empty.add(np.zeros(3), np.ones(3, bool))
+    assert empty.ece_active() == 0.0 and empty.ece() == 1.0

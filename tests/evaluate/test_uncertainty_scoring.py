@@ -92,7 +92,7 @@ def test_report_adds_up_and_tables_show_the_new_columns():
     assert overall["oracle"]["segmentation"]["frames"] == 2 * a["oracle"].moving_frames
     assert overall["copy_last"]["calibration"]["cells"] == 2 * a["copy_last"].calibration.cells
     table = format_uncertainty_table(overall)
-    assert "ece" in table and "moving_iou" in table and "1.0000" in table
+    assert "ece_active" in table and "moving_iou" in table and "1.0000" in table
     assert "calibration" not in format_table(overall)  # the first table is unchanged
     assert format_uncertainty_table({"x": {"f1": 1.0}}) == ""
 

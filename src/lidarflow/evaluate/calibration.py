@@ -8,11 +8,12 @@ next frame, a share ``p`` really is. Measured, over every cell of every scored f
   probability and the observed frequency of occupancy;
 * the *expected calibration error* (ECE): ``sum_k (n_k / N) |mean_p_k - freq_k|`` (Guo et al.
   2017), bins of 0.1 by default;
+* the *active ECE*: the same over the cells predicted at least ``1 / bins`` (every bin but the
+  lowest), i.e. how far to trust the probability wherever the predictor says a cell may be
+  occupied. Most cells are free and predicted free, which makes the plain ECE small for every
+  method; the active ECE is what separates them (copy-last's is ``1 - precision``);
 * the *Brier score*: ``mean (p - y)^2`` (lower is better; a proper score, so it also rewards
   sharpness, which ECE alone does not).
-
-Most cells are free and predicted free, so both numbers are small for every method; compare
-methods with each other, and read the diagram for the occupied end.
 """
 
 from __future__ import annotations
@@ -93,13 +94,22 @@ class Calibration:
         gap = np.abs(self.probability_sum[used] - self.occupied[used])  # n_k |mean_p - freq|
         return float(gap.sum() / self.cells)
 
+    def ece_active(self) -> float:
+        """ECE over the cells predicted ``>= 1 / bins`` (all bins but the lowest); 0.0 when
+        there are none."""
+        cells = int(self.count[1:].sum())
+        if not cells:
+            return 0.0
+        gap = np.abs(self.probability_sum[1:] - self.occupied[1:])
+        return float(gap.sum() / cells)
+
     def brier(self) -> float:
         """Mean squared difference between probability and truth; 0.0 with no cells."""
         return self.squared_error / self.cells if self.cells else 0.0
 
     def summary(self) -> dict[str, Any]:
-        """``{"ece", "brier", "cells", "bins": [{"low", "high", "count", "mean_probability",
-        "frequency"}]}`` (empty bins have ``null`` mean and frequency)."""
+        """``{"ece", "ece_active", "brier", "cells", "bins": [{"low", "high", "count",
+        "mean_probability", "frequency"}]}`` (empty bins have ``null`` mean and frequency)."""
         mean, freq = self.mean_probability(), self.frequency()
         bins = [
             {
@@ -111,7 +121,13 @@ class Calibration:
             }
             for k in range(self.bins)
         ]
-        return {"ece": self.ece(), "brier": self.brier(), "cells": self.cells, "bins": bins}
+        return {
+            "ece": self.ece(),
+            "ece_active": self.ece_active(),
+            "brier": self.brier(),
+            "cells": self.cells,
+            "bins": bins,
+        }
 
 
 def expected_calibration_error(

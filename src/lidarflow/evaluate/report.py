@@ -22,7 +22,10 @@ BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 _COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "epe")
 #: Columns of the second table: calibration of the probabilities (lower is better) and
 #: moving-object segmentation of the moving class (flow models on simulated data).
-UNCERTAINTY_COLUMNS = ("ece", "brier", "moving_iou", "moving_precision", "moving_recall")
+UNCERTAINTY_COLUMNS = (
+    "ece", "ece_active", "brier", "moving_iou", "moving_precision", "moving_recall"
+)
+_LOWER_IS_BETTER = ("ece", "ece_active", "brier")
 
 
 def build_report(
@@ -82,8 +85,9 @@ def uncertainty_row(metrics: dict[str, Any]) -> dict[str, float]:
     row: dict[str, float] = {}
     calibration = metrics.get("calibration")
     if calibration:
-        row["ece"] = calibration["ece"]
-        row["brier"] = calibration["brier"]
+        for key in ("ece", "ece_active", "brier"):
+            if key in calibration:
+                row[key] = calibration[key]
     segmentation = metrics.get("segmentation")
     if segmentation:
         row["moving_iou"] = segmentation["iou"]
@@ -104,12 +108,12 @@ def uncertainty_rows(
     for c in present:
         values = [r[c] for r in rows.values() if c in r]
         if len(values) > 1:
-            best[c] = min(values) if c in ("ece", "brier") else max(values)
+            best[c] = min(values) if c in _LOWER_IS_BETTER else max(values)
     return present, rows, best
 
 
 def format_uncertainty_table(methods: dict[str, dict[str, Any]], title: str = "") -> str:
-    """Calibration (ECE, Brier: lower is better, best marked *) and moving-object
+    """Calibration (ECE, active ECE, Brier: lower is better, best marked *) and moving-object
     segmentation (IoU, precision, recall of the moving class: higher is better); "" when no
     method has any of them."""
     present, rows, best = uncertainty_rows(methods)

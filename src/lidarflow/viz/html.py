@@ -89,9 +89,10 @@ def write_html_report(
         "<p>F1 at threshold 0.4, micro-averaged over all cells of all frames after the warm-up; "
         "changed-cell F1 counts only cells that differ between the current and the next map "
         "(copying the last map scores 0 there). Best F1 and changed-cell F1 in bold.</p>",
-        "<p>Second table: calibration of the predicted probabilities over all cells (expected "
-        "calibration error over bins of 0.1 and Brier score, lower is better; see the "
-        "reliability diagram) and, for flow models on simulated data, moving-object "
+        "<p>Second table: calibration of the predicted probabilities (expected calibration "
+        "error over bins of 0.1 on all cells, the same on the cells predicted at least 0.1 "
+        "(ece_active), and the Brier score; lower is better; see the reliability diagram) and, "
+        "for flow models on simulated data, moving-object "
         "segmentation (IoU, precision and recall of the moving cells of the current map "
         "against the simulator's truth).</p>",
         "<p class='legend'>Overlays: <span style='background:#28b428'>truth only</span>"
