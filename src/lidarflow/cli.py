@@ -351,11 +351,10 @@ def evaluate(
 
     A second table gives the calibration of every method's probabilities (expected calibration
     error over bins of 0.1 on all cells, ece_active on the cells predicted >= 0.1, and Brier
-    score; lower is better) and, for flow models on simulated
-    recordings, moving-object segmentation (IoU, precision, recall of the moving cells against
-    the simulator's truth). The JSON has them per method under "calibration" (with the
-    reliability-diagram bins) and "segmentation"; --report draws the reliability diagram and
-    the moving cells."""
+    score; lower is better) and, for flow models on simulated recordings, moving-object
+    segmentation (IoU, precision, recall of the moving cells against the simulator's truth).
+    The JSON has them per method under "calibration" (with the reliability-diagram bins) and
+    "segmentation"; --report draws the reliability diagram and the moving cells."""
     from lidarflow.evaluate.report import format_table, format_uncertainty_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
