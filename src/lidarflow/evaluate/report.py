@@ -57,6 +57,29 @@ def build_report(
     return report
 
 
+def _text_table(
+    rows: dict[str, dict[str, Any]],
+    columns: list[str],
+    best: dict[str, Any],
+    widths: dict[str, int],
+    title: str,
+) -> str:
+    """One line per method; a value equal to its column's ``best`` (when not None) gets *."""
+    width = max([len(n) for n in rows] + [6])
+    lines = [title] if title else []
+    lines.append(f"{'method':<{width}}  " + "  ".join(f"{c:>{widths[c]}}" for c in columns))
+    for name, row in rows.items():
+        cells = []
+        for c in columns:
+            if c not in row:
+                cells.append(f"{'-':>{widths[c]}}")
+                continue
+            mark = "*" if best.get(c) is not None and row[c] == best[c] else " "
+            cells.append(f"{row[c]:>{widths[c] - 1}.4f}{mark}")
+        lines.append(f"{name:<{width}}  " + "  ".join(cells))
+    return "\n".join(lines)
+
+
 def format_table(methods: dict[str, dict[str, float]], title: str = "") -> str:
     """A plain-text table, one row per method; the best F1 / changed-cell F1 marked with *."""
     present = [c for c in _COLUMNS if any(c in m for m in methods.values())]
@@ -64,19 +87,7 @@ def format_table(methods: dict[str, dict[str, float]], title: str = "") -> str:
         c: max((m[c] for m in methods.values() if c in m), default=None)
         for c in ("f1", "changed_f1")
     }
-    width = max([len(n) for n in methods] + [6])
-    lines = [title] if title else []
-    lines.append(f"{'method':<{width}}  " + "  ".join(f"{c:>10}" for c in present))
-    for name, metrics in methods.items():
-        cells = []
-        for c in present:
-            if c not in metrics:
-                cells.append(f"{'-':>10}")
-                continue
-            mark = "*" if best.get(c) is not None and metrics[c] == best[c] else " "
-            cells.append(f"{metrics[c]:>9.4f}{mark}")
-        lines.append(f"{name:<{width}}  " + "  ".join(cells))
-    return "\n".join(lines)
+    return _text_table(methods, present, best, dict.fromkeys(present, 10), title)
 
 
 def uncertainty_row(metrics: dict[str, Any]) -> dict[str, float]:
@@ -119,17 +130,5 @@ def format_uncertainty_table(methods: dict[str, dict[str, Any]], title: str = ""
     present, rows, best = uncertainty_rows(methods)
     if not present:
         return ""
-    width = max([len(n) for n in rows] + [6])
-    cw = {c: max(len(c), 9) + 1 for c in present}
-    lines = [title] if title else []
-    lines.append(f"{'method':<{width}}  " + "  ".join(f"{c:>{cw[c]}}" for c in present))
-    for name, row in rows.items():
-        cells = []
-        for c in present:
-            if c not in row:
-                cells.append(f"{'-':>{cw[c]}}")
-                continue
-            mark = "*" if row[c] == best.get(c) else " "
-            cells.append(f"{row[c]:>{cw[c] - 1}.4f}{mark}")
-        lines.append(f"{name:<{width}}  " + "  ".join(cells))
-    return "\n".join(lines)
+    widths = {c: max(len(c), 9) + 1 for c in present}
+    return _text_table(rows, present, best, widths, title)

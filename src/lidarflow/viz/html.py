@@ -34,40 +34,34 @@ def _data_uri(path: Path) -> str:
     return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode()
 
 
+def _html_table(
+    rows: Mapping[str, Mapping[str, float]], columns: Sequence[str], best: Mapping[str, float]
+) -> str:
+    """One row per method; a value equal to its column's ``best`` is bold."""
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    body = []
+    for name, row in rows.items():
+        cells = []
+        for c in columns:
+            if c not in row:
+                cells.append("<td>-</td>")
+                continue
+            cls = ' class="best"' if c in best and row[c] == best[c] else ""
+            cells.append(f"<td{cls}>{row[c]:.4f}</td>")
+        body.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
+    return f"<table><tr><th>method</th>{head}</tr>{''.join(body)}</table>"
+
+
 def _table(methods: Mapping[str, Mapping[str, float]]) -> str:
     present = [c for c in _COLUMNS if any(c in m for m in methods.values())]
     best = {c: max(m.get(c, float("-inf")) for m in methods.values()) for c in ("f1", "changed_f1")}
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in present)
-    rows = []
-    for name, metrics in methods.items():
-        cells = []
-        for c in present:
-            if c not in metrics:
-                cells.append("<td>-</td>")
-                continue
-            cls = ' class="best"' if c in best and metrics[c] == best[c] else ""
-            cells.append(f"<td{cls}>{metrics[c]:.4f}</td>")
-        rows.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
-    return f"<table><tr><th>method</th>{head}</tr>{''.join(rows)}</table>"
+    return _html_table(methods, present, best)
 
 
 def _uncertainty_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
     """Calibration (lower is better) and moving segmentation (higher is better); best bold."""
     present, rows, best = uncertainty_rows({name: dict(m) for name, m in methods.items()})
-    if not present:
-        return ""
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in present)
-    body = []
-    for name, row in rows.items():
-        cells = []
-        for c in present:
-            if c not in row:
-                cells.append("<td>-</td>")
-                continue
-            cls = ' class="best"' if row[c] == best.get(c) else ""
-            cells.append(f"<td{cls}>{row[c]:.4f}</td>")
-        body.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
-    return f"<table><tr><th>method</th>{head}</tr>{''.join(body)}</table>"
+    return _html_table(rows, present, best) if present else ""
 
 
 def write_html_report(
