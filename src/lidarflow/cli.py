@@ -43,6 +43,16 @@ OdomOpt = Annotated[
 ]
 GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
 ResOpt = Annotated[float, typer.Option("--res", help="Cell size in metres.", min=1e-4)]
+MovingOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--moving-threshold",
+        help="Moving-object segmentation: an occupied cell is moving when its forward flow, less "
+        "the background's (platform's) fitted motion, is longer than this many cells per frame "
+        "(default 0.4, chosen on simulated tuning data).",
+        min=0.0,
+    ),
+]
 
 
 def _progress(total: int | None, desc: str) -> Any:
@@ -253,7 +263,10 @@ def demo(
 
 
 def _methods_and_config(
-    sources: list[Path | None], ta_window: int = 5, ta_threshold: float = 0.4
+    sources: list[Path | None],
+    ta_window: int = 5,
+    ta_threshold: float = 0.4,
+    moving_threshold: float | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
     configuration that describes them for the report."""
@@ -262,7 +275,10 @@ def _methods_and_config(
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
     from lidarflow.models.weights import describe_source
+    from lidarflow.segmentation import MOVING_THRESHOLD
 
+    if moving_threshold is None:
+        moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
     models_used = {}
     for source in sources:
@@ -270,13 +286,18 @@ def _methods_and_config(
         name = "bundled" if source is None else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"
-        methods.append(ModelMethod(name, StreamingModel(net)))
+        methods.append(ModelMethod(name, StreamingModel(net), moving_threshold))
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
     config = {
         "threshold": 0.4,
         "temporal_average": {"window": ta_window, "threshold": ta_threshold},
         "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
         "models": models_used,
+        "calibration": {"bins": 10, "over": "every cell of every scored frame"},
+        "moving_segmentation": {
+            "threshold_cells": moving_threshold,
+            "rule": "occupied and |forward flow - fitted background flow| > threshold",
+        },
     }
     return methods, config
 
@@ -321,17 +342,27 @@ def evaluate(
     ] = 0.4,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
+    moving_threshold: MovingOpt = None,
 ) -> None:
     """Score next-map prediction on each recording, streaming (one step per frame, state
     carried across the recording), with F1 at 0.4, precision, recall, average precision and
     changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
-    for every --model given (and flow end-point error where the recording has ground truth)."""
-    from lidarflow.evaluate.report import format_table
+    for every --model given (and flow end-point error where the recording has ground truth).
+
+    A second table gives the calibration of every method's probabilities (expected calibration
+    error over bins of 0.1 on all cells, ece_active on the cells predicted >= 0.1, and Brier
+    score; lower is better) and, for flow models on simulated recordings, moving-object
+    segmentation (IoU, precision, recall of the moving cells against the simulator's truth).
+    The JSON has them per method under "calibration" (with the reliability-diagram bins) and
+    "segmentation"; --report draws the reliability diagram and the moving cells."""
+    from lidarflow.evaluate.report import format_table, format_uncertainty_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
     spec = GridSpec(grid, grid, res)
-    methods, config = _methods_and_config(list(model or []), ta_window, ta_threshold)
+    methods, config = _methods_and_config(
+        list(model or []), ta_window, ta_threshold, moving_threshold
+    )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
     named = [(str(path), _load(path, topic)) for path in inputs]
     report = evaluate_and_report(
@@ -340,8 +371,14 @@ def evaluate(
     for entry in report["recordings"]:
         title = f"{entry['path']} ({entry['frames_evaluated']} frames)"
         typer.echo(format_table(entry["methods"], title) + "\n")
+        extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
+        if extra:
+            typer.echo(extra + "\n")
     if len(report["recordings"]) > 1:
         typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
+        extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")
+        if extra:
+            typer.echo(extra)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(report, indent=2))
@@ -379,15 +416,23 @@ def predict(
     ] = 1,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
+    moving_threshold: MovingOpt = None,
 ) -> None:
     """Write the input scans plus, per scan, the predicted next map (nav_msgs/OccupancyGrid in
-    the scan's frame, ready for RViz/Foxglove) and the flow (32FC2 images) to a new bag."""
+    the scan's frame, ready for RViz/Foxglove), the flow (32FC2 images) and the moving cells of
+    the current map (/lidarflow/moving, OccupancyGrid: 100 moving, 0 not, -1 unseen) to a new
+    bag."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec
 
     recording = _load(input, topic)
-    predictor = Predictor(model, GridSpec(grid, grid, res), horizon=horizon)
+    from lidarflow.segmentation import MOVING_THRESHOLD
+
+    threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
+    predictor = Predictor(
+        model, GridSpec(grid, grid, res), horizon=horizon, moving_threshold=threshold
+    )
     with _progress(len(recording), f"predicting {input.name}") as bar:
         counts = predict_to_bag(recording, predictor, output, bar.update)
     typer.echo(f"wrote {output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))

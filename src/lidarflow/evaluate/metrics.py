@@ -41,6 +41,13 @@ class Counts:
         denom = 2 * self.tp + self.fp + self.fn
         return 2 * self.tp / denom if denom else 1.0
 
+    @property
+    def iou(self) -> float:
+        """Intersection over union ``TP / (TP + FP + FN)`` of the positive class; 1.0 when
+        there is nothing to find and nothing predicted (as :attr:`f1`)."""
+        denom = self.tp + self.fp + self.fn
+        return self.tp / denom if denom else 1.0
+
     def to_dict(self) -> dict[str, float | int]:
         return {
             "f1": self.f1,

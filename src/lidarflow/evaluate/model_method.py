@@ -5,24 +5,37 @@ from __future__ import annotations
 import numpy as np
 
 from lidarflow.models.streaming import StreamingModel
+from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["ModelMethod"]
 
 
 class ModelMethod:
     """Adapts :class:`StreamingModel` to the :class:`~lidarflow.evaluate.baselines.Method`
-    protocol; exposes ``backward_flow`` ``(2, H, W)`` after each update for flow models."""
+    protocol. After each update a flow model exposes ``backward_flow`` and ``forward_flow``
+    ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool, the occupied cells of the frame just
+    given that move on their own (:func:`lidarflow.segmentation.moving_mask` of the forward
+    flow at ``moving_threshold`` cells); all three are ``None`` for other models."""
 
-    def __init__(self, name: str, stream: StreamingModel) -> None:
+    def __init__(
+        self, name: str, stream: StreamingModel, moving_threshold: float = MOVING_THRESHOLD
+    ) -> None:
         self.name = name
         self.stream = stream
+        self.moving_threshold = moving_threshold
         self.backward_flow: np.ndarray | None = None
+        self.forward_flow: np.ndarray | None = None
+        self.moving: np.ndarray | None = None
 
     def reset(self) -> None:
         self.stream.reset()
-        self.backward_flow = None
+        self.backward_flow = self.forward_flow = self.moving = None
 
     def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
         result = self.stream.step(occupancy, visibility)
-        self.backward_flow = None if result.flow is None else result.flow[:2]
+        if result.flow is None:
+            self.backward_flow = self.forward_flow = self.moving = None
+        else:
+            self.backward_flow, self.forward_flow = result.flow[:2], result.flow[2:]
+            self.moving = moving_mask(occupancy, self.forward_flow, self.moving_threshold)
         return result.probability

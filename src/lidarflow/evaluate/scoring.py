@@ -1,6 +1,9 @@
 """Accumulate predictions against truth: counts at the 0.4 threshold, changed cells, PR/AP.
 
 One :class:`Scorer` per method and recording; scorers add up (micro-averaging) for "overall".
+Each also accumulates the calibration of the probabilities (reliability diagram, ECE, Brier;
+:mod:`lidarflow.evaluate.calibration`) and, for flow models on simulated data, the moving-object
+segmentation counts of the moving class against the simulator's ``moving`` ground truth.
 Probabilities are binned into ``BINS`` equal bins for the precision-recall curve, which makes
 the curve exact for binary predictors and within 1/BINS in threshold otherwise.
 """
@@ -8,9 +11,11 @@ the curve exact for binary predictors and within 1/BINS in threshold otherwise.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from lidarflow.evaluate.calibration import Calibration
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 
 __all__ = ["BINS", "Scorer"]
@@ -28,6 +33,9 @@ class Scorer:
     epe_per_frame: list[float] = field(default_factory=list)
     positives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
     negatives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
+    calibration: Calibration = field(default_factory=Calibration)
+    moving: Counts = field(default_factory=Counts)
+    moving_frames: int = 0
 
     def add(self, probability: np.ndarray, current: np.ndarray, target: np.ndarray) -> None:
         """Score one predicted map against the true next map ``target``; ``current`` is the
@@ -40,7 +48,13 @@ class Scorer:
         bins = np.clip(np.floor(np.asarray(probability, np.float64) * BINS), 0, BINS).astype(int)
         self.positives += np.bincount(bins[target], minlength=BINS + 1)
         self.negatives += np.bincount(bins[~target], minlength=BINS + 1)
+        self.calibration.add(probability, target)
         self.frames += 1
+
+    def add_moving(self, predicted: np.ndarray, truth: np.ndarray) -> None:
+        """Score one frame's moving-cell mask ``(H, W)`` against the true moving cells."""
+        self.moving = self.moving + confusion(predicted, truth)
+        self.moving_frames += 1
 
     def add_epe(self, error_sum: float, cells: int) -> None:
         self.epe_sum += error_sum
@@ -57,6 +71,9 @@ class Scorer:
             epe_per_frame=self.epe_per_frame + other.epe_per_frame,
             positives=self.positives + other.positives,
             negatives=self.negatives + other.negatives,
+            calibration=self.calibration + other.calibration,
+            moving=self.moving + other.moving,
+            moving_frames=self.moving_frames + other.moving_frames,
         )
 
     def pr_curve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -75,8 +92,12 @@ class Scorer:
         gained = np.diff(np.concatenate([[0.0], recall]))
         return float(np.sum(gained * precision))
 
-    def summary(self) -> dict[str, float | int]:
-        out: dict[str, float | int] = {
+    def summary(self) -> dict[str, Any]:
+        """The metrics as JSON: flat numbers (``f1`` ... ``epe``) as before, plus
+        ``calibration`` (:meth:`Calibration.summary`) and, when moving cells were scored,
+        ``segmentation`` (``iou``, ``precision``, ``recall``, ``f1`` of the moving class,
+        counts and frames)."""
+        out: dict[str, Any] = {
             "f1": self.counts.f1,
             "precision": self.counts.precision,
             "recall": self.counts.recall,
@@ -86,4 +107,11 @@ class Scorer:
         }
         if self.epe_cells:
             out["epe"] = self.epe_sum / self.epe_cells
+        out["calibration"] = self.calibration.summary()
+        if self.moving_frames:
+            out["segmentation"] = {
+                "iou": self.moving.iou,
+                **self.moving.to_dict(),
+                "frames": self.moving_frames,
+            }
         return out

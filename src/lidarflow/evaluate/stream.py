@@ -3,6 +3,10 @@
 Each method sees the frames one at a time, its state carried across the whole recording. The
 prediction made after frame ``t`` is scored against frame ``t + 1`` for ``t >= warmup``: the
 first ``warmup`` frames only warm the state up.
+
+A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of the frame just
+given that move on their own) is also scored for moving-object segmentation against the
+simulator's ``moving`` ground truth of that frame, where the recording has it.
 """
 
 from __future__ import annotations
@@ -18,9 +22,21 @@ from lidarflow.evaluate.scoring import Scorer
 from lidarflow.scan import GridSpec
 from lidarflow.sim.storage import dense_flow
 
-__all__ = ["WARMUP", "evaluate_maps", "evaluate_recording", "ground_truth_backward_flow"]
+__all__ = [
+    "WARMUP",
+    "evaluate_maps",
+    "evaluate_recording",
+    "ground_truth_backward_flow",
+    "ground_truth_moving",
+]
 
 WARMUP = 10
+
+
+def _made_on(recording: Recording, grid: GridSpec) -> bool:
+    stored = recording.meta.get("grid") or {}
+    return (stored.get("height"), stored.get("width"), stored.get("res")) == (
+        grid.height, grid.width, grid.res)
 
 
 def ground_truth_backward_flow(
@@ -31,11 +47,20 @@ def ground_truth_backward_flow(
     extras = recording.extras
     if "flow_backward" not in extras and "flow_backward_cells" not in extras:
         return None
-    stored = recording.meta.get("grid") or {}
-    made_on = (stored.get("height"), stored.get("width"), stored.get("res"))
-    if made_on != (grid.height, grid.width, grid.res):
+    if not _made_on(recording, grid):
         return None
     return lambda t: dense_flow(recording, t)[0]
+
+
+def ground_truth_moving(
+    recording: Recording, grid: GridSpec
+) -> Callable[[int], np.ndarray] | None:
+    """``t -> `` the simulator's moving cells of ``O^t`` ``(H, W)`` bool, or ``None`` when the
+    recording has none or it was made on another grid than ``grid``."""
+    moving = recording.extras.get("moving")
+    if moving is None or not _made_on(recording, grid) or moving.shape[1:] != grid.shape:
+        return None
+    return lambda t: np.asarray(moving[t], bool)
 
 
 def evaluate_maps(
@@ -46,6 +71,8 @@ def evaluate_maps(
     gt_flow: Callable[[int], np.ndarray] | None = None,
     progress: Callable[[int], None] | None = None,
     on_prediction: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
+    gt_moving: Callable[[int], np.ndarray] | None = None,
+    on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
@@ -55,6 +82,10 @@ def evaluate_maps(
     A method that exposes ``backward_flow`` (``(2, H, W)`` cells, after ``update``) is also
     scored for end-point error against ``gt_flow(t)`` (``B^t``) on the cells occupied in the
     next frame.
+
+    A method that exposes ``moving`` is scored (IoU of the moving class) against
+    ``gt_moving(t)`` on the cells occupied in frame ``t``; ``on_moving(method_name, t, moving,
+    truth_or_None)`` is called with every such mask, e.g. to draw it.
     """
     n = len(occupancy)
     if n < warmup + 2:
@@ -78,6 +109,13 @@ def evaluate_maps(
                 cells = occupancy[t + 1]
                 error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow(t)))[cells]
                 scorers[m.name].add_epe(float(error.sum()), int(cells.sum()))
+            moving = getattr(m, "moving", None)
+            if moving is not None:
+                truth = None if gt_moving is None else gt_moving(t) & occupancy[t].astype(bool)
+                if truth is not None:
+                    scorers[m.name].add_moving(moving, truth)
+                if on_moving is not None:
+                    on_moving(m.name, t, moving, truth)
         if progress is not None:
             progress(1)
     return scorers
@@ -90,9 +128,15 @@ def evaluate_recording(
     warmup: int = WARMUP,
     progress: Callable[[int], None] | None = None,
     on_prediction: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
+    on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
 ) -> dict[str, Scorer]:
-    """Rasterize ``recording`` on ``grid`` and score every method on it."""
+    """Rasterize ``recording`` on ``grid`` and score every method on it (with the
+    simulator's ground truth flow and moving cells where it has them)."""
     grid = grid or GridSpec()
     occupancy, visibility = recording.maps(grid)
     gt_flow = ground_truth_backward_flow(recording, grid)
-    return evaluate_maps(occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction)
+    gt_moving = ground_truth_moving(recording, grid)
+    return evaluate_maps(
+        occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction,
+        gt_moving, on_moving,
+    )

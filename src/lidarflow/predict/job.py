@@ -8,7 +8,10 @@ Topics written (all stamped with the scan's stamp, in the scan's frame):
   scan saw nothing and nothing is predicted);
 - ``/lidarflow/predicted_k{K}``: K frames ahead, for ``--horizon`` K > 1;
 - ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image`` ``32FC2``,
-  per map cell the (column, row) displacement in cells (flow models only).
+  per map cell the (column, row) displacement in cells (flow models only);
+- ``/lidarflow/moving``: the moving-object segmentation of the current map
+  (``nav_msgs/OccupancyGrid``; 100 on occupied cells that move on their own, 0 on other visible
+  cells, -1 where not visible; flow models only; see :mod:`lidarflow.segmentation`).
 """
 
 from __future__ import annotations
@@ -70,6 +73,11 @@ def predict_to_bag(
                 out.write_flow(f"{TOPIC_PREFIX}/flow_forward", p.forward_flow, stamp, frame_id)
                 count(f"{TOPIC_PREFIX}/flow_backward")
                 count(f"{TOPIC_PREFIX}/flow_forward")
+            if p.moving is not None:
+                topic = f"{TOPIC_PREFIX}/moving"
+                moving = p.moving.astype(float)
+                out.write_grid(topic, moving, grid, stamp, frame_id, unknown=~p.visibility)
+                count(topic)
             if progress is not None:
                 progress(1)
     return counts

@@ -4,7 +4,7 @@
 >>> predictor = Predictor()            # bundled model; Predictor("run_dir") or ("m.onnx")
 >>> for scan in scans:                 # lidarflow.scan.Scan, or (occupancy, visibility) maps
 ...     p = predictor.update(scan)
-...     p.probability, p.occupied, p.backward_flow, p.forward_flow
+...     p.probability, p.occupied, p.backward_flow, p.forward_flow, p.moving
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
 from lidarflow.scan import GridSpec, Scan, rasterize
+from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["Prediction", "Predictor"]
 
@@ -34,6 +35,10 @@ class Prediction:
             models that predict occupancy directly (DeepTracking).
         horizon: ``(K, H, W)`` probabilities 1..K frames ahead (``horizon[0] is probability``).
         occupancy, visibility: the maps of the frame just given.
+        moving: ``(H, W)`` bool, the occupied cells of the frame just given that move on their
+            own (forward flow less the platform's motion longer than the predictor's
+            ``moving_threshold`` cells; :func:`lidarflow.segmentation.moving_mask`); ``None``
+            for models without flow.
     """
 
     probability: np.ndarray
@@ -43,6 +48,7 @@ class Prediction:
     horizon: np.ndarray
     occupancy: np.ndarray
     visibility: np.ndarray
+    moving: np.ndarray | None = None
 
 
 class Predictor:
@@ -54,6 +60,8 @@ class Predictor:
         grid: the map grid (default 100 x 100 at 0.1 m, the grid the model was trained on).
         horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
         threads: CPU threads for inference (default: the library's choice).
+        moving_threshold: cells per frame of motion of its own above which an occupied cell is
+            reported moving (:data:`lidarflow.segmentation.MOVING_THRESHOLD` by default).
     """
 
     def __init__(
@@ -63,9 +71,13 @@ class Predictor:
         horizon: int = 1,
         threads: int | None = None,
         device: str = "cpu",
+        moving_threshold: float = MOVING_THRESHOLD,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
+        if not moving_threshold >= 0:
+            raise PredictError(f"moving_threshold must be >= 0 cells, got {moving_threshold}")
+        self.moving_threshold = moving_threshold
         self.grid = grid or GridSpec()
         self.horizon = horizon
         self.backend: Any
@@ -109,12 +121,15 @@ class Predictor:
             next_probability, _, state = self.backend.run(fed.astype(np.float32), state)
             future.append(next_probability[0, 0])
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
+        occupied_now = np.asarray(occupancy, bool)
         return Prediction(
             probability=future[0],
             occupied=future[0] >= THRESHOLD,
             backward_flow=None if flow is None else flow[:2],
             forward_flow=None if flow is None else flow[2:],
             horizon=np.stack(future),
-            occupancy=np.asarray(occupancy, bool),
+            occupancy=occupied_now,
             visibility=np.asarray(visibility, bool),
+            moving=None if flow is None else moving_mask(
+                occupied_now, flow[2:], self.moving_threshold),
         )

@@ -1,4 +1,5 @@
-"""Figures of an evaluation run: overlay animations per method and PR curves per recording."""
+"""Figures of an evaluation run: overlay animations per method (predictions, flow, moving
+cells), PR curves and reliability diagrams per recording."""
 
 from __future__ import annotations
 
@@ -20,8 +21,8 @@ from lidarflow.evaluate.stream import evaluate_recording
 from lidarflow.scan import GridSpec
 from lidarflow.viz.flow import flow_to_rgb
 from lidarflow.viz.html import write_html_report
-from lidarflow.viz.overlay import overlay_rgb, write_gif
-from lidarflow.viz.plots import plot_epe_per_frame, plot_pr_curves
+from lidarflow.viz.overlay import moving_rgb, overlay_rgb, write_gif
+from lidarflow.viz.plots import plot_epe_per_frame, plot_pr_curves, plot_reliability
 
 __all__ = ["OverlayCollector", "evaluate_and_report", "pr_figure", "safe_stem"]
 
@@ -49,6 +50,19 @@ class OverlayCollector:
         self.scale = scale
         self.frames: dict[str, list[np.ndarray]] = {}
         self.flow_frames: dict[str, list[np.ndarray]] = {}
+        self.moving_frames: dict[str, list[np.ndarray]] = {}
+        self.moving_has_truth = False
+
+    def add_moving(
+        self, method: str, t: int, moving: np.ndarray, truth: np.ndarray | None = None
+    ) -> None:
+        """Draw one frame's moving cells on ``O^t`` (``evaluate_maps(..., on_moving=...)``)."""
+        frames = self.moving_frames.setdefault(method, [])
+        if len(frames) < self.max_frames:
+            self.moving_has_truth |= truth is not None
+            frames.append(
+                moving_rgb(self.occupancy[t], moving, truth, self.visibility[t], self.scale)
+            )
 
     def add_flow(self, method: str, flow: np.ndarray) -> None:
         """Colour-code a backward flow ``(2, H, W)`` (colour wheel, 3 cells = full colour)."""
@@ -83,6 +97,14 @@ class OverlayCollector:
             if frames:
                 path = write_gif(frames, folder / f"{stem}_{method}_flow.gif", fps=fps)
                 out.append((f"{method}: backward flow (colour wheel, 3 cells = full colour)", path))
+        for method, frames in self.moving_frames.items():
+            if frames:
+                path = write_gif(frames, folder / f"{stem}_{method}_moving.gif", fps=fps)
+                legend = (
+                    "found red, missed green, both yellow" if self.moving_has_truth
+                    else "moving red, static grey"
+                )
+                out.append((f"{method}: moving cells ({legend})", path))
         return out
 
 
@@ -117,7 +139,8 @@ def evaluate_and_report(
         bar = progress(name, len(recording) - 1) if progress else contextlib.nullcontext()
         with bar as b:
             scorers = evaluate_recording(
-                recording, methods, grid, warmup, getattr(b, "update", None), collector
+                recording, methods, grid, warmup, getattr(b, "update", None), collector,
+                None if collector is None else collector.add_moving,
             )
         results.append((name, scorers))
         if report_dir is not None and collector is not None:
@@ -125,7 +148,12 @@ def evaluate_and_report(
             title = f"{Path(name).name}: PR curves"
             pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", title)
             gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
-            figures[name] = [("precision-recall", pr), *gifs]
+            reliability = plot_reliability(
+                {m: sc.calibration.summary() for m, sc in scorers.items()},
+                report_dir / f"{stem}_reliability.png",
+                f"{Path(name).name}: reliability",
+            )
+            figures[name] = [("precision-recall", pr), ("reliability diagram", reliability), *gifs]
             epe = {m: s.epe_per_frame for m, s in scorers.items() if s.epe_per_frame}
             if epe:
                 plot = plot_epe_per_frame(epe, report_dir / f"{stem}_epe.png", f"{Path(name).name}")

@@ -12,6 +12,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from lidarflow.evaluate.report import uncertainty_rows
+
 __all__ = ["write_html_report"]
 
 _STYLE = """
@@ -32,21 +34,34 @@ def _data_uri(path: Path) -> str:
     return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode()
 
 
+def _html_table(
+    rows: Mapping[str, Mapping[str, float]], columns: Sequence[str], best: Mapping[str, float]
+) -> str:
+    """One row per method; a value equal to its column's ``best`` is bold."""
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    body = []
+    for name, row in rows.items():
+        cells = []
+        for c in columns:
+            if c not in row:
+                cells.append("<td>-</td>")
+                continue
+            cls = ' class="best"' if c in best and row[c] == best[c] else ""
+            cells.append(f"<td{cls}>{row[c]:.4f}</td>")
+        body.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
+    return f"<table><tr><th>method</th>{head}</tr>{''.join(body)}</table>"
+
+
 def _table(methods: Mapping[str, Mapping[str, float]]) -> str:
     present = [c for c in _COLUMNS if any(c in m for m in methods.values())]
     best = {c: max(m.get(c, float("-inf")) for m in methods.values()) for c in ("f1", "changed_f1")}
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in present)
-    rows = []
-    for name, metrics in methods.items():
-        cells = []
-        for c in present:
-            if c not in metrics:
-                cells.append("<td>-</td>")
-                continue
-            cls = ' class="best"' if c in best and metrics[c] == best[c] else ""
-            cells.append(f"<td{cls}>{metrics[c]:.4f}</td>")
-        rows.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
-    return f"<table><tr><th>method</th>{head}</tr>{''.join(rows)}</table>"
+    return _html_table(methods, present, best)
+
+
+def _uncertainty_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
+    """Calibration (lower is better) and moving segmentation (higher is better); best bold."""
+    present, rows, best = uncertainty_rows({name: dict(m) for name, m in methods.items()})
+    return _html_table(rows, present, best) if present else ""
 
 
 def write_html_report(
@@ -68,6 +83,12 @@ def write_html_report(
         "<p>F1 at threshold 0.4, micro-averaged over all cells of all frames after the warm-up; "
         "changed-cell F1 counts only cells that differ between the current and the next map "
         "(copying the last map scores 0 there). Best F1 and changed-cell F1 in bold.</p>",
+        "<p>Second table: calibration of the predicted probabilities (expected calibration "
+        "error over bins of 0.1 on all cells, the same on the cells predicted at least 0.1 "
+        "(ece_active), and the Brier score; lower is better; see the reliability diagram) and, "
+        "for flow models on simulated data, moving-object "
+        "segmentation (IoU, precision and recall of the moving cells of the current map "
+        "against the simulator's truth).</p>",
         "<p class='legend'>Overlays: <span style='background:#28b428'>truth only</span>"
         "<span style='background:#dc2828;color:white'>prediction only</span>"
         "<span style='background:#f0c800'>both</span>"
@@ -75,10 +96,12 @@ def write_html_report(
     ]
     if len(report.get("recordings", [])) > 1:
         parts += ["<h2>Overall (micro-averaged)</h2>", _table(report["overall"])]
+        parts.append(_uncertainty_table(report["overall"]))
     for entry in report.get("recordings", []):
         name = html.escape(Path(entry["path"]).name)
         parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated</p>")
         parts.append(_table(entry["methods"]))
+        parts.append(_uncertainty_table(entry["methods"]))
         for caption, image in figures.get(entry["path"], []):
             parts.append(
                 f"<figure><img src='{_data_uri(Path(image))}' alt='{html.escape(caption)}'>"

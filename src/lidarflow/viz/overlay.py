@@ -1,4 +1,5 @@
-"""Prediction overlays as the paper shows them: truth green, prediction red, both yellow."""
+"""Prediction overlays as the paper shows them: truth green, prediction red, both yellow; and
+moving-object overlays in the same colours over the current map."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["overlay_rgb", "write_gif"]
+__all__ = ["moving_rgb", "overlay_rgb", "write_gif"]
 
 _GREEN = np.array([40, 180, 40], np.uint8)
 _RED = np.array([220, 40, 40], np.uint8)
 _YELLOW = np.array([240, 200, 0], np.uint8)
 _UNSEEN = np.array([225, 225, 225], np.uint8)
+_STATIC = np.array([90, 90, 90], np.uint8)
 
 
 def overlay_rgb(
@@ -35,6 +37,35 @@ def overlay_rgb(
     image[t & ~p] = _GREEN
     image[p & ~t] = _RED
     image[p & t] = _YELLOW
+    return np.repeat(np.repeat(image, scale, axis=0), scale, axis=1)
+
+
+def moving_rgb(
+    occupancy: np.ndarray,
+    moving: np.ndarray,
+    truth: np.ndarray | None = None,
+    visibility: np.ndarray | None = None,
+    scale: int = 4,
+) -> np.ndarray:
+    """``(H*scale, W*scale, 3)`` uint8 picture of moving-object segmentation on the current map:
+    occupied cells dark grey, cells found moving red; with ``truth`` (the true moving cells)
+    truly moving cells that were missed green and those found yellow; not visible light grey.
+
+    >>> occ = np.array([[1, 1, 1, 0]], bool)
+    >>> moving_rgb(occ, np.array([[1, 0, 0, 0]], bool), np.array([[1, 1, 0, 0]], bool),
+    ...            scale=1)[0].tolist()
+    [[240, 200, 0], [40, 180, 40], [90, 90, 90], [255, 255, 255]]
+    """
+    occ = np.asarray(occupancy, bool)
+    m = np.asarray(moving, bool)
+    t = np.zeros_like(m) if truth is None else np.asarray(truth, bool)
+    image = np.full((*occ.shape, 3), 255, np.uint8)
+    if visibility is not None:
+        image[~np.asarray(visibility, bool)] = _UNSEEN
+    image[occ] = _STATIC
+    image[t & ~m] = _GREEN
+    image[m & ~t] = _RED
+    image[m & t] = _YELLOW
     return np.repeat(np.repeat(image, scale, axis=0), scale, axis=1)
 
 

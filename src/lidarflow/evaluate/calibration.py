@@ -1,0 +1,155 @@
+"""Calibration of predicted occupancy probabilities (issue 8: uncertainty planners can use).
+
+A predictor is calibrated when, of all cells given probability ``p`` of being occupied in the
+next frame, a share ``p`` really is. Measured, over every cell of every scored frame:
+
+* the *reliability diagram*: predicted probabilities in ``bins`` equal bins ``[k/bins,
+  (k+1)/bins)`` (the last one closed at 1); per bin the cell count, the mean predicted
+  probability and the observed frequency of occupancy;
+* the *expected calibration error* (ECE): ``sum_k (n_k / N) |mean_p_k - freq_k|`` (Guo et al.
+  2017), bins of 0.1 by default;
+* the *active ECE*: the same over the cells predicted at least ``1 / bins`` (every bin but the
+  lowest), i.e. how far to trust the probability wherever the predictor says a cell may be
+  occupied. Most cells are free and predicted free, which makes the plain ECE small for every
+  method; the active ECE is what separates them (copy-last's is ``1 - precision``);
+* the *Brier score*: ``mean (p - y)^2`` (lower is better; a proper score, so it also rewards
+  sharpness, which ECE alone does not).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CALIBRATION_BINS", "Calibration", "brier_score", "expected_calibration_error"]
+
+CALIBRATION_BINS = 10
+
+
+@dataclass
+class Calibration:
+    """Sums that make a reliability diagram, accumulated frame by frame; they add up
+    (micro-averaging over frames and recordings)."""
+
+    bins: int = CALIBRATION_BINS
+    count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    probability_sum: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    occupied: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    squared_error: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.bins < 1:
+            raise ValueError(f"bins must be >= 1, got {self.bins}")
+        if not len(self.count):
+            self.count = np.zeros(self.bins, np.int64)
+            self.probability_sum = np.zeros(self.bins)
+            self.occupied = np.zeros(self.bins, np.int64)
+
+    def add(self, probability: np.ndarray, target: np.ndarray) -> None:
+        """Add predicted probabilities (any shape, values clipped to [0, 1]) and the boolean
+        truth of the same shape."""
+        p = np.clip(np.asarray(probability, np.float64), 0.0, 1.0).ravel()
+        y = np.asarray(target).astype(bool).ravel()
+        if p.shape != y.shape:
+            raise ValueError(f"probability {np.shape(probability)} and target "
+                             f"{np.shape(target)} differ in shape")
+        index = np.minimum((p * self.bins).astype(np.int64), self.bins - 1)
+        self.count += np.bincount(index, minlength=self.bins)
+        self.probability_sum += np.bincount(index, weights=p, minlength=self.bins)
+        self.occupied += np.bincount(index[y], minlength=self.bins)
+        self.squared_error += float(np.sum((p - y) ** 2))
+
+    def __add__(self, other: Calibration) -> Calibration:
+        if self.bins != other.bins:
+            raise ValueError(f"cannot add calibrations of {self.bins} and {other.bins} bins")
+        return Calibration(
+            self.bins,
+            self.count + other.count,
+            self.probability_sum + other.probability_sum,
+            self.occupied + other.occupied,
+            self.squared_error + other.squared_error,
+        )
+
+    @property
+    def cells(self) -> int:
+        return int(self.count.sum())
+
+    def mean_probability(self) -> np.ndarray:
+        """Per bin, the mean predicted probability (NaN for empty bins)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.count > 0, self.probability_sum / self.count, np.nan)
+
+    def frequency(self) -> np.ndarray:
+        """Per bin, the observed share of occupied cells (NaN for empty bins)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.count > 0, self.occupied / self.count, np.nan)
+
+    def ece(self) -> float:
+        """Expected calibration error; 0.0 with no cells."""
+        if not self.cells:
+            return 0.0
+        used = self.count > 0
+        gap = np.abs(self.probability_sum[used] - self.occupied[used])  # n_k |mean_p - freq|
+        return float(gap.sum() / self.cells)
+
+    def ece_active(self) -> float:
+        """ECE over the cells predicted ``>= 1 / bins`` (all bins but the lowest); 0.0 when
+        there are none."""
+        cells = int(self.count[1:].sum())
+        if not cells:
+            return 0.0
+        gap = np.abs(self.probability_sum[1:] - self.occupied[1:])
+        return float(gap.sum() / cells)
+
+    def brier(self) -> float:
+        """Mean squared difference between probability and truth; 0.0 with no cells."""
+        return self.squared_error / self.cells if self.cells else 0.0
+
+    def summary(self) -> dict[str, Any]:
+        """``{"ece", "ece_active", "brier", "cells", "bins": [{"low", "high", "count",
+        "mean_probability", "frequency"}]}`` (empty bins have ``null`` mean and frequency)."""
+        mean, freq = self.mean_probability(), self.frequency()
+        bins = [
+            {
+                "low": k / self.bins,
+                "high": (k + 1) / self.bins,
+                "count": int(self.count[k]),
+                "mean_probability": None if np.isnan(mean[k]) else float(mean[k]),
+                "frequency": None if np.isnan(freq[k]) else float(freq[k]),
+            }
+            for k in range(self.bins)
+        ]
+        return {
+            "ece": self.ece(),
+            "ece_active": self.ece_active(),
+            "brier": self.brier(),
+            "cells": self.cells,
+            "bins": bins,
+        }
+
+
+def expected_calibration_error(
+    probability: np.ndarray, target: np.ndarray, bins: int = CALIBRATION_BINS
+) -> float:
+    """ECE of probabilities against boolean truth, ``bins`` equal bins, weighted by count.
+
+    >>> p, y = np.array([0.2, 0.2, 0.9, 0.9]), np.array([0, 1, 1, 1])
+    >>> round(expected_calibration_error(p, y), 9)  # (2/4)|0.2 - 1/2| + (2/4)|0.9 - 1|
+    0.2
+    """
+    calibration = Calibration(bins)
+    calibration.add(probability, target)
+    return calibration.ece()
+
+
+def brier_score(probability: np.ndarray, target: np.ndarray) -> float:
+    """``mean (p - y)^2``.
+
+    >>> brier_score(np.array([1.0, 0.5]), np.array([1, 0]))
+    0.125
+    """
+    calibration = Calibration()
+    calibration.add(probability, target)
+    return calibration.brier()
