@@ -185,7 +185,7 @@ def test_step_exports_without_data_dependent_branches():
 def test_occupancy_head_starts_as_copy_last_and_adds_one_channel():
     net = build_model("flownet", occupancy_head=True)
     assert net.out_channels == 5
-    assert count_parameters(net) == PAPER_PARAMETERS + 16 * 9 + 1 + 1  # 5th channel + gain
+    assert count_parameters(net) == PAPER_PARAMETERS + (16 + 1 + 2) * 9 + 1 + 1  # head + gain
     seq = _seq(2, 4, 20, 17, seed=4)
     out, _ = net(seq)
     assert out.shape == (2, 4, 5, 20, 17) and out[:, :, :4].abs().max() == 0
@@ -211,3 +211,18 @@ def test_occupancy_head_residual_moves_the_probability_and_flow_still_warps():
     torch.testing.assert_close(net.predict_next(maps, out), torch.sigmoid(expected))
     with pytest.raises(ValueError, match="occupancy_head"):
         build_model("flownet").next_logit(maps, out[:, :4])
+
+
+def test_occupancy_memory_is_an_exponential_average_of_past_maps():
+    net = build_model("flownet", occupancy_head=True, memory_decays=(0.5, 0.8))
+    assert net.state_channels() == (16, 16, 16, 2)
+    maps = torch.zeros(1, 2, 5, 5)
+    maps[0, 0, 1, 1] = 1.0
+    state = net.init_state(1, 5, 5)
+    for _ in range(3):
+        _, state = net.step(maps, state)
+    memory = state[-1][0, :, 1, 1]
+    torch.testing.assert_close(memory, torch.tensor([1 - 0.5**3, 1 - 0.8**3]))
+    assert state[-1][0, :, 0, 0].abs().max() == 0
+    with pytest.raises(ModelError, match="memory_decays"):
+        build_model("flownet", occupancy_head=True, memory_decays=(1.5,))

@@ -18,17 +18,20 @@ its prediction ``W(O^t, 0) = O^t`` is copy-last, the baseline it has to beat (is
 this start to train better than a random head).
 
 Occupancy head (``occupancy_head=True``, not in the paper; issue 11). Warping can only move cells
-that were seen, and a thresholded warp of a binary map cannot express "this cell flickers" or
-"this cell will likely be free". The head adds a fifth output channel, a per-cell residual
-logit ``r``, and the prediction becomes ``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with a learnt
-gain ``g``. At initialisation ``r`` is the constant logit of :data:`FREE_PROBABILITY_INIT` and
-``g`` lifts an occupied cell to :data:`OCCUPIED_PROBABILITY_INIT`, so the untrained net is still
-exactly copy-last at the 0.4 threshold, and a cross-entropy does not first have to pull every
-free cell down (a symmetric start at 0.05 / 0.95 did: the bias moved faster than the gain and
-the first epoch predicted nothing occupied). Trained with a cross-entropy against ``O^{t+1}``
+that were seen, and a thresholded warp of a binary map cannot say "this cell flickers" or "this
+cell will likely be free". The head keeps, as extra recurrent state, exponential moving averages
+``m`` of the occupancy (decays :data:`MEMORY_DECAYS`; what the temporal-average baseline knows),
+and a 3x3 convolution over ``(GRU output, O^t, m)`` gives a per-cell residual logit ``r``,
+returned as the fifth output channel. The prediction is
+``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with a learnt gain ``g``. At initialisation ``r`` is
+the constant logit of :data:`FREE_PROBABILITY_INIT` and ``g`` lifts an occupied cell to
+:data:`OCCUPIED_PROBABILITY_INIT`: the untrained net is still exactly copy-last at the 0.4
+threshold, and a cross-entropy does not first have to pull every free cell down (a symmetric
+start at 0.05 / 0.95 did: the bias moved faster than the gain and the first epoch predicted
+nothing occupied). Trained with a cross-entropy against ``O^{t+1}``
 (:attr:`lidarflow.losses.LossConfig.occupancy_bce`) the output is a probability, which is what
-the F1-at-0.4 metric and a planner both want. Adds 145 parameters (16 x 9 weights + 1 bias of
-the fifth channel) plus the gain.
+the F1-at-0.4 metric and a planner both want. The flow part is unchanged (42,500 parameters);
+the head adds ``(16 + 1 + len(decays)) * 9 + 1`` weights and the gain.
 
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
@@ -50,6 +53,8 @@ ACTIVATIONS = ("relu", "none")
 # an occupied one stays occupied nine times in ten.
 FREE_PROBABILITY_INIT = 0.01
 OCCUPIED_PROBABILITY_INIT = 0.9
+# A fast and a slow memory: about 2 and 5 frames, the temporal-average baseline's window.
+MEMORY_DECAYS = (0.5, 0.8)
 
 
 class LidarFlowNet(RecurrentMapModel):
@@ -67,6 +72,7 @@ class LidarFlowNet(RecurrentMapModel):
     """
 
     out_channels: int = 4  # 5 with the occupancy head (channel 4: residual logit)
+    memory_decays: tuple[float, ...] = ()
 
     def __init__(
         self,
@@ -77,6 +83,7 @@ class LidarFlowNet(RecurrentMapModel):
         conv0_activation: str = "relu",
         zero_init_flow: bool = True,
         occupancy_head: bool = False,
+        memory_decays: tuple[float, ...] = MEMORY_DECAYS,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -87,13 +94,17 @@ class LidarFlowNet(RecurrentMapModel):
         self.hidden_channels = hidden_channels
         self.occupancy_head = occupancy_head
         self.out_channels = 5 if occupancy_head else 4
+        if occupancy_head:
+            if not all(0.0 <= d < 1.0 for d in memory_decays):
+                raise ValueError(f"memory_decays must be in [0, 1), got {memory_decays}")
+            self.memory_decays = tuple(float(d) for d in memory_decays)
         self.conv0 = nn.Conv2d(in_channels, hidden_channels, kernel_size, padding=pad)
         self.act0 = nn.ReLU() if conv0_activation == "relu" else nn.Identity()
         self.grus = nn.ModuleList(
             ConvGRUCell(hidden_channels, hidden_channels, kernel_size, dilation=d)
             for d in dilations
         )
-        self.conv_flow = nn.Conv2d(hidden_channels, self.out_channels, kernel_size, padding=pad)
+        self.conv_flow = nn.Conv2d(hidden_channels, 4, kernel_size, padding=pad)
         if zero_init_flow:
             nn.init.zeros_(self.conv_flow.weight)
             nn.init.zeros_(self.conv_flow.bias)
@@ -101,22 +112,33 @@ class LidarFlowNet(RecurrentMapModel):
             free, occupied = (
                 math.log(p / (1.0 - p)) for p in (FREE_PROBABILITY_INIT, OCCUPIED_PROBABILITY_INIT)
             )
-            with torch.no_grad():
-                self.conv_flow.weight[4:].zero_()
-                self.conv_flow.bias[4:].fill_(free)
+            features = hidden_channels + 1 + len(self.memory_decays)
+            self.conv_occupancy = nn.Conv2d(features, 1, kernel_size, padding=pad)
+            nn.init.zeros_(self.conv_occupancy.weight)
+            nn.init.constant_(self.conv_occupancy.bias, free)
             self.warp_gain = nn.Parameter(torch.tensor(occupied - free))
 
     def state_channels(self) -> tuple[int, ...]:
-        return tuple(cell.hidden_channels for cell in self.grus)
+        """Three GRU states, then (occupancy head) one tensor of occupancy memories."""
+        grus = tuple(cell.hidden_channels for cell in self.grus)
+        return (*grus, len(self.memory_decays)) if self.occupancy_head else grus
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
-        """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` and the GRU states -> flow and new states."""
+        """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` and the state -> output and new state."""
         x = self.act0(self.conv0(maps))
         new_state = []
-        for cell, y_prev in zip(self.grus, state, strict=True):
+        for cell, y_prev in zip(self.grus, state, strict=False):
             x = cell(x, y_prev)
             new_state.append(x)
-        return self.conv_flow(x), tuple(new_state)
+        flow = self.conv_flow(x)
+        if not self.occupancy_head:
+            return flow, tuple(new_state)
+        occupancy = maps[:, 0:1]
+        decays = torch.tensor(self.memory_decays, dtype=maps.dtype, device=maps.device)
+        decays = decays.view(1, -1, 1, 1)
+        memory = decays * state[-1] + (1.0 - decays) * occupancy
+        residual = self.conv_occupancy(torch.cat([x, occupancy, memory], dim=1))
+        return torch.cat([flow, residual], dim=1), (*new_state, memory)
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``P^{t+1}`` ``(B, 1, H, W)`` from maps ``(B, 2, H, W)`` and the step's output
