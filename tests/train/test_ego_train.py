@@ -53,7 +53,7 @@ def test_windows_carry_motions_in_cells_only_when_asked(driving):
     data = load_train_data(cfg.data, with_motion=True)
     maps, motion = data.sources[0][1]
     torch.testing.assert_close(maps, plain.sources[0][1])
-    rec_id, start = data.sources[0].index[1]
+    _, start = data.sources[0].index[1]
     expected = metres_to_cells(relative_motions(rec.poses)[0], GRID.res)[start : start + 10]
     np.testing.assert_allclose(motion.numpy(), expected)
     assert motion.shape == (10, 3) and motion[:, 0].abs().max() > 0.1  # the robot drives

@@ -41,6 +41,11 @@ def export_onnx(
     path = Path(path)
     if not path.parent.exists():
         raise PredictError(f"{path.parent}: no such folder for the ONNX file")
+    if getattr(model, "ego_motion", False):
+        raise PredictError(
+            "ego-motion models cannot be exported to ONNX yet (the step takes the odometry as "
+            "well); run them with PyTorch (`lidarflow predict --model RUN_DIR`)"
+        )
     model = model.eval()
     graph = StepGraph(model)
     state = model.init_state(1, height, width)
