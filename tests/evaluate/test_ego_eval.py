@@ -53,8 +53,9 @@ def test_compensation_beats_copy_last_and_the_untrained_ego_model_is_exactly_it(
 def test_ego_models_refuse_a_recording_without_poses(driving):
     blind = driving.slice(0, len(driving))
     blind.poses = None
-    methods = [CopyLast(), ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))]
-    with pytest.raises(EvaluateError, match="no sensor poses.*ego"):
+    ego = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
+    methods = [CopyLast(), ego]
+    with pytest.raises(EvaluateError, match=r"no sensor poses.*ego"):
         evaluate_recording(blind, methods, GRID)
     evaluate_recording(blind, [CopyLast()], GRID)  # the others still run
 
@@ -93,7 +94,7 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
         "ego_motion": True
     }
     out = tmp_path / "e.json"
-    code, text, err = run(
+    code, _, err = run(
         ["evaluate", str(data), "--model", str(tmp_path / "run"), "--grid", "40", "--res",
          "0.05", "--ego-oracle", "--json", str(out)],
         capsys,
