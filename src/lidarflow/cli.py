@@ -278,7 +278,7 @@ def _methods_and_config(
         methods.append(ModelMethod(name, StreamingModel(net)))
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
         if methods[-1].uses_motion and ego_oracle:
-            methods.append(ModelMethod(name + "_oracle_ego", StreamingModel(net), oracle=True))
+            methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True))
     if any(getattr(m, "uses_motion", False) for m in methods):
         from lidarflow.evaluate.ego import CopyLastEgo
 
@@ -410,7 +410,10 @@ def predict(
     res: ResOpt = 0.1,
 ) -> None:
     """Write the input scans plus, per scan, the predicted next map (nav_msgs/OccupancyGrid in
-    the scan's frame, ready for RViz/Foxglove) and the flow (32FC2 images) to a new bag."""
+    the scan's frame, ready for RViz/Foxglove) and the flow (32FC2 images) to a new bag.
+
+    A model trained with --ego-motion gets the recording's poses (odometry) with every scan;
+    a recording without poses is then refused."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec

@@ -101,7 +101,7 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
     )
     assert code == 0, err
     methods = json.loads(out.read_text())["recordings"][0]["methods"]
-    assert {"copy_last_ego", "copy_last_ego_oracle", "run", "run_oracle_ego"} <= set(methods)
+    assert {"copy_last_ego", "copy_last_ego_oracle", "run", "run_oracle"} <= set(methods)
     blind = driving.slice(0, len(driving))
     blind.poses = None
     code, _, err = run(
