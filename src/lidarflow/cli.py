@@ -304,6 +304,7 @@ def evaluate(
         list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
     ],
     topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
     model: Annotated[
         list[Path] | None,
         typer.Option(
@@ -362,7 +363,7 @@ def evaluate(
     spec = GridSpec(grid, grid, res)
     methods, config = _methods_and_config(list(model or []), ta_window, ta_threshold, ego_oracle)
     config.update({"warmup": warmup, "grid": spec.to_dict()})
-    named = [(str(path), _load(path, topic)) for path in inputs]
+    named = [(str(path), _load(path, topic, odom_topic)) for path in inputs]
     report = evaluate_and_report(
         named, methods, spec, warmup, config, report_dir, gif_frames, _eval_progress
     )
@@ -402,6 +403,7 @@ def predict(
         ),
     ],
     topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
     model: ModelOpt = None,
     horizon: Annotated[
         int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
@@ -418,7 +420,7 @@ def predict(
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec
 
-    recording = _load(input, topic)
+    recording = _load(input, topic, odom_topic)
     predictor = Predictor(model, GridSpec(grid, grid, res), horizon=horizon)
     with _progress(len(recording), f"predicting {input.name}") as bar:
         counts = predict_to_bag(recording, predictor, output, bar.update)
