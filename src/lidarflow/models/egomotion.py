@@ -84,8 +84,11 @@ class EgoCompensated(RecurrentMapModel):
         motion: Tensor | None = None,
         next_motion: Tensor | None = None,
     ) -> tuple[Tensor, tuple[Tensor, ...]]:
-        if motion is not None:
-            state = tuple(rigid_warp(s, motion.to(s.dtype)) for s in state)
+        if motion is not None and state:
+            # one warp for all state tensors: one sampling grid, one grid_sample call
+            sizes = [s.shape[1] for s in state]
+            moved = rigid_warp(torch.cat(state, dim=1), motion.to(state[0].dtype))
+            state = tuple(torch.split(moved, sizes, dim=1))
         out, state = self.inner.step(maps, state)
         nxt = motion if next_motion is None else next_motion
         if nxt is None:
