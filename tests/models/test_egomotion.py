@@ -93,3 +93,14 @@ def test_built_by_kwargs_and_deeptracking_supported_with_gradients():
     out.sum().backward()
     assert motions.grad is not None and torch.isfinite(motions.grad).all()
     assert any(p.grad is not None for p in dt.parameters())
+
+
+def test_bf16_autocast_keeps_the_ego_warp_in_fp32():
+    ego = EgoCompensated(LidarFlowNet()).eval()  # zero world flow: the output is the ego flow
+    seq = (torch.rand(1, 2, 2, 100, 100) > 0.8).float()
+    motions = torch.tensor([[[0.0, 0.0, 0.0], [3.3, -1.7, 0.05]]])
+    ref, _ = ego(seq, motions=motions)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out, _ = ego(seq, motions=motions)
+    assert out.dtype == torch.float32
+    assert (out - ref).abs().max() < 1e-3  # bf16 cell coordinates would be off by ~0.25 cells

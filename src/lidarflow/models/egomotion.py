@@ -85,9 +85,13 @@ class EgoCompensated(RecurrentMapModel):
         next_motion: Tensor | None = None,
     ) -> tuple[Tensor, tuple[Tensor, ...]]:
         if motion is not None and state:
-            # one warp for all state tensors: one sampling grid, one grid_sample call
+            # One warp for all state tensors (one sampling grid, one grid_sample call), in at
+            # least fp32: under bf16 autocast the states are bf16, whose 8-bit mantissa would
+            # put cell coordinates near 100 off by up to half a cell.
             sizes = [s.shape[1] for s in state]
-            moved = rigid_warp(torch.cat(state, dim=1), motion.to(state[0].dtype))
+            dtype = state[0].dtype
+            work = torch.promote_types(dtype, torch.float32)
+            moved = rigid_warp(torch.cat(state, dim=1).to(work), motion.to(work)).to(dtype)
             state = tuple(torch.split(moved, sizes, dim=1))
         out, state = self.inner.step(maps, state)
         nxt = motion if next_motion is None else next_motion
@@ -96,7 +100,9 @@ class EgoCompensated(RecurrentMapModel):
         return self.to_next_frame(out, nxt), state
 
     def to_next_frame(self, out: Tensor, next_motion: Tensor) -> Tensor:
-        """Express the inner net's output (frame ``t``) in the frame of ``t + 1``."""
+        """Express the inner net's output (frame ``t``) in the frame of ``t + 1`` (computed in at
+        least fp32, see :meth:`step`)."""
+        out = out.to(torch.promote_types(out.dtype, torch.float32))
         next_motion = next_motion.to(out.dtype)
         if self.out_channels == 1:
             return rigid_warp(out, next_motion, fill=OCCUPANCY_FILL_LOGIT)
