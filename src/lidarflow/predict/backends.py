@@ -72,10 +72,11 @@ class OnnxBackend:
         inputs = self.session.get_inputs()
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
-        self.state_shapes = [tuple(i.shape) for i in inputs[1:]]
+        # ego-motion graphs take the motion (1, 3) right after the maps
+        self.uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
+        self.state_shapes = [tuple(i.shape) for i in inputs[1 + self.uses_motion :]]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])
-        self.uses_motion = False  # ego-motion models are not exported (export_onnx refuses)
 
     def init_state(self, height: int, width: int) -> Any:
         if (height, width) != self.grid_shape:
@@ -89,5 +90,8 @@ class OnnxBackend:
         self, maps: np.ndarray, state: Any, motion: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, Any]:
         feeds = {"maps": maps, **{f"state{i}": s for i, s in enumerate(state)}}
+        if self.uses_motion:  # zeros: no motion known, the same as no compensation
+            m = np.zeros(3, np.float32) if motion is None else np.asarray(motion, np.float32)
+            feeds["motion"] = m.reshape(1, 3)
         probability, out, *next_state = self.session.run(None, feeds)
         return probability, out, next_state
