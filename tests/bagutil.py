@@ -55,6 +55,33 @@ def _odom_msg(ts, stamp_ns: int, x: float, y: float, yaw: float):
     )
 
 
+def _tf_msg(ts, stamp_ns: int, links: list[tuple[str, str, tuple[float, float, float]]]):
+    """A ``tf2_msgs/TFMessage`` of ``(parent, child, (x, y, yaw))`` links (registers the type,
+    which the bundled typestores lack)."""
+    if "tf2_msgs/msg/TFMessage" not in ts.types:
+        from rosbags.typesys import get_types_from_msg
+
+        definition = "geometry_msgs/TransformStamped[] transforms"
+        ts.register(get_types_from_msg(definition, "tf2_msgs/msg/TFMessage"))
+    t = ts.types
+    TF, Stamped = t["tf2_msgs/msg/TFMessage"], t["geometry_msgs/msg/TransformStamped"]
+    Transform, Vec, Quat = (
+        t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/Vector3"],
+        t["geometry_msgs/msg/Quaternion"],
+    )
+    return TF(transforms=[
+        Stamped(
+            header=_header(ts, stamp_ns, parent),
+            child_frame_id=child,
+            transform=Transform(
+                translation=Vec(x=x, y=y, z=0.3),
+                rotation=Quat(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2))),
+            ),
+        )
+        for parent, child, (x, y, yaw) in links
+    ])
+
+
 def write_bag(
     path: Path,
     kind: str = "ros1",
@@ -62,10 +89,12 @@ def write_bag(
     rate_hz: float = 10.0,
     odom: bool = False,
     extra_string_topic: bool = False,
+    mount: tuple[float, float, float] | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
-    kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder).
+    kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder). ``mount``: also a
+    ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``).
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -105,6 +134,11 @@ def write_bag(
                 stamp = t0 + i * period // 2
                 msg = _odom_msg(ts, stamp, 0.05 * i, 0.0, 0.01 * i)
                 writer.write(c, stamp, ser(msg, "nav_msgs/msg/Odometry"))
+        if mount is not None:
+            msg = _tf_msg(ts, t0, [("base_link", "chassis", (0.2, 0.0, 0.0)),
+                                   ("chassis", "laser", (mount[0] - 0.2, mount[1], mount[2]))])
+            c = conn("/tf", "tf2_msgs/msg/TFMessage")
+            writer.write(c, t0, ser(msg, "tf2_msgs/msg/TFMessage"))
         if extra_string_topic:
             c = conn("/chatter", "std_msgs/msg/String")
             String = ts.types["std_msgs/msg/String"]

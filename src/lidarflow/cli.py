@@ -38,7 +38,8 @@ OdomOpt = Annotated[
     typer.Option(
         "--odom-topic",
         help="Odometry (nav_msgs/Odometry or PoseStamped) topic for sensor poses; by default the "
-        "bag's only Odometry topic, if it has one.",
+        "bag's only Odometry topic, if it has one. The base's poses are moved to the scanner "
+        "by the bag's TF (base -> scan frame) when it has it.",
     ),
 ]
 GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
@@ -267,9 +268,12 @@ def _methods_and_config(
     ta_window: int = 5,
     ta_threshold: float = 0.4,
     moving_threshold: float | None = None,
+    ego_oracle: bool = False,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
-    configuration that describes them for the report."""
+    configuration that describes them for the report. With an ego-motion model among them the
+    copy-last-moved-by-odometry baseline comes too; ``ego_oracle`` adds the variants that know
+    the true next pose."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
@@ -288,6 +292,12 @@ def _methods_and_config(
             name += "_"
         methods.append(ModelMethod(name, StreamingModel(net), moving_threshold))
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
+        if methods[-1].uses_motion and ego_oracle:
+            methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True))
+    if any(getattr(m, "uses_motion", False) for m in methods):
+        from lidarflow.evaluate.ego import CopyLastEgo
+
+        methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
     config = {
         "threshold": 0.4,
         "temporal_average": {"window": ta_window, "threshold": ta_threshold},
@@ -299,6 +309,12 @@ def _methods_and_config(
             "rule": "occupied and |forward flow - fitted background flow| > threshold",
         },
     }
+    if any(getattr(m, "uses_motion", False) for m in methods):
+        config["ego_motion"] = (
+            "models built with ego_motion get the recordings' poses (odometry); the motion to "
+            "the next frame is the last one again (constant velocity, causal); *_oracle* "
+            "variants use the true next pose instead; copy_last_ego moves the last map by it"
+        )
     return methods, config
 
 
@@ -308,6 +324,7 @@ def evaluate(
         list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
     ],
     topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
     model: Annotated[
         list[Path] | None,
         typer.Option(
@@ -340,6 +357,14 @@ def evaluate(
     ta_threshold: Annotated[
         float, typer.Option(help="Temporal-average baseline: occupied when mean >= this.")
     ] = 0.4,
+    ego_oracle: Annotated[
+        bool,
+        typer.Option(
+            "--ego-oracle",
+            help="For ego-motion models: also score the variant told the true next pose (an "
+            "upper bound; at run time only poses up to now are known).",
+        ),
+    ] = False,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     moving_threshold: MovingOpt = None,
@@ -354,17 +379,21 @@ def evaluate(
     score; lower is better) and, for flow models on simulated recordings, moving-object
     segmentation (IoU, precision, recall of the moving cells against the simulator's truth).
     The JSON has them per method under "calibration" (with the reliability-diagram bins) and
-    "segmentation"; --report draws the reliability diagram and the moving cells."""
+    "segmentation"; --report draws the reliability diagram and the moving cells.
+
+    A model trained with --ego-motion gets each recording's poses (odometry) and the
+    copy_last_ego baseline (the last map moved by the odometry) is scored beside it; a
+    recording without poses is then refused."""
     from lidarflow.evaluate.report import format_table, format_uncertainty_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
     spec = GridSpec(grid, grid, res)
     methods, config = _methods_and_config(
-        list(model or []), ta_window, ta_threshold, moving_threshold
+        list(model or []), ta_window, ta_threshold, moving_threshold, ego_oracle
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
-    named = [(str(path), _load(path, topic)) for path in inputs]
+    named = [(str(path), _load(path, topic, odom_topic)) for path in inputs]
     report = evaluate_and_report(
         named, methods, spec, warmup, config, report_dir, gif_frames, _eval_progress
     )
@@ -410,6 +439,7 @@ def predict(
         ),
     ],
     topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
     model: ModelOpt = None,
     horizon: Annotated[
         int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
@@ -421,12 +451,15 @@ def predict(
     """Write the input scans plus, per scan, the predicted next map (nav_msgs/OccupancyGrid in
     the scan's frame, ready for RViz/Foxglove), the flow (32FC2 images) and the moving cells of
     the current map (/lidarflow/moving, OccupancyGrid: 100 moving, 0 not, -1 unseen) to a new
-    bag."""
+    bag.
+
+    A model trained with --ego-motion gets the recording's poses (odometry) with every scan;
+    a recording without poses is then refused."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec
 
-    recording = _load(input, topic)
+    recording = _load(input, topic, odom_topic)
     from lidarflow.segmentation import MOVING_THRESHOLD
 
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
@@ -466,6 +499,7 @@ def export(
     epilog="Examples:\n\n"
     "lidarflow train real.npz 'sim/*.npz' --mix 0.5 -o runs/a  (half of each epoch from each)\n\n"
     "lidarflow train a.bag --recipe blurred --set loss.smoothness=0.1 -o runs/b\n\n"
+    "lidarflow train drive.npz --ego-motion -o runs/e  (odometry-compensated; needs poses)\n\n"
     "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
 )
@@ -485,6 +519,18 @@ def train(
     model: Annotated[
         str | None, typer.Option("--model", "-m", help="flownet (LiDAR-FlowNet) or deeptracking.")
     ] = None,
+    ego_motion: Annotated[
+        bool,
+        typer.Option(
+            "--ego-motion",
+            help="Ego-motion compensation: before each step the recurrent state is warped "
+            "rigidly into the current sensor frame by the odometry (the recordings' poses; "
+            "`convert --odom-topic`, or the simulator's), and the prediction is moved into the "
+            "next frame at constant velocity, so the net only explains the world's motion. "
+            "Same as --set model.kwargs.ego_motion=true. evaluate/predict then use the poses "
+            "of their recordings by themselves.",
+        ),
+    ] = False,
     recipe: Annotated[
         str | None,
         typer.Option(
@@ -571,6 +617,8 @@ def train(
     ] = None,
 ) -> None:
     """``lidarflow train``: the help text above says it all (kept there for --help)."""
+    import dataclasses
+
     from lidarflow.errors import TrainError
     from lidarflow.train.config import build_config, config_from_dict, load_config_file
     from lidarflow.train.loop import train as run_training
@@ -609,6 +657,7 @@ def train(
         # how the run executes may change (device, amp, threads...), not what it computes
         free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
         changed = [k for k, v in flags.items() if v is not None and k not in free]
+        changed += ["--ego-motion"] if ego_motion else []
         if changed or recipe or config or set_:
             raise typer.BadParameter(
                 "a resumed run keeps its config (only --epochs and runtime options may change); "
@@ -631,6 +680,9 @@ def train(
         if data:  # absolute, so that --resume works from any folder (globs too)
             flags["data.sources"] = [os.path.abspath(d) for d in data]
         cfg = build_config(recipe, config, flags, set_ or ())
+        if ego_motion:  # added to, not replacing, any other model kwargs
+            kwargs = {**cfg.model.kwargs, "ego_motion": True}
+            cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, kwargs=kwargs))
         run_dir = output
     from tqdm import tqdm
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.recording import Recording
+from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses
 from lidarflow.errors import BagError, ScanError
 from lidarflow.scan import BeamGeometry, Scan
 
@@ -183,7 +184,9 @@ def read_bag(
         topic: the scan topic; may be omitted when the bag has exactly one.
         odom_topic: an Odometry/PoseStamped topic; by default the bag's only
             ``nav_msgs/Odometry`` topic, if it has exactly one. Poses are those of the odometry
-            frame's child (usually the robot base), interpolated at the scan stamps.
+            frame's child (usually the robot base), interpolated at the scan stamps, then moved
+            to the scan's frame by the static TF between the two when the bag has it
+            (``meta["sensor_mount"]`` = that ``(x, y, yaw)``; ``None``: poses stay the base's).
         progress: called with the number of scans read since the last call.
     """
     path = Path(path)
@@ -191,14 +194,21 @@ def read_bag(
         scan_topic = _choose_topic(path, reader, topic)
         pose_topic = _choose_pose_topic(path, reader, odom_topic)
         wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
+        if pose_topic is not None:  # the TF tree, to find the scanner's mount on the base
+            wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
+        tree, body = TransformTree(), ""
         scans: list[Scan] = []
         pose_stamps: list[int] = []
         pose_values: list[tuple[float, float, float]] = []
         frame_id = ""
         try:
             for conn, log_time, raw in reader.messages(connections=wanted):
+                if conn.msgtype == TF_TYPE:
+                    tree.add(reader.deserialize(raw, conn.msgtype))
+                    continue
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == pose_topic:
+                    body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
                     pose_stamps.append(_stamp_ns(msg, log_time))
                     pose_values.append(_pose_of(msg))
                     continue
@@ -230,13 +240,16 @@ def read_bag(
         raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
     order = np.argsort([s.stamp_ns for s in scans], kind="stable")
     scans = [scans[i] for i in order]
-    poses = None
+    poses, mount = None, None
     if pose_topic is not None:
         poses = interpolate_poses(
             np.array([s.stamp_ns for s in scans]),
             np.array(pose_stamps, dtype=np.int64),
             np.array(pose_values, dtype=np.float64).reshape(-1, 3),
         )
+        mount = tree.lookup(body, frame_id) if body and frame_id else None
+        if mount is not None:
+            poses = compose_poses(poses, mount)
     meta = {
         "source": str(path),
         "topic": scan_topic,
@@ -244,6 +257,8 @@ def read_bag(
         "pose_topic": pose_topic,
         "empty_scans_dropped": int(total - len(scans)),
     }
+    if pose_topic is not None:
+        meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
     recording = Recording.from_scans(scans, poses=poses, meta=meta)
     recording.meta["frame_rate_hz"] = round(recording.frame_rate, 3)
     return recording

@@ -15,14 +15,25 @@ class ModelMethod:
     protocol. After each update a flow model exposes ``backward_flow`` and ``forward_flow``
     ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool, the occupied cells of the frame just
     given that move on their own (:func:`lidarflow.segmentation.moving_mask` of the forward
-    flow at ``moving_threshold`` cells); all three are ``None`` for other models."""
+    flow at ``moving_threshold`` cells); all three are ``None`` for other models.
+
+    Ego-motion models (``uses_motion``) take the frame's ``motion`` (cells, this frame in the
+    previous one, see :mod:`lidarflow.data.motion`) in ``update``; ``oracle=True`` also takes
+    the true ``next_motion`` instead of the causal constant-velocity guess (an upper bound that
+    needs the future pose, for evaluation only)."""
 
     def __init__(
-        self, name: str, stream: StreamingModel, moving_threshold: float = MOVING_THRESHOLD
+        self,
+        name: str,
+        stream: StreamingModel,
+        moving_threshold: float = MOVING_THRESHOLD,
+        oracle: bool = False,
     ) -> None:
         self.name = name
         self.stream = stream
         self.moving_threshold = moving_threshold
+        self.uses_motion = bool(getattr(stream.model, "ego_motion", False))
+        self.oracle = oracle and self.uses_motion
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None
         self.moving: np.ndarray | None = None
@@ -31,8 +42,16 @@ class ModelMethod:
         self.stream.reset()
         self.backward_flow = self.forward_flow = self.moving = None
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-        result = self.stream.step(occupancy, visibility)
+    def update(
+        self,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
+        motion: np.ndarray | None = None,
+        next_motion: np.ndarray | None = None,
+    ) -> np.ndarray:
+        result = self.stream.step(
+            occupancy, visibility, motion, next_motion if self.oracle else None
+        )
         if result.flow is None:
             self.backward_flow = self.forward_flow = self.moving = None
         else:

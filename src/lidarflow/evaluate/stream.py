@@ -7,6 +7,11 @@ first ``warmup`` frames only warm the state up.
 A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of the frame just
 given that move on their own) is also scored for moving-object segmentation against the
 simulator's ``moving`` ground truth of that frame, where the recording has it.
+
+Ego motion: methods with ``uses_motion`` (ego-motion models, :class:`~lidarflow.evaluate.ego.
+CopyLastEgo`) also get the sensor's motion per frame from the recording's poses (see
+:mod:`lidarflow.evaluate.ego`); a recording without poses is refused for them with
+:class:`EvaluateError` rather than evaluated uncompensated.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import numpy as np
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
+from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.scan import GridSpec
 from lidarflow.sim.storage import dense_flow
@@ -73,8 +79,12 @@ def evaluate_maps(
     on_prediction: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
     gt_moving: Callable[[int], np.ndarray] | None = None,
     on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
+    motions: np.ndarray | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
+
+    ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
+    ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
 
     ``on_prediction(method_name, t, probability, backward_flow_or_None)`` is called for every
     scored prediction (the map predicted for frame ``t + 1``), e.g. to draw overlays.
@@ -98,7 +108,12 @@ def evaluate_maps(
         m.reset()
     for t in range(n - 1):
         for m in methods:
-            probability = m.update(occupancy[t], visibility[t])
+            if motions is not None and getattr(m, "uses_motion", False):
+                probability = m.update(  # type: ignore[call-arg]
+                    occupancy[t], visibility[t], motion=motions[t], next_motion=motions[t + 1]
+                )
+            else:
+                probability = m.update(occupancy[t], visibility[t])
             if t < warmup:
                 continue
             scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
@@ -136,7 +151,8 @@ def evaluate_recording(
     occupancy, visibility = recording.maps(grid)
     gt_flow = ground_truth_backward_flow(recording, grid)
     gt_moving = ground_truth_moving(recording, grid)
+    motions = recording_motions(recording, grid, methods)
     return evaluate_maps(
         occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction,
-        gt_moving, on_moving,
+        gt_moving, on_moving, motions,
     )

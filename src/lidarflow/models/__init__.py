@@ -2,7 +2,9 @@
 
 Interface (train, evaluate and predict depend on it; details in
 :mod:`lidarflow.models.recurrent`): every model has ``out_channels``, ``init_state``, ``step``,
-``forward`` and ``predict_next``. ``build_model(name, **kwargs)`` builds one by name.
+``forward`` and ``predict_next``. ``build_model(name, **kwargs)`` builds one by name;
+``ego_motion=True`` wraps it in :class:`EgoCompensated` (its ``step`` then also takes the sensor's
+motion, see :mod:`lidarflow.models.egomotion`).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from torch import nn
 from lidarflow.errors import ModelError
 from lidarflow.models.convgru import ConvGRUCell
 from lidarflow.models.deeptracking import DeepTracking, deeptracking
+from lidarflow.models.egomotion import EgoCompensated
 from lidarflow.models.flownet import LidarFlowNet, lidar_flownet
 from lidarflow.models.recurrent import RecurrentMapModel
 
@@ -25,7 +28,8 @@ MODEL_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 
 
 def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
-    """Build the model called ``name`` (one of :data:`MODEL_NAMES`); ``kwargs`` go to its class.
+    """Build the model called ``name`` (one of :data:`MODEL_NAMES`); ``kwargs`` go to its class,
+    except ``ego_motion`` (default False): True wraps the model in :class:`EgoCompensated`.
 
     Raises:
         ModelError: unknown name, or arguments the model does not take.
@@ -34,10 +38,22 @@ def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
         builder = _BUILDERS[name]
     except KeyError as err:
         raise ModelError(f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}") from err
+    ego_motion = bool(kwargs.pop("ego_motion", False))
     try:
-        return builder(**kwargs)
+        model = builder(**kwargs)
     except (TypeError, ValueError) as err:
         raise ModelError(f"cannot build model {name!r} with {kwargs}: {err}") from err
+    if not ego_motion:
+        return model
+    try:
+        return EgoCompensated(model)
+    except ValueError as err:
+        raise ModelError(f"cannot compensate ego motion for model {name!r}: {err}") from err
+
+
+def uses_ego_motion(model: object) -> bool:
+    """Whether ``model`` wants the sensor's motion with every step (:class:`EgoCompensated`)."""
+    return bool(getattr(model, "ego_motion", False))
 
 
 def count_parameters(model: nn.Module) -> int:
@@ -49,10 +65,12 @@ __all__ = [
     "MODEL_NAMES",
     "ConvGRUCell",
     "DeepTracking",
+    "EgoCompensated",
     "LidarFlowNet",
     "RecurrentMapModel",
     "build_model",
     "count_parameters",
     "deeptracking",
     "lidar_flownet",
+    "uses_ego_motion",
 ]

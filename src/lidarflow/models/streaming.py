@@ -26,6 +26,11 @@ class StreamingModel:
 
     ``reset()`` starts a new stream (zero state); the grid size is taken from the first frame
     after a reset.
+
+    Ego-motion models (``model.ego_motion``, :class:`~lidarflow.models.EgoCompensated`) take
+    ``motion`` ``(dx, dy, dyaw)`` (cells, radians; this frame in the previous one; ``None``: not
+    compensated) and optionally the true ``next_motion`` (default: constant velocity, causal);
+    other models ignore both.
     """
 
     def __init__(self, model: RecurrentMapModel, device: str | torch.device = "cpu") -> None:
@@ -37,12 +42,25 @@ class StreamingModel:
         self._state = None
 
     @torch.inference_mode()
-    def step(self, occupancy: np.ndarray, visibility: np.ndarray) -> StepResult:
+    def step(
+        self,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
+        motion: np.ndarray | None = None,
+        next_motion: np.ndarray | None = None,
+    ) -> StepResult:
         maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
         x = torch.from_numpy(maps).to(self.device)
         if self._state is None:
             self._state = self.model.init_state(1, maps.shape[-2], maps.shape[-1])
-        out, self._state = self.model.step(x, self._state)
+        if getattr(self.model, "ego_motion", False):
+            m, n = (
+                None if a is None else torch.as_tensor(a, dtype=torch.float32).reshape(1, 3)
+                for a in (motion, next_motion)
+            )
+            out, self._state = self.model.step(x, self._state, m, n)  # type: ignore[call-arg]
+        else:
+            out, self._state = self.model.step(x, self._state)
         probability = self.model.predict_next(x, out)[0, 0].float().cpu().numpy()
         flow = out[0, :4].float().cpu().numpy() if self.model.out_channels >= 4 else None
         return StepResult(probability, flow)

@@ -28,14 +28,24 @@ class TorchBackend:
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.out_channels = int(model.out_channels)
+        self.uses_motion = bool(getattr(model, "ego_motion", False))
 
     def init_state(self, height: int, width: int) -> Any:
         return self.model.init_state(1, height, width, device=self.device)
 
-    def run(self, maps: np.ndarray, state: Any) -> tuple[np.ndarray, np.ndarray, Any]:
+    def run(
+        self, maps: np.ndarray, state: Any, motion: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, Any]:
+        """One step; ``motion`` ``(3,)`` (cells, radians) only for ego-motion models."""
         with self.torch.inference_mode():
             x = self.torch.from_numpy(maps).to(self.device)
-            out, state = self.model.step(x, state)
+            if self.uses_motion:
+                m = None if motion is None else self.torch.as_tensor(
+                    motion, dtype=self.torch.float32, device=self.device
+                ).reshape(1, 3)
+                out, state = self.model.step(x, state, m)
+            else:
+                out, state = self.model.step(x, state)
             probability = self.model.predict_next(x, out)
         return probability.float().cpu().numpy(), out.float().cpu().numpy(), state
 
@@ -62,7 +72,9 @@ class OnnxBackend:
         inputs = self.session.get_inputs()
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
-        self.state_shapes = [tuple(i.shape) for i in inputs[1:]]
+        # ego-motion graphs take the motion (1, 3) right after the maps
+        self.uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
+        self.state_shapes = [tuple(i.shape) for i in inputs[1 + self.uses_motion :]]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])
 
@@ -74,7 +86,12 @@ class OnnxBackend:
             )
         return [np.zeros(s, np.float32) for s in self.state_shapes]
 
-    def run(self, maps: np.ndarray, state: Any) -> tuple[np.ndarray, np.ndarray, Any]:
+    def run(
+        self, maps: np.ndarray, state: Any, motion: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, Any]:
         feeds = {"maps": maps, **{f"state{i}": s for i, s in enumerate(state)}}
+        if self.uses_motion:  # zeros: no motion known, the same as no compensation
+            m = np.zeros(3, np.float32) if motion is None else np.asarray(motion, np.float32)
+            feeds["motion"] = m.reshape(1, 3)
         probability, out, *next_state = self.session.run(None, feeds)
         return probability, out, next_state

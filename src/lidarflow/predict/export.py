@@ -4,6 +4,11 @@ Graph: inputs ``maps (1, 2, H, W)``, ``state0..stateN-1``; outputs ``probability
 (next-map occupancy), ``out (1, C, H, W)`` (flow channels for LiDAR-FlowNet, the logit for
 DeepTracking) and ``next_state0..``. The grid size is fixed at export time (the warp's sampling
 grid is a constant of the graph).
+
+Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more input after
+``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and
+``dyaw`` in radians (zeros: no motion / unknown); the motion to the next frame is taken to be the
+same (constant velocity), as in PyTorch.
 """
 
 from __future__ import annotations
@@ -34,6 +39,14 @@ class StepGraph(nn.Module):
         return (self.model.predict_next(maps, out), out, *next_state)
 
 
+class EgoStepGraph(StepGraph):
+    """``forward(maps, motion, *state)`` for ego-motion models."""
+
+    def forward(self, maps: Tensor, motion: Tensor, *state: Tensor) -> tuple[Tensor, ...]:  # type: ignore[override]
+        out, next_state = self.model.step(maps, tuple(state), motion)  # type: ignore[call-arg]
+        return (self.model.predict_next(maps, out), out, *next_state)
+
+
 def export_onnx(
     model: RecurrentMapModel, path: str | Path, height: int = 100, width: int = 100
 ) -> Path:
@@ -41,11 +54,13 @@ def export_onnx(
     path = Path(path)
     if not path.parent.exists():
         raise PredictError(f"{path.parent}: no such folder for the ONNX file")
+    ego = bool(getattr(model, "ego_motion", False))
     model = model.eval()
-    graph = StepGraph(model)
+    graph = EgoStepGraph(model) if ego else StepGraph(model)
     state = model.init_state(1, height, width)
     maps = torch.zeros(1, 2, height, width)
-    names_in = ["maps", *[f"state{i}" for i in range(len(state))]]
+    extra = (torch.zeros(1, 3),) if ego else ()  # the motion input
+    names_in = ["maps", *(["motion"] if ego else []), *[f"state{i}" for i in range(len(state))]]
     names_out = ["probability", "out", *[f"next_state{i}" for i in range(len(state))]]
     with warnings.catch_warnings():
         # The tracer warns that the grid size becomes a constant: that is intended (see above).
@@ -53,7 +68,7 @@ def export_onnx(
         try:
             torch.onnx.export(
                 graph,
-                (maps, *state),
+                (maps, *extra, *state),
                 str(path),
                 input_names=names_in,
                 output_names=names_out,

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from lidarflow.data.recording import Recording
+from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.predict.predictor import Predictor
 from lidarflow.predict.rosout import BagOutput
@@ -36,7 +37,15 @@ def predict_to_bag(
     progress: Callable[[int], None] | None = None,
 ) -> dict[str, int]:
     """Run ``predictor`` over ``recording`` and write everything to ``output``; returns the
-    number of messages per topic."""
+    number of messages per topic. An ego-motion model gets the recording's poses; a recording
+    without any is refused (:class:`PredictError`)."""
+    poses = recording.poses
+    if predictor.uses_motion and not recording.has_poses:
+        source = recording.meta.get("source") or "the recording"
+        raise PredictError(
+            f"{source}: no sensor poses, but the model compensates ego motion; convert the bag "
+            "with --odom-topic, or use a model trained without --ego-motion"
+        )
     scan_topic = recording.meta.get("topic") or "/scan"
     if not scan_topic.startswith("/"):
         scan_topic = "/" + scan_topic  # ROS 2 requires absolute names; ROS 1 accepts them
@@ -49,8 +58,8 @@ def predict_to_bag(
 
     predictor.reset()
     with BagOutput(output) as out:
-        for scan in recording:
-            p = predictor.update(scan)
+        for i, scan in enumerate(recording):
+            p = predictor.update(scan, None if poses is None else poses[i])
             stamp = scan.stamp_ns
             out.write_scan(scan_topic, scan, frame_id)
             count(scan_topic)

@@ -3,8 +3,16 @@
 >>> from lidarflow.predict import Predictor                     # doctest: +SKIP
 >>> predictor = Predictor()            # bundled model; Predictor("run_dir") or ("m.onnx")
 >>> for scan in scans:                 # lidarflow.scan.Scan, or (occupancy, visibility) maps
-...     p = predictor.update(scan)
+...     p = predictor.update(scan)         # ego-motion models: update(scan, pose=(x, y, yaw))
 ...     p.probability, p.occupied, p.backward_flow, p.forward_flow, p.moving
+
+Ego motion: a model trained with ``--ego-motion`` wants the sensor pose ``(x, y, yaw)`` (metres,
+radians, any fixed frame such as odometry's) with every scan. The motion since the previous
+update warps the recurrent state into the current frame, and the prediction is moved into the
+next frame assuming the same motion again (constant velocity: only poses up to now are known).
+Without a pose (``None`` or NaN) that step is not compensated (``Prediction.ego_compensated`` is
+False), as a model without odometry would run; horizon steps beyond the first repeat the last
+motion.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
@@ -39,6 +48,7 @@ class Prediction:
             own (forward flow less the platform's motion longer than the predictor's
             ``moving_threshold`` cells; :func:`lidarflow.segmentation.moving_mask`); ``None``
             for models without flow.
+        ego_compensated: an ego-motion model was given the motion since the previous scan.
     """
 
     probability: np.ndarray
@@ -49,6 +59,7 @@ class Prediction:
     occupancy: np.ndarray
     visibility: np.ndarray
     moving: np.ndarray | None = None
+    ego_compensated: bool = False
 
 
 class Predictor:
@@ -90,10 +101,26 @@ class Predictor:
             net, self.card = resolve_model(model)
             self.backend = TorchBackend(net, device, threads)
         self._state: Any = None
+        self._pose: np.ndarray | None = None
+
+    @property
+    def uses_motion(self) -> bool:
+        """Whether the model compensates ego motion (then give ``update`` the sensor pose)."""
+        return bool(getattr(self.backend, "uses_motion", False))
 
     def reset(self) -> None:
         """Forget the past: the next update starts from a zero state."""
         self._state = None
+        self._pose = None
+
+    def _motion(self, pose: Any) -> np.ndarray | None:
+        """Motion since the previous update in cells, ``None`` when either pose is unknown."""
+        previous = self._pose
+        self._pose = None if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+        if previous is None or self._pose is None:
+            return None
+        motion, known = relative_motions(np.stack([previous, self._pose]))
+        return metres_to_cells(motion[1], self.grid.res) if known[1] else None
 
     def _maps(self, item: Scan | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         if isinstance(item, Scan):
@@ -105,20 +132,24 @@ class Predictor:
             )
         return occupancy, visibility
 
-    def update(self, item: Scan | tuple[np.ndarray, np.ndarray]) -> Prediction:
-        """Feed one scan (or its ``(occupancy, visibility)`` maps) and predict what comes next."""
+    def update(
+        self, item: Scan | tuple[np.ndarray, np.ndarray], pose: Any = None
+    ) -> Prediction:
+        """Feed one scan (or its ``(occupancy, visibility)`` maps) and predict what comes next;
+        ``pose`` ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
         occupancy, visibility = self._maps(item)
         maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
         if self._state is None:
             self._state = self.backend.init_state(*self.grid.shape)
-        probability, out, self._state = self.backend.run(maps, self._state)
+        motion = self._motion(pose) if self.uses_motion else None
+        probability, out, self._state = self.backend.run(maps, self._state, motion)
         future = [probability[0, 0]]
         # Roll forward on a copy of the state: the fed-back predictions must not leak into
         # the state that the next real scan continues from.
         state = self._state
         for _ in range(self.horizon - 1):
             fed = np.stack([future[-1], visibility.astype(np.float32)])[None]
-            next_probability, _, state = self.backend.run(fed.astype(np.float32), state)
+            next_probability, _, state = self.backend.run(fed.astype(np.float32), state, motion)
             future.append(next_probability[0, 0])
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
         occupied_now = np.asarray(occupancy, bool)
@@ -132,4 +163,5 @@ class Predictor:
             visibility=np.asarray(visibility, bool),
             moving=None if flow is None else moving_mask(
                 occupied_now, flow[2:], self.moving_threshold),
+            ego_compensated=motion is not None,
         )

@@ -24,6 +24,12 @@ makes ``--resume`` reproduce the data order exactly, and it is sharded across DD
 
 Windows are served as ``uint8`` ``(T, 2, H, W)`` (channel 0 occupancy, 1 visibility): 4x less
 to copy than float32; the loop converts on the device.
+
+Ego motion (``load_train_data(..., with_motion=True)``, for models built with ``ego_motion``):
+every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx, dy, dyaw)`` with
+``dx, dy`` in cells (:mod:`lidarflow.data.motion`; index ``t`` is frame ``t`` in frame ``t - 1``,
+identity where a pose is unknown), appended as the item's last element. Without it the items are
+exactly what they were.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from lidarflow.data import Recording, SequenceSet, load_any
+from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.scan import GridSpec
 from lidarflow.train.config import DataConfig
@@ -77,7 +84,9 @@ def expand_source(spec: str) -> list[Path]:
 class Windows(Dataset):
     """Windows ``(rec, start)`` over boolean maps; item: uint8 ``(T, 2, H, W)`` maps, and with
     ``with_flow`` also float32 ``(T, 2, H, W)`` ground-truth backward flow (zeros where the
-    recording has none) and a bool telling whether it is real."""
+    recording has none) and a bool telling whether it is real. With ``motions`` (one float32
+    ``(N, 3)`` array per recording, cells) the item also ends with the window's ``(T, 3)``
+    motions."""
 
     def __init__(
         self,
@@ -86,17 +95,27 @@ class Windows(Dataset):
         length: int,
         flows: Sequence[Flow] = (),
         with_flow: bool = False,
+        motions: Sequence[np.ndarray] | None = None,
     ) -> None:
         self.maps = list(maps)
         self.index = list(index)
         self.length = length
         self.flows = list(flows) or [None] * len(self.maps)
         self.with_flow = with_flow
+        self.motions = None if motions is None else list(motions)
 
     def __len__(self) -> int:
         return len(self.index)
 
-    def __getitem__(self, i: int) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, bool]:
+    def __getitem__(self, i: int) -> torch.Tensor | tuple[torch.Tensor | bool, ...]:
+        item = self._item(i)
+        if self.motions is None:
+            return item
+        rec, start = self.index[i]
+        motion = torch.from_numpy(self.motions[rec][start : start + self.length])
+        return (*item, motion) if isinstance(item, tuple) else (item, motion)
+
+    def _item(self, i: int) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, bool]:
         rec, start = self.index[i]
         window = self.maps[rec][start : start + self.length]
         maps = torch.from_numpy(np.ascontiguousarray(window).view(np.uint8))
@@ -169,7 +188,11 @@ def _ground_truth(rec: Recording, grid: GridSpec) -> tuple[Flow, str | None]:
 
 
 def _windows(
-    recordings: list[Recording], cfg: DataConfig, grid: GridSpec, with_flow: bool
+    recordings: list[Recording],
+    cfg: DataConfig,
+    grid: GridSpec,
+    with_flow: bool,
+    with_motion: bool = False,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods
@@ -181,7 +204,19 @@ def _windows(
         flows.append(flow)
         if note:
             notes.append(f"{rec.meta.get('source', 'a recording')}: {note}")
-    return Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow), notes
+    motions = None
+    if with_motion:
+        motions = []
+        for rec in recordings:
+            m, known = relative_motions(rec.poses, len(rec))
+            motions.append(metres_to_cells(m, grid.res))
+            if len(rec) > 1 and not known[1:].all():
+                source = rec.meta.get("source", "a recording")
+                notes.append(
+                    f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
+                    "steps; those steps are not ego-motion compensated"
+                )
+    return Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions), notes
 
 
 def _load(paths: list[Path], topic: str | None) -> list[Recording]:
@@ -211,8 +246,9 @@ def _split_tail(
     return rec.slice(0, n - n_val), rec.slice(n - n_val, n)
 
 
-def load_train_data(cfg: DataConfig) -> TrainData:
-    """Load every source, split off validation, and cut windows (see the module docstring)."""
+def load_train_data(cfg: DataConfig, with_motion: bool = False) -> TrainData:
+    """Load every source, split off validation, and cut windows (see the module docstring);
+    ``with_motion``: items carry the per-frame ego motion too."""
     if not cfg.sources:
         raise TrainError("no training data: give at least one recording or bag")
     if cfg.mix and len(cfg.mix) not in (len(cfg.sources), len(cfg.sources) - 1):
@@ -254,7 +290,7 @@ def load_train_data(cfg: DataConfig) -> TrainData:
         if not recs:
             raise TrainError(f"data source {spec}: nothing left for training after the split")
         try:
-            windows, more = _windows(recs, cfg, grid, with_flow=False)
+            windows, more = _windows(recs, cfg, grid, False, with_motion)
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
         sources.append(windows)
@@ -262,7 +298,7 @@ def load_train_data(cfg: DataConfig) -> TrainData:
     val = None
     if val_recs:
         try:
-            val, more = _windows(val_recs, cfg, grid, with_flow=True)
+            val, more = _windows(val_recs, cfg, grid, True, with_motion)
             notes += more
         except LidarflowError as err:
             notes.append(f"no validation windows ({err})")

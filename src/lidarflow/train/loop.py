@@ -29,7 +29,7 @@ from torch import Tensor
 
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
-from lidarflow.models import build_model
+from lidarflow.models import build_model, uses_ego_motion
 from lidarflow.models.speed import accelerate
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import (
@@ -167,7 +167,7 @@ def _train(
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
     prepare_run_dir(run_dir, config, resume, ctx)
-    data = load_train_data(config.data)
+    data = load_train_data(config.data, with_motion=bool(config.model.kwargs.get("ego_motion")))
     say(data.summary())
     for note in data.notes:
         say(f"note: {note}")
@@ -246,10 +246,12 @@ def _train(
             leave=False,
             disable=None if ctx.is_main else True,
         )
-        for step, maps_u8 in enumerate(bar, 1):
+        for step, batch in enumerate(bar, 1):
+            # ego-motion models get (maps, motions) batches: motions go to forward as well
+            maps_u8, *motions = batch if uses_ego_motion(model) else (batch,)
             seq = maps_u8.to(ctx.device, non_blocking=True).float()
             with autocast():
-                out, _ = net(seq)
+                out, _ = net(seq, None, *(m.to(ctx.device) for m in motions))
             loss = loss_fn(seq, out.float())
             optimizer.zero_grad(set_to_none=True)
             loss.backward()

@@ -48,10 +48,10 @@ def validate(
     loss_sum = windows = 0.0
     net, copy, net_changed = Counts(), Counts(), Counts()
     epe = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]  # err, err_zero, n, err_moving, err_moving_zero, n_moving
-    for maps_u8, flow_gt, has_flow in loader:
+    for maps_u8, flow_gt, has_flow, *motions in loader:  # motions: ego-motion models only
         seq = maps_u8.to(ctx.device).float()
         with autocast():
-            out, _ = model(seq)
+            out, _ = model(seq, None, *(m.to(ctx.device) for m in motions))
         out = out.float()
         loss_sum += float(loss_fn(seq, out)) * len(seq)
         windows += len(seq)

@@ -1,0 +1,71 @@
+"""The sensor's mount on the robot from a bag's TF, so odometry poses become sensor poses.
+
+Odometry reports the pose of its child frame (the robot base, e.g. ``base_link``); the scans are
+in their own frame (e.g. ``left_laser``), which may sit far from the base and turned against it
+(``general_tracking_moving_1``: 0.88 m ahead, 42 degrees to the left). Ego motion needs the
+*sensor's* motion: ``sensor_pose = base_pose o mount`` with ``mount`` the pose of the scan frame
+in the base frame, read from ``/tf`` and ``/tf_static`` (planar part only: x, y, yaw).
+
+Mounts are static: the first transform seen for every (parent, child) pair is kept.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["TF_TYPE", "TransformTree", "compose_poses"]
+
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+def _frame(name: str) -> str:
+    return str(name).lstrip("/")
+
+
+class TransformTree:
+    """Planar transforms ``child -> (parent, x, y, yaw)`` gathered from TF messages."""
+
+    def __init__(self) -> None:
+        self.parent: dict[str, tuple[str, float, float, float]] = {}
+
+    def add(self, msg: Any) -> None:
+        """Take the transforms of one ``tf2_msgs/TFMessage`` not seen before."""
+        for tr in msg.transforms:
+            child = _frame(tr.child_frame_id)
+            if child in self.parent:
+                continue
+            t, q = tr.transform.translation, tr.transform.rotation
+            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            self.parent[child] = (_frame(tr.header.frame_id), float(t.x), float(t.y), yaw)
+
+    def lookup(self, base: str, frame: str) -> tuple[float, float, float] | None:
+        """Pose ``(x, y, yaw)`` of ``frame`` in ``base`` when ``frame`` descends from ``base``,
+        else ``None``."""
+        base, frame = _frame(base), _frame(frame)
+        pose = np.zeros(3)
+        for _ in range(64):  # TF trees are shallow; this also stops on a cycle
+            if frame == base:
+                return float(pose[0]), float(pose[1]), float(pose[2])
+            if frame not in self.parent:
+                return None
+            parent, x, y, yaw = self.parent[frame]
+            pose = compose_poses(np.array([[x, y, yaw]]), pose)[0]
+            frame = parent
+        return None
+
+
+def compose_poses(poses: np.ndarray, offset: np.ndarray | tuple[float, float, float]) -> np.ndarray:
+    """``poses (N, 3) o offset (3,)``: the pose of a frame mounted at ``offset`` on a body at
+    each of ``poses``; NaN rows stay NaN.
+
+    >>> compose_poses(np.array([[1.0, 0.0, math.pi / 2]]), (0.5, 0.0, 0.1)).round(3).tolist()
+    [[1.0, 0.5, 1.671]]
+    """
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    mx, my, myaw = (float(v) for v in np.asarray(offset, dtype=np.float64).reshape(3))
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    yaw = np.remainder(poses[:, 2] + myaw + math.pi, 2 * math.pi) - math.pi
+    return np.stack([poses[:, 0] + c * mx - s * my, poses[:, 1] + s * mx + c * my, yaw], axis=1)

@@ -1,0 +1,80 @@
+"""Ego-motion inputs of the streaming evaluation: per-frame motions of a recording, and the
+baseline that only compensates the platform's own motion.
+
+A method with ``uses_motion = True`` is called ``update(occupancy, visibility, motion=m_t,
+next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in cells
+(:mod:`lidarflow.data.motion`; identity where a pose is unknown); ``next_motion`` is the future
+and only an oracle may use it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.recording import Recording
+from lidarflow.errors import EvaluateError
+from lidarflow.ops.rigid import rigid_warp
+from lidarflow.scan import GridSpec
+
+__all__ = ["CopyLastEgo", "recording_motions", "wants_motion"]
+
+
+def wants_motion(methods: Sequence[object]) -> list[str]:
+    """Names of the methods that take the ego motion."""
+    return [str(getattr(m, "name", m)) for m in methods if getattr(m, "uses_motion", False)]
+
+
+def recording_motions(
+    recording: Recording, grid: GridSpec, methods: Sequence[object]
+) -> np.ndarray | None:
+    """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``.
+
+    Raises:
+        EvaluateError: a method wants them and the recording has no pose at all (we fail rather
+            than silently evaluate an ego-motion model without odometry).
+    """
+    users = wants_motion(methods)
+    if not users:
+        return None
+    if not recording.has_poses:
+        source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
+        raise EvaluateError(
+            f"{source}: no sensor poses, but {', '.join(users)} compensate(s) ego motion; "
+            "convert the bag with --odom-topic (or simulate it), or evaluate a model trained "
+            "without --ego-motion"
+        )
+    motions, _ = relative_motions(recording.poses, len(recording))
+    return metres_to_cells(motions, grid.res)
+
+
+class CopyLastEgo:
+    """Copy the last map moved into the next sensor frame by the odometry, assuming the motion
+    to the next frame equals the last one (constant velocity, causal); the oracle variant uses
+    the true next motion. What ego-motion compensation alone buys, with no learned flow."""
+
+    uses_motion = True
+
+    def __init__(self, oracle: bool = False) -> None:
+        self.oracle = oracle
+        self.name = "copy_last_ego_oracle" if oracle else "copy_last_ego"
+
+    def reset(self) -> None:
+        pass
+
+    def update(
+        self,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
+        motion: np.ndarray | None = None,
+        next_motion: np.ndarray | None = None,
+    ) -> np.ndarray:
+        m = next_motion if self.oracle else motion
+        if m is None:
+            return occupancy.astype(np.float32)
+        maps = torch.from_numpy(occupancy.astype(np.float32))[None, None]
+        moved = rigid_warp(maps, torch.as_tensor(m, dtype=torch.float32).reshape(1, 3))
+        return moved[0, 0].clamp(0.0, 1.0).numpy()

@@ -1,0 +1,143 @@
+"""Ego-motion compensation around any recurrent map model (issue 8; Dequaire et al. 2018).
+
+``EgoCompensated(inner)`` is a :class:`RecurrentMapModel` whose ``step`` also takes the sensor's
+own motion, so that the inner network only has to explain the motion of the world:
+
+1. Before each step the recurrent state (made in the frame of ``t - 1``) is rigidly warped into
+   the frame of ``t`` with ``motion`` (the pose of frame ``t`` in frame ``t - 1``,
+   :mod:`lidarflow.ops.rigid`). Cells that come into view start from the zero state.
+2. The inner net runs on ``(O^t, V^t)`` and speaks about the world in frame ``t``: a flow model's
+   ``B_in, F_in`` satisfy ``O^{t+1}_t(p) = O^t(p + B_in(p))`` where ``O^{t+1}_t`` is the next map
+   seen from the *current* pose.
+3. The output is expressed in the frame of ``t + 1`` with ``next_motion`` (frame ``t + 1`` in
+   frame ``t``), so predictions, flow and losses are exactly those of an ordinary model and
+   compare with ``O^{t+1}`` as recorded:
+
+   - ``B(q) = T(q) + B_in(T(q)) - q`` with ``T`` the change of frame ``t+1 -> t`` in cells
+     (``B_in`` sampled bilinearly at ``T(q)``);
+   - ``F(p) = T^{-1}(p + F_in(p)) - p`` (exact, ``T^{-1}`` is affine);
+   - an occupancy logit (DeepTracking) is warped rigidly, cells coming into view at the prior
+     logit ``logit(0.02)``.
+
+Causality: at run time only poses up to ``t`` are known, so ``next_motion`` defaults to the
+constant-velocity guess ``motion`` (the same increment again); training does the same, so the
+inner net learns to absorb what that guess gets wrong. Passing the true ``next_motion`` gives the
+"oracle" variant (evaluation only).
+
+Units: motions are ``(dx, dy, dyaw)`` with ``dx, dy`` in *cells* (metres / cell size, see
+:func:`lidarflow.data.motion.metres_to_cells`) and ``dyaw`` in radians: the model, like its flow,
+works in cells and knows no cell size. ``motion=None`` is the identity (no compensation).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.ops.rigid import cell_grid, rigid_flow, rigid_warp, transform_cells
+from lidarflow.ops.warp import warp
+
+__all__ = ["OCCUPANCY_FILL_LOGIT", "EgoCompensated"]
+
+#: Logit given to cells that come into view in an occupancy model's rigidly warped output.
+OCCUPANCY_FILL_LOGIT = math.log(0.02 / 0.98)
+
+
+class EgoCompensated(RecurrentMapModel):
+    """``step(maps (B,2,H,W), state, motion (B,3)|None, next_motion (B,3)|None)``; see the module
+    docstring. ``forward(seq (B,T,2,H,W), state, motions (B,T,3)|None, next_motions|None)``.
+
+    >>> from lidarflow.models.flownet import LidarFlowNet
+    >>> net = EgoCompensated(LidarFlowNet())
+    >>> m = torch.tensor([[1.0, 0.0, 0.0]])  # one cell forward
+    >>> flow, state = net.step(torch.zeros(1, 2, 8, 6), net.init_state(1, 8, 6), m)
+    >>> flow[0, :, 0, 0].tolist()  # untrained: zero world flow, i.e. the ego flow alone
+    [0.0, -1.0, 0.0, 1.0]
+    """
+
+    ego_motion: bool = True
+
+    def __init__(self, inner: RecurrentMapModel) -> None:
+        super().__init__()
+        if inner.out_channels not in (1, 4):
+            raise ValueError(
+                f"inner model must output 4 flow channels or 1 logit, not {inner.out_channels}"
+            )
+        self.inner = inner
+        self.out_channels = inner.out_channels
+
+    @property
+    def grus(self) -> nn.ModuleList:
+        """The inner net's ConvGRU cells (for :func:`lidarflow.models.speed.accelerate`)."""
+        return self.inner.grus  # type: ignore[return-value]
+
+    def state_channels(self) -> tuple[int, ...]:
+        return self.inner.state_channels()
+
+    def step(  # type: ignore[override]
+        self,
+        maps: Tensor,
+        state: tuple[Tensor, ...],
+        motion: Tensor | None = None,
+        next_motion: Tensor | None = None,
+    ) -> tuple[Tensor, tuple[Tensor, ...]]:
+        if motion is not None and state:
+            # One warp for all state tensors (one sampling grid, one grid_sample call), in at
+            # least fp32: under bf16 autocast the states are bf16, whose 8-bit mantissa would
+            # put cell coordinates near 100 off by up to half a cell.
+            sizes = [s.shape[1] for s in state]
+            dtype = state[0].dtype
+            work = torch.promote_types(dtype, torch.float32)
+            moved = rigid_warp(torch.cat(state, dim=1).to(work), motion.to(work)).to(dtype)
+            state = tuple(torch.split(moved, sizes, dim=1))
+        out, state = self.inner.step(maps, state)
+        nxt = motion if next_motion is None else next_motion
+        if nxt is None:
+            return out, state
+        return self.to_next_frame(out, nxt), state
+
+    def to_next_frame(self, out: Tensor, next_motion: Tensor) -> Tensor:
+        """Express the inner net's output (frame ``t``) in the frame of ``t + 1`` (computed in at
+        least fp32, see :meth:`step`)."""
+        out = out.to(torch.promote_types(out.dtype, torch.float32))
+        next_motion = next_motion.to(out.dtype)
+        if self.out_channels == 1:
+            return rigid_warp(out, next_motion, fill=OCCUPANCY_FILL_LOGIT)
+        h, w = int(out.shape[-2]), int(out.shape[-1])
+        ego = rigid_flow(next_motion, h, w, dtype=out.dtype)
+        backward = ego + warp(out[:, 0:2], ego)
+        c, r = cell_grid(h, w, out.device, out.dtype)
+        c2, r2 = transform_cells(c + out[:, 2], r + out[:, 3], next_motion, h, w, inverse=True)
+        forward = torch.stack([c2 - c, r2 - r], dim=1)
+        return torch.cat([backward, forward], dim=1)
+
+    def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
+        return self.inner.predict_next(maps, out)
+
+    def forward(  # type: ignore[override]
+        self,
+        seq: Tensor,
+        state: tuple[Tensor, ...] | None = None,
+        motions: Tensor | None = None,
+        next_motions: Tensor | None = None,
+    ) -> tuple[Tensor, tuple[Tensor, ...]]:
+        """``step`` over ``seq`` ``(B, T, 2, H, W)`` with ``motions`` ``(B, T, 3)`` (frame ``t``
+        in frame ``t - 1``, cells) and optionally ``next_motions`` (default: constant velocity)."""
+        if motions is None:
+            return super().forward(seq, state)
+        if seq.dim() != 5:
+            raise ValueError(f"seq must be (B, T, C, H, W), got {tuple(seq.shape)}")
+        b, t, _, h, w = seq.shape
+        if motions.shape != (b, t, 3):
+            raise ValueError(f"motions must be {(b, t, 3)}, got {tuple(motions.shape)}")
+        if state is None:
+            state = self.init_state(b, h, w, device=seq.device, dtype=seq.dtype)
+        outs = []
+        for i in range(t):
+            nxt = None if next_motions is None else next_motions[:, i]
+            out, state = self.step(seq[:, i], state, motions[:, i], nxt)
+            outs.append(out)
+        return torch.stack(outs, dim=1), state

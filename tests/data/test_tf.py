@@ -1,0 +1,43 @@
+"""The scanner's mount from TF: odometry poses of the base become poses of the scan frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lidarflow.data import read_bag
+from lidarflow.data.motion import relative_motions
+from lidarflow.data.tf import TransformTree, compose_poses
+from lidarflow.sim.platform import compose, relative
+from tests.bagutil import _tf_msg, write_bag
+
+
+def test_poses_are_moved_to_the_scan_frame_through_the_tf_chain(tmp_path):
+    mount = (0.85, 0.23, 0.73)
+    base = read_bag(write_bag(tmp_path / "base.bag", "ros1", odom=True))
+    rec = read_bag(write_bag(tmp_path / "mounted.bag", "ros1", odom=True, mount=mount))
+    assert base.meta["sensor_mount"] is None  # odometry but no TF: the base's poses, said so
+    np.testing.assert_allclose(rec.meta["sensor_mount"], mount, atol=1e-6)
+    for i in (0, 7, 24):
+        np.testing.assert_allclose(rec.poses[i], compose(base.poses[i], np.array(mount)), atol=1e-9)
+    # the sensor's own motion: the base's increment seen from the mount (lever arm included)
+    sensor, known = relative_motions(rec.poses)
+    base_motion, _ = relative_motions(base.poses)
+    m = np.array(mount)
+    expected = relative(m, compose(base_motion[5], m))
+    np.testing.assert_allclose(sensor[5], expected, atol=1e-9)
+    assert known[1:].all()
+
+
+def test_lookup_walks_up_the_tree_and_reports_unconnected_frames():
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    tree = TransformTree()
+    tree.add(_tf_msg(ts, 1, [("/base", "a", (1.0, 0.0, math.pi / 2))]))
+    tree.add(_tf_msg(ts, 2, [("a", "b", (1.0, 0.0, 0.0)), ("/base", "a", (9.0, 9.0, 0.0))]))
+    np.testing.assert_allclose(tree.lookup("base", "b"), (1.0, 1.0, math.pi / 2), atol=1e-6)
+    np.testing.assert_allclose(tree.lookup("base", "base"), (0.0, 0.0, 0.0))
+    assert tree.lookup("b", "base") is None and tree.lookup("base", "nowhere") is None
+    assert np.isnan(compose_poses(np.full((1, 3), np.nan), (1.0, 0.0, 0.0))).all()

@@ -1,0 +1,126 @@
+"""Ego motion in evaluation, prediction and the CLI: poses reach the models, the compensation
+baseline, refusals without poses, and the Predictor's pose input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.errors import EvaluateError, PredictError
+from lidarflow.evaluate.baselines import CopyLast
+from lidarflow.evaluate.ego import CopyLastEgo
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.models import build_model
+from lidarflow.models.streaming import StreamingModel
+from lidarflow.predict import Predictor
+from lidarflow.predict.export import export_onnx
+from lidarflow.predict.job import predict_to_bag
+from lidarflow.scan import GridSpec
+from lidarflow.sim import SimConfig, simulate
+from tests.conftest import make_model_dir
+from tests.test_cli import run
+
+GRID = GridSpec(40, 40, 0.05)
+
+
+@pytest.fixture(scope="module")
+def driving():
+    return simulate(60, seed=3, config=SimConfig(scenario="dynamic", episode_frames=100, grid=GRID))
+
+
+def test_compensation_beats_copy_last_and_the_untrained_ego_model_is_exactly_it(driving):
+    untrained = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
+    oracle = ModelMethod(
+        "ego_oracle", StreamingModel(build_model("flownet", ego_motion=True)), oracle=True
+    )
+    scores = evaluate_recording(
+        driving, [CopyLast(), CopyLastEgo(), CopyLastEgo(oracle=True), untrained, oracle], GRID
+    )
+    s = {k: v.summary() for k, v in scores.items()}
+    assert s["copy_last_ego"]["f1"] > s["copy_last"]["f1"] + 0.03
+    assert s["copy_last_ego_oracle"]["f1"] >= s["copy_last_ego"]["f1"] - 0.01
+    # zero world flow: the ego model predicts the last map moved by the odometry, nothing else
+    for key in ("f1", "changed_f1", "ap"):
+        assert s["ego"][key] == pytest.approx(s["copy_last_ego"][key], abs=2e-3)
+        assert s["ego_oracle"][key] == pytest.approx(s["copy_last_ego_oracle"][key], abs=2e-3)
+    assert s["ego"]["epe"] < 0.6  # the ego flow alone explains a static world seen driving
+
+
+def test_ego_models_refuse_a_recording_without_poses(driving):
+    blind = driving.slice(0, len(driving))
+    blind.poses = None
+    ego = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
+    methods = [CopyLast(), ego]
+    with pytest.raises(EvaluateError, match=r"no sensor poses.*ego"):
+        evaluate_recording(blind, methods, GRID)
+    evaluate_recording(blind, [CopyLast()], GRID)  # the others still run
+
+
+def test_predictor_takes_poses_like_the_streaming_evaluation(driving, tmp_path):
+    folder = make_model_dir(tmp_path / "ego", ego_motion=True, zero_init_flow=False)
+    predictor = Predictor(folder, GRID)
+    assert predictor.uses_motion
+    stream = StreamingModel(predictor.backend.model)
+    occ, vis = driving.maps(GRID)
+    motions = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
+    for t in range(8):
+        p = predictor.update((occ[t], vis[t]), driving.poses[t])
+        ref = stream.step(occ[t], vis[t], motions[t] if t else None)
+        np.testing.assert_allclose(p.probability, ref.probability, atol=1e-6)
+        assert p.ego_compensated == (t > 0)
+    assert not predictor.update((occ[8], vis[8]), None).ego_compensated
+    blind = driving.slice(0, 12)
+    blind.poses = None
+    with pytest.raises(PredictError, match="no sensor poses"):
+        predict_to_bag(blind, predictor, tmp_path / "out.mcap")
+
+
+def test_onnx_export_of_an_ego_model_matches_pytorch_with_poses(driving, tmp_path):
+    folder = make_model_dir(tmp_path / "ego", ego_motion=True, zero_init_flow=False)
+    torch_p = Predictor(folder, GRID)
+    onnx_p = Predictor(export_onnx(torch_p.backend.model, tmp_path / "m.onnx", 40, 40), GRID)
+    assert onnx_p.uses_motion
+    occ, vis = driving.maps(GRID)
+    worst = 0.0
+    for t in range(12):
+        pose = None if t == 6 else driving.poses[t]  # an unknown pose: zeros in ONNX
+        a, b = torch_p.update((occ[t], vis[t]), pose), onnx_p.update((occ[t], vis[t]), pose)
+        worst = max(worst, float(np.abs(a.probability - b.probability).max()))
+        worst = max(worst, float(np.abs(a.backward_flow - b.backward_flow).max()))
+        worst = max(worst, float(np.abs(a.forward_flow - b.forward_flow).max()))
+        assert a.ego_compensated == b.ego_compensated
+    assert worst < 1e-4
+
+
+def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, capsys):
+    data = driving.save(tmp_path / "drive.npz")
+    code, _, err = run(
+        ["train", str(data), "--ego-motion", "-o", str(tmp_path / "run"), "--grid", "40",
+         "--res", "0.05", "--seq-len", "8", "--warmup", "3", "--batch-size", "4", "--epochs",
+         "1", "--threads", "1", "--set", "runtime.tensorboard=false"],
+        capsys,
+    )
+    assert code == 0, err
+    assert json.loads((tmp_path / "run" / "model.json").read_text())["model_kwargs"] == {
+        "ego_motion": True
+    }
+    out = tmp_path / "e.json"
+    code, _, err = run(
+        ["evaluate", str(data), "--model", str(tmp_path / "run"), "--grid", "40", "--res",
+         "0.05", "--ego-oracle", "--json", str(out)],
+        capsys,
+    )
+    assert code == 0, err
+    methods = json.loads(out.read_text())["recordings"][0]["methods"]
+    assert {"copy_last_ego", "copy_last_ego_oracle", "run", "run_oracle"} <= set(methods)
+    blind = driving.slice(0, len(driving))
+    blind.poses = None
+    code, _, err = run(
+        ["evaluate", str(blind.save(tmp_path / "blind.npz")), "--model", str(tmp_path / "run")],
+        capsys,
+    )
+    assert code == 1 and "no sensor poses" in err and len(err.strip().splitlines()) == 1
