@@ -194,3 +194,19 @@ def test_init_starts_from_given_weights(blob_files, tmp_path):
     )
     with pytest.raises(TrainError, match="cannot start from these weights"):
         train(bad, tmp_path / "c")
+
+
+def test_head_learning_rate_scale_applies_to_the_head_only():
+    cfg = build_config("residual", None, {"optim.lr": 0.002, "optim.head_lr_scale": 10.0})
+    model = build_model("flownet", occupancy_head=True)
+    optimizer = loop._optimizer(cfg, loop._parameter_groups(model, cfg))
+    rest, head = optimizer.param_groups
+    assert rest["lr"] == pytest.approx(0.002) and head["lr"] == pytest.approx(0.02)
+    head_ids = {id(p) for p in head["params"]}
+    assert head_ids == {id(model.warp_gain), *(id(p) for p in model.conv_occupancy.parameters())}
+    assert len(rest["params"]) + len(head["params"]) == len(list(model.parameters()))
+    # Models without a head keep one group: resuming their old checkpoints still works.
+    plain = build_model("flownet")
+    assert len(loop._parameter_groups(plain, cfg)) == 1
+    with pytest.raises(TrainError, match="head_lr_scale"):
+        build_config("residual", None, {"optim.head_lr_scale": 0.0})

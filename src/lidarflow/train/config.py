@@ -96,7 +96,11 @@ class DataConfig:
 
 @dataclass
 class OptimConfig:
-    """Optimiser and batch. ``grad_clip``: max global gradient norm, 0 = no clipping (paper)."""
+    """Optimiser and batch. ``grad_clip``: max global gradient norm, 0 = no clipping (paper).
+    ``head_lr_scale``: the occupancy head's learning rate is ``lr`` times this. Its few weights
+    start far from where they end (the memory weights and bias move by several logits), and
+    Adam moves a weight by about ``lr`` per step, so at the flow's learning rate a CPU-sized
+    run of a few hundred steps leaves the head near copy-last."""
 
     name: str = "adam"
     lr: float = 0.01
@@ -105,6 +109,7 @@ class OptimConfig:
     weight_decay: float = 0.0
     momentum: float = 0.9  # sgd only
     grad_clip: float = 0.0
+    head_lr_scale: float = 1.0
 
 
 @dataclass
@@ -179,6 +184,7 @@ class TrainConfig:
                 "optim.lr, optim.batch_size and optim.epochs must be positive",
             ),
             (o.grad_clip >= 0, "optim.grad_clip must be >= 0 (0 = off)"),
+            (o.head_lr_scale > 0, "optim.head_lr_scale must be > 0"),
             (
                 s.lr_step_epochs >= 1 and s.gaussian_step_epochs >= 1,
                 "schedule step lengths must be >= 1 epoch",

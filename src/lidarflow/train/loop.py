@@ -108,6 +108,20 @@ def _load_init(model: torch.nn.Module, source: str) -> None:
         raise TrainError(f"model.init {source}: cannot start from these weights ({first})") from err
 
 
+#: Parameter names of the occupancy head (optim.head_lr_scale applies to them).
+_HEAD_PARAMETERS = ("conv_occupancy.", "warp_gain")
+
+
+def _parameter_groups(model: torch.nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
+    head, rest = [], []
+    for name, p in model.named_parameters():
+        (head if any(key in name for key in _HEAD_PARAMETERS) else rest).append(p)
+    groups = [{"params": rest}]
+    if head:
+        groups.append({"params": head, "lr": config.optim.lr * config.optim.head_lr_scale})
+    return groups
+
+
 def _optimizer(config: TrainConfig, params: Any) -> torch.optim.Optimizer:
     o = config.optim
     if o.name == "sgd":
@@ -180,7 +194,7 @@ def _train(
         _load_init(model, config.model.init)
         say(f"starting from the weights of {config.model.init}")
     model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
-    optimizer = _optimizer(config, model.parameters())
+    optimizer = _optimizer(config, _parameter_groups(model, config))
     scheduler = torch.optim.lr_scheduler.StepLR(
         optimizer, config.schedule.lr_step_epochs, config.schedule.lr_gamma
     )
