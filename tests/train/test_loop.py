@@ -188,12 +188,17 @@ def test_init_starts_from_given_weights(blob_files, tmp_path):
     # epoch 0 of the second run evaluates the first run's weights, not a fresh copy-last net
     assert second.rows[0]["val_loss"] == pytest.approx(first.rows[-1]["val_loss"])
     assert second.rows[0]["val_loss"] != pytest.approx(first.rows[0]["val_loss"])
-    bad = tiny_config(
-        blob_files[:1],
-        **{"model.init": str(tmp_path / "a"), "model.kwargs": {"occupancy_head": True}},
-    )
+    # A head model may start from a plain flow model: flow copied, head at its copy-last start.
+    model = build_model("flownet", occupancy_head=True)
+    fresh_head = {k: v.clone() for k, v in model.state_dict().items() if "occupancy" in k}
+    assert loop._load_init(model, str(tmp_path / "a")) is True
+    for name, value in first.model.state_dict().items():
+        assert torch.equal(model.state_dict()[name], value), name
+    for name, value in fresh_head.items():
+        assert torch.equal(model.state_dict()[name], value), name
+    # The other way round (weights the model has no place for) is refused.
     with pytest.raises(TrainError, match="cannot start from these weights"):
-        train(bad, tmp_path / "c")
+        loop._load_init(build_model("deeptracking"), str(tmp_path / "a"))
 
 
 def test_head_learning_rate_scale_applies_to_the_head_only():

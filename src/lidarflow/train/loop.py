@@ -96,16 +96,26 @@ def make_loss(
     return loss
 
 
-def _load_init(model: torch.nn.Module, source: str) -> None:
-    """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``."""
+def _load_init(model: torch.nn.Module, source: str) -> bool:
+    """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``.
+
+    A flow model without an occupancy head may start a model with one: the flow part is copied
+    and the head keeps its copy-last initialisation (fine-tuning a head onto trained flow).
+    Returns whether the head was left new."""
     from lidarflow.models.presets import resolve_model
 
     try:
         init, _ = resolve_model(None if source == "bundled" else source)
-        model.load_state_dict(init.state_dict())
+        weights = init.state_dict()
+        missing = set(model.state_dict()) - set(weights)
+        head_only = bool(missing) and all(
+            any(key in name for key in _HEAD_PARAMETERS) for name in missing
+        )
+        model.load_state_dict(weights, strict=not head_only)
     except (ModelError, RuntimeError) as err:
         first = str(err).strip().splitlines()[0]
         raise TrainError(f"model.init {source}: cannot start from these weights ({first})") from err
+    return head_only
 
 
 #: Parameter names of the occupancy head (optim.head_lr_scale applies to them).
@@ -191,8 +201,11 @@ def _train(
     except ModelError as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
     if config.model.init and not resume:
-        _load_init(model, config.model.init)
-        say(f"starting from the weights of {config.model.init}")
+        new_head = _load_init(model, config.model.init)
+        say(
+            f"starting from the weights of {config.model.init}"
+            + (" (occupancy head new)" if new_head else "")
+        )
     model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
     optimizer = _optimizer(config, _parameter_groups(model, config))
     scheduler = torch.optim.lr_scheduler.StepLR(
