@@ -189,6 +189,25 @@ def test_deeptracking_loss_is_masked_cross_entropy():
     )
 
 
+def test_changed_cells_weighting_is_a_weighted_mean_by_hand():
+    seq = _random_seq(t=5)
+    logits = torch.randn(2, 5, 1, 12, 14, generator=torch.Generator().manual_seed(4))
+    target, current = seq[:, 3:, 0:1], seq[:, 2:4, 0:1]
+    err = F.binary_cross_entropy_with_logits(logits[:, 2:4], target, reduction="none")
+    w = torch.where(target != current, 5.0, 1.0)
+    expected = (err * w).sum() / w.sum()
+    got = deeptracking_loss(seq, logits, warmup=2, visible_only=False, changed_weight=5.0)
+    torch.testing.assert_close(got, expected)
+    # Weighting changes the loss only where cells change: on a static sequence it is the mean.
+    static = _static_seq(t=5)
+    plain = deeptracking_loss(static, logits, warmup=2, visible_only=False)
+    torch.testing.assert_close(
+        deeptracking_loss(static, logits, warmup=2, visible_only=False, changed_weight=5.0), plain
+    )
+    with pytest.raises(ValueError, match="occupancy_changed_weight"):
+        LossConfig(occupancy_changed_weight=0.0)
+
+
 def test_deeptracking_loss_is_near_zero_for_confident_correct_logits():
     seq = _random_seq(t=4)
     logits = torch.zeros(2, 4, 1, 12, 14)

@@ -90,6 +90,7 @@ def make_loss(
                 logits.reshape(b, t, 1, h, w),
                 warmup=warmup,
                 visible_only=config.loss.occupancy_visible_only,
+                changed_weight=config.loss.occupancy_changed_weight,
             )
         return value
 
