@@ -331,7 +331,8 @@ def evaluate(
             "--model",
             "-m",
             help="Trained model to evaluate beside the baselines: a run folder from "
-            "`lidarflow train` or a .safetensors file with its .json. Repeat for several.",
+            "`lidarflow train`, a .safetensors file with its .json, or `bundled`. Repeat for "
+            "several; default: the bundled model.",
         ),
     ] = None,
     json_out: Annotated[
@@ -421,8 +422,8 @@ ModelOpt = Annotated[
     typer.Option(
         "--model",
         "-m",
-        help="Run folder from `lidarflow train`, a .safetensors file, or an .onnx file; "
-        "default: the bundled pretrained model.",
+        help="Run folder from `lidarflow train`, a .safetensors file, an .onnx file, or "
+        "`bundled` (the default: the bundled pretrained model).",
     ),
 ]
 

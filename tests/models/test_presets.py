@@ -19,6 +19,16 @@ def test_bundled_model_loads_and_matches_its_record():
     assert "Held-out recordings" in card_text and "copy_last" in card_text
 
 
+def test_the_word_bundled_names_the_bundled_model(tmp_path, monkeypatch):
+    _, card = resolve_model("bundled")
+    assert card["weights_sha256"] == BUNDLED.weights_sha256
+    # ... unless a file or folder of that name is there: then that is what the user means.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "bundled").mkdir()
+    with pytest.raises(ModelError):
+        resolve_model("bundled")
+
+
 def test_bundled_predictor_runs_on_the_sample(sample_recording):
     from lidarflow.predict import Predictor
 

@@ -42,9 +42,10 @@ def bundled_model_dir() -> Path:
 
 
 def resolve_model(source: str | Path | None) -> tuple[RecurrentMapModel, dict[str, Any]]:
-    """Load ``source`` (run folder / weights file), or the bundled model when ``None``; the
-    bundled weights are checked against their recorded checksum."""
-    if source is not None:
+    """Load ``source`` (run folder / weights file), or the bundled model when ``None`` or the
+    word ``bundled`` (unless a file of that name exists); the bundled weights are checked
+    against their recorded checksum."""
+    if source is not None and not (str(source) == "bundled" and not Path(source).exists()):
         return load_trained(source)
     folder = bundled_model_dir()
     weights = folder / "model.safetensors"
