@@ -10,14 +10,12 @@ Writes JSON (default ``benchmarks/results/ego.json``).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from _output import machine, write_json
 
 from lidarflow.losses import LossConfig, flow_loss
 from lidarflow.models import build_model
@@ -90,17 +88,11 @@ def main() -> None:
     out = {
         "benchmark": "ego_motion_overhead",
         "config": vars(args) | {"json": str(args.json)},
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "torch": torch.__version__,
-        },
+        "machine": machine(),
         "note": "shared 2-core CPU: compare the ratios (same run), not absolute times",
         "results": results,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2))
-    print(f"wrote {args.json}")
+    write_json(args.json, out)
 
 
 if __name__ == "__main__":

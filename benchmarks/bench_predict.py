@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from _output import machine, write_json
 from safetensors.torch import load_file
 
 from lidarflow.data import read_bag, sample_bag_path
@@ -102,17 +101,11 @@ def main() -> None:
     out = {
         "benchmark": "predict",
         "scans": args.scans,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "torch": torch.__version__,
-        },
+        "machine": machine(),
         "note": "latency includes rasterization; absolute times are indicative on a shared CPU",
         "results": results,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2))
-    print(f"wrote {args.json}")
+    write_json(args.json, out)
 
 
 if __name__ == "__main__":

@@ -10,14 +10,12 @@ every scan), so the ratio shows what the cached lookup buys on whatever machine 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+from _output import machine, write_json
 
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, _cell_lookup, rasterize, rasterize_batch
 
@@ -90,16 +88,10 @@ def main() -> None:
         "grid": grid.to_dict(),
         "scans": args.scans,
         "repeats": args.repeats,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-        },
+        "machine": machine(),
         "results": results,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2))
-    print(f"wrote {args.json}")
+    write_json(args.json, out)
 
 
 if __name__ == "__main__":

@@ -13,15 +13,13 @@ includes it). Medians over ``--scans`` scans, one thread. Writes JSON (default
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
+from _output import machine, write_json
 
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.evaluate.calibration import Calibration
@@ -87,18 +85,12 @@ def main() -> None:
         "benchmark": "segmentation",
         "scans": args.scans,
         "command": "python benchmarks/bench_segmentation.py --scans " + str(args.scans),
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "torch": torch.__version__,
-        },
+        "machine": machine(),
         "note": "medians, one thread, on a 2-core CPU shared with other work: read the ratios, "
         "which are measured in the same run; absolute times are indicative",
         "results": results,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2))
-    print(f"wrote {args.json}")
+    write_json(args.json, out)
 
 
 if __name__ == "__main__":

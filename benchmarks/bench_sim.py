@@ -21,6 +21,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from _output import write_json
+
 from lidarflow.data import Recording
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
@@ -104,9 +106,7 @@ def main() -> None:
         }
         print(scenario, json.dumps(results[scenario]))
     results["machine"]["load_average_end"] = os.getloadavg()  # type: ignore[index]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2))
-    print(f"wrote {args.out}")
+    write_json(args.out, results)
 
 
 if __name__ == "__main__":
