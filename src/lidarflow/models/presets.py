@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="db883639083d07b11e2a8dfd53fb6c44f06dfc1c26c0e6500e98a8a3a4ae33e4",
+    weights_sha256="83161d5c92617e4497e9ccb7ea1961812b6af073f363417de0d80beedf763be0",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 
