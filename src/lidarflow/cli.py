@@ -548,7 +548,8 @@ def train(
     init: Annotated[
         str | None,
         typer.Option("--init", help="Start from these weights (run folder, weights file, or "
-                     "'bundled') instead of from scratch: fine-tuning."),
+                     "'bundled') instead of from scratch: fine-tuning. A flow-only "
+                     "model can start one with an occupancy head (the head starts fresh)."),
     ] = None,
     resume: Annotated[
         Path | None,
