@@ -226,3 +226,28 @@ def test_occupancy_memory_is_an_exponential_average_of_past_maps():
     assert state[-1][0, :, 0, 0].abs().max() == 0
     with pytest.raises(ModelError, match="memory_decays"):
         build_model("flownet", occupancy_head=True, memory_decays=(1.5,))
+
+
+def test_bias_corrected_memory_is_the_weighted_mean_of_the_frames_seen():
+    net = build_model(
+        "flownet", occupancy_head=True, memory_decays=(0.5, 0.9), memory_bias_correction=True
+    )
+    assert net.state_channels() == (16, 16, 16, 3)  # two memories and the frame count
+    # Make the residual logit read the slow memory's centre tap alone.
+    with torch.no_grad():
+        net.conv_occupancy.weight.zero_()
+        net.conv_occupancy.bias.zero_()
+        net.conv_occupancy.weight[0, 16 + 1 + 1, 1, 1] = 1.0
+    occupied, free = torch.zeros(1, 2, 5, 5), torch.zeros(1, 2, 5, 5)
+    occupied[0, 0, 2, 2] = 1.0
+    state = net.init_state(1, 5, 5)
+    frames = [occupied, free, occupied]
+    for maps in frames:
+        out, state = net.step(maps, state)
+    # weighted mean of (1, 0, 1) with weights (0.9^2, 0.9, 1): a cell seen occupied from the
+    # first frame reads as such at once, unlike the raw memory (which starts from zero)
+    expected = (0.81 + 1.0) / (0.81 + 0.9 + 1.0)
+    torch.testing.assert_close(out[0, 4, 2, 2], torch.tensor(expected))
+    assert state[-1][0, 2, 0, 0] == 3  # frames counted everywhere
+    raw = 0.1 * (0.81 + 1.0)
+    torch.testing.assert_close(state[-1][0, 1, 2, 2], torch.tensor(raw))

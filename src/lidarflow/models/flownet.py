@@ -55,6 +55,8 @@ FREE_PROBABILITY_INIT = 0.01
 OCCUPIED_PROBABILITY_INIT = 0.9
 # A fast and a slow memory: about 2 and 5 frames, the temporal-average baseline's window.
 MEMORY_DECAYS = (0.5, 0.8)
+# The frame count of the bias-corrected memories stops here: d^n is 0 in float32 long before.
+_MAX_FRAMES_COUNTED = 10_000.0
 
 
 class LidarFlowNet(RecurrentMapModel):
@@ -73,6 +75,7 @@ class LidarFlowNet(RecurrentMapModel):
 
     out_channels: int = 4  # 5 with the occupancy head (channel 4: residual logit)
     memory_decays: tuple[float, ...] = ()
+    memory_bias_correction: bool = False
 
     def __init__(
         self,
@@ -84,6 +87,7 @@ class LidarFlowNet(RecurrentMapModel):
         zero_init_flow: bool = True,
         occupancy_head: bool = False,
         memory_decays: tuple[float, ...] = MEMORY_DECAYS,
+        memory_bias_correction: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -98,6 +102,7 @@ class LidarFlowNet(RecurrentMapModel):
             if not all(0.0 <= d < 1.0 for d in memory_decays):
                 raise ValueError(f"memory_decays must be in [0, 1), got {memory_decays}")
             self.memory_decays = tuple(float(d) for d in memory_decays)
+            self.memory_bias_correction = bool(memory_bias_correction)
         self.conv0 = nn.Conv2d(in_channels, hidden_channels, kernel_size, padding=pad)
         self.act0 = nn.ReLU() if conv0_activation == "relu" else nn.Identity()
         self.grus = nn.ModuleList(
@@ -119,9 +124,12 @@ class LidarFlowNet(RecurrentMapModel):
             self.warp_gain = nn.Parameter(torch.tensor(occupied - free))
 
     def state_channels(self) -> tuple[int, ...]:
-        """Three GRU states, then (occupancy head) one tensor of occupancy memories."""
+        """Three GRU states, then (occupancy head) one tensor of occupancy memories (and, with
+        bias correction, one more channel counting the frames seen)."""
         grus = tuple(cell.hidden_channels for cell in self.grus)
-        return (*grus, len(self.memory_decays)) if self.occupancy_head else grus
+        if not self.occupancy_head:
+            return grus
+        return (*grus, len(self.memory_decays) + int(self.memory_bias_correction))
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
         """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` and the state -> output and new state."""
@@ -136,9 +144,19 @@ class LidarFlowNet(RecurrentMapModel):
         occupancy = maps[:, 0:1]
         decays = torch.tensor(self.memory_decays, dtype=maps.dtype, device=maps.device)
         decays = decays.view(1, -1, 1, 1)
-        memory = decays * state[-1] + (1.0 - decays) * occupancy
-        residual = self.conv_occupancy(torch.cat([x, occupancy, memory], dim=1))
-        return torch.cat([flow, residual], dim=1), (*new_state, memory)
+        k = len(self.memory_decays)
+        memory = decays * state[-1][:, :k] + (1.0 - decays) * occupancy
+        if not self.memory_bias_correction:
+            residual = self.conv_occupancy(torch.cat([x, occupancy, memory], dim=1))
+            return torch.cat([flow, residual], dim=1), (*new_state, memory)
+        # Memories start at zero, so a slow one is a fraction of the mean it tracks for its
+        # first ~1/(1-d) frames: all of a 16-frame training window, none of a long stream.
+        # Dividing by 1 - d^n (as Adam does) makes it the weighted mean of the frames seen from
+        # the first one on; the zero initial state (also ONNX's) stays the start.
+        frames = (state[-1][:, k:] + 1.0).clamp(max=_MAX_FRAMES_COUNTED)
+        mean = memory / (1.0 - decays**frames)
+        residual = self.conv_occupancy(torch.cat([x, occupancy, mean], dim=1))
+        return torch.cat([flow, residual], dim=1), (*new_state, torch.cat([memory, frames], 1))
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``P^{t+1}`` ``(B, 1, H, W)`` from maps ``(B, 2, H, W)`` and the step's output
