@@ -92,3 +92,20 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
     assert a.backward_flow.shape == (2, 100, 100) and a.forward_flow.shape == (2, 100, 100)
     np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
     np.testing.assert_allclose(a.forward_flow, b.forward_flow, atol=1e-4)
+
+
+def test_bias_corrected_memories_export_with_matching_probabilities(tmp_path, sample_recording):
+    # Random head weights so that the memories (and their frame count) shape the output.
+    import torch
+    from safetensors.torch import load_file, save_file
+
+    kwargs = {"occupancy_head": True, "memory_decays": [0.5, 0.95], "memory_bias_correction": True}
+    folder = make_model_dir(tmp_path / "bc", **kwargs)
+    weights = load_file(folder / "model.safetensors")
+    weights["conv_occupancy.weight"] = torch.randn_like(weights["conv_occupancy.weight"])
+    save_file(weights, folder / "model.safetensors")
+    net, _ = resolve_model(folder)
+    torch_p, onnx_p = Predictor(folder), Predictor(export_onnx(net, tmp_path / "bc.onnx"))
+    for scan in frames(sample_recording, 12):
+        a, b = torch_p.update(scan), onnx_p.update(scan)
+    np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
