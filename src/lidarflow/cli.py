@@ -366,6 +366,14 @@ def evaluate(
             "upper bound; at run time only poses up to now are known).",
         ),
     ] = False,
+    horizon: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Also score F1 1..K frames ahead (models roll forward on their own "
+            "predictions, as `predict --horizon`; copy-last beside them); JSON key horizon_f1.",
+        ),
+    ] = 1,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     moving_threshold: MovingOpt = None,
@@ -398,9 +406,13 @@ def evaluate(
     report = evaluate_and_report(
         named, methods, spec, warmup, config, report_dir, gif_frames, _eval_progress
     )
+    if horizon > 1:
+        _add_horizon_scores(report, named, methods, spec, warmup, horizon)
     for entry in report["recordings"]:
         title = f"{entry['path']} ({entry['frames_evaluated']} frames)"
         typer.echo(format_table(entry["methods"], title) + "\n")
+        if "horizon_f1" in entry:
+            typer.echo(_format_horizon(entry["horizon_f1"]) + "\n")
         extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
         if extra:
             typer.echo(extra + "\n")
@@ -415,6 +427,34 @@ def evaluate(
         typer.echo(f"wrote {json_out}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
+
+
+def _add_horizon_scores(
+    report: dict[str, Any],
+    named: list[tuple[str, Any]],
+    methods: list[Any],
+    spec: Any,
+    warmup: int,
+    horizon: int,
+) -> None:
+    from lidarflow.evaluate.horizon import horizon_f1
+
+    models = {
+        m.name: m.stream.model
+        for m in methods
+        if hasattr(m, "stream") and not getattr(m, "uses_motion", False)
+    }
+    for entry, (_, recording) in zip(report["recordings"], named, strict=True):
+        occupancy, visibility = recording.maps(spec)
+        entry["horizon_f1"] = horizon_f1(occupancy, visibility, models, horizon, warmup)
+
+
+def _format_horizon(scores: dict[str, list[float]]) -> str:
+    k = len(next(iter(scores.values())))
+    lines = ["F1 per horizon step     " + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
+    for name, values in scores.items():
+        lines.append(f"{name:<24}" + "".join(f"{v:>10.4f}" for v in values))
+    return "\n".join(lines)
 
 
 ModelOpt = Annotated[

@@ -1,0 +1,70 @@
+"""F1 per prediction horizon: how well a model predicts 1..K frames ahead.
+
+The model streams as in :mod:`lidarflow.evaluate.stream` (one step per frame, state carried).
+After frame ``t`` (``t >= warmup``) it also rolls forward ``K - 1`` more steps from a copy of
+its state, feeding back its own predicted map with the visibility of frame ``t`` — exactly what
+:class:`lidarflow.predict.Predictor` does for ``horizon=K`` — and the prediction ``k`` steps
+ahead is scored (F1 at 0.4) against ``O^{t+k}``. Copy-last's ``k``-step prediction is ``O^t``.
+Frames ``t`` without a frame ``t + K`` are not scored, so every horizon sees the same frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lidarflow.errors import EvaluateError
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.models.recurrent import RecurrentMapModel
+
+__all__ = ["horizon_f1"]
+
+
+@torch.no_grad()
+def horizon_f1(
+    occupancy: np.ndarray,
+    visibility: np.ndarray,
+    models: dict[str, RecurrentMapModel],
+    horizon: int,
+    warmup: int = 10,
+) -> dict[str, list[float]]:
+    """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
+
+    Ego-motion models are not supported here (their roll-out needs future motion)."""
+    if horizon < 1:
+        raise EvaluateError(f"horizon must be >= 1, got {horizon}")
+    n = len(occupancy)
+    if n < warmup + horizon + 1:
+        raise EvaluateError(
+            f"a recording needs at least {warmup + horizon + 1} frames for horizon {horizon}; "
+            f"it has {n}"
+        )
+    scored = range(warmup, n - horizon)
+    copy = [Counts() for _ in range(horizon)]
+    for t in scored:
+        for k in range(horizon):
+            copy[k] = copy[k] + confusion(occupancy[t], occupancy[t + 1 + k])
+    result = {"copy_last": [c.f1 for c in copy]}
+    for name, model in models.items():
+        if getattr(model, "ego_motion", False):
+            raise EvaluateError(f"{name}: horizon scores do not support ego-motion models yet")
+        counts = [Counts() for _ in range(horizon)]
+        h, w = occupancy.shape[-2:]
+        state = model.init_state(1, h, w)
+        for t in range(n - horizon):
+            maps = torch.from_numpy(np.stack([occupancy[t], visibility[t]]).astype(np.float32))
+            maps = maps[None]
+            out, state = model.step(maps, state)
+            if t not in scored:
+                continue
+            probability = model.predict_next(maps, out)
+            rolled = state
+            for k in range(horizon):
+                if k > 0:
+                    fed = torch.cat([probability, maps[:, 1:2]], dim=1)
+                    out_k, rolled = model.step(fed, rolled)
+                    probability = model.predict_next(fed, out_k)
+                predicted = probability[0, 0].numpy() >= THRESHOLD
+                counts[k] = counts[k] + confusion(predicted, occupancy[t + 1 + k])
+        result[name] = [c.f1 for c in counts]
+    return result

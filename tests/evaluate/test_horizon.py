@@ -1,0 +1,42 @@
+"""F1 per horizon step: hand-computed copy-last numbers, and an untrained (copy-last) model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarflow.errors import EvaluateError
+from lidarflow.evaluate.horizon import horizon_f1
+from lidarflow.models import build_model
+
+
+def _walker(n: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """A wall cell that stays, and a cell moving one column per frame."""
+    occupancy = np.zeros((n, 6, 12), bool)
+    occupancy[:, 0, 0] = True
+    for t in range(n):
+        occupancy[t, 3, t] = True
+    return occupancy, np.ones_like(occupancy)
+
+
+def test_copy_last_per_horizon_by_hand():
+    occupancy, visibility = _walker()
+    scores = horizon_f1(occupancy, visibility, {}, horizon=2, warmup=2)
+    # every scored frame: predicted {wall, walker at t}, true {wall, walker at t+k}:
+    # tp 1, fp 1, fn 1 at each k -> F1 = 2 / (2 + 1 + 1) = 0.5
+    assert scores == {"copy_last": [pytest.approx(0.5), pytest.approx(0.5)]}
+
+
+def test_untrained_flownet_rolls_forward_as_copy_last():
+    occupancy, visibility = _walker(10)
+    net = build_model("flownet").eval()  # zero flow: every step predicts the map it is given
+    head = build_model("flownet", occupancy_head=True).eval()
+    scores = horizon_f1(occupancy, visibility, {"net": net, "head": head}, horizon=3, warmup=2)
+    for name in ("net", "head"):
+        assert scores[name] == pytest.approx(scores["copy_last"])
+
+
+def test_too_short_for_the_horizon_is_refused():
+    occupancy, visibility = _walker(5)
+    with pytest.raises(EvaluateError, match="horizon 3"):
+        horizon_f1(occupancy, visibility, {}, horizon=3, warmup=2)
