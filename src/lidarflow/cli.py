@@ -444,9 +444,13 @@ def _add_horizon_scores(
         for m in methods
         if hasattr(m, "stream") and not getattr(m, "uses_motion", False)
     }
-    for entry, (_, recording) in zip(report["recordings"], named, strict=True):
+    for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         occupancy, visibility = recording.maps(spec)
-        entry["horizon_f1"] = horizon_f1(occupancy, visibility, models, horizon, warmup)
+        total = len(models) * max(0, len(occupancy) - horizon)
+        with _progress(total, f"horizon {horizon}, {Path(name).name}") as bar:
+            entry["horizon_f1"] = horizon_f1(
+                occupancy, visibility, models, horizon, warmup, bar.update
+            )
 
 
 def _format_horizon(scores: dict[str, list[float]]) -> str:

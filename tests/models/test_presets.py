@@ -8,6 +8,7 @@ import pytest
 
 from lidarflow.errors import ModelError
 from lidarflow.models import presets
+from lidarflow.models.flownet import OCCUPANCY_HEAD_PARAMETERS
 from lidarflow.models.presets import BUNDLED, bundled_model_dir, resolve_model
 
 
@@ -18,7 +19,7 @@ def test_bundled_model_loads_and_matches_its_record():
     flow_part = sum(
         p.numel()
         for name, p in net.named_parameters()
-        if not name.startswith(("conv_occupancy.", "warp_gain"))
+        if not name.startswith(OCCUPANCY_HEAD_PARAMETERS)
     )
     assert flow_part == 42_500
     assert sum(p.numel() for p in net.parameters()) == card["parameters"]

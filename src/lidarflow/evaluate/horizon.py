@@ -10,6 +10,8 @@ Frames ``t`` without a frame ``t + K`` are not scored, so every horizon sees the
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -27,10 +29,12 @@ def horizon_f1(
     models: dict[str, RecurrentMapModel],
     horizon: int,
     warmup: int = 10,
+    progress: Callable[[int], None] | None = None,
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
-    Ego-motion models are not supported here (their roll-out needs future motion)."""
+    ``progress(1)`` is called after every model step on a recorded frame. Ego-motion models
+    are not supported here (their roll-out needs future motion)."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
@@ -55,6 +59,8 @@ def horizon_f1(
             maps = torch.from_numpy(np.stack([occupancy[t], visibility[t]]).astype(np.float32))
             maps = maps[None]
             out, state = model.step(maps, state)
+            if progress is not None:
+                progress(1)
             if t not in scored:
                 continue
             probability = model.predict_next(maps, out)

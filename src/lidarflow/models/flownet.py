@@ -55,6 +55,8 @@ FREE_PROBABILITY_INIT = 0.01
 OCCUPIED_PROBABILITY_INIT = 0.9
 # A fast and a slow memory: about 2 and 5 frames, the temporal-average baseline's window.
 MEMORY_DECAYS = (0.5, 0.8)
+#: Names (prefixes) of the occupancy head's parameters: everything else is Table I's network.
+OCCUPANCY_HEAD_PARAMETERS = ("conv_occupancy.", "warp_gain")
 # The frame count of the bias-corrected memories stops here: d^n is 0 in float32 long before.
 _MAX_FRAMES_COUNTED = 10_000.0
 

@@ -30,6 +30,7 @@ from torch import Tensor
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
 from lidarflow.models import build_model, uses_ego_motion
+from lidarflow.models.flownet import OCCUPANCY_HEAD_PARAMETERS
 from lidarflow.models.speed import accelerate
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import (
@@ -106,11 +107,11 @@ def _load_init(model: torch.nn.Module, source: str) -> bool:
     from lidarflow.models.presets import resolve_model
 
     try:
-        init, _ = resolve_model(None if source == "bundled" else source)
+        init, _ = resolve_model(source)
         weights = init.state_dict()
         missing = set(model.state_dict()) - set(weights)
         head_only = bool(missing) and all(
-            any(key in name for key in _HEAD_PARAMETERS) for name in missing
+            any(key in name for key in OCCUPANCY_HEAD_PARAMETERS) for name in missing
         )
         model.load_state_dict(weights, strict=not head_only)
     except (ModelError, RuntimeError) as err:
@@ -119,14 +120,10 @@ def _load_init(model: torch.nn.Module, source: str) -> bool:
     return head_only
 
 
-#: Parameter names of the occupancy head (optim.head_lr_scale applies to them).
-_HEAD_PARAMETERS = ("conv_occupancy.", "warp_gain")
-
-
 def _parameter_groups(model: torch.nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
     head, rest = [], []
     for name, p in model.named_parameters():
-        (head if any(key in name for key in _HEAD_PARAMETERS) else rest).append(p)
+        (head if any(key in name for key in OCCUPANCY_HEAD_PARAMETERS) else rest).append(p)
     groups = [{"params": rest}]
     if head:
         groups.append({"params": head, "lr": config.optim.lr * config.optim.head_lr_scale})
