@@ -1,7 +1,9 @@
 """Scan-to-prediction latency of the streaming Predictor (rasterization included), per backend.
 
-Single stream: median and p99 milliseconds per scan over a real recording's scans, for the
-PyTorch eager backend (the reference, measured in the same run) and onnxruntime, each at the
+Single stream, the bundled model: median and p99 milliseconds per scan over a real recording's
+scans, for the PyTorch eager backend (the reference, measured in the same run), onnxruntime
+float32 and onnxruntime int8 (`lidarflow export --int8`, calibrated on the same sample; its
+accuracy cost is measured on other recordings by experiments/int8_accuracy.py), each at the
 given thread counts. Batched: scans/s for B streams stepped together (many robots at once).
 Writes JSON (default ``benchmarks/results/predict.json``).
 
@@ -11,7 +13,6 @@ Writes JSON (default ``benchmarks/results/predict.json``).
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -19,26 +20,13 @@ from pathlib import Path
 import numpy as np
 import torch
 from _output import machine, write_json
-from safetensors.torch import load_file
 
 from lidarflow.data import read_bag, sample_bag_path
-from lidarflow.models import build_model
+from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import export_onnx
-
-
-def model_dir(folder: Path) -> Path:
-    from safetensors.torch import save_file
-
-    torch.manual_seed(0)
-    net = build_model("flownet", zero_init_flow=False)
-    save_file(
-        {k: v.contiguous() for k, v in net.state_dict().items()}, folder / "model.safetensors"
-    )
-    (folder / "model.json").write_text(
-        json.dumps({"model": "flownet", "model_kwargs": {"zero_init_flow": False}})
-    )
-    return folder
+from lidarflow.predict.quantize import quantize_onnx
+from lidarflow.scan import GridSpec
 
 
 def latency(predictor: Predictor, scans: list, warm: int = 10) -> dict[str, float]:
@@ -78,29 +66,37 @@ def main() -> None:
     scans = [recording.scan(i % len(recording)) for i in range(args.scans)]
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        folder = model_dir(Path(tmp))
-        net = build_model("flownet", zero_init_flow=False)
-        net.load_state_dict(load_file(folder / "model.safetensors"))
-        onnx_path = export_onnx(net.eval(), Path(tmp) / "m.onnx")
+        net, _ = resolve_model(None)
+        net = net.eval()
+        onnx_path = export_onnx(net, Path(tmp) / "m.onnx")
+        occupancy, visibility = recording.maps(GridSpec())
+        int8_path = quantize_onnx(
+            onnx_path, Path(tmp) / "m8.onnx", np.stack([occupancy, visibility], axis=1)
+        )
         for threads in args.threads:
             torch.set_num_threads(threads)
-            ref = latency(Predictor(folder, threads=threads), scans)
+            ref = latency(Predictor(None, threads=threads), scans)
             ort = latency(Predictor(onnx_path, threads=threads), scans)
+            ort8 = latency(Predictor(int8_path, threads=threads), scans)
             results[f"threads={threads}"] = {
                 "torch_eager_fp32": ref,
                 "onnxruntime_fp32": ort,
+                "onnxruntime_int8": ort8,
                 "onnxruntime_speedup_vs_torch": ref["median_ms"] / ort["median_ms"],
+                "onnxruntime_int8_speedup_vs_torch": ref["median_ms"] / ort8["median_ms"],
             }
             print(
                 f"threads={threads}: torch {ref['median_ms']:.2f} ms (p99 {ref['p99_ms']:.2f}), "
-                f"onnxruntime {ort['median_ms']:.2f} ms (p99 {ort['p99_ms']:.2f})"
+                f"onnxruntime {ort['median_ms']:.2f} ms (p99 {ort['p99_ms']:.2f}), "
+                f"int8 {ort8['median_ms']:.2f} ms (p99 {ort8['p99_ms']:.2f})"
             )
-        rate = batched(net.eval(), args.batch, 5, max(args.threads))
+        rate = batched(net, args.batch, 5, max(args.threads))
         results["batched"] = {"batch": args.batch, "torch_scans_per_s": rate}
         print(f"batched B={args.batch}: {rate:,.0f} scans/s (torch, {max(args.threads)} threads)")
     out = {
         "benchmark": "predict",
         "scans": args.scans,
+        "model": "bundled",
         "machine": machine(),
         "note": "latency includes rasterization; absolute times are indicative on a shared CPU",
         "results": results,

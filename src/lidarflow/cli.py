@@ -521,15 +521,57 @@ def export(
     onnx: Annotated[Path, typer.Option("--onnx", help="ONNX file to write.")],
     model: ModelOpt = None,
     grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+    int8: Annotated[
+        bool,
+        typer.Option(
+            "--int8",
+            help="Quantize the convolutions to int8 (static, per-channel; ~1.4x faster on CPU, "
+            "F1 within ~0.001), ranges calibrated by streaming --calibration through the model.",
+        ),
+    ] = False,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            "--calibration",
+            help="Recording or bag whose maps calibrate --int8 (default: the bundled sample "
+            "bag; use one from your own sensor).",
+        ),
+    ] = None,
+    topic: TopicOpt = None,
 ) -> None:
     """Export one streaming step (hidden state as explicit inputs/outputs) to ONNX, for
     onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
+    import tempfile
+
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.export import export_onnx
+    from lidarflow.scan import GridSpec
 
     net, card = resolve_model(model)
-    path = export_onnx(net, onnx, grid, grid)
-    typer.echo(f"wrote {path} ({card.get('model')}, {grid}x{grid} grid)")
+    if not int8:
+        path = export_onnx(net, onnx, grid, grid)
+        typer.echo(f"wrote {path} ({card.get('model')}, {grid}x{grid} grid)")
+        return
+    import numpy as np
+
+    from lidarflow.data import sample_bag_path
+    from lidarflow.errors import PredictError
+    from lidarflow.predict.quantize import quantize_onnx
+
+    if not onnx.parent.exists():
+        raise PredictError(f"{onnx.parent}: no such folder for the ONNX file")
+    recording = _load(calibration or sample_bag_path(), topic)
+    occupancy, visibility = recording.maps(GridSpec(grid, grid, res))
+    maps = np.stack([occupancy, visibility], axis=1)
+    with tempfile.TemporaryDirectory() as tmp:
+        float_path = export_onnx(net, Path(tmp) / "float.onnx", grid, grid)
+        path = quantize_onnx(float_path, onnx, maps)
+    typer.echo(
+        f"wrote {path} ({card.get('model')}, {grid}x{grid} grid, int8 convolutions calibrated "
+        f"on {len(maps)} frames of {(calibration or sample_bag_path()).name})"
+    )
+
 
 @app.command(
     help="Train LiDAR-FlowNet or the DeepTracking baseline, self-supervised, on recordings and "

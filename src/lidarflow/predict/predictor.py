@@ -18,6 +18,7 @@ motion.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -44,11 +45,8 @@ class Prediction:
             models that predict occupancy directly (DeepTracking).
         horizon: ``(K, H, W)`` probabilities 1..K frames ahead (``horizon[0] is probability``).
         occupancy, visibility: the maps of the frame just given.
-        moving: ``(H, W)`` bool, the occupied cells of the frame just given that move on their
-            own (forward flow less the platform's motion longer than the predictor's
-            ``moving_threshold`` cells; :func:`lidarflow.segmentation.moving_mask`); ``None``
-            for models without flow.
         ego_compensated: an ego-motion model was given the motion since the previous scan.
+        moving_threshold: cells per frame of motion of its own above which a cell is moving.
     """
 
     probability: np.ndarray
@@ -58,8 +56,21 @@ class Prediction:
     horizon: np.ndarray
     occupancy: np.ndarray
     visibility: np.ndarray
-    moving: np.ndarray | None = None
     ego_compensated: bool = False
+    moving_threshold: float = MOVING_THRESHOLD
+
+    @cached_property
+    def moving(self) -> np.ndarray | None:
+        """``(H, W)`` bool, the occupied cells of the frame just given that move on their own
+        (forward flow less the platform's motion longer than ``moving_threshold`` cells;
+        :func:`lidarflow.segmentation.moving_mask`); ``None`` for models without flow.
+
+        Computed on first access (~0.6 ms on a 100 x 100 grid, a tenth of an update), so a
+        robot that only wants the next map does not pay for it.
+        """
+        if self.forward_flow is None:
+            return None
+        return moving_mask(self.occupancy, self.forward_flow, self.moving_threshold)
 
 
 class Predictor:
@@ -161,7 +172,6 @@ class Predictor:
             horizon=np.stack(future),
             occupancy=occupied_now,
             visibility=np.asarray(visibility, bool),
-            moving=None if flow is None else moving_mask(
-                occupied_now, flow[2:], self.moving_threshold),
             ego_compensated=motion is not None,
+            moving_threshold=self.moving_threshold,
         )

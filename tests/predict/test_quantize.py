@@ -1,0 +1,80 @@
+"""Int8 export: the quantized graph holds int8 convolutions and predicts (nearly) what the float
+graph predicts; bad calibration input is refused in one line."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import pytest
+
+from lidarflow.errors import PredictError
+from lidarflow.evaluate.metrics import f1_score
+from lidarflow.models.presets import resolve_model
+from lidarflow.predict import Predictor
+from lidarflow.predict.export import export_onnx
+from lidarflow.predict.quantize import quantize_onnx
+from tests.test_cli import run
+
+
+def stacked_maps(recording, start, stop):
+    occupancy, visibility = recording.maps(start=start, stop=stop)
+    return np.stack([occupancy, visibility], axis=1)
+
+
+@pytest.fixture(scope="module")
+def float_and_int8(tmp_path_factory, sample_recording):
+    folder = tmp_path_factory.mktemp("q")
+    net, _ = resolve_model(None)  # the bundled model: trained weights, realistic ranges
+    float_path = export_onnx(net, folder / "float.onnx")
+    int8_path = quantize_onnx(float_path, folder / "int8.onnx", stacked_maps(sample_recording, 0, 40))
+    return float_path, int8_path
+
+
+def test_convolutions_are_int8_and_the_rest_is_float(float_and_int8):
+    _, int8_path = float_and_int8
+    graph = onnx.load(str(int8_path)).graph
+    ops = [node.op_type for node in graph.node]
+    assert ops.count("Conv") > 0 and "DequantizeLinear" in ops
+    int8_weights = [t for t in graph.initializer if t.data_type == onnx.TensorProto.INT8]
+    assert len(int8_weights) >= ops.count("Conv")  # every conv's weights are stored as int8
+    assert "GridSample" in ops and "Sigmoid" in ops  # warp and gates stay float
+
+
+def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
+    float_path, int8_path = float_and_int8
+    a, b = Predictor(float_path), Predictor(int8_path)
+    occupancy, visibility = sample_recording.maps(start=40, stop=100)  # not calibrated on
+    predicted_a, predicted_b, differences = [], [], []
+    for occ, vis in zip(occupancy, visibility, strict=True):
+        pa, pb = a.update((occ, vis)), b.update((occ, vis))
+        predicted_a.append(pa.occupied)
+        predicted_b.append(pb.occupied)
+        differences.append(np.abs(pa.probability - pb.probability).max())
+    assert max(differences) > 0  # it did change the arithmetic
+    assert max(differences) < 0.35
+    targets = occupancy[11:]
+    f1_float = f1_score(np.stack(predicted_a[10:-1]), targets)
+    f1_int8 = f1_score(np.stack(predicted_b[10:-1]), targets)
+    assert abs(f1_float - f1_int8) < 0.01 and f1_float > 0.9
+
+
+def test_too_short_calibration_is_refused(float_and_int8, tmp_path, sample_recording):
+    float_path, _ = float_and_int8
+    with pytest.raises(PredictError, match="calibration needs more than 10 frames"):
+        quantize_onnx(float_path, tmp_path / "x.onnx", stacked_maps(sample_recording, 0, 5))
+
+
+def test_cli_export_int8(tmp_path, capsys, sample_recording):
+    calibration = sample_recording.slice(0, 30).save(tmp_path / "cal.npz")
+    out = tmp_path / "m8.onnx"
+    code, stdout, err = run(
+        ["export", "--onnx", str(out), "--int8", "--calibration", str(calibration)], capsys
+    )
+    assert code == 0, err
+    assert "int8 convolutions calibrated on 30 frames of cal.npz" in stdout
+    assert Predictor(out).update(sample_recording.scan(0)).probability.shape == (100, 100)
+    code, _, err = run(
+        ["export", "--onnx", str(out), "--int8", "--calibration", str(tmp_path / "no.bag")],
+        capsys,
+    )
+    assert code == 1 and err.count("\n") == 1 and "no such file" in err
