@@ -22,6 +22,7 @@ import json
 import shlex
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
@@ -54,25 +55,40 @@ def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> 
     return "loses"
 
 
+def run_fold(
+    name: str, train_args: str, recordings: list[Path], held: Path, extra: list[str], out: Path
+) -> dict:
+    """Train without ``held`` (unless done already), evaluate on it, return its scores."""
+    folder = out / name / stem(held)
+    run_dir, report = folder / "run", folder / "evaluation.json"
+    if not (run_dir / "model.safetensors").exists():
+        train_on = [str(r) for r in recordings if r != held] + extra
+        lidarflow("train", *train_on, *shlex.split(train_args), "-o", str(run_dir))
+    if not report.exists():
+        lidarflow("evaluate", str(held), "--model", str(run_dir), "--json", str(report))
+    methods = json.loads(report.read_text())["recordings"][0]["methods"]
+    (model_key,) = [k for k in methods if k not in BASELINES]
+    return {
+        "model": {k: methods[model_key][k] for k in METRICS},
+        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
+    }
+
+
 def run_variant(
-    name: str, train_args: str, recordings: list[Path], extra: list[str], out: Path
+    name: str,
+    train_args: str,
+    recordings: list[Path],
+    extra: list[str],
+    out: Path,
+    jobs: int = 1,
 ) -> dict[str, dict]:
-    results: dict[str, dict] = {}
-    for held in recordings:
-        folder = out / name / stem(held)
-        run_dir, report = folder / "run", folder / "evaluation.json"
-        if not (run_dir / "model.safetensors").exists():
-            train_on = [str(r) for r in recordings if r != held] + extra
-            lidarflow("train", *train_on, *shlex.split(train_args), "-o", str(run_dir))
-        if not report.exists():
-            lidarflow("evaluate", str(held), "--model", str(run_dir), "--json", str(report))
-        methods = json.loads(report.read_text())["recordings"][0]["methods"]
-        (model_key,) = [k for k in methods if k not in BASELINES]
-        results[stem(held)] = {
-            "model": {k: methods[model_key][k] for k in METRICS},
-            "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
+    """All folds of one variant, ``jobs`` at a time (give each training ``--threads``)."""
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {
+            stem(held): pool.submit(run_fold, name, train_args, recordings, held, extra, out)
+            for held in recordings
         }
-    return results
+        return {key: future.result() for key, future in futures.items()}
 
 
 def table(study: dict[str, dict[str, dict]]) -> list[str]:
@@ -111,11 +127,20 @@ def main() -> None:
     parser.add_argument(
         "--extra", nargs="*", default=[], help="sources added to every training set (sim data)"
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="folds trained at once (default 1); on a 2-core "
+        "machine use 2 with '--threads 1' in the variant's arguments",
+    )
     args = parser.parse_args()
     study = {}
     for spec in args.variant:
         name, _, train_args = spec.partition("=")
-        study[name] = run_variant(name, train_args, args.recordings, args.extra, args.output)
+        study[name] = run_variant(
+            name, train_args, args.recordings, args.extra, args.output, args.jobs
+        )
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "loo.json").write_text(json.dumps(study, indent=2))
     lines = table(study)
