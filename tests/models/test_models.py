@@ -251,3 +251,17 @@ def test_bias_corrected_memory_is_the_weighted_mean_of_the_frames_seen():
     assert state[-1][0, 2, 0, 0] == 3  # frames counted everywhere
     raw = 0.1 * (0.81 + 1.0)
     torch.testing.assert_close(state[-1][0, 1, 2, 2], torch.tensor(raw))
+
+
+def test_decision_offset_shifts_the_prediction_but_not_the_training_logit():
+    torch.manual_seed(0)
+    plain = build_model("flownet", occupancy_head=True, zero_init_flow=False)
+    shifted = build_model("flownet", occupancy_head=True, zero_init_flow=False, decision_offset=0.7)
+    shifted.load_state_dict(plain.state_dict())
+    maps = _seq(1, 1, 12, 10, seed=3)[:, 0]
+    out, _ = plain.step(maps, plain.init_state(1, 12, 10))
+    torch.testing.assert_close(shifted.next_logit(maps, out), plain.next_logit(maps, out))
+    p0, p1 = plain.predict_next(maps, out), shifted.predict_next(maps, out)
+    torch.testing.assert_close(torch.logit(p1) - torch.logit(p0), torch.full_like(p0, 0.7))
+    with pytest.raises((ValueError, ModelError), match="decision_offset"):
+        build_model("flownet", decision_offset=0.5)

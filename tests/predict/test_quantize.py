@@ -26,7 +26,8 @@ def float_and_int8(tmp_path_factory, sample_recording):
     folder = tmp_path_factory.mktemp("q")
     net, _ = resolve_model(None)  # the bundled model: trained weights, realistic ranges
     float_path = export_onnx(net, folder / "float.onnx")
-    int8_path = quantize_onnx(float_path, folder / "int8.onnx", stacked_maps(sample_recording, 0, 40))
+    calibration = stacked_maps(sample_recording, 0, 40)
+    int8_path = quantize_onnx(float_path, folder / "int8.onnx", calibration)
     return float_path, int8_path
 
 

@@ -78,6 +78,7 @@ class LidarFlowNet(RecurrentMapModel):
     out_channels: int = 4  # 5 with the occupancy head (channel 4: residual logit)
     memory_decays: tuple[float, ...] = ()
     memory_bias_correction: bool = False
+    decision_offset: float = 0.0
 
     def __init__(
         self,
@@ -90,6 +91,7 @@ class LidarFlowNet(RecurrentMapModel):
         occupancy_head: bool = False,
         memory_decays: tuple[float, ...] = MEMORY_DECAYS,
         memory_bias_correction: bool = False,
+        decision_offset: float = 0.0,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -105,6 +107,14 @@ class LidarFlowNet(RecurrentMapModel):
                 raise ValueError(f"memory_decays must be in [0, 1), got {memory_decays}")
             self.memory_decays = tuple(float(d) for d in memory_decays)
             self.memory_bias_correction = bool(memory_bias_correction)
+        elif decision_offset:
+            raise ValueError("decision_offset needs occupancy_head=True (it shifts its logit)")
+        # Added to the head's logit when predicting, never in training (the cross-entropy
+        # keeps the probabilities calibrated): cross-entropy makes the head predict a change
+        # only when it is likelier than the 0.4 threshold, so a model tuned for calibration
+        # gives up most cells that change; a small positive offset, chosen on the training
+        # recordings (experiments/decision_offset.py), buys them back at a small price in F1.
+        self.decision_offset = float(decision_offset)
         self.conv0 = nn.Conv2d(in_channels, hidden_channels, kernel_size, padding=pad)
         self.act0 = nn.ReLU() if conv0_activation == "relu" else nn.Identity()
         self.grus = nn.ModuleList(
@@ -163,9 +173,9 @@ class LidarFlowNet(RecurrentMapModel):
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``P^{t+1}`` ``(B, 1, H, W)`` from maps ``(B, 2, H, W)`` and the step's output
         ``(B, C, H, W)``: ``clamp(W(O^t, B^t), 0, 1)``, or with the occupancy head
-        ``sigmoid(next_logit)``."""
+        ``sigmoid(next_logit + decision_offset)``."""
         if self.occupancy_head:
-            return torch.sigmoid(self.next_logit(maps, out))
+            return torch.sigmoid(self.next_logit(maps, out) + self.decision_offset)
         return warp(maps[:, 0:1], out[:, 0:2]).clamp(0.0, 1.0)
 
     def next_logit(self, maps: Tensor, out: Tensor) -> Tensor:

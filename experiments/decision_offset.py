@@ -1,0 +1,116 @@
+"""Choose an occupancy-head model's decision offset on its training recordings (issue 11).
+
+The head is trained by cross-entropy, so its probabilities are calibrated and it predicts a
+cell that changes only when the change is likelier than the 0.4 threshold. Adding an offset to
+its logit when predicting (`model.kwargs.decision_offset`) trades calibration for cells that
+change. For each offset this script writes a copy of the model folder with that offset, runs
+`lidarflow evaluate` (all offsets in one streaming pass) on the --choose recordings, and picks
+the offset with the largest summed *win margin*, ``min(F1 - best baseline F1, changed F1 - best
+baseline changed F1)`` per recording (positive exactly when the model wins there). The
+--report recordings (ones the model never saw) are then evaluated for every offset too, to
+report, not to choose.
+
+    python experiments/decision_offset.py -m src/lidarflow/assets/model -o runs/offset \\
+        --offsets 0 0.3 0.6 0.9 1.2 --choose ../shared/data/positive_{1,3,4}.bag \\
+        --report ../shared/data/positive_2.bag
+
+Writes OUT/offset.json (every score, the margins, the choice).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from leave_one_out import BASELINES
+
+from lidarflow.models.presets import resolve_model
+
+
+def with_offset(model: Path, offset: float, out: Path) -> Path:
+    folder = out / f"offset_{offset:g}"
+    folder.mkdir(parents=True, exist_ok=True)
+    card = json.loads((model / "model.json").read_text())
+    card["model_kwargs"] = {**card.get("model_kwargs", {}), "decision_offset": offset}
+    (folder / "model.json").write_text(json.dumps(card, indent=2))
+    shutil.copy(model / card.get("weights", "model.safetensors"), folder / "model.safetensors")
+    resolve_model(folder)  # fails here, in one place, if the model has no occupancy head
+    return folder
+
+
+def evaluate(recordings: list[Path], models: dict[float, Path], report: Path) -> dict:
+    """``{recording: {offset: {"f1", "changed_f1"}, "baselines": {...}}}``."""
+    if not report.exists():
+        command = [sys.executable, "-m", "lidarflow.cli", "evaluate", *map(str, recordings)]
+        for folder in models.values():
+            command += ["-m", str(folder)]
+        subprocess.run([*command, "--json", str(report)], check=True)
+    scores: dict[str, dict] = {}
+    for entry in json.loads(report.read_text())["recordings"]:
+        methods = entry["methods"]
+        name = Path(entry.get("path", entry.get("name", "?"))).name
+        row: dict = {"baselines": {b: methods[b] for b in BASELINES}}
+        for offset, folder in models.items():
+            row[str(offset)] = methods[folder.name]
+        scores[name] = row
+    return scores
+
+
+def margin(result: dict, baselines: dict) -> float:
+    best_f1 = max(b["f1"] for b in baselines.values())
+    best_changed = max(b["changed_f1"] for b in baselines.values())
+    return min(result["f1"] - best_f1, result["changed_f1"] - best_changed)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-m", "--model", type=Path, required=True)
+    parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument("--offsets", type=float, nargs="+", default=[0.0, 0.3, 0.6, 0.9, 1.2])
+    parser.add_argument("--choose", type=Path, nargs="+", required=True)
+    parser.add_argument("--report", type=Path, nargs="*", default=[])
+    args = parser.parse_args()
+    models = {o: with_offset(args.model, o, args.output) for o in args.offsets}
+    chosen_on = evaluate(args.choose, models, args.output / "choose.json")
+    totals = {
+        o: sum(margin(row[str(o)], row["baselines"]) for row in chosen_on.values())
+        for o in args.offsets
+    }
+    best = max(totals, key=lambda o: totals[o])
+    print(
+        "summed win margin on the training recordings: "
+        + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items())
+        + f" -> offset {best:g}"
+    )
+    reported = evaluate(args.report, models, args.output / "report.json") if args.report else {}
+    for name, row in reported.items():
+        print(
+            name
+            + ": "
+            + ", ".join(
+                f"{o:g}: {row[str(o)]['f1']:.3f}/{row[str(o)]['changed_f1']:.3f}"
+                for o in args.offsets
+            )
+        )
+    (args.output / "offset.json").write_text(
+        json.dumps(
+            {
+                "model": str(args.model),
+                "offsets": args.offsets,
+                "margin_on_choose": {str(o): t for o, t in totals.items()},
+                "chosen": best,
+                "choose": chosen_on,
+                "report": reported,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+
+
+if __name__ == "__main__":
+    main()
