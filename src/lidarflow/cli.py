@@ -556,12 +556,10 @@ def export(
     import numpy as np
 
     from lidarflow.data import sample_bag_path
-    from lidarflow.errors import PredictError
     from lidarflow.predict.quantize import quantize_onnx
 
-    if not onnx.parent.exists():
-        raise PredictError(f"{onnx.parent}: no such folder for the ONNX file")
-    recording = _load(calibration or sample_bag_path(), topic)
+    source = calibration or sample_bag_path()
+    recording = _load(source, topic)
     occupancy, visibility = recording.maps(GridSpec(grid, grid, res))
     maps = np.stack([occupancy, visibility], axis=1)
     with tempfile.TemporaryDirectory() as tmp:
@@ -569,7 +567,7 @@ def export(
         path = quantize_onnx(float_path, onnx, maps)
     typer.echo(
         f"wrote {path} ({card.get('model')}, {grid}x{grid} grid, int8 convolutions calibrated "
-        f"on {len(maps)} frames of {(calibration or sample_bag_path()).name})"
+        f"on {len(maps)} frames of {source.name})"
     )
 
 

@@ -63,6 +63,8 @@ def test_too_short_calibration_is_refused(float_and_int8, tmp_path, sample_recor
     float_path, _ = float_and_int8
     with pytest.raises(PredictError, match="calibration needs more than 10 frames"):
         quantize_onnx(float_path, tmp_path / "x.onnx", stacked_maps(sample_recording, 0, 5))
+    with pytest.raises(PredictError, match="no such folder for the ONNX file"):
+        quantize_onnx(float_path, tmp_path / "no" / "x.onnx", stacked_maps(sample_recording, 0, 20))
 
 
 def test_cli_export_int8(tmp_path, capsys, sample_recording):

@@ -13,7 +13,14 @@ import numpy as np
 
 from lidarflow.errors import PredictError
 
-__all__ = ["OnnxBackend", "TorchBackend"]
+__all__ = ["OnnxBackend", "TorchBackend", "split_step_inputs"]
+
+
+def split_step_inputs(inputs: list[Any]) -> tuple[bool, list[Any]]:
+    """``(uses_motion, state inputs)`` of a step graph's inputs (``maps``, then ``motion`` for
+    ego-motion graphs, then the states; see :mod:`lidarflow.predict.export`)."""
+    uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
+    return uses_motion, list(inputs[1 + uses_motion :])
 
 
 class TorchBackend:
@@ -72,9 +79,8 @@ class OnnxBackend:
         inputs = self.session.get_inputs()
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
-        # ego-motion graphs take the motion (1, 3) right after the maps
-        self.uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
-        self.state_shapes = [tuple(i.shape) for i in inputs[1 + self.uses_motion :]]
+        self.uses_motion, state_inputs = split_step_inputs(inputs)
+        self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from lidarflow.errors import PredictError
+from lidarflow.predict.backends import split_step_inputs
 
 __all__ = ["CALIBRATION_FEEDS", "quantize_onnx"]
 
@@ -33,9 +34,7 @@ def calibration_feeds(
 ) -> list[dict[str, np.ndarray]]:
     """Stream ``maps`` (each ``(2, H, W)``) through the float ``session`` and keep the inputs
     of ``count`` steps spread evenly after the warm-up (ego-motion graphs get zero motion)."""
-    inputs = session.get_inputs()  # type: ignore[attr-defined]
-    ego = len(inputs) > 1 and inputs[1].name == "motion"
-    state_inputs = inputs[1 + ego :]
+    ego, state_inputs = split_step_inputs(session.get_inputs())  # type: ignore[attr-defined]
     state = [np.zeros(i.shape, np.float32) for i in state_inputs]
     usable = len(maps) - WARMUP
     if usable < 1:
@@ -71,6 +70,8 @@ def quantize_onnx(
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     out_path = Path(out_path)
+    if not out_path.parent.exists():
+        raise PredictError(f"{out_path.parent}: no such folder for the ONNX file")
     session = ort.InferenceSession(str(float_path), providers=["CPUExecutionProvider"])
     feeds = calibration_feeds(session, maps)
 
