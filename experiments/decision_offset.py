@@ -22,11 +22,9 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
-from leave_one_out import BASELINES
+from leave_one_out import BASELINES, best_baselines, lidarflow
 
 from lidarflow.models.presets import resolve_model
 
@@ -45,14 +43,12 @@ def with_offset(model: Path, offset: float, out: Path) -> Path:
 def evaluate(recordings: list[Path], models: dict[float, Path], report: Path) -> dict:
     """``{recording: {offset: {"f1", "changed_f1"}, "baselines": {...}}}``."""
     if not report.exists():
-        command = [sys.executable, "-m", "lidarflow.cli", "evaluate", *map(str, recordings)]
-        for folder in models.values():
-            command += ["-m", str(folder)]
-        subprocess.run([*command, "--json", str(report)], check=True)
+        model_args = [a for folder in models.values() for a in ("-m", str(folder))]
+        lidarflow("evaluate", *map(str, recordings), *model_args, "--json", str(report))
     scores: dict[str, dict] = {}
     for entry in json.loads(report.read_text())["recordings"]:
         methods = entry["methods"]
-        name = Path(entry.get("path", entry.get("name", "?"))).name
+        name = Path(entry["path"]).name
         row: dict = {"baselines": {b: methods[b] for b in BASELINES}}
         for offset, folder in models.items():
             row[str(offset)] = methods[folder.name]
@@ -61,8 +57,7 @@ def evaluate(recordings: list[Path], models: dict[float, Path], report: Path) ->
 
 
 def margin(result: dict, baselines: dict) -> float:
-    best_f1 = max(b["f1"] for b in baselines.values())
-    best_changed = max(b["changed_f1"] for b in baselines.values())
+    best_f1, best_changed = best_baselines(baselines)
     return min(result["f1"] - best_f1, result["changed_f1"] - best_changed)
 
 

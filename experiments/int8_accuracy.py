@@ -71,8 +71,7 @@ def main() -> None:
                 for a, b in zip(methods[0].probabilities, methods[1].probabilities, strict=True)
             )
             results[path.name] = {
-                name: {k: summary[name][k] for k in ("f1", "changed_f1", "ap")}
-                for name in summary
+                name: {k: summary[name][k] for k in ("f1", "changed_f1", "ap")} for name in summary
             } | {"max_probability_difference": difference}
             f, q = summary["float32"], summary["int8"]
             print(

@@ -42,9 +42,24 @@ def stem(path: Path) -> str:
     return name
 
 
-def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:
+def best_baselines(baselines: dict[str, dict[str, float]]) -> tuple[float, float]:
+    """The best F1 and the best changed-cell F1 among the baselines (not necessarily one's)."""
     best_f1 = max(b["f1"] for b in baselines.values())
-    best_changed = max(b["changed_f1"] for b in baselines.values())
+    return best_f1, max(b["changed_f1"] for b in baselines.values())
+
+
+def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
+    """``{"model": ..., "baselines": {name: ...}}`` (METRICS only) from an evaluate report's
+    methods of one recording that holds one model beside the baselines."""
+    (model_key,) = [k for k in methods if k not in BASELINES]
+    return {
+        "model": {k: methods[model_key][k] for k in METRICS},
+        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
+    }
+
+
+def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:
+    best_f1, best_changed = best_baselines(baselines)
     wins_f1, wins_changed = model["f1"] > best_f1, model["changed_f1"] > best_changed
     if wins_f1 and wins_changed:
         return "wins"
@@ -66,12 +81,7 @@ def run_fold(
         lidarflow("train", *train_on, *shlex.split(train_args), "-o", str(run_dir))
     if not report.exists():
         lidarflow("evaluate", str(held), "--model", str(run_dir), "--json", str(report))
-    methods = json.loads(report.read_text())["recordings"][0]["methods"]
-    (model_key,) = [k for k in methods if k not in BASELINES]
-    return {
-        "model": {k: methods[model_key][k] for k in METRICS},
-        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
-    }
+    return model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
 
 
 def run_variant(

@@ -15,12 +15,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
-import subprocess
-import sys
 from pathlib import Path
 
-from leave_one_out import BASELINES, METRICS, verdict
+from leave_one_out import BASELINES, lidarflow, model_and_baselines, verdict
 
 from lidarflow.sim import PeopleConfig, SimConfig, lidar_preset, write_simulation
 
@@ -59,19 +56,9 @@ def main() -> None:
                 )
                 write_simulation(recording, args.frames, args.seed, config)
             if not report.exists():
-                command = [sys.executable, "-m", "lidarflow.cli", "evaluate", str(recording)]
-                command += ["--model", args.model, "--json", str(report)]
-                print("$ lidarflow " + shlex.join(command[3:]), flush=True)
-                subprocess.run(command, check=True)
-            methods = json.loads(report.read_text())["recordings"][0]["methods"]
-            (model_key,) = [k for k in methods if k not in BASELINES]
-            model = {k: methods[model_key][k] for k in METRICS}
-            baselines = {b: {k: methods[b][k] for k in METRICS} for b in BASELINES}
-            study[key] = {
-                "model": model,
-                "baselines": baselines,
-                "verdict": verdict(model, baselines),
-            }
+                lidarflow("evaluate", str(recording), "--model", args.model, "--json", str(report))
+            scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
+            study[key] = {**scores, "verdict": verdict(scores["model"], scores["baselines"])}
     lines = [
         f"| sensor / scenario | {args.model} F1 / changed F1 | copy last | temporal average | "
         "constant velocity | verdict |",
