@@ -1,9 +1,10 @@
-"""Per-scan cost of moving-object segmentation (in every Predictor.update) and of the calibration
-sums (in every evaluated frame), as ratios to a reference measured in the same run.
+"""Per-scan cost of moving-object segmentation (when ``Prediction.moving`` is read) and of the
+calibration sums (in every evaluated frame), as ratios to a reference measured in the same run.
 
 Segmentation: :func:`lidarflow.segmentation.moving_mask` on the bundled model's forward flow of
-the bundled sample's scans, against the whole ``Predictor.update`` (rasterize + model step +
-segmentation) on the same scans. Calibration: ``Calibration.add`` against ``Scorer.add`` (which
+the bundled sample's scans, against ``Predictor.update`` (rasterize + model step; segmentation
+is computed on first access to ``Prediction.moving``, so it is no longer in the update) on the
+same scans. Calibration: ``Calibration.add`` against ``Scorer.add`` (which
 includes it). Medians over ``--scans`` scans, one thread. Writes JSON (default
 ``benchmarks/results/segmentation.json``).
 

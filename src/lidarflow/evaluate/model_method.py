@@ -36,11 +36,19 @@ class ModelMethod:
         self.oracle = oracle and self.uses_motion
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None
-        self.moving: np.ndarray | None = None
+        self._occupancy: np.ndarray | None = None
+        self._moving: np.ndarray | None = None
+
+    @property
+    def moving(self) -> np.ndarray | None:
+        """The moving cells of the last frame given, computed on first access per frame."""
+        if self._moving is None and self.forward_flow is not None:
+            self._moving = moving_mask(self._occupancy, self.forward_flow, self.moving_threshold)
+        return self._moving
 
     def reset(self) -> None:
         self.stream.reset()
-        self.backward_flow = self.forward_flow = self.moving = None
+        self.backward_flow = self.forward_flow = self._occupancy = self._moving = None
 
     def update(
         self,
@@ -52,9 +60,9 @@ class ModelMethod:
         result = self.stream.step(
             occupancy, visibility, motion, next_motion if self.oracle else None
         )
+        self._occupancy, self._moving = occupancy, None
         if result.flow is None:
-            self.backward_flow = self.forward_flow = self.moving = None
+            self.backward_flow = self.forward_flow = None
         else:
             self.backward_flow, self.forward_flow = result.flow[:2], result.flow[2:]
-            self.moving = moving_mask(occupancy, self.forward_flow, self.moving_threshold)
         return result.probability
