@@ -98,6 +98,11 @@ def make_loss(
     return loss
 
 
+def _is_head(parameter_name: str) -> bool:
+    """Whether a parameter belongs to the occupancy head (its own learning rate, may be new)."""
+    return any(key in parameter_name for key in OCCUPANCY_HEAD_PARAMETERS)
+
+
 def _load_init(model: torch.nn.Module, source: str) -> bool:
     """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``.
 
@@ -110,9 +115,7 @@ def _load_init(model: torch.nn.Module, source: str) -> bool:
         init, _ = resolve_model(source)
         weights = init.state_dict()
         missing = set(model.state_dict()) - set(weights)
-        head_only = bool(missing) and all(
-            any(key in name for key in OCCUPANCY_HEAD_PARAMETERS) for name in missing
-        )
+        head_only = bool(missing) and all(_is_head(name) for name in missing)
         model.load_state_dict(weights, strict=not head_only)
     except (ModelError, RuntimeError) as err:
         first = str(err).strip().splitlines()[0]
@@ -123,7 +126,7 @@ def _load_init(model: torch.nn.Module, source: str) -> bool:
 def _parameter_groups(model: torch.nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
     head, rest = [], []
     for name, p in model.named_parameters():
-        (head if any(key in name for key in OCCUPANCY_HEAD_PARAMETERS) else rest).append(p)
+        (head if _is_head(name) else rest).append(p)
     groups = [{"params": rest}]
     if head:
         groups.append({"params": head, "lr": config.optim.lr * config.optim.head_lr_scale})
