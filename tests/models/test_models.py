@@ -265,3 +265,32 @@ def test_decision_offset_shifts_the_prediction_but_not_the_training_logit():
     torch.testing.assert_close(torch.logit(p1) - torch.logit(p0), torch.full_like(p0, 0.7))
     with pytest.raises((ValueError, ModelError), match="decision_offset"):
         build_model("flownet", decision_offset=0.5)
+
+
+def test_constant_velocity_input_feeds_the_baselines_map_to_the_head():
+    net = build_model("flownet", occupancy_head=True, constant_velocity_input=True)
+    plain = build_model("flownet", occupancy_head=True)
+    assert net.state_channels() == (16, 16, 16, 3)  # two memories and the previous map
+    assert count_parameters(net) == count_parameters(plain) + 9
+    scene = torch.zeros(1, 2, 10, 10)
+    scene[0, 0, 4:6, 2] = 1.0
+    moved = torch.roll(scene, shifts=(1, 2), dims=(2, 3))  # 1 row down, 2 columns right
+    # Untrained, the new input's weights are zero: the prediction is the plain head's.
+    state, state_plain = net.init_state(1, 10, 10), plain.init_state(1, 10, 10)
+    for maps in (scene, moved):
+        out, state = net.step(maps, state)
+        out_plain, state_plain = plain.step(maps, state_plain)
+        torch.testing.assert_close(out, out_plain)
+    torch.testing.assert_close(state[-1][:, -1:], moved[:, 0:1])  # the previous map is kept
+    # Read the constant-velocity channel's centre tap alone: the residual is that map.
+    with torch.no_grad():
+        net.conv_occupancy.weight.zero_()
+        net.conv_occupancy.bias.zero_()
+        net.conv_occupancy.weight[0, -1, 1, 1] = 1.0
+    state = net.init_state(1, 10, 10)
+    for maps in (scene, moved):
+        out, state = net.step(maps, state)
+    expected = torch.roll(moved[:, 0:1], shifts=(1, 2), dims=(2, 3))
+    torch.testing.assert_close(out[:, 4:5], expected)
+    with pytest.raises((ValueError, ModelError), match="constant_velocity_input"):
+        build_model("flownet", constant_velocity_input=True)

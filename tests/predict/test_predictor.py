@@ -94,13 +94,21 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
     np.testing.assert_allclose(a.forward_flow, b.forward_flow, atol=1e-4)
 
 
-def test_bias_corrected_memories_export_with_matching_probabilities(tmp_path, sample_recording):
-    # Random head weights so that the memories (and their frame count) shape the output.
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"memory_decays": [0.5, 0.95], "memory_bias_correction": True},
+        {"memory_decays": [0.5, 0.95], "constant_velocity_input": True},
+    ],
+    ids=["bias_corrected_memories", "constant_velocity_input"],
+)
+def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recording, kwargs):
+    # Random head weights so that the memories (their frame count, the constant-velocity map)
+    # shape the output.
     import torch
     from safetensors.torch import load_file, save_file
 
-    kwargs = {"occupancy_head": True, "memory_decays": [0.5, 0.95], "memory_bias_correction": True}
-    folder = make_model_dir(tmp_path / "bc", **kwargs)
+    folder = make_model_dir(tmp_path / "bc", occupancy_head=True, **kwargs)
     weights = load_file(folder / "model.safetensors")
     weights["conv_occupancy.weight"] = torch.randn_like(weights["conv_occupancy.weight"])
     save_file(weights, folder / "model.safetensors")

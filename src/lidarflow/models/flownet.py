@@ -33,6 +33,14 @@ nothing occupied). Trained with a cross-entropy against ``O^{t+1}``
 the F1-at-0.4 metric and a planner both want. The flow part is unchanged (42,500 parameters);
 the head adds ``(16 + 1 + len(decays)) * 9 + 1`` weights and the gain.
 
+Constant-velocity input (``constant_velocity_input=True``, with the occupancy head; issue 11).
+The head also sees the constant-velocity baseline's prediction (the current map moved once more
+by the integer shift that best maps the previous map onto it, :mod:`lidarflow.ops.shift`),
+kept with the previous map as one more memory channel. On a moving platform the flow network
+trained on simulation lost to that baseline on both real recordings; with it as an input the
+head can weigh it per cell against the warp and the memories. Its weights start at zero, so the
+untrained model is unchanged.
+
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
 """
@@ -46,6 +54,7 @@ from torch import Tensor, nn
 
 from lidarflow.models.convgru import ConvGRUCell
 from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.ops.shift import constant_velocity_map
 from lidarflow.ops.warp import warp
 
 ACTIVATIONS = ("relu", "none")
@@ -79,6 +88,7 @@ class LidarFlowNet(RecurrentMapModel):
     memory_decays: tuple[float, ...] = ()
     memory_bias_correction: bool = False
     decision_offset: float = 0.0
+    constant_velocity_input: bool = False
 
     def __init__(
         self,
@@ -92,6 +102,7 @@ class LidarFlowNet(RecurrentMapModel):
         memory_decays: tuple[float, ...] = MEMORY_DECAYS,
         memory_bias_correction: bool = False,
         decision_offset: float = 0.0,
+        constant_velocity_input: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -107,8 +118,11 @@ class LidarFlowNet(RecurrentMapModel):
                 raise ValueError(f"memory_decays must be in [0, 1), got {memory_decays}")
             self.memory_decays = tuple(float(d) for d in memory_decays)
             self.memory_bias_correction = bool(memory_bias_correction)
+            self.constant_velocity_input = bool(constant_velocity_input)
         elif decision_offset:
             raise ValueError("decision_offset needs occupancy_head=True (it shifts its logit)")
+        elif constant_velocity_input:
+            raise ValueError("constant_velocity_input needs occupancy_head=True (it feeds it)")
         # Added to the head's logit when predicting, never in training (the cross-entropy
         # keeps the probabilities calibrated): cross-entropy makes the head predict a change
         # only when it is likelier than the 0.4 threshold, so a model tuned for calibration
@@ -130,6 +144,7 @@ class LidarFlowNet(RecurrentMapModel):
                 math.log(p / (1.0 - p)) for p in (FREE_PROBABILITY_INIT, OCCUPIED_PROBABILITY_INIT)
             )
             features = hidden_channels + 1 + len(self.memory_decays)
+            features += int(self.constant_velocity_input)
             self.conv_occupancy = nn.Conv2d(features, 1, kernel_size, padding=pad)
             nn.init.zeros_(self.conv_occupancy.weight)
             nn.init.constant_(self.conv_occupancy.bias, free)
@@ -137,11 +152,13 @@ class LidarFlowNet(RecurrentMapModel):
 
     def state_channels(self) -> tuple[int, ...]:
         """Three GRU states, then (occupancy head) one tensor of occupancy memories (and, with
-        bias correction, one more channel counting the frames seen)."""
+        bias correction, one more channel counting the frames seen; with the constant-velocity
+        input, one more holding the previous occupancy)."""
         grus = tuple(cell.hidden_channels for cell in self.grus)
         if not self.occupancy_head:
             return grus
-        return (*grus, len(self.memory_decays) + int(self.memory_bias_correction))
+        extra = int(self.memory_bias_correction) + int(self.constant_velocity_input)
+        return (*grus, len(self.memory_decays) + extra)
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
         """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` and the state -> output and new state."""
@@ -158,17 +175,23 @@ class LidarFlowNet(RecurrentMapModel):
         decays = decays.view(1, -1, 1, 1)
         k = len(self.memory_decays)
         memory = decays * state[-1][:, :k] + (1.0 - decays) * occupancy
+        features, kept = [x, occupancy], [memory]
         if not self.memory_bias_correction:
-            residual = self.conv_occupancy(torch.cat([x, occupancy, memory], dim=1))
-            return torch.cat([flow, residual], dim=1), (*new_state, memory)
-        # Memories start at zero, so a slow one is a fraction of the mean it tracks for its
-        # first ~1/(1-d) frames: all of a 16-frame training window, none of a long stream.
-        # Dividing by 1 - d^n (as Adam does) makes it the weighted mean of the frames seen from
-        # the first one on; the zero initial state (also ONNX's) stays the start.
-        frames = (state[-1][:, k:] + 1.0).clamp(max=_MAX_FRAMES_COUNTED)
-        mean = memory / (1.0 - decays**frames)
-        residual = self.conv_occupancy(torch.cat([x, occupancy, mean], dim=1))
-        return torch.cat([flow, residual], dim=1), (*new_state, torch.cat([memory, frames], 1))
+            features.append(memory)
+        else:
+            # Memories start at zero, so a slow one is a fraction of the mean it tracks for its
+            # first ~1/(1-d) frames: all of a 16-frame training window, none of a long stream.
+            # Dividing by 1 - d^n (as Adam does) makes it the weighted mean of the frames seen
+            # from the first one on; the zero initial state (also ONNX's) stays the start.
+            frames = (state[-1][:, k : k + 1] + 1.0).clamp(max=_MAX_FRAMES_COUNTED)
+            features.append(memory / (1.0 - decays**frames))
+            kept.append(frames)
+        if self.constant_velocity_input:
+            previous = state[-1][:, -1:]
+            features.append(constant_velocity_map(previous, occupancy))
+            kept.append(occupancy)
+        residual = self.conv_occupancy(torch.cat(features, dim=1))
+        return torch.cat([flow, residual], dim=1), (*new_state, torch.cat(kept, dim=1))
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``P^{t+1}`` ``(B, 1, H, W)`` from maps ``(B, 2, H, W)`` and the step's output
