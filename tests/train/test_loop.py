@@ -6,7 +6,7 @@ import json
 
 import pytest
 import torch
-from safetensors.torch import load_file
+from safetensors.torch import load_file, save_file
 
 import lidarflow.train.loop as loop
 from lidarflow.errors import TrainError
@@ -199,6 +199,23 @@ def test_init_starts_from_given_weights(blob_files, tmp_path):
     # The other way round (weights the model has no place for) is refused.
     with pytest.raises(TrainError, match="cannot start from these weights"):
         loop._load_init(build_model("deeptracking"), str(tmp_path / "a"))
+
+
+def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
+    from tests.conftest import make_model_dir
+
+    source = make_model_dir(tmp_path / "head", occupancy_head=True, zero_init_flow=False)
+    weights = load_file(source / "model.safetensors")
+    for name in ("conv_occupancy.bias", "warp_gain"):  # a trained-looking head: copying shows
+        weights[name] = weights[name] + 1.0
+    save_file(weights, source / "model.safetensors")
+    model = build_model("flownet", occupancy_head=True, constant_velocity_input=True)
+    fresh_head = {k: v.clone() for k, v in model.state_dict().items() if loop._is_head(k)}
+    assert loop._load_init(model, str(source)) is True
+    for name, value in model.state_dict().items():
+        expected = fresh_head[name] if loop._is_head(name) else weights[name]
+        assert torch.equal(value, expected), name
+    assert not torch.equal(model.conv_flow.weight, torch.zeros_like(model.conv_flow.weight))
 
 
 def test_head_learning_rate_scale_applies_to_the_head_only():

@@ -106,14 +106,18 @@ def _is_head(parameter_name: str) -> bool:
 def _load_init(model: torch.nn.Module, source: str) -> bool:
     """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``.
 
-    A flow model without an occupancy head may start a model with one: the flow part is copied
-    and the head keeps its copy-last initialisation (fine-tuning a head onto trained flow).
+    A flow model without an occupancy head, or with a head of other inputs (other memories, no
+    constant-velocity input), may start a model with one: the flow part is copied and the head
+    keeps its copy-last initialisation (fine-tuning a head onto trained flow).
     Returns whether the head was left new."""
     from lidarflow.models.presets import resolve_model
 
     try:
         init, _ = resolve_model(source)
-        weights = init.state_dict()
+        own, weights = model.state_dict(), init.state_dict()
+        if any(_is_head(n) and n in own and own[n].shape != v.shape for n, v in weights.items()):
+            # A head of other inputs: none of it fits, the new head starts afresh.
+            weights = {n: v for n, v in weights.items() if not _is_head(n)}
         missing = set(model.state_dict()) - set(weights)
         head_only = bool(missing) and all(_is_head(name) for name in missing)
         model.load_state_dict(weights, strict=not head_only)
