@@ -24,7 +24,7 @@ import json
 import shutil
 from pathlib import Path
 
-from leave_one_out import BASELINES, best_baselines, lidarflow
+from study import BASELINES, best_baselines, lidarflow
 
 from lidarflow.models.presets import resolve_model
 
@@ -61,6 +61,19 @@ def margin(result: dict, baselines: dict) -> float:
     return min(result["f1"] - best_f1, result["changed_f1"] - best_changed)
 
 
+def choose_offset(
+    model: Path, recordings: list[Path], offsets: list[float], out: Path
+) -> tuple[float, dict[float, Path], dict, dict[float, float]]:
+    """The offset with the largest summed win margin on ``recordings``; also every offset's
+    model folder, the scores and the margins."""
+    models = {o: with_offset(model, o, out) for o in offsets}
+    scores = evaluate(recordings, models, out / "choose.json")
+    totals = {
+        o: sum(margin(row[str(o)], row["baselines"]) for row in scores.values()) for o in offsets
+    }
+    return max(totals, key=lambda o: totals[o]), models, scores, totals
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-m", "--model", type=Path, required=True)
@@ -69,13 +82,9 @@ def main() -> None:
     parser.add_argument("--choose", type=Path, nargs="+", required=True)
     parser.add_argument("--report", type=Path, nargs="*", default=[])
     args = parser.parse_args()
-    models = {o: with_offset(args.model, o, args.output) for o in args.offsets}
-    chosen_on = evaluate(args.choose, models, args.output / "choose.json")
-    totals = {
-        o: sum(margin(row[str(o)], row["baselines"]) for row in chosen_on.values())
-        for o in args.offsets
-    }
-    best = max(totals, key=lambda o: totals[o])
+    best, models, chosen_on, totals = choose_offset(
+        args.model, args.choose, args.offsets, args.output
+    )
     print(
         "summed win margin on the training recordings: "
         + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items())

@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from leave_one_out import BASELINES, METRICS, stem, table
+from leave_one_out import table
+from study import BASELINES, METRICS, stem
 
 
 def collect(reports: list[Path], names: dict[str, str]) -> dict[str, dict[str, dict]]:

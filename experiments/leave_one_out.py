@@ -20,68 +20,40 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-BASELINES = ("copy_last", "temporal_average", "constant_velocity")
-METRICS = ("f1", "changed_f1", "ap")
-
-
-def lidarflow(*args: str) -> None:
-    print("$ lidarflow " + shlex.join(args), flush=True)
-    subprocess.run([sys.executable, "-m", "lidarflow.cli", *args], check=True)
-
-
-def stem(path: Path) -> str:
-    name = path.name
-    for suffix in (".bag.zip", ".bag", ".mcap", ".npz"):
-        if name.endswith(suffix):
-            return name[: -len(suffix)]
-    return name
-
-
-def best_baselines(baselines: dict[str, dict[str, float]]) -> tuple[float, float]:
-    """The best F1 and the best changed-cell F1 among the baselines (not necessarily one's)."""
-    best_f1 = max(b["f1"] for b in baselines.values())
-    return best_f1, max(b["changed_f1"] for b in baselines.values())
-
-
-def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
-    """``{"model": ..., "baselines": {name: ...}}`` (METRICS only) from an evaluate report's
-    methods of one recording that holds one model beside the baselines."""
-    (model_key,) = [k for k in methods if k not in BASELINES]
-    return {
-        "model": {k: methods[model_key][k] for k in METRICS},
-        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
-    }
-
-
-def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:
-    best_f1, best_changed = best_baselines(baselines)
-    wins_f1, wins_changed = model["f1"] > best_f1, model["changed_f1"] > best_changed
-    if wins_f1 and wins_changed:
-        return "wins"
-    if wins_f1:
-        return "F1 only"
-    if wins_changed:
-        return "changed only"
-    return "loses"
+from decision_offset import choose_offset
+from study import lidarflow, model_and_baselines, stem, verdict
 
 
 def run_fold(
-    name: str, train_args: str, recordings: list[Path], held: Path, extra: list[str], out: Path
+    name: str,
+    train_args: str,
+    recordings: list[Path],
+    held: Path,
+    extra: list[str],
+    out: Path,
+    offsets: list[float] | None = None,
 ) -> dict:
-    """Train without ``held`` (unless done already), evaluate on it, return its scores."""
+    """Train without ``held`` (unless done already), with ``offsets`` choose the decision
+    offset on the fold's own (real) training recordings, evaluate on ``held``, return its
+    scores (and the offset chosen)."""
     folder = out / name / stem(held)
     run_dir, report = folder / "run", folder / "evaluation.json"
+    train_on = [r for r in recordings if r != held]
     if not (run_dir / "model.safetensors").exists():
-        train_on = [str(r) for r in recordings if r != held] + extra
-        lidarflow("train", *train_on, *shlex.split(train_args), "-o", str(run_dir))
+        lidarflow(
+            "train", *map(str, train_on), *extra, *shlex.split(train_args), "-o", str(run_dir)
+        )
+    model, chosen = run_dir, None
+    if offsets:
+        chosen, models, _, _ = choose_offset(run_dir, train_on, offsets, folder / "offset")
+        model = models[chosen]
     if not report.exists():
-        lidarflow("evaluate", str(held), "--model", str(run_dir), "--json", str(report))
-    return model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
+        lidarflow("evaluate", str(held), "--model", str(model), "--json", str(report))
+    scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
+    return scores if chosen is None else {**scores, "decision_offset": chosen}
 
 
 def run_variant(
@@ -91,11 +63,14 @@ def run_variant(
     extra: list[str],
     out: Path,
     jobs: int = 1,
+    offsets: list[float] | None = None,
 ) -> dict[str, dict]:
     """All folds of one variant, ``jobs`` at a time (give each training ``--threads``)."""
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = {
-            stem(held): pool.submit(run_fold, name, train_args, recordings, held, extra, out)
+            stem(held): pool.submit(
+                run_fold, name, train_args, recordings, held, extra, out, offsets
+            )
             for held in recordings
         }
         return {key: future.result() for key, future in futures.items()}
@@ -115,6 +90,8 @@ def table(study: dict[str, dict[str, dict]]) -> list[str]:
             best_ch = max(b, key=lambda k: b[k]["changed_f1"])
             v = verdict(m, b)
             wins += v == "wins"
+            if "decision_offset" in r:
+                rec = f"{rec} (offset {r['decision_offset']:g})"
             lines.append(
                 f"| {name} | {rec} | {m['f1']:.3f} | {m['changed_f1']:.3f} | {m['ap']:.3f} | "
                 f"{b[best_f1]['f1']:.3f} ({best_f1}) | {b[best_ch]['changed_f1']:.3f} "
@@ -144,12 +121,20 @@ def main() -> None:
         help="folds trained at once (default 1); on a 2-core "
         "machine use 2 with '--threads 1' in the variant's arguments",
     )
+    parser.add_argument(
+        "--offsets",
+        type=float,
+        nargs="*",
+        default=[],
+        help="decision offsets to choose from per fold, on that fold's training recordings "
+        "(occupancy-head models; experiments/decision_offset.py); none: no offset",
+    )
     args = parser.parse_args()
     study = {}
     for spec in args.variant:
         name, _, train_args = spec.partition("=")
         study[name] = run_variant(
-            name, train_args, args.recordings, args.extra, args.output, args.jobs
+            name, train_args, args.recordings, args.extra, args.output, args.jobs, args.offsets
         )
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "loo.json").write_text(json.dumps(study, indent=2))

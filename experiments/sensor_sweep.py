@@ -17,7 +17,7 @@ import argparse
 import json
 from pathlib import Path
 
-from leave_one_out import BASELINES, lidarflow, model_and_baselines, verdict
+from study import BASELINES, lidarflow, model_and_baselines, verdict
 
 from lidarflow.sim import PeopleConfig, SimConfig, lidar_preset, write_simulation
 

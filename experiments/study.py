@@ -1,0 +1,54 @@
+"""What the issue-11 experiment scripts share: the `lidarflow` command runner, reading an
+evaluate report's model and baselines, and the one rule for "wins" (F1 above the best baseline's
+and changed-cell F1 above every baseline's)."""
+
+from __future__ import annotations
+
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+BASELINES = ("copy_last", "temporal_average", "constant_velocity")
+METRICS = ("f1", "changed_f1", "ap")
+
+
+def lidarflow(*args: str) -> None:
+    print("$ lidarflow " + shlex.join(args), flush=True)
+    subprocess.run([sys.executable, "-m", "lidarflow.cli", *args], check=True)
+
+
+def stem(path: Path) -> str:
+    name = path.name
+    for suffix in (".bag.zip", ".bag", ".mcap", ".npz"):
+        if name.endswith(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+def best_baselines(baselines: dict[str, dict[str, float]]) -> tuple[float, float]:
+    """The best F1 and the best changed-cell F1 among the baselines (not necessarily one's)."""
+    best_f1 = max(b["f1"] for b in baselines.values())
+    return best_f1, max(b["changed_f1"] for b in baselines.values())
+
+
+def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
+    """``{"model": ..., "baselines": {name: ...}}`` (METRICS only) from an evaluate report's
+    methods of one recording that holds one model beside the baselines."""
+    (model_key,) = [k for k in methods if k not in BASELINES]
+    return {
+        "model": {k: methods[model_key][k] for k in METRICS},
+        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
+    }
+
+
+def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:
+    best_f1, best_changed = best_baselines(baselines)
+    wins_f1, wins_changed = model["f1"] > best_f1, model["changed_f1"] > best_changed
+    if wins_f1 and wins_changed:
+        return "wins"
+    if wins_f1:
+        return "F1 only"
+    if wins_changed:
+        return "changed only"
+    return "loses"
