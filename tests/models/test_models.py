@@ -294,3 +294,31 @@ def test_constant_velocity_input_feeds_the_baselines_map_to_the_head():
     torch.testing.assert_close(out[:, 4:5], expected)
     with pytest.raises((ValueError, ModelError), match="constant_velocity_input"):
         build_model("flownet", constant_velocity_input=True)
+
+
+def test_hidden_head_starts_as_copy_last_and_its_layers_are_the_heads():
+    from lidarflow.train.loop import _is_head
+
+    net = build_model("flownet", occupancy_head=True, head_hidden_channels=8)
+    features = 16 + 1 + 2
+    assert count_parameters(net) == PAPER_PARAMETERS + features * 9 * 8 + 8 + 8 + 1 + 1
+    heads = [n for n, _ in net.named_parameters() if _is_head(n)]
+    assert set(heads) == {
+        "occupancy_hidden.weight",
+        "occupancy_hidden.bias",
+        "conv_occupancy.weight",
+        "conv_occupancy.bias",
+        "warp_gain",
+    }
+    seq = _seq(1, 3, 12, 10, seed=5)
+    out, _ = net(seq)
+    for t in range(3):
+        prob = net.predict_next(seq[:, t], out[:, t])
+        assert torch.equal(prob >= 0.4, seq[:, t, 0:1] > 0.5)
+    # The hidden layer is live: with a non-zero output layer the residual depends on the input.
+    with torch.no_grad():
+        net.conv_occupancy.weight.fill_(1.0)
+    out, _ = net(seq)
+    assert out[:, :, 4].std() > 0
+    with pytest.raises((ValueError, ModelError), match="head_hidden_channels"):
+        build_model("flownet", head_hidden_channels=4)

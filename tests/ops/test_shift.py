@@ -37,7 +37,9 @@ def test_constant_velocity_map_is_the_baselines_prediction(seed, dc, dr, density
     baseline = ConstantVelocity(radius=3)
     baseline.update(previous, np.ones_like(previous))
     expected = baseline.update(current, np.ones_like(current))
-    got = constant_velocity_map(torch.from_numpy(previous)[None, None], torch.from_numpy(current)[None, None])
+    got = constant_velocity_map(
+        torch.from_numpy(previous)[None, None], torch.from_numpy(current)[None, None]
+    )
     np.testing.assert_array_equal(got[0, 0].numpy(), expected)
 
 

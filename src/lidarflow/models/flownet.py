@@ -41,6 +41,13 @@ trained on simulation lost to that baseline on both real recordings; with it as 
 head can weigh it per cell against the warp and the memories. Its weights start at zero, so the
 untrained model is unchanged.
 
+Hidden layer (``head_hidden_channels=N``, with the occupancy head): the head's features go
+through a 3x3 convolution to N channels and a ReLU, then the residual logit is a 1x1 convolution
+of those. The linear head can only weigh each memory; a cell's next value is not linear in its
+past (the per-cell history table, ``experiments/history_rule.py``, beat copy-last's F1 on both
+static held-out recordings where the linear head did not). The output convolution starts at
+zero, so the untrained model is still copy-last.
+
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
 """
@@ -65,7 +72,7 @@ OCCUPIED_PROBABILITY_INIT = 0.9
 # A fast and a slow memory: about 2 and 5 frames, the temporal-average baseline's window.
 MEMORY_DECAYS = (0.5, 0.8)
 #: Names (prefixes) of the occupancy head's parameters: everything else is Table I's network.
-OCCUPANCY_HEAD_PARAMETERS = ("conv_occupancy.", "warp_gain")
+OCCUPANCY_HEAD_PARAMETERS = ("conv_occupancy.", "occupancy_hidden.", "warp_gain")
 # The frame count of the bias-corrected memories stops here: d^n is 0 in float32 long before.
 _MAX_FRAMES_COUNTED = 10_000.0
 
@@ -89,6 +96,7 @@ class LidarFlowNet(RecurrentMapModel):
     memory_bias_correction: bool = False
     decision_offset: float = 0.0
     constant_velocity_input: bool = False
+    head_hidden_channels: int = 0
 
     def __init__(
         self,
@@ -103,6 +111,7 @@ class LidarFlowNet(RecurrentMapModel):
         memory_bias_correction: bool = False,
         decision_offset: float = 0.0,
         constant_velocity_input: bool = False,
+        head_hidden_channels: int = 0,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -119,6 +128,11 @@ class LidarFlowNet(RecurrentMapModel):
             self.memory_decays = tuple(float(d) for d in memory_decays)
             self.memory_bias_correction = bool(memory_bias_correction)
             self.constant_velocity_input = bool(constant_velocity_input)
+            if head_hidden_channels < 0:
+                raise ValueError(f"head_hidden_channels must be >= 0, got {head_hidden_channels}")
+            self.head_hidden_channels = int(head_hidden_channels)
+        elif head_hidden_channels:
+            raise ValueError("head_hidden_channels needs occupancy_head=True (it is the head's)")
         elif decision_offset:
             raise ValueError("decision_offset needs occupancy_head=True (it shifts its logit)")
         elif constant_velocity_input:
@@ -145,7 +159,12 @@ class LidarFlowNet(RecurrentMapModel):
             )
             features = hidden_channels + 1 + len(self.memory_decays)
             features += int(self.constant_velocity_input)
-            self.conv_occupancy = nn.Conv2d(features, 1, kernel_size, padding=pad)
+            if self.head_hidden_channels:
+                hidden = self.head_hidden_channels
+                self.occupancy_hidden = nn.Conv2d(features, hidden, kernel_size, padding=pad)
+                self.conv_occupancy = nn.Conv2d(hidden, 1, 1)
+            else:
+                self.conv_occupancy = nn.Conv2d(features, 1, kernel_size, padding=pad)
             nn.init.zeros_(self.conv_occupancy.weight)
             nn.init.constant_(self.conv_occupancy.bias, free)
             self.warp_gain = nn.Parameter(torch.tensor(occupied - free))
@@ -190,7 +209,10 @@ class LidarFlowNet(RecurrentMapModel):
             previous = state[-1][:, -1:]
             features.append(constant_velocity_map(previous, occupancy))
             kept.append(occupancy)
-        residual = self.conv_occupancy(torch.cat(features, dim=1))
+        head_input = torch.cat(features, dim=1)
+        if self.head_hidden_channels:
+            head_input = torch.relu(self.occupancy_hidden(head_input))
+        residual = self.conv_occupancy(head_input)
         return torch.cat([flow, residual], dim=1), (*new_state, torch.cat(kept, dim=1))
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
