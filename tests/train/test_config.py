@@ -48,6 +48,22 @@ def test_recipes_differ_only_where_they_should():
         recipe("nope")
 
 
+def test_head_recipe_is_the_one_validated_leave_one_out():
+    # docs/results/accuracy/loo/README.md: the residual recipe, that study's config file and
+    # these flags. The recipe must not drift from what was measured.
+    from pathlib import Path
+
+    study = Path(__file__).parents[2] / "docs/results/accuracy/loo/head_cv_h16.json"
+    flags = {"optim.epochs": 3, "optim.batch_size": 4, "data.seq_len": 16, "data.warmup": 6}
+    flags |= {"optim.lr": 1e-6, "runtime.amp": "bf16", "runtime.channels_last": True}
+    measured = build_config("residual", study, flags)
+    head = recipe("head")
+    assert head.model.init == "bundled" and measured.model.init is None
+    for section in ("data", "optim", "schedule", "loss", "runtime"):
+        assert getattr(head, section) == getattr(measured, section), section
+    assert head.model.kwargs == measured.model.kwargs
+
+
 def test_json_round_trip_of_every_recipe():
     for name in RECIPES:
         c = apply_overrides(recipe(name), ["optim.lr=0.003", "data.sources=a.npz,b.npz"])
