@@ -584,6 +584,8 @@ def export(
     epilog="Examples:\n\n"
     "lidarflow train real.npz 'sim/*.npz' --mix 0.5 -o runs/a  (half of each epoch from each)\n\n"
     "lidarflow train a.bag --recipe blurred --set loss.smoothness=0.1 -o runs/b\n\n"
+    "lidarflow train my_robot.bag --recipe head -o runs/h  (the bundled flow, a head fitted "
+    "to your robot)\n\n"
     "lidarflow train drive.npz --ego-motion -o runs/e  (odometry-compensated; needs poses)\n\n"
     "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
@@ -620,8 +622,10 @@ def train(
         str | None,
         typer.Option(
             help="Named preset: paper (the loss exactly as published, default), blurred (both "
-            "sides of the loss blurred) or residual (blurred + occupancy head trained by "
-            "cross-entropy; sized for ~1 CPU-hour)."
+            "sides of the loss blurred), residual (blurred + occupancy head trained by "
+            "cross-entropy; sized for ~1 CPU-hour) or head (the best measured: an occupancy "
+            "head with the constant-velocity input trained on a frozen flow network, --init, "
+            "by default the bundled one; ~8 CPU-minutes; docs/results/accuracy/loo)."
         ),
     ] = None,
     config: Annotated[

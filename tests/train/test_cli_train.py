@@ -180,3 +180,26 @@ def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == list(range(done + 2))
     assert not list(run.glob("**/.*.tmp"))  # what the kill left half-written is gone
+
+
+def test_head_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, capsys):
+    import torch
+    from safetensors.torch import load_file
+
+    from lidarflow.models.presets import resolve_model
+
+    run = tmp_path / "head"
+    args = ["train", *map(str, blob_files), "-o", str(run), "--recipe", "head", *TINY]
+    code, out, err = run_cli([*args, "--epochs", "1", "--set", "data.epoch_windows=6"], capsys)
+    assert code in (0, None), err
+    assert "starting from the weights of bundled (occupancy head new)" in out
+    config = json.loads((run / "config.json").read_text())
+    assert config["recipe"] == "head" and config["model"]["init"] == "bundled"
+    trained = load_file(run / "model.safetensors")
+    bundled, _ = resolve_model("bundled")
+    # The flow network is the bundled one (lr 1e-6: moved by about 1e-6 per step) ...
+    flow = bundled.state_dict()["conv_flow.weight"]
+    torch.testing.assert_close(trained["conv_flow.weight"], flow, atol=1e-4, rtol=0)
+    # ... the head, new and with other inputs than the bundled model's, has learnt.
+    assert trained["conv_occupancy.weight"].abs().max() > 1e-3
+    assert trained["occupancy_hidden.weight"].shape[1] == 16 + 1 + 5 + 1
