@@ -81,3 +81,22 @@ def test_cli_export_int8(tmp_path, capsys, sample_recording):
         capsys,
     )
     assert code == 1 and err.count("\n") == 1 and "no such file" in err
+
+
+def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sample_recording):
+    from lidarflow.predict.quantize import data_dependent_convs
+    from tests.conftest import make_model_dir
+
+    folder = make_model_dir(tmp_path / "cv", occupancy_head=True, constant_velocity_input=True)
+    net, _ = resolve_model(folder)
+    float_path = export_onnx(net, tmp_path / "cv.onnx")
+    computed = data_dependent_convs(float_path)
+    assert len(computed) == 2  # the overlap correlation and the one-hot shift
+    int8_path = quantize_onnx(
+        float_path, tmp_path / "cv8.onnx", stacked_maps(sample_recording, 0, 20)
+    )
+    graph = onnx.load(str(int8_path)).graph
+    dequantized = {out for n in graph.node if n.op_type == "DequantizeLinear" for out in n.output}
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    float_convs = [n for n in convs if not set(n.input[:2]) & dequantized]
+    assert len(float_convs) == 2 and len(convs) > 2

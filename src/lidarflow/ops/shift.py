@@ -19,58 +19,52 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["all_shifts", "best_shift", "constant_velocity_map"]
+__all__ = ["DEFAULT_RADIUS", "constant_velocity_map", "shift_scores"]
+
+#: The baseline's search radius in cells per frame (0.3 m at 0.1 m cells).
+DEFAULT_RADIUS = 3
 
 
-def _offsets(radius: int) -> list[tuple[int, int]]:
-    # (d_col, d_row), rows outer and columns inner: the baseline's search order.
-    return [(dc, dr) for dr in range(-radius, radius + 1) for dc in range(-radius, radius + 1)]
+def shift_scores(previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS) -> Tensor:
+    """``(B, (2 radius + 1)^2)`` scores, row-major over ``(d_row, d_col)`` in
+    ``[-radius, radius]^2``, whose first maximum is the baseline's shift: the number of occupied
+    cells ``previous`` moved by ``(d_col, d_row)`` has in common with ``current``, ordered by
+    the shift's size where counts tie."""
+    b, _, h, w = current.shape
+    prev = (previous > 0.5).float()
+    cur = F.pad((current > 0.5).float(), (radius, radius, radius, radius))
+    # out(i, j) = sum_q prev(q) cur(q + (i - radius, j - radius)): the overlap at that shift.
+    overlap = F.conv2d(cur.reshape(1, b, h + 2 * radius, w + 2 * radius), prev, groups=b)
+    overlap = overlap.reshape(b, -1)
+    steps = torch.arange(-radius, radius + 1, device=current.device, dtype=overlap.dtype)
+    size = (steps.view(-1, 1).abs() + steps.view(1, -1).abs()).reshape(1, -1)
+    # Counts are integers and a shift's size is at most 2 radius < the factor, so ordering by
+    # this score is ordering by (overlap, -size); float32 is exact below 2^24 / factor cells.
+    return overlap * (4.0 * radius + 1.0) - size
 
 
-def all_shifts(image: Tensor, radius: int) -> Tensor:
-    """``(B, 1, H, W)`` -> ``(B, S, H, W)``: the map moved by every ``(d_col, d_row)`` with
-    ``|d| <= radius`` (zeros enter), ``S = (2 radius + 1)^2`` in the baseline's search order.
-    Channel ``s`` holds ``out(r, c) = image(r - d_row, c - d_col)``."""
-    if image.dim() != 4 or image.shape[1] != 1:
-        raise ValueError(f"image must be (B, 1, H, W), got {tuple(image.shape)}")
-    h, w = image.shape[-2:]
-    padded = F.pad(image, (radius, radius, radius, radius))
-    return torch.cat(
-        [
-            padded[:, :, radius - dr : radius - dr + h, radius - dc : radius - dc + w]
-            for dc, dr in _offsets(radius)
-        ],
-        dim=1,
-    )
-
-
-def best_shift(previous: Tensor, current: Tensor, radius: int = 3) -> Tensor:
-    """One-hot ``(B, S, 1, 1)`` over :func:`all_shifts`'s order: the shift of ``previous`` with
-    the most occupied cells in common with ``current`` (ties: the smallest shift)."""
-    overlap = (all_shifts((previous > 0.5).to(current.dtype), radius) * (current > 0.5)).sum(
-        dim=(2, 3)
-    )
-    size = torch.tensor(
-        [abs(dc) + abs(dr) for dc, dr in _offsets(radius)],
-        dtype=overlap.dtype,
-        device=overlap.device,
-    )
-    # Overlap counts are integers, a shift's size is at most 2 radius < the factor: ordering by
-    # this score is ordering by (overlap, -size). float32 is exact up to 2^24 / factor cells.
-    factor = 4.0 * radius + 1.0
-    choice = torch.argmax(overlap * factor - size, dim=1, keepdim=True)
-    index = torch.arange(overlap.shape[1], device=overlap.device).view(1, -1)
-    return (index == choice).to(current.dtype)[..., None, None]
-
-
-def constant_velocity_map(previous: Tensor, current: Tensor, radius: int = 3) -> Tensor:
+def constant_velocity_map(
+    previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
+) -> Tensor:
     """``current`` ``(B, 1, H, W)`` moved once more by the best shift from ``previous`` to it:
     the constant-velocity baseline's prediction of the next map. A zero ``previous`` (the first
     frame) gives shift 0, i.e. ``current``."""
+    if current.dim() != 4 or current.shape[1] != 1:
+        raise ValueError(f"maps must be (B, 1, H, W), got {tuple(current.shape)}")
     if previous.shape != current.shape:
         raise ValueError(
             f"previous and current must match, got {tuple(previous.shape)}, {tuple(current.shape)}"
         )
-    return (all_shifts(current, radius) * best_shift(previous, current, radius)).sum(
-        dim=1, keepdim=True
-    )
+    b, _, h, w = current.shape
+    side = 2 * radius + 1
+    with torch.autocast(current.device.type, enabled=False):
+        scores = shift_scores(previous, current, radius)
+        choice = torch.argmax(scores, dim=1, keepdim=True)
+        index = torch.arange(side * side, device=current.device).view(1, -1)
+        one_hot = (index == choice).float()
+        # A kernel tap at (i, j) reads cur(r + i - radius, c + j - radius): the shift
+        # (d_row, d_col) is the tap (radius - d_row, radius - d_col), hence the flip.
+        kernel = one_hot.view(b, 1, side, side).flip((2, 3))
+        padded = F.pad(current.float(), (radius, radius, radius, radius))
+        moved = F.conv2d(padded.reshape(1, b, h + 2 * radius, w + 2 * radius), kernel, groups=b)
+    return moved.reshape(b, 1, h, w).to(current.dtype)

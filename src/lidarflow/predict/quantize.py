@@ -21,7 +21,7 @@ import numpy as np
 from lidarflow.errors import PredictError
 from lidarflow.predict.backends import split_step_inputs
 
-__all__ = ["CALIBRATION_FEEDS", "quantize_onnx"]
+__all__ = ["CALIBRATION_FEEDS", "data_dependent_convs", "quantize_onnx"]
 
 #: Steps whose inputs calibrate the activation ranges (taken spread over the recording).
 CALIBRATION_FEEDS = 120
@@ -54,9 +54,21 @@ def calibration_feeds(
     return feeds
 
 
-def quantize_onnx(
-    float_path: str | Path, out_path: str | Path, maps: Sequence[np.ndarray]
-) -> Path:
+def data_dependent_convs(path: str | Path) -> list[str]:
+    """Names of the Conv nodes whose kernel is computed, not stored: the constant-velocity
+    input's correlation and shift (:mod:`lidarflow.ops.shift`). They count cells and pick one
+    shift; in int8 the counts would round and the wrong shift win, so they stay float."""
+    import onnx
+
+    graph = onnx.load(str(path)).graph
+    stored = {t.name for t in graph.initializer}
+    stored |= {out for node in graph.node if node.op_type == "Constant" for out in node.output}
+    return [
+        node.name for node in graph.node if node.op_type == "Conv" and node.input[1] not in stored
+    ]
+
+
+def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[np.ndarray]) -> Path:
     """Write an int8 (QDQ, per-channel weights) copy of the step graph at ``float_path`` to
     ``out_path``, its activation ranges calibrated on ``maps`` (a recording's ``(2, H, W)``
     occupancy/visibility maps, in order)."""
@@ -95,6 +107,7 @@ def quantize_onnx(
                 activation_type=QuantType.QUInt8,
                 weight_type=QuantType.QInt8,
                 op_types_to_quantize=["Conv"],
+                nodes_to_exclude=data_dependent_convs(prepared),
             )
         except Exception as err:  # onnxruntime's tools raise many types
             raise PredictError(f"int8 quantization failed: {type(err).__name__}: {err}") from err
