@@ -574,9 +574,13 @@ def export(
 @app.command(
     help="Train LiDAR-FlowNet or the DeepTracking baseline, self-supervised, on recordings and "
     "bags.\n\n"
-    "Defaults are the paper's recipe: sequences of 20 frames, 10 warm-up frames, Gaussian size "
-    "9 -> 1 (minus 2 every 25 epochs), batch 32, Adam at lr 0.01 halved every 25 epochs, 200 "
-    "epochs. Settings come from the recipe, then --config, then these flags, then --set.\n\n"
+    "The default recipe for LiDAR-FlowNet is head, the best measured on recordings it never "
+    "saw (docs/results/accuracy/loo): the bundled flow network (or --init RUN) with an "
+    "occupancy head fitted to your recordings, about 8 CPU-minutes. --recipe paper is the "
+    "paper's (and the default for deeptracking and --ego-motion): sequences of 20 frames, 10 "
+    "warm-up frames, Gaussian size 9 -> 1 (minus 2 every 25 epochs), batch 32, Adam at lr 0.01 "
+    "halved every 25 epochs, 200 epochs. Settings come from the recipe, then --config, then "
+    "these flags, then --set.\n\n"
     "The run directory gets config.json, metrics.csv/.jsonl (losses, validation F1 against "
     "copy-last, flow EPE on simulated data), a checkpoint every epoch (a killed run loses at most "
     "one), best/last weights, and model.safetensors + model.json for the other commands. "
@@ -584,8 +588,9 @@ def export(
     epilog="Examples:\n\n"
     "lidarflow train real.npz 'sim/*.npz' --mix 0.5 -o runs/a  (half of each epoch from each)\n\n"
     "lidarflow train a.bag --recipe blurred --set loss.smoothness=0.1 -o runs/b\n\n"
-    "lidarflow train my_robot.bag --recipe head -o runs/h  (the bundled flow, a head fitted "
-    "to your robot)\n\n"
+    "lidarflow train my_robot.bag -o runs/h  (the bundled flow, a head fitted to your robot)\n\n"
+    "lidarflow train 'sim/*.npz' my_robot.bag --recipe blurred -o runs/flow; lidarflow train "
+    "my_robot.bag --init runs/flow -o runs/h  (your own flow network first)\n\n"
     "lidarflow train drive.npz --ego-motion -o runs/e  (odometry-compensated; needs poses)\n\n"
     "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
@@ -621,9 +626,9 @@ def train(
     recipe: Annotated[
         str | None,
         typer.Option(
-            help="Named preset: paper (the loss exactly as published, default), blurred (both "
+            help="Named preset: paper (the loss exactly as published), blurred (both "
             "sides of the loss blurred), residual (blurred + occupancy head trained by "
-            "cross-entropy; sized for ~1 CPU-hour) or head (the best measured: an occupancy "
+            "cross-entropy; sized for ~1 CPU-hour) or head (the default: an occupancy "
             "head with the constant-velocity input trained on a frozen flow network, --init, "
             "by default the bundled one; ~8 CPU-minutes; docs/results/accuracy/loo)."
         ),
@@ -710,7 +715,12 @@ def train(
     import dataclasses
 
     from lidarflow.errors import TrainError
-    from lidarflow.train.config import build_config, config_from_dict, load_config_file
+    from lidarflow.train.config import (
+        build_config,
+        config_from_dict,
+        default_recipe,
+        load_config_file,
+    )
     from lidarflow.train.loop import train as run_training
 
     flags = {
@@ -769,6 +779,12 @@ def train(
             raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
         if data:  # absolute, so that --resume works from any folder (globs too)
             flags["data.sources"] = [os.path.abspath(d) for d in data]
+        if recipe is None and "recipe" not in (load_config_file(config) if config else {}):
+            recipe = default_recipe(model, ego_motion)
+        in_file = load_config_file(config) if config else {}
+        if recipe is None and "recipe" not in in_file:
+            named = model or in_file.get("model", {}).get("name")
+            recipe = default_recipe(named, ego_motion)
         cfg = build_config(recipe, config, flags, set_ or ())
         if ego_motion:  # added to, not replacing, any other model kwargs
             kwargs = {**cfg.model.kwargs, "ego_motion": True}

@@ -58,6 +58,8 @@ def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
             *map(str, blob_files),
             "-o",
             str(run),
+            "--recipe",
+            "paper",
             "--epochs",
             "1",
             "--no-gaussian",
@@ -92,7 +94,17 @@ def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
 )
 def test_failures_are_one_line_with_exit_1(blob_files, tmp_path, capsys, extra, message):
     code, _, err = run_cli(
-        ["train", str(blob_files[0]), "-o", str(tmp_path / "r"), *TINY, *extra], capsys
+        [
+            "train",
+            str(blob_files[0]),
+            "-o",
+            str(tmp_path / "r"),
+            "--recipe",
+            "paper",
+            *TINY,
+            *extra,
+        ],
+        capsys,
     )
     assert code == 1
     lines = err.strip().splitlines()
@@ -160,6 +172,8 @@ def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
         str(run),
         "--epochs",
         "500",
+        "--recipe",
+        "paper",
         *TINY,
     ]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -182,14 +196,14 @@ def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
     assert not list(run.glob("**/.*.tmp"))  # what the kill left half-written is gone
 
 
-def test_head_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, capsys):
+def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, capsys):
     import torch
     from safetensors.torch import load_file
 
     from lidarflow.models.presets import resolve_model
 
     run = tmp_path / "head"
-    args = ["train", *map(str, blob_files), "-o", str(run), "--recipe", "head", *TINY]
+    args = ["train", *map(str, blob_files), "-o", str(run), *TINY]  # no --recipe: head
     code, out, err = run_cli([*args, "--epochs", "1", "--set", "data.epoch_windows=6"], capsys)
     assert code in (0, None), err
     assert "starting from the weights of bundled (occupancy head new)" in out

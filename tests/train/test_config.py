@@ -64,6 +64,15 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
     assert head.model.kwargs == measured.model.kwargs
 
 
+def test_default_recipe_is_the_head_for_lidar_flownet_only():
+    from lidarflow.train.config import default_recipe
+
+    assert default_recipe() == default_recipe("flownet") == "head"
+    assert default_recipe("deeptracking") == "paper"
+    assert default_recipe("flownet", ego_motion=True) == "paper"
+    assert TrainConfig().recipe == "paper"  # the dataclasses keep the paper's values
+
+
 def test_json_round_trip_of_every_recipe():
     for name in RECIPES:
         c = apply_overrides(recipe(name), ["optim.lr=0.003", "data.sources=a.npz,b.npz"])

@@ -44,6 +44,7 @@ __all__ = [
     "build_config",
     "config_from_dict",
     "config_to_dict",
+    "default_recipe",
     "load_config_file",
     "recipe",
 ]
@@ -270,6 +271,14 @@ RECIPES: dict[str, Callable[[], TrainConfig]] = {
     "residual": _residual,  # + occupancy head trained by cross-entropy (issue 11)
     "head": _head,  # the head alone on a trained flow network: issue 11's best, the bundled one
 }
+
+
+def default_recipe(model: str | None = None, ego_motion: bool = False) -> str:
+    """The recipe `lidarflow train` uses when none is named: the best measured one (``head``,
+    issue 11's leave-one-out study) for LiDAR-FlowNet; the paper's for DeepTracking and for
+    ego-motion models, which the head recipe does not apply to. The dataclasses' own defaults
+    stay the paper's."""
+    return "head" if model in (None, "flownet") and not ego_motion else "paper"
 
 
 def recipe(name: str) -> TrainConfig:
