@@ -46,14 +46,21 @@ def run_fold(
         lidarflow(
             "train", *map(str, train_on), *extra, *shlex.split(train_args), "-o", str(run_dir)
         )
-    model, chosen = run_dir, None
+    model, chosen, margins = run_dir, None, {}
     if offsets:
-        chosen, models, _, _ = choose_offset(run_dir, train_on, offsets, folder / "offset")
+        chosen, models, _, margins = choose_offset(run_dir, train_on, offsets, folder / "offset")
         model = models[chosen]
     if not report.exists():
         lidarflow("evaluate", str(held), "--model", str(model), "--json", str(report))
     scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
-    return scores if chosen is None else {**scores, "decision_offset": chosen}
+    if chosen is None:
+        return scores
+    # The summed win margin of every offset on the fold's training recordings: why this one.
+    return {
+        **scores,
+        "decision_offset": chosen,
+        "offset_margins": {str(o): m for o, m in margins.items()},
+    }
 
 
 def run_variant(
