@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="83161d5c92617e4497e9ccb7ea1961812b6af073f363417de0d80beedf763be0",
+    weights_sha256="9f4143a65b15aae376991c3835ac329c8cc91a6beea705feda52737f111aaaa6",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 
