@@ -28,7 +28,13 @@ from lidarflow.viz.evaluation import evaluate_and_report
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 
 
-def commit() -> str:
+def commit(run: Path | None = None) -> str:
+    """The commit the run trained at (its run.json), else the checkout's HEAD."""
+    record = run / "run.json" if run is not None else None
+    if record is not None and record.exists():
+        trained_at = json.loads(record.read_text()).get("commit")
+        if trained_at:
+            return str(trained_at)
     try:
         out = subprocess.run(
             ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
@@ -78,8 +84,8 @@ def main() -> None:
         f"- Weights: `model.safetensors`, SHA-256 `{sha256(args.out / 'model.safetensors')}`",
         f"- Architecture: {card['model']} (Table I), {card.get('parameters', '?')} parameters, "
         f"grid {card.get('grid')}",
-        f"- Trained by lidarflow's own `train` command at commit `{commit()}`, on the CPU of a "
-        "2-core machine; recipe "
+        f"- Trained by lidarflow's own `train` command at commit `{commit(args.run)}`, on the "
+        "CPU of a 2-core machine; recipe "
         f"`{config.get('recipe')}`, {len(rows) - 1} epochs.",
         f"- Training data: {', '.join(Path(s).name for s in config['data']['sources'])}",
         f"- Command: `{args.command}`" if args.command else "",
