@@ -779,8 +779,6 @@ def train(
             raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
         if data:  # absolute, so that --resume works from any folder (globs too)
             flags["data.sources"] = [os.path.abspath(d) for d in data]
-        if recipe is None and "recipe" not in (load_config_file(config) if config else {}):
-            recipe = default_recipe(model, ego_motion)
         in_file = load_config_file(config) if config else {}
         if recipe is None and "recipe" not in in_file:
             named = model or in_file.get("model", {}).get("name")

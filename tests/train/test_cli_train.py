@@ -219,3 +219,15 @@ def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, 
     assert head.abs().max() > 1e-3
     assert before is None or before.shape != head.shape or (head - before).abs().max() > 1e-3
     assert trained["occupancy_hidden.weight"].shape[1] == 16 + 1 + 5 + 1
+
+
+def test_a_config_file_naming_deeptracking_gets_the_papers_recipe(tmp_path, blob_files, capsys):
+    # No --recipe and no --model: the default recipe follows the model the config file names.
+    config = tmp_path / "dt.json"
+    config.write_text(json.dumps({"model": {"name": "deeptracking"}}))
+    run = tmp_path / "dt"
+    args = ["train", str(blob_files[0]), "--config", str(config), "-o", str(run), *TINY]
+    code, _, err = run_cli([*args, "--epochs", "1", "--set", "data.epoch_windows=2"], capsys)
+    assert code in (0, None), err
+    saved = json.loads((run / "config.json").read_text())
+    assert saved["recipe"] == "paper" and saved["model"]["name"] == "deeptracking"
