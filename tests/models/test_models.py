@@ -296,6 +296,50 @@ def test_constant_velocity_input_feeds_the_baselines_map_to_the_head():
         build_model("flownet", constant_velocity_input=True)
 
 
+def _moving_blob(frames: int, size: int = 16) -> list[torch.Tensor]:
+    """A 2x2 object moving one column right per frame, away from the borders."""
+    out = []
+    for t in range(frames):
+        maps = torch.zeros(1, 2, size, size)
+        maps[0, 0, 6:8, 3 + t : 5 + t] = 1.0
+        maps[0, 1] = 1.0
+        out.append(maps)
+    return out
+
+
+def test_shifted_memories_average_the_moving_world_and_equal_still_ones_when_nothing_moves():
+    kwargs = {"occupancy_head": True, "constant_velocity_input": True, "head_hidden_channels": 4}
+    torch.manual_seed(0)
+    still = build_model("flownet", zero_init_flow=False, **kwargs)
+    shifting = build_model("flownet", zero_init_flow=False, shift_memories=True, **kwargs)
+    with torch.no_grad():
+        still.conv_occupancy.weight.normal_()
+    shifting.load_state_dict(still.state_dict())  # the option adds no parameter
+    # Nothing moves: the shift is zero, and the two models are the same function.
+    maps = (_seq(1, 1, 16, 16, seed=4)[:, 0] > 0.5).float()
+    s_still, s_shift = still.init_state(1, 16, 16), shifting.init_state(1, 16, 16)
+    for _ in range(4):
+        o_still, s_still = still.step(maps, s_still)
+        o_shift, s_shift = shifting.step(maps, s_shift)
+        torch.testing.assert_close(o_shift, o_still)
+    # A moving object: with the shift every memory is the object itself (times 1 - d^t, the
+    # zero start's weight), where still memories smear it along its track.
+    frames = _moving_blob(6)
+    s_still, s_shift = still.init_state(1, 16, 16), shifting.init_state(1, 16, 16)
+    for maps in frames:
+        _, s_still = still.step(maps, s_still)
+        _, s_shift = shifting.step(maps, s_shift)
+    current = frames[-1][0, 0]
+    decays = torch.tensor(shifting.memory_decays).view(-1, 1, 1)
+    k = len(decays)
+    expected = (1.0 - decays ** len(frames)) * current
+    torch.testing.assert_close(s_shift[-1][0, :k], expected)
+    # Still memories keep some of the object where it was, behind it.
+    assert torch.all(s_still[-1][0, :k, 6:8, 3:7].sum(dim=(1, 2)) > 0.1)
+    with pytest.raises((ValueError, ModelError), match="shift_memories"):
+        build_model("flownet", occupancy_head=True, shift_memories=True)
+
+
 def test_hidden_head_starts_as_copy_last_and_its_layers_are_the_heads():
     from lidarflow.train.loop import _is_head
 

@@ -48,6 +48,16 @@ past (the per-cell history table, ``experiments/history_rule.py``, beat copy-las
 static held-out recordings where the linear head did not). The output convolution starts at
 zero, so the untrained model is still copy-last.
 
+Memories that follow the scene (``shift_memories=True``, with the constant-velocity input).
+In the sensor's frame a driving robot's world moves, so an exponential moving average of past
+maps smears it: on the driving recording the head with still memories lost to the
+constant-velocity baseline. With this option each memory is first moved by the frame's shift
+(the one the constant-velocity input found, previous map -> current map), then updated, so it
+averages the world, not the sensor's frame; and the head sees the memories moved once more (into
+the next frame, as the constant-velocity map is). Where nothing moves the shift is zero and the
+model is the one without the option, weight for weight (so a head trained without it is a valid
+start).
+
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
 """
@@ -61,7 +71,7 @@ from torch import Tensor, nn
 
 from lidarflow.models.convgru import ConvGRUCell
 from lidarflow.models.recurrent import RecurrentMapModel
-from lidarflow.ops.shift import constant_velocity_map
+from lidarflow.ops.shift import apply_shift, best_shift_kernel
 from lidarflow.ops.warp import warp
 
 ACTIVATIONS = ("relu", "none")
@@ -97,6 +107,7 @@ class LidarFlowNet(RecurrentMapModel):
     decision_offset: float = 0.0
     constant_velocity_input: bool = False
     head_hidden_channels: int = 0
+    shift_memories: bool = False
 
     def __init__(
         self,
@@ -112,6 +123,7 @@ class LidarFlowNet(RecurrentMapModel):
         decision_offset: float = 0.0,
         constant_velocity_input: bool = False,
         head_hidden_channels: int = 0,
+        shift_memories: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -131,6 +143,13 @@ class LidarFlowNet(RecurrentMapModel):
             if head_hidden_channels < 0:
                 raise ValueError(f"head_hidden_channels must be >= 0, got {head_hidden_channels}")
             self.head_hidden_channels = int(head_hidden_channels)
+            if shift_memories and not constant_velocity_input:
+                raise ValueError(
+                    "shift_memories needs constant_velocity_input=True (it finds the shift)"
+                )
+            self.shift_memories = bool(shift_memories)
+        elif shift_memories:
+            raise ValueError("shift_memories needs occupancy_head=True (they are the head's)")
         elif head_hidden_channels:
             raise ValueError("head_hidden_channels needs occupancy_head=True (it is the head's)")
         elif decision_offset:
@@ -193,21 +212,32 @@ class LidarFlowNet(RecurrentMapModel):
         decays = torch.tensor(self.memory_decays, dtype=maps.dtype, device=maps.device)
         decays = decays.view(1, -1, 1, 1)
         k = len(self.memory_decays)
-        memory = decays * state[-1][:, :k] + (1.0 - decays) * occupancy
+        past = state[-1][:, :k]
+        if self.constant_velocity_input:
+            kernel = best_shift_kernel(state[-1][:, -1:], occupancy)
+            if self.shift_memories:
+                past = apply_shift(past, kernel)
+        memory = decays * past + (1.0 - decays) * occupancy
         features, kept = [x, occupancy], [memory]
         if not self.memory_bias_correction:
-            features.append(memory)
+            seen = memory
         else:
             # Memories start at zero, so a slow one is a fraction of the mean it tracks for its
             # first ~1/(1-d) frames: all of a 16-frame training window, none of a long stream.
             # Dividing by 1 - d^n (as Adam does) makes it the weighted mean of the frames seen
             # from the first one on; the zero initial state (also ONNX's) stays the start.
             frames = (state[-1][:, k : k + 1] + 1.0).clamp(max=_MAX_FRAMES_COUNTED)
-            features.append(memory / (1.0 - decays**frames))
+            seen = memory / (1.0 - decays**frames)
             kept.append(frames)
-        if self.constant_velocity_input:
-            previous = state[-1][:, -1:]
-            features.append(constant_velocity_map(previous, occupancy))
+        if not self.constant_velocity_input:
+            features.append(seen)
+        elif self.shift_memories:
+            # One convolution moves the memories and the map into the next frame together.
+            moved = apply_shift(torch.cat([seen, occupancy], dim=1), kernel)
+            features.extend((moved[:, :k], moved[:, k:]))
+            kept.append(occupancy)
+        else:
+            features.extend((seen, apply_shift(occupancy, kernel)))
             kept.append(occupancy)
         head_input = torch.cat(features, dim=1)
         if self.head_hidden_channels:

@@ -22,7 +22,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["DEFAULT_RADIUS", "constant_velocity_map", "shift_scores"]
+__all__ = [
+    "DEFAULT_RADIUS",
+    "apply_shift",
+    "best_shift_kernel",
+    "constant_velocity_map",
+    "shift_scores",
+]
 
 #: The baseline's search radius in cells per frame (0.3 m at 0.1 m cells).
 DEFAULT_RADIUS = 3
@@ -46,19 +52,19 @@ def shift_scores(previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
     return overlap * (4.0 * radius + 1.0) - size
 
 
-def constant_velocity_map(
+def best_shift_kernel(
     previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
 ) -> Tensor:
-    """``current`` ``(B, 1, H, W)`` moved once more by the best shift from ``previous`` to it:
-    the constant-velocity baseline's prediction of the next map. A zero ``previous`` (the first
-    frame) gives shift 0, i.e. ``current``."""
+    """``(B, 1, 2 radius + 1, 2 radius + 1)`` one-hot kernels: for each map, the baseline's best
+    shift from ``previous`` to ``current`` ``(B, 1, H, W)``, as :func:`apply_shift` applies it.
+    A zero ``previous`` (the first frame) gives shift 0."""
     if current.dim() != 4 or current.shape[1] != 1:
         raise ValueError(f"maps must be (B, 1, H, W), got {tuple(current.shape)}")
     if previous.shape != current.shape:
         raise ValueError(
             f"previous and current must match, got {tuple(previous.shape)}, {tuple(current.shape)}"
         )
-    b, _, h, w = current.shape
+    b = current.shape[0]
     side = 2 * radius + 1
     with torch.autocast(current.device.type, enabled=False):
         scores = shift_scores(previous, current, radius)
@@ -67,7 +73,31 @@ def constant_velocity_map(
         one_hot = (index == choice).float()
         # A kernel tap at (i, j) reads cur(r + i - radius, c + j - radius): the shift
         # (d_row, d_col) is the tap (radius - d_row, radius - d_col), hence the flip.
-        kernel = one_hot.view(b, 1, side, side).flip((2, 3))
-        padded = F.pad(current.float(), (radius, radius, radius, radius))
-        moved = F.conv2d(padded.reshape(1, b, h + 2 * radius, w + 2 * radius), kernel, groups=b)
-    return moved.reshape(b, 1, h, w).to(current.dtype)
+        return one_hot.view(b, 1, side, side).flip((2, 3))
+
+
+def apply_shift(maps: Tensor, kernel: Tensor) -> Tensor:
+    """``maps`` ``(B, C, H, W)``, every channel of map ``b`` moved by the shift of
+    ``kernel[b]`` (from :func:`best_shift_kernel`); cells moved in from outside are 0."""
+    b, c, h, w = maps.shape
+    side = kernel.shape[-1]
+    radius = side // 2
+    if kernel.shape != (b, 1, side, side):
+        raise ValueError(f"kernel must be ({b}, 1, k, k), got {tuple(kernel.shape)}")
+    with torch.autocast(maps.device.type, enabled=False):
+        padded = F.pad(maps.float(), (radius, radius, radius, radius))
+        # Channel-major groups: group b * c + i is channel i of map b, read by map b's kernel.
+        weight = kernel.repeat_interleave(c, dim=0) if c > 1 else kernel
+        moved = F.conv2d(
+            padded.reshape(1, b * c, h + 2 * radius, w + 2 * radius), weight, groups=b * c
+        )
+    return moved.reshape(b, c, h, w).to(maps.dtype)
+
+
+def constant_velocity_map(
+    previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
+) -> Tensor:
+    """``current`` ``(B, 1, H, W)`` moved once more by the best shift from ``previous`` to it:
+    the constant-velocity baseline's prediction of the next map. A zero ``previous`` (the first
+    frame) gives shift 0, i.e. ``current``."""
+    return apply_shift(current, best_shift_kernel(previous, current, radius))
