@@ -235,11 +235,13 @@ def _residual() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """Issue 11's measured best: an occupancy head (five occupancy memories, the
-    constant-velocity map as an input, one hidden layer) trained by cross-entropy on top of a
-    trained flow network that stays (nearly) frozen: ``model.init`` (the bundled model unless
-    set; ``--recipe blurred`` trains a flow network of your own). About 8 CPU-minutes on four
-    recordings; its validation is ``docs/results/accuracy/loo/``."""
+    """Issue 11's measured best: an occupancy head (five occupancy memories that follow the
+    constant-velocity shift, the constant-velocity map as an input, one hidden layer) trained
+    by cross-entropy on top of a trained flow network that stays (nearly) frozen:
+    ``model.init`` (the bundled model unless set; its head too where the shapes fit, so the
+    default fine-tunes the bundled head; ``--recipe blurred`` trains a flow network of your
+    own). About 8 CPU-minutes on four recordings; its validation is
+    ``docs/results/accuracy/loo/``."""
     config = _residual()
     config.recipe = "head"
     config.model.kwargs = {
@@ -247,6 +249,7 @@ def _head() -> TrainConfig:
         "memory_decays": [0.5, 0.8, 0.95, 0.98, 0.995],
         "constant_velocity_input": True,
         "head_hidden_channels": 16,
+        "shift_memories": True,
     }
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
