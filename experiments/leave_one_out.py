@@ -71,14 +71,16 @@ def run_variant(
     out: Path,
     jobs: int = 1,
     offsets: list[float] | None = None,
+    held_out: list[Path] | None = None,
 ) -> dict[str, dict]:
-    """All folds of one variant, ``jobs`` at a time (give each training ``--threads``)."""
+    """The folds of one variant (every recording held out in turn, or those of ``held_out``),
+    ``jobs`` at a time (give each training ``--threads``)."""
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = {
             stem(held): pool.submit(
                 run_fold, name, train_args, recordings, held, extra, out, offsets
             )
-            for held in recordings
+            for held in (held_out or recordings)
         }
         return {key: future.result() for key, future in futures.items()}
 
@@ -136,12 +138,28 @@ def main() -> None:
         help="decision offsets to choose from per fold, on that fold's training recordings "
         "(occupancy-head models; experiments/decision_offset.py); none: no offset",
     )
+    parser.add_argument(
+        "--held-out",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="run only the folds holding out these (some of --recordings; default: every one)",
+    )
     args = parser.parse_args()
+    if unknown := [str(p) for p in args.held_out if p not in args.recordings]:
+        parser.error(f"--held-out must be among --recordings: {', '.join(unknown)}")
     study = {}
     for spec in args.variant:
         name, _, train_args = spec.partition("=")
         study[name] = run_variant(
-            name, train_args, args.recordings, args.extra, args.output, args.jobs, args.offsets
+            name,
+            train_args,
+            args.recordings,
+            args.extra,
+            args.output,
+            args.jobs,
+            args.offsets,
+            args.held_out,
         )
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "loo.json").write_text(json.dumps(study, indent=2))
