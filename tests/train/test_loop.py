@@ -36,7 +36,10 @@ class KilledError(Exception):
     pass
 
 
-def test_short_training_writes_its_files(blob_files, tmp_path):
+def test_short_training_writes_its_files(blob_files, tmp_path, monkeypatch):
+    # HEAD moves during the run: model.json names the commit the run started at (run.json's).
+    commits = iter(["started-here", "moved-on"])
+    monkeypatch.setattr("lidarflow.train.rundir._git_commit", lambda: next(commits, "later"))
     cfg = tiny_config(
         blob_files, **{"schedule.gaussian_step_epochs": 1, "schedule.lr_step_epochs": 1}
     )
@@ -67,6 +70,8 @@ def test_short_training_writes_its_files(blob_files, tmp_path):
     )
     record = json.loads((run / "model.json").read_text())
     assert record["model"] == "flownet" and record["parameters"] == 42_500
+    assert json.loads((run / "run.json").read_text())["commit"] == "started-here"
+    assert record["training"]["commit"] == "started-here"
     assert record["grid"] == {"height": 32, "width": 32, "res": 0.1}
     assert latest_epoch(run) == 2
     net = build_model(record["model"], **record["model_kwargs"])

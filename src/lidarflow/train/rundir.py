@@ -149,5 +149,10 @@ def write_final(
     if config.runtime.final_weights == "best" and (run_dir / "best.safetensors").exists():
         ckpt.load_weights(model, run_dir / "best.safetensors")
     record = model_record(config, model, data, extra)
+    started = run_dir / "run.json"
+    if started.exists():
+        # The code the run trained with is the checkout it started at: HEAD may have moved
+        # during a long run.
+        record["training"]["commit"] = json.loads(started.read_text()).get("commit")
     ckpt.save_weights(model, run_dir / "model.safetensors", {"model": config.model.name})
     ckpt.write_json(run_dir / "model.json", record)
