@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="9f4143a65b15aae376991c3835ac329c8cc91a6beea705feda52737f111aaaa6",
+    weights_sha256="0f4e9a8989096a38df966b77c09684a7253bae391d7460824bcadd7ba6519065",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 
