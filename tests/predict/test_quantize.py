@@ -91,7 +91,7 @@ def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sa
     net, _ = resolve_model(folder)
     float_path = export_onnx(net, tmp_path / "cv.onnx")
     computed = data_dependent_convs(float_path)
-    assert len(computed) == 2  # the overlap correlation and the one-hot shift
+    assert len(computed) == 3  # the overlap correlation and the one-hot shift's two axes
     int8_path = quantize_onnx(
         float_path, tmp_path / "cv8.onnx", stacked_maps(sample_recording, 0, 20)
     )
@@ -99,4 +99,4 @@ def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sa
     dequantized = {out for n in graph.node if n.op_type == "DequantizeLinear" for out in n.output}
     convs = [n for n in graph.node if n.op_type == "Conv"]
     float_convs = [n for n in convs if not set(n.input[:2]) & dequantized]
-    assert len(float_convs) == 2 and len(convs) > 2
+    assert len(float_convs) == 3 and len(convs) > 3

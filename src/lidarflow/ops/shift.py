@@ -18,12 +18,15 @@ bf16 autocast is switched off here (it would round overlap counts above 256).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = [
     "DEFAULT_RADIUS",
+    "ShiftKernels",
     "apply_shift",
     "best_shift_kernel",
     "constant_velocity_map",
@@ -52,12 +55,21 @@ def shift_scores(previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
     return overlap * (4.0 * radius + 1.0) - size
 
 
+class ShiftKernels(NamedTuple):
+    """One map's shift as two one-hot kernels, ``rows`` ``(B, 1, k, 1)`` and ``cols``
+    ``(B, 1, 1, k)``: the one-hot ``k x k`` kernel of the shift is their outer product, so two
+    1-D convolutions (2k taps a cell) apply it instead of one 2-D one (k^2 taps)."""
+
+    rows: Tensor
+    cols: Tensor
+
+
 def best_shift_kernel(
     previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
-) -> Tensor:
-    """``(B, 1, 2 radius + 1, 2 radius + 1)`` one-hot kernels: for each map, the baseline's best
-    shift from ``previous`` to ``current`` ``(B, 1, H, W)``, as :func:`apply_shift` applies it.
-    A zero ``previous`` (the first frame) gives shift 0."""
+) -> ShiftKernels:
+    """For each map, the baseline's best shift from ``previous`` to ``current``
+    ``(B, 1, H, W)``, as :func:`apply_shift` applies it (``2 radius + 1`` taps per axis). A zero
+    ``previous`` (the first frame) gives shift 0."""
     if current.dim() != 4 or current.shape[1] != 1:
         raise ValueError(f"maps must be (B, 1, H, W), got {tuple(current.shape)}")
     if previous.shape != current.shape:
@@ -68,29 +80,34 @@ def best_shift_kernel(
     side = 2 * radius + 1
     with torch.autocast(current.device.type, enabled=False):
         scores = shift_scores(previous, current, radius)
-        choice = torch.argmax(scores, dim=1, keepdim=True)
-        index = torch.arange(side * side, device=current.device).view(1, -1)
-        one_hot = (index == choice).float()
-        # A kernel tap at (i, j) reads cur(r + i - radius, c + j - radius): the shift
-        # (d_row, d_col) is the tap (radius - d_row, radius - d_col), hence the flip.
-        return one_hot.view(b, 1, side, side).flip((2, 3))
+        choice = torch.argmax(scores, dim=1, keepdim=True)  # (d_row + r) * side + d_col + r
+        taps = torch.arange(side, device=current.device).view(1, -1)
+        # A kernel tap at i reads cur(r + i - radius): the shift d is the tap radius - d,
+        # hence the reversed index.
+        rows = (taps == side - 1 - torch.div(choice, side, rounding_mode="floor")).float()
+        cols = (taps == side - 1 - torch.remainder(choice, side)).float()
+        return ShiftKernels(rows.view(b, 1, side, 1), cols.view(b, 1, 1, side))
 
 
-def apply_shift(maps: Tensor, kernel: Tensor) -> Tensor:
-    """``maps`` ``(B, C, H, W)``, every channel of map ``b`` moved by the shift of
-    ``kernel[b]`` (from :func:`best_shift_kernel`); cells moved in from outside are 0."""
+def apply_shift(maps: Tensor, kernels: ShiftKernels) -> Tensor:
+    """``maps`` ``(B, C, H, W)``, every channel of map ``b`` moved by map ``b``'s shift (from
+    :func:`best_shift_kernel`); cells moved in from outside are 0."""
     b, c, h, w = maps.shape
-    side = kernel.shape[-1]
+    side = kernels.rows.shape[2]
     radius = side // 2
-    if kernel.shape != (b, 1, side, side):
-        raise ValueError(f"kernel must be ({b}, 1, k, k), got {tuple(kernel.shape)}")
+    if kernels.rows.shape != (b, 1, side, 1) or kernels.cols.shape != (b, 1, 1, side):
+        raise ValueError(
+            f"kernels must be ({b}, 1, k, 1) and ({b}, 1, 1, k), got "
+            f"{tuple(kernels.rows.shape)} and {tuple(kernels.cols.shape)}"
+        )
     with torch.autocast(maps.device.type, enabled=False):
         padded = F.pad(maps.float(), (radius, radius, radius, radius))
-        # Channel-major groups: group b * c + i is channel i of map b, read by map b's kernel.
-        weight = kernel.repeat_interleave(c, dim=0) if c > 1 else kernel
+        # Channel-major groups: group b * c + i is channel i of map b, read by map b's kernels.
+        rows, cols = (k.repeat_interleave(c, dim=0) if c > 1 else k for k in kernels)
         moved = F.conv2d(
-            padded.reshape(1, b * c, h + 2 * radius, w + 2 * radius), weight, groups=b * c
+            padded.reshape(1, b * c, h + 2 * radius, w + 2 * radius), rows, groups=b * c
         )
+        moved = F.conv2d(moved, cols, groups=b * c)
     return moved.reshape(b, c, h, w).to(maps.dtype)
 
 
