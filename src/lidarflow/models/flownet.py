@@ -232,7 +232,7 @@ class LidarFlowNet(RecurrentMapModel):
         if not self.constant_velocity_input:
             features.append(seen)
         elif self.shift_memories:
-            # One convolution moves the memories and the map into the next frame together.
+            # One apply_shift moves the memories and the map into the next frame together.
             moved = apply_shift(torch.cat([seen, occupancy], dim=1), kernel)
             features.extend((moved[:, :k], moved[:, k:]))
             kept.append(occupancy)
