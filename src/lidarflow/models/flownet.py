@@ -229,16 +229,17 @@ class LidarFlowNet(RecurrentMapModel):
             frames = (state[-1][:, k : k + 1] + 1.0).clamp(max=_MAX_FRAMES_COUNTED)
             seen = memory / (1.0 - decays**frames)
             kept.append(frames)
-        if not self.constant_velocity_input:
-            features.append(seen)
-        elif self.shift_memories:
-            # One apply_shift moves the memories and the map into the next frame together.
-            moved = apply_shift(torch.cat([seen, occupancy], dim=1), kernel)
-            features.extend((moved[:, :k], moved[:, k:]))
+        if self.constant_velocity_input:
+            if self.shift_memories:
+                # One apply_shift moves the memories and the map into the next frame together.
+                moved = apply_shift(torch.cat([seen, occupancy], dim=1), kernel)
+                seen, extrapolated = moved[:, :k], moved[:, k:]
+            else:
+                extrapolated = apply_shift(occupancy, kernel)
+            features.extend((seen, extrapolated))
             kept.append(occupancy)
         else:
-            features.extend((seen, apply_shift(occupancy, kernel)))
-            kept.append(occupancy)
+            features.append(seen)
         head_input = torch.cat(features, dim=1)
         if self.head_hidden_channels:
             head_input = torch.relu(self.occupancy_hidden(head_input))
