@@ -51,9 +51,14 @@ def _git_commit() -> str | None:
 
 
 def model_record(
-    config: TrainConfig, model: torch.nn.Module, data: TrainData, extra: dict[str, Any]
+    config: TrainConfig,
+    model: torch.nn.Module,
+    data: TrainData,
+    extra: dict[str, Any],
+    commit: str | None = None,
 ) -> dict[str, Any]:
-    """What ``model.json`` says: enough to rebuild the net and to know where it came from."""
+    """What ``model.json`` says: enough to rebuild the net and to know where it came from
+    (``commit``: the code it trained with, by default the checkout's HEAD now)."""
     return {
         "model": config.model.name,
         "model_kwargs": config.model.kwargs,
@@ -70,7 +75,7 @@ def model_record(
             "epochs": config.optim.epochs,
             "final_weights": config.runtime.final_weights,
             "best": extra.get("best"),
-            "commit": _git_commit(),
+            "commit": commit if commit is not None else _git_commit(),
         },
         "config": config_to_dict(config),
     }
@@ -148,11 +153,10 @@ def write_final(
 ) -> None:
     if config.runtime.final_weights == "best" and (run_dir / "best.safetensors").exists():
         ckpt.load_weights(model, run_dir / "best.safetensors")
-    record = model_record(config, model, data, extra)
+    # The code the run trained with is the checkout it started at (run.json): HEAD may have
+    # moved during a long run.
     started = run_dir / "run.json"
-    if started.exists():
-        # The code the run trained with is the checkout it started at: HEAD may have moved
-        # during a long run.
-        record["training"]["commit"] = json.loads(started.read_text()).get("commit")
+    commit = json.loads(started.read_text()).get("commit") if started.exists() else None
+    record = model_record(config, model, data, extra, commit)
     ckpt.save_weights(model, run_dir / "model.safetensors", {"model": config.model.name})
     ckpt.write_json(run_dir / "model.json", record)
