@@ -30,6 +30,8 @@ HEAD_KWARGS = (
     "constant_velocity_input",
     "head_hidden_channels",
     "shift_memories",
+    "visibility_input",
+    "warp_input",
 )
 
 

@@ -13,6 +13,7 @@ from lidarflow.models import (
     build_model,
     count_parameters,
 )
+from lidarflow.ops.warp import warp
 
 PAPER_PARAMETERS = 42_500  # Table I, "about 42.5 K"
 
@@ -366,3 +367,35 @@ def test_hidden_head_starts_as_copy_last_and_its_layers_are_the_heads():
     assert out[:, :, 4].std() > 0
     with pytest.raises((ValueError, ModelError), match="head_hidden_channels"):
         build_model("flownet", head_hidden_channels=4)
+
+
+def test_visibility_and_warp_inputs_feed_the_head_as_its_last_channels():
+    plain = build_model("flownet", occupancy_head=True, zero_init_flow=False)
+    net = build_model(
+        "flownet", occupancy_head=True, zero_init_flow=False, visibility_input=True, warp_input=True
+    )
+    assert count_parameters(net) == count_parameters(plain) + 2 * 9
+    assert net.state_channels() == plain.state_channels()  # inputs of the frame, no new state
+    scene = torch.zeros(1, 2, 10, 10)
+    scene[0, 0, 4:6, 3] = 1.0
+    scene[0, 1, :, :6] = 1.0  # visible: the left part of the grid
+    # Untrained (output layer zero), the model is the plain one.
+    with torch.no_grad():
+        for name, p in plain.named_parameters():
+            if name != "conv_occupancy.weight":
+                dict(net.named_parameters())[name].copy_(p)
+    out, _ = net.step(scene, net.init_state(1, 10, 10))
+    out_plain, _ = plain.step(scene, plain.init_state(1, 10, 10))
+    torch.testing.assert_close(out, out_plain)
+    # Read each new channel's centre tap alone: the residual is V^t, then W(O^t, B^t).
+    for channel, expected in ((-2, scene[:, 1:2]), (-1, warp(scene[:, 0:1], out[:, 0:2]))):
+        with torch.no_grad():
+            net.conv_occupancy.weight.zero_()
+            net.conv_occupancy.bias.zero_()
+            net.conv_occupancy.weight[0, channel, 1, 1] = 1.0
+        out, _ = net.step(scene, net.init_state(1, 10, 10))
+        torch.testing.assert_close(out[:, 4:5], expected.clamp(0.0, 1.0))
+    assert not torch.equal(out[:, 4:5], scene[:, 0:1])  # the trained-looking flow moved cells
+    for option in ("visibility_input", "warp_input"):
+        with pytest.raises((ValueError, ModelError), match=option):
+            build_model("flownet", **{option: True})

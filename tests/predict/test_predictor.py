@@ -101,8 +101,15 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
         {"memory_decays": [0.5, 0.95], "constant_velocity_input": True},
         {"memory_decays": [0.5, 0.95], "head_hidden_channels": 4},
         {"memory_decays": [0.5, 0.95], "constant_velocity_input": True, "shift_memories": True},
+        {"memory_decays": [0.5, 0.95], "visibility_input": True, "warp_input": True},
     ],
-    ids=["bias_corrected_memories", "constant_velocity_input", "hidden_layer", "shift_memories"],
+    ids=[
+        "bias_corrected_memories",
+        "constant_velocity_input",
+        "hidden_layer",
+        "shift_memories",
+        "visibility_and_warp",
+    ],
 )
 def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recording, kwargs):
     # Random head weights so that the memories (their frame count, the constant-velocity map)

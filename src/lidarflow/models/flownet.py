@@ -58,6 +58,15 @@ the next frame, as the constant-velocity map is). Where nothing moves the shift 
 model is the one without the option, weight for weight (so a head trained without it is a valid
 start).
 
+Visibility and warp inputs (``visibility_input=True``, ``warp_input=True``, with the occupancy
+head; issue 11). The head also sees ``V^t`` (a cell occupied in a memory but not visible now is
+hidden behind something and likely still there; one seen free now has likely gone) and the
+flow network's warp ``W(O^t, B^t)`` itself (with it the head can tell, per cell, where the warp
+and the constant-velocity map disagree, and lean on the one its other inputs favour; without it
+the warp reaches the prediction only through the global gain ``g``). Their weights in the head's
+first layer start random like the others', and the output layer at zero, so the untrained model
+is still copy-last.
+
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
 """
@@ -108,6 +117,8 @@ class LidarFlowNet(RecurrentMapModel):
     constant_velocity_input: bool = False
     head_hidden_channels: int = 0
     shift_memories: bool = False
+    visibility_input: bool = False
+    warp_input: bool = False
 
     def __init__(
         self,
@@ -124,6 +135,8 @@ class LidarFlowNet(RecurrentMapModel):
         constant_velocity_input: bool = False,
         head_hidden_channels: int = 0,
         shift_memories: bool = False,
+        visibility_input: bool = False,
+        warp_input: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -148,6 +161,12 @@ class LidarFlowNet(RecurrentMapModel):
                     "shift_memories needs constant_velocity_input=True (it finds the shift)"
                 )
             self.shift_memories = bool(shift_memories)
+            self.visibility_input = bool(visibility_input)
+            self.warp_input = bool(warp_input)
+        elif visibility_input or warp_input:
+            raise ValueError(
+                "visibility_input and warp_input need occupancy_head=True (they feed it)"
+            )
         elif shift_memories:
             raise ValueError("shift_memories needs occupancy_head=True (they are the head's)")
         elif head_hidden_channels:
@@ -178,6 +197,7 @@ class LidarFlowNet(RecurrentMapModel):
             )
             features = hidden_channels + 1 + len(self.memory_decays)
             features += int(self.constant_velocity_input)
+            features += int(self.visibility_input) + int(self.warp_input)
             if self.head_hidden_channels:
                 hidden = self.head_hidden_channels
                 self.occupancy_hidden = nn.Conv2d(features, hidden, kernel_size, padding=pad)
@@ -240,6 +260,10 @@ class LidarFlowNet(RecurrentMapModel):
             kept.append(occupancy)
         else:
             features.append(seen)
+        if self.visibility_input:
+            features.append(maps[:, 1:2])
+        if self.warp_input:
+            features.append(warp(occupancy, flow[:, 0:2]).clamp(0.0, 1.0))
         head_input = torch.cat(features, dim=1)
         if self.head_hidden_channels:
             head_input = torch.relu(self.occupancy_hidden(head_input))
