@@ -11,6 +11,9 @@ from pathlib import Path
 
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 METRICS = ("f1", "changed_f1", "ap")
+# Scored beside ego-motion models on recordings with poses; reported, not counted in a verdict
+# (the issue's baselines need no odometry).
+REFERENCES = ("copy_last_ego", "copy_last_ego_oracle")
 
 
 def lidarflow(*args: str) -> None:
@@ -35,11 +38,16 @@ def best_baselines(baselines: dict[str, dict[str, float]]) -> tuple[float, float
 def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
     """``{"model": ..., "baselines": {name: ...}}`` (METRICS only) from an evaluate report's
     methods of one recording that holds one model beside the baselines."""
-    (model_key,) = [k for k in methods if k not in BASELINES]
-    return {
+    # Besides the baselines an evaluation may hold references the verdict does not count
+    # (copy_last_ego, scored beside an ego-motion model on a recording with poses).
+    (model_key,) = [k for k in methods if k not in (*BASELINES, *REFERENCES)]
+    scores = {
         "model": {k: methods[model_key][k] for k in METRICS},
         "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
     }
+    if refs := {r: {k: methods[r][k] for k in METRICS} for r in REFERENCES if r in methods}:
+        scores["references"] = refs
+    return scores
 
 
 def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:

@@ -17,7 +17,7 @@ from lidarflow.evaluate.stream import evaluate_recording
 from lidarflow.models import build_model
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.predict import Predictor
-from lidarflow.predict.export import export_onnx
+from lidarflow.predict.export import export_onnx, poses_optional_mark
 from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
@@ -124,3 +124,40 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
         capsys,
     )
     assert code == 1 and "no sensor poses" in err and len(err.strip().splitlines()) == 1
+
+
+def test_poses_optional_models_run_uncompensated_without_poses(driving, tmp_path):
+    blind = driving.slice(0, 30)
+    blind.poses = None
+    kwargs = {"occupancy_head": True, "constant_velocity_input": True, "zero_init_flow": False}
+    folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True, **kwargs)
+    optional = Predictor(folder, GRID)
+    assert optional.uses_motion and optional.poses_optional
+    inner = StreamingModel(optional.backend.model.inner)
+    scores = evaluate_recording(
+        blind,
+        [CopyLast(), CopyLastEgo(), ModelMethod("opt", StreamingModel(optional.backend.model))],
+        GRID,
+    )
+    s = {k: v.summary() for k, v in scores.items()}
+    assert s["copy_last_ego"] == s["copy_last"]  # no motion known: the last map itself
+    # Without poses the model is its inner network, step for step.
+    occ, vis = blind.maps(GRID)
+    for t in range(6):
+        a, b = optional.update((occ[t], vis[t])), inner.step(occ[t], vis[t])
+        np.testing.assert_allclose(a.probability, b.probability, atol=1e-6)
+        assert not a.ego_compensated
+    counts = predict_to_bag(blind, optional, tmp_path / "out.mcap")
+    assert sum(counts.values()) > 0
+    # A model that needs poses beside it is still refused, and named.
+    needing = ModelMethod("needs", StreamingModel(build_model("flownet", ego_motion=True)))
+    with pytest.raises(EvaluateError, match=r"no sensor poses.*needs") as err:
+        evaluate_recording(blind, [CopyLast(), needing, CopyLastEgo()], GRID)
+    assert "copy_last_ego" not in str(err.value)
+    # The ONNX file carries the mark (and a graph rewritten from it, as int8 is, copies it).
+    onnx_path = export_onnx(optional.backend.model, tmp_path / "opt.onnx", 40, 40)
+    assert Predictor(onnx_path, GRID).poses_optional
+    plain = export_onnx(build_model("flownet", ego_motion=True), tmp_path / "plain.onnx", 40, 40)
+    assert not Predictor(plain, GRID).poses_optional
+    poses_optional_mark(onnx_path, plain)
+    assert Predictor(plain, GRID).poses_optional

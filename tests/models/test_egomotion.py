@@ -8,6 +8,7 @@ import torch
 
 from lidarflow.errors import ModelError
 from lidarflow.models import EgoCompensated, build_model, uses_ego_motion
+from lidarflow.models.egomotion import OCCUPANCY_FILL_LOGIT
 from lidarflow.models.flownet import LidarFlowNet
 from lidarflow.ops.rigid import rigid_warp
 from lidarflow.ops.warp import warp
@@ -108,8 +109,37 @@ def test_bf16_autocast_keeps_the_ego_warp_in_fp32():
     assert (out - ref).abs().max() < 1e-3  # bf16 cell coordinates would be off by ~0.25 cells
 
 
-def test_occupancy_head_with_ego_motion_is_refused_as_a_model_error():
-    # The wrapper moves flow and one logit between frames; a residual head's extra channel has
-    # no rigid meaning yet, so the combination must fail with one clear ModelError.
-    with pytest.raises(ModelError, match="ego motion"):
-        build_model("flownet", occupancy_head=True, ego_motion=True)
+def test_occupancy_head_under_ego_motion_moves_its_residual_logit_rigidly():
+    torch.manual_seed(5)
+    kwargs = {"occupancy_head": True, "constant_velocity_input": True, "shift_memories": True}
+    inner = build_model("flownet", zero_init_flow=False, head_hidden_channels=4, **kwargs)
+    with torch.no_grad():
+        inner.conv_occupancy.weight.normal_()
+    ego = EgoCompensated(inner).eval()
+    assert ego.occupancy_head and ego.out_channels == 5
+    maps = (torch.rand(1, 2, 16, 14) > 0.7).float()
+    state = tuple(torch.rand(1, c, 16, 14) for c in inner.state_channels())
+    m = torch.tensor([[2.0, -1.0, 0.1]])
+    out, _ = ego.step(maps, state, m, m)
+    ref, _ = inner.step(maps, tuple(rigid_warp(s, m) for s in state))
+    expected = rigid_warp(ref[:, 4:5], m, fill=OCCUPANCY_FILL_LOGIT)
+    torch.testing.assert_close(out[:, 4:5], expected, atol=1e-5, rtol=0)
+    torch.testing.assert_close(ego.next_logit(maps, out), inner.next_logit(maps, out))
+    # Untrained, the head is copy-last in the sensor's frame, so with the odometry it predicts
+    # the last map moved into the next frame (an integer motion: exactly).
+    untrained = EgoCompensated(build_model("flownet", **kwargs)).eval()
+    occ = torch.zeros(1, 1, 30, 30)
+    occ[0, 0, 8:12, 5:25] = 1.0
+    maps = torch.cat([occ, torch.ones_like(occ)], dim=1)
+    m = torch.tensor([[3.0, 1.0, 0.0]])
+    out, _ = untrained.step(maps, untrained.init_state(1, 30, 30), m, m)
+    predicted = untrained.predict_next(maps, out) >= 0.4
+    assert torch.equal(predicted, rigid_warp(occ, m) > 0.5)
+    assert not torch.equal(predicted, occ > 0.5)
+
+
+def test_poses_optional_marks_an_ego_model_and_needs_ego_motion():
+    assert build_model("flownet", ego_motion=True, poses_optional=True).poses_optional
+    assert not build_model("flownet", ego_motion=True).poses_optional
+    with pytest.raises(ModelError, match="poses_optional"):
+        build_model("flownet", poses_optional=True)

@@ -237,3 +237,26 @@ def test_head_learning_rate_scale_applies_to_the_head_only():
     assert len(loop._parameter_groups(plain, cfg)) == 1
     with pytest.raises(TrainError, match="head_lr_scale"):
         build_config("residual", None, {"optim.head_lr_scale": 0.0})
+
+
+def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
+    # The wrapper has no weight of its own; only its "inner." prefix differs.
+    from tests.conftest import make_model_dir
+
+    plain = make_model_dir(tmp_path / "plain", occupancy_head=True, zero_init_flow=False)
+    weights = load_file(plain / "model.safetensors")
+    ego = build_model("flownet", occupancy_head=True, ego_motion=True, poses_optional=True)
+    assert loop._load_init(ego, str(plain)) is False  # nothing left new
+    for name, value in weights.items():
+        assert torch.equal(ego.state_dict()["inner." + name], value), name
+    folder = tmp_path / "ego"
+    folder.mkdir()
+    state = {k: v.contiguous() for k, v in ego.state_dict().items()}
+    save_file(state, folder / "model.safetensors")
+    (folder / "model.json").write_text(
+        '{"model": "flownet", "model_kwargs": {"occupancy_head": true, "ego_motion": true}}'
+    )
+    back = build_model("flownet", occupancy_head=True)
+    assert loop._load_init(back, str(folder)) is False
+    for name, value in weights.items():
+        assert torch.equal(back.state_dict()[name], value), name

@@ -33,14 +33,22 @@ def recording_motions(
 ) -> np.ndarray | None:
     """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``.
 
+    ``None`` too for a recording with no pose at all when every method that wants them runs
+    without (``poses_optional``: then all of them step uncompensated, copy_last_ego is copy_last).
+
     Raises:
-        EvaluateError: a method wants them and the recording has no pose at all (we fail rather
-            than silently evaluate an ego-motion model without odometry).
+        EvaluateError: a method that needs them (no ``poses_optional``) and a recording with no
+            pose at all (we fail rather than silently evaluate an ego-motion model without
+            odometry).
     """
     users = wants_motion(methods)
     if not users:
         return None
     if not recording.has_poses:
+        needing = [m for m in methods if getattr(m, "uses_motion", False)]
+        if all(getattr(m, "poses_optional", False) for m in needing):
+            return None
+        users = [str(getattr(m, "name", m)) for m in needing if not m.poses_optional]
         source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
         raise EvaluateError(
             f"{source}: no sensor poses, but {', '.join(users)} compensate(s) ego motion; "
@@ -57,6 +65,7 @@ class CopyLastEgo:
     the true next motion. What ego-motion compensation alone buys, with no learned flow."""
 
     uses_motion = True
+    poses_optional = True  # without poses it is copy_last: never the reason to refuse one
 
     def __init__(self, oracle: bool = False) -> None:
         self.oracle = oracle

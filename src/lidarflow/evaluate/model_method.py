@@ -33,6 +33,7 @@ class ModelMethod:
         self.stream = stream
         self.moving_threshold = moving_threshold
         self.uses_motion = bool(getattr(stream.model, "ego_motion", False))
+        self.poses_optional = bool(getattr(stream.model, "poses_optional", False))
         self.oracle = oracle and self.uses_motion
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None

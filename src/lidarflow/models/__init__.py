@@ -4,7 +4,8 @@ Interface (train, evaluate and predict depend on it; details in
 :mod:`lidarflow.models.recurrent`): every model has ``out_channels``, ``init_state``, ``step``,
 ``forward`` and ``predict_next``. ``build_model(name, **kwargs)`` builds one by name;
 ``ego_motion=True`` wraps it in :class:`EgoCompensated` (its ``step`` then also takes the sensor's
-motion, see :mod:`lidarflow.models.egomotion`).
+motion, see :mod:`lidarflow.models.egomotion`); ``poses_optional=True`` with it lets the model run
+uncompensated on recordings that have no poses at all.
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ MODEL_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 
 def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
     """Build the model called ``name`` (one of :data:`MODEL_NAMES`); ``kwargs`` go to its class,
-    except ``ego_motion`` (default False): True wraps the model in :class:`EgoCompensated`.
+    except ``ego_motion`` (default False): True wraps the model in :class:`EgoCompensated`, and
+    ``poses_optional`` (default False, only with ``ego_motion``): True marks it as one that runs
+    uncompensated where a recording has no poses, rather than being refused there.
 
     Raises:
         ModelError: unknown name, or arguments the model does not take.
@@ -39,6 +42,9 @@ def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
     except KeyError as err:
         raise ModelError(f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}") from err
     ego_motion = bool(kwargs.pop("ego_motion", False))
+    poses_optional = bool(kwargs.pop("poses_optional", False))
+    if poses_optional and not ego_motion:
+        raise ModelError("poses_optional needs ego_motion=True (it says when poses may be missing)")
     try:
         model = builder(**kwargs)
     except (TypeError, ValueError) as err:
@@ -46,7 +52,7 @@ def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
     if not ego_motion:
         return model
     try:
-        return EgoCompensated(model)
+        return EgoCompensated(model, poses_optional=poses_optional)
     except ValueError as err:
         raise ModelError(f"cannot compensate ego motion for model {name!r}: {err}") from err
 

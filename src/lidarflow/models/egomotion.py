@@ -16,13 +16,20 @@ own motion, so that the inner network only has to explain the motion of the worl
    - ``B(q) = T(q) + B_in(T(q)) - q`` with ``T`` the change of frame ``t+1 -> t`` in cells
      (``B_in`` sampled bilinearly at ``T(q)``);
    - ``F(p) = T^{-1}(p + F_in(p)) - p`` (exact, ``T^{-1}`` is affine);
-   - an occupancy logit (DeepTracking) is warped rigidly, cells coming into view at the prior
-     logit ``logit(0.02)``.
+   - an occupancy logit (DeepTracking's output, or the occupancy head's residual logit, the
+     fifth channel of a flow model built with ``occupancy_head``) is warped rigidly, cells
+     coming into view at the prior logit ``logit(0.02)``.
 
 Causality: at run time only poses up to ``t`` are known, so ``next_motion`` defaults to the
 constant-velocity guess ``motion`` (the same increment again); training does the same, so the
 inner net learns to absorb what that guess gets wrong. Passing the true ``next_motion`` gives the
 "oracle" variant (evaluation only).
+
+Recordings without poses: ``motion=None`` runs the step uncompensated, which is right for a
+platform that stands still and wrong for one that drives. A model built with
+``poses_optional=True`` says it was meant to run so (its training mixed recordings with and
+without poses, as the ``head`` recipe's does): ``evaluate`` and ``predict`` then run it
+uncompensated on a recording with no pose at all, where they refuse any other ego-motion model.
 
 Units: motions are ``(dx, dy, dyaw)`` with ``dx, dy`` in *cells* (metres / cell size, see
 :func:`lidarflow.data.motion.metres_to_cells`) and ``dyaw`` in radians: the model, like its flow,
@@ -60,14 +67,21 @@ class EgoCompensated(RecurrentMapModel):
 
     ego_motion: bool = True
 
-    def __init__(self, inner: RecurrentMapModel) -> None:
+    def __init__(self, inner: RecurrentMapModel, poses_optional: bool = False) -> None:
         super().__init__()
-        if inner.out_channels not in (1, 4):
+        self.poses_optional = bool(poses_optional)
+        if inner.out_channels not in (1, 4, 5):
             raise ValueError(
-                f"inner model must output 4 flow channels or 1 logit, not {inner.out_channels}"
+                "inner model must output 4 flow channels, 1 logit or both (5), "
+                f"not {inner.out_channels}"
             )
         self.inner = inner
         self.out_channels = inner.out_channels
+
+    @property
+    def occupancy_head(self) -> bool:
+        """Whether the inner model has an occupancy head (its output's fifth channel)."""
+        return bool(getattr(self.inner, "occupancy_head", False))
 
     @property
     def grus(self) -> nn.ModuleList:
@@ -112,10 +126,17 @@ class EgoCompensated(RecurrentMapModel):
         c, r = cell_grid(h, w, out.device, out.dtype)
         c2, r2 = transform_cells(c + out[:, 2], r + out[:, 3], next_motion, h, w, inverse=True)
         forward = torch.stack([c2 - c, r2 - r], dim=1)
-        return torch.cat([backward, forward], dim=1)
+        moved = [backward, forward]
+        if self.out_channels == 5:
+            moved.append(rigid_warp(out[:, 4:5], next_motion, fill=OCCUPANCY_FILL_LOGIT))
+        return torch.cat(moved, dim=1)
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         return self.inner.predict_next(maps, out)
+
+    def next_logit(self, maps: Tensor, out: Tensor) -> Tensor:
+        """The inner occupancy head's logit (its output already in the frame of ``t + 1``)."""
+        return self.inner.next_logit(maps, out)  # type: ignore[attr-defined]
 
     def forward(  # type: ignore[override]
         self,

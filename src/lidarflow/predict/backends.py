@@ -13,6 +13,10 @@ import numpy as np
 
 from lidarflow.errors import PredictError
 
+#: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
+#: (written by :func:`lidarflow.predict.export.export_onnx`).
+POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
+
 __all__ = ["OnnxBackend", "TorchBackend", "split_step_inputs"]
 
 
@@ -36,6 +40,7 @@ class TorchBackend:
         self.model = model.to(self.device).eval()
         self.out_channels = int(model.out_channels)
         self.uses_motion = bool(getattr(model, "ego_motion", False))
+        self.poses_optional = bool(getattr(model, "poses_optional", False))
 
     def init_state(self, height: int, width: int) -> Any:
         return self.model.init_state(1, height, width, device=self.device)
@@ -80,6 +85,8 @@ class OnnxBackend:
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
         self.uses_motion, state_inputs = split_step_inputs(inputs)
+        marks = self.session.get_modelmeta().custom_metadata_map
+        self.poses_optional = marks.get(POSES_OPTIONAL_KEY) == "true"
         self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])

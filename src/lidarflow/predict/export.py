@@ -8,7 +8,8 @@ grid is a constant of the graph).
 Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more input after
 ``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and
 ``dyaw`` in radians (zeros: no motion / unknown); the motion to the next frame is taken to be the
-same (constant velocity), as in PyTorch.
+same (constant velocity), as in PyTorch. One built with ``poses_optional`` (it may run without
+poses, uncompensated) says so in the file's metadata, key :data:`POSES_OPTIONAL_KEY`.
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from torch import Tensor, nn
 
 from lidarflow.errors import PredictError
 from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.predict.backends import POSES_OPTIONAL_KEY
 
-__all__ = ["OPSET", "StepGraph", "export_onnx"]
+__all__ = ["OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "export_onnx", "poses_optional_mark"]
 
 OPSET = 17
 
@@ -77,4 +79,20 @@ def export_onnx(
             )
         except Exception as err:  # the exporter raises many types
             raise PredictError(f"ONNX export failed: {type(err).__name__}: {err}") from err
+    if getattr(model, "poses_optional", False):
+        poses_optional_mark(path, path)
     return path
+
+
+def poses_optional_mark(source: str | Path, target: str | Path) -> None:
+    """Copy ``source``'s poses-optional mark to the ONNX file ``target`` (the same file marks
+    itself), so that a graph rewritten from another (int8) keeps it."""
+    import onnx
+
+    if source != target:
+        marked = {p.key: p.value for p in onnx.load(str(source)).metadata_props}
+        if marked.get(POSES_OPTIONAL_KEY) != "true":
+            return
+    model = onnx.load(str(target))
+    onnx.helper.set_model_props(model, {POSES_OPTIONAL_KEY: "true"})
+    onnx.save(model, str(target))

@@ -38,9 +38,10 @@ def predict_to_bag(
 ) -> dict[str, int]:
     """Run ``predictor`` over ``recording`` and write everything to ``output``; returns the
     number of messages per topic. An ego-motion model gets the recording's poses; a recording
-    without any is refused (:class:`PredictError`)."""
+    without any is refused (:class:`PredictError`) unless the model may run without
+    (``poses_optional``: it then runs uncompensated)."""
     poses = recording.poses
-    if predictor.uses_motion and not recording.has_poses:
+    if predictor.uses_motion and not recording.has_poses and not predictor.poses_optional:
         source = recording.meta.get("source") or "the recording"
         raise PredictError(
             f"{source}: no sensor poses, but the model compensates ego motion; convert the bag "

@@ -119,6 +119,11 @@ class Predictor:
         """Whether the model compensates ego motion (then give ``update`` the sensor pose)."""
         return bool(getattr(self.backend, "uses_motion", False))
 
+    @property
+    def poses_optional(self) -> bool:
+        """Whether an ego-motion model may run without poses (it then runs uncompensated)."""
+        return bool(getattr(self.backend, "poses_optional", False))
+
     def reset(self) -> None:
         """Forget the past: the next update starts from a zero state."""
         self._state = None

@@ -103,6 +103,10 @@ def _is_head(parameter_name: str) -> bool:
     return any(key in parameter_name for key in OCCUPANCY_HEAD_PARAMETERS)
 
 
+def _unwrapped(model: torch.nn.Module) -> torch.nn.Module:
+    return model.inner if uses_ego_motion(model) else model  # type: ignore[return-value]
+
+
 def _load_init(model: torch.nn.Module, source: str) -> bool:
     """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``.
 
@@ -114,6 +118,9 @@ def _load_init(model: torch.nn.Module, source: str) -> bool:
 
     try:
         init, _ = resolve_model(source)
+        # Ego-motion compensation adds no weight, only the wrapper's "inner." prefix: a model
+        # with it starts from one without and the other way round.
+        model, init = _unwrapped(model), _unwrapped(init)
         own, weights = model.state_dict(), init.state_dict()
         if any(_is_head(n) and n in own and own[n].shape != v.shape for n, v in weights.items()):
             # A head of other inputs: none of it fits, the new head starts afresh.
