@@ -60,6 +60,22 @@ def test_windows_carry_motions_in_cells_only_when_asked(driving):
     assert len(data.val[0]) == 4 and data.val[0][3].shape == (10, 3)
 
 
+def test_pose_dropout_serves_a_fixed_share_of_training_windows_without_poses(driving):
+    _, path = driving
+    full = load_train_data(_config(path).data, with_motion=True)
+    half = load_train_data(_config(path, **{"data.pose_dropout": 0.5}).data, with_motion=True)
+    dropped = []
+    for i in range(len(half.sources[0])):
+        motion = half.sources[0][i][1]
+        if motion.abs().sum() == 0:
+            dropped.append(i)
+        else:
+            torch.testing.assert_close(motion, full.sources[0][i][1])
+        torch.testing.assert_close(half.sources[0][i][1], motion)  # the same every time
+    assert 0 < len(dropped) < len(half.sources[0])
+    assert all(item[3].abs().sum() > 0 for item in half.val)  # validation keeps its poses
+
+
 def test_ego_training_runs_reloads_and_compensation_pays_untrained(driving, tmp_path):
     _, path = driving
     run = tmp_path / "run"

@@ -76,7 +76,11 @@ class DataConfig:
     the last ``val_fraction`` of the frames of every recording (a contiguous block, so
     validation windows never overlap training windows in time); ``"recordings"`` holds out
     whole recordings (the last ``ceil(val_fraction * n)`` of them, at least one); ``val_sources``
-    names validation recordings explicitly instead.
+    names validation recordings explicitly instead. ``pose_dropout`` (ego-motion models only):
+    the fraction of training windows served without their poses (identity motion, as a
+    recording without odometry), so that a model meant to run both ways (``poses_optional``)
+    also learns from a moving platform seen uncompensated; which windows is fixed per window,
+    so ``--resume`` sees the same.
     """
 
     sources: list[str] = field(default_factory=list)
@@ -93,6 +97,7 @@ class DataConfig:
     epoch_windows: int = 0  # windows drawn per epoch; 0: the number of training windows
     max_gap_periods: float = 2.5
     num_workers: int = 0
+    pose_dropout: float = 0.0
 
 
 @dataclass

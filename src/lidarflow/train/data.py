@@ -29,7 +29,8 @@ Ego motion (``load_train_data(..., with_motion=True)``, for models built with ``
 every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx, dy, dyaw)`` with
 ``dx, dy`` in cells (:mod:`lidarflow.data.motion`; index ``t`` is frame ``t`` in frame ``t - 1``,
 identity where a pose is unknown), appended as the item's last element. Without it the items are
-exactly what they were.
+exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry identity
+motions instead (chosen by a hash of the window, the same every epoch).
 """
 
 from __future__ import annotations
@@ -96,6 +97,7 @@ class Windows(Dataset):
         flows: Sequence[Flow] = (),
         with_flow: bool = False,
         motions: Sequence[np.ndarray] | None = None,
+        pose_dropout: float = 0.0,
     ) -> None:
         self.maps = list(maps)
         self.index = list(index)
@@ -103,6 +105,7 @@ class Windows(Dataset):
         self.flows = list(flows) or [None] * len(self.maps)
         self.with_flow = with_flow
         self.motions = None if motions is None else list(motions)
+        self.pose_dropout = pose_dropout
 
     def __len__(self) -> int:
         return len(self.index)
@@ -113,6 +116,8 @@ class Windows(Dataset):
             return item
         rec, start = self.index[i]
         motion = torch.from_numpy(self.motions[rec][start : start + self.length])
+        if self.pose_dropout and np.random.default_rng((rec, start)).random() < self.pose_dropout:
+            motion = torch.zeros_like(motion)
         return (*item, motion) if isinstance(item, tuple) else (item, motion)
 
     def _item(self, i: int) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, bool]:
@@ -193,6 +198,7 @@ def _windows(
     grid: GridSpec,
     with_flow: bool,
     with_motion: bool = False,
+    pose_dropout: float = 0.0,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods
@@ -216,7 +222,8 @@ def _windows(
                     f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
                     "steps; those steps are not ego-motion compensated"
                 )
-    return Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions), notes
+    windows = Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout)
+    return windows, notes
 
 
 def _load(paths: list[Path], topic: str | None) -> list[Recording]:
@@ -290,7 +297,8 @@ def load_train_data(cfg: DataConfig, with_motion: bool = False) -> TrainData:
         if not recs:
             raise TrainError(f"data source {spec}: nothing left for training after the split")
         try:
-            windows, more = _windows(recs, cfg, grid, False, with_motion)
+            # Validation keeps every pose: it measures the model where odometry is there.
+            windows, more = _windows(recs, cfg, grid, False, with_motion, cfg.pose_dropout)
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
         sources.append(windows)
