@@ -19,7 +19,9 @@ from pathlib import Path
 
 from lidarflow.data import load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.models import uses_ego_motion
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.models.weights import load_trained, sha256
 from lidarflow.scan import GridSpec
@@ -72,6 +74,8 @@ def main() -> None:
     shutil.copyfile(args.run / "model.safetensors", args.out / "model.safetensors")
     shutil.copyfile(args.run / "model.json", args.out / "model.json")
     methods = [CopyLast(), TemporalAverage(), ConstantVelocity()]
+    if uses_ego_motion(net):  # a reference beside it, not a baseline of the verdict
+        methods.append(CopyLastEgo())
     methods.append(ModelMethod("bundled", StreamingModel(net)))
     named = [(p.name, load_any(p)) for p in args.heldout]
     report = evaluate_and_report(named, methods, GridSpec(), 10, {"model": str(args.run)})

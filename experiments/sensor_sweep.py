@@ -8,6 +8,11 @@ baselines (`lidarflow evaluate`, streaming, 10 warm-up frames) and writes the pe
 
     python experiments/sensor_sweep.py -o runs/sensors [--model bundled] [--frames 300]
 
+The simulated platform's poses are exact odometry, which an ego-motion model uses; with
+``--without-poses`` every recording is evaluated with its poses removed instead (a robot without
+odometry). Beside an ego-motion model the table shows copy_last_ego (the last map moved by the
+odometry) as a reference; verdicts count the three baselines only.
+
 Writes OUT/sensors.json and OUT/sensors.md.
 """
 
@@ -19,6 +24,7 @@ from pathlib import Path
 
 from study import BASELINES, lidarflow, model_and_baselines, verdict
 
+from lidarflow.data import load_recording
 from lidarflow.sim import PeopleConfig, SimConfig, lidar_preset, write_simulation
 
 # name -> (preset, fields replaced); none of these is a training preset as it stands.
@@ -40,6 +46,9 @@ def main() -> None:
     parser.add_argument("--model", default="bundled")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--seed", type=int, default=101, help="not a seed of the training sets")
+    parser.add_argument(
+        "--without-poses", action="store_true", help="evaluate the recordings without their poses"
+    )
     args = parser.parse_args()
     args.output.mkdir(parents=True, exist_ok=True)
     study: dict[str, dict] = {}
@@ -47,7 +56,8 @@ def main() -> None:
         for scenario in ("static", "dynamic"):
             key = f"{name}/{scenario}"
             recording = args.output / f"{name}_{scenario}.npz"
-            report = args.output / f"{name}_{scenario}.json"
+            suffix = "_noposes" if args.without_poses else ""
+            report = args.output / f"{name}_{scenario}{suffix}.json"
             if not recording.exists():
                 config = SimConfig(
                     scenario=scenario,
@@ -55,24 +65,32 @@ def main() -> None:
                     people=PeopleConfig(count=8),
                 )
                 write_simulation(recording, args.frames, args.seed, config)
+            evaluated = recording
+            if args.without_poses:
+                evaluated = args.output / f"{name}_{scenario}_noposes.npz"
+                if not evaluated.exists():
+                    blind = load_recording(recording)
+                    blind.poses = None
+                    blind.save(evaluated)
             if not report.exists():
-                lidarflow("evaluate", str(recording), "--model", args.model, "--json", str(report))
+                lidarflow("evaluate", str(evaluated), "--model", args.model, "--json", str(report))
             scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
             study[key] = {**scores, "verdict": verdict(scores["model"], scores["baselines"])}
+    ego = any("copy_last_ego" in r.get("references", {}) for r in study.values())
     lines = [
         f"| sensor / scenario | {args.model} F1 / changed F1 | copy last | temporal average | "
-        "constant velocity | verdict |",
-        "|---|---|---|---|---|---|",
+        "constant velocity |" + (" copy last ego (reference) |" if ego else "") + " verdict |",
+        "|---|---|---|---|---|" + ("---|" if ego else "") + "---|",
     ]
     for key, r in study.items():
         cells = [f"{r['model']['f1']:.3f} / {r['model']['changed_f1']:.3f}"]
-        cells += [
-            f"{r['baselines'][b]['f1']:.3f} / {r['baselines'][b]['changed_f1']:.3f}"
-            for b in BASELINES
-        ]
+        scores = [r["baselines"][b] for b in BASELINES]
+        if ego:
+            scores.append(r.get("references", {}).get("copy_last_ego"))
+        cells += ["-" if s is None else f"{s['f1']:.3f} / {s['changed_f1']:.3f}" for s in scores]
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {r['verdict']} |")
     wins = sum(r["verdict"] == "wins" for r in study.values())
-    lines.append(f"| **wins on {wins} of {len(study)}** | | | | | |")
+    lines.append(f"| **wins on {wins} of {len(study)}** | | | | |" + (" |" if ego else "") + " |")
     (args.output / "sensors.json").write_text(json.dumps(study, indent=2) + "\n")
     (args.output / "sensors.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -313,7 +313,9 @@ def _methods_and_config(
         config["ego_motion"] = (
             "models built with ego_motion get the recordings' poses (odometry); the motion to "
             "the next frame is the last one again (constant velocity, causal); *_oracle* "
-            "variants use the true next pose instead; copy_last_ego moves the last map by it"
+            "variants use the true next pose instead; copy_last_ego moves the last map by it; "
+            "on a recording without poses, models built with poses_optional (the head recipe's, "
+            "the bundled one) run uncompensated and copy_last_ego is copy_last"
         )
     return methods, config
 
@@ -390,9 +392,11 @@ def evaluate(
     The JSON has them per method under "calibration" (with the reliability-diagram bins) and
     "segmentation"; --report draws the reliability diagram and the moving cells.
 
-    A model trained with --ego-motion gets each recording's poses (odometry) and the
-    copy_last_ego baseline (the last map moved by the odometry) is scored beside it; a
-    recording without poses is then refused."""
+    A model that compensates ego motion (the bundled one, the default recipe's, --ego-motion)
+    gets each recording's poses (odometry) and the copy_last_ego baseline (the last map moved by
+    the odometry) is scored beside it; on a recording without poses a model built with
+    poses_optional (the bundled one, the default recipe's) runs uncompensated, any other is
+    refused."""
     from lidarflow.evaluate.report import format_table, format_uncertainty_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
@@ -498,8 +502,9 @@ def predict(
     the current map (/lidarflow/moving, OccupancyGrid: 100 moving, 0 not, -1 unseen) to a new
     bag.
 
-    A model trained with --ego-motion gets the recording's poses (odometry) with every scan;
-    a recording without poses is then refused."""
+    A model that compensates ego motion gets the recording's poses (odometry) with every scan;
+    on a recording without poses a model built with poses_optional (the bundled one, the
+    default recipe's) runs uncompensated, any other is refused."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec

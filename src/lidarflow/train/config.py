@@ -242,7 +242,10 @@ def _residual() -> TrainConfig:
 def _head() -> TrainConfig:
     """Issue 11's measured best: an occupancy head (five occupancy memories that follow the
     constant-velocity shift, the constant-velocity map as an input, one hidden layer) trained
-    by cross-entropy on top of a trained flow network that stays (nearly) frozen:
+    by cross-entropy on top of a trained flow network that stays (nearly) frozen, compensating
+    the platform's own motion where a recording has poses (``ego_motion``, ``poses_optional``:
+    uncompensated where it has none; half the training windows without their poses, so it
+    learns both ways):
     ``model.init`` (the bundled model unless set; its head too where the shapes fit, so the
     default fine-tunes the bundled head; ``--recipe blurred`` trains a flow network of your
     own). About 8 CPU-minutes on four recordings; its validation is
@@ -255,6 +258,8 @@ def _head() -> TrainConfig:
         "constant_velocity_input": True,
         "head_hidden_channels": 16,
         "shift_memories": True,
+        "ego_motion": True,
+        "poses_optional": True,
     }
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
@@ -267,6 +272,7 @@ def _head() -> TrainConfig:
     config.data.warmup = 6
     config.data.stride = 8
     config.data.epoch_windows = 200
+    config.data.pose_dropout = 0.5
     config.schedule.gaussian_start = 1
     config.runtime.amp = "bf16"
     config.runtime.channels_last = True
