@@ -5,7 +5,10 @@ scans, for the PyTorch eager backend (the reference, measured in the same run), 
 float32 and onnxruntime int8 (`lidarflow export --int8`, calibrated on the same sample; its
 accuracy cost is measured on other recordings by experiments/int8_accuracy.py), each at the
 given thread counts. Batched: scans/s for B streams stepped together (many robots at once).
-Writes JSON (default ``benchmarks/results/predict.json``).
+An ego-motion model (the bundled one since v5) is given a pose with every scan, a slow drive
+(5 cm and 0.5 degrees a scan), so every backend pays for the compensation as a robot with
+odometry does (without a pose PyTorch skips it and the ONNX graph does not). Writes JSON
+(default ``benchmarks/results/predict.json``).
 
     python benchmarks/bench_predict.py [--scans 200] [--threads 1 2] [--batch 32]
 """
@@ -29,13 +32,21 @@ from lidarflow.predict.quantize import quantize_onnx
 from lidarflow.scan import GridSpec
 
 
+def drive(n: int) -> np.ndarray:
+    """``(n, 3)`` sensor poses of a slow drive: 5 cm forward and 0.5 degrees left a scan."""
+    i = np.arange(n, dtype=np.float64)
+    yaw = np.deg2rad(0.5) * i
+    return np.stack([0.05 * np.cumsum(np.cos(yaw)), 0.05 * np.cumsum(np.sin(yaw)), yaw], axis=1)
+
+
 def latency(predictor: Predictor, scans: list, warm: int = 10) -> dict[str, float]:
-    for s in scans[:warm]:
-        predictor.update(s)
+    poses = drive(len(scans)) if predictor.uses_motion else [None] * len(scans)
+    for s, pose in zip(scans[:warm], poses[:warm], strict=True):
+        predictor.update(s, pose)
     times = []
-    for s in scans:
+    for s, pose in zip(scans, poses, strict=True):
         t0 = time.perf_counter()
-        predictor.update(s)
+        predictor.update(s, pose)
         times.append(time.perf_counter() - t0)
     ms = np.array(times) * 1e3
     return {"median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99))}
@@ -55,14 +66,17 @@ def batched(
         model = model.to(memory_format=torch.channels_last)
         x = x.contiguous(memory_format=torch.channels_last)
     state = model.init_state(batch, 100, 100, device=dev)
+    # an ego-motion model compensates a motion as with odometry (1/2 cell, 0.5 degrees)
+    ego = bool(getattr(model, "ego_motion", False))
+    motion = (torch.tensor([[0.5, 0.0, 0.0087]], device=dev).expand(batch, 3),) if ego else ()
     with torch.inference_mode(), torch.autocast(dev.type, torch.bfloat16, enabled=cuda):
         for _ in range(3):
-            out, state = model.step(x, state)
+            out, state = model.step(x, state, *motion)
         if cuda:
             torch.cuda.synchronize()
         t0 = time.perf_counter()
         for _ in range(steps):
-            out, state = model.step(x, state)
+            out, state = model.step(x, state, *motion)
             model.predict_next(x, out)
         if cuda:
             torch.cuda.synchronize()

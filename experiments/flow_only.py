@@ -42,7 +42,12 @@ def main() -> None:
     args = parser.parse_args()
     card = json.loads((args.model / "model.json").read_text())
     weights = load_file(args.model / card.get("weights", "model.safetensors"))
-    flow = {n: v for n, v in weights.items() if not n.startswith(OCCUPANCY_HEAD_PARAMETERS)}
+    # An ego-motion model's names start with its wrapper's "inner."; it stays ego-motion.
+    flow = {
+        n: v
+        for n, v in weights.items()
+        if not n.removeprefix("inner.").startswith(OCCUPANCY_HEAD_PARAMETERS)
+    }
     kwargs = {k: v for k, v in card.get("model_kwargs", {}).items() if k not in HEAD_KWARGS}
     out = {
         "model": card["model"],

@@ -13,7 +13,7 @@ The simulated platform's poses are exact odometry, which an ego-motion model use
 odometry). Beside an ego-motion model the table shows copy_last_ego (the last map moved by the
 odometry) as a reference; verdicts count the three baselines only.
 
-Writes OUT/sensors.json and OUT/sensors.md.
+Writes OUT/sensors.json and OUT/sensors.md (with --without-poses: OUT/sensors_noposes.*).
 """
 
 from __future__ import annotations
@@ -91,8 +91,9 @@ def main() -> None:
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {r['verdict']} |")
     wins = sum(r["verdict"] == "wins" for r in study.values())
     lines.append(f"| **wins on {wins} of {len(study)}** | | | | |" + (" |" if ego else "") + " |")
-    (args.output / "sensors.json").write_text(json.dumps(study, indent=2) + "\n")
-    (args.output / "sensors.md").write_text("\n".join(lines) + "\n")
+    name = "sensors_noposes" if args.without_poses else "sensors"
+    (args.output / f"{name}.json").write_text(json.dumps(study, indent=2) + "\n")
+    (args.output / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

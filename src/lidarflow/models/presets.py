@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="0f4e9a8989096a38df966b77c09684a7253bae391d7460824bcadd7ba6519065",
+    weights_sha256="eced95bc660801415b10b07b8451f58e8c8598c27634cc6d3c9a0817397cce66",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 
