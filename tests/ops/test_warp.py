@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lidarflow.ops import warp
-from lidarflow.ops.warp import _base_grid
+from lidarflow.ops.warp import _base_grid, warp_gather
 
 
 def _random_maps(seed: int, shape=(2, 3, 7, 9), dtype=torch.float32) -> torch.Tensor:
@@ -170,3 +170,39 @@ def test_warp_used_in_inference_mode_first_still_trains():
     flow = torch.zeros(1, 2, 13, 17, requires_grad=True)
     warp(torch.rand(size), flow).sum().backward()
     assert flow.grad is not None
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    b=st.integers(1, 3),
+    c=st.integers(1, 6),
+    h=st.integers(2, 10),
+    w=st.integers(2, 10),
+    scale=st.sampled_from([0.3, 2.0, 8.0]),
+)
+def test_warp_gather_is_the_same_function_as_warp(seed, b, c, h, w, scale):
+    # Flows reach far outside the grid (zeros there) and land on whole cells (border cases).
+    g = torch.Generator().manual_seed(seed)
+    maps = torch.rand(b, c, h, w, generator=g, dtype=torch.float64)
+    flow = torch.randn(b, 2, h, w, generator=g, dtype=torch.float64) * scale
+    flow[:, :, 0] = torch.round(flow[:, :, 0])
+    torch.testing.assert_close(warp_gather(maps, flow), warp(maps, flow), atol=1e-12, rtol=0)
+
+
+def test_warp_gather_has_warps_gradients_and_checks():
+    torch.manual_seed(3)
+    maps = torch.rand(2, 3, 6, 5, dtype=torch.float64, requires_grad=True)
+    flow = (torch.randn(2, 2, 6, 5, dtype=torch.float64) * 1.7).requires_grad_()
+    # Away from whole cells (where bilinear sampling has a kink) the two gradients agree.
+    with torch.no_grad():
+        flow += 0.25 * (flow.frac().abs() < 0.05)
+    assert torch.autograd.gradcheck(warp_gather, (maps, flow))
+    for fn in (warp, warp_gather):
+        maps.grad = flow.grad = None
+        (fn(maps, flow) * torch.arange(180, dtype=torch.float64).view(2, 3, 6, 5)).sum().backward()
+        if fn is warp:
+            reference = (maps.grad.clone(), flow.grad.clone())
+    torch.testing.assert_close((maps.grad, flow.grad), reference)
+    with pytest.raises(ValueError, match="flow must be"):
+        warp_gather(maps, flow[:, :1])

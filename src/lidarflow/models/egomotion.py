@@ -105,7 +105,12 @@ class EgoCompensated(RecurrentMapModel):
             sizes = [s.shape[1] for s in state]
             dtype = state[0].dtype
             work = torch.promote_types(dtype, torch.float32)
-            moved = rigid_warp(torch.cat(state, dim=1).to(work), motion.to(work)).to(dtype)
+            # Exported to ONNX the state is sampled by gathers: onnxruntime's GridSample goes
+            # channel by channel (6 ms a step for these 55 channels, against 1.3 ms).
+            tracing = torch.jit.is_tracing()
+            moved = rigid_warp(
+                torch.cat(state, dim=1).to(work), motion.to(work), gather=tracing
+            ).to(dtype)
             state = tuple(torch.split(moved, sizes, dim=1))
         out, state = self.inner.step(maps, state)
         nxt = motion if next_motion is None else next_motion
