@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
 from lidarflow.sim.platform import compose, relative
 
 
@@ -39,3 +39,43 @@ def test_yaw_wraps_and_metres_become_cells():
     cells = metres_to_cells(np.array([[0.25, -0.1, 0.2]]), 0.05)
     np.testing.assert_allclose(cells, [[5.0, -2.0, 0.2]], rtol=1e-6)
     assert cells.dtype == np.float32
+
+
+@pytest.fixture(scope="module")
+def driving_maps():
+    from lidarflow.scan import GridSpec
+    from lidarflow.sim import SimConfig, simulate
+
+    grid = GridSpec(40, 40, 0.05)
+    rec = simulate(60, seed=3, config=SimConfig(scenario="dynamic", episode_frames=100, grid=grid))
+    return rec.maps(grid)[0], rec.poses, grid
+
+
+def _trusted(check, occupancy, motions):
+    return [check.update(occupancy[t], motions[t] if t else None) for t in range(len(occupancy))]
+
+
+def test_odometry_check_trusts_true_odometry_and_drops_a_mirrored_one(driving_maps):
+    occupancy, poses, grid = driving_maps
+    true = metres_to_cells(relative_motions(poses)[0], grid.res)
+    check = OdometryCheck()
+    assert all(_trusted(check, occupancy, true))
+    assert len(check._moved) >= check.min_steps  # the drive gave evidence, not only defaults
+    assert sum(check._moved) > 1.3 * sum(check._still)
+    # A pose source whose y axis points the other way turns every turn and sideways step around.
+    mirrored = metres_to_cells(relative_motions(poses * np.array([1, -1, -1]))[0], grid.res)
+    check = OdometryCheck()
+    trusted = _trusted(check, occupancy, mirrored)
+    assert trusted[0] and not trusted[-1]
+    assert trusted.index(False) <= 45  # within the first ten steps that moved the map enough
+    check.reset()
+    assert check.trusted and check.update(occupancy[0], None)
+
+
+def test_odometry_check_counts_no_evidence_while_nothing_moves(driving_maps):
+    occupancy, _, _ = driving_maps
+    check = OdometryCheck()
+    wrong = np.array([0.2, -0.3, 0.001], np.float32)  # moves nothing by 1.5 cells: no evidence
+    for t in range(20):
+        assert check.update(occupancy[t], wrong if t else None)
+    assert len(check._moved) == 0

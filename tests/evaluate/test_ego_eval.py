@@ -161,3 +161,25 @@ def test_poses_optional_models_run_uncompensated_without_poses(driving, tmp_path
     assert not Predictor(plain, GRID).poses_optional
     poses_optional_mark(onnx_path, plain)
     assert Predictor(plain, GRID).poses_optional
+
+
+def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_the_scans(
+    driving, tmp_path
+):
+    folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
+    needing = Predictor(make_model_dir(tmp_path / "need", ego_motion=True), GRID)
+    optional = Predictor(folder, GRID)
+    occ, vis = driving.maps(GRID)
+    mirrored = driving.poses * np.array([1, -1, -1])  # a pose source with its y axis flipped
+    flags = [optional.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
+    assert flags[1] and not flags[-1]  # trusted at first, dropped once the scans disagree
+    # The evaluation decides the same, frame by frame; a model that needs poses never drops them.
+    method = ModelMethod("opt", StreamingModel(optional.backend.model))
+    motions = metres_to_cells(relative_motions(mirrored)[0], GRID.res)
+    optional.reset()
+    for t in range(60):
+        p = optional.update((occ[t], vis[t]), mirrored[t])
+        q = method.update(occ[t], vis[t], motions[t] if t else None)
+        np.testing.assert_allclose(p.probability, q, atol=1e-6)
+    kept = [needing.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
+    assert all(kept[1:])

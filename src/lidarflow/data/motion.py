@@ -7,16 +7,19 @@ the convention of :mod:`lidarflow.ops.rigid`. Frame 0, and every frame whose own
 predecessor's pose is unknown, gets the identity motion and ``known = False``: a model then
 simply does not compensate that step (what it does without odometry).
 
-Poses are taken to be the sensor's; a bag's odometry is usually the robot base's, which differs
-only by the lever arm of the sensor mount under rotation (a few centimetres per frame at most for
-a scanner mounted near the rotation centre).
+Poses are taken to be the sensor's (a bag's odometry is moved to the scanner by its TF where the
+bag has it, :mod:`lidarflow.data.tf`). Where it has not, they are the base's, and with a scanner
+mounted off the base's centre, or turned on it, compensating by them can be worse than not
+compensating at all: :class:`OdometryCheck` tells, from the scans alone, whether they agree.
 """
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
-__all__ = ["metres_to_cells", "relative_motions"]
+__all__ = ["OdometryCheck", "metres_to_cells", "relative_motions"]
 
 
 def relative_motions(
@@ -57,3 +60,61 @@ def metres_to_cells(motions: np.ndarray, res: float) -> np.ndarray:
     out = np.asarray(motions, dtype=np.float64).copy()
     out[..., :2] /= res
     return out.astype(np.float32)
+
+
+class OdometryCheck:
+    """Does the odometry agree with the scans? Causal and label-free, for models that may run
+    without poses (``poses_optional``): they stop compensating while it says no.
+
+    At every step whose motion moves the previous map's occupied cells by at least
+    ``min_shift`` cells (median), those cells are moved into the current frame by the motion
+    (nearest cell) and counted where they land next to (3 x 3) an occupied cell of the current
+    map; beside that, the same cells not moved. Cells moved out of the grid count in neither.
+    Over the last ``window`` such steps the odometry is trusted while the moved cells hit at
+    least as often as the unmoved ones, and until ``min_steps`` steps have been seen. Right
+    odometry on a moving platform lines the static world up, so its count is far above (the
+    development recording with poses: every window); a base's odometry read as a scanner's that
+    is turned on the base moves the world the wrong way.
+
+    Units: maps ``(H, W)`` bool, motion ``(dx, dy, dyaw)`` in cells and radians (this frame's
+    pose in the previous one's, :mod:`lidarflow.ops.rigid`'s convention).
+    """
+
+    def __init__(self, min_steps: int = 10, window: int = 50, min_shift: float = 1.5) -> None:
+        self.min_steps = min_steps
+        self.min_shift = min_shift
+        self._moved: deque[int] = deque(maxlen=window)
+        self._still: deque[int] = deque(maxlen=window)
+        self._previous: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._moved.clear()
+        self._still.clear()
+        self._previous = None
+
+    @property
+    def trusted(self) -> bool:
+        return len(self._moved) < self.min_steps or sum(self._moved) >= sum(self._still)
+
+    def update(self, occupancy: np.ndarray, motion: np.ndarray | None) -> bool:
+        """Feed this frame's map and motion (``None``: unknown); whether to compensate it."""
+        current = np.asarray(occupancy, dtype=bool)
+        previous, self._previous = self._previous, current
+        if previous is None or motion is None or previous.shape != current.shape:
+            return self.trusted
+        h, w = current.shape
+        rows, cols = np.nonzero(previous)
+        if rows.size == 0:
+            return self.trusted
+        dx, dy, yaw = (float(v) for v in np.asarray(motion, dtype=np.float64).reshape(3))
+        # The grid's metric frame (rigid.py): x forward from the bottom edge, y to the left.
+        x, y = h - 0.5 - rows - dx, w / 2 - 0.5 - cols - dy
+        c, s = np.cos(yaw), np.sin(yaw)
+        r2 = np.rint(h - 0.5 - (c * x + s * y)).astype(np.int64)
+        c2 = np.rint(w / 2 - 0.5 - (-s * x + c * y)).astype(np.int64)
+        inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        if not inside.any() or np.median(np.hypot(r2 - rows, c2 - cols)) < self.min_shift:
+            return self.trusted
+        self._moved.append(int(current[r2[inside], c2[inside]].sum()))
+        self._still.append(int(current[rows[inside], cols[inside]].sum()))
+        return self.trusted

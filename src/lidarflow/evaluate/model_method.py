@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarflow.data.motion import OdometryCheck
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
@@ -34,6 +35,9 @@ class ModelMethod:
         self.moving_threshold = moving_threshold
         self.uses_motion = bool(getattr(stream.model, "ego_motion", False))
         self.poses_optional = bool(getattr(stream.model, "poses_optional", False))
+        # A model that may run without poses stops compensating while the odometry disagrees
+        # with the scans (e.g. a base's odometry read as a scanner's turned on the base).
+        self.odometry = OdometryCheck() if self.poses_optional else None
         self.oracle = oracle and self.uses_motion
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None
@@ -50,6 +54,8 @@ class ModelMethod:
     def reset(self) -> None:
         self.stream.reset()
         self.backward_flow = self.forward_flow = self._occupancy = self._moving = None
+        if self.odometry is not None:
+            self.odometry.reset()
 
     def update(
         self,
@@ -58,6 +64,8 @@ class ModelMethod:
         motion: np.ndarray | None = None,
         next_motion: np.ndarray | None = None,
     ) -> np.ndarray:
+        if self.odometry is not None and not self.odometry.update(occupancy, motion):
+            motion = next_motion = None
         result = self.stream.step(
             occupancy, visibility, motion, next_motion if self.oracle else None
         )

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
@@ -113,6 +113,8 @@ class Predictor:
             self.backend = TorchBackend(net, device, threads)
         self._state: Any = None
         self._pose: np.ndarray | None = None
+        # See lidarflow.evaluate.model_method: the same check, the same decisions.
+        self._odometry = OdometryCheck()
 
     @property
     def uses_motion(self) -> bool:
@@ -128,6 +130,7 @@ class Predictor:
         """Forget the past: the next update starts from a zero state."""
         self._state = None
         self._pose = None
+        self._odometry.reset()
 
     def _motion(self, pose: Any) -> np.ndarray | None:
         """Motion since the previous update in cells, ``None`` when either pose is unknown."""
@@ -158,6 +161,8 @@ class Predictor:
         if self._state is None:
             self._state = self.backend.init_state(*self.grid.shape)
         motion = self._motion(pose) if self.uses_motion else None
+        if self.poses_optional and not self._odometry.update(occupancy, motion):
+            motion = None  # the odometry disagrees with the scans: not compensated
         probability, out, self._state = self.backend.run(maps, self._state, motion)
         future = [probability[0, 0]]
         # Roll forward on a copy of the state: the fed-back predictions must not leak into
