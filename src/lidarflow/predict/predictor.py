@@ -84,6 +84,9 @@ class Predictor:
         threads: CPU threads for inference (default: the library's choice).
         moving_threshold: cells per frame of motion of its own above which an occupied cell is
             reported moving (:data:`lidarflow.segmentation.MOVING_THRESHOLD` by default).
+        check_odometry: for a model that may run without poses (``poses_optional``, the bundled
+            one): stop compensating while the poses disagree with the scans
+            (:class:`~lidarflow.data.motion.OdometryCheck`). Off: every pose given is used.
     """
 
     def __init__(
@@ -94,6 +97,7 @@ class Predictor:
         threads: int | None = None,
         device: str = "cpu",
         moving_threshold: float = MOVING_THRESHOLD,
+        check_odometry: bool = True,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
@@ -114,7 +118,7 @@ class Predictor:
         self._state: Any = None
         self._pose: np.ndarray | None = None
         # See lidarflow.evaluate.model_method: the same check, the same decisions.
-        self._odometry = OdometryCheck()
+        self._odometry = OdometryCheck() if check_odometry else None
 
     @property
     def uses_motion(self) -> bool:
@@ -130,7 +134,8 @@ class Predictor:
         """Forget the past: the next update starts from a zero state."""
         self._state = None
         self._pose = None
-        self._odometry.reset()
+        if self._odometry is not None:
+            self._odometry.reset()
 
     def _motion(self, pose: Any) -> np.ndarray | None:
         """Motion since the previous update in cells, ``None`` when either pose is unknown."""
@@ -161,7 +166,8 @@ class Predictor:
         if self._state is None:
             self._state = self.backend.init_state(*self.grid.shape)
         motion = self._motion(pose) if self.uses_motion else None
-        if self.poses_optional and not self._odometry.update(occupancy, motion):
+        check = self._odometry if self.poses_optional else None
+        if check is not None and not check.update(occupancy, motion):
             motion = None  # the odometry disagrees with the scans: not compensated
         probability, out, self._state = self.backend.run(maps, self._state, motion)
         future = [probability[0, 0]]
