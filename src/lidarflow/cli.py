@@ -240,7 +240,9 @@ def demo(
     has_model = (bundled_model_dir() / "model.safetensors").exists()
     if not has_model:
         typer.echo("no bundled model in this installation: scoring the baselines only")
-    methods, config = _methods_and_config([None] if has_model else [])
+    methods, config = _methods_and_config(
+        [None] if has_model else [], with_poses=recording.has_poses
+    )
     config.update({"warmup": 10, "grid": spec.to_dict()})
     report = evaluate_and_report(
         [(str(bag), recording)], methods, spec, 10, config, output / "report", 60, _eval_progress
@@ -269,11 +271,13 @@ def _methods_and_config(
     ta_threshold: float = 0.4,
     moving_threshold: float | None = None,
     ego_oracle: bool = False,
+    with_poses: bool = True,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
-    configuration that describes them for the report. With an ego-motion model among them the
-    copy-last-moved-by-odometry baseline comes too; ``ego_oracle`` adds the variants that know
-    the true next pose."""
+    configuration that describes them for the report. With an ego-motion model among them and
+    recordings with poses (``with_poses``) the copy-last-moved-by-odometry baseline comes too
+    (without poses it would be copy-last again); ``ego_oracle`` adds the variants that know the
+    true next pose."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
@@ -294,7 +298,7 @@ def _methods_and_config(
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
         if methods[-1].uses_motion and ego_oracle:
             methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True))
-    if any(getattr(m, "uses_motion", False) for m in methods):
+    if with_poses and any(getattr(m, "uses_motion", False) for m in methods):
         from lidarflow.evaluate.ego import CopyLastEgo
 
         methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
@@ -402,11 +406,12 @@ def evaluate(
     from lidarflow.viz.evaluation import evaluate_and_report
 
     spec = GridSpec(grid, grid, res)
+    named = [(str(path), _load(path, topic, odom_topic)) for path in inputs]
+    with_poses = any(recording.has_poses for _, recording in named)
     methods, config = _methods_and_config(
-        list(model or []), ta_window, ta_threshold, moving_threshold, ego_oracle
+        list(model or []), ta_window, ta_threshold, moving_threshold, ego_oracle, with_poses
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
-    named = [(str(path), _load(path, topic, odom_topic)) for path in inputs]
     report = evaluate_and_report(
         named, methods, spec, warmup, config, report_dir, gif_frames, _eval_progress
     )

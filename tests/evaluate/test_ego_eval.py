@@ -183,3 +183,17 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
         np.testing.assert_allclose(p.probability, q, atol=1e-6)
     kept = [needing.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
     assert all(kept[1:])
+
+
+def test_cli_scores_copy_last_ego_only_beside_recordings_with_poses(driving, tmp_path, capsys):
+    folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
+    blind = driving.slice(0, 30)
+    blind.poses = None
+    for recording, expected in ((blind, False), (driving.slice(0, 30), True)):
+        out = tmp_path / "e.json"
+        data = recording.save(tmp_path / "r.npz")
+        args = ["evaluate", str(data), "-m", str(folder), "--grid", "40", "--res", "0.05"]
+        code, _, err = run([*args, "--json", str(out)], capsys)
+        assert code == 0, err
+        methods = json.loads(out.read_text())["recordings"][0]["methods"]
+        assert ("copy_last_ego" in methods) is expected and "opt" in methods
