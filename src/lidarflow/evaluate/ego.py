@@ -45,10 +45,14 @@ def recording_motions(
     if not users:
         return None
     if not recording.has_poses:
-        needing = [m for m in methods if getattr(m, "uses_motion", False)]
-        if all(getattr(m, "poses_optional", False) for m in needing):
+        needing = [
+            m
+            for m in methods
+            if getattr(m, "uses_motion", False) and not getattr(m, "poses_optional", False)
+        ]
+        if not needing:
             return None
-        users = [str(getattr(m, "name", m)) for m in needing if not m.poses_optional]
+        users = [str(getattr(m, "name", m)) for m in needing]
         source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
         raise EvaluateError(
             f"{source}: no sensor poses, but {', '.join(users)} compensate(s) ego motion; "
