@@ -97,6 +97,9 @@ def convert(
     recording.meta["grid"] = spec.to_dict()
     path = recording.save(output)
     poses = "with poses" if recording.has_poses else "no poses"
+    no_mount = "sensor_mount" in recording.meta and recording.meta["sensor_mount"] is None
+    if recording.has_poses and no_mount:
+        poses += " (the odometry's own frame: the bag has no TF to the scanner)"
     typer.echo(
         f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at "
         f"{recording.frame_rate:.2f} Hz, {poses}"

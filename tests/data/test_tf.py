@@ -41,3 +41,15 @@ def test_lookup_walks_up_the_tree_and_reports_unconnected_frames():
     np.testing.assert_allclose(tree.lookup("base", "base"), (0.0, 0.0, 0.0))
     assert tree.lookup("b", "base") is None and tree.lookup("base", "nowhere") is None
     assert np.isnan(compose_poses(np.full((1, 3), np.nan), (1.0, 0.0, 0.0))).all()
+
+
+def test_convert_and_info_say_when_the_poses_are_not_the_scanners(tmp_path, capsys):
+    from tests.test_cli import run
+
+    for name, mount in (("base", None), ("mounted", (0.85, 0.23, 0.73))):
+        bag = write_bag(tmp_path / f"{name}.bag", "ros1", odom=True, mount=mount)
+        code, out, err = run(["convert", str(bag), "-o", str(tmp_path / f"{name}.npz")], capsys)
+        assert code == 0, err
+        assert ("no TF to the scanner" in out) is (mount is None) and "with poses" in out
+        code, out, _ = run(["info", str(bag)], capsys)
+        assert code == 0 and ("sensor_mount: None" in out) is (mount is None)

@@ -78,4 +78,7 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         "gaps": [{"before_frame": i, "seconds": round(s, 3)} for i, s in gaps],
         "geometry_changes": len(recording.geometry_runs()) - 1 if n else 0,
         "has_poses": recording.has_poses,
+        # Odometry moved to the scanner by the bag's TF ((x, y, yaw) of the mount), or None:
+        # the poses are the odometry's own frame's (the base's), which ego-motion models check.
+        **({"sensor_mount": recording.meta.get("sensor_mount")} if recording.has_poses else {}),
     }
