@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError, PredictError
 from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.ego import CopyLastEgo
@@ -126,27 +127,35 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
     assert code == 1 and "no sensor poses" in err and len(err.strip().splitlines()) == 1
 
 
-def test_poses_optional_models_run_uncompensated_without_poses(driving, tmp_path):
+def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driving, tmp_path):
     blind = driving.slice(0, 30)
     blind.poses = None
     kwargs = {"occupancy_head": True, "constant_velocity_input": True, "zero_init_flow": False}
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True, **kwargs)
     optional = Predictor(folder, GRID)
     assert optional.uses_motion and optional.poses_optional
-    inner = StreamingModel(optional.backend.model.inner)
+    model = optional.backend.model
     scores = evaluate_recording(
-        blind,
-        [CopyLast(), CopyLastEgo(), ModelMethod("opt", StreamingModel(optional.backend.model))],
-        GRID,
+        blind, [CopyLast(), CopyLastEgo(), ModelMethod("opt", StreamingModel(model))], GRID
     )
     s = {k: v.summary() for k, v in scores.items()}
-    assert s["copy_last_ego"] == s["copy_last"]  # no motion known: the last map itself
-    # Without poses the model is its inner network, step for step.
+    # The drive's motion matched from the scans: moving the last map by it beats copying it.
+    assert s["copy_last_ego"]["f1"] > s["copy_last"]["f1"] + 0.03
+    # The Predictor steps the model with the same matched motions; without them (scan_odometry
+    # off) it is the inner network, step for step.
     occ, vis = blind.maps(GRID)
-    for t in range(6):
-        a, b = optional.update((occ[t], vis[t])), inner.step(occ[t], vis[t])
-        np.testing.assert_allclose(a.probability, b.probability, atol=1e-6)
-        assert not a.ego_compensated
+    motions = scan_motions(occ)
+    stream, inner = StreamingModel(model), StreamingModel(model.inner)
+    blind_predictor = Predictor(folder, GRID, scan_odometry=False)
+    for t in range(8):
+        known = None if np.isnan(motions[t]).any() else motions[t]
+        a, b = optional.update((occ[t], vis[t])), stream.step(occ[t], vis[t], known)
+        np.testing.assert_allclose(a.probability, b.probability, atol=1e-5)
+        assert a.ego_compensated == (known is not None)
+        c, d = blind_predictor.update((occ[t], vis[t])), inner.step(occ[t], vis[t])
+        np.testing.assert_allclose(c.probability, d.probability, atol=1e-6)
+        assert not c.ego_compensated
+    assert np.isfinite(motions[1:8, 0]).sum() >= 4  # the robot drives: most steps matched
     counts = predict_to_bag(blind, optional, tmp_path / "out.mcap")
     assert sum(counts.values()) > 0
     # A model that needs poses beside it is still refused, and named.

@@ -16,6 +16,7 @@ import torch
 
 from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.recording import Recording
+from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError
 from lidarflow.ops.rigid import rigid_warp
 from lidarflow.scan import GridSpec
@@ -29,12 +30,17 @@ def wants_motion(methods: Sequence[object]) -> list[str]:
 
 
 def recording_motions(
-    recording: Recording, grid: GridSpec, methods: Sequence[object]
+    recording: Recording,
+    grid: GridSpec,
+    methods: Sequence[object],
+    occupancy: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``.
 
-    ``None`` too for a recording with no pose at all when every method that wants them runs
-    without (``poses_optional``: then all of them step uncompensated, copy_last_ego is copy_last).
+    For a recording with no pose at all, when every method that wants them may run without
+    (``poses_optional``), the motions found by matching consecutive maps (``occupancy``, the
+    recording's maps on ``grid``; :mod:`lidarflow.data.scanmatch`), NaN where none was found
+    (those steps are not compensated).
 
     Raises:
         EvaluateError: a method that needs them (no ``poses_optional``) and a recording with no
@@ -51,7 +57,9 @@ def recording_motions(
             if getattr(m, "uses_motion", False) and not getattr(m, "poses_optional", False)
         ]
         if not needing:
-            return None
+            if occupancy is None:
+                occupancy = recording.maps(grid)[0]
+            return scan_motions(occupancy)
         users = [str(getattr(m, "name", m)) for m in needing]
         source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
         raise EvaluateError(

@@ -109,8 +109,10 @@ def evaluate_maps(
     for t in range(n - 1):
         for m in methods:
             if motions is not None and getattr(m, "uses_motion", False):
+                # NaN: no motion known for that step (scan matching found none): not compensated
+                motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
                 probability = m.update(  # type: ignore[call-arg]
-                    occupancy[t], visibility[t], motion=motions[t], next_motion=motions[t + 1]
+                    occupancy[t], visibility[t], motion=motion, next_motion=following
                 )
             else:
                 probability = m.update(occupancy[t], visibility[t])
@@ -153,7 +155,7 @@ def evaluate_recording(
     occupancy, visibility = recording.maps(grid)
     gt_flow = ground_truth_backward_flow(recording, grid)
     gt_moving = ground_truth_moving(recording, grid)
-    motions = recording_motions(recording, grid, methods)
+    motions = recording_motions(recording, grid, methods, occupancy)
     return evaluate_maps(
         occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction,
         gt_moving, on_moving, motions,
