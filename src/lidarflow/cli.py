@@ -449,19 +449,19 @@ def _add_horizon_scores(
     warmup: int,
     horizon: int,
 ) -> None:
+    from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.horizon import horizon_f1
 
-    models = {
-        m.name: m.stream.model
-        for m in methods
-        if hasattr(m, "stream") and not getattr(m, "uses_motion", False)
-    }
+    # one roll-out per model (an oracle variant has no roll-out of its own)
+    streamed = [m for m in methods if hasattr(m, "stream") and not getattr(m, "oracle", False)]
+    models = {m.name: m.stream.model for m in streamed}
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         occupancy, visibility = recording.maps(spec)
+        motions = recording_motions(recording, spec, streamed, occupancy)
         total = len(models) * max(0, len(occupancy) - horizon)
         with _progress(total, f"horizon {horizon}, {Path(name).name}") as bar:
             entry["horizon_f1"] = horizon_f1(
-                occupancy, visibility, models, horizon, warmup, bar.update
+                occupancy, visibility, models, horizon, warmup, bar.update, motions
             )
 
 

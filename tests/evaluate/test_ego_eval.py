@@ -206,3 +206,19 @@ def test_cli_scores_copy_last_ego_only_beside_recordings_with_poses(driving, tmp
         assert code == 0, err
         methods = json.loads(out.read_text())["recordings"][0]["methods"]
         assert ("copy_last_ego" in methods) is expected and "opt" in methods
+
+
+def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
+    from lidarflow.evaluate.horizon import horizon_f1
+
+    occ, vis = driving.maps(GRID)
+    motions = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
+    model = build_model("flownet", occupancy_head=True, ego_motion=True, poses_optional=True)
+    models = {"ego": model.eval()}
+    moved = horizon_f1(occ, vis, models, horizon=2, warmup=5, motions=motions)
+    still = horizon_f1(occ, vis, models, horizon=2, warmup=5)
+    # Untrained it is copy-last in its own frame: without motions exactly copy-last, with the
+    # odometry the last map moved into the next frame(s), which is better on a drive.
+    assert still["ego"] == pytest.approx(still["copy_last"])
+    assert moved["ego"][0] > moved["copy_last"][0] + 0.03
+    assert moved["ego"][1] > moved["copy_last"][1] + 0.03

@@ -6,6 +6,11 @@ its state, feeding back its own predicted map with the visibility of frame ``t``
 :class:`lidarflow.predict.Predictor` does for ``horizon=K`` — and the prediction ``k`` steps
 ahead is scored (F1 at 0.4) against ``O^{t+k}``. Copy-last's ``k``-step prediction is ``O^t``.
 Frames ``t`` without a frame ``t + K`` are not scored, so every horizon sees the same frames.
+
+Ego-motion models get each frame's motion (``motions``: the recording's odometry, or the motion
+matched from its scans, NaN where none is known) and roll forward assuming the same motion again,
+as the Predictor does; a model that may run without poses checks it against the scans first
+(:class:`lidarflow.data.motion.OdometryCheck`), as in the streaming evaluation.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from lidarflow.data.motion import OdometryCheck
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.models.recurrent import RecurrentMapModel
@@ -30,11 +36,13 @@ def horizon_f1(
     horizon: int,
     warmup: int = 10,
     progress: Callable[[int], None] | None = None,
+    motions: np.ndarray | None = None,
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
-    ``progress(1)`` is called after every model step on a recorded frame. Ego-motion models
-    are not supported here (their roll-out needs future motion)."""
+    ``progress(1)`` is called after every model step on a recorded frame. ``motions``
+    ``(N, 3)`` (cells, radians; NaN: unknown) go to ego-motion models; without them those run
+    uncompensated."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
@@ -50,15 +58,18 @@ def horizon_f1(
             copy[k] = copy[k] + confusion(occupancy[t], occupancy[t + 1 + k])
     result = {"copy_last": [c.f1 for c in copy]}
     for name, model in models.items():
-        if getattr(model, "ego_motion", False):
-            raise EvaluateError(f"{name}: horizon scores do not support ego-motion models yet")
+        ego = bool(getattr(model, "ego_motion", False))
+        check = OdometryCheck() if getattr(model, "poses_optional", False) else None
         counts = [Counts() for _ in range(horizon)]
         h, w = occupancy.shape[-2:]
         state = model.init_state(1, h, w)
         for t in range(n - horizon):
             maps = torch.from_numpy(np.stack([occupancy[t], visibility[t]]).astype(np.float32))
             maps = maps[None]
-            out, state = model.step(maps, state)
+            motion = () if not ego else (_motion(motions, t),)
+            if check is not None and not check.update(occupancy[t], _known(motions, t)):
+                motion = (None,)
+            out, state = model.step(maps, state, *motion)
             if progress is not None:
                 progress(1)
             if t not in scored:
@@ -68,9 +79,20 @@ def horizon_f1(
             for k in range(horizon):
                 if k > 0:
                     fed = torch.cat([probability, maps[:, 1:2]], dim=1)
-                    out_k, rolled = model.step(fed, rolled)
+                    out_k, rolled = model.step(fed, rolled, *motion)
                     probability = model.predict_next(fed, out_k)
                 predicted = probability[0, 0].numpy() >= THRESHOLD
                 counts[k] = counts[k] + confusion(predicted, occupancy[t + 1 + k])
         result[name] = [c.f1 for c in counts]
     return result
+
+
+def _known(motions: np.ndarray | None, t: int) -> np.ndarray | None:
+    if motions is None or np.isnan(motions[t]).any():
+        return None
+    return motions[t]
+
+
+def _motion(motions: np.ndarray | None, t: int) -> torch.Tensor | None:
+    known = _known(motions, t)
+    return None if known is None else torch.as_tensor(known, dtype=torch.float32).reshape(1, 3)
