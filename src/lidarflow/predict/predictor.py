@@ -137,7 +137,8 @@ class Predictor:
 
     @property
     def poses_optional(self) -> bool:
-        """Whether an ego-motion model may run without poses (it then runs uncompensated)."""
+        """Whether an ego-motion model may run without poses (without one it takes the motion
+        from the scans, ``scan_odometry``, else runs uncompensated)."""
         return bool(getattr(self.backend, "poses_optional", False))
 
     def reset(self) -> None:
