@@ -79,3 +79,25 @@ def test_odometry_check_counts_no_evidence_while_nothing_moves(driving_maps):
     for t in range(20):
         assert check.update(occupancy[t], wrong if t else None)
     assert len(check._moved) == 0
+
+
+def test_cells_in_new_frame_is_rigid_transform_cells_inverse_rounded():
+    import torch
+
+    from lidarflow.data.motion import cells_in_new_frame
+    from lidarflow.ops.rigid import transform_cells
+
+    rng = np.random.default_rng(3)
+    rows, cols = rng.integers(0, 40, 50), rng.integers(0, 30, 50)
+    motion = np.array([2.3, -1.1, 0.07])
+    r2, c2 = cells_in_new_frame(rows, cols, motion, 40, 30)
+    tc, tr = transform_cells(
+        torch.tensor(cols, dtype=torch.float64)[None, None],
+        torch.tensor(rows, dtype=torch.float64)[None, None],
+        torch.tensor(motion)[None],
+        40,
+        30,
+        inverse=True,
+    )
+    np.testing.assert_array_equal(r2, np.rint(tr[0, 0].numpy()))
+    np.testing.assert_array_equal(c2, np.rint(tc[0, 0].numpy()))

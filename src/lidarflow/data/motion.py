@@ -19,7 +19,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["OdometryCheck", "metres_to_cells", "relative_motions"]
+__all__ = ["OdometryCheck", "cells_in_new_frame", "metres_to_cells", "relative_motions"]
 
 
 def relative_motions(
@@ -62,14 +62,30 @@ def metres_to_cells(motions: np.ndarray, res: float) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def cells_in_new_frame(
+    rows: np.ndarray, cols: np.ndarray, motion: np.ndarray, height: int, width: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest cells ``(rows, cols)`` (int64) in the new sensor frame of the old frame's
+    cells ``rows, cols`` after the sensor moved by ``motion`` ``(dx, dy, dyaw)`` (cells,
+    radians): ``R^T (p - d)``, the NumPy twin of ``lidarflow.ops.rigid.transform_cells(...,
+    inverse=True)``, rounded; they may fall outside the ``height x width`` grid."""
+    dx, dy, yaw = (float(v) for v in np.asarray(motion, dtype=np.float64).reshape(3))
+    # The grid's metric frame (rigid.py): x forward from the bottom edge, y to the left.
+    x, y = height - 0.5 - rows - dx, width / 2 - 0.5 - cols - dy
+    c, s = np.cos(yaw), np.sin(yaw)
+    new_rows = np.rint(height - 0.5 - (c * x + s * y)).astype(np.int64)
+    new_cols = np.rint(width / 2 - 0.5 - (-s * x + c * y)).astype(np.int64)
+    return new_rows, new_cols
+
+
 class OdometryCheck:
     """Does the odometry agree with the scans? Causal and label-free, for models that may run
     without poses (``poses_optional``): they stop compensating while it says no.
 
     At every step whose motion moves the previous map's occupied cells by at least
     ``min_shift`` cells (median), those cells are moved into the current frame by the motion
-    (nearest cell) and counted where they land next to (3 x 3) an occupied cell of the current
-    map; beside that, the same cells not moved. Cells moved out of the grid count in neither.
+    (nearest cell) and counted where they land on an occupied cell of the current map; beside
+    that, the same cells not moved. Cells moved out of the grid count in neither.
     Over the last ``window`` such steps the odometry is trusted while the moved cells hit at
     least as often as the unmoved ones, and until ``min_steps`` steps have been seen. Right
     odometry on a moving platform lines the static world up, so its count is far above (the
@@ -106,12 +122,7 @@ class OdometryCheck:
         rows, cols = np.nonzero(previous)
         if rows.size == 0:
             return self.trusted
-        dx, dy, yaw = (float(v) for v in np.asarray(motion, dtype=np.float64).reshape(3))
-        # The grid's metric frame (rigid.py): x forward from the bottom edge, y to the left.
-        x, y = h - 0.5 - rows - dx, w / 2 - 0.5 - cols - dy
-        c, s = np.cos(yaw), np.sin(yaw)
-        r2 = np.rint(h - 0.5 - (c * x + s * y)).astype(np.int64)
-        c2 = np.rint(w / 2 - 0.5 - (-s * x + c * y)).astype(np.int64)
+        r2, c2 = cells_in_new_frame(rows, cols, motion, h, w)
         inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
         if not inside.any() or np.median(np.hypot(r2 - rows, c2 - cols)) < self.min_shift:
             return self.trusted

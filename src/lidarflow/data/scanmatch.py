@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarflow.data.motion import cells_in_new_frame
+
 __all__ = ["MAX_SHIFT", "MIN_GAIN", "YAWS", "ScanOdometry", "match_maps", "scan_motions"]
 
 #: Candidate turns between two frames (radians): +-4 degrees in 0.5 degree steps.
@@ -53,14 +55,9 @@ def match_maps(previous: np.ndarray, current: np.ndarray) -> np.ndarray | None:
     rows, cols = np.nonzero(previous)
     if rows.size == 0 or not current.any():
         return None
-    # The grid's metric frame (rigid.py): x forward from the bottom edge, y to the left. A turn
-    # by yaw moves an old point p to R(yaw)^T p in the new frame.
-    x, y = h - 0.5 - rows, w / 2 - 0.5 - cols
     turned = np.zeros((len(YAWS), h, w), np.float32)
     for k, yaw in enumerate(YAWS):
-        c, s = np.cos(yaw), np.sin(yaw)
-        r = np.rint(h - 0.5 - (c * x + s * y)).astype(np.int64)
-        q = np.rint(w / 2 - 0.5 - (-s * x + c * y)).astype(np.int64)
+        r, q = cells_in_new_frame(rows, cols, np.array([0.0, 0.0, yaw]), h, w)
         inside = (r >= 0) & (r < h) & (q >= 0) & (q < w)
         turned[k, r[inside], q[inside]] = 1.0
     # Zero-padded by MAX_SHIFT (no wrap-around within the shifts searched), to a power of two.

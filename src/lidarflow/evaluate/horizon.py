@@ -66,9 +66,11 @@ def horizon_f1(
         for t in range(n - horizon):
             maps = torch.from_numpy(np.stack([occupancy[t], visibility[t]]).astype(np.float32))
             maps = maps[None]
-            motion = () if not ego else (_motion(motions, t),)
-            if check is not None and not check.update(occupancy[t], _known(motions, t)):
-                motion = (None,)
+            known = _known(motions, t) if ego else None
+            if check is not None and not check.update(occupancy[t], known):
+                known = None
+            moved = None if known is None else torch.from_numpy(known).float()[None]
+            motion = (moved,) if ego else ()
             out, state = model.step(maps, state, *motion)
             if progress is not None:
                 progress(1)
@@ -88,11 +90,7 @@ def horizon_f1(
 
 
 def _known(motions: np.ndarray | None, t: int) -> np.ndarray | None:
+    """Frame ``t``'s motion, ``None`` where there are none or it is NaN (unknown)."""
     if motions is None or np.isnan(motions[t]).any():
         return None
     return motions[t]
-
-
-def _motion(motions: np.ndarray | None, t: int) -> torch.Tensor | None:
-    known = _known(motions, t)
-    return None if known is None else torch.as_tensor(known, dtype=torch.float32).reshape(1, 3)
