@@ -322,7 +322,8 @@ def _methods_and_config(
             "the next frame is the last one again (constant velocity, causal); *_oracle* "
             "variants use the true next pose instead; copy_last_ego moves the last map by it; "
             "on a recording without poses, models built with poses_optional (the head recipe's, "
-            "the bundled one) run uncompensated and copy_last_ego is copy_last"
+            "the bundled one) get the motion matched from the scans (lidarflow.data.scanmatch; "
+            "uncompensated where no match counts) and copy_last_ego is not scored"
         )
     return methods, config
 
@@ -402,8 +403,8 @@ def evaluate(
     A model that compensates ego motion (the bundled one, the default recipe's, --ego-motion)
     gets each recording's poses (odometry) and the copy_last_ego baseline (the last map moved by
     the odometry) is scored beside it; on a recording without poses a model built with
-    poses_optional (the bundled one, the default recipe's) runs uncompensated, any other is
-    refused."""
+    poses_optional (the bundled one, the default recipe's) takes the motion matched from the scans
+    instead, any other is refused."""
     from lidarflow.evaluate.report import format_table, format_uncertainty_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
@@ -512,7 +513,7 @@ def predict(
 
     A model that compensates ego motion gets the recording's poses (odometry) with every scan;
     on a recording without poses a model built with poses_optional (the bundled one, the
-    default recipe's) runs uncompensated, any other is refused."""
+    default recipe's) takes the motion matched from the scans instead, any other is refused."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec

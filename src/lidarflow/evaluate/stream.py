@@ -10,8 +10,10 @@ simulator's ``moving`` ground truth of that frame, where the recording has it.
 
 Ego motion: methods with ``uses_motion`` (ego-motion models, :class:`~lidarflow.evaluate.ego.
 CopyLastEgo`) also get the sensor's motion per frame from the recording's poses (see
-:mod:`lidarflow.evaluate.ego`); a recording without poses is refused for them with
-:class:`EvaluateError` rather than evaluated uncompensated.
+:mod:`lidarflow.evaluate.ego`). On a recording without poses, models built with
+``poses_optional`` get the motion matched from its scans (NaN steps: none counted, not
+compensated); any other is refused with :class:`EvaluateError` rather than evaluated
+uncompensated.
 """
 
 from __future__ import annotations

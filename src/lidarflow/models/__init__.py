@@ -5,7 +5,8 @@ Interface (train, evaluate and predict depend on it; details in
 ``forward`` and ``predict_next``. ``build_model(name, **kwargs)`` builds one by name;
 ``ego_motion=True`` wraps it in :class:`EgoCompensated` (its ``step`` then also takes the sensor's
 motion, see :mod:`lidarflow.models.egomotion`); ``poses_optional=True`` with it lets the model run
-uncompensated on recordings that have no poses at all.
+on recordings that have no poses at all (evaluate and predict then match the motion from the
+scans).
 """
 
 from __future__ import annotations
@@ -31,8 +32,9 @@ MODEL_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
     """Build the model called ``name`` (one of :data:`MODEL_NAMES`); ``kwargs`` go to its class,
     except ``ego_motion`` (default False): True wraps the model in :class:`EgoCompensated`, and
-    ``poses_optional`` (default False, only with ``ego_motion``): True marks it as one that runs
-    uncompensated where a recording has no poses, rather than being refused there.
+    ``poses_optional`` (default False, only with ``ego_motion``): True marks it as one that may
+    run where a recording has no poses (on the motion matched from the scans, or uncompensated),
+    rather than being refused there.
 
     Raises:
         ModelError: unknown name, or arguments the model does not take.

@@ -9,7 +9,8 @@ Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more inpu
 ``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and
 ``dyaw`` in radians (zeros: no motion / unknown); the motion to the next frame is taken to be the
 same (constant velocity), as in PyTorch. One built with ``poses_optional`` (it may run without
-poses, uncompensated) says so in the file's metadata, key :data:`POSES_OPTIONAL_KEY`.
+poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
+:data:`POSES_OPTIONAL_KEY`.
 """
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ def predict_to_bag(
     """Run ``predictor`` over ``recording`` and write everything to ``output``; returns the
     number of messages per topic. An ego-motion model gets the recording's poses; a recording
     without any is refused (:class:`PredictError`) unless the model may run without
-    (``poses_optional``: it then runs uncompensated)."""
+    (``poses_optional``: the Predictor then matches the motion from the scans)."""
     poses = recording.poses
     if predictor.uses_motion and not recording.has_poses and not predictor.poses_optional:
         source = recording.meta.get("source") or "the recording"
