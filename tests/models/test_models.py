@@ -399,3 +399,34 @@ def test_visibility_and_warp_inputs_feed_the_head_as_its_last_channels():
     for option in ("visibility_input", "warp_input"):
         with pytest.raises((ValueError, ModelError), match=option):
             build_model("flownet", **{option: True})
+
+
+def test_per_cell_head_sees_only_each_cells_own_inputs():
+    kwargs = {"occupancy_head": True, "head_hidden_channels": 8}
+    net = build_model("flownet", **kwargs, head_kernel_size=1, head_flow_features=False)
+    features = 1 + 2  # O^t and the two memories: no GRU features
+    assert count_parameters(net) == PAPER_PARAMETERS + features * 8 + 8 + 8 + 1 + 1
+    with torch.no_grad():
+        for p in (net.occupancy_hidden.weight, net.occupancy_hidden.bias):
+            p.uniform_(-1.0, 1.0)
+        net.conv_occupancy.weight.fill_(1.0)
+    scene = torch.zeros(1, 2, 10, 10)
+    scene[0, 0, 4, 3] = 1.0
+    out, _ = net.step(scene, net.init_state(1, 10, 10))
+    # The residual of a cell depends on that cell alone: equal wherever the inputs are equal
+    # (every empty cell, even the occupied cell's neighbours), though the GRUs' features differ.
+    residual = out[0, 4]
+    empty = scene[0, 0] == 0
+    torch.testing.assert_close(residual[empty], residual[0, 0].expand_as(residual[empty]))
+    assert residual[4, 3] != residual[0, 0]
+    # The 3x3 head with GRU features (the default) does see the neighbours.
+    spatial = build_model("flownet", **kwargs, zero_init_flow=False)
+    with torch.no_grad():
+        spatial.conv_occupancy.weight.fill_(1.0)
+    out, _ = spatial.step(scene, spatial.init_state(1, 10, 10))
+    assert out[0, 4, 4, 4] != out[0, 4, 0, 0]
+    for bad in ({"head_kernel_size": 2}, {"head_kernel_size": 0}):
+        with pytest.raises((ValueError, ModelError), match="head_kernel_size"):
+            build_model("flownet", **kwargs, **bad)
+    with pytest.raises((ValueError, ModelError), match="head_flow_features"):
+        build_model("flownet", head_flow_features=False)

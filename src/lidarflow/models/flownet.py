@@ -67,6 +67,13 @@ the warp reaches the prediction only through the global gain ``g``). Their weigh
 first layer start random like the others', and the output layer at zero, so the untrained model
 is still copy-last.
 
+A head of each cell's own past (``head_kernel_size=1``, ``head_flow_features=False``, with the
+occupancy head; issue 11). The head sees, per cell, only the current map, its memories and the
+constant-velocity map (no neighbours, no GRU features): trained on the hokuyo recordings, the
+spatial features fit that sensor's patterns and carry badly to another (a per-cell classifier of
+the same memories beat the 3x3 one on the 180-degree recording it had not seen). Motion still
+reaches the prediction through the flow's warp and the shifted memories.
+
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
 """
@@ -119,6 +126,8 @@ class LidarFlowNet(RecurrentMapModel):
     shift_memories: bool = False
     visibility_input: bool = False
     warp_input: bool = False
+    head_kernel_size: int = 3
+    head_flow_features: bool = True
 
     def __init__(
         self,
@@ -137,6 +146,8 @@ class LidarFlowNet(RecurrentMapModel):
         shift_memories: bool = False,
         visibility_input: bool = False,
         warp_input: bool = False,
+        head_kernel_size: int | None = None,
+        head_flow_features: bool = True,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -163,9 +174,17 @@ class LidarFlowNet(RecurrentMapModel):
             self.shift_memories = bool(shift_memories)
             self.visibility_input = bool(visibility_input)
             self.warp_input = bool(warp_input)
+            self.head_kernel_size = kernel_size if head_kernel_size is None else head_kernel_size
+            if self.head_kernel_size < 1 or self.head_kernel_size % 2 == 0:
+                raise ValueError(f"head_kernel_size must be odd and >= 1, got {head_kernel_size}")
+            self.head_flow_features = bool(head_flow_features)
         elif visibility_input or warp_input:
             raise ValueError(
                 "visibility_input and warp_input need occupancy_head=True (they feed it)"
+            )
+        elif head_kernel_size is not None or not head_flow_features:
+            raise ValueError(
+                "head_kernel_size and head_flow_features need occupancy_head=True (the head's)"
             )
         elif shift_memories:
             raise ValueError("shift_memories needs occupancy_head=True (they are the head's)")
@@ -195,15 +214,16 @@ class LidarFlowNet(RecurrentMapModel):
             free, occupied = (
                 math.log(p / (1.0 - p)) for p in (FREE_PROBABILITY_INIT, OCCUPIED_PROBABILITY_INIT)
             )
-            features = hidden_channels + 1 + len(self.memory_decays)
-            features += int(self.constant_velocity_input)
+            features = hidden_channels * int(self.head_flow_features) + 1
+            features += len(self.memory_decays) + int(self.constant_velocity_input)
             features += int(self.visibility_input) + int(self.warp_input)
+            head_k = self.head_kernel_size
             if self.head_hidden_channels:
                 hidden = self.head_hidden_channels
-                self.occupancy_hidden = nn.Conv2d(features, hidden, kernel_size, padding=pad)
+                self.occupancy_hidden = nn.Conv2d(features, hidden, head_k, padding=head_k // 2)
                 self.conv_occupancy = nn.Conv2d(hidden, 1, 1)
             else:
-                self.conv_occupancy = nn.Conv2d(features, 1, kernel_size, padding=pad)
+                self.conv_occupancy = nn.Conv2d(features, 1, head_k, padding=head_k // 2)
             nn.init.zeros_(self.conv_occupancy.weight)
             nn.init.constant_(self.conv_occupancy.bias, free)
             self.warp_gain = nn.Parameter(torch.tensor(occupied - free))
@@ -238,7 +258,8 @@ class LidarFlowNet(RecurrentMapModel):
             if self.shift_memories:
                 past = apply_shift(past, kernel)
         memory = decays * past + (1.0 - decays) * occupancy
-        features, kept = [x, occupancy], [memory]
+        features = [x, occupancy] if self.head_flow_features else [occupancy]
+        kept = [memory]
         if not self.memory_bias_correction:
             seen = memory
         else:
