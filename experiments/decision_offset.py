@@ -14,6 +14,13 @@ report, not to choose.
         --offsets 0 0.3 0.6 0.9 1.2 --choose ../shared/data/positive_{1,3,4}.bag \\
         --report ../shared/data/positive_2.bag
 
+With --free-offsets the choice is over pairs: ``decision_offset`` for the cells occupied in the
+last map (moved into the next frame by the model's flow) and ``decision_offset_free`` for the
+free ones. Pairs are too many to stream each: the model is streamed once per recording (offset
+0, `lidarflow evaluate`'s own loop, baselines in the same pass), and every pair is scored from
+its logits at the metric's threshold. The chosen pair's model folder is then what
+`lidarflow evaluate` runs on the --report recordings.
+
 Writes OUT/offset.json (every score, the margins, the choice).
 """
 
@@ -24,16 +31,34 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
+import torch
 from study import BASELINES, best_baselines, lidarflow
 
+from lidarflow.data import load_any
+from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.evaluate.ego import recording_motions
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
+from lidarflow.models.streaming import StreamingModel
+from lidarflow.ops.warp import warp
+from lidarflow.scan import GridSpec
+
+GRID = GridSpec()
 
 
-def with_offset(model: Path, offset: float, out: Path) -> Path:
-    folder = out / f"offset_{offset:g}"
+def with_offset(model: Path, offset: float, out: Path, free: float | None = None) -> Path:
+    name = f"offset_{offset:g}" if free is None else f"offset_{offset:g}_free_{free:g}"
+    folder = out / name
     folder.mkdir(parents=True, exist_ok=True)
     card = json.loads((model / "model.json").read_text())
-    card["model_kwargs"] = {**card.get("model_kwargs", {}), "decision_offset": offset}
+    kwargs = {**card.get("model_kwargs", {}), "decision_offset": offset}
+    kwargs.pop("decision_offset_free", None)
+    if free is not None:
+        kwargs["decision_offset_free"] = free
+    card["model_kwargs"] = kwargs
     (folder / "model.json").write_text(json.dumps(card, indent=2))
     shutil.copy(model / card.get("weights", "model.safetensors"), folder / "model.safetensors")
     resolve_model(folder)  # fails here, in one place, if the model has no occupancy head
@@ -74,6 +99,85 @@ def choose_offset(
     return max(totals, key=lambda o: totals[o]), models, scores, totals
 
 
+def _recording_pairs(
+    net: torch.nn.Module, path: Path, pairs: list[tuple[float, float]]
+) -> dict[str, dict]:
+    """One recording: the baselines and every offset pair, from one streaming pass."""
+    recording = load_any(path)
+    occupancy, visibility = recording.maps(GRID)
+    method = ModelMethod("model", StreamingModel(net))
+    baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
+    counts = {pair: [Counts(), Counts()] for pair in pairs}
+    threshold = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
+
+    def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
+        if name != "model" or flow is None:
+            return
+        current, target = occupancy[t], occupancy[t + 1]
+        p = np.clip(probability.astype(np.float64), 1e-12, 1.0 - 1e-12)
+        logit = np.log(p) - np.log1p(-p)
+        # The last map moved into the next frame, as the model's predict_next splits it.
+        moved = warp(
+            torch.from_numpy(current.astype(np.float32))[None, None],
+            torch.from_numpy(np.ascontiguousarray(flow[:2], np.float32))[None],
+        )
+        warped = moved.clamp(0.0, 1.0)[0, 0].numpy().astype(np.float64)
+        changed = current != target
+        for a, b in pairs:
+            predicted = logit + b + (a - b) * warped >= threshold
+            both = counts[(a, b)]
+            both[0] = both[0] + confusion(predicted, target)
+            both[1] = both[1] + confusion(predicted, target, changed)
+
+    methods = [method, *baselines]
+    motions = recording_motions(recording, GRID, methods, occupancy)
+    scorers = evaluate_maps(occupancy, visibility, methods, on_prediction=add, motions=motions)
+    row: dict = {
+        "baselines": {
+            b.name: {"f1": scorers[b.name].counts.f1, "changed_f1": scorers[b.name].changed.f1}
+            for b in baselines
+        }
+    }
+    for (a, b), (c, ch) in counts.items():
+        row[f"{a:g},{b:g}"] = {"f1": c.f1, "changed_f1": ch.f1}
+    return row
+
+
+def pair_scores(
+    model: Path, recordings: list[Path], offsets: list[float], free_offsets: list[float]
+) -> dict[str, dict]:
+    """``{recording: {"baselines": {...}, "occupied,free": {"f1", "changed_f1"}}}`` from one
+    streaming pass per recording (see the module's docstring)."""
+    net, _ = resolve_model(model)
+    head = getattr(net, "inner", net)  # an ego-motion wrapper's occupancy head
+    head.decision_offset, head.decision_offset_free = 0.0, None  # the head's own logit
+    pairs = [(a, b) for a in offsets for b in free_offsets]
+    return {path.name: _recording_pairs(net, path, pairs) for path in recordings}
+
+
+def choose_offset_pair(
+    model: Path,
+    recordings: list[Path],
+    offsets: list[float],
+    free_offsets: list[float],
+    out: Path,
+) -> tuple[tuple[float, float], Path, dict, dict[str, float]]:
+    """The (occupied, free) offsets with the largest summed win margin on ``recordings``, the
+    model folder with them, every pair's scores and the margins."""
+    cache = out / "pairs.json"
+    if cache.exists():
+        scores = json.loads(cache.read_text())
+    else:
+        scores = pair_scores(model, recordings, offsets, free_offsets)
+        out.mkdir(parents=True, exist_ok=True)
+        cache.write_text(json.dumps(scores, indent=1) + "\n")
+    keys = [f"{a:g},{b:g}" for a in offsets for b in free_offsets]
+    totals = {k: sum(margin(row[k], row["baselines"]) for row in scores.values()) for k in keys}
+    best = max(totals, key=lambda k: totals[k])
+    occupied, free = (float(v) for v in best.split(","))
+    return (occupied, free), with_offset(model, occupied, out, free), scores, totals
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-m", "--model", type=Path, required=True)
@@ -81,7 +185,18 @@ def main() -> None:
     parser.add_argument("--offsets", type=float, nargs="+", default=[0.0, 0.3, 0.6, 0.9, 1.2])
     parser.add_argument("--choose", type=Path, nargs="+", required=True)
     parser.add_argument("--report", type=Path, nargs="*", default=[])
+    parser.add_argument(
+        "--free-offsets",
+        type=float,
+        nargs="*",
+        default=[],
+        help="choose a pair: --offsets for the cells occupied in the last map, these for the "
+        "free ones",
+    )
     args = parser.parse_args()
+    if args.free_offsets:
+        main_pairs(args)
+        return
     best, models, chosen_on, totals = choose_offset(
         args.model, args.choose, args.offsets, args.output
     )
@@ -107,6 +222,37 @@ def main() -> None:
                 "offsets": args.offsets,
                 "margin_on_choose": {str(o): t for o, t in totals.items()},
                 "chosen": best,
+                "choose": chosen_on,
+                "report": reported,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+
+
+def main_pairs(args: argparse.Namespace) -> None:
+    (occupied, free), folder, chosen_on, totals = choose_offset_pair(
+        args.model, args.choose, args.offsets, args.free_offsets, args.output
+    )
+    print(
+        f"largest summed win margin on the training recordings: {max(totals.values()):+.4f} "
+        f"-> offsets {occupied:g} (occupied) / {free:g} (free): {folder}"
+    )
+    reported = (
+        pair_scores(args.model, args.report, args.offsets, args.free_offsets) if args.report else {}
+    )
+    for name, row in reported.items():
+        mine = row[f"{occupied:g},{free:g}"]
+        print(f"{name}: {mine['f1']:.3f}/{mine['changed_f1']:.3f}")
+    (args.output / "offset.json").write_text(
+        json.dumps(
+            {
+                "model": str(args.model),
+                "offsets": args.offsets,
+                "free_offsets": args.free_offsets,
+                "margin_on_choose": totals,
+                "chosen": [occupied, free],
                 "choose": chosen_on,
                 "report": reported,
             },

@@ -23,7 +23,7 @@ import shlex
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from decision_offset import choose_offset
+from decision_offset import choose_offset, choose_offset_pair
 from study import lidarflow, model_and_baselines, stem, verdict
 
 
@@ -35,10 +35,12 @@ def run_fold(
     extra: list[str],
     out: Path,
     offsets: list[float] | None = None,
+    free_offsets: list[float] | None = None,
 ) -> dict:
     """Train without ``held`` (unless done already), with ``offsets`` choose the decision
-    offset on the fold's own (real) training recordings, evaluate on ``held``, return its
-    scores (and the offset chosen)."""
+    offset on the fold's own (real) training recordings (with ``free_offsets`` too, a pair:
+    occupied cells', free cells'), evaluate on ``held``, return its scores (and the offset
+    chosen)."""
     folder = out / name / stem(held)
     run_dir, report = folder / "run", folder / "evaluation.json"
     train_on = [r for r in recordings if r != held]
@@ -46,8 +48,13 @@ def run_fold(
         lidarflow(
             "train", *map(str, train_on), *extra, *shlex.split(train_args), "-o", str(run_dir)
         )
-    model, chosen, margins = run_dir, None, {}
-    if offsets:
+    model, chosen, margins, free = run_dir, None, {}, None
+    if offsets and free_offsets:
+        (chosen, free), model, _, margins = choose_offset_pair(
+            run_dir, train_on, offsets, free_offsets, folder / "offset_pairs"
+        )
+        report = folder / "evaluation_pair.json"
+    elif offsets:
         chosen, models, _, margins = choose_offset(run_dir, train_on, offsets, folder / "offset")
         model = models[chosen]
     if not report.exists():
@@ -56,9 +63,12 @@ def run_fold(
     if chosen is None:
         return scores
     # The summed win margin of every offset on the fold's training recordings: why this one.
+    chosen_offsets = {"decision_offset": chosen}
+    if free is not None:
+        chosen_offsets["decision_offset_free"] = free
     return {
         **scores,
-        "decision_offset": chosen,
+        **chosen_offsets,
         "offset_margins": {str(o): m for o, m in margins.items()},
     }
 
@@ -72,13 +82,14 @@ def run_variant(
     jobs: int = 1,
     offsets: list[float] | None = None,
     held_out: list[Path] | None = None,
+    free_offsets: list[float] | None = None,
 ) -> dict[str, dict]:
     """The folds of one variant (every recording held out in turn, or those of ``held_out``),
     ``jobs`` at a time (give each training ``--threads``)."""
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = {
             stem(held): pool.submit(
-                run_fold, name, train_args, recordings, held, extra, out, offsets
+                run_fold, name, train_args, recordings, held, extra, out, offsets, free_offsets
             )
             for held in (held_out or recordings)
         }
@@ -99,7 +110,9 @@ def table(study: dict[str, dict[str, dict]]) -> list[str]:
             best_ch = max(b, key=lambda k: b[k]["changed_f1"])
             v = verdict(m, b)
             wins += v == "wins"
-            if "decision_offset" in r:
+            if "decision_offset_free" in r:
+                rec = f"{rec} (offsets {r['decision_offset']:g} / {r['decision_offset_free']:g})"
+            elif "decision_offset" in r:
                 rec = f"{rec} (offset {r['decision_offset']:g})"
             lines.append(
                 f"| {name} | {rec} | {m['f1']:.3f} | {m['changed_f1']:.3f} | {m['ap']:.3f} | "
@@ -139,6 +152,14 @@ def main() -> None:
         "(occupancy-head models; experiments/decision_offset.py); none: no offset",
     )
     parser.add_argument(
+        "--free-offsets",
+        type=float,
+        nargs="*",
+        default=[],
+        help="with --offsets: choose a pair per fold, --offsets for the cells occupied in the "
+        "last map and these for the free ones (model.kwargs.decision_offset_free)",
+    )
+    parser.add_argument(
         "--held-out",
         type=Path,
         nargs="*",
@@ -160,6 +181,7 @@ def main() -> None:
             args.jobs,
             args.offsets,
             args.held_out,
+            args.free_offsets,
         )
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "loo.json").write_text(json.dumps(study, indent=2))

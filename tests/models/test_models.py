@@ -430,3 +430,36 @@ def test_per_cell_head_sees_only_each_cells_own_inputs():
             build_model("flownet", **kwargs, **bad)
     with pytest.raises((ValueError, ModelError), match="head_flow_features"):
         build_model("flownet", head_flow_features=False)
+
+
+def test_free_cells_decision_offset_applies_where_the_warped_map_is_free():
+    torch.manual_seed(0)
+    plain = build_model("flownet", occupancy_head=True, zero_init_flow=False)
+    two = build_model(
+        "flownet",
+        occupancy_head=True,
+        zero_init_flow=False,
+        decision_offset=0.3,
+        decision_offset_free=1.1,
+    )
+    two.load_state_dict(plain.state_dict())
+    maps = _seq(1, 1, 12, 10, seed=3)[:, 0]
+    out, _ = plain.step(maps, plain.init_state(1, 12, 10))
+    warped = warp(maps[:, 0:1], out[:, 0:2]).clamp(0.0, 1.0)
+    assert (warped == 0).any() and (warped > 0.9).any() and ((warped > 0) & (warped < 0.9)).any()
+    shift = torch.logit(two.predict_next(maps, out)) - torch.logit(plain.predict_next(maps, out))
+    torch.testing.assert_close(shift, 1.1 - 0.8 * warped, atol=1e-4, rtol=0)
+    # The same offset both ways is the single-offset model (None, the default).
+    for free in (None, 0.3):
+        same = build_model(
+            "flownet",
+            occupancy_head=True,
+            zero_init_flow=False,
+            decision_offset=0.3,
+            decision_offset_free=free,
+        )
+        same.load_state_dict(plain.state_dict())
+        shift = torch.logit(same.predict_next(maps, out)) - torch.logit(plain.predict_next(maps, out))
+        torch.testing.assert_close(shift, torch.full_like(shift, 0.3), atol=1e-4, rtol=0)
+    with pytest.raises((ValueError, ModelError), match="decision_offset"):
+        build_model("flownet", decision_offset_free=0.5)
