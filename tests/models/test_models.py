@@ -459,7 +459,8 @@ def test_free_cells_decision_offset_applies_where_the_warped_map_is_free():
             decision_offset_free=free,
         )
         same.load_state_dict(plain.state_dict())
-        shift = torch.logit(same.predict_next(maps, out)) - torch.logit(plain.predict_next(maps, out))
+        shift = torch.logit(same.predict_next(maps, out))
+        shift -= torch.logit(plain.predict_next(maps, out))
         torch.testing.assert_close(shift, torch.full_like(shift, 0.3), atol=1e-4, rtol=0)
     with pytest.raises((ValueError, ModelError), match="decision_offset"):
         build_model("flownet", decision_offset_free=0.5)

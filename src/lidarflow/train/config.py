@@ -80,7 +80,9 @@ class DataConfig:
     the fraction of training windows served without their poses (identity motion, as a
     recording without odometry), so that a model meant to run both ways (``poses_optional``)
     also learns from a moving platform seen uncompensated; which windows is fixed per window,
-    so ``--resume`` sees the same.
+    so ``--resume`` sees the same. ``memories_from_stream`` (occupancy-head models): every
+    window starts with the head's memories as streaming its recording leaves them at the
+    window's first frame, not at zero (:mod:`lidarflow.train.warm`).
     """
 
     sources: list[str] = field(default_factory=list)
@@ -98,6 +100,7 @@ class DataConfig:
     max_gap_periods: float = 2.5
     num_workers: int = 0
     pose_dropout: float = 0.0
+    memories_from_stream: bool = False
 
 
 @dataclass

@@ -87,7 +87,8 @@ class Windows(Dataset):
     ``with_flow`` also float32 ``(T, 2, H, W)`` ground-truth backward flow (zeros where the
     recording has none) and a bool telling whether it is real. With ``motions`` (one float32
     ``(N, 3)`` array per recording, cells) the item also ends with the window's ``(T, 3)``
-    motions."""
+    motions. With ``start_states`` set (:func:`lidarflow.train.warm.stream_start_states`) it
+    ends with the occupancy head's state where streaming reaches the window's first frame."""
 
     def __init__(
         self,
@@ -106,19 +107,30 @@ class Windows(Dataset):
         self.with_flow = with_flow
         self.motions = None if motions is None else list(motions)
         self.pose_dropout = pose_dropout
+        # (recording, start, posed) -> the head's state before the window's first frame.
+        self.start_states: dict[tuple[int, int, bool], np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.index)
 
     def __getitem__(self, i: int) -> torch.Tensor | tuple[torch.Tensor | bool, ...]:
         item = self._item(i)
-        if self.motions is None:
-            return item
+        parts = list(item) if isinstance(item, tuple) else [item]
         rec, start = self.index[i]
-        motion = torch.from_numpy(self.motions[rec][start : start + self.length])
-        if self.pose_dropout and np.random.default_rng((rec, start)).random() < self.pose_dropout:
-            motion = torch.zeros_like(motion)
-        return (*item, motion) if isinstance(item, tuple) else (item, motion)
+        posed = self.motions is not None and not self.dropped(i)
+        if self.motions is not None:
+            motion = torch.from_numpy(self.motions[rec][start : start + self.length])
+            parts.append(motion if posed else torch.zeros_like(motion))
+        if self.start_states is not None:
+            parts.append(torch.from_numpy(self.start_states[(rec, start, posed)]))
+        return parts[0] if len(parts) == 1 else tuple(parts)
+
+    def dropped(self, i: int) -> bool:
+        """Whether window ``i`` is served without its poses (fixed per window)."""
+        rec, start = self.index[i]
+        return bool(self.pose_dropout) and (
+            np.random.default_rng((rec, start)).random() < self.pose_dropout
+        )
 
     def _item(self, i: int) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, bool]:
         rec, start = self.index[i]

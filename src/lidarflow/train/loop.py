@@ -41,6 +41,7 @@ from lidarflow.train.distributed import Dist, any_flag, barrier, setup
 from lidarflow.train.logbook import Logbook
 from lidarflow.train.rundir import prepare_run_dir, write_final
 from lidarflow.train.validate import validate
+from lidarflow.train.warm import split_batch, start_state, stream_start_states
 
 __all__ = ["TrainResult", "gaussian_size", "make_loss", "train"]
 
@@ -218,6 +219,13 @@ def _train(
             f"starting from the weights of {config.model.init}"
             + (" (occupancy head new)" if new_head else "")
         )
+    if config.data.memories_from_stream:
+        try:
+            for windows in (*data.sources, *([data.val] if data.val is not None else [])):
+                stream_start_states(model, windows)
+        except ValueError as err:
+            raise TrainError(f"data.memories_from_stream: {err}") from err
+        say("windows start from the head's memories as streaming leaves them")
     model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
     optimizer = _optimizer(config, _parameter_groups(model, config))
     scheduler = torch.optim.lr_scheduler.StepLR(
@@ -258,6 +266,7 @@ def _train(
             ctx,
             autocast,
             is_flow,
+            config.data.memories_from_stream,
         )
 
     if start == 0 and rt.eval_before_training and val_loader is not None:
@@ -267,6 +276,7 @@ def _train(
             book.log(row)
         say("untrained: " + _describe(row))
 
+    warm = config.data.memories_from_stream
     params = [p for p in model.parameters() if p.requires_grad]
     clip = config.optim.grad_clip if config.optim.grad_clip > 0 else math.inf
     limit = rt.divergence_limit
@@ -286,11 +296,11 @@ def _train(
             disable=None if ctx.is_main else True,
         )
         for step, batch in enumerate(bar, 1):
-            # ego-motion models get (maps, motions) batches: motions go to forward as well
-            maps_u8, *motions = batch if uses_ego_motion(model) else (batch,)
+            maps_u8, motions, first = split_batch(batch, uses_ego_motion(model), warm)
             seq = maps_u8.to(ctx.device, non_blocking=True).float()
+            state = start_state(model, seq, first)
             with autocast():
-                out, _ = net(seq, None, *(m.to(ctx.device) for m in motions))
+                out, _ = net(seq, state, *(m.to(ctx.device) for m in motions))
             loss = loss_fn(seq, out.float())
             optimizer.zero_grad(set_to_none=True)
             loss.backward()

@@ -23,6 +23,7 @@ from torch import Tensor
 
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.train.distributed import Dist, all_reduce_sum
+from lidarflow.train.warm import start_state
 
 __all__ = ["validate"]
 
@@ -42,16 +43,20 @@ def validate(
     ctx: Dist,
     autocast: Callable[[], AbstractContextManager[Any]],
     is_flow: bool,
+    warm: bool = False,
 ) -> dict[str, float]:
-    """Loss and prediction metrics of ``model`` (the unwrapped module) over ``loader``."""
+    """Loss and prediction metrics of ``model`` (the unwrapped module) over ``loader``
+    (``warm``: its windows carry the head's streamed start state, :mod:`lidarflow.train.warm`)."""
     model.eval()
     loss_sum = windows = 0.0
     net, copy, net_changed = Counts(), Counts(), Counts()
     epe = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]  # err, err_zero, n, err_moving, err_moving_zero, n_moving
     for maps_u8, flow_gt, has_flow, *motions in loader:  # motions: ego-motion models only
+        first = motions.pop() if warm else None  # the head's state streamed to the window
         seq = maps_u8.to(ctx.device).float()
         with autocast():
-            out, _ = model(seq, None, *(m.to(ctx.device) for m in motions))
+            state = start_state(model, seq, first)
+            out, _ = model(seq, state, *(m.to(ctx.device) for m in motions))
         out = out.float()
         loss_sum += float(loss_fn(seq, out)) * len(seq)
         windows += len(seq)

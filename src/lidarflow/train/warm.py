@@ -1,0 +1,95 @@
+"""Training windows that start where streaming leaves the occupancy head's memories.
+
+The head's memories are exponential averages of past maps, the slowest over hundreds of frames
+(decay 0.995). A training window is a few dozen frames and used to start from a zero state, so
+in training the slow memories stayed near zero, while in every streamed frame after the first
+minute they hold the scene's long-run average: the head met those values first at test time.
+The memories (and the constant-velocity input's previous map) are functions of the maps and the
+motions alone, not of any weight, so they are streamed here once per recording, and each window
+starts from the state streaming leaves at its first frame (``data.memories_from_stream``). The
+GRUs' states still start at zero: they depend on the weights being trained.
+
+A window served without its poses (``data.pose_dropout``) starts from the memories streamed
+without poses, as a recording without odometry would have left them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lidarflow.models import uses_ego_motion
+from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.train.data import Windows
+
+
+@torch.no_grad()
+def stream_states(
+    model: RecurrentMapModel,
+    maps: np.ndarray,
+    frames: list[int],
+    motions: np.ndarray | None = None,
+) -> dict[int, np.ndarray]:
+    """The last state tensor of ``model`` (the occupancy head's) before each of ``frames``,
+    streaming boolean ``maps`` ``(N, 2, H, W)`` from a zero state (with ``motions`` ``(N, 3)``
+    for an ego-motion model), as float16 ``(C, H, W)``."""
+    wanted = set(frames)
+    out: dict[int, np.ndarray] = {}
+    state = model.init_state(1, *maps.shape[-2:], device="cpu", dtype=torch.float32)
+    ego = uses_ego_motion(model)
+    for t in range(max(wanted, default=-1) + 1):
+        if t in wanted:
+            out[t] = state[-1][0].numpy().astype(np.float16)
+        x = torch.from_numpy(np.ascontiguousarray(maps[t], dtype=np.float32))[None]
+        if ego:
+            motion = None if motions is None else torch.from_numpy(motions[t])[None]
+            _, state = model.step(x, state, motion)  # type: ignore[call-arg]
+        else:
+            _, state = model.step(x, state)
+    return out
+
+
+def stream_start_states(model: RecurrentMapModel, windows: Windows) -> None:
+    """Set ``windows.start_states``: per window, the head's state where streaming its
+    recording reaches the window's first frame (with and without poses for ego-motion
+    windows). ``model`` must have an occupancy head (the state is its memories)."""
+    if not getattr(model, "occupancy_head", False):
+        raise ValueError("memories_from_stream needs a model with an occupancy head")
+    model = model.cpu().eval()
+    states: dict[tuple[int, int, bool], np.ndarray] = {}
+    for rec, maps in enumerate(windows.maps):
+        starts = sorted({start for r, start in windows.index if r == rec})
+        if not starts:
+            continue
+        plain = stream_states(model, maps, starts)
+        for start, state in plain.items():
+            states[(rec, start, False)] = state
+        if windows.motions is None:
+            continue
+        motions = windows.motions[rec]
+        posed = stream_states(model, maps, starts, motions) if motions.any() else plain
+        for start, state in posed.items():
+            states[(rec, start, True)] = state
+    windows.start_states = states
+
+
+def split_batch(
+    batch: torch.Tensor | list[torch.Tensor] | tuple[torch.Tensor, ...], ego: bool, warm: bool
+) -> tuple[torch.Tensor, list[torch.Tensor], torch.Tensor | None]:
+    """A training batch -> (maps, [motions] for ego-motion models, start state or None)."""
+    parts = list(batch) if (ego or warm) else [batch]
+    start = parts.pop() if warm else None
+    maps, *motions = parts
+    return maps, motions, start  # type: ignore[return-value]
+
+
+def start_state(
+    model: RecurrentMapModel, seq: torch.Tensor, start: torch.Tensor | None
+) -> tuple[torch.Tensor, ...] | None:
+    """The state to start ``seq`` ``(B, T, C, H, W)`` from: zeros (``None``), or zeros with
+    the head's state replaced by ``start`` ``(B, C_head, H, W)``."""
+    if start is None:
+        return None
+    b, _, _, h, w = seq.shape
+    zeros = model.init_state(b, h, w, device=seq.device, dtype=seq.dtype)
+    return (*zeros[:-1], start.to(device=seq.device, dtype=seq.dtype))
