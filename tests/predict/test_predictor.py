@@ -102,6 +102,15 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
         {"memory_decays": [0.5, 0.95], "head_hidden_channels": 4},
         {"memory_decays": [0.5, 0.95], "constant_velocity_input": True, "shift_memories": True},
         {"memory_decays": [0.5, 0.95], "visibility_input": True, "warp_input": True},
+        {
+            "memory_decays": [0.5, 0.95],
+            "constant_velocity_input": True,
+            "head_hidden_channels": 4,
+            "head_kernel_size": 1,
+            "head_flow_features": False,
+            "decision_offset": 0.4,
+            "decision_offset_free": 1.3,
+        },
     ],
     ids=[
         "bias_corrected_memories",
@@ -109,6 +118,7 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
         "hidden_layer",
         "shift_memories",
         "visibility_and_warp",
+        "per_cell_head_two_offsets",
     ],
 )
 def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recording, kwargs):
