@@ -82,7 +82,9 @@ class DataConfig:
     also learns from a moving platform seen uncompensated; which windows is fixed per window,
     so ``--resume`` sees the same. ``memories_from_stream`` (occupancy-head models): every
     window starts with the head's memories as streaming its recording leaves them at the
-    window's first frame, not at zero (:mod:`lidarflow.train.warm`).
+    window's first frame, not at zero (:mod:`lidarflow.train.warm`). ``scan_motions``
+    (ego-motion models): a recording without poses is trained on the motion matched from its
+    scans, as it is evaluated, rather than uncompensated.
     """
 
     sources: list[str] = field(default_factory=list)
@@ -101,6 +103,7 @@ class DataConfig:
     num_workers: int = 0
     pose_dropout: float = 0.0
     memories_from_stream: bool = False
+    scan_motions: bool = False
 
 
 @dataclass

@@ -30,7 +30,10 @@ every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx,
 ``dx, dy`` in cells (:mod:`lidarflow.data.motion`; index ``t`` is frame ``t`` in frame ``t - 1``,
 identity where a pose is unknown), appended as the item's last element. Without it the items are
 exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry identity
-motions instead (chosen by a hash of the window, the same every epoch).
+motions instead (chosen by a hash of the window, the same every epoch). With
+``DataConfig.scan_motions`` a recording without poses carries the motion matched from its scans
+(:mod:`lidarflow.data.scanmatch`, identity where no match counts), the motion ``evaluate`` and
+the ``Predictor`` give ``poses_optional`` models there.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from lidarflow.data import Recording, SequenceSet, load_any
 from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.scan import GridSpec
 from lidarflow.train.config import DataConfig
@@ -225,11 +229,20 @@ def _windows(
     motions = None
     if with_motion:
         motions = []
-        for rec in recordings:
+        for i, rec in enumerate(recordings):
+            source = rec.meta.get("source", "a recording")
+            if cfg.scan_motions and not rec.has_poses:
+                matched = scan_motions(seqs.maps[i][:, 0])
+                unmatched = np.isnan(matched).any(axis=1)
+                motions.append(np.where(unmatched[:, None], 0.0, matched).astype(np.float32))
+                notes.append(
+                    f"{source}: no poses; motion matched from its scans in "
+                    f"{int((~unmatched).sum())} of {len(rec) - 1} frame steps"
+                )
+                continue
             m, known = relative_motions(rec.poses, len(rec))
             motions.append(metres_to_cells(m, grid.res))
             if len(rec) > 1 and not known[1:].all():
-                source = rec.meta.get("source", "a recording")
                 notes.append(
                     f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
                     "steps; those steps are not ego-motion compensated"
