@@ -69,10 +69,11 @@ is still copy-last.
 
 A head of each cell's own past (``head_kernel_size=1``, ``head_flow_features=False``, with the
 occupancy head; issue 11). The head sees, per cell, only the current map, its memories and the
-constant-velocity map (no neighbours, no GRU features): trained on the hokuyo recordings, the
-spatial features fit that sensor's patterns and carry badly to another (a per-cell classifier of
-the same memories beat the 3x3 one on the 180-degree recording it had not seen). Motion still
-reaches the prediction through the flow's warp and the shifted memories.
+constant-velocity map (no neighbours, no GRU features). Why try it: a classifier of each cell's
+memories did better on the 180-degree recording it had not seen without neighbour features than
+with them (the others are 270-degree hokuyos). Measured in the model's own leave-one-out folds it
+did not win that recording either (docs/results/accuracy/loo/screen_cell_warm/), so it is off by
+default. Motion still reaches the prediction through the flow's warp and the shifted memories.
 
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
@@ -206,8 +207,9 @@ class LidarFlowNet(RecurrentMapModel):
         # ``decision_offset`` is then the occupied cells' own. A cell's change is a different bet
         # each way: an occupied cell predicted free gains only if it empties, a free one
         # predicted occupied only if it fills, and the two are not equally likely at the same
-        # logit. One offset for both lost demo_stationary at every value; two, chosen on the
-        # training recordings, won it (docs/results/accuracy/). ``None``: the same offset.
+        # logit. A per-cell classifier needed two thresholds to win demo_stationary; the model
+        # with two offsets has not won it (docs/results/accuracy/loo/screen_cell_warm/).
+        # ``None``: the same offset.
         self.decision_offset_free = (
             None if decision_offset_free is None else float(decision_offset_free)
         )
