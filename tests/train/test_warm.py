@@ -55,10 +55,11 @@ def _head_state_after(model, maps: np.ndarray, motions: np.ndarray | None) -> to
     return state[-1][0]
 
 
-@pytest.mark.parametrize("ego", [False, True])
-def test_each_window_starts_from_the_memories_streamed_to_its_first_frame(driving, ego):
+@pytest.mark.parametrize(("ego", "dropout"), [(False, 0.5), (True, 0.5), (True, 0.0)])
+def test_each_window_starts_from_the_memories_streamed_to_its_first_frame(driving, ego, dropout):
     kwargs = {**HEAD, "ego_motion": True, "poses_optional": True} if ego else HEAD
-    data = load_train_data(_config(driving, **{"data.pose_dropout": 0.5}).data, with_motion=ego)
+    config = _config(driving, **{"data.pose_dropout": dropout})
+    data = load_train_data(config.data, with_motion=ego)
     windows = data.sources[0]
     model = build_model("flownet", **kwargs)
     stream_start_states(model, windows)
@@ -77,9 +78,12 @@ def test_each_window_starts_from_the_memories_streamed_to_its_first_frame(drivin
             torch.testing.assert_close(got.float(), expected, atol=2e-3, rtol=0)
             assert got.abs().max() > 0.1  # the slow memory has built up
         served.add(posed)
-    # With pose dropout an ego-motion model's windows start from both trajectories, which differ.
-    assert served == ({True, False} if ego else {False})
-    if ego:
+    # With pose dropout an ego-motion model's windows start from both trajectories, which differ;
+    # without it only the posed one is streamed.
+    assert served == ({True, False} if ego and dropout else {True} if ego else {False})
+    if ego and not dropout:
+        assert not any(not posed for _, _, posed in windows.start_states)
+    elif ego:
         posed = [k for k in windows.start_states if k[2] and k[1] > 0]
         assert any(
             not np.array_equal(windows.start_states[k], windows.start_states[(k[0], k[1], False)])

@@ -51,8 +51,9 @@ def stream_states(
 
 def stream_start_states(model: RecurrentMapModel, windows: Windows) -> None:
     """Set ``windows.start_states``: per window, the head's state where streaming its
-    recording reaches the window's first frame (with and without poses for ego-motion
-    windows). ``model`` must have an occupancy head (the state is its memories)."""
+    recording reaches the window's first frame (with poses, and without them where windows are
+    served without). ``model`` must have an occupancy head (the state is its memories); it is
+    left on the CPU in eval mode."""
     if not getattr(model, "occupancy_head", False):
         raise ValueError("memories_from_stream needs a model with an occupancy head")
     model = model.cpu().eval()
@@ -61,15 +62,17 @@ def stream_start_states(model: RecurrentMapModel, windows: Windows) -> None:
         starts = sorted({start for r, start in windows.index if r == rec})
         if not starts:
             continue
-        plain = stream_states(model, maps, starts)
-        for start, state in plain.items():
-            states[(rec, start, False)] = state
-        if windows.motions is None:
-            continue
-        motions = windows.motions[rec]
-        posed = stream_states(model, maps, starts, motions) if motions.any() else plain
-        for start, state in posed.items():
-            states[(rec, start, True)] = state
+        motions = None if windows.motions is None else windows.motions[rec]
+        moving = motions is not None and bool(motions.any())
+        posed = stream_states(model, maps, starts, motions) if moving else None
+        # Without poses: every window of a model without ego motion, and those pose dropout
+        # serves without (a recording that never moves is the same both ways).
+        plain = None if moving and not windows.pose_dropout else stream_states(model, maps, starts)
+        for start in starts:
+            if plain is not None:
+                states[(rec, start, False)] = plain[start]
+            if motions is not None:
+                states[(rec, start, True)] = (posed if posed is not None else plain)[start]
     windows.start_states = states
 
 
