@@ -167,6 +167,8 @@ def main() -> None:
         help="run only the folds holding out these (some of --recordings; default: every one)",
     )
     args = parser.parse_args()
+    if args.free_offsets and not args.offsets:
+        parser.error("--free-offsets needs --offsets (the occupied cells' offsets of each pair)")
     if unknown := [str(p) for p in args.held_out if p not in args.recordings]:
         parser.error(f"--held-out must be among --recordings: {', '.join(unknown)}")
     study = {}
