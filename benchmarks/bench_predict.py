@@ -8,7 +8,10 @@ given thread counts. Batched: scans/s for B streams stepped together (many robot
 An ego-motion model (the bundled one since v5) is given a pose with every scan, a slow drive
 (5 cm and 0.5 degrees a scan), so every backend pays for the compensation as a robot with
 odometry does (without a pose PyTorch skips it and the ONNX graph does not; the odometry check
-is off, since the sample's sensor stands still and the check would drop that drive). Writes JSON
+is off, since the sample's sensor stands still and the check would drop that drive). These run
+with fixed decision offsets; ``onnxruntime_fp32_online`` adds the offsets chosen online
+(:mod:`lidarflow.evaluate.online`, NumPy after the graph), its cost a ratio against the same
+backend without it. Writes JSON
 (default ``benchmarks/results/predict.json``).
 
     python benchmarks/bench_predict.py [--scans 200] [--threads 1 2] [--batch 32]
@@ -110,20 +113,26 @@ def main() -> None:
         )
         for threads in args.threads:
             torch.set_num_threads(threads)
-            ref = latency(Predictor(None, threads=threads, check_odometry=False), scans)
-            ort = latency(Predictor(onnx_path, threads=threads, check_odometry=False), scans)
-            ort8 = latency(Predictor(int8_path, threads=threads, check_odometry=False), scans)
+            fixed = {"threads": threads, "check_odometry": False, "online_decision": False}
+            ref = latency(Predictor(None, **fixed), scans)
+            ort = latency(Predictor(onnx_path, **fixed), scans)
+            ort8 = latency(Predictor(int8_path, **fixed), scans)
+            online = {**fixed, "online_decision": True}
+            ort_online = latency(Predictor(onnx_path, **online), scans)
             results[f"threads={threads}"] = {
                 "torch_eager_fp32": ref,
                 "onnxruntime_fp32": ort,
                 "onnxruntime_int8": ort8,
+                "onnxruntime_fp32_online": ort_online,
+                "online_decision_cost_vs_fixed": ort_online["median_ms"] / ort["median_ms"],
                 "onnxruntime_speedup_vs_torch": ref["median_ms"] / ort["median_ms"],
                 "onnxruntime_int8_speedup_vs_torch": ref["median_ms"] / ort8["median_ms"],
             }
             print(
                 f"threads={threads}: torch {ref['median_ms']:.2f} ms (p99 {ref['p99_ms']:.2f}), "
                 f"onnxruntime {ort['median_ms']:.2f} ms (p99 {ort['p99_ms']:.2f}), "
-                f"int8 {ort8['median_ms']:.2f} ms (p99 {ort8['p99_ms']:.2f})"
+                f"int8 {ort8['median_ms']:.2f} ms (p99 {ort8['p99_ms']:.2f}), "
+                f"onnxruntime with the online decision {ort_online['median_ms']:.2f} ms"
             )
         steps = 5 if args.device == "cpu" else 50
         rate = batched(net, args.batch, steps, max(args.threads), args.device)

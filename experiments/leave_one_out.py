@@ -12,6 +12,10 @@ evaluations are reused, so an interrupted study continues where it stopped.
         --variant "residual=--recipe residual --init runs/sim_pretrain --epochs 3" \\
         --variant "blurred=--recipe blurred --epochs 3"
 
+With --online-decision every fold's model is evaluated with its decision offsets chosen on
+the held-out recording as it streams (`lidarflow evaluate --online-decision`; past frames
+only); the table scores that, and each fold's JSON keeps the fixed offsets' scores beside it.
+
 Writes OUT/loo.json and OUT/loo.md (one row per variant and held-out recording).
 """
 
@@ -24,7 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from decision_offset import choose_offset, choose_offset_pair
-from study import lidarflow, model_and_baselines, stem, verdict
+from study import METRICS, lidarflow, model_and_baselines, stem, verdict
 
 
 def run_fold(
@@ -36,10 +40,12 @@ def run_fold(
     out: Path,
     offsets: list[float] | None = None,
     free_offsets: list[float] | None = None,
+    online: bool = False,
 ) -> dict:
     """Train without ``held`` (unless done already), with ``offsets`` choose the decision
     offset on the fold's own (real) training recordings (with ``free_offsets`` too, a pair:
-    occupied cells', free cells'), evaluate on ``held``, return its scores (and the offset
+    occupied cells', free cells'), evaluate on ``held`` (``online``: also with the offsets
+    chosen as it streams, which is then the model scored), return its scores (and the offset
     chosen)."""
     folder = out / name / stem(held)
     run_dir, report = folder / "run", folder / "evaluation.json"
@@ -57,9 +63,27 @@ def run_fold(
     elif offsets:
         chosen, models, _, margins = choose_offset(run_dir, train_on, offsets, folder / "offset")
         model = models[chosen]
+    if online:
+        report = report.with_name(report.stem + "_online.json")
     if not report.exists():
-        lidarflow("evaluate", str(held), "--model", str(model), "--json", str(report))
-    scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
+        flags = ["--online-decision"] if online else []
+        lidarflow("evaluate", str(held), "--model", str(model), *flags, "--json", str(report))
+    methods = json.loads(report.read_text())["recordings"][0]["methods"]
+    fixed = None
+    if online:
+        # The model's own rule is NAME; the other is NAME_online or NAME_fixed.
+        if fixed_keys := [k for k in methods if k.endswith("_fixed")]:
+            fixed = methods.pop(fixed_keys[0])
+        else:
+            (fixed_key,) = [k for k in methods if k + "_online" in methods]
+            fixed = methods.pop(fixed_key)
+    scores = model_and_baselines(methods)
+    if fixed is not None:
+        scores = {
+            **scores,
+            "online_decision": True,
+            "fixed_offsets": {k: fixed[k] for k in METRICS},
+        }
     if chosen is None:
         return scores
     # The summed win margin of every offset on the fold's training recordings: why this one.
@@ -83,13 +107,23 @@ def run_variant(
     offsets: list[float] | None = None,
     held_out: list[Path] | None = None,
     free_offsets: list[float] | None = None,
+    online: bool = False,
 ) -> dict[str, dict]:
     """The folds of one variant (every recording held out in turn, or those of ``held_out``),
     ``jobs`` at a time (give each training ``--threads``)."""
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = {
             stem(held): pool.submit(
-                run_fold, name, train_args, recordings, held, extra, out, offsets, free_offsets
+                run_fold,
+                name,
+                train_args,
+                recordings,
+                held,
+                extra,
+                out,
+                offsets,
+                free_offsets,
+                online,
             )
             for held in (held_out or recordings)
         }
@@ -110,7 +144,9 @@ def table(study: dict[str, dict[str, dict]]) -> list[str]:
             best_ch = max(b, key=lambda k: b[k]["changed_f1"])
             v = verdict(m, b)
             wins += v == "wins"
-            if "decision_offset_free" in r:
+            if r.get("online_decision"):
+                rec = f"{rec} (offsets online)"
+            elif "decision_offset_free" in r:
                 rec = f"{rec} (offsets {r['decision_offset']:g} / {r['decision_offset_free']:g})"
             elif "decision_offset" in r:
                 rec = f"{rec} (offset {r['decision_offset']:g})"
@@ -166,6 +202,13 @@ def main() -> None:
         default=[],
         help="run only the folds holding out these (some of --recordings; default: every one)",
     )
+    parser.add_argument(
+        "--online-decision",
+        action="store_true",
+        help="score each fold's model with its decision offsets chosen online on the held-out "
+        "recording (lidarflow evaluate --online-decision); the fixed offsets' scores are kept "
+        "in loo.json",
+    )
     args = parser.parse_args()
     if args.free_offsets and not args.offsets:
         parser.error("--free-offsets needs --offsets (the occupied cells' offsets of each pair)")
@@ -184,6 +227,7 @@ def main() -> None:
             args.offsets,
             args.held_out,
             args.free_offsets,
+            args.online_decision,
         )
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "loo.json").write_text(json.dumps(study, indent=2))

@@ -6,6 +6,7 @@ exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see traceba
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -275,14 +276,17 @@ def _methods_and_config(
     moving_threshold: float | None = None,
     ego_oracle: bool = False,
     with_poses: bool = True,
+    online: bool = False,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
     configuration that describes them for the report. With an ego-motion model among them and
     recordings with poses (``with_poses``) the copy-last-moved-by-odometry baseline comes too
     (without poses it would be copy-last again); ``ego_oracle`` adds the variants that know the
-    true next pose."""
+    true next pose; ``online`` adds, for each model, the decision rule it was not built with:
+    ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
-    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.evaluate.model_method import ModelMethod, model_wants_online_decision
+    from lidarflow.evaluate.online import OnlineDecisionConfig
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
     from lidarflow.models.weights import describe_source
@@ -301,6 +305,16 @@ def _methods_and_config(
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
         if methods[-1].uses_motion and ego_oracle:
             methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True))
+        if online:  # the other decision rule beside the model's own
+            wants_online = model_wants_online_decision(net)
+            methods.append(
+                ModelMethod(
+                    name + ("_fixed" if wants_online else "_online"),
+                    StreamingModel(net),
+                    moving_threshold,
+                    online=not wants_online,
+                )
+            )
     if with_poses and any(getattr(m, "uses_motion", False) for m in methods):
         from lidarflow.evaluate.ego import CopyLastEgo
 
@@ -316,6 +330,12 @@ def _methods_and_config(
             "rule": "occupied and |forward flow - fitted background flow| > threshold",
         },
     }
+    if online or any(getattr(m, "online", None) is not None for m in methods):
+        config["online_decision"] = {
+            **dataclasses.asdict(OnlineDecisionConfig()),
+            "rule": "each frame, the (occupied, free) offset pair with the largest decayed win "
+            "margin over the three baselines on the frames scored so far",
+        }
     if any(getattr(m, "uses_motion", False) for m in methods):
         config["ego_motion"] = (
             "models built with ego_motion get the recordings' poses (odometry); the motion to "
@@ -384,6 +404,17 @@ def evaluate(
             "predictions, as `predict --horizon`; copy-last beside them); JSON key horizon_f1.",
         ),
     ] = 1,
+    online_decision: Annotated[
+        bool,
+        typer.Option(
+            "--online-decision",
+            help="Score each occupancy-head model both ways: with its fixed decision offsets and "
+            "with offsets chosen online (every frame, the pair of offsets, for the cells occupied "
+            "/ free in the last map moved by the model's flow, that would have beaten the three "
+            "baselines by the most on the frames so far; past frames only). The one the model "
+            "was not built with is NAME_online or NAME_fixed.",
+        ),
+    ] = False,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     moving_threshold: MovingOpt = None,
@@ -413,7 +444,13 @@ def evaluate(
     named = [(str(path), _load(path, topic, odom_topic)) for path in inputs]
     with_poses = any(recording.has_poses for _, recording in named)
     methods, config = _methods_and_config(
-        list(model or []), ta_window, ta_threshold, moving_threshold, ego_oracle, with_poses
+        list(model or []),
+        ta_window,
+        ta_threshold,
+        moving_threshold,
+        ego_oracle,
+        with_poses,
+        online_decision,
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
     report = evaluate_and_report(

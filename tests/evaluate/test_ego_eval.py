@@ -18,7 +18,7 @@ from lidarflow.evaluate.stream import evaluate_recording
 from lidarflow.models import build_model
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.predict import Predictor
-from lidarflow.predict.export import export_onnx, poses_optional_mark
+from lidarflow.predict.export import copy_marks, export_onnx
 from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
@@ -168,7 +168,7 @@ def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driv
     assert Predictor(onnx_path, GRID).poses_optional
     plain = export_onnx(build_model("flownet", ego_motion=True), tmp_path / "plain.onnx", 40, 40)
     assert not Predictor(plain, GRID).poses_optional
-    poses_optional_mark(onnx_path, plain)
+    copy_marks(onnx_path, plain)
     assert Predictor(plain, GRID).poses_optional
 
 

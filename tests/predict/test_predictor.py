@@ -136,3 +136,46 @@ def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recordi
     for scan in frames(sample_recording, 12):
         a, b = torch_p.update(scan), onnx_p.update(scan)
     np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
+
+
+def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
+    tmp_path, sample_recording
+):
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.models.streaming import StreamingModel
+    from lidarflow.scan import GridSpec
+
+    # Untrained, the head is copy-last at logit 2.2: an occupied-cell offset of -3 predicts
+    # nothing, so the offsets chosen online are not the model's.
+    kwargs = {"occupancy_head": True, "decision_offset": -3.0, "online_decision": True}
+    folder = make_model_dir(tmp_path / "m", seed=2, zero_init_flow=False, **kwargs)
+    net, _ = resolve_model(folder)
+    onnx_path = export_onnx(net, tmp_path / "m.onnx")
+    torch_p, onnx_p = Predictor(folder), Predictor(onnx_path)
+    fixed = Predictor(folder, online_decision=False)
+    assert torch_p.online is not None and onnx_p.online is not None and fixed.online is None
+    method = ModelMethod("m", StreamingModel(net))  # the model asks for it: online here too
+    occupancy, visibility = sample_recording.slice(0, 25).maps(GridSpec())
+    for occ, vis in zip(occupancy, visibility, strict=True):
+        a, b = torch_p.update((occ, vis)), onnx_p.update((occ, vis))
+        assert np.allclose(a.probability, method.update(occ, vis), atol=1e-6)
+        assert np.abs(a.probability - b.probability).max() < 1e-4
+        assert np.array_equal(a.horizon[0], a.probability)
+        own = fixed.update((occ, vis))
+    assert torch_p.online.offsets == onnx_p.online.offsets != (-3.0, -3.0)
+    assert not own.occupied.any() and a.occupied.any()
+
+
+def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, random_flownet_dir):
+    import onnx
+
+    with pytest.raises(PredictError, match="occupancy-head"):
+        Predictor(random_flownet_dir, online_decision=True)
+    net, _ = resolve_model(make_model_dir(tmp_path / "h", occupancy_head=True))
+    path = export_onnx(net, tmp_path / "h.onnx")
+    assert Predictor(path, online_decision=True).online is not None
+    old = onnx.load(str(path))  # as exported before the decision was marked
+    del old.metadata_props[:]
+    onnx.save(old, str(path))
+    with pytest.raises(PredictError, match="export it again"):
+        Predictor(path, online_decision=True)

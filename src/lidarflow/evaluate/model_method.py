@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from lidarflow.data.motion import OdometryCheck
+from lidarflow.errors import EvaluateError
+from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, moved_last_map
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
-__all__ = ["ModelMethod"]
+__all__ = [
+    "ModelMethod",
+    "model_wants_online_decision",
+    "online_decision",
+]
 
 
 class ModelMethod:
@@ -21,7 +28,12 @@ class ModelMethod:
     Ego-motion models (``uses_motion``) take the frame's ``motion`` (cells, this frame in the
     previous one, see :mod:`lidarflow.data.motion`) in ``update``; ``oracle=True`` also takes
     the true ``next_motion`` instead of the causal constant-velocity guess (an upper bound that
-    needs the future pose, for evaluation only)."""
+    needs the future pose, for evaluation only).
+
+    ``online`` re-decides an occupancy-head model's probability with the decision offsets that
+    have done best on the recording so far (:mod:`lidarflow.evaluate.online`): ``None`` does so
+    where the model asks for it (``online_decision`` in its kwargs), ``True`` / ``False`` always
+    / never, a config with that configuration."""
 
     def __init__(
         self,
@@ -29,6 +41,7 @@ class ModelMethod:
         stream: StreamingModel,
         moving_threshold: float = MOVING_THRESHOLD,
         oracle: bool = False,
+        online: bool | OnlineDecisionConfig | None = None,
     ) -> None:
         self.name = name
         self.stream = stream
@@ -39,6 +52,11 @@ class ModelMethod:
         # with the scans (e.g. a base's odometry read as a scanner's turned on the base).
         self.odometry = OdometryCheck() if self.poses_optional else None
         self.oracle = oracle and self.uses_motion
+        if online is None:
+            online = model_wants_online_decision(stream.model)
+        if online is True:
+            online = OnlineDecisionConfig()
+        self.online = online_decision(stream.model, online) if online else None
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None
         self._occupancy: np.ndarray | None = None
@@ -56,6 +74,8 @@ class ModelMethod:
         self.backward_flow = self.forward_flow = self._occupancy = self._moving = None
         if self.odometry is not None:
             self.odometry.reset()
+        if self.online is not None:
+            self.online.reset()
 
     def update(
         self,
@@ -74,4 +94,24 @@ class ModelMethod:
             self.backward_flow = self.forward_flow = None
         else:
             self.backward_flow, self.forward_flow = result.flow[:2], result.flow[2:]
-        return result.probability
+        if self.online is None:
+            return result.probability
+        return self.online.update(
+            result.probability, occupancy, visibility, moved_last_map(occupancy, self.backward_flow)
+        )
+
+
+def model_wants_online_decision(model: torch.nn.Module) -> bool:
+    """Whether ``model`` (or the head inside an ego-motion wrapper) was built to choose its
+    decision offsets online."""
+    return bool(getattr(getattr(model, "inner", model), "online_decision", False))
+
+
+def online_decision(model: torch.nn.Module, config: OnlineDecisionConfig) -> OnlineDecision:
+    """An :class:`OnlineDecision` that starts from ``model``'s own decision offsets."""
+    head = getattr(model, "inner", model)  # an ego-motion wrapper's occupancy head
+    if not getattr(head, "occupancy_head", False):
+        raise EvaluateError(
+            "the online decision re-decides an occupancy head's probability; this model has none"
+        )
+    return OnlineDecision(head.decision_offset, head.decision_offset_free, config)

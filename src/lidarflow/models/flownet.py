@@ -75,6 +75,11 @@ with them (the others are 270-degree hokuyos). Measured in the model's own leave
 did not win that recording either (docs/results/accuracy/loo/screen_cell_warm/), so it is off by
 default. Motion still reaches the prediction through the flow's warp and the shifted memories.
 
+Offsets chosen online (``online_decision=True``, with the occupancy head; issue 11). The model
+is unchanged; the flag tells ``evaluate`` and the ``Predictor`` to re-decide its probabilities
+with the decision offsets that have done best on the stream so far
+(:mod:`lidarflow.evaluate.online`).
+
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
 """
@@ -130,6 +135,7 @@ class LidarFlowNet(RecurrentMapModel):
     warp_input: bool = False
     head_kernel_size: int = 3
     head_flow_features: bool = True
+    online_decision: bool = False
 
     def __init__(
         self,
@@ -151,6 +157,7 @@ class LidarFlowNet(RecurrentMapModel):
         warp_input: bool = False,
         head_kernel_size: int | None = None,
         head_flow_features: bool = True,
+        online_decision: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -193,8 +200,8 @@ class LidarFlowNet(RecurrentMapModel):
             raise ValueError("shift_memories needs occupancy_head=True (they are the head's)")
         elif head_hidden_channels:
             raise ValueError("head_hidden_channels needs occupancy_head=True (it is the head's)")
-        elif decision_offset or decision_offset_free is not None:
-            raise ValueError("decision_offset needs occupancy_head=True (it shifts its logit)")
+        elif decision_offset or decision_offset_free is not None or online_decision:
+            raise ValueError("decision offsets need occupancy_head=True (they shift its logit)")
         elif constant_velocity_input:
             raise ValueError("constant_velocity_input needs occupancy_head=True (it feeds it)")
         # Added to the head's logit when predicting, never in training (the cross-entropy
@@ -213,6 +220,10 @@ class LidarFlowNet(RecurrentMapModel):
         self.decision_offset_free = (
             None if decision_offset_free is None else float(decision_offset_free)
         )
+        # Not used by the network: it tells the streaming users (evaluate, the Predictor) to
+        # choose the offsets online, on the stream's own past frames, starting from these
+        # (lidarflow.evaluate.online).
+        self.online_decision = bool(online_decision)
         self.conv0 = nn.Conv2d(in_channels, hidden_channels, kernel_size, padding=pad)
         self.act0 = nn.ReLU() if conv0_activation == "relu" else nn.Identity()
         self.grus = nn.ModuleList(

@@ -6,6 +6,7 @@ out; the state is opaque to the caller (tensors for torch, arrays for onnxruntim
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -16,8 +17,18 @@ from lidarflow.errors import PredictError
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
 #: (written by :func:`lidarflow.predict.export.export_onnx`).
 POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
+#: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "offset_free":
+#: b or null, "online": bool}``, what the Predictor needs to choose the offsets online.
+DECISION_KEY = "lidarflow.decision"
 
-__all__ = ["OnnxBackend", "TorchBackend", "split_step_inputs"]
+__all__ = [
+    "DECISION_KEY",
+    "POSES_OPTIONAL_KEY",
+    "OnnxBackend",
+    "TorchBackend",
+    "decision_of",
+    "split_step_inputs",
+]
 
 
 def split_step_inputs(inputs: list[Any]) -> tuple[bool, list[Any]]:
@@ -25,6 +36,19 @@ def split_step_inputs(inputs: list[Any]) -> tuple[bool, list[Any]]:
     ego-motion graphs, then the states; see :mod:`lidarflow.predict.export`)."""
     uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
     return uses_motion, list(inputs[1 + uses_motion :])
+
+
+def decision_of(model: Any) -> dict[str, Any] | None:
+    """An occupancy-head model's ``{"offset", "offset_free", "online"}`` (the head inside an
+    ego-motion wrapper); ``None`` for a model without one."""
+    head = getattr(model, "inner", model)
+    if not getattr(head, "occupancy_head", False):
+        return None
+    return {
+        "offset": float(head.decision_offset),
+        "offset_free": head.decision_offset_free,
+        "online": bool(getattr(head, "online_decision", False)),
+    }
 
 
 class TorchBackend:
@@ -41,6 +65,7 @@ class TorchBackend:
         self.out_channels = int(model.out_channels)
         self.uses_motion = bool(getattr(model, "ego_motion", False))
         self.poses_optional = bool(getattr(model, "poses_optional", False))
+        self.decision = decision_of(model)
 
     def init_state(self, height: int, width: int) -> Any:
         return self.model.init_state(1, height, width, device=self.device)
@@ -87,6 +112,8 @@ class OnnxBackend:
         self.uses_motion, state_inputs = split_step_inputs(inputs)
         marks = self.session.get_modelmeta().custom_metadata_map
         self.poses_optional = marks.get(POSES_OPTIONAL_KEY) == "true"
+        # Files exported before the mark existed have none: no online decision for them.
+        self.decision = json.loads(marks[DECISION_KEY]) if DECISION_KEY in marks else None
         self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])

@@ -10,11 +10,13 @@ Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more inpu
 ``dyaw`` in radians (zeros: no motion / unknown); the motion to the next frame is taken to be the
 same (constant velocity), as in PyTorch. One built with ``poses_optional`` (it may run without
 poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
-:data:`POSES_OPTIONAL_KEY`.
+:data:`POSES_OPTIONAL_KEY`. An occupancy-head model's decision offsets (and whether to choose
+them online) are in :data:`DECISION_KEY`, so that the Predictor can choose them online.
 """
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 
@@ -23,9 +25,9 @@ from torch import Tensor, nn
 
 from lidarflow.errors import PredictError
 from lidarflow.models.recurrent import RecurrentMapModel
-from lidarflow.predict.backends import POSES_OPTIONAL_KEY
+from lidarflow.predict.backends import DECISION_KEY, POSES_OPTIONAL_KEY, decision_of
 
-__all__ = ["OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "export_onnx", "poses_optional_mark"]
+__all__ = ["DECISION_KEY", "OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "copy_marks", "export_onnx"]
 
 OPSET = 17
 
@@ -80,20 +82,33 @@ def export_onnx(
             )
         except Exception as err:  # the exporter raises many types
             raise PredictError(f"ONNX export failed: {type(err).__name__}: {err}") from err
+    marks = {}
     if getattr(model, "poses_optional", False):
-        poses_optional_mark(path, path)
+        marks[POSES_OPTIONAL_KEY] = "true"
+    if (decision := decision_of(model)) is not None:
+        marks[DECISION_KEY] = json.dumps(decision)
+    if marks:
+        _write_marks(path, marks)
     return path
 
 
-def poses_optional_mark(source: str | Path, target: str | Path) -> None:
-    """Copy ``source``'s poses-optional mark to the ONNX file ``target`` (the same file marks
-    itself), so that a graph rewritten from another (int8) keeps it."""
+def _write_marks(path: Path, marks: dict[str, str]) -> None:
     import onnx
 
-    if source != target:
-        marked = {p.key: p.value for p in onnx.load(str(source)).metadata_props}
-        if marked.get(POSES_OPTIONAL_KEY) != "true":
-            return
-    model = onnx.load(str(target))
-    onnx.helper.set_model_props(model, {POSES_OPTIONAL_KEY: "true"})
-    onnx.save(model, str(target))
+    model = onnx.load(str(path))
+    onnx.helper.set_model_props(model, marks)
+    onnx.save(model, str(path))
+
+
+def copy_marks(source: str | Path, target: str | Path) -> None:
+    """Copy ``source``'s lidarflow metadata (poses optional, decision) to the ONNX file
+    ``target``, so that a graph rewritten from another (int8) keeps it."""
+    import onnx
+
+    marks = {
+        p.key: p.value
+        for p in onnx.load(str(source)).metadata_props
+        if p.key.startswith("lidarflow.")
+    }
+    if marks:
+        _write_marks(Path(target), marks)

@@ -30,6 +30,7 @@ from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motio
 from lidarflow.data.scanmatch import match_maps
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.online import OnlineDecision, moved_last_map
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
 from lidarflow.scan import GridSpec, Scan, rasterize
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
@@ -94,6 +95,10 @@ class Predictor:
         scan_odometry: for such a model, where no pose is given, take the motion from the scans
             (:mod:`lidarflow.data.scanmatch`, ~1.7 ms a scan); off: those steps run
             uncompensated.
+        online_decision: re-decide an occupancy-head model's next map with the decision offsets
+            that have done best on this stream so far (:mod:`lidarflow.evaluate.online`; the
+            roll-out beyond the first frame still feeds back the model's own). ``None``: where
+            the model asks for it (``online_decision`` in its kwargs or the ONNX file's marks).
     """
 
     def __init__(
@@ -106,6 +111,7 @@ class Predictor:
         moving_threshold: float = MOVING_THRESHOLD,
         check_odometry: bool = True,
         scan_odometry: bool = True,
+        online_decision: bool | None = None,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
@@ -129,6 +135,20 @@ class Predictor:
         self._odometry = OdometryCheck() if check_odometry else None
         self.scan_odometry = scan_odometry
         self._previous: np.ndarray | None = None
+        self.online = self._online_decision(online_decision)
+
+    def _online_decision(self, wanted: bool | None) -> OnlineDecision | None:
+        decision = getattr(self.backend, "decision", None)
+        if wanted is None:
+            wanted = bool(decision and decision["online"])
+        if not wanted:
+            return None
+        if decision is None:
+            raise PredictError(
+                "the online decision needs an occupancy-head model (an ONNX file exported "
+                "before lidarflow marked the decision offsets in it: export it again)"
+            )
+        return OnlineDecision(decision["offset"], decision["offset_free"])
 
     @property
     def uses_motion(self) -> bool:
@@ -148,6 +168,8 @@ class Predictor:
         if self._odometry is not None:
             self._odometry.reset()
         self._previous = None
+        if self.online is not None:
+            self.online.reset()
 
     def _motion(self, pose: Any) -> np.ndarray | None:
         """Motion since the previous update in cells, ``None`` when either pose is unknown."""
@@ -195,6 +217,9 @@ class Predictor:
             next_probability, _, state = self.backend.run(fed.astype(np.float32), state, motion)
             future.append(next_probability[0, 0])
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
+        if self.online is not None:
+            moved = moved_last_map(occupancy, None if flow is None else flow[:2])
+            future[0] = self.online.update(future[0], occupancy, visibility, moved)
         occupied_now = np.asarray(occupancy, bool)
         return Prediction(
             probability=future[0],

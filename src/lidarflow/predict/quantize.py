@@ -20,7 +20,7 @@ import numpy as np
 
 from lidarflow.errors import PredictError
 from lidarflow.predict.backends import split_step_inputs
-from lidarflow.predict.export import poses_optional_mark
+from lidarflow.predict.export import copy_marks
 
 __all__ = ["CALIBRATION_FEEDS", "data_dependent_convs", "quantize_onnx"]
 
@@ -112,5 +112,5 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
             )
         except Exception as err:  # onnxruntime's tools raise many types
             raise PredictError(f"int8 quantization failed: {type(err).__name__}: {err}") from err
-    poses_optional_mark(float_path, out_path)
+    copy_marks(float_path, out_path)
     return out_path

@@ -1,0 +1,230 @@
+"""The decision offsets chosen online, on the stream itself (issue 11).
+
+An occupancy-head model predicts ``sigmoid(logit + offset)``, the offset ``a`` on the cells that
+the last map, moved by the model's backward flow, says are occupied and ``b`` on the free ones
+(:meth:`lidarflow.models.LidarFlowNet.predict_next`). Fixed offsets are chosen on the training
+recordings, and a recording from another robot may want others: measured in leave-one-out, the
+offsets that the held-out recording itself would have taken differ by up to 1.2 from the chosen
+ones (docs/results/accuracy/loo/).
+
+Every frame that arrives is the target of the prediction made one frame before, so the stream
+scores itself as it goes. :class:`OnlineDecision` keeps, for every pair ``(a, b)`` of a grid,
+decayed true-positive / predicted / positive counts of the decisions that pair would have made,
+over all cells and over the cells that changed, and the same counts of the three baselines
+(copy-last, temporal average, constant velocity) run beside it. Each frame it predicts with the
+pair of the largest running *win margin*, ``min(F1 - best baseline F1, changed F1 - best
+baseline changed F1)``: the issue's criterion, on the frames seen so far. Only past frames are
+used; nothing is trained.
+
+Counting every pair is cheap because a cell's decision depends on one offset alone unless the
+moved map is fractional there: a free cell is predicted occupied iff ``b >= threshold_logit -
+logit``, an occupied one iff ``a >= ...``, so one sorted search per offset grid counts all pairs;
+only the few fractional cells are counted pair by pair.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, Method, TemporalAverage
+from lidarflow.evaluate.metrics import THRESHOLD
+
+__all__ = ["OnlineDecision", "OnlineDecisionConfig", "moved_last_map", "pair_counts"]
+
+_THRESHOLD_LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
+# float32 probabilities saturate near 0 and 1; logits beyond this are far from every offset's
+# threshold anyway.
+_LOGIT_LIMIT = 15.0
+_GRID = tuple(round(-0.6 + 0.3 * i, 1) for i in range(13))  # -0.6 ... 3.0
+
+
+@dataclass(frozen=True)
+class OnlineDecisionConfig:
+    """``occupied_offsets`` x ``free_offsets``: the pairs tried. ``decay``: weight of the past
+    per frame (0.98: about the last 50 frames count). Until ``min_frames`` predictions have been
+    scored the model's own offsets are used."""
+
+    occupied_offsets: tuple[float, ...] = _GRID
+    free_offsets: tuple[float, ...] = _GRID
+    decay: float = 0.98
+    min_frames: int = 10
+
+    def __post_init__(self) -> None:
+        if not self.occupied_offsets or not self.free_offsets:
+            raise ValueError("the online decision needs at least one offset of each kind")
+        if not 0.0 < self.decay <= 1.0:
+            raise ValueError(f"decay must be in (0, 1], got {self.decay}")
+        if self.min_frames < 1:
+            raise ValueError(f"min_frames must be >= 1, got {self.min_frames}")
+
+
+def moved_last_map(occupancy: np.ndarray, backward_flow: np.ndarray | None) -> np.ndarray:
+    """``clamp(W(O^t, B^t), 0, 1)`` ``(H, W)``: the last map moved into the next frame, the
+    split of :meth:`~lidarflow.models.LidarFlowNet.predict_next`; ``O^t`` itself without a flow.
+
+    NumPy (the ONNX Predictor runs without PyTorch); equal to :func:`lidarflow.ops.warp.warp`
+    (bilinear, zero outside the map).
+    """
+    image = np.asarray(occupancy, np.float64)
+    if backward_flow is None:
+        return np.clip(image, 0.0, 1.0)
+    h, w = image.shape
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    x = cols + np.asarray(backward_flow[0], np.float64)
+    y = rows + np.asarray(backward_flow[1], np.float64)
+    x0, y0 = np.floor(x), np.floor(y)
+    out = np.zeros_like(image)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            xi, yi = x0 + dx, y0 + dy
+            weight = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
+            inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
+            xi = np.clip(xi, 0, w - 1).astype(np.intp)
+            yi = np.clip(yi, 0, h - 1).astype(np.intp)
+            out += np.where(inside, weight * image[yi, xi], 0.0)
+    return np.clip(out, 0.0, 1.0)
+
+
+def _at_least(values: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """For each offset, how many of ``values`` are ``<= offset``."""
+    return np.searchsorted(np.sort(values), offsets, side="right")
+
+
+def pair_counts(
+    need: np.ndarray,
+    moved: np.ndarray,
+    target: np.ndarray,
+    occupied_offsets: np.ndarray,
+    free_offsets: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(true positives (A, B), predicted (A, B), positives)`` over the given cells.
+
+    A cell is predicted occupied under the pair ``(a, b)`` when ``moved * a + (1 - moved) * b
+    >= need`` (``need``: the logit the threshold asks for minus the model's own logit);
+    ``moved`` in [0, 1] is the last map moved into the next frame; ``target`` bool.
+    """
+    need, moved, target = (np.ravel(x) for x in (need, moved, target))
+    a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
+    free, occupied = moved <= 0.0, moved >= 1.0
+    fractional = ~(free | occupied)
+    tp = _at_least(need[occupied & target], a)[:, None] + _at_least(need[free & target], b)
+    predicted = _at_least(need[occupied], a)[:, None] + _at_least(need[free], b)
+    if fractional.any():
+        w, n, t = moved[fractional], need[fractional], target[fractional]
+        hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
+        tp = tp + np.count_nonzero(hit & t, axis=-1)
+        predicted = predicted + np.count_nonzero(hit, axis=-1)
+    return tp, predicted, int(np.count_nonzero(target))
+
+
+def _f1(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
+    # 2TP / (2TP + FP + FN) = 2TP / (predicted + positives); 1 when there is nothing at all.
+    denominator = predicted + positives
+    return np.where(denominator > 0, 2.0 * tp / np.maximum(denominator, 1e-12), 1.0)
+
+
+class OnlineDecision:
+    """Re-decides a model's next-map probability with the offset pair that has done best on the
+    stream so far (see the module's docstring).
+
+    ``update(probability, occupancy, visibility, moved)`` once per frame, in order: the model's
+    probability for the next frame (made with its own offsets ``occupied_offset`` /
+    ``free_offset``), this frame's maps, and the last map moved into the next frame by the
+    model's flow (``occupancy`` itself for a model without flow). Returns the probability with
+    the chosen pair; :attr:`offsets` is that pair.
+    """
+
+    def __init__(
+        self,
+        occupied_offset: float,
+        free_offset: float | None = None,
+        config: OnlineDecisionConfig | None = None,
+    ) -> None:
+        self.config = config or OnlineDecisionConfig()
+        self.own = (
+            float(occupied_offset),
+            float(occupied_offset if free_offset is None else free_offset),
+        )
+        self._a = np.asarray(self.config.occupied_offsets, np.float64)
+        self._b = np.asarray(self.config.free_offsets, np.float64)
+        self.reset()
+
+    def reset(self) -> None:
+        self._baselines: list[Method] = [CopyLast(), TemporalAverage(), ConstantVelocity()]
+        shape = (2, len(self._a), len(self._b))  # [all cells, changed cells]
+        self._tp, self._predicted = np.zeros(shape), np.zeros(shape)
+        self._positives = np.zeros(2)
+        self._base = np.zeros((2, len(self._baselines), 2))  # [mask, baseline, (tp, predicted)]
+        self._scored = 0
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]] | None = None
+        self.offsets = self.own
+
+    def margins(self) -> np.ndarray:
+        """``(A, B)`` running win margin of every pair (``-inf`` before any frame is scored)."""
+        if not self._scored:
+            return np.full((len(self._a), len(self._b)), -np.inf)
+        f1 = _f1(self._tp, self._predicted, self._positives[:, None, None])
+        best = _f1(self._base[..., 0], self._base[..., 1], self._positives[:, None]).max(axis=1)
+        return np.minimum(f1[0] - best[0], f1[1] - best[1])
+
+    def _score(self, target: np.ndarray) -> None:
+        need, moved, last, baseline_predictions = self._pending  # type: ignore[misc]
+        target = target.astype(bool)
+        decay = self.config.decay
+        self._tp *= decay
+        self._predicted *= decay
+        self._positives *= decay
+        self._base *= decay
+        for k, mask in enumerate((np.ones_like(target), last != target)):
+            tp, predicted, positives = pair_counts(
+                need[mask], moved[mask], target[mask], self._a, self._b
+            )
+            self._tp[k] += tp
+            self._predicted[k] += predicted
+            self._positives[k] += positives
+            for j, p in enumerate(baseline_predictions):
+                self._base[k, j] += (
+                    np.count_nonzero(p & target & mask),
+                    np.count_nonzero(p & mask),
+                )
+        self._scored += 1
+
+    def update(
+        self,
+        probability: np.ndarray,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
+        moved: np.ndarray,
+    ) -> np.ndarray:
+        occupancy = np.asarray(occupancy)
+        if self._pending is not None:
+            if self._pending[0].shape != occupancy.shape:
+                raise ValueError(
+                    f"map shape changed from {self._pending[0].shape} to {occupancy.shape} "
+                    "within one stream; reset() first"
+                )
+            self._score(occupancy)
+        baseline_predictions = [
+            m.update(occupancy, visibility) >= THRESHOLD for m in self._baselines
+        ]
+        moved = np.clip(np.asarray(moved, np.float64), 0.0, 1.0)
+        p = np.clip(np.asarray(probability, np.float64), 1e-12, 1.0 - 1e-12)
+        own_a, own_b = self.own
+        logit = np.clip(np.log(p) - np.log1p(-p), -_LOGIT_LIMIT, _LOGIT_LIMIT)
+        logit = logit - (own_b + (own_a - own_b) * moved)  # the model's logit, no offset
+        self._pending = (
+            _THRESHOLD_LOGIT - logit,
+            moved,
+            occupancy.astype(bool),
+            baseline_predictions,
+        )
+        if self._scored >= self.config.min_frames:
+            i, j = np.unravel_index(int(np.argmax(self.margins())), (len(self._a), len(self._b)))
+            self.offsets = (float(self._a[i]), float(self._b[j]))
+        else:
+            self.offsets = self.own
+        a, b = self.offsets
+        out = 1.0 / (1.0 + np.exp(-(logit + b + (a - b) * moved)))
+        return out.astype(np.float32)

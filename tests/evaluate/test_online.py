@@ -1,0 +1,206 @@
+"""The decision offsets chosen online: counts exact, choice causal, the model unchanged before."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, pair_counts
+
+LOGIT = float(np.log(THRESHOLD / (1 - THRESHOLD)))
+GRID = np.array([-0.6, 0.0, 0.3, 1.2, 2.7])
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return (1.0 / (1.0 + np.exp(-x))).astype(np.float32)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 60))
+def test_pair_counts_equal_counting_each_pair(seed, cells):
+    rng = np.random.default_rng(seed)
+    need = rng.normal(0.5, 1.5, cells)
+    need[: cells // 4] = 0.3  # exactly on an offset of the grid
+    moved = rng.choice([0.0, 1.0, 0.25, 0.7], cells)
+    target = rng.random(cells) < 0.4
+    tp, predicted, positives = pair_counts(need, moved, target, GRID, GRID[::-1])
+    assert positives == target.sum()
+    for i, a in enumerate(GRID):
+        for j, b in enumerate(GRID[::-1]):
+            hit = moved * a + (1 - moved) * b >= need
+            assert tp[i, j] == np.count_nonzero(hit & target)
+            assert predicted[i, j] == np.count_nonzero(hit)
+
+
+def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random flickering maps, a model logit and a moved map, frame by frame."""
+    rng = np.random.default_rng(seed)
+    base = rng.random((12, 10)) < 0.3
+    maps = np.array([base ^ (rng.random(base.shape) < 0.1) for _ in range(n)])
+    logits = rng.normal(-1.0, 2.0, (n, *base.shape))
+    moved = np.clip(maps.astype(float) + rng.choice([0.0, 0.5], (n, *base.shape)), 0, 1)
+    return maps, logits, moved
+
+
+def test_running_margins_equal_the_metric_on_the_frames_so_far():
+    maps, logits, moved = _stream(12, seed=3)
+    config = OnlineDecisionConfig(occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1)
+    decision = OnlineDecision(0.6, 0.2, config)
+    baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
+    visibility = np.ones_like(maps[0])
+    pair_counts_so_far = {(a, b): [Counts(), Counts()] for a in (0.0, 1.5) for b in (-0.3, 0.9)}
+    base_so_far = [[Counts(), Counts()] for _ in baselines]
+    for t in range(len(maps)):
+        own = logits[t] + 0.2 + (0.6 - 0.2) * moved[t]
+        decision.update(_sigmoid(own), maps[t], visibility, moved[t])
+        if t > 0:  # the margins now count every prediction made for frames 1..t
+            assert np.allclose(decision.margins(), _margins(pair_counts_so_far, base_so_far))
+        if t + 1 < len(maps):
+            target, changed = maps[t + 1], maps[t] != maps[t + 1]
+            for (a, b), both in pair_counts_so_far.items():
+                p = logits[t] + b + (a - b) * moved[t] >= LOGIT
+                both[0] += confusion(p, target)
+                both[1] += confusion(p, target, changed)
+            for m, both in zip(baselines, base_so_far, strict=True):
+                p = m.update(maps[t], visibility) >= THRESHOLD
+                both[0] += confusion(p, target)
+                both[1] += confusion(p, target, changed)
+
+
+def _margins(pairs: dict, baselines: list) -> np.ndarray:
+    best = [max(b[k].f1 for b in baselines) for k in (0, 1)]
+    values = [min(c.f1 - best[0], ch.f1 - best[1]) for c, ch in pairs.values()]
+    return np.array(values).reshape(2, 2)
+
+
+def test_the_model_is_unchanged_until_enough_frames_are_scored():
+    maps, logits, moved = _stream(8, seed=1)
+    decision = OnlineDecision(0.6, 0.2, OnlineDecisionConfig(min_frames=5))
+    for t in range(5):  # frame t scores the prediction made at t - 1
+        given_probability = _sigmoid(logits[t] + 0.2 + 0.4 * moved[t])
+        out = decision.update(given_probability, maps[t], np.ones_like(maps[t]), moved[t])
+        assert decision.offsets == (0.6, 0.2)
+        assert np.allclose(out, given_probability, atol=1e-6)
+    decision.update(_sigmoid(logits[5]), maps[5], np.ones_like(maps[5]), moved[5])
+    assert decision.offsets != (0.6, 0.2)  # the grid does not hold the model's own pair
+
+
+def test_it_moves_to_the_offsets_that_would_have_found_the_cells():
+    # A model whose logit on the occupied cells is just below the threshold: at its own offset
+    # it predicts nothing; the stream shows an occupied-cell offset of 0.6 would find them all.
+    pattern = np.zeros((10, 10), bool)
+    pattern[2:5, 3:8] = True
+    probability = _sigmoid(np.where(pattern, LOGIT - 0.5, -6.0))
+    decision = OnlineDecision(0.0, None, OnlineDecisionConfig(min_frames=3))
+    for t in range(6):
+        out = decision.update(probability, pattern, np.ones_like(pattern), pattern.astype(float))
+        if t < 3:
+            assert not (out >= THRESHOLD).any()
+    assert np.array_equal(out >= THRESHOLD, pattern)
+    assert decision.offsets[0] >= 0.5
+
+
+def test_reset_forgets_the_stream_and_a_new_shape_needs_one():
+    maps, logits, moved = _stream(14, seed=2)
+    decision = OnlineDecision(0.6, None, OnlineDecisionConfig(min_frames=2))
+    for t in range(14):
+        decision.update(_sigmoid(logits[t] + 0.6), maps[t], np.ones_like(maps[t]), moved[t])
+    with pytest.raises(ValueError, match="shape changed"):
+        decision.update(
+            np.zeros((5, 5), np.float32), np.zeros((5, 5)), np.ones((5, 5)), np.zeros((5, 5))
+        )
+    decision.reset()
+    assert decision.offsets == (0.6, 0.6) and np.isinf(decision.margins()).all()
+    decision.update(
+        np.zeros((5, 5), np.float32), np.zeros((5, 5)), np.ones((5, 5)), np.zeros((5, 5))
+    )
+
+
+def test_bad_configurations_are_refused():
+    with pytest.raises(ValueError, match="decay"):
+        OnlineDecisionConfig(decay=0.0)
+    with pytest.raises(ValueError, match="offset"):
+        OnlineDecisionConfig(free_offsets=())
+
+
+def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path, sample_recording):
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.evaluate.stream import evaluate_maps
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.models.streaming import StreamingModel
+    from lidarflow.scan import GridSpec
+    from tests.conftest import make_model_dir
+
+    # Untrained, the head is copy-last (logit 2.2 on occupied cells): an occupied-cell offset of
+    # -3 predicts nothing, which the stream shows at once.
+    kwargs = {"occupancy_head": True, "decision_offset": -3.0, "decision_offset_free": 0.3}
+    net, _ = resolve_model(make_model_dir(tmp_path / "m", seed=4, **kwargs))
+    occupancy, visibility = sample_recording.slice(0, 40).maps(GridSpec())
+    late = OnlineDecisionConfig(min_frames=100)
+    soon = OnlineDecisionConfig(min_frames=1)
+    methods = [
+        ModelMethod("fixed", StreamingModel(net)),
+        ModelMethod("late", StreamingModel(net), online=late),
+        ModelMethod("soon", StreamingModel(net), online=soon),
+    ]
+    scores = evaluate_maps(occupancy, visibility, methods)
+    assert scores["late"].counts == scores["fixed"].counts
+    assert scores["late"].changed == scores["fixed"].changed
+    assert scores["fixed"].counts.tp == 0
+    assert methods[2].online.offsets[0] > -3.0
+    assert scores["soon"].counts.f1 > 0.9
+
+
+def test_a_model_without_an_occupancy_head_is_refused(random_flownet_dir):
+    from lidarflow.errors import EvaluateError
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.models.streaming import StreamingModel
+
+    net, _ = resolve_model(random_flownet_dir)
+    with pytest.raises(EvaluateError, match="occupancy head"):
+        ModelMethod("m", StreamingModel(net), online=OnlineDecisionConfig())
+
+
+def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_flownet_dir):
+    import json
+
+    from lidarflow.data import sample_bag_path
+    from tests.conftest import make_model_dir
+    from tests.test_cli import run
+
+    model = make_model_dir(tmp_path / "head", occupancy_head=True, decision_offset=-3.0)
+    out = tmp_path / "e.json"
+    argv = ["evaluate", str(sample_bag_path()), "-m", str(model), "--online-decision"]
+    code, text, err = run([*argv, "--json", str(out)], capsys)
+    assert code == 0, err
+    report = json.loads(out.read_text())
+    fixed, online = report["overall"]["head"], report["overall"]["head_online"]
+    assert fixed["f1"] == 0.0 and online["f1"] > 0.9 and "head_online" in text
+    assert report["config"]["online_decision"]["decay"] == 0.98
+    code, _, err = run(["evaluate", str(sample_bag_path()), "-m", str(random_flownet_dir),
+                        "--online-decision"], capsys)  # fmt: skip
+    assert code == 1 and "occupancy head" in err and len(err.strip().splitlines()) == 1
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_the_numpy_moved_map_equals_the_models_warp(seed):
+    import torch
+
+    from lidarflow.evaluate.online import moved_last_map
+    from lidarflow.ops.warp import warp
+
+    rng = np.random.default_rng(seed)
+    occupancy = rng.random((7, 9)) < 0.4
+    flow = rng.normal(0, 2.5, (2, 7, 9))
+    flow[:, :2] = np.round(flow[:, :2])  # whole cells too, and some beyond the border
+    expected = warp(
+        torch.from_numpy(occupancy.astype(np.float64))[None, None], torch.from_numpy(flow)[None]
+    ).clamp(0, 1)[0, 0]
+    assert np.allclose(moved_last_map(occupancy, flow), expected.numpy(), atol=1e-9)
+    assert np.array_equal(moved_last_map(occupancy, None), occupancy.astype(float))
