@@ -246,12 +246,14 @@ def _residual() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """Issue 11's measured best: an occupancy head (five occupancy memories that follow the
-    constant-velocity shift, the constant-velocity map as an input, one hidden layer) trained
-    by cross-entropy on top of a trained flow network that stays (nearly) frozen, compensating
-    the platform's own motion where a recording has poses (``ego_motion``, ``poses_optional``:
-    uncompensated where it has none; half the training windows without their poses, so it
-    learns both ways):
+    """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
+    memories that follow the constant-velocity shift, the constant-velocity map, the current
+    map; one hidden layer; ``head_kernel_size`` 1, no GRU features) trained by cross-entropy on
+    top of a trained flow network that stays (nearly) frozen, compensating the platform's own
+    motion where a recording has poses (``ego_motion``, ``poses_optional``: uncompensated where
+    it has none; half the training windows without their poses, so it learns both ways), its
+    decision offsets chosen online as it streams (``online_decision``, applied by evaluate and
+    the Predictor; training is unchanged by it):
     ``model.init`` (the bundled model unless set; its head too where the shapes fit, so the
     default fine-tunes the bundled head; ``--recipe blurred`` trains a flow network of your
     own). About 8 CPU-minutes on four recordings; its validation is
@@ -266,6 +268,9 @@ def _head() -> TrainConfig:
         "shift_memories": True,
         "ego_motion": True,
         "poses_optional": True,
+        "head_kernel_size": 1,
+        "head_flow_features": False,
+        "online_decision": True,
     }
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
