@@ -46,35 +46,44 @@ def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return maps, logits, moved
 
 
-def test_running_margins_equal_the_metric_on_the_frames_so_far():
+def test_margins_look_ahead_from_the_decisions_made_and_the_baselines():
     maps, logits, moved = _stream(12, seed=3)
-    config = OnlineDecisionConfig(occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1)
-    decision = OnlineDecision(0.6, 0.2, config)
+    pairs = [(a, b) for a in (0.0, 1.5) for b in (-0.3, 0.9)]
+    config = OnlineDecisionConfig(
+        occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1, lookahead=7, min_frames=99
+    )
+    decision = OnlineDecision(0.6, 0.2, config)  # min_frames: it decides with (0.6, 0.2) only
     baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
     visibility = np.ones_like(maps[0])
-    pair_counts_so_far = {(a, b): [Counts(), Counts()] for a in (0.0, 1.5) for b in (-0.3, 0.9)}
-    base_so_far = [[Counts(), Counts()] for _ in baselines]
+    per_pair = {pair: [Counts(), Counts()] for pair in [*pairs, (0.6, 0.2)]}
+    per_baseline = [[Counts(), Counts()] for _ in baselines]
     for t in range(len(maps)):
         own = logits[t] + 0.2 + (0.6 - 0.2) * moved[t]
         decision.update(_sigmoid(own), maps[t], visibility, moved[t])
-        if t > 0:  # the margins now count every prediction made for frames 1..t
-            assert np.allclose(decision.margins(), _margins(pair_counts_so_far, base_so_far))
+        if t > 0:  # frames 1..t scored: the decisions made, plus 7 frames of each pair's mean
+            expected = [
+                _margin(per_pair[(0.6, 0.2)], per_pair[p], 7 / t, per_baseline) for p in pairs
+            ]
+            assert np.allclose(decision.margins(), np.reshape(expected, (2, 2)))
         if t + 1 < len(maps):
             target, changed = maps[t + 1], maps[t] != maps[t + 1]
-            for (a, b), both in pair_counts_so_far.items():
+            for (a, b), both in per_pair.items():
                 p = logits[t] + b + (a - b) * moved[t] >= LOGIT
                 both[0] += confusion(p, target)
                 both[1] += confusion(p, target, changed)
-            for m, both in zip(baselines, base_so_far, strict=True):
+            for m, both in zip(baselines, per_baseline, strict=True):
                 p = m.update(maps[t], visibility) >= THRESHOLD
                 both[0] += confusion(p, target)
                 both[1] += confusion(p, target, changed)
 
 
-def _margins(pairs: dict, baselines: list) -> np.ndarray:
-    best = [max(b[k].f1 for b in baselines) for k in (0, 1)]
-    values = [min(c.f1 - best[0], ch.f1 - best[1]) for c, ch in pairs.values()]
-    return np.array(values).reshape(2, 2)
+def _margin(made: list, pair: list, h: float, baselines: list) -> float:
+    terms = []
+    for k in (0, 1):
+        tp, fp, fn = (getattr(made[k], n) + h * getattr(pair[k], n) for n in ("tp", "fp", "fn"))
+        f1 = 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 1.0
+        terms.append(f1 - max(b[k].f1 for b in baselines))
+    return min(terms)
 
 
 def test_the_model_is_unchanged_until_enough_frames_are_scored():
@@ -125,6 +134,8 @@ def test_bad_configurations_are_refused():
         OnlineDecisionConfig(decay=0.0)
     with pytest.raises(ValueError, match="offset"):
         OnlineDecisionConfig(free_offsets=())
+    with pytest.raises(ValueError, match="lookahead"):
+        OnlineDecisionConfig(lookahead=0)
 
 
 def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path, sample_recording):
