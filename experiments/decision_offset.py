@@ -56,6 +56,8 @@ def with_offset(model: Path, offset: float, out: Path, free: float | None = None
     card = json.loads((model / "model.json").read_text())
     kwargs = {**card.get("model_kwargs", {}), "decision_offset": offset}
     kwargs.pop("decision_offset_free", None)
+    # These offsets are scored fixed: chosen online, every copy would decide alike.
+    kwargs.pop("online_decision", None)
     if free is not None:
         kwargs["decision_offset_free"] = free
     card["model_kwargs"] = kwargs

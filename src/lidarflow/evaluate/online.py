@@ -17,9 +17,10 @@ recording, ``min(F1 - best baseline F1, changed F1 - best baseline changed F1)``
 predicts with the pair that would leave that margin largest if the next ``lookahead`` frames
 went as the pair's recent ones did, on top of the decisions made so far: where the stream is
 behind in F1 it picks a pair that gains F1, where behind in changed-cell F1 one that gains
-those. (Picking instead the pair with the best recent margin of its own drifted: on one
-recording it ended 0.005 below a baseline's F1 and 0.02 above its changed-cell F1.) Only past
-frames are used; nothing is trained.
+those. (Picking the pair with the best recent margin of its own scores within a few
+thousandths of it in leave-one-out, a little lower on the recording it wins by least; what
+mattered more is the grid: occupied-cell offsets down to -0.6 lost a recording that -2.4 and
+below win. docs/results/accuracy/loo/online/.) Only past frames are used; nothing is trained.
 
 Counting every pair is cheap because a cell's decision depends on one offset alone unless the
 moved map is fractional there: a free cell is predicted occupied iff ``b >= threshold_logit -

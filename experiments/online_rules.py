@@ -1,0 +1,168 @@
+"""Compare rules for choosing the decision offsets online, from per-frame counts (issue 11).
+
+For each held-out recording its fold model (``FOLDS/<recording>/run``) is streamed once, as
+`lidarflow evaluate` does; every frame's true-positive / false-positive / false-negative counts
+are kept for every pair of offsets of a wide grid (cells occupied / free in the last map moved
+by the model's flow), over all cells and over the changed ones, and for the three baselines.
+Any rule that picks a pair per frame from past frames only can then be replayed in
+milliseconds. Two rules are replayed over the grid's sub-ranges and their constants:
+
+- ``recent``: the pair with the largest win margin of its own recent (decayed) counts;
+- ``lookahead`` (what :mod:`lidarflow.evaluate.online` does): the pair that would leave the
+  stream's margin largest if ``h`` more frames went as its recent ones did, after the decisions
+  made so far.
+
+The replay counts from the first scored frame; `lidarflow evaluate --online-decision` (whose
+numbers the docs report) also counts the warm-up frames, so it differs in the last digits.
+
+    python experiments/online_rules.py --folds runs/loo/cell/head_cell -o runs/online_rules \\
+        --recordings ../shared/data/{positive_1,positive_2}.bag
+
+Writes OUT/<recording>.npz (the counts) and OUT/rules.json (every rule's F1 / changed F1 and
+margin per recording).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from study import stem
+
+from lidarflow.data import load_any
+from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.evaluate.ego import recording_motions
+from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.online import moved_last_map, pair_counts
+from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.models.presets import resolve_model
+from lidarflow.models.streaming import StreamingModel
+from lidarflow.scan import GridSpec
+
+OCCUPIED = np.round(np.arange(-4.8, 4.21, 0.3), 2)
+FREE = np.round(np.arange(-0.6, 3.01, 0.3), 2)
+BASELINES = ("copy_last", "temporal_average", "constant_velocity")
+LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
+
+
+def collect(model: Path, path: Path) -> dict[str, np.ndarray]:
+    """Per scored frame: ``pairs`` (T, A, B, 2 masks, tp/predicted/positives) and ``baselines``
+    (T, 3, 2, same)."""
+    net, _ = resolve_model(model)
+    head = getattr(net, "inner", net)
+    head.decision_offset, head.decision_offset_free, head.online_decision = 0.0, None, False
+    recording = load_any(path)
+    occupancy, visibility = recording.maps(GridSpec())
+    pairs, baselines = [], {}
+
+    def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
+        current, target = occupancy[t].astype(bool), occupancy[t + 1].astype(bool)
+        masks = (np.ones_like(target), current != target)
+        if name == "model":
+            p = np.clip(probability.astype(np.float64), 1e-12, 1 - 1e-12)
+            need = LOGIT - (np.log(p) - np.log1p(-p))
+            moved = moved_last_map(current, None if flow is None else flow[:2])
+            frame = np.zeros((len(OCCUPIED), len(FREE), 2, 3))
+            for k, m in enumerate(masks):
+                tp, predicted, positives = pair_counts(need[m], moved[m], target[m], OCCUPIED, FREE)
+                frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
+            pairs.append(frame)
+        else:
+            hit = probability >= THRESHOLD
+            counts = [
+                (
+                    np.count_nonzero(hit & target & m),
+                    np.count_nonzero(hit & m),
+                    np.count_nonzero(target & m),
+                )
+                for m in masks
+            ]
+            baselines.setdefault(name, []).append(counts)
+
+    methods = [ModelMethod("model", StreamingModel(net), online=False)]
+    methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
+    motions = recording_motions(recording, GridSpec(), methods, occupancy)
+    evaluate_maps(occupancy, visibility, methods, on_prediction=add, motions=motions)
+    return {
+        "pairs": np.array(pairs),
+        "baselines": np.array([baselines[b] for b in BASELINES], float).transpose(1, 0, 2, 3),
+    }
+
+
+def f1(counts: np.ndarray) -> np.ndarray:
+    tp, predicted, positives = counts[..., 0], counts[..., 1], counts[..., 2]
+    denominator = predicted + positives
+    return np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1e-12), 1.0)
+
+
+def replay(
+    pairs: np.ndarray, baselines: np.ndarray, rule: str, decay: float, h: float
+) -> np.ndarray:
+    """The pair index chosen each frame (flattened over the grid) by ``rule``."""
+    frames, k = len(pairs), pairs.shape[1]
+    made, base = np.zeros((2, 3)), np.zeros((3, 2, 3))  # since the start
+    recent, recent_base, weight = np.zeros((k, 2, 3)), np.zeros((3, 2, 3)), 0.0  # decayed
+    chosen = np.zeros(frames, int)
+    for t in range(frames):
+        if t:
+            if rule == "recent":
+                terms = f1(recent) - f1(recent_base).max(axis=0)
+            else:
+                terms = f1(made[None] + h * recent / weight) - f1(base).max(axis=0)
+            chosen[t] = int(np.argmax(terms.min(axis=1) + 1e-3 * terms.sum(axis=1)))
+        made += pairs[t, chosen[t]]
+        base += baselines[t]
+        recent = decay * recent + pairs[t]
+        recent_base = decay * recent_base + baselines[t]
+        weight = decay * weight + 1.0
+    return chosen
+
+
+def margin(pairs: np.ndarray, baselines: np.ndarray, chosen: np.ndarray) -> tuple[float, ...]:
+    total = pairs[np.arange(len(chosen)), chosen].sum(axis=0)
+    best = f1(baselines.sum(axis=0)).max(axis=0)
+    scores = f1(total)
+    return float(scores[0]), float(scores[1]), float(min(scores - best))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--folds", type=Path, required=True, help="FOLDS/<recording>/run")
+    parser.add_argument("--recordings", type=Path, nargs="+", required=True)
+    parser.add_argument("-o", "--output", type=Path, required=True)
+    args = parser.parse_args()
+    args.output.mkdir(parents=True, exist_ok=True)
+    data = {}
+    for path in args.recordings:
+        cache = args.output / f"{stem(path)}.npz"
+        if not cache.exists():
+            np.savez(cache, **collect(args.folds / stem(path) / "run", path))
+        data[stem(path)] = dict(np.load(cache))
+    ranges = {"a -0.6..3.0": (-0.6, 3.0), "a -2.4..3.0": (-2.4, 3.0), "a -4.8..4.2": (-4.8, 4.2)}
+    constants = [("recent", 0.98, 0), ("lookahead", 0.95, 5), ("lookahead", 0.98, 20)]
+    constants += [("lookahead", 0.99, 100)]
+    results = []
+    for label, (low, high) in ranges.items():
+        keep = np.abs(OCCUPIED - (low + high) / 2) <= (high - low) / 2 + 1e-9
+        for rule, decay, h in constants:
+            row = {"grid": label, "rule": rule, "decay": decay, "lookahead": h, "recordings": {}}
+            for name, d in data.items():
+                pairs = d["pairs"][:, keep].reshape(len(d["pairs"]), -1, 2, 3)
+                chosen = replay(pairs, d["baselines"], rule, decay, h)
+                f, changed, m = margin(pairs, d["baselines"], chosen)
+                row["recordings"][name] = {"f1": f, "changed_f1": changed, "margin": m}
+            wins = sum(r["margin"] > 0 for r in row["recordings"].values())
+            row["wins"] = wins
+            results.append(row)
+            print(
+                f"{label} {rule} decay {decay} h {h}: wins {wins}/{len(data)}; "
+                + ", ".join(f"{n[:10]} {r['margin']:+.4f}" for n, r in row["recordings"].items())
+            )
+    (args.output / "rules.json").write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
