@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="eced95bc660801415b10b07b8451f58e8c8598c27634cc6d3c9a0817397cce66",
+    weights_sha256="86f28a92f530280b87e3e0a1ad790570be5f73875ae9733b6983cdaba5e6071d",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 
