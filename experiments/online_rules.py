@@ -18,6 +18,9 @@ numbers the docs report) also counts the warm-up frames, so it differs in the la
     python experiments/online_rules.py --folds runs/loo/cell/head_cell -o runs/online_rules \\
         --recordings ../shared/data/{positive_1,positive_2}.bag
 
+With ``--model M`` instead of ``--folds``, M runs on every recording: replayed on a fold's own
+training recordings, the rules can be chosen there, fold-clean (see the docs' table).
+
 Writes OUT/<recording>.npz (the counts) and OUT/rules.json (every rule's F1 / changed F1 and
 margin per recording).
 """
@@ -130,16 +133,27 @@ def margin(pairs: np.ndarray, baselines: np.ndarray, chosen: np.ndarray) -> tupl
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--folds", type=Path, required=True, help="FOLDS/<recording>/run")
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--folds", type=Path, help="each recording's model: FOLDS/<recording>/run")
+    which.add_argument(
+        "--model", type=Path, help="one model for every recording (e.g. a fold's own training set)"
+    )
     parser.add_argument("--recordings", type=Path, nargs="+", required=True)
     parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument(
+        "--choose-from",
+        type=Path,
+        help="with --folds: a folder of per-fold runs with --model on each fold's training "
+        "recordings (TRAIN/<held-out recording>/rules.json); choose each fold's rule there",
+    )
     args = parser.parse_args()
     args.output.mkdir(parents=True, exist_ok=True)
     data = {}
     for path in args.recordings:
         cache = args.output / f"{stem(path)}.npz"
         if not cache.exists():
-            np.savez(cache, **collect(args.folds / stem(path) / "run", path))
+            model = args.model or args.folds / stem(path) / "run"
+            np.savez(cache, **collect(model, path))
         data[stem(path)] = dict(np.load(cache))
     ranges = {"a -0.6..3.0": (-0.6, 3.0), "a -2.4..3.0": (-2.4, 3.0), "a -4.8..4.2": (-4.8, 4.2)}
     constants = [("recent", 0.98, 0), ("lookahead", 0.95, 5), ("lookahead", 0.98, 20)]
@@ -162,6 +176,27 @@ def main() -> None:
                 + ", ".join(f"{n[:10]} {r['margin']:+.4f}" for n, r in row["recordings"].items())
             )
     (args.output / "rules.json").write_text(json.dumps(results, indent=1) + "\n")
+    if args.choose_from:
+        choose_fold_clean(results, args.choose_from, args.output / "chosen.json")
+
+
+def choose_fold_clean(held_out: list[dict], train_dir: Path, out: Path) -> None:
+    """Per held-out recording: the rule (grid, rule, constants) with the largest summed margin
+    on that fold's own training recordings (``train_dir/<recording>/rules.json``, written with
+    ``--model``), and what it scores on the held-out recording."""
+    key = ("grid", "rule", "decay", "lookahead")
+    chosen = {}
+    for name in held_out[0]["recordings"]:
+        trained = json.loads((train_dir / name / "rules.json").read_text())
+        sums = [sum(r["margin"] for r in row["recordings"].values()) for row in trained]
+        best = trained[int(np.argmax(sums))]
+        rule = {k: best[k] for k in key}
+        (row,) = [r for r in held_out if all(r[k] == rule[k] for k in key)]
+        chosen[name] = {**rule, "training_margin": max(sums), **row["recordings"][name]}
+        print(f"{name}: {rule} -> {chosen[name]['margin']:+.4f}")
+    wins = sum(c["margin"] > 0 for c in chosen.values())
+    print(f"fold-clean choice of the rule: wins {wins}/{len(chosen)}")
+    out.write_text(json.dumps(chosen, indent=1) + "\n")
 
 
 if __name__ == "__main__":
