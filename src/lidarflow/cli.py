@@ -539,6 +539,14 @@ def predict(
     horizon: Annotated[
         int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
     ] = 1,
+    fixed_decision: Annotated[
+        bool,
+        typer.Option(
+            "--fixed-decision",
+            help="Decide with the model's fixed decision offsets even where it chooses them "
+            "online as it streams (the bundled model does).",
+        ),
+    ] = False,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     moving_threshold: MovingOpt = None,
@@ -560,7 +568,11 @@ def predict(
 
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
     predictor = Predictor(
-        model, GridSpec(grid, grid, res), horizon=horizon, moving_threshold=threshold
+        model,
+        GridSpec(grid, grid, res),
+        horizon=horizon,
+        moving_threshold=threshold,
+        online_decision=False if fixed_decision else None,
     )
     with _progress(len(recording), f"predicting {input.name}") as bar:
         counts = predict_to_bag(recording, predictor, output, bar.update)

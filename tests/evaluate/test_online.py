@@ -215,3 +215,24 @@ def test_the_numpy_moved_map_equals_the_models_warp(seed):
     ).clamp(0, 1)[0, 0]
     assert np.allclose(moved_last_map(occupancy, flow), expected.numpy(), atol=1e-9)
     assert np.array_equal(moved_last_map(occupancy, None), occupancy.astype(float))
+
+
+def test_predict_chooses_online_unless_told_fixed(tmp_path, capsys):
+    from lidarflow.data import read_bag, sample_bag_path
+    from tests.conftest import make_model_dir
+    from tests.predict.test_rosout import read_all
+    from tests.test_cli import run
+
+    kwargs = {"occupancy_head": True, "decision_offset": -3.0, "online_decision": True}
+    model = make_model_dir(tmp_path / "head", **kwargs)
+    rec = tmp_path / "short.npz"
+    read_bag(sample_bag_path()).slice(0, 25).save(rec)
+    peaks = {}
+    for flags in ([], ["--fixed-decision"]):
+        out = tmp_path / f"out{len(flags)}.mcap"
+        code, _, err = run(["predict", str(rec), "-o", str(out), "-m", str(model), *flags], capsys)
+        assert code == 0, err
+        last = read_all(out)["/lidarflow/predicted"][-1]
+        peaks[len(flags)] = int(np.max(last.data))  # probability x 100
+    # Online, the occupied cells come back above the threshold; fixed at -3 they stay below.
+    assert peaks[0] >= 40 > peaks[1]
