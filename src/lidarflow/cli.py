@@ -435,7 +435,11 @@ def evaluate(
     gets each recording's poses (odometry) and the copy_last_ego baseline (the last map moved by
     the odometry) is scored beside it; on a recording without poses a model built with
     poses_optional (the bundled one, the default recipe's) takes the motion matched from the scans
-    instead, any other is refused."""
+    instead, any other is refused.
+
+    A model built with online_decision (the bundled one, the default recipe's) chooses its
+    decision offsets as the recording streams, from the frames already seen; --online-decision
+    scores every occupancy-head model both ways."""
     from lidarflow.evaluate.report import format_table, format_uncertainty_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
