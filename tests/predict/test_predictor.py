@@ -169,8 +169,13 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
 def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, random_flownet_dir):
     import onnx
 
+    from lidarflow.evaluate.online import OnlineDecisionConfig
+
     with pytest.raises(PredictError, match="occupancy-head"):
         Predictor(random_flownet_dir, online_decision=True)
+    config = OnlineDecisionConfig(occupied_offsets=(0.0, 1.0), free_offsets=(0.5,), decay=0.9)
+    tuned = Predictor(make_model_dir(tmp_path / "t", occupancy_head=True), online_decision=config)
+    assert tuned.online is not None and tuned.online.config is config
     net, _ = resolve_model(make_model_dir(tmp_path / "h", occupancy_head=True))
     path = export_onnx(net, tmp_path / "h.onnx")
     assert Predictor(path, online_decision=True).online is not None

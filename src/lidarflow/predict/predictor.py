@@ -30,7 +30,7 @@ from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motio
 from lidarflow.data.scanmatch import match_maps
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
-from lidarflow.evaluate.online import OnlineDecision, moved_last_map
+from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, moved_last_map
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
 from lidarflow.scan import GridSpec, Scan, rasterize
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
@@ -98,7 +98,9 @@ class Predictor:
         online_decision: re-decide an occupancy-head model's next map with the decision offsets
             that have done best on this stream so far (:mod:`lidarflow.evaluate.online`; the
             roll-out beyond the first frame still feeds back the model's own). ``None``: where
-            the model asks for it (``online_decision`` in its kwargs or the ONNX file's marks).
+            the model asks for it (``online_decision`` in its kwargs or the ONNX file's marks);
+            an :class:`~lidarflow.evaluate.online.OnlineDecisionConfig`: always, with that grid
+            and those constants.
     """
 
     def __init__(
@@ -111,7 +113,7 @@ class Predictor:
         moving_threshold: float = MOVING_THRESHOLD,
         check_odometry: bool = True,
         scan_odometry: bool = True,
-        online_decision: bool | None = None,
+        online_decision: bool | OnlineDecisionConfig | None = None,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
@@ -137,18 +139,21 @@ class Predictor:
         self._previous: np.ndarray | None = None
         self.online = self._online_decision(online_decision)
 
-    def _online_decision(self, wanted: bool | None) -> OnlineDecision | None:
+    def _online_decision(
+        self, wanted: bool | OnlineDecisionConfig | None
+    ) -> OnlineDecision | None:
         decision = getattr(self.backend, "decision", None)
         if wanted is None:
             wanted = bool(decision and decision["online"])
-        if not wanted:
+        if wanted is False:
             return None
         if decision is None:
             raise PredictError(
                 "the online decision needs an occupancy-head model (an ONNX file exported "
                 "before lidarflow marked the decision offsets in it: export it again)"
             )
-        return OnlineDecision(decision["offset"], decision["offset_free"])
+        config = wanted if isinstance(wanted, OnlineDecisionConfig) else None
+        return OnlineDecision(decision["offset"], decision["offset_free"], config)
 
     @property
     def uses_motion(self) -> bool:
