@@ -20,7 +20,7 @@ from pathlib import Path
 from lidarflow.data import load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import CopyLastEgo
-from lidarflow.evaluate.model_method import ModelMethod, model_wants_online_decision
+from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.models import uses_ego_motion
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.models.weights import load_trained, sha256
@@ -77,7 +77,7 @@ def main() -> None:
     if uses_ego_motion(net):  # a reference beside it, not a baseline of the verdict
         methods.append(CopyLastEgo())
     methods.append(ModelMethod("bundled", StreamingModel(net)))
-    if model_wants_online_decision(net):  # the same weights with the fixed offsets, beside
+    if methods[-1].online is not None:  # the same weights with the fixed offsets, beside
         methods.append(ModelMethod("bundled_fixed", StreamingModel(net), online=False))
     named = [(p.name, load_any(p)) for p in args.heldout]
     report = evaluate_and_report(named, methods, GridSpec(), 10, {"model": str(args.run)})

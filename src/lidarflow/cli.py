@@ -285,7 +285,7 @@ def _methods_and_config(
     true next pose; ``online`` adds, for each model, the decision rule it was not built with:
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
-    from lidarflow.evaluate.model_method import ModelMethod, model_wants_online_decision
+    from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.online import OnlineDecisionConfig
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
@@ -301,12 +301,13 @@ def _methods_and_config(
         name = "bundled" if source is None else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"
-        methods.append(ModelMethod(name, StreamingModel(net), moving_threshold))
+        method = ModelMethod(name, StreamingModel(net), moving_threshold)
+        methods.append(method)
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
-        if methods[-1].uses_motion and ego_oracle:
+        if method.uses_motion and ego_oracle:
             methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True))
         if online:  # the other decision rule beside the model's own
-            wants_online = model_wants_online_decision(net)
+            wants_online = method.online is not None
             methods.append(
                 ModelMethod(
                     name + ("_fixed" if wants_online else "_online"),

@@ -3,19 +3,19 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from lidarflow.data.motion import OdometryCheck
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, moved_last_map
+from lidarflow.evaluate.online import (
+    OnlineDecisionConfig,
+    decision_for,
+    decision_of,
+    moved_last_map,
+)
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
-__all__ = [
-    "ModelMethod",
-    "model_wants_online_decision",
-    "online_decision",
-]
+__all__ = ["ModelMethod"]
 
 
 class ModelMethod:
@@ -52,11 +52,10 @@ class ModelMethod:
         # with the scans (e.g. a base's odometry read as a scanner's turned on the base).
         self.odometry = OdometryCheck() if self.poses_optional else None
         self.oracle = oracle and self.uses_motion
-        if online is None:
-            online = model_wants_online_decision(stream.model)
-        if online is True:
-            online = OnlineDecisionConfig()
-        self.online = online_decision(stream.model, online) if online else None
+        try:
+            self.online = decision_for(decision_of(stream.model), online)
+        except ValueError as err:
+            raise EvaluateError(str(err)) from err
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None
         self._occupancy: np.ndarray | None = None
@@ -100,18 +99,3 @@ class ModelMethod:
             result.probability, occupancy, visibility, moved_last_map(occupancy, self.backward_flow)
         )
 
-
-def model_wants_online_decision(model: torch.nn.Module) -> bool:
-    """Whether ``model`` (or the head inside an ego-motion wrapper) was built to choose its
-    decision offsets online."""
-    return bool(getattr(getattr(model, "inner", model), "online_decision", False))
-
-
-def online_decision(model: torch.nn.Module, config: OnlineDecisionConfig) -> OnlineDecision:
-    """An :class:`OnlineDecision` that starts from ``model``'s own decision offsets."""
-    head = getattr(model, "inner", model)  # an ego-motion wrapper's occupancy head
-    if not getattr(head, "occupancy_head", False):
-        raise EvaluateError(
-            "the online decision re-decides an occupancy head's probability; this model has none"
-        )
-    return OnlineDecision(head.decision_offset, head.decision_offset_free, config)

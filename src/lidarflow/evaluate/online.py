@@ -31,13 +31,21 @@ only the few fractional cells are counted pair by pair.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, Method, TemporalAverage
 from lidarflow.evaluate.metrics import THRESHOLD
 
-__all__ = ["OnlineDecision", "OnlineDecisionConfig", "moved_last_map", "pair_counts"]
+__all__ = [
+    "OnlineDecision",
+    "OnlineDecisionConfig",
+    "decision_for",
+    "decision_of",
+    "moved_last_map",
+    "pair_counts",
+]
 
 _THRESHOLD_LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
 # float32 probabilities saturate near 0 and 1; logits beyond this are far from every offset's
@@ -271,3 +279,35 @@ class _Pending:
     last: np.ndarray  # the map it was made from (bool): the changed cells are where they differ
     baselines: list[np.ndarray]  # the baselines' predictions (bool)
     offsets: tuple[float, float]  # the pair it was made with
+
+
+def decision_of(model: object) -> dict[str, Any] | None:
+    """An occupancy-head model's ``{"offset", "offset_free", "online"}`` (the head inside an
+    ego-motion wrapper); ``None`` for a model without one. Read from the model's attributes, so
+    no PyTorch is imported here."""
+    head = getattr(model, "inner", model)
+    if not getattr(head, "occupancy_head", False):
+        return None
+    return {
+        "offset": float(head.decision_offset),
+        "offset_free": head.decision_offset_free,
+        "online": bool(getattr(head, "online_decision", False)),
+    }
+
+
+def decision_for(
+    decision: dict[str, Any] | None, wanted: bool | OnlineDecisionConfig | None
+) -> OnlineDecision | None:
+    """The online decision of a model whose :func:`decision_of` is ``decision``: ``wanted``
+    ``None`` where the model asks for it, ``True`` / a config always (with that config),
+    ``False`` never. Raises ``ValueError`` when it is wanted and the model has no head."""
+    if wanted is None:
+        wanted = bool(decision and decision["online"])
+    if wanted is False:
+        return None
+    if decision is None:
+        raise ValueError(
+            "the online decision re-decides an occupancy head's probability; this model has none"
+        )
+    config = wanted if isinstance(wanted, OnlineDecisionConfig) else None
+    return OnlineDecision(decision["offset"], decision["offset_free"], config)

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.errors import PredictError
+from lidarflow.evaluate.online import decision_of
 
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
 #: (written by :func:`lidarflow.predict.export.export_onnx`).
@@ -26,7 +27,6 @@ __all__ = [
     "POSES_OPTIONAL_KEY",
     "OnnxBackend",
     "TorchBackend",
-    "decision_of",
     "split_step_inputs",
 ]
 
@@ -36,19 +36,6 @@ def split_step_inputs(inputs: list[Any]) -> tuple[bool, list[Any]]:
     ego-motion graphs, then the states; see :mod:`lidarflow.predict.export`)."""
     uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
     return uses_motion, list(inputs[1 + uses_motion :])
-
-
-def decision_of(model: Any) -> dict[str, Any] | None:
-    """An occupancy-head model's ``{"offset", "offset_free", "online"}`` (the head inside an
-    ego-motion wrapper); ``None`` for a model without one."""
-    head = getattr(model, "inner", model)
-    if not getattr(head, "occupancy_head", False):
-        return None
-    return {
-        "offset": float(head.decision_offset),
-        "offset_free": head.decision_offset_free,
-        "online": bool(getattr(head, "online_decision", False)),
-    }
 
 
 class TorchBackend:

@@ -24,8 +24,9 @@ import torch
 from torch import Tensor, nn
 
 from lidarflow.errors import PredictError
+from lidarflow.evaluate.online import decision_of
 from lidarflow.models.recurrent import RecurrentMapModel
-from lidarflow.predict.backends import DECISION_KEY, POSES_OPTIONAL_KEY, decision_of
+from lidarflow.predict.backends import DECISION_KEY, POSES_OPTIONAL_KEY
 
 __all__ = ["DECISION_KEY", "OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "copy_marks", "export_onnx"]
 

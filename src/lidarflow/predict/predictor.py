@@ -30,7 +30,12 @@ from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motio
 from lidarflow.data.scanmatch import match_maps
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
-from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, moved_last_map
+from lidarflow.evaluate.online import (
+    OnlineDecision,
+    OnlineDecisionConfig,
+    decision_for,
+    moved_last_map,
+)
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
 from lidarflow.scan import GridSpec, Scan, rasterize
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
@@ -142,18 +147,13 @@ class Predictor:
     def _online_decision(
         self, wanted: bool | OnlineDecisionConfig | None
     ) -> OnlineDecision | None:
-        decision = getattr(self.backend, "decision", None)
-        if wanted is None:
-            wanted = bool(decision and decision["online"])
-        if wanted is False:
-            return None
-        if decision is None:
+        try:
+            return decision_for(getattr(self.backend, "decision", None), wanted)
+        except ValueError as err:
             raise PredictError(
                 "the online decision needs an occupancy-head model (an ONNX file exported "
                 "before lidarflow marked the decision offsets in it: export it again)"
-            )
-        config = wanted if isinstance(wanted, OnlineDecisionConfig) else None
-        return OnlineDecision(decision["offset"], decision["offset_free"], config)
+            ) from err
 
     @property
     def uses_motion(self) -> bool:
