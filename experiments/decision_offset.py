@@ -38,12 +38,12 @@ from study import BASELINES, best_baselines, lidarflow
 from lidarflow.data import load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import recording_motions
-from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.metrics import THRESHOLD, Counts
 from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.online import moved_last_map, pair_counts
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.models.streaming import StreamingModel
-from lidarflow.ops.warp import warp
 from lidarflow.scan import GridSpec
 
 GRID = GridSpec()
@@ -102,34 +102,31 @@ def choose_offset(
 
 
 def _recording_pairs(
-    net: torch.nn.Module, path: Path, pairs: list[tuple[float, float]]
+    net: torch.nn.Module, path: Path, offsets: list[float], free_offsets: list[float]
 ) -> dict[str, dict]:
     """One recording: the baselines and every offset pair, from one streaming pass."""
     recording = load_any(path)
     occupancy, visibility = recording.maps(GRID)
-    method = ModelMethod("model", StreamingModel(net))
+    # The model's own logit, decided here for every pair: never re-decided online.
+    method = ModelMethod("model", StreamingModel(net), online=False)
     baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
-    counts = {pair: [Counts(), Counts()] for pair in pairs}
+    shape = (2, len(offsets), len(free_offsets))  # [all cells, changed cells]
+    tp, predicted, positives = np.zeros(shape, int), np.zeros(shape, int), np.zeros(2, int)
     threshold = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
 
     def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
         if name != "model" or flow is None:
             return
-        current, target = occupancy[t], occupancy[t + 1]
+        current, target = occupancy[t], occupancy[t + 1].astype(bool)
         p = np.clip(probability.astype(np.float64), 1e-12, 1.0 - 1e-12)
-        logit = np.log(p) - np.log1p(-p)
+        need = threshold - (np.log(p) - np.log1p(-p))
         # The last map moved into the next frame, as the model's predict_next splits it.
-        moved = warp(
-            torch.from_numpy(current.astype(np.float32))[None, None],
-            torch.from_numpy(np.ascontiguousarray(flow[:2], np.float32))[None],
-        )
-        warped = moved.clamp(0.0, 1.0)[0, 0].numpy().astype(np.float64)
-        changed = current != target
-        for a, b in pairs:
-            predicted = logit + b + (a - b) * warped >= threshold
-            both = counts[(a, b)]
-            both[0] = both[0] + confusion(predicted, target)
-            both[1] = both[1] + confusion(predicted, target, changed)
+        moved = moved_last_map(current, flow[:2])
+        for k, mask in enumerate((np.ones_like(target), current != target)):
+            counts = pair_counts(need[mask], moved[mask], target[mask], offsets, free_offsets)
+            tp[k] += counts[0]
+            predicted[k] += counts[1]
+            positives[k] += counts[2]
 
     methods = [method, *baselines]
     motions = recording_motions(recording, GRID, methods, occupancy)
@@ -140,8 +137,13 @@ def _recording_pairs(
             for b in baselines
         }
     }
-    for (a, b), (c, ch) in counts.items():
-        row[f"{a:g},{b:g}"] = {"f1": c.f1, "changed_f1": ch.f1}
+    for i, a in enumerate(offsets):
+        for j, b in enumerate(free_offsets):
+            c, ch = (
+                Counts(tp[k, i, j], predicted[k, i, j] - tp[k, i, j], positives[k] - tp[k, i, j])
+                for k in (0, 1)
+            )
+            row[f"{a:g},{b:g}"] = {"f1": c.f1, "changed_f1": ch.f1}
     return row
 
 
@@ -153,8 +155,7 @@ def pair_scores(
     net, _ = resolve_model(model)
     head = getattr(net, "inner", net)  # an ego-motion wrapper's occupancy head
     head.decision_offset, head.decision_offset_free = 0.0, None  # the head's own logit
-    pairs = [(a, b) for a in offsets for b in free_offsets]
-    return {path.name: _recording_pairs(net, path, pairs) for path in recordings}
+    return {path.name: _recording_pairs(net, path, offsets, free_offsets) for path in recordings}
 
 
 def choose_offset_pair(
