@@ -39,7 +39,7 @@ from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAve
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.online import moved_last_map, pair_counts
+from lidarflow.evaluate.online import f1_from_counts, moved_last_map, pair_counts
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.models.streaming import StreamingModel
@@ -96,9 +96,8 @@ def collect(model: Path, path: Path) -> dict[str, np.ndarray]:
 
 
 def f1(counts: np.ndarray) -> np.ndarray:
-    tp, predicted, positives = counts[..., 0], counts[..., 1], counts[..., 2]
-    denominator = predicted + positives
-    return np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1e-12), 1.0)
+    """F1 of counts ``(..., tp / predicted / positives)``."""
+    return f1_from_counts(counts[..., 0], counts[..., 1], counts[..., 2])
 
 
 def replay(

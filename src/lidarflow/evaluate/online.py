@@ -43,6 +43,7 @@ __all__ = [
     "OnlineDecisionConfig",
     "decision_for",
     "decision_of",
+    "f1_from_counts",
     "moved_last_map",
     "pair_counts",
 ]
@@ -139,8 +140,15 @@ def pair_counts(
     return tp, predicted, int(np.count_nonzero(target))
 
 
-def _f1(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
-    # 2TP / (2TP + FP + FN) = 2TP / (predicted + positives); 1 when there is nothing at all.
+def _hits(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray) -> tuple[int, int]:
+    """``(true positives, predicted)`` of a bool prediction within ``mask``."""
+    inside = predicted & mask
+    return np.count_nonzero(inside & target), np.count_nonzero(inside)
+
+
+def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
+    """F1 from counts (arrays alike): ``2TP / (2TP + FP + FN) = 2TP / (predicted + positives)``,
+    1 where there is nothing to find and nothing predicted (as ``metrics.Counts.f1``)."""
     denominator = predicted + positives
     return np.where(denominator > 0, 2.0 * tp / np.maximum(denominator, 1e-12), 1.0)
 
@@ -195,12 +203,13 @@ class OnlineDecision:
             return np.full((2, len(self._a), len(self._b)), -np.inf)
         h = self.config.lookahead / self._weight  # the recent counts per frame, h frames of them
         made = self._made[:, :, None, None]
-        f1 = _f1(
+        f1 = f1_from_counts(
             made[:, 0] + h * self._tp,
             made[:, 1] + h * self._predicted,
             made[:, 2] + h * self._positives[:, None, None],
         )
-        best = _f1(self._base[..., 0], self._base[..., 1], self._made[:, 2:3]).max(axis=1)
+        base = self._base
+        best = f1_from_counts(base[..., 0], base[..., 1], self._made[:, 2:3]).max(axis=1)
         return f1 - best[:, None, None]
 
     def _choice(self) -> tuple[float, float]:
@@ -229,12 +238,9 @@ class OnlineDecision:
             self._tp[k] += tp
             self._predicted[k] += predicted
             self._positives[k] += positives
-            for j, p in enumerate((made, *pending.baselines)):
-                counts = (np.count_nonzero(p & target & mask), np.count_nonzero(p & mask))
-                if j == 0:
-                    self._made[k] += (*counts, positives)
-                else:
-                    self._base[k, j - 1] += counts
+            self._made[k] += (*_hits(made, target, mask), positives)
+            for j, p in enumerate(pending.baselines):
+                self._base[k, j] += _hits(p, target, mask)
         self._scored += 1
 
     def update(
