@@ -9,6 +9,15 @@ F1 stays beside the temporal average's.
 
     python experiments/history_rule.py --train ../shared/data/positive_{1,3,4}.bag \\
         --eval ../shared/data/positive_2.bag --k 3 5 8 --json history_rule.json
+
+``--oracle`` asks a different question: can any decision made from a cell's own past win a
+recording at all? It fits the table on each ``--eval`` recording *itself* (in-sample, so an
+upper bound for history-only rules of that length, not a method) and sweeps the decision
+threshold, reporting each point's F1 / changed-cell F1 beside the best baselines' and whether
+any threshold beats them on both (the issue's "wins").
+
+    python experiments/history_rule.py --oracle --eval ../shared/data/positive_4.bag \\
+        --k 5 8 10 --json history_oracle_positive_4.json
 """
 
 from __future__ import annotations
@@ -20,11 +29,14 @@ from pathlib import Path
 import numpy as np
 
 from lidarflow.data import load_any
+from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import f1_score
+from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.scan import GridSpec
 
 WARMUP = 10
 THRESHOLD = 0.4
+ORACLE_THRESHOLDS = (0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6)
 
 
 def history_codes(occupancy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -47,12 +59,18 @@ def fit(recordings: list[np.ndarray], k: int) -> np.ndarray:
     return ones / np.maximum(total, 1)
 
 
-def score(table: np.ndarray, occupancy: np.ndarray, k: int) -> dict[str, float]:
+def scored_frames(occupancy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Codes, targets and current maps of the frames `lidarflow evaluate` scores (t >= 10)."""
     code, target = history_codes(occupancy, k)
     skip = max(0, WARMUP - (k - 1))  # code index i predicts frame k + i from frame k - 1 + i
-    code, target = code[skip:], target[skip:]
-    current = occupancy[k - 1 : -1][skip:].astype(bool)
-    predicted = table[code] >= THRESHOLD
+    return code[skip:], target[skip:], occupancy[k - 1 : -1][skip:].astype(bool)
+
+
+def score(
+    table: np.ndarray, occupancy: np.ndarray, k: int, threshold: float = THRESHOLD
+) -> dict[str, float]:
+    code, target, current = scored_frames(occupancy, k)
+    predicted = table[code] >= threshold
     changed = current != target
     return {
         "f1": f1_score(predicted, target),
@@ -62,13 +80,55 @@ def score(table: np.ndarray, occupancy: np.ndarray, k: int) -> dict[str, float]:
     }
 
 
+def best_baselines(occupancy: np.ndarray, visibility: np.ndarray) -> dict[str, float]:
+    """The best baseline F1 and changed-cell F1, scored as `lidarflow evaluate` scores them."""
+    scorers = evaluate_maps(
+        occupancy, visibility, [CopyLast(), TemporalAverage(), ConstantVelocity()]
+    )
+    summaries = [s.summary() for s in scorers.values()]
+    return {m: max(s[m] for s in summaries) for m in ("f1", "changed_f1")}
+
+
+def oracle(paths: list[Path], ks: list[int]) -> dict[str, dict]:
+    """Per recording: the in-sample history table's F1 / changed-cell F1 at each threshold."""
+    results: dict[str, dict] = {}
+    for path in paths:
+        occupancy, visibility = load_any(path).maps(GridSpec())
+        best = best_baselines(occupancy, visibility)
+        row: dict = {"best_baselines": best}
+        for k in ks:
+            table = fit([occupancy], k)
+            points = {str(t): score(table, occupancy, k, t) for t in ORACLE_THRESHOLDS}
+            wins = [t for t, r in points.items() if all(r[m] > best[m] for m in best)]
+            row[f"K={k}"] = {"thresholds": points, "winning_thresholds": wins}
+            print(
+                f"{path.name} K={k}: "
+                + " ".join(f"{t}: {r['f1']:.4f}/{r['changed_f1']:.3f}" for t, r in points.items())
+                + f" | best baselines {best['f1']:.4f}/{best['changed_f1']:.3f}; "
+                + f"wins at {wins or 'no threshold'}"
+            )
+        results[path.name] = row
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--train", type=Path, nargs="+", required=True)
+    parser.add_argument("--train", type=Path, nargs="+")
     parser.add_argument("--eval", type=Path, nargs="+", required=True)
     parser.add_argument("--k", type=int, nargs="+", default=[3, 5, 8])
     parser.add_argument("--json", type=Path)
+    parser.add_argument(
+        "--oracle", action="store_true", help="fit on each --eval recording itself (upper bound)"
+    )
     args = parser.parse_args()
+    if args.oracle:
+        results = oracle(args.eval, args.k)
+        if args.json:
+            payload = {"oracle": "in-sample", "warmup": WARMUP, "results": results}
+            args.json.write_text(json.dumps(payload, indent=2) + "\n")
+        return
+    if not args.train:
+        parser.error("--train is needed (or --oracle)")
     if set(args.train) & set(args.eval):
         parser.error("evaluate on recordings that were not fitted on")
     grid = GridSpec()

@@ -46,29 +46,35 @@ def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return maps, logits, moved
 
 
-def test_margins_look_ahead_from_the_decisions_made_and_the_baselines():
+@pytest.mark.parametrize("gain", [None, 2.5])
+def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain):
     maps, logits, moved = _stream(12, seed=3)
     pairs = [(a, b) for a in (0.0, 1.5) for b in (-0.3, 0.9)]
     config = OnlineDecisionConfig(
         occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1, lookahead=7, min_frames=99
     )
-    decision = OnlineDecision(0.6, 0.2, config)  # min_frames: it decides with (0.6, 0.2) only
+    decision = OnlineDecision(0.6, 0.2, config, gain)  # min_frames: it decides with (0.6, 0.2)
     baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
     visibility = np.ones_like(maps[0])
-    per_pair = {pair: [Counts(), Counts()] for pair in [*pairs, (0.6, 0.2)]}
+    # The candidates: each pair on the moved map, and (with a gain) on the last map unmoved,
+    # where the head's logit g * moved + r becomes g * last + r.
+    candidates = [(False, p) for p in pairs] + [(True, p) for p in pairs if gain is not None]
+    per_pair = {c: [Counts(), Counts()] for c in [*candidates, (False, (0.6, 0.2))]}
     per_baseline = [[Counts(), Counts()] for _ in baselines]
     for t in range(len(maps)):
         own = logits[t] + 0.2 + (0.6 - 0.2) * moved[t]
         decision.update(_sigmoid(own), maps[t], visibility, moved[t])
         if t > 0:  # frames 1..t scored: the decisions made, plus 7 frames of each pair's mean
-            expected = [
-                _margin(per_pair[(0.6, 0.2)], per_pair[p], 7 / t, per_baseline) for p in pairs
-            ]
-            assert np.allclose(decision.margins(), np.reshape(expected, (2, 2)))
+            made = per_pair[(False, (0.6, 0.2))]
+            expected = [_margin(made, per_pair[c], 7 / t, per_baseline) for c in candidates]
+            assert np.allclose(decision.margins(), np.reshape(expected, (-1, 2, 2)))
         if t + 1 < len(maps):
             target, changed = maps[t + 1], maps[t] != maps[t + 1]
-            for (a, b), both in per_pair.items():
-                p = logits[t] + b + (a - b) * moved[t] >= LOGIT
+            for (unmoved, (a, b)), both in per_pair.items():
+                last = maps[t].astype(float)
+                split = last if unmoved else moved[t]
+                logit = logits[t] + (gain * (last - moved[t]) if unmoved else 0.0)
+                p = logit + b + (a - b) * split >= LOGIT
                 both[0] += confusion(p, target)
                 both[1] += confusion(p, target, changed)
             for m, both in zip(baselines, per_baseline, strict=True):
@@ -113,6 +119,30 @@ def test_it_moves_to_the_offsets_that_would_have_found_the_cells():
     assert decision.offsets[0] >= 0.5
 
 
+def test_where_the_flow_moves_what_stays_the_unmoved_map_is_chosen():
+    # A static pattern that the flow moves one cell right every frame: on the moved map no pair
+    # finds the cells (the head's logit is high where the flow put them), on the unmoved map
+    # the same head (g * last + r) predicts the pattern exactly. Without the gain the decision
+    # cannot tell, and keeps to the moved map.
+    pattern = np.zeros((10, 12), bool)
+    pattern[2:6, 3:7] = True
+    moved = np.roll(pattern, 1, axis=1).astype(float)
+    gain, residual = 4.0, -3.0
+    probability = _sigmoid(gain * moved + residual)
+    visibility = np.ones_like(pattern)
+    for given_gain in (gain, None):
+        decision = OnlineDecision(0.0, None, OnlineDecisionConfig(min_frames=3), given_gain)
+        for _ in range(6):
+            out = decision.update(probability, pattern, visibility, moved)
+        assert decision.unmoved == (given_gain is not None)
+        assert np.array_equal(out >= THRESHOLD, pattern) == (given_gain is not None)
+    unmoved_off = OnlineDecisionConfig(min_frames=3, unmoved=False)
+    decision = OnlineDecision(0.0, None, unmoved_off, gain)
+    for _ in range(6):
+        decision.update(probability, pattern, visibility, moved)
+    assert not decision.unmoved and decision.margins().shape[0] == 1
+
+
 def test_reset_forgets_the_stream_and_a_new_shape_needs_one():
     maps, logits, moved = _stream(14, seed=2)
     decision = OnlineDecision(0.6, None, OnlineDecisionConfig(min_frames=2))
@@ -123,7 +153,8 @@ def test_reset_forgets_the_stream_and_a_new_shape_needs_one():
             np.zeros((5, 5), np.float32), np.zeros((5, 5)), np.ones((5, 5)), np.zeros((5, 5))
         )
     decision.reset()
-    assert decision.offsets == (0.6, 0.6) and np.isinf(decision.margins()).all()
+    assert decision.offsets == (0.6, 0.6) and not decision.unmoved
+    assert np.isinf(decision.margins()).all()
     decision.update(
         np.zeros((5, 5), np.float32), np.zeros((5, 5)), np.ones((5, 5)), np.zeros((5, 5))
     )

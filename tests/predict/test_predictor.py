@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from lidarflow.errors import PredictError
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
+from lidarflow.predict.backends import DECISION_KEY
 from lidarflow.predict.export import export_onnx
 from tests.conftest import make_model_dir
 
@@ -163,6 +166,9 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
         assert np.array_equal(a.horizon[0], a.probability)
         own = fixed.update((occ, vis))
     assert torch_p.online.offsets == onnx_p.online.offsets != (-3.0, -3.0)
+    assert torch_p.online.unmoved == onnx_p.online.unmoved
+    # The ONNX file carries the head's warp gain, so it tries the unmoved map too.
+    assert onnx_p.online.gain == pytest.approx(float(net.warp_gain.item()), rel=1e-6)
     assert not own.occupied.any() and a.occupied.any()
 
 
@@ -178,7 +184,13 @@ def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, ran
     assert tuned.online is not None and tuned.online.config is config
     net, _ = resolve_model(make_model_dir(tmp_path / "h", occupancy_head=True))
     path = export_onnx(net, tmp_path / "h.onnx")
-    assert Predictor(path, online_decision=True).online is not None
+    assert Predictor(path, online_decision=True).online.gain is not None
+    earlier = onnx.load(str(path))  # marked before the gain was: the moved map only
+    (mark,) = [m for m in earlier.metadata_props if m.key == DECISION_KEY]
+    mark.value = json.dumps({k: v for k, v in json.loads(mark.value).items() if k != "gain"})
+    onnx.save(earlier, str(path))
+    online = Predictor(path, online_decision=True).online
+    assert online is not None and online.gain is None and online.margins().shape[0] == 1
     old = onnx.load(str(path))  # as exported before the decision was marked
     del old.metadata_props[:]
     onnx.save(old, str(path))

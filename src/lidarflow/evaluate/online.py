@@ -22,6 +22,13 @@ thousandths of it in leave-one-out, a little lower on the recording it wins by l
 mattered more is the grid: occupied-cell offsets down to -0.6 lost a recording that -2.4 and
 below win. docs/results/accuracy/loo/online/.) Only past frames are used; nothing is trained.
 
+Every pair is also tried on the last map *unmoved* (``unmoved``, given the head's warp gain
+``g``): the head's logit is ``g * W(O^t, B^t) + r``, and ``g * O^t + r`` is what it would say
+if the flow moved nothing. Where the flow moves cells that stay put (measured: the fold model on
+the 180-degree recording it never saw, and the shipped model on it in-sample, where with the
+flow's warp alone it lost by 0.0006) the unmoved candidates win more; on a driving platform the
+unmoved map is in the wrong frame and the choice keeps to the moved one.
+
 Counting every pair is cheap because a cell's decision depends on one offset alone unless the
 moved map is fractional there: a free cell is predicted occupied iff ``b >= threshold_logit -
 logit``, an occupied one iff ``a >= ...``, so one sorted search per offset grid counts all pairs;
@@ -53,6 +60,7 @@ _THRESHOLD_LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
 # threshold anyway.
 _LOGIT_LIMIT = 15.0
 _TIE_BREAK = 1e-3
+MOVED, UNMOVED = 0, 1  # the candidates' maps: moved by the model's flow, or as it is
 _OCCUPIED = tuple(round(-4.8 + 0.3 * i, 1) for i in range(31))  # -4.8 ... 4.2
 _FREE = tuple(round(-0.6 + 0.3 * i, 1) for i in range(13))  # -0.6 ... 3.0
 
@@ -62,13 +70,15 @@ class OnlineDecisionConfig:
     """``occupied_offsets`` x ``free_offsets``: the pairs tried. Each pair's recent counts weigh
     the past by ``decay`` per frame (0.98: about the last 50 frames), and count as
     ``lookahead`` frames to come. Until ``min_frames`` predictions have been scored the model's
-    own offsets are used."""
+    own offsets are used. ``unmoved``: every pair is also tried on the last map unmoved (needs
+    the head's warp gain; see the module's docstring)."""
 
     occupied_offsets: tuple[float, ...] = _OCCUPIED
     free_offsets: tuple[float, ...] = _FREE
     decay: float = 0.98
     lookahead: float = 20.0
     min_frames: int = 10
+    unmoved: bool = True
 
     def __post_init__(self) -> None:
         if not self.occupied_offsets or not self.free_offsets:
@@ -154,14 +164,16 @@ def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray)
 
 
 class OnlineDecision:
-    """Re-decides a model's next-map probability with the offset pair that should leave the
-    stream's win margin largest (see the module's docstring).
+    """Re-decides a model's next-map probability with the offset pair (and map: moved or
+    unmoved) that should leave the stream's win margin largest (see the module's docstring).
 
     ``update(probability, occupancy, visibility, moved)`` once per frame, in order: the model's
     probability for the next frame (made with its own offsets ``occupied_offset`` /
     ``free_offset``), this frame's maps, and the last map moved into the next frame by the
     model's flow (``occupancy`` itself for a model without flow). Returns the probability with
-    the chosen pair; :attr:`offsets` is that pair.
+    the chosen pair; :attr:`offsets` is that pair and :attr:`unmoved` whether it was applied to
+    the unmoved map. ``gain``: the head's warp gain ``g``; without it (or with
+    ``config.unmoved`` false) only the moved map is tried.
     """
 
     def __init__(
@@ -169,19 +181,22 @@ class OnlineDecision:
         occupied_offset: float,
         free_offset: float | None = None,
         config: OnlineDecisionConfig | None = None,
+        gain: float | None = None,
     ) -> None:
         self.config = config or OnlineDecisionConfig()
         self.own = (
             float(occupied_offset),
             float(occupied_offset if free_offset is None else free_offset),
         )
+        self.gain = None if gain is None or not self.config.unmoved else float(gain)
+        self._maps = 1 if self.gain is None else 2
         self._a = np.asarray(self.config.occupied_offsets, np.float64)
         self._b = np.asarray(self.config.free_offsets, np.float64)
         self.reset()
 
     def reset(self) -> None:
         self._baselines: list[Method] = [CopyLast(), TemporalAverage(), ConstantVelocity()]
-        shape = (2, len(self._a), len(self._b))  # [all cells, changed cells]
+        shape = (2, self._maps, len(self._a), len(self._b))  # [all / changed cells, map, a, b]
         # Every pair's recent counts (decayed; ``_weight`` frames' worth) ...
         self._tp, self._predicted = np.zeros(shape), np.zeros(shape)
         self._positives, self._weight = np.zeros(2), 0.0
@@ -191,34 +206,36 @@ class OnlineDecision:
         self._scored = 0
         self._pending: _Pending | None = None
         self.offsets = self.own
+        self.unmoved = False
 
     def margins(self) -> np.ndarray:
-        """``(A, B)``: the stream's win margin if ``lookahead`` more frames went as each pair's
-        recent ones did, after those decided so far (``-inf`` before any frame is scored)."""
+        """``(M, A, B)`` (map: moved, then unmoved if tried): the stream's win margin if
+        ``lookahead`` more frames went as each pair's recent ones did, after those decided so
+        far (``-inf`` before any frame is scored)."""
         return self._terms().min(axis=0)
 
     def _terms(self) -> np.ndarray:
-        """``(2, A, B)``: the look-ahead F1 and changed-cell F1 less the best baselines'."""
+        """``(2, M, A, B)``: the look-ahead F1 and changed-cell F1 less the best baselines'."""
         if not self._scored:
-            return np.full((2, len(self._a), len(self._b)), -np.inf)
+            return np.full(self._tp.shape, -np.inf)
         h = self.config.lookahead / self._weight  # the recent counts per frame, h frames of them
-        made = self._made[:, :, None, None]
+        made = self._made[:, :, None, None, None]
         f1 = f1_from_counts(
             made[:, 0] + h * self._tp,
             made[:, 1] + h * self._predicted,
-            made[:, 2] + h * self._positives[:, None, None],
+            made[:, 2] + h * self._positives[:, None, None, None],
         )
         base = self._base
         best = f1_from_counts(base[..., 0], base[..., 1], self._made[:, 2:3]).max(axis=1)
-        return f1 - best[:, None, None]
+        return f1 - best[:, None, None, None]
 
-    def _choice(self) -> tuple[float, float]:
+    def _choice(self) -> tuple[bool, tuple[float, float]]:
         terms = self._terms()
         # Where the binding term cannot tell pairs apart (a model that never predicts a changed
         # cell), the other one decides.
         score = terms.min(axis=0) + _TIE_BREAK * terms.sum(axis=0)
-        i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-        return float(self._a[i]), float(self._b[j])
+        m, i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+        return bool(m == UNMOVED), (float(self._a[i]), float(self._b[j]))
 
     def _score(self, target: np.ndarray) -> None:
         pending = self._pending
@@ -230,13 +247,15 @@ class OnlineDecision:
         self._positives *= decay
         self._weight = decay * self._weight + 1.0
         a, b = pending.offsets
-        made = pending.moved * a + (1.0 - pending.moved) * b >= pending.need
+        need, moved = pending.need[pending.map], pending.moved[pending.map]
+        made = moved * a + (1.0 - moved) * b >= need
         for k, mask in enumerate((np.ones_like(target), pending.last != target)):
-            tp, predicted, positives = pair_counts(
-                pending.need[mask], pending.moved[mask], target[mask], self._a, self._b
-            )
-            self._tp[k] += tp
-            self._predicted[k] += predicted
+            for m, (need_m, moved_m) in enumerate(zip(pending.need, pending.moved, strict=True)):
+                tp, predicted, positives = pair_counts(
+                    need_m[mask], moved_m[mask], target[mask], self._a, self._b
+                )
+                self._tp[k, m] += tp
+                self._predicted[k, m] += predicted
             self._positives[k] += positives
             self._made[k] += (*_hits(made, target, mask), positives)
             for j, p in enumerate(pending.baselines):
@@ -252,9 +271,9 @@ class OnlineDecision:
     ) -> np.ndarray:
         occupancy = np.asarray(occupancy)
         if self._pending is not None:
-            if self._pending.need.shape != occupancy.shape:
+            if self._pending.last.shape != occupancy.shape:
                 raise ValueError(
-                    f"map shape changed from {self._pending.need.shape} to {occupancy.shape} "
+                    f"map shape changed from {self._pending.last.shape} to {occupancy.shape} "
                     "within one stream; reset() first"
                 )
             self._score(occupancy)
@@ -264,14 +283,26 @@ class OnlineDecision:
         own_a, own_b = self.own
         logit = np.clip(np.log(p) - np.log1p(-p), -_LOGIT_LIMIT, _LOGIT_LIMIT)
         logit = logit - (own_b + (own_a - own_b) * moved)  # the model's logit, no offset
+        logits, maps = [logit], [moved]
+        if self.gain is not None:
+            last = occupancy.astype(np.float64)
+            logits.append(logit + self.gain * (last - moved))  # g * O^t + r
+            maps.append(last)
         if self._scored >= self.config.min_frames:
-            self.offsets = self._choice()
+            self.unmoved, self.offsets = self._choice()
         else:
-            self.offsets = self.own
+            self.unmoved, self.offsets = False, self.own
+        chosen = UNMOVED if self.unmoved else MOVED
         self._pending = _Pending(
-            _THRESHOLD_LOGIT - logit, moved, occupancy.astype(bool), baselines, self.offsets
+            [_THRESHOLD_LOGIT - x for x in logits],
+            maps,
+            occupancy.astype(bool),
+            baselines,
+            self.offsets,
+            chosen,
         )
         a, b = self.offsets
+        logit, moved = logits[chosen], maps[chosen]
         out = 1.0 / (1.0 + np.exp(-(logit + b + (a - b) * moved)))
         return out.astype(np.float32)
 
@@ -280,17 +311,18 @@ class OnlineDecision:
 class _Pending:
     """The prediction made for the frame to come, to be scored when it arrives."""
 
-    need: np.ndarray  # the logit the threshold asks for, minus the model's own
-    moved: np.ndarray
+    need: list[np.ndarray]  # per map tried: the logit the threshold asks for, minus the model's
+    moved: list[np.ndarray]  # per map tried: the map splitting occupied from free cells
     last: np.ndarray  # the map it was made from (bool): the changed cells are where they differ
     baselines: list[np.ndarray]  # the baselines' predictions (bool)
-    offsets: tuple[float, float]  # the pair it was made with
+    offsets: tuple[float, float]  # the pair it was made with ...
+    map: int  # ... on this map (MOVED / UNMOVED)
 
 
 def decision_of(model: object) -> dict[str, Any] | None:
-    """An occupancy-head model's ``{"offset", "offset_free", "online"}`` (the head inside an
-    ego-motion wrapper); ``None`` for a model without one. Read from the model's attributes, so
-    no PyTorch is imported here."""
+    """An occupancy-head model's ``{"offset", "offset_free", "online", "gain"}`` (the head inside
+    an ego-motion wrapper; ``gain``: its warp gain ``g``); ``None`` for a model without one. Read
+    from the model's attributes, so no PyTorch is imported here."""
     head = getattr(model, "inner", model)
     if not getattr(head, "occupancy_head", False):
         return None
@@ -298,6 +330,7 @@ def decision_of(model: object) -> dict[str, Any] | None:
         "offset": float(head.decision_offset),
         "offset_free": head.decision_offset_free,
         "online": bool(getattr(head, "online_decision", False)),
+        "gain": float(head.warp_gain.item()),
     }
 
 
@@ -316,4 +349,6 @@ def decision_for(
             "the online decision re-decides an occupancy head's probability; this model has none"
         )
     config = wanted if isinstance(wanted, OnlineDecisionConfig) else None
-    return OnlineDecision(decision["offset"], decision["offset_free"], config)
+    # ONNX files marked before the gain was: their decision tries the moved map only.
+    gain = decision.get("gain")
+    return OnlineDecision(decision["offset"], decision["offset_free"], config, gain)

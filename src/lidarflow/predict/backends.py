@@ -19,7 +19,8 @@ from lidarflow.evaluate.online import decision_of
 #: (written by :func:`lidarflow.predict.export.export_onnx`).
 POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
 #: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "offset_free":
-#: b or null, "online": bool}``, what the Predictor needs to choose the offsets online.
+#: b or null, "online": bool, "gain": g}``, what the Predictor needs to choose the offsets online
+#: (files marked before ``gain`` was added try the moved map only).
 DECISION_KEY = "lidarflow.decision"
 
 __all__ = [
