@@ -12,6 +12,10 @@ milliseconds. Two rules are replayed over the grid's sub-ranges and their consta
   stream's margin largest if ``h`` more frames went as its recent ones did, after the decisions
   made so far.
 
+Each rule is replayed with the pairs on the moved map only (``maps: moved``) and with every pair
+also tried on the last map unmoved (``maps: both``, the head's ``g * O^t + r``; what the shipped
+decision does).
+
 The replay counts from the first scored frame; `lidarflow evaluate --online-decision` (whose
 numbers the docs report) also counts the warm-up frames, so it differs in the last digits.
 
@@ -28,6 +32,7 @@ margin per recording).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 from pathlib import Path
 
@@ -52,27 +57,35 @@ LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
 
 
 def collect(model: Path, path: Path) -> dict[str, np.ndarray]:
-    """Per scored frame: ``pairs`` (T, A, B, 2 masks, tp/predicted/positives) and ``baselines``
-    (T, 3, 2, same)."""
+    """Per scored frame: ``pairs`` (T, A, B, 2 masks, tp/predicted/positives) on the moved map,
+    ``unmoved`` (the same on the last map unmoved) and ``baselines`` (T, 3, 2, tp/...)."""
     net, _ = resolve_model(model)
     head = getattr(net, "inner", net)
     head.decision_offset, head.decision_offset_free, head.online_decision = 0.0, None, False
+    gain = float(head.warp_gain.item())
     recording = load_any(path)
     occupancy, visibility = recording.maps(GridSpec())
-    pairs, baselines = [], {}
+    pairs, unmoved, baselines = [], [], {}
 
     def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
         current, target = occupancy[t].astype(bool), occupancy[t + 1].astype(bool)
         masks = (np.ones_like(target), current != target)
         if name == "model":
             p = np.clip(probability.astype(np.float64), 1e-12, 1 - 1e-12)
-            need = LOGIT - (np.log(p) - np.log1p(-p))
+            logit = np.log(p) - np.log1p(-p)
             moved = moved_last_map(current, None if flow is None else flow[:2])
-            frame = np.zeros((len(OCCUPIED), len(FREE), 2, 3))
-            for k, m in enumerate(masks):
-                tp, predicted, positives = pair_counts(need[m], moved[m], target[m], OCCUPIED, FREE)
-                frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
-            pairs.append(frame)
+            last = current.astype(np.float64)
+            for split, need, out in (
+                (moved, LOGIT - logit, pairs),
+                (last, LOGIT - (logit + gain * (last - moved)), unmoved),
+            ):
+                frame = np.zeros((len(OCCUPIED), len(FREE), 2, 3))
+                for k, m in enumerate(masks):
+                    tp, predicted, positives = pair_counts(
+                        need[m], split[m], target[m], OCCUPIED, FREE
+                    )
+                    frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
+                out.append(frame)
         else:
             hit = probability >= THRESHOLD
             counts = [
@@ -91,6 +104,7 @@ def collect(model: Path, path: Path) -> dict[str, np.ndarray]:
     evaluate_maps(occupancy, visibility, methods, on_prediction=add, motions=motions)
     return {
         "pairs": np.array(pairs),
+        "unmoved": np.array(unmoved),
         "baselines": np.array([baselines[b] for b in BASELINES], float).transpose(1, 0, 2, 3),
     }
 
@@ -150,7 +164,7 @@ def main() -> None:
     data = {}
     for path in args.recordings:
         cache = args.output / f"{stem(path)}.npz"
-        if not cache.exists():
+        if not cache.exists() or "unmoved" not in np.load(cache).files:
             model = args.model or args.folds / stem(path) / "run"
             np.savez(cache, **collect(model, path))
         data[stem(path)] = dict(np.load(cache))
@@ -158,22 +172,25 @@ def main() -> None:
     constants = [("recent", 0.98, 0), ("lookahead", 0.95, 5), ("lookahead", 0.98, 20)]
     constants += [("lookahead", 0.99, 100)]
     results = []
-    for label, (low, high) in ranges.items():
+    for (label, (low, high)), maps, (rule, decay, h) in itertools.product(
+        ranges.items(), ("moved", "both"), constants
+    ):
         keep = np.abs(OCCUPIED - (low + high) / 2) <= (high - low) / 2 + 1e-9
-        for rule, decay, h in constants:
-            row = {"grid": label, "rule": rule, "decay": decay, "lookahead": h, "recordings": {}}
-            for name, d in data.items():
-                pairs = d["pairs"][:, keep].reshape(len(d["pairs"]), -1, 2, 3)
-                chosen = replay(pairs, d["baselines"], rule, decay, h)
-                f, changed, m = margin(pairs, d["baselines"], chosen)
-                row["recordings"][name] = {"f1": f, "changed_f1": changed, "margin": m}
-            wins = sum(r["margin"] > 0 for r in row["recordings"].values())
-            row["wins"] = wins
-            results.append(row)
-            print(
-                f"{label} {rule} decay {decay} h {h}: wins {wins}/{len(data)}; "
-                + ", ".join(f"{n[:10]} {r['margin']:+.4f}" for n, r in row["recordings"].items())
-            )
+        row = {"grid": label, "maps": maps, "rule": rule, "decay": decay, "lookahead": h}
+        row["recordings"] = {}
+        for name, d in data.items():
+            tried = [d["pairs"]] + ([d["unmoved"]] if maps == "both" else [])
+            pairs = np.stack([t[:, keep] for t in tried], 1).reshape(len(d["pairs"]), -1, 2, 3)
+            chosen = replay(pairs, d["baselines"], rule, decay, h)
+            f, changed, m = margin(pairs, d["baselines"], chosen)
+            row["recordings"][name] = {"f1": f, "changed_f1": changed, "margin": m}
+        wins = sum(r["margin"] > 0 for r in row["recordings"].values())
+        row["wins"] = wins
+        results.append(row)
+        print(
+            f"{label} {maps} {rule} decay {decay} h {h}: wins {wins}/{len(data)}; "
+            + ", ".join(f"{n[:10]} {r['margin']:+.4f}" for n, r in row["recordings"].items())
+        )
     (args.output / "rules.json").write_text(json.dumps(results, indent=1) + "\n")
     if args.choose_from:
         choose_fold_clean(results, args.choose_from, args.output / "chosen.json")
@@ -183,7 +200,7 @@ def choose_fold_clean(held_out: list[dict], train_dir: Path, out: Path) -> None:
     """Per held-out recording: the rule (grid, rule, constants) with the largest summed margin
     on that fold's own training recordings (``train_dir/<recording>/rules.json``, written with
     ``--model``), and what it scores on the held-out recording."""
-    key = ("grid", "rule", "decay", "lookahead")
+    key = ("grid", "maps", "rule", "decay", "lookahead")
     chosen = {}
     for name in held_out[0]["recordings"]:
         trained = json.loads((train_dir / name / "rules.json").read_text())
