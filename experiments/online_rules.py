@@ -56,9 +56,12 @@ BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
 
 
-def collect(model: Path, path: Path) -> dict[str, np.ndarray]:
+def collect(
+    model: Path, path: Path, occupied: np.ndarray = OCCUPIED, free: np.ndarray = FREE
+) -> dict[str, np.ndarray]:
     """Per scored frame: ``pairs`` (T, A, B, 2 masks, tp/predicted/positives) on the moved map,
-    ``unmoved`` (the same on the last map unmoved) and ``baselines`` (T, 3, 2, tp/...)."""
+    ``unmoved`` (the same on the last map unmoved) and ``baselines`` (T, 3, 2, tp/...); the
+    pairs of the ``occupied`` x ``free`` offsets."""
     net, _ = resolve_model(model)
     head = getattr(net, "inner", net)
     head.decision_offset, head.decision_offset_free, head.online_decision = 0.0, None, False
@@ -79,10 +82,10 @@ def collect(model: Path, path: Path) -> dict[str, np.ndarray]:
                 (moved, LOGIT - logit, pairs),
                 (last, LOGIT - (logit + gain * (last - moved)), unmoved),
             ):
-                frame = np.zeros((len(OCCUPIED), len(FREE), 2, 3))
+                frame = np.zeros((len(occupied), len(free), 2, 3))
                 for k, m in enumerate(masks):
                     tp, predicted, positives = pair_counts(
-                        need[m], split[m], target[m], OCCUPIED, FREE
+                        need[m], split[m], target[m], occupied, free
                     )
                     frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
                 out.append(frame)
