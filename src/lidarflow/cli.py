@@ -295,13 +295,17 @@ def _methods_and_config(
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    # An online decision measures itself against the temporal average reported here.
+    online_config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
     models_used = {}
     for source in sources:
         net, card = resolve_model(source)
         name = "bundled" if source is None else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"
-        method = ModelMethod(name, StreamingModel(net), moving_threshold)
+        method = ModelMethod(
+            name, StreamingModel(net), moving_threshold, online_config=online_config
+        )
         methods.append(method)
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
         if method.uses_motion and ego_oracle:
@@ -314,6 +318,7 @@ def _methods_and_config(
                     StreamingModel(net),
                     moving_threshold,
                     online=not wants_online,
+                    online_config=online_config,
                 )
             )
     if with_poses and any(getattr(m, "uses_motion", False) for m in methods):
@@ -333,9 +338,10 @@ def _methods_and_config(
     }
     if online or any(getattr(m, "online", None) is not None for m in methods):
         config["online_decision"] = {
-            **dataclasses.asdict(OnlineDecisionConfig()),
-            "rule": "each frame, the (occupied, free) offset pair with the largest decayed win "
-            "margin over the three baselines on the frames scored so far",
+            **dataclasses.asdict(online_config),
+            "rule": "each frame, the (occupied, free) offset pair, on the last map moved by the "
+            "flow or unmoved, that would leave the recording's win margin over the three "
+            "baselines largest if the next `lookahead` frames went as its recent (decayed) ones",
         }
     if any(getattr(m, "uses_motion", False) for m in methods):
         config["ego_motion"] = (

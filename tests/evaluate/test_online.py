@@ -46,15 +46,16 @@ def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return maps, logits, moved
 
 
-@pytest.mark.parametrize("gain", [None, 2.5])
-def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain):
+@pytest.mark.parametrize(("gain", "window"), [(None, 5), (2.5, 2)])
+def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain, window):
     maps, logits, moved = _stream(12, seed=3)
     pairs = [(a, b) for a in (0.0, 1.5) for b in (-0.3, 0.9)]
     config = OnlineDecisionConfig(
-        occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1, lookahead=7, min_frames=99
-    )
+        occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1, lookahead=7, min_frames=99,
+        ta_window=window, ta_threshold=0.5,
+    )  # fmt: skip
     decision = OnlineDecision(0.6, 0.2, config, gain)  # min_frames: it decides with (0.6, 0.2)
-    baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
+    baselines = [CopyLast(), TemporalAverage(window, 0.5), ConstantVelocity()]
     visibility = np.ones_like(maps[0])
     # The candidates: each pair on the moved map, and (with a gain) on the last map unmoved,
     # where the head's logit g * moved + r becomes g * last + r.
@@ -167,6 +168,8 @@ def test_bad_configurations_are_refused():
         OnlineDecisionConfig(free_offsets=())
     with pytest.raises(ValueError, match="lookahead"):
         OnlineDecisionConfig(lookahead=0)
+    with pytest.raises(ValueError, match="window"):
+        OnlineDecisionConfig(ta_window=0)
 
 
 def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path, sample_recording):
@@ -218,12 +221,14 @@ def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_f
     model = make_model_dir(tmp_path / "head", occupancy_head=True, decision_offset=-3.0)
     out = tmp_path / "e.json"
     argv = ["evaluate", str(sample_bag_path()), "-m", str(model), "--online-decision"]
-    code, text, err = run([*argv, "--json", str(out)], capsys)
+    code, text, err = run([*argv, "--json", str(out), "--ta-window", "8"], capsys)
     assert code == 0, err
     report = json.loads(out.read_text())
     fixed, online = report["overall"]["head"], report["overall"]["head_online"]
     assert fixed["f1"] == 0.0 and online["f1"] > 0.9 and "head_online" in text
-    assert report["config"]["online_decision"]["decay"] == 0.98
+    # It measures itself against the temporal average the report scores.
+    decided = report["config"]["online_decision"]
+    assert decided["decay"] == 0.98 and decided["ta_window"] == 8
     code, _, err = run(["evaluate", str(sample_bag_path()), "-m", str(random_flownet_dir),
                         "--online-decision"], capsys)  # fmt: skip
     assert code == 1 and "occupancy head" in err and len(err.strip().splitlines()) == 1

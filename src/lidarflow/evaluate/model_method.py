@@ -33,7 +33,8 @@ class ModelMethod:
     ``online`` re-decides an occupancy-head model's probability with the decision offsets that
     have done best on the recording so far (:mod:`lidarflow.evaluate.online`): ``None`` does so
     where the model asks for it (``online_decision`` in its kwargs), ``True`` / ``False`` always
-    / never, a config with that configuration."""
+    / never, with ``online_config`` (default: :class:`OnlineDecisionConfig`'s); a config always,
+    with that configuration."""
 
     def __init__(
         self,
@@ -42,6 +43,7 @@ class ModelMethod:
         moving_threshold: float = MOVING_THRESHOLD,
         oracle: bool = False,
         online: bool | OnlineDecisionConfig | None = None,
+        online_config: OnlineDecisionConfig | None = None,
     ) -> None:
         self.name = name
         self.stream = stream
@@ -53,7 +55,7 @@ class ModelMethod:
         self.odometry = OdometryCheck() if self.poses_optional else None
         self.oracle = oracle and self.uses_motion
         try:
-            self.online = decision_for(decision_of(stream.model), online)
+            self.online = decision_for(decision_of(stream.model), online, online_config)
         except ValueError as err:
             raise EvaluateError(str(err)) from err
         self.backward_flow: np.ndarray | None = None

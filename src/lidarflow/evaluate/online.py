@@ -71,7 +71,9 @@ class OnlineDecisionConfig:
     the past by ``decay`` per frame (0.98: about the last 50 frames), and count as
     ``lookahead`` frames to come. Until ``min_frames`` predictions have been scored the model's
     own offsets are used. ``unmoved``: every pair is also tried on the last map unmoved (needs
-    the head's warp gain; see the module's docstring)."""
+    the head's warp gain; see the module's docstring). ``ta_window`` / ``ta_threshold``: the
+    temporal-average baseline it measures itself against (`lidarflow evaluate` passes the one it
+    reports)."""
 
     occupied_offsets: tuple[float, ...] = _OCCUPIED
     free_offsets: tuple[float, ...] = _FREE
@@ -79,6 +81,8 @@ class OnlineDecisionConfig:
     lookahead: float = 20.0
     min_frames: int = 10
     unmoved: bool = True
+    ta_window: int = 5
+    ta_threshold: float = 0.4
 
     def __post_init__(self) -> None:
         if not self.occupied_offsets or not self.free_offsets:
@@ -89,6 +93,7 @@ class OnlineDecisionConfig:
             raise ValueError(f"lookahead must be > 0 frames, got {self.lookahead}")
         if self.min_frames < 1:
             raise ValueError(f"min_frames must be >= 1, got {self.min_frames}")
+        TemporalAverage(self.ta_window, self.ta_threshold)  # raises on a bad window / threshold
 
 
 def moved_last_map(occupancy: np.ndarray, backward_flow: np.ndarray | None) -> np.ndarray:
@@ -195,7 +200,8 @@ class OnlineDecision:
         self.reset()
 
     def reset(self) -> None:
-        self._baselines: list[Method] = [CopyLast(), TemporalAverage(), ConstantVelocity()]
+        average = TemporalAverage(self.config.ta_window, self.config.ta_threshold)
+        self._baselines: list[Method] = [CopyLast(), average, ConstantVelocity()]
         shape = (2, self._maps, len(self._a), len(self._b))  # [all / changed cells, map, a, b]
         # Every pair's recent counts (decayed; ``_weight`` frames' worth) ...
         self._tp, self._predicted = np.zeros(shape), np.zeros(shape)
@@ -335,11 +341,14 @@ def decision_of(model: object) -> dict[str, Any] | None:
 
 
 def decision_for(
-    decision: dict[str, Any] | None, wanted: bool | OnlineDecisionConfig | None
+    decision: dict[str, Any] | None,
+    wanted: bool | OnlineDecisionConfig | None,
+    config: OnlineDecisionConfig | None = None,
 ) -> OnlineDecision | None:
     """The online decision of a model whose :func:`decision_of` is ``decision``: ``wanted``
-    ``None`` where the model asks for it, ``True`` / a config always (with that config),
-    ``False`` never. Raises ``ValueError`` when it is wanted and the model has no head."""
+    ``None`` where the model asks for it, ``True`` always, ``False`` never, with ``config``; or
+    a config itself (always, with that one). Raises ``ValueError`` when it is wanted and the
+    model has no head."""
     if wanted is None:
         wanted = bool(decision and decision["online"])
     if wanted is False:
@@ -348,7 +357,8 @@ def decision_for(
         raise ValueError(
             "the online decision re-decides an occupancy head's probability; this model has none"
         )
-    config = wanted if isinstance(wanted, OnlineDecisionConfig) else None
+    if isinstance(wanted, OnlineDecisionConfig):
+        config = wanted
     # ONNX files marked before the gain was: their decision tries the moved map only.
     gain = decision.get("gain")
     return OnlineDecision(decision["offset"], decision["offset_free"], config, gain)
