@@ -44,7 +44,7 @@ from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAve
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.online import f1_from_counts, moved_last_map, pair_counts
+from lidarflow.evaluate.online import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.models.streaming import StreamingModel
@@ -122,17 +122,19 @@ def replay(
 ) -> np.ndarray:
     """The pair index chosen each frame (flattened over the grid) by ``rule``."""
     frames, k = len(pairs), pairs.shape[1]
-    made, base = np.zeros((2, 3)), np.zeros((3, 2, 3))  # since the start
-    recent, recent_base, weight = np.zeros((k, 2, 3)), np.zeros((3, 2, 3)), 0.0  # decayed
+    # The library's layout: [mask, ..., (tp, predicted, positives)].
+    pairs, baselines = pairs.transpose(0, 2, 1, 3), baselines.transpose(0, 2, 1, 3)
+    made, base = np.zeros((2, 3)), np.zeros((2, 3, 3))  # since the start
+    recent, recent_base, weight = np.zeros((2, k, 3)), np.zeros((2, 3, 3)), 0.0  # decayed
     chosen = np.zeros(frames, int)
     for t in range(frames):
         if t:
-            if rule == "recent":
-                terms = f1(recent) - f1(recent_base).max(axis=0)
+            if rule == "recent":  # each pair's own recent margin
+                terms = lookahead_terms(np.zeros((2, 3)), recent, weight, recent_base, 1.0)
             else:
-                terms = f1(made[None] + h * recent / weight) - f1(base).max(axis=0)
-            chosen[t] = int(np.argmax(terms.min(axis=1) + 1e-3 * terms.sum(axis=1)))
-        made += pairs[t, chosen[t]]
+                terms = lookahead_terms(made, recent, weight, base, h)
+            chosen[t] = int(np.argmax(terms.min(axis=0) + 1e-3 * terms.sum(axis=0)))
+        made += pairs[t, :, chosen[t]]
         base += baselines[t]
         recent = decay * recent + pairs[t]
         recent_base = decay * recent_base + baselines[t]

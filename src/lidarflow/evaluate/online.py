@@ -51,6 +51,7 @@ __all__ = [
     "decision_for",
     "decision_of",
     "f1_from_counts",
+    "lookahead_terms",
     "moved_last_map",
     "pair_counts",
 ]
@@ -168,6 +169,26 @@ def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray)
     return np.where(denominator > 0, 2.0 * tp / np.maximum(denominator, 1e-12), 1.0)
 
 
+def lookahead_terms(
+    made: np.ndarray,
+    recent: np.ndarray,
+    weight: float,
+    baselines: np.ndarray,
+    lookahead: float,
+) -> np.ndarray:
+    """``(2, *pairs)``: the F1 and changed-cell F1 (first axis) less the best baseline's, if
+    ``lookahead`` more frames went as each candidate's recent ones did, after the decisions
+    made. Counts are ``(tp, predicted, positives)`` on the last axis, over all cells and over
+    the changed ones on the first: ``made`` ``(2, 3)`` and ``baselines`` ``(2, n, 3)`` since
+    the stream began, ``recent`` ``(2, *pairs, 3)`` decayed, ``weight`` frames' worth of them.
+    With ``made`` zero it is each candidate's own recent margin."""
+    extra = (1,) * (recent.ndim - 2)
+    h = lookahead / weight  # the recent counts per frame, h frames of them
+    f1 = f1_from_counts(*np.moveaxis(made.reshape(2, *extra, 3) + h * recent, -1, 0))
+    best = f1_from_counts(*np.moveaxis(baselines, -1, 0)).max(axis=1)
+    return f1 - best.reshape(2, *extra)
+
+
 class OnlineDecision:
     """Re-decides a model's next-map probability with the offset pair (and map: moved or
     unmoved) that should leave the stream's win margin largest (see the module's docstring).
@@ -208,7 +229,7 @@ class OnlineDecision:
         self._positives, self._weight = np.zeros(2), 0.0
         # ... and, since the stream began, the decisions made and the baselines'.
         self._made = np.zeros((2, 3))  # [mask, (tp, predicted, positives)]
-        self._base = np.zeros((2, len(self._baselines), 2))  # [mask, baseline, (tp, predicted)]
+        self._base = np.zeros((2, len(self._baselines), 3))  # [mask, baseline, (tp, ...)]
         self._scored = 0
         self._pending: _Pending | None = None
         self.offsets = self.own
@@ -224,16 +245,9 @@ class OnlineDecision:
         """``(2, M, A, B)``: the look-ahead F1 and changed-cell F1 less the best baselines'."""
         if not self._scored:
             return np.full(self._tp.shape, -np.inf)
-        h = self.config.lookahead / self._weight  # the recent counts per frame, h frames of them
-        made = self._made[:, :, None, None, None]
-        f1 = f1_from_counts(
-            made[:, 0] + h * self._tp,
-            made[:, 1] + h * self._predicted,
-            made[:, 2] + h * self._positives[:, None, None, None],
-        )
-        base = self._base
-        best = f1_from_counts(base[..., 0], base[..., 1], self._made[:, 2:3]).max(axis=1)
-        return f1 - best[:, None, None, None]
+        positives = np.broadcast_to(self._positives[:, None, None, None], self._tp.shape)
+        recent = np.stack([self._tp, self._predicted, positives], axis=-1)
+        return lookahead_terms(self._made, recent, self._weight, self._base, self.config.lookahead)
 
     def _choice(self) -> tuple[bool, tuple[float, float]]:
         terms = self._terms()
@@ -265,7 +279,7 @@ class OnlineDecision:
             self._positives[k] += positives
             self._made[k] += (*_hits(made, target, mask), positives)
             for j, p in enumerate(pending.baselines):
-                self._base[k, j] += _hits(p, target, mask)
+                self._base[k, j] += (*_hits(p, target, mask), positives)
         self._scored += 1
 
     def update(
