@@ -504,13 +504,14 @@ def _add_horizon_scores(
     # one roll-out per model (an oracle variant has no roll-out of its own)
     streamed = [m for m in methods if hasattr(m, "stream") and not getattr(m, "oracle", False)]
     models = {m.name: m.stream.model for m in streamed}
+    decisions = {m.name: m.online for m in streamed if m.online is not None}
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         occupancy, visibility = recording.maps(spec)
         motions = recording_motions(recording, spec, streamed, occupancy)
         total = len(models) * max(0, len(occupancy) - horizon)
         with _progress(total, f"horizon {horizon}, {Path(name).name}") as bar:
             entry["horizon_f1"] = horizon_f1(
-                occupancy, visibility, models, horizon, warmup, bar.update, motions
+                occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions
             )
 
 

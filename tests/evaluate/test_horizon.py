@@ -40,3 +40,21 @@ def test_too_short_for_the_horizon_is_refused():
     occupancy, visibility = _walker(5)
     with pytest.raises(EvaluateError, match="horizon 3"):
         horizon_f1(occupancy, visibility, {}, horizon=3, warmup=2)
+
+
+def test_the_online_decision_is_fed_back_through_the_roll_out():
+    from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig
+
+    occupancy, visibility = _walker(12)
+    # Untrained, the head is copy-last at logit 2.2: at its own offset -3 it predicts nothing,
+    # at any step. Chosen online (here the one occupied-cell offset, 6), the cells are found,
+    # and fed back decided they are found again at every step.
+    head = build_model("flownet", occupancy_head=True, decision_offset=-3.0).eval()
+    config = OnlineDecisionConfig(occupied_offsets=(6.0,), free_offsets=(-0.6,), min_frames=2)
+    decision = OnlineDecision(-3.0, None, config)
+    models = {"fixed": head, "online": head}
+    scores = horizon_f1(
+        occupancy, visibility, models, horizon=3, warmup=4, decisions={"online": decision}
+    )
+    assert scores["fixed"] == [0.0, 0.0, 0.0]
+    assert scores["online"] == pytest.approx(scores["copy_last"])

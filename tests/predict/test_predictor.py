@@ -196,3 +196,28 @@ def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, ran
     onnx.save(old, str(path))
     with pytest.raises(PredictError, match="export it again"):
         Predictor(path, online_decision=True)
+
+
+def test_the_roll_out_feeds_back_the_online_decision(tmp_path, sample_recording):
+    from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.scan import GridSpec
+
+    # At its own offset -3 the untrained head predicts nothing at any step; chosen online (here
+    # the one occupied-cell offset, 6) the cells are found, and the roll-out, fed back the
+    # decided map and re-decided at every step, finds them again: torch and ONNX alike.
+    kwargs = {"occupancy_head": True, "decision_offset": -3.0}
+    folder = make_model_dir(tmp_path / "m", seed=2, **kwargs)
+    net, _ = resolve_model(folder)
+    config = OnlineDecisionConfig(occupied_offsets=(6.0,), free_offsets=(-0.6,), min_frames=2)
+    onnx_path = export_onnx(net, tmp_path / "m.onnx")
+    predictors = [
+        Predictor(folder, horizon=3, online_decision=config),
+        Predictor(onnx_path, horizon=3, online_decision=config),
+        Predictor(folder, horizon=3),
+    ]
+    occupancy, visibility = sample_recording.slice(0, 25).maps(GridSpec())
+    for occ, vis in zip(occupancy, visibility, strict=True):
+        online, onnx, fixed = (p.update((occ, vis)) for p in predictors)
+    assert (online.horizon[1:] >= 0.4).any(axis=(1, 2)).all()
+    assert np.abs(online.horizon - onnx.horizon).max() < 1e-3
+    assert not (fixed.horizon >= 0.4).any()

@@ -7,6 +7,13 @@ its state, feeding back its own predicted map with the visibility of frame ``t``
 ahead is scored (F1 at 0.4) against ``O^{t+k}``. Copy-last's ``k``-step prediction is ``O^t``.
 Frames ``t`` without a frame ``t + K`` are not scored, so every horizon sees the same frames.
 
+A model with an online decision (``decisions``, :mod:`lidarflow.evaluate.online`) decides its
+next map with it, as in the streaming evaluation, and the roll-out feeds back that decided map,
+each step re-decided with the same choice (offsets and map). Fed back at a fixed offset the
+offset compounds: the bundled v6 at its fixed 0.9 fell below copy-last on demo_stationary at
+every k, and with its online choice fed back it is above at every k
+(docs/results/accuracy/horizon_bundled_v6_online.json).
+
 Ego-motion models get each frame's motion (``motions``: the recording's odometry, or the motion
 matched from its scans, NaN where none is known) and roll forward assuming the same motion again,
 as the Predictor does; a model that may run without poses checks it against the scans first
@@ -23,6 +30,7 @@ import torch
 from lidarflow.data.motion import OdometryCheck
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.online import OnlineDecision, moved_last_map
 from lidarflow.models.recurrent import RecurrentMapModel
 
 __all__ = ["horizon_f1"]
@@ -37,12 +45,14 @@ def horizon_f1(
     warmup: int = 10,
     progress: Callable[[int], None] | None = None,
     motions: np.ndarray | None = None,
+    decisions: dict[str, OnlineDecision] | None = None,
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
     ``progress(1)`` is called after every model step on a recorded frame. ``motions``
     ``(N, 3)`` (cells, radians; NaN: unknown) go to ego-motion models; without them those run
-    uncompensated."""
+    uncompensated. ``decisions``: the online decision of the models that have one (reset here,
+    then updated on every frame)."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
@@ -61,6 +71,9 @@ def horizon_f1(
         ego = bool(getattr(model, "ego_motion", False))
         check = OdometryCheck() if getattr(model, "poses_optional", False) else None
         counts = [Counts() for _ in range(horizon)]
+        online = (decisions or {}).get(name)
+        if online is not None:
+            online.reset()
         h, w = occupancy.shape[-2:]
         state = model.init_state(1, h, w)
         for t in range(n - horizon):
@@ -74,19 +87,35 @@ def horizon_f1(
             out, state = model.step(maps, state, *motion)
             if progress is not None:
                 progress(1)
+            probability = model.predict_next(maps, out)
+            if online is not None:  # every frame: it scores itself on the stream
+                decided = online.update(
+                    probability[0, 0].numpy(), occupancy[t], visibility[t], _moved(maps, out)
+                )
+                probability = torch.from_numpy(decided)[None, None]
             if t not in scored:
                 continue
-            probability = model.predict_next(maps, out)
             rolled = state
             for k in range(horizon):
                 if k > 0:
                     fed = torch.cat([probability, maps[:, 1:2]], dim=1)
                     out_k, rolled = model.step(fed, rolled, *motion)
                     probability = model.predict_next(fed, out_k)
+                    if online is not None:
+                        decided = online.apply(
+                            probability[0, 0].numpy(), fed[0, 0].numpy(), _moved(fed, out_k)
+                        )
+                        probability = torch.from_numpy(decided)[None, None]
                 predicted = probability[0, 0].numpy() >= THRESHOLD
                 counts[k] = counts[k] + confusion(predicted, occupancy[t + 1 + k])
         result[name] = [c.f1 for c in counts]
     return result
+
+
+def _moved(maps: torch.Tensor, out: torch.Tensor) -> np.ndarray:
+    """The occupancy of ``maps`` moved into the next frame by the step's backward flow."""
+    flow = out[0, 0:2].numpy() if out.shape[1] >= 4 else None
+    return moved_last_map(maps[0, 0].numpy(), flow)
 
 
 def _known(motions: np.ndarray | None, t: int) -> np.ndarray | None:

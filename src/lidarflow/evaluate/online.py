@@ -298,6 +298,34 @@ class OnlineDecision:
                 )
             self._score(occupancy)
         baselines = [m.update(occupancy, visibility) >= THRESHOLD for m in self._baselines]
+        logits, maps = self._candidates(probability, occupancy, moved)
+        if self._scored >= self.config.min_frames:
+            self.unmoved, self.offsets = self._choice()
+        else:
+            self.unmoved, self.offsets = False, self.own
+        self._pending = _Pending(
+            [_THRESHOLD_LOGIT - x for x in logits],
+            maps,
+            occupancy.astype(bool),
+            baselines,
+            self.offsets,
+            UNMOVED if self.unmoved else MOVED,
+        )
+        return self._decided(logits, maps)
+
+    def apply(
+        self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray
+    ) -> np.ndarray:
+        """``probability`` re-decided with the current choice (:attr:`offsets`, :attr:`unmoved`),
+        nothing scored: for the predictions a roll-out feeds back (``occupancy`` may then be a
+        fed-back probability map)."""
+        return self._decided(*self._candidates(probability, occupancy, moved))
+
+    def _candidates(
+        self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray
+    ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """The head's logit without offsets and the map splitting occupied from free cells, for
+        the moved map and (with a gain) the unmoved one."""
         moved = np.clip(np.asarray(moved, np.float64), 0.0, 1.0)
         p = np.clip(np.asarray(probability, np.float64), 1e-12, 1.0 - 1e-12)
         own_a, own_b = self.own
@@ -305,22 +333,13 @@ class OnlineDecision:
         logit = logit - (own_b + (own_a - own_b) * moved)  # the model's logit, no offset
         logits, maps = [logit], [moved]
         if self.gain is not None:
-            last = occupancy.astype(np.float64)
+            last = np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)
             logits.append(logit + self.gain * (last - moved))  # g * O^t + r
             maps.append(last)
-        if self._scored >= self.config.min_frames:
-            self.unmoved, self.offsets = self._choice()
-        else:
-            self.unmoved, self.offsets = False, self.own
+        return logits, maps
+
+    def _decided(self, logits: list[np.ndarray], maps: list[np.ndarray]) -> np.ndarray:
         chosen = UNMOVED if self.unmoved else MOVED
-        self._pending = _Pending(
-            [_THRESHOLD_LOGIT - x for x in logits],
-            maps,
-            occupancy.astype(bool),
-            baselines,
-            self.offsets,
-            chosen,
-        )
         a, b = self.offsets
         logit, moved = logits[chosen], maps[chosen]
         out = 1.0 / (1.0 + np.exp(-(logit + b + (a - b) * moved)))

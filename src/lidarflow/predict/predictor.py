@@ -213,18 +213,24 @@ class Predictor:
         if check is not None and not check.update(occupancy, motion):
             motion = None  # the odometry disagrees with the scans: not compensated
         probability, out, self._state = self.backend.run(maps, self._state, motion)
-        future = [probability[0, 0]]
-        # Roll forward on a copy of the state: the fed-back predictions must not leak into
-        # the state that the next real scan continues from.
-        state = self._state
-        for _ in range(self.horizon - 1):
-            fed = np.stack([future[-1], visibility.astype(np.float32)])[None]
-            next_probability, _, state = self.backend.run(fed.astype(np.float32), state, motion)
-            future.append(next_probability[0, 0])
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
+        future = [probability[0, 0]]
         if self.online is not None:
             moved = moved_last_map(occupancy, None if flow is None else flow[:2])
             future[0] = self.online.update(future[0], occupancy, visibility, moved)
+        # Roll forward on a copy of the state: the fed-back predictions must not leak into
+        # the state that the next real scan continues from. With the online decision each
+        # step is re-decided with its current choice (see lidarflow.evaluate.horizon).
+        state = self._state
+        for _ in range(self.horizon - 1):
+            fed = np.stack([future[-1], visibility.astype(np.float32)])[None].astype(np.float32)
+            next_probability, out_k, state = self.backend.run(fed, state, motion)
+            if self.online is not None:
+                flow_k = out_k[0, :2] if self.backend.out_channels >= 4 else None
+                moved = moved_last_map(future[-1], flow_k)
+                future.append(self.online.apply(next_probability[0, 0], future[-1], moved))
+            else:
+                future.append(next_probability[0, 0])
         occupied_now = np.asarray(occupancy, bool)
         return Prediction(
             probability=future[0],
