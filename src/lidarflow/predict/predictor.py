@@ -101,8 +101,9 @@ class Predictor:
             (:mod:`lidarflow.data.scanmatch`, ~1.7 ms a scan); off: those steps run
             uncompensated.
         online_decision: re-decide an occupancy-head model's next map with the decision offsets
-            that have done best on this stream so far (:mod:`lidarflow.evaluate.online`; the
-            roll-out beyond the first frame still feeds back the model's own). ``None``: where
+            that have done best on this stream so far (:mod:`lidarflow.evaluate.online`; a
+            roll-out feeds back the decided map and re-decides every step with the same
+            choice). ``None``: where
             the model asks for it (``online_decision`` in its kwargs or the ONNX file's marks);
             an :class:`~lidarflow.evaluate.online.OnlineDecisionConfig`: always, with that grid
             and those constants.
