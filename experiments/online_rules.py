@@ -118,13 +118,20 @@ def f1(counts: np.ndarray) -> np.ndarray:
 
 
 def replay(
-    pairs: np.ndarray, baselines: np.ndarray, rule: str, decay: float, h: float
+    pairs: np.ndarray,
+    baselines: np.ndarray,
+    rule: str,
+    decay: float,
+    h: float,
+    history: float = 1.0,
 ) -> np.ndarray:
-    """The pair index chosen each frame (flattened over the grid) by ``rule``."""
+    """The pair index chosen each frame (flattened over the grid) by ``rule``; ``history``:
+    the decisions made and the baselines' counts weigh the past by it per frame
+    (``OnlineDecisionConfig.history_decay``)."""
     frames, k = len(pairs), pairs.shape[1]
     # The library's layout: [mask, ..., (tp, predicted, positives)].
     pairs, baselines = pairs.transpose(0, 2, 1, 3), baselines.transpose(0, 2, 1, 3)
-    made, base = np.zeros((2, 3)), np.zeros((2, 3, 3))  # since the start
+    made, base = np.zeros((2, 3)), np.zeros((2, 3, 3))  # since the start (x history)
     recent, recent_base, weight = np.zeros((2, k, 3)), np.zeros((2, 3, 3)), 0.0  # decayed
     chosen = np.zeros(frames, int)
     for t in range(frames):
@@ -134,8 +141,8 @@ def replay(
             else:
                 terms = lookahead_terms(made, recent, weight, base, h)
             chosen[t] = int(np.argmax(terms.min(axis=0) + 1e-3 * terms.sum(axis=0)))
-        made += pairs[t, :, chosen[t]]
-        base += baselines[t]
+        made = history * made + pairs[t, :, chosen[t]]
+        base = history * base + baselines[t]
         recent = decay * recent + pairs[t]
         recent_base = decay * recent_base + baselines[t]
         weight = decay * weight + 1.0

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
-from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, pair_counts
 
 LOGIT = float(np.log(THRESHOLD / (1 - THRESHOLD)))
@@ -46,51 +46,56 @@ def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return maps, logits, moved
 
 
-@pytest.mark.parametrize(("gain", "window"), [(None, 5), (2.5, 2)])
-def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain, window):
+@pytest.mark.parametrize(
+    ("gain", "window", "history"), [(None, 5, 1.0), (2.5, 2, 1.0), (2.5, 5, 0.9)]
+)
+def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain, window, history):
     maps, logits, moved = _stream(12, seed=3)
     pairs = [(a, b) for a in (0.0, 1.5) for b in (-0.3, 0.9)]
     config = OnlineDecisionConfig(
         occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1, lookahead=7, min_frames=99,
-        ta_window=window, ta_threshold=0.5,
+        ta_window=window, ta_threshold=0.5, history_decay=history,
     )  # fmt: skip
     decision = OnlineDecision(0.6, 0.2, config, gain)  # min_frames: it decides with (0.6, 0.2)
     baselines = [CopyLast(), TemporalAverage(window, 0.5), ConstantVelocity()]
     visibility = np.ones_like(maps[0])
     # The candidates: each pair on the moved map, and (with a gain) on the last map unmoved,
-    # where the head's logit g * moved + r becomes g * last + r.
+    # where the head's logit g * moved + r becomes g * last + r. Counts: [all, changed cells] x
+    # (tp, fp, fn); the pairs' summed (decay 1), the decisions made and the baselines' weighing
+    # the past by ``history`` per frame.
     candidates = [(False, p) for p in pairs] + [(True, p) for p in pairs if gain is not None]
-    per_pair = {c: [Counts(), Counts()] for c in [*candidates, (False, (0.6, 0.2))]}
-    per_baseline = [[Counts(), Counts()] for _ in baselines]
+    per_pair = {c: np.zeros((2, 3)) for c in candidates}
+    made, per_baseline = np.zeros((2, 3)), np.zeros((len(baselines), 2, 3))
     for t in range(len(maps)):
         own = logits[t] + 0.2 + (0.6 - 0.2) * moved[t]
         decision.update(_sigmoid(own), maps[t], visibility, moved[t])
         if t > 0:  # frames 1..t scored: the decisions made, plus 7 frames of each pair's mean
-            made = per_pair[(False, (0.6, 0.2))]
             expected = [_margin(made, per_pair[c], 7 / t, per_baseline) for c in candidates]
             assert np.allclose(decision.margins(), np.reshape(expected, (-1, 2, 2)))
         if t + 1 < len(maps):
             target, changed = maps[t + 1], maps[t] != maps[t + 1]
-            for (unmoved, (a, b)), both in per_pair.items():
-                last = maps[t].astype(float)
+            last = maps[t].astype(float)
+            for (unmoved, (a, b)), counts in per_pair.items():
                 split = last if unmoved else moved[t]
                 logit = logits[t] + (gain * (last - moved[t]) if unmoved else 0.0)
-                p = logit + b + (a - b) * split >= LOGIT
-                both[0] += confusion(p, target)
-                both[1] += confusion(p, target, changed)
-            for m, both in zip(baselines, per_baseline, strict=True):
+                counts += _counts(logit + b + (a - b) * split >= LOGIT, target, changed)
+            made = history * made + _counts(own >= LOGIT, target, changed)
+            for j, m in enumerate(baselines):
                 p = m.update(maps[t], visibility) >= THRESHOLD
-                both[0] += confusion(p, target)
-                both[1] += confusion(p, target, changed)
+                per_baseline[j] = history * per_baseline[j] + _counts(p, target, changed)
 
 
-def _margin(made: list, pair: list, h: float, baselines: list) -> float:
-    terms = []
-    for k in (0, 1):
-        tp, fp, fn = (getattr(made[k], n) + h * getattr(pair[k], n) for n in ("tp", "fp", "fn"))
-        f1 = 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 1.0
-        terms.append(f1 - max(b[k].f1 for b in baselines))
-    return min(terms)
+def _counts(predicted: np.ndarray, target: np.ndarray, changed: np.ndarray) -> np.ndarray:
+    both = (confusion(predicted, target), confusion(predicted, target, changed))
+    return np.array([[c.tp, c.fp, c.fn] for c in both], float)
+
+
+def _f1(tp: float, fp: float, fn: float) -> float:
+    return 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 1.0
+
+
+def _margin(made: np.ndarray, pair: np.ndarray, h: float, baselines: np.ndarray) -> float:
+    return min(_f1(*(made[k] + h * pair[k])) - max(_f1(*b[k]) for b in baselines) for k in (0, 1))
 
 
 def test_the_model_is_unchanged_until_enough_frames_are_scored():
@@ -170,6 +175,8 @@ def test_bad_configurations_are_refused():
         OnlineDecisionConfig(lookahead=0)
     with pytest.raises(ValueError, match="window"):
         OnlineDecisionConfig(ta_window=0)
+    with pytest.raises(ValueError, match="history_decay"):
+        OnlineDecisionConfig(history_decay=1.5)
 
 
 def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path, sample_recording):
