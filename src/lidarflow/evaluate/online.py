@@ -192,8 +192,8 @@ def lookahead_terms(
     """``(2, *pairs)``: the F1 and changed-cell F1 (first axis) less the best baseline's, if
     ``lookahead`` more frames went as each candidate's recent ones did, after the decisions
     made. Counts are ``(tp, predicted, positives)`` on the last axis, over all cells and over
-    the changed ones on the first: ``made`` ``(2, 3)`` and ``baselines`` ``(2, n, 3)`` since
-    the stream began, ``recent`` ``(2, *pairs, 3)`` decayed, ``weight`` frames' worth of them.
+    the changed ones on the first: ``made`` ``(2, 3)`` and ``baselines`` ``(2, n, 3)`` over the
+    stream so far, ``recent`` ``(2, *pairs, 3)`` decayed, ``weight`` frames' worth of them.
     With ``made`` zero it is each candidate's own recent margin."""
     extra = (1,) * (recent.ndim - 2)
     h = lookahead / weight  # the recent counts per frame, h frames of them
@@ -240,7 +240,7 @@ class OnlineDecision:
         # Every pair's recent counts (decayed; ``_weight`` frames' worth) ...
         self._tp, self._predicted = np.zeros(shape), np.zeros(shape)
         self._positives, self._weight = np.zeros(2), 0.0
-        # ... and, since the stream began, the decisions made and the baselines'.
+        # ... and the decisions made and the baselines' (decayed by ``history_decay``).
         self._made = np.zeros((2, 3))  # [mask, (tp, predicted, positives)]
         self._base = np.zeros((2, len(self._baselines), 3))  # [mask, baseline, (tp, ...)]
         self._scored = 0
