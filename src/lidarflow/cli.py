@@ -341,7 +341,8 @@ def _methods_and_config(
             **dataclasses.asdict(online_config),
             "rule": "each frame, the (occupied, free) offset pair, on the last map moved by the "
             "flow or unmoved, that would leave the recording's win margin over the three "
-            "baselines largest if the next `lookahead` frames went as its recent (decayed) ones",
+            "baselines largest if the next `lookahead` frames went as its recent (decayed) ones; "
+            "the decisions made and the baselines' counts decay by `history_decay`",
         }
     if any(getattr(m, "uses_motion", False) for m in methods):
         config["ego_motion"] = (
