@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, Method, TemporalAverage
-from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.metrics import THRESHOLD, confusion
 
 __all__ = [
     "OnlineDecision",
@@ -167,12 +167,6 @@ def pair_counts(
         tp = tp + np.count_nonzero(hit & t, axis=-1)
         predicted = predicted + np.count_nonzero(hit, axis=-1)
     return tp, predicted, int(np.count_nonzero(target))
-
-
-def _hits(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray) -> tuple[int, int]:
-    """``(true positives, predicted)`` of a bool prediction within ``mask``."""
-    inside = predicted & mask
-    return np.count_nonzero(inside & target), np.count_nonzero(inside)
 
 
 def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
@@ -292,9 +286,11 @@ class OnlineDecision:
                 self._tp[k, m] += tp
                 self._predicted[k, m] += predicted
             self._positives[k] += positives
-            self._made[k] += (*_hits(made, target, mask), positives)
+            c = confusion(made, target, mask)
+            self._made[k] += (c.tp, c.tp + c.fp, positives)
             for j, p in enumerate(pending.baselines):
-                self._base[k, j] += (*_hits(p, target, mask), positives)
+                c = confusion(p, target, mask)
+                self._base[k, j] += (c.tp, c.tp + c.fp, positives)
         self._scored += 1
 
     def update(
