@@ -32,21 +32,10 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-import torch
+from online_rules import collect, f1
 from study import BASELINES, best_baselines, lidarflow
 
-from lidarflow.data import load_any
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
-from lidarflow.evaluate.ego import recording_motions
-from lidarflow.evaluate.metrics import THRESHOLD, Counts
-from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.online import moved_last_map, pair_counts
-from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
-from lidarflow.scan import GridSpec
-
-GRID = GridSpec()
 
 
 def with_offset(model: Path, offset: float, out: Path, free: float | None = None) -> Path:
@@ -101,61 +90,31 @@ def choose_offset(
     return max(totals, key=lambda o: totals[o]), models, scores, totals
 
 
-def _recording_pairs(
-    net: torch.nn.Module, path: Path, offsets: list[float], free_offsets: list[float]
-) -> dict[str, dict]:
-    """One recording: the baselines and every offset pair, from one streaming pass."""
-    recording = load_any(path)
-    occupancy, visibility = recording.maps(GRID)
-    # The model's own logit, decided here for every pair: never re-decided online.
-    method = ModelMethod("model", StreamingModel(net), online=False)
-    baselines = [CopyLast(), TemporalAverage(), ConstantVelocity()]
-    shape = (2, len(offsets), len(free_offsets))  # [all cells, changed cells]
-    tp, predicted, positives = np.zeros(shape, int), np.zeros(shape, int), np.zeros(2, int)
-    threshold = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
-
-    def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
-        if name != "model" or flow is None:
-            return
-        current, target = occupancy[t], occupancy[t + 1].astype(bool)
-        p = np.clip(probability.astype(np.float64), 1e-12, 1.0 - 1e-12)
-        need = threshold - (np.log(p) - np.log1p(-p))
-        # The last map moved into the next frame, as the model's predict_next splits it.
-        moved = moved_last_map(current, flow[:2])
-        for k, mask in enumerate((np.ones_like(target), current != target)):
-            counts = pair_counts(need[mask], moved[mask], target[mask], offsets, free_offsets)
-            tp[k] += counts[0]
-            predicted[k] += counts[1]
-            positives[k] += counts[2]
-
-    methods = [method, *baselines]
-    motions = recording_motions(recording, GRID, methods, occupancy)
-    scorers = evaluate_maps(occupancy, visibility, methods, on_prediction=add, motions=motions)
-    row: dict = {
-        "baselines": {
-            b.name: {"f1": scorers[b.name].counts.f1, "changed_f1": scorers[b.name].changed.f1}
-            for b in baselines
-        }
-    }
-    for i, a in enumerate(offsets):
-        for j, b in enumerate(free_offsets):
-            c, ch = (
-                Counts(tp[k, i, j], predicted[k, i, j] - tp[k, i, j], positives[k] - tp[k, i, j])
-                for k in (0, 1)
-            )
-            row[f"{a:g},{b:g}"] = {"f1": c.f1, "changed_f1": ch.f1}
-    return row
-
-
 def pair_scores(
     model: Path, recordings: list[Path], offsets: list[float], free_offsets: list[float]
 ) -> dict[str, dict]:
     """``{recording: {"baselines": {...}, "occupied,free": {"f1", "changed_f1"}}}`` from one
-    streaming pass per recording (see the module's docstring)."""
-    net, _ = resolve_model(model)
-    head = getattr(net, "inner", net)  # an ego-motion wrapper's occupancy head
-    head.decision_offset, head.decision_offset_free = 0.0, None  # the head's own logit
-    return {path.name: _recording_pairs(net, path, offsets, free_offsets) for path in recordings}
+    streaming pass per recording (``online_rules.collect``: the head's own logit, never
+    re-decided online; see the module's docstring)."""
+    scores = {}
+    for path in recordings:
+        data = collect(model, path, np.asarray(offsets), np.asarray(free_offsets))
+        pairs = f1(data["pairs"].sum(axis=0))  # (A, B, [F1, changed F1])
+        baselines = f1(data["baselines"].sum(axis=0))  # (3, [F1, changed F1])
+        row: dict = {
+            "baselines": {
+                name: {"f1": float(baselines[j, 0]), "changed_f1": float(baselines[j, 1])}
+                for j, name in enumerate(BASELINES)
+            }
+        }
+        for i, a in enumerate(offsets):
+            for j, b in enumerate(free_offsets):
+                row[f"{a:g},{b:g}"] = {
+                    "f1": float(pairs[i, j, 0]),
+                    "changed_f1": float(pairs[i, j, 1]),
+                }
+        scores[path.name] = row
+    return scores
 
 
 def choose_offset_pair(

@@ -37,12 +37,12 @@ import json
 from pathlib import Path
 
 import numpy as np
-from study import stem
+from study import BASELINES, stem
 
 from lidarflow.data import load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import recording_motions
-from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.online import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.evaluate.stream import evaluate_maps
@@ -52,7 +52,6 @@ from lidarflow.scan import GridSpec
 
 OCCUPIED = np.round(np.arange(-4.8, 4.21, 0.3), 2)
 FREE = np.round(np.arange(-0.6, 3.01, 0.3), 2)
-BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
 
 
@@ -90,15 +89,8 @@ def collect(
                     frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
                 out.append(frame)
         else:
-            hit = probability >= THRESHOLD
-            counts = [
-                (
-                    np.count_nonzero(hit & target & m),
-                    np.count_nonzero(hit & m),
-                    np.count_nonzero(target & m),
-                )
-                for m in masks
-            ]
+            both = [confusion(probability >= THRESHOLD, target, m) for m in masks]
+            counts = [(c.tp, c.tp + c.fp, c.tp + c.fn) for c in both]
             baselines.setdefault(name, []).append(counts)
 
     methods = [ModelMethod("model", StreamingModel(net), online=False)]
