@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError, PredictError
 from lidarflow.evaluate.baselines import CopyLast
@@ -170,6 +171,27 @@ def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driv
     assert not Predictor(plain, GRID).poses_optional
     copy_marks(onnx_path, plain)
     assert Predictor(plain, GRID).poses_optional
+
+
+def test_a_predictor_given_scans_steps_the_model_with_the_motion_refined_on_their_returns(
+    driving, tmp_path
+):
+    blind = driving.slice(0, 24)
+    blind.poses = None
+    kwargs = {"occupancy_head": True, "constant_velocity_input": True, "zero_init_flow": False}
+    folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True, **kwargs)
+    predictor = Predictor(folder, GRID, check_odometry=False)
+    occ, vis = blind.maps(GRID)
+    refined = scan_motions(occ, recording_points(blind), GRID.res)
+    maps_only = scan_motions(occ)
+    # Past the window the returns refine every step, so the two sources differ.
+    assert not np.allclose(np.nan_to_num(refined[12:]), np.nan_to_num(maps_only[12:]))
+    stream = StreamingModel(predictor.backend.model)
+    for t in range(len(blind)):
+        known = None if np.isnan(refined[t]).any() else refined[t]
+        a, b = predictor.update(blind.scan(t)), stream.step(occ[t], vis[t], known)
+        np.testing.assert_allclose(a.probability, b.probability, atol=1e-5)
+        assert a.ego_compensated == (known is not None)
 
 
 def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_the_scans(

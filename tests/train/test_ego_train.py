@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.models import EgoCompensated
 from lidarflow.models.weights import load_trained
@@ -100,9 +101,11 @@ def test_scan_motions_train_a_recording_without_poses_on_the_motion_from_its_sca
     path = blind.save(tmp_path / "blind.npz")
     plain = load_train_data(_config(path).data, with_motion=True)
     matched = load_train_data(_config(path, **{"data.scan_motions": True}).data, with_motion=True)
-    # What evaluate and the Predictor give a poses_optional model there (causal, so the
-    # training part's motions are the whole recording's first ones); identity where unmatched.
-    expected = np.nan_to_num(scan_motions(blind.maps(GRID)[0]), nan=0.0)
+    # What evaluate and the Predictor give a poses_optional model there, refined on the returns
+    # (causal, so the training part's motions are the whole recording's first ones); identity
+    # where unmatched.
+    returns = recording_points(blind)
+    expected = np.nan_to_num(scan_motions(blind.maps(GRID)[0], returns, GRID.res), nan=0.0)
     assert np.abs(expected).sum(axis=1).astype(bool).sum() > 10
     for i, (_, start) in enumerate(matched.sources[0].index):
         assert plain.sources[0][i][1].abs().sum() == 0  # without the option: uncompensated

@@ -16,6 +16,7 @@ import torch
 
 from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.recording import Recording
+from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError
 from lidarflow.ops.rigid import rigid_warp
@@ -59,7 +60,7 @@ def recording_motions(
         if not needing:
             if occupancy is None:
                 occupancy = recording.maps(grid)[0]
-            return scan_motions(occupancy)
+            return scan_motions(occupancy, recording_points(recording), grid.res)
         users = [str(getattr(m, "name", m)) for m in needing]
         source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
         raise EvaluateError(

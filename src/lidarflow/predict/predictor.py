@@ -11,7 +11,8 @@ radians, any fixed frame such as odometry's) with every scan. The motion since t
 update warps the recurrent state into the current frame, and the prediction is moved into the
 next frame assuming the same motion again (constant velocity: only poses up to now are known).
 A model that may run without poses (``poses_optional``, the bundled one) takes the motion from
-the scans where no pose is given (:mod:`lidarflow.data.scanmatch`). Otherwise, without a pose
+the scans where no pose is given (:class:`lidarflow.data.scanmatch.ScanOdometry`: refined on the
+returns when ``update`` is given a :class:`~lidarflow.scan.Scan`). Otherwise, without a pose
 (``None`` or NaN) that step is not compensated (``Prediction.ego_compensated`` is
 False), as a model without odometry would run; horizon steps beyond the first repeat the last
 motion.
@@ -27,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
-from lidarflow.data.scanmatch import match_maps
+from lidarflow.data.scanalign import scan_points
+from lidarflow.data.scanmatch import ScanOdometry
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.online import (
@@ -98,8 +100,9 @@ class Predictor:
             one): stop compensating while the poses disagree with the scans
             (:class:`~lidarflow.data.motion.OdometryCheck`). Off: every pose given is used.
         scan_odometry: for such a model, where no pose is given, take the motion from the scans
-            (:mod:`lidarflow.data.scanmatch`, ~1.7 ms a scan); off: those steps run
-            uncompensated.
+            (:class:`lidarflow.data.scanmatch.ScanOdometry`: the maps matched, and refined on
+            the returns where ``update`` is given a :class:`~lidarflow.scan.Scan`); off: those
+            steps run uncompensated.
         online_decision: re-decide an occupancy-head model's next map with the decision offsets
             that have done best on this stream so far (:mod:`lidarflow.evaluate.online`; a
             roll-out feeds back the decided map and re-decides every step with the same
@@ -142,7 +145,7 @@ class Predictor:
         # See lidarflow.evaluate.model_method: the same check, the same decisions.
         self._odometry = OdometryCheck() if check_odometry else None
         self.scan_odometry = scan_odometry
-        self._previous: np.ndarray | None = None
+        self._scans = ScanOdometry(self.grid.res)
         self.online = self._online_decision(online_decision)
 
     def _online_decision(
@@ -173,7 +176,7 @@ class Predictor:
         self._pose = None
         if self._odometry is not None:
             self._odometry.reset()
-        self._previous = None
+        self._scans.reset()
         if self.online is not None:
             self.online.reset()
 
@@ -206,10 +209,12 @@ class Predictor:
         if self._state is None:
             self._state = self.backend.init_state(*self.grid.shape)
         motion = self._motion(pose) if self.uses_motion else None
-        previous, self._previous = self._previous, np.asarray(occupancy, bool)
-        from_scans = pose is None and self.poses_optional and self.scan_odometry
-        if from_scans and previous is not None and previous.shape == self._previous.shape:
-            motion = match_maps(previous, self._previous)
+        if self.poses_optional and self.scan_odometry:
+            points = scan_points(item) if isinstance(item, Scan) else None
+            if pose is None:
+                motion = self._scans.update(occupancy, points)
+            else:
+                self._scans.observe(occupancy, points)
         check = self._odometry if self.poses_optional else None
         if check is not None and not check.update(occupancy, motion):
             motion = None  # the odometry disagrees with the scans: not compensated

@@ -50,6 +50,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from lidarflow.data import Recording, SequenceSet, load_any
 from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.scan import GridSpec
@@ -232,7 +233,7 @@ def _windows(
         for i, rec in enumerate(recordings):
             source = rec.meta.get("source", "a recording")
             if cfg.scan_motions and not rec.has_poses:
-                matched = scan_motions(seqs.maps[i][:, 0])
+                matched = scan_motions(seqs.maps[i][:, 0], recording_points(rec), grid.res)
                 unmatched = np.isnan(matched).any(axis=1)
                 motions.append(np.where(unmatched[:, None], 0.0, matched).astype(np.float32))
                 notes.append(

@@ -1,0 +1,149 @@
+"""Motion from the returns (point-to-line ICP): exact on ray-cast rooms in motion.py's
+convention, sub-cell on simulated drives where the maps show no motion, and silent on a
+platform standing still."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.scanalign import align, recording_points, scan_points
+from lidarflow.data.scanmatch import STILL_WINDOW, ScanOdometry, compose, scan_motions
+from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
+from lidarflow.sim import PlatformConfig, SimConfig, lidar_preset, simulate
+
+# A 6 x 4 m room with a pillar, as segments (x0, y0, x1, y1) in metres.
+ROOM = np.array(
+    [
+        [-2.0, -2.0, 4.0, -2.0], [4.0, -2.0, 4.0, 2.0], [4.0, 2.0, -2.0, 2.0],
+        [-2.0, 2.0, -2.0, -2.0], [1.0, 0.5, 1.4, 0.5], [1.4, 0.5, 1.4, 0.9],
+        [1.4, 0.9, 1.0, 0.9], [1.0, 0.9, 1.0, 0.5],
+    ]
+)  # fmt: skip
+BEAMS = BeamGeometry(720, -np.pi, np.deg2rad(0.5), 0.05, 8.0)
+
+
+def _scan_from(pose: tuple[float, float, float], geometry: BeamGeometry = BEAMS) -> Scan:
+    """The ranges a sensor at ``pose`` (x, y, yaw in the room) reads: nearest segment hit."""
+    x, y, yaw = pose
+    angles = geometry.angles + yaw
+    d = np.stack([np.cos(angles), np.sin(angles)], 1)[:, None, :]
+    a, e = ROOM[None, :, :2], ROOM[None, :, 2:] - ROOM[None, :, :2]
+    w = a - np.array([x, y])
+    cross = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / cross
+        u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / cross
+    hit = (np.abs(cross) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+    ranges = np.where(hit, t, np.inf).min(axis=1)
+    return Scan(ranges.astype(np.float32), geometry)
+
+
+def _motion(a: tuple[float, float, float], b: tuple[float, float, float]) -> np.ndarray:
+    return relative_motions(np.array([a, b]))[0][1]
+
+
+def test_scan_points_keeps_returns_in_bearing_order_in_rep_103():
+    geometry = BeamGeometry(5, np.pi / 2, -np.pi / 4, 0.1, 5.0)  # left to right
+    ranges = np.array([1.0, np.nan, 2.0, np.inf, 0.05], np.float32)
+    points = scan_points(Scan(ranges, geometry))
+    # Returns at +90 degrees (1 m left) and 0 degrees (2 m ahead), ordered by bearing.
+    np.testing.assert_allclose(points, [[2.0, 0.0], [0.0, 1.0]], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "start, end",
+    [
+        ((0.0, 0.0, 0.0), (0.004, -0.003, np.deg2rad(0.2))),  # sub-cell: what the maps miss
+        ((0.3, -0.5, 0.4), (0.45, -0.42, 0.45)),
+        ((0.0, 0.0, 0.0), (-0.25, 0.15, -0.06)),
+    ],
+)
+def test_a_rigid_motion_through_the_room_is_recovered_in_motion_py_convention(start, end):
+    true = _motion(start, end)
+    found = align(scan_points(_scan_from(end)), scan_points(_scan_from(start)))
+    assert found is not None and found.inliers > 0.9
+    np.testing.assert_allclose(found.motion[:2], true[:2], atol=2e-3)
+    assert abs(found.motion[2] - true[2]) < np.deg2rad(0.05)
+
+
+def test_a_guess_brings_a_motion_too_large_to_pair_from_standing_still():
+    start, end = (0.0, 0.0, 0.0), (0.9, 0.4, 0.2)
+    true = _motion(start, end)
+    current, previous = scan_points(_scan_from(end)), scan_points(_scan_from(start))
+    unguided = align(current, previous)
+    assert unguided is None or np.abs(unguided.motion[:2] - true[:2]).max() > 0.05
+    guided = align(current, previous, true + np.array([0.08, -0.06, 0.02]))
+    assert guided is not None
+    np.testing.assert_allclose(guided.motion, true, atol=2e-3)
+
+
+def test_too_few_returns_or_nothing_in_common_gives_no_motion():
+    previous = scan_points(_scan_from((0.0, 0.0, 0.0)))
+    assert align(previous[:5], previous) is None
+    assert align(previous + np.array([50.0, 0.0]), previous) is None
+    with pytest.raises(ValueError, match="points"):
+        align(previous[:, :1], previous)
+
+
+def test_compose_takes_motions_in_turn():
+    quarter = np.array([1.0, 0.0, np.pi / 2])
+    np.testing.assert_allclose(compose([quarter, quarter]), [1.0, 1.0, np.pi], atol=1e-12)
+    np.testing.assert_allclose(compose([]), [0.0, 0.0, 0.0])
+
+
+def _slow_drive(frames: int = 60) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """Maps, returns and true motions (cells) of a 15 Hz 360 degree scanner on a platform
+    creeping at under 0.1 cells and 0.4 degrees a frame: what the maps alone cannot resolve."""
+    config = SimConfig(
+        scenario="dynamic",
+        sensor=lidar_preset("rplidar", rate_hz=15.0, range_max=3.5),
+        platform=PlatformConfig(
+            max_speed=0.1, max_turn_rate=0.1, cruise=(0.05, 0.1), pause_prob=0.0
+        ),
+        episode_frames=frames,
+    )
+    rec = simulate(frames, seed=7, config=config)
+    true = metres_to_cells(relative_motions(rec.poses)[0], 0.1)
+    return rec.maps(GridSpec())[0], recording_points(rec), true
+
+
+def test_returns_find_the_motion_of_a_drive_every_frame_and_within_a_fraction_of_a_cell():
+    occupancy, points, true = _slow_drive()
+    refined = scan_motions(occupancy, points)
+    maps_only = scan_motions(occupancy)
+    found = np.isfinite(refined[:, 0])
+    assert found[STILL_WINDOW + 1 :].mean() > 0.9
+    assert found.sum() > np.isfinite(maps_only[:, 0]).sum()
+    error = np.abs(refined[found] - true[found])
+    assert np.median(error[:, :2]) < 0.08 and np.median(error[:, 2]) < np.deg2rad(0.15)
+    with pytest.raises(ValueError, match="frames"):
+        scan_motions(occupancy, points[:-1])
+
+
+def test_a_platform_standing_still_is_left_uncompensated_despite_range_noise():
+    rng = np.random.default_rng(0)
+    scan = _scan_from((0.2, -0.1, 0.3))
+    odometry = ScanOdometry()
+    reported = []
+    for _ in range(3 * STILL_WINDOW):
+        noisy = Scan(
+            scan.ranges + rng.normal(0, 0.015, scan.ranges.shape).astype(np.float32), scan.geometry
+        )
+        occupancy = np.zeros((100, 100), bool)
+        reported.append(odometry.update(occupancy, scan_points(noisy)))
+    assert all(m is None for m in reported)
+
+
+def test_observe_restarts_the_window_and_matches_the_next_frame_against_it():
+    odometry = ScanOdometry()
+    grid = GridSpec()
+    poses = [(0.0, 0.0, 0.0), (0.05, 0.0, 0.02)]
+    scans = [_scan_from(p) for p in poses]
+    odometry.observe(rasterize(scans[0], grid)[0], scan_points(scans[0]))
+    # One frame after a restart the window is not full: only what the maps show is reported.
+    reported = odometry.update(rasterize(scans[1], grid)[0], scan_points(scans[1]))
+    assert reported is None or np.all(np.isfinite(reported))
+    assert len(odometry._steps) == 1
+    np.testing.assert_allclose(odometry._steps[0], _motion(*poses), atol=2e-3)
