@@ -7,11 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lidarflow.data import scanmatch
 from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.scanalign import align, recording_points, scan_points
 from lidarflow.data.scanmatch import STILL_WINDOW, ScanOdometry, compose, scan_motions
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
-from lidarflow.sim import PlatformConfig, SimConfig, lidar_preset, simulate
+from lidarflow.sim import PeopleConfig, PlatformConfig, SimConfig, lidar_preset, simulate
 
 # A 6 x 4 m room with a pillar, as segments (x0, y0, x1, y1) in metres.
 ROOM = np.array(
@@ -136,14 +137,27 @@ def test_a_platform_standing_still_is_left_uncompensated_despite_range_noise():
     assert all(m is None for m in reported)
 
 
-def test_observe_restarts_the_window_and_matches_the_next_frame_against_it():
+def test_where_the_maps_show_a_motion_the_refined_one_is_reported_at_once():
     odometry = ScanOdometry()
-    grid = GridSpec()
-    poses = [(0.0, 0.0, 0.0), (0.05, 0.0, 0.02)]
-    scans = [_scan_from(p) for p in poses]
-    odometry.observe(rasterize(scans[0], grid)[0], scan_points(scans[0]))
-    # One frame after a restart the window is not full: only what the maps show is reported.
-    reported = odometry.update(rasterize(scans[1], grid)[0], scan_points(scans[1]))
-    assert reported is None or np.all(np.isfinite(reported))
-    assert len(odometry._steps) == 1
-    np.testing.assert_allclose(odometry._steps[0], _motion(*poses), atol=2e-3)
+    poses = [(0.0, 0.0, 0.0), (0.33, 0.12, 0.04)]
+    scans = [_scan_from(p, BeamGeometry(720, -np.pi, np.deg2rad(0.5), 0.05, 8.0)) for p in poses]
+    maps = [rasterize(scan, GridSpec())[0] for scan in scans]
+    odometry.observe(maps[0], scan_points(scans[0]))  # a frame whose motion came from a pose
+    reported = odometry.update(maps[1], scan_points(scans[1]))
+    assert reported is not None  # the window has not filled: this is the maps' match, refined
+    true = metres_to_cells(_motion(*poses), 0.1)
+    np.testing.assert_allclose(reported[:2], true[:2], atol=0.02)
+    assert abs(reported[2] - true[2]) < np.deg2rad(0.05)
+
+
+def test_a_narrow_scanner_standing_still_among_people_is_not_taken_to_travel(monkeypatch):
+    sensor = lidar_preset("hokuyo-urg", fov_deg=86.0, beams=245, rate_hz=5.0, range_max=3.5)
+    config = SimConfig(
+        scenario="static", sensor=sensor, people=PeopleConfig(count=8), episode_frames=80
+    )
+    rec = simulate(80, seed=1, config=config)
+    occupancy, points = rec.maps(GridSpec())[0], recording_points(rec)
+    assert np.isnan(scan_motions(occupancy, points)).all()
+    # Travel alone is fooled here (one wall, people crossing): standing still fits as well.
+    monkeypatch.setattr(scanmatch, "STILL_FIT", (-1.0, 0.0))
+    assert np.isfinite(scan_motions(occupancy, points)[:, 0]).mean() > 0.3

@@ -30,7 +30,7 @@ import numpy as np
 from lidarflow.data.recording import Recording
 from lidarflow.scan import RETURN, Scan, beam_status
 
-__all__ = ["Alignment", "align", "recording_points", "scan_points"]
+__all__ = ["Alignment", "align", "fit", "recording_points", "scan_points"]
 
 #: Current returns used at most (evenly thinned); the cost is linear in them.
 MAX_POINTS = 400
@@ -49,11 +49,13 @@ _DAMPING = 1e-4
 
 @dataclass(frozen=True)
 class Alignment:
-    """``motion`` ``(dx, dy, dyaw)`` (metres, radians, float64) and the share of the current
-    returns paired within the last gate (``inliers``)."""
+    """``motion`` ``(dx, dy, dyaw)`` (metres, radians, float64), the share of the current
+    returns paired within the last gate (``inliers``) and their RMS distance from the previous
+    scan's surface (``rms``, metres)."""
 
     motion: np.ndarray
     inliers: float
+    rms: float
 
 
 def scan_points(scan: Scan) -> np.ndarray:
@@ -93,37 +95,59 @@ def _rotation(yaw: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
+class _Target:
+    """The previous scan's returns, ready to be paired with: bearings and surface normals."""
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = points
+        self.bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
+        self.normal, self.has_normal = _normals(points)
+        self._offsets = np.arange(-WINDOW, WINDOW)
+
+    def pair(
+        self, source: np.ndarray, motion: np.ndarray, gate: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``source`` moved by ``motion``, the index of each one's nearest return around its
+        bearing, and whether that pair counts (within ``gate`` metres, on a surface)."""
+        moved = source @ _rotation(motion[2]).T + motion[:2]
+        at = np.searchsorted(self.bearings, np.mod(np.arctan2(moved[:, 1], moved[:, 0]), 2 * np.pi))
+        candidates = np.mod(at[:, None] + self._offsets[None, :], len(self.points))
+        gap = ((moved[:, None, :] - self.points[candidates]) ** 2).sum(-1)
+        best = candidates[np.arange(len(source)), gap.argmin(axis=1)]
+        inliers = (gap.min(axis=1) < gate**2) & self.has_normal[best]
+        return moved, best, inliers
+
+    def distances(self, moved: np.ndarray, best: np.ndarray) -> np.ndarray:
+        """Signed distances of ``moved`` from the surface through their paired returns."""
+        return ((moved - self.points[best]) * self.normal[best]).sum(axis=1)
+
+
+def _checked(current: np.ndarray, previous: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    current, previous = np.asarray(current, np.float64), np.asarray(previous, np.float64)
+    if current.ndim != 2 or current.shape[-1] != 2 or previous.ndim != 2 or previous.shape[-1] != 2:
+        raise ValueError(f"points must be (N, 2), got {current.shape} and {previous.shape}")
+    return current[:: int(np.ceil(len(current) / MAX_POINTS)) or 1], previous
+
+
 def align(
     current: np.ndarray, previous: np.ndarray, initial: np.ndarray | None = None
 ) -> Alignment | None:
     """The motion that lays ``current``'s returns onto ``previous``'s (both from
     :func:`scan_points`), starting from ``initial`` (``(dx, dy, dyaw)``, default none), or
     ``None`` where too few returns pair up (:data:`MIN_INLIERS`)."""
-    current, previous = np.asarray(current, np.float64), np.asarray(previous, np.float64)
-    if current.ndim != 2 or current.shape[-1] != 2 or previous.ndim != 2 or previous.shape[-1] != 2:
-        raise ValueError(f"points must be (N, 2), got {current.shape} and {previous.shape}")
-    if len(current) < _MIN_PAIRS or len(previous) < 3:
+    source, previous = _checked(current, previous)
+    if len(source) < _MIN_PAIRS or len(previous) < 3:
         return None
-    source = current[:: int(np.ceil(len(current) / MAX_POINTS))]
-    bearings = np.mod(np.arctan2(previous[:, 1], previous[:, 0]), 2 * np.pi)
-    normal, has_normal = _normals(previous)
-    offsets = np.arange(-WINDOW, WINDOW)
+    target = _Target(previous)
     motion = np.zeros(3) if initial is None else np.asarray(initial, np.float64).reshape(3).copy()
-    inliers = np.zeros(len(source), dtype=bool)
     for iteration in range(MAX_ITERATIONS):
-        gate = GATES[min(iteration, len(GATES) - 1)]
-        moved = source @ _rotation(motion[2]).T + motion[:2]
-        at = np.searchsorted(bearings, np.mod(np.arctan2(moved[:, 1], moved[:, 0]), 2 * np.pi))
-        candidates = np.mod(at[:, None] + offsets[None, :], len(previous))
-        gap = ((moved[:, None, :] - previous[candidates]) ** 2).sum(-1)
-        best = candidates[np.arange(len(source)), gap.argmin(axis=1)]
-        inliers = (gap.min(axis=1) < gate**2) & has_normal[best]
+        moved, best, inliers = target.pair(source, motion, GATES[min(iteration, len(GATES) - 1)])
         if inliers.sum() < _MIN_PAIRS:
             return None
-        n, p, q = normal[best[inliers]], moved[inliers], previous[best[inliers]]
+        n, p = target.normal[best[inliers]], moved[inliers]
         lever = p - motion[:2]  # d(R s)/d(yaw) is R s turned by 90 degrees
         jacobian = np.stack([n[:, 0], n[:, 1], n[:, 1] * lever[:, 0] - n[:, 0] * lever[:, 1]], 1)
-        residual = ((p - q) * n).sum(axis=1)
+        residual = target.distances(p, best[inliers])
         hessian = jacobian.T @ jacobian
         hessian += (_DAMPING * np.trace(hessian) + 1e-12) * np.eye(3)
         step = -np.linalg.solve(hessian, jacobian.T @ residual)
@@ -131,7 +155,25 @@ def align(
         settled = np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6
         if settled and iteration >= len(GATES) - 1:
             break
-    share = float(inliers.mean())
+    share, rms = _fit(target, source, motion)
     if share < MIN_INLIERS:
         return None
-    return Alignment(motion=motion, inliers=share)
+    return Alignment(motion=motion, inliers=share, rms=rms)
+
+
+def fit(current: np.ndarray, previous: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
+    """How well ``motion`` lays ``current``'s returns onto ``previous``'s, without fitting: the
+    share of the returns paired within the last gate and their RMS distance (metres) from the
+    surface (``(0, inf)`` where none pair)."""
+    source, previous = _checked(current, previous)
+    if len(source) == 0 or len(previous) < 3:
+        return 0.0, float("inf")
+    return _fit(_Target(previous), source, np.asarray(motion, np.float64).reshape(3))
+
+
+def _fit(target: _Target, source: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
+    moved, best, inliers = target.pair(source, motion, GATES[-1])
+    if not inliers.any():
+        return 0.0, float("inf")
+    distances = target.distances(moved[inliers], best[inliers])
+    return float(inliers.mean()), float(np.sqrt(np.mean(distances**2)))
