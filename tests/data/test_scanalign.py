@@ -9,7 +9,7 @@ import pytest
 
 from lidarflow.data import scanmatch
 from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanalign import align, recording_points, scan_points
+from lidarflow.data.scanalign import align, fit, recording_points, scan_points
 from lidarflow.data.scanmatch import STILL_WINDOW, ScanOdometry, compose, scan_motions
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
 from lidarflow.sim import PeopleConfig, PlatformConfig, SimConfig, lidar_preset, simulate
@@ -161,3 +161,23 @@ def test_a_narrow_scanner_standing_still_among_people_is_not_taken_to_travel(mon
     # Travel alone is fooled here (one wall, people crossing): standing still fits as well.
     monkeypatch.setattr(scanmatch, "STILL_FIT", (-1.0, 0.0))
     assert np.isfinite(scan_motions(occupancy, points)[:, 0]).mean() > 0.3
+
+
+def test_returns_in_any_order_align_the_same():
+    start, end = (0.0, 0.0, 0.0), (0.2, -0.1, 0.05)
+    current, previous = scan_points(_scan_from(end)), scan_points(_scan_from(start))
+    shuffled = previous[np.random.default_rng(1).permutation(len(previous))]
+    a, b = align(current, previous), align(current, shuffled)
+    assert a is not None and b is not None
+    np.testing.assert_allclose(a.motion, b.motion, atol=1e-9)
+
+
+def test_scans_without_returns_give_no_motion_and_no_error():
+    odometry = ScanOdometry()
+    empty = scan_points(Scan(np.full(720, np.nan, np.float32), BEAMS))
+    room = scan_points(_scan_from((0.0, 0.0, 0.0)))
+    maps = np.zeros((100, 100), bool)
+    assert empty.shape == (0, 2)
+    for points in (room, empty, room, empty, empty, room):
+        assert odometry.update(maps, points) is None
+    assert fit(empty, room, np.zeros(3)) == (0.0, float("inf"))

@@ -99,9 +99,10 @@ class _Target:
     """The previous scan's returns, ready to be paired with: bearings and surface normals."""
 
     def __init__(self, points: np.ndarray) -> None:
-        self.points = points
-        self.bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
-        self.normal, self.has_normal = _normals(points)
+        bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
+        order = np.argsort(bearings, kind="stable")  # scan_points' order, whatever was given
+        self.points, self.bearings = points[order], bearings[order]
+        self.normal, self.has_normal = _normals(self.points)
         self._offsets = np.arange(-WINDOW, WINDOW)
 
     def pair(
