@@ -277,6 +277,7 @@ def _methods_and_config(
     ego_oracle: bool = False,
     with_poses: bool = True,
     online: bool = False,
+    res: float = 0.1,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
     configuration that describes them for the report. With an ego-motion model among them and
@@ -304,12 +305,14 @@ def _methods_and_config(
         while name in {m.name for m in methods}:
             name += "_"
         method = ModelMethod(
-            name, StreamingModel(net), moving_threshold, online_config=online_config
+            name, StreamingModel(net), moving_threshold, online_config=online_config, res=res
         )
         methods.append(method)
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
         if method.uses_motion and ego_oracle:
-            methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True))
+            methods.append(
+                ModelMethod(name + "_oracle", StreamingModel(net), oracle=True, res=res)
+            )
         if online:  # the other decision rule beside the model's own
             wants_online = method.online is not None
             methods.append(
@@ -319,6 +322,7 @@ def _methods_and_config(
                     moving_threshold,
                     online=not wants_online,
                     online_config=online_config,
+                    res=res,
                 )
             )
     if with_poses and any(getattr(m, "uses_motion", False) for m in methods):
@@ -443,7 +447,8 @@ def evaluate(
     gets each recording's poses (odometry) and the copy_last_ego baseline (the last map moved by
     the odometry) is scored beside it; on a recording without poses a model built with
     poses_optional (the bundled one, the default recipe's) takes the motion matched from the scans
-    instead, any other is refused.
+    instead, any other is refused. Such a model also takes the scans' motion where the poses
+    disagree with the scans (a base's odometry read as the scanner's).
 
     A model built with online_decision (the bundled one, the default recipe's) chooses its
     decision offsets as the recording streams, from the frames already seen; --online-decision
@@ -463,6 +468,7 @@ def evaluate(
         ego_oracle,
         with_poses,
         online_decision,
+        spec.res,
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
     report = evaluate_and_report(

@@ -199,13 +199,18 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
 ):
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
     needing = Predictor(make_model_dir(tmp_path / "need", ego_motion=True), GRID)
-    optional = Predictor(folder, GRID)
+    dropping = Predictor(folder, GRID, scan_odometry=False)
     occ, vis = driving.maps(GRID)
     mirrored = driving.poses * np.array([1, -1, -1])  # a pose source with its y axis flipped
-    flags = [optional.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
+    flags = [dropping.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
     assert flags[1] and not flags[-1]  # trusted at first, dropped once the scans disagree
+    # With scan odometry (the default) the scans' own motion replaces the odometry once they
+    # disagree: the drive stays compensated, by a motion close to the true one, not the mirror's.
+    optional = Predictor(folder, GRID)
+    flags = [optional.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
+    assert flags[1] and sum(flags[-20:]) >= 15
     # The evaluation decides the same, frame by frame; a model that needs poses never drops them.
-    method = ModelMethod("opt", StreamingModel(optional.backend.model))
+    method = ModelMethod("opt", StreamingModel(optional.backend.model), res=GRID.res)
     motions = metres_to_cells(relative_motions(mirrored)[0], GRID.res)
     optional.reset()
     for t in range(60):
@@ -214,6 +219,18 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
         np.testing.assert_allclose(p.probability, q, atol=1e-6)
     kept = [needing.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
     assert all(kept[1:])
+    # Given the scans' returns, the evaluation's fallback is the refined motion: the true one.
+    method.reset()
+    returns = recording_points(driving.slice(0, 60))
+    true = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
+    errors = []
+    for t in range(60):
+        method.update(occ[t], vis[t], motions[t] if t else None, returns=returns[t])
+        if not method.odometry.trusted and method.motion is not None:
+            errors.append(np.abs(method.motion - true[t]))
+    assert len(errors) >= 15
+    error = np.median(errors, axis=0)
+    assert error[:2].max() < 0.1 and error[2] < np.deg2rad(0.2)
 
 
 def test_cli_scores_copy_last_ego_only_beside_recordings_with_poses(driving, tmp_path, capsys):

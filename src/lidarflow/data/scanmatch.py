@@ -34,7 +34,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from lidarflow.data.motion import cells_in_new_frame
+from lidarflow.data.motion import OdometryCheck, cells_in_new_frame
 from lidarflow.data.scanalign import Alignment, align, fit
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "STILL_WINDOW",
     "YAWS",
     "ScanOdometry",
+    "checked_motion",
     "compose",
     "match_maps",
     "scan_motions",
@@ -210,6 +211,30 @@ def _fits_better_than_still(current: np.ndarray, earlier: np.ndarray, found: Ali
     share, rms = fit(current, earlier, np.zeros(3))
     fewer, wider = STILL_FIT
     return share < found.inliers - fewer or rms > found.rms * wider
+
+
+def checked_motion(
+    check: OdometryCheck,
+    scans: ScanOdometry | None,
+    occupancy: np.ndarray,
+    motion: np.ndarray | None,
+    from_pose: bool,
+    points: np.ndarray | None = None,
+) -> tuple[np.ndarray | None, bool]:
+    """The motion a model that may run without poses compensates this frame by, and whether
+    ``check`` trusts ``motion``. A motion from poses is used while ``check`` agrees with the
+    scans; where it does not, the scans' own (``scans``, fed this frame's map and ``points``),
+    so a bag whose odometry is the base's, not the scanner's, is still compensated. Every
+    frame is fed to ``scans`` (matched only where it is needed). A motion from the scans
+    (``from_pose`` false) is only checked: ``None`` where ``check`` distrusts it."""
+    trusted = check.update(occupancy, motion)
+    if not from_pose:
+        return (motion if trusted else None), trusted
+    if trusted or scans is None:
+        if scans is not None:
+            scans.observe(occupancy, points)
+        return (motion if trusted else None), trusted
+    return scans.update(occupancy, points), trusted
 
 
 def compose(steps: Iterable[np.ndarray]) -> np.ndarray:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidarflow.data.motion import OdometryCheck
+from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.online import (
     OnlineDecisionConfig,
@@ -34,7 +35,13 @@ class ModelMethod:
     have done best on the recording so far (:mod:`lidarflow.evaluate.online`): ``None`` does so
     where the model asks for it (``online_decision`` in its kwargs), ``True`` / ``False`` always
     / never, with ``online_config`` (default: :class:`OnlineDecisionConfig`'s); a config always,
-    with that configuration."""
+    with that configuration.
+
+    A model that may run without poses (``poses_optional``) checks the odometry against the
+    scans and, where they disagree, takes the scans' own motion
+    (:func:`lidarflow.data.scanmatch.checked_motion`, as the Predictor does): refined on the
+    scans' returns when ``update`` is given them, which needs ``res``, the grid's cell size in
+    metres."""
 
     def __init__(
         self,
@@ -44,15 +51,19 @@ class ModelMethod:
         oracle: bool = False,
         online: bool | OnlineDecisionConfig | None = None,
         online_config: OnlineDecisionConfig | None = None,
+        res: float = 0.1,
     ) -> None:
         self.name = name
         self.stream = stream
         self.moving_threshold = moving_threshold
         self.uses_motion = bool(getattr(stream.model, "ego_motion", False))
         self.poses_optional = bool(getattr(stream.model, "poses_optional", False))
-        # A model that may run without poses stops compensating while the odometry disagrees
-        # with the scans (e.g. a base's odometry read as a scanner's turned on the base).
+        # A model that may run without poses stops using the odometry while it disagrees with
+        # the scans (e.g. a base's odometry read as a scanner's turned on the base), and takes
+        # the scans' own motion instead, as the Predictor does.
         self.odometry = OdometryCheck() if self.poses_optional else None
+        self.scans = ScanOdometry(res) if self.poses_optional else None
+        self.takes_returns = self.poses_optional
         self.oracle = oracle and self.uses_motion
         try:
             self.online = decision_for(decision_of(stream.model), online, online_config)
@@ -60,6 +71,8 @@ class ModelMethod:
             raise EvaluateError(str(err)) from err
         self.backward_flow: np.ndarray | None = None
         self.forward_flow: np.ndarray | None = None
+        #: The motion the last frame was compensated by (cells, radians), ``None`` if none.
+        self.motion: np.ndarray | None = None
         self._occupancy: np.ndarray | None = None
         self._moving: np.ndarray | None = None
 
@@ -73,8 +86,11 @@ class ModelMethod:
     def reset(self) -> None:
         self.stream.reset()
         self.backward_flow = self.forward_flow = self._occupancy = self._moving = None
+        self.motion = None
         if self.odometry is not None:
             self.odometry.reset()
+        if self.scans is not None:
+            self.scans.reset()
         if self.online is not None:
             self.online.reset()
 
@@ -84,9 +100,18 @@ class ModelMethod:
         visibility: np.ndarray,
         motion: np.ndarray | None = None,
         next_motion: np.ndarray | None = None,
+        returns: np.ndarray | None = None,
+        from_pose: bool = True,
     ) -> np.ndarray:
-        if self.odometry is not None and not self.odometry.update(occupancy, motion):
-            motion = next_motion = None
+        """One frame; ``returns``: its scan's returns (:func:`~lidarflow.data.scanalign.
+        scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
+        scans, and is only checked)."""
+        if self.odometry is not None:
+            motion, trusted = checked_motion(
+                self.odometry, self.scans, occupancy, motion, from_pose, returns
+            )
+            next_motion = next_motion if trusted else None
+        self.motion = motion
         result = self.stream.step(
             occupancy, visibility, motion, next_motion if self.oracle else None
         )
@@ -100,4 +125,3 @@ class ModelMethod:
         return self.online.update(
             result.probability, occupancy, visibility, moved_last_map(occupancy, self.backward_flow)
         )
-

@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from lidarflow.data.recording import Recording
+from lidarflow.data.scanalign import recording_points
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.ego import recording_motions
@@ -82,11 +83,17 @@ def evaluate_maps(
     gt_moving: Callable[[int], np.ndarray] | None = None,
     on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
     motions: np.ndarray | None = None,
+    returns: Sequence[np.ndarray] | None = None,
+    motions_from_poses: bool = True,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
     ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
+    Methods with ``takes_returns`` also get each frame's scan returns (``returns[t]``, see
+    :func:`lidarflow.data.scanalign.scan_points`) and whether the motions came from poses
+    (``motions_from_poses``; else from the scans), to find the motion themselves where the
+    poses disagree with the scans.
 
     ``on_prediction(method_name, t, probability, backward_flow_or_None)`` is called for every
     scored prediction (the map predicted for frame ``t + 1``), e.g. to draw overlays.
@@ -113,8 +120,14 @@ def evaluate_maps(
             if motions is not None and getattr(m, "uses_motion", False):
                 # NaN: no motion known for that step (scan matching found none): not compensated
                 motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
+                extra = {}
+                if getattr(m, "takes_returns", False):
+                    extra = {
+                        "returns": None if returns is None else returns[t],
+                        "from_pose": motions_from_poses,
+                    }
                 probability = m.update(  # type: ignore[call-arg]
-                    occupancy[t], visibility[t], motion=motion, next_motion=following
+                    occupancy[t], visibility[t], motion=motion, next_motion=following, **extra
                 )
             else:
                 probability = m.update(occupancy[t], visibility[t])
@@ -158,7 +171,9 @@ def evaluate_recording(
     gt_flow = ground_truth_backward_flow(recording, grid)
     gt_moving = ground_truth_moving(recording, grid)
     motions = recording_motions(recording, grid, methods, occupancy)
+    takes_returns = motions is not None and any(getattr(m, "takes_returns", False) for m in methods)
     return evaluate_maps(
         occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction,
         gt_moving, on_moving, motions,
+        recording_points(recording) if takes_returns else None, recording.has_poses,
     )

@@ -29,7 +29,7 @@ import numpy as np
 
 from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
 from lidarflow.data.scanalign import scan_points
-from lidarflow.data.scanmatch import ScanOdometry
+from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.online import (
@@ -209,15 +209,17 @@ class Predictor:
         if self._state is None:
             self._state = self.backend.init_state(*self.grid.shape)
         motion = self._motion(pose) if self.uses_motion else None
-        if self.poses_optional and self.scan_odometry:
-            points = scan_points(item) if isinstance(item, Scan) else None
-            if pose is None:
-                motion = self._scans.update(occupancy, points)
-            else:
-                self._scans.observe(occupancy, points)
-        check = self._odometry if self.poses_optional else None
-        if check is not None and not check.update(occupancy, motion):
-            motion = None  # the odometry disagrees with the scans: not compensated
+        scans = self._scans if self.poses_optional and self.scan_odometry else None
+        points = scan_points(item) if scans is not None and isinstance(item, Scan) else None
+        if pose is None and scans is not None:
+            motion = scans.update(occupancy, points)
+        if self.poses_optional and self._odometry is not None:
+            # Odometry that disagrees with the scans is replaced by the scans' own motion.
+            motion, _ = checked_motion(
+                self._odometry, scans, occupancy, motion, pose is not None, points
+            )
+        elif pose is not None and scans is not None:
+            scans.observe(occupancy, points)
         probability, out, self._state = self.backend.run(maps, self._state, motion)
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
         future = [probability[0, 0]]
