@@ -233,6 +233,18 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
     assert error[:2].max() < 0.1 and error[2] < np.deg2rad(0.2)
 
 
+def test_evaluate_gives_the_model_the_returns_to_replace_odometry_that_disagrees(driving, tmp_path):
+    folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
+    mirrored = driving.slice(0, 60)
+    mirrored.poses = mirrored.poses * np.array([1, -1, -1])
+    method = ModelMethod("opt", StreamingModel(Predictor(folder, GRID).backend.model), res=GRID.res)
+    evaluate_recording(mirrored, [CopyLast(), method], GRID)
+    # The last frame evaluated (58) was compensated by the scans' motion, not the mirror's.
+    true = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)[58]
+    assert not method.odometry.trusted and method.motion is not None
+    np.testing.assert_allclose(method.motion[:2], true[:2], atol=0.15)
+
+
 def test_cli_scores_copy_last_ego_only_beside_recordings_with_poses(driving, tmp_path, capsys):
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
     blind = driving.slice(0, 30)

@@ -84,7 +84,7 @@ def evaluate_maps(
     on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
     motions: np.ndarray | None = None,
     returns: Sequence[np.ndarray] | None = None,
-    motions_from_poses: bool = True,
+    motions_from_poses: bool = False,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
@@ -92,8 +92,8 @@ def evaluate_maps(
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
     Methods with ``takes_returns`` also get each frame's scan returns (``returns[t]``, see
     :func:`lidarflow.data.scanalign.scan_points`) and whether the motions came from poses
-    (``motions_from_poses``; else from the scans), to find the motion themselves where the
-    poses disagree with the scans.
+    (``motions_from_poses``), to take the scans' own motion where the poses disagree with the
+    scans; by default the motions are only checked (as ones found from the scans are).
 
     ``on_prediction(method_name, t, probability, backward_flow_or_None)`` is called for every
     scored prediction (the map predicted for frame ``t + 1``), e.g. to draw overlays.
