@@ -505,6 +505,7 @@ def _add_horizon_scores(
     warmup: int,
     horizon: int,
 ) -> None:
+    from lidarflow.data.scanalign import recording_points
     from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.horizon import horizon_f1
 
@@ -517,9 +518,11 @@ def _add_horizon_scores(
         motions = recording_motions(recording, spec, streamed, occupancy)
         total = len(models) * max(0, len(occupancy) - horizon)
         with _progress(total, f"horizon {horizon}, {Path(name).name}") as bar:
+            returns = recording_points(recording) if motions is not None else None
             entry["horizon_f1"] = horizon_f1(
-                occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions
-            )
+                occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
+                returns, recording.has_poses, spec.res,
+            )  # fmt: skip
 
 
 def _format_horizon(scores: dict[str, list[float]]) -> str:

@@ -273,3 +273,11 @@ def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     assert still["ego"] == pytest.approx(still["copy_last"])
     assert moved["ego"][0] > moved["copy_last"][0] + 0.03
     assert moved["ego"][1] > moved["copy_last"][1] + 0.03
+    # Odometry with its y axis flipped is distrusted after a while; said to be odometry, it is
+    # then replaced by the scans' own motion (refined on the returns), as the Predictor does.
+    mirrored = metres_to_cells(relative_motions(driving.poses * [1, -1, -1])[0], GRID.res)
+    returns = recording_points(driving)
+    kwargs = {"horizon": 2, "warmup": 5, "motions": mirrored, "res": GRID.res}
+    dropped = horizon_f1(occ, vis, models, **kwargs)
+    replaced = horizon_f1(occ, vis, models, **kwargs, returns=returns, motions_from_poses=True)
+    assert replaced["ego"][0] > dropped["ego"][0] + 0.02

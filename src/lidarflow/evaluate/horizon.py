@@ -17,17 +17,19 @@ every k, and with its online choice fed back it is above at every k
 Ego-motion models get each frame's motion (``motions``: the recording's odometry, or the motion
 matched from its scans, NaN where none is known) and roll forward assuming the same motion again,
 as the Predictor does; a model that may run without poses checks it against the scans first
-(:class:`lidarflow.data.motion.OdometryCheck`), as in the streaming evaluation.
+(:class:`lidarflow.data.motion.OdometryCheck`) and replaces odometry that disagrees by the scans'
+own motion, as in the streaming evaluation.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
 
 from lidarflow.data.motion import OdometryCheck
+from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.online import OnlineDecision, moved_last_map
@@ -46,13 +48,19 @@ def horizon_f1(
     progress: Callable[[int], None] | None = None,
     motions: np.ndarray | None = None,
     decisions: dict[str, OnlineDecision] | None = None,
+    returns: Sequence[np.ndarray] | None = None,
+    motions_from_poses: bool = False,
+    res: float = 0.1,
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
     ``progress(1)`` is called after every model step on a recorded frame. ``motions``
     ``(N, 3)`` (cells, radians; NaN: unknown) go to ego-motion models; without them those run
     uncompensated. ``decisions``: the online decision of the models that have one (reset here,
-    then updated on every frame)."""
+    then updated on every frame). ``motions_from_poses``: the motions are odometry, which a
+    model that may run without poses replaces by the scans' own motion where they disagree
+    (from the maps, and each frame's ``returns`` where given, on a grid of ``res`` metres), as
+    the streaming evaluation and the Predictor do; else they are only checked."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
@@ -69,7 +77,9 @@ def horizon_f1(
     result = {"copy_last": [c.f1 for c in copy]}
     for name, model in models.items():
         ego = bool(getattr(model, "ego_motion", False))
-        check = OdometryCheck() if getattr(model, "poses_optional", False) else None
+        optional = bool(getattr(model, "poses_optional", False))
+        check = OdometryCheck() if optional else None
+        scans = ScanOdometry(res) if optional else None
         counts = [Counts() for _ in range(horizon)]
         online = (decisions or {}).get(name)
         if online is not None:
@@ -80,8 +90,11 @@ def horizon_f1(
             maps = torch.from_numpy(np.stack([occupancy[t], visibility[t]]).astype(np.float32))
             maps = maps[None]
             known = _known(motions, t) if ego else None
-            if check is not None and not check.update(occupancy[t], known):
-                known = None
+            if check is not None and ego:
+                points = None if returns is None else returns[t]
+                known, _ = checked_motion(
+                    check, scans, occupancy[t], known, motions_from_poses, points
+                )
             moved = None if known is None else torch.from_numpy(known).float()[None]
             motion = (moved,) if ego else ()
             out, state = model.step(maps, state, *motion)
