@@ -580,7 +580,8 @@ def predict(
 
     A model that compensates ego motion gets the recording's poses (odometry) with every scan;
     on a recording without poses a model built with poses_optional (the bundled one, the
-    default recipe's) takes the motion matched from the scans instead, any other is refused."""
+    default recipe's) takes the motion matched from the scans instead (and where the poses
+    disagree with the scans), any other is refused."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.scan import GridSpec
