@@ -43,6 +43,7 @@ __all__ = [
     "MIN_TRAVEL",
     "STILL_FIT",
     "STILL_WINDOW",
+    "TURN_REACH",
     "YAWS",
     "ScanOdometry",
     "checked_motion",
@@ -224,9 +225,10 @@ def checked_motion(
     """The motion a model that may run without poses compensates this frame by, and whether
     ``check`` trusts ``motion``. A motion from poses is used while ``check`` agrees with the
     scans; where it does not, the scans' own (``scans``, fed this frame's map and ``points``),
-    so a bag whose odometry is the base's, not the scanner's, is still compensated. Every
-    frame is fed to ``scans`` (matched only where it is needed). A motion from the scans
-    (``from_pose`` false) is only checked: ``None`` where ``check`` distrusts it."""
+    so a bag whose odometry is the base's, not the scanner's, is still compensated; a frame
+    whose pose is used is only kept by ``scans`` (:meth:`ScanOdometry.observe`, no matching,
+    so good odometry costs nothing). A motion from the scans (``from_pose`` false, found by the
+    caller) is only checked: ``None`` where ``check`` distrusts it."""
     trusted = check.update(occupancy, motion)
     if not from_pose:
         return (motion if trusted else None), trusted
