@@ -181,3 +181,12 @@ def test_scans_without_returns_give_no_motion_and_no_error():
     for points in (room, empty, room, empty, empty, room):
         assert odometry.update(maps, points) is None
     assert fit(empty, room, np.zeros(3)) == (0.0, float("inf"))
+
+
+def test_a_scanner_mounted_upside_down_sweeping_backwards_aligns_the_same():
+    backwards = BeamGeometry(720, np.pi - np.deg2rad(0.5), -np.deg2rad(0.5), 0.05, 8.0)
+    start, end = (0.0, 0.0, 0.0), (0.03, 0.01, np.deg2rad(0.4))
+    current, previous = (scan_points(_scan_from(p, backwards)) for p in (end, start))
+    found = align(current, previous)
+    assert found is not None
+    np.testing.assert_allclose(found.motion, _motion(start, end), atol=2e-3)
