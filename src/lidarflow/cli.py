@@ -518,7 +518,9 @@ def _add_horizon_scores(
         motions = recording_motions(recording, spec, streamed, occupancy)
         total = len(models) * max(0, len(occupancy) - horizon)
         with _progress(total, f"horizon {horizon}, {Path(name).name}") as bar:
-            returns = recording_points(recording) if motions is not None else None
+            # Only odometry is replaced by the scans' motion; scan motions are only checked.
+            with_returns = motions is not None and recording.has_poses
+            returns = recording_points(recording) if with_returns else None
             entry["horizon_f1"] = horizon_f1(
                 occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
                 returns, recording.has_poses, spec.res,

@@ -171,7 +171,13 @@ def evaluate_recording(
     gt_flow = ground_truth_backward_flow(recording, grid)
     gt_moving = ground_truth_moving(recording, grid)
     motions = recording_motions(recording, grid, methods, occupancy)
-    takes_returns = motions is not None and any(getattr(m, "takes_returns", False) for m in methods)
+    # The returns matter only where the motions are odometry that a model may replace; without
+    # poses the motions already came from the scans (recording_motions) and are only checked.
+    takes_returns = (
+        recording.has_poses
+        and motions is not None
+        and any(getattr(m, "takes_returns", False) for m in methods)
+    )
     return evaluate_maps(
         occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction,
         gt_moving, on_moving, motions,
