@@ -40,6 +40,19 @@ def test_help_of_every_subcommand(capsys):
         assert code == 0 and "Usage" in sub and len(sub.splitlines()) > 4, name
 
 
+def test_help_paragraphs_wrap_at_the_terminal_width_only(capsys, monkeypatch):
+    # A docstring's own line breaks, kept, would break an 80-column help mid-sentence.
+    monkeypatch.setenv("COLUMNS", "80")
+    for name in subcommands():
+        _, sub, _ = run([name, "--help"], capsys)
+        description = sub.split("Usage:", 1)[1].split("╭", 1)[0].splitlines()[1:]
+        assert max(len(line) for line in description) <= 80, name
+        paragraphs = "\n".join(line.strip() for line in description).split("\n\n")
+        for paragraph in paragraphs:
+            lines = paragraph.strip().splitlines()
+            assert all(len(line) > 50 for line in lines[:-1]), (name, lines)
+
+
 def test_convert_info_show_on_the_real_sample(tmp_path, capsys):
     out_npz = tmp_path / "s.npz"
     code, out, err = run(["convert", str(sample_bag_path()), "-o", str(out_npz)], capsys)

@@ -7,6 +7,7 @@ exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see traceba
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 import os
 import sys
@@ -1004,6 +1005,16 @@ def simulate(
         f"wrote {shown} (+ {record.name}): {frames} {sensor} scans ({scenario}, seed {seed}) "
         f"with ground-truth flow in {seconds:.1f} s ({frames / seconds:.0f} scans/s)"
     )
+
+
+def _reflow(text: str) -> str:
+    """``text`` with the line breaks inside each paragraph joined: typer's rich help keeps them,
+    so a docstring's own wrapping and the terminal's would break lines twice."""
+    return "\n\n".join(" ".join(p.split()) for p in inspect.cleandoc(text).split("\n\n"))
+
+
+for _command in app.registered_commands:
+    _command.help = _reflow(_command.help or inspect.getdoc(_command.callback) or "")
 
 
 def main(argv: list[str] | None = None) -> None:
