@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
+
+from lidarflow.data.mcap1 import MAGIC as MCAP_MAGIC
 
 
 def _header(ts, stamp_ns: int, frame: str):
@@ -143,4 +146,77 @@ def write_bag(
             c = conn("/chatter", "std_msgs/msg/String")
             String = ts.types["std_msgs/msg/String"]
             writer.write(c, t0, ser(String(data="hello"), "std_msgs/msg/String"))
+    return path
+
+
+def _mcap_record(op: int, *fields: bytes) -> bytes:
+    body = b"".join(fields)
+    return bytes([op]) + struct.pack("<Q", len(body)) + body
+
+
+def _mcap_string(text: str | bytes) -> bytes:
+    data = text.encode() if isinstance(text, str) else text
+    return struct.pack("<I", len(data)) + data
+
+
+def write_ros1_mcap(
+    path: Path,
+    scans: Sequence[np.ndarray],
+    rate_hz: float = 10.0,
+    odom: bool = False,
+    mount: tuple[float, float, float] | None = None,
+    compression: str = "",
+) -> Path:
+    """The MCAP file that ``mcap convert`` makes of :func:`write_bag`'s ROS 1 bag with the
+    same arguments (one ``/scan`` topic): ROS 1 messages, ``ros1msg`` schemas, written in one
+    chunk (``compression`` "", "lz4" or "zstd") or, with ``compression=None``, unchunked."""
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    t0, period = 1_700_000_000 * 10**9, int(1e9 / rate_hz)
+    messages: list[tuple[str, str, int, object]] = [
+        ("/scan", "sensor_msgs/msg/LaserScan", t0 + i * period,
+         _scan_msg(ts, np.asarray(r), t0 + i * period)) for i, r in enumerate(scans)
+    ]  # fmt: skip
+    if odom:
+        messages += [
+            ("/odom", "nav_msgs/msg/Odometry", t0 + i * period // 2,
+             _odom_msg(ts, t0 + i * period // 2, 0.05 * i, 0.0, 0.01 * i))
+            for i in range(2 * len(scans) + 1)
+        ]  # fmt: skip
+    if mount is not None:
+        messages.append(("/tf", "tf2_msgs/msg/TFMessage", t0, _tf_msg(
+            ts, t0, [("base_link", "chassis", (0.2, 0.0, 0.0)),
+                     ("chassis", "laser", (mount[0] - 0.2, mount[1], mount[2]))])))  # fmt: skip
+    records, channels = [], {}
+    for topic, msgtype, _, _ in messages:
+        if topic in channels:
+            continue
+        channels[topic] = key = len(channels) + 1
+        text, _ = ts.generate_msgdef(msgtype)
+        name = msgtype.replace("/msg/", "/")
+        records.append(_mcap_record(0x03, struct.pack("<H", key), _mcap_string(name),
+                                    _mcap_string("ros1msg"), _mcap_string(text)))  # fmt: skip
+        records.append(_mcap_record(0x04, struct.pack("<HH", key, key), _mcap_string(topic),
+                                    _mcap_string("ros1"), struct.pack("<I", 0)))  # fmt: skip
+    for seq, (topic, msgtype, stamp, msg) in enumerate(sorted(messages, key=lambda m: m[2])):
+        raw = ts.serialize_ros1(msg, msgtype)
+        records.append(_mcap_record(0x05, struct.pack("<HIQQ", channels[topic], seq, stamp, stamp),
+                                    bytes(raw)))  # fmt: skip
+    data = b"".join(records)
+    if compression is not None:
+        if compression == "lz4":
+            from lz4.frame import compress
+
+            packed = compress(data)
+        elif compression == "zstd":
+            from rosbags.rosbag2.storage_mcap import zstd
+
+            packed = zstd.compress(data)
+        else:
+            packed = data
+        chunk = struct.pack("<QQQI", t0, t0, len(data), 0), _mcap_string(compression)
+        data = _mcap_record(0x06, *chunk, struct.pack("<Q", len(packed)), packed)
+    header = _mcap_record(0x01, _mcap_string("ros1"), _mcap_string("lidarflow tests"))
+    data_end = _mcap_record(0x0F, struct.pack("<I", 0))
+    footer = data_end + _mcap_record(0x02, struct.pack("<QQI", 0, 0, 0))
+    path.write_bytes(MCAP_MAGIC + header + data + footer + MCAP_MAGIC)
     return path

@@ -23,7 +23,8 @@ app = typer.Typer(
     help=(
         "Predict the next 2-D LiDAR occupancy map by estimating motion flow (LiDAR-FlowNet).\n\n"
         "Inputs may be recordings (.npz from `lidarflow convert`) or bags directly: ROS 1 .bag "
-        "(or .bag.zip), ROS 2 bag folders (sqlite3/mcap) and .mcap files."
+        "(or .bag.zip), ROS 2 bag folders (sqlite3/mcap) and .mcap files (ROS 2 messages, or "
+        "ROS 1 messages as `mcap convert` leaves a ROS 1 bag)."
     ),
     no_args_is_help=True,
     add_completion=False,

@@ -10,7 +10,7 @@ import pytest
 
 from lidarflow.data import list_topics, load_any, read_bag, sample_bag_path
 from lidarflow.errors import BagError, RecordingError
-from tests.bagutil import write_bag
+from tests.bagutil import write_bag, write_ros1_mcap
 
 
 @pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
@@ -34,6 +34,34 @@ def test_bare_mcap_file_and_db3_file_are_accepted(tmp_path):
     write_bag(tmp_path / "s", "sqlite3")
     assert len(read_bag(next((tmp_path / "m").glob("*.mcap")))) == 25
     assert len(read_bag(next((tmp_path / "s").glob("*.db3")))) == 25
+
+
+@pytest.mark.parametrize("compression", ["", "lz4", "zstd", None])
+def test_mcap_of_ros1_messages_reads_as_the_bag_it_came_from(tmp_path, compression):
+    # `mcap convert x.bag x.mcap` keeps ROS 1 serialisation, which rosbags cannot read.
+    rng = np.random.default_rng(1)
+    frames = [rng.uniform(0.3, 7.0, 60) for _ in range(15)]
+    frames[4][7] = np.inf
+    bag = read_bag(write_bag(tmp_path / "a.bag", "ros1", {"/scan": frames}, odom=True,
+                             mount=(0.3, -0.1, 0.4)))  # fmt: skip
+    mcap = tmp_path / "a.mcap"
+    write_ros1_mcap(mcap, frames, odom=True, mount=(0.3, -0.1, 0.4), compression=compression)
+    rec = read_bag(mcap)
+    np.testing.assert_array_equal(rec.ranges, bag.ranges)
+    np.testing.assert_array_equal(rec.stamps_ns, bag.stamps_ns)
+    np.testing.assert_allclose(rec.poses, bag.poses)
+    assert rec.meta["sensor_mount"] == bag.meta["sensor_mount"] == [0.3, -0.1, 0.4]
+    assert rec.meta["frame_id"] == "laser" and rec.meta["pose_topic"] == "/odom"
+    assert list_topics(mcap) == list_topics(tmp_path / "a.bag")
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9])
+def test_truncated_ros1_mcap_is_a_clear_error(tmp_path, keep):
+    whole = write_ros1_mcap(tmp_path / "w.mcap", [np.full(80, 2.0)] * 30, compression=None)
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(whole.read_bytes()[: int(whole.stat().st_size * keep)])
+    with pytest.raises(BagError, match=r"broken\.mcap.*truncated"):
+        read_bag(broken)
 
 
 def test_zipped_bag(tmp_path):

@@ -2,7 +2,8 @@
 
 Uses ``rosbags`` (pure Python, no ROS install). Accepted inputs: a ROS 1 ``.bag``, a zipped
 ``.bag.zip`` (extracted to a temporary folder), a ROS 2 bag folder (sqlite3 or mcap storage), or
-a bare ``.mcap`` file.
+a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as ``mcap convert`` leaves a ROS 1
+bag (read by :mod:`lidarflow.data.mcap1`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.mcap1 import Ros1McapReader, channel_encoding
 from lidarflow.data.recording import Recording
 from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses
 from lidarflow.errors import BagError, ScanError
@@ -47,7 +49,8 @@ def _is_bag_like(path: Path) -> bool:
 
 @contextlib.contextmanager
 def open_bag(path: str | Path) -> Iterator[Any]:
-    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``.
+    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader`` (for an MCAP file of
+    ROS 1 messages a :class:`~lidarflow.data.mcap1.Ros1McapReader`, read the same way).
 
     Raises :class:`BagError` for missing, unsupported or corrupt inputs.
     """
@@ -70,10 +73,14 @@ def open_bag(path: str | Path) -> Iterator[Any]:
             )
         elif path.suffix.lower() == ".db3":
             target = path.parent  # a ROS 2 sqlite3 bag is read through its folder
-        ros1 = target.suffix.lower() == ".bag"
+        ros1_mcap = target.suffix.lower() == ".mcap" and channel_encoding(target) == "ros1"
+        ros1 = target.suffix.lower() == ".bag" or ros1_mcap
         store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
         try:
-            reader = stack.enter_context(AnyReader([target], default_typestore=store))
+            if ros1_mcap:  # `mcap convert` of a ROS 1 bag: rosbags reads MCAP as ROS 2 only
+                reader = Ros1McapReader(target, store)
+            else:
+                reader = stack.enter_context(AnyReader([target], default_typestore=store))
         except Exception as err:  # rosbags raises many types for damaged files
             raise BagError(f"{path}: cannot open as a bag ({_why(err)}); is it complete?") from err
         yield reader
