@@ -28,6 +28,16 @@ best margin over the best baselines, chosen in hindsight (an upper bound for the
     python experiments/history_rule.py --causal 0 0.003 0.03 0.3 --k 8 10 12 \\
         --eval ../shared/data/{positive_1,positive_2,positive_3,positive_4}.bag \\
         ../shared/data/demo_stationary_simple_environment.bag --json history_causal.json
+
+With ``--model RUN`` the table is also keyed by the bin of that model's probability
+(:data:`PROBABILITY_BINS`): the model's output calibrated on each cell's history, the prior from
+the model run on the other recordings. ``RUN`` must not have trained on the held-out recordings
+(``--held-out``, a leave-one-out fold model), which it reports beside the model alone:
+
+    python experiments/history_rule.py --causal 0.03 0.3 1 3 --k 8 \\
+        --model runs/loo/cell/head_cell/positive_4/run --held-out positive_4.bag \\
+        --eval ../shared/data/{positive_1,positive_2,positive_3,positive_4}.bag \\
+        ../shared/data/demo_stationary_simple_environment.bag --json model_history_causal.json
 """
 
 from __future__ import annotations
@@ -141,18 +151,59 @@ def _counts_by_class(
     return out
 
 
+#: Bins of a model's probability, the extra table key of ``--causal --model``.
+PROBABILITY_BINS = np.array([0, 0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95])
+
+
+def model_probabilities(model: Path, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """``(N, H, W)``: the model's probability after frame ``t`` (predicting ``t + 1``),
+    streamed as `lidarflow evaluate` streams it, at its fixed decision offset."""
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.models.streaming import StreamingModel
+
+    net, _ = resolve_model(str(model))
+    out = np.zeros(occupancy.shape, np.float32)
+
+    def keep(name: str, t: int, probability: np.ndarray, flow: object) -> None:
+        out[t] = probability
+
+    method = ModelMethod("model", StreamingModel(net), online=False)
+    evaluate_maps(occupancy, visibility, [method], warmup=0, on_prediction=keep)
+    return out
+
+
+def table_codes(
+    occupancy: np.ndarray, k: int, probability: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`history_codes`, with ``probability`` (:func:`model_probabilities`) also keyed
+    by the bin of :data:`PROBABILITY_BINS` the model's probability for the target falls in."""
+    code, target = history_codes(occupancy, k)
+    if probability is None:
+        return code, target
+    bins = np.digitize(probability[k - 1 : -1], PROBABILITY_BINS) - 1
+    return code * len(PROBABILITY_BINS) + bins, target
+
+
 def causal_counts(
-    occupancy: np.ndarray, k: int, prior_ones: np.ndarray, prior_total: np.ndarray, weight: float
+    occupancy: np.ndarray,
+    k: int,
+    prior_ones: np.ndarray,
+    prior_total: np.ndarray,
+    weight: float,
+    probability: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`_counts_by_class` summed over the scored frames of ``occupancy``, each predicted
-    by the prior table (counts times ``weight``) plus this stream's counts so far."""
-    code, target = history_codes(occupancy, k)  # code i: frames i .. i+k-1, target frame i+k
+    by the prior table (counts times ``weight``) plus this stream's counts so far (a key never
+    seen: 0, or the model's own probability)."""
+    code, target = table_codes(occupancy, k, probability)  # i: frames i .. i+k-1 -> i+k
     ones, total = weight * prior_ones, weight * prior_total
     counts = np.zeros((2, len(PAIR_THRESHOLDS), 2, 3))
     for i in range(len(code)):
         if i + k - 1 >= WARMUP:
             seen = total[code[i]]
-            p = np.where(seen > 0, ones[code[i]] / np.maximum(seen, 1e-12), 0.0)
+            unseen = 0.0 if probability is None else probability[i + k - 1]
+            p = np.where(seen > 0, ones[code[i]] / np.maximum(seen, 1e-12), unseen)
             counts += _counts_by_class(p.ravel(), occupancy[i + k - 1].ravel() > 0,
                                        target[i].ravel())  # fmt: skip
         np.add.at(total, code[i].ravel(), 1)  # its next map has arrived: learn from it
@@ -160,42 +211,70 @@ def causal_counts(
     return counts
 
 
-def causal(paths: list[Path], ks: list[int], weights: list[float]) -> dict[str, dict]:
-    """Per held-out recording, K and prior weight: the best threshold pair's scores."""
+def _best_pair(counts: np.ndarray, best: dict[str, float]) -> dict[str, object]:
+    """The threshold pair of ``counts`` (:func:`_counts_by_class`) with the best margin."""
+    pairs = counts[0][:, None] + counts[1][None, :]  # [occupied now, free now, set, 3]
+    tp, fp, fn = np.moveaxis(pairs, -1, 0)
+    f1s = 2 * tp / np.maximum(2 * tp + fp + fn, 1)
+    margin = np.minimum(f1s[..., 0] - best["f1"], f1s[..., 1] - best["changed_f1"])
+    a, b = np.unravel_index(int(np.argmax(margin)), margin.shape)
+    return {
+        "thresholds": [float(PAIR_THRESHOLDS[a]), float(PAIR_THRESHOLDS[b])],
+        "f1": float(f1s[a, b, 0]),
+        "changed_f1": float(f1s[a, b, 1]),
+        "margin": float(margin[a, b]),
+    }
+
+
+def causal(
+    paths: list[Path],
+    ks: list[int],
+    weights: list[float],
+    model: Path | None = None,
+    held_out: list[str] | None = None,
+) -> dict[str, dict]:
+    """Per held-out recording (``held_out`` names, default every one), K and prior weight:
+    the best threshold pair's scores; with ``model`` keyed by its probability too."""
     grid = GridSpec()
     maps = {p.name: load_any(p).maps(grid) for p in paths}
+    probabilities = {
+        n: None if model is None else model_probabilities(model, *m) for n, m in maps.items()
+    }
     results: dict[str, dict] = {}
     for name, (occupancy, visibility) in maps.items():
+        if held_out and name not in held_out:
+            continue
         best = best_baselines(occupancy, visibility)
         row: dict = {"best_baselines": best}
-        for k in ks:
-            others = [m[0] for n, m in maps.items() if n != name]
-            ones, total = np.zeros(2**k), np.zeros(2**k)
-            for other in others:
-                code, target = history_codes(other, k)
-                np.add.at(total, code.ravel(), 1)
-                np.add.at(ones, code.ravel(), target.ravel())
-            for weight in weights:
-                counts = causal_counts(occupancy, k, ones, total, weight)
-                pairs = counts[0][:, None] + counts[1][None, :]  # [occupied t, free t, set, 3]
-                tp, fp, fn = np.moveaxis(pairs, -1, 0)
-                f1s = 2 * tp / np.maximum(2 * tp + fp + fn, 1)
-                margin = np.minimum(f1s[..., 0] - best["f1"], f1s[..., 1] - best["changed_f1"])
-                a, b = np.unravel_index(int(np.argmax(margin)), margin.shape)
-                point = {
-                    "thresholds": [float(PAIR_THRESHOLDS[a]), float(PAIR_THRESHOLDS[b])],
-                    "f1": float(f1s[a, b, 0]),
-                    "changed_f1": float(f1s[a, b, 1]),
-                    "margin": float(margin[a, b]),
-                }
-                row[f"K={k} prior={weight}"] = point
-                print(
-                    f"{name} K={k} prior {weight}: thresholds {point['thresholds']} F1 "
-                    f"{point['f1']:.4f} / {point['changed_f1']:.3f}, margin {point['margin']:+.4f} "
-                    f"(best baselines {best['f1']:.4f} / {best['changed_f1']:.3f})",
-                    flush=True,
+        points: dict[str, dict] = {}
+        own = probabilities[name]
+        if own is not None:  # the model alone, its probability with the same two thresholds
+            alone = sum(
+                _counts_by_class(
+                    own[t].ravel(), occupancy[t].ravel() > 0, occupancy[t + 1].ravel() > 0
                 )
-        results[name] = row
+                for t in range(WARMUP, len(occupancy) - 1)
+            )
+            points["model alone"] = _best_pair(np.asarray(alone), best)
+        for k in ks:
+            size = 2**k * (1 if model is None else len(PROBABILITY_BINS))
+            ones, total = np.zeros(size), np.zeros(size)
+            for other, (other_occupancy, _) in maps.items():
+                if other != name:
+                    code, target = table_codes(other_occupancy, k, probabilities[other])
+                    np.add.at(total, code.ravel(), 1)
+                    np.add.at(ones, code.ravel(), target.ravel())
+            for weight in weights:
+                counts = causal_counts(occupancy, k, ones, total, weight, own)
+                points[f"K={k} prior={weight}"] = _best_pair(counts, best)
+        for label, point in points.items():
+            print(
+                f"{name} {label}: thresholds {point['thresholds']} F1 {point['f1']:.4f} / "
+                f"{point['changed_f1']:.3f}, margin {point['margin']:+.4f} "
+                f"(best baselines {best['f1']:.4f} / {best['changed_f1']:.3f})",
+                flush=True,
+            )
+        results[name] = row | points
     return results
 
 
@@ -212,11 +291,14 @@ def main() -> None:
         "--causal", type=float, nargs="+", metavar="S",
         help="leave-one-out over --eval: prior weights of the other recordings' table",
     )  # fmt: skip
+    parser.add_argument("--model", type=Path, help="with --causal: key the table by its output")
+    parser.add_argument("--held-out", nargs="+", help="with --causal: only these --eval names")
     args = parser.parse_args()
     if args.causal:
-        results = causal(args.eval, args.k, args.causal)
+        results = causal(args.eval, args.k, args.causal, args.model, args.held_out)
         if args.json:
             payload = {"causal": "prior from the other --eval recordings, updated online",
+                       "model": None if args.model is None else str(args.model),
                        "warmup": WARMUP, "results": results}  # fmt: skip
             args.json.write_text(json.dumps(payload, indent=2) + "\n")
         return
