@@ -161,9 +161,8 @@ class Ros1McapReader:
                         typestore.register(get_types_from_msg(text, msgtype))
                 elif op == _CHANNEL:
                     channel_id, schema_id, topic = fields.u16(), fields.u16(), fields.string()
-                    if fields.string() != "ros1":
-                        raise BagError(f"channel {topic} is not ROS 1 encoded")
-                    channels[channel_id] = (topic, schemas.get(schema_id, ""))
+                    if fields.string() == "ros1":  # others (JSON annotations, ...) are no scans
+                        channels[channel_id] = (topic, schemas.get(schema_id, ""))
                 elif op == _MESSAGE:
                     channel_id = fields.u16()
                     counts[channel_id] = counts.get(channel_id, 0) + 1
