@@ -115,7 +115,7 @@ def test_console_script_demo_end_to_end(tmp_path):
         [sys.executable, "-m", "lidarflow.cli", "demo", "-o", str(tmp_path / "d")],
         capture_output=True,
         text=True,
-        timeout=300,
+        timeout=600,  # a hang, not a slow machine: 3.4 min measured on a busy 2-core one
     )
     assert proc.returncode == 0, proc.stderr
     results = json.loads((tmp_path / "d" / "results.json").read_text())
