@@ -20,15 +20,8 @@ import numpy as np
 from history_rule import model_probabilities
 
 from lidarflow.data import load_any
-from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.scan import GridSpec
-
-
-def counts(predicted: np.ndarray, target: np.ndarray) -> tuple[int, int, int, float]:
-    """``(tp, fp, fn, F1)`` over all cells."""
-    tp = int((predicted & target).sum())
-    fp, fn = int((predicted & ~target).sum()), int((~predicted & target).sum())
-    return tp, fp, fn, 2 * tp / max(2 * tp + fp + fn, 1)
 
 
 def main() -> None:
@@ -47,11 +40,11 @@ def main() -> None:
     for start, end in itertools.pairwise(bounds):
         t = np.arange(max(start, 10), end)
         target = occupied[t + 1]
-        model = counts(probability[t] >= THRESHOLD, target)
-        copy = counts(occupied[t], target)
+        model = confusion(probability[t] >= THRESHOLD, target)
+        copy = confusion(occupied[t], target)
         print(
-            f"frames {t[0]}-{t[-1]}: model F1 {model[3]:.4f} (fp {model[1]}, fn {model[2]}) | "
-            f"copy-last F1 {copy[3]:.4f} (fp {copy[1]}, fn {copy[2]})"
+            f"frames {t[0]}-{t[-1]}: model F1 {model.f1:.4f} (fp {model.fp}, fn {model.fn}) | "
+            f"copy-last F1 {copy.f1:.4f} (fp {copy.fp}, fn {copy.fn})"
         )
     last = np.arange(bounds[-2], bounds[-1])
     false_positive = ((probability[last] >= THRESHOLD) & ~occupied[last + 1]).sum(axis=0)
