@@ -84,7 +84,9 @@ class DataConfig:
     window starts with the head's memories as streaming its recording leaves them at the
     window's first frame, not at zero (:mod:`lidarflow.train.warm`). ``scan_motions``
     (ego-motion models): a recording without poses is trained on the motion matched from its
-    scans, as it is evaluated, rather than uncompensated.
+    scans, as it is evaluated, rather than uncompensated. ``static_shift``: the fraction of
+    training windows whose sensor stands still in which a piece of the scene moves by a cell
+    or two partway through and stays moved (:mod:`lidarflow.train.augment`).
     """
 
     sources: list[str] = field(default_factory=list)
@@ -104,6 +106,7 @@ class DataConfig:
     pose_dropout: float = 0.0
     memories_from_stream: bool = False
     scan_motions: bool = False
+    static_shift: float = 0.0
 
 
 @dataclass

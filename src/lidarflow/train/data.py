@@ -54,6 +54,7 @@ from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.scan import GridSpec
+from lidarflow.train.augment import shift_patch
 from lidarflow.train.config import DataConfig
 
 __all__ = [
@@ -104,6 +105,8 @@ class Windows(Dataset):
         with_flow: bool = False,
         motions: Sequence[np.ndarray] | None = None,
         pose_dropout: float = 0.0,
+        static_shift: float = 0.0,
+        shift_first: int = 0,
     ) -> None:
         self.maps = list(maps)
         self.index = list(index)
@@ -112,6 +115,8 @@ class Windows(Dataset):
         self.with_flow = with_flow
         self.motions = None if motions is None else list(motions)
         self.pose_dropout = pose_dropout
+        self.static_shift = static_shift
+        self.shift_first = shift_first
         # (recording, start, posed) -> the head's state before the window's first frame.
         self.start_states: dict[tuple[int, int, bool], np.ndarray] | None = None
 
@@ -137,9 +142,24 @@ class Windows(Dataset):
             np.random.default_rng((rec, start)).random() < self.pose_dropout
         )
 
+    def shifted(self, i: int) -> bool:
+        """Whether window ``i`` is served with a piece of its scene moved
+        (:func:`lidarflow.train.augment.shift_patch`; fixed per window). Only windows whose
+        motions are all zero (standing still, or a recording without poses): where the sensor
+        is known to move, the whole scene moves anyway."""
+        if not self.static_shift:
+            return False
+        rec, start = self.index[i]
+        if self.motions is not None and self.motions[rec][start : start + self.length].any():
+            return False
+        return bool(np.random.default_rng((rec, start, 1)).random() < self.static_shift)
+
     def _item(self, i: int) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, bool]:
         rec, start = self.index[i]
         window = self.maps[rec][start : start + self.length]
+        if self.shifted(i):
+            rng = np.random.default_rng((rec, start, 1))
+            window = shift_patch(window, rng, self.shift_first)
         maps = torch.from_numpy(np.ascontiguousarray(window).view(np.uint8))
         if not self.with_flow:
             return maps
@@ -216,6 +236,7 @@ def _windows(
     with_flow: bool,
     with_motion: bool = False,
     pose_dropout: float = 0.0,
+    static_shift: float = 0.0,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods
@@ -248,7 +269,19 @@ def _windows(
                     f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
                     "steps; those steps are not ego-motion compensated"
                 )
-    windows = Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout)
+    # A moved piece is scored from the frame after it moves, so it moves inside the scored part.
+    first = max(cfg.warmup - 1, 1)
+    windows = Windows(
+        seqs.maps,
+        seqs.index,
+        cfg.seq_len,
+        flows,
+        with_flow,
+        motions,
+        pose_dropout,
+        static_shift,
+        first,
+    )
     return windows, notes
 
 
@@ -324,7 +357,9 @@ def load_train_data(cfg: DataConfig, with_motion: bool = False) -> TrainData:
             raise TrainError(f"data source {spec}: nothing left for training after the split")
         try:
             # Validation keeps every pose: it measures the model where odometry is there.
-            windows, more = _windows(recs, cfg, grid, False, with_motion, cfg.pose_dropout)
+            windows, more = _windows(
+                recs, cfg, grid, False, with_motion, cfg.pose_dropout, cfg.static_shift
+            )
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
         sources.append(windows)
