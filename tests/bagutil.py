@@ -165,11 +165,14 @@ def write_ros1_mcap(
     rate_hz: float = 10.0,
     odom: bool = False,
     mount: tuple[float, float, float] | None = None,
-    compression: str = "",
+    compression: str | None = "",
+    summary: bool = False,
 ) -> Path:
     """The MCAP file that ``mcap convert`` makes of :func:`write_bag`'s ROS 1 bag with the
     same arguments (one ``/scan`` topic): ROS 1 messages, ``ros1msg`` schemas, written in one
-    chunk (``compression`` "", "lz4" or "zstd") or, with ``compression=None``, unchunked."""
+    chunk (``compression`` "", "lz4" or "zstd") or, with ``compression=None``, unchunked; with
+    ``summary``, followed by a summary section (the schemas and channels again and a
+    Statistics record) as ``mcap`` writes one."""
     ts = get_typestore(Stores.ROS1_NOETIC)
     t0, period = 1_700_000_000 * 10**9, int(1e9 / rate_hz)
     messages: list[tuple[str, str, int, object]] = [
@@ -186,7 +189,7 @@ def write_ros1_mcap(
         messages.append(("/tf", "tf2_msgs/msg/TFMessage", t0, _tf_msg(
             ts, t0, [("base_link", "chassis", (0.2, 0.0, 0.0)),
                      ("chassis", "laser", (mount[0] - 0.2, mount[1], mount[2]))])))  # fmt: skip
-    records, channels = [], {}
+    records, channels, counts = [], {}, {}
     for topic, msgtype, _, _ in messages:
         if topic in channels:
             continue
@@ -197,7 +200,9 @@ def write_ros1_mcap(
                                     _mcap_string("ros1msg"), _mcap_string(text)))  # fmt: skip
         records.append(_mcap_record(0x04, struct.pack("<HH", key, key), _mcap_string(topic),
                                     _mcap_string("ros1"), struct.pack("<I", 0)))  # fmt: skip
+    described = list(records)
     for seq, (topic, msgtype, stamp, msg) in enumerate(sorted(messages, key=lambda m: m[2])):
+        counts[channels[topic]] = counts.get(channels[topic], 0) + 1
         raw = ts.serialize_ros1(msg, msgtype)
         records.append(_mcap_record(0x05, struct.pack("<HIQQ", channels[topic], seq, stamp, stamp),
                                     bytes(raw)))  # fmt: skip
@@ -217,6 +222,14 @@ def write_ros1_mcap(
         data = _mcap_record(0x06, *chunk, struct.pack("<Q", len(packed)), packed)
     header = _mcap_record(0x01, _mcap_string("ros1"), _mcap_string("lidarflow tests"))
     data_end = _mcap_record(0x0F, struct.pack("<I", 0))
-    footer = data_end + _mcap_record(0x02, struct.pack("<QQI", 0, 0, 0))
-    path.write_bytes(MCAP_MAGIC + header + data + footer + MCAP_MAGIC)
+    summary_start, section = 0, b""
+    if summary:
+        summary_start = len(MCAP_MAGIC + header + data + data_end)
+        entries = b"".join(struct.pack("<HQ", c, n) for c, n in counts.items())
+        totals = struct.pack("<QHIIIIQQ", len(messages), len(channels), len(channels), 0, 0,
+                             int(compression is not None), t0, t0)  # fmt: skip
+        stats = _mcap_record(0x0B, totals, struct.pack("<I", len(entries)), entries)
+        section = b"".join(described) + stats
+    footer = _mcap_record(0x02, struct.pack("<QQI", summary_start, 0, 0))
+    path.write_bytes(MCAP_MAGIC + header + data + data_end + section + footer + MCAP_MAGIC)
     return path

@@ -7,8 +7,10 @@ import zipfile
 
 import numpy as np
 import pytest
+from rosbags.typesys import Stores, get_typestore
 
-from lidarflow.data import list_topics, load_any, read_bag, sample_bag_path
+from lidarflow.data import list_topics, load_any, mcap1, read_bag, sample_bag_path
+from lidarflow.data.mcap1 import Ros1McapReader
 from lidarflow.errors import BagError, RecordingError
 from tests.bagutil import write_bag, write_ros1_mcap
 
@@ -53,6 +55,35 @@ def test_mcap_of_ros1_messages_reads_as_the_bag_it_came_from(tmp_path, compressi
     assert rec.meta["sensor_mount"] == bag.meta["sensor_mount"] == [0.3, -0.1, 0.4]
     assert rec.meta["frame_id"] == "laser" and rec.meta["pose_topic"] == "/odom"
     assert list_topics(mcap) == list_topics(tmp_path / "a.bag")
+
+
+@pytest.mark.parametrize("compression", ["lz4", None])
+def test_ros1_mcap_with_a_summary_opens_from_it(tmp_path, monkeypatch, compression):
+    rng = np.random.default_rng(2)
+    frames = [rng.uniform(0.3, 7.0, 40) for _ in range(12)]
+    kw = {"odom": True, "mount": (0.3, -0.1, 0.4), "compression": compression}
+    plain = read_bag(write_ros1_mcap(tmp_path / "plain.mcap", frames, **kw))
+    path = write_ros1_mcap(tmp_path / "summary.mcap", frames, summary=True, **kw)
+    rec = read_bag(path)
+    np.testing.assert_array_equal(rec.ranges, plain.ranges)
+    np.testing.assert_allclose(rec.poses, plain.poses)
+    assert rec.meta["sensor_mount"] == plain.meta["sensor_mount"]
+    assert list_topics(path) == list_topics(tmp_path / "plain.mcap")
+    # Opening takes the channels and counts from the summary alone, without a pass over the
+    # data section (the pass a file without a summary needs).
+    typestore = get_typestore(Stores.ROS1_NOETIC)
+    with monkeypatch.context() as patch:
+        patch.setattr(mcap1, "_records", _no_data_pass)
+        counts = {c.topic: c.msgcount for c in Ros1McapReader(path, typestore).connections}
+        with pytest.raises(AssertionError, match="data section"):
+            Ros1McapReader(tmp_path / "plain.mcap", typestore)
+    assert counts == {"/scan": 12, "/odom": 25, "/tf": 1}
+    plain_counts = Ros1McapReader(tmp_path / "plain.mcap", typestore).connections
+    assert counts == {c.topic: c.msgcount for c in plain_counts}
+
+
+def _no_data_pass(stream):
+    raise AssertionError("read the data section")
 
 
 @pytest.mark.parametrize("keep", [0.5, 0.9])

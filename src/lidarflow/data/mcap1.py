@@ -9,11 +9,16 @@ rosbags' ROS 1 typestore, with the three things :mod:`lidarflow.data.bags` asks 
 ``connections``, ``messages(connections=...)`` and ``deserialize(raw, msgtype)``.
 
 Record layout: https://mcap.dev/spec (opcode ``u8``, length ``u64``, fields little-endian,
-strings and byte arrays with a ``u32`` length).
+strings and byte arrays with a ``u32`` length). Opening a file reads its summary section (the
+schemas, channels and per-channel message counts that ``mcap`` writes after the data) where
+there is one with a Statistics record, so that a multi-gigabyte file is read once, for the
+messages; without one (a writer stopped early, or one that writes no summary) opening reads
+the data section for them instead.
 """
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -26,6 +31,8 @@ __all__ = ["MAGIC", "Ros1McapReader", "channel_encoding"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _DATA_END, _FOOTER = 0x03, 0x04, 0x05, 0x06, 0x0F, 0x02
+_STATISTICS = 0x0B
+_FOOTER_SIZE = 9 + 8 + 8 + 4  # opcode, length, summary start, summary offset start, crc
 
 
 @dataclass(frozen=True)
@@ -118,6 +125,38 @@ def _records(stream: BinaryIO) -> Iterator[tuple[int, bytes]]:
         yield from _split(_decompress(compression, fields.take(size)))
 
 
+def _summary(stream: BinaryIO) -> tuple[list[tuple[int, bytes]], dict[int, int]] | None:
+    """The summary section's schema and channel records and its Statistics record's message
+    count per channel; ``None`` where the file has no summary or the summary no statistics."""
+    size = stream.seek(0, os.SEEK_END)
+    tail = _FOOTER_SIZE + len(MAGIC)
+    if size < len(MAGIC) + tail:
+        return None
+    stream.seek(size - tail)
+    end = stream.read(tail)
+    if end[_FOOTER_SIZE:] != MAGIC or end[0] != _FOOTER:
+        return None
+    start, offsets = struct.unpack("<QQ", end[9:25])
+    stop = offsets or size - tail
+    if not len(MAGIC) <= start < stop <= size - tail:
+        return None
+    stream.seek(start)
+    records: list[tuple[int, bytes]] = []
+    counts: dict[int, int] | None = None
+    for op, body in _split(stream.read(stop - start)):
+        if op in (_SCHEMA, _CHANNEL):
+            records.append((op, body))
+        elif op == _STATISTICS:
+            fields = _Fields(body)
+            fields.take(8 + 2 + 4 * 4 + 8 + 8)  # totals and the time span
+            entries = _Fields(fields.take(fields.u32()))
+            counts = {}
+            while entries.at < len(entries.data):
+                channel = entries.u16()
+                counts[channel] = entries.u64()
+    return None if counts is None else (records, counts)
+
+
 def channel_encoding(path: str | Path) -> str | None:
     """The message encoding of the first channel of an MCAP file (``ros1``, ``cdr``, ...),
     ``None`` where it has none or cannot be read."""
@@ -148,9 +187,14 @@ class Ros1McapReader:
         self.path, self.typestore = Path(path), typestore
         schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, str]] = {}
-        counts: dict[int, int] = {}
         with self.path.open("rb") as stream:
-            for op, body in _records(stream):
+            try:
+                summary = _summary(stream)
+            except BagError:
+                summary = None  # a damaged summary: the data section says the same
+            stream.seek(0)
+            records, counts = summary if summary is not None else (_records(stream), {})
+            for op, body in records:
                 fields = _Fields(body)
                 if op == _SCHEMA:
                     schema_id, name, encoding = fields.u16(), fields.string(), fields.string()
