@@ -49,11 +49,11 @@ def test_recipes_differ_only_where_they_should():
 
 
 def test_head_recipe_is_the_one_validated_leave_one_out():
-    # docs/results/accuracy/loo/README.md: the residual recipe, that study's config file and
-    # these flags. The recipe must not drift from what was measured.
+    # docs/results/accuracy/loo/online/README.md: the residual recipe, that study's config
+    # file and these flags. The recipe must not drift from what was measured.
     from pathlib import Path
 
-    study = Path(__file__).parents[2] / "docs/results/accuracy/loo/head_cell_online.json"
+    study = Path(__file__).parents[2] / "docs/results/accuracy/loo/head_cell_warm_vis_online.json"
     flags = {"optim.epochs": 3, "optim.batch_size": 4, "data.seq_len": 16, "data.warmup": 6}
     flags |= {"optim.lr": 1e-6, "runtime.amp": "bf16", "runtime.channels_last": True}
     measured = build_config("residual", study, flags)

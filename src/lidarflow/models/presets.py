@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="86f28a92f530280b87e3e0a1ad790570be5f73875ae9733b6983cdaba5e6071d",
+    weights_sha256="eecfc625c4171c5be766981498a85fd7af39354e3c83aa09dc2142efb875f7c1",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 

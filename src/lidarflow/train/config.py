@@ -251,16 +251,17 @@ def _residual() -> TrainConfig:
 def _head() -> TrainConfig:
     """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
     memories that follow the constant-velocity shift, the constant-velocity map, the current
-    map; one hidden layer; ``head_kernel_size`` 1, no GRU features) trained by cross-entropy on
-    top of a trained flow network that stays (nearly) frozen, compensating the platform's own
-    motion where a recording has poses (``ego_motion``, ``poses_optional``: uncompensated where
-    it has none; half the training windows without their poses, so it learns both ways), its
-    decision offsets chosen online as it streams (``online_decision``, applied by evaluate and
-    the Predictor; training is unchanged by it):
-    ``model.init`` (the bundled model unless set; its head too where the shapes fit, so the
-    default fine-tunes the bundled head; ``--recipe blurred`` trains a flow network of your
-    own). About 8 CPU-minutes on four recordings; its validation is
-    ``docs/results/accuracy/loo/``."""
+    map and its visibility; one hidden layer; ``head_kernel_size`` 1, no GRU features) trained
+    by cross-entropy on top of a trained flow network that stays (nearly) frozen, each window
+    starting from the memories that streaming its recording leaves there
+    (``memories_from_stream``), compensating the platform's own motion where a recording has
+    poses (``ego_motion``, ``poses_optional``: uncompensated where it has none; half the
+    training windows without their poses, so it learns both ways), its decision offsets chosen
+    online as it streams (``online_decision``, applied by evaluate and the Predictor; training
+    is unchanged by it): ``model.init`` (the bundled model unless set; its head too where the
+    shapes fit, so the default fine-tunes the bundled head; ``--recipe blurred`` trains a flow
+    network of your own). About 8 CPU-minutes on the seven development recordings; its
+    validation is ``docs/results/accuracy/loo/online/``."""
     config = _residual()
     config.recipe = "head"
     config.model.kwargs = {
@@ -273,6 +274,7 @@ def _head() -> TrainConfig:
         "poses_optional": True,
         "head_kernel_size": 1,
         "head_flow_features": False,
+        "visibility_input": True,
         "online_decision": True,
     }
     config.model.init = "bundled"
@@ -287,6 +289,7 @@ def _head() -> TrainConfig:
     config.data.stride = 8
     config.data.epoch_windows = 200
     config.data.pose_dropout = 0.5
+    config.data.memories_from_stream = True
     config.schedule.gaussian_start = 1
     config.runtime.amp = "bf16"
     config.runtime.channels_last = True
