@@ -145,3 +145,8 @@ def test_bad_config_files_and_values(tmp_path):
         build_config(None, None, {"schedule.gaussian_start": 8})
     with pytest.raises(TrainError, match=r"model\.name"):
         build_config(None, None, {"model.name": "resnet"})
+    for fraction in ("data.pose_dropout", "data.static_shift"):
+        for value in (-0.1, 1.5):
+            with pytest.raises(TrainError, match=r"data\.static_shift are fractions"):
+                build_config(None, None, {fraction: value})
+        assert getattr(build_config(None, None, {fraction: 1.0}).data, fraction.split(".")[1]) == 1

@@ -193,6 +193,10 @@ class TrainConfig:
                 "data.mix weights must be >= 0 and not all 0",
             ),
             (d.grid >= 4 and d.res > 0, "data.grid must be >= 4 and data.res > 0"),
+            (
+                0 <= d.pose_dropout <= 1 and 0 <= d.static_shift <= 1,
+                "data.pose_dropout and data.static_shift are fractions of windows, in [0, 1]",
+            ),
             (o.name in ("adam", "adamw", "sgd"), "optim.name must be adam, adamw or sgd"),
             (
                 o.lr > 0 and o.batch_size >= 1 and o.epochs >= 1,
