@@ -1,14 +1,16 @@
 """What a classifier of each cell's own memories can do on the static recordings (issue 11).
 
-A reference point, no network of the project's: per cell and frame, the features are the
-current map ``O^t`` and the occupancy head's five memories (exponential averages with decays
-0.5 / 0.8 / 0.95 / 0.98 / 0.995), streamed over the whole recording as at test time, or, with
-``--reset N``, restarted from zero every N frames in training as the head's 16-frame training
-windows used to start them. A two-layer perceptron (32 + 32 units) is fitted by cross-entropy on
+A reference point, no network of the project's: per cell and frame, the features are the current
+map ``O^t`` and the occupancy head's five memories (exponential averages with decays 0.5 / 0.8 /
+0.95 / 0.98 / 0.995), streamed over the whole recording as at test time, or, with ``--reset N``,
+restarted from zero every N frames in training as the head's 16-frame training windows used to
+start them. With ``--visibility`` it also sees the visibility map ``V^t`` and five memories of
+it (how often each cell has been seen at all: a cell behind a wall's edge is seldom seen, one in
+the open nearly always). A two-layer perceptron (32 + 32 units) is fitted by cross-entropy on
 the cells near recent occupancy (some occupied cell within 2 cells in the last 16 frames; every
-other cell is predicted free) of the training recordings, leave-one-recording-out. Two thresholds
-(one for the cells occupied now, one for the free ones) are chosen on the training recordings by
-the largest summed win margin, then the held-out recording is scored with them.
+other cell is predicted free) of the training recordings, leave-one-recording-out. Two
+thresholds (one for the cells occupied now, one for the free ones) are chosen on the training
+recordings by the largest summed win margin, then the held-out recording is scored with them.
 
 Baselines here: copy-last and the temporal average (5 frames, 0.4), scored on the same frames
 (t >= 15, not 10 as in `lidarflow evaluate`); on static recordings the constant-velocity
@@ -39,19 +41,29 @@ THRESHOLDS = np.linspace(0.1, 0.7, 25)
 Data = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
 
 
-def features(occupancy: np.ndarray, reset: int = 0) -> Data:
-    """``(X (n, 6), next (n,), current (n,), temporal average (n,), appearing cells outside
-    the candidates)``."""
-    o = occupancy.astype(np.float32)
-    n = len(o)
-    memories = np.zeros((len(DECAYS), *o.shape), np.float32)
-    m = np.zeros((len(DECAYS), *o.shape[1:]), np.float32)
+def _memories(maps: np.ndarray, reset: int) -> np.ndarray:
+    """``(len(DECAYS), N, H, W)`` exponential averages of ``maps`` ``(N, H, W)``."""
+    memories = np.zeros((len(DECAYS), *maps.shape), np.float32)
+    m = np.zeros((len(DECAYS), *maps.shape[1:]), np.float32)
     d = np.asarray(DECAYS, np.float32)[:, None, None]
-    for t in range(n):
+    for t in range(len(maps)):
         if reset and t % reset == 0:
             m = np.zeros_like(m)
-        m = d * m + (1 - d) * o[t]
+        m = d * m + (1 - d) * maps[t]
         memories[:, t] = m
+    return memories
+
+
+def features(occupancy: np.ndarray, reset: int = 0, visibility: np.ndarray | None = None) -> Data:
+    """``(X (n, 6), next (n,), current (n,), temporal average (n,), appearing cells outside
+    the candidates)``; with ``visibility`` ``X`` also holds ``V^t`` and its five memories
+    ``(n, 12)``."""
+    o = occupancy.astype(np.float32)
+    n = len(o)
+    memories = _memories(o, reset)
+    if visibility is not None:
+        v = visibility.astype(np.float32)
+        memories = np.concatenate([memories, v[None], _memories(v, reset)])
     pad = np.pad(o, ((0, 0), (2, 2), (2, 2)))
     near = np.zeros_like(o)
     for dy in range(5):
@@ -134,13 +146,25 @@ def main() -> None:
     parser.add_argument("--reset", type=int, default=0, help="restart training memories every N")
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--hidden", type=int, default=32, help="units in each of two layers")
+    parser.add_argument(
+        "--visibility",
+        action="store_true",
+        help="also V^t and five memories of it (how often each cell is seen at all)",
+    )
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     torch.set_num_threads(2)
-    maps = {p.name: load_any(p).maps()[0] for p in args.recordings}
-    streamed = {name: features(o) for name, o in maps.items()}
+    maps = {p.name: load_any(p).maps() for p in args.recordings}
+    streamed = {
+        name: features(o, 0, v if args.visibility else None) for name, (o, v) in maps.items()
+    }
     train_view = (
-        {name: features(o, args.reset) for name, o in maps.items()} if args.reset else streamed
+        {
+            name: features(o, args.reset, v if args.visibility else None)
+            for name, (o, v) in maps.items()
+        }
+        if args.reset
+        else streamed
     )
     results: dict[str, list[dict]] = {}
     for held in [p.name for p in args.held_out] or list(maps):
@@ -171,7 +195,12 @@ def main() -> None:
                 flush=True,
             )
     if args.json:
-        settings = {"reset": args.reset, "epochs": args.epochs, "hidden": args.hidden}
+        settings = {
+            "reset": args.reset,
+            "epochs": args.epochs,
+            "hidden": args.hidden,
+            "visibility": args.visibility,
+        }
         args.json.write_text(json.dumps({**settings, "results": results}, indent=2))
 
 
