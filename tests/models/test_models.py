@@ -401,6 +401,29 @@ def test_visibility_and_warp_inputs_feed_the_head_as_its_last_channels():
             build_model("flownet", **{option: True})
 
 
+def test_visibility_memories_average_how_often_each_cell_is_seen():
+    kwargs = {"occupancy_head": True, "memory_decays": (0.5, 0.9)}
+    plain = build_model("flownet", **kwargs)
+    net = build_model("flownet", **kwargs, visibility_memories=True)
+    assert net.state_channels()[-1] == plain.state_channels()[-1] + 2
+    assert count_parameters(net) == count_parameters(plain) + 2 * 9  # two more 3x3 inputs
+    scene = torch.zeros(1, 2, 8, 8)
+    scene[0, 0, 2, 2] = 1.0
+    scene[0, 1, :, :4] = 1.0  # the left half is seen every frame, the right half never
+    state, plain_state = net.init_state(1, 8, 8), plain.init_state(1, 8, 8)
+    for _ in range(3):
+        _, state = net.step(scene, state)
+        _, plain_state = plain.step(scene, plain_state)
+    memories = state[-1]
+    # The occupancy memories are the plain model's; after them, V's: 1 - d^3 where seen.
+    torch.testing.assert_close(memories[:, :2], plain_state[-1][:, :2])
+    for channel, d in ((2, 0.5), (3, 0.9)):
+        torch.testing.assert_close(memories[0, channel, :, :4], torch.full((8, 4), 1 - d**3))
+        assert memories[0, channel, :, 4:].abs().max() == 0
+    with pytest.raises((ValueError, ModelError), match="visibility_memories"):
+        build_model("flownet", visibility_memories=True)
+
+
 def test_per_cell_head_sees_only_each_cells_own_inputs():
     kwargs = {"occupancy_head": True, "head_hidden_channels": 8}
     net = build_model("flownet", **kwargs, head_kernel_size=1, head_flow_features=False)

@@ -114,6 +114,13 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
             "decision_offset": 0.4,
             "decision_offset_free": 1.3,
         },
+        {
+            "memory_decays": [0.5, 0.95],
+            "visibility_memories": True,
+            "memory_bias_correction": True,
+            "constant_velocity_input": True,
+            "shift_memories": True,
+        },
     ],
     ids=[
         "bias_corrected_memories",
@@ -122,6 +129,7 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
         "shift_memories",
         "visibility_and_warp",
         "per_cell_head_two_offsets",
+        "visibility_memories",
     ],
 )
 def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recording, kwargs):

@@ -65,7 +65,11 @@ flow network's warp ``W(O^t, B^t)`` itself (with it the head can tell, per cell,
 and the constant-velocity map disagree, and lean on the one its other inputs favour; without it
 the warp reaches the prediction only through the global gain ``g``). Their weights in the head's
 first layer start random like the others', and the output layer at zero, so the untrained model
-is still copy-last.
+is still copy-last. ``visibility_memories=True`` also keeps one memory of ``V`` per decay, moved
+with the occupancy memories: how often a cell is seen at all. Two thirds of the cells that change
+on the static development recordings appear from or vanish into a cell not visible in the other
+frame (a return jittering along its beam behind a surface's edge); such cells are seldom
+visible, open floor nearly always (docs/results/accuracy/positive_4/).
 
 A head of each cell's own past (``head_kernel_size=1``, ``head_flow_features=False``, with the
 occupancy head; issue 11). The head sees, per cell, only the current map, its memories and the
@@ -134,6 +138,7 @@ class LidarFlowNet(RecurrentMapModel):
     head_hidden_channels: int = 0
     shift_memories: bool = False
     visibility_input: bool = False
+    visibility_memories: bool = False
     warp_input: bool = False
     head_kernel_size: int = 3
     head_flow_features: bool = True
@@ -156,6 +161,7 @@ class LidarFlowNet(RecurrentMapModel):
         head_hidden_channels: int = 0,
         shift_memories: bool = False,
         visibility_input: bool = False,
+        visibility_memories: bool = False,
         warp_input: bool = False,
         head_kernel_size: int | None = None,
         head_flow_features: bool = True,
@@ -185,14 +191,16 @@ class LidarFlowNet(RecurrentMapModel):
                 )
             self.shift_memories = bool(shift_memories)
             self.visibility_input = bool(visibility_input)
+            self.visibility_memories = bool(visibility_memories)
             self.warp_input = bool(warp_input)
             self.head_kernel_size = kernel_size if head_kernel_size is None else head_kernel_size
             if self.head_kernel_size < 1 or self.head_kernel_size % 2 == 0:
                 raise ValueError(f"head_kernel_size must be odd and >= 1, got {head_kernel_size}")
             self.head_flow_features = bool(head_flow_features)
-        elif visibility_input or warp_input:
+        elif visibility_input or visibility_memories or warp_input:
             raise ValueError(
-                "visibility_input and warp_input need occupancy_head=True (they feed it)"
+                "visibility_input, visibility_memories and warp_input need occupancy_head=True "
+                "(they feed it)"
             )
         elif head_kernel_size is not None or not head_flow_features:
             raise ValueError(
@@ -242,7 +250,7 @@ class LidarFlowNet(RecurrentMapModel):
                 math.log(p / (1.0 - p)) for p in (FREE_PROBABILITY_INIT, OCCUPIED_PROBABILITY_INIT)
             )
             features = hidden_channels * int(self.head_flow_features) + 1
-            features += len(self.memory_decays) + int(self.constant_velocity_input)
+            features += self.memory_channels + int(self.constant_velocity_input)
             features += int(self.visibility_input) + int(self.warp_input)
             head_k = self.head_kernel_size
             if self.head_hidden_channels:
@@ -263,7 +271,13 @@ class LidarFlowNet(RecurrentMapModel):
         if not self.occupancy_head:
             return grus
         extra = int(self.memory_bias_correction) + int(self.constant_velocity_input)
-        return (*grus, len(self.memory_decays) + extra)
+        return (*grus, self.memory_channels + extra)
+
+    @property
+    def memory_channels(self) -> int:
+        """The head's memories: one per decay of the occupancy, and with
+        ``visibility_memories`` one per decay of the visibility too."""
+        return len(self.memory_decays) * (1 + int(self.visibility_memories))
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
         """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` and the state -> output and new state."""
@@ -276,15 +290,22 @@ class LidarFlowNet(RecurrentMapModel):
         if not self.occupancy_head:
             return flow, tuple(new_state)
         occupancy = maps[:, 0:1]
+        k = self.memory_channels
+        observed = occupancy
         decays = torch.tensor(self.memory_decays, dtype=maps.dtype, device=maps.device)
+        if self.visibility_memories:
+            n = len(self.memory_decays)
+            decays = torch.cat([decays, decays])
+            observed = torch.cat(
+                [occupancy.expand(-1, n, -1, -1), maps[:, 1:2].expand(-1, n, -1, -1)], dim=1
+            )
         decays = decays.view(1, -1, 1, 1)
-        k = len(self.memory_decays)
         past = state[-1][:, :k]
         if self.constant_velocity_input:
             kernel = best_shift_kernel(state[-1][:, -1:], occupancy)
             if self.shift_memories:
                 past = apply_shift(past, kernel)
-        memory = decays * past + (1.0 - decays) * occupancy
+        memory = decays * past + (1.0 - decays) * observed
         features = [x, occupancy] if self.head_flow_features else [occupancy]
         kept = [memory]
         if not self.memory_bias_correction:
