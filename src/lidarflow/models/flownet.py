@@ -69,7 +69,8 @@ is still copy-last. ``visibility_memories=True`` also keeps one memory of ``V`` 
 with the occupancy memories: how often a cell is seen at all. Two thirds of the cells that change
 on the static development recordings appear from or vanish into a cell not visible in the other
 frame (a return jittering along its beam behind a surface's edge); such cells are seldom
-visible, open floor nearly always (docs/results/accuracy/positive_4/).
+visible, open floor nearly always. Measured leave-one-out on two folds, it did not help the
+recording it was meant for (docs/results/accuracy/positive_4/): off by default.
 
 A head of each cell's own past (``head_kernel_size=1``, ``head_flow_features=False``, with the
 occupancy head; issue 11). The head sees, per cell, only the current map, its memories and the
