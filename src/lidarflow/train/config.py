@@ -85,8 +85,9 @@ class DataConfig:
     window's first frame, not at zero (:mod:`lidarflow.train.warm`). ``scan_motions``
     (ego-motion models): a recording without poses is trained on the motion matched from its
     scans, as it is evaluated, rather than uncompensated. ``static_shift``: the fraction of
-    training windows whose sensor stands still in which a piece of the scene moves by a cell
-    or two partway through and stays moved (:mod:`lidarflow.train.augment`).
+    training windows whose motions are all zero (a sensor standing still, or a recording
+    without poses) in which a piece of the scene moves by a cell or two partway through and
+    stays moved (:mod:`lidarflow.train.augment`).
     """
 
     sources: list[str] = field(default_factory=list)
