@@ -523,9 +523,11 @@ def _add_horizon_scores(
             # Only odometry is replaced by the scans' motion; scan motions are only checked.
             with_returns = motions is not None and recording.has_poses
             returns = recording_points(recording) if with_returns else None
+            wants = any(model.input_channels > 2 for model in models.values())
             entry["horizon_f1"] = horizon_f1(
                 occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
                 returns, recording.has_poses, spec.res,
+                recording.subcell_maps(spec) if wants else None,
             )  # fmt: skip
 
 

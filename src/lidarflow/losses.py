@@ -133,8 +133,8 @@ def _flow_loss(
     b, t, _, h, w = seq.shape
     n = t - 1 - warmup
     # All pairs at once: (B, n, ...) -> (B * n, ...), one blur and one warp per direction.
-    cur = seq[:, warmup : t - 1].reshape(b * n, 2, h, w)
-    nxt = seq[:, warmup + 1 :].reshape(b * n, 2, h, w)
+    cur = seq[:, warmup : t - 1, :2].reshape(b * n, 2, h, w)
+    nxt = seq[:, warmup + 1 :, :2].reshape(b * n, 2, h, w)
     flow = flows[:, warmup : t - 1].reshape(b * n, 4, h, w)
 
     loss = _warp_term(cur, nxt, flow[:, 0:2], kernel_size, config)
@@ -230,8 +230,9 @@ def gaussian_schedule(epoch: int, start: int = 9, step_epochs: int = 25, minimum
 
 
 def _check(seq: Tensor, out: Tensor, channels: int, warmup: int) -> None:
-    if seq.dim() != 5 or seq.shape[2] != 2:
-        raise ValueError(f"seq must be (B, T, 2, H, W), got {tuple(seq.shape)}")
+    # Channels past (O, V) are model inputs only (e.g. subcell_input's); the losses use O and V.
+    if seq.dim() != 5 or seq.shape[2] < 2:
+        raise ValueError(f"seq must be (B, T, C >= 2, H, W), got {tuple(seq.shape)}")
     b, t, _, h, w = seq.shape
     if out.shape != (b, t, channels, h, w):
         raise ValueError(

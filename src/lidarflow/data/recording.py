@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.errors import RecordingError, ScanError
-from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch
+from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
 
 __all__ = ["FORMAT_VERSION", "Recording", "load_recording"]
 
@@ -164,12 +164,7 @@ class Recording:
         n = max(stop - start, 0)
         occ = np.zeros((n, *grid.shape), dtype=bool)
         vis = np.zeros((n, *grid.shape), dtype=bool)
-        for a, b in self.geometry_runs():
-            a, b = max(a, start), min(b, stop)
-            if a >= b:
-                continue
-            geom = self.geometry(a)
-            block = self.ranges[self.offsets[a] : self.offsets[b]].reshape(b - a, geom.count)
+        for a, b, block, geom in self._runs(start, stop):
             try:
                 occ[a - start : b - start], vis[a - start : b - start] = rasterize_batch(
                     block, geom, grid
@@ -177,6 +172,31 @@ class Recording:
             except ScanError as err:
                 raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
         return occ, vis
+
+    def subcell_maps(
+        self, grid: GridSpec | None = None, start: int = 0, stop: int | None = None
+    ) -> np.ndarray:
+        """Where the returns of frames ``[start, stop)`` lie inside their cells: boolean
+        ``(n, 2, H, W)`` (:func:`lidarflow.scan.subcell_batch`)."""
+        grid = grid or GridSpec()
+        stop = len(self) if stop is None else min(stop, len(self))
+        out = np.zeros((max(stop - start, 0), 2, *grid.shape), dtype=bool)
+        for a, b, block, geom in self._runs(start, stop):
+            try:
+                out[a - start : b - start] = subcell_batch(block, geom, grid)
+            except ScanError as err:
+                raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
+        return out
+
+    def _runs(self, start: int, stop: int) -> Iterator[tuple[int, int, np.ndarray, BeamGeometry]]:
+        """Frames ``[a, b)`` of ``[start, stop)`` sharing one geometry: ``(a, b, ranges, geometry)``
+        with ``ranges`` ``(b - a, count)``."""
+        for a, b in self.geometry_runs():
+            a, b = max(a, start), min(b, stop)
+            if a < b:
+                geom = self.geometry(a)
+                block = self.ranges[self.offsets[a] : self.offsets[b]].reshape(b - a, geom.count)
+                yield a, b, block, geom
 
     def slice(self, start: int, stop: int) -> Recording:
         """Frames ``[start, stop)`` as a new recording (per-frame extras are sliced too)."""

@@ -34,6 +34,7 @@ from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.online import OnlineDecision, moved_last_map
 from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.models.streaming import model_input
 
 __all__ = ["horizon_f1"]
 
@@ -51,6 +52,7 @@ def horizon_f1(
     returns: Sequence[np.ndarray] | None = None,
     motions_from_poses: bool = False,
     res: float = 0.1,
+    subcell: np.ndarray | None = None,
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
@@ -60,7 +62,9 @@ def horizon_f1(
     then updated on every frame). ``motions_from_poses``: the motions are odometry, which a
     model that may run without poses replaces by the scans' own motion where they disagree
     (from the maps, and each frame's ``returns`` where given, on a grid of ``res`` metres), as
-    the streaming evaluation and the Predictor do; else they are only checked."""
+    the streaming evaluation and the Predictor do; else they are only checked. ``subcell``
+    ``(N, 2, H, W)``: where each frame's returns lie inside their cells, for models with
+    ``subcell_input`` (a predicted map fed back gets zeros: it has no returns)."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
@@ -87,8 +91,8 @@ def horizon_f1(
         h, w = occupancy.shape[-2:]
         state = model.init_state(1, h, w)
         for t in range(n - horizon):
-            maps = torch.from_numpy(np.stack([occupancy[t], visibility[t]]).astype(np.float32))
-            maps = maps[None]
+            extra = None if subcell is None else subcell[t]
+            maps = torch.from_numpy(model_input(model, occupancy[t], visibility[t], extra))[None]
             known = _known(motions, t) if ego else None
             if check is not None and ego:
                 points = None if returns is None else returns[t]
@@ -111,7 +115,7 @@ def horizon_f1(
             rolled = state
             for k in range(horizon):
                 if k > 0:
-                    fed = torch.cat([probability, maps[:, 1:2]], dim=1)
+                    fed = torch.cat([probability, maps[:, 1:2], torch.zeros_like(maps[:, 2:])], 1)
                     out_k, rolled = model.step(fed, rolled, *motion)
                     probability = model.predict_next(fed, out_k)
                     if online is not None:

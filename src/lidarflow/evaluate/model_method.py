@@ -64,6 +64,7 @@ class ModelMethod:
         self.odometry = OdometryCheck() if self.poses_optional else None
         self.scans = ScanOdometry(res) if self.poses_optional else None
         self.takes_returns = self.poses_optional
+        self.takes_subcell = stream.model.input_channels > 2
         self.oracle = oracle and self.uses_motion
         try:
             self.online = decision_for(decision_of(stream.model), online, online_config)
@@ -102,10 +103,17 @@ class ModelMethod:
         next_motion: np.ndarray | None = None,
         returns: np.ndarray | None = None,
         from_pose: bool = True,
+        subcell: np.ndarray | None = None,
     ) -> np.ndarray:
         """One frame; ``returns``: its scan's returns (:func:`~lidarflow.data.scanalign.
         scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
-        scans, and is only checked)."""
+        scans, and is only checked); ``subcell``: where its returns lie inside their cells
+        ``(2, H, W)``, which a model with ``takes_subcell`` needs."""
+        if self.takes_subcell and subcell is None:
+            raise EvaluateError(
+                f"{self.name} needs where the returns lie inside their cells (subcell_input): "
+                "evaluate it on a recording, not on maps alone"
+            )
         if self.odometry is not None:
             motion, trusted = checked_motion(
                 self.odometry, self.scans, occupancy, motion, from_pose, returns
@@ -113,7 +121,7 @@ class ModelMethod:
             next_motion = next_motion if trusted else None
         self.motion = motion
         result = self.stream.step(
-            occupancy, visibility, motion, next_motion if self.oracle else None
+            occupancy, visibility, motion, next_motion if self.oracle else None, subcell
         )
         self._occupancy, self._moving = occupancy, None
         if result.flow is None:

@@ -45,7 +45,10 @@ WARMUP = 10
 def _made_on(recording: Recording, grid: GridSpec) -> bool:
     stored = recording.meta.get("grid") or {}
     return (stored.get("height"), stored.get("width"), stored.get("res")) == (
-        grid.height, grid.width, grid.res)
+        grid.height,
+        grid.width,
+        grid.res,
+    )
 
 
 def ground_truth_backward_flow(
@@ -61,9 +64,7 @@ def ground_truth_backward_flow(
     return lambda t: dense_flow(recording, t)[0]
 
 
-def ground_truth_moving(
-    recording: Recording, grid: GridSpec
-) -> Callable[[int], np.ndarray] | None:
+def ground_truth_moving(recording: Recording, grid: GridSpec) -> Callable[[int], np.ndarray] | None:
     """``t -> `` the simulator's moving cells of ``O^t`` ``(H, W)`` bool, or ``None`` when the
     recording has none or it was made on another grid than ``grid``."""
     moving = recording.extras.get("moving")
@@ -85,6 +86,7 @@ def evaluate_maps(
     motions: np.ndarray | None = None,
     returns: Sequence[np.ndarray] | None = None,
     motions_from_poses: bool = False,
+    subcell: np.ndarray | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
@@ -94,6 +96,10 @@ def evaluate_maps(
     :func:`lidarflow.data.scanalign.scan_points`) and whether the motions came from poses
     (``motions_from_poses``), to take the scans' own motion where the poses disagree with the
     scans; by default the motions are only checked (as ones found from the scans are).
+
+    Methods with ``takes_subcell`` (models built with ``subcell_input``) also get ``subcell[t]``
+    ``(2, H, W)``, where the frame's returns lie inside their cells
+    (:meth:`~lidarflow.data.Recording.subcell_maps`).
 
     ``on_prediction(method_name, t, probability, backward_flow_or_None)`` is called for every
     scored prediction (the map predicted for frame ``t + 1``), e.g. to draw overlays.
@@ -117,20 +123,17 @@ def evaluate_maps(
         m.reset()
     for t in range(n - 1):
         for m in methods:
+            extra: dict[str, object] = {}
             if motions is not None and getattr(m, "uses_motion", False):
                 # NaN: no motion known for that step (scan matching found none): not compensated
                 motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
-                extra = {}
+                extra = {"motion": motion, "next_motion": following}
                 if getattr(m, "takes_returns", False):
-                    extra = {
-                        "returns": None if returns is None else returns[t],
-                        "from_pose": motions_from_poses,
-                    }
-                probability = m.update(  # type: ignore[call-arg]
-                    occupancy[t], visibility[t], motion=motion, next_motion=following, **extra
-                )
-            else:
-                probability = m.update(occupancy[t], visibility[t])
+                    extra["returns"] = None if returns is None else returns[t]
+                    extra["from_pose"] = motions_from_poses
+            if subcell is not None and getattr(m, "takes_subcell", False):
+                extra["subcell"] = subcell[t]
+            probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
             if t < warmup:
                 continue
             scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
@@ -178,8 +181,19 @@ def evaluate_recording(
         and motions is not None
         and any(getattr(m, "takes_returns", False) for m in methods)
     )
+    takes_subcell = any(getattr(m, "takes_subcell", False) for m in methods)
     return evaluate_maps(
-        occupancy, visibility, methods, warmup, gt_flow, progress, on_prediction,
-        gt_moving, on_moving, motions,
-        recording_points(recording) if takes_returns else None, recording.has_poses,
+        occupancy,
+        visibility,
+        methods,
+        warmup,
+        gt_flow,
+        progress,
+        on_prediction,
+        gt_moving,
+        on_moving,
+        motions,
+        recording_points(recording) if takes_returns else None,
+        recording.has_poses,
+        recording.subcell_maps(grid) if takes_subcell else None,
     )

@@ -80,6 +80,10 @@ class EgoCompensated(RecurrentMapModel):
         self.out_channels = inner.out_channels
 
     @property
+    def input_channels(self) -> int:  # type: ignore[override]
+        return int(getattr(self.inner, "input_channels", 2))
+
+    @property
     def occupancy_head(self) -> bool:
         """Whether the inner model has an occupancy head (its output's fifth channel)."""
         return bool(getattr(self.inner, "occupancy_head", False))

@@ -82,6 +82,14 @@ with the offsets chosen online it wins it and 5 of the 6 others, which the defau
 the same online decision does not (docs/results/accuracy/loo/online/), so the ``head`` recipe
 uses it. Motion still reaches the prediction through the flow's warp and the shifted memories.
 
+Where the returns lie inside their cells (``subcell_input=True``, with the occupancy head;
+issue 11). Maps then have four channels, ``(O, V, edge, near)`` (:func:`lidarflow.scan.
+subcell_batch`): a cell whose returns all lie at its border, and a cell that a neighbour's return
+lies against. Most cells that change on a static scene are a return crossing a cell edge along
+its beam; the binary map cannot see it coming, these two channels can. Only the head sees them
+(the flow network's input stays Table I's ``(O, V)``); their weights start random like the
+head's other inputs', the output layer at zero, so the untrained model is still copy-last.
+
 Offsets chosen online (``online_decision=True``, with the occupancy head; issue 11). The model
 is unchanged; the flag tells ``evaluate`` and the ``Predictor`` to re-decide its probabilities
 with the decision offsets that have done best on the stream so far
@@ -144,6 +152,7 @@ class LidarFlowNet(RecurrentMapModel):
     head_kernel_size: int = 3
     head_flow_features: bool = True
     online_decision: bool = False
+    subcell_input: bool = False
 
     def __init__(
         self,
@@ -167,6 +176,7 @@ class LidarFlowNet(RecurrentMapModel):
         head_kernel_size: int | None = None,
         head_flow_features: bool = True,
         online_decision: bool = False,
+        subcell_input: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -198,10 +208,11 @@ class LidarFlowNet(RecurrentMapModel):
             if self.head_kernel_size < 1 or self.head_kernel_size % 2 == 0:
                 raise ValueError(f"head_kernel_size must be odd and >= 1, got {head_kernel_size}")
             self.head_flow_features = bool(head_flow_features)
-        elif visibility_input or visibility_memories or warp_input:
+            self.subcell_input = bool(subcell_input)
+        elif visibility_input or visibility_memories or warp_input or subcell_input:
             raise ValueError(
-                "visibility_input, visibility_memories and warp_input need occupancy_head=True "
-                "(they feed it)"
+                "visibility_input, visibility_memories, warp_input and subcell_input need "
+                "occupancy_head=True (they feed it)"
             )
         elif head_kernel_size is not None or not head_flow_features:
             raise ValueError(
@@ -253,6 +264,7 @@ class LidarFlowNet(RecurrentMapModel):
             features = hidden_channels * int(self.head_flow_features) + 1
             features += self.memory_channels + int(self.constant_velocity_input)
             features += int(self.visibility_input) + int(self.warp_input)
+            features += 2 * int(self.subcell_input)
             head_k = self.head_kernel_size
             if self.head_hidden_channels:
                 hidden = self.head_hidden_channels
@@ -263,6 +275,12 @@ class LidarFlowNet(RecurrentMapModel):
             nn.init.zeros_(self.conv_occupancy.weight)
             nn.init.constant_(self.conv_occupancy.bias, free)
             self.warp_gain = nn.Parameter(torch.tensor(occupied - free))
+
+    @property
+    def input_channels(self) -> int:
+        """Channels of the maps ``step`` takes: ``(O, V)``, and ``(edge, near)`` with
+        ``subcell_input``."""
+        return 4 if self.subcell_input else 2
 
     def state_channels(self) -> tuple[int, ...]:
         """Three GRU states, then (occupancy head) one tensor of occupancy memories (and, with
@@ -281,8 +299,9 @@ class LidarFlowNet(RecurrentMapModel):
         return len(self.memory_decays) * (1 + int(self.visibility_memories))
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
-        """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` and the state -> output and new state."""
-        x = self.act0(self.conv0(maps))
+        """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` (with ``subcell_input`` (O, V, edge,
+        near) ``(B, 4, H, W)``) and the state -> output and new state."""
+        x = self.act0(self.conv0(maps[:, :2] if self.subcell_input else maps))
         new_state = []
         for cell, y_prev in zip(self.grus, state, strict=False):
             x = cell(x, y_prev)
@@ -334,6 +353,8 @@ class LidarFlowNet(RecurrentMapModel):
             features.append(maps[:, 1:2])
         if self.warp_input:
             features.append(warp(occupancy, flow[:, 0:2]).clamp(0.0, 1.0))
+        if self.subcell_input:
+            features.append(maps[:, 2:4])
         head_input = torch.cat(features, dim=1)
         if self.head_hidden_channels:
             head_input = torch.relu(self.occupancy_hidden(head_input))

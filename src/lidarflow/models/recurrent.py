@@ -21,6 +21,9 @@ class RecurrentMapModel(nn.Module):
     """Base of the recurrent map predictors: state handling and the sequence loop."""
 
     out_channels: int
+    #: Channels of the maps ``step`` takes (``(O, V)``; a model may ask for more, see
+    #: :attr:`lidarflow.models.flownet.LidarFlowNet.input_channels`).
+    input_channels: int = 2
 
     def state_channels(self) -> tuple[int, ...]:
         """Channels of each state tensor, in state order."""

@@ -9,7 +9,22 @@ import torch
 
 from lidarflow.models.recurrent import RecurrentMapModel
 
-__all__ = ["StepResult", "StreamingModel"]
+__all__ = ["StepResult", "StreamingModel", "model_input"]
+
+
+def model_input(
+    model: RecurrentMapModel,
+    occupancy: np.ndarray,
+    visibility: np.ndarray,
+    subcell: np.ndarray | None = None,
+) -> np.ndarray:
+    """The float32 maps ``(C, H, W)`` one ``model.step`` takes for one frame: ``(O, V)``, and
+    for a model with ``input_channels`` 4 ``subcell`` ``(2, H, W)`` after them (zeros if
+    ``None``: what a return at a cell's centre gives, and all a predicted map can say)."""
+    maps = [occupancy[None], visibility[None]]
+    if model.input_channels > 2:
+        maps.append(np.zeros((2, *occupancy.shape)) if subcell is None else subcell)
+    return np.concatenate(maps).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -30,7 +45,9 @@ class StreamingModel:
     Ego-motion models (``model.ego_motion``, :class:`~lidarflow.models.EgoCompensated`) take
     ``motion`` ``(dx, dy, dyaw)`` (cells, radians; this frame in the previous one; ``None``: not
     compensated) and optionally the true ``next_motion`` (default: constant velocity, causal);
-    other models ignore both.
+    other models ignore both. Models with ``input_channels`` 4 (``subcell_input``) take
+    ``subcell`` ``(2, H, W)`` too (:func:`lidarflow.scan.subcell_batch`); ``None`` gives them
+    zeros, the value of a return at a cell's centre.
     """
 
     def __init__(self, model: RecurrentMapModel, device: str | torch.device = "cpu") -> None:
@@ -48,8 +65,9 @@ class StreamingModel:
         visibility: np.ndarray,
         motion: np.ndarray | None = None,
         next_motion: np.ndarray | None = None,
+        subcell: np.ndarray | None = None,
     ) -> StepResult:
-        maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
+        maps = model_input(self.model, occupancy, visibility, subcell)[None]
         x = torch.from_numpy(maps).to(self.device)
         if self._state is None:
             self._state = self.model.init_state(1, maps.shape[-2], maps.shape[-1])

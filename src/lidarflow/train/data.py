@@ -22,8 +22,9 @@ makes ``--resume`` reproduce the data order exactly, and it is sharded across DD
 :class:`torch.utils.data.DistributedSampler` does (pad to a multiple of the world size, rank
 ``r`` takes every ``world``-th index from ``r``).
 
-Windows are served as ``uint8`` ``(T, 2, H, W)`` (channel 0 occupancy, 1 visibility): 4x less
-to copy than float32; the loop converts on the device.
+Windows are served as ``uint8`` ``(T, 2, H, W)`` (channel 0 occupancy, 1 visibility; for
+models with ``subcell_input`` also 2 and 3, :meth:`~lidarflow.data.Recording.subcell_maps`): 4x
+less to copy than float32; the loop converts on the device.
 
 Ego motion (``load_train_data(..., with_motion=True)``, for models built with ``ego_motion``):
 every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx, dy, dyaw)`` with
@@ -237,10 +238,14 @@ def _windows(
     with_motion: bool = False,
     pose_dropout: float = 0.0,
     static_shift: float = 0.0,
+    with_subcell: bool = False,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods
     )
+    if with_subcell:
+        for i, rec in enumerate(recordings):
+            seqs.maps[i] = np.concatenate([seqs.maps[i], rec.subcell_maps(grid)], axis=1)
     flows: list[Flow] = []
     notes = list(seqs.report.notes)
     for rec in recordings:
@@ -312,9 +317,12 @@ def _split_tail(
     return rec.slice(0, n - n_val), rec.slice(n - n_val, n)
 
 
-def load_train_data(cfg: DataConfig, with_motion: bool = False) -> TrainData:
+def load_train_data(
+    cfg: DataConfig, with_motion: bool = False, with_subcell: bool = False
+) -> TrainData:
     """Load every source, split off validation, and cut windows (see the module docstring);
-    ``with_motion``: items carry the per-frame ego motion too."""
+    ``with_motion``: items carry the per-frame ego motion too; ``with_subcell``: maps carry
+    :meth:`~lidarflow.data.Recording.subcell_maps` as channels 2 and 3."""
     if not cfg.sources:
         raise TrainError("no training data: give at least one recording or bag")
     if cfg.mix and len(cfg.mix) not in (len(cfg.sources), len(cfg.sources) - 1):
@@ -358,8 +366,9 @@ def load_train_data(cfg: DataConfig, with_motion: bool = False) -> TrainData:
         try:
             # Validation keeps every pose: it measures the model where odometry is there.
             windows, more = _windows(
-                recs, cfg, grid, False, with_motion, cfg.pose_dropout, cfg.static_shift
-            )
+                recs, cfg, grid, False, with_motion, cfg.pose_dropout, cfg.static_shift,
+                with_subcell,
+            )  # fmt: skip
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
         sources.append(windows)
@@ -367,7 +376,7 @@ def load_train_data(cfg: DataConfig, with_motion: bool = False) -> TrainData:
     val = None
     if val_recs:
         try:
-            val, more = _windows(val_recs, cfg, grid, True, with_motion)
+            val, more = _windows(val_recs, cfg, grid, True, with_motion, with_subcell=with_subcell)
             notes += more
         except LidarflowError as err:
             notes.append(f"no validation windows ({err})")

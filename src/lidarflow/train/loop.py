@@ -86,7 +86,7 @@ def make_loss(
         value = flow_loss(seq, out[:, :, :4], kernel, config.loss, warmup=warmup)
         if weight > 0.0:
             b, t, c, h, w = out.shape
-            logits = model.next_logit(seq.reshape(b * t, 2, h, w), out.reshape(b * t, c, h, w))
+            logits = model.next_logit(seq.reshape(b * t, -1, h, w), out.reshape(b * t, c, h, w))
             value = value + weight * next_map_bce(
                 seq,
                 logits.reshape(b, t, 1, h, w),
@@ -204,7 +204,12 @@ def _train(
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
     prepare_run_dir(run_dir, config, resume, ctx)
-    data = load_train_data(config.data, with_motion=bool(config.model.kwargs.get("ego_motion")))
+    kwargs = config.model.kwargs
+    data = load_train_data(
+        config.data,
+        with_motion=bool(kwargs.get("ego_motion")),
+        with_subcell=bool(kwargs.get("subcell_input")),
+    )
     say(data.summary())
     for note in data.notes:
         say(f"note: {note}")

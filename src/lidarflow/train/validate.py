@@ -61,10 +61,10 @@ def validate(
         loss_sum += float(loss_fn(seq, out)) * len(seq)
         windows += len(seq)
         t_idx = range(warmup, seq.shape[1] - 1)
-        now = seq[:, warmup:-1]  # (B, n, 2, H, W)
+        now = seq[:, warmup:-1]  # (B, n, C, H, W)
         b, n, _, h, w = now.shape
         step_out = out[:, warmup:-1].reshape(b * n, -1, h, w)
-        prob = model.predict_next(now.reshape(b * n, 2, h, w), step_out).reshape(b, n, h, w)
+        prob = model.predict_next(now.reshape(b * n, -1, h, w), step_out).reshape(b, n, h, w)
         occ_now = now[:, :, 0] > 0.5
         occ_next = seq[:, warmup + 1 :, 0] > 0.5
         changed = occ_now != occ_next
