@@ -17,6 +17,7 @@ from lidarflow.scan import (
     cell_centres,
     rasterize,
     rasterize_batch,
+    subcell_batch,
 )
 
 GRID = GridSpec(100, 100, 0.1)
@@ -223,3 +224,75 @@ def test_wrong_batch_shape_is_a_scan_error():
     geom = BeamGeometry(3, 0.0, 0.1, 0.1, 1.0)
     with pytest.raises(ScanError, match=r"\(N, 3\)"):
         rasterize_batch(np.zeros((2, 4)), geom)
+
+
+# --- where the returns lie inside their cells (subcell_batch) ---------------------------------
+
+
+def _subcell_by_fine_grid(ranges: np.ndarray, geom: BeamGeometry, grid: GridSpec) -> np.ndarray:
+    """The definition, through a rasterization 4x finer: ``edge`` = occupied and no return in
+    the inner 2 x 2 of the cell's 4 x 4 sub-cells; ``near`` = a neighbour's return in the row or
+    column of sub-cells that touches the cell."""
+    fine = GridSpec(grid.height * 4, grid.width * 4, grid.res / 4)
+    occ = rasterize_batch(ranges, geom, fine)[0]
+    n, h, w = len(occ), grid.height, grid.width
+    blocks = occ.reshape(n, h, 4, w, 4)
+    edge = blocks.any(axis=(2, 4)) & ~blocks[:, :, 1:3, :, 1:3].any(axis=(2, 4))
+    near = np.zeros((n, h, w), dtype=bool)
+    near[:, 1:] |= blocks[:, :-1, 3].any(-1)  # the sub-row of the cell above that touches it
+    near[:, :-1] |= blocks[:, 1:, 0].any(-1)
+    near[:, :, 1:] |= blocks[:, :, :, :-1, 3].any(-2)
+    near[:, :, :-1] |= blocks[:, :, :, 1:, 0].any(-2)
+    return np.stack([edge, near], axis=1)
+
+
+def test_subcell_matches_its_definition_on_a_four_times_finer_grid():
+    rng = np.random.default_rng(0)
+    geom = BeamGeometry(541, -2.35, 4.7 / 540, 0.05, 12.0)
+    ranges = rng.uniform(0.05, 11.0, size=(6, 541))
+    ranges[:, ::7] = np.nan  # unknown beams give nothing
+    ranges[:, 3::11] = np.inf  # nor do beams without a return
+    got = subcell_batch(ranges, geom, GRID)
+    assert got.shape == (6, 2, *GRID.shape) and got.dtype == bool
+    np.testing.assert_array_equal(got, _subcell_by_fine_grid(ranges, geom, GRID))
+    assert got[:, 0].any() and got[:, 1].any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    theta=st.floats(-3.0, 3.0),
+    rho=st.floats(0.1, 9.0),
+)
+def test_subcell_edge_cells_are_occupied_and_near_cells_touch_one(theta, rho):
+    ranges, geom, _ = one_beam_scan(theta, rho)
+    occ, _ = rasterize(Scan(ranges, geom), GRID)
+    edge, near = subcell_batch(ranges[None], geom, GRID)[0]
+    assert not (edge & ~occ).any()  # edge only where rasterize marks the return
+    rows, cols = np.nonzero(near)
+    for r, c in zip(rows, cols, strict=True):  # every near cell is a 4-neighbour of the return
+        assert occ[max(r - 1, 0) : r + 2, c].any() or occ[r, max(c - 1, 0) : c + 2].any()
+        assert not occ[r, c]  # one return: its own cell is not its neighbour
+
+
+@pytest.mark.parametrize(
+    ("x", "edge", "near_row"),
+    [
+        (5.05, False, None),  # the middle of row 49: no edge, no neighbour touched
+        (5.01, True, 50),  # 1 cm short of row 49's near edge: row 50 (nearer the sensor)
+        (5.09, True, 48),  # 1 cm short of its far edge: row 48
+    ],
+)
+def test_subcell_of_a_return_along_the_beam(x, edge, near_row):
+    # Straight ahead on a grid 101 wide, the beam runs down the middle of column 50.
+    geom = BeamGeometry(1, 0.0, 0.0, 0.05, 10.0)
+    features = subcell_batch(np.array([[x]]), geom, GridSpec(100, 101, 0.1))[0]
+    assert bool(features[0, 49, 50]) is edge
+    expected = np.zeros((100, 101), dtype=bool)
+    if near_row is not None:
+        expected[near_row, 50] = True
+    np.testing.assert_array_equal(features[1], expected)
+
+
+def test_subcell_checks_the_ranges_shape():
+    with pytest.raises(ScanError, match="ranges must be"):
+        subcell_batch(np.zeros((2, 3)), BeamGeometry(4, 0.0, 0.1, 0.05, 10.0), GRID)

@@ -652,8 +652,11 @@ def export(
 
     source = calibration or sample_bag_path()
     recording = _load(source, topic)
-    occupancy, visibility = recording.maps(GridSpec(grid, grid, res))
+    spec = GridSpec(grid, grid, res)
+    occupancy, visibility = recording.maps(spec)
     maps = np.stack([occupancy, visibility], axis=1)
+    if net.input_channels > 2:  # subcell_input: where the returns lie inside their cells
+        maps = np.concatenate([maps, recording.subcell_maps(spec)], axis=1)
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx", grid, grid)
         path = quantize_onnx(float_path, onnx, maps)

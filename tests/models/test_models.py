@@ -487,3 +487,33 @@ def test_free_cells_decision_offset_applies_where_the_warped_map_is_free():
         torch.testing.assert_close(shift, torch.full_like(shift, 0.3), atol=1e-4, rtol=0)
     with pytest.raises((ValueError, ModelError), match="decision_offset"):
         build_model("flownet", decision_offset_free=0.5)
+
+
+def test_subcell_input_reaches_the_head_and_only_the_head():
+    kwargs = {"occupancy_head": True, "head_hidden_channels": 4, "head_kernel_size": 1}
+    plain = build_model("flownet", **kwargs)
+    net = build_model("flownet", **kwargs, subcell_input=True)
+    assert (plain.input_channels, net.input_channels) == (2, 4)
+    assert count_parameters(net) == count_parameters(plain) + 2 * 4  # two more head inputs
+    assert build_model("flownet", **kwargs, subcell_input=True, ego_motion=True).input_channels == 4
+    scene = torch.zeros(1, 4, 8, 8)
+    scene[0, 0, 3, 3] = scene[0, 1, 3:, :] = 1.0
+    # Untrained (output layer zero) the edge and near channels change nothing: still copy-last.
+    moved = scene.clone()
+    moved[0, 2, 3, 3] = moved[0, 3, 2, 3] = 1.0
+    predict = [net.predict_next(s, net.step(s, net.init_state(1, 8, 8))[0]) for s in (scene, moved)]
+    torch.testing.assert_close(predict[0], predict[1])
+    with torch.no_grad():
+        net.conv_occupancy.weight.fill_(1.0)
+    (out, state), (out_moved, state_moved) = (
+        net.step(s, net.init_state(1, 8, 8)) for s in (scene, moved)
+    )
+    # Trained, they move the residual of the cells they mark, and only those (a per-cell head),
+    # while the flow network, which sees (O, V) only, and the memories are the same.
+    changed = (out[0, 4] != out_moved[0, 4]).nonzero().tolist()
+    assert changed == [[2, 3], [3, 3]]
+    torch.testing.assert_close(out[:, :4], out_moved[:, :4])
+    for a, b in zip(state, state_moved, strict=True):
+        torch.testing.assert_close(a, b)
+    with pytest.raises((ValueError, ModelError), match="subcell_input"):
+        build_model("flownet", subcell_input=True)

@@ -121,6 +121,7 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
             "constant_velocity_input": True,
             "shift_memories": True,
         },
+        {"subcell_input": True, "head_kernel_size": 1, "head_hidden_channels": 4},
     ],
     ids=[
         "bias_corrected_memories",
@@ -130,6 +131,7 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
         "visibility_and_warp",
         "per_cell_head_two_offsets",
         "visibility_memories",
+        "subcell_input",
     ],
 )
 def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recording, kwargs):
@@ -229,3 +231,36 @@ def test_the_roll_out_feeds_back_the_online_decision(tmp_path, sample_recording)
     assert (online.horizon[1:] >= 0.4).any(axis=(1, 2)).all()
     assert np.abs(online.horizon - onnx.horizon).max() < 1e-3
     assert not (fixed.horizon >= 0.4).any()
+
+
+def test_a_subcell_model_takes_its_scans_subcell_maps_and_refuses_bare_maps(
+    tmp_path, sample_recording
+):
+    import torch
+    from safetensors.torch import load_file, save_file
+
+    from lidarflow.scan import rasterize, subcell_batch
+
+    folder = make_model_dir(tmp_path / "sub", occupancy_head=True, subcell_input=True)
+    weights = load_file(folder / "model.safetensors")  # a head that uses its inputs
+    weights["conv_occupancy.weight"] = torch.randn_like(weights["conv_occupancy.weight"])
+    save_file(weights, folder / "model.safetensors")
+    predictor = Predictor(folder, horizon=3)
+    scans = frames(sample_recording, 5)
+    for scan in scans:
+        p = predictor.update(scan)
+    assert p.horizon.shape == (3, 100, 100)
+    with pytest.raises(PredictError, match="give update a Scan"):
+        predictor.update((p.occupancy, p.visibility))
+    # What the predictor feeds is the scan's own subcell maps: the same as streaming by hand.
+    from lidarflow.models.streaming import StreamingModel
+
+    stream = StreamingModel(resolve_model(folder)[0])
+    for scan in scans:
+        occ, vis = rasterize(scan)
+        by_hand = stream.step(occ, vis, subcell=subcell_batch(scan.ranges[None], scan.geometry)[0])
+    np.testing.assert_allclose(p.probability, by_hand.probability, atol=1e-6)
+    blind = StreamingModel(resolve_model(folder)[0])  # the same without them differs
+    for scan in scans:
+        without = blind.step(*rasterize(scan))
+    assert np.abs(without.probability - p.probability).max() > 1e-3

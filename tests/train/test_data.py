@@ -104,3 +104,20 @@ def test_loader_batches_uint8_windows(blob_files):
     assert sum(len(b) for b in batches) == data.train_windows == len(sampler)
     assert batches[0].shape == (3, data_cfg.seq_len, 2, 32, 32) and batches[0].dtype == torch.uint8
     assert set(torch.unique(batches[0]).tolist()) <= {0, 1}
+
+
+def test_subcell_windows_carry_each_frames_subcell_maps(blob_files):
+    from lidarflow.data import load_any
+    from lidarflow.scan import GridSpec
+
+    plain = load_train_data(_cfg(blob_files, val_fraction=0.0))
+    data = load_train_data(_cfg(blob_files, val_fraction=0.0), with_subcell=True)
+    windows, plain_windows = data.sources[0], plain.sources[0]
+    assert windows.index == plain_windows.index
+    rec, start = windows.index[3]
+    item = windows[3]
+    assert item.shape == (10, 4, 32, 32)
+    torch.testing.assert_close(item[:, :2], plain_windows[3])  # (O, V) unchanged
+    expected = load_any(blob_files[rec]).subcell_maps(GridSpec(32, 32, 0.1))[start : start + 10]
+    assert expected.any()
+    np.testing.assert_array_equal(item[:, 2:].numpy().astype(bool), expected)

@@ -9,8 +9,9 @@ import torch
 from safetensors.torch import load_file, save_file
 
 import lidarflow.train.loop as loop
-from lidarflow.errors import TrainError
+from lidarflow.errors import EvaluateError, TrainError
 from lidarflow.models import build_model
+from lidarflow.scan import GridSpec
 from lidarflow.train import build_config, train
 from lidarflow.train.checkpoint import latest_epoch
 from lidarflow.train.config import config_from_dict
@@ -260,3 +261,32 @@ def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
     assert loop._load_init(back, str(folder)) is False
     for name, value in weights.items():
         assert torch.equal(back.state_dict()[name], value), name
+
+
+def test_a_subcell_model_trains_validates_and_evaluates(blob_files, tmp_path):
+    from lidarflow.data import load_any
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.models.streaming import StreamingModel
+
+    flags = {
+        "data.sources": [str(blob_files[0])],
+        "data.grid": 32,
+        "data.seq_len": 8,
+        "data.warmup": 3,
+        "data.val_fraction": 0.25,
+        "optim.batch_size": 3,
+        "optim.epochs": 1,
+        "runtime.tensorboard": False,
+        "runtime.threads": 1,
+        "model.kwargs": {"occupancy_head": True, "subcell_input": True, "head_kernel_size": 1},
+    }
+    result = train(build_config("residual", None, flags), tmp_path / "sub")
+    head = result.model.conv_occupancy.weight[0, -2:]  # the edge and near inputs' weights
+    assert head.abs().max() > 0  # trained: the loss reached them
+    method = ModelMethod("sub", StreamingModel(result.model))
+    recording = load_any(blob_files[1])
+    scores = evaluate_recording(recording, [method], GridSpec(32, 32, 0.1))
+    assert scores["sub"].summary()["f1"] > 0
+    with pytest.raises(EvaluateError, match="subcell_input"):
+        method.update(*(m[0] for m in recording.maps(GridSpec(32, 32, 0.1))))

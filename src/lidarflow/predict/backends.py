@@ -1,7 +1,8 @@
 """Inference backends for :class:`~lidarflow.predict.predictor.Predictor`: PyTorch or ONNX Runtime.
 
-Both run one step ``(maps (1, 2, H, W), state) -> (probability, out, state)`` on NumPy in and
-out; the state is opaque to the caller (tensors for torch, arrays for onnxruntime).
+Both run one step ``(maps (1, C, H, W), state) -> (probability, out, state)`` on NumPy in and
+out (``C``: ``input_channels``, 2 or 4); the state is opaque to the caller (tensors for torch,
+arrays for onnxruntime).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ class TorchBackend:
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.out_channels = int(model.out_channels)
+        self.input_channels = int(model.input_channels)
         self.uses_motion = bool(getattr(model, "ego_motion", False))
         self.poses_optional = bool(getattr(model, "poses_optional", False))
         self.decision = decision_of(model)
@@ -65,9 +67,13 @@ class TorchBackend:
         with self.torch.inference_mode():
             x = self.torch.from_numpy(maps).to(self.device)
             if self.uses_motion:
-                m = None if motion is None else self.torch.as_tensor(
-                    motion, dtype=self.torch.float32, device=self.device
-                ).reshape(1, 3)
+                m = (
+                    None
+                    if motion is None
+                    else self.torch.as_tensor(
+                        motion, dtype=self.torch.float32, device=self.device
+                    ).reshape(1, 3)
+                )
                 out, state = self.model.step(x, state, m)
             else:
                 out, state = self.model.step(x, state)
@@ -104,6 +110,7 @@ class OnnxBackend:
         self.decision = json.loads(marks[DECISION_KEY]) if DECISION_KEY in marks else None
         self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
+        self.input_channels = int(inputs[0].shape[1])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])
 
     def init_state(self, height: int, width: int) -> Any:

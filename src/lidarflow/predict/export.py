@@ -1,6 +1,7 @@
 """ONNX export of one streaming step, the recurrent state as explicit inputs and outputs.
 
-Graph: inputs ``maps (1, 2, H, W)``, ``state0..stateN-1``; outputs ``probability (1, 1, H, W)``
+Graph: inputs ``maps (1, C, H, W)`` (``C`` the model's ``input_channels``: 2, ``(O, V)``, or
+4 with ``subcell_input``), ``state0..stateN-1``; outputs ``probability (1, 1, H, W)``
 (next-map occupancy), ``out (1, C, H, W)`` (flow channels for LiDAR-FlowNet, the logit for
 DeepTracking) and ``next_state0..``. The grid size is fixed at export time (the warp's sampling
 grid is a constant of the graph).
@@ -64,7 +65,7 @@ def export_onnx(
     model = model.eval()
     graph = EgoStepGraph(model) if ego else StepGraph(model)
     state = model.init_state(1, height, width)
-    maps = torch.zeros(1, 2, height, width)
+    maps = torch.zeros(1, model.input_channels, height, width)
     extra = (torch.zeros(1, 3),) if ego else ()  # the motion input
     names_in = ["maps", *(["motion"] if ego else []), *[f"state{i}" for i in range(len(state))]]
     names_out = ["probability", "out", *[f"next_state{i}" for i in range(len(state))]]

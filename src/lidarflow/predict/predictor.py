@@ -16,6 +16,10 @@ returns when ``update`` is given a :class:`~lidarflow.scan.Scan`). Otherwise, wi
 (``None`` or NaN) that step is not compensated (``Prediction.ego_compensated`` is
 False), as a model without odometry would run; horizon steps beyond the first repeat the last
 motion.
+
+A model built with ``subcell_input`` also sees where each return lies inside its cell
+(:func:`lidarflow.scan.subcell_batch`), which only a :class:`~lidarflow.scan.Scan` carries: give
+its ``update`` scans, not maps.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from lidarflow.evaluate.online import (
     moved_last_map,
 )
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
-from lidarflow.scan import GridSpec, Scan, rasterize
+from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["Prediction", "Predictor"]
@@ -148,9 +152,7 @@ class Predictor:
         self._scans = ScanOdometry(self.grid.res)
         self.online = self._online_decision(online_decision)
 
-    def _online_decision(
-        self, wanted: bool | OnlineDecisionConfig | None
-    ) -> OnlineDecision | None:
+    def _online_decision(self, wanted: bool | OnlineDecisionConfig | None) -> OnlineDecision | None:
         try:
             return decision_for(getattr(self.backend, "decision", None), wanted)
         except ValueError as err:
@@ -199,13 +201,20 @@ class Predictor:
             )
         return occupancy, visibility
 
-    def update(
-        self, item: Scan | tuple[np.ndarray, np.ndarray], pose: Any = None
-    ) -> Prediction:
+    def update(self, item: Scan | tuple[np.ndarray, np.ndarray], pose: Any = None) -> Prediction:
         """Feed one scan (or its ``(occupancy, visibility)`` maps) and predict what comes next;
         ``pose`` ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
         occupancy, visibility = self._maps(item)
         maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
+        subcell = self.backend.input_channels > 2
+        if subcell and not isinstance(item, Scan):
+            raise PredictError(
+                "this model also uses where each return lies inside its cell (subcell_input): "
+                "give update a Scan, not maps"
+            )
+        if subcell:
+            extra = subcell_batch(item.ranges[None], item.geometry, self.grid)
+            maps = np.concatenate([maps, extra.astype(np.float32)], axis=1)
         if self._state is None:
             self._state = self.backend.init_state(*self.grid.shape)
         motion = self._motion(pose) if self.uses_motion else None
@@ -231,7 +240,8 @@ class Predictor:
         # step is re-decided with its current choice (see lidarflow.evaluate.horizon).
         state = self._state
         for _ in range(self.horizon - 1):
-            fed = np.stack([future[-1], visibility.astype(np.float32)])[None].astype(np.float32)
+            fed = np.zeros_like(maps)  # a predicted map has no returns: subcell zeros
+            fed[0, 0], fed[0, 1] = future[-1], visibility
             next_probability, out_k, state = self.backend.run(fed, state, motion)
             if self.online is not None:
                 flow_k = out_k[0, :2] if self.backend.out_channels >= 4 else None

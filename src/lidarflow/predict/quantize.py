@@ -33,8 +33,9 @@ WARMUP = 10
 def calibration_feeds(
     session: object, maps: Sequence[np.ndarray], count: int = CALIBRATION_FEEDS
 ) -> list[dict[str, np.ndarray]]:
-    """Stream ``maps`` (each ``(2, H, W)``) through the float ``session`` and keep the inputs
-    of ``count`` steps spread evenly after the warm-up (ego-motion graphs get zero motion)."""
+    """Stream ``maps`` (each ``(C, H, W)``, the graph's input channels) through the float
+    ``session`` and keep the inputs of ``count`` steps spread evenly after the warm-up
+    (ego-motion graphs get zero motion)."""
     ego, state_inputs = split_step_inputs(session.get_inputs())  # type: ignore[attr-defined]
     state = [np.zeros(i.shape, np.float32) for i in state_inputs]
     usable = len(maps) - WARMUP
@@ -71,8 +72,8 @@ def data_dependent_convs(path: str | Path) -> list[str]:
 
 def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[np.ndarray]) -> Path:
     """Write an int8 (QDQ, per-channel weights) copy of the step graph at ``float_path`` to
-    ``out_path``, its activation ranges calibrated on ``maps`` (a recording's ``(2, H, W)``
-    occupancy/visibility maps, in order)."""
+    ``out_path``, its activation ranges calibrated on ``maps`` (a recording's ``(C, H, W)``
+    maps in order: occupancy, visibility and, for a ``subcell_input`` model, its two channels)."""
     import onnxruntime as ort
     from onnxruntime.quantization import (
         CalibrationDataReader,
