@@ -29,6 +29,11 @@ best margin over the best baselines, chosen in hindsight (an upper bound for the
         --eval ../shared/data/{positive_1,positive_2,positive_3,positive_4}.bag \\
         ../shared/data/demo_stationary_simple_environment.bag --json history_causal.json
 
+With ``--subcell`` (``--causal``) the table is also keyed by where the returns
+lie inside their cells (:func:`lidarflow.scan.subcell_batch`: the cell's returns all at its
+border; a neighbour's return against its edge), 4x the keys: how much a cell's next value
+depends on that, beyond its history (docs/results/accuracy/positive_4/subcell/).
+
 With ``--model RUN`` the table is also keyed by the bin of that model's probability
 (:data:`PROBABILITY_BINS`): the model's output calibrated on each cell's history, the prior from
 the model run on the other recordings. ``RUN`` must not have trained on the held-out recordings
@@ -174,15 +179,26 @@ def model_probabilities(model: Path, occupancy: np.ndarray, visibility: np.ndarr
 
 
 def table_codes(
-    occupancy: np.ndarray, k: int, probability: np.ndarray | None = None
+    occupancy: np.ndarray,
+    k: int,
+    probability: np.ndarray | None = None,
+    subcell: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`history_codes`, with ``probability`` (:func:`model_probabilities`) also keyed
-    by the bin of :data:`PROBABILITY_BINS` the model's probability for the target falls in."""
+    by the bin of :data:`PROBABILITY_BINS` the model's probability for the target falls in, and
+    with ``subcell`` (``Recording.subcell_maps``) by the frame's two sub-cell bits."""
     code, target = history_codes(occupancy, k)
-    if probability is None:
-        return code, target
-    bins = np.digitize(probability[k - 1 : -1], PROBABILITY_BINS) - 1
-    return code * len(PROBABILITY_BINS) + bins, target
+    if probability is not None:
+        bins = np.digitize(probability[k - 1 : -1], PROBABILITY_BINS) - 1
+        code = code * len(PROBABILITY_BINS) + bins
+    if subcell is not None:
+        code = code * 4 + 2 * subcell[k - 1 : -1, 0] + subcell[k - 1 : -1, 1]
+    return code, target
+
+
+def table_size(k: int, model: bool, subcell: bool) -> int:
+    """Keys of :func:`table_codes`."""
+    return 2**k * (len(PROBABILITY_BINS) if model else 1) * (4 if subcell else 1)
 
 
 def causal_counts(
@@ -192,11 +208,12 @@ def causal_counts(
     prior_total: np.ndarray,
     weight: float,
     probability: np.ndarray | None = None,
+    subcell: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`_counts_by_class` summed over the scored frames of ``occupancy``, each predicted
     by the prior table (counts times ``weight``) plus this stream's counts so far (a key never
     seen: 0, or the model's own probability)."""
-    code, target = table_codes(occupancy, k, probability)  # i: frames i .. i+k-1 -> i+k
+    code, target = table_codes(occupancy, k, probability, subcell)  # i: i .. i+k-1 -> i+k
     ones, total = weight * prior_ones, weight * prior_total
     counts = np.zeros((2, len(PAIR_THRESHOLDS), 2, 3))
     for i in range(len(code)):
@@ -232,11 +249,15 @@ def causal(
     weights: list[float],
     model: Path | None = None,
     held_out: list[str] | None = None,
+    with_subcell: bool = False,
 ) -> dict[str, dict]:
     """Per held-out recording (``held_out`` names, default every one), K and prior weight:
-    the best threshold pair's scores; with ``model`` keyed by its probability too."""
+    the best threshold pair's scores; with ``model`` keyed by its probability too, with
+    ``with_subcell`` by the sub-cell bits."""
     grid = GridSpec()
-    maps = {p.name: load_any(p).maps(grid) for p in paths}
+    recordings = {p.name: load_any(p) for p in paths}
+    maps = {n: r.maps(grid) for n, r in recordings.items()}
+    subcells = {n: r.subcell_maps(grid) if with_subcell else None for n, r in recordings.items()}
     probabilities = {
         n: None if model is None else model_probabilities(model, *m) for n, m in maps.items()
     }
@@ -257,15 +278,17 @@ def causal(
             )
             points["model alone"] = _best_pair(np.asarray(alone), best)
         for k in ks:
-            size = 2**k * (1 if model is None else len(PROBABILITY_BINS))
+            size = table_size(k, model is not None, with_subcell)
             ones, total = np.zeros(size), np.zeros(size)
             for other, (other_occupancy, _) in maps.items():
                 if other != name:
-                    code, target = table_codes(other_occupancy, k, probabilities[other])
+                    code, target = table_codes(
+                        other_occupancy, k, probabilities[other], subcells[other]
+                    )
                     np.add.at(total, code.ravel(), 1)
                     np.add.at(ones, code.ravel(), target.ravel())
             for weight in weights:
-                counts = causal_counts(occupancy, k, ones, total, weight, own)
+                counts = causal_counts(occupancy, k, ones, total, weight, own, subcells[name])
                 points[f"K={k} prior={weight}"] = _best_pair(counts, best)
         for label, point in points.items():
             print(
@@ -293,12 +316,16 @@ def main() -> None:
     )  # fmt: skip
     parser.add_argument("--model", type=Path, help="with --causal: key the table by its output")
     parser.add_argument("--held-out", nargs="+", help="with --causal: only these --eval names")
+    parser.add_argument(
+        "--subcell", action="store_true", help="with --causal: key by the sub-cell bits too"
+    )
     args = parser.parse_args()
     if args.causal:
-        results = causal(args.eval, args.k, args.causal, args.model, args.held_out)
+        results = causal(args.eval, args.k, args.causal, args.model, args.held_out, args.subcell)
         if args.json:
             payload = {"causal": "prior from the other --eval recordings, updated online",
                        "model": None if args.model is None else str(args.model),
+                       "subcell": args.subcell,
                        "warmup": WARMUP, "results": results}  # fmt: skip
             args.json.write_text(json.dumps(payload, indent=2) + "\n")
         return

@@ -25,14 +25,16 @@ from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import export_onnx
 from lidarflow.predict.quantize import quantize_onnx
-from lidarflow.scan import GridSpec
+from lidarflow.scan import GridSpec, Scan
 
 
 class OnnxMethod:
-    """An evaluate method around a Predictor; remembers every probability it gave."""
+    """An evaluate method around a Predictor fed the recording's scans (what a robot gives
+    it; a ``subcell_input`` model needs them); remembers every probability it gave."""
 
-    def __init__(self, name: str, path: Path) -> None:
+    def __init__(self, name: str, path: Path, scans: list[Scan]) -> None:
         self.name, self.predictor = name, Predictor(path, threads=2)
+        self.scans = scans
         self.probabilities: list[np.ndarray] = []
 
     def reset(self) -> None:
@@ -40,9 +42,10 @@ class OnnxMethod:
         self.probabilities = []
 
     def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-        probability = self.predictor.update((occupancy, visibility)).probability
-        self.probabilities.append(probability)
-        return probability
+        prediction = self.predictor.update(self.scans[len(self.probabilities)])
+        assert (prediction.occupancy == occupancy).all()  # the frame evaluate scores
+        self.probabilities.append(prediction.probability)
+        return prediction.probability
 
 
 def main() -> None:
@@ -57,13 +60,19 @@ def main() -> None:
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx")
-        occupancy, visibility = load_any(args.calibration).maps(grid)
-        int8_path = quantize_onnx(
-            float_path, Path(tmp) / "int8.onnx", np.stack([occupancy, visibility], axis=1)
-        )
+        calibration = load_any(args.calibration)
+        maps = np.stack(calibration.maps(grid), axis=1)
+        if net.input_channels > 2:
+            maps = np.concatenate([maps, calibration.subcell_maps(grid)], axis=1)
+        int8_path = quantize_onnx(float_path, Path(tmp) / "int8.onnx", maps)
         for path in args.recordings:
-            occupancy, visibility = load_any(path).maps(grid)
-            methods = [OnnxMethod("float32", float_path), OnnxMethod("int8", int8_path)]
+            recording = load_any(path)
+            occupancy, visibility = recording.maps(grid)
+            scans = list(recording)
+            methods = [
+                OnnxMethod("float32", float_path, scans),
+                OnnxMethod("int8", int8_path, scans),
+            ]
             scores = evaluate_maps(occupancy, visibility, methods)
             summary = {name: s.summary() for name, s in scores.items()}
             difference = max(

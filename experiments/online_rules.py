@@ -96,7 +96,10 @@ def collect(
     methods = [ModelMethod("model", StreamingModel(net), online=False)]
     methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
     motions = recording_motions(recording, GridSpec(), methods, occupancy)
-    evaluate_maps(occupancy, visibility, methods, on_prediction=add, motions=motions)
+    subcell = recording.subcell_maps(GridSpec()) if methods[0].takes_subcell else None
+    evaluate_maps(
+        occupancy, visibility, methods, on_prediction=add, motions=motions, subcell=subcell
+    )
     return {
         "pairs": np.array(pairs),
         "unmoved": np.array(unmoved),
