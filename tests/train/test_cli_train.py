@@ -223,9 +223,9 @@ def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, 
     head, before = trained["conv_occupancy.weight"], bundled.get("conv_occupancy.weight")
     assert head.abs().max() > 1e-3
     assert before is None or before.shape != head.shape or (head - before).abs().max() > 1e-3
-    # A head of each cell's own past: the current map, five memories, the constant-velocity map
-    # and the visibility map.
-    assert trained["occupancy_hidden.weight"].shape[1:] == (1 + 5 + 1 + 1, 1, 1)
+    # A head of each cell's own past: the current map, five memories, the constant-velocity map,
+    # the visibility map, and the two sub-cell channels.
+    assert trained["occupancy_hidden.weight"].shape[1:] == (1 + 5 + 1 + 1 + 2, 1, 1)
 
 
 def test_a_config_file_naming_deeptracking_gets_the_papers_recipe(tmp_path, blob_files, capsys):

@@ -53,7 +53,7 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
     # file and these flags. The recipe must not drift from what was measured.
     from pathlib import Path
 
-    study = Path(__file__).parents[2] / "docs/results/accuracy/loo/head_cell_warm_vis_online.json"
+    study = Path(__file__).parents[2] / "docs/results/accuracy/loo/head_subcell_online.json"
     flags = {"optim.epochs": 3, "optim.batch_size": 4, "data.seq_len": 16, "data.warmup": 6}
     flags |= {"optim.lr": 1e-6, "runtime.amp": "bf16", "runtime.channels_last": True}
     measured = build_config("residual", study, flags)

@@ -256,7 +256,8 @@ def _residual() -> TrainConfig:
 def _head() -> TrainConfig:
     """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
     memories that follow the constant-velocity shift, the constant-velocity map, the current
-    map and its visibility; one hidden layer; ``head_kernel_size`` 1, no GRU features) trained
+    map and its visibility, and where the current returns lie inside their cells,
+    ``subcell_input``; one hidden layer; ``head_kernel_size`` 1, no GRU features) trained
     by cross-entropy on top of a trained flow network that stays (nearly) frozen, each window
     starting from the memories that streaming its recording leaves there
     (``memories_from_stream``), compensating the platform's own motion where a recording has
@@ -281,6 +282,7 @@ def _head() -> TrainConfig:
         "head_flow_features": False,
         "visibility_input": True,
         "online_decision": True,
+        "subcell_input": True,
     }
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
