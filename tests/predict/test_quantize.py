@@ -16,9 +16,13 @@ from lidarflow.predict.quantize import quantize_onnx
 from tests.test_cli import run
 
 
-def stacked_maps(recording, start, stop):
+def stacked_maps(recording, start, stop, subcell=True):
+    """A recording's maps as the bundled model takes them (it has ``subcell_input``)."""
     occupancy, visibility = recording.maps(start=start, stop=stop)
-    return np.stack([occupancy, visibility], axis=1)
+    maps = np.stack([occupancy, visibility], axis=1)
+    if subcell:
+        maps = np.concatenate([maps, recording.subcell_maps(start=start, stop=stop)], axis=1)
+    return maps
 
 
 @pytest.fixture(scope="module")
@@ -46,10 +50,11 @@ def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
     # The arithmetic, with the model's fixed offsets: chosen online, a pair picked differently
     # for one frame moves probabilities by far more than int8 does (the F1 is compared below).
     a, b = (Predictor(p, online_decision=False) for p in (float_path, int8_path))
-    occupancy, visibility = sample_recording.maps(start=40, stop=100)  # not calibrated on
+    scans = [sample_recording.scan(t) for t in range(40, 100)]  # not calibrated on
+    occupancy = sample_recording.maps(start=40, stop=100)[0]
     predicted_a, predicted_b, differences = [], [], []
-    for occ, vis in zip(occupancy, visibility, strict=True):
-        pa, pb = a.update((occ, vis)), b.update((occ, vis))
+    for scan in scans:
+        pa, pb = a.update(scan), b.update(scan)
         predicted_a.append(pa.occupied)
         predicted_b.append(pb.occupied)
         differences.append(np.abs(pa.probability - pb.probability).max())
@@ -61,8 +66,7 @@ def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
     assert abs(f1_float - f1_int8) < 0.01 and f1_float > 0.9
     online = [Predictor(p) for p in (float_path, int8_path)]  # v6's marks ask for it
     assert all(p.online is not None for p in online)
-    decided = [[p.update((o, v)).occupied for o, v in zip(occupancy, visibility, strict=True)]
-               for p in online]  # fmt: skip
+    decided = [[p.update(scan).occupied for scan in scans] for p in online]
     f1_online = [f1_score(np.stack(d[10:-1]), targets) for d in decided]
     assert abs(f1_online[0] - f1_online[1]) < 0.01 and f1_online[0] > 0.9
 
@@ -73,6 +77,8 @@ def test_too_short_calibration_is_refused(float_and_int8, tmp_path, sample_recor
         quantize_onnx(float_path, tmp_path / "x.onnx", stacked_maps(sample_recording, 0, 5))
     with pytest.raises(PredictError, match="no such folder for the ONNX file"):
         quantize_onnx(float_path, tmp_path / "no" / "x.onnx", stacked_maps(sample_recording, 0, 20))
+    with pytest.raises(PredictError, match="calibration maps have 2 channels, the model takes 4"):
+        quantize_onnx(float_path, tmp_path / "x.onnx", stacked_maps(sample_recording, 0, 20, False))
 
 
 def test_cli_export_int8(tmp_path, capsys, sample_recording):
@@ -101,7 +107,7 @@ def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sa
     computed = data_dependent_convs(float_path)
     assert len(computed) == 3  # the overlap correlation and the one-hot shift's two axes
     int8_path = quantize_onnx(
-        float_path, tmp_path / "cv8.onnx", stacked_maps(sample_recording, 0, 20)
+        float_path, tmp_path / "cv8.onnx", stacked_maps(sample_recording, 0, 20, subcell=False)
     )
     graph = onnx.load(str(int8_path)).graph
     dequantized = {out for n in graph.node if n.op_type == "DequantizeLinear" for out in n.output}

@@ -32,7 +32,7 @@ class WeightsRecord:
 
 BUNDLED = WeightsRecord(
     folder="assets/model",
-    weights_sha256="eecfc625c4171c5be766981498a85fd7af39354e3c83aa09dc2142efb875f7c1",
+    weights_sha256="2cdec0acd8fecfdecdfbcf6755848eefd52b10e2d847d4d46b9a9dfcd2aeddca",
     description="LiDAR-FlowNet trained by lidarflow's default recipe (see MODEL_CARD.md)",
 )
 

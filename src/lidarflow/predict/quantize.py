@@ -36,7 +36,14 @@ def calibration_feeds(
     """Stream ``maps`` (each ``(C, H, W)``, the graph's input channels) through the float
     ``session`` and keep the inputs of ``count`` steps spread evenly after the warm-up
     (ego-motion graphs get zero motion)."""
-    ego, state_inputs = split_step_inputs(session.get_inputs())  # type: ignore[attr-defined]
+    inputs = session.get_inputs()  # type: ignore[attr-defined]
+    ego, state_inputs = split_step_inputs(inputs)
+    channels = int(inputs[0].shape[1])
+    if len(maps) and np.shape(maps[0])[0] != channels:
+        raise PredictError(
+            f"calibration maps have {np.shape(maps[0])[0]} channels, the model takes {channels} "
+            "(a subcell_input model also takes Recording.subcell_maps)"
+        )
     state = [np.zeros(i.shape, np.float32) for i in state_inputs]
     usable = len(maps) - WARMUP
     if usable < 1:
