@@ -2,7 +2,7 @@
 
 >>> from lidarflow.predict import Predictor                     # doctest: +SKIP
 >>> predictor = Predictor()            # bundled model; Predictor("run_dir") or ("m.onnx")
->>> for scan in scans:                 # lidarflow.scan.Scan, or (occupancy, visibility) maps
+>>> for scan in scans:                 # lidarflow.scan.Scan (maps: models without subcell)
 ...     p = predictor.update(scan)         # ego-motion models: update(scan, pose=(x, y, yaw))
 ...     p.probability, p.occupied, p.backward_flow, p.forward_flow, p.moving
 
@@ -202,8 +202,9 @@ class Predictor:
         return occupancy, visibility
 
     def update(self, item: Scan | tuple[np.ndarray, np.ndarray], pose: Any = None) -> Prediction:
-        """Feed one scan (or its ``(occupancy, visibility)`` maps) and predict what comes next;
-        ``pose`` ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
+        """Feed one scan (or its ``(occupancy, visibility)`` maps, for a model without
+        ``subcell_input``: the bundled one has it) and predict what comes next; ``pose``
+        ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
         occupancy, visibility = self._maps(item)
         maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
         subcell = self.backend.input_channels > 2
