@@ -61,9 +61,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx")
         calibration = load_any(args.calibration)
-        maps = np.stack(calibration.maps(grid), axis=1)
-        if net.input_channels > 2:
-            maps = np.concatenate([maps, calibration.subcell_maps(grid)], axis=1)
+        maps = calibration.stacked_maps(grid, subcell=net.input_channels > 2)
         int8_path = quantize_onnx(float_path, Path(tmp) / "int8.onnx", maps)
         for path in args.recordings:
             recording = load_any(path)

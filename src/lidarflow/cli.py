@@ -645,7 +645,6 @@ def export(
         path = export_onnx(net, onnx, grid, grid)
         typer.echo(f"wrote {path} ({card.get('model')}, {grid}x{grid} grid)")
         return
-    import numpy as np
 
     from lidarflow.data import sample_bag_path
     from lidarflow.predict.quantize import quantize_onnx
@@ -653,10 +652,7 @@ def export(
     source = calibration or sample_bag_path()
     recording = _load(source, topic)
     spec = GridSpec(grid, grid, res)
-    occupancy, visibility = recording.maps(spec)
-    maps = np.stack([occupancy, visibility], axis=1)
-    if net.input_channels > 2:  # subcell_input: where the returns lie inside their cells
-        maps = np.concatenate([maps, recording.subcell_maps(spec)], axis=1)
+    maps = recording.stacked_maps(spec, subcell=net.input_channels > 2)
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx", grid, grid)
         path = quantize_onnx(float_path, onnx, maps)

@@ -18,11 +18,7 @@ from tests.test_cli import run
 
 def stacked_maps(recording, start, stop, subcell=True):
     """A recording's maps as the bundled model takes them (it has ``subcell_input``)."""
-    occupancy, visibility = recording.maps(start=start, stop=stop)
-    maps = np.stack([occupancy, visibility], axis=1)
-    if subcell:
-        maps = np.concatenate([maps, recording.subcell_maps(start=start, stop=stop)], axis=1)
-    return maps
+    return recording.stacked_maps(start=start, stop=stop, subcell=subcell)
 
 
 @pytest.fixture(scope="module")

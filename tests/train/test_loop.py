@@ -17,7 +17,7 @@ from lidarflow.train.checkpoint import latest_epoch
 from lidarflow.train.config import config_from_dict
 
 
-def tiny_config(sources, **flags):
+def tiny_config(sources, recipe="blurred", **flags):
     base = {
         "data.sources": [str(s) for s in sources],
         "data.grid": 32,
@@ -30,7 +30,7 @@ def tiny_config(sources, **flags):
         "runtime.tensorboard": False,
         "runtime.threads": 1,
     }
-    return build_config("blurred", None, {**base, **flags})
+    return build_config(recipe, None, {**base, **flags})
 
 
 class KilledError(Exception):
@@ -161,20 +161,8 @@ def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_p
 
 
 def test_residual_recipe_trains_the_head_and_needs_one(blob_files, tmp_path):
-    flags = {
-        "data.sources": [str(blob_files[0])],
-        "data.grid": 32,
-        "data.seq_len": 8,
-        "data.warmup": 3,
-        "data.stride": 0,
-        "data.epoch_windows": 0,
-        "data.val_fraction": 0.0,
-        "optim.batch_size": 3,
-        "optim.epochs": 1,
-        "runtime.tensorboard": False,
-        "runtime.threads": 1,
-    }
-    cfg = build_config("residual", None, flags)
+    flags = {"data.stride": 0, "data.epoch_windows": 0, "data.val_fraction": 0.0}
+    cfg = tiny_config(blob_files[:1], "residual", **flags, **{"optim.epochs": 1})
     assert cfg.model.kwargs == {"occupancy_head": True} and cfg.loss.occupancy_bce == 1.0
     result = train(cfg, tmp_path / "res")
     gain = result.model.warp_gain.item()
@@ -269,19 +257,9 @@ def test_a_subcell_model_trains_validates_and_evaluates(blob_files, tmp_path):
     from lidarflow.evaluate.stream import evaluate_recording
     from lidarflow.models.streaming import StreamingModel
 
-    flags = {
-        "data.sources": [str(blob_files[0])],
-        "data.grid": 32,
-        "data.seq_len": 8,
-        "data.warmup": 3,
-        "data.val_fraction": 0.25,
-        "optim.batch_size": 3,
-        "optim.epochs": 1,
-        "runtime.tensorboard": False,
-        "runtime.threads": 1,
-        "model.kwargs": {"occupancy_head": True, "subcell_input": True, "head_kernel_size": 1},
-    }
-    result = train(build_config("residual", None, flags), tmp_path / "sub")
+    kwargs = {"occupancy_head": True, "subcell_input": True, "head_kernel_size": 1}
+    flags = {"optim.epochs": 1, "model.kwargs": kwargs}
+    result = train(tiny_config(blob_files[:1], "residual", **flags), tmp_path / "sub")
     head = result.model.conv_occupancy.weight[0, -2:]  # the edge and near inputs' weights
     assert head.abs().max() > 0  # trained: the loss reached them
     method = ModelMethod("sub", StreamingModel(result.model))

@@ -10,15 +10,17 @@ from __future__ import annotations
 
 import json
 import zipfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from lidarflow.errors import RecordingError, ScanError
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
+
+T = TypeVar("T")
 
 __all__ = ["FORMAT_VERSION", "Recording", "load_recording"]
 
@@ -164,13 +166,8 @@ class Recording:
         n = max(stop - start, 0)
         occ = np.zeros((n, *grid.shape), dtype=bool)
         vis = np.zeros((n, *grid.shape), dtype=bool)
-        for a, b, block, geom in self._runs(start, stop):
-            try:
-                occ[a - start : b - start], vis[a - start : b - start] = rasterize_batch(
-                    block, geom, grid
-                )
-            except ScanError as err:
-                raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
+        for at, (o, v) in self._per_geometry(lambda r, g: rasterize_batch(r, g, grid), start, stop):
+            occ[at], vis[at] = o, v
         return occ, vis
 
     def subcell_maps(
@@ -181,22 +178,41 @@ class Recording:
         grid = grid or GridSpec()
         stop = len(self) if stop is None else min(stop, len(self))
         out = np.zeros((max(stop - start, 0), 2, *grid.shape), dtype=bool)
-        for a, b, block, geom in self._runs(start, stop):
-            try:
-                out[a - start : b - start] = subcell_batch(block, geom, grid)
-            except ScanError as err:
-                raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
+        for at, features in self._per_geometry(lambda r, g: subcell_batch(r, g, grid), start, stop):
+            out[at] = features
         return out
 
-    def _runs(self, start: int, stop: int) -> Iterator[tuple[int, int, np.ndarray, BeamGeometry]]:
-        """Frames ``[a, b)`` of ``[start, stop)`` sharing one geometry: ``(a, b, ranges, geometry)``
-        with ``ranges`` ``(b - a, count)``."""
+    def stacked_maps(
+        self,
+        grid: GridSpec | None = None,
+        start: int = 0,
+        stop: int | None = None,
+        subcell: bool = False,
+    ) -> np.ndarray:
+        """Frames ``[start, stop)`` as a model's ``step`` takes them: boolean ``(n, C, H, W)``,
+        channels ``(O, V)`` (:meth:`maps`) and with ``subcell`` ``(edge, near)`` after them
+        (:meth:`subcell_maps`, for models built with ``subcell_input``)."""
+        maps = np.stack(self.maps(grid, start, stop), axis=1)
+        if subcell:
+            maps = np.concatenate([maps, self.subcell_maps(grid, start, stop)], axis=1)
+        return maps
+
+    def _per_geometry(
+        self, batch: Callable[[np.ndarray, BeamGeometry], T], start: int, stop: int
+    ) -> Iterator[tuple[slice, T]]:
+        """``batch(ranges (b - a, count), geometry)`` for each run of frames ``[a, b)`` of
+        ``[start, stop)`` that share one geometry, with the frames' place in an output starting
+        at ``start``; a scan it cannot take is a :class:`RecordingError` naming the frames."""
         for a, b in self.geometry_runs():
             a, b = max(a, start), min(b, stop)
             if a < b:
                 geom = self.geometry(a)
                 block = self.ranges[self.offsets[a] : self.offsets[b]].reshape(b - a, geom.count)
-                yield a, b, block, geom
+                try:
+                    result = batch(block, geom)
+                except ScanError as err:
+                    raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
+                yield slice(a - start, b - start), result
 
     def slice(self, start: int, stop: int) -> Recording:
         """Frames ``[start, stop)`` as a new recording (per-frame extras are sliced too)."""

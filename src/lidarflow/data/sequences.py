@@ -58,7 +58,8 @@ class SequenceReport:
 class SequenceSet:
     """Windows of ``length`` frames over one or many recordings, rasterized once up front.
 
-    ``set[i]`` is a ``(length, 2, H, W)`` float32 array: channel 0 occupancy, 1 visibility.
+    ``set[i]`` is a ``(length, 2, H, W)`` float32 array: channel 0 occupancy, 1 visibility
+    (with ``subcell``, channels 2 and 3 are :meth:`~lidarflow.data.Recording.subcell_maps`).
     """
 
     def __init__(
@@ -68,6 +69,7 @@ class SequenceSet:
         stride: int | None = None,
         grid: GridSpec | None = None,
         max_gap_periods: float = 2.5,
+        subcell: bool = False,
     ) -> None:
         if length < 2:
             raise RecordingError(f"a sequence needs at least 2 frames, got length={length}")
@@ -78,8 +80,8 @@ class SequenceSet:
         self.index: list[tuple[int, int]] = []
         report = SequenceReport(recordings=len(recordings))
         for rec_id, recording in enumerate(recordings):
-            occ, vis = recording.maps(self.grid)
-            self.maps.append(np.stack([occ, vis], axis=1))  # (N, 2, H, W) bool: 8x smaller
+            # (N, C, H, W) bool: 8x smaller than float32
+            self.maps.append(recording.stacked_maps(self.grid, subcell=subcell))
             report.frames += len(recording)
             used = np.zeros(len(recording), dtype=bool)
             for a, b in split_segments(recording, max_gap_periods):

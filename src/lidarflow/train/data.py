@@ -241,11 +241,9 @@ def _windows(
     with_subcell: bool = False,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
-        recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods
-    )
-    if with_subcell:
-        for i, rec in enumerate(recordings):
-            seqs.maps[i] = np.concatenate([seqs.maps[i], rec.subcell_maps(grid)], axis=1)
+        recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods,
+        with_subcell,
+    )  # fmt: skip
     flows: list[Flow] = []
     notes = list(seqs.report.notes)
     for rec in recordings:
