@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidarflow.data import load_any
+from lidarflow.data import Recording, load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import f1_score
 from lidarflow.evaluate.stream import evaluate_maps
@@ -160,21 +160,25 @@ def _counts_by_class(
 PROBABILITY_BINS = np.array([0, 0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95])
 
 
-def model_probabilities(model: Path, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+def model_probabilities(model: Path, recording: Recording) -> np.ndarray:
     """``(N, H, W)``: the model's probability after frame ``t`` (predicting ``t + 1``),
-    streamed as `lidarflow evaluate` streams it, at its fixed decision offset."""
+    streamed as `lidarflow evaluate` streams it, at its fixed decision offset (a model with
+    ``subcell_input`` fed the recording's sub-cell maps, as evaluate feeds them)."""
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
 
     net, _ = resolve_model(str(model))
+    grid = GridSpec()
+    occupancy, visibility = recording.maps(grid)
     out = np.zeros(occupancy.shape, np.float32)
 
     def keep(name: str, t: int, probability: np.ndarray, flow: object) -> None:
         out[t] = probability
 
     method = ModelMethod("model", StreamingModel(net), online=False)
-    evaluate_maps(occupancy, visibility, [method], warmup=0, on_prediction=keep)
+    subcell = recording.subcell_maps(grid) if method.takes_subcell else None
+    evaluate_maps(occupancy, visibility, [method], warmup=0, on_prediction=keep, subcell=subcell)
     return out
 
 
@@ -259,7 +263,7 @@ def causal(
     maps = {n: r.maps(grid) for n, r in recordings.items()}
     subcells = {n: r.subcell_maps(grid) if with_subcell else None for n, r in recordings.items()}
     probabilities = {
-        n: None if model is None else model_probabilities(model, *m) for n, m in maps.items()
+        n: None if model is None else model_probabilities(model, r) for n, r in recordings.items()
     }
     results: dict[str, dict] = {}
     for name, (occupancy, visibility) in maps.items():

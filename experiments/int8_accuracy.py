@@ -25,7 +25,7 @@ from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import export_onnx
 from lidarflow.predict.quantize import quantize_onnx
-from lidarflow.scan import GridSpec, Scan
+from lidarflow.scan import GridSpec, Scan, takes_subcell
 
 
 class OnnxMethod:
@@ -61,7 +61,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx")
         calibration = load_any(args.calibration)
-        maps = calibration.stacked_maps(grid, subcell=net.input_channels > 2)
+        maps = calibration.stacked_maps(grid, subcell=takes_subcell(net.input_channels))
         int8_path = quantize_onnx(float_path, Path(tmp) / "int8.onnx", maps)
         for path in args.recordings:
             recording = load_any(path)

@@ -33,8 +33,9 @@ def main() -> None:
     )
     parser.add_argument("--top", type=int, default=10, help="false-positive cells to list")
     args = parser.parse_args()
-    occupancy, visibility = load_any(args.recording).maps(GridSpec())
-    probability = model_probabilities(args.model, occupancy, visibility)
+    recording = load_any(args.recording)
+    occupancy, _ = recording.maps(GridSpec())
+    probability = model_probabilities(args.model, recording)
     occupied = occupancy.astype(bool)
     bounds = sorted({b for b in args.stretches if b < len(occupied) - 1} | {len(occupied) - 1})
     for start, end in itertools.pairwise(bounds):

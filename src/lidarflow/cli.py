@@ -510,6 +510,7 @@ def _add_horizon_scores(
     from lidarflow.data.scanalign import recording_points
     from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.scan import takes_subcell
 
     # one roll-out per model (an oracle variant has no roll-out of its own)
     streamed = [m for m in methods if hasattr(m, "stream") and not getattr(m, "oracle", False)]
@@ -523,7 +524,7 @@ def _add_horizon_scores(
             # Only odometry is replaced by the scans' motion; scan motions are only checked.
             with_returns = motions is not None and recording.has_poses
             returns = recording_points(recording) if with_returns else None
-            wants = any(model.input_channels > 2 for model in models.values())
+            wants = any(takes_subcell(model.input_channels) for model in models.values())
             entry["horizon_f1"] = horizon_f1(
                 occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
                 returns, recording.has_poses, spec.res,
@@ -638,7 +639,7 @@ def export(
 
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.export import export_onnx
-    from lidarflow.scan import GridSpec
+    from lidarflow.scan import GridSpec, takes_subcell
 
     net, card = resolve_model(model)
     if not int8:
@@ -652,7 +653,7 @@ def export(
     source = calibration or sample_bag_path()
     recording = _load(source, topic)
     spec = GridSpec(grid, grid, res)
-    maps = recording.stacked_maps(spec, subcell=net.input_channels > 2)
+    maps = recording.stacked_maps(spec, subcell=takes_subcell(net.input_channels))
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx", grid, grid)
         path = quantize_onnx(float_path, onnx, maps)

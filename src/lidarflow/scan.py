@@ -36,6 +36,7 @@ __all__ = [
     "rasterize",
     "rasterize_batch",
     "subcell_batch",
+    "takes_subcell",
 ]
 
 # Beam status codes (see beam_status).
@@ -260,6 +261,18 @@ def rasterize(scan: Scan, grid: GridSpec | None = None) -> tuple[np.ndarray, np.
 SUBCELL = 4
 #: Channels of :func:`subcell_batch`.
 SUBCELL_CHANNELS = ("edge", "near")
+#: Channels of a frame's maps: occupancy and visibility (Table I's input).
+MAP_CHANNELS = 2
+
+
+def takes_subcell(input_channels: int) -> bool:
+    """Whether a model that takes ``input_channels`` maps per frame wants :func:`subcell_batch`'s
+    two after ``(O, V)`` (``subcell_input``), so must be fed scans rather than maps alone.
+
+    >>> takes_subcell(2), takes_subcell(4)
+    (False, True)
+    """
+    return input_channels > MAP_CHANNELS
 
 
 def subcell_batch(

@@ -14,6 +14,7 @@ from lidarflow.models import (
     count_parameters,
 )
 from lidarflow.ops.warp import warp
+from lidarflow.scan import takes_subcell
 
 PAPER_PARAMETERS = 42_500  # Table I, "about 42.5 K"
 
@@ -494,6 +495,7 @@ def test_subcell_input_reaches_the_head_and_only_the_head():
     plain = build_model("flownet", **kwargs)
     net = build_model("flownet", **kwargs, subcell_input=True)
     assert (plain.input_channels, net.input_channels) == (2, 4)
+    assert (takes_subcell(plain.input_channels), takes_subcell(net.input_channels)) == (False, True)
     assert count_parameters(net) == count_parameters(plain) + 2 * 4  # two more head inputs
     assert build_model("flownet", **kwargs, subcell_input=True, ego_motion=True).input_channels == 4
     scene = torch.zeros(1, 4, 8, 8)

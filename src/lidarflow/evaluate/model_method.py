@@ -14,6 +14,7 @@ from lidarflow.evaluate.online import (
     moved_last_map,
 )
 from lidarflow.models.streaming import StreamingModel
+from lidarflow.scan import takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["ModelMethod"]
@@ -64,7 +65,7 @@ class ModelMethod:
         self.odometry = OdometryCheck() if self.poses_optional else None
         self.scans = ScanOdometry(res) if self.poses_optional else None
         self.takes_returns = self.poses_optional
-        self.takes_subcell = stream.model.input_channels > 2
+        self.takes_subcell = takes_subcell(stream.model.input_channels)
         self.oracle = oracle and self.uses_motion
         try:
             self.online = decision_for(decision_of(stream.model), online, online_config)

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.scan import takes_subcell
 
 __all__ = ["StepResult", "StreamingModel", "model_input"]
 
@@ -22,7 +23,7 @@ def model_input(
     for a model with ``input_channels`` 4 ``subcell`` ``(2, H, W)`` after them (zeros if
     ``None``: what a return at a cell's centre gives, and all a predicted map can say)."""
     maps = [occupancy[None], visibility[None]]
-    if model.input_channels > 2:
+    if takes_subcell(model.input_channels):
         maps.append(np.zeros((2, *occupancy.shape)) if subcell is None else subcell)
     return np.concatenate(maps).astype(np.float32)
 

@@ -43,7 +43,7 @@ from lidarflow.evaluate.online import (
     moved_last_map,
 )
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
-from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch
+from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["Prediction", "Predictor"]
@@ -207,7 +207,7 @@ class Predictor:
         ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
         occupancy, visibility = self._maps(item)
         maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
-        subcell = self.backend.input_channels > 2
+        subcell = takes_subcell(self.backend.input_channels)
         if subcell and not isinstance(item, Scan):
             raise PredictError(
                 "this model also uses where each return lies inside its cell (subcell_input): "
