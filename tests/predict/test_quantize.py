@@ -12,7 +12,7 @@ from lidarflow.evaluate.metrics import f1_score
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import export_onnx
-from lidarflow.predict.quantize import quantize_onnx
+from lidarflow.predict.quantize import head_convs, quantize_onnx
 from tests.test_cli import run
 
 
@@ -39,6 +39,19 @@ def test_convolutions_are_int8_and_the_rest_is_float(float_and_int8):
     int8_weights = [t for t in graph.initializer if t.data_type == onnx.TensorProto.INT8]
     assert len(int8_weights) >= ops.count("Conv")  # every conv's weights are stored as int8
     assert "GridSample" in ops and "Sigmoid" in ops  # warp and gates stay float
+
+
+def test_table_one_convs_are_int8_and_the_head_stays_float(float_and_int8):
+    float_path, int8_path = float_and_int8
+    graph = onnx.load(str(int8_path)).graph
+    dequantized = {out for n in graph.node if n.op_type == "DequantizeLinear" for out in n.output}
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    int8 = {n.name for n in convs if n.input[1] in dequantized}
+    head = set(head_convs(float_path))
+    assert len(head) == 2 and head <= {n.name for n in convs}  # the bundled head: hidden, output
+    assert not head & int8
+    assert {"/conv0/Conv", "/conv_flow/Conv"} <= int8
+    assert sum("/grus." in name for name in int8) == 6  # three ConvGRUs, two convs each
 
 
 def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
@@ -108,5 +121,6 @@ def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sa
     graph = onnx.load(str(int8_path)).graph
     dequantized = {out for n in graph.node if n.op_type == "DequantizeLinear" for out in n.output}
     convs = [n for n in graph.node if n.op_type == "Conv"]
-    float_convs = [n for n in convs if not set(n.input[:2]) & dequantized]
-    assert len(float_convs) == 3 and len(convs) > 3
+    float_convs = {n.name for n in convs if not set(n.input[:2]) & dequantized}
+    head = head_convs(float_path)  # this head has no hidden layer: its output conv
+    assert len(head) == 1 and float_convs == {*computed, *head} and len(convs) > 4
