@@ -26,19 +26,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from online_rules import LOGIT, f1
+from online_rules import LOGIT, f1, stream_beside_baselines
 from pair_frontier import FREE, OCCUPIED, frontier
 from study import BASELINES
 
 from lidarflow.data import load_any
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
-from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
-from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.online import moved_last_map, pair_counts
-from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
 from lidarflow.scan import GridSpec
 
 
@@ -56,7 +51,7 @@ def stream(net: torch.nn.Module, path: Path) -> dict[str, np.ndarray]:
         lambda _m, _a, out: residuals.append(out.detach().numpy()[0, 0].copy())
     )
     recording = load_any(path)
-    occupancy, visibility = recording.maps(GridSpec())
+    occupancy, _ = recording.maps(GridSpec())
     rows: dict[str, list] = {k: [] for k in ("features", "residual", "logit", "moved", "current")}
     rows["target"], baselines = [], {}
 
@@ -75,13 +70,7 @@ def stream(net: torch.nn.Module, path: Path) -> dict[str, np.ndarray]:
         rows["features"].append(features[-1])  # the step that made this prediction
         rows["residual"].append(residuals[-1])
 
-    methods = [ModelMethod("model", StreamingModel(net), online=False)]
-    methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
-    motions = recording_motions(recording, GridSpec(), methods, occupancy)
-    subcell = recording.subcell_maps(GridSpec()) if methods[0].takes_subcell else None
-    evaluate_maps(
-        occupancy, visibility, methods, on_prediction=add, motions=motions, subcell=subcell
-    )
+    stream_beside_baselines(net, recording, add)
     data = {k: np.array(v) for k, v in rows.items()}
     data["baselines"] = np.array([baselines[b] for b in BASELINES], float).transpose(1, 0, 2, 3)
     return data

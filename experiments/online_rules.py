@@ -34,12 +34,14 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import torch
 from study import BASELINES, stem
 
-from lidarflow.data import load_any
+from lidarflow.data import Recording, load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
@@ -66,7 +68,7 @@ def collect(
     head.decision_offset, head.decision_offset_free, head.online_decision = 0.0, None, False
     gain = float(head.warp_gain.item())
     recording = load_any(path)
-    occupancy, visibility = recording.maps(GridSpec())
+    occupancy, _ = recording.maps(GridSpec())
     pairs, unmoved, baselines = [], [], {}
 
     def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
@@ -93,6 +95,21 @@ def collect(
             counts = [(c.tp, c.tp + c.fp, c.tp + c.fn) for c in both]
             baselines.setdefault(name, []).append(counts)
 
+    stream_beside_baselines(net, recording, add)
+    return {
+        "pairs": np.array(pairs),
+        "unmoved": np.array(unmoved),
+        "baselines": np.array([baselines[b] for b in BASELINES], float).transpose(1, 0, 2, 3),
+    }
+
+
+def stream_beside_baselines(
+    net: torch.nn.Module, recording: Recording, add: Callable[..., None]
+) -> None:
+    """Stream ``net`` (as "model", fixed offsets) and the three baselines over ``recording`` as
+    `lidarflow evaluate` does (motions, sub-cell maps where the model takes them), calling
+    ``add(name, t, probability, flow)`` for every prediction."""
+    occupancy, visibility = recording.maps(GridSpec())
     methods = [ModelMethod("model", StreamingModel(net), online=False)]
     methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
     motions = recording_motions(recording, GridSpec(), methods, occupancy)
@@ -100,11 +117,6 @@ def collect(
     evaluate_maps(
         occupancy, visibility, methods, on_prediction=add, motions=motions, subcell=subcell
     )
-    return {
-        "pairs": np.array(pairs),
-        "unmoved": np.array(unmoved),
-        "baselines": np.array([baselines[b] for b in BASELINES], float).transpose(1, 0, 2, 3),
-    }
 
 
 def f1(counts: np.ndarray) -> np.ndarray:
