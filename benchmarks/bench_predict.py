@@ -33,7 +33,7 @@ from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import export_onnx
 from lidarflow.predict.quantize import quantize_onnx
-from lidarflow.scan import GridSpec
+from lidarflow.scan import GridSpec, takes_subcell
 
 
 def drive(n: int) -> np.ndarray:
@@ -65,7 +65,8 @@ def batched(
     dev = torch.device(device)
     cuda = dev.type == "cuda"
     model = model.to(dev)
-    x = (torch.rand(batch, 2, 100, 100, device=dev) > 0.9).float()
+    channels = int(getattr(model, "input_channels", 2))  # (O, V) and v8's sub-cell maps
+    x = (torch.rand(batch, channels, 100, 100, device=dev) > 0.9).float()
     if cuda:
         model = model.to(memory_format=torch.channels_last)
         x = x.contiguous(memory_format=torch.channels_last)
@@ -107,10 +108,8 @@ def main() -> None:
         net, _ = resolve_model(None)
         net = net.eval()
         onnx_path = export_onnx(net, Path(tmp) / "m.onnx")
-        occupancy, visibility = recording.maps(GridSpec())
-        int8_path = quantize_onnx(
-            onnx_path, Path(tmp) / "m8.onnx", np.stack([occupancy, visibility], axis=1)
-        )
+        maps = recording.stacked_maps(GridSpec(), subcell=takes_subcell(net.input_channels))
+        int8_path = quantize_onnx(onnx_path, Path(tmp) / "m8.onnx", maps)
         for threads in args.threads:
             torch.set_num_threads(threads)
             fixed = {"threads": threads, "check_odometry": False, "online_decision": False}
