@@ -26,13 +26,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from online_rules import LOGIT, f1, stream_beside_baselines
+from online_rules import LOGIT, f1, logit_of, pair_frame, stream_beside_baselines, threshold_counts
 from pair_frontier import FREE, OCCUPIED, frontier
 from study import BASELINES
 
 from lidarflow.data import load_any
-from lidarflow.evaluate.metrics import THRESHOLD, confusion
-from lidarflow.evaluate.online import moved_last_map, pair_counts
+from lidarflow.evaluate.online import moved_last_map
 from lidarflow.models.presets import resolve_model
 from lidarflow.scan import GridSpec
 
@@ -44,33 +43,34 @@ def stream(net: torch.nn.Module, path: Path) -> dict[str, np.ndarray]:
     head = getattr(net, "inner", net)
     features: list[np.ndarray] = []
     residuals: list[np.ndarray] = []
-    head.occupancy_hidden.register_forward_pre_hook(
-        lambda _m, args: features.append(args[0].detach().numpy()[0].copy())
-    )
-    head.conv_occupancy.register_forward_hook(
-        lambda _m, _a, out: residuals.append(out.detach().numpy()[0, 0].copy())
-    )
+    hooks = [
+        head.occupancy_hidden.register_forward_pre_hook(
+            lambda _m, args: features.append(args[0].detach().numpy()[0].copy())
+        ),
+        head.conv_occupancy.register_forward_hook(
+            lambda _m, _a, out: residuals.append(out.detach().numpy()[0, 0].copy())
+        ),
+    ]
     recording = load_any(path)
-    occupancy, _ = recording.maps(GridSpec())
+    occupancy, visibility = recording.maps(GridSpec())
     rows: dict[str, list] = {k: [] for k in ("features", "residual", "logit", "moved", "current")}
     rows["target"], baselines = [], {}
 
     def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
         current, target = occupancy[t].astype(bool), occupancy[t + 1].astype(bool)
         if name != "model":
-            masks = (np.ones_like(target), current != target)
-            both = [confusion(probability >= THRESHOLD, target, m) for m in masks]
-            baselines.setdefault(name, []).append([(c.tp, c.tp + c.fp, c.tp + c.fn) for c in both])
+            baselines.setdefault(name, []).append(threshold_counts(probability, current, target))
             return
-        p = np.clip(probability.astype(np.float64), 1e-12, 1 - 1e-12)
-        rows["logit"].append((np.log(p) - np.log1p(-p)).astype(np.float32))
+        rows["logit"].append(logit_of(probability).astype(np.float32))
         rows["moved"].append(moved_last_map(current, None if flow is None else flow[:2]))
         rows["current"].append(current)
         rows["target"].append(target)
         rows["features"].append(features[-1])  # the step that made this prediction
         rows["residual"].append(residuals[-1])
 
-    stream_beside_baselines(net, recording, add)
+    stream_beside_baselines(net, recording, (occupancy, visibility), add)
+    for hook in hooks:  # else the replay's copies of the head would keep recording
+        hook.remove()
     data = {k: np.array(v) for k, v in rows.items()}
     data["baselines"] = np.array([baselines[b] for b in BASELINES], float).transpose(1, 0, 2, 3)
     return data
@@ -104,17 +104,12 @@ def replay(
 
 def pair_scores(data: dict[str, np.ndarray], logits: np.ndarray) -> np.ndarray:
     """Every pair's counts per frame ``(T, A, B, 2 masks, 3)`` (``pair_frontier``'s layout)."""
-    frames = []
-    for t, logit in enumerate(logits):
-        target, current = data["target"][t], data["current"][t]
-        frame = np.zeros((len(OCCUPIED), len(FREE), 2, 3))
-        for k, mask in enumerate((np.ones_like(target), current != target)):
-            tp, predicted, positives = pair_counts(
-                (LOGIT - logit)[mask], data["moved"][t][mask], target[mask], OCCUPIED, FREE
-            )
-            frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
-        frames.append(frame)
-    return np.array(frames)
+    return np.array([
+        pair_frame(
+            LOGIT - logit, data["moved"][t], data["current"][t], data["target"][t], OCCUPIED, FREE
+        )
+        for t, logit in enumerate(logits)
+    ])  # fmt: skip
 
 
 def main() -> None:

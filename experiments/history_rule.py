@@ -160,24 +160,26 @@ def _counts_by_class(
 PROBABILITY_BINS = np.array([0, 0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95])
 
 
-def model_probabilities(model: Path, recording: Recording) -> np.ndarray:
+def model_probabilities(
+    model: Path, recording: Recording, maps: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
     """``(N, H, W)``: the model's probability after frame ``t`` (predicting ``t + 1``),
-    streamed as `lidarflow evaluate` streams it, at its fixed decision offset (a model with
+    streamed as `lidarflow evaluate` streams it over ``maps`` (the recording's occupancy and
+    visibility on the default grid), at its fixed decision offset (a model with
     ``subcell_input`` fed the recording's sub-cell maps, as evaluate feeds them)."""
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
 
     net, _ = resolve_model(str(model))
-    grid = GridSpec()
-    occupancy, visibility = recording.maps(grid)
+    occupancy, visibility = maps
     out = np.zeros(occupancy.shape, np.float32)
 
     def keep(name: str, t: int, probability: np.ndarray, flow: object) -> None:
         out[t] = probability
 
     method = ModelMethod("model", StreamingModel(net), online=False)
-    subcell = recording.subcell_maps(grid) if method.takes_subcell else None
+    subcell = recording.subcell_maps(GridSpec()) if method.takes_subcell else None
     evaluate_maps(occupancy, visibility, [method], warmup=0, on_prediction=keep, subcell=subcell)
     return out
 
@@ -263,7 +265,8 @@ def causal(
     maps = {n: r.maps(grid) for n, r in recordings.items()}
     subcells = {n: r.subcell_maps(grid) if with_subcell else None for n, r in recordings.items()}
     probabilities = {
-        n: None if model is None else model_probabilities(model, r) for n, r in recordings.items()
+        n: None if model is None else model_probabilities(model, r, maps[n])
+        for n, r in recordings.items()
     }
     results: dict[str, dict] = {}
     for name, (occupancy, visibility) in maps.items():

@@ -68,34 +68,24 @@ def collect(
     head.decision_offset, head.decision_offset_free, head.online_decision = 0.0, None, False
     gain = float(head.warp_gain.item())
     recording = load_any(path)
-    occupancy, _ = recording.maps(GridSpec())
+    occupancy, visibility = recording.maps(GridSpec())
     pairs, unmoved, baselines = [], [], {}
 
     def add(name: str, t: int, probability: np.ndarray, flow: np.ndarray | None) -> None:
         current, target = occupancy[t].astype(bool), occupancy[t + 1].astype(bool)
-        masks = (np.ones_like(target), current != target)
         if name == "model":
-            p = np.clip(probability.astype(np.float64), 1e-12, 1 - 1e-12)
-            logit = np.log(p) - np.log1p(-p)
+            logit = logit_of(probability)
             moved = moved_last_map(current, None if flow is None else flow[:2])
             last = current.astype(np.float64)
             for split, need, out in (
                 (moved, LOGIT - logit, pairs),
                 (last, LOGIT - (logit + gain * (last - moved)), unmoved),
             ):
-                frame = np.zeros((len(occupied), len(free), 2, 3))
-                for k, m in enumerate(masks):
-                    tp, predicted, positives = pair_counts(
-                        need[m], split[m], target[m], occupied, free
-                    )
-                    frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
-                out.append(frame)
+                out.append(pair_frame(need, split, current, target, occupied, free))
         else:
-            both = [confusion(probability >= THRESHOLD, target, m) for m in masks]
-            counts = [(c.tp, c.tp + c.fp, c.tp + c.fn) for c in both]
-            baselines.setdefault(name, []).append(counts)
+            baselines.setdefault(name, []).append(threshold_counts(probability, current, target))
 
-    stream_beside_baselines(net, recording, add)
+    stream_beside_baselines(net, recording, (occupancy, visibility), add)
     return {
         "pairs": np.array(pairs),
         "unmoved": np.array(unmoved),
@@ -104,12 +94,16 @@ def collect(
 
 
 def stream_beside_baselines(
-    net: torch.nn.Module, recording: Recording, add: Callable[..., None]
+    net: torch.nn.Module,
+    recording: Recording,
+    maps: tuple[np.ndarray, np.ndarray],
+    add: Callable[..., None],
 ) -> None:
-    """Stream ``net`` (as "model", fixed offsets) and the three baselines over ``recording`` as
-    `lidarflow evaluate` does (motions, sub-cell maps where the model takes them), calling
-    ``add(name, t, probability, flow)`` for every prediction."""
-    occupancy, visibility = recording.maps(GridSpec())
+    """Stream ``net`` (as "model", fixed offsets) and the three baselines over ``recording``
+    (``maps``: its occupancy and visibility on the default grid) as `lidarflow evaluate` does
+    (motions, sub-cell maps where the model takes them), calling ``add(name, t, probability,
+    flow)`` for every prediction."""
+    occupancy, visibility = maps
     methods = [ModelMethod("model", StreamingModel(net), online=False)]
     methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
     motions = recording_motions(recording, GridSpec(), methods, occupancy)
@@ -117,6 +111,41 @@ def stream_beside_baselines(
     evaluate_maps(
         occupancy, visibility, methods, on_prediction=add, motions=motions, subcell=subcell
     )
+
+
+def logit_of(probability: np.ndarray) -> np.ndarray:
+    """The logit of a probability map (float64, clipped away from 0 and 1)."""
+    p = np.clip(probability.astype(np.float64), 1e-12, 1 - 1e-12)
+    return np.log(p) - np.log1p(-p)
+
+
+def pair_frame(
+    need: np.ndarray,
+    split: np.ndarray,
+    current: np.ndarray,
+    target: np.ndarray,
+    occupied: np.ndarray,
+    free: np.ndarray,
+) -> np.ndarray:
+    """One frame's counts ``(A, B, 2 masks, tp/predicted/positives)`` of every offset pair
+    (:func:`pair_counts`), over all cells and over the cells that change."""
+    frame = np.zeros((len(occupied), len(free), 2, 3))
+    for k, mask in enumerate((np.ones_like(target), current != target)):
+        tp, predicted, positives = pair_counts(
+            need[mask], split[mask], target[mask], occupied, free
+        )
+        frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
+    return frame
+
+
+def threshold_counts(
+    probability: np.ndarray, current: np.ndarray, target: np.ndarray
+) -> list[tuple[int, int, int]]:
+    """``(tp, predicted, positives)`` at the metric's threshold, over all cells and over the
+    cells that change (a baseline's frame)."""
+    masks = (np.ones_like(target), current != target)
+    both = [confusion(probability >= THRESHOLD, target, m) for m in masks]
+    return [(c.tp, c.tp + c.fp, c.tp + c.fn) for c in both]
 
 
 def f1(counts: np.ndarray) -> np.ndarray:

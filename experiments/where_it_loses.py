@@ -34,8 +34,8 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=10, help="false-positive cells to list")
     args = parser.parse_args()
     recording = load_any(args.recording)
-    occupancy, _ = recording.maps(GridSpec())
-    probability = model_probabilities(args.model, recording)
+    occupancy, visibility = recording.maps(GridSpec())
+    probability = model_probabilities(args.model, recording, (occupancy, visibility))
     occupied = occupancy.astype(bool)
     bounds = sorted({b for b in args.stretches if b < len(occupied) - 1} | {len(occupied) - 1})
     for start, end in itertools.pairwise(bounds):
