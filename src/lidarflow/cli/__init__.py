@@ -1,0 +1,58 @@
+"""The ``lidarflow`` command: argument parsing only.
+
+Every sub-command turns lidarflow errors into one line on stderr and exit status 1; usage errors
+exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see tracebacks.
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import sys
+
+import typer
+
+from lidarflow.cli.app import app
+from lidarflow.errors import LidarflowError
+
+# Importing the command modules registers their commands on ``app``; --help lists them in this
+# order.
+# isort: off
+from lidarflow.cli import recordings, scoring, prediction, training, simulation  # noqa: F401
+# isort: on
+
+__all__ = ["app", "main"]
+
+
+def _reflow(text: str) -> str:
+    """``text`` with the line breaks inside each paragraph joined: typer's rich help keeps them,
+    so a docstring's own wrapping and the terminal's would break lines twice."""
+    return "\n\n".join(" ".join(p.split()) for p in inspect.cleandoc(text).split("\n\n"))
+
+
+for _command in app.registered_commands:
+    _command.help = _reflow(_command.help or inspect.getdoc(_command.callback) or "")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script."""
+    debug = os.environ.get("LIDARFLOW_DEBUG") == "1"
+    try:
+        app(args=argv, prog_name="lidarflow", standalone_mode=True)
+    except LidarflowError as err:
+        if debug:
+            raise
+        typer.echo(f"lidarflow: error: {err}", err=True)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        typer.echo("lidarflow: interrupted", err=True)
+        sys.exit(130)
+    except Exception as err:  # a bug: still one line, with the way to the traceback
+        if debug:
+            raise
+        typer.echo(
+            f"lidarflow: internal error: {type(err).__name__}: {err} "
+            "(rerun with LIDARFLOW_DEBUG=1 for the traceback, and please report it)",
+            err=True,
+        )
+        sys.exit(1)

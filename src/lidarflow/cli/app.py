@@ -1,0 +1,76 @@
+"""The ``lidarflow`` application, the options its commands share, and reading inputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+app = typer.Typer(
+    name="lidarflow",
+    help=(
+        "Predict the next 2-D LiDAR occupancy map by estimating motion flow (LiDAR-FlowNet).\n\n"
+        "Inputs may be recordings (.npz from `lidarflow convert`) or bags directly: ROS 1 .bag "
+        "(or .bag.zip), ROS 2 bag folders (sqlite3/mcap) and .mcap files (ROS 2 messages, or "
+        "ROS 1 messages as `mcap convert` leaves a ROS 1 bag)."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+TopicOpt = Annotated[
+    str | None,
+    typer.Option("--topic", "-t", help="LaserScan topic (needed only when the bag has several)."),
+]
+OdomOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--odom-topic",
+        help="Odometry (nav_msgs/Odometry or PoseStamped) topic for sensor poses; by default the "
+        "bag's only Odometry topic, if it has one. The base's poses are moved to the scanner "
+        "by the bag's TF (base -> scan frame) when it has it.",
+    ),
+]
+GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
+ResOpt = Annotated[float, typer.Option("--res", help="Cell size in metres.", min=1e-4)]
+MovingOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--moving-threshold",
+        help="Moving-object segmentation: an occupied cell is moving when its forward flow, less "
+        "the background's (platform's) fitted motion, is longer than this many cells per frame "
+        "(default 0.4, chosen on simulated tuning data).",
+        min=0.0,
+    ),
+]
+
+
+def progress_bar(total: int | None, desc: str) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="scan", disable=None, leave=False)
+
+
+def eval_progress(name: str, total: int) -> Any:
+    return progress_bar(total, f"evaluating {Path(name).name}")
+
+
+def load_input(path: Path, topic: str | None = None, odom_topic: str | None = None) -> Any:
+    from lidarflow.data import load_any
+
+    with progress_bar(None, f"reading {path.name}") as bar:
+        return load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
+
+
+ModelOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--model",
+        "-m",
+        help="Run folder from `lidarflow train`, a .safetensors file, an .onnx file, or "
+        "`bundled` (the default: the bundled pretrained model).",
+    ),
+]

@@ -1,0 +1,144 @@
+"""``convert``, ``info`` and ``show``: recordings in, files and pictures out."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from lidarflow.cli.app import GridOpt, OdomOpt, ResOpt, TopicOpt, app, load_input
+
+
+@app.command()
+def convert(
+    input: Annotated[Path, typer.Argument(help="Bag (.bag, .bag.zip), ROS 2 bag folder or .mcap.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Recording to write (.npz).")],
+    topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+) -> None:
+    """Convert a LaserScan topic into a lidarflow recording (raw scans, stamps, poses).
+
+    The raw ranges are kept, so maps can be rasterized later on any grid; --grid/--res only set
+    the grid recorded as this recording's default and checked here by rasterizing every scan.
+    """
+    from lidarflow.scan import GridSpec
+
+    recording = load_input(input, topic, odom_topic)
+    spec = GridSpec(grid, grid, res)
+    recording.maps(spec)  # fail now, not in training, if any scan cannot be rasterized
+    recording.meta["grid"] = spec.to_dict()
+    path = recording.save(output)
+    poses = "with poses" if recording.has_poses else "no poses"
+    no_mount = "sensor_mount" in recording.meta and recording.meta["sensor_mount"] is None
+    if recording.has_poses and no_mount:
+        poses += " (the odometry's own frame: the bag has no TF to the scanner)"
+    typer.echo(
+        f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at "
+        f"{recording.frame_rate:.2f} Hz, {poses}"
+    )
+
+
+@app.command()
+def info(
+    input: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP.")],
+    topic: TopicOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of text.")] = False,
+) -> None:
+    """List topics (bags), scan counts, frame rate, field of view, range limits, invalid beams
+    and time gaps."""
+    from lidarflow.data import describe_recording, list_topics
+    from lidarflow.data.sources import is_recording_file
+
+    report: dict[str, Any] = {"path": str(input)}
+    if not is_recording_file(input):
+        topics = list_topics(input)
+        report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
+        scan_topics = [t.topic for t in topics if t.msgtype.endswith("LaserScan")]
+        if topic is None and len(scan_topics) != 1:
+            report["scan_topics"] = scan_topics
+            _print_info(report, as_json)
+            if scan_topics:
+                typer.echo("several LaserScan topics: name one with --topic for its details")
+            return
+    recording = load_input(input, topic)
+    report["topic"] = recording.meta.get("topic")
+    report.update(describe_recording(recording))
+    _print_info(report, as_json)
+
+
+def _print_info(report: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        typer.echo(json.dumps(report, indent=2))
+        return
+    for key, value in report.items():
+        if key == "topics":
+            typer.echo("topics:")
+            for t in value:
+                typer.echo(f"  {t['topic']:<40} {t['type']:<40} {t['count']:>8}")
+        elif key == "beams":
+            typer.echo("beams: " + ", ".join(f"{k}={v}" for k, v in value.items()))
+        elif key == "gaps":
+            shown = ", ".join(
+                f"{g['seconds']}s before frame {g['before_frame']}" for g in value[:10]
+            )
+            more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
+            typer.echo(f"gaps: {len(value)}" + (f": {shown}{more}" if value else ""))
+        else:
+            typer.echo(f"{key}: {value}")
+
+
+@app.command()
+def show(
+    recording: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP.")],
+    frame: Annotated[
+        int, typer.Option("--frame", "-f", help="Frame index (negative counts from the end).")
+    ] = 0,
+    output: Annotated[Path, typer.Option("--output", "-o", help="PNG to write.")] = Path(
+        "maps.png"
+    ),
+    topic: TopicOpt = None,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+    flow: Annotated[
+        bool,
+        typer.Option("--flow/--no-flow", help="Overlay ground-truth flow if the recording has it."),
+    ] = True,
+    flow_scale: Annotated[
+        float, typer.Option("--flow-scale", help="Draw flow arrows N times longer.", min=0.0)
+    ] = 1.0,
+) -> None:
+    """Draw the occupancy and visibility maps of one frame (sensor at the bottom middle).
+
+    On a simulated recording the ground truth is overlaid: cells on moving objects in red, and
+    the forward flow F^t (where each occupied cell of this frame goes in the next) as arrows."""
+    from lidarflow.errors import RecordingError
+    from lidarflow.scan import GridSpec
+    from lidarflow.viz.maps import draw_maps
+
+    rec = load_input(recording, topic)
+    if not -len(rec) <= frame < len(rec):
+        raise RecordingError(f"{recording}: frame {frame} out of range (it has {len(rec)} frames)")
+    index = frame % len(rec)
+    spec = GridSpec(grid, grid, res)
+    occ, vis = rec.maps(spec, index, index + 1)
+    gt_flow = moving = None
+    # Forward flow F^t lives on the occupied cells of O^t (design notes, section 3): it is the
+    # one that belongs on this frame's map. (B^t lives on O^{t+1}'s cells.)
+    if flow and rec.meta.get("simulated"):
+        from lidarflow.sim import dense_flow
+
+        _, forward = dense_flow(rec, index)
+        if forward.shape[-2:] == spec.shape:
+            gt_flow = forward
+            moving = rec.extras.get("moving", [None] * len(rec))[index]
+        else:
+            typer.echo(f"note: ground truth is on a {forward.shape[-2:]} grid, not drawn here")
+    title = f"{recording.name}  frame {index}/{len(rec)}  t={rec.stamps_ns[index] / 1e9:.3f}s"
+    path = draw_maps(
+        occ[0], vis[0], output, spec, title, flow=gt_flow, moving=moving, flow_scale=flow_scale
+    )
+    typer.echo(f"wrote {path}")

@@ -1,0 +1,289 @@
+"""``evaluate``: models beside the baselines, streaming over recordings."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from lidarflow.cli.app import (
+    GridOpt,
+    MovingOpt,
+    OdomOpt,
+    ResOpt,
+    TopicOpt,
+    app,
+    eval_progress,
+    load_input,
+    progress_bar,
+)
+
+
+def methods_and_config(
+    sources: list[Path | None],
+    ta_window: int = 5,
+    ta_threshold: float = 0.4,
+    moving_threshold: float | None = None,
+    ego_oracle: bool = False,
+    with_poses: bool = True,
+    online: bool = False,
+    res: float = 0.1,
+) -> tuple[list[Any], dict[str, Any]]:
+    """The baselines plus one method per model source (``None``: the bundled model), and the
+    configuration that describes them for the report. With an ego-motion model among them and
+    recordings with poses (``with_poses``) the copy-last-moved-by-odometry baseline comes too
+    (without poses it would be copy-last again); ``ego_oracle`` adds the variants that know the
+    true next pose; ``online`` adds, for each model, the decision rule it was not built with:
+    ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
+    from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.models.streaming import StreamingModel
+    from lidarflow.models.weights import describe_source
+    from lidarflow.segmentation import MOVING_THRESHOLD
+
+    if moving_threshold is None:
+        moving_threshold = MOVING_THRESHOLD
+    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    # An online decision measures itself against the temporal average reported here.
+    online_config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
+    models_used = {}
+    for source in sources:
+        net, card = resolve_model(source)
+        name = "bundled" if source is None else describe_source(source)
+        while name in {m.name for m in methods}:
+            name += "_"
+        method = ModelMethod(
+            name, StreamingModel(net), moving_threshold, online_config=online_config, res=res
+        )
+        methods.append(method)
+        models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
+        if method.uses_motion and ego_oracle:
+            methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True, res=res))
+        if online:  # the other decision rule beside the model's own
+            wants_online = method.online is not None
+            methods.append(
+                ModelMethod(
+                    name + ("_fixed" if wants_online else "_online"),
+                    StreamingModel(net),
+                    moving_threshold,
+                    online=not wants_online,
+                    online_config=online_config,
+                    res=res,
+                )
+            )
+    if with_poses and any(getattr(m, "uses_motion", False) for m in methods):
+        from lidarflow.evaluate.ego import CopyLastEgo
+
+        methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
+    config = {
+        "threshold": 0.4,
+        "temporal_average": {"window": ta_window, "threshold": ta_threshold},
+        "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+        "models": models_used,
+        "calibration": {"bins": 10, "over": "every cell of every scored frame"},
+        "moving_segmentation": {
+            "threshold_cells": moving_threshold,
+            "rule": "occupied and |forward flow - fitted background flow| > threshold",
+        },
+    }
+    if online or any(getattr(m, "online", None) is not None for m in methods):
+        config["online_decision"] = {
+            **dataclasses.asdict(online_config),
+            "rule": "each frame, the (occupied, free) offset pair, on the last map moved by the "
+            "flow or unmoved, that would leave the recording's win margin over the three "
+            "baselines largest if the next `lookahead` frames went as its recent (decayed) ones; "
+            "the decisions made and the baselines' counts decay by `history_decay`",
+        }
+    if any(getattr(m, "uses_motion", False) for m in methods):
+        config["ego_motion"] = (
+            "models built with ego_motion get the recordings' poses (odometry); the motion to "
+            "the next frame is the last one again (constant velocity, causal); *_oracle* "
+            "variants use the true next pose instead; copy_last_ego moves the last map by it; "
+            "on a recording without poses, models built with poses_optional (the head recipe's, "
+            "the bundled one) get the motion matched from the scans (lidarflow.data.scanmatch; "
+            "uncompensated where no match counts) and copy_last_ego is not scored"
+        )
+    return methods, config
+
+
+@app.command()
+def evaluate(
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
+    ],
+    topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
+    model: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--model",
+            "-m",
+            help="Trained model to evaluate beside the baselines: a run folder from "
+            "`lidarflow train`, a .safetensors file with its .json, or `bundled`. Repeat for "
+            "several; default: the bundled model.",
+        ),
+    ] = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write the full report (JSON) here.")
+    ] = None,
+    report_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--report",
+            help="Folder for a self-contained HTML report (index.html) with PR curves and "
+            "overlay GIFs (truth green, prediction red, both yellow), plus report.json.",
+        ),
+    ] = None,
+    gif_frames: Annotated[
+        int, typer.Option(help="Frames per overlay GIF in the report.", min=1)
+    ] = 100,
+    warmup: Annotated[
+        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+    ] = 10,
+    ta_window: Annotated[
+        int, typer.Option(help="Temporal-average baseline: frames averaged.", min=1)
+    ] = 5,
+    ta_threshold: Annotated[
+        float, typer.Option(help="Temporal-average baseline: occupied when mean >= this.")
+    ] = 0.4,
+    ego_oracle: Annotated[
+        bool,
+        typer.Option(
+            "--ego-oracle",
+            help="For ego-motion models: also score the variant told the true next pose (an "
+            "upper bound; at run time only poses up to now are known).",
+        ),
+    ] = False,
+    horizon: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Also score F1 1..K frames ahead (models roll forward on their own "
+            "predictions, as `predict --horizon`; copy-last beside them); JSON key horizon_f1.",
+        ),
+    ] = 1,
+    online_decision: Annotated[
+        bool,
+        typer.Option(
+            "--online-decision",
+            help="Score each occupancy-head model both ways: with its fixed decision offsets and "
+            "with offsets chosen online (every frame, the pair of offsets, for the cells occupied "
+            "/ free in the last map moved by the model's flow, that would have beaten the three "
+            "baselines by the most on the frames so far; past frames only). The one the model "
+            "was not built with is NAME_online or NAME_fixed.",
+        ),
+    ] = False,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+    moving_threshold: MovingOpt = None,
+) -> None:
+    """Score next-map prediction on each recording, streaming (one step per frame, state
+    carried across the recording), with F1 at 0.4, precision, recall, average precision and
+    changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
+    for every --model given (and flow end-point error where the recording has ground truth).
+
+    A second table gives the calibration of every method's probabilities (expected calibration
+    error over bins of 0.1 on all cells, ece_active on the cells predicted >= 0.1, and Brier
+    score; lower is better) and, for flow models on simulated recordings, moving-object
+    segmentation (IoU, precision, recall of the moving cells against the simulator's truth).
+    The JSON has them per method under "calibration" (with the reliability-diagram bins) and
+    "segmentation"; --report draws the reliability diagram and the moving cells.
+
+    A model that compensates ego motion (the bundled one, the default recipe's, --ego-motion)
+    gets each recording's poses (odometry) and the copy_last_ego baseline (the last map moved by
+    the odometry) is scored beside it; on a recording without poses a model built with
+    poses_optional (the bundled one, the default recipe's) takes the motion matched from the scans
+    instead, any other is refused. Such a model also takes the scans' motion where the poses
+    disagree with the scans (a base's odometry read as the scanner's).
+
+    A model built with online_decision (the bundled one, the default recipe's) chooses its
+    decision offsets as the recording streams, from the frames already seen; --online-decision
+    scores every occupancy-head model both ways."""
+    from lidarflow.evaluate.report import format_table, format_uncertainty_table
+    from lidarflow.scan import GridSpec
+    from lidarflow.viz.evaluation import evaluate_and_report
+
+    spec = GridSpec(grid, grid, res)
+    named = [(str(path), load_input(path, topic, odom_topic)) for path in inputs]
+    with_poses = any(recording.has_poses for _, recording in named)
+    methods, config = methods_and_config(
+        list(model or []),
+        ta_window,
+        ta_threshold,
+        moving_threshold,
+        ego_oracle,
+        with_poses,
+        online_decision,
+        spec.res,
+    )
+    config.update({"warmup": warmup, "grid": spec.to_dict()})
+    report = evaluate_and_report(
+        named, methods, spec, warmup, config, report_dir, gif_frames, eval_progress
+    )
+    if horizon > 1:
+        _add_horizon_scores(report, named, methods, spec, warmup, horizon)
+    for entry in report["recordings"]:
+        title = f"{entry['path']} ({entry['frames_evaluated']} frames)"
+        typer.echo(format_table(entry["methods"], title) + "\n")
+        if "horizon_f1" in entry:
+            typer.echo(_format_horizon(entry["horizon_f1"]) + "\n")
+        extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
+        if extra:
+            typer.echo(extra + "\n")
+    if len(report["recordings"]) > 1:
+        typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
+        extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")
+        if extra:
+            typer.echo(extra)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(report, indent=2))
+        typer.echo(f"wrote {json_out}")
+    if report_dir is not None:
+        typer.echo(f"wrote {report_dir / 'index.html'}")
+
+
+def _add_horizon_scores(
+    report: dict[str, Any],
+    named: list[tuple[str, Any]],
+    methods: list[Any],
+    spec: Any,
+    warmup: int,
+    horizon: int,
+) -> None:
+    from lidarflow.data.scanalign import recording_points
+    from lidarflow.evaluate.ego import recording_motions
+    from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.scan import takes_subcell
+
+    # one roll-out per model (an oracle variant has no roll-out of its own)
+    streamed = [m for m in methods if hasattr(m, "stream") and not getattr(m, "oracle", False)]
+    models = {m.name: m.stream.model for m in streamed}
+    decisions = {m.name: m.online for m in streamed if m.online is not None}
+    for entry, (name, recording) in zip(report["recordings"], named, strict=True):
+        occupancy, visibility = recording.maps(spec)
+        motions = recording_motions(recording, spec, streamed, occupancy)
+        total = len(models) * max(0, len(occupancy) - horizon)
+        with progress_bar(total, f"horizon {horizon}, {Path(name).name}") as bar:
+            # Only odometry is replaced by the scans' motion; scan motions are only checked.
+            with_returns = motions is not None and recording.has_poses
+            returns = recording_points(recording) if with_returns else None
+            wants = any(takes_subcell(model.input_channels) for model in models.values())
+            entry["horizon_f1"] = horizon_f1(
+                occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
+                returns, recording.has_poses, spec.res,
+                recording.subcell_maps(spec) if wants else None,
+            )  # fmt: skip
+
+
+def _format_horizon(scores: dict[str, list[float]]) -> str:
+    k = len(next(iter(scores.values())))
+    lines = ["F1 per horizon step     " + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
+    for name, values in scores.items():
+        lines.append(f"{name:<24}" + "".join(f"{v:>10.4f}" for v in values))
+    return "\n".join(lines)

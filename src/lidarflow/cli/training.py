@@ -1,0 +1,249 @@
+"""``train``: the recipes, configuration layering and resuming."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from lidarflow.cli.app import TopicOpt, app
+
+
+@app.command(
+    help="Train LiDAR-FlowNet or the DeepTracking baseline, self-supervised, on recordings and "
+    "bags.\n\n"
+    "The default recipe for LiDAR-FlowNet is head, the best measured on recordings it never "
+    "saw (docs/results/accuracy/loo): the bundled flow network (or --init RUN) with an "
+    "occupancy head fitted to your recordings, about 8 CPU-minutes. --recipe paper is the "
+    "paper's (and the default for deeptracking and --ego-motion): sequences of 20 frames, 10 "
+    "warm-up frames, Gaussian size 9 -> 1 (minus 2 every 25 epochs), batch 32, Adam at lr 0.01 "
+    "halved every 25 epochs, 200 epochs. Settings come from the recipe, then --config, then "
+    "these flags, then --set.\n\n"
+    "The run directory gets config.json, metrics.csv/.jsonl (losses, validation F1 against "
+    "copy-last, flow EPE on simulated data), a checkpoint every epoch (a killed run loses at most "
+    "one), best/last weights, and model.safetensors + model.json for the other commands. "
+    "Runs unchanged under torchrun (DDP: gloo on CPU, nccl on GPU).",
+    epilog="Examples:\n\n"
+    "lidarflow train real.npz 'sim/*.npz' --mix 0.5 -o runs/a  (half of each epoch from each)\n\n"
+    "lidarflow train a.bag --recipe blurred --set loss.smoothness=0.1 -o runs/b\n\n"
+    "lidarflow train my_robot.bag -o runs/h  (the bundled flow, a head fitted to your robot)\n\n"
+    "lidarflow train 'sim/*.npz' my_robot.bag --recipe blurred -o runs/flow; lidarflow train "
+    "my_robot.bag --init runs/flow -o runs/h  (your own flow network first)\n\n"
+    "lidarflow train drive.npz --ego-motion -o runs/e  (odometry-compensated; needs poses)\n\n"
+    "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
+    "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
+)
+def train(
+    data: Annotated[
+        list[str] | None,
+        typer.Argument(
+            help="Training data sources: recordings (.npz), bags / ROS 2 bag folders / .mcap "
+            "(converted on the fly), folders of .npz, or quoted glob patterns. Each argument is "
+            "one source for --mix.",
+            show_default=False,
+        ),
+    ] = None,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Run directory to create.")
+    ] = None,
+    model: Annotated[
+        str | None, typer.Option("--model", "-m", help="flownet (LiDAR-FlowNet) or deeptracking.")
+    ] = None,
+    ego_motion: Annotated[
+        bool,
+        typer.Option(
+            "--ego-motion",
+            help="Ego-motion compensation: before each step the recurrent state is warped "
+            "rigidly into the current sensor frame by the odometry (the recordings' poses; "
+            "`convert --odom-topic`, or the simulator's), and the prediction is moved into the "
+            "next frame at constant velocity, so the net only explains the world's motion. "
+            "Same as --set model.kwargs.ego_motion=true. evaluate/predict then use the poses "
+            "of their recordings by themselves.",
+        ),
+    ] = False,
+    recipe: Annotated[
+        str | None,
+        typer.Option(
+            help="Named preset: paper (the loss exactly as published), blurred (both "
+            "sides of the loss blurred), residual (blurred + occupancy head trained by "
+            "cross-entropy; sized for ~1 CPU-hour) or head (the default: an occupancy "
+            "head with the constant-velocity input trained on a frozen flow network, --init, "
+            "by default the bundled one; ~8 CPU-minutes; docs/results/accuracy/loo)."
+        ),
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            "--config",
+            help="JSON or TOML file of settings (partial is fine); a run's config.json works.",
+        ),
+    ] = None,
+    init: Annotated[
+        str | None,
+        typer.Option(
+            "--init",
+            help="Start from these weights (run folder, weights file, or "
+            "'bundled') instead of from scratch: fine-tuning. A flow-only "
+            "model can start one with an occupancy head (the head starts fresh).",
+        ),
+    ] = None,
+    resume: Annotated[
+        Path | None,
+        typer.Option(
+            help="Continue the run in this directory exactly (weights, optimizer, "
+            "schedules, RNG, data order); --epochs may extend it."
+        ),
+    ] = None,
+    epochs: Annotated[int | None, typer.Option(help="Epochs (paper: 200).", min=1)] = None,
+    batch_size: Annotated[
+        int | None, typer.Option(help="Sequences per batch (default 32).", min=1)
+    ] = None,
+    lr: Annotated[float | None, typer.Option(help="Initial learning rate (default 0.01).")] = None,
+    optimizer: Annotated[str | None, typer.Option(help="adam (default), adamw or sgd.")] = None,
+    grad_clip: Annotated[
+        float | None, typer.Option(help="Clip the global gradient norm to this (0: off, default).")
+    ] = None,
+    seq_len: Annotated[
+        int | None, typer.Option(help="Frames per sequence (default 20).", min=2)
+    ] = None,
+    warmup: Annotated[
+        int | None, typer.Option(help="Frames that only warm up the state (default 10).", min=0)
+    ] = None,
+    no_gaussian: Annotated[
+        bool, typer.Option("--no-gaussian", help="Ablation: no Gaussian filter in the loss.")
+    ] = False,
+    mix: Annotated[
+        list[float] | None,
+        typer.Option(
+            help="Sampling weight per source, repeated (--mix 3 --mix 1); with two "
+            "sources one value is the first's fraction."
+        ),
+    ] = None,
+    val: Annotated[
+        list[str] | None,
+        typer.Option("--val", help="Validation recordings (repeatable); then nothing is held out."),
+    ] = None,
+    val_fraction: Annotated[
+        float | None, typer.Option(help="Share held out for validation (default 0.1).")
+    ] = None,
+    val_split: Annotated[
+        str | None,
+        typer.Option(
+            help="tail: the last frames of each recording (default); recordings: whole recordings."
+        ),
+    ] = None,
+    topic: TopicOpt = None,
+    grid: Annotated[
+        int | None, typer.Option("--grid", help="Map size in cells (default 100).")
+    ] = None,
+    res: Annotated[
+        float | None, typer.Option("--res", help="Cell size in metres (default 0.1).")
+    ] = None,
+    device: Annotated[str | None, typer.Option(help="auto (CUDA if available), cpu, cuda.")] = None,
+    amp: Annotated[str | None, typer.Option(help="none (fp32 reference) or bf16 autocast.")] = None,
+    compile: Annotated[
+        bool,
+        typer.Option(
+            "--compile",
+            help="torch.compile each ConvGRU cell (pays on long runs; "
+            "--set runtime.compile=step compiles the whole step).",
+        ),
+    ] = False,
+    channels_last: Annotated[
+        bool, typer.Option("--channels-last", help="Channels-last memory format.")
+    ] = False,
+    threads: Annotated[int | None, typer.Option(help="Torch CPU threads (0: default).")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed (default 0).")] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Any setting as section.field=value, e.g. optim.lr=0.003, "
+            "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
+        ),
+    ] = None,
+) -> None:
+    """``lidarflow train``: the help text above says it all (kept there for --help)."""
+    import dataclasses
+
+    from lidarflow.errors import TrainError
+    from lidarflow.train.config import (
+        build_config,
+        config_from_dict,
+        default_recipe,
+        load_config_file,
+    )
+    from lidarflow.train.loop import train as run_training
+
+    flags = {
+        "model.name": model,
+        "model.init": init if init in (None, "bundled") else os.path.abspath(init),
+        "optim.epochs": epochs,
+        "optim.batch_size": batch_size,
+        "optim.lr": lr,
+        "optim.name": optimizer,
+        "optim.grad_clip": grad_clip,
+        "data.seq_len": seq_len,
+        "data.warmup": warmup,
+        "schedule.gaussian": False if no_gaussian else None,
+        "data.mix": mix or None,
+        "data.val_sources": [os.path.abspath(v) for v in val] if val else None,
+        "data.val_fraction": val_fraction,
+        "data.val_split": val_split,
+        "data.topic": topic,
+        "data.grid": grid,
+        "data.res": res,
+        "runtime.device": device,
+        "runtime.amp": amp,
+        "runtime.compile": "cells" if compile else None,
+        "runtime.channels_last": True if channels_last else None,
+        "runtime.threads": threads,
+        "runtime.seed": seed,
+    }
+    if resume is not None:
+        if output is not None and output.resolve() != resume.resolve():
+            raise typer.BadParameter(
+                f"--resume {resume} and -o {output} name different runs; give one",
+                param_hint="--resume",
+            )
+        # how the run executes may change (device, amp, threads...), not what it computes
+        free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
+        changed = [k for k, v in flags.items() if v is not None and k not in free]
+        changed += ["--ego-motion"] if ego_motion else []
+        if changed or recipe or config or set_:
+            raise typer.BadParameter(
+                "a resumed run keeps its config (only --epochs and runtime options may change); "
+                f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run",
+                param_hint="--resume",
+            )
+        saved = config_from_dict(load_config_file(resume / "config.json"))
+        if data and [os.path.abspath(d) for d in data] != saved.data.sources:
+            raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
+        cfg = build_config(
+            saved.recipe, resume / "config.json", {k: v for k, v in flags.items() if k in free}
+        )
+        run_dir = resume
+    else:
+        if output is None:
+            raise typer.BadParameter(
+                "name the run directory with -o RUN_DIR (or --resume RUN_DIR)", param_hint="-o"
+            )
+        if not data and config is None:
+            raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
+        if data:  # absolute, so that --resume works from any folder (globs too)
+            flags["data.sources"] = [os.path.abspath(d) for d in data]
+        in_file = load_config_file(config) if config else {}
+        if recipe is None and "recipe" not in in_file:
+            named = model or in_file.get("model", {}).get("name")
+            recipe = default_recipe(named, ego_motion)
+        cfg = build_config(recipe, config, flags, set_ or ())
+        if ego_motion:  # added to, not replacing, any other model kwargs
+            kwargs = {**cfg.model.kwargs, "ego_motion": True}
+            cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, kwargs=kwargs))
+        run_dir = output
+    from tqdm import tqdm
+
+    result = run_training(cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write)
+    typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")
