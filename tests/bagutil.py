@@ -93,11 +93,15 @@ def write_bag(
     odom: bool = False,
     extra_string_topic: bool = False,
     mount: tuple[float, float, float] | None = None,
+    copies: int = 1,
+    multi_echo_topic: bool = False,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
     kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder). ``mount``: also a
     ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``).
+    ``copies``: each scan message written that many times. ``multi_echo_topic``: also an
+    ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``.
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -125,11 +129,9 @@ def write_bag(
             c = conn(topic, "sensor_msgs/msg/LaserScan")
             for i, ranges in enumerate(frames):
                 stamp = t0 + i * period
-                writer.write(
-                    c,
-                    stamp,
-                    ser(_scan_msg(ts, np.asarray(ranges), stamp), "sensor_msgs/msg/LaserScan"),
-                )
+                raw = ser(_scan_msg(ts, np.asarray(ranges), stamp), "sensor_msgs/msg/LaserScan")
+                for _ in range(copies):
+                    writer.write(c, stamp, raw)
         if odom:
             c = conn("/odom", "nav_msgs/msg/Odometry")
             n = max(len(f) for f in scans.values()) if scans else 10
@@ -142,6 +144,17 @@ def write_bag(
                                    ("chassis", "laser", (mount[0] - 0.2, mount[1], mount[2]))])
             c = conn("/tf", "tf2_msgs/msg/TFMessage")
             writer.write(c, t0, ser(msg, "tf2_msgs/msg/TFMessage"))
+        if multi_echo_topic:
+            c = conn("/echoes", "sensor_msgs/msg/MultiEchoLaserScan")
+            Echoes = ts.types["sensor_msgs/msg/MultiEchoLaserScan"]
+            Echo = ts.types["sensor_msgs/msg/LaserEcho"]
+            msg = Echoes(
+                header=_header(ts, t0, "laser"), angle_min=-0.1, angle_max=0.1,
+                angle_increment=0.1, time_increment=0.0, scan_time=0.1, range_min=0.05,
+                range_max=8.0, ranges=[Echo(echoes=np.full(1, 3.0, np.float32))] * 3,
+                intensities=[],
+            )  # fmt: skip
+            writer.write(c, t0, ser(msg, "sensor_msgs/msg/MultiEchoLaserScan"))
         if extra_string_topic:
             c = conn("/chatter", "std_msgs/msg/String")
             String = ts.types["std_msgs/msg/String"]

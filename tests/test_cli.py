@@ -81,6 +81,15 @@ def test_info_on_a_bag_with_two_scan_topics_lists_them(tmp_path, capsys):
     assert code == 0 and json.loads(out)["scans"] == 3
 
 
+def test_info_counts_only_laserscan_topics(tmp_path, capsys):
+    # a MultiEchoLaserScan topic beside the scans is not a second LaserScan topic to choose
+    path = write_bag(tmp_path / "e.bag", "ros1", {"/scan": [np.ones(8)] * 3}, multi_echo_topic=True)
+    code, out, err = run(["info", str(path), "--json"], capsys)
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["topic"] == "/scan" and report["scans"] == 3
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

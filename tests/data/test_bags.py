@@ -187,3 +187,24 @@ def test_copying_a_folder_bag_keeps_it_readable(tmp_path):
     src = write_bag(tmp_path / "a", "sqlite3")
     shutil.copytree(src, tmp_path / "b")
     assert len(read_bag(tmp_path / "b")) == 25
+
+
+def test_a_topic_is_found_with_or_without_its_leading_slash(tmp_path):
+    # ROS 1 bags may name a topic `right_scan` (as the development bags do) where a user types
+    # `/right_scan`, and ROS 2 bags `/scan` where a user types `scan`
+    path = write_bag(
+        tmp_path / "two.bag", "ros1", {"right_scan": [np.ones(10)] * 3, "/rear": [np.ones(10)] * 4}
+    )
+    assert read_bag(path, topic="/right_scan").meta["topic"] == "right_scan"
+    assert read_bag(path, topic="rear/").meta["topic"] == "/rear"
+    with pytest.raises(BagError, match="no topic /side"):
+        read_bag(path, topic="/side")
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+def test_an_unpublished_scan_topic_is_no_choice(tmp_path, kind):
+    # a ROS 2 bag lists every topic it subscribed to, messages or not
+    name = "u.bag" if kind == "ros1" else "u"
+    path = write_bag(tmp_path / name, kind, {"/scan": [np.ones(10)] * 3, "/scan_filtered": []})
+    assert read_bag(path).meta["topic"] == "/scan"
+

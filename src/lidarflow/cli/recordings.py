@@ -51,14 +51,17 @@ def info(
     """List topics (bags), scan counts, frame rate, field of view, range limits, invalid beams
     and time gaps."""
     from lidarflow.data import describe_recording, list_topics
+    from lidarflow.data.bags import LASERSCAN
     from lidarflow.data.sources import is_recording_file
 
     report: dict[str, Any] = {"path": str(input)}
     if not is_recording_file(input):
         topics = list_topics(input)
         report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
-        scan_topics = [t.topic for t in topics if t.msgtype.endswith("LaserScan")]
-        if topic is None and len(scan_topics) != 1:
+        scan_topics = [t.topic for t in topics if t.msgtype == LASERSCAN]
+        # as reading chooses: a scan topic with no messages is no real choice
+        live = [t.topic for t in topics if t.msgtype == LASERSCAN and t.count > 0]
+        if topic is None and len(live or scan_topics) != 1:
             report["scan_topics"] = scan_topics
             _print_info(report, as_json)
             if scan_topics:

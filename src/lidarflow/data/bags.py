@@ -12,7 +12,7 @@ import contextlib
 import math
 import tempfile
 import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -116,23 +116,44 @@ def list_topics(path: str | Path) -> list[TopicInfo]:
     return [TopicInfo(t, m, n) for (t, m), n in sorted(counts.items())]
 
 
+def _match_name(name: str, topics: Iterable[str]) -> str | None:
+    """The topic among ``topics`` that ``name`` names: itself, or else the only one equal to it
+    up to leading and trailing slashes (ROS 1 bags may hold ``scan`` where a user types
+    ``/scan``, and ROS 2 ones ``/scan`` where a user types ``scan``)."""
+    topics = set(topics)
+    if name in topics:
+        return name
+    loose = [t for t in topics if t.strip("/") == name.strip("/")]
+    return loose[0] if len(loose) == 1 else None
+
+
 def _choose_topic(path: Path, reader: Any, topic: str | None) -> str:
-    scan_topics = sorted({c.topic for c in reader.connections if c.msgtype == LASERSCAN})
+    counts: dict[str, int] = {}
+    for c in reader.connections:
+        if c.msgtype == LASERSCAN:
+            counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+    scan_topics = sorted(counts)
     if topic is not None:
-        if topic in scan_topics:
-            return topic
+        found = _match_name(topic, scan_topics)
+        if found is not None:
+            return found
         others = {c.topic: c.msgtype for c in reader.connections}
-        if topic in others:
-            raise BagError(f"{path}: topic {topic} is {others[topic]}, not a LaserScan")
+        other = _match_name(topic, others)
+        if other is not None:
+            raise BagError(f"{path}: topic {other} is {others[other]}, not a LaserScan")
         hint = f"scan topics here: {', '.join(scan_topics)}" if scan_topics else "it has none"
         raise BagError(f"{path}: no topic {topic}; {hint}")
     if not scan_topics:
         raise BagError(f"{path}: no sensor_msgs/LaserScan topic in this bag")
-    if len(scan_topics) > 1:
+    # A ROS 2 bag lists every topic it subscribed to, published on or not: an unused scan topic
+    # beside the sensor's is no real choice. (Without counts, as in an MCAP file with no
+    # summary, every topic counts 0 and all stay candidates.)
+    live = [t for t in scan_topics if counts[t] > 0] or scan_topics
+    if len(live) > 1:
         raise BagError(
-            f"{path}: several LaserScan topics ({', '.join(scan_topics)}); pick one with --topic"
+            f"{path}: several LaserScan topics ({', '.join(live)}); pick one with --topic"
         )
-    return scan_topics[0]
+    return live[0]
 
 
 def _choose_pose_topic(path: Path, reader: Any, odom_topic: str | None) -> str | None:
@@ -140,10 +161,11 @@ def _choose_pose_topic(path: Path, reader: Any, odom_topic: str | None) -> str |
     if odom_topic is None:
         odometry = [t for t, m in pose_topics.items() if m == POSE_TYPES[0]]
         return odometry[0] if len(odometry) == 1 else None
-    if odom_topic not in pose_topics:
+    found = _match_name(odom_topic, pose_topics)
+    if found is None:
         hint = ", ".join(sorted(pose_topics)) or "none"
         raise BagError(f"{path}: no odometry/pose topic {odom_topic} (pose topics here: {hint})")
-    return odom_topic
+    return found
 
 
 def _stamp_ns(msg: Any, fallback: int) -> int:
