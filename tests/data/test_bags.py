@@ -208,3 +208,10 @@ def test_an_unpublished_scan_topic_is_no_choice(tmp_path, kind):
     path = write_bag(tmp_path / name, kind, {"/scan": [np.ones(10)] * 3, "/scan_filtered": []})
     assert read_bag(path).meta["topic"] == "/scan"
 
+
+def test_a_scan_recorded_twice_is_read_once(tmp_path):
+    frames = [np.full(10, 2.0 + 0.1 * i) for i in range(5)]
+    rec = read_bag(write_bag(tmp_path / "d.bag", "ros1", {"/scan": frames}, copies=2))
+    assert len(rec) == 5 and rec.meta["duplicate_scans_dropped"] == 5
+    assert rec.meta["empty_scans_dropped"] == 0
+    np.testing.assert_array_equal(rec.scan(4).ranges, frames[4].astype(np.float32))

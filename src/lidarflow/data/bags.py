@@ -269,6 +269,16 @@ def read_bag(
         raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
     order = np.argsort([s.stamp_ns for s in scans], kind="stable")
     scans = [scans[i] for i in order]
+    # The same message recorded twice (two connections on one topic, merged bags) is one
+    # measurement: kept twice, it would make a copy of the last map a perfect prediction.
+    seen: set[tuple[int, BeamGeometry, bytes]] = set()
+    unique = []
+    for scan in scans:
+        key = (scan.stamp_ns, scan.geometry, scan.ranges.tobytes())
+        if key not in seen:
+            seen.add(key)
+            unique.append(scan)
+    duplicates, scans = len(scans) - len(unique), unique
     poses, mount = None, None
     if pose_topic is not None:
         poses = interpolate_poses(
@@ -284,7 +294,8 @@ def read_bag(
         "topic": scan_topic,
         "frame_id": frame_id,
         "pose_topic": pose_topic,
-        "empty_scans_dropped": int(total - len(scans)),
+        "empty_scans_dropped": int(total - len(scans) - duplicates),
+        "duplicate_scans_dropped": duplicates,
     }
     if pose_topic is not None:
         meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
