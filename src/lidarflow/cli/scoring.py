@@ -124,8 +124,8 @@ def evaluate(
             "--model",
             "-m",
             help="Trained model to evaluate beside the baselines: a run folder from "
-            "`lidarflow train`, a .safetensors file with its .json, or `bundled`. Repeat for "
-            "several; default: the bundled model.",
+            "`lidarflow train`, a .safetensors file with its .json, or `bundled` (the bundled "
+            "model). Repeat for several; default: none, the baselines only.",
         ),
     ] = None,
     json_out: Annotated[
