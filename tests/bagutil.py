@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from collections.abc import Sequence
 from pathlib import Path
@@ -95,13 +96,15 @@ def write_bag(
     mount: tuple[float, float, float] | None = None,
     copies: int = 1,
     multi_echo_topic: bool = False,
+    overrides: dict[int, dict[str, float]] | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
     kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder). ``mount``: also a
     ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``).
     ``copies``: each scan message written that many times. ``multi_echo_topic``: also an
-    ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``.
+    ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``. ``overrides``: LaserScan fields
+    to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``).
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -129,7 +132,9 @@ def write_bag(
             c = conn(topic, "sensor_msgs/msg/LaserScan")
             for i, ranges in enumerate(frames):
                 stamp = t0 + i * period
-                raw = ser(_scan_msg(ts, np.asarray(ranges), stamp), "sensor_msgs/msg/LaserScan")
+                msg = _scan_msg(ts, np.asarray(ranges), stamp)
+                msg = dataclasses.replace(msg, **(overrides or {}).get(i, {}))
+                raw = ser(msg, "sensor_msgs/msg/LaserScan")
                 for _ in range(copies):
                     writer.write(c, stamp, raw)
         if odom:

@@ -215,3 +215,15 @@ def test_a_scan_recorded_twice_is_read_once(tmp_path):
     assert len(rec) == 5 and rec.meta["duplicate_scans_dropped"] == 5
     assert rec.meta["empty_scans_dropped"] == 0
     np.testing.assert_array_equal(rec.scan(4).ranges, frames[4].astype(np.float32))
+
+
+def test_a_malformed_scan_is_dropped_not_the_recording(tmp_path):
+    frames = [np.full(10, 2.0)] * 6
+    glitch = {0: {"angle_increment": 0.0}, 3: {"range_max": float("nan")}}
+    rec = read_bag(write_bag(tmp_path / "g.bag", "ros1", {"/scan": frames}, overrides=glitch))
+    assert len(rec) == 4 and rec.meta["malformed_scans_dropped"] == 2
+    assert rec.meta["empty_scans_dropped"] == 0
+    every = {i: {"range_max": -1.0} for i in range(6)}
+    path = write_bag(tmp_path / "b.bag", "ros1", {"/scan": frames}, overrides=every)
+    with pytest.raises(BagError, match=r"every scan is a malformed LaserScan.*range_max=-1"):
+        read_bag(path)

@@ -230,6 +230,7 @@ def read_bag(
         pose_stamps: list[int] = []
         pose_values: list[tuple[float, float, float]] = []
         frame_id = ""
+        malformed: list[ScanError] = []
         try:
             for conn, log_time, raw in reader.messages(connections=wanted):
                 if conn.msgtype == TF_TYPE:
@@ -245,18 +246,22 @@ def read_bag(
                 ranges = np.asarray(msg.ranges, dtype=np.float32)
                 if ranges.size == 0:
                     continue  # an empty scan carries nothing; counted below
-                geometry = BeamGeometry(
-                    count=int(ranges.size),
-                    angle_min=float(msg.angle_min),
-                    angle_increment=float(msg.angle_increment),
-                    range_min=float(msg.range_min),
-                    range_max=float(msg.range_max),
-                )
+                try:
+                    geometry = BeamGeometry(
+                        count=int(ranges.size),
+                        angle_min=float(msg.angle_min),
+                        angle_increment=float(msg.angle_increment),
+                        range_min=float(msg.range_min),
+                        range_max=float(msg.range_max),
+                    )
+                except ScanError as err:
+                    # One glitched message (a driver's first scan, say) must not cost the whole
+                    # recording; a topic of nothing but malformed scans is refused below.
+                    malformed.append(err)
+                    continue
                 scans.append(Scan(ranges, geometry, _stamp_ns(msg, log_time)))
                 if progress is not None:
                     progress(1)
-        except ScanError as err:
-            raise BagError(f"{path}: topic {scan_topic}: malformed LaserScan ({err})") from err
         except BagError:
             raise
         except Exception as err:  # truncated chunks, bad CDR, ... all end here
@@ -265,6 +270,10 @@ def read_bag(
                 "the bag may be truncated or corrupt"
             ) from err
         total = sum(c.msgcount for c in reader.connections if c.topic == scan_topic)
+    if not scans and malformed:
+        raise BagError(
+            f"{path}: topic {scan_topic}: every scan is a malformed LaserScan ({malformed[0]})"
+        ) from malformed[0]
     if not scans:
         raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
     order = np.argsort([s.stamp_ns for s in scans], kind="stable")
@@ -294,8 +303,9 @@ def read_bag(
         "topic": scan_topic,
         "frame_id": frame_id,
         "pose_topic": pose_topic,
-        "empty_scans_dropped": int(total - len(scans) - duplicates),
+        "empty_scans_dropped": int(total - len(scans) - duplicates - len(malformed)),
         "duplicate_scans_dropped": duplicates,
+        "malformed_scans_dropped": len(malformed),
     }
     if pose_topic is not None:
         meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
