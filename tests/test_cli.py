@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -258,3 +259,19 @@ def test_report_on_simulated_data_has_flow_pictures_and_epe(tmp_path, capsys, ra
     methods = json.loads((out / "report.json").read_text())["overall"]
     assert "epe" in methods["random_flownet"] and "epe" not in methods["copy_last"]
     assert "backward flow (colour wheel" in (out / "index.html").read_text()
+
+
+def test_report_of_two_recordings_with_one_file_name_keeps_both(tmp_path, capsys):
+    bags = []
+    for folder, distance in (("a", 3.0), ("b", 5.0)):
+        (tmp_path / folder).mkdir()
+        frames = [np.full(50, distance)] * 14
+        bags.append(str(write_bag(tmp_path / folder / "run.bag", "ros1", {"/scan": frames})))
+    out = tmp_path / "rep"
+    code, _, err = run(["evaluate", *bags, "--report", str(out), "--gif-frames", "3"], capsys)
+    assert code == 0, err
+    page = (out / "index.html").read_text()
+    images = re.findall(r"<img src='(data:[^']*)'", page)
+    half = len(images) // 2
+    assert half and images[:half] != images[half:]  # each recording shows its own pictures
+    assert all(f"<h2>{bag}</h2>" in page for bag in bags)

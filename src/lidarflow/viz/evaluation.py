@@ -101,7 +101,8 @@ class OverlayCollector:
             if frames:
                 path = write_gif(frames, folder / f"{stem}_{method}_moving.gif", fps=fps)
                 legend = (
-                    "found red, missed green, both yellow" if self.moving_has_truth
+                    "found red, missed green, both yellow"
+                    if self.moving_has_truth
                     else "moving red, static grey"
                 )
                 out.append((f"{method}: moving cells ({legend})", path))
@@ -132,6 +133,7 @@ def evaluate_and_report(
     ``progress(name, total)`` may return a context manager with ``update(n)`` (a tqdm bar)."""
     results = []
     figures: dict[str, list[tuple[str, Path]]] = {}
+    stems: set[str] = set()
     for name, recording in named_recordings:
         collector = None
         if report_dir is not None:
@@ -139,12 +141,22 @@ def evaluate_and_report(
         bar = progress(name, len(recording) - 1) if progress else contextlib.nullcontext()
         with bar as b:
             scorers = evaluate_recording(
-                recording, methods, grid, warmup, getattr(b, "update", None), collector,
+                recording,
+                methods,
+                grid,
+                warmup,
+                getattr(b, "update", None),
+                collector,
                 None if collector is None else collector.add_moving,
             )
         results.append((name, scorers))
         if report_dir is not None and collector is not None:
-            stem = safe_stem(name)
+            # two recordings of one file name (a/run.bag, b/run.bag) must not share pictures
+            stem, n = safe_stem(name), 1
+            while stem in stems:
+                n += 1
+                stem = f"{safe_stem(name)}_{n}"
+            stems.add(stem)
             title = f"{Path(name).name}: PR curves"
             pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", title)
             gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)

@@ -97,8 +97,10 @@ def write_html_report(
     if len(report.get("recordings", [])) > 1:
         parts += ["<h2>Overall (micro-averaged)</h2>", _table(report["overall"])]
         parts.append(_uncertainty_table(report["overall"]))
+    names = [Path(entry["path"]).name for entry in report.get("recordings", [])]
     for entry in report.get("recordings", []):
-        name = html.escape(Path(entry["path"]).name)
+        name = Path(entry["path"]).name
+        name = html.escape(entry["path"] if names.count(name) > 1 else name)
         parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated</p>")
         parts.append(_table(entry["methods"]))
         parts.append(_uncertainty_table(entry["methods"]))
