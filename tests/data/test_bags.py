@@ -36,6 +36,7 @@ def test_bare_mcap_file_and_db3_file_are_accepted(tmp_path):
     write_bag(tmp_path / "s", "sqlite3")
     assert len(read_bag(next((tmp_path / "m").glob("*.mcap")))) == 25
     assert len(read_bag(next((tmp_path / "s").glob("*.db3")))) == 25
+    assert len(read_bag(tmp_path / "s" / "metadata.yaml")) == 25  # its folder's description
 
 
 @pytest.mark.parametrize("compression", ["", "lz4", "zstd", None])
@@ -227,3 +228,14 @@ def test_a_malformed_scan_is_dropped_not_the_recording(tmp_path):
     path = write_bag(tmp_path / "b.bag", "ros1", {"/scan": frames}, overrides=every)
     with pytest.raises(BagError, match=r"every scan is a malformed LaserScan.*range_max=-1"):
         read_bag(path)
+
+
+def test_a_ros2_folder_without_its_metadata(tmp_path):
+    # `ros2 bag record` writes metadata.yaml last: an interrupted recording's MCAP file still
+    # reads on its own; any other folder is named for what it lacks
+    shutil.copytree(write_bag(tmp_path / "m", "mcap"), tmp_path / "cut")
+    (tmp_path / "cut" / "metadata.yaml").unlink()
+    assert len(read_bag(tmp_path / "cut")) == 25
+    (tmp_path / "notes").mkdir()
+    with pytest.raises(BagError, match=r"a folder with no metadata\.yaml is no ROS 2 bag"):
+        read_bag(tmp_path / "notes")

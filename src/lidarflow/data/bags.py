@@ -42,9 +42,12 @@ class TopicInfo:
     count: int
 
 
+_BAG_SUFFIXES = (".bag", ".bag.zip", ".mcap", ".db3")
+
+
 def _is_bag_like(path: Path) -> bool:
     name = path.name.lower()
-    return path.is_dir() or name.endswith((".bag", ".bag.zip", ".mcap", ".db3"))
+    return path.is_dir() or name == "metadata.yaml" or name.endswith(_BAG_SUFFIXES)
 
 
 @contextlib.contextmanager
@@ -71,8 +74,10 @@ def open_bag(path: str | Path) -> Iterator[Any]:
             target = _extract_zipped_bag(
                 path, Path(stack.enter_context(tempfile.TemporaryDirectory()))
             )
-        elif path.suffix.lower() == ".db3":
-            target = path.parent  # a ROS 2 sqlite3 bag is read through its folder
+        elif path.suffix.lower() == ".db3" or path.name.lower() == "metadata.yaml":
+            target = path.parent  # a ROS 2 bag is read through its folder
+        if target.is_dir() and not (target / "metadata.yaml").exists():
+            target = _folder_without_metadata(path, target)
         ros1_mcap = target.suffix.lower() == ".mcap" and channel_encoding(target) == "ros1"
         ros1 = target.suffix.lower() == ".bag" or ros1_mcap
         store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
@@ -84,6 +89,19 @@ def open_bag(path: str | Path) -> Iterator[Any]:
         except Exception as err:  # rosbags raises many types for damaged files
             raise BagError(f"{path}: cannot open as a bag ({_why(err)}); is it complete?") from err
         yield reader
+
+
+def _folder_without_metadata(path: Path, folder: Path) -> Path:
+    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (``ros2 bag record``
+    writes it last, so an interrupted recording has none): an MCAP file reads on its own."""
+    mcaps = sorted(folder.glob("*.mcap"))
+    if len(mcaps) == 1:
+        return mcaps[0]
+    raise BagError(
+        f"{path}: cannot open as a bag (a folder with no metadata.yaml"
+        + (f" and {len(mcaps)} .mcap files" if mcaps else "")
+        + " is no ROS 2 bag); if its recording was interrupted, `ros2 bag reindex` rebuilds it"
+    )
 
 
 def _extract_zipped_bag(path: Path, folder: Path) -> Path:
