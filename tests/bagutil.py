@@ -97,6 +97,7 @@ def write_bag(
     copies: int = 1,
     multi_echo_topic: bool = False,
     overrides: dict[int, dict[str, float]] | None = None,
+    header_stamps: Sequence[int] | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
@@ -104,7 +105,8 @@ def write_bag(
     ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``).
     ``copies``: each scan message written that many times. ``multi_echo_topic``: also an
     ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``. ``overrides``: LaserScan fields
-    to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``).
+    to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``). ``header_stamps``:
+    scan ``i``'s header stamp (ns) instead of its log time.
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -132,7 +134,8 @@ def write_bag(
             c = conn(topic, "sensor_msgs/msg/LaserScan")
             for i, ranges in enumerate(frames):
                 stamp = t0 + i * period
-                msg = _scan_msg(ts, np.asarray(ranges), stamp)
+                header_stamp = stamp if header_stamps is None else header_stamps[i]
+                msg = _scan_msg(ts, np.asarray(ranges), header_stamp)
                 msg = dataclasses.replace(msg, **(overrides or {}).get(i, {}))
                 raw = ser(msg, "sensor_msgs/msg/LaserScan")
                 for _ in range(copies):

@@ -239,3 +239,15 @@ def test_a_ros2_folder_without_its_metadata(tmp_path):
     (tmp_path / "notes").mkdir()
     with pytest.raises(BagError, match=r"a folder with no metadata\.yaml is no ROS 2 bag"):
         read_bag(tmp_path / "notes")
+
+
+def test_header_stamps_that_never_advance_give_way_to_log_times(tmp_path):
+    frames = [np.full(10, 2.0 + 0.1 * i) for i in range(12)]
+    stuck = [1_600_000_000 * 10**9] * 12  # a driver that stamps every scan alike
+    rec = read_bag(write_bag(tmp_path / "s.bag", "ros1", {"/scan": frames}, odom=True,
+                             header_stamps=stuck))  # fmt: skip
+    assert rec.meta["stamps"].startswith("log time") and rec.frame_rate == pytest.approx(10.0)
+    np.testing.assert_array_equal(rec.scan(11).ranges, frames[11].astype(np.float32))
+    np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(12), atol=1e-9)  # not one pose
+    rec = read_bag(write_bag(tmp_path / "h.bag", "ros1", {"/scan": frames}))
+    assert rec.meta["stamps"] == "header"

@@ -192,6 +192,12 @@ def _stamp_ns(msg: Any, fallback: int) -> int:
     return ns if ns > 0 else int(fallback)
 
 
+def _stuck(stamps_ns: np.ndarray) -> bool:
+    """Whether stamps in arrival order advance between fewer than half of the messages."""
+    advancing = np.count_nonzero(np.diff(stamps_ns) > 0)
+    return len(stamps_ns) > 1 and advancing < (len(stamps_ns) - 1) / 2
+
+
 def _pose_of(msg: Any) -> tuple[float, float, float]:
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
     q = pose.orientation
@@ -249,6 +255,7 @@ def read_bag(
         pose_values: list[tuple[float, float, float]] = []
         frame_id = ""
         malformed: list[ScanError] = []
+        log_times: list[int] = []
         try:
             for conn, log_time, raw in reader.messages(connections=wanted):
                 if conn.msgtype == TF_TYPE:
@@ -278,6 +285,7 @@ def read_bag(
                     malformed.append(err)
                     continue
                 scans.append(Scan(ranges, geometry, _stamp_ns(msg, log_time)))
+                log_times.append(int(log_time))
                 if progress is not None:
                     progress(1)
         except BagError:
@@ -294,18 +302,25 @@ def read_bag(
         ) from malformed[0]
     if not scans:
         raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
-    order = np.argsort([s.stamp_ns for s in scans], kind="stable")
-    scans = [scans[i] for i in order]
     # The same message recorded twice (two connections on one topic, merged bags) is one
     # measurement: kept twice, it would make a copy of the last map a perfect prediction.
     seen: set[tuple[int, BeamGeometry, bytes]] = set()
-    unique = []
-    for scan in scans:
+    unique: list[tuple[Scan, int]] = []
+    for scan, log_time in zip(scans, log_times, strict=True):
         key = (scan.stamp_ns, scan.geometry, scan.ranges.tobytes())
         if key not in seen:
             seen.add(key)
-            unique.append(scan)
-    duplicates, scans = len(scans) - len(unique), unique
+            unique.append((scan, log_time))
+    duplicates = len(scans) - len(unique)
+    scans, stamps = [scan for scan, _ in unique], "header"
+    arrivals = np.array([log_time for _, log_time in unique], dtype=np.int64)
+    if _stuck(np.array([s.stamp_ns for s in scans])) and not _stuck(arrivals):
+        # A driver that never advances its header stamps (all one value) would leave every scan
+        # at one instant: no frame rate, every frame a gap, every scan at one odometry pose.
+        scans = [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, arrivals, strict=True)]
+        stamps = "log time (the header stamps do not advance)"
+    order = np.argsort([s.stamp_ns for s in scans], kind="stable")
+    scans = [scans[i] for i in order]
     poses, mount = None, None
     if pose_topic is not None:
         poses = interpolate_poses(
@@ -323,6 +338,7 @@ def read_bag(
         "pose_topic": pose_topic,
         "empty_scans_dropped": int(total - len(scans) - duplicates - len(malformed)),
         "duplicate_scans_dropped": duplicates,
+        "stamps": stamps,
         "malformed_scans_dropped": len(malformed),
     }
     if pose_topic is not None:
