@@ -296,3 +296,15 @@ def test_subcell_of_a_return_along_the_beam(x, edge, near_row):
 def test_subcell_checks_the_ranges_shape():
     with pytest.raises(ScanError, match="ranges must be"):
         subcell_batch(np.zeros((2, 3)), BeamGeometry(4, 0.0, 0.1, 0.05, 10.0), GRID)
+
+
+def test_ranges_straight_from_a_message_are_taken():
+    # rclpy gives LaserScan.ranges as array.array('f'); a ROS 1 message or a user a list
+    import array
+
+    geom = BeamGeometry(3, -0.1, 0.1, 0.05, 10.0)
+    for ranges in (array.array("f", [5.0, 5.0, 5.0]), [5.0, 5.0, 5.0], (5.0, 5.0, 5.0)):
+        occ, _ = rasterize(Scan(ranges, geom, 1), GridSpec(100, 100, 0.1))
+        assert bool(occ[50, 50]) and Scan(ranges, geom).ranges.dtype == np.float32
+    with pytest.raises(ScanError, match="ranges must be numbers"):
+        Scan(["far", "near", "x"], geom)

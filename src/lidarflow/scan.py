@@ -108,6 +108,12 @@ class Scan:
     stamp_ns: int = 0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.ranges, np.ndarray):  # a message's list, or rclpy's array.array
+            try:
+                object.__setattr__(self, "ranges", np.asarray(self.ranges, dtype=np.float32))
+            except (TypeError, ValueError) as err:
+                kind = type(self.ranges).__name__
+                raise ScanError(f"ranges must be numbers, got a {kind} of others") from err
         if self.ranges.ndim != 1 or self.ranges.shape[0] != self.geometry.count:
             raise ScanError(
                 f"ranges must be a 1-D array of {self.geometry.count} beams, "
