@@ -241,6 +241,11 @@ def read_bag(
             to the scan's frame by the static TF between the two when the bag has it
             (``meta["sensor_mount"]`` = that ``(x, y, yaw)``; ``None``: poses stay the base's).
         progress: called with the number of scans read since the last call.
+
+    Scans that are empty, malformed (impossible geometry) or the same message recorded twice
+    are dropped and counted in ``meta`` (``*_scans_dropped``). Scans are ordered by their
+    header stamps, or by their log times where the header stamps do not advance
+    (``meta["stamps"]``); a zero header stamp is replaced by the log time.
     """
     path = Path(path)
     with open_bag(path) as reader:
