@@ -149,18 +149,31 @@ def test_evaluate_writes_the_documented_json(tmp_path, capsys):
         assert set(entry["methods"][name]) >= {"f1", "precision", "recall", "ap", "changed_f1"}
         assert report["overall"][name]["f1"] == entry["methods"][name]["f1"]
     assert entry["methods"]["copy_last"]["changed_f1"] == 0.0
+    # without --model the bundled model is scored beside the baselines
+    assert entry["methods"]["bundled"]["f1"] > entry["methods"]["copy_last"]["f1"]
 
 
 def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     rec = tmp_path / "s.npz"
     run(["convert", str(sample_bag_path()), "-o", str(rec)], capsys)
     out = tmp_path / "report"
-    code, _, err = run(["evaluate", str(rec), "--report", str(out), "--gif-frames", "5"], capsys)
+    code, _, err = run(
+        ["evaluate", str(rec), "--report", str(out), "--gif-frames", "5", "--baselines-only"],
+        capsys,
+    )
     assert code == 0, err
     page = (out / "index.html").read_text()
     assert page.count("data:image/gif;base64,") == 3 and "data:image/png;base64," in page
     assert "copy_last" in page and "changed_f1" in page and "src='/" not in page
-    assert json.loads((out / "report.json").read_text())["recordings"][0]["frames_evaluated"] == 232
+    entry = json.loads((out / "report.json").read_text())["recordings"][0]
+    assert entry["frames_evaluated"] == 232
+    assert set(entry["methods"]) == {"copy_last", "temporal_average", "constant_velocity"}
+
+
+def test_evaluate_baselines_only_takes_no_model(capsys):
+    argv = ["evaluate", str(sample_bag_path()), "--baselines-only", "--model", "bundled"]
+    code, _, err = run(argv, capsys)
+    assert code == 2 and "--baselines-only" in err
 
 
 def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):

@@ -74,3 +74,11 @@ ModelOpt = Annotated[
         "`bundled` (the default: the bundled pretrained model).",
     ),
 ]
+
+
+def bundled_model_available() -> bool:
+    """Whether this installation has the bundled weights (a source checkout without them runs
+    the baselines alone)."""
+    from lidarflow.models.presets import bundled_model_dir
+
+    return (bundled_model_dir() / "model.safetensors").exists()

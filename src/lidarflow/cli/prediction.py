@@ -16,6 +16,7 @@ from lidarflow.cli.app import (
     ResOpt,
     TopicOpt,
     app,
+    bundled_model_available,
     eval_progress,
     load_input,
     progress_bar,
@@ -34,7 +35,6 @@ def demo(
     HTML page), and write the predictions as an MCAP file for Foxglove."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
     from lidarflow.evaluate.report import format_table
-    from lidarflow.models.presets import bundled_model_dir
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
     from lidarflow.viz.maps import draw_maps
@@ -53,7 +53,7 @@ def demo(
     occ, vis = recording.maps(spec, frame, frame + 1)
     png = draw_maps(occ[0], vis[0], output / "maps.png", spec, title=f"{bag.name} frame {frame}")
     typer.echo(f"maps of frame {frame}: {png}")
-    has_model = (bundled_model_dir() / "model.safetensors").exists()
+    has_model = bundled_model_available()
     if not has_model:
         typer.echo("no bundled model in this installation: scoring the baselines only")
     methods, config = methods_and_config(

@@ -16,6 +16,7 @@ from lidarflow.cli.app import (
     ResOpt,
     TopicOpt,
     app,
+    bundled_model_available,
     eval_progress,
     load_input,
     progress_bar,
@@ -125,9 +126,15 @@ def evaluate(
             "-m",
             help="Trained model to evaluate beside the baselines: a run folder from "
             "`lidarflow train`, a .safetensors file with its .json, or `bundled` (the bundled "
-            "model). Repeat for several; default: none, the baselines only.",
+            "model). Repeat for several; default: the bundled model.",
         ),
     ] = None,
+    baselines_only: Annotated[
+        bool,
+        typer.Option(
+            "--baselines-only", help="Score the baselines alone (no model; not with --model)."
+        ),
+    ] = False,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the full report (JSON) here.")
     ] = None,
@@ -185,7 +192,8 @@ def evaluate(
     """Score next-map prediction on each recording, streaming (one step per frame, state
     carried across the recording), with F1 at 0.4, precision, recall, average precision and
     changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
-    for every --model given (and flow end-point error where the recording has ground truth).
+    for every --model given, by default the bundled model (and flow end-point error where the
+    recording has ground truth).
 
     A second table gives the calibration of every method's probabilities (expected calibration
     error over bins of 0.1 on all cells, ece_active on the cells predicted >= 0.1, and Brier
@@ -208,11 +216,19 @@ def evaluate(
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
+    if baselines_only and model:
+        raise typer.BadParameter("--baselines-only scores no model; drop --model or it")
+    sources: list[Path | None] = list(model or [])
+    if not sources and not baselines_only:
+        if bundled_model_available():
+            sources = [None]
+        else:
+            typer.echo("no bundled model in this installation: scoring the baselines only")
     spec = GridSpec(grid, grid, res)
     named = [(str(path), load_input(path, topic, odom_topic)) for path in inputs]
     with_poses = any(recording.has_poses for _, recording in named)
     methods, config = methods_and_config(
-        list(model or []),
+        sources,
         ta_window,
         ta_threshold,
         moving_threshold,
