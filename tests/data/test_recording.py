@@ -108,6 +108,27 @@ def test_segments_split_at_gaps_and_sensor_changes():
     assert split_segments(rec2) == [(0, 10)]
 
 
+def test_a_beam_count_varying_over_one_field_of_view_is_one_sensor():
+    # LD06-style: 440-470 beams a turn, the same 360 degrees; then the range limit changes
+    scans = []
+    for i, count in enumerate([450, 440, 470, 455, 460, 448, 452, 466]):
+        inc = 2 * np.pi / count
+        limit = 12.0 if i < 6 else 8.0
+        geometry = BeamGeometry(count, -np.pi, inc, 0.02, limit)
+        scans.append(Scan(np.full(count, 3.0), geometry, i * 100_000_000))
+    rec = Recording.from_scans(scans)
+    assert len(rec.geometry_runs()) == 8
+    assert split_segments(rec) == [(0, 6), (6, 8)]
+    # a field of view that narrows is another sensor setup
+    narrow = BeamGeometry(181, -np.pi / 2, np.pi / 180, 0.02, 12.0)
+    wide = BeamGeometry(361, -np.pi, np.pi / 180, 0.02, 12.0)
+    setups = [wide, wide, narrow, narrow]
+    rec = Recording.from_scans(
+        [Scan(np.full(g.count, 3.0), g, i * 100_000_000) for i, g in enumerate(setups)]
+    )
+    assert split_segments(rec) == [(0, 2), (2, 4)]
+
+
 def test_sequences_windows_and_dropped_frames():
     rec = make_recording(n=50)
     rec.stamps_ns[20:] += 300_000_000

@@ -1,7 +1,10 @@
 """Training sequences: fixed-length windows of consecutive, evenly spaced frames.
 
 A recording is first cut into *segments* at time gaps longer than ``max_gap_periods`` frame
-periods and wherever the sensor (beam geometry) changes; windows never cross a segment border.
+periods and wherever the sensor changes (what it covers: its range limits, its first or last
+beam's angle); windows never cross a segment border. A beam count that varies from scan to scan
+over the same field of view (LD06-style drivers publish 440-470 beams a turn) is one sensor:
+cut at every geometry change, such a recording had no window at all.
 Frames that fit in no window are reported as dropped, never silently lost.
 """
 
@@ -18,16 +21,40 @@ from lidarflow.data.recording import Recording
 from lidarflow.errors import RecordingError
 from lidarflow.scan import GridSpec
 
-__all__ = ["SequenceReport", "SequenceSet", "split_segments", "window_starts"]
+__all__ = [
+    "SequenceReport",
+    "SequenceSet",
+    "sensor_changes",
+    "split_segments",
+    "window_starts",
+]
 
 
 def split_segments(recording: Recording, max_gap_periods: float = 2.5) -> list[tuple[int, int]]:
-    """Half-open ``(start, stop)`` frame ranges with no long gap and one beam geometry."""
+    """Half-open ``(start, stop)`` frame ranges with no long gap and one sensor."""
     cuts = {0, len(recording)}
     cuts.update(i for i, _ in find_gaps(recording, max_gap_periods))
-    cuts.update(a for a, _ in recording.geometry_runs())
+    cuts.update(sensor_changes(recording))
     edges = sorted(cuts)
     return [(a, b) for a, b in pairwise(edges) if b > a]
+
+
+def sensor_changes(recording: Recording, beams: float = 2.0) -> list[int]:
+    """Frames at which what the sensor covers changes from the frame before: its range limits,
+    or its first or last beam's angle by more than ``beams`` beams (of the wider spacing); a
+    beam count alone is no change."""
+    n = len(recording)
+    if n < 2:
+        return []
+    count = np.diff(recording.offsets).astype(np.float64)
+    increment = np.asarray(recording.angle_increment, np.float64)
+    first = np.asarray(recording.angle_min, np.float64)
+    last = first + (count - 1) * increment
+    tolerance = beams * np.maximum(np.abs(increment[1:]), np.abs(increment[:-1]))
+    changed = (np.abs(np.diff(first)) > tolerance) | (np.abs(np.diff(last)) > tolerance)
+    for limit in (recording.range_min, recording.range_max):
+        changed |= np.diff(np.asarray(limit, np.float64)) != 0
+    return [int(i) + 1 for i in np.nonzero(changed)[0]]
 
 
 def window_starts(start: int, stop: int, length: int, stride: int) -> list[int]:
