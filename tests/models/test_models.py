@@ -13,6 +13,7 @@ from lidarflow.models import (
     build_model,
     count_parameters,
 )
+from lidarflow.models.flownet import TRANSITION_DECAY
 from lidarflow.ops.warp import warp
 from lidarflow.scan import takes_subcell
 
@@ -423,6 +424,34 @@ def test_visibility_memories_average_how_often_each_cell_is_seen():
         assert memories[0, channel, :, 4:].abs().max() == 0
     with pytest.raises((ValueError, ModelError), match="visibility_memories"):
         build_model("flownet", visibility_memories=True)
+
+
+def test_transition_memories_count_how_often_each_cell_flips():
+    kwargs = {"occupancy_head": True, "memory_decays": (0.5,), "constant_velocity_input": True}
+    plain = build_model("flownet", **kwargs)
+    net = build_model("flownet", **kwargs, transition_memories=True)
+    assert net.state_channels()[-1] == plain.state_channels()[-1] + 2
+    state, plain_state = net.init_state(1, 8, 8), plain.init_state(1, 8, 8)
+    for t in range(12):
+        scene = torch.zeros(1, 2, 8, 8)
+        scene[0, 0, 2, 2] = 1.0  # always occupied
+        scene[0, 0, 5, 5] = float(t % 2)  # flips every frame: appears on odd frames
+        scene[0, 1] = 1.0
+        _, state = net.step(scene, state)
+        _, plain_state = plain.step(scene, plain_state)
+    memories, d = state[-1], TRANSITION_DECAY
+    torch.testing.assert_close(memories[:, :1], plain_state[-1][:, :1])  # occupancy's unchanged
+    appeared, vanished = memories[0, 1], memories[0, 2]
+    # appearances on frames 1, 3, .., 11 (and the steady cell's on frame 0, from the empty state);
+    # vanishings on frames 2, 4, .., 10
+    expected = sum((1 - d) * d ** (11 - t) for t in range(1, 12, 2))
+    torch.testing.assert_close(appeared[5, 5], torch.tensor(expected))
+    expected = sum((1 - d) * d ** (11 - t) for t in range(2, 12, 2))
+    torch.testing.assert_close(vanished[5, 5], torch.tensor(expected))
+    torch.testing.assert_close(appeared[2, 2], torch.tensor((1 - d) * d**11))
+    assert vanished[2, 2] == 0 and memories[0, 1:, 0, 0].abs().max() == 0
+    with pytest.raises((ValueError, ModelError), match="constant_velocity_input"):
+        build_model("flownet", occupancy_head=True, transition_memories=True)
 
 
 def test_per_cell_head_sees_only_each_cells_own_inputs():

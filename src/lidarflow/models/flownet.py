@@ -90,6 +90,14 @@ its beam; the binary map cannot see it coming, these two channels can. Only the 
 (the flow network's input stays Table I's ``(O, V)``); their weights start random like the
 head's other inputs', the output layer at zero, so the untrained model is still copy-last.
 
+How often a cell changes (``transition_memories=True``, with the constant-velocity input).
+Two more memories (decay :data:`TRANSITION_DECAY`): of the cell appearing (free in the previous
+map, moved with the memories, occupied now) and of it vanishing. Occupancy memories say how
+often a cell is occupied, not how often it flips: a cell occupied half the time may alternate
+every frame or hold for seconds. Keyed into the causal history table, a cell's own rate of
+leaving its state lifted the 180-degree recording by 0.013 (docs/results/accuracy/positive_4/
+history_keys/); off by default.
+
 Offsets chosen online (``online_decision=True``, with the occupancy head; issue 11). The model
 is unchanged; the flag tells ``evaluate`` and the ``Predictor`` to re-decide its probabilities
 with the decision offsets that have done best on the stream so far
@@ -118,6 +126,8 @@ FREE_PROBABILITY_INIT = 0.01
 OCCUPIED_PROBABILITY_INIT = 0.9
 # A fast and a slow memory: about 2 and 5 frames, the temporal-average baseline's window.
 MEMORY_DECAYS = (0.5, 0.8)
+# About the last 50 frames: the history table's transition rates did best at this decay.
+TRANSITION_DECAY = 0.98
 #: Names (prefixes) of the occupancy head's parameters: everything else is Table I's network.
 OCCUPANCY_HEAD_PARAMETERS = ("conv_occupancy.", "occupancy_hidden.", "warp_gain")
 # The frame count of the bias-corrected memories stops here: d^n is 0 in float32 long before.
@@ -153,6 +163,7 @@ class LidarFlowNet(RecurrentMapModel):
     head_flow_features: bool = True
     online_decision: bool = False
     subcell_input: bool = False
+    transition_memories: bool = False
 
     def __init__(
         self,
@@ -177,6 +188,7 @@ class LidarFlowNet(RecurrentMapModel):
         head_flow_features: bool = True,
         online_decision: bool = False,
         subcell_input: bool = False,
+        transition_memories: bool = False,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -209,10 +221,18 @@ class LidarFlowNet(RecurrentMapModel):
                 raise ValueError(f"head_kernel_size must be odd and >= 1, got {head_kernel_size}")
             self.head_flow_features = bool(head_flow_features)
             self.subcell_input = bool(subcell_input)
-        elif visibility_input or visibility_memories or warp_input or subcell_input:
+            if transition_memories and not constant_velocity_input:
+                raise ValueError(
+                    "transition_memories needs constant_velocity_input=True (the previous map)"
+                )
+            self.transition_memories = bool(transition_memories)
+        elif (
+            visibility_input or visibility_memories or warp_input or subcell_input
+            or transition_memories
+        ):  # fmt: skip
             raise ValueError(
-                "visibility_input, visibility_memories, warp_input and subcell_input need "
-                "occupancy_head=True (they feed it)"
+                "visibility_input, visibility_memories, warp_input, subcell_input and "
+                "transition_memories need occupancy_head=True (they feed it)"
             )
         elif head_kernel_size is not None or not head_flow_features:
             raise ValueError(
@@ -294,9 +314,10 @@ class LidarFlowNet(RecurrentMapModel):
 
     @property
     def memory_channels(self) -> int:
-        """The head's memories: one per decay of the occupancy, and with
-        ``visibility_memories`` one per decay of the visibility too."""
-        return len(self.memory_decays) * (1 + int(self.visibility_memories))
+        """The head's memories: one per decay of the occupancy, with ``visibility_memories``
+        one per decay of the visibility too, and with ``transition_memories`` two more."""
+        per_decay = len(self.memory_decays) * (1 + int(self.visibility_memories))
+        return per_decay + 2 * int(self.transition_memories)
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
         """One frame: ``maps`` (O, V) ``(B, 2, H, W)`` (with ``subcell_input`` (O, V, edge,
@@ -319,12 +340,26 @@ class LidarFlowNet(RecurrentMapModel):
             observed = torch.cat(
                 [occupancy.expand(-1, n, -1, -1), maps[:, 1:2].expand(-1, n, -1, -1)], dim=1
             )
-        decays = decays.view(1, -1, 1, 1)
         past = state[-1][:, :k]
         if self.constant_velocity_input:
             kernel = best_shift_kernel(state[-1][:, -1:], occupancy)
             if self.shift_memories:
                 past = apply_shift(past, kernel)
+        if self.transition_memories:
+            previous = state[-1][:, -1:]
+            if self.shift_memories:
+                previous = apply_shift(previous, kernel)
+            n = decays.numel()
+            observed = torch.cat(
+                [
+                    observed.expand(-1, n, -1, -1),
+                    occupancy * (1.0 - previous),
+                    (1.0 - occupancy) * previous,
+                ],
+                dim=1,
+            )
+            decays = torch.cat([decays, decays.new_full((2,), TRANSITION_DECAY)])
+        decays = decays.view(1, -1, 1, 1)
         memory = decays * past + (1.0 - decays) * observed
         features = [x, occupancy] if self.head_flow_features else [occupancy]
         kept = [memory]
