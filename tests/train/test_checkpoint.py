@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import random
+import stat
 
 import numpy as np
 import pytest
 import torch
 
 from lidarflow.errors import TrainError
+from lidarflow.train import checkpoint
 from lidarflow.train.checkpoint import (
     atomic_write,
     capture_rng,
@@ -32,6 +34,13 @@ def test_atomic_write_leaves_the_old_file_when_the_writer_fails(tmp_path):
     assert target.read_text() == "old" and list(tmp_path.iterdir()) == [target]
     (tmp_path / ".f.json.abc.tmp").write_text("left by a kill")
     assert remove_temporaries(tmp_path) == 1 and list(tmp_path.iterdir()) == [target]
+
+
+def test_written_files_follow_the_umask(tmp_path, monkeypatch):
+    # mkstemp's 0600 left every file of a run unreadable to other users
+    monkeypatch.setattr(checkpoint, "_UMASK", 0o022)
+    checkpoint.write_json(tmp_path / "model.json", {})
+    assert stat.S_IMODE((tmp_path / "model.json").stat().st_mode) == 0o644
 
 
 def test_rng_state_round_trips():

@@ -47,6 +47,14 @@ __all__ = [
     "write_json",
 ]
 
+
+def _read_umask() -> int:
+    mask = os.umask(0)  # reading the umask means setting it: put it straight back, once, at
+    os.umask(mask)  # import (not per write, where another thread could create a file meanwhile)
+    return mask
+
+
+_UMASK = _read_umask()
 KEEP = 2  # epochs of checkpoints kept on disk (the newest and the one before)
 
 
@@ -58,6 +66,9 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
     tmp = Path(tmp_name)
     try:
         write(tmp)
+        # mkstemp creates the file 0600: without this every file of a run (model.safetensors
+        # too) is unreadable to the other users of a robot or a shared machine.
+        os.chmod(tmp, 0o666 & ~_UMASK)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
