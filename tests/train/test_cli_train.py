@@ -116,7 +116,7 @@ def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):
     code, _, err = run_cli(["train", "--resume", str(tmp_path), "--lr", "0.1"], capsys)
     assert code == 2 and "a resumed run keeps its config" in err  # usage error
     code, _, err = run_cli(["train", "--resume", str(tmp_path)], capsys)
-    assert code == 1 and "cannot read the config file" in err
+    assert code == 1 and "not a training run (no config.json)" in err
     code, _, err = run_cli(["train", "x.npz"], capsys)
     assert code == 2 and "-o RUN_DIR" in err
     code, _, err = run_cli(["train", "-o", str(tmp_path / "r")], capsys)
@@ -149,6 +149,38 @@ def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, c
     assert record["model"] == "deeptracking"
     assert record["training"]["sources"] == [str(sample_bag_path()), str(blob_files[0])]
     assert "weight 0.50" in out
+
+
+def test_resume_cannot_shorten_a_run(tmp_path, capsys):
+    from lidarflow.train.config import build_config, config_to_dict
+
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    config = build_config("paper", None, {"data.sources": [str(tmp_path / "x.npz")]})
+    (run / "config.json").write_text(json.dumps(config_to_dict(config)))
+    (run / "checkpoints" / "latest.json").write_text('{"epoch": 3}')
+    code, _, err = run_cli(["train", "--resume", str(run), "--epochs", "2"], capsys)
+    assert code == 1 and "has trained 3 epochs; --epochs 2 cannot shorten it" in err
+    # config.json (and so model.json) still says how many epochs the weights had
+    assert json.loads((run / "config.json").read_text())["optim"]["epochs"] == 200
+
+
+def test_ctrl_c_says_how_to_resume(blob_files, tmp_path, capsys, monkeypatch):
+    import lidarflow.train.loop
+
+    run = tmp_path / "run"
+
+    def interrupted_after_two_epochs(*args, **kwargs):
+        (run / "checkpoints").mkdir(parents=True)
+        (run / "checkpoints" / "latest.json").write_text('{"epoch": 2}')
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lidarflow.train.loop, "train", interrupted_after_two_epochs)
+    code, _, err = run_cli(["train", str(blob_files[0]), "-o", str(run)], capsys)
+    # typer used to turn Ctrl-C into a silent exit 130
+    assert code == 130 and err.strip() == (
+        f"lidarflow: interrupted: `lidarflow train --resume {run}` continues {run} after epoch 2"
+    )
 
 
 def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
@@ -209,6 +241,7 @@ def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, 
     assert "starting from the weights of bundled" in out
     config = json.loads((run / "config.json").read_text())
     assert config["recipe"] == "head" and config["model"]["init"] == "bundled"
+
     # The recipe compensates ego motion (a wrapper: every name gets "inner.").
     def unwrapped(weights: dict) -> dict:
         return {k.removeprefix("inner."): v for k, v in weights.items()}

@@ -47,6 +47,14 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         typer.echo("lidarflow: interrupted", err=True)
         sys.exit(130)
+    except SystemExit as done:
+        # typer turns Ctrl-C into a silent exit 130 (KeyboardInterrupt -> Exit(130) -> here), so
+        # say so, with what the command added about it (train: how to resume)
+        interrupt = getattr(done.__context__, "__cause__", None)
+        if done.code == 130 and isinstance(interrupt, KeyboardInterrupt):
+            detail = f": {interrupt}" if str(interrupt) else ""
+            typer.echo(f"lidarflow: interrupted{detail}", err=True)
+        raise
     except Exception as err:  # a bug: still one line, with the way to the traceback
         if debug:
             raise

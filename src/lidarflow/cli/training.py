@@ -218,6 +218,11 @@ def train(
                 f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run",
                 param_hint="--resume",
             )
+        if not (resume / "config.json").is_file():
+            raise TrainError(
+                f"{resume}: not a training run (no config.json); --resume takes a folder that "
+                "`lidarflow train -o` wrote"
+            )
         saved = config_from_dict(load_config_file(resume / "config.json"))
         if data and [os.path.abspath(d) for d in data] != saved.data.sources:
             raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
@@ -245,5 +250,22 @@ def train(
         run_dir = output
     from tqdm import tqdm
 
-    result = run_training(cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write)
+    try:
+        result = run_training(cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write)
+    except KeyboardInterrupt as interrupt:
+        raise KeyboardInterrupt(_where_it_stopped(run_dir)) from interrupt
     typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")
+
+
+def _where_it_stopped(run_dir: Path) -> str:
+    """What a user who pressed Ctrl-C needs next: whether the run resumes, and how."""
+    from lidarflow.errors import TrainError
+    from lidarflow.train.checkpoint import latest_epoch
+
+    try:
+        done = latest_epoch(run_dir)
+    except TrainError:
+        done = 0
+    if done:
+        return f"`lidarflow train --resume {run_dir}` continues {run_dir} after epoch {done}"
+    return f"no epoch of {run_dir} finished; run the same command again to start it over"

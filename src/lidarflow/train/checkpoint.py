@@ -197,7 +197,10 @@ def load_checkpoint(
     ``(epoch, extra)``."""
     epoch = latest_epoch(run_dir)
     if epoch == 0:
-        raise TrainError(f"{run_dir}: no checkpoint to resume from (no finished epoch)")
+        raise TrainError(
+            f"{run_dir}: no checkpoint to resume from (no epoch finished); run the command "
+            "that started it again (run.json) to start it over"
+        )
     stem = _ckpt_dir(run_dir) / f"epoch_{epoch:04d}"
     load_weights(model, stem.with_suffix(".safetensors"))
     try:

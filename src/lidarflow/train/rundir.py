@@ -120,6 +120,14 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
 def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
     if resume:
         _check_resumable(run_dir, config)
+        done = ckpt.latest_epoch(run_dir)
+        if config.optim.epochs < done:
+            # Checked before config.json is rewritten: it would say fewer epochs than the
+            # weights have, and so would model.json.
+            raise TrainError(
+                f"{run_dir} has trained {done} epochs; --epochs {config.optim.epochs} cannot "
+                f"shorten it: give more than {done} to extend it, or use its model as it is"
+            )
         if ctx.is_main:
             ckpt.remove_temporaries(run_dir)  # what a killed run left half-written
             # the config on disk says how many epochs the run is now meant to have
@@ -129,9 +137,7 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
                 if (run_dir / "run.json").exists()
                 else {}
             )
-            facts.setdefault("resumed", []).append(
-                {**_run_facts(ctx), "after_epoch": ckpt.latest_epoch(run_dir)}
-            )
+            facts.setdefault("resumed", []).append({**_run_facts(ctx), "after_epoch": done})
             ckpt.write_json(run_dir / "run.json", facts)
         return
     if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
