@@ -115,6 +115,15 @@ def test_bad_input_is_one_line_and_exit_1(tmp_path, capsys, argv, message):
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
+def test_an_unwritable_output_is_an_error_not_a_bug(tmp_path, capsys):
+    (tmp_path / "file").write_text("")
+    code, _, err = run(
+        ["simulate", "--frames", "5", "-o", str(tmp_path / "file" / "s.npz")], capsys
+    )
+    assert code == 1 and err.startswith("lidarflow: error: ") and "internal error" not in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_usage_error_exits_2(capsys):
     code, _, _ = run(["convert"], capsys)
     assert code == 2
@@ -240,6 +249,9 @@ def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_di
     grid = msgs["/lidarflow/predicted"][0]
     assert grid.header.frame_id == "right_laser"
     assert (grid.info.width, grid.info.height, len(grid.data)) == (100, 100, 10000)
+
+
+
 
 
 def test_export_then_predict_with_onnx(tmp_path, capsys, random_flownet_dir):

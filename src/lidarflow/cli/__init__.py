@@ -55,6 +55,12 @@ def main(argv: list[str] | None = None) -> None:
             detail = f": {interrupt}" if str(interrupt) else ""
             typer.echo(f"lidarflow: interrupted{detail}", err=True)
         raise
+    except OSError as err:  # the file system said no (permissions, a file where a folder
+        if debug:  # should be, a full disk): the user's to fix, not a bug to report
+            raise
+        where = f"{err.filename}: " if err.filename else ""
+        typer.echo(f"lidarflow: error: {where}{err.strerror or err}", err=True)
+        sys.exit(1)
     except Exception as err:  # a bug: still one line, with the way to the traceback
         if debug:
             raise
