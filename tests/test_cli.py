@@ -251,7 +251,13 @@ def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_di
     assert (grid.info.width, grid.info.height, len(grid.data)) == (100, 100, 10000)
 
 
-
+def test_export_calibration_without_int8_is_a_usage_error(tmp_path, capsys):
+    # it used to write a float model, the calibration silently ignored
+    code, _, err = run(
+        ["export", "--onnx", str(tmp_path / "m.onnx"), "--calibration", "x.bag"], capsys
+    )
+    assert code == 2 and "--calibration calibrates --int8" in err
+    assert not (tmp_path / "m.onnx").exists()
 
 
 def test_export_then_predict_with_onnx(tmp_path, capsys, random_flownet_dir):

@@ -171,6 +171,12 @@ def export(
     from lidarflow.predict.export import export_onnx
     from lidarflow.scan import GridSpec, takes_subcell
 
+    if calibration is not None and not int8:
+        # else a float model is written and the user believes it calibrated and quantized
+        raise typer.BadParameter(
+            "--calibration calibrates --int8; add --int8 or drop --calibration",
+            param_hint="--calibration",
+        )
     net, card = resolve_model(model)
     if not int8:
         path = export_onnx(net, onnx, grid, grid)
