@@ -56,6 +56,13 @@ def test_maps_input_and_wrong_shape(random_flownet_dir):
         predictor.update((np.zeros((50, 50)), np.zeros((50, 50))))
 
 
+def test_a_malformed_pose_is_a_predict_error(sample_recording):
+    predictor = Predictor()  # the bundled model compensates ego motion: it reads the pose
+    with pytest.raises(PredictError, match=r"pose must be three numbers \(x, y, yaw\)"):
+        predictor.update(sample_recording.scan(0), pose=(1.0, 2.0))
+    assert predictor.update(sample_recording.scan(0), pose=(1.0, 2.0, 0.0)).probability.shape
+
+
 def test_onnx_matches_pytorch_over_a_recording(tmp_path, random_flownet_dir, sample_recording):
     net, _ = resolve_model(random_flownet_dir)
     onnx_path = export_onnx(net, tmp_path / "m.onnx")

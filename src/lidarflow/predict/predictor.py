@@ -185,7 +185,10 @@ class Predictor:
     def _motion(self, pose: Any) -> np.ndarray | None:
         """Motion since the previous update in cells, ``None`` when either pose is unknown."""
         previous = self._pose
-        self._pose = None if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+        try:
+            self._pose = None if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+        except (TypeError, ValueError) as err:  # numpy's own words name no pose
+            raise PredictError(f"pose must be three numbers (x, y, yaw), got {pose!r}") from err
         if previous is None or self._pose is None:
             return None
         motion, known = relative_motions(np.stack([previous, self._pose]))
