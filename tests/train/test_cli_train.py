@@ -151,6 +151,17 @@ def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, c
     assert "weight 0.50" in out
 
 
+@pytest.mark.parametrize("section", ['"flownet"', "1"])
+def test_a_config_whose_model_is_no_table_is_one_line(tmp_path, capsys, section):
+    # the default recipe's look-up of model.name raised AttributeError, an "internal error"
+    config = tmp_path / "c.json"
+    config.write_text(f'{{"model": {section}}}')
+    code, _, err = run_cli(
+        ["train", "x.npz", "-o", str(tmp_path / "r"), "--config", str(config)], capsys
+    )
+    assert code == 1 and err.startswith("lidarflow: error: config model: expected a table")
+
+
 def test_resume_cannot_shorten_a_run(tmp_path, capsys):
     from lidarflow.train.config import build_config, config_to_dict
 

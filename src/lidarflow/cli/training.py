@@ -241,7 +241,8 @@ def train(
             flags["data.sources"] = [os.path.abspath(d) for d in data]
         in_file = load_config_file(config) if config else {}
         if recipe is None and "recipe" not in in_file:
-            named = model or in_file.get("model", {}).get("name")
+            section = in_file.get("model")  # not a table: build_config says so, in one line
+            named = model or (section.get("name") if isinstance(section, dict) else None)
             recipe = default_recipe(named, ego_motion)
         cfg = build_config(recipe, config, flags, set_ or ())
         if ego_motion:  # added to, not replacing, any other model kwargs
