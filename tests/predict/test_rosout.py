@@ -85,6 +85,17 @@ def test_every_output_kind_reads_back(tmp_path, name):
     assert len(rec) == 3 and rec.scan(2).ranges[0] == pytest.approx(4.0)
 
 
+@pytest.mark.parametrize("name", ["out.bag", "out.mcap", "outdir"])
+def test_an_interrupted_output_leaves_nothing(tmp_path, name):
+    # a .bag or ROS 2 folder cut short stayed, passed for a whole bag and blocked the rerun
+    path = tmp_path / name
+    geom = BeamGeometry(5, -0.2, 0.1, 0.05, 8.0)
+    with pytest.raises(KeyboardInterrupt), BagOutput(path) as out:
+        out.write_scan("/scan", Scan(np.full(5, 2.0, np.float32), geom, 1_000_000_000), "laser")
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_existing_output_is_refused(tmp_path):
     (tmp_path / "x.bag").write_bytes(b"")
     with pytest.raises(PredictError, match="already exists"):

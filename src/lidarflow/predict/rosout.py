@@ -110,6 +110,13 @@ class BagOutput:
                 written = sorted(Path(self._tmp.name).rglob("*.mcap"))
                 shutil.move(str(written[0]), self.path)
             self._tmp.cleanup()
+        elif exc is not None:
+            # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed)
+            # and makes the rerun refuse the path; the path did not exist before (__init__).
+            if self.path.is_dir():
+                shutil.rmtree(self.path, ignore_errors=True)
+            else:
+                self.path.unlink(missing_ok=True)
 
     # ------------------------------------------------------------------ messages
     def _types(self) -> dict[str, Any]:
