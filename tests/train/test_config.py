@@ -135,8 +135,16 @@ def test_layering_recipe_file_flags_set(tmp_path):
 def test_bad_config_files_and_values(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    with pytest.raises(TrainError, match="not valid json"):
+    with pytest.raises(TrainError, match="not valid JSON"):
         build_config(None, bad)
+    # any name but .toml reads as JSON, and says so (it said "not valid txt")
+    (tmp_path / "bad.txt").write_text("{not json")
+    with pytest.raises(TrainError, match=r"bad\.txt: not valid JSON"):
+        build_config(None, tmp_path / "bad.txt")
+    # a binary file given by mistake raised UnicodeDecodeError, an internal error
+    (tmp_path / "rec.npz").write_bytes(b"PK\x03\x04\xc0\xff")
+    with pytest.raises(TrainError, match=r"rec\.npz: not a config file"):
+        build_config(None, tmp_path / "rec.npz")
     with pytest.raises(TrainError, match="cannot read"):
         build_config(None, tmp_path / "missing.json")
     with pytest.raises(TrainError, match=r"data\.warmup"):

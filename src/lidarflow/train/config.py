@@ -423,10 +423,13 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         text = path.read_text()
     except OSError as err:
         raise TrainError(f"{path}: cannot read the config file ({err})") from err
+    except UnicodeDecodeError as err:  # a recording or weights file given by mistake
+        raise TrainError(f"{path}: not a config file (not text: {err.reason})") from err
+    toml = path.suffix.lower() == ".toml"  # anything else is read as JSON: say so, not ".txt"
     try:
-        data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
+        data = tomllib.loads(text) if toml else json.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as err:
-        raise TrainError(f"{path}: not valid {path.suffix.lstrip('.') or 'JSON'} ({err})") from err
+        raise TrainError(f"{path}: not valid {'TOML' if toml else 'JSON'} ({err})") from err
     if not isinstance(data, dict):
         raise TrainError(f"{path}: a config file must hold a table of settings")
     return data
