@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from lidarflow.data import list_topics, load_any, mcap1, read_bag, sample_bag_path
+from lidarflow.data import (
+    describe_recording,
+    list_topics,
+    load_any,
+    mcap1,
+    read_bag,
+    sample_bag_path,
+)
 from lidarflow.data.mcap1 import Ros1McapReader
 from lidarflow.errors import BagError, RecordingError
 from tests.bagutil import write_bag, write_ros1_mcap
@@ -215,6 +222,11 @@ def test_a_scan_recorded_twice_is_read_once(tmp_path):
     rec = read_bag(write_bag(tmp_path / "d.bag", "ros1", {"/scan": frames}, copies=2))
     assert len(rec) == 5 and rec.meta["duplicate_scans_dropped"] == 5
     assert rec.meta["empty_scans_dropped"] == 0
+    # ... and `info` says so
+    dropped = describe_recording(rec)["scans_dropped"]
+    assert dropped == {"empty": 0, "duplicate": 5, "malformed": 0}
+    plain = describe_recording(read_bag(write_bag(tmp_path / "o.bag", "ros1")))
+    assert "scans_dropped" not in plain and "stamps" not in plain
     np.testing.assert_array_equal(rec.scan(4).ranges, frames[4].astype(np.float32))
 
 
@@ -247,6 +259,7 @@ def test_header_stamps_that_never_advance_give_way_to_log_times(tmp_path):
     rec = read_bag(write_bag(tmp_path / "s.bag", "ros1", {"/scan": frames}, odom=True,
                              header_stamps=stuck))  # fmt: skip
     assert rec.meta["stamps"].startswith("log time") and rec.frame_rate == pytest.approx(10.0)
+    assert describe_recording(rec)["stamps"].startswith("log time")  # `info` says so
     np.testing.assert_array_equal(rec.scan(11).ranges, frames[11].astype(np.float32))
     np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(12), atol=1e-9)  # not one pose
     rec = read_bag(write_bag(tmp_path / "h.bag", "ros1", {"/scan": frames}))

@@ -82,8 +82,8 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
             typer.echo("topics:")
             for t in value:
                 typer.echo(f"  {t['topic']:<40} {t['type']:<40} {t['count']:>8}")
-        elif key == "beams":
-            typer.echo("beams: " + ", ".join(f"{k}={v}" for k, v in value.items()))
+        elif key in ("beams", "scans_dropped"):
+            typer.echo(f"{key}: " + ", ".join(f"{k}={v}" for k, v in value.items()))
         elif key == "gaps":
             shown = ", ".join(
                 f"{g['seconds']}s before frame {g['before_frame']}" for g in value[:10]

@@ -81,4 +81,18 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         # Odometry moved to the scanner by the bag's TF ((x, y, yaw) of the mount), or None:
         # the poses are the odometry's own frame's (the base's), which ego-motion models check.
         **({"sensor_mount": recording.meta.get("sensor_mount")} if recording.has_poses else {}),
+        **_read_notes(recording.meta),
     }
+
+
+def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
+    """What reading the bag left out or replaced (read_bag's meta), so that it is never silent:
+    the scans it dropped, by kind, and the stamps it ordered them by where not the headers'."""
+    notes: dict[str, Any] = {}
+    dropped = {kind: int(meta.get(f"{kind}_scans_dropped") or 0)
+               for kind in ("empty", "duplicate", "malformed")}  # fmt: skip
+    if any(dropped.values()):
+        notes["scans_dropped"] = dropped
+    if meta.get("stamps", "header") != "header":
+        notes["stamps"] = meta["stamps"]
+    return notes
