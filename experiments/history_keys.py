@@ -60,8 +60,7 @@ GRID = GridSpec()
 def _beam_cells(ranges: np.ndarray, recording: Recording, i: int) -> np.ndarray:
     """Flat grid index of each beam's point at ``ranges`` (``-1``: no return, or off the grid),
     with ``rasterize_batch``'s arithmetic."""
-    g = recording.geometry(i)
-    angles = g.angle_min + g.angle_increment * np.arange(g.count)
+    angles = recording.geometry(i).angles
     with np.errstate(invalid="ignore"):
         u = GRID.height - ranges * np.cos(angles) / GRID.res
         v = GRID.width / 2 - ranges * np.sin(angles) / GRID.res
@@ -88,9 +87,10 @@ def return_counts(recording: Recording) -> np.ndarray:
 def beam_spacing(recording: Recording) -> np.ndarray:
     rows, cols = np.mgrid[0 : GRID.height, 0 : GRID.width]
     x, y = (GRID.height - rows - 0.5) * GRID.res, (GRID.width / 2 - cols - 0.5) * GRID.res
+    cells_away = np.hypot(x, y) / GRID.res
     out = np.empty((len(recording), *GRID.shape))
     for i in range(len(recording)):
-        out[i] = np.hypot(x, y) * abs(recording.geometry(i).angle_increment) / GRID.res
+        out[i] = cells_away * abs(recording.geometry(i).angle_increment)
     return out
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -63,13 +64,20 @@ def calibration_feeds(
     return feeds
 
 
+def _graph(path: str | Path) -> Any:
+    import onnx
+
+    return onnx.load(str(path)).graph
+
+
 def data_dependent_convs(path: str | Path) -> list[str]:
     """Names of the Conv nodes whose kernel is computed, not stored: the constant-velocity
     input's correlation and shift (:mod:`lidarflow.ops.shift`). They count cells and pick one
     shift; in int8 the counts would round and the wrong shift win, so they stay float."""
-    import onnx
+    return _data_dependent(_graph(path))
 
-    graph = onnx.load(str(path)).graph
+
+def _data_dependent(graph: Any) -> list[str]:
     stored = {t.name for t in graph.initializer}
     stored |= {out for node in graph.node if node.op_type == "Constant" for out in node.output}
     return [
@@ -88,9 +96,10 @@ def head_convs(path: str | Path) -> list[str]:
     is the logit the decision thresholds, and its inputs are memories and sub-cell bits that
     int8 would round. Kept float, v8's int8 changed-cell F1 on positive_2 moves by 0.0027
     instead of 0.0049, its AP by 0.004 instead of 0.009 (docs/results/speed/)."""
-    import onnx
+    return _head(_graph(path))
 
-    graph = onnx.load(str(path)).graph
+
+def _head(graph: Any) -> list[str]:
     return [
         node.name
         for node in graph.node
@@ -129,6 +138,7 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
         prepared = Path(tmp) / "prepared.onnx"
         try:
             quant_pre_process(str(float_path), str(prepared))
+            graph = _graph(prepared)  # loaded once for both kinds of float convs
             quantize_static(
                 str(prepared),
                 str(out_path),
@@ -138,7 +148,7 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
                 activation_type=QuantType.QUInt8,
                 weight_type=QuantType.QInt8,
                 op_types_to_quantize=["Conv"],
-                nodes_to_exclude=data_dependent_convs(prepared) + head_convs(prepared),
+                nodes_to_exclude=_data_dependent(graph) + _head(graph),
             )
         except Exception as err:  # onnxruntime's tools raise many types
             raise PredictError(f"int8 quantization failed: {type(err).__name__}: {err}") from err
