@@ -179,6 +179,25 @@ def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     assert set(entry["methods"]) == {"copy_last", "temporal_average", "constant_velocity"}
 
 
+def test_evaluate_says_which_gaps_in_time_it_did_not_score_across(tmp_path, capsys):
+    import dataclasses
+
+    from lidarflow.data import Recording
+    from tests.conftest import make_recording
+
+    scans = [
+        dataclasses.replace(s, stamp_ns=s.stamp_ns + (3 * 10**9 if i >= 20 else 0))
+        for i, s in enumerate(make_recording(n=30))
+    ]
+    rec = Recording.from_scans(scans, meta={"source": "gapped"}).save(tmp_path / "g")
+    out = tmp_path / "e.json"
+    code, stdout, err = run(["evaluate", str(rec), "--baselines-only", "--json", str(out)], capsys)
+    assert code == 0, err
+    assert "(18 frames; 1 gap in time, not scored across)" in stdout
+    entry = json.loads(out.read_text())["recordings"][0]
+    assert entry["gaps_not_scored"] == [{"before_frame": 20, "seconds": 3.1}]
+
+
 def test_evaluate_baselines_only_takes_no_model(capsys):
     argv = ["evaluate", str(sample_bag_path()), "--baselines-only", "--model", "bundled"]
     code, _, err = run(argv, capsys)

@@ -168,3 +168,76 @@ def test_flow_end_point_error_on_simulated_data():
         not in evaluate_recording(rec, [CopyLast()], GridSpec(), warmup=2)["copy_last"].summary()
     )
     assert ground_truth_backward_flow(rec, GridSpec(50, 50, 0.2)) is None
+
+
+def two_scenes(n: int = 30, cut: int = 15) -> np.ndarray:
+    """A still scene, then at frame ``cut`` another, disjoint one (as after a gap)."""
+    maps = np.zeros((n, 6, 6), bool)
+    maps[:cut, 1, 1:3] = True
+    maps[cut:, 4, 3:5] = True
+    return maps
+
+
+class Counting(CopyLast):
+    name = "counting"
+
+    def __init__(self) -> None:
+        self.seen = 0
+
+    def reset(self) -> None:
+        self.seen = 0
+
+    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+        self.seen += 1
+        return super().update(occupancy, visibility)
+
+
+def test_the_step_across_a_gap_is_not_scored_but_every_frame_is_seen():
+    maps = two_scenes()
+    counting = Counting()
+    across = evaluate_maps(maps, maps, [CopyLast()], warmup=2)["copy_last"]
+    assert across.frames == 27 and across.counts.f1 < 1.0  # the jump counted as a miss
+    skipped = evaluate_maps(maps, maps, [CopyLast(), counting], warmup=2, gaps=[15])
+    assert skipped["copy_last"].frames == 26 and skipped["copy_last"].counts.f1 == 1.0
+    assert counting.seen == 29  # the state carries across: nothing reset, nothing left out
+
+
+def test_a_recording_with_every_step_across_a_gap_is_an_evaluate_error():
+    maps = np.zeros((12, 4, 4), bool)
+    with pytest.raises(EvaluateError, match="across a gap"):
+        evaluate_maps(maps, maps, [CopyLast()], warmup=10, gaps=[11])
+
+
+def test_evaluate_recording_finds_the_gaps_in_its_stamps():
+    import dataclasses
+
+    from lidarflow.data.recording import Recording
+    from lidarflow.evaluate.stream import evaluate_recording
+    from tests.conftest import make_recording
+
+    steady = make_recording(n=30)
+    scans = [
+        dataclasses.replace(s, stamp_ns=s.stamp_ns + (5 * 10**9 if i >= 20 else 0))
+        for i, s in enumerate(steady)
+    ]
+    gapped = Recording.from_scans(scans)
+    a = evaluate_recording(steady, [CopyLast()], GridSpec(), warmup=2)["copy_last"]
+    b = evaluate_recording(gapped, [CopyLast()], GridSpec(), warmup=2)["copy_last"]
+    assert (a.frames, b.frames) == (27, 26)
+
+
+def test_horizon_scores_no_roll_out_across_a_gap():
+    import torch
+
+    from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.models import build_model
+
+    maps = two_scenes()
+    model = build_model("deeptracking")
+    torch.manual_seed(0)
+    across = horizon_f1(maps, maps, {"m": model}, horizon=3, warmup=2)
+    skipped = horizon_f1(maps, maps, {"m": model}, horizon=3, warmup=2, gaps=[15])
+    assert min(across["copy_last"]) < 1.0
+    assert skipped["copy_last"] == [1.0, 1.0, 1.0]
+    with pytest.raises(EvaluateError, match="without a gap"):
+        horizon_f1(maps[:8], maps[:8], {"m": model}, horizon=3, warmup=2, gaps=[4, 6])

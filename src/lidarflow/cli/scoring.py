@@ -244,7 +244,9 @@ def evaluate(
     if horizon > 1:
         _add_horizon_scores(report, named, methods, spec, warmup, horizon)
     for entry in report["recordings"]:
-        title = f"{entry['path']} ({entry['frames_evaluated']} frames)"
+        gaps = len(entry.get("gaps_not_scored", []))
+        across = f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
+        title = f"{entry['path']} ({entry['frames_evaluated']} frames{across})"
         typer.echo(format_table(entry["methods"], title) + "\n")
         if "horizon_f1" in entry:
             typer.echo(_format_horizon(entry["horizon_f1"]) + "\n")
@@ -272,6 +274,7 @@ def _add_horizon_scores(
     warmup: int,
     horizon: int,
 ) -> None:
+    from lidarflow.data.gaps import frames_after_gaps
     from lidarflow.data.scanalign import recording_points
     from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.horizon import horizon_f1
@@ -294,6 +297,7 @@ def _add_horizon_scores(
                 occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
                 returns, recording.has_poses, spec.res,
                 recording.subcell_maps(spec) if wants else None,
+                frames_after_gaps(recording.stamps_ns),
             )  # fmt: skip
 
 

@@ -1,6 +1,7 @@
 """Recordings in and out: bag/MCAP readers, the recording format, training sequences."""
 
 from lidarflow.data.bags import list_topics, read_bag
+from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.info import describe_recording, find_gaps
 from lidarflow.data.recording import Recording, load_recording
 from lidarflow.data.samples import SAMPLE_TOPIC, sample_bag_path
@@ -13,6 +14,7 @@ __all__ = [
     "SequenceSet",
     "describe_recording",
     "find_gaps",
+    "frames_after_gaps",
     "list_topics",
     "load_any",
     "load_recording",

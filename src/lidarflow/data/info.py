@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, beam_status
 
@@ -14,17 +15,14 @@ __all__ = ["describe_recording", "find_gaps"]
 
 
 def find_gaps(recording: Recording, max_gap_periods: float = 2.5) -> list[tuple[int, float]]:
-    """``(frame index after the gap, gap in seconds)`` for every gap longer than
-    ``max_gap_periods`` median frame periods (or a stamp that goes backwards)."""
-    if len(recording) < 2:
-        return []
-    dt = np.diff(recording.stamps_ns).astype(np.float64)
-    positive = dt[dt > 0]
-    if positive.size == 0:
-        return [(i + 1, float(d) / 1e9) for i, d in enumerate(dt)]
-    period = float(np.median(positive))
-    bad = (dt > max_gap_periods * period) | (dt <= 0)
-    return [(int(i) + 1, float(dt[i]) / 1e9) for i in np.nonzero(bad)[0]]
+    """``(frame index after the gap, gap in seconds)`` for every gap by
+    :func:`lidarflow.data.gaps.frames_after_gaps`'s rule (a step longer than
+    ``max_gap_periods`` recent frame periods, forwards or backwards)."""
+    stamps = recording.stamps_ns
+    return [
+        (i, float(stamps[i] - stamps[i - 1]) / 1e9)
+        for i in frames_after_gaps(stamps, max_gap_periods)
+    ]
 
 
 def describe_recording(recording: Recording) -> dict[str, Any]:

@@ -5,7 +5,9 @@ After frame ``t`` (``t >= warmup``) it also rolls forward ``K - 1`` more steps f
 its state, feeding back its own predicted map with the visibility of frame ``t`` — exactly what
 :class:`lidarflow.predict.Predictor` does for ``horizon=K`` — and the prediction ``k`` steps
 ahead is scored (F1 at 0.4) against ``O^{t+k}``. Copy-last's ``k``-step prediction is ``O^t``.
-Frames ``t`` without a frame ``t + K`` are not scored, so every horizon sees the same frames.
+Frames ``t`` without a frame ``t + K``, or with a gap in time before one of ``t + 1 .. t + K``
+(:func:`lidarflow.data.gaps.frames_after_gaps`), are not scored, so every horizon sees the same
+frames.
 
 A model with an online decision (``decisions``, :mod:`lidarflow.evaluate.online`) decides its
 next map with it, as in the streaming evaluation, and the roll-out feeds back that decided map,
@@ -53,6 +55,7 @@ def horizon_f1(
     motions_from_poses: bool = False,
     res: float = 0.1,
     subcell: np.ndarray | None = None,
+    gaps: Sequence[int] = (),
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
@@ -64,7 +67,8 @@ def horizon_f1(
     (from the maps, and each frame's ``returns`` where given, on a grid of ``res`` metres), as
     the streaming evaluation and the Predictor do; else they are only checked. ``subcell``
     ``(N, 2, H, W)``: where each frame's returns lie inside their cells, for models with
-    ``subcell_input`` (a predicted map fed back gets zeros: it has no returns)."""
+    ``subcell_input`` (a predicted map fed back gets zeros: it has no returns). ``gaps``: the
+    frames that follow a gap in time (no roll-out across one is scored; states carry on)."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
@@ -73,7 +77,14 @@ def horizon_f1(
             f"a recording needs at least {warmup + horizon + 1} frames for horizon {horizon}; "
             f"it has {n}"
         )
-    scored = range(warmup, n - horizon)
+    after_gap = np.zeros(n + 1, bool)
+    after_gap[[g for g in gaps if 0 < g < n]] = True
+    crossed = np.convolve(after_gap, np.ones(horizon, int))  # any gap in t + 1 .. t + horizon
+    scored = {t for t in range(warmup, n - horizon) if not crossed[t + horizon]}
+    if not scored:
+        raise EvaluateError(
+            f"no frame of the recording has {horizon} frames after it without a gap in time"
+        )
     copy = [Counts() for _ in range(horizon)]
     for t in scored:
         for k in range(horizon):

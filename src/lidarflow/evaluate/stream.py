@@ -1,8 +1,14 @@
 """Run predictors over recordings in streaming order and score them (design notes §5).
 
-Each method sees the frames one at a time, its state carried across the whole recording. The
+Each method sees the frames one at a time, its state carried from frame to frame. The
 prediction made after frame ``t`` is scored against frame ``t + 1`` for ``t >= warmup``: the
 first ``warmup`` frames only warm the state up.
+
+Where a recording's scans stop for a while (a gap, :func:`lidarflow.data.gaps.frames_after_gaps`)
+the step across the gap is not scored: the frame after it is not the next scan. Every method's
+state carries across, as the :class:`~lidarflow.predict.Predictor`'s does: measured on the
+development recordings with gaps cut in (0.4 s to 13 s), the bundled model predicts the frames
+after a gap better carrying its state than restarting (``docs/results/gaps/``).
 
 A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of the frame just
 given that move on their own) is also scored for moving-object segmentation against the
@@ -22,6 +28,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.data.scanalign import recording_points
 from lidarflow.errors import EvaluateError
@@ -87,8 +94,12 @@ def evaluate_maps(
     returns: Sequence[np.ndarray] | None = None,
     motions_from_poses: bool = False,
     subcell: np.ndarray | None = None,
+    gaps: Sequence[int] = (),
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
+
+    ``gaps``: the frames that follow a gap in time; the step into each is not scored (every
+    method still sees every frame).
 
     ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
@@ -113,28 +124,21 @@ def evaluate_maps(
     truth_or_None)`` is called with every such mask, e.g. to draw it.
     """
     n = len(occupancy)
-    if n < warmup + 2:
+    unscored = {int(g) - 1 for g in gaps}  # the steps t -> t + 1 across a gap
+    if n < warmup + 2 or all(t in unscored for t in range(warmup, n - 1)):
         raise EvaluateError(
             f"a recording needs at least {warmup + 2} frames to be evaluated "
-            f"({warmup} to warm up, then a prediction and its target); it has {n}"
+            f"({warmup} to warm up, then a prediction and its target not across a gap in "
+            f"time); it has {n}" + (f" and {len(unscored)} gaps" if unscored else "")
         )
     scorers = {m.name: Scorer() for m in methods}
     for m in methods:
         m.reset()
     for t in range(n - 1):
         for m in methods:
-            extra: dict[str, object] = {}
-            if motions is not None and getattr(m, "uses_motion", False):
-                # NaN: no motion known for that step (scan matching found none): not compensated
-                motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
-                extra = {"motion": motion, "next_motion": following}
-                if getattr(m, "takes_returns", False):
-                    extra["returns"] = None if returns is None else returns[t]
-                    extra["from_pose"] = motions_from_poses
-            if subcell is not None and getattr(m, "takes_subcell", False):
-                extra["subcell"] = subcell[t]
+            extra = _inputs(m, t, motions, returns, motions_from_poses, subcell)
             probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
-            if t < warmup:
+            if t < warmup or t in unscored:
                 continue
             scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
             flow = getattr(m, "backward_flow", None)
@@ -158,6 +162,28 @@ def evaluate_maps(
     return scorers
 
 
+def _inputs(
+    method: Method,
+    t: int,
+    motions: np.ndarray | None,
+    returns: Sequence[np.ndarray] | None,
+    motions_from_poses: bool,
+    subcell: np.ndarray | None,
+) -> dict[str, object]:
+    """What ``method.update`` takes for frame ``t`` beside the maps."""
+    extra: dict[str, object] = {}
+    if motions is not None and getattr(method, "uses_motion", False):
+        # NaN: no motion known for that step (scan matching found none): not compensated
+        motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
+        extra = {"motion": motion, "next_motion": following}
+        if getattr(method, "takes_returns", False):
+            extra["returns"] = None if returns is None else returns[t]
+            extra["from_pose"] = motions_from_poses
+    if subcell is not None and getattr(method, "takes_subcell", False):
+        extra["subcell"] = subcell[t]
+    return extra
+
+
 def evaluate_recording(
     recording: Recording,
     methods: Sequence[Method],
@@ -168,7 +194,7 @@ def evaluate_recording(
     on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
 ) -> dict[str, Scorer]:
     """Rasterize ``recording`` on ``grid`` and score every method on it (with the
-    simulator's ground truth flow and moving cells where it has them)."""
+    simulator's ground truth flow and moving cells where it has them), not across its gaps."""
     grid = grid or GridSpec()
     occupancy, visibility = recording.maps(grid)
     gt_flow = ground_truth_backward_flow(recording, grid)
@@ -196,4 +222,5 @@ def evaluate_recording(
         recording_points(recording) if takes_returns else None,
         recording.has_poses,
         recording.subcell_maps(grid) if takes_subcell else None,
+        frames_after_gaps(recording.stamps_ns),
     )

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.metrics import THRESHOLD
@@ -171,6 +172,12 @@ def evaluate_and_report(
                 plot = plot_epe_per_frame(epe, report_dir / f"{stem}_epe.png", f"{Path(name).name}")
                 figures[name].append(("flow end-point error per frame", plot))
     report = build_report(results, config)
+    for entry, (_, recording) in zip(report["recordings"], named_recordings, strict=True):
+        gaps = find_gaps(recording)
+        if gaps:  # steps not scored: the frame after a gap is not the next scan
+            entry["gaps_not_scored"] = [
+                {"before_frame": i, "seconds": round(s, 3)} for i, s in gaps
+            ]
     if report_dir is not None:
         report_dir.mkdir(parents=True, exist_ok=True)
         (report_dir / "report.json").write_text(json.dumps(report, indent=2))

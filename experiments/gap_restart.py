@@ -1,0 +1,158 @@
+"""After a gap in the scans: restart every method, or carry its state across? (gap handling)
+
+A stream of scans can stop for a while. This cuts ``k`` frames out of each development
+recording at a few places, streams the bundled model and the baselines over ``--before`` frames,
+the gap, and ``--after`` frames, once carrying every method's state across the gap and once
+restarting every method after it (what :class:`lidarflow.predict.Predictor` does at a gap by
+:class:`lidarflow.data.gaps.GapDetector`'s rule), and scores the predictions made after the gap
+(the step across the gap is scored by neither: it is not a one-step prediction). Scores are
+split into the first ``--warmup`` predictions after the gap (which the streaming evaluation does
+not score after a restart) and the rest.
+
+    python experiments/gap_restart.py --json docs/results/gaps/gap_restart.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from lidarflow.cli.scoring import methods_and_config
+from lidarflow.data import load_any
+from lidarflow.data.recording import Recording
+from lidarflow.evaluate.ego import recording_motions
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.scan import GridSpec
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+RECORDINGS = (
+    "positive_1.bag", "positive_2.bag", "positive_3.bag", "positive_4.bag",
+    "demo_stationary_simple_environment.bag", "datmo_overtakes.bag",
+    "general_tracking_moving_1.bag.zip",
+)  # fmt: skip
+
+
+def with_gap(recording: Recording, at: int, frames: int, before: int, after: int) -> Recording:
+    """``before`` frames up to ``at``, then ``after + 1`` frames from ``at + frames`` on."""
+    kept = [*range(at - before, at), *range(at + frames, at + frames + after + 1)]
+    poses = None if recording.poses is None else recording.poses[kept]
+    return Recording.from_scans([recording.scan(i) for i in kept], poses, recording.meta)
+
+
+def spliced(first: Recording, second: Recording, before: int, after: int) -> Recording:
+    """The last ``before`` frames of ``first``, then the first ``after + 1`` of ``second``
+    (another place after the gap: two sessions in one bag), ``second``'s stamps moved on."""
+    a = [first.scan(i) for i in range(len(first) - before, len(first))]
+    b = [second.scan(i) for i in range(after + 1)]
+    shift = a[-1].stamp_ns + 10**10 - b[0].stamp_ns
+    b = [dataclasses.replace(scan, stamp_ns=scan.stamp_ns + shift) for scan in b]
+    return Recording.from_scans(a + b, None, second.meta)
+
+
+def score_after_gap(
+    recording: Recording, methods: list, before: int, warmup: int, restart: bool
+) -> dict[str, dict[str, Counts]]:
+    """Counts (``early``: the first ``warmup`` predictions after the gap, ``late``: the rest;
+    each ``all`` and ``changed`` cells) per method."""
+    if restart:  # every method from a fresh state at the first frame after the gap
+        recording, before = recording.slice(before, len(recording)), 0
+    grid = GridSpec()
+    occupancy, visibility = recording.maps(grid)
+    motions = recording_motions(recording, grid, methods, occupancy)
+    counts: dict[str, dict[str, Counts]] = {}
+
+    def keep(name: str, t: int, probability: np.ndarray, _flow: object) -> None:
+        if t < before:
+            return
+        part = "early" if t < before + warmup else "late"
+        mine = counts.setdefault(name, {})
+        predicted, target = probability >= THRESHOLD, occupancy[t + 1].astype(bool)
+        changed = occupancy[t].astype(bool) != target
+        for key, mask in ((f"{part}_all", None), (f"{part}_changed", changed)):
+            mine[key] = mine.get(key, Counts()) + confusion(predicted, target, mask)
+
+    evaluate_maps(
+        occupancy, visibility, methods, warmup=0, on_prediction=keep, motions=motions,
+        subcell=recording.subcell_maps(grid),
+    )  # fmt: skip
+    return counts
+
+
+Tree = dict[str, dict[str, dict[str, Counts]]]  # case -> method -> part -> counts
+
+
+def add(tree: Tree, case: str, got: dict[str, dict[str, Counts]]) -> None:
+    for method, parts in got.items():
+        slot = tree.setdefault(case, {}).setdefault(method, {})
+        for part, c in parts.items():
+            slot[part] = slot.get(part, Counts()) + c
+
+
+def summary(tree: Tree) -> dict:
+    return {
+        case: {m: {p: round(c.f1, 4) for p, c in parts.items()} for m, parts in by_method.items()}
+        for case, by_method in tree.items()
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--gaps", type=int, nargs="+", default=[3, 10, 30, 100])
+    parser.add_argument("--places", type=int, default=3)
+    parser.add_argument("--before", type=int, default=60)
+    parser.add_argument("--after", type=int, default=40)
+    parser.add_argument("--warmup", type=int, default=10)
+    parser.add_argument(
+        "--splice", action="store_true",
+        help="instead of cutting frames out: each recording after the end of the one before "
+        "it in the list (another place after the gap)",
+    )  # fmt: skip
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    methods, _ = methods_and_config([None], with_poses=False)
+    total: Tree = {}
+    per_recording: dict[str, Tree] = {}
+    loaded = {name: load_any(DATA / name) for name in RECORDINGS}
+    for i, name in enumerate(RECORDINGS):
+        recording = loaded[name]
+        if args.splice:
+            cuts = {
+                "splice": [spliced(loaded[RECORDINGS[i - 1]], recording, args.before, args.after)]
+            }
+        else:
+            cuts = {}
+            for k in args.gaps:
+                last = len(recording) - k - args.after - 1
+                if last > args.before:  # room for the gap and both sides
+                    places = np.linspace(args.before, last, args.places).astype(int)
+                    cuts[f"k{k}"] = [
+                        with_gap(recording, int(at), k, args.before, args.after) for at in places
+                    ]
+        for case, recordings in cuts.items():
+            for variant in ("carry", "restart"):
+                for cut in recordings:
+                    got = score_after_gap(
+                        cut, methods, args.before, args.warmup, variant == "restart"
+                    )
+                    add(total, f"{case}_{variant}", got)
+                    add(per_recording.setdefault(name, {}), f"{case}_{variant}", got)
+            print(name, case, flush=True)
+    out = {
+        "overall": summary(total),
+        "recordings": {r: summary(t) for r, t in per_recording.items()},
+        "args": {k: v for k, v in vars(args).items() if k != "json"},
+    }
+    for case, by_method in out["overall"].items():
+        print(case, json.dumps(by_method))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,71 @@
+"""Gaps in a stream of scans: the one rule of info, training windows and the evaluation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from lidarflow.data.gaps import MIN_STEPS, frames_after_gaps
+
+MS = 1_000_000
+
+
+def stamps(steps_ms: list[float], start_ms: float = 1000.0) -> list[int]:
+    return [int(v * MS) for v in np.cumsum([start_ms, *steps_ms])]
+
+
+def test_steady_stream_has_no_gap():
+    assert frames_after_gaps(stamps([100.0] * 50)) == []
+
+
+def test_a_long_step_is_a_gap_and_only_that_one():
+    steps = [100.0] * 10 + [1000.0] + [100.0] * 10
+    assert frames_after_gaps(stamps(steps)) == [11]
+
+
+def test_threshold_is_relative_to_the_rate():
+    # 240 ms after 100 ms steps is no gap (2.4 periods); 260 ms is (2.6 periods)
+    assert frames_after_gaps(stamps([100.0] * 5 + [240.0] + [100.0] * 3)) == []
+    assert frames_after_gaps(stamps([100.0] * 5 + [260.0] + [100.0] * 3)) == [6]
+    # the same 260 ms at 5 Hz is a normal step
+    assert frames_after_gaps(stamps([200.0] * 5 + [260.0] + [200.0] * 3)) == []
+
+
+def test_clock_jumping_back_is_a_gap_but_jitter_and_stuck_stamps_are_not():
+    back = stamps([100.0] * 5 + [-5000.0] + [100.0] * 5)
+    assert frames_after_gaps(back) == [6]
+    jitter = stamps([100.0] * 5 + [150.0, -30.0, 150.0] + [100.0] * 5)
+    assert frames_after_gaps(jitter) == []
+    assert frames_after_gaps([5 * MS] * 20) == []
+
+
+def test_the_rate_is_learnt_before_any_gap_is_called():
+    # the first MIN_STEPS steps only teach the rate
+    steps = [100.0] * (MIN_STEPS - 1) + [5000.0] + [100.0] * 5
+    assert frames_after_gaps(stamps(steps)) == []
+
+
+def test_a_changed_rate_is_learnt_again_after_one_gap():
+    # 20 Hz then 5 Hz: one gap where it changed, not one before every slower scan
+    steps = [50.0] * 10 + [200.0] * 20
+    assert frames_after_gaps(stamps(steps)) == [11]
+
+
+def test_bad_threshold_is_refused():
+    with pytest.raises(ValueError, match="max_gap_periods"):
+        frames_after_gaps([0, 1, 2], 1.0)
+
+
+@given(
+    period=st.floats(20.0, 300.0),
+    jitter=st.floats(0.0, 0.3),
+    gap_periods=st.floats(3.0, 100.0),
+    at=st.integers(MIN_STEPS + 2, 30),
+)
+def test_one_gap_in_a_jittery_stream_is_found_exactly(period, jitter, gap_periods, at):
+    rng = np.random.default_rng(0)
+    steps = list(period * (1 + jitter * rng.uniform(-1, 1, 40)))
+    steps[at - 1] = gap_periods * period * (1 + jitter)  # longer than 2.5 jittered periods
+    assert frames_after_gaps(stamps(steps)) == [at]
