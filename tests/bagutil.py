@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +98,7 @@ def write_bag(
     multi_echo_topic: bool = False,
     overrides: dict[int, dict[str, float]] | None = None,
     header_stamps: Sequence[int] | None = None,
+    clock: Callable[[int], int] | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
@@ -106,7 +107,8 @@ def write_bag(
     ``copies``: each scan message written that many times. ``multi_echo_topic``: also an
     ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``. ``overrides``: LaserScan fields
     to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``). ``header_stamps``:
-    scan ``i``'s header stamp (ns) instead of its log time.
+    scan ``i``'s header stamp (ns) instead of its log time. ``clock``: the header stamp of every
+    scan and odometry message as a function of its log time (a header clock that jumps, say).
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -135,6 +137,7 @@ def write_bag(
             for i, ranges in enumerate(frames):
                 stamp = t0 + i * period
                 header_stamp = stamp if header_stamps is None else header_stamps[i]
+                header_stamp = header_stamp if clock is None else clock(header_stamp)
                 msg = _scan_msg(ts, np.asarray(ranges), header_stamp)
                 msg = dataclasses.replace(msg, **(overrides or {}).get(i, {}))
                 raw = ser(msg, "sensor_msgs/msg/LaserScan")
@@ -145,7 +148,8 @@ def write_bag(
             n = max(len(f) for f in scans.values()) if scans else 10
             for i in range(2 * n + 1):
                 stamp = t0 + i * period // 2
-                msg = _odom_msg(ts, stamp, 0.05 * i, 0.0, 0.01 * i)
+                header_stamp = stamp if clock is None else clock(stamp)
+                msg = _odom_msg(ts, header_stamp, 0.05 * i, 0.0, 0.01 * i)
                 writer.write(c, stamp, ser(msg, "nav_msgs/msg/Odometry"))
         if mount is not None:
             msg = _tf_msg(ts, t0, [("base_link", "chassis", (0.2, 0.0, 0.0)),
