@@ -11,11 +11,13 @@ from rosbags.typesys import Stores, get_typestore
 
 from lidarflow.data import (
     describe_recording,
+    find_gaps,
     list_topics,
     load_any,
     mcap1,
     read_bag,
     sample_bag_path,
+    split_segments,
 )
 from lidarflow.data.mcap1 import Ros1McapReader
 from lidarflow.errors import BagError, RecordingError
@@ -264,3 +266,77 @@ def test_header_stamps_that_never_advance_give_way_to_log_times(tmp_path):
     np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(12), atol=1e-9)  # not one pose
     rec = read_bag(write_bag(tmp_path / "h.bag", "ros1", {"/scan": frames}))
     assert rec.meta["stamps"] == "header"
+
+
+T0, PERIOD = 1_700_000_000 * 10**9, 100_000_000  # write_bag's first log time and 10 Hz period
+
+
+def _written(rec, frames) -> list[int]:
+    """Which of the written ``frames`` each frame of ``rec`` is (each frame's ranges differ)."""
+    keys = [float(np.float32(f[0])) for f in frames]
+    return [keys.index(float(rec.scan(i).ranges[0])) for i in range(len(rec))]
+
+
+def _restarted(at: int, back: int):
+    """A header clock that goes back ``back`` periods from scan ``at``'s log time on."""
+    return lambda t: t - back * PERIOD if t >= T0 + at * PERIOD else t
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_sessions_whose_header_clocks_overlap_read_one_after_the_other(tmp_path, kind):
+    # a simulator's /clock reset (or two sessions in one bag): at scan 12 the header clock goes
+    # back 10 periods, so sessions overlap; sorted by header stamp they would alternate
+    frames = [np.full(10, 1.0 + 0.1 * i) for i in range(24)]
+    headers = [T0 + i * PERIOD for i in range(24)]
+    headers[15], headers[16] = headers[16], headers[15]  # and jitter inside session 2
+    path = tmp_path / ("j.bag" if kind == "ros1" else "j")
+    rec = read_bag(write_bag(path, kind, {"/scan": frames}, header_stamps=headers,
+                             clock=_restarted(12, 10)))  # fmt: skip
+    assert _written(rec, frames) == [*range(15), 16, 15, *range(17, 24)]
+    np.testing.assert_array_equal(rec.stamps_ns[:12], T0 + PERIOD * np.arange(12))  # kept
+    # the second session keeps its header steps and follows the first after a 1 s gap
+    np.testing.assert_array_equal(np.diff(rec.stamps_ns[12:]), PERIOD)
+    assert rec.stamps_ns[12] - rec.stamps_ns[11] == 10 * PERIOD
+    assert find_gaps(rec) == [(12, 1.0)] and split_segments(rec) == [(0, 12), (12, 24)]
+    assert rec.frame_rate == pytest.approx(10.0)
+    jump = {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9}
+    assert rec.meta["clock_jumps"] == [jump] and rec.meta["stamps"] == "header"
+    assert describe_recording(rec)["clock_jumps"] == [jump]  # `info` says so
+
+
+def test_header_stamps_that_jitter_keep_header_order(tmp_path):
+    # a multi-connection bag: arrival order differs from header order by a few frames
+    frames = [np.full(10, 1.0 + 0.1 * i) for i in range(20)]
+    shuffled = [0, 2, 1, 3, 4, 7, 5, 6, 8, 9, 10, 14, 11, 12, 13, 15, 16, 17, 19, 18]
+    headers = [T0 + k * PERIOD for k in shuffled]
+    rec = read_bag(write_bag(tmp_path / "j.bag", "ros1", {"/scan": frames}, header_stamps=headers))
+    assert [shuffled[i] for i in _written(rec, frames)] == list(range(20))
+    np.testing.assert_array_equal(rec.stamps_ns, T0 + PERIOD * np.arange(20))
+    assert rec.meta["clock_jumps"] == [] and "clock_jumps" not in describe_recording(rec)
+
+
+def test_odometry_whose_clock_jumps_with_the_scans_keeps_matching_them(tmp_path):
+    frames = [np.full(10, 1.0 + 0.1 * i) for i in range(24)]
+    path = write_bag(tmp_path / "o.bag", "ros1", {"/scan": frames}, odom=True,
+                     clock=_restarted(12, 10))  # fmt: skip
+    rec = read_bag(path)
+    assert _written(rec, frames) == list(range(24))
+    # odometry: x = 0.05 i at log time t0 + i * period / 2, so x = 0.1 k at scan k
+    np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(24), atol=1e-9)
+    assert rec.meta["clock_jumps"] == [
+        {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9, "poses_matched": True}
+    ]
+
+
+def test_odometry_whose_clock_does_not_jump_gives_no_poses_after_the_jump(tmp_path):
+    # only the scanner's clock went back (a driver restart stamping with its own clock): its
+    # later stamps say nothing about which odometry was then; no poses beat wrong ones
+    frames = [np.full(10, 1.0 + 0.1 * i) for i in range(24)]
+    headers = [_restarted(12, 10)(T0 + i * PERIOD) for i in range(24)]
+    rec = read_bag(write_bag(tmp_path / "o.bag", "ros1", {"/scan": frames}, odom=True,
+                             header_stamps=headers))  # fmt: skip
+    assert _written(rec, frames) == list(range(24))
+    np.testing.assert_allclose(rec.poses[:12, 0], 0.1 * np.arange(12), atol=1e-9)
+    assert np.isnan(rec.poses[12:]).all()
+    assert rec.meta["clock_jumps"][0]["poses_matched"] is False
+    assert describe_recording(rec)["clock_jumps"][0]["poses_matched"] is False

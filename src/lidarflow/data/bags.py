@@ -9,6 +9,7 @@ bag (read by :mod:`lidarflow.data.mcap1`).
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 import tempfile
 import zipfile
@@ -198,6 +199,62 @@ def _stuck(stamps_ns: np.ndarray) -> bool:
     return len(stamps_ns) > 1 and advancing < (len(stamps_ns) - 1) / 2
 
 
+# A header stamp this far behind the latest one of its session is a clock that went back (a
+# driver restart, a simulator's /clock reset, two sessions in one bag), not transport jitter:
+# multi-connection bags reorder a frame or a few (latency-driven, so in time: some tens of ms),
+# and a clock that restarts goes back seconds. The floor keeps a fast scanner's jitter jitter.
+_JUMP_PERIODS = 5
+_JUMP_MIN_NS = 500_000_000
+
+
+def _jump_tolerance_ns(stamps_ns: np.ndarray) -> int:
+    """How far a stamp may fall behind the latest before it and still be jitter:
+    ``_JUMP_PERIODS`` median steps between advancing stamps (in arrival order), at least
+    ``_JUMP_MIN_NS``."""
+    steps = np.diff(stamps_ns)
+    steps = steps[steps > 0]
+    period = int(np.median(steps)) if steps.size else 0
+    return max(_JUMP_PERIODS * period, _JUMP_MIN_NS)
+
+
+def _session_starts(stamps_ns: np.ndarray, tolerance_ns: int) -> list[int]:
+    """Where, in arrival order, the stamps' clock went back: the index of each stamp more than
+    ``tolerance_ns`` behind the latest of its session so far, which starts the next session
+    (the first always starts at 0)."""
+    starts, latest = [0], None
+    for i, stamp in enumerate(stamps_ns.tolist()):
+        if latest is not None and stamp < latest - tolerance_ns:
+            starts.append(i)
+            latest = stamp
+        else:
+            latest = stamp if latest is None else max(latest, stamp)
+    return starts
+
+
+def _order_sessions(
+    stamps_ns: np.ndarray, starts: list[int], seam_ns: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The reading order of stamps in arrival order, split into sessions at ``starts``: the
+    sessions one after the other, each in stamp order (its own jitter undone), and the shift
+    (ns) for each stamp so that each session begins ``seam_ns`` after the one before ends.
+
+    >>> _order_sessions(np.array([10, 12, 11, 2, 3]), [0, 3], 5)
+    (array([0, 2, 1, 3, 4]), array([ 0,  0,  0, 15, 15]))
+    """
+    order, shifts, end = [], [], None
+    for a, b in itertools.pairwise([*starts, len(stamps_ns)]):
+        session = a + np.argsort(stamps_ns[a:b], kind="stable")
+        shift = 0 if end is None else end + seam_ns - int(stamps_ns[session[0]])
+        end = int(stamps_ns[session[-1]]) + shift
+        order.append(session)
+        shifts.append(np.full(b - a, shift, dtype=np.int64))
+    return np.concatenate(order), np.concatenate(shifts)
+
+
+def _restamped(scan: Scan, shift_ns: int) -> Scan:
+    return scan if shift_ns == 0 else Scan(scan.ranges, scan.geometry, scan.stamp_ns + shift_ns)
+
+
 def _pose_of(msg: Any) -> tuple[float, float, float]:
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
     q = pose.orientation
@@ -224,6 +281,85 @@ def interpolate_poses(
     return out
 
 
+def _session_poses(
+    scan_stamps: list[np.ndarray],
+    scan_jumps_ns: np.ndarray,
+    odometry: tuple[np.ndarray, np.ndarray, np.ndarray],
+    window_ns: int,
+) -> tuple[np.ndarray, int]:
+    """Poses at the stamps of each scan session, each from the odometry of its own session, and
+    how many of the scans' clock jumps the odometry made too.
+
+    ``scan_jumps_ns``: the log time at which each scan session after the first begins;
+    ``odometry``: pose stamps, log times and ``(x, y, yaw)`` in arrival order. The odometry is
+    split where its own clock goes back; its jumps pair with the scans' in order while each
+    falls within ``window_ns`` of the other. A scan session after the first unpaired jump gets
+    NaN: its stamps are on a clock the odometry's do not follow, so any pose would be a guess.
+    """
+    stamps, log_times, values = odometry
+    if len(scan_stamps) == 1:  # no jump in the scans: all the odometry, as it always was
+        return interpolate_poses(scan_stamps[0], stamps, values), 0
+    starts = _session_starts(stamps, _jump_tolerance_ns(stamps))
+    paired = 0
+    for scan_jump, pose_jump in zip(scan_jumps_ns, log_times[starts[1:]], strict=False):
+        if abs(int(scan_jump) - int(pose_jump)) > window_ns:
+            break
+        paired += 1
+    bounds = [*starts, len(stamps)]
+    poses = [
+        interpolate_poses(at, stamps[bounds[k] : bounds[k + 1]], values[bounds[k] : bounds[k + 1]])
+        if k <= paired
+        else np.full((len(at), 3), np.nan)
+        for k, at in enumerate(scan_stamps)
+    ]
+    return np.concatenate(poses), paired
+
+
+def _clock_jumps(
+    stamps_ns: np.ndarray, starts: list[int], shifts: np.ndarray, poses_paired: int | None
+) -> list[dict[str, Any]]:
+    """``meta["clock_jumps"]``: for each session after the first, the frame it begins at (in
+    reading order, as in arrival order), how far its clock went back and the shift added to its
+    stamps, in seconds, and, with odometry, whether the odometry's clock jumped with it."""
+    jumps = []
+    for k, (a, b) in enumerate(itertools.pairwise(starts), start=1):
+        jump: dict[str, Any] = {
+            "before_frame": b,
+            "back_s": round(int(stamps_ns[a:b].max() - stamps_ns[b]) / 1e9, 3),
+            "shift_s": round(int(shifts[b]) / 1e9, 3),
+        }
+        if poses_paired is not None:
+            jump["poses_matched"] = k <= poses_paired
+        jumps.append(jump)
+    return jumps
+
+
+def _in_sessions(
+    scans: list[Scan],
+    arrivals: np.ndarray,
+    odometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+) -> tuple[list[Scan], np.ndarray | None, list[dict[str, Any]]]:
+    """``scans`` (in arrival order, log times ``arrivals``) in reading order, their poses from
+    ``odometry`` (see :func:`_session_poses`; None without), and ``meta["clock_jumps"]``.
+
+    Header order undoes jitter; where the header clock went back, header order would
+    interleave two sessions, so the sessions keep their arrival order and each later one is
+    re-stamped to follow the one before after a gap of twice the tolerance (at least 10 frame
+    periods and 1 s, as between the simulator's episodes), which find_gaps and training cut at.
+    """
+    stamps_ns = np.array([s.stamp_ns for s in scans], dtype=np.int64)
+    tolerance = _jump_tolerance_ns(stamps_ns)
+    starts = _session_starts(stamps_ns, tolerance)
+    order, shifts = _order_sessions(stamps_ns, starts, seam_ns=2 * tolerance)
+    ordered = [_restamped(scans[i], int(d)) for i, d in zip(order, shifts, strict=True)]
+    poses, paired = None, None
+    if odometry is not None:
+        bounds = [*starts, len(scans)]
+        at = [stamps_ns[order[a:b]] for a, b in itertools.pairwise(bounds)]
+        poses, paired = _session_poses(at, arrivals[starts[1:]], odometry, tolerance)
+    return ordered, poses, _clock_jumps(stamps_ns, starts, shifts, paired)
+
+
 def read_bag(
     path: str | Path,
     topic: str | None = None,
@@ -245,7 +381,12 @@ def read_bag(
     Scans that are empty, malformed (impossible geometry) or the same message recorded twice
     are dropped and counted in ``meta`` (``*_scans_dropped``). Scans are ordered by their
     header stamps, or by their log times where the header stamps do not advance
-    (``meta["stamps"]``); a zero header stamp is replaced by the log time.
+    (``meta["stamps"]``); a zero header stamp is replaced by the log time. Where the header
+    clock goes back (more than 5 median frame periods and 0.5 s behind the latest stamp, in
+    arrival order), a new session begins: sessions stay in arrival order, each in header
+    order, and each later one is shifted to begin twice that tolerance after the one before
+    ends (``meta["clock_jumps"]``); its poses come from the odometry's own session, or are NaN
+    where the odometry's clock did not jump with the scans'.
     """
     path = Path(path)
     with open_bag(path) as reader:
@@ -257,6 +398,7 @@ def read_bag(
         tree, body = TransformTree(), ""
         scans: list[Scan] = []
         pose_stamps: list[int] = []
+        pose_log_times: list[int] = []
         pose_values: list[tuple[float, float, float]] = []
         frame_id = ""
         malformed: list[ScanError] = []
@@ -270,6 +412,7 @@ def read_bag(
                 if conn.topic == pose_topic:
                     body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
                     pose_stamps.append(_stamp_ns(msg, log_time))
+                    pose_log_times.append(int(log_time))
                     pose_values.append(_pose_of(msg))
                     continue
                 frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
@@ -324,15 +467,16 @@ def read_bag(
         # at one instant: no frame rate, every frame a gap, every scan at one odometry pose.
         scans = [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, arrivals, strict=True)]
         stamps = "log time (the header stamps do not advance)"
-    order = np.argsort([s.stamp_ns for s in scans], kind="stable")
-    scans = [scans[i] for i in order]
-    poses, mount = None, None
+    odometry = None
     if pose_topic is not None:
-        poses = interpolate_poses(
-            np.array([s.stamp_ns for s in scans]),
+        odometry = (
             np.array(pose_stamps, dtype=np.int64),
+            np.array(pose_log_times, dtype=np.int64),
             np.array(pose_values, dtype=np.float64).reshape(-1, 3),
         )
+    scans, poses, clock_jumps = _in_sessions(scans, arrivals, odometry)
+    mount = None
+    if poses is not None:
         mount = tree.lookup(body, frame_id) if body and frame_id else None
         if mount is not None:
             poses = compose_poses(poses, mount)
@@ -344,6 +488,7 @@ def read_bag(
         "empty_scans_dropped": int(total - len(scans) - duplicates - len(malformed)),
         "duplicate_scans_dropped": duplicates,
         "stamps": stamps,
+        "clock_jumps": clock_jumps,
         "malformed_scans_dropped": len(malformed),
     }
     if pose_topic is not None:

@@ -85,7 +85,8 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
 
 def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
     """What reading the bag left out or replaced (read_bag's meta), so that it is never silent:
-    the scans it dropped, by kind, and the stamps it ordered them by where not the headers'."""
+    the scans it dropped, by kind, the stamps it ordered them by where not the headers', and
+    where the header clock went back (the sessions it re-stamped to follow one another)."""
     notes: dict[str, Any] = {}
     dropped = {kind: int(meta.get(f"{kind}_scans_dropped") or 0)
                for kind in ("empty", "duplicate", "malformed")}  # fmt: skip
@@ -93,4 +94,6 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
         notes["scans_dropped"] = dropped
     if meta.get("stamps", "header") != "header":
         notes["stamps"] = meta["stamps"]
+    if meta.get("clock_jumps"):
+        notes["clock_jumps"] = meta["clock_jumps"]
     return notes
