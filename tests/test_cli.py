@@ -91,6 +91,17 @@ def test_info_counts_only_laserscan_topics(tmp_path, capsys):
     assert report["topic"] == "/scan" and report["scans"] == 3
 
 
+def test_info_says_where_the_header_clock_went_back(tmp_path, capsys):
+    t0, period = 1_700_000_000 * 10**9, 100_000_000
+    headers = [t0 + (i if i < 12 else i - 10) * period for i in range(24)]
+    frames = [np.full(8, 1.0 + 0.1 * i) for i in range(24)]
+    path = write_bag(tmp_path / "j.bag", "ros1", {"/scan": frames}, header_stamps=headers)
+    code, out, err = run(["info", str(path)], capsys)
+    assert code == 0, err
+    assert "clock_jumps: 1: 0.9s back before frame 12 (stamps from there +1.9s)" in out
+    assert "gaps: 1: 1.0s before frame 12" in out
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -90,8 +90,21 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
             )
             more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
             typer.echo(f"gaps: {len(value)}" + (f": {shown}{more}" if value else ""))
+        elif key == "clock_jumps":
+            more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
+            shown = ", ".join(_clock_jump_text(j) for j in value[:10])
+            typer.echo(f"clock_jumps: {len(value)}: {shown}{more}")
         else:
             typer.echo(f"{key}: {value}")
+
+
+def _clock_jump_text(jump: dict[str, Any]) -> str:
+    """One header clock jump of ``info`` (read_bag's ``meta["clock_jumps"]``) in words."""
+    poses = ", no poses" if jump.get("poses_matched") is False else ""
+    return (
+        f"{jump['back_s']}s back before frame {jump['before_frame']}"
+        f" (stamps from there +{jump['shift_s']}s{poses})"
+    )
 
 
 @app.command()
