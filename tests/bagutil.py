@@ -99,6 +99,7 @@ def write_bag(
     overrides: dict[int, dict[str, float]] | None = None,
     header_stamps: Sequence[int] | None = None,
     clock: Callable[[int], int] | None = None,
+    compression: str | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
@@ -109,6 +110,7 @@ def write_bag(
     to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``). ``header_stamps``:
     scan ``i``'s header stamp (ns) instead of its log time. ``clock``: the header stamp of every
     scan and odometry message as a function of its log time (a header clock that jumps, say).
+    ``compression``: "bz2" or "lz4" chunks (ROS 1), "file" or "message" zstd (ROS 2).
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -118,11 +120,18 @@ def write_bag(
         from rosbags.rosbag1 import Writer
 
         writer = Writer(path)
+        if compression is not None:  # "bz2" or "lz4" chunks
+            writer.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
         writer = Writer(path, version=9, storage_plugin=plugin)
+        if compression is not None:  # zstd, by "file" or by "message"
+            from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+            mode = getattr(CompressionMode, compression.upper())
+            writer.set_compression(mode, CompressionFormat.ZSTD)
     t0 = 1_700_000_000 * 10**9
     period = int(1e9 / rate_hz)
     with writer:

@@ -40,6 +40,23 @@ def test_every_bag_kind_reads_back_what_was_written(tmp_path, kind):
     assert rec.poses is None
 
 
+@pytest.mark.parametrize(
+    ("kind", "compression"),
+    [("ros1", "bz2"), ("ros1", "lz4"), ("sqlite3", "file"), ("sqlite3", "message"),
+     ("mcap", "file"), ("mcap", "message")],
+)  # fmt: skip
+def test_compressed_bags_read_as_plain_ones(tmp_path, kind, compression):
+    # rosbag record --lz4 / -j, ros2 bag record --compression-mode file|message (zstd)
+    frames = [np.linspace(1.0, 5.0, 40) + i * 0.01 for i in range(12)]
+    path = tmp_path / ("b.bag" if kind == "ros1" else "b")
+    write_bag(path, kind, {"/scan": frames}, compression=compression)
+    if compression == "file":
+        assert list(path.glob("*.zstd"))  # the storage file itself compressed
+    rec = read_bag(path)
+    assert len(rec) == 12
+    np.testing.assert_allclose(rec.scan(7).ranges, frames[7].astype(np.float32))
+
+
 def test_bare_mcap_file_and_db3_file_are_accepted(tmp_path):
     write_bag(tmp_path / "m", "mcap")
     write_bag(tmp_path / "s", "sqlite3")
