@@ -7,8 +7,9 @@ first ``warmup`` frames only warm the state up.
 Where a recording's scans stop for a while (a gap, :func:`lidarflow.data.gaps.frames_after_gaps`)
 the step across the gap is not scored: the frame after it is not the next scan. Every method's
 state carries across, as the :class:`~lidarflow.predict.Predictor`'s does: measured on the
-development recordings with gaps cut in (0.4 s to 13 s), the bundled model predicts the frames
-after a gap better carrying its state than restarting (``docs/results/gaps/``).
+development recordings with gaps cut in (0.3 s to 13 s), the bundled model predicted the frames
+after a gap better carrying its state than restarting, but for the first ten after moving to
+another place (``docs/results/gaps/``).
 
 A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of the frame just
 given that move on their own) is also scored for moving-object segmentation against the
