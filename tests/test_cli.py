@@ -171,6 +171,10 @@ def test_evaluate_writes_the_documented_json(tmp_path, capsys):
     assert entry["methods"]["copy_last"]["changed_f1"] == 0.0
     # without --model the bundled model is scored beside the baselines
     assert entry["methods"]["bundled"]["f1"] > entry["methods"]["copy_last"]["f1"]
+    # and said against them, in words and in the JSON
+    verdict = entry["against_baselines"]["bundled"]
+    assert verdict["wins"] and verdict["f1_baseline"] == "temporal_average"
+    assert "bundled against the best baseline: F1 +" in text and "): wins" in text
 
 
 def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):

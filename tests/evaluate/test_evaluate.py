@@ -241,3 +241,39 @@ def test_horizon_scores_no_roll_out_across_a_gap():
     assert skipped["copy_last"] == [1.0, 1.0, 1.0]
     with pytest.raises(EvaluateError, match="without a gap"):
         horizon_f1(maps[:8], maps[:8], {"m": model}, horizon=3, warmup=2, gaps=[4, 6])
+
+
+def test_against_baselines_wins_only_above_the_best_baseline_on_both_terms():
+    from lidarflow.evaluate.report import against_baselines, format_comparison
+
+    methods = {
+        "copy_last": {"f1": 0.92, "changed_f1": 0.0},
+        "temporal_average": {"f1": 0.89, "changed_f1": 0.30},
+        "constant_velocity": {"f1": 0.91, "changed_f1": 0.10},
+        "copy_last_ego": {"f1": 0.99, "changed_f1": 0.99},  # a baseline, not a model
+        "good": {"f1": 0.93, "changed_f1": 0.31},
+        "f1_only": {"f1": 0.95, "changed_f1": 0.29},
+        "changed_only": {"f1": 0.919, "changed_f1": 0.5},
+    }
+    got = against_baselines(methods)
+    assert set(got) == {"good", "f1_only", "changed_only"}
+    assert got["good"]["wins"] and not got["f1_only"]["wins"] and not got["changed_only"]["wins"]
+    assert got["f1_only"]["f1_baseline"] == "copy_last"
+    assert got["f1_only"]["changed_f1_baseline"] == "temporal_average"
+    assert got["good"]["f1_margin"] == pytest.approx(0.01)
+    assert got["f1_only"]["changed_f1_margin"] == pytest.approx(-0.01)
+    line = format_comparison({"good": got["good"]})
+    assert line == (
+        "good against the best baseline: F1 +0.0100 (copy_last), "
+        "changed-cell F1 +0.0100 (temporal_average): wins"
+    )
+    assert against_baselines({"good": methods["good"]}) == {}
+
+
+def test_report_counts_the_recordings_each_model_won():
+    maps = moving_square()
+    oracle_only = evaluate_maps(maps, maps, [Oracle(maps), CopyLast()], warmup=2)
+    report = build_report([("a", oracle_only), ("b", oracle_only)])
+    assert report["recordings"][0]["against_baselines"]["oracle"]["wins"]
+    overall = report["against_baselines"]["oracle"]
+    assert (overall["recordings_won"], overall["recordings"], overall["wins"]) == (2, 2, True)

@@ -34,7 +34,7 @@ def demo(
     every next map with the bundled model, score it beside the baselines (report.json and an
     HTML page), and write the predictions as an MCAP file for Foxglove."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
-    from lidarflow.evaluate.report import format_table
+    from lidarflow.evaluate.report import format_comparison, format_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
     from lidarflow.viz.maps import draw_maps
@@ -67,6 +67,8 @@ def demo(
     entry = report["recordings"][0]
     title = f"next-map prediction, {entry['frames_evaluated']} frames"
     typer.echo(format_table(entry["methods"], title))
+    if entry["against_baselines"]:
+        typer.echo(format_comparison(entry["against_baselines"]))
     typer.echo(f"results: {output / 'results.json'}; report: {output / 'report' / 'index.html'}")
     if has_model:
         from lidarflow.predict import Predictor

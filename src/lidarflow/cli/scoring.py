@@ -212,7 +212,11 @@ def evaluate(
     A model built with online_decision (the bundled one, the default recipe's) chooses its
     decision offsets as the recording streams, from the frames already seen; --online-decision
     scores every occupancy-head model both ways."""
-    from lidarflow.evaluate.report import format_table, format_uncertainty_table
+    from lidarflow.evaluate.report import (
+        format_comparison,
+        format_table,
+        format_uncertainty_table,
+    )
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
@@ -247,7 +251,9 @@ def evaluate(
         gaps = len(entry.get("gaps_not_scored", []))
         across = f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{across})"
-        typer.echo(format_table(entry["methods"], title) + "\n")
+        typer.echo(format_table(entry["methods"], title))
+        comparison = format_comparison(entry["against_baselines"])
+        typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:
             typer.echo(_format_horizon(entry["horizon_f1"]) + "\n")
         extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
@@ -255,6 +261,8 @@ def evaluate(
             typer.echo(extra + "\n")
     if len(report["recordings"]) > 1:
         typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
+        if report["against_baselines"]:
+            typer.echo(format_comparison(report["against_baselines"]))
         extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")
         if extra:
             typer.echo(extra)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import operator
+from collections.abc import Mapping
 from typing import Any
 
 from lidarflow.evaluate.scoring import Scorer
@@ -11,7 +12,9 @@ from lidarflow.evaluate.scoring import Scorer
 __all__ = [
     "BASELINES",
     "UNCERTAINTY_COLUMNS",
+    "against_baselines",
     "build_report",
+    "format_comparison",
     "format_table",
     "format_uncertainty_table",
     "uncertainty_row",
@@ -31,8 +34,10 @@ _LOWER_IS_BETTER = ("ece", "ece_active", "brier")
 def build_report(
     per_recording: list[tuple[str, dict[str, Scorer]]], config: dict[str, Any] | None = None
 ) -> dict[str, Any]:
-    """``{"recordings": [{"path", "frames_evaluated", "methods": {name: metrics}}],
-    "overall": {name: metrics}}``; overall micro-averages (sums counts) over recordings."""
+    """``{"recordings": [{"path", "frames_evaluated", "methods": {name: metrics},
+    "against_baselines"}], "overall": {name: metrics}, "against_baselines"}``; overall
+    micro-averages (sums counts) over recordings. ``against_baselines``: each model against
+    the baselines (:func:`against_baselines`); overall also counts the recordings it won."""
     recordings = []
     names: list[str] = []
     for path, scorers in per_recording:
@@ -51,10 +56,66 @@ def build_report(
         ).summary()
         for name in names
     }
-    report: dict[str, Any] = {"recordings": recordings, "overall": overall}
+    for entry in recordings:
+        entry["against_baselines"] = against_baselines(entry["methods"])
+    compared = against_baselines(overall)
+    for name, verdict in compared.items():
+        verdict["recordings_won"] = sum(
+            bool(e["against_baselines"].get(name, {}).get("wins")) for e in recordings
+        )
+        verdict["recordings"] = sum(name in e["against_baselines"] for e in recordings)
+    report: dict[str, Any] = {
+        "recordings": recordings,
+        "overall": overall,
+        "against_baselines": compared,
+    }
     if config:
         report["config"] = config
     return report
+
+
+def against_baselines(methods: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Each model among ``methods`` (every one that is not one of :data:`BASELINES` or the
+    copy-last moved by odometry) against the baselines, by the rule that decides whether a model
+    is worth using: it wins when its F1 is above the best baseline's and its changed-cell F1
+    above every baseline's. ``{name: {"wins", "f1_margin", "f1_baseline", "changed_f1_margin",
+    "changed_f1_baseline"}}`` (margins against the best baseline, which is named); ``{}``
+    without baselines."""
+    present = [b for b in BASELINES if b in methods]
+    if not present:
+        return {}
+    best_f1 = max(present, key=lambda b: methods[b]["f1"])
+    best_changed = max(present, key=lambda b: methods[b]["changed_f1"])
+    out = {}
+    for name, metrics in methods.items():
+        if name in BASELINES or name.startswith("copy_last_ego"):
+            continue
+        f1_margin = metrics["f1"] - methods[best_f1]["f1"]
+        changed_margin = metrics["changed_f1"] - methods[best_changed]["changed_f1"]
+        out[name] = {
+            "wins": bool(f1_margin > 0 and changed_margin > 0),
+            "f1_margin": f1_margin,
+            "f1_baseline": best_f1,
+            "changed_f1_margin": changed_margin,
+            "changed_f1_baseline": best_changed,
+        }
+    return out
+
+
+def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
+    """One line per model of :func:`against_baselines` (with ``recordings_won`` where given):
+    its margins over the best baselines, and whether it wins."""
+    lines = []
+    for name, v in compared.items():
+        won = ""
+        if "recordings_won" in v:
+            won = f"; won {v['recordings_won']} of {v['recordings']} recordings"
+        lines.append(
+            f"{name} against the best baseline: F1 {v['f1_margin']:+.4f} ({v['f1_baseline']}), "
+            f"changed-cell F1 {v['changed_f1_margin']:+.4f} ({v['changed_f1_baseline']}): "
+            f"{'wins' if v['wins'] else 'loses'}{won}"
+        )
+    return "\n".join(lines)
 
 
 def _text_table(

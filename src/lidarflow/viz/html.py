@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from lidarflow.evaluate.report import uncertainty_rows
+from lidarflow.evaluate.report import format_comparison, uncertainty_rows
 
 __all__ = ["write_html_report"]
 
@@ -64,6 +64,12 @@ def _uncertainty_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
     return _html_table(rows, present, best) if present else ""
 
 
+def _comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
+    """Each model against the best baselines, one line each (empty without models)."""
+    lines = format_comparison(compared).splitlines()
+    return "".join(f"<p><b>{html.escape(line)}</b></p>" for line in lines)
+
+
 def write_html_report(
     report: Mapping[str, Any],
     path: str | Path,
@@ -96,6 +102,7 @@ def write_html_report(
     ]
     if len(report.get("recordings", [])) > 1:
         parts += ["<h2>Overall (micro-averaged)</h2>", _table(report["overall"])]
+        parts.append(_comparison(report.get("against_baselines", {})))
         parts.append(_uncertainty_table(report["overall"]))
     names = [Path(entry["path"]).name for entry in report.get("recordings", [])]
     for entry in report.get("recordings", []):
@@ -103,6 +110,7 @@ def write_html_report(
         name = html.escape(entry["path"] if names.count(name) > 1 else name)
         parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated</p>")
         parts.append(_table(entry["methods"]))
+        parts.append(_comparison(entry.get("against_baselines", {})))
         parts.append(_uncertainty_table(entry["methods"]))
         for caption, image in figures.get(entry["path"], []):
             parts.append(
