@@ -10,7 +10,8 @@ import torch
 
 from lidarflow.errors import TrainError
 from lidarflow.train.config import DataConfig
-from lidarflow.train.data import MixSampler, expand_source, load_train_data, make_loader
+from lidarflow.train.data import expand_source, load_train_data
+from lidarflow.train.loaders import MixSampler, make_loader
 from tests.train.blobs import blob_recording
 
 

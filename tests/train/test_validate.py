@@ -14,8 +14,9 @@ from lidarflow.scan import GridSpec
 from lidarflow.sim.scenario import SimConfig, simulate
 from lidarflow.sim.storage import to_sparse
 from lidarflow.train.config import DataConfig
-from lidarflow.train.data import load_train_data, make_val_loader
+from lidarflow.train.data import load_train_data
 from lidarflow.train.distributed import Dist
+from lidarflow.train.loaders import make_val_loader
 from lidarflow.train.validate import validate
 
 

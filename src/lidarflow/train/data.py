@@ -17,10 +17,8 @@ Validation split (``data.val_split``):
   out whole: the honest test of generalisation to recordings the net has not seen.
 - ``data.val_sources``: explicit validation recordings; then no training data is held out.
 
-The order of an epoch depends only on ``(seed, epoch)`` (:class:`MixSampler`), which is what
-makes ``--resume`` reproduce the data order exactly, and it is sharded across DDP ranks the way
-:class:`torch.utils.data.DistributedSampler` does (pad to a multiple of the world size, rank
-``r`` takes every ``world``-th index from ``r``).
+How the windows are drawn into batches, epoch by epoch and rank by rank, is
+:mod:`lidarflow.train.loaders`.
 
 Windows are served as ``uint8`` ``(T, 2, H, W)`` (channel 0 occupancy, 1 visibility; for
 models with ``subcell_input`` also 2 and 3, :meth:`~lidarflow.data.Recording.subcell_maps`): 4x
@@ -41,13 +39,13 @@ from __future__ import annotations
 
 import glob
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, Sampler
+from torch.utils.data import Dataset
 
 from lidarflow.data import Recording, SequenceSet, load_any
 from lidarflow.data.motion import metres_to_cells, relative_motions
@@ -58,14 +56,7 @@ from lidarflow.scan import GridSpec
 from lidarflow.train.augment import shift_patch
 from lidarflow.train.config import DataConfig
 
-__all__ = [
-    "MixSampler",
-    "TrainData",
-    "Windows",
-    "expand_source",
-    "load_train_data",
-    "make_loader",
-]
+__all__ = ["TrainData", "Windows", "expand_source", "load_train_data"]
 
 FLOW_KEY = "flow_backward"
 # ground-truth backward flow of a recording: dense (N, 2, H, W), sparse (cells, values) or none
@@ -391,106 +382,3 @@ def _weights(mix: list[float], n: int) -> list[float]:
         mix = [*mix, 1 - sum(mix)]
     total = sum(mix)
     return [w / total for w in mix]
-
-
-class MixSampler(Sampler[int]):
-    """Indices into the concatenation of sources, drawn by weight, sharded over ranks.
-
-    The draw for an epoch depends only on ``(seed, epoch)``; call :meth:`set_epoch` first.
-    """
-
-    def __init__(
-        self,
-        sizes: Sequence[int],
-        weights: Sequence[float] = (),
-        num_samples: int = 0,
-        seed: int = 0,
-        rank: int = 0,
-        world_size: int = 1,
-    ) -> None:
-        self.sizes = list(sizes)
-        self.weights = list(weights)
-        self.num_samples = num_samples or sum(self.sizes)
-        self.seed = seed
-        self.rank = rank
-        self.world_size = world_size
-        self.epoch = 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = epoch
-
-    def _global_order(self) -> list[int]:
-        g = torch.Generator().manual_seed(self.seed * 1_000_003 + self.epoch)
-        offsets = np.concatenate([[0], np.cumsum(self.sizes)])
-        if not self.weights:
-            total = int(offsets[-1])
-            picks = torch.randperm(total, generator=g)
-            reps = math.ceil(self.num_samples / total)
-            picks = torch.cat(
-                [picks] + [torch.randperm(total, generator=g) for _ in range(reps - 1)]
-            )
-            return picks[: self.num_samples].tolist()
-        counts = [round(w * self.num_samples) for w in self.weights]
-        counts[int(np.argmax(self.weights))] += self.num_samples - sum(counts)
-        chosen = []
-        for size, count, offset in zip(self.sizes, counts, offsets, strict=False):
-            passes = [torch.randperm(size, generator=g) for _ in range(math.ceil(count / size))]
-            if passes:
-                chosen.append(torch.cat(passes)[:count] + int(offset))
-        everything = torch.cat(chosen)
-        return everything[torch.randperm(len(everything), generator=g)].tolist()
-
-    def __iter__(self) -> Iterator[int]:
-        order = self._global_order()
-        padded = len(self) * self.world_size
-        order += order[: padded - len(order)]
-        return iter(order[self.rank : padded : self.world_size])
-
-    def __len__(self) -> int:
-        return math.ceil(self.num_samples / self.world_size)
-
-
-class _Concat(Dataset):
-    def __init__(self, parts: Sequence[Windows]) -> None:
-        self.parts = list(parts)
-        self.offsets = np.cumsum([0, *(len(p) for p in parts)])
-
-    def __len__(self) -> int:
-        return int(self.offsets[-1])
-
-    def __getitem__(self, i: int) -> torch.Tensor:
-        part = int(np.searchsorted(self.offsets, i, side="right") - 1)
-        return self.parts[part][i - int(self.offsets[part])]
-
-
-def make_loader(
-    data: TrainData,
-    cfg: DataConfig,
-    batch_size: int,
-    seed: int,
-    rank: int = 0,
-    world_size: int = 1,
-    pin_memory: bool = False,
-) -> tuple[DataLoader, MixSampler]:
-    """The training DataLoader and its sampler (call ``sampler.set_epoch(e)`` every epoch)."""
-    sampler = MixSampler(
-        [len(s) for s in data.sources], data.weights, cfg.epoch_windows, seed, rank, world_size
-    )
-    loader = DataLoader(
-        _Concat(data.sources),
-        batch_size=batch_size,
-        sampler=sampler,
-        num_workers=cfg.num_workers,
-        pin_memory=pin_memory,
-        drop_last=False,
-    )
-    return loader, sampler
-
-
-def make_val_loader(
-    windows: Windows, batch_size: int, rank: int = 0, world_size: int = 1
-) -> DataLoader:
-    """Validation in a fixed order; rank ``r`` takes every ``world``-th window, no padding
-    (counts are summed over ranks, so nothing is counted twice)."""
-    subset = torch.utils.data.Subset(windows, list(range(rank, len(windows), world_size)))
-    return DataLoader(subset, batch_size=batch_size, shuffle=False)

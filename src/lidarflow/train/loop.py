@@ -36,8 +36,9 @@ from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import (
     TrainConfig,
 )
-from lidarflow.train.data import load_train_data, make_loader, make_val_loader
+from lidarflow.train.data import load_train_data
 from lidarflow.train.distributed import Dist, any_flag, barrier, setup
+from lidarflow.train.loaders import make_loader, make_val_loader
 from lidarflow.train.logbook import Logbook
 from lidarflow.train.rundir import prepare_run_dir, write_final
 from lidarflow.train.validate import validate
