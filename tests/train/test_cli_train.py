@@ -163,7 +163,7 @@ def test_a_config_whose_model_is_no_table_is_one_line(tmp_path, capsys, section)
 
 
 def test_resume_cannot_shorten_a_run(tmp_path, capsys):
-    from lidarflow.train.config import build_config, config_to_dict
+    from lidarflow.train.config_io import build_config, config_to_dict
 
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)

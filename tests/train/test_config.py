@@ -8,14 +8,12 @@ import pytest
 
 from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
-from lidarflow.train.config import (
-    RECIPES,
-    TrainConfig,
+from lidarflow.train.config import RECIPES, TrainConfig, recipe
+from lidarflow.train.config_io import (
     apply_overrides,
     build_config,
     config_from_dict,
     config_to_dict,
-    recipe,
 )
 
 

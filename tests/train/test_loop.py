@@ -14,7 +14,7 @@ from lidarflow.models import build_model
 from lidarflow.scan import GridSpec
 from lidarflow.train import build_config, train
 from lidarflow.train.checkpoint import latest_epoch
-from lidarflow.train.config import config_from_dict
+from lidarflow.train.config_io import config_from_dict
 
 
 def tiny_config(sources, recipe="blurred", **flags):

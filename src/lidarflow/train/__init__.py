@@ -1,7 +1,8 @@
 """Training: config dataclasses (the paper's recipe by default), data mixing and splits, the
 loop, checkpoints and torchrun support. Entry point: :func:`lidarflow.train.loop.train`."""
 
-from lidarflow.train.config import RECIPES, TrainConfig, build_config, recipe
+from lidarflow.train.config import RECIPES, TrainConfig, recipe
+from lidarflow.train.config_io import build_config
 from lidarflow.train.loop import TrainResult, train
 
 __all__ = ["RECIPES", "TrainConfig", "TrainResult", "build_config", "recipe", "train"]

@@ -24,12 +24,8 @@ import torch
 from lidarflow.errors import TrainError
 from lidarflow.models import count_parameters
 from lidarflow.train import checkpoint as ckpt
-from lidarflow.train.config import (
-    TrainConfig,
-    config_from_dict,
-    config_to_dict,
-    load_config_file,
-)
+from lidarflow.train.config import TrainConfig
+from lidarflow.train.config_io import config_from_dict, config_to_dict, load_config_file
 from lidarflow.train.data import TrainData
 from lidarflow.train.distributed import Dist
 

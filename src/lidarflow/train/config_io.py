@@ -1,0 +1,190 @@
+"""Training configurations in and out: dicts, JSON/TOML files, command-line overrides.
+
+A configuration is built in layers, later ones winning: a named *recipe*
+(:data:`lidarflow.train.config.RECIPES`), a config file (JSON, or TOML via :mod:`tomllib`),
+first-class command-line flags, then ``--set section.field=value`` overrides
+(:func:`build_config`). Every value is checked against its field's type on the way in, with the
+field named in the error. The result is saved as ``config.json`` in the run directory and
+reloads to the same object (:func:`config_from_dict`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+import types
+import typing
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from lidarflow.errors import TrainError
+from lidarflow.train.config import TrainConfig, recipe
+
+__all__ = [
+    "apply_overrides",
+    "build_config",
+    "config_from_dict",
+    "config_to_dict",
+    "load_config_file",
+]
+
+
+def config_to_dict(config: TrainConfig) -> dict[str, Any]:
+    return dataclasses.asdict(config)
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    """``value`` (from JSON/TOML/CLI) checked and converted to the type ``hint``."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(hint)
+        if value is None and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return _coerce(value, inner, where)
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, dict):
+            raise TrainError(f"config {where}: expected a table of settings, got {value!r}")
+        return _from_dict(hint, value, where)
+    if origin is list:
+        (inner,) = typing.get_args(hint)
+        if isinstance(value, str | int | float) and not isinstance(value, bool):
+            value = [value]
+        if not isinstance(value, list | tuple):
+            raise TrainError(f"config {where}: expected a list, got {value!r}")
+        return [_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value)]
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise TrainError(f"config {where}: expected a table, got {value!r}")
+        return dict(value)
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+    elif hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif hint is float:
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+    elif hint is str:
+        if isinstance(value, str):
+            return value
+    elif hint is Any:
+        return value
+    raise TrainError(f"config {where}: expected {getattr(hint, '__name__', hint)}, got {value!r}")
+
+
+def _from_dict(cls: type, data: dict[str, Any], where: str = "") -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise TrainError(
+            f"config {where or 'top level'}: unknown setting(s) {', '.join(unknown)}; "
+            f"known: {', '.join(sorted(names))}"
+        )
+    kwargs = {k: _coerce(v, hints[k], f"{where}.{k}".lstrip(".")) for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as err:
+        raise TrainError(f"config {where or 'top level'}: {err}") from err
+
+
+def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
+    """A copy of dataclass ``base`` with the (possibly partial, nested) settings of ``data``."""
+    hints = typing.get_type_hints(type(base))
+    names = {f.name for f in dataclasses.fields(base)}
+    changes: dict[str, Any] = {}
+    for key, value in data.items():
+        path = f"{where}.{key}".lstrip(".")
+        if key not in names:
+            raise TrainError(
+                f"config: unknown setting {path!r}; known here: {', '.join(sorted(names))}"
+            )
+        current = getattr(base, key)
+        if dataclasses.is_dataclass(current) and isinstance(value, dict):
+            changes[key] = _merge(current, value, path)
+        else:
+            changes[key] = _coerce(value, hints[key], path)
+    try:
+        return dataclasses.replace(base, **changes)
+    except (TypeError, ValueError) as err:  # a section's own checks (e.g. LossConfig's)
+        raise TrainError(f"config {where or 'top level'}: {err}") from err
+
+
+def config_from_dict(data: dict[str, Any]) -> TrainConfig:
+    """Inverse of :func:`config_to_dict`: missing settings keep the named recipe's values."""
+    base = recipe(str(data.get("recipe", "paper")))
+    return _merge(base, data)
+
+
+def load_config_file(path: str | Path) -> dict[str, Any]:
+    """Read settings from a ``.json`` or ``.toml`` file (partial settings are fine)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise TrainError(f"{path}: cannot read the config file ({err})") from err
+    except UnicodeDecodeError as err:  # a recording or weights file given by mistake
+        raise TrainError(f"{path}: not a config file (not text: {err.reason})") from err
+    toml = path.suffix.lower() == ".toml"  # anything else is read as JSON: say so, not ".txt"
+    try:
+        data = tomllib.loads(text) if toml else json.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as err:
+        raise TrainError(f"{path}: not valid {'TOML' if toml else 'JSON'} ({err})") from err
+    if not isinstance(data, dict):
+        raise TrainError(f"{path}: a config file must hold a table of settings")
+    return data
+
+
+def _parse_value(text: str) -> Any:
+    """CLI value: JSON where it parses (numbers, true/false, null, lists), else a string."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        if "," in text:
+            return [_parse_value(part.strip()) for part in text.split(",")]
+        return text
+
+
+def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfig:
+    """Apply ``section.field=value`` strings, e.g. ``optim.lr=0.003``, ``loss.smoothness=0.1``,
+    ``data.mix=0.7,0.3``, ``data.topic=null``."""
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise TrainError(f"--set expects section.field=value, got {item!r}")
+        nested: dict[str, Any] = {}
+        node = nested
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = _parse_value(text.strip())
+        config = _merge(config, nested)
+    return config
+
+
+def build_config(
+    recipe_name: str | None = None,
+    file: str | Path | None = None,
+    flags: dict[str, Any] | None = None,
+    overrides: Iterable[str] = (),
+) -> TrainConfig:
+    """Layer a config: recipe, then file, then ``flags`` (``{"optim.lr": 0.003}``; ``None``
+    values are ignored), then ``--set`` overrides. A ``recipe`` argument beats the file's."""
+    data = load_config_file(file) if file is not None else {}
+    name = recipe_name or str(data.get("recipe", "paper"))
+    config = _merge(recipe(name), {**data, "recipe": name})
+    for key, value in (flags or {}).items():
+        if value is None:
+            continue
+        nested: dict[str, Any] = {}
+        node = nested
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+        config = _merge(config, nested)
+    return apply_overrides(config, overrides).validate()
