@@ -316,7 +316,7 @@ def test_sessions_whose_header_clocks_overlap_read_one_after_the_other(tmp_path,
     assert rec.stamps_ns[12] - rec.stamps_ns[11] == 10 * PERIOD
     assert find_gaps(rec) == [(12, 1.0)] and split_segments(rec) == [(0, 12), (12, 24)]
     assert rec.frame_rate == pytest.approx(10.0)
-    jump = {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9}
+    jump = {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9, "shift_ns": 1_900_000_000}
     assert rec.meta["clock_jumps"] == [jump] and rec.meta["stamps"] == "header"
     assert describe_recording(rec)["clock_jumps"] == [jump]  # `info` says so
 
@@ -341,7 +341,8 @@ def test_odometry_whose_clock_jumps_with_the_scans_keeps_matching_them(tmp_path)
     # odometry: x = 0.05 i at log time t0 + i * period / 2, so x = 0.1 k at scan k
     np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(24), atol=1e-9)
     assert rec.meta["clock_jumps"] == [
-        {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9, "poses_matched": True}
+        {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9, "shift_ns": 1_900_000_000,
+         "poses_matched": True}
     ]
 
 

@@ -58,3 +58,23 @@ def test_deeptracking_bag_has_no_moving_topic(tmp_path, sample_recording):
     predictor = Predictor(make_model_dir(tmp_path / "dt", name="deeptracking"))
     counts = predict_to_bag(sample_recording.slice(0, 2), predictor, tmp_path / "o.mcap")
     assert "/lidarflow/moving" not in counts and counts["/lidarflow/predicted"] == 2
+
+
+@pytest.mark.parametrize("name", ["out.bag", "out.mcap"])
+def test_predictions_keep_the_bags_own_stamps_where_its_clock_went_back(tmp_path, name):
+    # read, the second session is re-stamped to follow the first; written, it must line up with
+    # the bag it came from again
+    from lidarflow.data import read_bag
+    from tests.bagutil import write_bag
+
+    t0, period = 1_700_000_000 * 10**9, 100_000_000
+    headers = [t0 + (i if i < 8 else i - 8) * period for i in range(14)]
+    frames = [np.full(50, 2.0 + 0.01 * i) for i in range(14)]
+    bag = write_bag(tmp_path / "j.bag", "ros1", {"/scan": frames}, header_stamps=headers)
+    recording = read_bag(bag)
+    assert recording.meta["clock_jumps"] and recording.stamps_ns[8] > headers[7]
+    predict_to_bag(recording, Predictor(), tmp_path / name)
+    written = read_all(tmp_path / name)
+    for topic in ("/scan", "/lidarflow/predicted"):
+        stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in written[topic]]
+        assert sorted(stamps) == sorted(headers), topic

@@ -19,7 +19,7 @@ import numpy as np
 
 from lidarflow.scan import Scan
 
-__all__ = ["in_sessions", "interpolate_poses"]
+__all__ = ["in_sessions", "interpolate_poses", "recorded_stamps"]
 
 # A header stamp this far behind the latest one of its session is a clock that went back (a
 # driver restart, a simulator's /clock reset, two sessions in one bag), not transport jitter:
@@ -135,13 +135,15 @@ def _clock_jumps(
 ) -> list[dict[str, Any]]:
     """``meta["clock_jumps"]``: for each session after the first, the frame it begins at (in
     reading order, as in arrival order), how far its clock went back and the shift added to its
-    stamps, in seconds, and, with odometry, whether the odometry's clock jumped with it."""
+    stamps, in seconds (and the shift exactly, in ns, for :func:`recorded_stamps`), and, with
+    odometry, whether the odometry's clock jumped with it."""
     jumps = []
     for k, (a, b) in enumerate(itertools.pairwise(starts), start=1):
         jump: dict[str, Any] = {
             "before_frame": b,
             "back_s": round(int(stamps_ns[a:b].max() - stamps_ns[b]) / 1e9, 3),
             "shift_s": round(int(shifts[b]) / 1e9, 3),
+            "shift_ns": int(shifts[b]),
         }
         if poses_paired is not None:
             jump["poses_matched"] = k <= poses_paired
@@ -173,3 +175,15 @@ def in_sessions(
         at = [stamps_ns[order[a:b]] for a, b in itertools.pairwise(bounds)]
         poses, paired = _session_poses(at, arrivals[starts[1:]], odometry, tolerance)
     return ordered, poses, _clock_jumps(stamps_ns, starts, shifts, paired)
+
+
+def recorded_stamps(stamps_ns: np.ndarray, clock_jumps: list[dict[str, Any]]) -> np.ndarray:
+    """The stamps as the bag had them: each session after a clock jump (``meta["clock_jumps"]``)
+    un-shifted, so that what is written from a recording lines up with the bag it was read from.
+    """
+    out = np.array(stamps_ns, dtype=np.int64)
+    for jump in sorted(clock_jumps, key=lambda j: j["before_frame"]):
+        # each session's shift is its own (not added to the one before's): later ones override
+        shift = jump.get("shift_ns", round(float(jump["shift_s"]) * 1e9))
+        out[jump["before_frame"] :] = np.asarray(stamps_ns[jump["before_frame"] :]) - shift
+    return out

@@ -1,6 +1,7 @@
 """``lidarflow predict``: a recording in, a bag out with the scans and their predictions.
 
-Topics written (all stamped with the scan's stamp, in the scan's frame):
+Topics written (all stamped with the scan's stamp as the bag had it, in the scan's frame; where
+the bag's header clock went back, reading re-stamps its later sessions, and this undoes that):
 
 - the input scan topic: the scans themselves (ranges and geometry; intensities are not kept);
 - ``/lidarflow/occupancy``: the current occupancy map (``nav_msgs/OccupancyGrid``);
@@ -16,10 +17,12 @@ Topics written (all stamped with the scan's stamp, in the scan's frame):
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
 from lidarflow.data.recording import Recording
+from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.predict.predictor import Predictor
@@ -57,12 +60,15 @@ def predict_to_bag(
     def count(topic: str) -> None:
         counts[topic] = counts.get(topic, 0) + 1
 
+    # where the bag's header clock went back, its later sessions were re-stamped to follow the
+    # first (lidarflow.data.sessions): the output keeps the bag's own stamps, to line up with it
+    stamps = recorded_stamps(recording.stamps_ns, recording.meta.get("clock_jumps") or [])
     predictor.reset()
     with BagOutput(output) as out:
         for i, scan in enumerate(recording):
             p = predictor.update(scan, None if poses is None else poses[i])
-            stamp = scan.stamp_ns
-            out.write_scan(scan_topic, scan, frame_id)
+            stamp = int(stamps[i])
+            out.write_scan(scan_topic, dataclasses.replace(scan, stamp_ns=stamp), frame_id)
             count(scan_topic)
             out.write_grid(
                 f"{TOPIC_PREFIX}/occupancy",
