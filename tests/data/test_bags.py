@@ -341,8 +341,13 @@ def test_odometry_whose_clock_jumps_with_the_scans_keeps_matching_them(tmp_path)
     # odometry: x = 0.05 i at log time t0 + i * period / 2, so x = 0.1 k at scan k
     np.testing.assert_allclose(rec.poses[:, 0], 0.1 * np.arange(24), atol=1e-9)
     assert rec.meta["clock_jumps"] == [
-        {"before_frame": 12, "back_s": 0.9, "shift_s": 1.9, "shift_ns": 1_900_000_000,
-         "poses_matched": True}
+        {
+            "before_frame": 12,
+            "back_s": 0.9,
+            "shift_s": 1.9,
+            "shift_ns": 1_900_000_000,
+            "poses_matched": True,
+        }
     ]
 
 
