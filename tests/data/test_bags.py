@@ -321,6 +321,16 @@ def test_sessions_whose_header_clocks_overlap_read_one_after_the_other(tmp_path,
     assert describe_recording(rec)["clock_jumps"] == [jump]  # `info` says so
 
 
+def test_a_simulator_replaying_itself_after_a_clock_reset_is_not_a_duplicate(tmp_path):
+    # noise-free and standing still: after /clock goes back to the start, the same scans come
+    # with the same stamps a session later; copies of one message come together
+    frames = [np.full(10, 1.0 + 0.1 * (i % 12)) for i in range(24)]
+    headers = [T0 + (i % 12) * PERIOD for i in range(24)]
+    rec = read_bag(write_bag(tmp_path / "r.bag", "ros1", {"/scan": frames}, header_stamps=headers))
+    assert len(rec) == 24 and rec.meta["duplicate_scans_dropped"] == 0
+    assert [j["before_frame"] for j in rec.meta["clock_jumps"]] == [12]
+
+
 def test_header_stamps_that_jitter_keep_header_order(tmp_path):
     # a multi-connection bag: arrival order differs from header order by a few frames
     frames = [np.full(10, 1.0 + 0.1 * i) for i in range(20)]

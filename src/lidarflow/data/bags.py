@@ -193,6 +193,9 @@ def _stamp_ns(msg: Any, fallback: int) -> int:
     return ns if ns > 0 else int(fallback)
 
 
+_COPIES_WITHIN_NS = 1_000_000_000  # log times of one message recorded twice: well within 1 s
+
+
 def _stuck(stamps_ns: np.ndarray) -> bool:
     """Whether stamps in arrival order advance between fewer than half of the messages."""
     advancing = np.count_nonzero(np.diff(stamps_ns) > 0)
@@ -297,14 +300,16 @@ def read_bag(
     if not scans:
         raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
     # The same message recorded twice (two connections on one topic, merged bags) is one
-    # measurement: kept twice, it would make a copy of the last map a perfect prediction.
-    seen: set[tuple[int, BeamGeometry, bytes]] = set()
+    # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
+    # copies arrive together; the same scan at the same stamp a session later is a simulator
+    # replaying itself after its clock was reset (data.sessions), and is kept.
+    seen: dict[tuple[int, BeamGeometry, bytes], int] = {}
     unique: list[tuple[Scan, int]] = []
     for scan, log_time in zip(scans, log_times, strict=True):
         key = (scan.stamp_ns, scan.geometry, scan.ranges.tobytes())
-        if key not in seen:
-            seen.add(key)
+        if key not in seen or abs(int(log_time) - seen[key]) > _COPIES_WITHIN_NS:
             unique.append((scan, log_time))
+            seen[key] = int(log_time)
     duplicates = len(scans) - len(unique)
     scans, stamps = [scan for scan, _ in unique], "header"
     arrivals = np.array([log_time for _, log_time in unique], dtype=np.int64)
