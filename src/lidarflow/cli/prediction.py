@@ -69,6 +69,11 @@ def demo(
     typer.echo(format_table(entry["methods"], title))
     if entry["against_baselines"]:
         typer.echo(format_comparison(entry["against_baselines"]))
+        # honest about what this number is: the bundled model trained on every dev recording
+        typer.echo(
+            "(in-sample: the bundled model trained on this recording; on recordings it never "
+            "saw, see the README's 'The bundled model')"
+        )
     typer.echo(f"results: {output / 'results.json'}; report: {output / 'report' / 'index.html'}")
     if has_model:
         from lidarflow.predict import Predictor
