@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from lidarflow.data.gaps import MIN_STEPS, frames_after_gaps
+from lidarflow.data.gaps import HISTORY, MIN_STEPS, frames_after_gaps
 
 MS = 1_000_000
 
@@ -41,16 +41,19 @@ def test_clock_jumping_back_is_a_gap_but_jitter_and_stuck_stamps_are_not():
     assert frames_after_gaps([5 * MS] * 20) == []
 
 
-def test_the_rate_is_learnt_before_any_gap_is_called():
-    # the first MIN_STEPS steps only teach the rate
-    steps = [100.0] * (MIN_STEPS - 1) + [5000.0] + [100.0] * 5
-    assert frames_after_gaps(stamps(steps)) == []
+def test_a_gap_in_the_first_steps_or_right_after_another_is_found():
+    assert frames_after_gaps(stamps([10_000.0] + [100.0] * 10)) == [1]
+    assert frames_after_gaps(stamps([100.0] * (MIN_STEPS - 1) + [5000.0] + [100.0] * 5)) == [3]
+    steps = [100.0] * 10 + [10_000.0, 100.0, 10_000.0] + [100.0] * 10
+    assert frames_after_gaps(stamps(steps)) == [11, 13]
+    back = [100.0] * 10 + [10_000.0, 100.0, -20_000.0] + [100.0] * 10
+    assert frames_after_gaps(stamps(back)) == [11, 13]
 
 
-def test_a_changed_rate_is_learnt_again_after_one_gap():
-    # 20 Hz then 5 Hz: one gap where it changed, not one before every slower scan
-    steps = [50.0] * 10 + [200.0] * 20
-    assert frames_after_gaps(stamps(steps)) == [11]
+def test_a_changed_rate_is_learnt_within_half_a_history():
+    # 20 Hz then 5 Hz: the first slower steps are gaps, not every one from then on
+    after = frames_after_gaps(stamps([50.0] * 60 + [200.0] * 60))
+    assert after and after[0] == 61 and after[-1] < 61 + HISTORY // 2 + 1
 
 
 def test_bad_threshold_is_refused():

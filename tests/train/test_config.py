@@ -156,3 +156,9 @@ def test_bad_config_files_and_values(tmp_path):
             with pytest.raises(TrainError, match=r"data\.static_shift are fractions"):
                 build_config(None, None, {fraction: value})
         assert getattr(build_config(None, None, {fraction: 1.0}).data, fraction.split(".")[1]) == 1
+
+
+def test_a_gap_threshold_of_one_period_or_less_is_refused_before_any_data_loads():
+    # every step would be a gap; it reached the gap rule as an internal error after loading
+    with pytest.raises(TrainError, match=r"data\.max_gap_periods must be > 1"):
+        build_config(None, None, {}, ["data.max_gap_periods=1.0"])

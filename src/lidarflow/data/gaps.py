@@ -7,11 +7,13 @@ evaluation does not score the step into it (:mod:`lidarflow.evaluate.stream`), a
 info`` lists them, all by this one rule.
 
 The rule is relative to the stream's own rate (scanners run at 5-40 Hz): a step longer than
-``max_gap_periods`` times the median of the recent steps, forwards or backwards (a clock that
-jumps back). A stamp equal to the one before (a driver that does not advance its stamps) or a
-little before it (two scans handed over out of order) is no gap. The first ``MIN_STEPS`` steps
-only learn the rate, and after a gap it is learnt again, so that a driver that changes its rate
-(20 Hz -> 5 Hz) reads as one gap, not as one before every scan from then on.
+``max_gap_periods`` times the typical step, forwards or backwards (a clock that jumps back). The
+typical step is the median of the last ``HISTORY`` forward steps, long ones included: one gap
+does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is learnt within
+half a history (its first slower steps are gaps; not every one from then on). Until
+``MIN_STEPS`` steps are known, the median of all the stream's forward steps stands in, so a gap
+in the first steps is found too. A stamp equal to the one before (a driver that does not advance
+its stamps) or a little before it (two scans handed over out of order) is no gap.
 """
 
 from __future__ import annotations
@@ -21,11 +23,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
-__all__ = ["MAX_GAP_PERIODS", "MIN_STEPS", "frames_after_gaps"]
+__all__ = ["HISTORY", "MAX_GAP_PERIODS", "MIN_STEPS", "frames_after_gaps"]
 
 MAX_GAP_PERIODS = 2.5
 MIN_STEPS = 3
-_HISTORY = 50  # steps the rate is the median of
+HISTORY = 50  # forward steps the typical step is the median of
 
 
 def frames_after_gaps(
@@ -34,17 +36,19 @@ def frames_after_gaps(
     """The indices of the stamps (in stream order) that follow a gap."""
     if not max_gap_periods > 1:
         raise ValueError(f"max_gap_periods must be > 1, got {max_gap_periods}")
-    steps: deque[int] = deque(maxlen=_HISTORY)
-    after: list[int] = []
-    last: int | None = None
-    for i, stamp in enumerate(stamps_ns):
-        stamp = int(stamp)
-        if last is not None:
-            step = stamp - last
-            if len(steps) >= MIN_STEPS and abs(step) > max_gap_periods * np.median(steps):
-                after.append(i)
-                steps.clear()
-            elif step > 0:  # stamps that stand still or step back a little teach no rate
-                steps.append(step)
-        last = stamp
+    stamps = np.asarray(list(stamps_ns), dtype=np.int64)
+    forward = np.diff(stamps)
+    forward = forward[forward > 0]
+    if forward.size == 0:  # stamps that never advance: no rate, so no gap either
+        return []
+    overall = float(np.median(forward))
+    recent: deque[int] = deque(maxlen=HISTORY)
+    after = []
+    for i in range(1, len(stamps)):
+        step = int(stamps[i] - stamps[i - 1])
+        typical = float(np.median(recent)) if len(recent) >= MIN_STEPS else overall
+        if abs(step) > max_gap_periods * typical:
+            after.append(i)
+        if step > 0:
+            recent.append(step)
     return after

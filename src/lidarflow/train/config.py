@@ -181,6 +181,7 @@ class TrainConfig:
                 "data.mix weights must be >= 0 and not all 0",
             ),
             (d.grid >= 4 and d.res > 0, "data.grid must be >= 4 and data.res > 0"),
+            (d.max_gap_periods > 1, "data.max_gap_periods must be > 1 (frame periods)"),
             (
                 0 <= d.pose_dropout <= 1 and 0 <= d.static_shift <= 1,
                 "data.pose_dropout and data.static_shift are fractions of windows, in [0, 1]",
