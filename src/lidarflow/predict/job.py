@@ -60,40 +60,31 @@ def predict_to_bag(
     def count(topic: str) -> None:
         counts[topic] = counts.get(topic, 0) + 1
 
-    # where the bag's header clock went back, its later sessions were re-stamped to follow the
-    # first (lidarflow.data.sessions): the output keeps the bag's own stamps, to line up with it
+    # Where the bag's header clock went back, reading re-stamped its later sessions to follow
+    # the first (lidarflow.data.sessions): headers get the bag's own stamps back, to line up
+    # with it, and the log times stay the re-stamped ones, in order, so that a reader (Foxglove,
+    # read_bag) takes the sessions one after the other as they were recorded.
     stamps = recorded_stamps(recording.stamps_ns, recording.meta.get("clock_jumps") or [])
     predictor.reset()
     with BagOutput(output) as out:
         for i, scan in enumerate(recording):
             p = predictor.update(scan, None if poses is None else poses[i])
-            stamp = int(stamps[i])
-            out.write_scan(scan_topic, dataclasses.replace(scan, stamp_ns=stamp), frame_id)
+            stamp, at = int(stamps[i]), scan.stamp_ns  # header stamp, log time
+            out.write_scan(scan_topic, dataclasses.replace(scan, stamp_ns=stamp), frame_id, at)
             count(scan_topic)
-            out.write_grid(
-                f"{TOPIC_PREFIX}/occupancy",
-                p.occupancy.astype(float),
-                grid,
-                stamp,
-                frame_id,
-                unknown=~p.visibility,
-            )
-            count(f"{TOPIC_PREFIX}/occupancy")
+            grids = [(f"{TOPIC_PREFIX}/occupancy", p.occupancy.astype(float), ~p.visibility)]
             for k, probability in enumerate(p.horizon, start=1):
                 topic = f"{TOPIC_PREFIX}/predicted" + (f"_k{k}" if k > 1 else "")
-                unknown = ~p.visibility & (probability < THRESHOLD)
-                out.write_grid(topic, probability, grid, stamp, frame_id, unknown=unknown)
+                grids.append((topic, probability, ~p.visibility & (probability < THRESHOLD)))
+            if p.moving is not None:
+                grids.append((f"{TOPIC_PREFIX}/moving", p.moving.astype(float), ~p.visibility))
+            for topic, values, unknown in grids:
+                out.write_grid(topic, values, grid, stamp, frame_id, unknown, log_time_ns=at)
                 count(topic)
             if p.backward_flow is not None and p.forward_flow is not None:
-                out.write_flow(f"{TOPIC_PREFIX}/flow_backward", p.backward_flow, stamp, frame_id)
-                out.write_flow(f"{TOPIC_PREFIX}/flow_forward", p.forward_flow, stamp, frame_id)
-                count(f"{TOPIC_PREFIX}/flow_backward")
-                count(f"{TOPIC_PREFIX}/flow_forward")
-            if p.moving is not None:
-                topic = f"{TOPIC_PREFIX}/moving"
-                moving = p.moving.astype(float)
-                out.write_grid(topic, moving, grid, stamp, frame_id, unknown=~p.visibility)
-                count(topic)
+                for name, flow in (("backward", p.backward_flow), ("forward", p.forward_flow)):
+                    out.write_flow(f"{TOPIC_PREFIX}/flow_{name}", flow, stamp, frame_id, at)
+                    count(f"{TOPIC_PREFIX}/flow_{name}")
             if progress is not None:
                 progress(1)
     return counts

@@ -131,14 +131,17 @@ class BagOutput:
             return types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame_id)
         return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
-    def _write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
+    def _write(self, topic: str, msgtype: str, log_time_ns: int, msg: Any) -> None:
         conn = self._connections.get(topic)
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
             self._connections[topic] = conn
-        self._writer.write(conn, int(stamp_ns), self._serialize(msg, msgtype))
+        self._writer.write(conn, int(log_time_ns), self._serialize(msg, msgtype))
 
-    def write_scan(self, topic: str, scan: Scan, frame_id: str) -> None:
+    def write_scan(
+        self, topic: str, scan: Scan, frame_id: str, log_time_ns: int | None = None
+    ) -> None:
+        """``scan`` stamped with its stamp; logged at ``log_time_ns`` (default: the stamp)."""
         g = scan.geometry
         msg = self._types()["sensor_msgs/msg/LaserScan"](
             header=self._header(scan.stamp_ns, frame_id),
@@ -152,7 +155,7 @@ class BagOutput:
             ranges=np.asarray(scan.ranges, np.float32),
             intensities=np.zeros(0, np.float32),
         )
-        self._write(topic, "sensor_msgs/msg/LaserScan", scan.stamp_ns, msg)
+        self._write(topic, "sensor_msgs/msg/LaserScan", _logged(scan.stamp_ns, log_time_ns), msg)
 
     def write_grid(
         self,
@@ -162,6 +165,7 @@ class BagOutput:
         stamp_ns: int,
         frame_id: str,
         unknown: np.ndarray | None = None,
+        log_time_ns: int | None = None,
     ) -> None:
         types = self._types()
         if probability.shape != grid.shape:
@@ -180,9 +184,16 @@ class BagOutput:
         msg = types["nav_msgs/msg/OccupancyGrid"](
             header=self._header(stamp_ns, frame_id), info=info, data=grid_data(probability, unknown)
         )
-        self._write(topic, "nav_msgs/msg/OccupancyGrid", stamp_ns, msg)
+        self._write(topic, "nav_msgs/msg/OccupancyGrid", _logged(stamp_ns, log_time_ns), msg)
 
-    def write_flow(self, topic: str, flow: np.ndarray, stamp_ns: int, frame_id: str) -> None:
+    def write_flow(
+        self,
+        topic: str,
+        flow: np.ndarray,
+        stamp_ns: int,
+        frame_id: str,
+        log_time_ns: int | None = None,
+    ) -> None:
         """Flow ``(2, H, W)`` in cells as a ``32FC2`` image (row 0 the map's far edge)."""
         if flow.ndim != 3 or flow.shape[0] != 2:
             raise PredictError(f"flow must be (2, H, W), got {tuple(flow.shape)}")
@@ -197,4 +208,9 @@ class BagOutput:
             step=w * 8,
             data=pixels.view(np.uint8).ravel(),
         )
-        self._write(topic, "sensor_msgs/msg/Image", stamp_ns, msg)
+        self._write(topic, "sensor_msgs/msg/Image", _logged(stamp_ns, log_time_ns), msg)
+
+
+def _logged(stamp_ns: int, log_time_ns: int | None) -> int:
+    """A message's log time: its header stamp unless given (readers order by log time)."""
+    return stamp_ns if log_time_ns is None else log_time_ns
