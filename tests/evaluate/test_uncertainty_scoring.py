@@ -54,7 +54,11 @@ def test_segmentation_scored_against_truth_of_the_frame_just_given():
     ]
     seen = []
     scorers = evaluate_maps(
-        maps, maps, methods, warmup=3, gt_moving=lambda t: truth[t],
+        maps,
+        maps,
+        methods,
+        warmup=3,
+        gt_moving=lambda t: truth[t],
         on_moving=lambda name, t, m, gt: seen.append((name, t)),
     )
     oracle = scorers["oracle"].summary()["segmentation"]
@@ -135,3 +139,17 @@ def test_model_method_exposes_flows_and_moving(tmp_path):
     deep = ModelMethod("dt", StreamingModel(dt))
     deep.update(maps[0], maps[0])
     assert deep.moving is None and deep.backward_flow is None
+
+
+def test_moving_cells_are_scored_on_every_frame_even_before_a_gap():
+    # a gap ends the next-map step from frame 9, not frame 9's own moving cells
+    maps = moving_square()
+    truth = square_truth(maps)
+    seen = []
+    scorers = evaluate_maps(
+        maps, maps, [MovingFromTruth("oracle", lambda t: truth[t])], warmup=3,
+        gt_moving=lambda t: truth[t], on_moving=lambda name, t, m, gt: seen.append(t), gaps=[10],
+    )  # fmt: skip
+    assert seen == list(range(3, len(maps) - 1))
+    oracle = scorers["oracle"]
+    assert oracle.moving_frames == len(maps) - 1 - 3 and oracle.frames == len(maps) - 1 - 3 - 1

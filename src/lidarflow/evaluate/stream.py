@@ -7,9 +7,10 @@ first ``warmup`` frames only warm the state up.
 Where a recording's scans stop for a while (a gap, :func:`lidarflow.data.gaps.frames_after_gaps`)
 the step across the gap is not scored: the frame after it is not the next scan. Every method's
 state carries across, as the :class:`~lidarflow.predict.Predictor`'s does: measured on the
-development recordings with gaps cut in (0.3 s to 13 s), the bundled model predicted the frames
-after a gap better carrying its state than restarting, but for the first ten after moving to
-another place (``docs/results/gaps/``).
+development recordings with gaps cut in (0.3 s to 13 s), the bundled model predicted the
+frames after a gap better carrying its state than restarting over all but the first ten (about
+even there; restarting better on the moving recordings and after moving to another place:
+``docs/results/gaps/``).
 
 A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of the frame just
 given that move on their own) is also scored for moving-object segmentation against the
@@ -99,8 +100,9 @@ def evaluate_maps(
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
-    ``gaps``: the frames that follow a gap in time; the step into each is not scored (every
-    method still sees every frame).
+    ``gaps``: the frames that follow a gap in time; the step into each is not scored (the next
+    map, the flow to it; every method still sees every frame, and the moving cells of every
+    frame are scored).
 
     ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
@@ -139,16 +141,18 @@ def evaluate_maps(
         for m in methods:
             extra = _inputs(m, t, motions, returns, motions_from_poses, subcell)
             probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
-            if t < warmup or t in unscored:
+            if t < warmup:
                 continue
-            scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
-            flow = getattr(m, "backward_flow", None)
-            if on_prediction is not None:
-                on_prediction(m.name, t, probability, flow)
-            if gt_flow is not None and flow is not None:
-                cells = occupancy[t + 1]
-                error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow(t)))[cells]
-                scorers[m.name].add_epe(float(error.sum()), int(cells.sum()))
+            if t not in unscored:  # the next map and the flow to it: not across a gap
+                scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
+                flow = getattr(m, "backward_flow", None)
+                if on_prediction is not None:
+                    on_prediction(m.name, t, probability, flow)
+                if gt_flow is not None and flow is not None:
+                    cells = occupancy[t + 1]
+                    error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow(t)))[cells]
+                    scorers[m.name].add_epe(float(error.sum()), int(cells.sum()))
+            # The moving cells of frame t are scored against frame t's own truth, gap or not.
             # Segmentation costs ~0.6 ms a frame: only ask for it when it is scored or drawn.
             wanted = gt_moving is not None or on_moving is not None
             moving = getattr(m, "moving", None) if wanted else None
