@@ -331,6 +331,19 @@ def test_a_simulator_replaying_itself_after_a_clock_reset_is_not_a_duplicate(tmp
     assert [j["before_frame"] for j in rec.meta["clock_jumps"]] == [12]
 
 
+def test_a_slice_keeps_the_bags_own_stamps_where_its_clock_went_back(tmp_path):
+    from lidarflow.data.sessions import recorded_stamps
+
+    frames = [np.full(10, 1.0 + 0.1 * i) for i in range(24)]
+    rec = read_bag(write_bag(tmp_path / "j.bag", "ros1", {"/scan": frames},
+                             clock=_restarted(12, 10)))  # fmt: skip
+    bag_stamps = recorded_stamps(rec.stamps_ns, rec.meta["clock_jumps"])
+    for start, stop in ((4, 20), (14, 24), (0, 12)):
+        part = rec.slice(start, stop)
+        got = recorded_stamps(part.stamps_ns, part.meta["clock_jumps"])
+        np.testing.assert_array_equal(got, bag_stamps[start:stop])
+
+
 def test_header_stamps_that_jitter_keep_header_order(tmp_path):
     # a multi-connection bag: arrival order differs from header order by a few frames
     frames = [np.full(10, 1.0 + 0.1 * i) for i in range(20)]

@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from lidarflow.data.sessions import sliced_clock_jumps
 from lidarflow.errors import RecordingError, ScanError
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
 
@@ -230,9 +231,15 @@ class Recording:
             range_max=self.range_max[start:stop],
             stamps_ns=self.stamps_ns[start:stop],
             poses=None if self.poses is None else self.poses[start:stop],
-            meta={**self.meta, "sliced_from": [start, stop]},
+            meta=self._sliced_meta(start, stop),
             extras=extras,
         )
+
+    def _sliced_meta(self, start: int, stop: int) -> dict[str, Any]:
+        meta = {**self.meta, "sliced_from": [start, stop]}
+        if meta.get("clock_jumps"):  # frame numbers (and the shift in effect) of the slice
+            meta["clock_jumps"] = sliced_clock_jumps(meta["clock_jumps"], start, stop)
+        return meta
 
     # ----------------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:

@@ -19,7 +19,7 @@ import numpy as np
 
 from lidarflow.scan import Scan
 
-__all__ = ["in_sessions", "interpolate_poses", "recorded_stamps"]
+__all__ = ["in_sessions", "interpolate_poses", "recorded_stamps", "sliced_clock_jumps"]
 
 # A header stamp this far behind the latest one of its session is a clock that went back (a
 # driver restart, a simulator's /clock reset, two sessions in one bag), not transport jitter:
@@ -187,3 +187,15 @@ def recorded_stamps(stamps_ns: np.ndarray, clock_jumps: list[dict[str, Any]]) ->
         shift = jump.get("shift_ns", round(float(jump["shift_s"]) * 1e9))
         out[jump["before_frame"] :] = np.asarray(stamps_ns[jump["before_frame"] :]) - shift
     return out
+
+
+def sliced_clock_jumps(
+    clock_jumps: list[dict[str, Any]], start: int, stop: int
+) -> list[dict[str, Any]]:
+    """``meta["clock_jumps"]`` for frames ``[start, stop)`` of a recording: the jumps inside,
+    renumbered, and the one in effect at ``start`` (its session's shift) as if at frame 0."""
+    ordered = sorted(clock_jumps, key=lambda j: j["before_frame"])
+    before = [j for j in ordered if j["before_frame"] <= start]
+    inside = [j for j in ordered if start < j["before_frame"] < stop]
+    out = [{**before[-1], "before_frame": 0}] if before else []
+    return out + [{**j, "before_frame": j["before_frame"] - start} for j in inside]
