@@ -3,11 +3,11 @@
 A stream of scans can stop for a while. This cuts ``k`` frames out of each development
 recording at a few places, streams the bundled model and the baselines over ``--before`` frames,
 the gap, and ``--after`` frames, once carrying every method's state across the gap and once
-restarting every method after it (what :class:`lidarflow.predict.Predictor` does at a gap by
-:class:`lidarflow.data.gaps.GapDetector`'s rule), and scores the predictions made after the gap
-(the step across the gap is scored by neither: it is not a one-step prediction). Scores are
-split into the first ``--warmup`` predictions after the gap (which the streaming evaluation does
-not score after a restart) and the rest.
+restarting every method after it (as a fresh ``Predictor`` would), and scores the predictions
+made after the gap (the step across the gap is scored by neither: it is not a one-step
+prediction). Scores are split into the first ``--warmup`` predictions after the gap (which a
+streaming evaluation that restarted would not score, its warm-up) and the rest. Carrying won
+and is what ``evaluate`` and the ``Predictor`` do (``docs/results/gaps/README.md``).
 
     python experiments/gap_restart.py --json docs/results/gaps/gap_restart.json
 """

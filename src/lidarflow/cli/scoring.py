@@ -193,7 +193,10 @@ def evaluate(
     carried across the recording), with F1 at 0.4, precision, recall, average precision and
     changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
     for every --model given, by default the bundled model (and flow end-point error where the
-    recording has ground truth).
+    recording has ground truth). Each model is said to win or lose against the baselines (F1
+    above the best baseline's and changed-cell F1 above every baseline's). Where the scans stop
+    for a while (a step longer than 2.5 frame periods: a gap, as `lidarflow info` lists them),
+    the step across the gap is not scored.
 
     A second table gives the calibration of every method's probabilities (expected calibration
     error over bins of 0.1 on all cells, ece_active on the cells predicted >= 0.1, and Brier
