@@ -145,3 +145,15 @@ def test_sequences_windows_and_dropped_frames():
 def test_recording_shorter_than_a_sequence():
     with pytest.raises(RecordingError, match="no sequence of 20 frames fits"):
         SequenceSet([make_recording(n=12)], length=20)
+
+
+def test_long_geometry_runs_rasterize_in_batches_to_the_same_maps(monkeypatch):
+    from lidarflow.data import recording as recording_module
+
+    rec = make_recording(n=23)
+    whole = rec.maps(GridSpec(40, 40, 0.2)), rec.subcell_maps(GridSpec(40, 40, 0.2))
+    monkeypatch.setattr(recording_module, "_BATCH_FRAMES", 5)  # 23 frames: 5 batches
+    batched = rec.maps(GridSpec(40, 40, 0.2), 2, 21), rec.subcell_maps(GridSpec(40, 40, 0.2), 2, 21)
+    np.testing.assert_array_equal(batched[0][0], whole[0][0][2:21])
+    np.testing.assert_array_equal(batched[0][1], whole[0][1][2:21])
+    np.testing.assert_array_equal(batched[1], whole[1][2:21])

@@ -27,6 +27,7 @@ __all__ = ["FORMAT_VERSION", "Recording", "load_recording"]
 
 FORMAT_VERSION = 1
 _EXTRA_PREFIX = "extra__"
+_BATCH_FRAMES = 256  # frames rasterized at once
 
 
 @dataclass
@@ -202,11 +203,13 @@ class Recording:
         self, batch: Callable[[np.ndarray, BeamGeometry], T], start: int, stop: int
     ) -> Iterator[tuple[slice, T]]:
         """``batch(ranges (b - a, count), geometry)`` for each run of frames ``[a, b)`` of
-        ``[start, stop)`` that share one geometry, with the frames' place in an output starting
-        at ``start``; a scan it cannot take is a :class:`RecordingError` naming the frames."""
-        for a, b in self.geometry_runs():
-            a, b = max(a, start), min(b, stop)
-            if a < b:
+        ``[start, stop)`` that share one geometry (at most ``_BATCH_FRAMES`` at a time: a batch's
+        float intermediates are several times its boolean maps), with the frames' place in an
+        output starting at ``start``; a scan it cannot take is a :class:`RecordingError` naming
+        the frames."""
+        for run_start, run_stop in self.geometry_runs():
+            for a in range(max(run_start, start), min(run_stop, stop), _BATCH_FRAMES):
+                b = min(a + _BATCH_FRAMES, run_stop, stop)
                 geom = self.geometry(a)
                 block = self.ranges[self.offsets[a] : self.offsets[b]].reshape(b - a, geom.count)
                 try:
