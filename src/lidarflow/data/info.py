@@ -7,14 +7,16 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.gaps import frames_after_gaps
+from lidarflow.data.gaps import MAX_GAP_PERIODS, frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, beam_status
 
 __all__ = ["describe_recording", "find_gaps"]
 
 
-def find_gaps(recording: Recording, max_gap_periods: float = 2.5) -> list[tuple[int, float]]:
+def find_gaps(
+    recording: Recording, max_gap_periods: float = MAX_GAP_PERIODS
+) -> list[tuple[int, float]]:
     """``(frame index after the gap, gap in seconds)`` for every gap by
     :func:`lidarflow.data.gaps.frames_after_gaps`'s rule (a step longer than
     ``max_gap_periods`` recent frame periods, forwards or backwards)."""
