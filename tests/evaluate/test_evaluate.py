@@ -277,3 +277,48 @@ def test_report_counts_the_recordings_each_model_won():
     assert report["recordings"][0]["against_baselines"]["oracle"]["wins"]
     overall = report["against_baselines"]["oracle"]
     assert (overall["recordings_won"], overall["recordings"], overall["wins"]) == (2, 2, True)
+
+
+def test_frame_blocks_are_the_arrays_they_stand_for(sample_recording):
+    from lidarflow.data.blocks import FrameBlocks
+
+    rec, grid = sample_recording.slice(0, 23), GridSpec()
+    occupancy = rec.maps(grid)[0]
+    calls = []
+
+    def compute(a, b):
+        calls.append((a, b))
+        return rec.maps(grid, a, b)[0]
+
+    blocks = FrameBlocks(compute, len(rec), block=5)
+    assert len(blocks) == 23
+    for t in range(23):  # as the evaluation reads them: t, then t + 1
+        np.testing.assert_array_equal(blocks[t], occupancy[t])
+        if t + 1 < 23:
+            np.testing.assert_array_equal(blocks[t + 1], occupancy[t + 1])
+    assert calls == [(0, 5), (5, 10), (10, 15), (15, 20), (20, 23)]  # each block once
+    np.testing.assert_array_equal(blocks[-1], occupancy[-1])
+    assert len(blocks[2:9]) == 7 and len(list(blocks)) == 23
+    with pytest.raises(IndexError):
+        blocks[23]
+
+
+def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
+    sample_recording, monkeypatch
+):
+    from lidarflow.cli.scoring import methods_and_config
+    from lidarflow.data import blocks
+    from lidarflow.evaluate.ego import recording_motions
+    from lidarflow.evaluate.stream import evaluate_recording
+
+    rec, grid = sample_recording.slice(0, 40), GridSpec()
+    methods, _ = methods_and_config([None], with_poses=False)
+    occupancy, visibility = rec.maps(grid)
+    whole = evaluate_maps(
+        occupancy, visibility, methods, motions=recording_motions(rec, grid, methods, occupancy),
+        subcell=rec.subcell_maps(grid),
+    )  # fmt: skip
+    monkeypatch.setattr(blocks, "BLOCK_FRAMES", 7)
+    streamed = evaluate_recording(rec, methods, grid)
+    for name, scorer in whole.items():
+        assert streamed[name].summary() == scorer.summary(), name

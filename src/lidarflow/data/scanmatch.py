@@ -250,7 +250,9 @@ def compose(steps: Iterable[np.ndarray]) -> np.ndarray:
 
 
 def scan_motions(
-    occupancy: np.ndarray, points: Sequence[np.ndarray] | None = None, res: float = 0.1
+    occupancy: np.ndarray | Sequence[np.ndarray],
+    points: Sequence[np.ndarray] | None = None,
+    res: float = 0.1,
 ) -> np.ndarray:
     """Per-frame motions ``(N, 3)`` (cells, radians; float32) of a recording's maps ``(N, H, W)``
     on a grid of ``res`` metres, refined on each frame's returns ``points`` where given (see

@@ -14,9 +14,9 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from lidarflow.data.blocks import Frames, streamed_maps, streamed_points
 from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.recording import Recording
-from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError
 from lidarflow.ops.rigid import rigid_warp
@@ -34,7 +34,7 @@ def recording_motions(
     recording: Recording,
     grid: GridSpec,
     methods: Sequence[object],
-    occupancy: np.ndarray | None = None,
+    occupancy: Frames | None = None,
 ) -> np.ndarray | None:
     """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``.
 
@@ -59,8 +59,8 @@ def recording_motions(
         ]
         if not needing:
             if occupancy is None:
-                occupancy = recording.maps(grid)[0]
-            return scan_motions(occupancy, recording_points(recording), grid.res)
+                occupancy = streamed_maps(recording, grid)[0]
+            return scan_motions(occupancy, streamed_points(recording), grid.res)
         users = [str(getattr(m, "name", m)) for m in needing]
         source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
         raise EvaluateError(

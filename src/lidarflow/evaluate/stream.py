@@ -30,9 +30,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from lidarflow.data.blocks import Frames, streamed_maps, streamed_points, streamed_subcell
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.data.scanalign import recording_points
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.ego import recording_motions
@@ -83,8 +83,8 @@ def ground_truth_moving(recording: Recording, grid: GridSpec) -> Callable[[int],
 
 
 def evaluate_maps(
-    occupancy: np.ndarray,
-    visibility: np.ndarray,
+    occupancy: Frames,
+    visibility: Frames,
     methods: Sequence[Method],
     warmup: int = WARMUP,
     gt_flow: Callable[[int], np.ndarray] | None = None,
@@ -95,7 +95,7 @@ def evaluate_maps(
     motions: np.ndarray | None = None,
     returns: Sequence[np.ndarray] | None = None,
     motions_from_poses: bool = False,
-    subcell: np.ndarray | None = None,
+    subcell: Frames | None = None,
     gaps: Sequence[int] = (),
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
@@ -173,7 +173,7 @@ def _inputs(
     motions: np.ndarray | None,
     returns: Sequence[np.ndarray] | None,
     motions_from_poses: bool,
-    subcell: np.ndarray | None,
+    subcell: Frames | None,
 ) -> dict[str, object]:
     """What ``method.update`` takes for frame ``t`` beside the maps."""
     extra: dict[str, object] = {}
@@ -201,7 +201,8 @@ def evaluate_recording(
     """Rasterize ``recording`` on ``grid`` and score every method on it (with the
     simulator's ground truth flow and moving cells where it has them), not across its gaps."""
     grid = grid or GridSpec()
-    occupancy, visibility = recording.maps(grid)
+    # a block of frames at a time: a long recording's maps held whole take gigabytes
+    occupancy, visibility = streamed_maps(recording, grid)
     gt_flow = ground_truth_backward_flow(recording, grid)
     gt_moving = ground_truth_moving(recording, grid)
     motions = recording_motions(recording, grid, methods, occupancy)
@@ -224,8 +225,8 @@ def evaluate_recording(
         gt_moving,
         on_moving,
         motions,
-        recording_points(recording) if takes_returns else None,
+        streamed_points(recording) if takes_returns else None,
         recording.has_poses,
-        recording.subcell_maps(grid) if takes_subcell else None,
+        streamed_subcell(recording, grid) if takes_subcell else None,
         frames_after_gaps(recording.stamps_ns),
     )

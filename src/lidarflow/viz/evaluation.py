@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.blocks import Frames, streamed_maps
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.baselines import Method
@@ -43,7 +44,7 @@ class OverlayCollector:
     (``evaluate_maps(..., on_prediction=collector)``) and writes them as GIFs."""
 
     def __init__(
-        self, occupancy: np.ndarray, visibility: np.ndarray, max_frames: int = 100, scale: int = 3
+        self, occupancy: Frames, visibility: Frames, max_frames: int = 100, scale: int = 3
     ) -> None:
         self.occupancy = occupancy
         self.visibility = visibility
@@ -138,7 +139,7 @@ def evaluate_and_report(
     for name, recording in named_recordings:
         collector = None
         if report_dir is not None:
-            collector = OverlayCollector(*recording.maps(grid), max_frames=gif_frames)
+            collector = OverlayCollector(*streamed_maps(recording, grid), max_frames=gif_frames)
         bar = progress(name, len(recording) - 1) if progress else contextlib.nullcontext()
         with bar as b:
             scorers = evaluate_recording(
