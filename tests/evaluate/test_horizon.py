@@ -58,3 +58,15 @@ def test_the_online_decision_is_fed_back_through_the_roll_out():
     )
     assert scores["fixed"] == [0.0, 0.0, 0.0]
     assert scores["online"] == pytest.approx(scores["copy_last"])
+
+
+def test_horizon_on_frame_blocks_is_the_same_as_on_arrays():
+    from lidarflow.data.blocks import FrameBlocks
+
+    maps = np.zeros((30, 8, 8), bool)
+    for t in range(30):
+        maps[t, 2, t % 8] = True  # a cell running along a row
+    model = build_model("deeptracking")
+    whole = horizon_f1(maps, maps, {"m": model}, horizon=3, warmup=2)
+    blocks = FrameBlocks(lambda a, b: maps[a:b], len(maps), block=4)
+    assert horizon_f1(blocks, blocks, {"m": model}, horizon=3, warmup=2) == whole

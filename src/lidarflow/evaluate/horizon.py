@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
+from lidarflow.data.blocks import Frames
 from lidarflow.data.motion import OdometryCheck
 from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
@@ -43,8 +44,8 @@ __all__ = ["horizon_f1"]
 
 @torch.no_grad()
 def horizon_f1(
-    occupancy: np.ndarray,
-    visibility: np.ndarray,
+    occupancy: Frames,
+    visibility: Frames,
     models: dict[str, RecurrentMapModel],
     horizon: int,
     warmup: int = 10,
@@ -54,7 +55,7 @@ def horizon_f1(
     returns: Sequence[np.ndarray] | None = None,
     motions_from_poses: bool = False,
     res: float = 0.1,
-    subcell: np.ndarray | None = None,
+    subcell: Frames | None = None,
     gaps: Sequence[int] = (),
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
@@ -80,11 +81,12 @@ def horizon_f1(
     after_gap = np.zeros(n + 1, bool)
     after_gap[[g for g in gaps if 0 < g < n]] = True
     crossed = np.convolve(after_gap, np.ones(horizon, int))  # any gap in t + 1 .. t + horizon
-    scored = {t for t in range(warmup, n - horizon) if not crossed[t + horizon]}
+    scored = [t for t in range(warmup, n - horizon) if not crossed[t + horizon]]  # in order
     if not scored:
         raise EvaluateError(
             f"no frame of the recording has {horizon} frames after it without a gap in time"
         )
+    scoring = set(scored)
     copy = [Counts() for _ in range(horizon)]
     for t in scored:
         for k in range(horizon):
@@ -99,7 +101,7 @@ def horizon_f1(
         online = (decisions or {}).get(name)
         if online is not None:
             online.reset()
-        h, w = occupancy.shape[-2:]
+        h, w = np.shape(occupancy[0])[-2:]
         state = model.init_state(1, h, w)
         for t in range(n - horizon):
             extra = None if subcell is None else subcell[t]
@@ -121,7 +123,7 @@ def horizon_f1(
                     probability[0, 0].numpy(), occupancy[t], visibility[t], _moved(maps, out)
                 )
                 probability = torch.from_numpy(decided)[None, None]
-            if t not in scored:
+            if t not in scoring:
                 continue
             rolled = state
             for k in range(horizon):
