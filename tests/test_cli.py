@@ -206,9 +206,14 @@ def test_evaluate_says_which_gaps_in_time_it_did_not_score_across(tmp_path, caps
     ]
     rec = Recording.from_scans(scans, meta={"source": "gapped"}).save(tmp_path / "g")
     out = tmp_path / "e.json"
-    code, stdout, err = run(["evaluate", str(rec), "--baselines-only", "--json", str(out)], capsys)
+    argv = ["evaluate", str(rec), "--baselines-only", "--json", str(out), "--report", str(tmp_path)]
+    code, stdout, err = run([*argv, "--gif-frames", "2"], capsys)
     assert code == 0, err
     assert "(18 frames; 1 gap in time, not scored across)" in stdout
+    assert (
+        "18 frames evaluated; 1 gap in time, not scored across"
+        in (tmp_path / "index.html").read_text()
+    )
     entry = json.loads(out.read_text())["recordings"][0]
     assert entry["gaps_not_scored"] == [{"before_frame": 20, "seconds": 3.1}]
 

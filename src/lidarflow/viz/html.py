@@ -108,7 +108,9 @@ def write_html_report(
     for entry in report.get("recordings", []):
         name = Path(entry["path"]).name
         name = html.escape(entry["path"] if names.count(name) > 1 else name)
-        parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated</p>")
+        gaps = len(entry.get("gaps_not_scored", []))
+        across = f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
+        parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated{across}</p>")
         parts.append(_table(entry["methods"]))
         parts.append(_comparison(entry.get("against_baselines", {})))
         parts.append(_uncertainty_table(entry["methods"]))
