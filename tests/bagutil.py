@@ -59,9 +59,9 @@ def _odom_msg(ts, stamp_ns: int, x: float, y: float, yaw: float):
     )
 
 
-def _tf_msg(ts, stamp_ns: int, links: list[tuple[str, str, tuple[float, float, float]]]):
-    """A ``tf2_msgs/TFMessage`` of ``(parent, child, (x, y, yaw))`` links (registers the type,
-    which the bundled typestores lack)."""
+def _tf_msg(ts, stamp_ns: int, links: list[tuple[str, str, tuple[float, ...]]]):
+    """A ``tf2_msgs/TFMessage`` of ``(parent, child, (x, y, yaw[, roll]))`` links, each rotation
+    ``Rz(yaw) Rx(roll)`` (registers the type, which the bundled typestores lack)."""
     if "tf2_msgs/msg/TFMessage" not in ts.types:
         from rosbags.typesys import get_types_from_msg
 
@@ -70,20 +70,29 @@ def _tf_msg(ts, stamp_ns: int, links: list[tuple[str, str, tuple[float, float, f
     t = ts.types
     TF, Stamped = t["tf2_msgs/msg/TFMessage"], t["geometry_msgs/msg/TransformStamped"]
     Transform, Vec, Quat = (
-        t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/Vector3"],
+        t["geometry_msgs/msg/Transform"],
+        t["geometry_msgs/msg/Vector3"],
         t["geometry_msgs/msg/Quaternion"],
     )
-    return TF(transforms=[
-        Stamped(
-            header=_header(ts, stamp_ns, parent),
-            child_frame_id=child,
-            transform=Transform(
-                translation=Vec(x=x, y=y, z=0.3),
-                rotation=Quat(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2))),
-            ),
-        )
-        for parent, child, (x, y, yaw) in links
-    ])
+    return TF(
+        transforms=[
+            Stamped(
+                header=_header(ts, stamp_ns, parent),
+                child_frame_id=child,
+                transform=Transform(
+                    translation=Vec(x=x, y=y, z=0.3),
+                    rotation=Quat(**_quaternion(yaw, *roll)),
+                ),
+            )
+            for parent, child, (x, y, yaw, *roll) in links
+        ]
+    )
+
+
+def _quaternion(yaw: float, roll: float = 0.0) -> dict[str, float]:
+    """``Rz(yaw) Rx(roll)`` as quaternion fields."""
+    cy, sy, cr, sr = np.cos(yaw / 2), np.sin(yaw / 2), np.cos(roll / 2), np.sin(roll / 2)
+    return {"x": float(cy * sr), "y": float(sy * sr), "z": float(sy * cr), "w": float(cy * cr)}
 
 
 def write_bag(
@@ -93,7 +102,7 @@ def write_bag(
     rate_hz: float = 10.0,
     odom: bool = False,
     extra_string_topic: bool = False,
-    mount: tuple[float, float, float] | None = None,
+    mount: tuple[float, ...] | None = None,
     copies: int = 1,
     multi_echo_topic: bool = False,
     overrides: dict[int, dict[str, float]] | None = None,
@@ -104,7 +113,8 @@ def write_bag(
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
     kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder). ``mount``: also a
-    ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``).
+    ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``):
+    ``(x, y, yaw)``, or ``(x, y, yaw, roll)`` (``roll`` pi: mounted upside down).
     ``copies``: each scan message written that many times. ``multi_echo_topic``: also an
     ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``. ``overrides``: LaserScan fields
     to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``). ``header_stamps``:
@@ -161,8 +171,14 @@ def write_bag(
                 msg = _odom_msg(ts, header_stamp, 0.05 * i, 0.0, 0.01 * i)
                 writer.write(c, stamp, ser(msg, "nav_msgs/msg/Odometry"))
         if mount is not None:
-            msg = _tf_msg(ts, t0, [("base_link", "chassis", (0.2, 0.0, 0.0)),
-                                   ("chassis", "laser", (mount[0] - 0.2, mount[1], mount[2]))])
+            msg = _tf_msg(
+                ts,
+                t0,
+                [
+                    ("base_link", "chassis", (0.2, 0.0, 0.0)),
+                    ("chassis", "laser", (mount[0] - 0.2, *mount[1:])),
+                ],
+            )
             c = conn("/tf", "tf2_msgs/msg/TFMessage")
             writer.write(c, t0, ser(msg, "tf2_msgs/msg/TFMessage"))
         if multi_echo_topic:

@@ -53,3 +53,40 @@ def test_convert_and_info_say_when_the_poses_are_not_the_scanners(tmp_path, caps
         assert ("no TF to the scanner" in out) is (mount is None) and "with poses" in out
         code, out, _ = run(["info", str(bag)], capsys)
         assert code == 0 and ("sensor_mount: None" in out) is (mount is None)
+
+
+def test_a_scanner_mounted_upside_down_moves_mirrored(tmp_path):
+    # under a platform, rolled 180 degrees: its y axis is the base's flipped, so when the base
+    # turns left the scanner sees itself turn right; the upright mount's motions, mirrored
+    from lidarflow.data.tf import mirrored
+
+    upright = read_bag(write_bag(tmp_path / "u.bag", "ros1", odom=True, mount=(0.3, 0.1, 0.5)))
+    flipped = read_bag(
+        write_bag(tmp_path / "f.bag", "ros1", odom=True, mount=(0.3, 0.1, 0.5, math.pi))
+    )
+    assert flipped.meta["sensor_upside_down"] and "sensor_upside_down" not in upright.meta
+    np.testing.assert_allclose(
+        flipped.meta["sensor_mount"], upright.meta["sensor_mount"], atol=1e-6
+    )
+    up, _ = relative_motions(upright.poses)
+    down, _ = relative_motions(flipped.poses)
+    np.testing.assert_allclose(down[1:], mirrored(up[1:]), atol=1e-9)
+    assert (np.sign(down[1:, 2]) == -np.sign(up[1:, 2])).all()  # the odometry turns left
+
+
+def test_a_flipped_link_mirrors_what_lies_below_it():
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    tree = TransformTree()
+    tree.add(_tf_msg(ts, 1, [("base", "under", (1.0, 0.0, 0.0, math.pi)),
+                             ("under", "a", (0.0, 1.0, math.pi / 2)),
+                             ("a", "b", (0.0, 0.0, 0.0, math.pi))]))  # fmt: skip
+    pose, flipped = tree.mount("base", "a")
+    # a's y offset of 1 and its quarter turn left are, seen from the base, to the right
+    np.testing.assert_allclose(pose, (1.0, -1.0, -math.pi / 2), atol=1e-9)
+    assert flipped
+    pose, flipped = tree.mount("base", "b")  # flipped twice: upright again
+    np.testing.assert_allclose(pose, (1.0, -1.0, -math.pi / 2), atol=1e-9)
+    assert not flipped
+    assert tree.mount("base", "nowhere") is None

@@ -22,7 +22,7 @@ import numpy as np
 from lidarflow.data.mcap1 import Ros1McapReader, channel_encoding
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
-from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses
+from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
 from lidarflow.errors import BagError, ScanError
 from lidarflow.scan import BeamGeometry, Scan
 
@@ -225,6 +225,8 @@ def read_bag(
             frame's child (usually the robot base), interpolated at the scan stamps, then moved
             to the scan's frame by the static TF between the two when the bag has it
             (``meta["sensor_mount"]`` = that ``(x, y, yaw)``; ``None``: poses stay the base's).
+            A scanner mounted upside down (``meta["sensor_upside_down"]``) sees the world
+            mirrored: its poses are given in the mirrored world, so that their motions are its.
         progress: called with the number of scans read since the last call.
 
     Scans that are empty, malformed (impossible geometry) or the same message recorded twice
@@ -326,11 +328,14 @@ def read_bag(
             np.array(pose_values, dtype=np.float64).reshape(-1, 3),
         )
     scans, poses, clock_jumps = in_sessions(scans, arrivals, odometry)
-    mount = None
+    mount, upside_down = None, False
     if poses is not None:
-        mount = tree.lookup(body, frame_id) if body and frame_id else None
-        if mount is not None:
+        found = tree.mount(body, frame_id) if body and frame_id else None
+        if found is not None:
+            mount, upside_down = found
             poses = compose_poses(poses, mount)
+            if upside_down:  # the scanner sees the world mirrored, and so moves in it
+                poses = mirrored(poses)
     meta = {
         "source": str(path),
         "topic": scan_topic,
@@ -344,6 +349,8 @@ def read_bag(
     }
     if pose_topic is not None:
         meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
+        if upside_down:
+            meta["sensor_upside_down"] = True
     recording = Recording.from_scans(scans, poses=poses, meta=meta)
     recording.meta["frame_rate_hz"] = round(recording.frame_rate, 3)
     return recording

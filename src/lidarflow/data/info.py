@@ -81,6 +81,7 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         # Odometry moved to the scanner by the bag's TF ((x, y, yaw) of the mount), or None:
         # the poses are the odometry's own frame's (the base's), which ego-motion models check.
         **({"sensor_mount": recording.meta.get("sensor_mount")} if recording.has_poses else {}),
+        **({"sensor_upside_down": True} if recording.meta.get("sensor_upside_down") else {}),
         **_read_notes(recording.meta),
     }
 

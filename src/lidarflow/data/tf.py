@@ -6,6 +6,12 @@ in their own frame (e.g. ``left_laser``), which may sit far from the base and tu
 *sensor's* motion: ``sensor_pose = base_pose o mount`` with ``mount`` the pose of the scan frame
 in the base frame, read from ``/tf`` and ``/tf_static`` (planar part only: x, y, yaw).
 
+A scanner mounted upside down (its z axis pointing down: rolled or pitched by 180 degrees, as
+under a platform) sees the world mirrored: its y axis is the base's turned and flipped. No
+``(x, y, yaw)`` says that, so a mount is ``(x, y, yaw)`` and whether it is flipped (the frame
+then ``(x, y, yaw)`` followed by the reflection ``y -> -y``); the sensor's motions are then the
+upright frame's mirrored, ``(dx, -dy, -dyaw)`` (:func:`mirrored`).
+
 Mounts are static: the first transform seen for every (parent, child) pair is kept.
 """
 
@@ -16,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TF_TYPE", "TransformTree", "compose_poses"]
+__all__ = ["TF_TYPE", "TransformTree", "compose_poses", "mirrored"]
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
@@ -26,10 +32,10 @@ def _frame(name: str) -> str:
 
 
 class TransformTree:
-    """Planar transforms ``child -> (parent, x, y, yaw)`` gathered from TF messages."""
+    """Planar transforms ``child -> (parent, x, y, yaw, flipped)`` gathered from TF messages."""
 
     def __init__(self) -> None:
-        self.parent: dict[str, tuple[str, float, float, float]] = {}
+        self.parent: dict[str, tuple[str, float, float, float, bool]] = {}
 
     def add(self, msg: Any) -> None:
         """Take the transforms of one ``tf2_msgs/TFMessage`` not seen before."""
@@ -38,23 +44,41 @@ class TransformTree:
             if child in self.parent:
                 continue
             t, q = tr.transform.translation, tr.transform.rotation
+            # the rotation matrix's first column in the plane gives the yaw of an upright or a
+            # flipped frame alike (R = Rz(yaw) or Rz(yaw) diag(1, -1, -1) there); R22 the z axis
             yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-            self.parent[child] = (_frame(tr.header.frame_id), float(t.x), float(t.y), yaw)
+            flipped = 1.0 - 2.0 * (q.x * q.x + q.y * q.y) < 0.0
+            parent = _frame(tr.header.frame_id)
+            self.parent[child] = (parent, float(t.x), float(t.y), yaw, flipped)
 
     def lookup(self, base: str, frame: str) -> tuple[float, float, float] | None:
         """Pose ``(x, y, yaw)`` of ``frame`` in ``base`` when ``frame`` descends from ``base``,
-        else ``None``."""
+        else ``None`` (for a flipped frame, that of the upright frame it mirrors: see
+        :meth:`mount`)."""
+        found = self.mount(base, frame)
+        return None if found is None else found[0]
+
+    def mount(self, base: str, frame: str) -> tuple[tuple[float, float, float], bool] | None:
+        """``((x, y, yaw), flipped)`` of ``frame`` in ``base`` (flipped: ``frame`` is that pose
+        followed by ``y -> -y``), or ``None`` when ``frame`` does not descend from ``base``."""
         base, frame = _frame(base), _frame(frame)
-        pose = np.zeros(3)
+        pose, flipped = np.zeros(3), False
         for _ in range(64):  # TF trees are shallow; this also stops on a cycle
             if frame == base:
-                return float(pose[0]), float(pose[1]), float(pose[2])
+                return (float(pose[0]), float(pose[1]), float(pose[2])), flipped
             if frame not in self.parent:
                 return None
-            parent, x, y, yaw = self.parent[frame]
+            parent, x, y, yaw, link_flipped = self.parent[frame]
+            if link_flipped:  # what lies below a flipped link is seen mirrored from above it
+                pose, flipped = mirrored(pose[None])[0], not flipped
             pose = compose_poses(np.array([[x, y, yaw]]), pose)[0]
             frame = parent
         return None
+
+
+def mirrored(poses: np.ndarray) -> np.ndarray:
+    """``(x, -y, -yaw)``: poses (or motions) seen through the reflection ``y -> -y``."""
+    return np.asarray(poses, dtype=np.float64) * np.array([1.0, -1.0, -1.0])
 
 
 def compose_poses(poses: np.ndarray, offset: np.ndarray | tuple[float, float, float]) -> np.ndarray:
