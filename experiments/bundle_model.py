@@ -21,13 +21,12 @@ from lidarflow.data import load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.report import against_baselines
 from lidarflow.models import uses_ego_motion
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.models.weights import load_trained, sha256
 from lidarflow.scan import GridSpec
 from lidarflow.viz.evaluation import evaluate_and_report
-
-BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 
 
 def commit(run: Path | None = None) -> str:
@@ -47,16 +46,14 @@ def commit(run: Path | None = None) -> str:
 
 
 def verdict(methods: dict[str, dict[str, float]]) -> str:
-    model = methods["bundled"]
-    best_f1 = max(methods[b]["f1"] for b in BASELINES)
-    best_changed = max(methods[b]["changed_f1"] for b in BASELINES)
-    wins_f1 = model["f1"] > best_f1
-    wins_changed = model["changed_f1"] > best_changed
-    if wins_f1 and wins_changed:
+    v = against_baselines(methods)["bundled"]
+    if v["wins"]:
         return "wins (F1 and changed-cell F1 above every baseline)"
+    best_f1 = methods[v["f1_baseline"]]["f1"]
+    best_changed = methods[v["changed_f1_baseline"]]["changed_f1"]
     parts = [
-        f"F1 {'above' if wins_f1 else 'below'} the best baseline ({best_f1:.3f})",
-        f"changed-cell F1 {'above' if wins_changed else 'below'} the best baseline "
+        f"F1 {'above' if v['f1_margin'] > 0 else 'below'} the best baseline ({best_f1:.3f})",
+        f"changed-cell F1 {'above' if v['changed_f1_margin'] > 0 else 'below'} the best baseline "
         f"({best_changed:.3f})",
     ]
     return "does not win: " + "; ".join(parts)

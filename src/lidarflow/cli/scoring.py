@@ -219,6 +219,7 @@ def evaluate(
         format_comparison,
         format_table,
         format_uncertainty_table,
+        gaps_note,
     )
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
@@ -251,9 +252,7 @@ def evaluate(
     if horizon > 1:
         _add_horizon_scores(report, named, methods, spec, warmup, horizon)
     for entry in report["recordings"]:
-        gaps = len(entry.get("gaps_not_scored", []))
-        across = f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
-        title = f"{entry['path']} ({entry['frames_evaluated']} frames{across})"
+        title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
         typer.echo(format_table(entry["methods"], title))
         comparison = format_comparison(entry["against_baselines"])
         typer.echo((comparison + "\n") if comparison else "")

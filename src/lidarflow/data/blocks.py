@@ -64,13 +64,30 @@ class FrameBlocks(Sequence[Any]):
         return self._kept[k][t - k * self._block]
 
 
-def streamed_maps(recording: Recording, grid: GridSpec) -> tuple[FrameBlocks, FrameBlocks]:
-    """``recording.maps(grid)`` (occupancy, visibility), a block at a time."""
-    n = len(recording)
-    return (
-        FrameBlocks(lambda a, b: recording.maps(grid, a, b)[0], n),
-        FrameBlocks(lambda a, b: recording.maps(grid, a, b)[1], n),
-    )
+class _Channel(Sequence[Any]):
+    """Channel ``c`` of each frame of ``frames`` (frames ``(C, ...)``)."""
+
+    def __init__(self, frames: FrameBlocks, c: int) -> None:
+        self._frames, self._c = frames, c
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @overload
+    def __getitem__(self, t: int) -> Any: ...
+    @overload
+    def __getitem__(self, t: slice) -> Sequence[Any]: ...
+    def __getitem__(self, t: int | slice) -> Any:
+        if isinstance(t, slice):
+            return [self[i] for i in range(*t.indices(len(self)))]
+        return self._frames[t][self._c]
+
+
+def streamed_maps(recording: Recording, grid: GridSpec) -> tuple[Sequence[Any], Sequence[Any]]:
+    """``recording.maps(grid)`` (occupancy, visibility), a block at a time: one rasterization
+    serves both."""
+    both = FrameBlocks(lambda a, b: np.stack(recording.maps(grid, a, b), axis=1), len(recording))
+    return _Channel(both, 0), _Channel(both, 1)
 
 
 def streamed_subcell(recording: Recording, grid: GridSpec) -> FrameBlocks:

@@ -17,6 +17,7 @@ __all__ = [
     "format_comparison",
     "format_table",
     "format_uncertainty_table",
+    "gaps_note",
     "uncertainty_row",
     "uncertainty_rows",
 ]
@@ -26,7 +27,12 @@ _COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "epe")
 #: Columns of the second table: calibration of the probabilities (lower is better) and
 #: moving-object segmentation of the moving class (flow models on simulated data).
 UNCERTAINTY_COLUMNS = (
-    "ece", "ece_active", "brier", "moving_iou", "moving_precision", "moving_recall"
+    "ece",
+    "ece_active",
+    "brier",
+    "moving_iou",
+    "moving_precision",
+    "moving_recall",
 )
 _LOWER_IS_BETTER = ("ece", "ece_active", "brier")
 
@@ -116,6 +122,13 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
             f"{'wins' if v['wins'] else 'loses'}{won}"
         )
     return "\n".join(lines)
+
+
+def gaps_note(entry: Mapping[str, Any]) -> str:
+    """``"; N gaps in time, not scored across"`` for a recording's report entry with gaps
+    (``gaps_not_scored``), else ``""``: what its frame count leaves out."""
+    gaps = len(entry.get("gaps_not_scored", []))
+    return f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
 
 
 def _text_table(

@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from lidarflow.evaluate.report import format_comparison, uncertainty_rows
+from lidarflow.evaluate.report import format_comparison, gaps_note, uncertainty_rows
 
 __all__ = ["write_html_report"]
 
@@ -108,9 +108,8 @@ def write_html_report(
     for entry in report.get("recordings", []):
         name = Path(entry["path"]).name
         name = html.escape(entry["path"] if names.count(name) > 1 else name)
-        gaps = len(entry.get("gaps_not_scored", []))
-        across = f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
-        parts.append(f"<h2>{name}</h2><p>{entry['frames_evaluated']} frames evaluated{across}</p>")
+        evaluated = f"{entry['frames_evaluated']} frames evaluated{gaps_note(entry)}"
+        parts.append(f"<h2>{name}</h2><p>{html.escape(evaluated)}</p>")
         parts.append(_table(entry["methods"]))
         parts.append(_comparison(entry.get("against_baselines", {})))
         parts.append(_uncertainty_table(entry["methods"]))
