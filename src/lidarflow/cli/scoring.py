@@ -284,30 +284,21 @@ def _add_horizon_scores(
     warmup: int,
     horizon: int,
 ) -> None:
-    from lidarflow.data.blocks import streamed_maps, streamed_points, streamed_subcell
-    from lidarflow.data.gaps import frames_after_gaps
-    from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.horizon import horizon_f1
-    from lidarflow.scan import takes_subcell
+    from lidarflow.evaluate.stream import recording_inputs
 
     # one roll-out per model (an oracle variant has no roll-out of its own)
     streamed = [m for m in methods if hasattr(m, "stream") and not getattr(m, "oracle", False)]
     models = {m.name: m.stream.model for m in streamed}
     decisions = {m.name: m.online for m in streamed if m.online is not None}
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
-        occupancy, visibility = streamed_maps(recording, spec)
-        motions = recording_motions(recording, spec, streamed, occupancy)
-        total = len(models) * max(0, len(occupancy) - horizon)
+        inputs = recording_inputs(recording, spec, streamed)
+        total = len(models) * max(0, len(inputs.occupancy) - horizon)
         with progress_bar(total, f"horizon {horizon}, {Path(name).name}") as bar:
-            # Only odometry is replaced by the scans' motion; scan motions are only checked.
-            with_returns = motions is not None and recording.has_poses
-            returns = streamed_points(recording) if with_returns else None
-            wants = any(takes_subcell(model.input_channels) for model in models.values())
             entry["horizon_f1"] = horizon_f1(
-                occupancy, visibility, models, horizon, warmup, bar.update, motions, decisions,
-                returns, recording.has_poses, spec.res,
-                streamed_subcell(recording, spec) if wants else None,
-                frames_after_gaps(recording.stamps_ns),
+                inputs.occupancy, inputs.visibility, models, horizon, warmup, bar.update,
+                inputs.motions, decisions, inputs.returns, inputs.motions_from_poses, spec.res,
+                inputs.subcell, inputs.gaps,
             )  # fmt: skip
 
 

@@ -27,6 +27,7 @@ uncompensated.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,10 +43,12 @@ from lidarflow.sim.storage import dense_flow
 
 __all__ = [
     "WARMUP",
+    "RecordingInputs",
     "evaluate_maps",
     "evaluate_recording",
     "ground_truth_backward_flow",
     "ground_truth_moving",
+    "recording_inputs",
 ]
 
 WARMUP = 10
@@ -189,6 +192,47 @@ def _inputs(
     return extra
 
 
+@dataclass(frozen=True)
+class RecordingInputs:
+    """What a streamed evaluation feeds its methods from one recording, in blocks of frames
+    (:mod:`lidarflow.data.blocks`): maps, ego motions, returns, sub-cell maps and gaps."""
+
+    occupancy: Frames
+    visibility: Frames
+    motions: np.ndarray | None  # (N, 3) cells, radians; NaN unknown; None: no method wants them
+    returns: Sequence[np.ndarray] | None  # each frame's returns, where odometry may be replaced
+    motions_from_poses: bool  # the motions are odometry (else matched from the scans)
+    subcell: Frames | None
+    gaps: list[int]
+
+
+def recording_inputs(
+    recording: Recording, grid: GridSpec, methods: Sequence[object]
+) -> RecordingInputs:
+    """The inputs ``methods`` (baselines, :class:`~lidarflow.evaluate.model_method.ModelMethod`
+    ...) need from ``recording`` on ``grid``; what none of them asks for is ``None``."""
+    # a block of frames at a time: a long recording's maps held whole take gigabytes
+    occupancy, visibility = streamed_maps(recording, grid)
+    motions = recording_motions(recording, grid, methods, occupancy)
+    # The returns matter only where the motions are odometry that a model may replace; without
+    # poses the motions already came from the scans (recording_motions) and are only checked.
+    takes_returns = (
+        recording.has_poses
+        and motions is not None
+        and any(getattr(m, "takes_returns", False) for m in methods)
+    )
+    takes_subcell = any(getattr(m, "takes_subcell", False) for m in methods)
+    return RecordingInputs(
+        occupancy,
+        visibility,
+        motions,
+        streamed_points(recording) if takes_returns else None,
+        recording.has_poses,
+        streamed_subcell(recording, grid) if takes_subcell else None,
+        frames_after_gaps(recording.stamps_ns),
+    )
+
+
 def evaluate_recording(
     recording: Recording,
     methods: Sequence[Method],
@@ -201,32 +245,20 @@ def evaluate_recording(
     """Rasterize ``recording`` on ``grid`` and score every method on it (with the
     simulator's ground truth flow and moving cells where it has them), not across its gaps."""
     grid = grid or GridSpec()
-    # a block of frames at a time: a long recording's maps held whole take gigabytes
-    occupancy, visibility = streamed_maps(recording, grid)
-    gt_flow = ground_truth_backward_flow(recording, grid)
-    gt_moving = ground_truth_moving(recording, grid)
-    motions = recording_motions(recording, grid, methods, occupancy)
-    # The returns matter only where the motions are odometry that a model may replace; without
-    # poses the motions already came from the scans (recording_motions) and are only checked.
-    takes_returns = (
-        recording.has_poses
-        and motions is not None
-        and any(getattr(m, "takes_returns", False) for m in methods)
-    )
-    takes_subcell = any(getattr(m, "takes_subcell", False) for m in methods)
+    inputs = recording_inputs(recording, grid, methods)
     return evaluate_maps(
-        occupancy,
-        visibility,
+        inputs.occupancy,
+        inputs.visibility,
         methods,
         warmup,
-        gt_flow,
+        ground_truth_backward_flow(recording, grid),
         progress,
         on_prediction,
-        gt_moving,
+        ground_truth_moving(recording, grid),
         on_moving,
-        motions,
-        streamed_points(recording) if takes_returns else None,
-        recording.has_poses,
-        streamed_subcell(recording, grid) if takes_subcell else None,
-        frames_after_gaps(recording.stamps_ns),
+        inputs.motions,
+        inputs.returns,
+        inputs.motions_from_poses,
+        inputs.subcell,
+        inputs.gaps,
     )
