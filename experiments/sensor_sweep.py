@@ -49,7 +49,15 @@ def main() -> None:
     parser.add_argument(
         "--without-poses", action="store_true", help="evaluate the recordings without their poses"
     )
+    parser.add_argument(
+        "--noise", type=float, help="every sensor's range noise std (m), instead of its preset's"
+    )
+    parser.add_argument(
+        "--dropout", type=float, help="every sensor's chance of a beam dropping out, ditto"
+    )
     args = parser.parse_args()
+    noise = {} if args.noise is None else {"noise_std": args.noise}
+    noise |= {} if args.dropout is None else {"dropout_prob": args.dropout}
     args.output.mkdir(parents=True, exist_ok=True)
     study: dict[str, dict] = {}
     for name, (preset, fields) in SENSORS.items():
@@ -61,7 +69,7 @@ def main() -> None:
             if not recording.exists():
                 config = SimConfig(
                     scenario=scenario,
-                    sensor=lidar_preset(preset, **fields),
+                    sensor=lidar_preset(preset, **fields, **noise),
                     people=PeopleConfig(count=8),
                 )
                 write_simulation(recording, args.frames, args.seed, config)

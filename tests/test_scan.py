@@ -11,9 +11,11 @@ from hypothesis import strategies as st
 
 from lidarflow.errors import ScanError
 from lidarflow.scan import (
+    RETURN,
     BeamGeometry,
     GridSpec,
     Scan,
+    beam_status,
     cell_centres,
     rasterize,
     rasterize_batch,
@@ -183,6 +185,28 @@ def test_invalid_beams_follow_the_design_notes():
         assert not vis[on[k] & (dist > 6.0)].any(), k
     assert occ.sum() == 1  # only the 3 m return
     assert vis[on[6] & (dist < 2.9)].all() and not vis[on[6] & (dist > 3.2) & ~occ].any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    range_max=st.floats(0.5, 9.0).map(lambda r: float(np.float32(r))),
+    seed=st.integers(0, 2**16),
+)
+def test_no_return_written_as_range_max_reads_as_inf(range_max, seed):
+    # Gazebo classic and SICK drivers write a beam that saw nothing as range_max (float32, as
+    # a message stores it); read as a return it draws a ring at range_max in every frame.
+    rng = np.random.default_rng(seed)
+    geom = BeamGeometry(360, -math.pi, 2 * math.pi / 360, 0.1, range_max)
+    ranges = rng.uniform(0.2, range_max * 1.5, (3, 360)).astype(np.float32)
+    ranges[ranges >= np.float32(range_max)] = np.inf
+    ringed = np.where(np.isinf(ranges), np.float32(range_max), ranges)
+    got, want = rasterize_batch(ringed, geom, GRID), rasterize_batch(ranges, geom, GRID)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert np.array_equal(subcell_batch(ringed, geom, GRID), subcell_batch(ranges, geom, GRID))
+    # the float32 just below range_max is still a return, where the grid reaches it
+    below = np.full((1, 360), np.nextafter(np.float32(range_max), np.float32(0)))
+    assert rasterize_batch(below, geom, GRID)[0].any()
+    assert beam_status(below[0], 0.1, range_max).tolist() == [RETURN] * 360
 
 
 def test_batch_equals_one_at_a_time():

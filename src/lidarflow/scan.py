@@ -4,9 +4,14 @@ Grid convention (sensor frame, REP 103: x forward, y left): cell ``(r, c)`` has 
 ``x = (H - r - 0.5) * res``, ``y = (W / 2 - c - 0.5) * res``; row 0 is the far edge, column 0
 the left edge, and the sensor sits at the middle of the bottom edge.
 
-Beam validity: a finite ``rho`` with ``range_min <= rho <= range_max`` is a *return*; ``+inf``
-or ``rho > range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
-or ``rho < range_min`` are *unknown* (the beam says nothing).
+Beam validity: a finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf``
+or ``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
+or ``rho < range_min`` are *unknown* (the beam says nothing). A reading of exactly
+``range_max`` is the sensor saying "nothing nearer": many drivers (Gazebo classic's laser, SICK
+drivers by default) write no return that way, and read as a return it draws a ring at
+``range_max`` that stays put in the sensor's frame. This departs from the design notes
+(``range_min <= rho <= range_max``) for that one value; why, measured:
+``docs/results/sensors_range_max/README.md``.
 
 Visibility: a cell is visible when the beam nearest to the bearing of its centre exists and
 either returned beyond the centre's distance, or had no return and the centre lies within
@@ -138,15 +143,27 @@ def cell_centres(grid: GridSpec) -> tuple[np.ndarray, np.ndarray]:
 def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
     """Classify each beam as ``UNKNOWN`` (0), ``RETURN`` (1) or ``NO_RETURN`` (2).
 
-    >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0]), 0.1, 10.0).tolist()
-    [1, 2, 0, 0, 2]
+    >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0, 10.0]), 0.1, 10.0).tolist()
+    [1, 2, 0, 0, 2, 2]
     """
     r = np.asarray(ranges)
+    if not np.issubdtype(r.dtype, np.floating):
+        r = r.astype(np.float64)
+    is_return, beyond = _returns(r, range_min, range_max)
     status = np.zeros(r.shape, dtype=np.uint8)
-    with np.errstate(invalid="ignore"):
-        status[(r >= range_min) & (r <= range_max)] = RETURN
-        status[r > range_max] = NO_RETURN  # +inf included; NaN compares False
+    status[is_return] = RETURN
+    status[beyond] = NO_RETURN
     return status
+
+
+def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(is_return, no_return)`` masks of float ranges ``r`` (module docstring's rule).
+    ``range_max`` is compared in ``r``'s dtype, so a reading stored as the message's
+    ``range_max`` (float32) is no return whatever that value's float64 neighbours."""
+    top = r.dtype.type(range_max)
+    with np.errstate(invalid="ignore"):
+        beyond = r >= top  # +inf included; NaN compares False
+        return (r >= range_min) & ~beyond, beyond
 
 
 @lru_cache(maxsize=64)
@@ -230,9 +247,7 @@ def _rasterize_chunk(
     height, width = grid.shape
     index, dist = _cell_lookup(grid, geometry)
     dtype = r.dtype
-    with np.errstate(invalid="ignore"):
-        is_return = (r >= geometry.range_min) & (r <= geometry.range_max)
-        beyond = r > geometry.range_max  # +inf included; NaN compares False
+    is_return, beyond = _returns(r, geometry.range_min, geometry.range_max)
     # "Visible iff the centre is nearer than the beam's reach": a return reaches rho (strict), a
     # no-return reaches range_max (inclusive, hence nextafter), an unknown beam reaches nowhere,
     # and the extra last column is the "no beam covers this cell" sentinel.
@@ -309,8 +324,7 @@ def subcell_batch(
     grid = grid or GridSpec()
     r = _check_ranges(ranges, geometry)
     n, (height, width) = r.shape[0], grid.shape
-    with np.errstate(invalid="ignore"):
-        is_return = (r >= geometry.range_min) & (r <= geometry.range_max)
+    is_return, _ = _returns(r, geometry.range_min, geometry.range_max)
     cos, sin = _beam_directions(geometry)
     rho = np.where(is_return, r, 0.0).astype(np.float64)
     u = height - rho * cos / grid.res  # rasterize_batch's row before its floor

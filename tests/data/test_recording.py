@@ -87,13 +87,14 @@ def test_describe_counts_invalid_beams_and_gaps():
     rec.stamps_ns[10:] += 2_000_000_000  # a 2.1 s hole in a 10 Hz recording
     rec.ranges[0] = -np.inf
     rec.ranges[1] = 0.0
+    rec.ranges[2] = np.float32(rec.range_max[0])  # a driver's "no return"
     info = describe_recording(rec)
     assert info["scans"] == 20 and info["beams_per_scan"] == [50]
     assert info["gaps"] == [{"before_frame": 10, "seconds": 2.1}]
     beams = info["beams"]
-    assert beams["neg_inf"] == 1 and beams["zero"] >= 1
+    assert beams["neg_inf"] == 1 and beams["zero"] >= 1 and beams["at_range_max"] >= 1
     assert (
-        beams["returns"] + beams["no_return_inf_or_beyond_max"] + beams["unknown"] == beams["total"]
+        beams["returns"] + beams["no_return_inf_or_from_max"] + beams["unknown"] == beams["total"]
     )
     assert info["field_of_view_deg"] == [180.0]
 

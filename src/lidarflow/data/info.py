@@ -46,6 +46,8 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
     )
     raw = recording.ranges
     counts = np.diff(recording.offsets)
+    # a driver that writes "no return" as range_max (read as no return: lidarflow.scan)
+    at_max = int(np.sum(raw == np.repeat(recording.range_max, counts).astype(raw.dtype)))
     fov = np.abs(recording.angle_increment) * np.maximum(counts - 1, 0)
     duration = float(recording.stamps_ns[-1] - recording.stamps_ns[0]) / 1e9 if n > 1 else 0.0
     gaps = find_gaps(recording)
@@ -63,7 +65,8 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         "beams": {
             "total": int(raw.size),
             "returns": int(np.sum(status == RETURN)),
-            "no_return_inf_or_beyond_max": int(np.sum(status == NO_RETURN)),
+            "no_return_inf_or_from_max": int(np.sum(status == NO_RETURN)),
+            "at_range_max": at_max,
             "unknown": int(np.sum(status == UNKNOWN)),
             "nan": int(np.isnan(raw).sum()),
             "neg_inf": int(np.isneginf(raw).sum()),

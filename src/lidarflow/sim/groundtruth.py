@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.scan import BeamGeometry, GridSpec
+from lidarflow.scan import RETURN, BeamGeometry, GridSpec, beam_status
 from lidarflow.sim.lidar import STATIC_ID
 
 __all__ = ["MOVING_THRESHOLD", "ground_truth"]
@@ -31,9 +31,9 @@ MOVING_THRESHOLD = 0.01
 def _points(ranges: np.ndarray, geometry: BeamGeometry, grid: GridSpec) -> tuple[np.ndarray, ...]:
     """Returns of ``(n, B)`` ranges placed like the rasterizer does: frame, beam, x, y (m, sensor
     frame) and flat cell index, for the returns that land inside the grid."""
+    # the rasterizer's rule, in the stored dtype (a reading at range_max is no return)
+    ret = beam_status(np.asarray(ranges), geometry.range_min, geometry.range_max) == RETURN
     r = np.asarray(ranges).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        ret = (r >= geometry.range_min) & (r <= geometry.range_max)
     f, b = np.nonzero(ret)
     angles = geometry.angles
     rho = r[f, b]

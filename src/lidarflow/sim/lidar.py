@@ -305,11 +305,8 @@ def measure(
     if config.noise_std > 0:
         r = r + rng.normal(0.0, config.noise_std, r.shape)
     r[beyond] = np.inf
-    # A reading that noise pushes just past range_max is still a return at range_max.
-    cap = float(np.float32(config.range_max))
-    if cap > config.range_max:  # stay a return once stored as float32
-        cap = float(np.nextafter(np.float32(config.range_max), np.float32(0)))
-    r[~beyond & (r > cap)] = cap
+    # A return that noise pushes to range_max or past it is reported as measured, as real
+    # drivers do; it then reads as no return (lidarflow.scan's rule).
     r[r < config.range_min] = 0.0
     if config.dropout_prob > 0:
         drop = rng.random(r.shape) < config.dropout_prob
