@@ -100,7 +100,7 @@ def write_bag(
     kind: str = "ros1",
     scans: dict[str, Sequence[np.ndarray]] | None = None,
     rate_hz: float = 10.0,
-    odom: bool = False,
+    odom: bool | Sequence[str] = False,
     extra_string_topic: bool = False,
     mount: tuple[float, ...] | None = None,
     copies: int = 1,
@@ -115,12 +115,14 @@ def write_bag(
     kind: "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag folder). ``mount``: also a
     ``/tf`` message placing the scans' frame ``laser`` on ``base_link`` (via ``chassis``):
     ``(x, y, yaw)``, or ``(x, y, yaw, roll)`` (``roll`` pi: mounted upside down).
-    ``copies``: each scan message written that many times. ``multi_echo_topic``: also an
-    ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``. ``overrides``: LaserScan fields
-    to change in scan ``i`` of each topic (``{i: {"range_max": nan}}``). ``header_stamps``:
-    scan ``i``'s header stamp (ns) instead of its log time. ``clock``: the header stamp of every
-    scan and odometry message as a function of its log time (a header clock that jumps, say).
-    ``compression``: "bz2" or "lz4" chunks (ROS 1), "file" or "message" zstd (ROS 2).
+    ``odom``: also a ``/odom`` topic of ``nav_msgs/Odometry`` (or the topics named, the k-th
+    driving k + 1 times as fast). ``copies``: each scan message written that many times.
+    ``multi_echo_topic``: also an ``/echoes`` topic of ``sensor_msgs/MultiEchoLaserScan``.
+    ``overrides``: LaserScan fields to change in scan ``i`` of each topic
+    (``{i: {"range_max": nan}}``). ``header_stamps``: scan ``i``'s header stamp (ns) instead
+    of its log time. ``clock``: the header stamp of every scan and odometry message as a
+    function of its log time (a header clock that jumps, say). ``compression``: "bz2" or
+    "lz4" chunks (ROS 1), "file" or "message" zstd (ROS 2).
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -162,13 +164,14 @@ def write_bag(
                 raw = ser(msg, "sensor_msgs/msg/LaserScan")
                 for _ in range(copies):
                     writer.write(c, stamp, raw)
-        if odom:
-            c = conn("/odom", "nav_msgs/msg/Odometry")
+        for k, topic in enumerate(["/odom"] if odom is True else list(odom or [])):
+            c = conn(topic, "nav_msgs/msg/Odometry")
             n = max(len(f) for f in scans.values()) if scans else 10
             for i in range(2 * n + 1):
                 stamp = t0 + i * period // 2
                 header_stamp = stamp if clock is None else clock(stamp)
-                msg = _odom_msg(ts, header_stamp, 0.05 * i, 0.0, 0.01 * i)
+                # the k-th topic drives (k + 1) times as fast: tells the topics apart
+                msg = _odom_msg(ts, header_stamp, 0.05 * i * (k + 1), 0.0, 0.01 * i)
                 writer.write(c, stamp, ser(msg, "nav_msgs/msg/Odometry"))
         if mount is not None:
             msg = _tf_msg(
@@ -213,7 +216,7 @@ def write_ros1_mcap(
     path: Path,
     scans: Sequence[np.ndarray],
     rate_hz: float = 10.0,
-    odom: bool = False,
+    odom: bool | Sequence[str] = False,
     mount: tuple[float, float, float] | None = None,
     compression: str | None = "",
     summary: bool = False,

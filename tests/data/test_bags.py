@@ -138,6 +138,40 @@ def test_odometry_is_interpolated_at_scan_stamps(tmp_path):
     np.testing.assert_allclose(rec.poses[:, 2], 0.02 * np.arange(25), atol=1e-9)
 
 
+def test_of_several_odometry_topics_the_fused_one_is_read_and_the_choice_said(tmp_path):
+    # Robots commonly record wheel odometry beside robot_localization's fused estimate; with
+    # no topic named, poses were silently dropped.
+    topics = ["/odom", "/odometry/filtered", "/wheel/odom"]
+    rec = read_bag(write_bag(tmp_path / "o.bag", "ros1", odom=topics))
+    assert rec.meta["pose_topic"] == "/odometry/filtered" and rec.has_poses
+    np.testing.assert_allclose(rec.poses[:, 0], 0.2 * np.arange(25), atol=1e-9)  # 2x as fast
+    assert rec.meta["pose_topic_choice"] == (
+        "/odometry/filtered chosen over /odom, /wheel/odom; --odom-topic to pick another"
+    )
+    assert describe_recording(rec)["pose_topic"] == rec.meta["pose_topic_choice"]
+    rec = read_bag(write_bag(tmp_path / "w.bag", "ros1", odom=["/a/odom", "/b"]))
+    assert rec.meta["pose_topic"] == "/a/odom"
+    chosen = read_bag(tmp_path / "w.bag", odom_topic="/b")
+    assert chosen.meta["pose_topic"] == "/b" and "pose_topic_choice" not in chosen.meta
+    single = read_bag(write_bag(tmp_path / "s.bag", "ros1", odom=True))
+    assert "pose_topic_choice" not in single.meta
+
+
+def test_a_simulator_clock_starting_at_zero_keeps_its_first_stamp(tmp_path):
+    # Sim time starts at 0: a first scan stamped 0.0 is the first instant, not an unset stamp
+    # (taken for one, its wall-clock log time read as a 54-year clock jump).
+    sim = [i * 100_000_000 for i in range(25)]
+    rec = read_bag(write_bag(tmp_path / "sim.bag", "ros1", header_stamps=sim))
+    assert rec.stamps_ns.tolist() == sim
+    assert not rec.meta["clock_jumps"] and find_gaps(rec) == []
+    # on a wall clock a zero stamp is a driver's unset one: its log time stands in
+    wall = [1_700_000_000 * 10**9 + s for s in sim]
+    wall[3] = 0
+    rec = read_bag(write_bag(tmp_path / "wall.bag", "ros1", header_stamps=wall))
+    assert rec.stamps_ns[3] == 1_700_000_000 * 10**9 + sim[3]
+    assert not rec.meta["clock_jumps"] and find_gaps(rec) == []
+
+
 def test_several_scan_topics_need_a_choice(tmp_path):
     path = write_bag(
         tmp_path / "two.bag", "ros1", {"/front": [np.ones(10)] * 3, "/rear": [np.ones(10)] * 4}

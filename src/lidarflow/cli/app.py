@@ -30,8 +30,9 @@ OdomOpt = Annotated[
     typer.Option(
         "--odom-topic",
         help="Odometry (nav_msgs/Odometry or PoseStamped) topic for sensor poses; by default the "
-        "bag's only Odometry topic, if it has one. The base's poses are moved to the scanner "
-        "by the bag's TF (base -> scan frame) when it has it.",
+        "bag's Odometry topic (of several: odometry/filtered, else odom, else the busiest; "
+        "`info` says which). The base's poses are moved to the scanner by the bag's TF "
+        "(base -> scan frame) when it has it.",
     ),
 ]
 GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]

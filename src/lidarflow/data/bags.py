@@ -175,22 +175,60 @@ def _choose_topic(path: Path, reader: Any, topic: str | None) -> str:
     return live[0]
 
 
-def _choose_pose_topic(path: Path, reader: Any, odom_topic: str | None) -> str | None:
+#: Where a bag has several odometry topics and none is named: robot_localization's fused
+#: estimate first (wheels and IMU), then REP 105's ``odom``; else the busiest topic.
+PREFERRED_ODOMETRY = ("odometry/filtered", "odom")
+
+
+def _odometry_rank(topic: str, count: int) -> tuple[int, int, str]:
+    name = topic.strip("/")
+    known = [i for i, p in enumerate(PREFERRED_ODOMETRY) if name == p or name.endswith("/" + p)]
+    return (known[0] if known else len(PREFERRED_ODOMETRY), -count, topic)
+
+
+def _choose_pose_topic(
+    path: Path, reader: Any, odom_topic: str | None
+) -> tuple[str | None, str | None]:
+    """The pose topic to read, and a note on the choice where the bag offered several."""
     pose_topics = {c.topic: c.msgtype for c in reader.connections if c.msgtype in POSE_TYPES}
     if odom_topic is None:
-        odometry = [t for t, m in pose_topics.items() if m == POSE_TYPES[0]]
-        return odometry[0] if len(odometry) == 1 else None
+        counts: dict[str, int] = {}
+        for c in reader.connections:
+            if c.msgtype == POSE_TYPES[0]:
+                counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+        # as for scans: a topic subscribed to and never published on is no real choice
+        live = [t for t in counts if counts[t] > 0] or list(counts)
+        if len(live) <= 1:
+            return (live[0] if live else None), None
+        chosen = min(live, key=lambda t: _odometry_rank(t, counts[t]))
+        others = ", ".join(sorted(t for t in live if t != chosen))
+        return chosen, f"{chosen} chosen over {others}; --odom-topic to pick another"
     found = _match_name(odom_topic, pose_topics)
     if found is None:
         hint = ", ".join(sorted(pose_topics)) or "none"
         raise BagError(f"{path}: no odometry/pose topic {odom_topic} (pose topics here: {hint})")
-    return found
+    return found, None
 
 
-def _stamp_ns(msg: Any, fallback: int) -> int:
+def _stamp_ns(msg: Any) -> int:
     stamp = msg.header.stamp
-    ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    return ns if ns > 0 else int(fallback)
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+#: Header stamps all below a day after the epoch are a simulator's clock (ROS ``/clock``).
+SIM_CLOCK_NS = 86_400 * 1_000_000_000
+
+
+def _zero_stamps_filled(header_ns: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
+    """Header stamps with each zero (a driver that left the stamp unset) replaced by its log
+    time; kept where the stream's other stamps are a simulator's clock, which starts at 0."""
+    zero = header_ns <= 0
+    if not zero.any():
+        return header_ns
+    rest = header_ns[~zero]
+    if rest.size and rest.max() < SIM_CLOCK_NS:
+        return np.maximum(header_ns, 0)
+    return np.where(zero, log_ns, header_ns)
 
 
 _COPIES_WITHIN_NS = 1_000_000_000  # log times of one message recorded twice: well within 1 s
@@ -220,10 +258,12 @@ def read_bag(
     Args:
         path: the bag (see module docstring for accepted kinds).
         topic: the scan topic; may be omitted when the bag has exactly one.
-        odom_topic: an Odometry/PoseStamped topic; by default the bag's only
-            ``nav_msgs/Odometry`` topic, if it has exactly one. Poses are those of the odometry
-            frame's child (usually the robot base), interpolated at the scan stamps, then moved
-            to the scan's frame by the static TF between the two when the bag has it
+        odom_topic: an Odometry/PoseStamped topic; by default the bag's ``nav_msgs/Odometry``
+            topic, and of several the first of :data:`PREFERRED_ODOMETRY` there, else the one
+            with the most messages (``meta["pose_topic_choice"]`` says which, over which).
+            Poses are those of the odometry frame's child (usually the robot base),
+            interpolated at the scan stamps, then moved to the scan's frame by the static TF
+            between the two when the bag has it
             (``meta["sensor_mount"]`` = that ``(x, y, yaw)``; ``None``: poses stay the base's).
             A scanner mounted upside down (``meta["sensor_upside_down"]``) sees the world
             mirrored: its poses are given in the mirrored world, so that their motions are its.
@@ -232,7 +272,8 @@ def read_bag(
     Scans that are empty, malformed (impossible geometry) or the same message recorded twice
     are dropped and counted in ``meta`` (``*_scans_dropped``). Scans are ordered by their
     header stamps, or by their log times where the header stamps do not advance
-    (``meta["stamps"]``); a zero header stamp is replaced by the log time. Where the header
+    (``meta["stamps"]``); a zero header stamp is replaced by the log time, unless the other
+    stamps are a simulator's clock (all within a day of 0), which starts at 0. Where the header
     clock goes back (more than 5 median frame periods and 0.5 s behind the latest stamp, in
     arrival order), a new session begins: sessions stay in arrival order, each in header
     order, and each later one is shifted to begin twice that tolerance after the one before
@@ -242,7 +283,7 @@ def read_bag(
     path = Path(path)
     with open_bag(path) as reader:
         scan_topic = _choose_topic(path, reader, topic)
-        pose_topic = _choose_pose_topic(path, reader, odom_topic)
+        pose_topic, pose_choice = _choose_pose_topic(path, reader, odom_topic)
         wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
         if pose_topic is not None:  # the TF tree, to find the scanner's mount on the base
             wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
@@ -262,7 +303,7 @@ def read_bag(
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == pose_topic:
                     body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
-                    pose_stamps.append(_stamp_ns(msg, log_time))
+                    pose_stamps.append(_stamp_ns(msg))
                     pose_log_times.append(int(log_time))
                     pose_values.append(_pose_of(msg))
                     continue
@@ -283,7 +324,7 @@ def read_bag(
                     # recording; a topic of nothing but malformed scans is refused below.
                     malformed.append(err)
                     continue
-                scans.append(Scan(ranges, geometry, _stamp_ns(msg, log_time)))
+                scans.append(Scan(ranges, geometry, _stamp_ns(msg)))
                 log_times.append(int(log_time))
                 if progress is not None:
                     progress(1)
@@ -301,6 +342,10 @@ def read_bag(
         ) from malformed[0]
     if not scans:
         raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans")
+    header = np.array([s.stamp_ns for s in scans], dtype=np.int64)
+    filled = _zero_stamps_filled(header, np.array(log_times, dtype=np.int64))
+    if not np.array_equal(filled, header):
+        scans = [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, filled, strict=True)]
     # The same message recorded twice (two connections on one topic, merged bags) is one
     # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
     # copies arrive together; the same scan at the same stamp a session later is a simulator
@@ -322,9 +367,10 @@ def read_bag(
         stamps = "log time (the header stamps do not advance)"
     odometry = None
     if pose_topic is not None:
+        pose_logged = np.array(pose_log_times, dtype=np.int64)
         odometry = (
-            np.array(pose_stamps, dtype=np.int64),
-            np.array(pose_log_times, dtype=np.int64),
+            _zero_stamps_filled(np.array(pose_stamps, dtype=np.int64), pose_logged),
+            pose_logged,
             np.array(pose_values, dtype=np.float64).reshape(-1, 3),
         )
     scans, poses, clock_jumps = in_sessions(scans, arrivals, odometry)
@@ -347,6 +393,8 @@ def read_bag(
         "clock_jumps": clock_jumps,
         "malformed_scans_dropped": len(malformed),
     }
+    if pose_choice is not None:
+        meta["pose_topic_choice"] = pose_choice
     if pose_topic is not None:
         meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
         if upside_down:

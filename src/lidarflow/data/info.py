@@ -100,6 +100,8 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
         notes["scans_dropped"] = dropped
     if meta.get("stamps", "header") != "header":
         notes["stamps"] = meta["stamps"]
+    if meta.get("pose_topic_choice"):
+        notes["pose_topic"] = meta["pose_topic_choice"]
     if meta.get("clock_jumps"):
         notes["clock_jumps"] = meta["clock_jumps"]
     return notes
