@@ -209,6 +209,21 @@ def test_no_return_written_as_range_max_reads_as_inf(range_max, seed):
     assert beam_status(below[0], 0.1, range_max).tolist() == [RETURN] * 360
 
 
+def test_zero_is_unknown_even_where_range_min_is_zero():
+    geom = BeamGeometry(3, -0.1, 0.1, 0.0, 8.0)
+    assert beam_status(np.array([0.0, 2.0, np.inf]), 0.0, 8.0).tolist() == [0, 1, 2]
+    occ, vis = rasterize(Scan(np.zeros(3), geom), GRID)
+    assert not occ.any() and not vis.any()
+
+
+def test_a_geometry_sweeping_more_than_a_turn_is_refused():
+    # 720 beams 1 rad apart: an increment written in degrees (0.5) read as radians
+    with pytest.raises(ScanError, match="more than a full turn"):
+        BeamGeometry(720, -math.pi, 1.0, 0.1, 8.0)
+    BeamGeometry(361, -math.pi, math.radians(1.0), 0.1, 8.0)  # -180..180 inclusive: fine
+    BeamGeometry(360, math.pi, -2 * math.pi / 360, 0.1, 8.0)  # descending, one turn
+
+
 def test_batch_equals_one_at_a_time():
     rng = np.random.default_rng(0)
     geom = BeamGeometry(512, -math.pi / 2, math.pi / 511, 0.02, 5.6)

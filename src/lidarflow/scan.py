@@ -77,7 +77,7 @@ class GridSpec:
 class BeamGeometry:
     """Where the beams of a scan point: ``count`` beams from ``angle_min`` in steps of
     ``angle_increment`` radians (which may be negative), valid returns in
-    ``[range_min, range_max]`` metres."""
+    ``[range_min, range_max)`` metres, at most one turn (a step or two of overlap allowed)."""
 
     count: int
     angle_min: float
@@ -93,6 +93,13 @@ class BeamGeometry:
             raise ScanError(f"beam geometry must be finite, got {self}")
         if self.angle_increment == 0 and self.count > 1:
             raise ScanError("angle_increment is 0 but the scan has more than one beam")
+        sweep = abs(self.angle_increment) * (self.count - 1)
+        if sweep > 2 * math.pi + 2 * abs(self.angle_increment):
+            # an increment in degrees, say: every beam would wrap onto another's bearing
+            raise ScanError(
+                f"{self.count} beams {self.angle_increment:g} rad apart sweep "
+                f"{math.degrees(sweep):.0f} degrees, more than a full turn"
+            )
         if self.range_max <= 0 or self.range_min < 0 or self.range_min > self.range_max:
             raise ScanError(
                 f"range limits must satisfy 0 <= range_min <= range_max, 0 < range_max; "
@@ -145,6 +152,8 @@ def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.nd
 
     >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0, 10.0]), 0.1, 10.0).tolist()
     [1, 2, 0, 0, 2, 2]
+    >>> beam_status(np.array([0.0, 0.5]), 0.0, 10.0).tolist()  # 0 is unknown whatever range_min
+    [0, 1]
     """
     r = np.asarray(ranges)
     if not np.issubdtype(r.dtype, np.floating):
@@ -163,7 +172,8 @@ def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndar
     top = r.dtype.type(range_max)
     with np.errstate(invalid="ignore"):
         beyond = r >= top  # +inf included; NaN compares False
-        return (r >= range_min) & ~beyond, beyond
+        # 0 is unknown even where range_min is 0 (drivers write invalid beams as 0)
+        return (r >= range_min) & (r > 0) & ~beyond, beyond
 
 
 @lru_cache(maxsize=64)

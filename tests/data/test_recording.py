@@ -93,6 +93,10 @@ def test_describe_counts_invalid_beams_and_gaps():
     assert info["gaps"] == [{"before_frame": 10, "seconds": 2.1}]
     beams = info["beams"]
     assert beams["neg_inf"] == 1 and beams["zero"] >= 1 and beams["at_range_max"] >= 1
+    assert beams["below_range_min"] >= 0
+    rec.range_min[:] = 0.0  # a driver that states no minimum, and writes invalid beams as 0
+    beams = describe_recording(rec)["beams"]
+    assert beams["below_range_min"] == 0 and beams["unknown"] >= beams["zero"] >= 1
     assert (
         beams["returns"] + beams["no_return_inf_or_from_max"] + beams["unknown"] == beams["total"]
     )
