@@ -7,7 +7,8 @@ right for free, and a model that moves the map with the robot's motion moves the
 This simulates the sensors of `sensor_sweep.py` whose ``range_max`` lies inside the grid, each
 static and driving, writes a copy of each recording with every ``+inf`` replaced by its scan's
 ``range_max``, and evaluates the model on both (`lidarflow evaluate`, with the simulator's
-odometry).
+odometry). With ``--written-as zero`` the copy writes no return as ``0.0`` instead, as
+TurtleBot3's LDS driver does (read as unknown beams, by the design notes' rule).
 
     python experiments/range_max_ring.py -o runs/range_max_ring [--model bundled] [--seed 202]
 
@@ -31,13 +32,14 @@ from lidarflow.sim import PeopleConfig, SimConfig, lidar_preset, write_simulatio
 RING_SENSORS = ("86deg_5Hz_3.5m", "180deg_15Hz_5.6m", "360deg_15Hz_3.5m")
 
 
-def write_ring(source: Path, target: Path) -> float:
-    """Copy ``source`` with every ``+inf`` range written as its scan's ``range_max``; the
-    share of beams so rewritten."""
+def write_ring(source: Path, target: Path, written_as: str = "range_max") -> float:
+    """Copy ``source`` with every ``+inf`` range written as its scan's ``range_max`` (or as
+    ``0.0``: ``written_as="zero"``); the share of beams so rewritten."""
     recording = load_recording(source)
     per_beam = np.repeat(recording.range_max, np.diff(recording.offsets)).astype(np.float32)
+    value = per_beam if written_as == "range_max" else np.float32(0.0)
     ring = np.isposinf(recording.ranges)
-    recording.ranges = np.where(ring, per_beam, recording.ranges).astype(np.float32)
+    recording.ranges = np.where(ring, value, recording.ranges).astype(np.float32)
     recording.save(target)
     return float(ring.mean())
 
@@ -48,6 +50,7 @@ def main() -> None:
     parser.add_argument("--model", default="bundled")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--seed", type=int, default=202)
+    parser.add_argument("--written-as", choices=("range_max", "zero"), default="range_max")
     args = parser.parse_args()
     args.output.mkdir(parents=True, exist_ok=True)
     study: dict[str, dict] = {}
@@ -62,10 +65,10 @@ def main() -> None:
                     people=PeopleConfig(count=8),
                 )
                 write_simulation(plain, args.frames, args.seed, config)
-            ringed = args.output / f"{name}_{scenario}_ring.npz"
-            share = write_ring(plain, ringed)
+            ringed = args.output / f"{name}_{scenario}_{args.written_as}.npz"
+            share = write_ring(plain, ringed, args.written_as)
             row: dict[str, object] = {"no_return_share": share}
-            for kind, recording in (("inf", plain), ("range_max", ringed)):
+            for kind, recording in (("inf", plain), (args.written_as, ringed)):
                 report = recording.with_suffix(".json")
                 lidarflow("evaluate", str(recording), "--model", args.model, "--json", str(report))
                 methods = json.loads(report.read_text())["recordings"][0]["methods"]
@@ -74,17 +77,18 @@ def main() -> None:
             study[f"{name}/{scenario}"] = row
     lines = [
         "| sensor / scenario | no return | written +inf: model / copy-last F1, verdict "
-        "| written range_max: model / copy-last F1, verdict |",
+        f"| written {args.written_as}: model / copy-last F1, verdict |",
         "|---|---|---|---|",
     ]
     for key, row in study.items():
         cells = [
             f"{r['model']['f1']:.3f} / {r['baselines']['copy_last']['f1']:.3f}, {r['verdict']}"
-            for r in (row["inf"], row["range_max"])
+            for r in (row["inf"], row[args.written_as])
         ]
         lines.append(f"| {key} | {row['no_return_share']:.0%} | " + " | ".join(cells) + " |")
-    (args.output / "range_max_ring.json").write_text(json.dumps(study, indent=2) + "\n")
-    (args.output / "range_max_ring.md").write_text("\n".join(lines) + "\n")
+    name = "range_max_ring" if args.written_as == "range_max" else "written_as_zero"
+    (args.output / f"{name}.json").write_text(json.dumps(study, indent=2) + "\n")
+    (args.output / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
