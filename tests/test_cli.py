@@ -345,3 +345,12 @@ def test_report_of_two_recordings_with_one_file_name_keeps_both(tmp_path, capsys
     half = len(images) // 2
     assert half and images[:half] != images[half:]  # each recording shows its own pictures
     assert all(f"<h2>{bag}</h2>" in page for bag in bags)
+
+
+@pytest.mark.parametrize("value", ["5", "0", "-1", "nan"])
+def test_evaluate_ta_threshold_out_of_range_is_a_usage_error(tmp_path, capsys, value):
+    # it used to reach the baseline's ValueError: "internal error ... please report it"
+    bag = write_bag(tmp_path / "b.bag", "ros1", {"/scan": [np.full(50, 3.0)] * 14})
+    argv = ["evaluate", str(bag), "--baselines-only", "--ta-threshold", value]
+    code, _, err = run(argv, capsys)
+    assert code == 2 and "--ta-threshold" in err and "internal error" not in err

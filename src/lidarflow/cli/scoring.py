@@ -23,6 +23,14 @@ from lidarflow.cli.app import (
 )
 
 
+def _above_zero(value: float) -> float:
+    """A usage error for 0: typer's ``min`` is inclusive, and a temporal-average threshold of 0
+    would call every cell occupied (the baseline refuses it, which was a crash here)."""
+    if value <= 0.0:
+        raise typer.BadParameter(f"must be above 0, not {value}")
+    return value
+
+
 def methods_and_config(
     sources: list[Path | None],
     ta_window: int = 5,
@@ -156,7 +164,13 @@ def evaluate(
         int, typer.Option(help="Temporal-average baseline: frames averaged.", min=1)
     ] = 5,
     ta_threshold: Annotated[
-        float, typer.Option(help="Temporal-average baseline: occupied when mean >= this.")
+        float,
+        typer.Option(
+            help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
+            min=0.0,
+            max=1.0,
+            callback=_above_zero,
+        ),
     ] = 0.4,
     ego_oracle: Annotated[
         bool,
