@@ -354,3 +354,16 @@ def test_evaluate_ta_threshold_out_of_range_is_a_usage_error(tmp_path, capsys, v
     argv = ["evaluate", str(bag), "--baselines-only", "--ta-threshold", value]
     code, _, err = run(argv, capsys)
     assert code == 2 and "--ta-threshold" in err and "internal error" not in err
+
+
+def test_evaluate_names_the_recording_that_is_too_short(tmp_path, capsys):
+    long = write_bag(tmp_path / "long.bag", "ros1", {"/scan": [np.full(50, 3.0)] * 14})
+    short = write_bag(tmp_path / "short.bag", "ros1", {"/scan": [np.full(50, 3.0)]})
+    code, _, err = run(["evaluate", str(long), str(short), "--baselines-only"], capsys)
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert (
+        f"{short}: too short to evaluate: needs at least 12 frames" in err and "has 1 frame;" in err
+    )
+    code, _, err = run(["evaluate", str(long), "--baselines-only", "--horizon", "10"], capsys)
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert f"{long}: too short for --horizon 10: needs at least 21 frames" in err

@@ -247,7 +247,11 @@ def evaluate(
         else:
             typer.echo("no bundled model in this installation: scoring the baselines only")
     spec = GridSpec(grid, grid, res)
-    named = [(str(path), load_input(path, topic, odom_topic)) for path in inputs]
+    named = []
+    for path in inputs:
+        recording = load_input(path, topic, odom_topic)
+        _check_length(str(path), recording, warmup, horizon)
+        named.append((str(path), recording))
     with_poses = any(recording.has_poses for _, recording in named)
     methods, config = methods_and_config(
         sources,
@@ -288,6 +292,19 @@ def evaluate(
         typer.echo(f"wrote {json_out}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
+
+
+def _check_length(name: str, recording: Any, warmup: int, horizon: int) -> None:
+    """Refuse a recording too short to score, naming it, as soon as it is read: not after the
+    long scoring of the ones before it."""
+    from lidarflow.data.gaps import frames_after_gaps
+    from lidarflow.evaluate.horizon import scored_frames
+    from lidarflow.evaluate.stream import check_length
+
+    gaps = frames_after_gaps(recording.stamps_ns)
+    check_length(len(recording), warmup, gaps, name)
+    if horizon > 1:
+        scored_frames(len(recording), horizon, warmup, gaps, name)
 
 
 def _add_horizon_scores(

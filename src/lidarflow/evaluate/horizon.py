@@ -39,7 +39,39 @@ from lidarflow.evaluate.online import OnlineDecision, moved_last_map
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.models.streaming import model_input
 
-__all__ = ["horizon_f1"]
+__all__ = ["horizon_f1", "scored_frames"]
+
+
+def scored_frames(
+    frames: int,
+    horizon: int,
+    warmup: int = 10,
+    gaps: Sequence[int] = (),
+    name: str = "the recording",
+) -> list[int]:
+    """The frames ``t`` (in order) whose predictions 1..``horizon`` ahead are scored on a
+    recording of ``frames`` frames with ``gaps`` (the frames after a gap in time). Raises
+    :class:`EvaluateError` naming ``name`` when there are none; the command line checks every
+    recording with it before the long work on any of them."""
+    if horizon < 1:
+        raise EvaluateError(f"horizon must be >= 1, got {horizon}")
+    if frames < warmup + horizon + 1:
+        has = f"{frames} frame{'s' * (frames != 1)}"
+        raise EvaluateError(
+            f"{name}: too short for --horizon {horizon}: needs at least "
+            f"{warmup + horizon + 1} frames ({warmup} to warm up, then {horizon} ahead), it has "
+            f"{has}; lower --horizon or --warmup, or leave it out"
+        )
+    after_gap = np.zeros(frames + 1, bool)
+    after_gap[[g for g in gaps if 0 < g < frames]] = True
+    crossed = np.convolve(after_gap, np.ones(horizon, int))  # any gap in t + 1 .. t + horizon
+    scored = [t for t in range(warmup, frames - horizon) if not crossed[t + horizon]]
+    if not scored:
+        raise EvaluateError(
+            f"{name}: no frame has {horizon} frames after it without a gap in time; lower "
+            "--horizon or leave it out"
+        )
+    return scored
 
 
 @torch.no_grad()
@@ -70,22 +102,8 @@ def horizon_f1(
     ``(N, 2, H, W)``: where each frame's returns lie inside their cells, for models with
     ``subcell_input`` (a predicted map fed back gets zeros: it has no returns). ``gaps``: the
     frames that follow a gap in time (no roll-out across one is scored; states carry on)."""
-    if horizon < 1:
-        raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     n = len(occupancy)
-    if n < warmup + horizon + 1:
-        raise EvaluateError(
-            f"a recording needs at least {warmup + horizon + 1} frames for horizon {horizon}; "
-            f"it has {n}"
-        )
-    after_gap = np.zeros(n + 1, bool)
-    after_gap[[g for g in gaps if 0 < g < n]] = True
-    crossed = np.convolve(after_gap, np.ones(horizon, int))  # any gap in t + 1 .. t + horizon
-    scored = [t for t in range(warmup, n - horizon) if not crossed[t + horizon]]  # in order
-    if not scored:
-        raise EvaluateError(
-            f"no frame of the recording has {horizon} frames after it without a gap in time"
-        )
+    scored = scored_frames(n, horizon, warmup, gaps)
     scoring = set(scored)
     copy = [Counts() for _ in range(horizon)]
     for t in scored:

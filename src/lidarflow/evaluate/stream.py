@@ -44,6 +44,7 @@ from lidarflow.sim.storage import dense_flow
 __all__ = [
     "WARMUP",
     "RecordingInputs",
+    "check_length",
     "evaluate_maps",
     "evaluate_recording",
     "ground_truth_backward_flow",
@@ -83,6 +84,23 @@ def ground_truth_moving(recording: Recording, grid: GridSpec) -> Callable[[int],
     if moving is None or not _made_on(recording, grid) or moving.shape[1:] != grid.shape:
         return None
     return lambda t: np.asarray(moving[t], bool)
+
+
+def check_length(
+    frames: int, warmup: int = WARMUP, gaps: Sequence[int] = (), name: str = "the recording"
+) -> None:
+    """Raise :class:`EvaluateError` naming ``name`` when a recording of ``frames`` frames (with
+    ``gaps``, the frames after a gap in time) leaves no step to score after ``warmup``; the
+    command line checks every recording with it before the long work on any of them."""
+    unscored = {int(g) - 1 for g in gaps}  # the steps t -> t + 1 across a gap
+    if frames < warmup + 2 or all(t in unscored for t in range(warmup, frames - 1)):
+        has = f"{frames} frame{'s' * (frames != 1)}"
+        gapped = f" and {len(unscored)} gaps" if unscored else ""
+        raise EvaluateError(
+            f"{name}: too short to evaluate: needs at least {warmup + 2} frames ({warmup} to "
+            "warm up, then a prediction and its target not across a gap in time), it has "
+            f"{has}{gapped}; lower --warmup or leave it out"
+        )
 
 
 def evaluate_maps(
@@ -130,13 +148,8 @@ def evaluate_maps(
     truth_or_None)`` is called with every such mask, e.g. to draw it.
     """
     n = len(occupancy)
+    check_length(n, warmup, gaps)
     unscored = {int(g) - 1 for g in gaps}  # the steps t -> t + 1 across a gap
-    if n < warmup + 2 or all(t in unscored for t in range(warmup, n - 1)):
-        raise EvaluateError(
-            f"a recording needs at least {warmup + 2} frames to be evaluated "
-            f"({warmup} to warm up, then a prediction and its target not across a gap in "
-            f"time); it has {n}" + (f" and {len(unscored)} gaps" if unscored else "")
-        )
     scorers = {m.name: Scorer() for m in methods}
     for m in methods:
         m.reset()
