@@ -367,3 +367,21 @@ def test_evaluate_names_the_recording_that_is_too_short(tmp_path, capsys):
     code, _, err = run(["evaluate", str(long), "--baselines-only", "--horizon", "10"], capsys)
     assert code == 1 and len(err.strip().splitlines()) == 1
     assert f"{long}: too short for --horizon 10: needs at least 21 frames" in err
+
+
+def test_evaluate_flags_metrics_with_nothing_to_find(tmp_path, capsys):
+    # F1 of a blind recording is 1.0 by the 0/0 convention: said so, in words and in the JSON
+    blind = write_bag(tmp_path / "blind.bag", "ros1", {"/scan": [np.full(50, np.nan)] * 14})
+    still = write_bag(tmp_path / "still.bag", "ros1", {"/scan": [np.full(50, 3.0)] * 14})
+    out = tmp_path / "e.json"
+    argv = ["evaluate", str(blind), str(still), "--baselines-only", "--json", str(out)]
+    code, text, err = run(argv, capsys)
+    assert code == 0, err
+    assert "note: no occupied cell in any scored target frame" in text
+    assert "note: no cell becomes occupied in any scored frame" in text
+    report = json.loads(out.read_text())
+    blind_entry, still_entry = report["recordings"]
+    assert blind_entry["undefined"] == ["f1", "recall", "ap", "changed_f1"]
+    assert blind_entry["methods"]["copy_last"]["f1"] == 1.0  # the convention itself stays
+    assert still_entry["undefined"] == ["changed_f1"]
+    assert report["undefined"] == ["changed_f1"]

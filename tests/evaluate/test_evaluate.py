@@ -322,3 +322,22 @@ def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
     streamed = evaluate_recording(rec, methods, grid)
     for name, scorer in whole.items():
         assert streamed[name].summary() == scorer.summary(), name
+
+
+def test_no_win_or_loss_is_claimed_on_a_metric_with_nothing_to_find():
+    from lidarflow.evaluate.report import format_comparison
+
+    blind = np.zeros((8, 24, 24), bool)
+    scored = evaluate_maps(blind, blind, [Oracle(blind), CopyLast()], warmup=2)
+    maps = moving_square()
+    seeing = evaluate_maps(maps, maps, [Oracle(maps), CopyLast()], warmup=2)
+    report = build_report([("blind", scored), ("seeing", seeing)])
+    entry = report["recordings"][0]
+    assert entry["undefined"] == ["f1", "recall", "ap", "changed_f1"]
+    assert entry["methods"]["oracle"]["f1"] == 1.0  # Counts' 0/0 convention is kept
+    assert entry["against_baselines"]["oracle"]["wins"] is None
+    assert "undefined" not in report["recordings"][1] and "undefined" not in report
+    overall = report["against_baselines"]["oracle"]
+    assert (overall["recordings_won"], overall["recordings_undecided"]) == (1, 1)
+    assert format_comparison(entry["against_baselines"]).endswith(": undecided (nothing to find)")
+    assert "won 1 of 2 recordings (1 undecided)" in format_comparison(report["against_baselines"])

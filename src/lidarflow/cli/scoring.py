@@ -234,6 +234,7 @@ def evaluate(
         format_table,
         format_uncertainty_table,
         gaps_note,
+        undefined_note,
     )
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
@@ -272,6 +273,9 @@ def evaluate(
     for entry in report["recordings"]:
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
         typer.echo(format_table(entry["methods"], title))
+        note = undefined_note(entry.get("undefined", []))
+        if note:
+            typer.echo(note)
         comparison = format_comparison(entry["against_baselines"])
         typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:
@@ -281,6 +285,9 @@ def evaluate(
             typer.echo(extra + "\n")
     if len(report["recordings"]) > 1:
         typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
+        note = undefined_note(report.get("undefined", []))
+        if note:
+            typer.echo(note)
         if report["against_baselines"]:
             typer.echo(format_comparison(report["against_baselines"]))
         extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")

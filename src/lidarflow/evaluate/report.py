@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 import operator
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 from lidarflow.evaluate.scoring import Scorer
@@ -20,6 +20,8 @@ __all__ = [
     "gaps_note",
     "uncertainty_row",
     "uncertainty_rows",
+    "undefined_metrics",
+    "undefined_note",
 ]
 
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
@@ -43,50 +45,96 @@ def build_report(
     """``{"recordings": [{"path", "frames_evaluated", "methods": {name: metrics},
     "against_baselines"}], "overall": {name: metrics}, "against_baselines"}``; overall
     micro-averages (sums counts) over recordings. ``against_baselines``: each model against
-    the baselines (:func:`against_baselines`); overall also counts the recordings it won."""
+    the baselines (:func:`against_baselines`); overall also counts the recordings it won.
+    A recording whose scored frames leave a metric nothing to find gets ``"undefined"``
+    (:func:`undefined_metrics`), and so does the report when every recording does."""
     recordings = []
     names: list[str] = []
     for path, scorers in per_recording:
         names.extend(n for n in scorers if n not in names)
         frames = max((s.frames for s in scorers.values()), default=0)
-        recordings.append(
-            {
-                "path": path,
-                "frames_evaluated": frames,
-                "methods": {name: s.summary() for name, s in scorers.items()},
-            }
-        )
-    overall = {
-        name: functools.reduce(
-            operator.add, (sc[name] for _, sc in per_recording if name in sc)
-        ).summary()
+        entry: dict[str, Any] = {
+            "path": path,
+            "frames_evaluated": frames,
+            "methods": {name: s.summary() for name, s in scorers.items()},
+        }
+        undefined = undefined_metrics(scorers)
+        if undefined:
+            entry["undefined"] = undefined
+        entry["against_baselines"] = against_baselines(entry["methods"], undefined)
+        recordings.append(entry)
+    overall_scorers = {
+        name: functools.reduce(operator.add, (sc[name] for _, sc in per_recording if name in sc))
         for name in names
     }
-    for entry in recordings:
-        entry["against_baselines"] = against_baselines(entry["methods"])
-    compared = against_baselines(overall)
+    overall = {name: s.summary() for name, s in overall_scorers.items()}
+    overall_undefined = undefined_metrics(overall_scorers)
+    compared = against_baselines(overall, overall_undefined)
     for name, verdict in compared.items():
-        verdict["recordings_won"] = sum(
-            bool(e["against_baselines"].get(name, {}).get("wins")) for e in recordings
-        )
-        verdict["recordings"] = sum(name in e["against_baselines"] for e in recordings)
+        verdicts = [
+            e["against_baselines"][name] for e in recordings if name in e["against_baselines"]
+        ]
+        verdict["recordings_won"] = sum(v["wins"] is True for v in verdicts)
+        verdict["recordings"] = len(verdicts)
+        undecided = sum(v["wins"] is None for v in verdicts)
+        if undecided:
+            verdict["recordings_undecided"] = undecided
     report: dict[str, Any] = {
         "recordings": recordings,
         "overall": overall,
         "against_baselines": compared,
     }
+    if overall_undefined:
+        report["undefined"] = overall_undefined
     if config:
         report["config"] = config
     return report
 
 
-def against_baselines(methods: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+def undefined_metrics(scorers: Mapping[str, Scorer]) -> list[str]:
+    """The metrics that had nothing to find in the frames ``scorers`` scored (the targets are
+    the same for every method): ``f1``, ``recall`` and ``ap`` where no target cell was
+    occupied, ``changed_f1`` where no changed cell became occupied. Their values follow the 0/0
+    conventions of :class:`~lidarflow.evaluate.metrics.Counts` (F1 1.0 where nothing was
+    predicted either, recall and AP 0) and say nothing about a method, so the report flags them
+    rather than let a blind recording read as a perfect score."""
+    if not scorers:
+        return []
+    out = []
+    if all(s.counts.tp + s.counts.fn == 0 for s in scorers.values()):
+        out += ["f1", "recall", "ap"]
+    if all(s.changed.tp + s.changed.fn == 0 for s in scorers.values()):
+        out.append("changed_f1")
+    return out
+
+
+def undefined_note(undefined: Sequence[str]) -> str:
+    """One line under a table whose ``undefined`` metrics (:func:`undefined_metrics`) had
+    nothing to find, ``""`` when there are none."""
+    if "f1" in undefined:
+        return (
+            "note: no occupied cell in any scored target frame (`lidarflow info` counts invalid "
+            "beams): F1, recall, AP and changed-cell F1 have nothing to find (F1 1.0 only by "
+            "the 0/0 convention)"
+        )
+    if "changed_f1" in undefined:
+        return (
+            "note: no cell becomes occupied in any scored frame: changed-cell F1 has nothing to "
+            "find (1.0 only by the 0/0 convention)"
+        )
+    return ""
+
+
+def against_baselines(
+    methods: Mapping[str, Mapping[str, Any]], undefined: Collection[str] = ()
+) -> dict[str, dict[str, Any]]:
     """Each model among ``methods`` (every one that is not one of :data:`BASELINES` or the
     copy-last moved by odometry) against the baselines, by the rule that decides whether a model
     is worth using: it wins when its F1 is above the best baseline's and its changed-cell F1
     above every baseline's. ``{name: {"wins", "f1_margin", "f1_baseline", "changed_f1_margin",
     "changed_f1_baseline"}}`` (margins against the best baseline, which is named); ``{}``
-    without baselines."""
+    without baselines. Where F1 or changed-cell F1 is among ``undefined`` (nothing to find,
+    :func:`undefined_metrics`) the rule cannot decide: ``"wins"`` is ``None``."""
     present = [b for b in BASELINES if b in methods]
     if not present:
         return {}
@@ -98,8 +146,10 @@ def against_baselines(methods: Mapping[str, Mapping[str, Any]]) -> dict[str, dic
             continue
         f1_margin = metrics["f1"] - methods[best_f1]["f1"]
         changed_margin = metrics["changed_f1"] - methods[best_changed]["changed_f1"]
+        # a margin on a metric with nothing to find is no win and no loss
+        decided = not {"f1", "changed_f1"} & set(undefined)
         out[name] = {
-            "wins": bool(f1_margin > 0 and changed_margin > 0),
+            "wins": bool(f1_margin > 0 and changed_margin > 0) if decided else None,
             "f1_margin": f1_margin,
             "f1_baseline": best_f1,
             "changed_f1_margin": changed_margin,
@@ -116,10 +166,13 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
         won = ""
         if "recordings_won" in v:
             won = f"; won {v['recordings_won']} of {v['recordings']} recordings"
+            if v.get("recordings_undecided"):
+                won += f" ({v['recordings_undecided']} undecided)"
+        verdict = {True: "wins", False: "loses", None: "undecided (nothing to find)"}[v["wins"]]
         lines.append(
             f"{name} against the best baseline: F1 {v['f1_margin']:+.4f} ({v['f1_baseline']}), "
             f"changed-cell F1 {v['changed_f1_margin']:+.4f} ({v['changed_f1_baseline']}): "
-            f"{'wins' if v['wins'] else 'loses'}{won}"
+            f"{verdict}{won}"
         )
     return "\n".join(lines)
 

@@ -12,7 +12,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from lidarflow.evaluate.report import format_comparison, gaps_note, uncertainty_rows
+from lidarflow.evaluate.report import (
+    format_comparison,
+    gaps_note,
+    uncertainty_rows,
+    undefined_note,
+)
 
 __all__ = ["write_html_report"]
 
@@ -70,6 +75,11 @@ def _comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
     return "".join(f"<p><b>{html.escape(line)}</b></p>" for line in lines)
 
 
+def _note(text: str) -> str:
+    """A one-line note under a table (empty without one)."""
+    return f"<p>{html.escape(text)}</p>" if text else ""
+
+
 def write_html_report(
     report: Mapping[str, Any],
     path: str | Path,
@@ -102,6 +112,7 @@ def write_html_report(
     ]
     if len(report.get("recordings", [])) > 1:
         parts += ["<h2>Overall (micro-averaged)</h2>", _table(report["overall"])]
+        parts.append(_note(undefined_note(report.get("undefined", []))))
         parts.append(_comparison(report.get("against_baselines", {})))
         parts.append(_uncertainty_table(report["overall"]))
     names = [Path(entry["path"]).name for entry in report.get("recordings", [])]
@@ -111,6 +122,7 @@ def write_html_report(
         evaluated = f"{entry['frames_evaluated']} frames evaluated{gaps_note(entry)}"
         parts.append(f"<h2>{name}</h2><p>{html.escape(evaluated)}</p>")
         parts.append(_table(entry["methods"]))
+        parts.append(_note(undefined_note(entry.get("undefined", []))))
         parts.append(_comparison(entry.get("against_baselines", {})))
         parts.append(_uncertainty_table(entry["methods"]))
         for caption, image in figures.get(entry["path"], []):
