@@ -385,3 +385,26 @@ def test_evaluate_flags_metrics_with_nothing_to_find(tmp_path, capsys):
     assert blind_entry["methods"]["copy_last"]["f1"] == 1.0  # the convention itself stays
     assert still_entry["undefined"] == ["changed_f1"]
     assert report["undefined"] == ["changed_f1"]
+
+
+def test_evaluate_notes_a_recording_made_on_another_grid(tmp_path, capsys):
+    # convert's and simulate's --grid/--res are recorded, not a default: evaluate says so
+    sim = tmp_path / "sim.npz"
+    argv = ["simulate", "--frames", "14", "--seed", "2", "--grid", "32", "--res", "0.2"]
+    code, _, err = run([*argv, "-o", str(sim)], capsys)
+    assert code == 0, err
+    out = tmp_path / "e.json"
+    code, text, err = run(["evaluate", str(sim), "--baselines-only", "--json", str(out)], capsys)
+    assert code == 0, err
+    assert (
+        "note: recorded on 32 x 32 x 0.2 m; scored on 100 x 100 x 0.1 m (--grid/--res to "
+        "change); ground-truth flow and moving cells not scored" in text
+    )
+    entry = json.loads(out.read_text())["recordings"][0]
+    assert entry["recorded_grid"] == {"height": 32, "width": 32, "res": 0.2}
+    assert entry["ground_truth_not_scored"] is True
+    argv = ["evaluate", str(sim), "--baselines-only", "--grid", "32", "--res", "0.2"]
+    code, text, err = run([*argv, "--json", str(out)], capsys)
+    assert code == 0, err
+    assert "note: recorded on" not in text
+    assert "recorded_grid" not in json.loads(out.read_text())["recordings"][0]

@@ -22,8 +22,10 @@ def convert(
 ) -> None:
     """Convert a LaserScan topic into a lidarflow recording (raw scans, stamps, poses).
 
-    The raw ranges are kept, so maps can be rasterized later on any grid; --grid/--res only set
-    the grid recorded as this recording's default and checked here by rasterizing every scan.
+    The raw ranges are kept, so maps can be rasterized later on any grid: the commands that
+    read the recording take their own --grid/--res (default 100 cells of 0.1 m). --grid/--res
+    here are the grid every scan is checked on (by rasterizing it) and which is written in the
+    recording's meta; evaluate notes when it scores a recording on another grid.
     """
     from lidarflow.scan import GridSpec
 

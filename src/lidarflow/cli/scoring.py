@@ -234,6 +234,7 @@ def evaluate(
         format_table,
         format_uncertainty_table,
         gaps_note,
+        grid_note,
         undefined_note,
     )
     from lidarflow.scan import GridSpec
@@ -273,9 +274,9 @@ def evaluate(
     for entry in report["recordings"]:
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
         typer.echo(format_table(entry["methods"], title))
-        note = undefined_note(entry.get("undefined", []))
-        if note:
-            typer.echo(note)
+        for note in (undefined_note(entry.get("undefined", [])), grid_note(entry, config["grid"])):
+            if note:
+                typer.echo(note)
         comparison = format_comparison(entry["against_baselines"])
         typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:

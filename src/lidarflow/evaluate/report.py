@@ -18,6 +18,7 @@ __all__ = [
     "format_table",
     "format_uncertainty_table",
     "gaps_note",
+    "grid_note",
     "uncertainty_row",
     "uncertainty_rows",
     "undefined_metrics",
@@ -182,6 +183,26 @@ def gaps_note(entry: Mapping[str, Any]) -> str:
     (``gaps_not_scored``), else ``""``: what its frame count leaves out."""
     gaps = len(entry.get("gaps_not_scored", []))
     return f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
+
+
+def grid_note(entry: Mapping[str, Any], scored: Mapping[str, Any]) -> str:
+    """One line for a recording's report entry recorded on another grid (``recorded_grid``)
+    than the one it was ``scored`` on, ``""`` otherwise: its numbers are not on the grid it was
+    made for, and a simulated one's ground truth is not scored."""
+    recorded = entry.get("recorded_grid")
+    if not recorded:
+        return ""
+    note = (
+        f"note: recorded on {_grid_text(recorded)}; scored on {_grid_text(scored)} "
+        "(--grid/--res to change)"
+    )
+    if entry.get("ground_truth_not_scored"):
+        note += "; ground-truth flow and moving cells not scored"
+    return note
+
+
+def _grid_text(grid: Mapping[str, Any]) -> str:
+    return f"{grid['height']} x {grid['width']} x {grid['res']:g} m"
 
 
 def _text_table(

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -49,6 +50,8 @@ __all__ = [
     "evaluate_recording",
     "ground_truth_backward_flow",
     "ground_truth_moving",
+    "has_ground_truth",
+    "other_recorded_grid",
     "recording_inputs",
 ]
 
@@ -62,6 +65,19 @@ def _made_on(recording: Recording, grid: GridSpec) -> bool:
         grid.width,
         grid.res,
     )
+
+
+def other_recorded_grid(recording: Recording, grid: GridSpec) -> dict[str, Any] | None:
+    """The grid recorded with ``recording`` (``convert``/``simulate``'s ``meta["grid"]``) where
+    it is not ``grid``, else ``None``: scored on ``grid``, such a recording's ground truth
+    (made on its own grid) is not scored, which the report should say."""
+    recorded = recording.meta.get("grid")
+    return None if not recorded or _made_on(recording, grid) else dict(recorded)
+
+
+def has_ground_truth(recording: Recording) -> bool:
+    """Whether ``recording`` holds the simulator's ground truth (flow or moving cells)."""
+    return any(k in recording.extras for k in ("flow_backward", "flow_backward_cells", "moving"))
 
 
 def ground_truth_backward_flow(

@@ -19,7 +19,11 @@ from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.report import build_report
 from lidarflow.evaluate.scoring import Scorer
-from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.evaluate.stream import (
+    evaluate_recording,
+    has_ground_truth,
+    other_recorded_grid,
+)
 from lidarflow.scan import GridSpec
 from lidarflow.viz.flow import flow_to_rgb
 from lidarflow.viz.html import write_html_report
@@ -179,6 +183,11 @@ def evaluate_and_report(
             entry["gaps_not_scored"] = [
                 {"before_frame": i, "seconds": round(s, 3)} for i, s in gaps
             ]
+        recorded = other_recorded_grid(recording, grid)
+        if recorded is not None:  # convert --grid/--res or simulate's grid is no default here
+            entry["recorded_grid"] = recorded
+            if has_ground_truth(recording):
+                entry["ground_truth_not_scored"] = True
     if report_dir is not None:
         report_dir.mkdir(parents=True, exist_ok=True)
         (report_dir / "report.json").write_text(json.dumps(report, indent=2))

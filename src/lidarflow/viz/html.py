@@ -15,6 +15,7 @@ from typing import Any
 from lidarflow.evaluate.report import (
     format_comparison,
     gaps_note,
+    grid_note,
     uncertainty_rows,
     undefined_note,
 )
@@ -123,6 +124,8 @@ def write_html_report(
         parts.append(f"<h2>{name}</h2><p>{html.escape(evaluated)}</p>")
         parts.append(_table(entry["methods"]))
         parts.append(_note(undefined_note(entry.get("undefined", []))))
+        if "grid" in report.get("config", {}):
+            parts.append(_note(grid_note(entry, report["config"]["grid"])))
         parts.append(_comparison(entry.get("against_baselines", {})))
         parts.append(_uncertainty_table(entry["methods"]))
         for caption, image in figures.get(entry["path"], []):
