@@ -408,3 +408,18 @@ def test_evaluate_notes_a_recording_made_on_another_grid(tmp_path, capsys):
     assert code == 0, err
     assert "note: recorded on" not in text
     assert "recorded_grid" not in json.loads(out.read_text())["recordings"][0]
+
+
+def test_each_model_option_says_what_its_command_takes(tmp_path, capsys, monkeypatch):
+    # export's help offered an .onnx file, which it (and evaluate) refuse; predict runs one
+    monkeypatch.setenv("COLUMNS", "200")
+    helps = {}
+    for name in ("export", "evaluate", "predict"):
+        _, text, _ = run([name, "--help"], capsys)
+        helps[name] = " ".join(text.replace("│", " ").split())
+    assert "not an .onnx file" in helps["export"] and "not an .onnx file" in helps["evaluate"]
+    assert "an .onnx file from `lidarflow export`" in helps["predict"]
+    onnx = tmp_path / "m.onnx"
+    onnx.write_bytes(b"not really")
+    code, _, err = run(["export", "--onnx", str(tmp_path / "again.onnx"), "-m", str(onnx)], capsys)
+    assert code == 1 and "an ONNX model runs only in `lidarflow predict`" in err

@@ -66,13 +66,28 @@ def load_input(path: Path, topic: str | None = None, odom_topic: str | None = No
         return load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
 
 
+#: What every --model that loads PyTorch weights takes (models.weights.load_trained); an .onnx
+#: file only runs (predict), so each command's help says whether it takes one.
+TORCH_MODEL_SOURCES = (
+    "a run folder from `lidarflow train`, a .safetensors file (its .json or a model.json "
+    "beside it), a model.json"
+)
 ModelOpt = Annotated[
     Path | None,
     typer.Option(
         "--model",
         "-m",
-        help="Run folder from `lidarflow train`, a .safetensors file, an .onnx file, or "
+        help=f"Model: {TORCH_MODEL_SOURCES}, an .onnx file from `lidarflow export` or "
         "`bundled` (the default: the bundled pretrained model).",
+    ),
+]
+ExportModelOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--model",
+        "-m",
+        help=f"Model to export: {TORCH_MODEL_SOURCES} or `bundled` (the default: the bundled "
+        "pretrained model); not an .onnx file (it is exported already).",
     ),
 ]
 

@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from lidarflow.cli.app import (
+    ExportModelOpt,
     GridOpt,
     ModelOpt,
     MovingOpt,
@@ -149,7 +150,7 @@ def predict(
 @app.command()
 def export(
     onnx: Annotated[Path, typer.Option("--onnx", help="ONNX file to write.")],
-    model: ModelOpt = None,
+    model: ExportModelOpt = None,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     int8: Annotated[

@@ -10,6 +10,7 @@ from typing import Annotated, Any
 import typer
 
 from lidarflow.cli.app import (
+    TORCH_MODEL_SOURCES,
     GridOpt,
     MovingOpt,
     OdomOpt,
@@ -132,9 +133,9 @@ def evaluate(
         typer.Option(
             "--model",
             "-m",
-            help="Trained model to evaluate beside the baselines: a run folder from "
-            "`lidarflow train`, a .safetensors file with its .json, or `bundled` (the bundled "
-            "model). Repeat for several; default: the bundled model.",
+            help=f"Trained model to evaluate beside the baselines: {TORCH_MODEL_SOURCES} or "
+            "`bundled` (the bundled model); not an .onnx file (evaluate runs PyTorch). Repeat "
+            "for several; default: the bundled model.",
         ),
     ] = None,
     baselines_only: Annotated[
