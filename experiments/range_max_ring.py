@@ -1,9 +1,10 @@
 """A driver that writes "no return" as range_max: does the model still beat the baselines?
 
-Gazebo classic's laser, and SICK drivers by default, report a beam that saw nothing as
-``range_max`` rather than ``+inf``. Read as a return, that draws a ring of occupied cells at
-``range_max`` that stays put in the sensor's frame however the robot moves: copy-last gets it
-right for free, and a model that moves the map with the robot's motion moves the ring too.
+Older Gazebo laser plugins, and drivers that clip their readings, report a beam that saw
+nothing as ``range_max`` rather than ``+inf``. Read as a return, that draws a ring of occupied
+cells at ``range_max`` that stays put in the sensor's frame however the robot moves: copy-last
+gets it right for free, and a model that moves the map with the robot's motion moves the ring
+too.
 This simulates the sensors of `sensor_sweep.py` whose ``range_max`` lies inside the grid, each
 static and driving, writes a copy of each recording with every ``+inf`` replaced by its scan's
 ``range_max``, and evaluates the model on both (`lidarflow evaluate`, with the simulator's

@@ -7,8 +7,8 @@ the left edge, and the sensor sits at the middle of the bottom edge.
 Beam validity: a finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf``
 or ``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
 or ``rho < range_min`` are *unknown* (the beam says nothing). A reading of exactly
-``range_max`` is the sensor saying "nothing nearer": many drivers (Gazebo classic's laser, SICK
-drivers by default) write no return that way, and read as a return it draws a ring at
+``range_max`` is the sensor saying "nothing nearer": older Gazebo laser plugins and drivers that
+clip their readings write no return that way, and read as a return it draws a ring at
 ``range_max`` that stays put in the sensor's frame. This departs from the design notes
 (``range_min <= rho <= range_max``) for that one value; why, measured:
 ``docs/results/sensors_range_max/README.md``.

@@ -148,7 +148,7 @@ def test_of_several_odometry_topics_the_fused_one_is_read_and_the_choice_said(tm
     assert rec.meta["pose_topic_choice"] == (
         "/odometry/filtered chosen over /odom, /wheel/odom; --odom-topic to pick another"
     )
-    assert describe_recording(rec)["pose_topic"] == rec.meta["pose_topic_choice"]
+    assert describe_recording(rec)["pose_topic_choice"] == rec.meta["pose_topic_choice"]
     rec = read_bag(write_bag(tmp_path / "w.bag", "ros1", odom=["/a/odom", "/b"]))
     assert rec.meta["pose_topic"] == "/a/odom"
     chosen = read_bag(tmp_path / "w.bag", odom_topic="/b")
@@ -162,6 +162,11 @@ def test_a_simulator_clock_starting_at_zero_keeps_its_first_stamp(tmp_path):
     # (taken for one, its wall-clock log time read as a 54-year clock jump).
     sim = [i * 100_000_000 for i in range(25)]
     rec = read_bag(write_bag(tmp_path / "sim.bag", "ros1", header_stamps=sim))
+    assert rec.stamps_ns.tolist() == sim
+    assert not rec.meta["clock_jumps"] and find_gaps(rec) == []
+    # a later zero on that clock is an unset stamp: the stamps around it stand in
+    unset = [*sim[:12], 0, *sim[13:]]
+    rec = read_bag(write_bag(tmp_path / "unset.bag", "ros1", header_stamps=unset))
     assert rec.stamps_ns.tolist() == sim
     assert not rec.meta["clock_jumps"] and find_gaps(rec) == []
     # on a wall clock a zero stamp is a driver's unset one: its log time stands in

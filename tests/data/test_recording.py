@@ -97,9 +97,7 @@ def test_describe_counts_invalid_beams_and_gaps():
     rec.range_min[:] = 0.0  # a driver that states no minimum, and writes invalid beams as 0
     beams = describe_recording(rec)["beams"]
     assert beams["below_range_min"] == 0 and beams["unknown"] >= beams["zero"] >= 1
-    assert (
-        beams["returns"] + beams["no_return_inf_or_from_max"] + beams["unknown"] == beams["total"]
-    )
+    assert beams["returns"] + beams["no_return"] + beams["unknown"] == beams["total"]
     assert info["field_of_view_deg"] == [180.0]
 
 

@@ -53,6 +53,16 @@ def test_scan_points_keeps_returns_in_bearing_order_in_rep_103():
     np.testing.assert_allclose(points, [[2.0, 0.0], [0.0, 1.0]], atol=1e-6)
 
 
+def test_scan_points_are_the_returns_the_rasterizer_draws():
+    # a range_max of 5.6 is no float32: a reading stored as float32(5.6) is a driver's "no
+    # return" to the maps, and must not be a point for the scan matcher
+    g = BeamGeometry(3, -0.1, 0.1, 0.02, 5.6)
+    ranges = np.array([5.6, 5.6, 2.0], np.float32)
+    assert len(scan_points(Scan(ranges, g))) == 1
+    occupied, _ = rasterize(Scan(ranges, g), GridSpec())
+    assert occupied.sum() == 1
+
+
 @pytest.mark.parametrize(
     "start, end",
     [

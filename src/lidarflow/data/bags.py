@@ -221,14 +221,20 @@ SIM_CLOCK_NS = 86_400 * 1_000_000_000
 
 def _zero_stamps_filled(header_ns: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
     """Header stamps with each zero (a driver that left the stamp unset) replaced by its log
-    time; kept where the stream's other stamps are a simulator's clock, which starts at 0."""
+    time. On a simulator's clock, which starts at 0, zeros before its first other stamp are its
+    first instants and stay; a later zero is unset, and the log time (a wall clock) no stand-in
+    there: it gets the stamps around it, interpolated by position."""
     zero = header_ns <= 0
     if not zero.any():
         return header_ns
-    rest = header_ns[~zero]
-    if rest.size and rest.max() < SIM_CLOCK_NS:
-        return np.maximum(header_ns, 0)
-    return np.where(zero, log_ns, header_ns)
+    rest = np.flatnonzero(~zero)
+    if rest.size == 0 or header_ns[rest].max() >= SIM_CLOCK_NS:
+        return np.where(zero, log_ns, header_ns)
+    out = np.maximum(header_ns, 0)
+    later = np.flatnonzero(zero)
+    later = later[later > rest[0]]
+    out[later] = np.rint(np.interp(later, rest, header_ns[rest])).astype(np.int64)
+    return out
 
 
 _COPIES_WITHIN_NS = 1_000_000_000  # log times of one message recorded twice: well within 1 s
@@ -272,8 +278,9 @@ def read_bag(
     Scans that are empty, malformed (impossible geometry) or the same message recorded twice
     are dropped and counted in ``meta`` (``*_scans_dropped``). Scans are ordered by their
     header stamps, or by their log times where the header stamps do not advance
-    (``meta["stamps"]``); a zero header stamp is replaced by the log time, unless the other
-    stamps are a simulator's clock (all within a day of 0), which starts at 0. Where the header
+    (``meta["stamps"]``); a zero header stamp is replaced by the log time, except on a
+    simulator's clock (all stamps within a day of 0), which starts at 0 (later zeros there get
+    the stamps around them). Where the header
     clock goes back (more than 5 median frame periods and 0.5 s behind the latest stamp, in
     arrival order), a new session begins: sessions stay in arrival order, each in header
     order, and each later one is shifted to begin twice that tolerance after the one before

@@ -65,7 +65,7 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         "beams": {
             "total": int(raw.size),
             "returns": int(np.sum(status == RETURN)),
-            "no_return_inf_or_from_max": int(np.sum(status == NO_RETURN)),
+            "no_return": int(np.sum(status == NO_RETURN)),
             "at_range_max": at_max,
             "unknown": int(np.sum(status == UNKNOWN)),
             "nan": int(np.isnan(raw).sum()),
@@ -101,7 +101,7 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
     if meta.get("stamps", "header") != "header":
         notes["stamps"] = meta["stamps"]
     if meta.get("pose_topic_choice"):
-        notes["pose_topic"] = meta["pose_topic_choice"]
+        notes["pose_topic_choice"] = meta["pose_topic_choice"]
     if meta.get("clock_jumps"):
         notes["clock_jumps"] = meta["clock_jumps"]
     return notes

@@ -63,8 +63,9 @@ def scan_points(scan: Scan) -> np.ndarray:
     """The returns of ``scan`` as ``(N, 2)`` float64 ``(x, y)`` metres in the sensor frame
     (REP 103), ordered by bearing; ``no return`` and unknown beams are left out."""
     g = scan.geometry
+    # classified in the stored dtype, as the rasterizer does (a reading at range_max is none)
+    keep = beam_status(np.asarray(scan.ranges), g.range_min, g.range_max) == RETURN
     ranges = np.asarray(scan.ranges, dtype=np.float64)
-    keep = beam_status(ranges, g.range_min, g.range_max) == RETURN
     angles = g.angles[keep]
     order = np.argsort(np.mod(angles, 2 * np.pi), kind="stable")
     r, a = ranges[keep][order], angles[order]

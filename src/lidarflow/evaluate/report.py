@@ -115,13 +115,13 @@ def undefined_note(undefined: Sequence[str]) -> str:
     if "f1" in undefined:
         return (
             "note: no occupied cell in any scored target frame (`lidarflow info` counts invalid "
-            "beams): F1, recall, AP and changed-cell F1 have nothing to find (F1 1.0 only by "
-            "the 0/0 convention)"
+            "beams): F1, recall, AP and changed-cell F1 have nothing to find (F1 is 1.0 for "
+            "predicting nothing, 0 for predicting anything)"
         )
     if "changed_f1" in undefined:
         return (
             "note: no cell becomes occupied in any scored frame: changed-cell F1 has nothing to "
-            "find (1.0 only by the 0/0 convention)"
+            "find (1.0 for predicting no vanished cell occupied, else 0)"
         )
     return ""
 

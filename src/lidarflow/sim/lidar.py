@@ -305,8 +305,8 @@ def measure(
     if config.noise_std > 0:
         r = r + rng.normal(0.0, config.noise_std, r.shape)
     r[beyond] = np.inf
-    # A return that noise pushes to range_max or past it is reported as measured, as real
-    # drivers do; it then reads as no return (lidarflow.scan's rule).
+    # A return that noise pushes to range_max or past it is reported as measured (some
+    # drivers clip it or write +inf instead); either way it reads as no return (lidarflow.scan).
     r[r < config.range_min] = 0.0
     if config.dropout_prob > 0:
         drop = rng.random(r.shape) < config.dropout_prob

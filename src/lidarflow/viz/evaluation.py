@@ -184,10 +184,11 @@ def evaluate_and_report(
                 {"before_frame": i, "seconds": round(s, 3)} for i, s in gaps
             ]
         recorded = other_recorded_grid(recording, grid)
-        if recorded is not None:  # convert --grid/--res or simulate's grid is no default here
+        # a real recording is rasterized on any grid alike; a simulated one's ground truth
+        # was made on its own grid and is not scored on another
+        if recorded is not None and has_ground_truth(recording):
             entry["recorded_grid"] = recorded
-            if has_ground_truth(recording):
-                entry["ground_truth_not_scored"] = True
+            entry["ground_truth_not_scored"] = True
     if report_dir is not None:
         report_dir.mkdir(parents=True, exist_ok=True)
         (report_dir / "report.json").write_text(json.dumps(report, indent=2))
