@@ -177,13 +177,23 @@ def test_a_simulator_clock_starting_at_zero_keeps_its_first_stamp(tmp_path):
     assert not rec.meta["clock_jumps"] and find_gaps(rec) == []
 
 
-def test_several_scan_topics_need_a_choice(tmp_path):
+def test_of_several_scan_topics_one_is_read_and_the_choice_said(tmp_path):
+    # `lidarflow evaluate SOME.bag` works on any bag as it is (design notes, section 9)
     path = write_bag(
         tmp_path / "two.bag", "ros1", {"/front": [np.ones(10)] * 3, "/rear": [np.ones(10)] * 4}
     )
-    with pytest.raises(BagError, match=r"several LaserScan topics.*/front.*/rear.*--topic"):
-        read_bag(path)
-    assert len(read_bag(path, topic="/rear")) == 4
+    rec = read_bag(path)  # neither is named scan: the busiest
+    assert rec.meta["topic"] == "/rear" and len(rec) == 4
+    assert rec.meta["topic_choice"] == "/rear chosen over /front; --topic to pick another"
+    assert describe_recording(rec)["topic_choice"] == rec.meta["topic_choice"]
+    named = write_bag(
+        tmp_path / "s.bag",
+        "ros1",
+        {"/scan": [np.ones(10)] * 3, "/scan_filtered": [np.ones(10)] * 4},
+    )
+    assert read_bag(named).meta["topic"] == "/scan"  # REP 105's name first
+    chosen = read_bag(path, topic="/front")
+    assert len(chosen) == 3 and "topic_choice" not in chosen.meta
     with pytest.raises(BagError, match=r"no topic /side; scan topics here: /front, /rear"):
         read_bag(path, topic="/side")
 

@@ -23,7 +23,12 @@ app = typer.Typer(
 
 TopicOpt = Annotated[
     str | None,
-    typer.Option("--topic", "-t", help="LaserScan topic (needed only when the bag has several)."),
+    typer.Option(
+        "--topic",
+        "-t",
+        help="LaserScan topic; by default the bag's, and of several the one named `scan`, else "
+        "the busiest (each command says which it read).",
+    ),
 ]
 OdomOpt = Annotated[
     str | None,
@@ -59,11 +64,19 @@ def eval_progress(name: str, total: int) -> Any:
     return progress_bar(total, f"evaluating {Path(name).name}")
 
 
-def load_input(path: Path, topic: str | None = None, odom_topic: str | None = None) -> Any:
+def load_input(
+    path: Path, topic: str | None = None, odom_topic: str | None = None, notes: bool = True
+) -> Any:
+    """Read a recording or bag for a command; where the bag offered several scan or odometry
+    topics, say on stderr which was read (``notes``; `info` lists them itself)."""
     from lidarflow.data import load_any
 
     with progress_bar(None, f"reading {path.name}") as bar:
-        return load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
+        recording = load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
+    for key in ("topic_choice", "pose_topic_choice") if notes else ():
+        if recording.meta.get(key):
+            typer.echo(f"{path.name}: {recording.meta[key]}", err=True)
+    return recording
 
 
 #: What every --model that loads PyTorch weights takes (models.weights.load_trained); an .onnx

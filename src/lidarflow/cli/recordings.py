@@ -60,16 +60,10 @@ def info(
     if not is_recording_file(input):
         topics = list_topics(input)
         report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
-        scan_topics = [t.topic for t in topics if t.msgtype == LASERSCAN]
-        # as reading chooses: a scan topic with no messages is no real choice
-        live = [t.topic for t in topics if t.msgtype == LASERSCAN and t.count > 0]
-        if topic is None and len(live or scan_topics) != 1:
-            report["scan_topics"] = scan_topics
-            _print_info(report, as_json)
-            if scan_topics:
-                typer.echo("several LaserScan topics: name one with --topic for its details")
+        if topic is None and not any(t.msgtype == LASERSCAN for t in topics):
+            _print_info(report, as_json)  # an odometry-only bag: its topics say what it holds
             return
-    recording = load_input(input, topic)
+    recording = load_input(input, topic, notes=False)  # of several, the one read says why
     report["topic"] = recording.meta.get("topic")
     report.update(describe_recording(recording))
     _print_info(report, as_json)

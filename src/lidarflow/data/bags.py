@@ -146,7 +146,13 @@ def _match_name(name: str, topics: Iterable[str]) -> str | None:
     return loose[0] if len(loose) == 1 else None
 
 
-def _choose_topic(path: Path, reader: Any, topic: str | None) -> str:
+def _scan_rank(topic: str, count: int) -> tuple[int, int, str]:
+    # REP 105 robots publish their scanner on ``scan``; else the busiest, then by name
+    return (topic.strip("/").split("/")[-1] != "scan", -count, topic)
+
+
+def _choose_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, str | None]:
+    """The scan topic to read, and a note on the choice where the bag offered several."""
     counts: dict[str, int] = {}
     for c in reader.connections:
         if c.msgtype == LASERSCAN:
@@ -155,7 +161,7 @@ def _choose_topic(path: Path, reader: Any, topic: str | None) -> str:
     if topic is not None:
         found = _match_name(topic, scan_topics)
         if found is not None:
-            return found
+            return found, None
         others = {c.topic: c.msgtype for c in reader.connections}
         other = _match_name(topic, others)
         if other is not None:
@@ -168,11 +174,13 @@ def _choose_topic(path: Path, reader: Any, topic: str | None) -> str:
     # beside the sensor's is no real choice. (Without counts, as in an MCAP file with no
     # summary, every topic counts 0 and all stay candidates.)
     live = [t for t in scan_topics if counts[t] > 0] or scan_topics
-    if len(live) > 1:
-        raise BagError(
-            f"{path}: several LaserScan topics ({', '.join(live)}); pick one with --topic"
-        )
-    return live[0]
+    if len(live) == 1:
+        return live[0], None
+    # `lidarflow evaluate SOME.bag` works on any bag as it is (design notes, section 9): of
+    # several scanners one is read, and every command says which
+    chosen = min(live, key=lambda t: _scan_rank(t, counts[t]))
+    others = ", ".join(t for t in live if t != chosen)
+    return chosen, f"{chosen} chosen over {others}; --topic to pick another"
 
 
 #: Where a bag has several odometry topics and none is named: robot_localization's fused
@@ -263,7 +271,8 @@ def read_bag(
 
     Args:
         path: the bag (see module docstring for accepted kinds).
-        topic: the scan topic; may be omitted when the bag has exactly one.
+        topic: the scan topic; by default the bag's LaserScan topic, and of several the one
+            named ``scan``, else the busiest (``meta["topic_choice"]`` says which, over which).
         odom_topic: an Odometry/PoseStamped topic; by default the bag's ``nav_msgs/Odometry``
             topic, and of several the first of :data:`PREFERRED_ODOMETRY` there, else the one
             with the most messages (``meta["pose_topic_choice"]`` says which, over which).
@@ -289,7 +298,7 @@ def read_bag(
     """
     path = Path(path)
     with open_bag(path) as reader:
-        scan_topic = _choose_topic(path, reader, topic)
+        scan_topic, topic_choice = _choose_topic(path, reader, topic)
         pose_topic, pose_choice = _choose_pose_topic(path, reader, odom_topic)
         wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
         if pose_topic is not None:  # the TF tree, to find the scanner's mount on the base
@@ -400,6 +409,8 @@ def read_bag(
         "clock_jumps": clock_jumps,
         "malformed_scans_dropped": len(malformed),
     }
+    if topic_choice is not None:
+        meta["topic_choice"] = topic_choice
     if pose_choice is not None:
         meta["pose_topic_choice"] = pose_choice
     if pose_topic is not None:

@@ -91,8 +91,9 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
 
 def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
     """What reading the bag left out or replaced (read_bag's meta), so that it is never silent:
-    the scans it dropped, by kind, the stamps it ordered them by where not the headers', and
-    where the header clock went back (the sessions it re-stamped to follow one another)."""
+    the scans it dropped, by kind, the stamps it ordered them by where not the headers', the
+    scan and odometry topics it chose among several, and where the header clock went back (the
+    sessions it re-stamped to follow one another)."""
     notes: dict[str, Any] = {}
     dropped = {kind: int(meta.get(f"{kind}_scans_dropped") or 0)
                for kind in ("empty", "duplicate", "malformed")}  # fmt: skip
@@ -100,6 +101,8 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
         notes["scans_dropped"] = dropped
     if meta.get("stamps", "header") != "header":
         notes["stamps"] = meta["stamps"]
+    if meta.get("topic_choice"):
+        notes["topic_choice"] = meta["topic_choice"]
     if meta.get("pose_topic_choice"):
         notes["pose_topic_choice"] = meta["pose_topic_choice"]
     if meta.get("clock_jumps"):
