@@ -109,6 +109,7 @@ def write_bag(
     header_stamps: Sequence[int] | None = None,
     clock: Callable[[int], int] | None = None,
     compression: str | None = None,
+    echoes: Sequence[Sequence[Sequence[float]]] | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
@@ -122,7 +123,9 @@ def write_bag(
     (``{i: {"range_max": nan}}``). ``header_stamps``: scan ``i``'s header stamp (ns) instead
     of its log time. ``clock``: the header stamp of every scan and odometry message as a
     function of its log time (a header clock that jumps, say). ``compression``: "bz2" or
-    "lz4" chunks (ROS 1), "file" or "message" zstd (ROS 2).
+    "lz4" chunks (ROS 1), "file" or "message" zstd (ROS 2). ``echoes``: also a
+    ``/horizontal_laser_2d`` topic of ``sensor_msgs/MultiEchoLaserScan`` (as Cartographer's
+    backpack records), one message per frame of per-beam echo lists, 0.01 rad apart.
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -195,6 +198,20 @@ def write_bag(
                 intensities=[],
             )  # fmt: skip
             writer.write(c, t0, ser(msg, "sensor_msgs/msg/MultiEchoLaserScan"))
+        if echoes is not None:
+            c = conn("/horizontal_laser_2d", "sensor_msgs/msg/MultiEchoLaserScan")
+            Echoes = ts.types["sensor_msgs/msg/MultiEchoLaserScan"]
+            Echo = ts.types["sensor_msgs/msg/LaserEcho"]
+            for i, frame in enumerate(echoes):
+                stamp, n = t0 + i * period, len(frame)
+                msg = Echoes(
+                    header=_header(ts, stamp, "laser"), angle_min=-0.005 * (n - 1),
+                    angle_max=0.005 * (n - 1), angle_increment=0.01, time_increment=0.0,
+                    scan_time=0.1, range_min=0.05, range_max=8.0,
+                    ranges=[Echo(echoes=np.asarray(e, np.float32)) for e in frame],
+                    intensities=[],
+                )  # fmt: skip
+                writer.write(c, stamp, ser(msg, "sensor_msgs/msg/MultiEchoLaserScan"))
         if extra_string_topic:
             c = conn("/chatter", "std_msgs/msg/String")
             String = ts.types["std_msgs/msg/String"]

@@ -198,9 +198,25 @@ def test_of_several_scan_topics_one_is_read_and_the_choice_said(tmp_path):
         read_bag(path, topic="/side")
 
 
+def test_a_multi_echo_scan_is_read_as_each_beams_nearest_echo(tmp_path):
+    # Cartographer's backpack recordings hold MultiEchoLaserScan topics and no LaserScan
+    beams = [[2.0, 3.5], [np.inf], [], [0.01, 4.0], [np.nan], [0.0], [9.0, 7.0]]
+    path = write_bag(tmp_path / "e.bag", "ros1", scans={}, echoes=[beams] * 12)
+    rec = read_bag(path)
+    assert rec.meta["topic"] == "/horizontal_laser_2d" and len(rec) == 12
+    np.testing.assert_array_equal(  # below range_min (0.05) and 0 are no surface met
+        rec.scan(0).ranges, np.array([2.0, np.inf, np.nan, 4.0, np.nan, np.nan, 7.0], np.float32)
+    )
+    assert describe_recording(rec)["scan_type"].startswith("MultiEchoLaserScan")
+    # beside a LaserScan topic it is no second choice, unless named
+    both = write_bag(tmp_path / "b.bag", "ros1", echoes=[beams] * 12)
+    assert read_bag(both).meta["topic"] == "/scan"
+    assert read_bag(both, topic="/horizontal_laser_2d").meta["scan_type"]
+
+
 def test_no_laserscan_topic(tmp_path):
     path = write_bag(tmp_path / "none.bag", "ros1", scans={}, extra_string_topic=True)
-    with pytest.raises(BagError, match="no sensor_msgs/LaserScan topic"):
+    with pytest.raises(BagError, match=r"no sensor_msgs/LaserScan \(or MultiEchoLaserScan\) topic"):
         read_bag(path)
     with pytest.raises(BagError, match=r"/chatter is std_msgs/msg/String, not a LaserScan"):
         read_bag(path, topic="/chatter")

@@ -53,14 +53,14 @@ def info(
     """List topics (bags), scan counts, frame rate, field of view, range limits, invalid beams
     and time gaps."""
     from lidarflow.data import describe_recording, list_topics
-    from lidarflow.data.bags import LASERSCAN
+    from lidarflow.data.bags import SCAN_TYPES
     from lidarflow.data.sources import is_recording_file
 
     report: dict[str, Any] = {"path": str(input)}
     if not is_recording_file(input):
         topics = list_topics(input)
         report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
-        if topic is None and not any(t.msgtype == LASERSCAN for t in topics):
+        if topic is None and not any(t.msgtype in SCAN_TYPES for t in topics):
             _print_info(report, as_json)  # an odometry-only bag: its topics say what it holds
             return
     recording = load_input(input, topic, notes=False)  # of several, the one read says why

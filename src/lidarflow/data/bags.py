@@ -1,5 +1,9 @@
 """Read LaserScan topics (and optional odometry) from ROS 1 bags, ROS 2 bags and MCAP files.
 
+A ``MultiEchoLaserScan`` topic (Cartographer's backpack recordings, scanners that report every
+echo of a beam) is read where a bag has no LaserScan one, or where ``--topic`` names it: each
+beam's nearest valid echo (:func:`nearest_echoes`), the first surface it met.
+
 Uses ``rosbags`` (pure Python, no ROS install). Accepted inputs: a ROS 1 ``.bag``, a zipped
 ``.bag.zip`` (extracted to a temporary folder), a ROS 2 bag folder (sqlite3 or mcap storage), or
 a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as ``mcap convert`` leaves a ROS 1
@@ -23,17 +27,28 @@ from lidarflow.data.mcap1 import Ros1McapReader, channel_encoding
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
 from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
+from lidarflow.data.topics import (
+    LASERSCAN,
+    MULTI_ECHO,
+    POSE_TYPES,
+    SCAN_TYPES,
+    choose_pose_topic,
+    choose_scan_topic,
+)
 from lidarflow.errors import BagError, ScanError
 from lidarflow.scan import BeamGeometry, Scan
 
-__all__ = ["LASERSCAN", "POSE_TYPES", "TopicInfo", "list_topics", "open_bag", "read_bag"]
-
-LASERSCAN = "sensor_msgs/msg/LaserScan"
-POSE_TYPES = (
-    "nav_msgs/msg/Odometry",
-    "geometry_msgs/msg/PoseStamped",
-    "geometry_msgs/msg/PoseWithCovarianceStamped",
-)
+__all__ = [
+    "LASERSCAN",
+    "MULTI_ECHO",
+    "POSE_TYPES",
+    "SCAN_TYPES",
+    "TopicInfo",
+    "list_topics",
+    "nearest_echoes",
+    "open_bag",
+    "read_bag",
+]
 
 
 @dataclass(frozen=True)
@@ -135,87 +150,20 @@ def list_topics(path: str | Path) -> list[TopicInfo]:
     return [TopicInfo(t, m, n) for (t, m), n in sorted(counts.items())]
 
 
-def _match_name(name: str, topics: Iterable[str]) -> str | None:
-    """The topic among ``topics`` that ``name`` names: itself, or else the only one equal to it
-    up to leading and trailing slashes (ROS 1 bags may hold ``scan`` where a user types
-    ``/scan``, and ROS 2 ones ``/scan`` where a user types ``scan``)."""
-    topics = set(topics)
-    if name in topics:
-        return name
-    loose = [t for t in topics if t.strip("/") == name.strip("/")]
-    return loose[0] if len(loose) == 1 else None
-
-
-def _scan_rank(topic: str, count: int) -> tuple[int, int, str]:
-    # REP 105 robots publish their scanner on ``scan``; else the busiest, then by name
-    return (topic.strip("/").split("/")[-1] != "scan", -count, topic)
-
-
-def _choose_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, str | None]:
-    """The scan topic to read, and a note on the choice where the bag offered several."""
-    counts: dict[str, int] = {}
-    for c in reader.connections:
-        if c.msgtype == LASERSCAN:
-            counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
-    scan_topics = sorted(counts)
-    if topic is not None:
-        found = _match_name(topic, scan_topics)
-        if found is not None:
-            return found, None
-        others = {c.topic: c.msgtype for c in reader.connections}
-        other = _match_name(topic, others)
-        if other is not None:
-            raise BagError(f"{path}: topic {other} is {others[other]}, not a LaserScan")
-        hint = f"scan topics here: {', '.join(scan_topics)}" if scan_topics else "it has none"
-        raise BagError(f"{path}: no topic {topic}; {hint}")
-    if not scan_topics:
-        raise BagError(f"{path}: no sensor_msgs/LaserScan topic in this bag")
-    # A ROS 2 bag lists every topic it subscribed to, published on or not: an unused scan topic
-    # beside the sensor's is no real choice. (Without counts, as in an MCAP file with no
-    # summary, every topic counts 0 and all stay candidates.)
-    live = [t for t in scan_topics if counts[t] > 0] or scan_topics
-    if len(live) == 1:
-        return live[0], None
-    # `lidarflow evaluate SOME.bag` works on any bag as it is (design notes, section 9): of
-    # several scanners one is read, and every command says which
-    chosen = min(live, key=lambda t: _scan_rank(t, counts[t]))
-    others = ", ".join(t for t in live if t != chosen)
-    return chosen, f"{chosen} chosen over {others}; --topic to pick another"
-
-
-#: Where a bag has several odometry topics and none is named: robot_localization's fused
-#: estimate first (wheels and IMU), then REP 105's ``odom``; else the busiest topic.
-PREFERRED_ODOMETRY = ("odometry/filtered", "odom")
-
-
-def _odometry_rank(topic: str, count: int) -> tuple[int, int, str]:
-    name = topic.strip("/")
-    known = [i for i, p in enumerate(PREFERRED_ODOMETRY) if name == p or name.endswith("/" + p)]
-    return (known[0] if known else len(PREFERRED_ODOMETRY), -count, topic)
-
-
-def _choose_pose_topic(
-    path: Path, reader: Any, odom_topic: str | None
-) -> tuple[str | None, str | None]:
-    """The pose topic to read, and a note on the choice where the bag offered several."""
-    pose_topics = {c.topic: c.msgtype for c in reader.connections if c.msgtype in POSE_TYPES}
-    if odom_topic is None:
-        counts: dict[str, int] = {}
-        for c in reader.connections:
-            if c.msgtype == POSE_TYPES[0]:
-                counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
-        # as for scans: a topic subscribed to and never published on is no real choice
-        live = [t for t in counts if counts[t] > 0] or list(counts)
-        if len(live) <= 1:
-            return (live[0] if live else None), None
-        chosen = min(live, key=lambda t: _odometry_rank(t, counts[t]))
-        others = ", ".join(sorted(t for t in live if t != chosen))
-        return chosen, f"{chosen} chosen over {others}; --odom-topic to pick another"
-    found = _match_name(odom_topic, pose_topics)
-    if found is None:
-        hint = ", ".join(sorted(pose_topics)) or "none"
-        raise BagError(f"{path}: no odometry/pose topic {odom_topic} (pose topics here: {hint})")
-    return found, None
+def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
+    """A ``MultiEchoLaserScan``'s ``ranges`` (one ``LaserEcho`` per beam) as one range per beam
+    (float32): the nearest echo at or beyond ``range_min``, the first surface the beam met; where
+    none, ``+inf`` if an echo said no return, else NaN (unknown)."""
+    out = []
+    for beam in echoes:
+        values = np.asarray(beam.echoes, dtype=np.float32)
+        with np.errstate(invalid="ignore"):
+            valid = values[np.isfinite(values) & (values >= range_min) & (values > 0)]
+        if valid.size:
+            out.append(valid.min())
+        else:
+            out.append(np.inf if np.isposinf(values).any() else np.nan)
+    return np.asarray(out, dtype=np.float32)
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -274,8 +222,9 @@ def read_bag(
         topic: the scan topic; by default the bag's LaserScan topic, and of several the one
             named ``scan``, else the busiest (``meta["topic_choice"]`` says which, over which).
         odom_topic: an Odometry/PoseStamped topic; by default the bag's ``nav_msgs/Odometry``
-            topic, and of several the first of :data:`PREFERRED_ODOMETRY` there, else the one
-            with the most messages (``meta["pose_topic_choice"]`` says which, over which).
+            topic, and of several the first of
+            :data:`~lidarflow.data.topics.PREFERRED_ODOMETRY` there, else the one with the most
+            messages (``meta["pose_topic_choice"]`` says which, over which).
             Poses are those of the odometry frame's child (usually the robot base),
             interpolated at the scan stamps, then moved to the scan's frame by the static TF
             between the two when the bag has it
@@ -298,8 +247,11 @@ def read_bag(
     """
     path = Path(path)
     with open_bag(path) as reader:
-        scan_topic, topic_choice = _choose_topic(path, reader, topic)
-        pose_topic, pose_choice = _choose_pose_topic(path, reader, odom_topic)
+        scan_topic, topic_choice = choose_scan_topic(path, reader, topic)
+        multi_echo = any(
+            c.topic == scan_topic and c.msgtype == MULTI_ECHO for c in reader.connections
+        )
+        pose_topic, pose_choice = choose_pose_topic(path, reader, odom_topic)
         wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
         if pose_topic is not None:  # the TF tree, to find the scanner's mount on the base
             wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
@@ -324,7 +276,10 @@ def read_bag(
                     pose_values.append(_pose_of(msg))
                     continue
                 frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
-                ranges = np.asarray(msg.ranges, dtype=np.float32)
+                if conn.msgtype == MULTI_ECHO:
+                    ranges = nearest_echoes(msg.ranges, float(msg.range_min))
+                else:
+                    ranges = np.asarray(msg.ranges, dtype=np.float32)
                 if ranges.size == 0:
                     continue  # an empty scan carries nothing; counted below
                 try:
@@ -409,6 +364,8 @@ def read_bag(
         "clock_jumps": clock_jumps,
         "malformed_scans_dropped": len(malformed),
     }
+    if multi_echo:
+        meta["scan_type"] = "MultiEchoLaserScan (each beam's nearest echo)"
     if topic_choice is not None:
         meta["topic_choice"] = topic_choice
     if pose_choice is not None:

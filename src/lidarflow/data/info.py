@@ -101,6 +101,8 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
         notes["scans_dropped"] = dropped
     if meta.get("stamps", "header") != "header":
         notes["stamps"] = meta["stamps"]
+    if meta.get("scan_type"):
+        notes["scan_type"] = meta["scan_type"]
     if meta.get("topic_choice"):
         notes["topic_choice"] = meta["topic_choice"]
     if meta.get("pose_topic_choice"):
