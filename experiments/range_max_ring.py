@@ -9,7 +9,9 @@ This simulates the sensors of `sensor_sweep.py` whose ``range_max`` lies inside 
 static and driving, writes a copy of each recording with every ``+inf`` replaced by its scan's
 ``range_max``, and evaluates the model on both (`lidarflow evaluate`, with the simulator's
 odometry). With ``--written-as zero`` the copy writes no return as ``0.0`` instead, as
-TurtleBot3's LDS driver does (read as unknown beams, by the design notes' rule).
+TurtleBot3's LDS driver does (read as unknown beams, by the design notes' rule); with
+``--written-as noisy`` as ``range_max`` plus 1 cm Gaussian noise, clipped to ``range_max`` (as
+Gazebo versions that add noise before clipping do: half the ring just under ``range_max``).
 
     python experiments/range_max_ring.py -o runs/range_max_ring [--model bundled] [--seed 202]
 
@@ -35,10 +37,16 @@ RING_SENSORS = ("86deg_5Hz_3.5m", "180deg_15Hz_5.6m", "360deg_15Hz_3.5m")
 
 def write_ring(source: Path, target: Path, written_as: str = "range_max") -> float:
     """Copy ``source`` with every ``+inf`` range written as its scan's ``range_max`` (or as
-    ``0.0``: ``written_as="zero"``); the share of beams so rewritten."""
+    ``0.0``: ``written_as="zero"``; ``range_max`` plus 1 cm noise, clipped: ``"noisy"``); the
+    share of beams so rewritten."""
     recording = load_recording(source)
     per_beam = np.repeat(recording.range_max, np.diff(recording.offsets)).astype(np.float32)
-    value = per_beam if written_as == "range_max" else np.float32(0.0)
+    noise = np.random.default_rng(0).normal(0.0, 0.01, per_beam.shape).astype(np.float32)
+    value = {
+        "range_max": per_beam,
+        "zero": np.float32(0.0),
+        "noisy": np.minimum(per_beam + noise, per_beam),
+    }[written_as]
     ring = np.isposinf(recording.ranges)
     recording.ranges = np.where(ring, value, recording.ranges).astype(np.float32)
     recording.save(target)
@@ -51,7 +59,7 @@ def main() -> None:
     parser.add_argument("--model", default="bundled")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--seed", type=int, default=202)
-    parser.add_argument("--written-as", choices=("range_max", "zero"), default="range_max")
+    parser.add_argument("--written-as", choices=("range_max", "zero", "noisy"), default="range_max")
     args = parser.parse_args()
     args.output.mkdir(parents=True, exist_ok=True)
     study: dict[str, dict] = {}
@@ -87,7 +95,7 @@ def main() -> None:
             for r in (row["inf"], row[args.written_as])
         ]
         lines.append(f"| {key} | {row['no_return_share']:.0%} | " + " | ".join(cells) + " |")
-    name = "range_max_ring" if args.written_as == "range_max" else "written_as_zero"
+    name = "range_max_ring" if args.written_as == "range_max" else f"written_as_{args.written_as}"
     (args.output / f"{name}.json").write_text(json.dumps(study, indent=2) + "\n")
     (args.output / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

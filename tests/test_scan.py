@@ -19,6 +19,7 @@ from lidarflow.scan import (
     cell_centres,
     rasterize,
     rasterize_batch,
+    ring_band,
     subcell_batch,
 )
 
@@ -198,7 +199,8 @@ def test_no_return_written_as_range_max_reads_as_inf(range_max, seed):
     rng = np.random.default_rng(seed)
     geom = BeamGeometry(360, -math.pi, 2 * math.pi / 360, 0.1, range_max)
     ranges = rng.uniform(0.2, range_max * 1.5, (3, 360)).astype(np.float32)
-    ranges[ranges >= np.float32(range_max)] = np.inf
+    # returns just under range_max read as no return in a scan that writes it (ring_band)
+    ranges[ranges >= np.float32(range_max - ring_band(range_max))] = np.inf
     ringed = np.where(np.isinf(ranges), np.float32(range_max), ranges)
     got, want = rasterize_batch(ringed, geom, GRID), rasterize_batch(ranges, geom, GRID)
     assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
@@ -207,6 +209,27 @@ def test_no_return_written_as_range_max_reads_as_inf(range_max, seed):
     below = np.full((1, 360), np.nextafter(np.float32(range_max), np.float32(0)))
     assert rasterize_batch(below, geom, GRID)[0].any()
     assert beam_status(below[0], 0.1, range_max).tolist() == [RETURN] * 360
+
+
+def test_a_noisy_ring_under_range_max_reads_as_no_return_where_the_scan_writes_one():
+    # Simulators that add noise to "no return" (range_max) and then clip leave half the ring
+    # exactly at range_max and half just under it; read as returns, a flickering half-ring.
+    rng = np.random.default_rng(7)
+    geom = BeamGeometry(360, -math.pi, 2 * math.pi / 360, 0.1, 3.5)
+    ranges = rng.uniform(0.5, 3.0, (4, 360)).astype(np.float32)
+    nothing = rng.random(ranges.shape) < 0.4
+    clean = np.where(nothing, np.inf, ranges).astype(np.float32)
+    noise = rng.normal(0.0, 0.01, ranges.shape)
+    noisy = np.where(nothing, np.minimum(3.5 + noise, 3.5), ranges).astype(np.float32)
+    got, want = rasterize_batch(noisy, geom, GRID), rasterize_batch(clean, geom, GRID)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    # a scan with only two readings at range_max does not write no return that way: a return
+    # 1 cm under range_max stays one
+    few = np.full((1, 360), np.nan, np.float32)
+    few[0, :3] = [3.5, 3.5, 3.49]
+    assert beam_status(few, 0.1, 3.5)[0, :3].tolist() == [2, 2, 1]
+    few[0, 3:5] = 3.5  # four, 1 % of its beams: it does
+    assert beam_status(few, 0.1, 3.5)[0, 2] == 2
 
 
 def test_zero_is_unknown_even_where_range_min_is_zero():

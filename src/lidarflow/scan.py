@@ -9,7 +9,9 @@ or ``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN`
 or ``rho < range_min`` are *unknown* (the beam says nothing). A reading of exactly
 ``range_max`` is the sensor saying "nothing nearer": older Gazebo laser plugins and drivers that
 clip their readings write no return that way, and read as a return it draws a ring at
-``range_max`` that stays put in the sensor's frame. This departs from the design notes
+``range_max`` that stays put in the sensor's frame; where a scan writes no return that way,
+readings just under ``range_max`` are no return too (:func:`ring_band`: simulators that add
+noise before clipping leave half the ring there). This departs from the design notes
 (``range_min <= rho <= range_max``) for that one value; why, measured:
 ``docs/results/sensors_range_max/README.md``.
 
@@ -40,6 +42,7 @@ __all__ = [
     "cell_centres",
     "rasterize",
     "rasterize_batch",
+    "ring_band",
     "subcell_batch",
     "takes_subcell",
 ]
@@ -148,7 +151,8 @@ def cell_centres(grid: GridSpec) -> tuple[np.ndarray, np.ndarray]:
 
 
 def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
-    """Classify each beam as ``UNKNOWN`` (0), ``RETURN`` (1) or ``NO_RETURN`` (2).
+    """Classify each beam of ``ranges`` (``(..., beams)``, one row a scan) as ``UNKNOWN`` (0),
+    ``RETURN`` (1) or ``NO_RETURN`` (2).
 
     >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0, 10.0]), 0.1, 10.0).tolist()
     [1, 2, 0, 0, 2, 2]
@@ -165,13 +169,32 @@ def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.nd
     return status
 
 
+#: A scan with at least this share of its beams (and :data:`RING_MIN_BEAMS`) reading exactly
+#: ``range_max`` writes "no return" that way; a simulator that adds noise before clipping then
+#: leaves the rest of that ring just under ``range_max``, within :func:`ring_band` of it.
+RING_SHARE = 0.01
+RING_MIN_BEAMS = 3
+
+
+def ring_band(range_max: float) -> float:
+    """How far under ``range_max`` (m) a scan that writes no return as ``range_max`` also reads
+    as no return: 1 % of it, at least 3 cm (3 sigma of the 1 cm noise simulators add)."""
+    return max(0.03, 0.01 * float(range_max))
+
+
 def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(is_return, no_return)`` masks of float ranges ``r`` (module docstring's rule).
-    ``range_max`` is compared in ``r``'s dtype, so a reading stored as the message's
-    ``range_max`` (float32) is no return whatever that value's float64 neighbours."""
+    """``(is_return, no_return)`` masks of float ranges ``r`` (``(..., beams)``: each row one
+    scan; module docstring's rule). ``range_max`` is compared in ``r``'s dtype, so a reading
+    stored as the message's ``range_max`` (float32) is no return whatever that value's float64
+    neighbours. In a scan that writes no return as ``range_max`` (:data:`RING_SHARE`), readings
+    within :func:`ring_band` under it are no return too: measured, such a noisy half-ring
+    turned a simulated win into a loss (docs/results/sensors_range_max/)."""
     top = r.dtype.type(range_max)
     with np.errstate(invalid="ignore"):
         beyond = r >= top  # +inf included; NaN compares False
+        at_max = np.count_nonzero(r == top, axis=-1, keepdims=True)
+        ring = at_max >= max(RING_MIN_BEAMS, RING_SHARE * r.shape[-1])
+        beyond |= ring & (r >= r.dtype.type(range_max - ring_band(range_max)))
         # 0 is unknown even where range_min is 0 (drivers write invalid beams as 0)
         return (r >= range_min) & (r > 0) & ~beyond, beyond
 

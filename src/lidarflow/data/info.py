@@ -33,11 +33,13 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
     status = (
         np.concatenate(
             [
-                beam_status(
-                    recording.ranges[recording.offsets[a] : recording.offsets[b]],
+                beam_status(  # one row a scan: a scan's ring of range_max readings is its own
+                    recording.ranges[recording.offsets[a] : recording.offsets[b]].reshape(
+                        b - a, -1
+                    ),
                     float(recording.range_min[a]),
                     float(recording.range_max[a]),
-                )
+                ).ravel()
                 for a, b in recording.geometry_runs()
             ]
         )
