@@ -109,7 +109,7 @@ def write_bag(
     header_stamps: Sequence[int] | None = None,
     clock: Callable[[int], int] | None = None,
     compression: str | None = None,
-    echoes: Sequence[Sequence[Sequence[float]]] | None = None,
+    echoes: Sequence[Sequence[Sequence[float]]] | dict[str, Sequence] | None = None,
 ) -> Path:
     """Write a bag with LaserScan topics ``{topic: [ranges, ...]}``.
 
@@ -125,7 +125,8 @@ def write_bag(
     function of its log time (a header clock that jumps, say). ``compression``: "bz2" or
     "lz4" chunks (ROS 1), "file" or "message" zstd (ROS 2). ``echoes``: also a
     ``/horizontal_laser_2d`` topic of ``sensor_msgs/MultiEchoLaserScan`` (as Cartographer's
-    backpack records), one message per frame of per-beam echo lists, 0.01 rad apart.
+    backpack records; or ``{topic: frames}``), one message per frame of per-beam echo lists,
+    0.01 rad apart.
     """
     scans = scans if scans is not None else {"/scan": [np.full(50, 3.0)] * 25}
     ros1 = kind == "ros1"
@@ -198,11 +199,12 @@ def write_bag(
                 intensities=[],
             )  # fmt: skip
             writer.write(c, t0, ser(msg, "sensor_msgs/msg/MultiEchoLaserScan"))
-        if echoes is not None:
-            c = conn("/horizontal_laser_2d", "sensor_msgs/msg/MultiEchoLaserScan")
+        echo_topics = echoes if isinstance(echoes, dict) else {"/horizontal_laser_2d": echoes}
+        for topic, frames in echo_topics.items() if echoes is not None else ():
+            c = conn(topic, "sensor_msgs/msg/MultiEchoLaserScan")
             Echoes = ts.types["sensor_msgs/msg/MultiEchoLaserScan"]
             Echo = ts.types["sensor_msgs/msg/LaserEcho"]
-            for i, frame in enumerate(echoes):
+            for i, frame in enumerate(frames):
                 stamp, n = t0 + i * period, len(frame)
                 msg = Echoes(
                     header=_header(ts, stamp, "laser"), angle_min=-0.005 * (n - 1),

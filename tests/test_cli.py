@@ -82,6 +82,15 @@ def test_info_on_a_bag_with_two_scan_topics_lists_them(tmp_path, capsys):
     # every command reads one and says so on stderr
     code, _, err = run(["convert", str(path), "-o", str(tmp_path / "o.npz")], capsys)
     assert code == 0 and "two.bag: /a chosen over /b; --topic to pick another" in err
+    # ... but not of a recording converted from it, where --topic no longer applies
+    png = tmp_path / "o.png"
+    code, _, err = run(["show", str(tmp_path / "o.npz"), "--frame", "0", "-o", str(png)], capsys)
+    assert code == 0 and "chosen over" not in err
+    # training says it too
+    from lidarflow.train.data import _load
+
+    _load([path], None)
+    assert "two.bag: /a chosen over /b" in capsys.readouterr().err
     code, out, _ = run(["info", str(path), "--topic", "/b", "--json"], capsys)
     assert code == 0 and json.loads(out)["scans"] == 3
 

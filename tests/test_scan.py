@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lidarflow.data import describe_recording
 from lidarflow.errors import ScanError
 from lidarflow.scan import (
     RETURN,
@@ -22,6 +23,7 @@ from lidarflow.scan import (
     ring_band,
     subcell_batch,
 )
+from tests.conftest import make_recording
 
 GRID = GridSpec(100, 100, 0.1)
 SMALL = GridSpec(40, 40, 0.25)
@@ -230,6 +232,20 @@ def test_a_noisy_ring_under_range_max_reads_as_no_return_where_the_scan_writes_o
     assert beam_status(few, 0.1, 3.5)[0, :3].tolist() == [2, 2, 1]
     few[0, 3:5] = 3.5  # four, 1 % of its beams: it does
     assert beam_status(few, 0.1, 3.5)[0, 2] == 2
+
+
+def test_the_ring_is_found_scan_by_scan():
+    # one scan writes no return as range_max (4 of its beams), the next does not: its reading
+    # 2 cm under range_max is a return, however many the other scan has
+    rows = np.array([[5.0] * 4 + [4.98] + [1.0] * 95, [4.98] + [1.0] * 99], np.float32)
+    status = beam_status(rows, 0.1, 5.0)
+    assert status[0, :5].tolist() == [2] * 5 and status[1, 0] == 1
+    rec = make_recording(n=2, beams=100)
+    rec.ranges = rows.ravel()
+    rec.range_max[:] = 5.0
+    rec.range_min[:] = 0.1
+    beams = describe_recording(rec)["beams"]
+    assert beams["no_return"] == 5 and beams["at_range_max"] == 4
 
 
 def test_zero_is_unknown_even_where_range_min_is_zero():

@@ -159,7 +159,7 @@ def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.nd
     >>> beam_status(np.array([0.0, 0.5]), 0.0, 10.0).tolist()  # 0 is unknown whatever range_min
     [0, 1]
     """
-    r = np.asarray(ranges)
+    r = np.atleast_1d(np.asarray(ranges))
     if not np.issubdtype(r.dtype, np.floating):
         r = r.astype(np.float64)
     is_return, beyond = _returns(r, range_min, range_max)

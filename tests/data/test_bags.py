@@ -214,6 +214,33 @@ def test_a_multi_echo_scan_is_read_as_each_beams_nearest_echo(tmp_path):
     assert read_bag(both, topic="/horizontal_laser_2d").meta["scan_type"]
 
 
+def test_which_scan_topic_is_read_among_laserscan_and_multi_echo_ones(tmp_path):
+    beams = [[2.0, 3.5]] * 20
+    # a busier multi-echo topic beside a LaserScan one not named scan: still no choice to make
+    rec = read_bag(write_bag(tmp_path / "a.bag", "ros1", {"/front": [np.ones(20)] * 12},
+                             echoes=[beams] * 20))  # fmt: skip
+    assert rec.meta["topic"] == "/front" and "topic_choice" not in rec.meta
+    # a LaserScan topic subscribed to and never published on is none either
+    rec = read_bag(write_bag(tmp_path / "b.bag", "ros1", {"/scan": []}, echoes=[beams] * 12))
+    assert rec.meta["topic"] == "/horizontal_laser_2d"
+    # Cartographer's backpack: the horizontal scanner, not the busier vertical one
+    both = {"/horizontal_laser_2d": [beams] * 12, "/vertical_laser_2d": [beams] * 14}
+    rec = read_bag(write_bag(tmp_path / "c.bag", "ros1", {}, echoes=both))
+    assert (
+        rec.meta["topic"] == "/horizontal_laser_2d"
+        and "/vertical_laser_2d" in (rec.meta["topic_choice"])
+    )
+
+
+def test_a_chosen_topic_with_nothing_in_it_names_the_others(tmp_path):
+    path = write_bag(
+        tmp_path / "e.bag", "ros1", {"/a": [np.zeros(0)] * 20, "/b": [np.ones(10)] * 12}
+    )
+    with pytest.raises(BagError, match=r"/a holds no non-empty scans \(/a chosen over /b; --topic"):
+        read_bag(path)
+    assert len(read_bag(path, topic="/b")) == 12
+
+
 def test_no_laserscan_topic(tmp_path):
     path = write_bag(tmp_path / "none.bag", "ros1", scans={}, extra_string_topic=True)
     with pytest.raises(BagError, match=r"no sensor_msgs/LaserScan \(or MultiEchoLaserScan\) topic"):

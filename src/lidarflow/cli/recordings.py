@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from lidarflow.cli.app import GridOpt, OdomOpt, ResOpt, TopicOpt, app, load_input
+from lidarflow.errors import LidarflowError
 
 
 @app.command()
@@ -63,7 +64,12 @@ def info(
         if topic is None and not any(t.msgtype in SCAN_TYPES for t in topics):
             _print_info(report, as_json)  # an odometry-only bag: its topics say what it holds
             return
-    recording = load_input(input, topic, notes=False)  # of several, the one read says why
+    try:
+        recording = load_input(input, topic, notes=False)  # of several, the one read says why
+    except LidarflowError:
+        if "topics" in report:  # what the bag holds, to pick another --topic from
+            _print_info(report, as_json)
+        raise
     report["topic"] = recording.meta.get("topic")
     report.update(describe_recording(recording))
     _print_info(report, as_json)

@@ -44,9 +44,11 @@ def _match_name(name: str, topics: Iterable[str]) -> str | None:
     return loose[0] if len(loose) == 1 else None
 
 
-def _scan_rank(topic: str, count: int) -> tuple[int, int, str]:
-    # REP 105 robots publish their scanner on ``scan``; else the busiest, then by name
-    return (topic.strip("/").split("/")[-1] != "scan", -count, topic)
+def _scan_rank(topic: str, count: int) -> tuple[int, int, int, str]:
+    # REP 105 robots publish their scanner on ``scan``; Cartographer's backpack its horizontal
+    # one beside a vertical one (whose plane makes no map); else the busiest, then by name
+    name = topic.strip("/")
+    return (name.split("/")[-1] != "scan", "horizontal" not in name, -count, topic)
 
 
 def choose_scan_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, str | None]:
@@ -57,8 +59,10 @@ def choose_scan_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, 
         if c.msgtype in SCAN_TYPES:
             counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
             kinds[c.topic] = c.msgtype
-    if topic is None and LASERSCAN in kinds.values():  # multi-echo topics only where none is
-        counts = {t: n for t, n in counts.items() if kinds[t] == LASERSCAN}
+    if topic is None:  # multi-echo topics only where no LaserScan one holds messages
+        published = [t for t, n in counts.items() if n > 0] or list(counts)
+        if any(kinds[t] == LASERSCAN for t in published):
+            counts = {t: n for t, n in counts.items() if kinds[t] == LASERSCAN}
     scan_topics = sorted(counts)
     if topic is not None:
         found = _match_name(topic, scan_topics)

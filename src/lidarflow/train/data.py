@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import glob
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -292,6 +293,9 @@ def _load(paths: list[Path], topic: str | None) -> list[Recording]:
         except LidarflowError as err:
             raise TrainError(f"cannot load training data: {err}") from err
         rec.meta.setdefault("source", str(path))
+        for key in ("topic_choice", "pose_topic_choice"):  # as every command says
+            if rec.meta.get(key) and path.suffix != ".npz":
+                tqdm.write(f"{path.name}: {rec.meta[key]}", file=sys.stderr)
         recordings.append(rec)
     return recordings
 
