@@ -26,8 +26,9 @@ TopicOpt = Annotated[
     typer.Option(
         "--topic",
         "-t",
-        help="LaserScan topic; by default the bag's, and of several the one named `scan`, else "
-        "the busiest (each command says which it read).",
+        help="Scan topic (LaserScan, or MultiEchoLaserScan: each beam's nearest echo); by "
+        "default the bag's, and of several the one named `scan`, else the busiest (each "
+        "command says which it read).",
     ),
 ]
 OdomOpt = Annotated[
