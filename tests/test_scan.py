@@ -246,6 +246,7 @@ def test_the_ring_is_found_scan_by_scan():
     rec.range_min[:] = 0.1
     beams = describe_recording(rec)["beams"]
     assert beams["no_return"] == 5 and beams["at_range_max"] == 4
+    assert beams["scans_no_return_as_range_max"] == 1
 
 
 def test_zero_is_unknown_even_where_range_min_is_zero():

@@ -43,6 +43,7 @@ __all__ = [
     "rasterize",
     "rasterize_batch",
     "ring_band",
+    "ring_scans",
     "subcell_batch",
     "takes_subcell",
 ]
@@ -182,6 +183,15 @@ def ring_band(range_max: float) -> float:
     return max(0.03, 0.01 * float(range_max))
 
 
+def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
+    """Whether each scan of ``ranges`` (``(..., beams)``, float) writes no return as
+    ``range_max``: :data:`RING_SHARE` of its beams, and :data:`RING_MIN_BEAMS`, read exactly
+    ``range_max`` (in the ranges' dtype), which a continuous measurement does not."""
+    r = np.asarray(ranges)
+    at_max = np.count_nonzero(r == r.dtype.type(range_max), axis=-1)
+    return at_max >= max(RING_MIN_BEAMS, RING_SHARE * r.shape[-1])
+
+
 def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndarray, np.ndarray]:
     """``(is_return, no_return)`` masks of float ranges ``r`` (``(..., beams)``: each row one
     scan; module docstring's rule). ``range_max`` is compared in ``r``'s dtype, so a reading
@@ -192,8 +202,7 @@ def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndar
     top = r.dtype.type(range_max)
     with np.errstate(invalid="ignore"):
         beyond = r >= top  # +inf included; NaN compares False
-        at_max = np.count_nonzero(r == top, axis=-1, keepdims=True)
-        ring = at_max >= max(RING_MIN_BEAMS, RING_SHARE * r.shape[-1])
+        ring = ring_scans(r, range_max)[..., None]
         beyond |= ring & (r >= r.dtype.type(range_max - ring_band(range_max)))
         # 0 is unknown even where range_min is 0 (drivers write invalid beams as 0)
         return (r >= range_min) & (r > 0) & ~beyond, beyond

@@ -9,7 +9,7 @@ import numpy as np
 
 from lidarflow.data.gaps import MAX_GAP_PERIODS, frames_after_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, beam_status
+from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, beam_status, ring_scans
 
 __all__ = ["describe_recording", "find_gaps"]
 
@@ -30,22 +30,7 @@ def find_gaps(
 def describe_recording(recording: Recording) -> dict[str, Any]:
     """Scan count, duration, rate, field of view, range limits, beam statistics and gaps."""
     n = len(recording)
-    status = (
-        np.concatenate(
-            [
-                beam_status(  # one row a scan: a scan's ring of range_max readings is its own
-                    recording.ranges[recording.offsets[a] : recording.offsets[b]].reshape(
-                        b - a, -1
-                    ),
-                    float(recording.range_min[a]),
-                    float(recording.range_max[a]),
-                ).ravel()
-                for a, b in recording.geometry_runs()
-            ]
-        )
-        if n
-        else np.zeros(0, np.uint8)
-    )
+    status, rings = _beam_census(recording)
     raw = recording.ranges
     counts = np.diff(recording.offsets)
     # a driver that writes "no return" as range_max (read as no return: lidarflow.scan)
@@ -69,6 +54,7 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
             "returns": int(np.sum(status == RETURN)),
             "no_return": int(np.sum(status == NO_RETURN)),
             "at_range_max": at_max,
+            "scans_no_return_as_range_max": rings,
             "unknown": int(np.sum(status == UNKNOWN)),
             "nan": int(np.isnan(raw).sum()),
             "neg_inf": int(np.isneginf(raw).sum()),
@@ -89,6 +75,18 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         **({"sensor_upside_down": True} if recording.meta.get("sensor_upside_down") else {}),
         **_read_notes(recording.meta),
     }
+
+
+def _beam_census(recording: Recording) -> tuple[np.ndarray, int]:
+    """Every beam's status, classified scan by scan as the rasterizer does (a scan's ring of
+    ``range_max`` readings is its own), and how many scans write no return as ``range_max``."""
+    statuses, rings = [np.zeros(0, np.uint8)], 0
+    for a, b in recording.geometry_runs() if len(recording) else ():
+        rows = recording.ranges[recording.offsets[a] : recording.offsets[b]].reshape(b - a, -1)
+        low, high = float(recording.range_min[a]), float(recording.range_max[a])
+        statuses.append(beam_status(rows, low, high).ravel())
+        rings += int(np.count_nonzero(ring_scans(rows, high)))
+    return np.concatenate(statuses), rings
 
 
 def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
