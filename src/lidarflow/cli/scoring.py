@@ -94,6 +94,11 @@ def methods_and_config(
         "threshold": 0.4,
         "temporal_average": {"window": ta_window, "threshold": ta_threshold},
         "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+        # how a reading became a map (lidarflow.scan), since it changed: numbers made under
+        # another rule are not these
+        "beams": "a return where range_min <= range < range_max; range_max itself, beyond and "
+        "+inf no return (free to range_max), and in a scan with 1 % of its beams at range_max "
+        "also readings within 1 % (3 cm) under it; NaN, -inf, 0 and below range_min unknown",
         "models": models_used,
         "calibration": {"bins": 10, "over": "every cell of every scored frame"},
         "moving_segmentation": {
