@@ -21,6 +21,7 @@ from lidarflow.scan import (
     rasterize,
     rasterize_batch,
     ring_band,
+    ring_scans,
     subcell_batch,
 )
 from tests.conftest import make_recording
@@ -247,6 +248,22 @@ def test_the_ring_is_found_scan_by_scan():
     beams = describe_recording(rec)["beams"]
     assert beams["no_return"] == 5 and beams["at_range_max"] == 4
     assert beams["scans_no_return_as_range_max"] == 1
+
+
+def test_a_range_max_beyond_float32_reads_quietly():
+    # pointcloud_to_laserscan's default range_max is the largest double
+    import warnings
+
+    geom = BeamGeometry(100, -1.0, 0.02, 0.1, 1.7976931348623157e308)
+    ranges = np.full(100, 3.0, np.float32)
+    ranges[:30] = np.inf
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        occ, vis = rasterize(Scan(ranges, geom), GRID)
+        status = beam_status(ranges, 0.1, geom.range_max)
+    assert status[:30].tolist() == [2] * 30 and status[30:].tolist() == [1] * 70
+    assert occ.sum() > 0 and vis.sum() > occ.sum()
+    assert not ring_scans(ranges, geom.range_max)  # its +inf readings are not "at range_max"
 
 
 def test_zero_is_unknown_even_where_range_min_is_zero():

@@ -188,7 +188,9 @@ def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
     ``range_max``: :data:`RING_SHARE` of its beams, and :data:`RING_MIN_BEAMS`, read exactly
     ``range_max`` (in the ranges' dtype), which a continuous measurement does not."""
     r = np.asarray(ranges)
-    at_max = np.count_nonzero(r == r.dtype.type(range_max), axis=-1)
+    with np.errstate(over="ignore"):  # a range_max beyond float32 (pointcloud_to_laserscan's)
+        top = r.dtype.type(range_max)
+    at_max = np.count_nonzero(r == top, axis=-1) if np.isfinite(top) else np.zeros(r.shape[:-1])
     return at_max >= max(RING_MIN_BEAMS, RING_SHARE * r.shape[-1])
 
 
@@ -199,8 +201,9 @@ def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndar
     neighbours. In a scan that writes no return as ``range_max`` (:data:`RING_SHARE`), readings
     within :func:`ring_band` under it are no return too: measured, such a noisy half-ring
     turned a simulated win into a loss (docs/results/sensors_range_max/)."""
-    top = r.dtype.type(range_max)
-    with np.errstate(invalid="ignore"):
+    # a range_max beyond float32 (pointcloud_to_laserscan's default, 1.8e308) casts to inf
+    with np.errstate(invalid="ignore", over="ignore"):
+        top = r.dtype.type(range_max)
         beyond = r >= top  # +inf included; NaN compares False
         ring = ring_scans(r, range_max)[..., None]
         beyond |= ring & (r >= r.dtype.type(range_max - ring_band(range_max)))
@@ -294,7 +297,8 @@ def _rasterize_chunk(
     # no-return reaches range_max (inclusive, hence nextafter), an unknown beam reaches nowhere,
     # and the extra last column is the "no beam covers this cell" sentinel.
     reach = np.full((n, geometry.count + 1), -1.0, dtype=dtype)
-    no_return_reach = np.nextafter(dtype.type(geometry.range_max), dtype.type(math.inf))
+    with np.errstate(over="ignore"):  # a range_max beyond float32 reaches everywhere
+        no_return_reach = np.nextafter(dtype.type(geometry.range_max), dtype.type(math.inf))
     reach[:, :-1] = np.where(is_return, r, np.where(beyond, no_return_reach, dtype.type(-1.0)))
     visibility = dist.astype(dtype, copy=False)[None, :] < reach[:, index]
 

@@ -30,11 +30,9 @@ def find_gaps(
 def describe_recording(recording: Recording) -> dict[str, Any]:
     """Scan count, duration, rate, field of view, range limits, beam statistics and gaps."""
     n = len(recording)
-    status, rings = _beam_census(recording)
+    status, at_max, rings = _beam_census(recording)
     raw = recording.ranges
     counts = np.diff(recording.offsets)
-    # a driver that writes "no return" as range_max (read as no return: lidarflow.scan)
-    at_max = int(np.sum(raw == np.repeat(recording.range_max, counts).astype(raw.dtype)))
     fov = np.abs(recording.angle_increment) * np.maximum(counts - 1, 0)
     duration = float(recording.stamps_ns[-1] - recording.stamps_ns[0]) / 1e9 if n > 1 else 0.0
     gaps = find_gaps(recording)
@@ -77,16 +75,20 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
     }
 
 
-def _beam_census(recording: Recording) -> tuple[np.ndarray, int]:
+def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:
     """Every beam's status, classified scan by scan as the rasterizer does (a scan's ring of
-    ``range_max`` readings is its own), and how many scans write no return as ``range_max``."""
-    statuses, rings = [np.zeros(0, np.uint8)], 0
+    ``range_max`` readings is its own); how many readings are exactly ``range_max`` (a driver
+    that writes no return that way) and how many scans write no return so."""
+    statuses, at_max, rings = [np.zeros(0, np.uint8)], 0, 0
     for a, b in recording.geometry_runs() if len(recording) else ():
         rows = recording.ranges[recording.offsets[a] : recording.offsets[b]].reshape(b - a, -1)
         low, high = float(recording.range_min[a]), float(recording.range_max[a])
         statuses.append(beam_status(rows, low, high).ravel())
+        with np.errstate(over="ignore"):  # a range_max beyond float32 is none of theirs
+            top = rows.dtype.type(high)
+        at_max += int(np.count_nonzero(rows == top)) if np.isfinite(top) else 0
         rings += int(np.count_nonzero(ring_scans(rows, high)))
-    return np.concatenate(statuses), rings
+    return np.concatenate(statuses), at_max, rings
 
 
 def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
