@@ -30,7 +30,24 @@ BLOCK_FRAMES = 256  # as Recording rasterizes: 2 blocks of maps, sub-cell maps, 
 Frames = np.ndarray | Sequence[np.ndarray]
 
 
-class FrameBlocks(Sequence[Any]):
+class _Frames(Sequence[Any]):
+    """A read-only sequence of frames fetched one at a time (:meth:`_frame`, which takes any
+    index and raises ``IndexError``); a slice is a list of them."""
+
+    @overload
+    def __getitem__(self, t: int) -> Any: ...
+    @overload
+    def __getitem__(self, t: slice) -> Sequence[Any]: ...
+    def __getitem__(self, t: int | slice) -> Any:
+        if isinstance(t, slice):
+            return [self._frame(i) for i in range(*t.indices(len(self)))]
+        return self._frame(t)
+
+    def _frame(self, t: int) -> Any:
+        raise NotImplementedError
+
+
+class FrameBlocks(_Frames):
     """Frames ``0 .. n - 1`` of ``compute(a, b)`` (frames ``[a, b)``, anything indexable),
     computed ``block`` (default :data:`BLOCK_FRAMES`) frames at a time; the two blocks
     computed last are kept."""
@@ -44,13 +61,7 @@ class FrameBlocks(Sequence[Any]):
     def __len__(self) -> int:
         return self._n
 
-    @overload
-    def __getitem__(self, t: int) -> Any: ...
-    @overload
-    def __getitem__(self, t: slice) -> Sequence[Any]: ...
-    def __getitem__(self, t: int | slice) -> Any:
-        if isinstance(t, slice):
-            return [self[i] for i in range(*t.indices(self._n))]
+    def _frame(self, t: int) -> Any:
         if t < 0:
             t += self._n
         if not 0 <= t < self._n:
@@ -64,7 +75,7 @@ class FrameBlocks(Sequence[Any]):
         return self._kept[k][t - k * self._block]
 
 
-class _Channel(Sequence[Any]):
+class _Channel(_Frames):
     """Channel ``c`` of each frame of ``frames`` (frames ``(C, ...)``)."""
 
     def __init__(self, frames: FrameBlocks, c: int) -> None:
@@ -73,13 +84,7 @@ class _Channel(Sequence[Any]):
     def __len__(self) -> int:
         return len(self._frames)
 
-    @overload
-    def __getitem__(self, t: int) -> Any: ...
-    @overload
-    def __getitem__(self, t: slice) -> Sequence[Any]: ...
-    def __getitem__(self, t: int | slice) -> Any:
-        if isinstance(t, slice):
-            return [self[i] for i in range(*t.indices(len(self)))]
+    def _frame(self, t: int) -> Any:
         return self._frames[t][self._c]
 
 
