@@ -38,6 +38,7 @@ __all__ = [
     "BeamGeometry",
     "GridSpec",
     "Scan",
+    "at_range_max",
     "beam_status",
     "cell_centres",
     "rasterize",
@@ -183,15 +184,21 @@ def ring_band(range_max: float) -> float:
     return max(0.03, 0.01 * float(range_max))
 
 
-def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
-    """Whether each scan of ``ranges`` (``(..., beams)``, float) writes no return as
-    ``range_max``: :data:`RING_SHARE` of its beams, and :data:`RING_MIN_BEAMS`, read exactly
-    ``range_max`` (in the ranges' dtype), which a continuous measurement does not."""
+def at_range_max(ranges: np.ndarray, range_max: float) -> np.ndarray:
+    """How many readings of each scan of ``ranges`` (``(..., beams)``, float) are exactly
+    ``range_max`` in the ranges' dtype (none where ``range_max`` is beyond it)."""
     r = np.asarray(ranges)
     with np.errstate(over="ignore"):  # a range_max beyond float32 (pointcloud_to_laserscan's)
         top = r.dtype.type(range_max)
-    at_max = np.count_nonzero(r == top, axis=-1) if np.isfinite(top) else np.zeros(r.shape[:-1])
-    return at_max >= max(RING_MIN_BEAMS, RING_SHARE * r.shape[-1])
+    return np.count_nonzero(r == top, axis=-1) if np.isfinite(top) else np.zeros(r.shape[:-1])
+
+
+def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
+    """Whether each scan of ``ranges`` (``(..., beams)``, float) writes no return as
+    ``range_max``: :data:`RING_SHARE` of its beams, and :data:`RING_MIN_BEAMS`, read exactly
+    ``range_max`` (:func:`at_range_max`), which a continuous measurement does not."""
+    counts = at_range_max(ranges, range_max)
+    return counts >= max(RING_MIN_BEAMS, RING_SHARE * np.shape(ranges)[-1])
 
 
 def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndarray, np.ndarray]:

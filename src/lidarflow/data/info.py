@@ -9,7 +9,7 @@ import numpy as np
 
 from lidarflow.data.gaps import MAX_GAP_PERIODS, frames_after_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, beam_status, ring_scans
+from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, at_range_max, beam_status, ring_scans
 
 __all__ = ["describe_recording", "find_gaps"]
 
@@ -84,9 +84,7 @@ def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:
         rows = recording.ranges[recording.offsets[a] : recording.offsets[b]].reshape(b - a, -1)
         low, high = float(recording.range_min[a]), float(recording.range_max[a])
         statuses.append(beam_status(rows, low, high).ravel())
-        with np.errstate(over="ignore"):  # a range_max beyond float32 is none of theirs
-            top = rows.dtype.type(high)
-        at_max += int(np.count_nonzero(rows == top)) if np.isfinite(top) else 0
+        at_max += int(at_range_max(rows, high).sum())
         rings += int(np.count_nonzero(ring_scans(rows, high)))
     return np.concatenate(statuses), at_max, rings
 
