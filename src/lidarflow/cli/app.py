@@ -72,14 +72,12 @@ def load_input(
     topics, say on stderr which was read (``notes``; `info` lists them itself; a recording
     converted from such a bag keeps the note but no longer has the topics to pick from)."""
     from lidarflow.data import load_any
-    from lidarflow.data.sources import is_recording_file
+    from lidarflow.data.sources import topic_notes
 
     with progress_bar(None, f"reading {path.name}") as bar:
         recording = load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
-    notes = notes and not is_recording_file(path)
-    for key in ("topic_choice", "pose_topic_choice") if notes else ():
-        if recording.meta.get(key):
-            typer.echo(f"{path.name}: {recording.meta[key]}", err=True)
+    for note in topic_notes(path, recording) if notes else ():
+        typer.echo(note, err=True)
     return recording
 
 

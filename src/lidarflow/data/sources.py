@@ -9,7 +9,7 @@ from lidarflow.data.bags import read_bag
 from lidarflow.data.recording import Recording, load_recording
 from lidarflow.errors import BagError, RecordingError
 
-__all__ = ["is_recording_file", "load_any"]
+__all__ = ["is_recording_file", "load_any", "topic_notes"]
 
 
 def is_recording_file(path: str | Path) -> bool:
@@ -35,3 +35,14 @@ def load_any(
     if not path.exists():
         raise BagError(f"{path}: no such file or folder")
     return read_bag(path, topic=topic, odom_topic=odom_topic, progress=progress)
+
+
+def topic_notes(path: str | Path, recording: Recording) -> list[str]:
+    """What a command says of how ``recording`` was read from the bag ``path``: the scan and
+    odometry topics chosen among several (none for a recording file, which keeps the bag's
+    notes but no longer has the topics to pick from)."""
+    if is_recording_file(path):
+        return []
+    name = Path(path).name
+    keys = ("topic_choice", "pose_topic_choice")
+    return [f"{name}: {recording.meta[k]}" for k in keys if recording.meta.get(k)]

@@ -52,6 +52,7 @@ from lidarflow.data import Recording, SequenceSet, load_any
 from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
+from lidarflow.data.sources import topic_notes
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.scan import GridSpec
 from lidarflow.train.augment import shift_patch
@@ -293,9 +294,8 @@ def _load(paths: list[Path], topic: str | None) -> list[Recording]:
         except LidarflowError as err:
             raise TrainError(f"cannot load training data: {err}") from err
         rec.meta.setdefault("source", str(path))
-        for key in ("topic_choice", "pose_topic_choice"):  # as every command says
-            if rec.meta.get(key) and path.suffix != ".npz":
-                tqdm.write(f"{path.name}: {rec.meta[key]}", file=sys.stderr)
+        for note in topic_notes(path, rec):  # as every command says
+            tqdm.write(note, file=sys.stderr)
         recordings.append(rec)
     return recordings
 
