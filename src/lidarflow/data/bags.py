@@ -208,6 +208,11 @@ def _stuck(stamps_ns: np.ndarray) -> bool:
     return len(stamps_ns) > 1 and advancing < (len(stamps_ns) - 1) / 2
 
 
+def _stamped(scans: list[Scan], stamps_ns: np.ndarray) -> list[Scan]:
+    """``scans`` with these stamps instead of their own."""
+    return [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, stamps_ns, strict=True)]
+
+
 def _pose_of(msg: Any) -> tuple[float, float, float]:
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
     q = pose.orientation
@@ -325,7 +330,7 @@ def read_bag(
     header = np.array([s.stamp_ns for s in scans], dtype=np.int64)
     filled = _zero_stamps_filled(header, np.array(log_times, dtype=np.int64))
     if not np.array_equal(filled, header):
-        scans = [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, filled, strict=True)]
+        scans = _stamped(scans, filled)
     # The same message recorded twice (two connections on one topic, merged bags) is one
     # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
     # copies arrive together; the same scan at the same stamp a session later is a simulator
@@ -343,7 +348,7 @@ def read_bag(
     if _stuck(np.array([s.stamp_ns for s in scans])) and not _stuck(arrivals):
         # A driver that never advances its header stamps (all one value) would leave every scan
         # at one instant: no frame rate, every frame a gap, every scan at one odometry pose.
-        scans = [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, arrivals, strict=True)]
+        scans = _stamped(scans, arrivals)
         stamps = "log time (the header stamps do not advance)"
     odometry = None
     if pose_topic is not None:

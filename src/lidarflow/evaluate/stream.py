@@ -75,9 +75,13 @@ def other_recorded_grid(recording: Recording, grid: GridSpec) -> dict[str, Any] 
     return None if not recorded or _made_on(recording, grid) else dict(recorded)
 
 
+#: The simulator's ground-truth flow, dense or per occupied cell (lidarflow.sim.storage).
+_FLOW_EXTRAS = ("flow_backward", "flow_backward_cells")
+
+
 def has_ground_truth(recording: Recording) -> bool:
     """Whether ``recording`` holds the simulator's ground truth (flow or moving cells)."""
-    return any(k in recording.extras for k in ("flow_backward", "flow_backward_cells", "moving"))
+    return any(k in recording.extras for k in (*_FLOW_EXTRAS, "moving"))
 
 
 def ground_truth_backward_flow(
@@ -85,8 +89,7 @@ def ground_truth_backward_flow(
 ) -> Callable[[int], np.ndarray] | None:
     """``t -> B^t`` ``(2, H, W)`` from the simulator's ground truth, or ``None`` when the
     recording has none or it was made on another grid than ``grid``."""
-    extras = recording.extras
-    if "flow_backward" not in extras and "flow_backward_cells" not in extras:
+    if not any(k in recording.extras for k in _FLOW_EXTRAS):
         return None
     if not _made_on(recording, grid):
         return None
