@@ -344,7 +344,7 @@ def test_shifted_memories_average_the_moving_world_and_equal_still_ones_when_not
 
 
 def test_hidden_head_starts_as_copy_last_and_its_layers_are_the_heads():
-    from lidarflow.train.loop import _is_head
+    from lidarflow.train.model_setup import is_head as _is_head
 
     net = build_model("flownet", occupancy_head=True, head_hidden_channels=8)
     features = 16 + 1 + 2

@@ -9,6 +9,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 import lidarflow.train.loop as loop
+import lidarflow.train.model_setup as model_setup
 from lidarflow.errors import EvaluateError, TrainError
 from lidarflow.models import build_model
 from lidarflow.scan import GridSpec
@@ -185,14 +186,14 @@ def test_init_starts_from_given_weights(blob_files, tmp_path):
     # A head model may start from a plain flow model: flow copied, head at its copy-last start.
     model = build_model("flownet", occupancy_head=True)
     fresh_head = {k: v.clone() for k, v in model.state_dict().items() if "occupancy" in k}
-    assert loop._load_init(model, str(tmp_path / "a")) is True
+    assert model_setup.load_init(model, str(tmp_path / "a")) is True
     for name, value in first.model.state_dict().items():
         assert torch.equal(model.state_dict()[name], value), name
     for name, value in fresh_head.items():
         assert torch.equal(model.state_dict()[name], value), name
     # The other way round (weights the model has no place for) is refused.
     with pytest.raises(TrainError, match="cannot start from these weights"):
-        loop._load_init(build_model("deeptracking"), str(tmp_path / "a"))
+        model_setup.load_init(build_model("deeptracking"), str(tmp_path / "a"))
 
 
 def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
@@ -204,10 +205,10 @@ def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
         weights[name] = weights[name] + 1.0
     save_file(weights, source / "model.safetensors")
     model = build_model("flownet", occupancy_head=True, constant_velocity_input=True)
-    fresh_head = {k: v.clone() for k, v in model.state_dict().items() if loop._is_head(k)}
-    assert loop._load_init(model, str(source)) is True
+    fresh_head = {k: v.clone() for k, v in model.state_dict().items() if model_setup.is_head(k)}
+    assert model_setup.load_init(model, str(source)) is True
     for name, value in model.state_dict().items():
-        expected = fresh_head[name] if loop._is_head(name) else weights[name]
+        expected = fresh_head[name] if model_setup.is_head(name) else weights[name]
         assert torch.equal(value, expected), name
     assert not torch.equal(model.conv_flow.weight, torch.zeros_like(model.conv_flow.weight))
 
@@ -215,7 +216,7 @@ def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
 def test_head_learning_rate_scale_applies_to_the_head_only():
     cfg = build_config("residual", None, {"optim.lr": 0.002, "optim.head_lr_scale": 10.0})
     model = build_model("flownet", occupancy_head=True)
-    optimizer = loop._optimizer(cfg, loop._parameter_groups(model, cfg))
+    optimizer = model_setup.make_optimizer(cfg, model)
     rest, head = optimizer.param_groups
     assert rest["lr"] == pytest.approx(0.002) and head["lr"] == pytest.approx(0.02)
     head_ids = {id(p) for p in head["params"]}
@@ -223,7 +224,7 @@ def test_head_learning_rate_scale_applies_to_the_head_only():
     assert len(rest["params"]) + len(head["params"]) == len(list(model.parameters()))
     # Models without a head keep one group: resuming their old checkpoints still works.
     plain = build_model("flownet")
-    assert len(loop._parameter_groups(plain, cfg)) == 1
+    assert len(model_setup.parameter_groups(plain, cfg)) == 1
     with pytest.raises(TrainError, match="head_lr_scale"):
         build_config("residual", None, {"optim.head_lr_scale": 0.0})
 
@@ -235,7 +236,7 @@ def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
     plain = make_model_dir(tmp_path / "plain", occupancy_head=True, zero_init_flow=False)
     weights = load_file(plain / "model.safetensors")
     ego = build_model("flownet", occupancy_head=True, ego_motion=True, poses_optional=True)
-    assert loop._load_init(ego, str(plain)) is False  # nothing left new
+    assert model_setup.load_init(ego, str(plain)) is False  # nothing left new
     for name, value in weights.items():
         assert torch.equal(ego.state_dict()["inner." + name], value), name
     folder = tmp_path / "ego"
@@ -246,7 +247,7 @@ def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
         '{"model": "flownet", "model_kwargs": {"occupancy_head": true, "ego_motion": true}}'
     )
     back = build_model("flownet", occupancy_head=True)
-    assert loop._load_init(back, str(folder)) is False
+    assert model_setup.load_init(back, str(folder)) is False
     for name, value in weights.items():
         assert torch.equal(back.state_dict()[name], value), name
 

@@ -30,16 +30,14 @@ from torch import Tensor
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
 from lidarflow.models import build_model, uses_ego_motion
-from lidarflow.models.flownet import OCCUPANCY_HEAD_PARAMETERS
 from lidarflow.models.speed import accelerate
 from lidarflow.train import checkpoint as ckpt
-from lidarflow.train.config import (
-    TrainConfig,
-)
+from lidarflow.train.config import TrainConfig
 from lidarflow.train.data import load_train_data
 from lidarflow.train.distributed import Dist, any_flag, barrier, setup
 from lidarflow.train.loaders import make_loader, make_val_loader
 from lidarflow.train.logbook import Logbook
+from lidarflow.train.model_setup import load_init, make_optimizer
 from lidarflow.train.rundir import prepare_run_dir, write_final
 from lidarflow.train.validate import validate
 from lidarflow.train.warm import split_batch, start_state, stream_start_states
@@ -98,60 +96,6 @@ def make_loss(
         return value
 
     return loss
-
-
-def _is_head(parameter_name: str) -> bool:
-    """Whether a parameter belongs to the occupancy head (its own learning rate, may be new)."""
-    return any(key in parameter_name for key in OCCUPANCY_HEAD_PARAMETERS)
-
-
-def _unwrapped(model: torch.nn.Module) -> torch.nn.Module:
-    return model.inner if uses_ego_motion(model) else model  # type: ignore[return-value]
-
-
-def _load_init(model: torch.nn.Module, source: str) -> bool:
-    """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``.
-
-    A flow model without an occupancy head, or with a head of other inputs (other memories, no
-    constant-velocity input), may start a model with one: the flow part is copied and the head
-    keeps its copy-last initialisation (fine-tuning a head onto trained flow).
-    Returns whether the head was left new."""
-    from lidarflow.models.presets import resolve_model
-
-    try:
-        init, _ = resolve_model(source)
-        # Ego-motion compensation adds no weight, only the wrapper's "inner." prefix: a model
-        # with it starts from one without and the other way round.
-        model, init = _unwrapped(model), _unwrapped(init)
-        own, weights = model.state_dict(), init.state_dict()
-        if any(_is_head(n) and n in own and own[n].shape != v.shape for n, v in weights.items()):
-            # A head of other inputs: none of it fits, the new head starts afresh.
-            weights = {n: v for n, v in weights.items() if not _is_head(n)}
-        missing = set(model.state_dict()) - set(weights)
-        head_only = bool(missing) and all(_is_head(name) for name in missing)
-        model.load_state_dict(weights, strict=not head_only)
-    except (ModelError, RuntimeError) as err:
-        first = str(err).strip().splitlines()[0]
-        raise TrainError(f"model.init {source}: cannot start from these weights ({first})") from err
-    return head_only
-
-
-def _parameter_groups(model: torch.nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
-    head, rest = [], []
-    for name, p in model.named_parameters():
-        (head if _is_head(name) else rest).append(p)
-    groups = [{"params": rest}]
-    if head:
-        groups.append({"params": head, "lr": config.optim.lr * config.optim.head_lr_scale})
-    return groups
-
-
-def _optimizer(config: TrainConfig, params: Any) -> torch.optim.Optimizer:
-    o = config.optim
-    if o.name == "sgd":
-        return torch.optim.SGD(params, lr=o.lr, momentum=o.momentum, weight_decay=o.weight_decay)
-    cls = torch.optim.AdamW if o.name == "adamw" else torch.optim.Adam
-    return cls(params, lr=o.lr, weight_decay=o.weight_decay)
 
 
 def _seed_everything(seed: int) -> None:
@@ -220,7 +164,7 @@ def _train(
     except ModelError as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
     if config.model.init and not resume:
-        new_head = _load_init(model, config.model.init)
+        new_head = load_init(model, config.model.init)
         say(
             f"starting from the weights of {config.model.init}"
             + (" (occupancy head new)" if new_head else "")
@@ -233,7 +177,7 @@ def _train(
             raise TrainError(f"data.memories_from_stream: {err}") from err
         say("windows start from the head's memories as streaming leaves them")
     model = accelerate(model.to(ctx.device), rt.channels_last, rt.compile)  # type: ignore[arg-type]
-    optimizer = _optimizer(config, _parameter_groups(model, config))
+    optimizer = make_optimizer(config, model)
     scheduler = torch.optim.lr_scheduler.StepLR(
         optimizer, config.schedule.lr_step_epochs, config.schedule.lr_gamma
     )
@@ -311,15 +255,8 @@ def _train(
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
-            # One sync for all three checks. The output is checked too: a flow blown up to 1e30
-            # cells still gives a finite loss (the warp samples zeros far outside the map), so a
-            # magnitude beyond runtime.divergence_limit counts as divergence as well.
-            health = torch.stack(
-                [loss.detach().float(), grad_norm.float(), out.detach().float().abs().amax()]
-            ).tolist()
+            health = _health(loss, grad_norm, out, clip, limit)
             loss_value = health[0]
-            if math.isfinite(clip) and math.isfinite(health[1]):
-                health[1] = min(health[1], limit)  # with clipping on, only NaN/inf is fatal
             if any_flag(ctx, not all(_healthy(v, limit) for v in health)):
                 raise TrainError(
                     _diverged(health, limit, epoch, step, len(loader), lr, kernel, run_dir)
@@ -370,6 +307,18 @@ def _train(
         book.close()
     barrier(ctx)
     return TrainResult(run_dir, book.rows if book else rows, model, extra)
+
+
+def _health(loss: Tensor, grad_norm: Tensor, out: Tensor, clip: float, limit: float) -> list[float]:
+    """The step's loss, gradient norm and largest output, in one sync. The output is checked
+    too: a flow blown up to 1e30 cells still gives a finite loss (the warp samples zeros far
+    outside the map), so a magnitude beyond runtime.divergence_limit counts as divergence."""
+    health = torch.stack(
+        [loss.detach().float(), grad_norm.float(), out.detach().float().abs().amax()]
+    ).tolist()
+    if math.isfinite(clip) and math.isfinite(health[1]):
+        health[1] = min(health[1], limit)  # with clipping on, only NaN/inf is fatal
+    return health
 
 
 def _healthy(value: float, limit: float) -> bool:
