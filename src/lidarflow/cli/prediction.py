@@ -57,9 +57,7 @@ def demo(
     has_model = bundled_model_available()
     if not has_model:
         typer.echo("no bundled model in this installation: scoring the baselines only")
-    methods, config = methods_and_config(
-        [None] if has_model else [], with_poses=recording.has_poses
-    )
+    methods, config = methods_and_config([None] if has_model else [])
     config.update({"warmup": 10, "grid": spec.to_dict()})
     report = evaluate_and_report(
         [(str(bag), recording)], methods, spec, 10, config, output / "report", 60, eval_progress

@@ -38,19 +38,20 @@ def methods_and_config(
     ta_threshold: float = 0.4,
     moving_threshold: float | None = None,
     ego_oracle: bool = False,
-    with_poses: bool = True,
     online: bool = False,
     res: float = 0.1,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
-    configuration that describes them for the report. With an ego-motion model among them and
-    recordings with poses (``with_poses``) the copy-last-moved-by-odometry baseline comes too
-    (without poses it would be copy-last again); ``ego_oracle`` adds the variants that know the
+    configuration that describes them for the report. With an ego-motion model among them the
+    last map moved by the same motion comes too (``copy_last_ego``: odometry, or on a recording
+    without poses the motion matched from its scans), to show what the model adds to ego-motion
+    compensation alone; ``ego_oracle`` adds the variants that know the
     true next pose; ``online`` adds, for each model, the decision rule it was not built with:
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.evaluate.report import ORACLE_SUFFIX
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
     from lidarflow.models.weights import describe_source
@@ -73,7 +74,9 @@ def methods_and_config(
         methods.append(method)
         models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
         if method.uses_motion and ego_oracle:
-            methods.append(ModelMethod(name + "_oracle", StreamingModel(net), oracle=True, res=res))
+            methods.append(
+                ModelMethod(name + ORACLE_SUFFIX, StreamingModel(net), oracle=True, res=res)
+            )
         if online:  # the other decision rule beside the model's own
             wants_online = method.online is not None
             methods.append(
@@ -86,7 +89,7 @@ def methods_and_config(
                     res=res,
                 )
             )
-    if with_poses and any(getattr(m, "uses_motion", False) for m in methods):
+    if any(getattr(m, "uses_motion", False) for m in methods):
         from lidarflow.evaluate.ego import CopyLastEgo
 
         methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
@@ -118,10 +121,11 @@ def methods_and_config(
         config["ego_motion"] = (
             "models built with ego_motion get the recordings' poses (odometry); the motion to "
             "the next frame is the last one again (constant velocity, causal); *_oracle* "
-            "variants use the true next pose instead; copy_last_ego moves the last map by it; "
+            "variants use the true next pose instead; copy_last_ego moves the last map by the same "
+            "motion (reported beside, not one of the three baselines a model must beat); "
             "on a recording without poses, models built with poses_optional (the head recipe's, "
-            "the bundled one) get the motion matched from the scans (lidarflow.data.scanmatch; "
-            "uncompensated where no match counts) and copy_last_ego is not scored"
+            "the bundled one) and copy_last_ego get the motion matched from the scans "
+            "(lidarflow.data.scanmatch; uncompensated where no match counts)"
         )
     return methods, config
 
@@ -260,14 +264,12 @@ def evaluate(
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, horizon)
         named.append((str(path), recording))
-    with_poses = any(recording.has_poses for _, recording in named)
     methods, config = methods_and_config(
         sources,
         ta_window,
         ta_threshold,
         moving_threshold,
         ego_oracle,
-        with_poses,
         online_decision,
         spec.res,
     )

@@ -11,6 +11,7 @@ from lidarflow.evaluate.scoring import Scorer
 
 __all__ = [
     "BASELINES",
+    "ORACLE_SUFFIX",
     "UNCERTAINTY_COLUMNS",
     "against_baselines",
     "build_report",
@@ -26,6 +27,8 @@ __all__ = [
 ]
 
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
+#: Names ending so are variants that know the true next pose: no deployable method, no verdict.
+ORACLE_SUFFIX = "_oracle"
 _COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "epe")
 #: Columns of the second table: calibration of the probabilities (lower is better) and
 #: moving-object segmentation of the moving class (flow models on simulated data).
@@ -129,13 +132,14 @@ def undefined_note(undefined: Sequence[str]) -> str:
 def against_baselines(
     methods: Mapping[str, Mapping[str, Any]], undefined: Collection[str] = ()
 ) -> dict[str, dict[str, Any]]:
-    """Each model among ``methods`` (every one that is not one of :data:`BASELINES` or the
-    copy-last moved by odometry) against the baselines, by the rule that decides whether a model
-    is worth using: it wins when its F1 is above the best baseline's and its changed-cell F1
-    above every baseline's. ``{name: {"wins", "f1_margin", "f1_baseline", "changed_f1_margin",
-    "changed_f1_baseline"}}`` (margins against the best baseline, which is named); ``{}``
-    without baselines. Where F1 or changed-cell F1 is among ``undefined`` (nothing to find,
-    :func:`undefined_metrics`) the rule cannot decide: ``"wins"`` is ``None``."""
+    """Each model among ``methods`` (every one that is not one of :data:`BASELINES`, the
+    copy-last moved by the ego motion, or a variant that knows the next pose) against the
+    baselines, by the rule that decides whether a model is worth using: it wins when its F1 is
+    above the best baseline's and its changed-cell F1 above every baseline's. ``{name: {"wins",
+    "f1_margin", "f1_baseline", "changed_f1_margin", "changed_f1_baseline"}}`` (margins
+    against the best baseline, which is named); ``{}`` without baselines. Where F1 or
+    changed-cell F1 is among ``undefined`` (nothing to find, :func:`undefined_metrics`) the
+    rule cannot decide: ``"wins"`` is ``None``."""
     present = [b for b in BASELINES if b in methods]
     if not present:
         return {}
@@ -143,7 +147,7 @@ def against_baselines(
     best_changed = max(present, key=lambda b: methods[b]["changed_f1"])
     out = {}
     for name, metrics in methods.items():
-        if name in BASELINES or name.startswith("copy_last_ego"):
+        if name in BASELINES or name.startswith("copy_last_ego") or name.endswith(ORACLE_SUFFIX):
             continue
         f1_margin = metrics["f1"] - methods[best_f1]["f1"]
         changed_margin = metrics["changed_f1"] - methods[best_changed]["changed_f1"]
