@@ -245,7 +245,7 @@ def test_evaluate_gives_the_model_the_returns_to_replace_odometry_that_disagrees
     np.testing.assert_allclose(method.motion[:2], true[:2], atol=0.15)
 
 
-def test_cli_scores_copy_last_ego_beside_ego_models_with_poses_or_without(driving, tmp_path, capsys):
+def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving, tmp_path, capsys):
     # Without poses the model and copy_last_ego both get the motion matched from the scans, so
     # the baseline still shows what compensation alone buys: on a drive it beats copy-last.
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)

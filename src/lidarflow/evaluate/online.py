@@ -50,7 +50,14 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, Method, TemporalAverage
+from lidarflow.evaluate.baselines import (
+    TA_THRESHOLD,
+    TA_WINDOW,
+    ConstantVelocity,
+    CopyLast,
+    Method,
+    TemporalAverage,
+)
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
 
 __all__ = [
@@ -92,8 +99,8 @@ class OnlineDecisionConfig:
     lookahead: float = 20.0
     min_frames: int = 10
     unmoved: bool = True
-    ta_window: int = 5
-    ta_threshold: float = 0.4
+    ta_window: int = TA_WINDOW
+    ta_threshold: float = TA_THRESHOLD
     history_decay: float = 0.98
 
     def __post_init__(self) -> None:
