@@ -165,7 +165,8 @@ def main() -> None:
     print(
         "summed win margin on the training recordings: "
         + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items())
-        + f" -> offset {best:g}"
+        + f" -> offset {best:g}: {models[best]} (the model with it; evaluate or predict with "
+        f"-m {models[best]}, or copy its model.json's decision_offset into your run's)"
     )
     reported = evaluate(args.report, models, args.output / "report.json") if args.report else {}
     for name, row in reported.items():

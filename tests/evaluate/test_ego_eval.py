@@ -101,9 +101,29 @@ def test_onnx_export_of_an_ego_model_matches_pytorch_with_poses(driving, tmp_pat
 def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, capsys):
     data = driving.save(tmp_path / "drive.npz")
     code, _, err = run(
-        ["train", str(data), "--ego-motion", "-o", str(tmp_path / "run"), "--grid", "40",
-         "--res", "0.05", "--seq-len", "8", "--warmup", "3", "--batch-size", "4", "--epochs",
-         "1", "--threads", "1", "--set", "runtime.tensorboard=false"],
+        [
+            "train",
+            str(data),
+            "--ego-motion",
+            "-o",
+            str(tmp_path / "run"),
+            "--grid",
+            "40",
+            "--res",
+            "0.05",
+            "--seq-len",
+            "8",
+            "--warmup",
+            "3",
+            "--batch-size",
+            "4",
+            "--epochs",
+            "1",
+            "--threads",
+            "1",
+            "--set",
+            "runtime.tensorboard=false",
+        ],
         capsys,
     )
     assert code == 0, err
@@ -112,8 +132,19 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
     }
     out = tmp_path / "e.json"
     code, _, err = run(
-        ["evaluate", str(data), "--model", str(tmp_path / "run"), "--grid", "40", "--res",
-         "0.05", "--ego-oracle", "--json", str(out)],
+        [
+            "evaluate",
+            str(data),
+            "--model",
+            str(tmp_path / "run"),
+            "--grid",
+            "40",
+            "--res",
+            "0.05",
+            "--ego-oracle",
+            "--json",
+            str(out),
+        ],
         capsys,
     )
     assert code == 0, err
@@ -285,3 +316,43 @@ def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     dropped = horizon_f1(occ, vis, models, **kwargs)
     replaced = horizon_f1(occ, vis, models, **kwargs, returns=returns, motions_from_poses=True)
     assert replaced["ego"][0] > dropped["ego"][0] + 0.02
+
+
+def _f1(predicted: np.ndarray, truth: np.ndarray) -> float:
+    from lidarflow.evaluate.metrics import confusion
+
+    return confusion(predicted, truth).f1
+
+
+def test_after_a_gap_the_next_motion_is_guessed_for_one_step_not_for_the_gap(driving, tmp_path):
+    # Six scans of a drive cut out: the motion into the frame after the cut spans seven steps.
+    # Guessed again whole for the next step, an untrained ego model (copy-last moved by the
+    # guess) falls below copy-last; scaled to one step it is the last map moved right.
+    kept = [*range(30), *range(36, 60)]
+    cut = driving.__class__.from_scans([driving.scan(k) for k in kept], driving.poses[kept])
+    folder = make_model_dir(tmp_path / "ego", ego_motion=True)
+    onnx = export_onnx(build_model("flownet", ego_motion=True), tmp_path / "ego.onnx", 40, 40)
+    occupancy, _ = cut.maps(GRID)
+    copy_last = _f1(occupancy[30], occupancy[31])
+    for model in (folder, onnx):
+        scores = {}
+        for stamped in (True, False):
+            predictor = Predictor(model, GRID, check_odometry=False, scan_odometry=False)
+            for i in range(31):
+                scan = cut.scan(i)
+                if not stamped:  # no stamps: no gap can be seen
+                    scan = scan.__class__(scan.ranges, scan.geometry, 0)
+                prediction = predictor.update(scan, pose=cut.poses[i])
+            scores[stamped] = _f1(prediction.occupied, occupancy[31])
+        assert scores[True] > copy_last + 0.05 > scores[False] + 0.1, (model, scores, copy_last)
+    # evaluate paces the guess the same way (the step across the gap itself is not scored)
+    after: dict[str, np.ndarray] = {}
+
+    def keep(name, t, probability, flow):
+        if t == 30:
+            after[name] = probability >= 0.4
+
+    ego = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
+    evaluate_recording(cut, [CopyLast(), CopyLastEgo(), ego], GRID, on_prediction=keep)
+    assert _f1(after["ego"], occupancy[31]) == pytest.approx(scores[True])
+    assert _f1(after["copy_last_ego"], occupancy[31]) == pytest.approx(scores[True])

@@ -351,7 +351,7 @@ def _add_horizon_scores(
             entry["horizon_f1"] = horizon_f1(
                 inputs.occupancy, inputs.visibility, models, horizon, warmup, bar.update,
                 inputs.motions, decisions, inputs.returns, inputs.motions_from_poses, spec.res,
-                inputs.subcell, inputs.gaps,
+                inputs.subcell, inputs.gaps, inputs.paces,
             )  # fmt: skip
 
 

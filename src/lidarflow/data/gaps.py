@@ -23,7 +23,15 @@ from collections.abc import Iterable
 
 import numpy as np
 
-__all__ = ["HISTORY", "MAX_GAP_PERIODS", "MIN_STEPS", "frames_after_gaps"]
+__all__ = [
+    "HISTORY",
+    "MAX_GAP_PERIODS",
+    "MIN_STEPS",
+    "GapClock",
+    "frames_after_gaps",
+    "paced_motion",
+    "paces_after_gaps",
+]
 
 MAX_GAP_PERIODS = 2.5
 MIN_STEPS = 3
@@ -34,6 +42,21 @@ def frames_after_gaps(
     stamps_ns: Iterable[int], max_gap_periods: float = MAX_GAP_PERIODS
 ) -> list[int]:
     """The indices of the stamps (in stream order) that follow a gap."""
+    return [i for i, _ in _gaps(stamps_ns, max_gap_periods)]
+
+
+def paces_after_gaps(
+    stamps_ns: Iterable[int], max_gap_periods: float = MAX_GAP_PERIODS
+) -> dict[int, float]:
+    """``{index: typical step / this step}`` for the stamps that follow a gap forwards in time.
+
+    A constant-velocity guess of the motion to the next frame is the last motion again; after a
+    gap the last motion spans the whole gap, and this fraction scales it to one typical step.
+    A gap backwards in time (a clock that jumps back) has no pace: it is left out."""
+    return {i: pace for i, pace in _gaps(stamps_ns, max_gap_periods) if pace is not None}
+
+
+def _gaps(stamps_ns: Iterable[int], max_gap_periods: float) -> list[tuple[int, float | None]]:
     if not max_gap_periods > 1:
         raise ValueError(f"max_gap_periods must be > 1, got {max_gap_periods}")
     stamps = np.asarray(list(stamps_ns), dtype=np.int64)
@@ -48,7 +71,51 @@ def frames_after_gaps(
         step = int(stamps[i] - stamps[i - 1])
         typical = float(np.median(recent)) if len(recent) >= MIN_STEPS else overall
         if abs(step) > max_gap_periods * typical:
-            after.append(i)
+            after.append((i, typical / step if step > 0 else None))
         if step > 0:
             recent.append(step)
     return after
+
+
+def paced_motion(motion: np.ndarray | None, pace: float | None) -> np.ndarray | None:
+    """The guess of the motion to the next frame after a gap: ``motion`` (which spans the gap)
+    times ``pace``; ``None`` where either is unknown (an ego-motion model then takes the last
+    motion again, its constant-velocity default)."""
+    if motion is None or pace is None:
+        return None
+    return np.asarray(motion, dtype=np.float32) * np.float32(pace)
+
+
+class GapClock:
+    """:func:`paces_after_gaps`'s rule on a stream, one stamp at a time (the ``Predictor``'s).
+
+    A stream knows no future, so until ``MIN_STEPS`` forward steps are known it finds no gap
+    (the recording-wide median that :func:`frames_after_gaps` starts from is not known yet).
+    """
+
+    def __init__(self, max_gap_periods: float = MAX_GAP_PERIODS) -> None:
+        if not max_gap_periods > 1:
+            raise ValueError(f"max_gap_periods must be > 1, got {max_gap_periods}")
+        self.max_gap_periods = max_gap_periods
+        self._recent: deque[int] = deque(maxlen=HISTORY)
+        self._last: int | None = None
+
+    def reset(self) -> None:
+        self._recent.clear()
+        self._last = None
+
+    def update(self, stamp_ns: int) -> float | None:
+        """This stamp's pace (typical step / this step) if a gap forwards in time precedes it,
+        else ``None``."""
+        last, self._last = self._last, int(stamp_ns)
+        if last is None:
+            return None
+        step = self._last - last
+        pace = None
+        if len(self._recent) >= MIN_STEPS:
+            typical = float(np.median(self._recent))
+            if step > self.max_gap_periods * typical:
+                pace = typical / step
+        if step > 0:
+            self._recent.append(step)
+        return pace

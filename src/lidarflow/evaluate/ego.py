@@ -4,7 +4,8 @@ baseline that only compensates the platform's own motion.
 A method with ``uses_motion = True`` is called ``update(occupancy, visibility, motion=m_t,
 next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in cells
 (:mod:`lidarflow.data.motion`; identity where a pose is unknown); ``next_motion`` is the future
-and only an oracle may use it.
+and only an oracle may use it. After a gap in time it also gets ``pace`` (typical step / this
+step, :func:`lidarflow.data.gaps.paces_after_gaps`) to scale its guess of the next motion.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 import torch
 
 from lidarflow.data.blocks import Frames, streamed_maps, streamed_points
+from lidarflow.data.gaps import paced_motion
 from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.recording import Recording
 from lidarflow.data.scanmatch import scan_motions
@@ -93,8 +95,11 @@ class CopyLastEgo:
         visibility: np.ndarray,
         motion: np.ndarray | None = None,
         next_motion: np.ndarray | None = None,
+        pace: float | None = None,
     ) -> np.ndarray:
-        m = next_motion if self.oracle else motion
+        # after a gap the last motion spans it: the guess is scaled to one step, as the models'
+        guessed = paced_motion(motion, pace)
+        m = next_motion if self.oracle else (motion if guessed is None else guessed)
         if m is None:
             return occupancy.astype(np.float32)
         maps = torch.from_numpy(occupancy.astype(np.float32))[None, None]

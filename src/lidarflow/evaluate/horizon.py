@@ -25,12 +25,13 @@ own motion, as in the streaming evaluation.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
 
 from lidarflow.data.blocks import Frames
+from lidarflow.data.gaps import paced_motion
 from lidarflow.data.motion import OdometryCheck
 from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
@@ -89,6 +90,7 @@ def horizon_f1(
     res: float = 0.1,
     subcell: Frames | None = None,
     gaps: Sequence[int] = (),
+    paces: Mapping[int, float] | None = None,
 ) -> dict[str, list[float]]:
     """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
 
@@ -101,7 +103,10 @@ def horizon_f1(
     the streaming evaluation and the Predictor do; else they are only checked. ``subcell``
     ``(N, 2, H, W)``: where each frame's returns lie inside their cells, for models with
     ``subcell_input`` (a predicted map fed back gets zeros: it has no returns). ``gaps``: the
-    frames that follow a gap in time (no roll-out across one is scored; states carry on)."""
+    frames that follow a gap in time (no roll-out across one is scored; states carry on);
+    ``paces`` (:func:`lidarflow.data.gaps.paces_after_gaps`): after a gap, the guess of the next
+    motion, and each step of the roll-out, is the last motion scaled to one typical step, as the
+    Predictor's."""
     n = len(occupancy)
     scored = scored_frames(n, horizon, warmup, gaps)
     scoring = set(scored)
@@ -130,9 +135,13 @@ def horizon_f1(
                 known, _ = checked_motion(
                     check, scans, occupancy[t], known, motions_from_poses, points
                 )
+            paced = paced_motion(known, (paces or {}).get(t))
             moved = None if known is None else torch.from_numpy(known).float()[None]
+            guess = None if paced is None else torch.from_numpy(paced)[None]
             motion = (moved,) if ego else ()
-            out, state = model.step(maps, state, *motion)
+            out, state = model.step(maps, state, *motion, *((guess,) if ego else ()))
+            if guess is not None:  # each step ahead is one typical step
+                motion = (guess,)
             if progress is not None:
                 progress(1)
             probability = model.predict_next(maps, out)

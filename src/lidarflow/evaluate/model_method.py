@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarflow.data.gaps import paced_motion
 from lidarflow.data.motion import OdometryCheck
 from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
@@ -105,11 +106,14 @@ class ModelMethod:
         returns: np.ndarray | None = None,
         from_pose: bool = True,
         subcell: np.ndarray | None = None,
+        pace: float | None = None,
     ) -> np.ndarray:
         """One frame; ``returns``: its scan's returns (:func:`~lidarflow.data.scanalign.
         scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
         scans, and is only checked); ``subcell``: where its returns lie inside their cells
-        ``(2, H, W)``, which a model with ``takes_subcell`` needs."""
+        ``(2, H, W)``, which a model with ``takes_subcell`` needs; ``pace``: after a gap in
+        time, the typical step over this one (the guess of the next motion is scaled by it,
+        :func:`lidarflow.data.gaps.paced_motion`)."""
         if self.takes_subcell and subcell is None:
             raise EvaluateError(
                 f"{self.name} needs where the returns lie inside their cells (subcell_input): "
@@ -121,9 +125,8 @@ class ModelMethod:
             )
             next_motion = next_motion if trusted else None
         self.motion = motion
-        result = self.stream.step(
-            occupancy, visibility, motion, next_motion if self.oracle else None, subcell
-        )
+        guess = next_motion if self.oracle else paced_motion(motion, pace)
+        result = self.stream.step(occupancy, visibility, motion, guess, subcell)
         self._occupancy, self._moving = occupancy, None
         if result.flow is None:
             self.backward_flow = self.forward_flow = None

@@ -26,14 +26,14 @@ uncompensated.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from lidarflow.data.blocks import Frames, streamed_maps, streamed_points, streamed_subcell
-from lidarflow.data.gaps import frames_after_gaps
+from lidarflow.data.gaps import frames_after_gaps, paces_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
@@ -137,12 +137,15 @@ def evaluate_maps(
     motions_from_poses: bool = False,
     subcell: Frames | None = None,
     gaps: Sequence[int] = (),
+    paces: Mapping[int, float] | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
     ``gaps``: the frames that follow a gap in time; the step into each is not scored (the next
     map, the flow to it; every method still sees every frame, and the moving cells of every
-    frame are scored).
+    frame are scored). ``paces`` (:func:`lidarflow.data.gaps.paces_after_gaps`): after a gap
+    forwards in time, methods with ``uses_motion`` also get ``pace``, the typical step over the
+    gap's, to scale their guess of the motion to the next frame (the last one spans the gap).
 
     ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
@@ -174,7 +177,7 @@ def evaluate_maps(
         m.reset()
     for t in range(n - 1):
         for m in methods:
-            extra = _inputs(m, t, motions, returns, motions_from_poses, subcell)
+            extra = _inputs(m, t, motions, returns, motions_from_poses, subcell, paces)
             probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
             if t < warmup:
                 continue
@@ -209,6 +212,7 @@ def _inputs(
     returns: Sequence[np.ndarray] | None,
     motions_from_poses: bool,
     subcell: Frames | None,
+    paces: Mapping[int, float] | None = None,
 ) -> dict[str, object]:
     """What ``method.update`` takes for frame ``t`` beside the maps."""
     extra: dict[str, object] = {}
@@ -216,6 +220,8 @@ def _inputs(
         # NaN: no motion known for that step (scan matching found none): not compensated
         motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
         extra = {"motion": motion, "next_motion": following}
+        if paces and t in paces:
+            extra["pace"] = paces[t]
         if getattr(method, "takes_returns", False):
             extra["returns"] = None if returns is None else returns[t]
             extra["from_pose"] = motions_from_poses
@@ -236,6 +242,7 @@ class RecordingInputs:
     motions_from_poses: bool  # the motions are odometry (else matched from the scans)
     subcell: Frames | None
     gaps: list[int]
+    paces: dict[int, float]  # frames after a gap forwards in time: typical step / this step
 
 
 def recording_inputs(
@@ -262,6 +269,7 @@ def recording_inputs(
         recording.has_poses,
         streamed_subcell(recording, grid) if takes_subcell else None,
         frames_after_gaps(recording.stamps_ns),
+        paces_after_gaps(recording.stamps_ns),
     )
 
 
@@ -293,4 +301,5 @@ def evaluate_recording(
         inputs.motions_from_poses,
         inputs.subcell,
         inputs.gaps,
+        inputs.paces,
     )

@@ -33,11 +33,15 @@ __all__ = [
 ]
 
 
-def split_step_inputs(inputs: list[Any]) -> tuple[bool, list[Any]]:
-    """``(uses_motion, state inputs)`` of a step graph's inputs (``maps``, then ``motion`` for
-    ego-motion graphs, then the states; see :mod:`lidarflow.predict.export`)."""
-    uses_motion = len(inputs) > 1 and inputs[1].name == "motion"
-    return uses_motion, list(inputs[1 + uses_motion :])
+def split_step_inputs(inputs: list[Any]) -> tuple[list[str], list[Any]]:
+    """``(motion input names, state inputs)`` of a step graph's inputs: ``maps``, then for
+    ego-motion graphs ``motion`` and (files exported since it exists) ``next_motion``, then the
+    states (see :mod:`lidarflow.predict.export`)."""
+    motions: list[str] = []
+    for name in ("motion", "next_motion"):
+        if len(inputs) > 1 + len(motions) and inputs[1 + len(motions)].name == name:
+            motions.append(name)
+    return motions, list(inputs[1 + len(motions) :])
 
 
 class TorchBackend:
@@ -61,20 +65,26 @@ class TorchBackend:
         return self.model.init_state(1, height, width, device=self.device)
 
     def run(
-        self, maps: np.ndarray, state: Any, motion: np.ndarray | None = None
+        self,
+        maps: np.ndarray,
+        state: Any,
+        motion: np.ndarray | None = None,
+        next_motion: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, Any]:
-        """One step; ``motion`` ``(3,)`` (cells, radians) only for ego-motion models."""
+        """One step; ``motion`` ``(3,)`` (cells, radians) only for ego-motion models, and
+        ``next_motion`` the guess of the motion to the next frame (``None``: ``motion`` again)."""
         with self.torch.inference_mode():
             x = self.torch.from_numpy(maps).to(self.device)
             if self.uses_motion:
-                m = (
+                m, n = (
                     None
-                    if motion is None
+                    if a is None
                     else self.torch.as_tensor(
-                        motion, dtype=self.torch.float32, device=self.device
+                        a, dtype=self.torch.float32, device=self.device
                     ).reshape(1, 3)
+                    for a in (motion, next_motion)
                 )
-                out, state = self.model.step(x, state, m)
+                out, state = self.model.step(x, state, m, n)
             else:
                 out, state = self.model.step(x, state)
             probability = self.model.predict_next(x, out)
@@ -103,7 +113,8 @@ class OnnxBackend:
         inputs = self.session.get_inputs()
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
-        self.uses_motion, state_inputs = split_step_inputs(inputs)
+        self.motion_inputs, state_inputs = split_step_inputs(inputs)
+        self.uses_motion = bool(self.motion_inputs)
         marks = self.session.get_modelmeta().custom_metadata_map
         self.poses_optional = marks.get(POSES_OPTIONAL_KEY) == "true"
         # Files exported before the mark existed have none: no online decision for them.
@@ -122,11 +133,20 @@ class OnnxBackend:
         return [np.zeros(s, np.float32) for s in self.state_shapes]
 
     def run(
-        self, maps: np.ndarray, state: Any, motion: np.ndarray | None = None
+        self,
+        maps: np.ndarray,
+        state: Any,
+        motion: np.ndarray | None = None,
+        next_motion: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, Any]:
+        """As :meth:`TorchBackend.run`; a file exported before graphs took ``next_motion``
+        guesses the last motion again whatever ``next_motion`` says."""
         feeds = {"maps": maps, **{f"state{i}": s for i, s in enumerate(state)}}
         if self.uses_motion:  # zeros: no motion known, the same as no compensation
             m = np.zeros(3, np.float32) if motion is None else np.asarray(motion, np.float32)
             feeds["motion"] = m.reshape(1, 3)
+            if "next_motion" in self.motion_inputs:
+                n = m if next_motion is None else np.asarray(next_motion, np.float32)
+                feeds["next_motion"] = n.reshape(1, 3)
         probability, out, *next_state = self.session.run(None, feeds)
         return probability, out, next_state

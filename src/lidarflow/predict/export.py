@@ -8,8 +8,10 @@ grid is a constant of the graph).
 
 Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more input after
 ``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and
-``dyaw`` in radians (zeros: no motion / unknown); the motion to the next frame is taken to be the
-same (constant velocity), as in PyTorch. One built with ``poses_optional`` (it may run without
+``dyaw`` in radians (zeros: no motion / unknown), then ``next_motion (1, 3)``, the guess of the
+motion to the next frame: ``motion`` again (constant velocity, as in PyTorch), scaled down after
+a gap in time (:func:`lidarflow.data.gaps.paced_motion`; files exported before this input
+existed take ``motion`` again). One built with ``poses_optional`` (it may run without
 poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
 :data:`POSES_OPTIONAL_KEY`. An occupancy-head model's decision offsets (and whether to choose
 them online) are in :data:`DECISION_KEY`, so that the Predictor can choose them online.
@@ -47,10 +49,12 @@ class StepGraph(nn.Module):
 
 
 class EgoStepGraph(StepGraph):
-    """``forward(maps, motion, *state)`` for ego-motion models."""
+    """``forward(maps, motion, next_motion, *state)`` for ego-motion models."""
 
-    def forward(self, maps: Tensor, motion: Tensor, *state: Tensor) -> tuple[Tensor, ...]:  # type: ignore[override]
-        out, next_state = self.model.step(maps, tuple(state), motion)  # type: ignore[call-arg]
+    def forward(  # type: ignore[override]
+        self, maps: Tensor, motion: Tensor, next_motion: Tensor, *state: Tensor
+    ) -> tuple[Tensor, ...]:
+        out, next_state = self.model.step(maps, tuple(state), motion, next_motion)  # type: ignore[call-arg]
         return (self.model.predict_next(maps, out), out, *next_state)
 
 
@@ -66,8 +70,9 @@ def export_onnx(
     graph = EgoStepGraph(model) if ego else StepGraph(model)
     state = model.init_state(1, height, width)
     maps = torch.zeros(1, model.input_channels, height, width)
-    extra = (torch.zeros(1, 3),) if ego else ()  # the motion input
-    names_in = ["maps", *(["motion"] if ego else []), *[f"state{i}" for i in range(len(state))]]
+    extra = (torch.zeros(1, 3), torch.zeros(1, 3)) if ego else ()  # motion, next_motion
+    motions = ["motion", "next_motion"] if ego else []
+    names_in = ["maps", *motions, *[f"state{i}" for i in range(len(state))]]
     names_out = ["probability", "out", *[f"next_state{i}" for i in range(len(state))]]
     with warnings.catch_warnings():
         # The tracer warns that the grid size becomes a constant: that is intended (see above).

@@ -10,6 +10,9 @@ Ego motion: a model trained with ``--ego-motion`` wants the sensor pose ``(x, y,
 radians, any fixed frame such as odometry's) with every scan. The motion since the previous
 update warps the recurrent state into the current frame, and the prediction is moved into the
 next frame assuming the same motion again (constant velocity: only poses up to now are known).
+After a gap in the scans' stamps (a step longer than 2.5 typical ones, :mod:`lidarflow.data.gaps`)
+the last motion spans the gap, so the guess is that motion scaled to one typical step (the state
+is still moved by all of it); scans without stamps (``stamp_ns`` 0) are never after a gap.
 A model that may run without poses (``poses_optional``, the bundled one) takes the motion from
 the scans where no pose is given (:class:`lidarflow.data.scanmatch.ScanOdometry`: refined on the
 returns when ``update`` is given a :class:`~lidarflow.scan.Scan`). Otherwise, without a pose
@@ -31,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.gaps import GapClock, paced_motion
 from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
 from lidarflow.data.scanalign import scan_points
 from lidarflow.data.scanmatch import ScanOdometry, checked_motion
@@ -150,6 +154,9 @@ class Predictor:
         self._odometry = OdometryCheck() if check_odometry else None
         self.scan_odometry = scan_odometry
         self._scans = ScanOdometry(self.grid.res)
+        # Scans' stamps: after a gap the last motion spans it, and the guess of the next one is
+        # scaled to a typical step (lidarflow.data.gaps, as evaluate does).
+        self._clock = GapClock()
         self.online = self._online_decision(online_decision)
 
     def _online_decision(self, wanted: bool | OnlineDecisionConfig | None) -> OnlineDecision | None:
@@ -179,6 +186,7 @@ class Predictor:
         if self._odometry is not None:
             self._odometry.reset()
         self._scans.reset()
+        self._clock.reset()
         if self.online is not None:
             self.online.reset()
 
@@ -233,7 +241,9 @@ class Predictor:
             )
         elif pose is not None and scans is not None:
             scans.observe(occupancy, points)
-        probability, out, self._state = self.backend.run(maps, self._state, motion)
+        pace = self._clock.update(item.stamp_ns) if isinstance(item, Scan) else None
+        guess = paced_motion(motion, pace)  # None: the last motion again
+        probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
         future = [probability[0, 0]]
         if self.online is not None:
@@ -243,10 +253,11 @@ class Predictor:
         # the state that the next real scan continues from. With the online decision each
         # step is re-decided with its current choice (see lidarflow.evaluate.horizon).
         state = self._state
+        ahead = motion if guess is None else guess  # each step ahead is one typical step
         for _ in range(self.horizon - 1):
             fed = np.zeros_like(maps)  # a predicted map has no returns: subcell zeros
             fed[0, 0], fed[0, 1] = future[-1], visibility
-            next_probability, out_k, state = self.backend.run(fed, state, motion)
+            next_probability, out_k, state = self.backend.run(fed, state, ahead)
             if self.online is not None:
                 flow_k = out_k[0, :2] if self.backend.out_channels >= 4 else None
                 moved = moved_last_map(future[-1], flow_k)

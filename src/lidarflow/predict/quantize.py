@@ -38,7 +38,7 @@ def calibration_feeds(
     ``session`` and keep the inputs of ``count`` steps spread evenly after the warm-up
     (ego-motion graphs get zero motion)."""
     inputs = session.get_inputs()  # type: ignore[attr-defined]
-    ego, state_inputs = split_step_inputs(inputs)
+    motion_inputs, state_inputs = split_step_inputs(inputs)
     channels = int(inputs[0].shape[1])
     if len(maps) and np.shape(maps[0])[0] != channels:
         raise PredictError(
@@ -55,8 +55,7 @@ def calibration_feeds(
     feeds: list[dict[str, np.ndarray]] = []
     for t, frame in enumerate(maps):
         feed = {"maps": np.asarray(frame, np.float32)[None]}
-        if ego:
-            feed["motion"] = np.zeros((1, 3), np.float32)
+        feed.update({name: np.zeros((1, 3), np.float32) for name in motion_inputs})
         feed.update({i.name: s for i, s in zip(state_inputs, state, strict=True)})
         if t in keep:
             feeds.append(feed)
