@@ -271,3 +271,38 @@ def test_a_subcell_model_takes_its_scans_subcell_maps_and_refuses_bare_maps(
     for scan in scans:
         without = blind.step(*rasterize(scan))
     assert np.abs(without.probability - p.probability).max() > 1e-3
+
+
+def test_a_model_runs_on_the_grid_it_was_trained_for_unless_told(
+    tmp_path, sample_recording, capsys
+):
+    from lidarflow.scan import GridSpec
+    from tests.test_cli import run
+
+    folder = make_model_dir(tmp_path / "g48")
+    card = json.loads((folder / "model.json").read_text())
+    card["grid"] = {"height": 48, "width": 48, "res": 0.15}  # as `lidarflow train --grid` writes
+    (folder / "model.json").write_text(json.dumps(card))
+    assert Predictor(folder).grid == GridSpec(48, 48, 0.15)
+    assert Predictor(folder, GridSpec(40, 40, 0.2)).grid == GridSpec(40, 40, 0.2)
+    # export writes the grid into the file, and the Predictor and `predict` run it there
+    onnx = tmp_path / "g48.onnx"
+    code, out, err = run(["export", "--onnx", str(onnx), "-m", str(folder)], capsys)
+    assert code == 0, err
+    assert "48x48 grid of 0.15 m" in out
+    assert Predictor(onnx).grid == GridSpec(48, 48, 0.15)
+    data = sample_recording.slice(0, 12).save(tmp_path / "r.npz")
+    code, _, err = run(
+        ["predict", str(data), "-o", str(tmp_path / "p.mcap"), "-m", str(onnx)], capsys
+    )
+    assert code == 0, err
+    # half a grid given: the other half is the model's own
+    code, out, err = run(["export", "--onnx", str(onnx), "-m", str(folder), "--res", "0.2"], capsys)
+    assert code == 0 and "48x48 grid of 0.2 m" in out, err
+    # evaluate scores every model on one grid, and says when that is not a model's own
+    code, _, err = run(["evaluate", str(data), "-m", str(folder)], capsys)
+    assert code == 0 and "trained on a 48x48 grid of 0.15 m" in err, err
+    # a file exported before the mark existed says only its size: another grid is refused
+    export_onnx(resolve_model(folder)[0], tmp_path / "old.onnx", 48, 48)
+    with pytest.raises(PredictError, match="run it on that grid"):
+        Predictor(tmp_path / "old.onnx").update(sample_recording.scan(0))

@@ -43,6 +43,23 @@ OdomOpt = Annotated[
 ]
 GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
 ResOpt = Annotated[float, typer.Option("--res", help="Cell size in metres.", min=1e-4)]
+#: For commands that run one model: its own grid unless given.
+ModelGridOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--grid",
+        help="Map size in cells (square grid; default: the model's own, 100 for the bundled).",
+        min=4,
+    ),
+]
+ModelResOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--res",
+        help="Cell size in metres (default: the model's own, 0.1 for the bundled).",
+        min=1e-4,
+    ),
+]
 MovingOpt = Annotated[
     float | None,
     typer.Option(

@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from lidarflow.cli.app import (
     ExportModelOpt,
-    GridOpt,
+    ModelGridOpt,
     ModelOpt,
+    ModelResOpt,
     MovingOpt,
     OdomOpt,
-    ResOpt,
     TopicOpt,
     app,
     bundled_model_available,
@@ -23,6 +23,9 @@ from lidarflow.cli.app import (
     progress_bar,
 )
 from lidarflow.cli.scoring import methods_and_config
+
+if TYPE_CHECKING:
+    from lidarflow.scan import GridSpec
 
 
 @app.command()
@@ -112,8 +115,8 @@ def predict(
             "online as it streams (the bundled model does).",
         ),
     ] = False,
-    grid: GridOpt = 100,
-    res: ResOpt = 0.1,
+    grid: ModelGridOpt = None,
+    res: ModelResOpt = None,
     moving_threshold: MovingOpt = None,
 ) -> None:
     """Write the input scans plus, per scan, the predicted next map (nav_msgs/OccupancyGrid in
@@ -127,7 +130,6 @@ def predict(
     disagree with the scans), any other is refused."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
-    from lidarflow.scan import GridSpec
 
     recording = load_input(input, topic, odom_topic)
     from lidarflow.segmentation import MOVING_THRESHOLD
@@ -135,7 +137,7 @@ def predict(
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
     predictor = Predictor(
         model,
-        GridSpec(grid, grid, res),
+        _grid(model, grid, res),
         horizon=horizon,
         moving_threshold=threshold,
         online_decision=False if fixed_decision else None,
@@ -149,8 +151,8 @@ def predict(
 def export(
     onnx: Annotated[Path, typer.Option("--onnx", help="ONNX file to write.")],
     model: ExportModelOpt = None,
-    grid: GridOpt = 100,
-    res: ResOpt = 0.1,
+    grid: ModelGridOpt = None,
+    res: ModelResOpt = None,
     int8: Annotated[
         bool,
         typer.Option(
@@ -174,6 +176,7 @@ def export(
     import tempfile
 
     from lidarflow.models.presets import resolve_model
+    from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.export import export_onnx
     from lidarflow.scan import GridSpec, takes_subcell
 
@@ -184,9 +187,11 @@ def export(
             param_hint="--calibration",
         )
     net, card = resolve_model(model)
+    spec = _grid(model, grid, res) or recorded_grid(card) or GridSpec()
+    size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
-        path = export_onnx(net, onnx, grid, grid)
-        typer.echo(f"wrote {path} ({card.get('model')}, {grid}x{grid} grid)")
+        path = export_onnx(net, onnx, spec.height, spec.width, spec.res)
+        typer.echo(f"wrote {path} ({card.get('model')}, {size})")
         return
 
     from lidarflow.data import sample_bag_path
@@ -194,12 +199,31 @@ def export(
 
     source = calibration or sample_bag_path()
     recording = load_input(source, topic)
-    spec = GridSpec(grid, grid, res)
     maps = recording.stacked_maps(spec, subcell=takes_subcell(net.input_channels))
     with tempfile.TemporaryDirectory() as tmp:
-        float_path = export_onnx(net, Path(tmp) / "float.onnx", grid, grid)
+        float_path = export_onnx(net, Path(tmp) / "float.onnx", spec.height, spec.width, spec.res)
         path = quantize_onnx(float_path, onnx, maps)
     typer.echo(
-        f"wrote {path} ({card.get('model')}, {grid}x{grid} grid, int8 convolutions calibrated "
-        f"on {len(maps)} frames of {source.name})"
+        f"wrote {path} ({card.get('model')}, {size}, int8 convolutions calibrated on "
+        f"{len(maps)} frames of {source.name})"
     )
+
+
+def _grid(model: Path | None, grid: int | None, res: float | None) -> GridSpec | None:
+    """The grid ``--grid/--res`` ask for, the other one (if only one is given) the model's own
+    (or the bundled one's); ``None`` when neither is given (the model's own grid then)."""
+    from lidarflow.predict.backends import recorded_grid
+    from lidarflow.scan import GridSpec
+
+    if grid is None and res is None:
+        return None
+    if model is not None and Path(model).suffix.lower() == ".onnx":
+        from lidarflow.predict.backends import OnnxBackend
+
+        recorded = OnnxBackend(model).grid
+    else:
+        from lidarflow.models.presets import resolve_model
+
+        recorded = recorded_grid(resolve_model(model)[1])
+    base = recorded or GridSpec()
+    return GridSpec(grid or base.height, grid or base.width, res or base.res)

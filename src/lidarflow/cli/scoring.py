@@ -73,7 +73,8 @@ def methods_and_config(
             name, StreamingModel(net), moving_threshold, online_config=online_config, res=res
         )
         methods.append(method)
-        models_used[name] = {k: card.get(k) for k in ("model", "weights_path", "weights_sha256")}
+        keys = ("model", "weights_path", "weights_sha256", "grid")
+        models_used[name] = {k: card.get(k) for k in keys}
         if method.uses_motion and ego_oracle:
             methods.append(
                 ModelMethod(name + ORACLE_SUFFIX, StreamingModel(net), oracle=True, res=res)
@@ -253,6 +254,7 @@ def evaluate(
         grid_note,
         undefined_note,
     )
+    from lidarflow.predict.backends import recorded_grid
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
@@ -280,6 +282,15 @@ def evaluate(
         spec.res,
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
+    for name, used in config["models"].items():
+        trained = recorded_grid(used)
+        if trained is not None and trained != spec:
+            typer.echo(
+                f"note: {name} was trained on a {trained.height}x{trained.width} grid of "
+                f"{trained.res:g} m and is scored on {spec.height}x{spec.width} of {spec.res:g} m "
+                f"(--grid {trained.height} --res {trained.res:g} scores it on its own)",
+                err=True,
+            )
     report = evaluate_and_report(
         named, methods, spec, warmup, config, report_dir, gif_frames, eval_progress
     )

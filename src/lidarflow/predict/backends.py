@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.errors import PredictError
+from lidarflow.errors import PredictError, ScanError
 from lidarflow.evaluate.online import decision_of
+from lidarflow.scan import GridSpec
 
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
 #: (written by :func:`lidarflow.predict.export.export_onnx`).
@@ -23,14 +24,28 @@ POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
 #: b or null, "online": bool, "gain": g}``, what the Predictor needs to choose the offsets online
 #: (files marked before ``gain`` was added try the moved map only).
 DECISION_KEY = "lidarflow.decision"
+#: ONNX metadata key of the grid the model was exported for: JSON ``{"height", "width", "res"}``
+#: (files exported before it existed say only their size, in the graph's shapes).
+GRID_KEY = "lidarflow.grid"
 
 __all__ = [
     "DECISION_KEY",
+    "GRID_KEY",
     "POSES_OPTIONAL_KEY",
     "OnnxBackend",
     "TorchBackend",
+    "recorded_grid",
     "split_step_inputs",
 ]
+
+
+def recorded_grid(card: dict[str, Any]) -> GridSpec | None:
+    """The grid a model's ``model.json`` says it was trained on, ``None`` where it says none."""
+    grid = card.get("grid")
+    try:
+        return GridSpec(int(grid["height"]), int(grid["width"]), float(grid["res"]))
+    except (KeyError, TypeError, ValueError, ScanError):
+        return None
 
 
 def split_step_inputs(inputs: list[Any]) -> tuple[list[str], list[Any]]:
@@ -121,6 +136,9 @@ class OnnxBackend:
         self.decision = json.loads(marks[DECISION_KEY]) if DECISION_KEY in marks else None
         self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
+        self.grid = (
+            recorded_grid({"grid": json.loads(marks[GRID_KEY])}) if GRID_KEY in marks else None
+        )
         self.input_channels = int(inputs[0].shape[1])
         self.out_channels = int(self.session.get_outputs()[1].shape[1])
 
@@ -128,7 +146,8 @@ class OnnxBackend:
         if (height, width) != self.grid_shape:
             raise PredictError(
                 f"this ONNX model was exported for a {self.grid_shape[0]}x{self.grid_shape[1]} "
-                f"grid, not {height}x{width}; export again with --grid"
+                f"grid, not {height}x{width}; run it on that grid (--grid {self.grid_shape[0]} "
+                "and its --res) or export again with --grid"
             )
         return [np.zeros(s, np.float32) for s in self.state_shapes]
 

@@ -29,7 +29,7 @@ from torch import Tensor, nn
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.online import decision_of
 from lidarflow.models.recurrent import RecurrentMapModel
-from lidarflow.predict.backends import DECISION_KEY, POSES_OPTIONAL_KEY
+from lidarflow.predict.backends import DECISION_KEY, GRID_KEY, POSES_OPTIONAL_KEY
 
 __all__ = ["DECISION_KEY", "OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "copy_marks", "export_onnx"]
 
@@ -59,9 +59,15 @@ class EgoStepGraph(StepGraph):
 
 
 def export_onnx(
-    model: RecurrentMapModel, path: str | Path, height: int = 100, width: int = 100
+    model: RecurrentMapModel,
+    path: str | Path,
+    height: int = 100,
+    width: int = 100,
+    res: float | None = None,
 ) -> Path:
-    """Write ``model``'s streaming step to ``path`` as ONNX (opset :data:`OPSET`)."""
+    """Write ``model``'s streaming step to ``path`` as ONNX (opset :data:`OPSET`); ``res``, the
+    cell size it is meant for, goes into the file's metadata (:data:`GRID_KEY`) beside the
+    size, so that the Predictor runs it on that grid."""
     path = Path(path)
     if not path.parent.exists():
         raise PredictError(f"{path.parent}: no such folder for the ONNX file")
@@ -90,6 +96,8 @@ def export_onnx(
         except Exception as err:  # the exporter raises many types
             raise PredictError(f"ONNX export failed: {type(err).__name__}: {err}") from err
     marks = {}
+    if res is not None:
+        marks[GRID_KEY] = json.dumps({"height": height, "width": width, "res": res})
     if getattr(model, "poses_optional", False):
         marks[POSES_OPTIONAL_KEY] = "true"
     if (decision := decision_of(model)) is not None:

@@ -46,7 +46,7 @@ from lidarflow.evaluate.online import (
     decision_for,
     moved_last_map,
 )
-from lidarflow.predict.backends import OnnxBackend, TorchBackend
+from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
@@ -99,7 +99,8 @@ class Predictor:
     Args:
         model: a run folder or ``.safetensors`` file (PyTorch), an ``.onnx`` file (onnxruntime,
             no PyTorch needed), or ``None`` for the bundled pretrained model.
-        grid: the map grid (default 100 x 100 at 0.1 m, the grid the model was trained on).
+        grid: the map grid (default: the one the model was trained on, as its model.json or
+            the ONNX file's metadata says; else 100 x 100 at 0.1 m, the bundled model's).
         horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
         threads: CPU threads for inference (default: the library's choice).
         moving_threshold: cells per frame of motion of its own above which an occupied cell is
@@ -137,17 +138,20 @@ class Predictor:
         if not moving_threshold >= 0:
             raise PredictError(f"moving_threshold must be >= 0 cells, got {moving_threshold}")
         self.moving_threshold = moving_threshold
-        self.grid = grid or GridSpec()
         self.horizon = horizon
         self.backend: Any
         if model is not None and Path(model).suffix.lower() == ".onnx":
             self.backend = OnnxBackend(model, threads)
             self.card: dict[str, Any] = {"model": "onnx", "weights_path": str(model)}
+            recorded = self.backend.grid
         else:
             from lidarflow.models.presets import resolve_model
 
             net, self.card = resolve_model(model)
             self.backend = TorchBackend(net, device, threads)
+            recorded = recorded_grid(self.card)
+        # The grid the model was trained (or exported) for, unless told otherwise.
+        self.grid = grid or recorded or GridSpec()
         self._state: Any = None
         self._pose: np.ndarray | None = None
         # See lidarflow.evaluate.model_method: the same check, the same decisions.
