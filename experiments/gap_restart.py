@@ -23,6 +23,7 @@ import numpy as np
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
+from lidarflow.data.gaps import paces_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
@@ -78,7 +79,7 @@ def score_after_gap(
 
     evaluate_maps(
         occupancy, visibility, methods, warmup=0, on_prediction=keep, motions=motions,
-        subcell=recording.subcell_maps(grid),
+        subcell=recording.subcell_maps(grid), paces=paces_after_gaps(recording.stamps_ns),
     )  # fmt: skip
     return counts
 
@@ -114,7 +115,7 @@ def main() -> None:
     )  # fmt: skip
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    methods, _ = methods_and_config([None], with_poses=False)
+    methods, _ = methods_and_config([None])
     total: Tree = {}
     per_recording: dict[str, Tree] = {}
     loaded = {name: load_any(DATA / name) for name in RECORDINGS}

@@ -153,9 +153,12 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
     blind = driving.slice(0, len(driving))
     blind.poses = None
     code, _, err = run(
-        ["evaluate", str(blind.save(tmp_path / "blind.npz")), "--model", str(tmp_path / "run")],
+        [
+            "evaluate", str(blind.save(tmp_path / "blind.npz")), "--model", str(tmp_path / "run"),
+            "--grid", "40", "--res", "0.05",
+        ],
         capsys,
-    )
+    )  # fmt: skip
     assert code == 1 and "no sensor poses" in err and len(err.strip().splitlines()) == 1
 
 

@@ -125,7 +125,7 @@ ACTIVATIONS = ("relu", "none")
 # an occupied one stays occupied nine times in ten.
 FREE_PROBABILITY_INIT = 0.01
 OCCUPIED_PROBABILITY_INIT = 0.9
-# A fast and a slow memory: about 2 and 5 frames, the temporal-average baseline's window.
+# A fast and a slow memory: about 2 and 5 frames, the windows of short temporal averages.
 MEMORY_DECAYS = (0.5, 0.8)
 # About the last 50 frames: the history table's transition rates did best at this decay.
 TRANSITION_DECAY = 0.98
