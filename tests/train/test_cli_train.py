@@ -76,7 +76,11 @@ def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["schedule"]["gaussian"] is False and cfg["data"]["mix"] == [0.75]
     assert cfg["optim"]["lr"] == 0.003 and cfg["recipe"] == "paper"
-    code, out, err = run_cli(["train", "--resume", str(run), "--epochs", "2"], capsys)
+    assert not (run / "training.lock").exists()  # released when the run ends
+    resume = ["train", "--resume", str(run), "--epochs", "2"]
+    code, _, err = run_cli([*resume, "--set", "optim.lr=0.1"], capsys)
+    assert code == 2 and "--set optim.lr=0.1" in err  # what it computes may not change
+    code, out, err = run_cli([*resume, "--set", "runtime.threads=1"], capsys)  # how it runs may
     assert code in (0, None), err
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == [0, 1, 2]
@@ -110,6 +114,31 @@ def test_failures_are_one_line_with_exit_1(blob_files, tmp_path, capsys, extra, 
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("lidarflow: error: ") and message in lines[0]
     assert "Traceback" not in err
+
+
+def test_a_run_folder_is_trained_by_one_process_on_its_own_data(blob_files, tmp_path, capsys):
+    import socket
+    import subprocess
+
+    data = tmp_path / "a.npz"
+    data.write_bytes(blob_files[0].read_bytes())
+    run, folder = ["train", str(data), "--recipe", "paper", "--epochs", "1", *TINY], tmp_path / "r"
+    folder.mkdir()
+    other = subprocess.Popen(["sleep", "60"])  # another live process holding the folder
+    try:
+        lock = {"pid": other.pid, "host": socket.gethostname()}
+        (folder / "training.lock").write_text(json.dumps(lock))
+        code, _, err = run_cli([*run, "-o", str(folder)], capsys)
+        assert code == 1 and f"being trained by process {other.pid}" in err, err
+    finally:
+        other.kill()
+        other.wait()
+    code, _, err = run_cli([*run, "-o", str(folder)], capsys)  # a stale lock is taken over
+    assert code in (0, None), err
+    with data.open("ab") as f:  # the recording at that path is no longer the one trained on
+        f.write(b"0" * 10)
+    code, _, err = run_cli(["train", "--resume", str(folder), "--epochs", "2"], capsys)
+    assert code == 1 and "changed since the run started" in err, err
 
 
 def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):

@@ -208,10 +208,15 @@ def train(
         free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
         changed = [k for k, v in flags.items() if v is not None and k not in free]
         changed += ["--ego-motion"] if ego_motion else []
-        if changed or recipe or config or set_:
+        keys = {o: o.split("=", 1)[0].strip() for o in set_ or ()}
+        runtime_sets = [
+            o for o, k in keys.items() if k.startswith("runtime.") and k != "runtime.seed"
+        ]
+        changed += [f"--set {o}" for o in keys if o not in runtime_sets]
+        if changed or recipe or config:
             raise typer.BadParameter(
                 "a resumed run keeps its config (only --epochs and runtime options may change); "
-                f"drop {', '.join(changed) or '--recipe/--config/--set'} or start a new run",
+                f"drop {', '.join(changed) or '--recipe/--config'} or start a new run",
                 param_hint="--resume",
             )
         if not (resume / "config.json").is_file():
@@ -223,7 +228,10 @@ def train(
         if data and [os.path.abspath(d) for d in data] != saved.data.sources:
             raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
         cfg = build_config(
-            saved.recipe, resume / "config.json", {k: v for k, v in flags.items() if k in free}
+            saved.recipe,
+            resume / "config.json",
+            {k: v for k, v in flags.items() if k in free},
+            runtime_sets,
         )
         run_dir = resume
     else:

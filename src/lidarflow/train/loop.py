@@ -38,7 +38,7 @@ from lidarflow.train.distributed import Dist, any_flag, barrier, setup
 from lidarflow.train.loaders import make_loader, make_val_loader
 from lidarflow.train.logbook import Logbook
 from lidarflow.train.model_setup import load_init, make_optimizer
-from lidarflow.train.rundir import prepare_run_dir, write_final
+from lidarflow.train.rundir import prepare_run_dir, release_run_dir, write_final
 from lidarflow.train.validate import validate
 from lidarflow.train.warm import split_batch, start_state, stream_start_states
 
@@ -127,6 +127,8 @@ def train(
     try:
         return _train(config, run_dir, resume, ctx, echo, on_epoch_end)
     finally:
+        if ctx.is_main:
+            release_run_dir(run_dir)
         teardown()
 
 

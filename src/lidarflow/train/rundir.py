@@ -29,7 +29,10 @@ from lidarflow.train.config_io import config_from_dict, config_to_dict, load_con
 from lidarflow.train.data import TrainData
 from lidarflow.train.distributed import Dist
 
-__all__ = ["model_record", "prepare_run_dir", "write_final"]
+__all__ = ["model_record", "prepare_run_dir", "release_run_dir", "write_final"]
+
+#: Held while a process trains into a run folder: its PID and host.
+LOCK = "training.lock"
 
 
 def _git_commit() -> str | None:
@@ -77,6 +80,70 @@ def model_record(
     }
 
 
+def _source_sizes(config: TrainConfig) -> dict[str, int]:
+    """Each data source's size in bytes (a folder's, summed): what a resume checks the data
+    by, cheaply (a recording replaced by another at the same path is another size)."""
+    sizes = {}
+    for source in config.data.sources:
+        path = Path(source)
+        if not path.exists():  # the data loader says so, naming it
+            continue
+        files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+        sizes[source] = sum(f.stat().st_size for f in files)
+    return sizes
+
+
+def _lock(run_dir: Path) -> None:
+    """Refuse a run folder another live process is training into; take over a stale lock."""
+    import os
+    import socket
+
+    path = run_dir / LOCK
+    host = socket.gethostname()
+    if path.exists():
+        try:
+            held = json.loads(path.read_text())
+            pid, same_host = int(held["pid"]), held.get("host") == host
+        except (OSError, ValueError, KeyError, TypeError):
+            pid, same_host = -1, False
+        alive = same_host and pid > 0 and _alive(pid)
+        if alive and pid != os.getpid():
+            raise TrainError(
+                f"{run_dir} is being trained by process {pid} on this machine; wait for it, "
+                f"stop it, or train into another -o folder"
+            )
+        if not same_host and pid > 0:
+            raise TrainError(
+                f"{run_dir} is locked by process {pid} on {held.get('host')} ({path}); if no "
+                "training runs there any more, delete that file"
+            )
+    path.write_text(json.dumps({"pid": os.getpid(), "host": host}))
+
+
+def _alive(pid: int) -> bool:
+    import os
+
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
+
+
+def release_run_dir(run_dir: Path) -> None:
+    """Drop the lock :func:`prepare_run_dir` took (if this process holds it)."""
+    import os
+
+    path = Path(run_dir) / LOCK
+    try:
+        if json.loads(path.read_text()).get("pid") == os.getpid():
+            path.unlink()
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
 def _run_facts(ctx: Dist) -> dict[str, Any]:
     return {
         "command": sys.argv,
@@ -114,8 +181,26 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
 
 
 def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
+    """Check and start ``run_dir`` (a new run, or a resume of it), and lock it for this
+    process (:func:`release_run_dir` unlocks it)."""
+    if ctx.is_main and run_dir.is_dir():
+        _lock(run_dir)
     if resume:
         _check_resumable(run_dir, config)
+        facts = (
+            json.loads((run_dir / "run.json").read_text())
+            if (run_dir / "run.json").exists()
+            else {}
+        )
+        recorded = facts.get("source_bytes") or {}
+        now = _source_sizes(config)
+        moved = [s for s, size in recorded.items() if s in now and now[s] != size]
+        if moved:
+            raise TrainError(
+                f"{run_dir}: {', '.join(moved)} changed since the run started ({recorded[moved[0]]}"
+                f" bytes then, {now[moved[0]]} now); a resumed run continues on the same data: "
+                "start a new run"
+            )
         done = ckpt.latest_epoch(run_dir)
         if config.optim.epochs < done:
             # Checked before config.json is rewritten: it would say fewer epochs than the
@@ -142,8 +227,12 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
             "or another -o folder"
         )
     if ctx.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        _lock(run_dir)
         ckpt.write_json(run_dir / "config.json", config_to_dict(config))
-        ckpt.write_json(run_dir / "run.json", _run_facts(ctx))
+        ckpt.write_json(
+            run_dir / "run.json", {**_run_facts(ctx), "source_bytes": _source_sizes(config)}
+        )
 
 
 def write_final(
