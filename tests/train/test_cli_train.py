@@ -196,6 +196,7 @@ def test_resume_cannot_shorten_a_run(tmp_path, capsys):
 
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
+    (tmp_path / "x.npz").touch()  # a resume needs its recordings where they were
     config = build_config("paper", None, {"data.sources": [str(tmp_path / "x.npz")]})
     (run / "config.json").write_text(json.dumps(config_to_dict(config)))
     (run / "checkpoints" / "latest.json").write_text('{"epoch": 3}')
@@ -311,3 +312,30 @@ def test_a_config_file_naming_deeptracking_gets_the_papers_recipe(tmp_path, blob
     assert code in (0, None), err
     saved = json.loads((run / "config.json").read_text())
     assert saved["recipe"] == "paper" and saved["model"]["name"] == "deeptracking"
+
+
+def test_a_run_copied_elsewhere_resumes_on_its_recordings_found_again(blob_files, tmp_path, capsys):
+    here, there = tmp_path / "robot", tmp_path / "workstation"
+    here.mkdir()
+    data = here / "a.npz"
+    data.write_bytes(blob_files[0].read_bytes())
+    train = ["train", "--recipe", "paper", *TINY]
+    code, _, err = run_cli([*train, str(data), "--epochs", "1", "-o", str(here / "run")], capsys)
+    assert code in (0, None), err
+    here.rename(there)  # the recorded absolute paths are gone
+    run = there / "run"
+    code, _, err = run_cli(["train", "--resume", str(run), "--epochs", "2"], capsys)
+    assert code == 1 and "give the recordings again" in err, err
+    other = there / "b.npz"
+    other.write_bytes((there / "a.npz").read_bytes())
+    code, _, err = run_cli(["train", str(other), "--resume", str(run), "--epochs", "2"], capsys)
+    assert code == 1 and "was trained on" in err  # another name: not the same recording
+    code, _, err = run_cli(
+        ["train", str(there / "a.npz"), "--resume", str(run), "--epochs", "2"], capsys
+    )
+    assert code in (0, None), err
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert rows[-1]["epoch"] == 2
+    assert json.loads((run / "config.json").read_text())["data"]["sources"] == [
+        str(there / "a.npz")
+    ]

@@ -225,14 +225,21 @@ def train(
                 "`lidarflow train -o` wrote"
             )
         saved = config_from_dict(load_config_file(resume / "config.json"))
-        if data and [os.path.abspath(d) for d in data] != saved.data.sources:
-            raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
-        cfg = build_config(
-            saved.recipe,
-            resume / "config.json",
-            {k: v for k, v in flags.items() if k in free},
-            runtime_sets,
-        )
+        given = [os.path.abspath(d) for d in data or ()]
+        missing = [s for s in saved.data.sources if not os.path.exists(s)]
+        kept = {k: v for k, v in flags.items() if k in free}
+        if given and given != saved.data.sources:
+            # A run copied to another machine: its recordings under the same names elsewhere.
+            names = [os.path.basename(s) for s in saved.data.sources]
+            if missing != saved.data.sources or [os.path.basename(g) for g in given] != names:
+                raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
+            kept["data.sources"] = given
+        elif missing:
+            raise TrainError(
+                f"{resume} was trained on {', '.join(missing)}, not there any more; give the "
+                f"recordings again where they are now: lidarflow train DATA... --resume {resume}"
+            )
+        cfg = build_config(saved.recipe, resume / "config.json", kept, runtime_sets)
         run_dir = resume
     else:
         if output is None:

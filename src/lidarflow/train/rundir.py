@@ -93,6 +93,10 @@ def _source_sizes(config: TrainConfig) -> dict[str, int]:
     return sizes
 
 
+def _names(sources: list[str]) -> list[str]:
+    return [Path(s).name for s in sources]
+
+
 def _lock(run_dir: Path) -> None:
     """Refuse a run folder another live process is training into; take over a stale lock."""
     import os
@@ -166,6 +170,11 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
     saved = dataclasses.replace(
         saved, optim=dataclasses.replace(saved.optim, epochs=config.optim.epochs)
     )
+    if _names(saved.data.sources) == _names(config.data.sources):
+        # the same recordings moved (a run copied to another machine); their sizes are checked
+        saved = dataclasses.replace(
+            saved, data=dataclasses.replace(saved.data, sources=config.data.sources)
+        )
     changed = [
         name
         for name in ("recipe", "model", "data", "optim", "schedule", "loss")
@@ -192,14 +201,14 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
             if (run_dir / "run.json").exists()
             else {}
         )
-        recorded = facts.get("source_bytes") or {}
-        now = _source_sizes(config)
-        moved = [s for s, size in recorded.items() if s in now and now[s] != size]
-        if moved:
+        recorded = {Path(s).name: n for s, n in (facts.get("source_bytes") or {}).items()}
+        now = {Path(s).name: n for s, n in _source_sizes(config).items()}
+        changed = [s for s, size in recorded.items() if s in now and now[s] != size]
+        if changed:
             raise TrainError(
-                f"{run_dir}: {', '.join(moved)} changed since the run started ({recorded[moved[0]]}"
-                f" bytes then, {now[moved[0]]} now); a resumed run continues on the same data: "
-                "start a new run"
+                f"{run_dir}: {', '.join(changed)} changed since the run started "
+                f"({recorded[changed[0]]} bytes then, {now[changed[0]]} now); a resumed run "
+                "continues on the same data: start a new run"
             )
         done = ckpt.latest_epoch(run_dir)
         if config.optim.epochs < done:
