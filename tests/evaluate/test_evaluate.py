@@ -342,3 +342,15 @@ def test_no_win_or_loss_is_claimed_on_a_metric_with_nothing_to_find():
     assert (overall["recordings_won"], overall["recordings_undecided"]) == (1, 1)
     assert format_comparison(entry["against_baselines"]).endswith(": undecided (nothing to find)")
     assert "won 1 of 2 recordings (1 undecided)" in format_comparison(report["against_baselines"])
+
+
+def test_a_run_folder_named_like_an_oracle_is_still_judged(sample_recording, tmp_path, capsys):
+    from tests.conftest import make_model_dir
+    from tests.test_cli import run
+
+    folder = make_model_dir(tmp_path / "mine_oracle")
+    data = sample_recording.slice(0, 15).save(tmp_path / "r.npz")
+    out = tmp_path / "e.json"
+    code, _, err = run(["evaluate", str(data), "-m", str(folder), "--json", str(out)], capsys)
+    assert code == 0, err
+    assert "mine_oracle" in json.loads(out.read_text())["recordings"][0]["against_baselines"]

@@ -135,9 +135,14 @@ def test_a_run_folder_is_trained_by_one_process_on_its_own_data(blob_files, tmp_
         other.wait()
     code, _, err = run_cli([*run, "-o", str(folder)], capsys)  # a stale lock is taken over
     assert code in (0, None), err
+    # one left on another machine too (a run copied here, a job requeued elsewhere)
+    (folder / "training.lock").write_text(json.dumps({"pid": 1, "host": "another-node"}))
+    code, _, err = run_cli(["train", "--resume", str(folder), "--set", "optim.epochs=2"], capsys)
+    assert code in (0, None), err
+    assert not (folder / "training.lock").exists()
     with data.open("ab") as f:  # the recording at that path is no longer the one trained on
         f.write(b"0" * 10)
-    code, _, err = run_cli(["train", "--resume", str(folder), "--epochs", "2"], capsys)
+    code, _, err = run_cli(["train", "--resume", str(folder), "--epochs", "3"], capsys)
     assert code == 1 and "changed since the run started" in err, err
 
 
@@ -317,10 +322,12 @@ def test_a_config_file_naming_deeptracking_gets_the_papers_recipe(tmp_path, blob
 def test_a_run_copied_elsewhere_resumes_on_its_recordings_found_again(blob_files, tmp_path, capsys):
     here, there = tmp_path / "robot", tmp_path / "workstation"
     here.mkdir()
-    data = here / "a.npz"
+    data, val = here / "a.npz", here / "v.npz"
     data.write_bytes(blob_files[0].read_bytes())
+    val.write_bytes(blob_files[1].read_bytes())
     train = ["train", "--recipe", "paper", *TINY]
-    code, _, err = run_cli([*train, str(data), "--epochs", "1", "-o", str(here / "run")], capsys)
+    first = [*train, str(data), "--val", str(val), "--epochs", "1", "-o", str(here / "run")]
+    code, _, err = run_cli(first, capsys)
     assert code in (0, None), err
     here.rename(there)  # the recorded absolute paths are gone
     run = there / "run"
@@ -330,9 +337,10 @@ def test_a_run_copied_elsewhere_resumes_on_its_recordings_found_again(blob_files
     other.write_bytes((there / "a.npz").read_bytes())
     code, _, err = run_cli(["train", str(other), "--resume", str(run), "--epochs", "2"], capsys)
     assert code == 1 and "was trained on" in err  # another name: not the same recording
-    code, _, err = run_cli(
-        ["train", str(there / "a.npz"), "--resume", str(run), "--epochs", "2"], capsys
-    )
+    again = ["train", str(there / "a.npz"), "--resume", str(run), "--epochs", "2"]
+    code, _, err = run_cli(again, capsys)
+    assert code == 1 and "--val V... --resume" in err, err  # its validation recording too
+    code, _, err = run_cli([*again, "--val", str(there / "v.npz")], capsys)
     assert code in (0, None), err
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert rows[-1]["epoch"] == 2

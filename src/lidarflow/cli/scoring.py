@@ -50,6 +50,7 @@ def methods_and_config(
     true next pose; ``online`` adds, for each model, the decision rule it was not built with:
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
     from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.evaluate.ego import CopyLastEgo
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.online import OnlineDecisionConfig
     from lidarflow.evaluate.report import ORACLE_SUFFIX
@@ -92,11 +93,13 @@ def methods_and_config(
                 )
             )
     if any(getattr(m, "uses_motion", False) for m in methods):
-        from lidarflow.evaluate.ego import CopyLastEgo
-
         methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
     config = {
         "threshold": 0.4,
+        # what knows the future or only moves the last map is reported, never judged
+        "no_verdict": [
+            m.name for m in methods if getattr(m, "oracle", False) or isinstance(m, CopyLastEgo)
+        ],
         "temporal_average": {"window": ta_window, "threshold": ta_threshold},
         "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
         # how a reading became a map (lidarflow.scan), since it changed: numbers made under

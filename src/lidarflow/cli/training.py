@@ -206,11 +206,15 @@ def train(
             )
         # how the run executes may change (device, amp, threads...), not what it computes
         free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
-        changed = [k for k, v in flags.items() if v is not None and k not in free]
+        # a run copied elsewhere names its recordings again (checked below)
+        moved = {"data.val_sources"}
+        changed = [k for k, v in flags.items() if v is not None and k not in free | moved]
         changed += ["--ego-motion"] if ego_motion else []
         keys = {o: o.split("=", 1)[0].strip() for o in set_ or ()}
         runtime_sets = [
-            o for o, k in keys.items() if k.startswith("runtime.") and k != "runtime.seed"
+            o
+            for o, k in keys.items()
+            if (k.startswith("runtime.") and k != "runtime.seed") or k == "optim.epochs"
         ]
         changed += [f"--set {o}" for o in keys if o not in runtime_sets]
         if changed or recipe or config:
@@ -225,20 +229,15 @@ def train(
                 "`lidarflow train -o` wrote"
             )
         saved = config_from_dict(load_config_file(resume / "config.json"))
-        given = [os.path.abspath(d) for d in data or ()]
-        missing = [s for s in saved.data.sources if not os.path.exists(s)]
         kept = {k: v for k, v in flags.items() if k in free}
-        if given and given != saved.data.sources:
-            # A run copied to another machine: its recordings under the same names elsewhere.
-            names = [os.path.basename(s) for s in saved.data.sources]
-            if missing != saved.data.sources or [os.path.basename(g) for g in given] != names:
-                raise TrainError(f"{resume} was trained on {saved.data.sources}, not {list(data)}")
-            kept["data.sources"] = given
-        elif missing:
-            raise TrainError(
-                f"{resume} was trained on {', '.join(missing)}, not there any more; give the "
-                f"recordings again where they are now: lidarflow train DATA... --resume {resume}"
-            )
+        for key, given, how in (
+            ("data.sources", data, "DATA..."),
+            ("data.val_sources", val, "--val V..."),
+        ):
+            recorded = list(saved.data.sources if key == "data.sources" else saved.data.val_sources)
+            found = _found_again(resume, recorded, [os.path.abspath(g) for g in given or ()], how)
+            if found is not None:
+                kept[key] = found
         cfg = build_config(saved.recipe, resume / "config.json", kept, runtime_sets)
         run_dir = resume
     else:
@@ -281,3 +280,23 @@ def _where_it_stopped(run_dir: Path) -> str:
     if done:
         return f"`lidarflow train --resume {run_dir}` continues {run_dir} after epoch {done}"
     return f"no epoch of {run_dir} finished; run the same command again to start it over"
+
+
+def _found_again(run: Path, recorded: list[str], given: list[str], how: str) -> list[str] | None:
+    """The recordings a resumed run continues on: ``None`` to keep ``recorded``, or ``given``
+    where the run was copied elsewhere (every recorded path gone, the same names given).
+    Raises :class:`TrainError` for other recordings, or for recorded ones gone and not given."""
+    from lidarflow.errors import TrainError
+
+    missing = [r for r in recorded if not os.path.exists(r)]
+    if given and given != recorded:
+        names = [os.path.basename(r) for r in recorded]
+        if missing != recorded or [os.path.basename(g) for g in given] != names:
+            raise TrainError(f"{run} was trained on {recorded}, not {given}")
+        return given
+    if missing:
+        raise TrainError(
+            f"{run} was trained on {', '.join(missing)}, not there any more; give the "
+            f"recordings again where they are now: lidarflow train {how} --resume {run}"
+        )
+    return None

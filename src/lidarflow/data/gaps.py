@@ -106,7 +106,10 @@ class GapClock:
 
     def update(self, stamp_ns: int) -> float | None:
         """This stamp's pace (typical step / this step) if a gap forwards in time precedes it,
-        else ``None``."""
+        else ``None``. A stamp of 0 is no stamp (a scan built without one): it is passed over,
+        not taken for a jump back to 1970 and forward again."""
+        if int(stamp_ns) == 0:
+            return None
         last, self._last = self._last, int(stamp_ns)
         if last is None:
             return None

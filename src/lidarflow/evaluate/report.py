@@ -54,6 +54,7 @@ def build_report(
     (:func:`undefined_metrics`), and so does the report when every recording does."""
     recordings = []
     names: list[str] = []
+    no_verdict = (config or {}).get("no_verdict")
     for path, scorers in per_recording:
         names.extend(n for n in scorers if n not in names)
         frames = max((s.frames for s in scorers.values()), default=0)
@@ -65,7 +66,7 @@ def build_report(
         undefined = undefined_metrics(scorers)
         if undefined:
             entry["undefined"] = undefined
-        entry["against_baselines"] = against_baselines(entry["methods"], undefined)
+        entry["against_baselines"] = against_baselines(entry["methods"], undefined, no_verdict)
         recordings.append(entry)
     overall_scorers = {
         name: functools.reduce(operator.add, (sc[name] for _, sc in per_recording if name in sc))
@@ -73,7 +74,7 @@ def build_report(
     }
     overall = {name: s.summary() for name, s in overall_scorers.items()}
     overall_undefined = undefined_metrics(overall_scorers)
-    compared = against_baselines(overall, overall_undefined)
+    compared = against_baselines(overall, overall_undefined, no_verdict)
     for name, verdict in compared.items():
         verdicts = [
             e["against_baselines"][name] for e in recordings if name in e["against_baselines"]
@@ -130,7 +131,9 @@ def undefined_note(undefined: Sequence[str]) -> str:
 
 
 def against_baselines(
-    methods: Mapping[str, Mapping[str, Any]], undefined: Collection[str] = ()
+    methods: Mapping[str, Mapping[str, Any]],
+    undefined: Collection[str] = (),
+    no_verdict: Collection[str] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Each model among ``methods`` (every one that is not one of :data:`BASELINES`, the
     copy-last moved by the ego motion, or a variant that knows the next pose) against the
@@ -139,7 +142,9 @@ def against_baselines(
     "f1_margin", "f1_baseline", "changed_f1_margin", "changed_f1_baseline"}}`` (margins
     against the best baseline, which is named); ``{}`` without baselines. Where F1 or
     changed-cell F1 is among ``undefined`` (nothing to find, :func:`undefined_metrics`) the
-    rule cannot decide: ``"wins"`` is ``None``."""
+    rule cannot decide: ``"wins"`` is ``None``. ``no_verdict``: the methods that get none
+    (``evaluate`` names them in its config, so that a run folder called ``..._oracle`` is still
+    judged); ``None``: told apart by their names."""
     present = [b for b in BASELINES if b in methods]
     if not present:
         return {}
@@ -147,7 +152,11 @@ def against_baselines(
     best_changed = max(present, key=lambda b: methods[b]["changed_f1"])
     out = {}
     for name, metrics in methods.items():
-        if name in BASELINES or name.startswith("copy_last_ego") or name.endswith(ORACLE_SUFFIX):
+        if no_verdict is None:
+            skip = name.startswith("copy_last_ego") or name.endswith(ORACLE_SUFFIX)
+        else:
+            skip = name in no_verdict
+        if name in BASELINES or skip:
             continue
         f1_margin = metrics["f1"] - methods[best_f1]["f1"]
         changed_margin = metrics["changed_f1"] - methods[best_changed]["changed_f1"]

@@ -12,7 +12,8 @@ update warps the recurrent state into the current frame, and the prediction is m
 next frame assuming the same motion again (constant velocity: only poses up to now are known).
 After a gap in the scans' stamps (a step longer than 2.5 typical ones, :mod:`lidarflow.data.gaps`)
 the last motion spans the gap, so the guess is that motion scaled to one typical step (the state
-is still moved by all of it); scans without stamps (``stamp_ns`` 0) are never after a gap.
+is still moved by all of it); a scan without a stamp (``stamp_ns`` 0) is never after a gap
+and does not count as a step.
 A model that may run without poses (``poses_optional``, the bundled one) takes the motion from
 the scans where no pose is given (:class:`lidarflow.data.scanmatch.ScanOdometry`: refined on the
 returns when ``update`` is given a :class:`~lidarflow.scan.Scan`). Otherwise, without a pose

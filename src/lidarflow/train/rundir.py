@@ -98,30 +98,34 @@ def _names(sources: list[str]) -> list[str]:
 
 
 def _lock(run_dir: Path) -> None:
-    """Refuse a run folder another live process is training into; take over a stale lock."""
+    """Refuse a run folder that another live process on this machine trains into; take over a
+    lock whose process is gone, or one left on another machine (a run copied here, a job
+    requeued on another node: its liveness cannot be known from here)."""
     import os
     import socket
 
     path = run_dir / LOCK
     host = socket.gethostname()
-    if path.exists():
-        try:
-            held = json.loads(path.read_text())
-            pid, same_host = int(held["pid"]), held.get("host") == host
-        except (OSError, ValueError, KeyError, TypeError):
-            pid, same_host = -1, False
-        alive = same_host and pid > 0 and _alive(pid)
-        if alive and pid != os.getpid():
-            raise TrainError(
-                f"{run_dir} is being trained by process {pid} on this machine; wait for it, "
-                f"stop it, or train into another -o folder"
-            )
-        if not same_host and pid > 0:
-            raise TrainError(
-                f"{run_dir} is locked by process {pid} on {held.get('host')} ({path}); if no "
-                "training runs there any more, delete that file"
-            )
-    path.write_text(json.dumps({"pid": os.getpid(), "host": host}))
+    for _ in range(3):
+        try:  # created only if absent: two processes starting together cannot both hold it
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            try:
+                held = json.loads(path.read_text())
+                pid, same_host = int(held["pid"]), held.get("host") == host
+            except (OSError, ValueError, KeyError, TypeError):
+                pid, same_host = -1, False
+            if same_host and pid != os.getpid() and pid > 0 and _alive(pid):
+                raise TrainError(
+                    f"{run_dir} is being trained by process {pid} on this machine; wait for "
+                    "it, stop it, or train into another -o folder"
+                ) from None
+            path.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps({"pid": os.getpid(), "host": host}))
+        return
+    raise TrainError(f"{run_dir}: could not lock it ({path} keeps coming back)")
 
 
 def _alive(pid: int) -> bool:
@@ -170,11 +174,13 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
     saved = dataclasses.replace(
         saved, optim=dataclasses.replace(saved.optim, epochs=config.optim.epochs)
     )
-    if _names(saved.data.sources) == _names(config.data.sources):
-        # the same recordings moved (a run copied to another machine); their sizes are checked
-        saved = dataclasses.replace(
-            saved, data=dataclasses.replace(saved.data, sources=config.data.sources)
-        )
+    # the same recordings moved (a run copied to another machine); their sizes are checked
+    moved = {
+        key: getattr(config.data, key)
+        for key in ("sources", "val_sources")
+        if _names(getattr(saved.data, key)) == _names(getattr(config.data, key))
+    }
+    saved = dataclasses.replace(saved, data=dataclasses.replace(saved.data, **moved))
     changed = [
         name
         for name in ("recipe", "model", "data", "optim", "schedule", "loss")
@@ -201,14 +207,19 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
             if (run_dir / "run.json").exists()
             else {}
         )
-        recorded = {Path(s).name: n for s, n in (facts.get("source_bytes") or {}).items()}
-        now = {Path(s).name: n for s, n in _source_sizes(config).items()}
-        changed = [s for s, size in recorded.items() if s in now and now[s] != size]
+        # in the order of the sources, which may have moved since (the names are the same)
+        recorded = list((facts.get("source_bytes") or {}).values())
+        now = _source_sizes(config)
+        changed = [
+            (source, then)
+            for source, then in zip(config.data.sources, recorded, strict=False)
+            if source in now and now[source] != then
+        ]
         if changed:
+            source, then = changed[0]
             raise TrainError(
-                f"{run_dir}: {', '.join(changed)} changed since the run started "
-                f"({recorded[changed[0]]} bytes then, {now[changed[0]]} now); a resumed run "
-                "continues on the same data: start a new run"
+                f"{run_dir}: {source} changed since the run started ({then} bytes then, "
+                f"{now[source]} now); a resumed run continues on the same data: start a new run"
             )
         done = ckpt.latest_epoch(run_dir)
         if config.optim.epochs < done:
