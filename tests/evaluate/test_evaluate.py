@@ -353,4 +353,9 @@ def test_a_run_folder_named_like_an_oracle_is_still_judged(sample_recording, tmp
     out = tmp_path / "e.json"
     code, _, err = run(["evaluate", str(data), "-m", str(folder), "--json", str(out)], capsys)
     assert code == 0, err
-    assert "mine_oracle" in json.loads(out.read_text())["recordings"][0]["against_baselines"]
+    report = json.loads(out.read_text())
+    assert "mine_oracle" in report["recordings"][0]["against_baselines"]
+    # the report says which temporal average, and how it was chosen
+    average = report["config"]["temporal_average"]
+    assert (average["window"], average["threshold"]) == (3, 0.4)
+    assert average["chosen"].startswith("the default: of a grid of windows and thresholds")

@@ -100,7 +100,15 @@ def methods_and_config(
         "no_verdict": [
             m.name for m in methods if getattr(m, "oracle", False) or isinstance(m, CopyLastEgo)
         ],
-        "temporal_average": {"window": ta_window, "threshold": ta_threshold},
+        "temporal_average": {
+            "window": ta_window,
+            "threshold": ta_threshold,
+            "chosen": "the default: of a grid of windows and thresholds, the highest mean F1 on "
+            "the development recordings among settings that predict changes "
+            "(docs/results/accuracy/temporal_average/)"
+            if (ta_window, ta_threshold) == (TA_WINDOW, TA_THRESHOLD)
+            else "given on the command line",
+        },
         "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
         # how a reading became a map (lidarflow.scan), since it changed: numbers made under
         # another rule are not these
