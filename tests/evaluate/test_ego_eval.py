@@ -98,6 +98,22 @@ def test_onnx_export_of_an_ego_model_matches_pytorch_with_poses(driving, tmp_pat
     assert worst < 1e-4
 
 
+def test_onnx_matches_pytorch_when_the_robot_steps_exactly_half_a_cell(sample_recording, tmp_path):
+    # Half-cell steps leave the warped previous map at exactly 0.5, where the two backends'
+    # warps differ by 1e-5: the constant-velocity shift must not hinge on that.
+    from lidarflow.models.presets import resolve_model
+
+    net, _ = resolve_model(None)  # the bundled model: constant-velocity input, shifted memories
+    onnx = export_onnx(net, tmp_path / "b.onnx", 100, 100, 0.1)
+    torch_p, onnx_p = Predictor(None), Predictor(onnx)
+    worst = 0.0
+    for t in range(8):
+        scan, pose = sample_recording.scan(t), (0.05 * t, 0.0, 0.0)
+        a, b = torch_p.update(scan, pose), onnx_p.update(scan, pose)
+        worst = max(worst, float(np.abs(a.probability - b.probability).max()))
+    assert worst < 1e-3
+
+
 def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, capsys):
     data = driving.save(tmp_path / "drive.npz")
     code, _, err = run(

@@ -41,14 +41,20 @@ __all__ = [
 DEFAULT_RADIUS = 3
 
 
+# A map moved by exactly half a cell (poses stepping 0.05 m on a 0.1 m grid) holds cells of
+# exactly 0.5, which PyTorch's and ONNX's warps leave 1e-5 either side of it: at 0.5 itself the
+# two backends counted different cells and chose different shifts (predictions 0.5 apart).
+_OCCUPIED_ABOVE = 0.5 - 1e-3
+
+
 def shift_scores(previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS) -> Tensor:
     """``(B, (2 radius + 1)^2)`` scores, row-major over ``(d_row, d_col)`` in
     ``[-radius, radius]^2``, whose first maximum is the baseline's shift: the number of occupied
     cells ``previous`` moved by ``(d_col, d_row)`` has in common with ``current``, ordered by
     the shift's size where counts tie."""
     b, _, h, w = current.shape
-    prev = (previous > 0.5).float()
-    cur = F.pad((current > 0.5).float(), (radius, radius, radius, radius))
+    prev = (previous > _OCCUPIED_ABOVE).float()
+    cur = F.pad((current > _OCCUPIED_ABOVE).float(), (radius, radius, radius, radius))
     # out(i, j) = sum_q prev(q) cur(q + (i - radius, j - radius)): the overlap at that shift.
     overlap = F.conv2d(cur.reshape(1, b, h + 2 * radius, w + 2 * radius), prev, groups=b)
     overlap = overlap.reshape(b, -1)
