@@ -23,7 +23,7 @@ import numpy as np
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
-from lidarflow.data.gaps import paces_after_gaps
+from lidarflow.data.gaps import paces_after_long_steps
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
@@ -79,7 +79,7 @@ def score_after_gap(
 
     evaluate_maps(
         occupancy, visibility, methods, warmup=0, on_prediction=keep, motions=motions,
-        subcell=recording.subcell_maps(grid), paces=paces_after_gaps(recording.stamps_ns),
+        subcell=recording.subcell_maps(grid), paces=paces_after_long_steps(recording.stamps_ns),
     )  # fmt: skip
     return counts
 

@@ -75,17 +75,19 @@ def test_one_gap_in_a_jittery_stream_is_found_exactly(period, jitter, gap_period
 
 
 def test_the_stream_clock_paces_the_frames_after_gaps_as_the_recording_rule():
-    from lidarflow.data.gaps import GapClock, paced_motion, paces_after_gaps
+    from lidarflow.data.gaps import StepClock, paced_motion, paces_after_long_steps
 
-    steps = [100.0] * 8 + [700.0] + [100.0] * 5 + [-50.0] + [100.0] * 3
+    # a gap, jitter, a scan dropped, a jump back
+    steps = [100.0] * 8 + [700.0] + [100.0] * 3 + [140.0, 200.0] + [100.0] * 2 + [-50.0, 100.0]
     stamped = stamps(steps)
-    offline = paces_after_gaps(stamped)
-    assert offline == {9: pytest.approx(100 / 700)}  # a jump back has no pace
-    clock = GapClock()
+    offline = paces_after_long_steps(stamped)
+    assert offline == {9: pytest.approx(100 / 700), 14: pytest.approx(0.5)}
+    assert frames_after_gaps(stamped) == [9]  # only the gap is a gap
+    clock = StepClock()
     online = {i: p for i, s in enumerate(stamped) if (p := clock.update(s)) is not None}
     assert online == offline
     # a scan without a stamp in between is passed over, not a jump to 1970 and back
-    clock = GapClock()
+    clock = StepClock()
     paces = [clock.update(s) for s in [*stamped[:5], 0, *stamped[5:8]]]
     assert paces == [None] * 9
     assert paced_motion(np.array([7.0, 0.0, 0.7]), 100 / 700) == pytest.approx([1.0, 0.0, 0.1])

@@ -27,13 +27,16 @@ __all__ = [
     "HISTORY",
     "MAX_GAP_PERIODS",
     "MIN_STEPS",
-    "GapClock",
+    "PACE_ABOVE",
+    "StepClock",
     "frames_after_gaps",
     "paced_motion",
-    "paces_after_gaps",
+    "paces_after_long_steps",
 ]
 
 MAX_GAP_PERIODS = 2.5
+#: A step longer than this many typical ones paces the next motion guess (a dropped scan is 2).
+PACE_ABOVE = 1.5
 MIN_STEPS = 3
 HISTORY = 50  # forward steps the typical step is the median of
 
@@ -42,23 +45,26 @@ def frames_after_gaps(
     stamps_ns: Iterable[int], max_gap_periods: float = MAX_GAP_PERIODS
 ) -> list[int]:
     """The indices of the stamps (in stream order) that follow a gap."""
-    return [i for i, _ in _gaps(stamps_ns, max_gap_periods)]
+    return [i for i, _ in _long_steps(stamps_ns, max_gap_periods, backwards=True)]
 
 
-def paces_after_gaps(
-    stamps_ns: Iterable[int], max_gap_periods: float = MAX_GAP_PERIODS
-) -> dict[int, float]:
-    """``{index: typical step / this step}`` for the stamps that follow a gap forwards in time.
+def paces_after_long_steps(stamps_ns: Iterable[int], above: float = PACE_ABOVE) -> dict[int, float]:
+    """``{index: typical step / this step}`` for the stamps that follow a step forwards in time
+    longer than ``above`` typical ones: a gap, or a scan or two dropped.
 
     A constant-velocity guess of the motion to the next frame is the last motion again; after a
-    gap the last motion spans the whole gap, and this fraction scales it to one typical step.
-    A gap backwards in time (a clock that jumps back) has no pace: it is left out."""
-    return {i: pace for i, pace in _gaps(stamps_ns, max_gap_periods) if pace is not None}
+    long step the last motion spans it, and this fraction scales it to one typical step. Steps
+    up to ``above`` are the stamps' jitter, not scans missing: no pace."""
+    return {i: pace for i, pace in _long_steps(stamps_ns, above) if pace is not None}
 
 
-def _gaps(stamps_ns: Iterable[int], max_gap_periods: float) -> list[tuple[int, float | None]]:
-    if not max_gap_periods > 1:
-        raise ValueError(f"max_gap_periods must be > 1, got {max_gap_periods}")
+def _long_steps(
+    stamps_ns: Iterable[int], periods: float, backwards: bool = False
+) -> list[tuple[int, float | None]]:
+    """``(index, typical / step)`` of each step longer than ``periods`` typical ones (with
+    ``backwards``, of each step back in time so long too, whose pace is ``None``)."""
+    if not periods > 1:
+        raise ValueError(f"max_gap_periods must be > 1, got {periods}")
     stamps = np.asarray(list(stamps_ns), dtype=np.int64)
     forward = np.diff(stamps)
     forward = forward[forward > 0]
@@ -70,33 +76,36 @@ def _gaps(stamps_ns: Iterable[int], max_gap_periods: float) -> list[tuple[int, f
     for i in range(1, len(stamps)):
         step = int(stamps[i] - stamps[i - 1])
         typical = float(np.median(recent)) if len(recent) >= MIN_STEPS else overall
-        if abs(step) > max_gap_periods * typical:
-            after.append((i, typical / step if step > 0 else None))
+        if step > periods * typical:
+            after.append((i, typical / step))
+        elif backwards and -step > periods * typical:
+            after.append((i, None))
         if step > 0:
             recent.append(step)
     return after
 
 
 def paced_motion(motion: np.ndarray | None, pace: float | None) -> np.ndarray | None:
-    """The guess of the motion to the next frame after a gap: ``motion`` (which spans the gap)
-    times ``pace``; ``None`` where either is unknown (an ego-motion model then takes the last
+    """The guess of the motion to the next frame after a long step: ``motion`` (which spans
+    it) times ``pace``; ``None`` where either is unknown (an ego-motion model then takes the last
     motion again, its constant-velocity default)."""
     if motion is None or pace is None:
         return None
     return np.asarray(motion, dtype=np.float32) * np.float32(pace)
 
 
-class GapClock:
-    """:func:`paces_after_gaps`'s rule on a stream, one stamp at a time (the ``Predictor``'s).
+class StepClock:
+    """:func:`paces_after_long_steps`'s rule on a stream, one stamp at a time (the
+    ``Predictor``'s).
 
-    A stream knows no future, so until ``MIN_STEPS`` forward steps are known it finds no gap
-    (the recording-wide median that :func:`frames_after_gaps` starts from is not known yet).
+    A stream knows no future, so until ``MIN_STEPS`` forward steps are known it paces nothing
+    (the recording-wide median that the recording's rule starts from is not known yet).
     """
 
-    def __init__(self, max_gap_periods: float = MAX_GAP_PERIODS) -> None:
-        if not max_gap_periods > 1:
-            raise ValueError(f"max_gap_periods must be > 1, got {max_gap_periods}")
-        self.max_gap_periods = max_gap_periods
+    def __init__(self, above: float = PACE_ABOVE) -> None:
+        if not above > 1:
+            raise ValueError(f"above must be > 1, got {above}")
+        self.above = above
         self._recent: deque[int] = deque(maxlen=HISTORY)
         self._last: int | None = None
 
@@ -105,9 +114,9 @@ class GapClock:
         self._last = None
 
     def update(self, stamp_ns: int) -> float | None:
-        """This stamp's pace (typical step / this step) if a gap forwards in time precedes it,
-        else ``None``. A stamp of 0 is no stamp (a scan built without one): it is passed over,
-        not taken for a jump back to 1970 and forward again."""
+        """This stamp's pace (typical step / this step) if a long step forwards in time precedes
+        it, else ``None``. A stamp of 0 is no stamp (a scan built without one): it is passed
+        over, not taken for a jump back to 1970 and forward again."""
         if int(stamp_ns) == 0:
             return None
         last, self._last = self._last, int(stamp_ns)
@@ -117,7 +126,7 @@ class GapClock:
         pace = None
         if len(self._recent) >= MIN_STEPS:
             typical = float(np.median(self._recent))
-            if step > self.max_gap_periods * typical:
+            if step > self.above * typical:
                 pace = typical / step
         if step > 0:
             self._recent.append(step)

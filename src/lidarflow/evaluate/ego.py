@@ -4,8 +4,9 @@ baseline that only compensates the platform's own motion.
 A method with ``uses_motion = True`` is called ``update(occupancy, visibility, motion=m_t,
 next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in cells
 (:mod:`lidarflow.data.motion`; identity where a pose is unknown); ``next_motion`` is the future
-and only an oracle may use it. After a gap in time it also gets ``pace`` (typical step / this
-step, :func:`lidarflow.data.gaps.paces_after_gaps`) to scale its guess of the next motion.
+and only an oracle may use it. After a long step in time (a gap, scans dropped) it also gets
+``pace`` (typical step / this step, :func:`lidarflow.data.gaps.paces_after_long_steps`) to scale
+its guess of the next motion.
 """
 
 from __future__ import annotations
@@ -97,7 +98,7 @@ class CopyLastEgo:
         next_motion: np.ndarray | None = None,
         pace: float | None = None,
     ) -> np.ndarray:
-        # after a gap the last motion spans it: the guess is scaled to one step, as the models'
+        # after a long step the last motion spans it: the guess is scaled to one, as the models'
         guessed = paced_motion(motion, pace)
         m = next_motion if self.oracle else (motion if guessed is None else guessed)
         if m is None:

@@ -104,9 +104,9 @@ def horizon_f1(
     ``(N, 2, H, W)``: where each frame's returns lie inside their cells, for models with
     ``subcell_input`` (a predicted map fed back gets zeros: it has no returns). ``gaps``: the
     frames that follow a gap in time (no roll-out across one is scored; states carry on);
-    ``paces`` (:func:`lidarflow.data.gaps.paces_after_gaps`): after a gap, the guess of the next
-    motion, and each step of the roll-out, is the last motion scaled to one typical step, as the
-    Predictor's."""
+    ``paces`` (:func:`lidarflow.data.gaps.paces_after_long_steps`): after a long step (a gap,
+    scans dropped), the guess of the next motion, and each step of the roll-out, is the last
+    motion scaled to one typical step, as the Predictor's."""
     n = len(occupancy)
     scored = scored_frames(n, horizon, warmup, gaps)
     scoring = set(scored)

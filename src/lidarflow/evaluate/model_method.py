@@ -111,7 +111,7 @@ class ModelMethod:
         """One frame; ``returns``: its scan's returns (:func:`~lidarflow.data.scanalign.
         scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
         scans, and is only checked); ``subcell``: where its returns lie inside their cells
-        ``(2, H, W)``, which a model with ``takes_subcell`` needs; ``pace``: after a gap in
+        ``(2, H, W)``, which a model with ``takes_subcell`` needs; ``pace``: after a long step in
         time, the typical step over this one (the guess of the next motion is scaled by it,
         :func:`lidarflow.data.gaps.paced_motion`)."""
         if self.takes_subcell and subcell is None:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.blocks import Frames, streamed_maps, streamed_points, streamed_subcell
-from lidarflow.data.gaps import frames_after_gaps, paces_after_gaps
+from lidarflow.data.gaps import frames_after_gaps, paces_after_long_steps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
@@ -143,9 +143,10 @@ def evaluate_maps(
 
     ``gaps``: the frames that follow a gap in time; the step into each is not scored (the next
     map, the flow to it; every method still sees every frame, and the moving cells of every
-    frame are scored). ``paces`` (:func:`lidarflow.data.gaps.paces_after_gaps`): after a gap
-    forwards in time, methods with ``uses_motion`` also get ``pace``, the typical step over the
-    gap's, to scale their guess of the motion to the next frame (the last one spans the gap).
+    frame are scored). ``paces`` (:func:`lidarflow.data.gaps.paces_after_long_steps`): after a
+    long step forwards in time (a gap, scans dropped), methods with ``uses_motion`` also get
+    ``pace``, the typical step over that one, to scale their guess of the motion to the next
+    frame (the last one spans the long step).
 
     ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
@@ -242,7 +243,7 @@ class RecordingInputs:
     motions_from_poses: bool  # the motions are odometry (else matched from the scans)
     subcell: Frames | None
     gaps: list[int]
-    paces: dict[int, float]  # frames after a gap forwards in time: typical step / this step
+    paces: dict[int, float]  # frames after a long step (a gap, scans dropped): typical / step
 
 
 def recording_inputs(
@@ -269,7 +270,7 @@ def recording_inputs(
         recording.has_poses,
         streamed_subcell(recording, grid) if takes_subcell else None,
         frames_after_gaps(recording.stamps_ns),
-        paces_after_gaps(recording.stamps_ns),
+        paces_after_long_steps(recording.stamps_ns),
     )
 
 

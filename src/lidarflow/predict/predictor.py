@@ -10,10 +10,10 @@ Ego motion: a model trained with ``--ego-motion`` wants the sensor pose ``(x, y,
 radians, any fixed frame such as odometry's) with every scan. The motion since the previous
 update warps the recurrent state into the current frame, and the prediction is moved into the
 next frame assuming the same motion again (constant velocity: only poses up to now are known).
-After a gap in the scans' stamps (a step longer than 2.5 typical ones, :mod:`lidarflow.data.gaps`)
-the last motion spans the gap, so the guess is that motion scaled to one typical step (the state
-is still moved by all of it); a scan without a stamp (``stamp_ns`` 0) is never after a gap
-and does not count as a step.
+After a long step in the scans' stamps (more than 1.5 typical ones: a gap, or a scan or two
+dropped; :mod:`lidarflow.data.gaps`) the last motion spans it, so the guess is that motion
+scaled to one typical step (the state is still moved by all of it); a scan without a stamp
+(``stamp_ns`` 0) is never after a long step and does not count as a step.
 A model that may run without poses (``poses_optional``, the bundled one) takes the motion from
 the scans where no pose is given (:class:`lidarflow.data.scanmatch.ScanOdometry`: refined on the
 returns when ``update`` is given a :class:`~lidarflow.scan.Scan`). Otherwise, without a pose
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.gaps import GapClock, paced_motion
+from lidarflow.data.gaps import StepClock, paced_motion
 from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
 from lidarflow.data.scanalign import scan_points
 from lidarflow.data.scanmatch import ScanOdometry, checked_motion
@@ -159,9 +159,9 @@ class Predictor:
         self._odometry = OdometryCheck() if check_odometry else None
         self.scan_odometry = scan_odometry
         self._scans = ScanOdometry(self.grid.res)
-        # Scans' stamps: after a gap the last motion spans it, and the guess of the next one is
-        # scaled to a typical step (lidarflow.data.gaps, as evaluate does).
-        self._clock = GapClock()
+        # Scans' stamps: after a long step the last motion spans it, and the guess of the next
+        # one is scaled to a typical step (lidarflow.data.gaps, as evaluate does).
+        self._clock = StepClock()
         self.online = self._online_decision(online_decision)
 
     def _online_decision(self, wanted: bool | OnlineDecisionConfig | None) -> OnlineDecision | None:
