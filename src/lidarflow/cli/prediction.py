@@ -135,9 +135,10 @@ def predict(
     from lidarflow.segmentation import MOVING_THRESHOLD
 
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
+    given = None if grid is None and res is None else _completed(_recorded(model), grid, res)
     predictor = Predictor(
         model,
-        _grid(model, grid, res),
+        given,
         horizon=horizon,
         moving_threshold=threshold,
         online_decision=False if fixed_decision else None,
@@ -178,7 +179,7 @@ def export(
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.export import export_onnx
-    from lidarflow.scan import GridSpec, takes_subcell
+    from lidarflow.scan import takes_subcell
 
     if calibration is not None and not int8:
         # else a float model is written and the user believes it calibrated and quantized
@@ -187,7 +188,7 @@ def export(
             param_hint="--calibration",
         )
     net, card = resolve_model(model)
-    spec = _grid(model, grid, res) or recorded_grid(card) or GridSpec()
+    spec = _completed(recorded_grid(card), grid, res)
     size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
         path = export_onnx(net, onnx, spec.height, spec.width, spec.res)
@@ -209,21 +210,21 @@ def export(
     )
 
 
-def _grid(model: Path | None, grid: int | None, res: float | None) -> GridSpec | None:
-    """The grid ``--grid/--res`` ask for, the other one (if only one is given) the model's own
-    (or the bundled one's); ``None`` when neither is given (the model's own grid then)."""
-    from lidarflow.predict.backends import recorded_grid
+def _completed(recorded: GridSpec | None, grid: int | None, res: float | None) -> GridSpec:
+    """The grid ``--grid/--res`` ask for, what they leave out the model's own (``recorded``),
+    else the bundled model's (100 cells of 0.1 m)."""
     from lidarflow.scan import GridSpec
 
-    if grid is None and res is None:
-        return None
-    if model is not None and Path(model).suffix.lower() == ".onnx":
-        from lidarflow.predict.backends import OnnxBackend
-
-        recorded = OnnxBackend(model).grid
-    else:
-        from lidarflow.models.presets import resolve_model
-
-        recorded = recorded_grid(resolve_model(model)[1])
     base = recorded or GridSpec()
     return GridSpec(grid or base.height, grid or base.width, res or base.res)
+
+
+def _recorded(model: Path | None) -> GridSpec | None:
+    """The grid ``model`` (run folder, weights, ONNX file, or the bundled one) was made for."""
+    from lidarflow.predict.backends import OnnxBackend, recorded_grid
+
+    if model is not None and Path(model).suffix.lower() == ".onnx":
+        return OnnxBackend(model).grid
+    from lidarflow.models.presets import resolve_model
+
+    return recorded_grid(resolve_model(model)[1])

@@ -230,12 +230,13 @@ def train(
             )
         saved = config_from_dict(load_config_file(resume / "config.json"))
         kept = {k: v for k, v in flags.items() if k in free}
-        for key, given, how in (
-            ("data.sources", data, "DATA..."),
-            ("data.val_sources", val, "--val V..."),
+        for key, recorded, given, how in (
+            ("data.sources", saved.data.sources, data, "DATA..."),
+            ("data.val_sources", saved.data.val_sources, val, "--val V..."),
         ):
-            recorded = list(saved.data.sources if key == "data.sources" else saved.data.val_sources)
-            found = _found_again(resume, recorded, [os.path.abspath(g) for g in given or ()], how)
+            found = _found_again(
+                resume, list(recorded), [os.path.abspath(g) for g in given or ()], how
+            )
             if found is not None:
                 kept[key] = found
         cfg = build_config(saved.recipe, resume / "config.json", kept, runtime_sets)

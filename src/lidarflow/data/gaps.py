@@ -71,18 +71,35 @@ def _long_steps(
     if forward.size == 0:  # stamps that never advance: no rate, so no gap either
         return []
     overall = float(np.median(forward))
-    recent: deque[int] = deque(maxlen=HISTORY)
+    recent = _RecentSteps()
     after = []
     for i in range(1, len(stamps)):
         step = int(stamps[i] - stamps[i - 1])
-        typical = float(np.median(recent)) if len(recent) >= MIN_STEPS else overall
+        typical = recent.typical(overall)
         if step > periods * typical:
             after.append((i, typical / step))
         elif backwards and -step > periods * typical:
             after.append((i, None))
-        if step > 0:
-            recent.append(step)
+        recent.add(step)
     return after
+
+
+class _RecentSteps:
+    """A stream's typical step: the median of its last ``HISTORY`` forward steps, once
+    ``MIN_STEPS`` are known (the one rule of the recording and of the stream)."""
+
+    def __init__(self) -> None:
+        self._steps: deque[int] = deque(maxlen=HISTORY)
+
+    def typical(self, fallback: float | None = None) -> float | None:
+        return float(np.median(self._steps)) if len(self._steps) >= MIN_STEPS else fallback
+
+    def add(self, step: int) -> None:
+        if step > 0:
+            self._steps.append(step)
+
+    def clear(self) -> None:
+        self._steps.clear()
 
 
 def paced_motion(motion: np.ndarray | None, pace: float | None) -> np.ndarray | None:
@@ -106,7 +123,7 @@ class StepClock:
         if not above > 1:
             raise ValueError(f"above must be > 1, got {above}")
         self.above = above
-        self._recent: deque[int] = deque(maxlen=HISTORY)
+        self._recent = _RecentSteps()
         self._last: int | None = None
 
     def reset(self) -> None:
@@ -123,11 +140,6 @@ class StepClock:
         if last is None:
             return None
         step = self._last - last
-        pace = None
-        if len(self._recent) >= MIN_STEPS:
-            typical = float(np.median(self._recent))
-            if step > self.above * typical:
-                pace = typical / step
-        if step > 0:
-            self._recent.append(step)
-        return pace
+        typical = self._recent.typical()
+        self._recent.add(step)
+        return typical / step if typical is not None and step > self.above * typical else None

@@ -135,13 +135,13 @@ def horizon_f1(
                 known, _ = checked_motion(
                     check, scans, occupancy[t], known, motions_from_poses, points
                 )
-            paced = paced_motion(known, (paces or {}).get(t))
-            moved = None if known is None else torch.from_numpy(known).float()[None]
-            guess = None if paced is None else torch.from_numpy(paced)[None]
-            motion = (moved,) if ego else ()
-            out, state = model.step(maps, state, *motion, *((guess,) if ego else ()))
-            if guess is not None:  # each step ahead is one typical step
-                motion = (guess,)
+            moved, guess = (
+                None if m is None else torch.from_numpy(m).float()[None]
+                for m in (known, paced_motion(known, (paces or {}).get(t)))
+            )
+            out, state = model.step(maps, state, moved, guess) if ego else model.step(maps, state)
+            # each step of the roll-out is one typical step
+            ahead = (moved if guess is None else guess,) if ego else ()
             if progress is not None:
                 progress(1)
             probability = model.predict_next(maps, out)
@@ -156,7 +156,7 @@ def horizon_f1(
             for k in range(horizon):
                 if k > 0:
                     fed = torch.cat([probability, maps[:, 1:2], torch.zeros_like(maps[:, 2:])], 1)
-                    out_k, rolled = model.step(fed, rolled, *motion)
+                    out_k, rolled = model.step(fed, rolled, *ahead)
                     probability = model.predict_next(fed, out_k)
                     if online is not None:
                         decided = online.apply(

@@ -195,32 +195,32 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
         )
 
 
-def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
-    """Check and start ``run_dir`` (a new run, or a resume of it), and lock it for this
-    process (:func:`release_run_dir` unlocks it)."""
-    if ctx.is_main and run_dir.is_dir():
-        _lock(run_dir)
-    if resume:
-        _check_resumable(run_dir, config)
-        facts = (
-            json.loads((run_dir / "run.json").read_text())
-            if (run_dir / "run.json").exists()
-            else {}
-        )
-        # in the order of the sources, which may have moved since (the names are the same)
-        recorded = list((facts.get("source_bytes") or {}).values())
-        now = _source_sizes(config)
-        changed = [
-            (source, then)
-            for source, then in zip(config.data.sources, recorded, strict=False)
-            if source in now and now[source] != then
-        ]
-        if changed:
-            source, then = changed[0]
+def _check_same_data(run_dir: Path, config: TrainConfig, facts: dict[str, Any]) -> None:
+    """Refuse a resume whose recordings changed size since the run started (``run.json``'s
+    ``source_bytes``, in the order of the sources, which may have moved since)."""
+    recorded = list((facts.get("source_bytes") or {}).values())
+    now = _source_sizes(config)
+    for source, then in zip(config.data.sources, recorded, strict=False):
+        if source in now and now[source] != then:
             raise TrainError(
                 f"{run_dir}: {source} changed since the run started ({then} bytes then, "
                 f"{now[source]} now); a resumed run continues on the same data: start a new run"
             )
+
+
+def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
+    """Check and start ``run_dir`` (a new run, or a resume of it), and lock it for this
+    process (:func:`release_run_dir` unlocks it)."""
+    if ctx.is_main:
+        if not resume:
+            run_dir.mkdir(parents=True, exist_ok=True)
+        if run_dir.is_dir():
+            _lock(run_dir)
+    if resume:
+        _check_resumable(run_dir, config)
+        started = run_dir / "run.json"
+        facts = json.loads(started.read_text()) if started.exists() else {}
+        _check_same_data(run_dir, config, facts)
         done = ckpt.latest_epoch(run_dir)
         if config.optim.epochs < done:
             # Checked before config.json is rewritten: it would say fewer epochs than the
@@ -233,13 +233,8 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
             ckpt.remove_temporaries(run_dir)  # what a killed run left half-written
             # the config on disk says how many epochs the run is now meant to have
             ckpt.write_json(run_dir / "config.json", config_to_dict(config))
-            facts = (
-                json.loads((run_dir / "run.json").read_text())
-                if (run_dir / "run.json").exists()
-                else {}
-            )
             facts.setdefault("resumed", []).append({**_run_facts(ctx), "after_epoch": done})
-            ckpt.write_json(run_dir / "run.json", facts)
+            ckpt.write_json(started, facts)
         return
     if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
         raise TrainError(
@@ -247,8 +242,6 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
             "or another -o folder"
         )
     if ctx.is_main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        _lock(run_dir)
         ckpt.write_json(run_dir / "config.json", config_to_dict(config))
         ckpt.write_json(
             run_dir / "run.json", {**_run_facts(ctx), "source_bytes": _source_sizes(config)}
