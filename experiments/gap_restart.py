@@ -20,15 +20,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+from study import add_counts, f1_table, scores_from
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
-from lidarflow.data.gaps import paces_after_long_steps
 from lidarflow.data.recording import Recording
-from lidarflow.evaluate.ego import recording_motions
-from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
-from lidarflow.evaluate.stream import evaluate_maps
-from lidarflow.scan import GridSpec
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 RECORDINGS = (
@@ -57,48 +53,12 @@ def spliced(first: Recording, second: Recording, before: int, after: int) -> Rec
 
 def score_after_gap(
     recording: Recording, methods: list, before: int, warmup: int, restart: bool
-) -> dict[str, dict[str, Counts]]:
+) -> dict[str, dict]:
     """Counts (``early``: the first ``warmup`` predictions after the gap, ``late``: the rest;
     each ``all`` and ``changed`` cells) per method."""
     if restart:  # every method from a fresh state at the first frame after the gap
         recording, before = recording.slice(before, len(recording)), 0
-    grid = GridSpec()
-    occupancy, visibility = recording.maps(grid)
-    motions = recording_motions(recording, grid, methods, occupancy)
-    counts: dict[str, dict[str, Counts]] = {}
-
-    def keep(name: str, t: int, probability: np.ndarray, _flow: object) -> None:
-        if t < before:
-            return
-        part = "early" if t < before + warmup else "late"
-        mine = counts.setdefault(name, {})
-        predicted, target = probability >= THRESHOLD, occupancy[t + 1].astype(bool)
-        changed = occupancy[t].astype(bool) != target
-        for key, mask in ((f"{part}_all", None), (f"{part}_changed", changed)):
-            mine[key] = mine.get(key, Counts()) + confusion(predicted, target, mask)
-
-    evaluate_maps(
-        occupancy, visibility, methods, warmup=0, on_prediction=keep, motions=motions,
-        subcell=recording.subcell_maps(grid), paces=paces_after_long_steps(recording.stamps_ns),
-    )  # fmt: skip
-    return counts
-
-
-Tree = dict[str, dict[str, dict[str, Counts]]]  # case -> method -> part -> counts
-
-
-def add(tree: Tree, case: str, got: dict[str, dict[str, Counts]]) -> None:
-    for method, parts in got.items():
-        slot = tree.setdefault(case, {}).setdefault(method, {})
-        for part, c in parts.items():
-            slot[part] = slot.get(part, Counts()) + c
-
-
-def summary(tree: Tree) -> dict:
-    return {
-        case: {m: {p: round(c.f1, 4) for p, c in parts.items()} for m, parts in by_method.items()}
-        for case, by_method in tree.items()
-    }
+    return scores_from(recording, methods, before, warmup)
 
 
 def main() -> None:
@@ -116,8 +76,8 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     methods, _ = methods_and_config([None])
-    total: Tree = {}
-    per_recording: dict[str, Tree] = {}
+    total: dict = {}
+    per_recording: dict[str, dict] = {}
     loaded = {name: load_any(DATA / name) for name in RECORDINGS}
     for i, name in enumerate(RECORDINGS):
         recording = loaded[name]
@@ -140,12 +100,12 @@ def main() -> None:
                     got = score_after_gap(
                         cut, methods, args.before, args.warmup, variant == "restart"
                     )
-                    add(total, f"{case}_{variant}", got)
-                    add(per_recording.setdefault(name, {}), f"{case}_{variant}", got)
+                    add_counts(total, f"{case}_{variant}", got)
+                    add_counts(per_recording.setdefault(name, {}), f"{case}_{variant}", got)
             print(name, case, flush=True)
     out = {
-        "overall": summary(total),
-        "recordings": {r: summary(t) for r, t in per_recording.items()},
+        "overall": f1_table(total),
+        "recordings": {r: f1_table(t) for r, t in per_recording.items()},
         "args": {k: v for k, v in vars(args).items() if k != "json"},
     }
     for case, by_method in out["overall"].items():

@@ -1,6 +1,6 @@
 """What the issue-11 experiment scripts share: the `lidarflow` command runner, reading an
-evaluate report's model and baselines, and the one rule for "wins" (F1 above the best baseline's
-and changed-cell F1 above every baseline's)."""
+evaluate report's model and baselines, the one rule for "wins" (F1 above the best baseline's
+and changed-cell F1 above every baseline's), and scoring a stretch of a stream."""
 
 from __future__ import annotations
 
@@ -8,6 +8,10 @@ import shlex
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
+
+from lidarflow.data.recording import Recording
 
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 METRICS = ("f1", "changed_f1", "ap")
@@ -60,3 +64,47 @@ def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> 
     if wins_changed:
         return "changed only"
     return "loses"
+
+
+def scores_from(
+    recording: Recording, methods: list, start: int, early: int
+) -> dict[str, dict[str, object]]:
+    """Stream ``methods`` over ``recording`` as ``lidarflow evaluate`` does, and count the
+    predictions made from frame ``start`` on: the first ``early`` (``early_*``) and the rest
+    (``late_*``), over all cells (``*_all``) and the changed ones (``*_changed``), per method
+    (:class:`lidarflow.evaluate.metrics.Counts`)."""
+    from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+    from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.scan import GridSpec
+
+    occupancy, _ = recording.maps(GridSpec())
+    counts: dict[str, dict[str, Counts]] = {}
+
+    def keep(name: str, t: int, probability: np.ndarray, _flow: object) -> None:
+        if t < start:
+            return
+        part = "early" if t < start + early else "late"
+        predicted, target = probability >= THRESHOLD, occupancy[t + 1].astype(bool)
+        changed = occupancy[t].astype(bool) != target
+        mine = counts.setdefault(name, {})
+        for key, mask in ((f"{part}_all", None), (f"{part}_changed", changed)):
+            mine[key] = mine.get(key, Counts()) + confusion(predicted, target, mask)
+
+    evaluate_recording(recording, methods, warmup=0, on_prediction=keep)
+    return counts
+
+
+def add_counts(tree: dict, case: str, got: dict) -> None:
+    """Add ``got`` (:func:`scores_from`'s) into ``tree[case]``."""
+    for method, parts in got.items():
+        slot = tree.setdefault(case, {}).setdefault(method, {})
+        for part, c in parts.items():
+            slot[part] = slot[part] + c if part in slot else c
+
+
+def f1_table(tree: dict) -> dict:
+    """``tree`` of counts as F1 to 4 decimals."""
+    return {
+        case: {m: {p: round(c.f1, 4) for p, c in parts.items()} for m, parts in by_m.items()}
+        for case, by_m in tree.items()
+    }

@@ -92,3 +92,19 @@ def test_the_stream_clock_paces_the_frames_after_gaps_as_the_recording_rule():
     assert paces == [None] * 9
     assert paced_motion(np.array([7.0, 0.0, 0.7]), 100 / 700) == pytest.approx([1.0, 0.0, 0.1])
     assert paced_motion(None, 0.5) is None and paced_motion(np.zeros(3), None) is None
+
+
+def test_a_stream_that_slows_down_is_paced_once_not_until_its_median_learns_the_rate():
+    from lidarflow.data.gaps import StepClock, paces_after_long_steps
+
+    # 10 Hz, then 5 Hz: the step into the slower rate is taken for a dropped scan (it may be
+    # one), every step after it is as long, so the motion guess is no longer scaled down
+    steps = [100.0] * 10 + [200.0] * 40
+    stamped = stamps(steps)
+    offline = paces_after_long_steps(stamped)
+    assert offline == {11: pytest.approx(0.5)}
+    clock = StepClock()
+    assert {i: p for i, s in enumerate(stamped) if (p := clock.update(s)) is not None} == offline
+    # back at the old rate, a dropped scan is paced again
+    stamped = stamps([100.0] * 10 + [200.0] * 3 + [100.0] * 3 + [200.0] + [100.0] * 3)
+    assert sorted(paces_after_long_steps(stamped)) == [11, 17]

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
+from lidarflow.data.motion import (
+    OdometryCheck,
+    cells_in_new_frame,
+    metres_to_cells,
+    relative_motions,
+)
 from lidarflow.sim.platform import compose, relative
 
 
@@ -62,6 +67,7 @@ def test_odometry_check_trusts_true_odometry_and_drops_a_mirrored_one(driving_ma
     assert all(_trusted(check, occupancy, true))
     assert len(check._moved) >= check.min_steps  # the drive gave evidence, not only defaults
     assert sum(check._moved) > 1.3 * sum(check._still)
+    assert check.jumps == 0  # no step of a real drive is taken for a jump of the poses
     # A pose source whose y axis points the other way turns every turn and sideways step around.
     mirrored = metres_to_cells(relative_motions(poses * np.array([1, -1, -1]))[0], grid.res)
     check = OdometryCheck()
@@ -79,6 +85,76 @@ def test_odometry_check_counts_no_evidence_while_nothing_moves(driving_maps):
     for t in range(20):
         assert check.update(occupancy[t], wrong if t else None)
     assert len(check._moved) == 0
+
+
+def _reset_at(poses: np.ndarray, at: int) -> np.ndarray:
+    """The poses of an odometry reset to the origin at frame ``at``."""
+    from lidarflow.sim.platform import relative
+
+    out = poses.copy()
+    for t in range(at, len(poses)):
+        out[t] = relative(poses[at], poses[t])
+    assert np.allclose(out[at], 0) and not np.allclose(poses[at], 0)
+    return out
+
+
+def test_odometry_check_rejects_a_pose_jump_alone(driving_maps):
+    occupancy, poses, grid = driving_maps
+    true = metres_to_cells(relative_motions(poses)[0], grid.res)
+    reset = metres_to_cells(relative_motions(_reset_at(poses, 30))[0], grid.res)
+    assert np.abs(reset[30] - true[30]).max() > 5  # the step across the reset is far off
+    check = OdometryCheck()
+    trusted = _trusted(check, occupancy, reset)
+    assert trusted.count(False) == 1 and not trusted[30] and check.jumps == 1
+    np.testing.assert_allclose(check.last_motion, true[-1], atol=1e-6)  # and on as before
+    check = OdometryCheck()
+    _trusted(check, occupancy[:30], reset[:30])
+    assert not check.update(occupancy[30], reset[30]) and check.jumped
+    np.testing.assert_allclose(check.last_motion, true[29], atol=1e-6)  # the stand-in
+
+
+def test_a_fast_step_that_lines_the_world_up_is_no_jump():
+    rng = np.random.default_rng(5)
+    h = w = 40
+    rows, cols = rng.integers(0, h, 150), rng.integers(0, w, 150)
+
+    def seen_after(motion):
+        r2, c2 = cells_in_new_frame(rows, cols, motion, h, w)
+        inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        out = np.zeros((h, w), bool)
+        out[r2[inside], c2[inside]] = True
+        return out
+
+    world = np.zeros((h, w), bool)
+    world[rows, cols] = True
+    slow, fast = np.array([1.0, 0.0, 0.0]), np.array([8.0, 3.0, 0.05])
+    for moved_world, judged_a_jump in ((True, False), (False, True)):
+        check = OdometryCheck()
+        for _ in range(5):  # a slow drive past a world seen the same each time: the history
+            check.update(world, None)
+            check.update(seen_after(slow), slow)
+        check.update(world, None)
+        after = seen_after(fast) if moved_world else world
+        assert check.update(after, fast) is not judged_a_jump
+        assert check.jumped is judged_a_jump
+
+
+def test_checked_motion_stands_in_for_a_jump_with_the_last_motion(driving_maps):
+    from lidarflow.data.scanmatch import checked_motion
+
+    occupancy, poses, grid = driving_maps
+    true = metres_to_cells(relative_motions(poses)[0], grid.res)
+    reset = metres_to_cells(relative_motions(_reset_at(poses, 30))[0], grid.res)
+    check = OdometryCheck()
+    for t in range(31):
+        motion, trusted = checked_motion(check, None, occupancy[t], reset[t] if t else None, True)
+    assert not trusted
+    np.testing.assert_allclose(motion, true[29], atol=1e-6)
+    # A motion the scans found is only checked: a jump there is no motion at all.
+    check = OdometryCheck()
+    for t in range(31):
+        motion, _ = checked_motion(check, None, occupancy[t], reset[t] if t else None, False)
+    assert motion is None
 
 
 def test_cells_in_new_frame_is_rigid_transform_cells_inverse_rounded():

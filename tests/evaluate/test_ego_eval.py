@@ -295,6 +295,28 @@ def test_evaluate_gives_the_model_the_returns_to_replace_odometry_that_disagrees
     np.testing.assert_allclose(method.motion[:2], true[:2], atol=0.15)
 
 
+def test_a_pose_jump_is_not_compensated_in_the_predictor_or_the_evaluation(driving, tmp_path):
+    # An odometry reset at frame 30: from there on the poses are relative to the pose there.
+    from lidarflow.sim.platform import relative
+
+    reset = driving.poses.copy()
+    reset[30:] = [relative(driving.poses[30], p) for p in driving.poses[30:]]
+    folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
+    occ, vis = driving.maps(GRID)
+    true = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
+    jumped = metres_to_cells(relative_motions(reset)[0], GRID.res)
+    predictor = Predictor(folder, GRID)
+    method = ModelMethod("opt", StreamingModel(predictor.backend.model), res=GRID.res)
+    returns = recording_points(driving)
+    for t in range(40):
+        p = predictor.update(driving.scan(t), reset[t])
+        q = method.update(occ[t], vis[t], jumped[t] if t else None, returns=returns[t])
+        np.testing.assert_allclose(p.probability, q, atol=1e-6)  # the same decisions
+        if t == 30:  # the step across the reset: a motion close to the true one, not the jump
+            assert p.ego_compensated and method.odometry.jumped
+            np.testing.assert_allclose(method.motion[:2], true[30][:2], atol=0.3)
+
+
 def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving, tmp_path, capsys):
     # Without poses the model and copy_last_ego both get the motion matched from the scans, so
     # the baseline still shows what compensation alone buys: on a drive it beats copy-last.

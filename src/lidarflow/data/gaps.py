@@ -54,8 +54,16 @@ def paces_after_long_steps(stamps_ns: Iterable[int], above: float = PACE_ABOVE) 
 
     A constant-velocity guess of the motion to the next frame is the last motion again; after a
     long step the last motion spans it, and this fraction scales it to one typical step. Steps
-    up to ``above`` are the stamps' jitter, not scans missing: no pace."""
-    return {i: pace for i, pace in _long_steps(stamps_ns, above) if pace is not None}
+    up to ``above`` are the stamps' jitter, not scans missing: no pace. A long step right after
+    another is no pace either: the stream has slowed down (a driver gone from 10 to 5 Hz), and
+    its next step will be as long, long before the typical step (a median of the last
+    ``HISTORY``) has learnt the new rate."""
+    paces, previous = {}, None
+    for i, pace in _long_steps(stamps_ns, above):
+        if pace is not None and previous != i - 1:
+            paces[i] = pace
+        previous = i
+    return paces
 
 
 def _long_steps(
@@ -125,10 +133,12 @@ class StepClock:
         self.above = above
         self._recent = _RecentSteps()
         self._last: int | None = None
+        self._after_long = False
 
     def reset(self) -> None:
         self._recent.clear()
         self._last = None
+        self._after_long = False
 
     def update(self, stamp_ns: int) -> float | None:
         """This stamp's pace (typical step / this step) if a long step forwards in time precedes
@@ -142,4 +152,8 @@ class StepClock:
         step = self._last - last
         typical = self._recent.typical()
         self._recent.add(step)
-        return typical / step if typical is not None and step > self.above * typical else None
+        long = typical is not None and step > self.above * typical
+        # a long step after another: the stream has slowed down, the next step is as long
+        paced = long and not self._after_long
+        self._after_long = long
+        return typical / step if paced else None

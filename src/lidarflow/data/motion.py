@@ -92,40 +92,89 @@ class OdometryCheck:
     development recording with poses: every window); a base's odometry read as a scanner's that
     is turned on the base moves the world the wrong way.
 
+    A pose source can also jump (odometry reset to the origin, a localiser snapping to a new
+    estimate): one step's motion is then off by the jump. The window does not notice one step,
+    so each step is also judged alone when it is an outlier: when it moves the cells more than
+    ``jump_factor`` times the most any of the last ``window`` steps did (times the step's
+    ``span`` in typical steps of time: a gap's motion is long), plus ``jump_margin`` cells
+    (median over the cells), and the cells it moves land on occupied cells no more often than
+    the unmoved ones, that step is not compensated (``update`` says no) and is left out of the
+    window. A real fast step lines the world up and passes; a robot cannot go from its recent
+    pace to several times it, plus ``jump_margin`` cells, in one frame.
+
     Units: maps ``(H, W)`` bool, motion ``(dx, dy, dyaw)`` in cells and radians (this frame's
     pose in the previous one's, :mod:`lidarflow.ops.rigid`'s convention).
     """
 
-    def __init__(self, min_steps: int = 10, window: int = 50, min_shift: float = 1.5) -> None:
+    def __init__(
+        self,
+        min_steps: int = 10,
+        window: int = 50,
+        min_shift: float = 1.5,
+        jump_factor: float = 3.0,
+        jump_margin: float = 4.0,
+    ) -> None:
         self.min_steps = min_steps
         self.min_shift = min_shift
+        self.jump_factor = jump_factor
+        self.jump_margin = jump_margin
+        #: Steps judged to be a jump of the poses since the last reset.
+        self.jumps = 0
+        #: Whether the last step given was judged a jump.
+        self.jumped = False
+        #: The last motion given that was not judged a jump (``None``: none yet).
+        self.last_motion: np.ndarray | None = None
         self._moved: deque[int] = deque(maxlen=window)
         self._still: deque[int] = deque(maxlen=window)
+        self._shifts: deque[float] = deque(maxlen=window)
         self._previous: np.ndarray | None = None
 
     def reset(self) -> None:
         self._moved.clear()
         self._still.clear()
+        self._shifts.clear()
         self._previous = None
+        self.jumps = 0
+        self.jumped = False
+        self.last_motion = None
 
     @property
     def trusted(self) -> bool:
         return len(self._moved) < self.min_steps or sum(self._moved) >= sum(self._still)
 
-    def update(self, occupancy: np.ndarray, motion: np.ndarray | None) -> bool:
-        """Feed this frame's map and motion (``None``: unknown); whether to compensate it."""
+    def update(self, occupancy: np.ndarray, motion: np.ndarray | None, span: float = 1.0) -> bool:
+        """Feed this frame's map and motion (``None``: unknown) and the step's length in typical
+        steps (``span``: more than 1 after a gap or dropped scans); whether to compensate it."""
         current = np.asarray(occupancy, dtype=bool)
         previous, self._previous = self._previous, current
+        self.jumped = False
         if previous is None or motion is None or previous.shape != current.shape:
             return self.trusted
         h, w = current.shape
         rows, cols = np.nonzero(previous)
-        if rows.size == 0:
+        if rows.size == 0:  # nothing to judge the step by
+            self.last_motion = np.asarray(motion, dtype=np.float32)
             return self.trusted
         r2, c2 = cells_in_new_frame(rows, cols, motion, h, w)
         inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
-        if not inside.any() or np.median(np.hypot(r2 - rows, c2 - cols)) < self.min_shift:
+        shift = float(np.median(np.hypot(r2 - rows, c2 - cols)))
+        moved = int(current[r2[inside], c2[inside]].sum())
+        still = int(current[rows[inside], cols[inside]].sum())
+        per_step = shift / max(1.0, span)
+        if self._is_jump(per_step, moved, still):
+            self.jumps += 1
+            self.jumped = True
+            return False
+        self.last_motion = np.asarray(motion, dtype=np.float32)
+        self._shifts.append(per_step)
+        if not inside.any() or shift < self.min_shift:
             return self.trusted
-        self._moved.append(int(current[r2[inside], c2[inside]].sum()))
-        self._still.append(int(current[rows[inside], cols[inside]].sum()))
+        self._moved.append(moved)
+        self._still.append(still)
         return self.trusted
+
+    def _is_jump(self, shift: float, moved: int, still: int) -> bool:
+        if not self._shifts:  # nothing to compare the first step with
+            return False
+        outlier = shift > self.jump_factor * max(self._shifts) + self.jump_margin
+        return outlier and moved <= still

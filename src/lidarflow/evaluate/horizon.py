@@ -130,14 +130,15 @@ def horizon_f1(
             extra = None if subcell is None else subcell[t]
             maps = torch.from_numpy(model_input(model, occupancy[t], visibility[t], extra))[None]
             known = _known(motions, t) if ego else None
+            pace = (paces or {}).get(t)
             if check is not None and ego:
                 points = None if returns is None else returns[t]
                 known, _ = checked_motion(
-                    check, scans, occupancy[t], known, motions_from_poses, points
+                    check, scans, occupancy[t], known, motions_from_poses, points, pace
                 )
             moved, guess = (
                 None if m is None else torch.from_numpy(m).float()[None]
-                for m in (known, paced_motion(known, (paces or {}).get(t)))
+                for m in (known, paced_motion(known, pace))
             )
             out, state = model.step(maps, state, moved, guess) if ego else model.step(maps, state)
             # each step of the roll-out is one typical step

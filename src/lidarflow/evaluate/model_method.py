@@ -121,7 +121,7 @@ class ModelMethod:
             )
         if self.odometry is not None:
             motion, trusted = checked_motion(
-                self.odometry, self.scans, occupancy, motion, from_pose, returns
+                self.odometry, self.scans, occupancy, motion, from_pose, returns, pace
             )
             next_motion = next_motion if trusted else None
         self.motion = motion

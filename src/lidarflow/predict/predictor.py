@@ -237,16 +237,16 @@ class Predictor:
         motion = self._motion(pose) if self.uses_motion else None
         scans = self._scans if self.poses_optional and self.scan_odometry else None
         points = scan_points(item) if scans is not None and isinstance(item, Scan) else None
+        pace = self._clock.update(item.stamp_ns) if isinstance(item, Scan) else None
         if pose is None and scans is not None:
             motion = scans.update(occupancy, points)
         if self.poses_optional and self._odometry is not None:
-            # Odometry that disagrees with the scans is replaced by the scans' own motion.
+            # Odometry that disagrees with the scans (or jumps) is replaced by the scans' motion.
             motion, _ = checked_motion(
-                self._odometry, scans, occupancy, motion, pose is not None, points
+                self._odometry, scans, occupancy, motion, pose is not None, points, pace
             )
         elif pose is not None and scans is not None:
             scans.observe(occupancy, points)
-        pace = self._clock.update(item.stamp_ns) if isinstance(item, Scan) else None
         guess = paced_motion(motion, pace)  # None: the last motion again
         probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
         flow = out[0, :4] if self.backend.out_channels >= 4 else None
