@@ -50,10 +50,10 @@ def test_a_gap_in_the_first_steps_or_right_after_another_is_found():
     assert frames_after_gaps(stamps(back)) == [11, 13]
 
 
-def test_a_changed_rate_is_learnt_within_half_a_history():
+def test_a_changed_rate_is_learnt_within_min_steps():
     # 20 Hz then 5 Hz: the first slower steps are gaps, not every one from then on
-    after = frames_after_gaps(stamps([50.0] * 60 + [200.0] * 60))
-    assert after and after[0] == 61 and after[-1] < 61 + HISTORY // 2 + 1
+    assert frames_after_gaps(stamps([50.0] * 60 + [200.0] * 60)) == [61, 62, 63]
+    assert HISTORY // 2 > MIN_STEPS  # (a median alone would take half the history)
 
 
 def test_bad_threshold_is_refused():
@@ -108,3 +108,19 @@ def test_a_stream_that_slows_down_is_paced_once_not_until_its_median_learns_the_
     # back at the old rate, a dropped scan is paced again
     stamped = stamps([100.0] * 10 + [200.0] * 3 + [100.0] * 3 + [200.0] + [100.0] * 3)
     assert sorted(paces_after_long_steps(stamped)) == [11, 17]
+
+
+def test_a_new_rate_is_learnt_once_three_steps_agree_on_it():
+    from lidarflow.data.gaps import StepClock, paces_after_long_steps
+
+    # 10 Hz, then 3.3 Hz: three gaps, then the new rate is the typical step
+    assert frames_after_gaps(stamps([100.0] * 20 + [300.0] * 40)) == [21, 22, 23]
+    # 3.3 Hz, then 10 Hz, then a scan dropped at the new rate: a long step at the new rate
+    stamped = stamps([300.0] * 30 + [100.0] * 20 + [200.0] + [100.0] * 5)
+    offline = paces_after_long_steps(stamped)
+    assert offline == {51: pytest.approx(0.5)}
+    clock = StepClock()
+    assert {i: p for i, s in enumerate(stamped) if (p := clock.update(s)) is not None} == offline
+    # jitter within a quarter, or one long step between typical ones, is no new rate
+    jittery = stamps([100.0, 80.0, 120.0] * 10 + [300.0, 100.0, 100.0, 100.0])
+    assert frames_after_gaps(jittery) == [31]

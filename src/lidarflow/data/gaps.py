@@ -9,8 +9,8 @@ info`` lists them, all by this one rule.
 The rule is relative to the stream's own rate (scanners run at 5-40 Hz): a step longer than
 ``max_gap_periods`` times the typical step, forwards or backwards (a clock that jumps back). The
 typical step is the median of the last ``HISTORY`` forward steps, long ones included: one gap
-does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is learnt within
-half a history (its first slower steps are gaps; not every one from then on). Until
+does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is learnt once
+``MIN_STEPS`` steps at the new rate agree (its first slower steps are gaps). Until
 ``MIN_STEPS`` steps are known, the median of all the stream's forward steps stands in, so a gap
 in the first steps is found too. A stamp equal to the one before (a driver that does not advance
 its stamps) or a little before it (two scans handed over out of order) is no gap.
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable
+from itertools import islice
 
 import numpy as np
 
@@ -38,6 +39,8 @@ MAX_GAP_PERIODS = 2.5
 #: A step longer than this many typical ones paces the next motion guess (a dropped scan is 2).
 PACE_ABOVE = 1.5
 MIN_STEPS = 3
+#: Steps that agree within this ratio, all longer (or shorter) than the median, are a new rate.
+RATE_AGREEMENT = 1.25
 HISTORY = 50  # forward steps the typical step is the median of
 
 
@@ -56,8 +59,8 @@ def paces_after_long_steps(stamps_ns: Iterable[int], above: float = PACE_ABOVE) 
     long step the last motion spans it, and this fraction scales it to one typical step. Steps
     up to ``above`` are the stamps' jitter, not scans missing: no pace. A long step right after
     another is no pace either: the stream has slowed down (a driver gone from 10 to 5 Hz), and
-    its next step will be as long, long before the typical step (a median of the last
-    ``HISTORY``) has learnt the new rate."""
+    its next step will be as long (the typical step takes the new rate once ``MIN_STEPS``
+    steps agree on it)."""
     paces, previous = {}, None
     for i, pace in _long_steps(stamps_ns, above):
         if pace is not None and previous != i - 1:
@@ -94,20 +97,43 @@ def _long_steps(
 
 class _RecentSteps:
     """A stream's typical step: the median of its last ``HISTORY`` forward steps, once
-    ``MIN_STEPS`` are known (the one rule of the recording and of the stream)."""
+    ``MIN_STEPS`` are known (the one rule of the recording and of the stream).
+
+    A stream that changes its rate (a driver gone from 15 to 5 Hz) would take half a history
+    to move the median, every step until then a gap; so where the last ``MIN_STEPS`` steps all
+    differ from the median by more than :data:`PACE_ABOVE` times, the same way, and agree with
+    each other within :data:`RATE_AGREEMENT`, they are the new rate and the history restarts
+    from them."""
 
     def __init__(self) -> None:
         self._steps: deque[int] = deque(maxlen=HISTORY)
+        self._typical: float | None = None
+        # the typical step before each of the last MIN_STEPS steps came
+        self._before: deque[float | None] = deque(maxlen=MIN_STEPS)
 
     def typical(self, fallback: float | None = None) -> float | None:
-        return float(np.median(self._steps)) if len(self._steps) >= MIN_STEPS else fallback
+        return fallback if self._typical is None else self._typical
 
     def add(self, step: int) -> None:
-        if step > 0:
-            self._steps.append(step)
+        if step <= 0:
+            return
+        self._steps.append(step)
+        self._before.append(self._typical)
+        before = self._before[0] if len(self._steps) >= 2 * MIN_STEPS else None
+        if before is not None:
+            last = list(islice(reversed(self._steps), MIN_STEPS))
+            low, high = min(last), max(last)
+            if high <= RATE_AGREEMENT * low and (
+                low > PACE_ABOVE * before or high * PACE_ABOVE < before
+            ):
+                self._steps.clear()
+                self._steps.extend(reversed(last))
+        self._typical = float(np.median(self._steps)) if len(self._steps) >= MIN_STEPS else None
 
     def clear(self) -> None:
         self._steps.clear()
+        self._before.clear()
+        self._typical = None
 
 
 def paced_motion(motion: np.ndarray | None, pace: float | None) -> np.ndarray | None:
