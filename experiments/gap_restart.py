@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from study import add_counts, f1_table, scores_from
+from study import add_counts, early_late, f1_table, scores_from
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
@@ -58,7 +58,7 @@ def score_after_gap(
     each ``all`` and ``changed`` cells) per method."""
     if restart:  # every method from a fresh state at the first frame after the gap
         recording, before = recording.slice(before, len(recording)), 0
-    return scores_from(recording, methods, before, warmup)
+    return scores_from(recording, methods, early_late(before, warmup))
 
 
 def main() -> None:

@@ -23,7 +23,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from study import add_counts, f1_table, scores_from
+from study import add_counts, early_late, f1_table, scores_from
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
@@ -85,7 +85,7 @@ def main() -> None:
             for case, jump in (("none", False), ("reset", None), ("relocalise", relocalise)):
                 poses = cut.poses if jump is False else jumped(cut.poses, args.before, jump)
                 moved = dataclasses.replace(cut, poses=poses)
-                got = scores_from(moved, methods, args.before, args.early)
+                got = scores_from(moved, methods, early_late(args.before, args.early))
                 add_counts(tree, case, got)
                 add_counts(tree, f"{name}/{case}", got)
             print(name, int(at), flush=True)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import shlex
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -66,12 +67,18 @@ def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> 
     return "loses"
 
 
+def early_late(start: int, early: int) -> Callable[[int], str | None]:
+    """The parts of :func:`scores_from` for the predictions made from frame ``start`` on: the
+    first ``early`` (``early``) and the rest (``late``)."""
+    return lambda t: None if t < start else ("early" if t < start + early else "late")
+
+
 def scores_from(
-    recording: Recording, methods: list, start: int, early: int
+    recording: Recording, methods: list, part: Callable[[int], str | None]
 ) -> dict[str, dict[str, object]]:
-    """Stream ``methods`` over ``recording`` as ``lidarflow evaluate`` does, and count the
-    predictions made from frame ``start`` on: the first ``early`` (``early_*``) and the rest
-    (``late_*``), over all cells (``*_all``) and the changed ones (``*_changed``), per method
+    """Stream ``methods`` over ``recording`` as ``lidarflow evaluate`` does, and count each
+    prediction (made at frame ``t``) in ``part(t)`` (``None``: not counted), over all cells
+    (``<part>_all``) and the changed ones (``<part>_changed``), per method
     (:class:`lidarflow.evaluate.metrics.Counts`)."""
     from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
     from lidarflow.evaluate.stream import evaluate_recording
@@ -81,13 +88,13 @@ def scores_from(
     counts: dict[str, dict[str, Counts]] = {}
 
     def keep(name: str, t: int, probability: np.ndarray, _flow: object) -> None:
-        if t < start:
+        where = part(t)
+        if where is None:
             return
-        part = "early" if t < start + early else "late"
         predicted, target = probability >= THRESHOLD, occupancy[t + 1].astype(bool)
         changed = occupancy[t].astype(bool) != target
         mine = counts.setdefault(name, {})
-        for key, mask in ((f"{part}_all", None), (f"{part}_changed", changed)):
+        for key, mask in ((f"{where}_all", None), (f"{where}_changed", changed)):
             mine[key] = mine.get(key, Counts()) + confusion(predicted, target, mask)
 
     evaluate_recording(recording, methods, warmup=0, on_prediction=keep)

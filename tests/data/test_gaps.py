@@ -50,10 +50,12 @@ def test_a_gap_in_the_first_steps_or_right_after_another_is_found():
     assert frames_after_gaps(stamps(back)) == [11, 13]
 
 
-def test_a_changed_rate_is_learnt_within_min_steps():
+def test_a_changed_rate_is_learnt_within_rate_steps():
+    from lidarflow.data.gaps import RATE_STEPS
+
     # 20 Hz then 5 Hz: the first slower steps are gaps, not every one from then on
-    assert frames_after_gaps(stamps([50.0] * 60 + [200.0] * 60)) == [61, 62, 63]
-    assert HISTORY // 2 > MIN_STEPS  # (a median alone would take half the history)
+    assert frames_after_gaps(stamps([50.0] * 60 + [200.0] * 60)) == list(range(61, 66))
+    assert RATE_STEPS == 5 and HISTORY // 2 > RATE_STEPS  # (a median alone: half the history)
 
 
 def test_bad_threshold_is_refused():
@@ -94,27 +96,25 @@ def test_the_stream_clock_paces_the_frames_after_gaps_as_the_recording_rule():
     assert paced_motion(None, 0.5) is None and paced_motion(np.zeros(3), None) is None
 
 
-def test_a_stream_that_slows_down_is_paced_once_not_until_its_median_learns_the_rate():
+def test_a_stream_that_slows_down_is_paced_until_five_steps_agree_on_its_rate():
     from lidarflow.data.gaps import StepClock, paces_after_long_steps
 
-    # 10 Hz, then 5 Hz: the step into the slower rate is taken for a dropped scan (it may be
-    # one), every step after it is as long, so the motion guess is no longer scaled down
-    steps = [100.0] * 10 + [200.0] * 40
-    stamped = stamps(steps)
+    # 10 Hz, then 5 Hz: its first five steps may be scans dropped; from then on, the new rate
+    stamped = stamps([100.0] * 10 + [200.0] * 40)
     offline = paces_after_long_steps(stamped)
-    assert offline == {11: pytest.approx(0.5)}
+    assert offline == {i: pytest.approx(0.5) for i in range(11, 16)}
     clock = StepClock()
     assert {i: p for i, s in enumerate(stamped) if (p := clock.update(s)) is not None} == offline
-    # back at the old rate, a dropped scan is paced again
+    # three scans dropped in a row are three paced steps, and no new rate
     stamped = stamps([100.0] * 10 + [200.0] * 3 + [100.0] * 3 + [200.0] + [100.0] * 3)
-    assert sorted(paces_after_long_steps(stamped)) == [11, 17]
+    assert sorted(paces_after_long_steps(stamped)) == [11, 12, 13, 17]
 
 
-def test_a_new_rate_is_learnt_once_three_steps_agree_on_it():
+def test_a_new_rate_is_learnt_once_five_steps_agree_on_it():
     from lidarflow.data.gaps import StepClock, paces_after_long_steps
 
-    # 10 Hz, then 3.3 Hz: three gaps, then the new rate is the typical step
-    assert frames_after_gaps(stamps([100.0] * 20 + [300.0] * 40)) == [21, 22, 23]
+    # 10 Hz, then 3.3 Hz: five gaps, then the new rate is the typical step
+    assert frames_after_gaps(stamps([100.0] * 20 + [300.0] * 40)) == [21, 22, 23, 24, 25]
     # 3.3 Hz, then 10 Hz, then a scan dropped at the new rate: a long step at the new rate
     stamped = stamps([300.0] * 30 + [100.0] * 20 + [200.0] + [100.0] * 5)
     offline = paces_after_long_steps(stamped)

@@ -296,25 +296,40 @@ def test_evaluate_gives_the_model_the_returns_to_replace_odometry_that_disagrees
 
 
 def test_a_pose_jump_is_not_compensated_in_the_predictor_or_the_evaluation(driving, tmp_path):
-    # An odometry reset at frame 30: from there on the poses are relative to the pose there.
-    from lidarflow.sim.platform import relative
+    from lidarflow.data.gaps import paces_after_long_steps
+    from lidarflow.data.recording import Recording
+    from lidarflow.sim.platform import compose, relative
 
-    reset = driving.poses.copy()
-    reset[30:] = [relative(driving.poses[30], p) for p in driving.poses[30:]]
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
-    occ, vis = driving.maps(GRID)
-    true = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
-    jumped = metres_to_cells(relative_motions(reset)[0], GRID.res)
+    true_poses = driving.poses.copy()
+    # index: frame. An odometry reset at 30; at 42, right after 3 scans dropped, the poses move
+    # 3 m and turn 0.8 rad (a relocalisation)
+    jumps = {30: 30, 39: 42}
+    kept = [t for t in range(50) if not 39 <= t <= 41]
+    reset = true_poses.copy()
+    reset[30:] = [relative(reset[30], p) for p in reset[30:]]
+    reset[42:] = [compose((3.0, -1.5, 0.8), p) for p in reset[42:]]
+    cut = Recording.from_scans([driving.scan(t) for t in kept], reset[kept], driving.meta)
+    paces = paces_after_long_steps(cut.stamps_ns)
+    assert list(paces) == [39]  # index 39 of the cut is frame 42
+    occ, vis = cut.maps(GRID)
+    true = metres_to_cells(relative_motions(true_poses[kept])[0], GRID.res)
+    jumped = metres_to_cells(relative_motions(cut.poses)[0], GRID.res)
     predictor = Predictor(folder, GRID)
     method = ModelMethod("opt", StreamingModel(predictor.backend.model), res=GRID.res)
-    returns = recording_points(driving)
-    for t in range(40):
-        p = predictor.update(driving.scan(t), reset[t])
-        q = method.update(occ[t], vis[t], jumped[t] if t else None, returns=returns[t])
+    returns = recording_points(cut)
+    for t in range(len(kept)):
+        p = predictor.update(cut.scan(t), cut.poses[t])
+        q = method.update(
+            occ[t], vis[t], jumped[t] if t else None, returns=returns[t], pace=paces.get(t)
+        )
         np.testing.assert_allclose(p.probability, q, atol=1e-6)  # the same decisions
-        if t == 30:  # the step across the reset: a motion close to the true one, not the jump
+        if t in jumps:  # a motion close to the true one, not the jump
             assert p.ego_compensated and method.odometry.jumped
-            np.testing.assert_allclose(method.motion[:2], true[30][:2], atol=0.3)
+            np.testing.assert_allclose(
+                method.motion[:2], true[t][:2], atol=0.3 * (1 + 3 * (t == 39))
+            )
+    assert method.odometry.jumps == 2
 
 
 def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving, tmp_path, capsys):

@@ -10,7 +10,7 @@ The rule is relative to the stream's own rate (scanners run at 5-40 Hz): a step 
 ``max_gap_periods`` times the typical step, forwards or backwards (a clock that jumps back). The
 typical step is the median of the last ``HISTORY`` forward steps, long ones included: one gap
 does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is learnt once
-``MIN_STEPS`` steps at the new rate agree (its first slower steps are gaps). Until
+``RATE_STEPS`` steps at the new rate agree (its first slower steps are gaps). Until
 ``MIN_STEPS`` steps are known, the median of all the stream's forward steps stands in, so a gap
 in the first steps is found too. A stamp equal to the one before (a driver that does not advance
 its stamps) or a little before it (two scans handed over out of order) is no gap.
@@ -29,6 +29,7 @@ __all__ = [
     "MAX_GAP_PERIODS",
     "MIN_STEPS",
     "PACE_ABOVE",
+    "RATE_STEPS",
     "StepClock",
     "frames_after_gaps",
     "paced_motion",
@@ -39,7 +40,10 @@ MAX_GAP_PERIODS = 2.5
 #: A step longer than this many typical ones paces the next motion guess (a dropped scan is 2).
 PACE_ABOVE = 1.5
 MIN_STEPS = 3
-#: Steps that agree within this ratio, all longer (or shorter) than the median, are a new rate.
+#: This many steps in a row that agree within :data:`RATE_AGREEMENT`, all longer (or all
+#: shorter) than the typical step by more than :data:`PACE_ABOVE` times, are a new rate. Five:
+#: scans dropped at random, even one in three, rarely drop five in a row.
+RATE_STEPS = 5
 RATE_AGREEMENT = 1.25
 HISTORY = 50  # forward steps the typical step is the median of
 
@@ -57,16 +61,10 @@ def paces_after_long_steps(stamps_ns: Iterable[int], above: float = PACE_ABOVE) 
 
     A constant-velocity guess of the motion to the next frame is the last motion again; after a
     long step the last motion spans it, and this fraction scales it to one typical step. Steps
-    up to ``above`` are the stamps' jitter, not scans missing: no pace. A long step right after
-    another is no pace either: the stream has slowed down (a driver gone from 10 to 5 Hz), and
-    its next step will be as long (the typical step takes the new rate once ``MIN_STEPS``
-    steps agree on it)."""
-    paces, previous = {}, None
-    for i, pace in _long_steps(stamps_ns, above):
-        if pace is not None and previous != i - 1:
-            paces[i] = pace
-        previous = i
-    return paces
+    up to ``above`` are the stamps' jitter, not scans missing: no pace. A stream that has slowed
+    down (a driver gone from 10 to 5 Hz) is paced until :data:`RATE_STEPS` of its steps agree
+    on the new rate (see :class:`_RecentSteps`)."""
+    return {i: pace for i, pace in _long_steps(stamps_ns, above) if pace is not None}
 
 
 def _long_steps(
@@ -100,16 +98,16 @@ class _RecentSteps:
     ``MIN_STEPS`` are known (the one rule of the recording and of the stream).
 
     A stream that changes its rate (a driver gone from 15 to 5 Hz) would take half a history
-    to move the median, every step until then a gap; so where the last ``MIN_STEPS`` steps all
-    differ from the median by more than :data:`PACE_ABOVE` times, the same way, and agree with
-    each other within :data:`RATE_AGREEMENT`, they are the new rate and the history restarts
-    from them."""
+    to move the median, every step until then a gap; so where the last :data:`RATE_STEPS` steps
+    all differ from the median by more than :data:`PACE_ABOVE` times, the same way, and agree
+    with each other within :data:`RATE_AGREEMENT`, they are the new rate and the history
+    restarts from them."""
 
     def __init__(self) -> None:
         self._steps: deque[int] = deque(maxlen=HISTORY)
         self._typical: float | None = None
-        # the typical step before each of the last MIN_STEPS steps came
-        self._before: deque[float | None] = deque(maxlen=MIN_STEPS)
+        # the typical step before each of the last RATE_STEPS steps came
+        self._before: deque[float | None] = deque(maxlen=RATE_STEPS)
 
     def typical(self, fallback: float | None = None) -> float | None:
         return fallback if self._typical is None else self._typical
@@ -119,9 +117,9 @@ class _RecentSteps:
             return
         self._steps.append(step)
         self._before.append(self._typical)
-        before = self._before[0] if len(self._steps) >= 2 * MIN_STEPS else None
+        before = self._before[0] if len(self._steps) >= 2 * RATE_STEPS else None
         if before is not None:
-            last = list(islice(reversed(self._steps), MIN_STEPS))
+            last = list(islice(reversed(self._steps), RATE_STEPS))
             low, high = min(last), max(last)
             if high <= RATE_AGREEMENT * low and (
                 low > PACE_ABOVE * before or high * PACE_ABOVE < before
@@ -159,12 +157,10 @@ class StepClock:
         self.above = above
         self._recent = _RecentSteps()
         self._last: int | None = None
-        self._after_long = False
 
     def reset(self) -> None:
         self._recent.clear()
         self._last = None
-        self._after_long = False
 
     def update(self, stamp_ns: int) -> float | None:
         """This stamp's pace (typical step / this step) if a long step forwards in time precedes
@@ -178,8 +174,4 @@ class StepClock:
         step = self._last - last
         typical = self._recent.typical()
         self._recent.add(step)
-        long = typical is not None and step > self.above * typical
-        # a long step after another: the stream has slowed down, the next step is as long
-        paced = long and not self._after_long
-        self._after_long = long
-        return typical / step if paced else None
+        return typical / step if typical is not None and step > self.above * typical else None

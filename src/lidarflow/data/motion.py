@@ -95,12 +95,13 @@ class OdometryCheck:
     A pose source can also jump (odometry reset to the origin, a localiser snapping to a new
     estimate): one step's motion is then off by the jump. The window does not notice one step,
     so each step is also judged alone when it is an outlier: when it moves the cells more than
-    ``jump_factor`` times the most any of the last ``window`` steps did (times the step's
-    ``span`` in typical steps of time: a gap's motion is long), plus ``jump_margin`` cells
-    (median over the cells), and the cells it moves land on occupied cells no more often than
-    the unmoved ones, that step is not compensated (``update`` says no) and is left out of the
-    window. A real fast step lines the world up and passes; a robot cannot go from its recent
-    pace to several times it, plus ``jump_margin`` cells, in one frame.
+    ``jump_factor`` times the median of the last ``window`` steps (each per typical step of
+    time, ``span``: a gap's motion is long), plus ``jump_margin`` cells (median over the cells),
+    and the previous map moved by :meth:`stand_in` (the last accepted motion, per typical step,
+    times ``span``: the robot went on as it was going) explains the current one clearly better
+    than moved by the step's own motion (at least twice its hits, and ``jump_evidence`` more),
+    that step is not compensated (``update`` says no) and is left out of the window. A real
+    fast step lines the world up and passes, and a scene too sparse to tell gives no verdict.
 
     Units: maps ``(H, W)`` bool, motion ``(dx, dy, dyaw)`` in cells and radians (this frame's
     pose in the previous one's, :mod:`lidarflow.ops.rigid`'s convention).
@@ -113,17 +114,19 @@ class OdometryCheck:
         min_shift: float = 1.5,
         jump_factor: float = 3.0,
         jump_margin: float = 4.0,
+        jump_evidence: int = 3,
     ) -> None:
         self.min_steps = min_steps
         self.min_shift = min_shift
         self.jump_factor = jump_factor
         self.jump_margin = jump_margin
+        self.jump_evidence = jump_evidence
         #: Steps judged to be a jump of the poses since the last reset.
         self.jumps = 0
         #: Whether the last step given was judged a jump.
         self.jumped = False
-        #: The last motion given that was not judged a jump (``None``: none yet).
-        self.last_motion: np.ndarray | None = None
+        # the last motion not judged a jump, per typical step of time
+        self._per_step: np.ndarray | None = None
         self._moved: deque[int] = deque(maxlen=window)
         self._still: deque[int] = deque(maxlen=window)
         self._shifts: deque[float] = deque(maxlen=window)
@@ -136,7 +139,7 @@ class OdometryCheck:
         self._previous = None
         self.jumps = 0
         self.jumped = False
-        self.last_motion = None
+        self._per_step = None
 
     @property
     def trusted(self) -> bool:
@@ -152,29 +155,49 @@ class OdometryCheck:
             return self.trusted
         h, w = current.shape
         rows, cols = np.nonzero(previous)
+        span = max(1.0, span)
         if rows.size == 0:  # nothing to judge the step by
-            self.last_motion = np.asarray(motion, dtype=np.float32)
+            self._per_step = np.asarray(motion, dtype=np.float32) / np.float32(span)
             return self.trusted
         r2, c2 = cells_in_new_frame(rows, cols, motion, h, w)
         inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
         shift = float(np.median(np.hypot(r2 - rows, c2 - cols)))
         moved = int(current[r2[inside], c2[inside]].sum())
         still = int(current[rows[inside], cols[inside]].sum())
-        per_step = shift / max(1.0, span)
-        if self._is_jump(per_step, moved, still):
+        if self._is_outlier(shift / span) and self._explains_better(
+            previous, current, self.stand_in(span), moved
+        ):
             self.jumps += 1
             self.jumped = True
             return False
-        self.last_motion = np.asarray(motion, dtype=np.float32)
-        self._shifts.append(per_step)
+        self._per_step = np.asarray(motion, dtype=np.float32) / np.float32(span)
+        self._shifts.append(shift / span)
         if not inside.any() or shift < self.min_shift:
             return self.trusted
         self._moved.append(moved)
         self._still.append(still)
         return self.trusted
 
-    def _is_jump(self, shift: float, moved: int, still: int) -> bool:
+    def stand_in(self, span: float = 1.0) -> np.ndarray | None:
+        """The motion to take for a step judged a jump that is ``span`` typical steps long: the
+        last accepted one's per typical step, times ``span`` (``None`` before any)."""
+        return None if self._per_step is None else self._per_step * np.float32(max(1.0, span))
+
+    def _is_outlier(self, per_step: float) -> bool:
         if not self._shifts:  # nothing to compare the first step with
             return False
-        outlier = shift > self.jump_factor * max(self._shifts) + self.jump_margin
-        return outlier and moved <= still
+        return per_step > self.jump_factor * float(np.median(self._shifts)) + self.jump_margin
+
+    def _explains_better(
+        self, previous: np.ndarray, current: np.ndarray, motion: np.ndarray | None, hits: int
+    ) -> bool:
+        """Whether ``previous`` moved by ``motion`` (none: unmoved) lands on ``current``'s
+        occupied cells at least twice as often as the ``hits`` of the step's own motion, and
+        ``jump_evidence`` times more."""
+        h, w = current.shape
+        rows, cols = np.nonzero(previous)
+        if motion is not None:
+            rows, cols = cells_in_new_frame(rows, cols, motion, h, w)
+            inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+            rows, cols = rows[inside], cols[inside]
+        return int(current[rows, cols].sum()) >= 2 * hits + self.jump_evidence

@@ -229,24 +229,26 @@ def checked_motion(
     so a bag whose odometry is the base's, not the scanner's, is still compensated; a frame
     whose pose is used is only kept by ``scans`` (:meth:`ScanOdometry.observe`, no matching,
     so good odometry costs nothing). A motion from the scans (``from_pose`` false, found by the
-    caller) is only checked: ``None`` where ``check`` distrusts it. ``pace``: after a long step
+    caller) is only checked: ``None`` where ``check`` distrusts it, the stand-in below where it
+    judges it a jump (a scan match pulled off by the scene). ``pace``: after a long step
     in time, the typical step over this one (:func:`lidarflow.data.gaps.paces_after_long_steps`).
 
     A step that ``check`` judges a jump of the poses (an odometry reset, a relocalisation) is
     replaced by the scans' motion too, or, where they find none (a slow step, which they only
-    report once they have seen a few), by the last motion ``check`` accepted: the odometry was
-    trusted one step ago, and a robot's motion changes little in one step."""
-    trusted = check.update(occupancy, motion, 1.0 if not pace else 1.0 / pace)
+    report once they have seen a few), by the last motion ``check`` accepted (per typical step,
+    times this step's): the odometry was trusted one step ago, and a robot's motion changes
+    little in one step."""
+    span = 1.0 if not pace else 1.0 / pace
+    trusted = check.update(occupancy, motion, span)
+    stand_in = check.stand_in(span) if check.jumped and check.trusted else None
     if not from_pose:
-        return (motion if trusted else None), trusted
+        return (motion if trusted else stand_in), trusted
     if trusted:
         if scans is not None:
             scans.observe(occupancy, points)
         return motion, trusted
     found = None if scans is None else scans.update(occupancy, points)
-    if found is None and check.jumped and check.trusted:
-        found = check.last_motion
-    return found, trusted
+    return (stand_in if found is None else found), trusted
 
 
 def compose(steps: Iterable[np.ndarray]) -> np.ndarray:
