@@ -69,7 +69,7 @@ def main() -> None:
     parser.add_argument("--places", type=int, default=4)
     parser.add_argument("--before", type=int, default=60)
     parser.add_argument("--after", type=int, default=60)
-    parser.add_argument("--every", type=int, nargs="+", default=[2, 3])
+    parser.add_argument("--every", type=int, nargs="*", default=[2, 3])
     parser.add_argument("--early", type=int, default=25)
     parser.add_argument(
         "--drops", type=float, nargs="*", default=[0.1, 0.3],
