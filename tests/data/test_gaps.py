@@ -124,3 +124,7 @@ def test_a_new_rate_is_learnt_once_five_steps_agree_on_it():
     # jitter within a quarter, or one long step between typical ones, is no new rate
     jittery = stamps([100.0, 80.0, 120.0] * 10 + [300.0, 100.0, 100.0, 100.0])
     assert frames_after_gaps(jittery) == [31]
+    # five long steps that do not agree on one length are dropped scans, not a new rate: the
+    # typical step stays, and a scan dropped after them is paced again
+    uneven = stamps([100.0] * 20 + [200.0, 300.0, 200.0, 400.0, 200.0] + [100.0] * 3 + [200.0])
+    assert sorted(paces_after_long_steps(uneven)) == [21, 22, 23, 24, 25, 29]

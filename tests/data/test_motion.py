@@ -112,6 +112,11 @@ def test_odometry_check_rejects_a_pose_jump_alone(driving_maps):
     assert not check.update(occupancy[30], reset[30]) and check.jumped
     np.testing.assert_allclose(check.stand_in(), true[29], atol=1e-6)  # the stand-in ...
     np.testing.assert_allclose(check.stand_in(3.0), 3 * true[29], atol=1e-5)  # ... per step
+    # an accepted step two typical steps long leaves its motion per typical step
+    check = OdometryCheck()
+    _trusted(check, occupancy[:30], true[:30])
+    assert check.update(occupancy[30], 2 * true[30], span=2.0)
+    np.testing.assert_allclose(check.stand_in(), true[30], atol=1e-5)
     # A jump in the first step has nothing to be judged against and is taken; it does not
     # blind the check to the next one (the usual step is a median, not the largest).
     twice = metres_to_cells(relative_motions(_reset_at(_reset_at(poses, 1), 30))[0], grid.res)
