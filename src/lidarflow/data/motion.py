@@ -193,7 +193,7 @@ class OdometryCheck:
     ) -> bool:
         """Whether ``previous`` moved by ``motion`` (none: unmoved) lands on ``current``'s
         occupied cells at least twice as often as the ``hits`` of the step's own motion, and
-        ``jump_evidence`` times more."""
+        ``jump_evidence`` cells more."""
         h, w = current.shape
         rows, cols = np.nonzero(previous)
         if motion is not None:
