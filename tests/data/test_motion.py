@@ -176,6 +176,27 @@ def test_a_long_step_in_time_may_move_far_and_a_sparse_scene_gives_no_verdict():
     assert check.update(_seen_after(sparse, _SLOW), far) and not check.jumped
 
 
+def test_a_jump_needs_the_continued_motion_to_explain_the_scans_twice_as_well():
+    world = np.zeros((40, 40), bool)
+    world[2:14:2, 4:36:3] = True  # 66 cells, each seen apart after either motion below
+    far = np.array([10.0, 0.0, 0.0])  # an outlier against one-cell steps
+    own, going_on = _seen_after(world, far), _seen_after(world, _SLOW)
+    assert not (own & going_on).any()
+    own_cells, on_cells = np.argwhere(own), np.argwhere(going_on)
+
+    def judged_a_jump(own_hits: int, on_hits: int) -> bool:
+        current = np.zeros_like(world)
+        current[tuple(own_cells[:own_hits].T)] = True
+        current[tuple(on_cells[:on_hits].T)] = True
+        check = _after_slow_steps(world)
+        check.update(current, far)
+        return check.jumped
+
+    # the continued motion must hit at least twice as often as the step's own, and 3 more
+    assert judged_a_jump(10, 23) and not judged_a_jump(10, 22)
+    assert judged_a_jump(0, 3) and not judged_a_jump(0, 2)
+
+
 def test_checked_motion_stands_in_for_a_jump_with_the_last_motion(driving_maps):
     from lidarflow.data.scanmatch import checked_motion
 
