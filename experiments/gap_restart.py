@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from study import add_counts, early_late, f1_table, scores_from
+from study import add_counts, early_late, f1_table, kept_frames, scores_from
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
@@ -36,9 +36,9 @@ RECORDINGS = (
 
 def with_gap(recording: Recording, at: int, frames: int, before: int, after: int) -> Recording:
     """``before`` frames up to ``at``, then ``after + 1`` frames from ``at + frames`` on."""
-    kept = [*range(at - before, at), *range(at + frames, at + frames + after + 1)]
-    poses = None if recording.poses is None else recording.poses[kept]
-    return Recording.from_scans([recording.scan(i) for i in kept], poses, recording.meta)
+    return kept_frames(
+        recording, [*range(at - before, at), *range(at + frames, at + frames + after + 1)]
+    )
 
 
 def spliced(first: Recording, second: Recording, before: int, after: int) -> Recording:

@@ -28,6 +28,7 @@ from study import add_counts, early_late, f1_table, scores_from
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
 from lidarflow.sim import SimConfig, simulate
+from lidarflow.sim.platform import compose, relative
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -37,17 +38,9 @@ def jumped(poses: np.ndarray, at: int, jump: tuple[float, float, float] | None) 
     which pose ``at`` is ``(0, 0, 0)`` (``jump=None``, an odometry reset), or moved by ``jump``
     ``(x, y, yaw)`` (a relocalisation)."""
     out = np.asarray(poses, dtype=np.float64).copy()
-    if jump is None:  # J = inverse(pose at the jump)
-        x, y, yaw = out[at]
-        c, s = np.cos(-yaw), np.sin(-yaw)
-        jx, jy, jyaw = -(c * x - s * y), -(s * x + c * y), -yaw
-    else:
-        jx, jy, jyaw = jump
-    c, s = np.cos(jyaw), np.sin(jyaw)
-    x, y = out[at:, 0].copy(), out[at:, 1].copy()
-    out[at:, 0] = jx + c * x - s * y
-    out[at:, 1] = jy + s * x + c * y
-    out[at:, 2] = np.remainder(out[at:, 2] + jyaw + np.pi, 2 * np.pi) - np.pi
+    origin = out[at].copy()
+    for t in range(at, len(out)):
+        out[t] = relative(origin, out[t]) if jump is None else compose(np.asarray(jump), out[t])
     return out
 
 

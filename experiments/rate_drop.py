@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from study import add_counts, early_late, f1_table, scores_from
+from study import add_counts, early_late, f1_table, kept_frames, scores_from
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
@@ -36,17 +36,14 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 def slowed(recording: Recording, at: int, every: int, before: int, after: int) -> Recording:
     """``before`` frames up to ``at``, then every ``every``-th frame from ``at`` on, ``after``
     of them."""
-    kept = [*range(at - before, at), *range(at, at + every * after, every)]
-    poses = None if recording.poses is None else recording.poses[kept]
-    return Recording.from_scans([recording.scan(i) for i in kept], poses, recording.meta)
+    return kept_frames(recording, [*range(at - before, at), *range(at, at + every * after, every)])
 
 
 def dropped(recording: Recording, start: int, p: float, seed: int) -> Recording:
     """Every frame up to ``start``, then each frame kept with probability ``1 - p``."""
     rng = np.random.default_rng(seed)
     kept = [i for i in range(len(recording)) if i < start or rng.random() >= p]
-    poses = None if recording.poses is None else recording.poses[kept]
-    return Recording.from_scans([recording.scan(i) for i in kept], poses, recording.meta)
+    return kept_frames(recording, kept)
 
 
 def after_drops(recording: Recording, start: int) -> Callable[[int], str | None]:

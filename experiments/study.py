@@ -7,7 +7,7 @@ from __future__ import annotations
 import shlex
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +67,12 @@ def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> 
     return "loses"
 
 
+def kept_frames(recording: Recording, kept: Sequence[int]) -> Recording:
+    """The frames ``kept`` (indices, in order) of ``recording``, with their poses."""
+    poses = None if recording.poses is None else recording.poses[list(kept)]
+    return Recording.from_scans([recording.scan(i) for i in kept], poses, recording.meta)
+
+
 def early_late(start: int, early: int) -> Callable[[int], str | None]:
     """The parts of :func:`scores_from` for the predictions made from frame ``start`` on: the
     first ``early`` (``early``) and the rest (``late``)."""
@@ -80,6 +86,7 @@ def scores_from(
     prediction (made at frame ``t``) in ``part(t)`` (``None``: not counted), over all cells
     (``<part>_all``) and the changed ones (``<part>_changed``), per method
     (:class:`lidarflow.evaluate.metrics.Counts`)."""
+    # here, not at the top: the scripts that only read reports need no PyTorch
     from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
     from lidarflow.evaluate.stream import evaluate_recording
     from lidarflow.scan import GridSpec

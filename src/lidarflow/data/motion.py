@@ -165,7 +165,7 @@ class OdometryCheck:
         moved = int(current[r2[inside], c2[inside]].sum())
         still = int(current[rows[inside], cols[inside]].sum())
         if self._is_outlier(shift / span) and self._explains_better(
-            previous, current, self.stand_in(span), moved
+            rows, cols, current, self.stand_in(span), moved
         ):
             self.jumps += 1
             self.jumped = True
@@ -189,13 +189,17 @@ class OdometryCheck:
         return per_step > self.jump_factor * float(np.median(self._shifts)) + self.jump_margin
 
     def _explains_better(
-        self, previous: np.ndarray, current: np.ndarray, motion: np.ndarray | None, hits: int
+        self,
+        rows: np.ndarray,
+        cols: np.ndarray,
+        current: np.ndarray,
+        motion: np.ndarray | None,
+        hits: int,
     ) -> bool:
-        """Whether ``previous`` moved by ``motion`` (none: unmoved) lands on ``current``'s
-        occupied cells at least twice as often as the ``hits`` of the step's own motion, and
-        ``jump_evidence`` cells more."""
+        """Whether the previous map's occupied cells ``rows, cols`` moved by ``motion`` (none:
+        unmoved) land on ``current``'s occupied cells at least twice as often as the ``hits`` of
+        the step's own motion, and ``jump_evidence`` cells more."""
         h, w = current.shape
-        rows, cols = np.nonzero(previous)
         if motion is not None:
             rows, cols = cells_in_new_frame(rows, cols, motion, h, w)
             inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
