@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import platform
+import socket
 import subprocess
 import sys
 import time
@@ -101,9 +103,6 @@ def _lock(run_dir: Path) -> None:
     """Refuse a run folder that another live process on this machine trains into; take over a
     lock whose process is gone, or one left on another machine (a run copied here, a job
     requeued on another node: its liveness cannot be known from here)."""
-    import os
-    import socket
-
     path = run_dir / LOCK
     host = socket.gethostname()
     for _ in range(3):
@@ -129,8 +128,6 @@ def _lock(run_dir: Path) -> None:
 
 
 def _alive(pid: int) -> bool:
-    import os
-
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -142,8 +139,6 @@ def _alive(pid: int) -> bool:
 
 def release_run_dir(run_dir: Path) -> None:
     """Drop the lock :func:`prepare_run_dir` took (if this process holds it)."""
-    import os
-
     path = Path(run_dir) / LOCK
     try:
         if json.loads(path.read_text()).get("pid") == os.getpid():
