@@ -13,7 +13,7 @@ from lidarflow.models import (
     build_model,
     count_parameters,
 )
-from lidarflow.models.flownet import TRANSITION_DECAY, VACATED_LOGIT
+from lidarflow.models.flownet import TRANSITION_DECAY
 from lidarflow.ops.warp import warp
 from lidarflow.scan import takes_subcell
 
@@ -548,59 +548,3 @@ def test_subcell_input_reaches_the_head_and_only_the_head():
         torch.testing.assert_close(a, b)
     with pytest.raises((ValueError, ModelError), match="subcell_input"):
         build_model("flownet", subcell_input=True)
-
-
-def test_vacated_rule_predicts_free_what_long_stood_and_is_seen_gone():
-    kwargs = {
-        "occupancy_head": True,
-        "memory_decays": (0.5, 0.98),
-        "constant_velocity_input": True,
-        "shift_memories": True,
-        "head_flow_features": False,  # the head's inputs: O^t, the two memories, the shifted map
-    }
-    plain = build_model("flownet", **kwargs).eval()
-    net = build_model("flownet", **kwargs, vacated_memory=0.5, vacated_decay=0.98).eval()
-    net.load_state_dict(plain.state_dict())
-    with torch.no_grad():  # a head that keeps predicting what its memories hold
-        for model in (plain, net):
-            model.conv_occupancy.weight.zero_()
-            model.conv_occupancy.weight[0, 2] = 20.0  # the 0.98 memory
-            model.conv_occupancy.bias.fill_(-5.0)
-
-    def scene(stands: bool, seen: bool = True) -> torch.Tensor:
-        maps = torch.zeros(1, 2, 12, 12)
-        maps[0, 0, 1, 1] = 1.0  # a pillar, always there (keeps the constant-velocity shift zero)
-        maps[0, 0, 6, 6] = float(stands)  # something that stood 60 frames, then went
-        maps[0, 1] = 1.0
-        maps[0, 1, 6, 6] = float(seen or stands)
-        return maps
-
-    def run(model: torch.nn.Module, frames: list[torch.Tensor]) -> list[float]:
-        state, logits = model.init_state(1, 12, 12), []
-        with torch.no_grad():
-            for maps in frames:
-                out, state = model.step(maps, state)
-                logits.append(float(model.next_logit(maps, out)[0, 0, 6, 6]))
-        return logits
-
-    stood = [scene(True)] * 60
-    gone = run(net, [*stood, scene(False), scene(False), scene(False)])
-    kept = run(plain, [*stood, scene(False), scene(False), scene(False)])
-    assert kept[-1] > 0 and kept[-2] > 0  # memories alone: still predicted there
-    assert gone[-3] == kept[-3] > 0  # seen free once: may be a return that flickered
-    assert gone[-2] <= VACATED_LOGIT and gone[-1] <= VACATED_LOGIT  # free twice: gone
-    assert gone[:60] == kept[:60]
-    # Hidden now, not seen free: the rule says nothing.
-    hidden = run(net, [*stood, scene(False), scene(False, seen=False)])
-    assert hidden[-1] == run(plain, [*stood, scene(False), scene(False, seen=False)])[-1]
-    # Not there for long (memory below 0.5): the rule says nothing.
-    brief = [scene(False)] * 40 + [scene(True)] * 10 + [scene(False)] * 3
-    assert run(net, brief) == run(plain, brief)
-    # A decision: training sees the head's own logit everywhere.
-    net.train()
-    assert run(net, [*stood, scene(False), scene(False)])[-1] == kept[-2]
-    for bad in ({"vacated_memory": 0.0}, {"vacated_memory": 0.5, "vacated_decay": 0.9}):
-        with pytest.raises((ValueError, ModelError), match="vacated"):
-            build_model("flownet", **kwargs, **bad)
-    with pytest.raises((ValueError, ModelError), match="constant_velocity_input"):
-        build_model("flownet", occupancy_head=True, vacated_memory=0.5)

@@ -133,9 +133,6 @@ TRANSITION_DECAY = 0.98
 OCCUPANCY_HEAD_PARAMETERS = ("conv_occupancy.", "occupancy_hidden.", "warp_gain")
 # The frame count of the bias-corrected memories stops here: d^n is 0 in float32 long before.
 _MAX_FRAMES_COUNTED = 10_000.0
-#: The residual logit of a vacated cell (``vacated_memory``): below what any offset the online
-#: decision tries (up to +4.2) lifts over its 0.4 threshold.
-VACATED_LOGIT = -8.0
 
 
 class LidarFlowNet(RecurrentMapModel):
@@ -168,8 +165,6 @@ class LidarFlowNet(RecurrentMapModel):
     online_decision: bool = False
     subcell_input: bool = False
     transition_memories: bool = False
-    vacated_memory: float | None = None
-    vacated_decay: float | None = None
 
     def __init__(
         self,
@@ -195,8 +190,6 @@ class LidarFlowNet(RecurrentMapModel):
         online_decision: bool = False,
         subcell_input: bool = False,
         transition_memories: bool = False,
-        vacated_memory: float | None = None,
-        vacated_decay: float | None = None,
     ) -> None:
         super().__init__()
         if conv0_activation not in ACTIVATIONS:
@@ -234,22 +227,6 @@ class LidarFlowNet(RecurrentMapModel):
                     "transition_memories needs constant_velocity_input=True (the previous map)"
                 )
             self.transition_memories = bool(transition_memories)
-            if vacated_memory is not None and not (
-                constant_velocity_input and 0.0 < vacated_memory <= 1.0
-            ):
-                raise ValueError(
-                    "vacated_memory needs constant_velocity_input=True (the previous map) "
-                    f"and a value in (0, 1], got {vacated_memory}"
-                )
-            self.vacated_memory = None if vacated_memory is None else float(vacated_memory)
-            if vacated_decay is not None and vacated_decay not in self.memory_decays:
-                raise ValueError(
-                    f"vacated_decay must be one of memory_decays {self.memory_decays}, "
-                    f"got {vacated_decay}"
-                )
-            self.vacated_decay = None if vacated_decay is None else float(vacated_decay)
-        elif vacated_memory is not None or vacated_decay is not None:
-            raise ValueError("vacated_memory needs occupancy_head=True (it bounds its logit)")
         elif (
             visibility_input or visibility_memories or warp_input or subcell_input
             or transition_memories
@@ -418,29 +395,7 @@ class LidarFlowNet(RecurrentMapModel):
         if self.head_hidden_channels:
             head_input = torch.relu(self.occupancy_hidden(head_input))
         residual = self.conv_occupancy(head_input)
-        if self.vacated_memory is not None and not self.training:
-            # A decision, as the offsets are: the cross-entropy still trains on every cell.
-            residual = self._vacated(residual, maps, state[-1], past, kernel)
         return torch.cat([flow, residual], dim=1), (*new_state, torch.cat(kept, dim=1))
-
-    def _vacated(
-        self, residual: Tensor, maps: Tensor, kept: Tensor, past: Tensor, kernel: Tensor
-    ) -> Tensor:
-        """``residual`` held at or below :data:`VACATED_LOGIT` on the cells seen free in this
-        map and not occupied in the last, whose slowest occupancy memory (before this frame) is
-        at least ``vacated_memory``: something that stood there has gone."""
-        previous = kept[:, -1:]
-        decay = max(self.memory_decays) if self.vacated_decay is None else self.vacated_decay
-        i = self.memory_decays.index(decay)
-        slowest = past[:, i : i + 1]
-        if self.shift_memories:
-            previous = apply_shift(previous, kernel)
-        occupancy, visible = maps[:, 0:1], maps[:, 1:2]
-        vacated = visible * (1.0 - occupancy) * (1.0 - previous) * (slowest >= self.vacated_memory)
-        if self.shift_memories:  # the head's memories speak of the next frame
-            vacated = apply_shift(vacated, kernel)
-        bounded = torch.clamp(residual, max=VACATED_LOGIT)
-        return torch.where(vacated > 0.5, bounded, residual)
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``P^{t+1}`` ``(B, 1, H, W)`` from maps ``(B, 2, H, W)`` and the step's output
