@@ -15,6 +15,7 @@ from lidarflow.data import (
 from lidarflow.errors import RecordingError
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
 from tests.conftest import make_recording
+from tests.train.blobs import blob_recording
 
 
 def test_save_load_round_trip(tmp_path):
@@ -160,3 +161,25 @@ def test_long_geometry_runs_rasterize_in_batches_to_the_same_maps(monkeypatch):
     np.testing.assert_array_equal(batched[0][0], whole[0][0][2:21])
     np.testing.assert_array_equal(batched[0][1], whole[0][1][2:21])
     np.testing.assert_array_equal(batched[1], whole[1][2:21])
+
+
+def test_every_kth_frame_is_a_slower_sensors_recording():
+    rec = blob_recording(n=25, seed=3)
+    rec.poses = np.arange(75, dtype=np.float64).reshape(25, 3)
+    rec.extras["note"] = np.array(7)  # not per frame: kept
+    rec.meta["clock_jumps"] = [[10, 5]]
+    slow = rec.every(3)
+    assert len(slow) == 9
+    assert np.array_equal(slow.stamps_ns, rec.stamps_ns[::3])
+    assert np.array_equal(slow.poses, rec.poses[::3])
+    for i in range(9):
+        assert np.array_equal(slow.scan(i).ranges, rec.scan(3 * i).ranges)
+        assert slow.geometry(i) == rec.geometry(3 * i)
+    # ground truth between consecutive frames does not hold three frames apart
+    assert "flow_backward" in rec.extras and "flow_backward" not in slow.extras
+    assert int(slow.extras["note"]) == 7
+    assert slow.meta["every"] == 3 and "clock_jumps" not in slow.meta
+    assert slow.every(2).meta["every"] == 6
+    assert rec.every(1).meta["every"] == 1 and len(rec.every(1)) == 25
+    with pytest.raises(RecordingError, match="step"):
+        rec.every(0)

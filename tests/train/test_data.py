@@ -122,3 +122,15 @@ def test_subcell_windows_carry_each_frames_subcell_maps(blob_files):
     expected = load_any(blob_files[rec]).subcell_maps(GridSpec(32, 32, 0.1))[start : start + 10]
     assert expected.any()
     np.testing.assert_array_equal(item[:, 2:].numpy().astype(bool), expected)
+
+
+def test_slower_copies_serve_every_kth_frame_and_split_like_their_recording(blob_files):
+    data = load_train_data(_cfg(blob_files, val_fraction=0.25, slower_copies=[2]))
+    # per source: the recording (45 training frames: 4 windows) and its copy of 30 frames
+    # (the last 10 held out, 20 left: 2 windows)
+    assert [len(s) for s in data.sources] == [6, 6]
+    assert data.val is not None and len(data.val) == 4
+    occ, _ = blob_recording(60, seed=1).maps(data.grid)
+    assert np.array_equal(data.sources[0].maps[1][:, 0], occ[0:40:2])
+    # validation: each recording's tail, then its copy's, which carries no ground-truth flow
+    assert data.val[0][2] and not data.val[1][2]

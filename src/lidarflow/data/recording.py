@@ -238,6 +238,21 @@ class Recording:
             extras=extras,
         )
 
+    def every(self, step: int) -> Recording:
+        """Every ``step``-th frame from the first, with its pose: what a sensor ``step`` times
+        slower would have given. Per-frame extras (a simulation's ground-truth flow between
+        consecutive frames) do not hold between the frames kept, so they are left out, as is
+        ``meta["clock_jumps"]`` (frame numbers of this recording)."""
+        if step < 1:
+            raise RecordingError(f"step must be >= 1, got {step}")
+        kept = np.arange(0, len(self), step)
+        n = len(self)
+        extras = {k: v for k, v in self.extras.items() if not (v.ndim and v.shape[0] == n)}
+        meta = {k: v for k, v in self.meta.items() if k != "clock_jumps"}
+        meta["every"] = step * int(self.meta.get("every", 1))
+        poses = None if self.poses is None else self.poses[kept]
+        return Recording.from_scans([self.scan(int(i)) for i in kept], poses, meta, extras)
+
     def _sliced_meta(self, start: int, stop: int) -> dict[str, Any]:
         meta = {**self.meta, "sliced_from": [start, stop]}
         if meta.get("clock_jumps"):  # frame numbers (and the shift in effect) of the slice

@@ -74,7 +74,10 @@ class DataConfig:
     scans, as it is evaluated, rather than uncompensated. ``static_shift``: the fraction of
     training windows whose motions are all zero (a sensor standing still, or a recording
     without poses) in which a piece of the scene moves by a cell or two partway through and
-    stays moved (:mod:`lidarflow.train.augment`).
+    stays moved (:mod:`lidarflow.train.augment`). ``slower_copies``: every recording is also
+    served at every k-th scan, for each k given (:meth:`~lidarflow.data.Recording.every`),
+    split into training and validation like the recording itself: the head then also learns
+    rates k times below those recorded (its memories decay per frame, not per second).
     """
 
     sources: list[str] = field(default_factory=list)
@@ -95,6 +98,7 @@ class DataConfig:
     memories_from_stream: bool = False
     scan_motions: bool = False
     static_shift: float = 0.0
+    slower_copies: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -185,6 +189,10 @@ class TrainConfig:
             (
                 0 <= d.pose_dropout <= 1 and 0 <= d.static_shift <= 1,
                 "data.pose_dropout and data.static_shift are fractions of windows, in [0, 1]",
+            ),
+            (
+                all(isinstance(k, int) and k >= 2 for k in d.slower_copies),
+                "data.slower_copies are whole numbers of scans >= 2 (every k-th scan)",
             ),
             (o.name in ("adam", "adamw", "sgd"), "optim.name must be adam, adamw or sgd"),
             (

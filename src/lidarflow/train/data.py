@@ -325,6 +325,11 @@ def load_train_data(
         )
     grid = GridSpec(cfg.grid, cfg.grid, cfg.res)
     per_source = [_load(expand_source(s), cfg.topic) for s in cfg.sources]
+    if cfg.slower_copies:  # each recording, then its copies: the order of the windows
+        per_source = [
+            [c for r in recs for c in (r, *(r.every(k) for k in cfg.slower_copies))]
+            for recs in per_source
+        ]
     notes: list[str] = []
     val_recs: list[Recording] = []
     train_recs: list[list[Recording]] = [[] for _ in per_source]
