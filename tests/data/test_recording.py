@@ -166,8 +166,10 @@ def test_long_geometry_runs_rasterize_in_batches_to_the_same_maps(monkeypatch):
 def test_every_kth_frame_is_a_slower_sensors_recording():
     rec = blob_recording(n=25, seed=3)
     rec.poses = np.arange(75, dtype=np.float64).reshape(25, 3)
+    rec.extras["moving"] = np.arange(25) % 2 == 0  # per frame: kept frame by frame
     rec.extras["note"] = np.array(7)  # not per frame: kept
-    rec.meta["clock_jumps"] = [[10, 5]]
+    rec.meta["clock_jumps"] = [{"before_frame": 10}]
+    rec.meta["frame_rate_hz"] = round(rec.frame_rate, 3)
     slow = rec.every(3)
     assert len(slow) == 9
     assert np.array_equal(slow.stamps_ns, rec.stamps_ns[::3])
@@ -175,10 +177,12 @@ def test_every_kth_frame_is_a_slower_sensors_recording():
     for i in range(9):
         assert np.array_equal(slow.scan(i).ranges, rec.scan(3 * i).ranges)
         assert slow.geometry(i) == rec.geometry(3 * i)
-    # ground truth between consecutive frames does not hold three frames apart
-    assert "flow_backward" in rec.extras and "flow_backward" not in slow.extras
+    assert np.array_equal(slow.extras["moving"], rec.extras["moving"][::3])
     assert int(slow.extras["note"]) == 7
+    # ground truth between consecutive frames does not hold three frames apart
+    assert "flow_backward" in rec.extras and not any(k.startswith("flow_") for k in slow.extras)
     assert slow.meta["every"] == 3 and "clock_jumps" not in slow.meta
+    assert slow.meta["frame_rate_hz"] == pytest.approx(rec.frame_rate / 3, rel=1e-3)
     assert slow.every(2).meta["every"] == 6
     assert rec.every(1).meta["every"] == 1 and len(rec.every(1)) == 25
     with pytest.raises(RecordingError, match="step"):

@@ -124,13 +124,23 @@ def test_subcell_windows_carry_each_frames_subcell_maps(blob_files):
     np.testing.assert_array_equal(item[:, 2:].numpy().astype(bool), expected)
 
 
-def test_slower_copies_serve_every_kth_frame_and_split_like_their_recording(blob_files):
+def test_slower_copies_serve_every_kth_training_frame_and_leave_validation_alone(blob_files):
     data = load_train_data(_cfg(blob_files, val_fraction=0.25, slower_copies=[2]))
-    # per source: the recording (45 training frames: 4 windows) and its copy of 30 frames
-    # (the last 10 held out, 20 left: 2 windows)
+    # per source: the recording's 45 training frames (4 windows) and their copy, 23 frames
+    # (2 windows); validation is the 15-frame tails as recorded, one window each
     assert [len(s) for s in data.sources] == [6, 6]
-    assert data.val is not None and len(data.val) == 4
+    assert data.val is not None and len(data.val) == 2
     occ, _ = blob_recording(60, seed=1).maps(data.grid)
-    assert np.array_equal(data.sources[0].maps[1][:, 0], occ[0:40:2])
-    # validation: each recording's tail, then its copy's, which carries no ground-truth flow
-    assert data.val[0][2] and not data.val[1][2]
+    assert np.array_equal(data.sources[0].maps[1][:, 0], occ[0:45:2])
+    assert data.val.maps[0].shape[0] == 15 and np.array_equal(data.val.maps[0][:, 0], occ[45:])
+    # whole recordings held out: no copy of one of them trains, none validates
+    data = load_train_data(
+        _cfg(
+            [blob_files[0].parent / "blob_*.npz"],
+            val_split="recordings",
+            val_fraction=0.5,
+            slower_copies=[2, 3],
+        )
+    )
+    assert [len(s) for s in data.sources] == [6 + 3 + 2] and len(data.val) == 6
+    assert [m.shape[0] for m in data.sources[0].maps] == [60, 30, 20]

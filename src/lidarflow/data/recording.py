@@ -239,19 +239,29 @@ class Recording:
         )
 
     def every(self, step: int) -> Recording:
-        """Every ``step``-th frame from the first, with its pose: what a sensor ``step`` times
-        slower would have given. Per-frame extras (a simulation's ground-truth flow between
-        consecutive frames) do not hold between the frames kept, so they are left out, as is
-        ``meta["clock_jumps"]`` (frame numbers of this recording)."""
+        """Every ``step``-th frame from the first, with its pose and per-frame extras: what a
+        sensor ``step`` times slower would have given. Ground-truth flow (``flow_*`` extras,
+        between consecutive frames) does not hold between the frames kept and is left out, as
+        are the metadata that number this recording's frames (``clock_jumps``, ``episodes``).
+        """
         if step < 1:
             raise RecordingError(f"step must be >= 1, got {step}")
-        kept = np.arange(0, len(self), step)
         n = len(self)
-        extras = {k: v for k, v in self.extras.items() if not (v.ndim and v.shape[0] == n)}
-        meta = {k: v for k, v in self.meta.items() if k != "clock_jumps"}
+        kept = np.arange(0, n, step)
+        extras = {}
+        for key, value in self.extras.items():
+            if not (value.ndim and value.shape[0] == n):
+                extras[key] = value
+            elif not key.startswith("flow_"):
+                extras[key] = value[kept]
+        dropped = {"clock_jumps", "episodes", "flow_storage"}
+        meta = {k: v for k, v in self.meta.items() if k not in dropped}
         meta["every"] = step * int(self.meta.get("every", 1))
         poses = None if self.poses is None else self.poses[kept]
-        return Recording.from_scans([self.scan(int(i)) for i in kept], poses, meta, extras)
+        slower = Recording.from_scans([self.scan(int(i)) for i in kept], poses, meta, extras)
+        if "frame_rate_hz" in meta:
+            slower.meta["frame_rate_hz"] = round(slower.frame_rate, 3)
+        return slower
 
     def _sliced_meta(self, start: int, stop: int) -> dict[str, Any]:
         meta = {**self.meta, "sliced_from": [start, stop]}

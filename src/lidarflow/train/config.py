@@ -74,10 +74,12 @@ class DataConfig:
     scans, as it is evaluated, rather than uncompensated. ``static_shift``: the fraction of
     training windows whose motions are all zero (a sensor standing still, or a recording
     without poses) in which a piece of the scene moves by a cell or two partway through and
-    stays moved (:mod:`lidarflow.train.augment`). ``slower_copies``: every recording is also
-    served at every k-th scan, for each k given (:meth:`~lidarflow.data.Recording.every`),
-    split into training and validation like the recording itself: the head then also learns
-    rates k times below those recorded (its memories decay per frame, not per second).
+    stays moved (:mod:`lidarflow.train.augment`). ``slower_copies``: the training frames of every
+    recording are also served at every k-th scan, for each k given
+    (:meth:`~lidarflow.data.Recording.every`; validation stays as recorded), so the head also
+    learns rates k times below those recorded (its memories decay per frame, not per second).
+    The copies' windows join the pool an epoch draws from: with ``epoch_windows`` 0 (every
+    window) an epoch grows by about 1/k of its length per copy.
     """
 
     sources: list[str] = field(default_factory=list)
@@ -191,8 +193,9 @@ class TrainConfig:
                 "data.pose_dropout and data.static_shift are fractions of windows, in [0, 1]",
             ),
             (
-                all(isinstance(k, int) and k >= 2 for k in d.slower_copies),
-                "data.slower_copies are whole numbers of scans >= 2 (every k-th scan)",
+                all(isinstance(k, int) and k >= 2 for k in d.slower_copies)
+                and len(set(d.slower_copies)) == len(d.slower_copies),
+                "data.slower_copies are distinct whole numbers of scans >= 2 (every k-th scan)",
             ),
             (o.name in ("adam", "adamw", "sgd"), "optim.name must be adam, adamw or sgd"),
             (

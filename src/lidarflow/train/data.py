@@ -325,11 +325,6 @@ def load_train_data(
         )
     grid = GridSpec(cfg.grid, cfg.grid, cfg.res)
     per_source = [_load(expand_source(s), cfg.topic) for s in cfg.sources]
-    if cfg.slower_copies:  # each recording, then its copies: the order of the windows
-        per_source = [
-            [c for r in recs for c in (r, *(r.every(k) for k in cfg.slower_copies))]
-            for recs in per_source
-        ]
     notes: list[str] = []
     val_recs: list[Recording] = []
     train_recs: list[list[Recording]] = [[] for _ in per_source]
@@ -357,6 +352,10 @@ def load_train_data(
                     train_recs[i].append(train)
                 if val is not None:
                     val_recs.append(val)
+    if cfg.slower_copies:  # of the training frames only: validation stays as recorded
+        train_recs = [
+            [c for r in recs for c in _with_slower(r, cfg.slower_copies)] for recs in train_recs
+        ]
     sources = []
     for spec, recs in zip(cfg.sources, train_recs, strict=True):
         if not recs:
@@ -379,6 +378,14 @@ def load_train_data(
         except LidarflowError as err:
             notes.append(f"no validation windows ({err})")
     return TrainData(sources, _weights(cfg.mix, len(sources)), val, grid, notes)
+
+
+def _with_slower(rec: Recording, steps: list[int]) -> list[Recording]:
+    """``rec``, then its every-k-th-scan copy for each k of ``steps``."""
+    copies = [rec.every(k) for k in steps]
+    for k, copy in zip(steps, copies, strict=True):
+        copy.meta["source"] = f"{rec.meta.get('source', 'a recording')} (every {k}th scan)"
+    return [rec, *copies]
 
 
 def _weights(mix: list[float], n: int) -> list[float]:
