@@ -9,7 +9,8 @@ another sensor would have seen of the same scene, keeping their real noise, drop
 - ``range3.5``: every return beyond 3.5 m becomes no return, ``range_max`` 3.5 m (a hobby LDS);
 - ``beams4``: every fourth beam (a coarse scanner: 1.4 degrees between beams on the 270-degree
   Hokuyos, 4 on datmo_overtakes' 360-beam scanner);
-- ``rate2``: every second scan (half the rate; the motion per step doubles).
+- ``rate2``: every second scan (half the rate; the motion per step doubles);
+- ``cheap``: 3.5 m, every second beam and every second scan at once (a hobby scanner).
 
 Each view of each recording is scored with the model that never trained on the recording
 (``--fold REC=MODEL``; the bundled model has seen every development recording), with
@@ -100,6 +101,8 @@ VIEWS: dict[str, Callable[[Recording], Recording]] = {
     "range3.5": per_scan(lambda s: shorter(s, 3.5)),
     "beams4": per_scan(lambda s: coarser(s, 4)),
     "rate2": lambda r: kept_frames(r, range(0, len(r), 2)),
+    # the three at once, milder: a hobby scanner (3.5 m, every second beam, half the rate)
+    "cheap": lambda r: per_scan(lambda s: coarser(shorter(s, 3.5), 2))(r).every(2),
 }
 
 
