@@ -19,16 +19,9 @@ import argparse
 import json
 from pathlib import Path
 
-from study import lidarflow, model_and_baselines, stem, verdict
+from study import lidarflow, margins, model_and_baselines, stem, verdict
 
 from lidarflow.data import load_any
-
-
-def _margins(scores: dict) -> tuple[float, float]:
-    baselines = scores["baselines"].values()
-    best_f1 = max(b["f1"] for b in baselines)
-    best_changed = max(b["changed_f1"] for b in baselines)
-    return scores["model"]["f1"] - best_f1, scores["model"]["changed_f1"] - best_changed
 
 
 def main() -> None:
@@ -51,7 +44,7 @@ def main() -> None:
             report = clip.with_suffix(".json")
             lidarflow("evaluate", str(clip), "--model", str(run), "--json", str(report))
             scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
-            f1_margin, changed_margin = _margins(scores)
+            f1_margin, changed_margin = margins(scores)
             study[f"{stem(source)}/first {n}"] = {
                 **scores,
                 "f1_margin": f1_margin,

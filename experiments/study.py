@@ -40,6 +40,13 @@ def best_baselines(baselines: dict[str, dict[str, float]]) -> tuple[float, float
     return best_f1, max(b["changed_f1"] for b in baselines.values())
 
 
+def margins(scores: dict) -> tuple[float, float]:
+    """The model's F1 and changed-cell F1 less the best baselines' (:func:`best_baselines`), of
+    ``scores`` as :func:`model_and_baselines` gives them."""
+    best_f1, best_changed = best_baselines(scores["baselines"])
+    return scores["model"]["f1"] - best_f1, scores["model"]["changed_f1"] - best_changed
+
+
 def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
     """``{"model": ..., "baselines": {name: ...}}`` (METRICS only) from an evaluate report's
     methods of one recording that holds one model beside the baselines."""

@@ -164,9 +164,9 @@ class OdometryCheck:
         shift = float(np.median(np.hypot(r2 - rows, c2 - cols)))
         moved = int(current[r2[inside], c2[inside]].sum())
         still = int(current[rows[inside], cols[inside]].sum())
-        if self._is_outlier(shift / span) and self._explains_better(
-            rows, cols, current, self.stand_in(span), moved
-        ):
+        # An outlier has recent steps to be one against, so a stand-in to weigh it by.
+        stand_in = self.stand_in(span) if self._is_outlier(shift / span) else None
+        if stand_in is not None and self._explains_better(rows, cols, current, stand_in, moved):
             self.jumps += 1
             self.jumped = True
             return False
@@ -193,15 +193,13 @@ class OdometryCheck:
         rows: np.ndarray,
         cols: np.ndarray,
         current: np.ndarray,
-        motion: np.ndarray | None,
+        motion: np.ndarray,
         hits: int,
     ) -> bool:
-        """Whether the previous map's occupied cells ``rows, cols`` moved by ``motion`` (none:
-        unmoved) land on ``current``'s occupied cells at least twice as often as the ``hits`` of
-        the step's own motion, and ``jump_evidence`` cells more."""
+        """Whether the previous map's occupied cells ``rows, cols`` moved by ``motion`` land on
+        ``current``'s occupied cells at least twice as often as the ``hits`` of the step's own
+        motion, and ``jump_evidence`` cells more."""
         h, w = current.shape
-        if motion is not None:
-            rows, cols = cells_in_new_frame(rows, cols, motion, h, w)
-            inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-            rows, cols = rows[inside], cols[inside]
-        return int(current[rows, cols].sum()) >= 2 * hits + self.jump_evidence
+        rows, cols = cells_in_new_frame(rows, cols, motion, h, w)
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        return int(current[rows[inside], cols[inside]].sum()) >= 2 * hits + self.jump_evidence
