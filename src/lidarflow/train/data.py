@@ -384,7 +384,7 @@ def _with_slower(rec: Recording, steps: list[int]) -> list[Recording]:
     """``rec``, then its every-k-th-scan copy for each k of ``steps``."""
     copies = [rec.every(k) for k in steps]
     for k, copy in zip(steps, copies, strict=True):
-        copy.meta["source"] = f"{rec.meta.get('source', 'a recording')} (every {k}th scan)"
+        copy.meta["source"] = f"{rec.meta.get('source', 'a recording')} (1 scan in {k})"
     return [rec, *copies]
 
 
