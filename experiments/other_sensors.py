@@ -31,78 +31,23 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 from study import lidarflow, margins, model_and_baselines, stem, verdict
 
 from lidarflow.data.recording import Recording
 from lidarflow.data.sources import load_any
-from lidarflow.scan import BeamGeometry, Scan
+from lidarflow.data.views import SensorView
 
-
-def narrower(scan: Scan, fov_deg: float) -> Scan:
-    """The beams of ``scan`` within ``fov_deg / 2`` of straight ahead (the sensor's x axis),
-    bearings taken modulo a turn (a scan from 0 to 2 pi keeps both its ends, joined); a scan
-    with no beam there becomes one unknown beam straight ahead."""
-    g = scan.geometry
-    angles = g.angle_min + g.angle_increment * np.arange(g.count)
-    bearings = (angles + np.pi) % (2.0 * np.pi) - np.pi
-    keep = np.flatnonzero(np.abs(bearings) <= np.radians(fov_deg) / 2.0)
-    if keep.size == 0:
-        ahead = BeamGeometry(1, 0.0, g.angle_increment, g.range_min, g.range_max)
-        return Scan(np.array([np.nan], np.float32), ahead, scan.stamp_ns)
-    gaps = np.flatnonzero(np.diff(keep) > 1)
-    if gaps.size:  # the kept beams run over the end of the scan into its start
-        keep = np.concatenate([keep[gaps[0] + 1 :], keep[: gaps[0] + 1]])
-    geometry = BeamGeometry(
-        count=int(keep.size),
-        angle_min=float(bearings[keep[0]]),
-        angle_increment=g.angle_increment,
-        range_min=g.range_min,
-        range_max=g.range_max,
-    )
-    return Scan(np.asarray(scan.ranges, np.float32)[keep], geometry, scan.stamp_ns)
-
-
-def shorter(scan: Scan, range_max: float) -> Scan:
-    """``scan`` as a sensor that sees no further than ``range_max`` metres (or its own
-    ``range_max``, if nearer): every return beyond it becomes no return (``+inf``), as do the
-    readings at or past the scanner's own limit (no return already, by the beam rule)."""
-    g = scan.geometry
-    limit = min(range_max, g.range_max)
-    ranges = np.asarray(scan.ranges, np.float32).copy()
-    with np.errstate(invalid="ignore"):
-        beyond = np.isfinite(ranges) & ((ranges >= g.range_max) | (ranges > limit))
-    ranges[beyond] = np.inf
-    geometry = BeamGeometry(g.count, g.angle_min, g.angle_increment, g.range_min, limit)
-    return Scan(ranges, geometry, scan.stamp_ns)
-
-
-def coarser(scan: Scan, every: int) -> Scan:
-    """Every ``every``-th beam of ``scan``."""
-    g = scan.geometry
-    ranges = np.asarray(scan.ranges[::every], np.float32)
-    geometry = BeamGeometry(
-        ranges.size, g.angle_min, g.angle_increment * every, g.range_min, g.range_max
-    )
-    return Scan(ranges, geometry, scan.stamp_ns)
-
-
-def per_scan(change: Callable[[Scan], Scan]) -> Callable[[Recording], Recording]:
-    def view(recording: Recording) -> Recording:
-        scans = [change(s) for s in recording]
-        return Recording.from_scans(scans, recording.poses, recording.meta)
-
-    return view
-
-
+# name -> the sensor view it scores; "cheap" is the three milder at once (a hobby scanner)
+SPECS = {
+    "fov86": "fov86",
+    "range3.5": "range3.5",
+    "beams4": "beams4",
+    "rate2": "rate2",
+    "cheap": "range3.5+beams2+rate2",
+}
 VIEWS: dict[str, Callable[[Recording], Recording]] = {
     "recorded": lambda r: r,
-    "fov86": per_scan(lambda s: narrower(s, 86.0)),
-    "range3.5": per_scan(lambda s: shorter(s, 3.5)),
-    "beams4": per_scan(lambda s: coarser(s, 4)),
-    "rate2": lambda r: r.every(2),
-    # the three at once, milder: a hobby scanner (3.5 m, every second beam, half the rate)
-    "cheap": lambda r: per_scan(lambda s: coarser(shorter(s, 3.5), 2))(r.every(2)),
+    **{name: SensorView.parse(spec).recording for name, spec in SPECS.items()},
 }
 
 

@@ -160,6 +160,11 @@ def test_bad_config_files_and_values(tmp_path):
         with pytest.raises(TrainError, match=r"data\.slower_copies"):
             build_config(None, None, {"data.slower_copies": copies})
     assert build_config(None, None, {"data.slower_copies": [2, 3]}).data.slower_copies == [2, 3]
+    for views, why in ((["fov"], "cannot read"), (["beams2", "beams2"], "named twice")):
+        with pytest.raises(TrainError, match=rf"data\.sensor_copies.*{why}"):
+            build_config(None, None, {"data.sensor_copies": views})
+    views = ["fov180", "range3.5+beams2"]
+    assert build_config(None, None, {"data.sensor_copies": views}).data.sensor_copies == views
 
 
 def test_a_gap_threshold_of_one_period_or_less_is_refused_before_any_data_loads():

@@ -21,7 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from lidarflow.errors import TrainError
+from lidarflow.data.views import SensorView
+from lidarflow.errors import RecordingError, TrainError
 from lidarflow.losses import LossConfig
 
 __all__ = [
@@ -79,7 +80,11 @@ class DataConfig:
     (:meth:`~lidarflow.data.Recording.every`; validation stays as recorded), so the head also
     learns rates k times below those recorded (its memories decay per frame, not per second).
     The copies' windows join the pool an epoch draws from: with ``epoch_windows`` 0 (every
-    window) an epoch grows by about 1/k of its length per copy.
+    window) an epoch grows by about 1/k of its length per copy. ``sensor_copies``: likewise, the
+    training frames of every recording also served as each sensor named would have seen them
+    (:class:`~lidarflow.data.views.SensorView` specs: ``fov180``, ``range4``, ``beams3``,
+    ``range3.5+beams2+rate2``...), so that the head meets other fields of view, ranges and beam
+    spacings with the recording's own noise and people.
     """
 
     sources: list[str] = field(default_factory=list)
@@ -101,6 +106,7 @@ class DataConfig:
     scan_motions: bool = False
     static_shift: float = 0.0
     slower_copies: list[int] = field(default_factory=list)
+    sensor_copies: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -223,6 +229,13 @@ class TrainConfig:
         for ok, message in checks:
             if not ok:
                 raise TrainError(f"bad training config: {message}")
+        if len(set(d.sensor_copies)) != len(d.sensor_copies):
+            raise TrainError("bad training config: data.sensor_copies are named twice")
+        for spec in d.sensor_copies:
+            try:
+                SensorView.parse(str(spec))
+            except RecordingError as err:
+                raise TrainError(f"bad training config: data.sensor_copies: {err}") from err
         return self
 
 

@@ -53,6 +53,7 @@ from lidarflow.data.motion import metres_to_cells, relative_motions
 from lidarflow.data.scanalign import recording_points
 from lidarflow.data.scanmatch import scan_motions
 from lidarflow.data.sources import topic_notes
+from lidarflow.data.views import SensorView
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.scan import GridSpec
 from lidarflow.train.augment import shift_patch
@@ -352,10 +353,10 @@ def load_train_data(
                     train_recs[i].append(train)
                 if val is not None:
                     val_recs.append(val)
-    if cfg.slower_copies:  # of the training frames only: validation stays as recorded
-        train_recs = [
-            [c for r in recs for c in _with_slower(r, cfg.slower_copies)] for recs in train_recs
-        ]
+    if cfg.slower_copies or cfg.sensor_copies:  # of the training frames only: validation
+        views = [SensorView(every_scan=k) for k in cfg.slower_copies]  # stays as recorded
+        views += [SensorView.parse(spec) for spec in cfg.sensor_copies]
+        train_recs = [[c for r in recs for c in _with_copies(r, views)] for recs in train_recs]
     sources = []
     for spec, recs in zip(cfg.sources, train_recs, strict=True):
         if not recs:
@@ -380,11 +381,16 @@ def load_train_data(
     return TrainData(sources, _weights(cfg.mix, len(sources)), val, grid, notes)
 
 
-def _with_slower(rec: Recording, steps: list[int]) -> list[Recording]:
-    """``rec``, then its every-k-th-scan copy for each k of ``steps``."""
-    copies = [rec.every(k) for k in steps]
-    for k, copy in zip(steps, copies, strict=True):
-        copy.meta["source"] = f"{rec.meta.get('source', 'a recording')} (1 scan in {k})"
+def _with_copies(rec: Recording, views: list[SensorView]) -> list[Recording]:
+    """``rec``, then its copy as each of ``views`` would have seen it."""
+    source = rec.meta.get("source", "a recording")
+    copies = []
+    for view in views:
+        copy = view.recording(rec)
+        rate_only = view == SensorView(every_scan=view.every_scan)
+        seen = f"1 scan in {view.every_scan}" if rate_only else f"seen as {view.name}"
+        copy.meta["source"] = f"{source} ({seen})"
+        copies.append(copy)
     return [rec, *copies]
 
 
