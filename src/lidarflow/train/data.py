@@ -353,8 +353,9 @@ def load_train_data(
                     train_recs[i].append(train)
                 if val is not None:
                     val_recs.append(val)
-    if cfg.slower_copies or cfg.sensor_copies:  # of the training frames only: validation
-        views = [SensorView(every_scan=k) for k in cfg.slower_copies]  # stays as recorded
+    if cfg.slower_copies or cfg.sensor_copies:
+        # copies of the training frames only: validation stays as recorded
+        views = [SensorView(every_scan=k) for k in cfg.slower_copies]
         views += [SensorView.parse(spec) for spec in cfg.sensor_copies]
         train_recs = [[c for r in recs for c in _with_copies(r, views)] for recs in train_recs]
     sources = []
