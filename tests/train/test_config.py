@@ -160,9 +160,16 @@ def test_bad_config_files_and_values(tmp_path):
         with pytest.raises(TrainError, match=r"data\.slower_copies"):
             build_config(None, None, {"data.slower_copies": copies})
     assert build_config(None, None, {"data.slower_copies": [2, 3]}).data.slower_copies == [2, 3]
-    for views, why in ((["fov"], "cannot read"), (["beams2", "beams2"], "named twice")):
+    for views, why in (
+        (["fov"], "cannot read"),
+        (["beams2", "beams2"], "already asked for"),
+        (["beams2+range3", "range3+beams2"], "already asked for"),
+        (["rate1"], "changes nothing"),
+    ):
         with pytest.raises(TrainError, match=rf"data\.sensor_copies.*{why}"):
             build_config(None, None, {"data.sensor_copies": views})
+    with pytest.raises(TrainError, match="already asked for"):
+        build_config(None, None, {"data.slower_copies": [2], "data.sensor_copies": ["rate2"]})
     views = ["fov180", "range3.5+beams2"]
     assert build_config(None, None, {"data.sensor_copies": views}).data.sensor_copies == views
 

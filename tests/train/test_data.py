@@ -11,7 +11,7 @@ import torch
 from lidarflow.data.views import SensorView
 from lidarflow.errors import TrainError
 from lidarflow.train.config import DataConfig
-from lidarflow.train.data import expand_source, load_train_data
+from lidarflow.train.data import _with_copies, expand_source, load_train_data
 from lidarflow.train.loaders import MixSampler, make_loader
 from tests.train.blobs import blob_recording
 
@@ -162,6 +162,12 @@ def test_sensor_copies_serve_training_frames_as_other_sensors_saw_them(blob_file
     assert data.sources[0].maps[1][:, 0].sum() < occ[:45].sum()  # the view sees less
     assert data.sources[0].maps[2].shape[0] == 23
     assert np.array_equal(data.val.maps[0][:, 0], occ[45:])
+    # what notes and errors call each copy
+    rec.meta["source"] = "A"
+    views = [SensorView(every_scan=2), SensorView.parse("fov60"), SensorView()]
+    copies = _with_copies(rec, views)
+    assert copies[0] is rec and rec.meta["source"] == "A"  # the view of nothing adds nothing
+    assert [c.meta["source"] for c in copies[1:]] == ["A (1 scan in 2)", "A (seen as fov60)"]
     # a slower copy and a sensor copy of rate alone are the same frames
     a = load_train_data(_cfg(blob_files[:1], val_fraction=0.25, slower_copies=[3]))
     b = load_train_data(_cfg(blob_files[:1], val_fraction=0.25, sensor_copies=["rate3"]))

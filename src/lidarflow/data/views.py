@@ -35,12 +35,18 @@ _PART = re.compile(r"(fov|range|beams|rate)(\d+(?:\.\d+)?)")
 
 def narrower(scan: Scan, fov_deg: float) -> Scan:
     """The beams of ``scan`` within ``fov_deg / 2`` of straight ahead (the sensor's x axis),
-    bearings taken modulo a turn (a scan from 0 to 2 pi keeps both its ends, joined); a scan
-    with no beam there becomes one unknown beam straight ahead."""
+    bearings taken modulo a turn (a scan from 0 to 2 pi keeps both its ends, joined; a beam
+    that repeats the bearing of one a turn before it is left out); a scan with no beam there
+    becomes one unknown beam straight ahead."""
     g = scan.geometry
-    angles = g.angle_min + g.angle_increment * np.arange(g.count)
+    count = g.count
+    if g.angle_increment != 0:
+        # beams a whole turn after an earlier one point the same way: keep the first turn
+        count = min(count, max(1, round(2.0 * np.pi / abs(g.angle_increment))))
+    angles = g.angle_min + g.angle_increment * np.arange(count)
     bearings = (angles + np.pi) % (2.0 * np.pi) - np.pi
-    keep = np.flatnonzero(np.abs(bearings) <= np.radians(fov_deg) / 2.0)
+    # a beam exactly at the edge stays whichever way the increment runs (float rounding)
+    keep = np.flatnonzero(np.abs(bearings) <= np.radians(fov_deg) / 2.0 + 1e-9)
     if keep.size == 0:
         ahead = BeamGeometry(1, 0.0, g.angle_increment, g.range_min, g.range_max)
         return Scan(np.array([np.nan], np.float32), ahead, scan.stamp_ns)
@@ -63,6 +69,11 @@ def shorter(scan: Scan, range_max: float) -> Scan:
     readings at or past the scanner's own limit (no return already, by the beam rule)."""
     g = scan.geometry
     limit = min(range_max, g.range_max)
+    if limit <= g.range_min:
+        raise RecordingError(
+            f"a range limit of {range_max:g} m leaves nothing: the scanner's range_min is "
+            f"{g.range_min:g} m"
+        )
     ranges = np.asarray(scan.ranges, np.float32).copy()
     with np.errstate(invalid="ignore"):
         beyond = np.isfinite(ranges) & ((ranges >= g.range_max) | (ranges > limit))
@@ -79,6 +90,11 @@ def coarser(scan: Scan, every: int) -> Scan:
         ranges.size, g.angle_min, g.angle_increment * every, g.range_min, g.range_max
     )
     return Scan(ranges, geometry, scan.stamp_ns)
+
+
+def _decimal(value: float) -> str:
+    """``value`` as the shortest plain decimal that reads back to it (no exponent)."""
+    return np.format_float_positional(value, trim="-")
 
 
 @dataclass(frozen=True)
@@ -103,14 +119,17 @@ class SensorView:
             math.isfinite(self.range_max) and self.range_max > 0
         ):
             raise RecordingError(f"a range limit is a positive distance, got {self.range_max}")
-        if self.every_beam < 1 or self.every_scan < 1:
-            raise RecordingError("every_beam and every_scan are whole numbers >= 1")
+        for every in (self.every_beam, self.every_scan):
+            if not isinstance(every, int) or isinstance(every, bool) or every < 1:
+                raise RecordingError("every_beam and every_scan are whole numbers >= 1")
 
     @classmethod
     def parse(cls, spec: str) -> SensorView:
         """The view named ``spec`` (module docstring), e.g. ``"fov180"``,
         ``"range4+beams3"``; a :class:`~lidarflow.errors.RecordingError` naming the part it
-        cannot read."""
+        cannot read. ``"recorded"`` is the view that changes nothing."""
+        if spec.strip() == "recorded":
+            return cls()
         found: dict[str, float] = {}
         for part in spec.split("+"):
             match = _PART.fullmatch(part.strip())
@@ -137,9 +156,9 @@ class SensorView:
         """The spec that :meth:`parse` reads back as this view (``"recorded"``: no change)."""
         parts = []
         if self.fov_deg is not None:
-            parts.append(f"fov{self.fov_deg:g}")
+            parts.append(f"fov{_decimal(self.fov_deg)}")
         if self.range_max is not None:
-            parts.append(f"range{self.range_max:g}")
+            parts.append(f"range{_decimal(self.range_max)}")
         if self.every_beam > 1:
             parts.append(f"beams{self.every_beam}")
         if self.every_scan > 1:

@@ -80,11 +80,12 @@ class DataConfig:
     (:meth:`~lidarflow.data.Recording.every`; validation stays as recorded), so the head also
     learns rates k times below those recorded (its memories decay per frame, not per second).
     The copies' windows join the pool an epoch draws from: with ``epoch_windows`` 0 (every
-    window) an epoch grows by about 1/k of its length per copy. ``sensor_copies``: likewise, the
+    window) an epoch grows by about 1/k of its length per copy. ``sensor_copies``: the
     training frames of every recording also served as each sensor named would have seen them
     (:class:`~lidarflow.data.views.SensorView` specs: ``fov180``, ``range4``, ``beams3``,
     ``range3.5+beams2+rate2``...), so that the head meets other fields of view, ranges and beam
-    spacings with the recording's own noise and people.
+    spacings with the recording's own noise and people; a copy that keeps every scan adds about
+    a whole epoch's windows to the pool.
     """
 
     sources: list[str] = field(default_factory=list)
@@ -229,13 +230,23 @@ class TrainConfig:
         for ok, message in checks:
             if not ok:
                 raise TrainError(f"bad training config: {message}")
-        if len(set(d.sensor_copies)) != len(d.sensor_copies):
-            raise TrainError("bad training config: data.sensor_copies are named twice")
+        # the same copy twice (or one that changes nothing) would only re-weight the data
+        views = [SensorView(every_scan=k) for k in d.slower_copies]
         for spec in d.sensor_copies:
             try:
-                SensorView.parse(str(spec))
+                view = SensorView.parse(str(spec))
             except RecordingError as err:
                 raise TrainError(f"bad training config: data.sensor_copies: {err}") from err
+            if view == SensorView():
+                raise TrainError(
+                    f"bad training config: data.sensor_copies: {spec!r} changes nothing"
+                )
+            if view in views:
+                raise TrainError(
+                    f"bad training config: data.sensor_copies: {spec!r} asks for a copy "
+                    "already asked for (here or in data.slower_copies)"
+                )
+            views.append(view)
         return self
 
 

@@ -357,7 +357,13 @@ def load_train_data(
         # copies of the training frames only: validation stays as recorded
         views = [SensorView(every_scan=k) for k in cfg.slower_copies]
         views += [SensorView.parse(spec) for spec in cfg.sensor_copies]
-        train_recs = [[c for r in recs for c in _with_copies(r, views)] for recs in train_recs]
+        copied = []
+        for spec, recs in zip(cfg.sources, train_recs, strict=True):
+            try:
+                copied.append([c for r in recs for c in _with_copies(r, views)])
+            except LidarflowError as err:
+                raise TrainError(f"data source {spec}: {err}") from err
+        train_recs = copied
     sources = []
     for spec, recs in zip(cfg.sources, train_recs, strict=True):
         if not recs:
@@ -388,6 +394,8 @@ def _with_copies(rec: Recording, views: list[SensorView]) -> list[Recording]:
     copies = []
     for view in views:
         copy = view.recording(rec)
+        if copy is rec:  # a view that changes nothing (validation refuses one) adds nothing
+            continue
         rate_only = view == SensorView(every_scan=view.every_scan)
         seen = f"1 scan in {view.every_scan}" if rate_only else f"seen as {view.name}"
         copy.meta["source"] = f"{source} ({seen})"
