@@ -218,13 +218,15 @@ class Recording:
                     raise RecordingError(f"frames {a}..{b - 1}: {err}") from err
                 yield slice(a - start, b - start), result
 
+    def is_per_frame(self, extra: np.ndarray) -> bool:
+        """Whether ``extra`` holds one entry per frame (its first axis is the frame count), so
+        that a recording made of some of the frames takes the same ones of it."""
+        return bool(extra.ndim) and extra.shape[0] == len(self)
+
     def slice(self, start: int, stop: int) -> Recording:
         """Frames ``[start, stop)`` as a new recording (per-frame extras are sliced too)."""
         a, b = int(self.offsets[start]), int(self.offsets[stop])
-        n = len(self)
-        extras = {
-            k: (v[start:stop] if v.ndim and v.shape[0] == n else v) for k, v in self.extras.items()
-        }
+        extras = {k: (v[start:stop] if self.is_per_frame(v) else v) for k, v in self.extras.items()}
         return Recording(
             ranges=self.ranges[a:b],
             offsets=self.offsets[start : stop + 1] - a,
@@ -246,11 +248,10 @@ class Recording:
         """
         if step < 1:
             raise RecordingError(f"step must be >= 1, got {step}")
-        n = len(self)
-        kept = np.arange(0, n, step)
+        kept = np.arange(0, len(self), step)
         extras = {}
         for key, value in self.extras.items():
-            if not (value.ndim and value.shape[0] == n):
+            if not self.is_per_frame(value):
                 extras[key] = value
             elif not key.startswith("flow_"):
                 extras[key] = value[kept]

@@ -183,9 +183,8 @@ class SensorView:
             recording = recording.every(self.every_scan)
         if (self.fov_deg, self.range_max, self.every_beam) == (None, None, 1):
             return recording
-        n = len(recording)
-        extras = {k: v for k, v in recording.extras.items() if not (v.ndim and v.shape[0] == n)}
-        scans = [self.scan(recording.scan(i)) for i in range(n)]
+        extras = {k: v for k, v in recording.extras.items() if not recording.is_per_frame(v)}
+        scans = [self.scan(recording.scan(i)) for i in range(len(recording))]
         meta = dict(recording.meta)
         meta["sensor_view"] = self.name
         return Recording.from_scans(scans, recording.poses, meta, extras)
