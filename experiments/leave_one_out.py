@@ -28,7 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from decision_offset import choose_offset, choose_offset_pair
-from study import METRICS, lidarflow, model_and_baselines, stem, verdict
+from study import METRICS, lidarflow, model_and_baselines, split_online, stem, verdict
 
 
 def run_fold(
@@ -71,12 +71,7 @@ def run_fold(
     methods = json.loads(report.read_text())["recordings"][0]["methods"]
     fixed = None
     if online:
-        # The model's own rule is NAME; the other is NAME_online or NAME_fixed.
-        if fixed_keys := [k for k in methods if k.endswith("_fixed")]:
-            fixed = methods.pop(fixed_keys[0])
-        else:
-            (fixed_key,) = [k for k in methods if k + "_online" in methods]
-            fixed = methods.pop(fixed_key)
+        methods, fixed = split_online(methods)
     scores = model_and_baselines(methods)
     if fixed is not None:
         scores = {

@@ -31,7 +31,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from study import lidarflow, margins, model_and_baselines, stem, verdict
+from study import lidarflow, margins, model_and_baselines, split_online, stem, verdict
 
 from lidarflow.data.recording import Recording
 from lidarflow.data.sources import load_any
@@ -80,8 +80,7 @@ def main() -> None:
             lidarflow("evaluate", str(path), "--model", model, "--online-decision",
                       "--json", str(report))  # fmt: skip
             methods = json.loads(report.read_text())["recordings"][0]["methods"]
-            online = {k: v for k, v in methods.items() if not k.endswith("_fixed")}
-            scores = model_and_baselines(online)
+            scores = model_and_baselines(split_online(methods)[0])
             scores["verdict"] = verdict(scores["model"], scores["baselines"])
             f1_margin, changed_margin = margins(scores)
             scores["margins"] = {"f1": round(f1_margin, 4), "changed_f1": round(changed_margin, 4)}

@@ -62,6 +62,21 @@ def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
     return scores
 
 
+def split_online(methods: dict[str, dict]) -> tuple[dict[str, dict], dict | None]:
+    """An ``evaluate --online-decision`` report's methods of one recording, split into those
+    with the model's own rule (the offsets chosen online) and the other rule's scores (the
+    fixed offsets; ``None`` when the report holds one rule only)."""
+    # The model's own rule is NAME; the other is NAME_fixed, or NAME when it has NAME_online.
+    if fixed_keys := [k for k in methods if k.endswith("_fixed")]:
+        (other,) = fixed_keys
+    elif online_keys := [k for k in methods if k + "_online" in methods]:
+        (other,) = online_keys
+    else:
+        return dict(methods), None
+    kept = {k: v for k, v in methods.items() if k != other}
+    return kept, methods[other]
+
+
 def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:
     best_f1, best_changed = best_baselines(baselines)
     wins_f1, wins_changed = model["f1"] > best_f1, model["changed_f1"] > best_changed
