@@ -28,6 +28,7 @@ from pathlib import Path
 import torch
 
 from lidarflow.data import Recording
+from lidarflow.models.speed import native_bf16
 from lidarflow.scan import BeamGeometry, Scan
 from lidarflow.train import build_config, train
 
@@ -114,6 +115,9 @@ def main() -> None:
         "threads": torch.get_num_threads(),
         "cpu_count": os.cpu_count(),
         "device": "cuda" if torch.cuda.is_available() else "cpu",
+        # Without native bf16 (an AVX2-only CPU) bf16 autocast is emulated: read its ratio so.
+        "native_bf16": native_bf16(torch.device("cuda" if torch.cuda.is_available() else "cpu")),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "torch": torch.__version__,
         "python": platform.python_version(),
         "note": "shared machine: compare ratios within this run, not absolute figures",

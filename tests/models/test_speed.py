@@ -7,7 +7,7 @@ import torch
 
 from lidarflow.losses import LossConfig, flow_loss
 from lidarflow.models import build_model
-from lidarflow.models.speed import accelerate
+from lidarflow.models.speed import accelerate, native_bf16
 
 
 def _seq(b=2, t=3, h=11, w=9) -> torch.Tensor:
@@ -58,3 +58,8 @@ def test_bf16_autocast_keeps_the_loss_in_fp32_and_close():
 def test_unknown_compile_mode_is_rejected():
     with pytest.raises(ValueError, match="compile"):
         accelerate(build_model("flownet"), compile="fast")  # type: ignore[arg-type]
+
+
+def test_native_bf16_is_a_plain_answer_on_every_device():
+    assert isinstance(native_bf16(torch.device("cpu")), bool)
+    assert native_bf16(torch.device("meta")) is False

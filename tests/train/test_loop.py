@@ -161,6 +161,31 @@ def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_p
     assert {v.dtype for v in weights.values()} == {torch.float32}
 
 
+@pytest.mark.parametrize("native", [True, False])
+def test_amp_auto_takes_bf16_only_where_the_device_has_it(monkeypatch, native):
+    monkeypatch.setattr(loop, "native_bf16", lambda device: native)
+    cpu = torch.device("cpu")
+    bf16, note = loop.resolve_amp("auto", cpu)
+    assert bf16 is native
+    assert note is not None and ("bf16 autocast" if native else "fp32") in note
+    assert loop.resolve_amp("none", cpu) == (False, None)
+    # bf16 asked for by name is kept, but where it is emulated the log says what it costs.
+    bf16, note = loop.resolve_amp("bf16", cpu)
+    assert bf16 and (note is None) is native
+    if not native:
+        assert "emulated" in note and "--amp auto" in note
+
+
+def test_amp_auto_says_its_choice_in_the_training_log(blob_files, tmp_path, monkeypatch):
+    monkeypatch.setattr(loop, "native_bf16", lambda device: False)
+    cfg = tiny_config(blob_files[:1], **{"optim.epochs": 1, "runtime.amp": "auto"})
+    said: list[str] = []
+    train(cfg, tmp_path / "auto", echo=said.append)
+    assert any(line.startswith("amp auto: fp32") for line in said), said
+    with pytest.raises(TrainError, match=r"runtime\.amp must be one of none, bf16, auto"):
+        train(tiny_config(blob_files[:1], **{"runtime.amp": "fp16"}), tmp_path / "fp16")
+
+
 def test_residual_recipe_trains_the_head_and_needs_one(blob_files, tmp_path):
     flags = {"data.stride": 0, "data.epoch_windows": 0, "data.val_fraction": 0.0}
     cfg = tiny_config(blob_files[:1], "residual", **flags, **{"optim.epochs": 1})

@@ -142,7 +142,13 @@ def train(
         float | None, typer.Option("--res", help="Cell size in metres (default 0.1).")
     ] = None,
     device: Annotated[str | None, typer.Option(help="auto (CUDA if available), cpu, cuda.")] = None,
-    amp: Annotated[str | None, typer.Option(help="none (fp32 reference) or bf16 autocast.")] = None,
+    amp: Annotated[
+        str | None,
+        typer.Option(
+            help="none (fp32 reference), bf16 autocast, or auto: bf16 where the device computes "
+            "it natively, fp32 elsewhere (the head recipe's default)."
+        ),
+    ] = None,
     compile: Annotated[
         bool,
         typer.Option(

@@ -5,6 +5,10 @@ Measured on the 2-core CPU (benchmarks/bench_train_step.py): channels-last memor
 oneDNN's convolutions faster, bf16 autocast (AVX512-BF16) faster still, and ``torch.compile``
 fuses the ConvGRU's gate arithmetic (sigmoid, tanh, products, and their backward) into a few
 kernels where eager PyTorch makes a pass over memory per operation.
+
+bf16 pays only where the hardware computes it: on a CPU without native bf16 (AVX2 only, no
+AVX512 / AMX) oneDNN emulates it, and the default recipe's training ran several times slower
+under bf16 autocast than in fp32 (README, "Training"). :func:`native_bf16` tells which.
 """
 
 from __future__ import annotations
@@ -17,6 +21,19 @@ from lidarflow.models.recurrent import RecurrentMapModel
 
 CompileMode = Literal["none", "cells", "step"]
 COMPILE_MODES: tuple[str, ...] = ("none", "cells", "step")
+
+
+def native_bf16(device: torch.device) -> bool:
+    """Whether ``device`` computes bf16 natively: a CUDA device that supports it, or a CPU on
+    which oneDNN has bf16 kernels (AVX512 or AMX); elsewhere bf16 autocast is emulated."""
+    if device.type == "cuda":
+        return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+    if device.type == "cpu":
+        try:
+            return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+        except (AttributeError, RuntimeError):  # a build without oneDNN's query
+            return False
+    return False
 
 
 def accelerate(

@@ -142,15 +142,19 @@ class ScheduleConfig:
     gaussian_min: int = 1
 
 
+AMP_MODES = ("none", "bf16", "auto")
+
+
 @dataclass
 class RuntimeConfig:
     """How the run executes; none of it changes the maths of the fp32 eager reference path.
 
-    ``device``: ``auto`` (CUDA when available), ``cpu``, ``cuda``; ``amp``: ``none`` or
-    ``bf16`` autocast; ``channels_last`` / ``compile``: see
-    :func:`lidarflow.models.speed.accelerate` (compiling costs tens of seconds up front on a
-    small CPU, so it pays on long runs only); ``threads``: torch intra-op threads, 0 = torch's
-    default.
+    ``device``: ``auto`` (CUDA when available), ``cpu``, ``cuda``; ``amp``: ``none``, ``bf16``
+    autocast, or ``auto`` (bf16 where the device computes it natively, fp32 elsewhere, where
+    emulated bf16 is slower: :func:`lidarflow.models.speed.native_bf16`); ``channels_last`` /
+    ``compile``: see :func:`lidarflow.models.speed.accelerate` (compiling costs tens of seconds
+    up front on a small CPU, so it pays on long runs only); ``threads``: torch intra-op threads,
+    0 = torch's default.
     """
 
     device: str = "auto"
@@ -223,7 +227,7 @@ class TrainConfig:
                 r.device in ("auto", "cpu", "cuda") or r.device.startswith("cuda:"),
                 "runtime.device must be auto, cpu or cuda[:N]",
             ),
-            (r.amp in ("none", "bf16"), "runtime.amp must be none or bf16"),
+            (r.amp in AMP_MODES, f"runtime.amp must be one of {', '.join(AMP_MODES)}"),
             (r.compile in ("none", "cells", "step"), "runtime.compile must be none, cells or step"),
             (r.final_weights in ("last", "best"), "runtime.final_weights must be last or best"),
         ]
@@ -321,7 +325,10 @@ def _head() -> TrainConfig:
     config.data.pose_dropout = 0.5
     config.data.memories_from_stream = True
     config.schedule.gaussian_start = 1
-    config.runtime.amp = "bf16"
+    # bf16 where the machine computes it natively (the bundled model and the documented folds
+    # were trained under bf16); fp32 on a CPU without it, where emulated bf16 trained ~10x slower
+    # (benchmarks/results/train_loop_amp_avx2.json).
+    config.runtime.amp = "auto"
     config.runtime.channels_last = True
     return config
 

@@ -30,7 +30,7 @@ from torch import Tensor
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
 from lidarflow.models import build_model, uses_ego_motion
-from lidarflow.models.speed import accelerate
+from lidarflow.models.speed import accelerate, native_bf16
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import TrainConfig
 from lidarflow.train.data import load_train_data
@@ -104,8 +104,27 @@ def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def _autocast(config: TrainConfig, device: torch.device) -> Callable[[], Any]:
-    if config.runtime.amp == "bf16":
+def resolve_amp(amp: str, device: torch.device) -> tuple[bool, str | None]:
+    """Whether to train under bf16 autocast for ``runtime.amp`` on ``device``, and a note for
+    the log where the choice is not what the setting alone says (``auto``), or costs time
+    (``bf16`` where the device has no native bf16)."""
+    if amp == "none":
+        return False, None
+    native = native_bf16(device)
+    if amp == "auto":
+        if native:
+            return True, f"amp auto: bf16 autocast ({device.type} computes bf16 natively)"
+        return False, f"amp auto: fp32 (this {device.type} has no native bf16, emulated is slower)"
+    if native:
+        return True, None
+    return True, (
+        f"this {device.type} has no native bf16: bf16 autocast is emulated and slower than "
+        "fp32 here (--amp auto or none trains faster)"
+    )
+
+
+def _autocast(bf16: bool, device: torch.device) -> Callable[[], Any]:
+    if bf16:
         return lambda: torch.autocast(device.type, dtype=torch.bfloat16)
     return contextlib.nullcontext
 
@@ -195,7 +214,10 @@ def _train(
     if ctx.enabled:
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=ids)
-    autocast = _autocast(config, ctx.device)
+    bf16, amp_note = resolve_amp(rt.amp, ctx.device)
+    if amp_note:
+        say(("note: " if rt.amp == "bf16" else "") + amp_note)
+    autocast = _autocast(bf16, ctx.device)
     B = config.optim.batch_size
     loader, sampler = make_loader(
         data, config.data, B, rt.seed, ctx.rank, ctx.world_size, ctx.device.type == "cuda"
