@@ -103,6 +103,7 @@ def main() -> None:
             }
         )
         print(f"{name}: {row['frame_steps_per_s']:.1f} frame-steps/s")
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     reference = results[0]["frame_steps_per_s"]
     for r in results:
         r["ratio_to_first"] = r["frame_steps_per_s"] / reference
@@ -114,9 +115,9 @@ def main() -> None:
         "windows_per_epoch": args.windows,
         "threads": torch.get_num_threads(),
         "cpu_count": os.cpu_count(),
-        "device": "cuda" if torch.cuda.is_available() else "cpu",
+        "device": device.type,
         # Without native bf16 (an AVX2-only CPU) bf16 autocast is emulated: read its ratio so.
-        "native_bf16": native_bf16(torch.device("cuda" if torch.cuda.is_available() else "cpu")),
+        "native_bf16": native_bf16(device),
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "torch": torch.__version__,
         "python": platform.python_version(),

@@ -20,18 +20,13 @@ import json
 from pathlib import Path
 
 import numpy as np
-from study import add_counts, early_late, f1_table, kept_frames, scores_from
+from study import DEVELOPMENT, add_counts, early_late, f1_table, kept_frames, scores_from
 
 from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
 from lidarflow.data.recording import Recording
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-RECORDINGS = (
-    "positive_1.bag", "positive_2.bag", "positive_3.bag", "positive_4.bag",
-    "demo_stationary_simple_environment.bag", "datmo_overtakes.bag",
-    "general_tracking_moving_1.bag.zip",
-)  # fmt: skip
 
 
 def with_gap(recording: Recording, at: int, frames: int, before: int, after: int) -> Recording:
@@ -78,12 +73,12 @@ def main() -> None:
     methods, _ = methods_and_config([None])
     total: dict = {}
     per_recording: dict[str, dict] = {}
-    loaded = {name: load_any(DATA / name) for name in RECORDINGS}
-    for i, name in enumerate(RECORDINGS):
+    loaded = {name: load_any(DATA / name) for name in DEVELOPMENT}
+    for i, name in enumerate(DEVELOPMENT):
         recording = loaded[name]
         if args.splice:
             cuts = {
-                "splice": [spliced(loaded[RECORDINGS[i - 1]], recording, args.before, args.after)]
+                "splice": [spliced(loaded[DEVELOPMENT[i - 1]], recording, args.before, args.after)]
             }
         else:
             cuts = {}

@@ -24,17 +24,7 @@ import argparse
 import json
 from pathlib import Path
 
-from study import margins, model_and_baselines, split_online, verdict
-
-DEVELOPMENT = (
-    "positive_1",
-    "positive_2",
-    "positive_3",
-    "positive_4",
-    "demo_stationary_simple_environment",
-    "datmo_overtakes",
-    "general_tracking_moving_1",
-)
+from study import DEVELOPMENT, margins, model_and_baselines, split_online, stem, verdict
 
 
 def scores_of(report: Path) -> dict:
@@ -73,7 +63,7 @@ def markdown(table: dict[str, dict[str, dict]], runs: list[str]) -> str:
     ]
     won_by_run = dict.fromkeys(runs, 0)
     for name, by_run in table.items():
-        cells, smaller = [], []
+        cells, smaller, won = [], [], 0
         for run in runs:
             if run not in by_run:
                 cells.append("")
@@ -82,11 +72,11 @@ def markdown(table: dict[str, dict[str, dict]], runs: list[str]) -> str:
             cell = f"{s['margins']['f1']:+.4f} / {s['margins']['changed_f1']:+.4f}"
             if s["verdict"] == "wins":
                 won_by_run[run] += 1
+                won += 1
             else:
                 cell = f"**{cell}** ({s['verdict']})"
             cells.append(cell)
             smaller.append(min(s["margins"].values()))
-        won = sum(by_run[r]["verdict"] == "wins" for r in runs if r in by_run)
         mean = sum(smaller) / len(smaller)
         lines.append(
             f"| {name} | " + " | ".join(cells) + f" | {won} of {len(smaller)} | "
@@ -115,7 +105,7 @@ def main() -> None:
     parser.add_argument(
         "--recordings",
         nargs="+",
-        default=list(DEVELOPMENT),
+        default=[stem(Path(name)) for name in DEVELOPMENT],
         help="the held-out recordings' names, as in eval_NAME.json (default: the seven)",
     )
     args = parser.parse_args()

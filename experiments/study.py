@@ -19,6 +19,12 @@ METRICS = ("f1", "changed_f1", "ap")
 # Scored beside ego-motion models on recordings with poses; reported, not counted in a verdict
 # (the baselines need no odometry).
 REFERENCES = ("copy_last_ego", "copy_last_ego_oracle")
+# The seven development recordings of ../shared/data, in the order the studies list them.
+DEVELOPMENT = (
+    "positive_1.bag", "positive_2.bag", "positive_3.bag", "positive_4.bag",
+    "demo_stationary_simple_environment.bag", "datmo_overtakes.bag",
+    "general_tracking_moving_1.bag.zip",
+)  # fmt: skip
 
 
 def lidarflow(*args: str) -> None:

@@ -7,8 +7,8 @@ fuses the ConvGRU's gate arithmetic (sigmoid, tanh, products, and their backward
 kernels where eager PyTorch makes a pass over memory per operation.
 
 bf16 pays only where the hardware computes it: on a CPU without native bf16 (AVX2 only, no
-AVX512 / AMX) oneDNN emulates it, and the default recipe's training ran several times slower
-under bf16 autocast than in fp32 (README, "Training"). :func:`native_bf16` tells which.
+AVX512 / AMX) oneDNN emulates it, and the training loop ran ~10x slower under bf16 autocast
+than in fp32 (benchmarks/results/train_loop_amp_avx2.json). :func:`native_bf16` tells which.
 """
 
 from __future__ import annotations

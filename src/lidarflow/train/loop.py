@@ -105,9 +105,9 @@ def _seed_everything(seed: int) -> None:
 
 
 def resolve_amp(amp: str, device: torch.device) -> tuple[bool, str | None]:
-    """Whether to train under bf16 autocast for ``runtime.amp`` on ``device``, and a note for
+    """Whether to train under bf16 autocast for ``runtime.amp`` on ``device``, and a line for
     the log where the choice is not what the setting alone says (``auto``), or costs time
-    (``bf16`` where the device has no native bf16)."""
+    (``bf16`` where the device has no native bf16: a ``note:``)."""
     if amp == "none":
         return False, None
     native = native_bf16(device)
@@ -118,8 +118,8 @@ def resolve_amp(amp: str, device: torch.device) -> tuple[bool, str | None]:
     if native:
         return True, None
     return True, (
-        f"this {device.type} has no native bf16: bf16 autocast is emulated and slower than "
-        "fp32 here (--amp auto or none trains faster)"
+        f"note: this {device.type} has no native bf16: bf16 autocast is emulated and slower "
+        "than fp32 here (--amp auto or none trains faster)"
     )
 
 
@@ -216,7 +216,7 @@ def _train(
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=ids)
     bf16, amp_note = resolve_amp(rt.amp, ctx.device)
     if amp_note:
-        say(("note: " if rt.amp == "bf16" else "") + amp_note)
+        say(amp_note)
     autocast = _autocast(bf16, ctx.device)
     B = config.optim.batch_size
     loader, sampler = make_loader(
