@@ -35,7 +35,7 @@ HORIZON = 2
 FULL_EVERY = 25
 
 
-def stream_recording(source: Path | None, frames: int | None):  # noqa: ANN201 - any version
+def stream_recording(source: Path | None, frames: int | None):
     from lidarflow.data.samples import sample_bag_path
     from lidarflow.data.sources import load_any
 
@@ -45,7 +45,7 @@ def stream_recording(source: Path | None, frames: int | None):  # noqa: ANN201 -
     return recording
 
 
-def run_stream(recording, predictor) -> dict[str, np.ndarray]:  # noqa: ANN001
+def run_stream(recording, predictor) -> dict[str, np.ndarray]:
     poses = recording.poses
     occupied, sums, squares, flows, ego, full, full_k2 = [], [], [], [], [], [], []
     predictor.reset()
