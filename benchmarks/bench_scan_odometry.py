@@ -1,7 +1,7 @@
 """Per-scan cost of finding the sensor's motion from the scans (robots without odometry), as
 ratios to references measured in the same run.
 
-On a simulated drive of each sensor below: :class:`lidarflow.data.scanmatch.ScanOdometry` fed
+On a simulated drive of each sensor below: :class:`lidarflow.motion.scanmatch.ScanOdometry` fed
 the maps only (correlative matching, the reference) and fed the returns too (refined by
 point-to-line ICP, what evaluate and a Predictor given scans do), beside ``Predictor.update`` of
 the bundled model on the same scans with poses (no scan odometry). Medians over ``--frames``
@@ -20,8 +20,8 @@ import torch
 from _output import machine, write_json
 from bench_segmentation import median_ms
 
-from lidarflow.data.scanalign import recording_points
-from lidarflow.data.scanmatch import ScanOdometry
+from lidarflow.motion.icp import recording_points
+from lidarflow.motion.scanmatch import ScanOdometry
 from lidarflow.predict import Predictor
 from lidarflow.scan import GridSpec
 from lidarflow.sim import LidarConfig, SimConfig, lidar_preset, simulate

@@ -6,7 +6,7 @@ there on), streams the bundled model and the baselines over it, and scores the f
 ``--early`` predictions after the change and the rest (F1 / changed-cell F1). The first step
 at the new rate looks like a dropped scan, and the ones after it are as long: what the guess of
 the next motion makes of them is what this measures
-(``lidarflow.data.gaps.paces_after_long_steps``). With ``--drops``, the other side: each scan of
+(``lidarflow.motion.pacing.paces_after_long_steps``). With ``--drops``, the other side: each scan of
 the whole drive after ``--before`` dropped at random, scored after one long step, after two in
 a row, and after a typical one (a rule that took two long steps for a slower rate would guess
 the next step long where it is mostly typical).

@@ -2,8 +2,8 @@
 
 For each recording the motion of every frame step is found twice, as `lidarflow evaluate` finds it
 for a model that may run without poses: from the maps only (correlative matching,
-:func:`lidarflow.data.scanmatch.match_maps`) and refined on the returns
-(:class:`lidarflow.data.scanmatch.ScanOdometry` given the points, the default). Where the
+:func:`lidarflow.motion.scanmatch.match_maps`) and refined on the returns
+(:class:`lidarflow.motion.scanmatch.ScanOdometry` given the points, the default). Where the
 recording has poses (odometry, or the simulator's truth) both are compared with them: the share
 of steps with a motion, and the median error of those in cells and degrees. Where it has none
 (standing still, or a car without odometry) the share of steps reported says how often the
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from lidarflow.data import load_any
-from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanalign import recording_points
-from lidarflow.data.scanmatch import scan_motions
+from lidarflow.motion.icp import recording_points
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
 
 

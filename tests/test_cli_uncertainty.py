@@ -19,13 +19,27 @@ def test_evaluate_on_simulated_data_reports_calibration_and_moving(
     tmp_path, capsys, random_flownet_dir
 ):
     sim = tmp_path / "sim.npz"
-    code, _, err = run(["simulate", "-s", "static", "--frames", "16", "--seed", "0", "-o",
-                        str(sim)], capsys)
+    code, _, err = run(
+        ["simulate", "-s", "static", "--frames", "16", "--seed", "0", "-o", str(sim)], capsys
+    )
     assert code == 0, err
     out, report = tmp_path / "r", tmp_path / "e.json"
-    argv = ["evaluate", str(sim), "-m", str(random_flownet_dir), "--report", str(out),
-            "--json", str(report), "--warmup", "2", "--gif-frames", "3",
-            "--moving-threshold", "0.3"]
+    argv = [
+        "evaluate",
+        str(sim),
+        "-m",
+        str(random_flownet_dir),
+        "--report",
+        str(out),
+        "--json",
+        str(report),
+        "--warmup",
+        "2",
+        "--gif-frames",
+        "3",
+        "--moving-threshold",
+        "0.3",
+    ]
     code, text, err = run(argv, capsys)
     assert code == 0, err
     assert "calibration and moving segmentation" in text and "moving_iou" in text
@@ -48,7 +62,18 @@ def test_predict_writes_the_moving_topic(tmp_path, capsys, random_flownet_dir):
     rec = tmp_path / "short.npz"
     read_bag(sample_bag_path()).slice(0, 3).save(rec)
     out = tmp_path / "o.mcap"
-    code, text, err = run(["predict", str(rec), "-o", str(out), "-m", str(random_flownet_dir),
-                           "--moving-threshold", "0.1"], capsys)
+    code, text, err = run(
+        [
+            "predict",
+            str(rec),
+            "-o",
+            str(out),
+            "-m",
+            str(random_flownet_dir),
+            "--moving-threshold",
+            "0.1",
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert "/lidarflow/moving x3" in text

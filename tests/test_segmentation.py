@@ -97,7 +97,7 @@ def test_too_few_cells_means_no_background_motion():
     occupancy = np.zeros((SIZE, SIZE), bool)
     occupancy[3, : MIN_BACKGROUND_CELLS - 1] = True
     assert not background_flow(occupancy, uniform(2, 0)).any()
-    occupancy[3, : MIN_BACKGROUND_CELLS] = True
+    occupancy[3, :MIN_BACKGROUND_CELLS] = True
     np.testing.assert_allclose(background_flow(occupancy, uniform(2, 0)), uniform(2, 0), atol=1e-9)
 
 

@@ -44,8 +44,9 @@ def _check(occupancy: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndar
     if occ.ndim != 2:
         raise ValueError(f"occupancy must be (H, W), got {occ.shape}")
     if f.shape != (2, *occ.shape):
-        raise ValueError(f"flow must be (2, H, W) = (2, {occ.shape[0]}, {occ.shape[1]}), got "
-                         f"{f.shape}")
+        raise ValueError(
+            f"flow must be (2, H, W) = (2, {occ.shape[0]}, {occ.shape[1]}), got {f.shape}"
+        )
     return occ, np.nan_to_num(f)
 
 
@@ -55,9 +56,7 @@ def _design(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.nd
     u = cols - (shape[1] - 1) / 2.0
     v = rows - (shape[0] - 1) / 2.0
     one, zero = np.ones_like(u), np.zeros_like(u)
-    return np.concatenate(
-        [np.column_stack([u, -v, one, zero]), np.column_stack([v, u, zero, one])]
-    )
+    return np.concatenate([np.column_stack([u, -v, one, zero]), np.column_stack([v, u, zero, one])])
 
 
 def background_flow(

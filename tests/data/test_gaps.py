@@ -77,7 +77,7 @@ def test_one_gap_in_a_jittery_stream_is_found_exactly(period, jitter, gap_period
 
 
 def test_the_stream_clock_paces_the_frames_after_gaps_as_the_recording_rule():
-    from lidarflow.data.gaps import StepClock, paced_motion, paces_after_long_steps
+    from lidarflow.motion.pacing import StepClock, paced_motion, paces_after_long_steps
 
     # a gap, jitter, a scan dropped, a jump back
     steps = [100.0] * 8 + [700.0] + [100.0] * 3 + [140.0, 200.0] + [100.0] * 2 + [-50.0, 100.0]
@@ -97,7 +97,7 @@ def test_the_stream_clock_paces_the_frames_after_gaps_as_the_recording_rule():
 
 
 def test_a_stream_that_slows_down_is_paced_until_five_steps_agree_on_its_rate():
-    from lidarflow.data.gaps import StepClock, paces_after_long_steps
+    from lidarflow.motion.pacing import StepClock, paces_after_long_steps
 
     # 10 Hz, then 5 Hz: its first five steps may be scans dropped; from then on, the new rate
     stamped = stamps([100.0] * 10 + [200.0] * 40)
@@ -111,7 +111,7 @@ def test_a_stream_that_slows_down_is_paced_until_five_steps_agree_on_its_rate():
 
 
 def test_a_new_rate_is_learnt_once_five_steps_agree_on_it():
-    from lidarflow.data.gaps import StepClock, paces_after_long_steps
+    from lidarflow.motion.pacing import StepClock, paces_after_long_steps
 
     # 10 Hz, then 3.3 Hz: five gaps, then the new rate is the typical step
     assert frames_after_gaps(stamps([100.0] * 20 + [300.0] * 40)) == [21, 22, 23, 24, 25]
@@ -131,7 +131,7 @@ def test_a_new_rate_is_learnt_once_five_steps_agree_on_it():
 
 
 def test_a_new_rate_is_learnt_through_jittery_stamps():
-    from lidarflow.data.gaps import paces_after_long_steps
+    from lidarflow.motion.pacing import paces_after_long_steps
 
     # 10 Hz then 5 Hz, stamps jittering by 20 % (Gaussian), 20 streams: paced for some steps after
     # the change, then the new rate is learnt; the median stream within 15 steps (comparing the

@@ -7,8 +7,8 @@ import math
 import numpy as np
 
 from lidarflow.data import read_bag
-from lidarflow.data.motion import relative_motions
 from lidarflow.data.tf import TransformTree, compose_poses
+from lidarflow.motion.odometry import relative_motions
 from lidarflow.sim.platform import compose, relative
 from tests.bagutil import _tf_msg, write_bag
 

@@ -8,9 +8,6 @@ import json
 import numpy as np
 import pytest
 
-from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanalign import recording_points
-from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError, PredictError
 from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.ego import CopyLastEgo
@@ -18,6 +15,9 @@ from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import evaluate_recording
 from lidarflow.models import build_model
 from lidarflow.models.streaming import StreamingModel
+from lidarflow.motion.icp import recording_points
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import copy_marks, export_onnx
 from lidarflow.predict.job import predict_to_bag
@@ -296,8 +296,8 @@ def test_evaluate_gives_the_model_the_returns_to_replace_odometry_that_disagrees
 
 
 def test_a_pose_jump_is_not_compensated_in_the_predictor_or_the_evaluation(driving, tmp_path):
-    from lidarflow.data.gaps import paces_after_long_steps
     from lidarflow.data.recording import Recording
+    from lidarflow.motion.pacing import paces_after_long_steps
     from lidarflow.sim.platform import compose, relative
 
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)

@@ -103,7 +103,7 @@ def test_gradcheck_float64_in_maps_and_motion():
 def test_rigid_flow_matches_the_simulators_ground_truth_on_static_structure():
     """The convention end to end: for static structure the simulator's exact backward flow B^t
     is the sensor's own motion t -> t+1, i.e. rigid_flow(relative(pose_t, pose_t+1))."""
-    from lidarflow.data.motion import metres_to_cells, relative_motions
+    from lidarflow.motion.odometry import metres_to_cells, relative_motions
     from lidarflow.scan import GridSpec
     from lidarflow.sim import PeopleConfig, SimConfig, dense_flow, simulate
 

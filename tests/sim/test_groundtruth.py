@@ -16,10 +16,15 @@ from lidarflow.sim.lidar import cast_rays, lidar_preset
 
 GRID = GridSpec(100, 100, 0.1)
 # A room 12 m x 12 m around the sensor, with a pillar, so most of the map has returns.
-ROOM = np.array([
-    [-2.0, -6.0, 10.0, -6.0], [10.0, -6.0, 10.0, 6.0], [10.0, 6.0, -2.0, 6.0],
-    [-2.0, 6.0, -2.0, -6.0], [4.0, 1.0, 5.0, 2.0],
-])
+ROOM = np.array(
+    [
+        [-2.0, -6.0, 10.0, -6.0],
+        [10.0, -6.0, 10.0, 6.0],
+        [10.0, 6.0, -2.0, 6.0],
+        [-2.0, 6.0, -2.0, -6.0],
+        [4.0, 1.0, 5.0, 2.0],
+    ]
+)
 
 
 def warp(maps: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
@@ -31,8 +36,9 @@ def warp(maps: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
     x = 2 * (cols + flow[:, 0]) / (width - 1) - 1
     y = 2 * (rows + flow[:, 1]) / (height - 1) - 1
     grid = torch.stack([x, y], dim=-1)
-    return F.grid_sample(maps[:, None], grid, mode="bilinear", padding_mode="zeros",
-                         align_corners=True)[:, 0]
+    return F.grid_sample(
+        maps[:, None], grid, mode="bilinear", padding_mode="zeros", align_corners=True
+    )[:, 0]
 
 
 def test_warp_helper_follows_the_convention():
@@ -108,8 +114,9 @@ def _overlap(pred: torch.Tensor, cells: torch.Tensor) -> float:
 def test_backward_flow_warps_each_map_onto_the_next(scenario):
     # Mixed pixels flicker at random between frames, which no flow can predict: leave them out.
     sensor = lidar_preset("tim561", mixed_pixel_prob=0.0)
-    config = SimConfig(scenario=scenario, sensor=sensor, people=PeopleConfig(count=10),
-                       episode_frames=200)
+    config = SimConfig(
+        scenario=scenario, sensor=sensor, people=PeopleConfig(count=10), episode_frames=200
+    )
     rec = simulate(200, seed=2, config=config)
     occ, _ = rec.maps(GRID)
     maps = torch.tensor(occ, dtype=torch.float64)

@@ -119,9 +119,7 @@ def test_presets_have_the_right_beams(name, beams, fov, rate, range_max):
     assert covered == pytest.approx(fov)
     if fov < 360:
         assert math.degrees(geom.angle_min) == pytest.approx(-fov / 2)
-    assert lidar_preset("tim561").geometry().angle_increment == pytest.approx(
-        math.radians(1 / 3)
-    )
+    assert lidar_preset("tim561").geometry().angle_increment == pytest.approx(math.radians(1 / 3))
 
 
 def test_unknown_preset_is_a_sim_error():

@@ -80,8 +80,9 @@ def test_chunked_writing_equals_one_run(tmp_path):
     joined = np.concatenate([p.extras["flow_backward"] for p in parts])
     np.testing.assert_array_equal(joined, whole.extras["flow_backward"])
     np.testing.assert_array_equal(np.concatenate([p.stamps_ns for p in parts]), whole.stamps_ns)
-    two = write_simulation(tmp_path / "par.npz", 100, seed=8, config=SMALL, chunk_frames=80,
-                           workers=2)
+    two = write_simulation(
+        tmp_path / "par.npz", 100, seed=8, config=SMALL, chunk_frames=80, workers=2
+    )
     assert _same(load_recording(two[1]), parts[1])
 
 
@@ -151,8 +152,25 @@ def test_bad_configuration_is_a_sim_error():
 def test_cli_simulate_then_show(tmp_path, capsys):
     out = tmp_path / "s.npz"
     with pytest.raises(SystemExit) as done:
-        main(["simulate", "--scenario", "static", "--frames", "30", "--seed", "2", "-o", str(out),
-              "--sensor", "hokuyo-urg", "--people", "3", "--episode-frames", "30"])
+        main(
+            [
+                "simulate",
+                "--scenario",
+                "static",
+                "--frames",
+                "30",
+                "--seed",
+                "2",
+                "-o",
+                str(out),
+                "--sensor",
+                "hokuyo-urg",
+                "--people",
+                "3",
+                "--episode-frames",
+                "30",
+            ]
+        )
     assert done.value.code == 0
     rec = load_recording(out)
     assert len(rec) == 30 and rec.geometry(0).count == 512 and rec.meta["seed"] == 2
@@ -166,8 +184,19 @@ def test_cli_simulate_then_show(tmp_path, capsys):
     assert done.value.code == 2
     sparse = tmp_path / "sp.npz"
     with pytest.raises(SystemExit) as done:
-        main(["simulate", "--frames", "20", "-o", str(sparse), "--flow-storage", "sparse",
-              "--grid", "60"])
+        main(
+            [
+                "simulate",
+                "--frames",
+                "20",
+                "-o",
+                str(sparse),
+                "--flow-storage",
+                "sparse",
+                "--grid",
+                "60",
+            ]
+        )
     assert done.value.code == 0 and load_recording(sparse).meta["flow_storage"] == "sparse"
     with pytest.raises(SystemExit) as done:
         main(["show", str(sparse), "-f", "3", "--grid", "60", "-o", str(tmp_path / "s.png")])

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanalign import recording_points
-from lidarflow.data.scanmatch import scan_motions
 from lidarflow.models import EgoCompensated
 from lidarflow.models.weights import load_trained
+from lidarflow.motion.icp import recording_points
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
 from lidarflow.train import build_config, train

@@ -138,7 +138,7 @@ def methods_and_config(
             "motion (reported beside, not one of the three baselines a model must beat); "
             "on a recording without poses, models built with poses_optional (the head recipe's, "
             "the bundled one) and copy_last_ego get the motion matched from the scans "
-            "(lidarflow.data.scanmatch; uncompensated where no match counts)"
+            "(lidarflow.motion.scanmatch; uncompensated where no match counts)"
         )
     return methods, config
 

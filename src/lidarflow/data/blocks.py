@@ -13,7 +13,6 @@ from typing import Any, overload
 import numpy as np
 
 from lidarflow.data.recording import Recording
-from lidarflow.data.scanalign import recording_points
 from lidarflow.scan import GridSpec
 
 __all__ = [
@@ -21,7 +20,6 @@ __all__ = [
     "FrameBlocks",
     "Frames",
     "streamed_maps",
-    "streamed_points",
     "streamed_subcell",
 ]
 
@@ -98,8 +96,3 @@ def streamed_maps(recording: Recording, grid: GridSpec) -> tuple[Sequence[Any], 
 def streamed_subcell(recording: Recording, grid: GridSpec) -> FrameBlocks:
     """``recording.subcell_maps(grid)``, a block at a time."""
     return FrameBlocks(lambda a, b: recording.subcell_maps(grid, a, b), len(recording))
-
-
-def streamed_points(recording: Recording) -> FrameBlocks:
-    """:func:`~lidarflow.data.scanalign.recording_points`, a block at a time."""
-    return FrameBlocks(lambda a, b: recording_points(recording.slice(a, b)), len(recording))

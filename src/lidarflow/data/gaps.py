@@ -13,7 +13,9 @@ does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is le
 ``RATE_STEPS`` steps at the new rate agree (its first slower steps are gaps). Until
 ``MIN_STEPS`` steps are known, the median of all the stream's forward steps stands in, so a gap
 in the first steps is found too. A stamp equal to the one before (a driver that does not advance
-its stamps) or a little before it (two scans handed over out of order) is no gap.
+its stamps) or a little before it (two scans handed over out of order) is no gap. After a long
+step the guess of the sensor's next motion is paced by the same rule
+(:mod:`lidarflow.motion.pacing`).
 """
 
 from __future__ import annotations
@@ -30,10 +32,9 @@ __all__ = [
     "MIN_STEPS",
     "PACE_ABOVE",
     "RATE_STEPS",
-    "StepClock",
+    "RecentSteps",
     "frames_after_gaps",
-    "paced_motion",
-    "paces_after_long_steps",
+    "long_steps",
 ]
 
 MAX_GAP_PERIODS = 2.5
@@ -57,22 +58,10 @@ def frames_after_gaps(
     stamps_ns: Iterable[int], max_gap_periods: float = MAX_GAP_PERIODS
 ) -> list[int]:
     """The indices of the stamps (in stream order) that follow a gap."""
-    return [i for i, _ in _long_steps(stamps_ns, max_gap_periods, backwards=True)]
+    return [i for i, _ in long_steps(stamps_ns, max_gap_periods, backwards=True)]
 
 
-def paces_after_long_steps(stamps_ns: Iterable[int], above: float = PACE_ABOVE) -> dict[int, float]:
-    """``{index: typical step / this step}`` for the stamps that follow a step forwards in time
-    longer than ``above`` typical ones: a gap, or a scan or two dropped.
-
-    A constant-velocity guess of the motion to the next frame is the last motion again; after a
-    long step the last motion spans it, and this fraction scales it to one typical step. Steps
-    up to ``above`` are the stamps' jitter, not scans missing: no pace. A stream that has slowed
-    down (a driver gone from 10 to 5 Hz) is paced until :data:`RATE_STEPS` of its steps agree
-    on the new rate (see :class:`_RecentSteps`)."""
-    return {i: pace for i, pace in _long_steps(stamps_ns, above) if pace is not None}
-
-
-def _long_steps(
+def long_steps(
     stamps_ns: Iterable[int], periods: float, backwards: bool = False
 ) -> list[tuple[int, float | None]]:
     """``(index, typical / step)`` of each step longer than ``periods`` typical ones (with
@@ -85,7 +74,7 @@ def _long_steps(
     if forward.size == 0:  # stamps that never advance: no rate, so no gap either
         return []
     overall = float(np.median(forward))
-    recent = _RecentSteps()
+    recent = RecentSteps()
     after = []
     for i in range(1, len(stamps)):
         step = int(stamps[i] - stamps[i - 1])
@@ -98,7 +87,7 @@ def _long_steps(
     return after
 
 
-class _RecentSteps:
+class RecentSteps:
     """A stream's typical step: the median of its last ``HISTORY`` forward steps, once
     ``MIN_STEPS`` are known (the one rule of the recording and of the stream).
 
@@ -136,46 +125,3 @@ class _RecentSteps:
         self._steps.clear()
         self._before.clear()
         self._typical = None
-
-
-def paced_motion(motion: np.ndarray | None, pace: float | None) -> np.ndarray | None:
-    """The guess of the motion to the next frame after a long step: ``motion`` (which spans
-    it) times ``pace``; ``None`` where either is unknown (an ego-motion model then takes the last
-    motion again, its constant-velocity default)."""
-    if motion is None or pace is None:
-        return None
-    return np.asarray(motion, dtype=np.float32) * np.float32(pace)
-
-
-class StepClock:
-    """:func:`paces_after_long_steps`'s rule on a stream, one stamp at a time (the
-    ``Predictor``'s).
-
-    A stream knows no future, so until ``MIN_STEPS`` forward steps are known it paces nothing
-    (the recording-wide median that the recording's rule starts from is not known yet).
-    """
-
-    def __init__(self, above: float = PACE_ABOVE) -> None:
-        if not above > 1:
-            raise ValueError(f"above must be > 1, got {above}")
-        self.above = above
-        self._recent = _RecentSteps()
-        self._last: int | None = None
-
-    def reset(self) -> None:
-        self._recent.clear()
-        self._last = None
-
-    def update(self, stamp_ns: int) -> float | None:
-        """This stamp's pace (typical step / this step) if a long step forwards in time precedes
-        it, else ``None``. A stamp of 0 is no stamp (a scan built without one): it is passed
-        over, not taken for a jump back to 1970 and forward again."""
-        if int(stamp_ns) == 0:
-            return None
-        last, self._last = self._last, int(stamp_ns)
-        if last is None:
-            return None
-        step = self._last - last
-        typical = self._recent.typical()
-        self._recent.add(step)
-        return typical / step if typical is not None and step > self.above * typical else None

@@ -53,8 +53,9 @@ class Calibration:
         p = np.clip(np.asarray(probability, np.float64), 0.0, 1.0).ravel()
         y = np.asarray(target).astype(bool).ravel()
         if p.shape != y.shape:
-            raise ValueError(f"probability {np.shape(probability)} and target "
-                             f"{np.shape(target)} differ in shape")
+            raise ValueError(
+                f"probability {np.shape(probability)} and target {np.shape(target)} differ in shape"
+            )
         index = np.minimum((p * self.bins).astype(np.int64), self.bins - 1)
         self.count += np.bincount(index, minlength=self.bins)
         self.probability_sum += np.bincount(index, weights=p, minlength=self.bins)

@@ -3,9 +3,9 @@ baseline that only compensates the platform's own motion.
 
 A method with ``uses_motion = True`` is called ``update(occupancy, visibility, motion=m_t,
 next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in cells
-(:mod:`lidarflow.data.motion`; identity where a pose is unknown); ``next_motion`` is the future
+(:mod:`lidarflow.motion.odometry`; identity where a pose is unknown); ``next_motion`` is the future
 and only an oracle may use it. After a long step in time (a gap, scans dropped) it also gets
-``pace`` (typical step / this step, :func:`lidarflow.data.gaps.paces_after_long_steps`) to scale
+``pace`` (typical step / this step, :func:`lidarflow.motion.pacing.paces_after_long_steps`) to scale
 its guess of the next motion.
 """
 
@@ -16,12 +16,13 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from lidarflow.data.blocks import Frames, streamed_maps, streamed_points
-from lidarflow.data.gaps import paced_motion
-from lidarflow.data.motion import metres_to_cells, relative_motions
+from lidarflow.data.blocks import Frames, streamed_maps
 from lidarflow.data.recording import Recording
-from lidarflow.data.scanmatch import scan_motions
 from lidarflow.errors import EvaluateError
+from lidarflow.motion.icp import streamed_points
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.pacing import paced_motion
+from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.ops.rigid import rigid_warp
 from lidarflow.scan import GridSpec
 
@@ -43,7 +44,7 @@ def recording_motions(
 
     For a recording with no pose at all, when every method that wants them may run without
     (``poses_optional``), the motions found by matching consecutive maps (``occupancy``, the
-    recording's maps on ``grid``; :mod:`lidarflow.data.scanmatch`), NaN where none was found
+    recording's maps on ``grid``; :mod:`lidarflow.motion.scanmatch`), NaN where none was found
     (those steps are not compensated).
 
     Raises:

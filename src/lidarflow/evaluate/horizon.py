@@ -19,8 +19,8 @@ every k, and with its online choice fed back it is above at every k
 Ego-motion models get each frame's motion (``motions``: the recording's odometry, or the motion
 matched from its scans, NaN where none is known) and roll forward assuming the same motion again,
 as the Predictor does; a model that may run without poses checks it against the scans first
-(:class:`lidarflow.data.motion.OdometryCheck`) and replaces odometry that disagrees by the scans'
-own motion, as in the streaming evaluation.
+(:class:`lidarflow.motion.odometry.OdometryCheck`) and replaces odometry that disagrees by
+the scans' own motion, as in the streaming evaluation.
 """
 
 from __future__ import annotations
@@ -31,14 +31,14 @@ import numpy as np
 import torch
 
 from lidarflow.data.blocks import Frames
-from lidarflow.data.gaps import paced_motion
-from lidarflow.data.motion import OdometryCheck
-from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.online import OnlineDecision, moved_last_map
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.models.streaming import model_input
+from lidarflow.motion.odometry import OdometryCheck
+from lidarflow.motion.pacing import paced_motion
+from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 
 __all__ = ["horizon_f1", "scored_frames"]
 
@@ -104,7 +104,7 @@ def horizon_f1(
     ``(N, 2, H, W)``: where each frame's returns lie inside their cells, for models with
     ``subcell_input`` (a predicted map fed back gets zeros: it has no returns). ``gaps``: the
     frames that follow a gap in time (no roll-out across one is scored; states carry on);
-    ``paces`` (:func:`lidarflow.data.gaps.paces_after_long_steps`): after a long step (a gap,
+    ``paces`` (:func:`lidarflow.motion.pacing.paces_after_long_steps`): after a long step (a gap,
     scans dropped), the guess of the next motion, and each step of the roll-out, is the last
     motion scaled to one typical step, as the Predictor's."""
     n = len(occupancy)

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.data.gaps import paced_motion
-from lidarflow.data.motion import OdometryCheck
-from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.online import (
     OnlineDecisionConfig,
@@ -15,6 +12,9 @@ from lidarflow.evaluate.online import (
     moved_last_map,
 )
 from lidarflow.models.streaming import StreamingModel
+from lidarflow.motion.odometry import OdometryCheck
+from lidarflow.motion.pacing import paced_motion
+from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.scan import takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
@@ -29,7 +29,7 @@ class ModelMethod:
     flow at ``moving_threshold`` cells); all three are ``None`` for other models.
 
     Ego-motion models (``uses_motion``) take the frame's ``motion`` (cells, this frame in the
-    previous one, see :mod:`lidarflow.data.motion`) in ``update``; ``oracle=True`` also takes
+    previous one, see :mod:`lidarflow.motion.odometry`) in ``update``; ``oracle=True`` also takes
     the true ``next_motion`` instead of the causal constant-velocity guess (an upper bound that
     needs the future pose, for evaluation only).
 
@@ -41,7 +41,7 @@ class ModelMethod:
 
     A model that may run without poses (``poses_optional``) checks the odometry against the
     scans and, where they disagree, takes the scans' own motion
-    (:func:`lidarflow.data.scanmatch.checked_motion`, as the Predictor does): refined on the
+    (:func:`lidarflow.motion.scanmatch.checked_motion`, as the Predictor does): refined on the
     scans' returns when ``update`` is given them, which needs ``res``, the grid's cell size in
     metres."""
 
@@ -108,12 +108,12 @@ class ModelMethod:
         subcell: np.ndarray | None = None,
         pace: float | None = None,
     ) -> np.ndarray:
-        """One frame; ``returns``: its scan's returns (:func:`~lidarflow.data.scanalign.
+        """One frame; ``returns``: its scan's returns (:func:`~lidarflow.motion.icp.
         scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
         scans, and is only checked); ``subcell``: where its returns lie inside their cells
         ``(2, H, W)``, which a model with ``takes_subcell`` needs; ``pace``: after a long step in
         time, the typical step over this one (the guess of the next motion is scaled by it,
-        :func:`lidarflow.data.gaps.paced_motion`)."""
+        :func:`lidarflow.motion.pacing.paced_motion`)."""
         if self.takes_subcell and subcell is None:
             raise EvaluateError(
                 f"{self.name} needs where the returns lie inside their cells (subcell_input): "

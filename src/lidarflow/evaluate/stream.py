@@ -32,13 +32,15 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.blocks import Frames, streamed_maps, streamed_points, streamed_subcell
-from lidarflow.data.gaps import frames_after_gaps, paces_after_long_steps
+from lidarflow.data.blocks import Frames, streamed_maps, streamed_subcell
+from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.scoring import Scorer
+from lidarflow.motion.icp import streamed_points
+from lidarflow.motion.pacing import paces_after_long_steps
 from lidarflow.scan import GridSpec
 from lidarflow.sim.storage import dense_flow
 
@@ -143,7 +145,7 @@ def evaluate_maps(
 
     ``gaps``: the frames that follow a gap in time; the step into each is not scored (the next
     map, the flow to it; every method still sees every frame, and the moving cells of every
-    frame are scored). ``paces`` (:func:`lidarflow.data.gaps.paces_after_long_steps`): after a
+    frame are scored). ``paces`` (:func:`lidarflow.motion.pacing.paces_after_long_steps`): after a
     long step forwards in time (a gap, scans dropped), methods with ``uses_motion`` also get
     ``pace``, the typical step over that one, to scale their guess of the motion to the next
     frame (the last one spans the long step).
@@ -151,7 +153,7 @@ def evaluate_maps(
     ``motions`` ``(N, 3)`` (cells; frame ``t`` in frame ``t - 1``) go to the methods with
     ``uses_motion``: ``update(occ, vis, motion=motions[t], next_motion=motions[t + 1])``.
     Methods with ``takes_returns`` also get each frame's scan returns (``returns[t]``, see
-    :func:`lidarflow.data.scanalign.scan_points`) and whether the motions came from poses
+    :func:`lidarflow.motion.icp.scan_points`) and whether the motions came from poses
     (``motions_from_poses``), to take the scans' own motion where the poses disagree with the
     scans; by default the motions are only checked (as ones found from the scans are).
 

@@ -30,11 +30,11 @@ platform that stands still and wrong for one that drives. A model built with
 ``poses_optional=True`` says it was meant to run so (its training mixed recordings with and
 without poses, as the ``head`` recipe's does): on a recording with no pose at all, where they
 refuse any other ego-motion model, ``evaluate`` and ``predict`` run it on the motion matched from
-the scans (:mod:`lidarflow.data.scanmatch`), uncompensated where no match counts.
+the scans (:mod:`lidarflow.motion.scanmatch`), uncompensated where no match counts.
 
 Units: motions are ``(dx, dy, dyaw)`` with ``dx, dy`` in *cells* (metres / cell size, see
-:func:`lidarflow.data.motion.metres_to_cells`) and ``dyaw`` in radians: the model, like its flow,
-works in cells and knows no cell size. ``motion=None`` is the identity (no compensation).
+:func:`lidarflow.motion.odometry.metres_to_cells`) and ``dyaw`` in radians: the model, like its
+flow, works in cells and knows no cell size. ``motion=None`` is the identity (no compensation).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more inpu
 ``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and
 ``dyaw`` in radians (zeros: no motion / unknown), then ``next_motion (1, 3)``, the guess of the
 motion to the next frame: ``motion`` again (constant velocity, as in PyTorch), scaled down after
-a long step in time (:func:`lidarflow.data.gaps.paced_motion`; files exported before this input
+a long step in time (:func:`lidarflow.motion.pacing.paced_motion`; files exported before this input
 existed take ``motion`` again). One built with ``poses_optional`` (it may run without
 poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
 :data:`POSES_OPTIONAL_KEY`. An occupancy-head model's decision offsets (and whether to choose

@@ -15,7 +15,7 @@ dropped; :mod:`lidarflow.data.gaps`) the last motion spans it, so the guess is t
 scaled to one typical step (the state is still moved by all of it); a scan without a stamp
 (``stamp_ns`` 0) is never after a long step and does not count as a step.
 A model that may run without poses (``poses_optional``, the bundled one) takes the motion from
-the scans where no pose is given (:class:`lidarflow.data.scanmatch.ScanOdometry`: refined on the
+the scans where no pose is given (:class:`lidarflow.motion.scanmatch.ScanOdometry`: refined on the
 returns when ``update`` is given a :class:`~lidarflow.scan.Scan`). Otherwise, without a pose
 (``None`` or NaN) that step is not compensated (``Prediction.ego_compensated`` is
 False), as a model without odometry would run; horizon steps beyond the first repeat the last
@@ -35,10 +35,6 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.gaps import StepClock, paced_motion
-from lidarflow.data.motion import OdometryCheck, metres_to_cells, relative_motions
-from lidarflow.data.scanalign import scan_points
-from lidarflow.data.scanmatch import ScanOdometry, checked_motion
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.online import (
@@ -47,6 +43,10 @@ from lidarflow.evaluate.online import (
     decision_for,
     moved_last_map,
 )
+from lidarflow.motion.icp import scan_points
+from lidarflow.motion.odometry import OdometryCheck, metres_to_cells, relative_motions
+from lidarflow.motion.pacing import StepClock, paced_motion
+from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
@@ -108,9 +108,9 @@ class Predictor:
             reported moving (:data:`lidarflow.segmentation.MOVING_THRESHOLD` by default).
         check_odometry: for a model that may run without poses (``poses_optional``, the bundled
             one): stop compensating while the poses disagree with the scans
-            (:class:`~lidarflow.data.motion.OdometryCheck`). Off: every pose given is used.
+            (:class:`~lidarflow.motion.odometry.OdometryCheck`). Off: every pose given is used.
         scan_odometry: for such a model, where no pose is given, take the motion from the scans
-            (:class:`lidarflow.data.scanmatch.ScanOdometry`: the maps matched, and refined on
+            (:class:`lidarflow.motion.scanmatch.ScanOdometry`: the maps matched, and refined on
             the returns where ``update`` is given a :class:`~lidarflow.scan.Scan`); off: those
             steps run uncompensated.
         online_decision: re-decide an occupancy-head model's next map with the decision offsets

@@ -16,8 +16,12 @@ class DistanceField:
     at every simulation step. Built segment by segment over each one's neighbourhood only."""
 
     def __init__(
-        self, segments: np.ndarray, circles: np.ndarray,
-        bounds: tuple[float, float, float, float], res: float = 0.05, cap: float = 1.5,
+        self,
+        segments: np.ndarray,
+        circles: np.ndarray,
+        bounds: tuple[float, float, float, float],
+        res: float = 0.05,
+        cap: float = 1.5,
     ) -> None:
         self.res, self.cap = res, cap
         self.origin = np.array([bounds[0] - cap, bounds[1] - cap])
@@ -29,12 +33,17 @@ class DistanceField:
         self._ox, self._oy = float(self.origin[0]), float(self.origin[1])
         self._nx, self._ny = nx - 1, ny - 1
         for x0, y0, x1, y1 in segments:
-            self._stamp(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1),
-                        lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a))
+            self._stamp(
+                min(x0, x1),
+                min(y0, y1),
+                max(x0, x1),
+                max(y0, y1),
+                lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a),
+            )
         for cx, cy, r in circles:
-            self._stamp(cx - r, cy - r, cx + r, cy + r,
-                        lambda px, py, c=(cx, cy, r): _to_circle(px, py, *c))
-
+            self._stamp(
+                cx - r, cy - r, cx + r, cy + r, lambda px, py, c=(cx, cy, r): _to_circle(px, py, *c)
+            )
 
     def _stamp(self, x0: float, y0: float, x1: float, y1: float, nearest: Any) -> None:
         res, cap = self.res, self.cap
@@ -67,8 +76,9 @@ class DistanceField:
         return self.dist[ij[:, 1], ij[:, 0]], self.away[ij[:, 1], ij[:, 0]]
 
 
-def _to_segment(px: np.ndarray, py: np.ndarray, x0: float, y0: float, x1: float,
-                y1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _to_segment(
+    px: np.ndarray, py: np.ndarray, x0: float, y0: float, x1: float, y1: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ex, ey = x1 - x0, y1 - y0
     u = np.clip(((px - x0) * ex + (py - y0) * ey) / max(ex * ex + ey * ey, 1e-12), 0.0, 1.0)
     dx, dy = px - x0 - u * ex, py - y0 - u * ey
@@ -76,8 +86,9 @@ def _to_segment(px: np.ndarray, py: np.ndarray, x0: float, y0: float, x1: float,
     return d, dx / d, dy / d
 
 
-def _to_circle(px: np.ndarray, py: np.ndarray, cx: float, cy: float,
-               r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _to_circle(
+    px: np.ndarray, py: np.ndarray, cx: float, cy: float, r: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     dx, dy = px - cx, py - cy
     n = np.maximum(np.hypot(dx, dy), 1e-9)
     return np.maximum(n - r, 1e-9), dx / n, dy / n

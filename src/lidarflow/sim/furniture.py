@@ -46,9 +46,10 @@ class Furniture:
         w, h = x1 - x0, y1 - y0
         count = rng.poisson(clutter * (w * h / (14.0 if corridor else 5.0)))
         for _ in range(count):
-            kind = rng.choice(["wall_box", "table", "chair", "round", "box"],
-                              p=[0.1, 0.0, 0.0, 0.9, 0.0] if corridor else
-                              [0.3, 0.2, 0.2, 0.15, 0.15])
+            kind = rng.choice(
+                ["wall_box", "table", "chair", "round", "box"],
+                p=[0.1, 0.0, 0.0, 0.9, 0.0] if corridor else [0.3, 0.2, 0.2, 0.15, 0.15],
+            )
             if kind == "wall_box":
                 self._wall_box(room)
             elif kind == "round":
@@ -96,8 +97,11 @@ class Furniture:
         if spot is None:
             return
         cx, cy = spot
-        angle = rng.choice([0.0, math.pi / 2]) + rng.normal(0, 0.1) if rng.random() < 0.7 else (
-            rng.uniform(0, math.pi))
+        angle = (
+            rng.choice([0.0, math.pi / 2]) + rng.normal(0, 0.1)
+            if rng.random() < 0.7
+            else (rng.uniform(0, math.pi))
+        )
         outline = _box(cx, cy, length, depth, angle)
         self.taken.append((cx, cy, radius))
         if kind == "box":

@@ -56,8 +56,14 @@ def _to_frame(
 
 
 def _flow(
-    px: np.ndarray, py: np.ndarray, wx: np.ndarray, wy: np.ndarray, step: np.ndarray,
-    f_dst: np.ndarray, poses: np.ndarray, res: float,
+    px: np.ndarray,
+    py: np.ndarray,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    step: np.ndarray,
+    f_dst: np.ndarray,
+    poses: np.ndarray,
+    res: float,
 ) -> np.ndarray:
     """``(K, 2)`` flow in cells of points at sensor ``(px, py)`` / world ``(wx, wy)`` that move
     by ``step (K, 2)`` in the world and are then seen from ``poses[f_dst]``."""
@@ -111,8 +117,11 @@ def ground_truth(
     n = len(ranges) - 1
     if out is None:
         shape = (n, 2, grid.height, grid.width)
-        out = (np.zeros(shape, np.float32), np.zeros(shape, np.float32),
-               np.zeros((n, grid.height, grid.width), bool))
+        out = (
+            np.zeros(shape, np.float32),
+            np.zeros(shape, np.float32),
+            np.zeros((n, grid.height, grid.width), bool),
+        )
     backward, forward, moving = out
     if has_next is None:
         has_next = np.ones(n, dtype=bool)

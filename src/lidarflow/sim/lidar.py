@@ -85,8 +85,9 @@ class LidarConfig:
         ends; a full circle starts at -180° with ``beams`` equal steps (no duplicate beam)."""
         fov = math.radians(self.fov_deg)
         if self.full_circle:
-            return BeamGeometry(self.beams, -math.pi, _TWO_PI / self.beams, self.range_min,
-                                self.range_max)
+            return BeamGeometry(
+                self.beams, -math.pi, _TWO_PI / self.beams, self.range_min, self.range_max
+            )
         return BeamGeometry(
             self.beams, -fov / 2, fov / (self.beams - 1), self.range_min, self.range_max
         )
@@ -101,18 +102,42 @@ PRESETS: dict[str, LidarConfig] = {
     "tim561": LidarConfig(mixed_pixel_prob=0.1),
     # Hokuyo URG-04LX-like, as in demo_stationary_simple_environment.bag.
     "hokuyo-urg": LidarConfig(
-        name="hokuyo-urg", rate_hz=10.0, fov_deg=180.0, beams=512, range_min=0.02, range_max=5.6,
-        noise_std=0.02, dropout_prob=0.01, dropout_value="zero", mixed_pixel_prob=0.3,
+        name="hokuyo-urg",
+        rate_hz=10.0,
+        fov_deg=180.0,
+        beams=512,
+        range_min=0.02,
+        range_max=5.6,
+        noise_std=0.02,
+        dropout_prob=0.01,
+        dropout_value="zero",
+        mixed_pixel_prob=0.3,
     ),
     # Hokuyo UTM-30LX-like at 768 beams over 270°, as in the leg_tracker positive_*.bag.
     "hokuyo-utm": LidarConfig(
-        name="hokuyo-utm", rate_hz=7.5, fov_deg=270.0, beams=768, range_min=0.02, range_max=11.0,
-        noise_std=0.01, dropout_prob=0.005, dropout_value="mixed", mixed_pixel_prob=0.15,
+        name="hokuyo-utm",
+        rate_hz=7.5,
+        fov_deg=270.0,
+        beams=768,
+        range_min=0.02,
+        range_max=11.0,
+        noise_std=0.01,
+        dropout_prob=0.005,
+        dropout_value="mixed",
+        mixed_pixel_prob=0.15,
     ),
     # RPLidar-like 360° sensor, as in datmo_overtakes.bag.
     "rplidar": LidarConfig(
-        name="rplidar", rate_hz=10.0, fov_deg=360.0, beams=360, range_min=0.15, range_max=8.0,
-        noise_std=0.02, dropout_prob=0.02, dropout_value="zero", mixed_pixel_prob=0.1,
+        name="rplidar",
+        rate_hz=10.0,
+        fov_deg=360.0,
+        beams=360,
+        range_min=0.15,
+        range_max=8.0,
+        noise_std=0.02,
+        dropout_prob=0.02,
+        dropout_value="zero",
+        mixed_pixel_prob=0.1,
     ),
 }
 
@@ -249,8 +274,11 @@ def cast_rays(
         if circles.ndim == 2:
             circles = np.broadcast_to(circles, (frames, *circles.shape))
         k = circles.shape[1]
-        cid = (np.full(k, STATIC_ID, np.int32) if circle_ids is None
-               else np.asarray(circle_ids, np.int32))
+        cid = (
+            np.full(k, STATIC_ID, np.int32)
+            if circle_ids is None
+            else np.asarray(circle_ids, np.int32)
+        )
         centre = _to_sensor(poses, circles[..., :2], per_frame=True)  # F,K,2
         radius = circles[..., 2]
         dist = np.hypot(centre[..., 0], centre[..., 1])
@@ -285,9 +313,7 @@ def cast_rays(
     return best.reshape(frames, beams), ids.reshape(frames, beams)
 
 
-def measure(
-    true_ranges: np.ndarray, config: LidarConfig, rng: np.random.Generator
-) -> np.ndarray:
+def measure(true_ranges: np.ndarray, config: LidarConfig, rng: np.random.Generator) -> np.ndarray:
     """Turn exact ranges ``(F, B)`` into what the sensor reports (float32): mixed pixels at
     depth edges, Gaussian noise, ``+inf`` beyond ``range_max``, dropouts as NaN/0, and readings
     below ``range_min`` as 0 (unknown)."""

@@ -86,8 +86,13 @@ class Crowd:
     appearing and vanishing people from it."""
 
     def __init__(
-        self, world: World, config: PeopleConfig, rng: np.random.Generator,
-        sensor: np.ndarray, fov: float, reach: float,
+        self,
+        world: World,
+        config: PeopleConfig,
+        rng: np.random.Generator,
+        sensor: np.ndarray,
+        fov: float,
+        reach: float,
     ) -> None:
         self.world, self.cfg, self.rng = world, config, rng
         self.fov, self.reach = fov, reach
@@ -249,8 +254,11 @@ class Crowd:
         desired = d * (v0 / np.maximum(n, 1e-6))[:, None]
         force = (desired - vel) / cfg.relax_time
         speed = np.hypot(vel[:, 0], vel[:, 1])
-        facing = np.where(speed[:, None] > 0.1, vel / np.maximum(speed, 1e-9)[:, None],
-                          np.column_stack([np.cos(self.heading[idx]), np.sin(self.heading[idx])]))
+        facing = np.where(
+            speed[:, None] > 0.1,
+            vel / np.maximum(speed, 1e-9)[:, None],
+            np.column_stack([np.cos(self.heading[idx]), np.sin(self.heading[idx])]),
+        )
 
         others = np.concatenate([pos, robot[None, :2]])
         radii = np.concatenate([np.full(len(pos), cfg.body_radius), [robot_radius]])
@@ -261,8 +269,11 @@ class Crowd:
         # Anisotropy: people react mostly to what is in front of them.
         cos_phi = -(n_ij * facing[:, None, :]).sum(-1)
         weight = 0.35 + 0.65 * (1 + cos_phi) / 2
-        mag = cfg.people_strength * np.exp((cfg.body_radius + radii[None, :] - dist)
-                                           / cfg.people_range) * weight
+        mag = (
+            cfg.people_strength
+            * np.exp((cfg.body_radius + radii[None, :] - dist) / cfg.people_range)
+            * weight
+        )
         force += (mag[..., None] * n_ij).sum(1)
 
         # Walls and furniture: the nearest one, from the world's distance table.
@@ -283,8 +294,11 @@ class Crowd:
             force = self._forces(idx, sensor, robot_radius)
             vel = self.vel[idx] + h * force
             speed = np.hypot(vel[:, 0], vel[:, 1])
-            cap = np.where(self.state[idx] == WALK,
-                           np.minimum(1.3 * self.speed0[idx], self.cfg.speed_range[1]), 0.6)
+            cap = np.where(
+                self.state[idx] == WALK,
+                np.minimum(1.3 * self.speed0[idx], self.cfg.speed_range[1]),
+                0.6,
+            )
             vel *= np.minimum(1.0, cap / np.maximum(speed, 1e-9))[:, None]
             self.vel[idx] = vel
             self.pos[idx] += h * vel
@@ -297,8 +311,11 @@ class Crowd:
         speed = np.hypot(self.vel[idx, 0], self.vel[idx, 1])
         moving = speed > 0.12
         target = np.arctan2(self.vel[idx, 1], self.vel[idx, 0])
-        turn = np.where(moving, np.clip(_wrap(target - self.heading[idx]), -4 * dt, 4 * dt),
-                        np.where(self.state[idx] == STOP, self.turn[idx] * dt, 0.0))
+        turn = np.where(
+            moving,
+            np.clip(_wrap(target - self.heading[idx]), -4 * dt, 4 * dt),
+            np.where(self.state[idx] == STOP, self.turn[idx] * dt, 0.0),
+        )
         self.heading[idx] = _wrap(self.heading[idx] + turn)
         cycle = 0.8 + 0.45 * speed
         self.phase[idx] = np.mod(self.phase[idx] + 2 * math.pi * speed * dt / cycle, 2 * math.pi)

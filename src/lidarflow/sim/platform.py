@@ -49,8 +49,13 @@ class PlatformConfig:
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose ``a`` followed by the relative pose ``b`` (both ``(x, y, yaw)``)."""
     c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1],
-                     math.remainder(a[2] + b[2], 2 * math.pi)])
+    return np.array(
+        [
+            a[0] + c * b[0] - s * b[1],
+            a[1] + s * b[0] + c * b[1],
+            math.remainder(a[2] + b[2], 2 * math.pi),
+        ]
+    )
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -85,8 +90,11 @@ class Platform:
                 break
         if start is None:
             raise SimError("no free spot for the robot in this world; use another seed")
-        yaw = _open_heading(world, start) + rng.normal(0, 0.3) if rng.random() < 0.7 else (
-            rng.uniform(-math.pi, math.pi))
+        yaw = (
+            _open_heading(world, start) + rng.normal(0, 0.3)
+            if rng.random() < 0.7
+            else (rng.uniform(-math.pi, math.pi))
+        )
         self.pose = np.array([start[0], start[1], math.remainder(yaw, 2 * math.pi)])
         self.odom = self.pose.copy()
         self.v = 0.0
@@ -119,8 +127,9 @@ class Platform:
 
     def _pause(self) -> None:
         self.pause = self.rng.uniform(*self.cfg.pause_time)
-        self.pause_turn = self.rng.choice([-1, 1]) * self.rng.uniform(0.3, 1.0) * (
-            self.rng.random() < 0.4)
+        self.pause_turn = (
+            self.rng.choice([-1, 1]) * self.rng.uniform(0.3, 1.0) * (self.rng.random() < 0.4)
+        )
 
     def _command(self, dt: float, people: np.ndarray) -> tuple[float, float]:
         cfg = self.cfg
@@ -163,8 +172,9 @@ class Platform:
             close = dist < 1.2
             if close.any():
                 push = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
-                direction = direction + (0.5 * np.exp((0.7 - dist[close]) / 0.3)[:, None]
-                                         * push).sum(0)
+                direction = direction + (
+                    0.5 * np.exp((0.7 - dist[close]) / 0.3)[:, None] * push
+                ).sum(0)
         # Low-pass the steering direction: a driver does not twitch at every push.
         self.direction = 0.75 * self.direction + 0.25 * direction
         err = math.remainder(math.atan2(self.direction[1], self.direction[0]) - yaw, 2 * math.pi)
@@ -187,9 +197,13 @@ class Platform:
         self.w += _clamp(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt)
         yaw = self.pose[2]
         mid = yaw + self.w * dt / 2
-        new = np.array([self.pose[0] + self.v * dt * math.cos(mid),
-                        self.pose[1] + self.v * dt * math.sin(mid),
-                        math.remainder(yaw + self.w * dt, 2 * math.pi)])
+        new = np.array(
+            [
+                self.pose[0] + self.v * dt * math.cos(mid),
+                self.pose[1] + self.v * dt * math.sin(mid),
+                math.remainder(yaw + self.w * dt, 2 * math.pi),
+            ]
+        )
         field = self.world.field
         clear_new = field.at(new[0], new[1])[0]
         if clear_new < cfg.radius and clear_new < field.at(self.pose[0], self.pose[1])[0]:
@@ -199,9 +213,12 @@ class Platform:
             inc = relative(self.pose, new)
             dist = math.hypot(inc[0], inc[1])
             noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * np.array(
-                [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist])
-            measured = np.array([inc[0] * self.scale[0], inc[1] * self.scale[0],
-                                 inc[2] * self.scale[1]]) + noise
+                [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist]
+            )
+            measured = (
+                np.array([inc[0] * self.scale[0], inc[1] * self.scale[0], inc[2] * self.scale[1]])
+                + noise
+            )
             self.odom = compose(self.odom, measured)
         else:
             self.odom = new.copy()

@@ -70,12 +70,14 @@ class SimConfig:
             raise SimError(f"scenario must be one of {SCENARIOS}, got {self.scenario!r}")
         if self.flow_storage not in FLOW_STORAGES:
             raise SimError(
-                f"flow_storage must be one of {FLOW_STORAGES}, got {self.flow_storage!r}")
+                f"flow_storage must be one of {FLOW_STORAGES}, got {self.flow_storage!r}"
+            )
         if self.episode_frames < 2 or self.block_frames < 1:
             raise SimError("episode_frames must be >= 2 and block_frames >= 1")
         if self.platform.moving != (self.scenario == "dynamic"):
             object.__setattr__(
-                self, "platform", replace(self.platform, moving=self.scenario == "dynamic"))
+                self, "platform", replace(self.platform, moving=self.scenario == "dynamic")
+            )
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -114,7 +116,10 @@ def _dynamics(config: SimConfig, rng: np.random.Generator, frames: int) -> tuple
 
 
 def simulate_episode(
-    config: SimConfig, seed: int, episode: int, frames: int,
+    config: SimConfig,
+    seed: int,
+    episode: int,
+    frames: int,
     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> Episode:
     """Simulate episode ``episode`` of the run with ``seed``: ``frames`` frames. ``out``: zeroed
@@ -135,7 +140,8 @@ def simulate_episode(
         b = min(a + config.block_frames, total)
         if static_scene is None:
             circles = np.concatenate(
-                [np.broadcast_to(world.circles, (b - a, *world.circles.shape)), legs[a:b]], 1)
+                [np.broadcast_to(world.circles, (b - a, *world.circles.shape)), legs[a:b]], 1
+            )
             cid = np.concatenate([np.full(len(world.circles), STATIC_ID, np.int32), leg_ids])
             true[a:b], ids[a:b] = cast_rays(poses[a:b], geom, world.segments, circles, cid)
         else:
@@ -147,8 +153,15 @@ def simulate_episode(
     backward, forward, moving = out or _zeros(config, frames)
     for a in range(0, frames, config.block_frames):
         b = min(a + config.block_frames, frames)
-        ground_truth(ranges[a:b + 1], ids[a:b + 1], poses[a:b + 1], legs[a:b + 1, :, :2],
-                     geom, config.grid, out=(backward[a:b], forward[a:b], moving[a:b]))
+        ground_truth(
+            ranges[a : b + 1],
+            ids[a : b + 1],
+            poses[a : b + 1],
+            legs[a : b + 1, :, :2],
+            geom,
+            config.grid,
+            out=(backward[a:b], forward[a:b], moving[a:b]),
+        )
     backward[-1] = 0.0  # the episode's last frame has no next frame
     forward[-1] = 0.0
     return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
@@ -156,14 +169,19 @@ def simulate_episode(
 
 def _zeros(config: SimConfig, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     shape = (frames, 2, *config.grid.shape)
-    return (np.zeros(shape, np.float16), np.zeros(shape, np.float16),
-            np.zeros((frames, *config.grid.shape), bool))
+    return (
+        np.zeros(shape, np.float16),
+        np.zeros(shape, np.float16),
+        np.zeros((frames, *config.grid.shape), bool),
+    )
 
 
 def _episode_plan(frames: int, episode_frames: int) -> list[tuple[int, int, int]]:
     """``(episode, first frame, frame count)`` of every episode of a run."""
-    return [(e, a, min(episode_frames, frames - a))
-            for e, a in enumerate(range(0, frames, episode_frames))]
+    return [
+        (e, a, min(episode_frames, frames - a))
+        for e, a in enumerate(range(0, frames, episode_frames))
+    ]
 
 
 def _run_one(args: tuple[SimConfig, int, int, int]) -> tuple[Episode, tuple[np.ndarray, ...]]:
@@ -177,8 +195,9 @@ class _Source:
     """Episodes of a run in order: simulated here straight into the caller's arrays, or in a
     pool of processes and copied in."""
 
-    def __init__(self, config: SimConfig, seed: int, plan: list[tuple[int, int, int]],
-                 workers: int) -> None:
+    def __init__(
+        self, config: SimConfig, seed: int, plan: list[tuple[int, int, int]], workers: int
+    ) -> None:
         self.config, self.seed = config, seed
         self.pool = None
         if workers > 1 and len(plan) > 1:
@@ -188,8 +207,9 @@ class _Source:
             jobs = [(config, seed, e, k) for e, _, k in plan]
             self.results = self.pool.imap(_run_one, jobs)
 
-    def next(self, episode: int, frames: int,
-             out: tuple[np.ndarray, np.ndarray, np.ndarray]) -> Episode:
+    def next(
+        self, episode: int, frames: int, out: tuple[np.ndarray, np.ndarray, np.ndarray]
+    ) -> Episode:
         if self.pool is None:
             return simulate_episode(self.config, self.seed, episode, frames, out)
         ep, (bw_cells, bw_values, fw_cells, fw_values) = next(self.results)
@@ -207,13 +227,16 @@ class _Source:
 
 
 def _group(
-    config: SimConfig, seed: int, group: list[tuple[int, int, int]], source: _Source,
+    config: SimConfig,
+    seed: int,
+    group: list[tuple[int, int, int]],
+    source: _Source,
     progress: Callable[[int], object] | None,
 ) -> Recording:
     flows = _zeros(config, sum(k for _, _, k in group))
     episodes, at = [], 0
     for e, _, k in group:
-        episodes.append(source.next(e, k, tuple(f[at:at + k] for f in flows)))
+        episodes.append(source.next(e, k, tuple(f[at : at + k] for f in flows)))
         at += k
         if progress:
             progress(k)
@@ -221,14 +244,18 @@ def _group(
 
 
 def _assemble(
-    config: SimConfig, seed: int, plan: list[tuple[int, int, int]], episodes: list[Episode],
+    config: SimConfig,
+    seed: int,
+    plan: list[tuple[int, int, int]],
+    episodes: list[Episode],
     flows: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> Recording:
     geom = config.sensor.geometry()
     n = sum(p[2] for p in plan)
     period = round(1e9 / config.sensor.rate_hz)
-    stamps = np.concatenate([
-        _START_NS + (a + np.arange(k)) * period + e * _EPISODE_GAP_NS for e, a, k in plan])
+    stamps = np.concatenate(
+        [_START_NS + (a + np.arange(k)) * period + e * _EPISODE_GAP_NS for e, a, k in plan]
+    )
     ranges = np.concatenate([ep.ranges for ep in episodes]).astype(np.float32)
 
     def cat(name: str) -> np.ndarray:
@@ -236,8 +263,12 @@ def _assemble(
 
     if config.flow_storage == "sparse":
         (bw_cells, bw_values), (fw_cells, fw_values) = to_sparse(flows[0]), to_sparse(flows[1])
-        stored = {"flow_backward_cells": bw_cells, "flow_backward_values": bw_values,
-                  "flow_forward_cells": fw_cells, "flow_forward_values": fw_values}
+        stored = {
+            "flow_backward_cells": bw_cells,
+            "flow_backward_values": bw_values,
+            "flow_forward_cells": fw_cells,
+            "flow_forward_values": fw_values,
+        }
     else:
         stored = {"flow_backward": flows[0], "flow_forward": flows[1]}
     extras = {
@@ -274,7 +305,10 @@ def _assemble(
 
 
 def simulate(
-    frames: int, seed: int = 0, config: SimConfig | None = None, workers: int = 1,
+    frames: int,
+    seed: int = 0,
+    config: SimConfig | None = None,
+    workers: int = 1,
     progress: Callable[[int], object] | None = None,
 ) -> Recording:
     """Simulate ``frames`` frames into one in-memory recording (with ground truth in
@@ -291,8 +325,13 @@ def simulate(
 
 
 def write_simulation(
-    output: str | Path, frames: int, seed: int = 0, config: SimConfig | None = None,
-    chunk_frames: int = 0, workers: int = 1, progress: Callable[[int], object] | None = None,
+    output: str | Path,
+    frames: int,
+    seed: int = 0,
+    config: SimConfig | None = None,
+    chunk_frames: int = 0,
+    workers: int = 1,
+    progress: Callable[[int], object] | None = None,
 ) -> list[Path]:
     """Simulate and write ``frames`` frames. With ``chunk_frames > 0`` and more frames than
     that, the run is written as ``STEM-000.npz``, ``STEM-001.npz``... each holding whole

@@ -57,8 +57,10 @@ def dense_flow(recording: Recording, t: int) -> tuple[np.ndarray, np.ndarray]:
     if not -len(recording) <= t < len(recording):
         raise RecordingError(f"frame {t} is out of range: the recording has {len(recording)}")
     if "flow_forward" in extras and "flow_backward" in extras:
-        return (extras["flow_backward"][t].astype(np.float32),
-                extras["flow_forward"][t].astype(np.float32))
+        return (
+            extras["flow_backward"][t].astype(np.float32),
+            extras["flow_forward"][t].astype(np.float32),
+        )
     if "flow_forward_cells" not in extras or "flow_backward_cells" not in extras:
         raise RecordingError(
             "this recording has no ground-truth flow (only simulated recordings do); "

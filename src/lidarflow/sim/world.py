@@ -107,8 +107,10 @@ class World:
         xy = np.atleast_2d(xy)
         r = self.rooms
         inside = (
-            (xy[:, None, 0] >= r[None, :, 0]) & (xy[:, None, 0] < r[None, :, 2])
-            & (xy[:, None, 1] >= r[None, :, 1]) & (xy[:, None, 1] < r[None, :, 3])
+            (xy[:, None, 0] >= r[None, :, 0])
+            & (xy[:, None, 0] < r[None, :, 2])
+            & (xy[:, None, 1] >= r[None, :, 1])
+            & (xy[:, None, 1] < r[None, :, 3])
         )
         return np.where(inside.any(1), inside.argmax(1), -1)
 
@@ -118,7 +120,10 @@ class World:
         return self.field.lookup(xy)[0]
 
     def sample_free(
-        self, rng: np.random.Generator, room: int | None = None, clearance: float = 0.45,
+        self,
+        rng: np.random.Generator,
+        room: int | None = None,
+        clearance: float = 0.45,
         tries: int = 30,
     ) -> np.ndarray | None:
         """A random point at least ``clearance`` m from obstacles in ``room`` (a random
@@ -188,25 +193,38 @@ def point_segment_distance(xy: np.ndarray, segments: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------ floor plan
 def _partition(
-    rng: np.random.Generator, cfg: WorldConfig, rect: tuple[float, float, float, float],
-    depth: int, out: list[tuple[tuple[float, float, float, float], bool]],
+    rng: np.random.Generator,
+    cfg: WorldConfig,
+    rect: tuple[float, float, float, float],
+    depth: int,
+    out: list[tuple[tuple[float, float, float, float], bool]],
 ) -> None:
     x0, y0, x1, y1 = rect
     w, h = x1 - x0, y1 - y0
     long_x = w >= h
     long_len, short_len = (w, h) if long_x else (h, w)
     cw = rng.uniform(*cfg.corridor_width)
-    if (depth < 3 and long_len >= 6.0 and short_len >= cfg.room_min + cw
-            and rng.random() < cfg.corridor_prob):
+    if (
+        depth < 3
+        and long_len >= 6.0
+        and short_len >= cfg.room_min + cw
+        and rng.random() < cfg.corridor_prob
+    ):
         # A corridor along the long side, rooms on one or both sides of it.
         lo = short_len - cw
         both = lo >= 2 * cfg.room_min
-        first = rng.uniform(cfg.room_min, lo - cfg.room_min) if both else (
-            lo if rng.random() < 0.5 else 0.0)
+        first = (
+            rng.uniform(cfg.room_min, lo - cfg.room_min)
+            if both
+            else (lo if rng.random() < 0.5 else 0.0)
+        )
         cuts = [first, first + cw]
         base = y0 if long_x else x0
-        bands = [(base, base + cuts[0]), (base + cuts[0], base + cuts[1]),
-                 (base + cuts[1], base + short_len)]
+        bands = [
+            (base, base + cuts[0]),
+            (base + cuts[0], base + cuts[1]),
+            (base + cuts[1], base + short_len),
+        ]
         for k, (a, b) in enumerate(bands):
             if b - a < 1e-6:
                 continue
@@ -274,7 +292,10 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
         return i
 
     segments: list[list[float]] = [
-        [0, 0, width, 0], [width, 0, width, height], [width, height, 0, height], [0, height, 0, 0]
+        [0, 0, width, 0],
+        [width, 0, width, height],
+        [width, height, 0, height],
+        [0, height, 0, 0],
     ]
     doors: list[Door] = []
     for k in order:
@@ -308,8 +329,15 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
         if gap[1] < length - 1e-6:
             segments.append([*(p + along * gap[1]), *q])
         centre = p + along * (gap[0] + gap[1]) / 2
-        doors.append(Door(int(i), int(j), (float(centre[0]), float(centre[1])),
-                          (float(normal[0]), float(normal[1])), gap[1] - gap[0]))
+        doors.append(
+            Door(
+                int(i),
+                int(j),
+                (float(centre[0]), float(centre[1])),
+                (float(normal[0]), float(normal[1])),
+                gap[1] - gap[0],
+            )
+        )
         if gap[1] - gap[0] < 1.5 and rng.random() < cfg.door_leaf_prob:
             # An open door leaf, hinged at one jamb, swung 75-100 degrees into one room.
             hinge_at_start = rng.random() < 0.5
@@ -329,9 +357,19 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
     for i, room in enumerate(rooms):
         furniture.furnish(room, bool(corridor[i]), cfg.clutter)
     seg = np.array(segments + furniture.segments, dtype=np.float64).reshape(-1, 4)
-    avoid = np.array(segments + furniture.segments + furniture.avoid_segments,
-                     dtype=np.float64).reshape(-1, 4)
+    avoid = np.array(
+        segments + furniture.segments + furniture.avoid_segments, dtype=np.float64
+    ).reshape(-1, 4)
     circles = np.array(furniture.circles, dtype=np.float64).reshape(-1, 3)
     avoid_circles = np.array(furniture.avoid_circles, dtype=np.float64).reshape(-1, 3)
-    return World(seg, circles, avoid, avoid_circles, rooms, corridor, doors, reachable,
-                 (0.0, 0.0, width, height))
+    return World(
+        seg,
+        circles,
+        avoid,
+        avoid_circles,
+        rooms,
+        corridor,
+        doors,
+        reachable,
+        (0.0, 0.0, width, height),
+    )

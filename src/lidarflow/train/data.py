@@ -26,12 +26,12 @@ less to copy than float32; the loop converts on the device.
 
 Ego motion (``load_train_data(..., with_motion=True)``, for models built with ``ego_motion``):
 every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx, dy, dyaw)`` with
-``dx, dy`` in cells (:mod:`lidarflow.data.motion`; index ``t`` is frame ``t`` in frame ``t - 1``,
-identity where a pose is unknown), appended as the item's last element. Without it the items are
-exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry identity
-motions instead (chosen by a hash of the window, the same every epoch). With
+``dx, dy`` in cells (:mod:`lidarflow.motion.odometry`; index ``t`` is frame ``t`` in frame
+``t - 1``, identity where a pose is unknown), appended as the item's last element. Without it
+the items are exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry
+identity motions instead (chosen by a hash of the window, the same every epoch). With
 ``DataConfig.scan_motions`` a recording without poses carries the motion matched from its scans
-(:mod:`lidarflow.data.scanmatch`, identity where no match counts), the motion ``evaluate`` and
+(:mod:`lidarflow.motion.scanmatch`, identity where no match counts), the motion ``evaluate`` and
 the ``Predictor`` give ``poses_optional`` models there.
 """
 
@@ -49,12 +49,12 @@ import torch
 from torch.utils.data import Dataset
 
 from lidarflow.data import Recording, SequenceSet, load_any
-from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanalign import recording_points
-from lidarflow.data.scanmatch import scan_motions
 from lidarflow.data.sources import topic_notes
 from lidarflow.data.views import SensorView
 from lidarflow.errors import LidarflowError, TrainError
+from lidarflow.motion.icp import recording_points
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
 from lidarflow.train.augment import shift_patch
 from lidarflow.train.config import DataConfig

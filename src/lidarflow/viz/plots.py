@@ -67,8 +67,12 @@ def plot_reliability(
         bins = [b for b in cal["bins"] if b["count"]]
         mean = [b["mean_probability"] for b in bins]
         active = f", active {cal['ece_active']:.3f}" if "ece_active" in cal else ""
-        ax.plot(mean, [b["frequency"] for b in bins], marker="o",
-                label=f"{name} (ECE {cal['ece']:.4f}{active}, Brier {cal['brier']:.4f})")
+        ax.plot(
+            mean,
+            [b["frequency"] for b in bins],
+            marker="o",
+            label=f"{name} (ECE {cal['ece']:.4f}{active}, Brier {cal['brier']:.4f})",
+        )
         width = 1.0 / (len(cal["bins"]) * (len(calibrations) + 1))
         centres = [(b["low"] + b["high"]) / 2 + (i - len(calibrations) / 2) * width for b in bins]
         counts.bar(centres, [b["count"] for b in bins], width=width, label=name)

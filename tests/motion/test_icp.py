@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarflow.data import scanmatch
-from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanalign import align, fit, recording_points, scan_points
-from lidarflow.data.scanmatch import STILL_WINDOW, ScanOdometry, compose, scan_motions
+from lidarflow.motion import scanmatch
+from lidarflow.motion.icp import align, fit, recording_points, scan_points
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.scanmatch import STILL_WINDOW, ScanOdometry, compose, scan_motions
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
 from lidarflow.sim import PeopleConfig, PlatformConfig, SimConfig, lidar_preset, simulate
 

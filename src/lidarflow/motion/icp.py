@@ -1,6 +1,6 @@
 """The sensor's motion between two scans to a fraction of a cell: point-to-line ICP on returns.
 
-Why beside :mod:`lidarflow.data.scanmatch`'s map matching: a motion shows in the rasterized
+Why beside :mod:`lidarflow.motion.scanmatch`'s map matching: a motion shows in the rasterized
 maps only once it moves cells, which a platform turning slowly under a fast scanner does not
 do between two frames (simulated 360° 3.5 m 15 Hz driving: 0.2° and 0.05 cells a frame; the
 maps show a motion on 5 % of the steps). The scans' own returns resolve millimetres: on that
@@ -17,7 +17,7 @@ scan's surface normal. Pairs farther apart than a shrinking distance are left ou
 people walking by and the unseen parts of the scene out of the fit; the damping keeps what the
 scene cannot tell (the motion along a bare corridor) at the guess.
 
-Motion convention: :mod:`lidarflow.data.motion`'s, ``(dx, dy, dyaw)`` in metres and radians,
+Motion convention: :mod:`lidarflow.motion.odometry`'s, ``(dx, dy, dyaw)`` in metres and radians,
 the current sensor pose in the previous one's frame: a current return ``p`` lies at ``R p + d``
 in the previous frame.
 """
@@ -28,10 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarflow.data.blocks import FrameBlocks
 from lidarflow.data.recording import Recording
 from lidarflow.scan import RETURN, Scan, beam_status
 
-__all__ = ["Alignment", "align", "fit", "recording_points", "scan_points"]
+__all__ = ["Alignment", "align", "fit", "recording_points", "scan_points", "streamed_points"]
 
 #: Current returns used at most (evenly thinned); the cost is linear in them.
 MAX_POINTS = 400
@@ -75,6 +76,11 @@ def scan_points(scan: Scan) -> np.ndarray:
 def recording_points(recording: Recording) -> list[np.ndarray]:
     """:func:`scan_points` of every frame of ``recording``."""
     return [scan_points(scan) for scan in recording]
+
+
+def streamed_points(recording: Recording) -> FrameBlocks:
+    """:func:`recording_points`, a block of frames at a time (:mod:`lidarflow.data.blocks`)."""
+    return FrameBlocks(lambda a, b: recording_points(recording.slice(a, b)), len(recording))
 
 
 def _normals(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarflow.data.motion import (
+from lidarflow.motion.odometry import (
     OdometryCheck,
     cells_in_new_frame,
     metres_to_cells,
@@ -198,7 +198,7 @@ def test_a_jump_needs_the_continued_motion_to_explain_the_scans_twice_as_well():
 
 
 def test_checked_motion_stands_in_for_a_jump_with_the_last_motion(driving_maps):
-    from lidarflow.data.scanmatch import checked_motion
+    from lidarflow.motion.scanmatch import checked_motion
 
     occupancy, poses, grid = driving_maps
     true = metres_to_cells(relative_motions(poses)[0], grid.res)
@@ -224,7 +224,7 @@ def test_checked_motion_stands_in_for_a_jump_with_the_last_motion(driving_maps):
 def test_cells_in_new_frame_is_rigid_transform_cells_inverse_rounded():
     import torch
 
-    from lidarflow.data.motion import cells_in_new_frame
+    from lidarflow.motion.odometry import cells_in_new_frame
     from lidarflow.ops.rigid import transform_cells
 
     rng = np.random.default_rng(3)

@@ -16,10 +16,10 @@ development recording the matches are within 0.09 cells and 0.3 degrees of the o
 / 0.694 with the odometry (constant velocity, the best integer shift: 0.710 / 0.572); on the car
 recording, which has no odometry, 0.572 / 0.533 (constant velocity 0.460 / 0.371). Moving
 objects can pull a match (a scene that is mostly other cars); ego-motion models check every
-motion against the scans anyway (:class:`lidarflow.data.motion.OdometryCheck`).
+motion against the scans anyway (:class:`lidarflow.motion.odometry.OdometryCheck`).
 
 Where the scans' returns are at hand (recordings, a Predictor fed scans), :class:`ScanOdometry`
-refines the match on them (:mod:`lidarflow.data.scanalign`) and so also finds motions too slow
+refines the match on them (:mod:`lidarflow.motion.icp`) and so also finds motions too slow
 to move cells between two frames. That is what ``evaluate``, training and the Predictor use: on
 the driving recording the motion is then found on 89 % of steps (the maps: 70 %), within 0.07
 cells and 0.14 degrees of the odometry (median), and the car recording's fold model scores
@@ -34,8 +34,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from lidarflow.data.motion import OdometryCheck, cells_in_new_frame
-from lidarflow.data.scanalign import Alignment, align, fit
+from lidarflow.motion.icp import Alignment, align, fit
+from lidarflow.motion.odometry import OdometryCheck, cells_in_new_frame
 
 __all__ = [
     "MAX_SHIFT",
@@ -130,8 +130,8 @@ class ScanOdometry:
     in cells and radians (``None`` for the first frame, or where none was found).
 
     With the maps alone it is :func:`match_maps`. Given each frame's returns too
-    (:func:`~lidarflow.data.scanalign.scan_points`), the match is refined to a fraction of a cell
-    on them (:func:`~lidarflow.data.scanalign.align`, from the maps' match or else the last
+    (:func:`~lidarflow.motion.icp.scan_points`), the match is refined to a fraction of a cell
+    on them (:func:`~lidarflow.motion.icp.align`, from the maps' match or else the last
     motion), which also finds the slow motions the maps cannot show. The returns never stand
     still to the millimetre (noise, people walking by), so a refined motion is reported only
     where it lays the returns clearly better than standing still (:data:`STILL_FIT`): onto the
@@ -231,7 +231,8 @@ def checked_motion(
     so good odometry costs nothing). A motion from the scans (``from_pose`` false, found by the
     caller) is only checked: ``None`` where ``check`` distrusts it, the stand-in below where it
     judges it a jump (a scan match pulled off by the scene). ``pace``: after a long step
-    in time, the typical step over this one (:func:`lidarflow.data.gaps.paces_after_long_steps`).
+    in time, the typical step over this one
+    (:func:`lidarflow.motion.pacing.paces_after_long_steps`).
 
     A step that ``check`` judges a jump of the poses (an odometry reset, a relocalisation) is
     replaced by the scans' motion too, or, where they find none (a slow step, which they only

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from lidarflow.data.motion import metres_to_cells, relative_motions
-from lidarflow.data.scanmatch import ScanOdometry, match_maps, scan_motions
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.scanmatch import ScanOdometry, match_maps, scan_motions
 from lidarflow.ops.rigid import rigid_warp
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
