@@ -31,8 +31,8 @@ from pair_frontier import FREE, OCCUPIED, frontier
 from study import BASELINES
 
 from lidarflow.data import load_any
-from lidarflow.evaluate.online import moved_last_map
 from lidarflow.models.presets import resolve_model
+from lidarflow.predict.decision import moved_last_map
 from lidarflow.scan import GridSpec
 
 

@@ -18,13 +18,13 @@ import subprocess
 from pathlib import Path
 
 from lidarflow.data import load_any
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import against_baselines
 from lidarflow.models import uses_ego_motion
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.models.weights import load_trained, sha256
+from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
 from lidarflow.viz.evaluation import evaluate_and_report
 

@@ -54,9 +54,9 @@ from pathlib import Path
 import numpy as np
 
 from lidarflow.data import Recording, load_any
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import f1_score
 from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
 
 WARMUP = 10

@@ -8,7 +8,7 @@ Any rule that picks a pair per frame from past frames only can then be replayed 
 milliseconds. Two rules are replayed over the grid's sub-ranges and their constants:
 
 - ``recent``: the pair with the largest win margin of its own recent (decayed) counts;
-- ``lookahead`` (what :mod:`lidarflow.evaluate.online` does): the pair that would leave the
+- ``lookahead`` (what :mod:`lidarflow.predict.decision` does): the pair that would leave the
   stream's margin largest if ``h`` more frames went as its recent ones did, after the decisions
   made so far.
 
@@ -42,14 +42,14 @@ import torch
 from study import BASELINES, stem
 
 from lidarflow.data import Recording, load_any
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.online import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.models.streaming import StreamingModel
+from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.predict.offsets import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.scan import GridSpec
 
 OCCUPIED = np.round(np.arange(-4.8, 4.21, 0.3), 2)

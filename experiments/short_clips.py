@@ -1,7 +1,7 @@
 """Does a fold model win short clips of the recording it never saw? (issue 11)
 
 A recording someone brings may be a few seconds long. The online decision learns its offsets
-from the stream (evaluate/online.py), so its first frames are decided on little evidence. This
+from the stream (predict/decision.py), so its first frames are decided on little evidence. This
 cuts the first ``N`` frames of each recording, evaluates the fold model that did not train on
 it (`lidarflow evaluate`, 10 warm-up frames), and writes the verdicts beside those of the whole
 recording's first frames.

@@ -19,8 +19,8 @@ import json
 from pathlib import Path
 
 from lidarflow.data import frames_after_gaps, load_any
-from lidarflow.evaluate.baselines import CopyLast, TemporalAverage
 from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.predict.baselines import CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
 
 WINDOWS = (2, 3, 4, 5, 6, 7, 8, 10, 12, 15, 20)

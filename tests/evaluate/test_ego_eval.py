@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import EvaluateError, PredictError
-from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import evaluate_recording
@@ -19,6 +18,7 @@ from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.predict import Predictor
+from lidarflow.predict.baselines import CopyLast
 from lidarflow.predict.export import copy_marks, export_onnx
 from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec

@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.baselines import (
+from lidarflow.evaluate.report import build_report, format_table
+from lidarflow.evaluate.scoring import Scorer
+from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.predict.baselines import (
     ConstantVelocity,
     CopyLast,
     TemporalAverage,
     best_rigid_shift,
     shift_map,
 )
-from lidarflow.evaluate.report import build_report, format_table
-from lidarflow.evaluate.scoring import Scorer
-from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.scan import GridSpec
 
 

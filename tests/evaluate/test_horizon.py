@@ -43,7 +43,7 @@ def test_too_short_for_the_horizon_is_refused():
 
 
 def test_the_online_decision_is_fed_back_through_the_roll_out():
-    from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig
+    from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
 
     occupancy, visibility = _walker(12)
     # Untrained, the head is copy-last at logit 2.2: at its own offset -3 it predicts nothing,

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import build_report, format_table, format_uncertainty_table
 from lidarflow.evaluate.stream import evaluate_maps, evaluate_recording, ground_truth_moving
 from lidarflow.models.presets import resolve_model
 from lidarflow.models.streaming import StreamingModel
+from lidarflow.predict.baselines import CopyLast
 from lidarflow.scan import GridSpec
 from lidarflow.segmentation import moving_mask
 from tests.conftest import make_model_dir

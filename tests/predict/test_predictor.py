@@ -192,7 +192,7 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
 def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, random_flownet_dir):
     import onnx
 
-    from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.predict.decision import OnlineDecisionConfig
 
     with pytest.raises(PredictError, match="occupancy-head"):
         Predictor(random_flownet_dir, online_decision=True)
@@ -216,7 +216,7 @@ def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, ran
 
 
 def test_the_roll_out_feeds_back_the_online_decision(tmp_path, sample_recording):
-    from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.predict.decision import OnlineDecisionConfig
     from lidarflow.scan import GridSpec
 
     # At its own offset -3 the untrained head predicts nothing at any step; chosen online (here

@@ -22,7 +22,7 @@ from lidarflow.cli.app import (
     load_input,
     progress_bar,
 )
-from lidarflow.evaluate.baselines import TA_THRESHOLD, TA_WINDOW
+from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
 
 
 def _above_zero(value: float) -> float:
@@ -49,14 +49,14 @@ def methods_and_config(
     compensation alone; ``ego_oracle`` adds the variants that know the
     true next pose; ``online`` adds, for each model, the decision rule it was not built with:
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
-    from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.evaluate.ego import CopyLastEgo
     from lidarflow.evaluate.model_method import ModelMethod
-    from lidarflow.evaluate.online import OnlineDecisionConfig
     from lidarflow.evaluate.report import ORACLE_SUFFIX
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.streaming import StreamingModel
     from lidarflow.models.weights import describe_source
+    from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.predict.decision import OnlineDecisionConfig
     from lidarflow.segmentation import MOVING_THRESHOLD
 
     if moving_threshold is None:

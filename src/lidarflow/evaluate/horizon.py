@@ -9,7 +9,7 @@ Frames ``t`` without a frame ``t + K``, or with a gap in time before one of ``t 
 (:func:`lidarflow.data.gaps.frames_after_gaps`), are not scored, so every horizon sees the same
 frames.
 
-A model with an online decision (``decisions``, :mod:`lidarflow.evaluate.online`) decides its
+A model with an online decision (``decisions``, :mod:`lidarflow.predict.decision`) decides its
 next map with it, as in the streaming evaluation, and the roll-out feeds back that decided map,
 each step re-decided with the same choice (offsets and map). Fed back at a fixed offset the
 offset compounds: the bundled v6 at its fixed 0.9 fell below copy-last on demo_stationary at
@@ -33,12 +33,12 @@ import torch
 from lidarflow.data.blocks import Frames
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
-from lidarflow.evaluate.online import OnlineDecision, moved_last_map
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.models.streaming import model_input
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
+from lidarflow.predict.decision import OnlineDecision, moved_last_map
 
 __all__ = ["horizon_f1", "scored_frames"]
 

@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.online import (
+from lidarflow.models.streaming import StreamingModel
+from lidarflow.motion.odometry import OdometryCheck
+from lidarflow.motion.pacing import paced_motion
+from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
+from lidarflow.predict.decision import (
     OnlineDecisionConfig,
     decision_for,
     decision_of,
     moved_last_map,
 )
-from lidarflow.models.streaming import StreamingModel
-from lidarflow.motion.odometry import OdometryCheck
-from lidarflow.motion.pacing import paced_motion
-from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.scan import takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
@@ -22,7 +22,7 @@ __all__ = ["ModelMethod"]
 
 
 class ModelMethod:
-    """Adapts :class:`StreamingModel` to the :class:`~lidarflow.evaluate.baselines.Method`
+    """Adapts :class:`StreamingModel` to the :class:`~lidarflow.predict.baselines.Method`
     protocol. After each update a flow model exposes ``backward_flow`` and ``forward_flow``
     ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool, the occupied cells of the frame just
     given that move on their own (:func:`lidarflow.segmentation.moving_mask` of the forward
@@ -34,7 +34,7 @@ class ModelMethod:
     needs the future pose, for evaluation only).
 
     ``online`` re-decides an occupancy-head model's probability with the decision offsets that
-    have done best on the recording so far (:mod:`lidarflow.evaluate.online`): ``None`` does so
+    have done best on the recording so far (:mod:`lidarflow.predict.decision`): ``None`` does so
     where the model asks for it (``online_decision`` in its kwargs), ``True`` / ``False`` always
     / never, with ``online_config`` (default: :class:`OnlineDecisionConfig`'s); a config always,
     with that configuration.

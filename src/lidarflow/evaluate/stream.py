@@ -36,11 +36,11 @@ from lidarflow.data.blocks import Frames, streamed_maps, streamed_subcell
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.motion.icp import streamed_points
 from lidarflow.motion.pacing import paces_after_long_steps
+from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 from lidarflow.sim.storage import dense_flow
 

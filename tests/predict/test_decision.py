@@ -7,9 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
-from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, pair_counts
+from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
+from lidarflow.predict.offsets import pair_counts
 
 LOGIT = float(np.log(THRESHOLD / (1 - THRESHOLD)))
 GRID = np.array([-0.6, 0.0, 0.3, 1.2, 2.7])
@@ -246,8 +247,8 @@ def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_f
 def test_the_numpy_moved_map_equals_the_models_warp(seed):
     import torch
 
-    from lidarflow.evaluate.online import moved_last_map
     from lidarflow.ops.warp import warp
+    from lidarflow.predict.decision import moved_last_map
 
     rng = np.random.default_rng(seed)
     occupancy = rng.random((7, 9)) < 0.4
