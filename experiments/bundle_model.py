@@ -22,7 +22,6 @@ from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import against_baselines
 from lidarflow.models import uses_ego_motion
-from lidarflow.models.streaming import StreamingModel
 from lidarflow.models.weights import load_trained, sha256
 from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
@@ -73,9 +72,9 @@ def main() -> None:
     methods = [CopyLast(), TemporalAverage(), ConstantVelocity()]
     if uses_ego_motion(net):  # a reference beside it, not a baseline of the verdict
         methods.append(CopyLastEgo())
-    methods.append(ModelMethod("bundled", StreamingModel(net)))
+    methods.append(ModelMethod("bundled", net))
     if methods[-1].online is not None:  # the same weights with the fixed offsets, beside
-        methods.append(ModelMethod("bundled_fixed", StreamingModel(net), online=False))
+        methods.append(ModelMethod("bundled_fixed", net, online=False))
     named = [(p.name, load_any(p)) for p in args.heldout]
     report = evaluate_and_report(named, methods, GridSpec(), 10, {"model": str(args.run)})
     (args.out / "heldout.json").write_text(json.dumps(report, indent=2))

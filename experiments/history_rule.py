@@ -167,9 +167,9 @@ def model_probabilities(
     streamed as `lidarflow evaluate` streams it over ``maps`` (the recording's occupancy and
     visibility on the default grid), at its fixed decision offset (a model with
     ``subcell_input`` fed the recording's sub-cell maps, as evaluate feeds them)."""
+
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
-    from lidarflow.models.streaming import StreamingModel
 
     net, _ = resolve_model(str(model))
     occupancy, visibility = maps
@@ -178,7 +178,7 @@ def model_probabilities(
     def keep(name: str, t: int, probability: np.ndarray, flow: object) -> None:
         out[t] = probability
 
-    method = ModelMethod("model", StreamingModel(net), online=False)
+    method = ModelMethod("model", net, online=False)
     subcell = recording.subcell_maps(GridSpec()) if method.takes_subcell else None
     evaluate_maps(occupancy, visibility, [method], warmup=0, on_prediction=keep, subcell=subcell)
     return out

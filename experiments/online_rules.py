@@ -47,7 +47,6 @@ from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
 from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.predict.offsets import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.scan import GridSpec
@@ -104,7 +103,7 @@ def stream_beside_baselines(
     (motions, sub-cell maps where the model takes them), calling ``add(name, t, probability,
     flow)`` for every prediction."""
     occupancy, visibility = maps
-    methods = [ModelMethod("model", StreamingModel(net), online=False)]
+    methods = [ModelMethod("model", net, online=False)]
     methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
     motions = recording_motions(recording, GridSpec(), methods, occupancy)
     subcell = recording.subcell_maps(GridSpec()) if methods[0].takes_subcell else None

@@ -184,7 +184,6 @@ def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path,
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.stream import evaluate_maps
     from lidarflow.models.presets import resolve_model
-    from lidarflow.models.streaming import StreamingModel
     from lidarflow.scan import GridSpec
     from tests.conftest import make_model_dir
 
@@ -196,9 +195,9 @@ def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path,
     late = OnlineDecisionConfig(min_frames=100)
     soon = OnlineDecisionConfig(min_frames=1)
     methods = [
-        ModelMethod("fixed", StreamingModel(net)),
-        ModelMethod("late", StreamingModel(net), online=late),
-        ModelMethod("soon", StreamingModel(net), online=soon),
+        ModelMethod("fixed", net),
+        ModelMethod("late", net, online=late),
+        ModelMethod("soon", net, online=soon),
     ]
     scores = evaluate_maps(occupancy, visibility, methods)
     assert scores["late"].counts == scores["fixed"].counts
@@ -212,11 +211,10 @@ def test_a_model_without_an_occupancy_head_is_refused(random_flownet_dir):
     from lidarflow.errors import EvaluateError
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
-    from lidarflow.models.streaming import StreamingModel
 
     net, _ = resolve_model(random_flownet_dir)
     with pytest.raises(EvaluateError, match="occupancy head"):
-        ModelMethod("m", StreamingModel(net), online=OnlineDecisionConfig())
+        ModelMethod("m", net, online=OnlineDecisionConfig())
 
 
 def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_flownet_dir):

@@ -53,6 +53,7 @@ __all__ = [
     "ground_truth_backward_flow",
     "ground_truth_moving",
     "has_ground_truth",
+    "method_inputs",
     "other_recorded_grid",
     "recording_inputs",
 ]
@@ -180,7 +181,7 @@ def evaluate_maps(
         m.reset()
     for t in range(n - 1):
         for m in methods:
-            extra = _inputs(m, t, motions, returns, motions_from_poses, subcell, paces)
+            extra = method_inputs(m, t, motions, returns, motions_from_poses, subcell, paces)
             probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
             if t < warmup:
                 continue
@@ -208,7 +209,7 @@ def evaluate_maps(
     return scorers
 
 
-def _inputs(
+def method_inputs(
     method: Method,
     t: int,
     motions: np.ndarray | None,

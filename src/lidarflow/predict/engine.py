@@ -125,7 +125,8 @@ class Engine:
         self.decision = decision
         self.oracle = oracle and backend.uses_motion
         optional = backend.uses_motion and backend.poses_optional
-        self._check = OdometryCheck() if optional and check_odometry else None
+        #: The odometry check (None where the model does not check it), for a look inside.
+        self.odometry = OdometryCheck() if optional and check_odometry else None
         self._scans = ScanOdometry(res) if optional and scan_odometry else None
         self._state: Any = None
 
@@ -141,7 +142,7 @@ class Engine:
     def reset(self) -> None:
         """Forget the past: the next step starts a new stream from a zero state."""
         self._state = None
-        for part in (self._check, self._scans, self.decision):
+        for part in (self.odometry, self._scans, self.decision):
             if part is not None:
                 part.reset()
 
@@ -154,9 +155,9 @@ class Engine:
         if frame.source == "none" and scans is not None:
             motion = scans.update(frame.occupancy, frame.returns)
         from_pose = frame.source == "pose"
-        if self._check is not None:
+        if self.odometry is not None:
             return checked_motion(
-                self._check, scans, frame.occupancy, motion, from_pose, frame.returns, frame.pace
+                self.odometry, scans, frame.occupancy, motion, from_pose, frame.returns, frame.pace
             )
         if from_pose and scans is not None:
             scans.observe(frame.occupancy, frame.returns)
