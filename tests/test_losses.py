@@ -101,7 +101,7 @@ def test_loss_gradient_reaches_the_flow_and_the_model():
     flows, _ = net(seq)
     loss = flow_loss(seq, flows, 5, LossConfig.paper(), warmup=1)
     loss.backward()
-    assert net.conv_flow.weight.grad.abs().sum() > 0
+    assert net.flow.conv_flow.weight.grad.abs().sum() > 0
 
 
 def test_forward_term_can_be_switched_off():

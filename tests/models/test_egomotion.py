@@ -16,8 +16,8 @@ from lidarflow.ops.warp import warp
 
 def _random_flownet(seed: int = 0) -> LidarFlowNet:
     torch.manual_seed(seed)
-    net = LidarFlowNet(zero_init_flow=False)
-    for p in net.conv_flow.parameters():
+    net = build_model("flownet", zero_init_flow=False)
+    for p in net.flow.conv_flow.parameters():
         p.data.mul_(0.3)
     return net.eval()
 
@@ -48,7 +48,7 @@ def test_state_is_warped_into_the_current_frame():
 def test_untrained_wrapper_predicts_a_static_world_exactly_under_ego_motion():
     """Zero world flow + the true ego motion: the prediction of O^{t+1} is O^t moved into the
     t+1 frame, and the forward flow maps cells of O^t onto it (a round trip of the two flows)."""
-    ego = EgoCompensated(LidarFlowNet()).eval()  # zero-initialised flow head
+    ego = EgoCompensated(build_model("flownet")).eval()  # zero-initialised flow head
     occ = torch.zeros(1, 1, 30, 30)
     occ[0, 0, 8:12, 5:25] = 1.0  # a wall ahead
     maps = torch.cat([occ, torch.ones_like(occ)], dim=1)
@@ -62,7 +62,8 @@ def test_untrained_wrapper_predicts_a_static_world_exactly_under_ego_motion():
 
 
 def test_forward_and_backward_ego_flows_are_inverse_under_rotation():
-    zero = EgoCompensated(LidarFlowNet()).eval()  # zero world flow: the flows are the ego flow
+    # zero world flow: the flows are the ego flow
+    zero = EgoCompensated(build_model("flownet")).eval()
     maps = (torch.rand(1, 2, 24, 24) > 0.8).float()
     m = torch.tensor([[1.5, 0.5, 0.08]])
     out, _ = zero.step(maps, zero.init_state(1, 24, 24), m, m)
@@ -87,7 +88,7 @@ def test_built_by_kwargs_and_deeptracking_supported_with_gradients():
     net = build_model("flownet", ego_motion=True)
     assert isinstance(net, EgoCompensated) and uses_ego_motion(net)
     assert not uses_ego_motion(build_model("flownet"))
-    assert len(net.grus) == 3
+    assert len(net.inner.flow.grus) == 3
     dt = build_model("deeptracking", ego_motion=True)
     seq = torch.rand(2, 3, 2, 8, 8)
     motions = torch.rand(2, 3, 3, requires_grad=True)
@@ -99,7 +100,8 @@ def test_built_by_kwargs_and_deeptracking_supported_with_gradients():
 
 
 def test_bf16_autocast_keeps_the_ego_warp_in_fp32():
-    ego = EgoCompensated(LidarFlowNet()).eval()  # zero world flow: the output is the ego flow
+    # zero world flow: the output is the ego flow
+    ego = EgoCompensated(build_model("flownet")).eval()
     seq = (torch.rand(1, 2, 2, 100, 100) > 0.8).float()
     motions = torch.tensor([[[0.0, 0.0, 0.0], [3.3, -1.7, 0.05]]])
     ref, _ = ego(seq, motions=motions)
@@ -114,9 +116,9 @@ def test_occupancy_head_under_ego_motion_moves_its_residual_logit_rigidly():
     kwargs = {"occupancy_head": True, "constant_velocity_input": True, "shift_memories": True}
     inner = build_model("flownet", zero_init_flow=False, head_hidden_channels=4, **kwargs)
     with torch.no_grad():
-        inner.conv_occupancy.weight.normal_()
+        inner.head.out.weight.normal_()
     ego = EgoCompensated(inner).eval()
-    assert ego.occupancy_head and ego.out_channels == 5
+    assert ego.capabilities.occupancy_head and ego.out_channels == 5
     maps = (torch.rand(1, 2, 16, 14) > 0.7).float()
     state = tuple(torch.rand(1, c, 16, 14) for c in inner.state_channels())
     m = torch.tensor([[2.0, -1.0, 0.1]])

@@ -13,8 +13,6 @@ from lidarflow.models import (
     build_model,
     count_parameters,
 )
-from lidarflow.models.flownet import TRANSITION_DECAY
-from lidarflow.ops.warp import warp
 from lidarflow.scan import takes_subcell
 
 PAPER_PARAMETERS = 42_500  # Table I, "about 42.5 K"
@@ -29,7 +27,7 @@ def _seq(b=2, t=4, h=12, w=10, seed=0) -> torch.Tensor:
 
 def _randomise_head(model: torch.nn.Module) -> None:
     torch.manual_seed(5)
-    head = model.conv_flow if isinstance(model, LidarFlowNet) else model.decoder
+    head = model.flow.conv_flow if isinstance(model, LidarFlowNet) else model.decoder
     with torch.no_grad():
         head.weight.normal_(0, 0.5)
         head.bias.normal_(0, 0.5)
@@ -39,19 +37,25 @@ def test_model_names_and_builder():
     assert set(MODEL_NAMES) == {"flownet", "deeptracking"}
     assert isinstance(build_model("flownet"), LidarFlowNet)
     assert isinstance(build_model("deeptracking"), DeepTracking)
-    assert build_model("flownet", hidden_channels=8).hidden_channels == 8
+    assert build_model("flownet", hidden_channels=8).flow.state_channels() == (8, 8, 8)
     with pytest.raises(ModelError, match="unknown model 'raft'"):
         build_model("raft")
     with pytest.raises(ModelError, match="cannot build"):
         build_model("flownet", nonsense=1)
-    with pytest.raises(ModelError, match="conv0_activation"):
-        build_model("flownet", conv0_activation="gelu")
+    # Options measured without gain are gone, and a file that needs one says so.
+    with pytest.raises(ModelError, match="conv0_activation was measured without gain"):
+        build_model("flownet", conv0_activation="none")
+    # The decision is the Predictor's, not the model's.
+    with pytest.raises(ModelError, match="decision_offset: the decision is the Predictor's"):
+        build_model("flownet", occupancy_head=True, decision_offset=0.5)
 
 
 def test_flownet_has_the_papers_parameter_count():
     net = build_model("flownet")
     assert count_parameters(net) == PAPER_PARAMETERS
-    per_layer = {name: sum(p.numel() for p in m.parameters()) for name, m in net.named_children()}
+    per_layer = {
+        name: sum(p.numel() for p in m.parameters()) for name, m in net.flow.named_children()
+    }
     assert per_layer["conv0"] == 2 * 16 * 9 + 16
     assert per_layer["conv_flow"] == 16 * 4 * 9 + 4
 
@@ -63,7 +67,7 @@ def test_deeptracking_budget_is_close_to_flownets():
 
 def test_count_parameters_ignores_frozen_ones():
     net = build_model("flownet")
-    net.conv0.requires_grad_(False)
+    net.flow.conv0.requires_grad_(False)
     assert count_parameters(net) == PAPER_PARAMETERS - (2 * 16 * 9 + 16)
 
 
@@ -157,14 +161,7 @@ def test_zero_initialised_flow_head_still_learns():
     net = build_model("flownet")
     out, _ = net(_seq(2, 3))
     (out - 1.0).square().mean().backward()
-    assert net.conv_flow.weight.grad.abs().sum() > 0
-
-
-def test_conv0_activation_option():
-    torch.manual_seed(0)
-    linear = build_model("flownet", conv0_activation="none")
-    assert isinstance(linear.act0, torch.nn.Identity)
-    assert count_parameters(linear) == PAPER_PARAMETERS
+    assert net.flow.conv_flow.weight.grad.abs().sum() > 0
 
 
 def test_step_exports_without_data_dependent_branches():
@@ -188,7 +185,7 @@ def test_step_exports_without_data_dependent_branches():
 def test_occupancy_head_starts_as_copy_last_and_adds_one_channel():
     net = build_model("flownet", occupancy_head=True)
     assert net.out_channels == 5
-    assert count_parameters(net) == PAPER_PARAMETERS + (16 + 1 + 2) * 9 + 1 + 1  # head + gain
+    assert count_parameters(net) == PAPER_PARAMETERS + (1 + 2) + 1 + 1  # 1x1 head + gain
     seq = _seq(2, 4, 20, 17, seed=4)
     out, _ = net(seq)
     assert out.shape == (2, 4, 5, 20, 17) and out[:, :, :4].abs().max() == 0
@@ -208,11 +205,11 @@ def test_occupancy_head_residual_moves_the_probability_and_flow_still_warps():
     out[0, 4, 0, 0] = 10.0  # a residual logit alone turns a free cell occupied
     logit = net.next_logit(maps, out)
     expected = torch.zeros(1, 1, 6, 8)
-    expected[0, 0, 2, 4] = net.warp_gain.item()
+    expected[0, 0, 2, 4] = net.warp_gain()
     expected[0, 0, 0, 0] = 10.0
     torch.testing.assert_close(logit, expected)
     torch.testing.assert_close(net.predict_next(maps, out), torch.sigmoid(expected))
-    with pytest.raises(ValueError, match="occupancy_head"):
+    with pytest.raises(ValueError, match="occupancy head"):
         build_model("flownet").next_logit(maps, out[:, :4])
 
 
@@ -231,50 +228,11 @@ def test_occupancy_memory_is_an_exponential_average_of_past_maps():
         build_model("flownet", occupancy_head=True, memory_decays=(1.5,))
 
 
-def test_bias_corrected_memory_is_the_weighted_mean_of_the_frames_seen():
-    net = build_model(
-        "flownet", occupancy_head=True, memory_decays=(0.5, 0.9), memory_bias_correction=True
-    )
-    assert net.state_channels() == (16, 16, 16, 3)  # two memories and the frame count
-    # Make the residual logit read the slow memory's centre tap alone.
-    with torch.no_grad():
-        net.conv_occupancy.weight.zero_()
-        net.conv_occupancy.bias.zero_()
-        net.conv_occupancy.weight[0, 16 + 1 + 1, 1, 1] = 1.0
-    occupied, free = torch.zeros(1, 2, 5, 5), torch.zeros(1, 2, 5, 5)
-    occupied[0, 0, 2, 2] = 1.0
-    state = net.init_state(1, 5, 5)
-    frames = [occupied, free, occupied]
-    for maps in frames:
-        out, state = net.step(maps, state)
-    # weighted mean of (1, 0, 1) with weights (0.9^2, 0.9, 1): a cell seen occupied from the
-    # first frame reads as such at once, unlike the raw memory (which starts from zero)
-    expected = (0.81 + 1.0) / (0.81 + 0.9 + 1.0)
-    torch.testing.assert_close(out[0, 4, 2, 2], torch.tensor(expected))
-    assert state[-1][0, 2, 0, 0] == 3  # frames counted everywhere
-    raw = 0.1 * (0.81 + 1.0)
-    torch.testing.assert_close(state[-1][0, 1, 2, 2], torch.tensor(raw))
-
-
-def test_decision_offset_shifts_the_prediction_but_not_the_training_logit():
-    torch.manual_seed(0)
-    plain = build_model("flownet", occupancy_head=True, zero_init_flow=False)
-    shifted = build_model("flownet", occupancy_head=True, zero_init_flow=False, decision_offset=0.7)
-    shifted.load_state_dict(plain.state_dict())
-    maps = _seq(1, 1, 12, 10, seed=3)[:, 0]
-    out, _ = plain.step(maps, plain.init_state(1, 12, 10))
-    torch.testing.assert_close(shifted.next_logit(maps, out), plain.next_logit(maps, out))
-    p0, p1 = plain.predict_next(maps, out), shifted.predict_next(maps, out)
-    torch.testing.assert_close(torch.logit(p1) - torch.logit(p0), torch.full_like(p0, 0.7))
-    with pytest.raises((ValueError, ModelError), match="decision_offset"):
-        build_model("flownet", decision_offset=0.5)
-
-
 def test_constant_velocity_input_feeds_the_baselines_map_to_the_head():
     net = build_model("flownet", occupancy_head=True, constant_velocity_input=True)
     plain = build_model("flownet", occupancy_head=True)
     assert net.state_channels() == (16, 16, 16, 3)  # two memories and the previous map
-    assert count_parameters(net) == count_parameters(plain) + 9
+    assert count_parameters(net) == count_parameters(plain) + 1
     scene = torch.zeros(1, 2, 10, 10)
     scene[0, 0, 4:6, 2] = 1.0
     moved = torch.roll(scene, shifts=(1, 2), dims=(2, 3))  # 1 row down, 2 columns right
@@ -287,9 +245,9 @@ def test_constant_velocity_input_feeds_the_baselines_map_to_the_head():
     torch.testing.assert_close(state[-1][:, -1:], moved[:, 0:1])  # the previous map is kept
     # Read the constant-velocity channel's centre tap alone: the residual is that map.
     with torch.no_grad():
-        net.conv_occupancy.weight.zero_()
-        net.conv_occupancy.bias.zero_()
-        net.conv_occupancy.weight[0, -1, 1, 1] = 1.0
+        net.head.out.weight.zero_()
+        net.head.out.bias.zero_()
+        net.head.out.weight[0, -1, 0, 0] = 1.0
     state = net.init_state(1, 10, 10)
     for maps in (scene, moved):
         out, state = net.step(maps, state)
@@ -316,7 +274,7 @@ def test_shifted_memories_average_the_moving_world_and_equal_still_ones_when_not
     still = build_model("flownet", zero_init_flow=False, **kwargs)
     shifting = build_model("flownet", zero_init_flow=False, shift_memories=True, **kwargs)
     with torch.no_grad():
-        still.conv_occupancy.weight.normal_()
+        still.head.out.weight.normal_()
     shifting.load_state_dict(still.state_dict())  # the option adds no parameter
     # Nothing moves: the shift is zero, and the two models are the same function.
     maps = (_seq(1, 1, 16, 16, seed=4)[:, 0] > 0.5).float()
@@ -333,7 +291,7 @@ def test_shifted_memories_average_the_moving_world_and_equal_still_ones_when_not
         _, s_still = still.step(maps, s_still)
         _, s_shift = shifting.step(maps, s_shift)
     current = frames[-1][0, 0]
-    decays = torch.tensor(shifting.memory_decays).view(-1, 1, 1)
+    decays = torch.tensor(shifting.head.config.memory_decays).view(-1, 1, 1)
     k = len(decays)
     expected = (1.0 - decays ** len(frames)) * current
     torch.testing.assert_close(s_shift[-1][0, :k], expected)
@@ -347,15 +305,12 @@ def test_hidden_head_starts_as_copy_last_and_its_layers_are_the_heads():
     from lidarflow.train.model_setup import is_head as _is_head
 
     net = build_model("flownet", occupancy_head=True, head_hidden_channels=8)
-    features = 16 + 1 + 2
-    assert count_parameters(net) == PAPER_PARAMETERS + features * 9 * 8 + 8 + 8 + 1 + 1
+    features = 1 + 2  # O^t and two memories: each cell's own past
+    assert count_parameters(net) == PAPER_PARAMETERS + features * 8 + 8 + 8 + 1 + 1
     heads = [n for n, _ in net.named_parameters() if _is_head(n)]
-    assert set(heads) == {
-        "occupancy_hidden.weight",
-        "occupancy_hidden.bias",
-        "conv_occupancy.weight",
-        "conv_occupancy.bias",
-        "warp_gain",
+    assert set(heads) == {"head.hidden.weight", "head.hidden.bias", "head.out.weight"} | {
+        "head.out.bias",
+        "head.gain",
     }
     seq = _seq(1, 3, 12, 10, seed=5)
     out, _ = net(seq)
@@ -364,163 +319,15 @@ def test_hidden_head_starts_as_copy_last_and_its_layers_are_the_heads():
         assert torch.equal(prob >= 0.4, seq[:, t, 0:1] > 0.5)
     # The hidden layer is live: with a non-zero output layer the residual depends on the input.
     with torch.no_grad():
-        net.conv_occupancy.weight.fill_(1.0)
+        net.head.out.weight.fill_(1.0)
     out, _ = net(seq)
     assert out[:, :, 4].std() > 0
     with pytest.raises((ValueError, ModelError), match="head_hidden_channels"):
         build_model("flownet", head_hidden_channels=4)
 
 
-def test_visibility_and_warp_inputs_feed_the_head_as_its_last_channels():
-    plain = build_model("flownet", occupancy_head=True, zero_init_flow=False)
-    net = build_model(
-        "flownet", occupancy_head=True, zero_init_flow=False, visibility_input=True, warp_input=True
-    )
-    assert count_parameters(net) == count_parameters(plain) + 2 * 9
-    assert net.state_channels() == plain.state_channels()  # inputs of the frame, no new state
-    scene = torch.zeros(1, 2, 10, 10)
-    scene[0, 0, 4:6, 3] = 1.0
-    scene[0, 1, :, :6] = 1.0  # visible: the left part of the grid
-    # Untrained (output layer zero), the model is the plain one.
-    with torch.no_grad():
-        for name, p in plain.named_parameters():
-            if name != "conv_occupancy.weight":
-                dict(net.named_parameters())[name].copy_(p)
-    out, _ = net.step(scene, net.init_state(1, 10, 10))
-    out_plain, _ = plain.step(scene, plain.init_state(1, 10, 10))
-    torch.testing.assert_close(out, out_plain)
-    # Read each new channel's centre tap alone: the residual is V^t, then W(O^t, B^t).
-    for channel, expected in ((-2, scene[:, 1:2]), (-1, warp(scene[:, 0:1], out[:, 0:2]))):
-        with torch.no_grad():
-            net.conv_occupancy.weight.zero_()
-            net.conv_occupancy.bias.zero_()
-            net.conv_occupancy.weight[0, channel, 1, 1] = 1.0
-        out, _ = net.step(scene, net.init_state(1, 10, 10))
-        torch.testing.assert_close(out[:, 4:5], expected.clamp(0.0, 1.0))
-    assert not torch.equal(out[:, 4:5], scene[:, 0:1])  # the trained-looking flow moved cells
-    for option in ("visibility_input", "warp_input"):
-        with pytest.raises((ValueError, ModelError), match=option):
-            build_model("flownet", **{option: True})
-
-
-def test_visibility_memories_average_how_often_each_cell_is_seen():
-    kwargs = {"occupancy_head": True, "memory_decays": (0.5, 0.9)}
-    plain = build_model("flownet", **kwargs)
-    net = build_model("flownet", **kwargs, visibility_memories=True)
-    assert net.state_channels()[-1] == plain.state_channels()[-1] + 2
-    assert count_parameters(net) == count_parameters(plain) + 2 * 9  # two more 3x3 inputs
-    scene = torch.zeros(1, 2, 8, 8)
-    scene[0, 0, 2, 2] = 1.0
-    scene[0, 1, :, :4] = 1.0  # the left half is seen every frame, the right half never
-    state, plain_state = net.init_state(1, 8, 8), plain.init_state(1, 8, 8)
-    for _ in range(3):
-        _, state = net.step(scene, state)
-        _, plain_state = plain.step(scene, plain_state)
-    memories = state[-1]
-    # The occupancy memories are the plain model's; after them, V's: 1 - d^3 where seen.
-    torch.testing.assert_close(memories[:, :2], plain_state[-1][:, :2])
-    for channel, d in ((2, 0.5), (3, 0.9)):
-        torch.testing.assert_close(memories[0, channel, :, :4], torch.full((8, 4), 1 - d**3))
-        assert memories[0, channel, :, 4:].abs().max() == 0
-    with pytest.raises((ValueError, ModelError), match="visibility_memories"):
-        build_model("flownet", visibility_memories=True)
-
-
-def test_transition_memories_count_how_often_each_cell_flips():
-    kwargs = {"occupancy_head": True, "memory_decays": (0.5,), "constant_velocity_input": True}
-    plain = build_model("flownet", **kwargs)
-    net = build_model("flownet", **kwargs, transition_memories=True)
-    assert net.state_channels()[-1] == plain.state_channels()[-1] + 2
-    state, plain_state = net.init_state(1, 8, 8), plain.init_state(1, 8, 8)
-    for t in range(12):
-        scene = torch.zeros(1, 2, 8, 8)
-        scene[0, 0, 2, 2] = 1.0  # always occupied
-        scene[0, 0, 5, 5] = float(t % 2)  # flips every frame: appears on odd frames
-        scene[0, 1] = 1.0
-        _, state = net.step(scene, state)
-        _, plain_state = plain.step(scene, plain_state)
-    memories, d = state[-1], TRANSITION_DECAY
-    torch.testing.assert_close(memories[:, :1], plain_state[-1][:, :1])  # occupancy's unchanged
-    appeared, vanished = memories[0, 1], memories[0, 2]
-    # appearances on frames 1, 3, .., 11 (and the steady cell's on frame 0, from the empty state);
-    # vanishings on frames 2, 4, .., 10
-    expected = sum((1 - d) * d ** (11 - t) for t in range(1, 12, 2))
-    torch.testing.assert_close(appeared[5, 5], torch.tensor(expected))
-    expected = sum((1 - d) * d ** (11 - t) for t in range(2, 12, 2))
-    torch.testing.assert_close(vanished[5, 5], torch.tensor(expected))
-    torch.testing.assert_close(appeared[2, 2], torch.tensor((1 - d) * d**11))
-    assert vanished[2, 2] == 0 and memories[0, 1:, 0, 0].abs().max() == 0
-    with pytest.raises((ValueError, ModelError), match="constant_velocity_input"):
-        build_model("flownet", occupancy_head=True, transition_memories=True)
-
-
-def test_per_cell_head_sees_only_each_cells_own_inputs():
-    kwargs = {"occupancy_head": True, "head_hidden_channels": 8}
-    net = build_model("flownet", **kwargs, head_kernel_size=1, head_flow_features=False)
-    features = 1 + 2  # O^t and the two memories: no GRU features
-    assert count_parameters(net) == PAPER_PARAMETERS + features * 8 + 8 + 8 + 1 + 1
-    with torch.no_grad():
-        for p in (net.occupancy_hidden.weight, net.occupancy_hidden.bias):
-            p.uniform_(-1.0, 1.0)
-        net.conv_occupancy.weight.fill_(1.0)
-    scene = torch.zeros(1, 2, 10, 10)
-    scene[0, 0, 4, 3] = 1.0
-    out, _ = net.step(scene, net.init_state(1, 10, 10))
-    # The residual of a cell depends on that cell alone: equal wherever the inputs are equal
-    # (every empty cell, even the occupied cell's neighbours), though the GRUs' features differ.
-    residual = out[0, 4]
-    empty = scene[0, 0] == 0
-    torch.testing.assert_close(residual[empty], residual[0, 0].expand_as(residual[empty]))
-    assert residual[4, 3] != residual[0, 0]
-    # The 3x3 head with GRU features (the default) does see the neighbours.
-    spatial = build_model("flownet", **kwargs, zero_init_flow=False)
-    with torch.no_grad():
-        spatial.conv_occupancy.weight.fill_(1.0)
-    out, _ = spatial.step(scene, spatial.init_state(1, 10, 10))
-    assert out[0, 4, 4, 4] != out[0, 4, 0, 0]
-    for bad in ({"head_kernel_size": 2}, {"head_kernel_size": 0}):
-        with pytest.raises((ValueError, ModelError), match="head_kernel_size"):
-            build_model("flownet", **kwargs, **bad)
-    with pytest.raises((ValueError, ModelError), match="head_flow_features"):
-        build_model("flownet", head_flow_features=False)
-
-
-def test_free_cells_decision_offset_applies_where_the_warped_map_is_free():
-    torch.manual_seed(0)
-    plain = build_model("flownet", occupancy_head=True, zero_init_flow=False)
-    two = build_model(
-        "flownet",
-        occupancy_head=True,
-        zero_init_flow=False,
-        decision_offset=0.3,
-        decision_offset_free=1.1,
-    )
-    two.load_state_dict(plain.state_dict())
-    maps = _seq(1, 1, 12, 10, seed=3)[:, 0]
-    out, _ = plain.step(maps, plain.init_state(1, 12, 10))
-    warped = warp(maps[:, 0:1], out[:, 0:2]).clamp(0.0, 1.0)
-    assert (warped == 0).any() and (warped > 0.9).any() and ((warped > 0) & (warped < 0.9)).any()
-    shift = torch.logit(two.predict_next(maps, out)) - torch.logit(plain.predict_next(maps, out))
-    torch.testing.assert_close(shift, 1.1 - 0.8 * warped, atol=1e-4, rtol=0)
-    # The same offset both ways is the single-offset model (None, the default).
-    for free in (None, 0.3):
-        same = build_model(
-            "flownet",
-            occupancy_head=True,
-            zero_init_flow=False,
-            decision_offset=0.3,
-            decision_offset_free=free,
-        )
-        same.load_state_dict(plain.state_dict())
-        shift = torch.logit(same.predict_next(maps, out))
-        shift -= torch.logit(plain.predict_next(maps, out))
-        torch.testing.assert_close(shift, torch.full_like(shift, 0.3), atol=1e-4, rtol=0)
-    with pytest.raises((ValueError, ModelError), match="decision_offset"):
-        build_model("flownet", decision_offset_free=0.5)
-
-
 def test_subcell_input_reaches_the_head_and_only_the_head():
-    kwargs = {"occupancy_head": True, "head_hidden_channels": 4, "head_kernel_size": 1}
+    kwargs = {"occupancy_head": True, "head_hidden_channels": 4}
     plain = build_model("flownet", **kwargs)
     net = build_model("flownet", **kwargs, subcell_input=True)
     assert (plain.input_channels, net.input_channels) == (2, 4)
@@ -535,7 +342,7 @@ def test_subcell_input_reaches_the_head_and_only_the_head():
     predict = [net.predict_next(s, net.step(s, net.init_state(1, 8, 8))[0]) for s in (scene, moved)]
     torch.testing.assert_close(predict[0], predict[1])
     with torch.no_grad():
-        net.conv_occupancy.weight.fill_(1.0)
+        net.head.out.weight.fill_(1.0)
     (out, state), (out_moved, state_moved) = (
         net.step(s, net.init_state(1, 8, 8)) for s in (scene, moved)
     )
@@ -548,3 +355,94 @@ def test_subcell_input_reaches_the_head_and_only_the_head():
         torch.testing.assert_close(a, b)
     with pytest.raises((ValueError, ModelError), match="subcell_input"):
         build_model("flownet", subcell_input=True)
+
+
+def test_the_head_sees_each_cells_own_inputs_only():
+    net = build_model("flownet", occupancy_head=True, head_hidden_channels=8, visibility_input=True)
+    assert count_parameters(net) == PAPER_PARAMETERS + (1 + 2 + 1) * 8 + 8 + 8 + 1 + 1
+    with torch.no_grad():
+        for p in (net.head.hidden.weight, net.head.hidden.bias):
+            p.uniform_(-1.0, 1.0)
+        net.head.out.weight.fill_(1.0)
+    scene = torch.zeros(1, 2, 10, 10)
+    scene[0, 0, 4, 3] = 1.0
+    scene[0, 1, :, :6] = 1.0  # visible: the left part of the grid
+    out, _ = net.step(scene, net.init_state(1, 10, 10))
+    # Equal wherever a cell's own inputs are equal (even the occupied cell's neighbours).
+    residual = out[0, 4]
+    for region in (scene[0, 1] == 1, scene[0, 1] == 0):
+        empty = region & (scene[0, 0] == 0)
+        torch.testing.assert_close(residual[empty], residual[empty][0].expand_as(residual[empty]))
+    assert residual[4, 3] != residual[4, 4] != residual[4, 8]  # occupied / seen / unseen
+
+
+def test_model_spec_reads_every_stored_form_and_writes_its_own():
+    from lidarflow.models import FlowConfig, HeadConfig, ModelSpec
+
+    stored = {
+        "occupancy_head": True,
+        "memory_decays": [0.5, 0.9],
+        "constant_velocity_input": True,
+        "shift_memories": True,
+        "head_hidden_channels": 16,
+        "head_kernel_size": 1,
+        "head_flow_features": False,
+        "subcell_input": True,
+        "ego_motion": True,
+        "poses_optional": True,
+        "online_decision": True,
+        "decision_offset": 1.2,
+    }
+    spec, decision = ModelSpec.from_kwargs("flownet", stored, stored=True)
+    assert decision == {"online_decision": True, "decision_offset": 1.2}
+    assert spec.head == HeadConfig((0.5, 0.9), True, True, 16, False, True)
+    assert spec.flow == FlowConfig() and spec.ego_motion and spec.poses_optional
+    again, none = ModelSpec.from_kwargs("flownet", spec.to_kwargs(), stored=True)
+    assert again == spec and none == {}
+    # A stored head without the per-cell shape is the removed 3x3 head with GRU features.
+    with pytest.raises(ValueError, match="3x3 kernel"):
+        ModelSpec.from_kwargs("flownet", {"occupancy_head": True}, stored=True)
+    assert ModelSpec.from_kwargs("flownet", {"occupancy_head": True})[0].head == HeadConfig()
+    # A removed option at its old default reads as the model without it.
+    plain, _ = ModelSpec.from_kwargs("flownet", {"warp_input": False, "in_channels": 2})
+    assert plain == ModelSpec()
+    for option, value in (("warp_input", True), ("transition_memories", True)):
+        with pytest.raises(ValueError, match=f"{option} was measured without gain"):
+            ModelSpec.from_kwargs("flownet", {"occupancy_head": True, option: value})
+    with pytest.raises(ValueError, match="poses_optional needs ego_motion"):
+        ModelSpec.from_kwargs("flownet", {"poses_optional": True})
+
+
+def test_weights_saved_before_the_blocks_load_into_them(tmp_path):
+    import json
+
+    from safetensors.torch import save_file
+
+    from lidarflow.models.weights import load_trained, upgrade_state
+
+    torch.manual_seed(3)
+    net = build_model("flownet", occupancy_head=True, head_hidden_channels=4, ego_motion=True)
+    old_names = {
+        "flow.conv0.": "conv0.",
+        "flow.grus.": "grus.",
+        "flow.conv_flow.": "conv_flow.",
+        "head.out.": "conv_occupancy.",
+        "head.hidden.": "occupancy_hidden.",
+        "head.gain": "warp_gain",
+    }
+    old = {}
+    for key, value in net.state_dict().items():
+        name = key.removeprefix("inner.")
+        for new, before in old_names.items():
+            if name.startswith(new):
+                name = before + name[len(new) :]
+        old["inner." + name] = value.contiguous()
+    assert upgrade_state(old).keys() == net.state_dict().keys()
+    save_file(old, tmp_path / "model.safetensors")
+    kwargs = {"occupancy_head": True, "head_hidden_channels": 4, "head_kernel_size": 1}
+    kwargs |= {"head_flow_features": False, "ego_motion": True, "decision_offset": 0.7}
+    (tmp_path / "model.json").write_text(json.dumps({"model": "flownet", "model_kwargs": kwargs}))
+    loaded, card = load_trained(tmp_path)
+    for key, value in net.state_dict().items():
+        torch.testing.assert_close(loaded.state_dict()[key], value)
+    assert card["decision"] == {"offset": 0.7, "online": False}

@@ -8,21 +8,18 @@ import pytest
 
 from lidarflow.errors import ModelError
 from lidarflow.models import presets
-from lidarflow.models.flownet import OCCUPANCY_HEAD_PARAMETERS
-from lidarflow.models.presets import BUNDLED, bundled_model_dir, resolve_model
+from lidarflow.models.presets import BUNDLED, bundled_model_dir, lidar_flownet, resolve_model
 
 
 def test_bundled_model_loads_and_matches_its_record():
     net, card = resolve_model(None)
     assert card["model"] == "flownet" and card["weights_sha256"] == BUNDLED.weights_sha256
     # Table I's network (42,500), plus the occupancy head where the bundled model has one
-    flow_part = sum(
-        p.numel()
-        for name, p in net.named_parameters()
-        if not name.removeprefix("inner.").startswith(OCCUPANCY_HEAD_PARAMETERS)
-    )
+    flow_part = sum(p.numel() for p in net.inner.flow.parameters())
     assert flow_part == 42_500
     assert sum(p.numel() for p in net.parameters()) == card["parameters"]
+    assert card["parameters"] == BUNDLED.meta["parameters"] and card["decision"]["online"]
+
     card_text = (bundled_model_dir() / "MODEL_CARD.md").read_text()
     assert "Held-out recordings" in card_text and "copy_last" in card_text
 
@@ -61,3 +58,21 @@ def test_missing_bundled_model_is_explained(tmp_path, monkeypatch):
     monkeypatch.setattr(presets, "bundled_model_dir", lambda: tmp_path)
     with pytest.raises(ModelError, match="no bundled model"):
         resolve_model(None)
+
+
+def test_the_preset_builds_the_bundled_model_or_table_one():
+    import torch
+
+    from lidarflow.models import HeadConfig
+
+    bundled = lidar_flownet(weights=BUNDLED)
+    net, _ = resolve_model(None)
+    for (name, a), b in zip(bundled.state_dict().items(), net.state_dict().values(), strict=True):
+        assert torch.equal(a, b), name
+    fresh = lidar_flownet()
+    assert sum(p.numel() for p in fresh.parameters()) == 42_500
+    assert lidar_flownet(head=HeadConfig()).capabilities.occupancy_head
+    # The record carries its meta: the seven recordings held out, each with its margin.
+    heldout = BUNDLED.meta["heldout"]
+    assert len(heldout) == 7 and all(len(v) == 3 for v in heldout.values())
+    assert BUNDLED.meta["training_data"] and "lidarflow train" in BUNDLED.meta["command"]

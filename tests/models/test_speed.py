@@ -43,7 +43,7 @@ def test_bf16_autocast_keeps_the_loss_in_fp32_and_close():
     torch.manual_seed(0)
     net = build_model("flownet")
     with torch.no_grad():
-        net.conv_flow.weight.normal_(0, 0.1)
+        net.flow.conv_flow.weight.normal_(0, 0.1)
     seq = _seq(t=4)
     flows, _ = net(seq)
     ref = flow_loss(seq, flows, 3, LossConfig(), warmup=1)

@@ -184,7 +184,7 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
     assert torch_p.online.offsets == onnx_p.online.offsets != (-3.0, -3.0)
     assert torch_p.online.unmoved == onnx_p.online.unmoved
     # The ONNX file carries the head's warp gain, so it tries the unmoved map too.
-    assert onnx_p.online.gain == pytest.approx(float(net.warp_gain.item()), rel=1e-6)
+    assert onnx_p.online.gain == pytest.approx(net.warp_gain(), rel=1e-6)
     assert not own.occupied.any() and a.occupied.any()
 
 

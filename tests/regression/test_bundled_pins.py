@@ -1,36 +1,38 @@
 """The bundled model's predictions, pinned before the house was restructured (issue 35).
 
-``make_bundled_pins.py`` recorded them at main ``a4a22da``; every later commit must predict the
-same: the decided map of every frame, the probability (every frame's sum and sum of squares,
-every 25th frame cell by cell, and two frames ahead), the backward flow and whether a step was
-ego compensated. Floating point may differ in the last bits between CPUs, so probabilities are
-held to 1e-4 and a decided cell may differ only where the probability sits within that of the
-threshold.
+``make_bundled_pins.py`` recorded them at main ``a4a22da``: every later commit must decide the
+same next maps (``Prediction.occupied``, one and two steps ahead), with the same backward flow
+and the same steps ego compensated. The one intended change since is ``Prediction.probability``:
+it was the decided probability and is now the calibrated one (the head's ``sigmoid`` without
+decision offsets), pinned by ``make_calibrated_pins.py`` at ``9f9eedb``, which predicted exactly
+as ``a4a22da`` (this test held it to that). Floating point may differ in the last bits between
+CPUs, so probabilities are held to 1e-4 and a decided cell may differ only where the pinned
+probability sits within that of the threshold.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lidarflow.predict import Predictor
-from tests.regression.make_bundled_pins import (
-    FULL_EVERY,
-    HORIZON,
-    OUT,
-    STREAMS,
-    run_stream,
-    stream_recording,
-)
+from tests.regression.make_bundled_pins import FULL_EVERY, HORIZON, OUT, STREAMS, stream_recording
 
+CALIBRATED = Path(__file__).with_name("calibrated_pins.npz")
 THRESHOLD = 0.4
 TOLERANCE = 1e-4
 
 
+def _load(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}
+
+
 @pytest.fixture(scope="module")
 def pins() -> dict[str, np.ndarray]:
-    with np.load(OUT) as data:
-        return {k: data[k] for k in data.files}
+    return {**_load(OUT), **{f"calibrated:{k}": v for k, v in _load(CALIBRATED).items()}}
 
 
 @pytest.fixture(scope="module")
@@ -38,35 +40,54 @@ def predictor() -> Predictor:
     return Predictor(horizon=HORIZON, threads=1)
 
 
+def _stream(recording, predictor: Predictor) -> dict[str, np.ndarray]:
+    keys = ("occupied", "ahead", "calibrated", "full", "flow", "ego")
+    out: dict[str, list] = {k: [] for k in keys}
+    poses = recording.poses
+    predictor.reset()
+    for i, scan in enumerate(recording):
+        p = predictor.update(scan, None if poses is None else poses[i])
+        out["occupied"].append(np.asarray(p.occupied, bool).ravel())
+        out["ahead"].append(np.asarray(p.horizon_occupied[1], bool).ravel())
+        out["calibrated"].append(float(np.asarray(p.probability, np.float64).sum()))
+        if i % FULL_EVERY == 0:
+            out["full"].append(np.asarray(p.probability, np.float32))
+        out["flow"].append(0.0 if p.backward_flow is None else float(np.sum(p.backward_flow)))
+        out["ego"].append(p.ego_compensated)
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def _changed_cells(now: np.ndarray, pinned_bits: np.ndarray) -> np.ndarray:
+    return now != np.unpackbits(pinned_bits, axis=1)[:, : now.shape[1]].astype(bool)
+
+
 @pytest.mark.parametrize("name, source, frames", STREAMS, ids=[s[0] for s in STREAMS])
 def test_bundled_predictions_are_pinned(pins, predictor, name, source, frames) -> None:
     if source is not None and not source.exists():
         pytest.fail(f"{source} is missing: the suite runs with ../shared beside the checkout")
-    now = run_stream(stream_recording(source, frames), predictor)
-    pinned = {k.split("/", 1)[1]: v for k, v in pins.items() if k.startswith(f"{name}/")}
-    assert set(now) == set(pinned)
-    assert len(now["occupied"]) == len(pinned["occupied"])
-    np.testing.assert_array_equal(now["ego_compensated"], pinned["ego_compensated"])
-    cells = np.prod(now["probability_full"].shape[1:])
-    np.testing.assert_allclose(
-        now["probability_sum"], pinned["probability_sum"], rtol=0, atol=TOLERANCE * cells
-    )
-    np.testing.assert_allclose(
-        now["probability_square_sum"], pinned["probability_square_sum"], atol=TOLERANCE * cells
-    )
-    np.testing.assert_allclose(now["backward_flow_sum"], pinned["backward_flow_sum"], atol=0.05)
-    for key in ("probability_full", "horizon2_full"):
-        np.testing.assert_allclose(now[key], pinned[key], rtol=0, atol=TOLERANCE, err_msg=key)
-    # Decided maps: identical, except where a pinned probability sits on the threshold.
-    shape = now["probability_full"].shape[1:]
-    unpack = lambda packed: np.unpackbits(packed, axis=1)[:, : int(np.prod(shape))]  # noqa: E731
-    differ = unpack(now["occupied"]) != unpack(pinned["occupied"])
-    full = pinned["probability_full"].reshape(len(pinned["probability_full"]), -1)
-    near = np.abs(full - THRESHOLD) < TOLERANCE
+    now = _stream(stream_recording(source, frames), predictor)
+    pin = lambda key: pins[f"{name}/{key}"]  # noqa: E731
+    calibrated = lambda key: pins[f"calibrated:{name}/{key}"]  # noqa: E731
+    assert len(now["occupied"]) == len(pin("occupied"))
+    np.testing.assert_array_equal(now["ego"], pin("ego_compensated"))
+    np.testing.assert_allclose(now["flow"], pin("backward_flow_sum"), atol=0.05)
+    # The decided maps, one step ahead: identical but where the pinned decided probability
+    # sits on the threshold (known in full every FULL_EVERY frames), at most a handful in all.
+    decided = pin("probability_full").reshape(len(pin("probability_full")), -1)
+    differ = _changed_cells(now["occupied"], pin("occupied"))
+    near = np.abs(decided - THRESHOLD) < TOLERANCE
     assert not (differ[::FULL_EVERY] & ~near).any(), "a decided cell away from 0.4 changed"
-    # Frames not pinned in full: at most a handful of cells over the whole stream.
     assert differ.sum() <= 5, f"{int(differ.sum())} decided cells changed in {len(differ)} frames"
+    # Two steps ahead (the roll-out feeds back the decided map), on the frames pinned in full.
+    ahead = pin("horizon2_full").reshape(len(pin("horizon2_full")), -1)
+    moved = now["ahead"][::FULL_EVERY] != (ahead >= THRESHOLD)
+    assert not (moved & (np.abs(ahead - THRESHOLD) >= TOLERANCE)).any(), "k = 2 changed"
+    # The probability is the calibrated one.
+    cells = now["full"][0].size
+    np.testing.assert_allclose(now["calibrated"], calibrated("calibrated_sum"), atol=1e-4 * cells)
+    np.testing.assert_allclose(now["full"], calibrated("calibrated_full"), rtol=0, atol=TOLERANCE)
 
 
 def test_pins_record_where_they_were_made(pins) -> None:
     assert str(pins["commit"]) == "a4a22da"
+    assert str(pins["calibrated:commit"]) == "9f9eedb"

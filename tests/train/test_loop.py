@@ -191,8 +191,8 @@ def test_residual_recipe_trains_the_head_and_needs_one(blob_files, tmp_path):
     cfg = tiny_config(blob_files[:1], "residual", **flags, **{"optim.epochs": 1})
     assert cfg.model.kwargs == {"occupancy_head": True} and cfg.loss.occupancy_bce == 1.0
     result = train(cfg, tmp_path / "res")
-    gain = result.model.warp_gain.item()
-    assert gain != pytest.approx(build_model("flownet", occupancy_head=True).warp_gain.item())
+    gain = result.model.warp_gain()
+    assert gain != pytest.approx(build_model("flownet", occupancy_head=True).warp_gain())
     record = json.loads((tmp_path / "res" / "model.json").read_text())
     assert record["out_channels"] == 5 and record["model_kwargs"] == {"occupancy_head": True}
     without_head = build_config("residual", None, {"model.kwargs": {}})
@@ -235,7 +235,7 @@ def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
     for name, value in model.state_dict().items():
         expected = fresh_head[name] if model_setup.is_head(name) else weights[name]
         assert torch.equal(value, expected), name
-    assert not torch.equal(model.conv_flow.weight, torch.zeros_like(model.conv_flow.weight))
+    assert model.flow.conv_flow.weight.abs().sum() > 0
 
 
 def test_head_learning_rate_scale_applies_to_the_head_only():
@@ -245,7 +245,7 @@ def test_head_learning_rate_scale_applies_to_the_head_only():
     rest, head = optimizer.param_groups
     assert rest["lr"] == pytest.approx(0.002) and head["lr"] == pytest.approx(0.02)
     head_ids = {id(p) for p in head["params"]}
-    assert head_ids == {id(model.warp_gain), *(id(p) for p in model.conv_occupancy.parameters())}
+    assert head_ids == {id(model.head.gain), *(id(p) for p in model.head.out.parameters())}
     assert len(rest["params"]) + len(head["params"]) == len(list(model.parameters()))
     # Models without a head keep one group: resuming their old checkpoints still works.
     plain = build_model("flownet")
@@ -285,7 +285,7 @@ def test_a_subcell_model_trains_validates_and_evaluates(blob_files, tmp_path):
     kwargs = {"occupancy_head": True, "subcell_input": True, "head_kernel_size": 1}
     flags = {"optim.epochs": 1, "model.kwargs": kwargs}
     result = train(tiny_config(blob_files[:1], "residual", **flags), tmp_path / "sub")
-    head = result.model.conv_occupancy.weight[0, -2:]  # the edge and near inputs' weights
+    head = result.model.head.out.weight[0, -2:]  # the edge and near inputs' weights
     assert head.abs().max() > 0  # trained: the loss reached them
     method = ModelMethod("sub", result.model)
     recording = load_any(blob_files[1])

@@ -9,7 +9,7 @@ import numpy as np
 
 from lidarflow.errors import EvaluateError
 from lidarflow.predict.backends import TorchBackend
-from lidarflow.predict.decision import OnlineDecisionConfig, decision_for
+from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
 from lidarflow.scan import takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
@@ -35,10 +35,13 @@ class ModelMethod:
     on the scans' returns when ``update`` is given them (``res``: the grid's cell size in
     metres).
 
-    ``online`` re-decides an occupancy-head model's probability with the decision offsets that
-    have done best on the recording so far (:mod:`lidarflow.predict.decision`): ``None`` does so
-    where the model asks for it, ``True`` / ``False`` always / never, with ``online_config``
-    (default: :class:`OnlineDecisionConfig`'s); a config always, with that configuration."""
+    ``update`` returns the probability the model's decision policy thresholds (what F1 at 0.4
+    scores): ``decision`` is the policy the model ships with (``model.json``'s ``decision``
+    record; an ONNX backend's own by default), and ``online`` re-decides an occupancy-head
+    model's probability with the decision offsets that have done best on the recording so far
+    (:mod:`lidarflow.predict.decision`): ``None`` where the policy says so, ``True`` / ``False``
+    always / never, with ``online_config`` (default: :class:`OnlineDecisionConfig`'s); a config
+    always, with that configuration."""
 
     def __init__(
         self,
@@ -50,21 +53,25 @@ class ModelMethod:
         online_config: OnlineDecisionConfig | None = None,
         res: float = 0.1,
         device: str = "cpu",
+        decision: dict[str, Any] | None = None,
     ) -> None:
         self.name = name
         self.backend: Backend = model if hasattr(model, "run") else TorchBackend(model, device)
         self.moving_threshold = moving_threshold
-        self.uses_motion = self.backend.uses_motion
-        self.poses_optional = self.uses_motion and self.backend.poses_optional
+        caps = self.backend.capabilities
+        self.uses_motion = caps.ego_motion
+        self.poses_optional = caps.ego_motion and caps.poses_optional
         self.takes_returns = self.poses_optional
-        self.takes_subcell = takes_subcell(self.backend.input_channels)
+        self.takes_subcell = takes_subcell(caps.input_channels)
+        record = decision if decision is not None else getattr(self.backend, "decision", None)
+        policy = DecisionPolicy.from_record(record, online_config)
+        policy = policy.with_online(online_config if online is True and online_config else online)
         try:
-            self.online = decision_for(
-                getattr(self.backend, "decision", None), online, online_config
-            )
+            self.engine = Engine(self.backend, res, policy, oracle=oracle)
         except ValueError as err:
-            raise EvaluateError(str(err)) from err
-        self.engine = Engine(self.backend, res, self.online, oracle=oracle)
+            raise EvaluateError(f"{name}: {err}") from err
+        #: The online decision, ``None`` where the model decides with a fixed offset.
+        self.online = self.engine.decision
         self.oracle = self.engine.oracle
         self.last: Step | None = None
         self._occupancy: np.ndarray | None = None
@@ -128,4 +135,4 @@ class ModelMethod:
         )
         self.last = self.engine.step(frame)
         self._occupancy, self._moving = occupancy, None
-        return self.last.probability
+        return self.last.decided

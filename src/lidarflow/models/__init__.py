@@ -1,67 +1,83 @@
-"""Models: LiDAR-FlowNet, the DeepTracking baseline, their ConvGRU cell, and the builder.
+"""Models: LiDAR-FlowNet (the flow network of Table I, an occupancy head, the ego-motion
+wrapper), the DeepTracking baseline, their ConvGRU cell, and the builder.
 
 Interface (train, evaluate and predict depend on it; details in
-:mod:`lidarflow.models.recurrent`): every model has ``out_channels``, ``init_state``, ``step``,
-``forward`` and ``predict_next``. ``build_model(name, **kwargs)`` builds one by name;
-``ego_motion=True`` wraps it in :class:`EgoCompensated` (its ``step`` then also takes the sensor's
-motion, see :mod:`lidarflow.models.egomotion`); ``poses_optional=True`` with it lets the model run
-on recordings that have no poses at all (evaluate and predict then match the motion from the
-scans).
+:mod:`lidarflow.models.recurrent`): every model has ``capabilities``, ``init_state``, ``step``,
+``forward`` and ``predict_next``. :func:`build` assembles one from a typed
+:class:`~lidarflow.models.config.ModelSpec`; :func:`build_model` from the flat keyword form
+that ``model.json`` and training configs store. Pretrained weights: :mod:`lidarflow.models.presets`
+(``lidar_flownet(weights=...)``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from typing import Any
 
 from torch import nn
 
 from lidarflow.errors import ModelError
+from lidarflow.models.config import (
+    DECISION_KEYS,
+    MODEL_NAMES,
+    Capabilities,
+    FlowConfig,
+    HeadConfig,
+    ModelSpec,
+)
 from lidarflow.models.convgru import ConvGRUCell
-from lidarflow.models.deeptracking import DeepTracking, deeptracking
+from lidarflow.models.deeptracking import DeepTracking
 from lidarflow.models.egomotion import EgoCompensated
-from lidarflow.models.flownet import LidarFlowNet, lidar_flownet
+from lidarflow.models.flow import FlowNetwork
+from lidarflow.models.flownet import LidarFlowNet
+from lidarflow.models.head import OccupancyHead
 from lidarflow.models.recurrent import RecurrentMapModel
 
-_BUILDERS: dict[str, Callable[..., RecurrentMapModel]] = {
-    "flownet": LidarFlowNet,
-    "deeptracking": DeepTracking,
-}
-MODEL_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 
-
-def build_model(name: str, **kwargs: object) -> RecurrentMapModel:
-    """Build the model called ``name`` (one of :data:`MODEL_NAMES`); ``kwargs`` go to its class,
-    except ``ego_motion`` (default False): True wraps the model in :class:`EgoCompensated`, and
-    ``poses_optional`` (default False, only with ``ego_motion``): True marks it as one that may
-    run where a recording has no poses (on the motion matched from the scans, or uncompensated),
-    rather than being refused there.
+def build(spec: ModelSpec) -> RecurrentMapModel:
+    """The model ``spec`` describes, its blocks freshly initialised.
 
     Raises:
-        ModelError: unknown name, or arguments the model does not take.
+        ModelError: arguments the model does not take.
     """
     try:
-        builder = _BUILDERS[name]
-    except KeyError as err:
-        raise ModelError(f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}") from err
-    ego_motion = bool(kwargs.pop("ego_motion", False))
-    poses_optional = bool(kwargs.pop("poses_optional", False))
-    if poses_optional and not ego_motion:
-        raise ModelError("poses_optional needs ego_motion=True (it says when poses may be missing)")
+        if spec.name == "deeptracking":
+            model: RecurrentMapModel = DeepTracking(**spec.options)
+        else:
+            head = None if spec.head is None else OccupancyHead(spec.head)
+            model = LidarFlowNet(FlowNetwork(spec.flow), head)
+    except (TypeError, ValueError) as err:
+        raise ModelError(f"cannot build model {spec.name!r}: {err}") from err
+    if not spec.ego_motion:
+        return model
+    return EgoCompensated(model, poses_optional=spec.poses_optional)
+
+
+def build_model(name: str, **kwargs: Any) -> RecurrentMapModel:
+    """Build the model called ``name`` (one of :data:`MODEL_NAMES`) from the flat keyword form
+    (:meth:`ModelSpec.from_kwargs`): ``ego_motion`` wraps it in :class:`EgoCompensated`,
+    ``poses_optional`` lets that run where a recording has no poses.
+
+    Raises:
+        ModelError: unknown name, arguments the model does not take, a removed option, or a
+            decision key (the decision is the Predictor's, :mod:`lidarflow.predict.decision`).
+    """
+    if name not in MODEL_NAMES:
+        raise ModelError(f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}")
     try:
-        model = builder(**kwargs)
+        spec, decision = ModelSpec.from_kwargs(name, kwargs)
     except (TypeError, ValueError) as err:
         raise ModelError(f"cannot build model {name!r} with {kwargs}: {err}") from err
-    if not ego_motion:
-        return model
-    try:
-        return EgoCompensated(model, poses_optional=poses_optional)
-    except ValueError as err:
-        raise ModelError(f"cannot compensate ego motion for model {name!r}: {err}") from err
+    if decision:
+        raise ModelError(
+            f"{', '.join(decision)}: the decision is the Predictor's configuration, not the "
+            "model's (lidarflow.predict.decision.DecisionPolicy)"
+        )
+    return build(spec)
 
 
-def uses_ego_motion(model: object) -> bool:
+def uses_ego_motion(model: RecurrentMapModel) -> bool:
     """Whether ``model`` wants the sensor's motion with every step (:class:`EgoCompensated`)."""
-    return bool(getattr(model, "ego_motion", False))
+    return model.capabilities.ego_motion
 
 
 def count_parameters(model: nn.Module) -> int:
@@ -70,15 +86,21 @@ def count_parameters(model: nn.Module) -> int:
 
 
 __all__ = [
+    "DECISION_KEYS",
     "MODEL_NAMES",
+    "Capabilities",
     "ConvGRUCell",
     "DeepTracking",
     "EgoCompensated",
+    "FlowConfig",
+    "FlowNetwork",
+    "HeadConfig",
     "LidarFlowNet",
+    "ModelSpec",
+    "OccupancyHead",
     "RecurrentMapModel",
+    "build",
     "build_model",
     "count_parameters",
-    "deeptracking",
-    "lidar_flownet",
     "uses_ego_motion",
 ]

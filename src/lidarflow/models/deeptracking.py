@@ -89,8 +89,3 @@ class DeepTracking(RecurrentMapModel):
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``sigmoid(logit)`` ``(B, 1, H, W)``; ``maps`` is unused (kept for the interface)."""
         return torch.sigmoid(out)
-
-
-def deeptracking(**kwargs: object) -> DeepTracking:
-    """The DeepTracking baseline; keyword arguments override :class:`DeepTracking`'s."""
-    return DeepTracking(**kwargs)  # type: ignore[arg-type]

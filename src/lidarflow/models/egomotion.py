@@ -39,11 +39,13 @@ flow, works in cells and knows no cell size. ``motion=None`` is the identity (no
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
+from lidarflow.models.config import Capabilities
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.ops.rigid import cell_grid, rigid_flow, rigid_warp, transform_cells
 from lidarflow.ops.warp import warp
@@ -58,8 +60,8 @@ class EgoCompensated(RecurrentMapModel):
     """``step(maps (B,2,H,W), state, motion (B,3)|None, next_motion (B,3)|None)``; see the module
     docstring. ``forward(seq (B,T,2,H,W), state, motions (B,T,3)|None, next_motions|None)``.
 
-    >>> from lidarflow.models.flownet import LidarFlowNet
-    >>> net = EgoCompensated(LidarFlowNet())
+    >>> from lidarflow.models import build_model
+    >>> net = EgoCompensated(build_model("flownet"))
     >>> m = torch.tensor([[1.0, 0.0, 0.0]])  # one cell forward
     >>> flow, state = net.step(torch.zeros(1, 2, 8, 6), net.init_state(1, 8, 6), m)
     >>> flow[0, :, 0, 0].tolist()  # untrained: zero world flow, i.e. the ego flow alone
@@ -81,17 +83,15 @@ class EgoCompensated(RecurrentMapModel):
 
     @property
     def input_channels(self) -> int:  # type: ignore[override]
-        return int(getattr(self.inner, "input_channels", 2))
+        return self.inner.input_channels
 
     @property
-    def occupancy_head(self) -> bool:
-        """Whether the inner model has an occupancy head (its output's fifth channel)."""
-        return bool(getattr(self.inner, "occupancy_head", False))
+    def capabilities(self) -> Capabilities:
+        inner = self.inner.capabilities
+        return dataclasses.replace(inner, ego_motion=True, poses_optional=self.poses_optional)
 
-    @property
-    def grus(self) -> nn.ModuleList:
-        """The inner net's ConvGRU cells (for :func:`lidarflow.models.speed.accelerate`)."""
-        return self.inner.grus  # type: ignore[return-value]
+    def warp_gain(self) -> float | None:
+        return self.inner.warp_gain()
 
     def state_channels(self) -> tuple[int, ...]:
         return self.inner.state_channels()

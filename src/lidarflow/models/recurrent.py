@@ -16,6 +16,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from lidarflow.models.config import Capabilities
+
 
 class RecurrentMapModel(nn.Module):
     """Base of the recurrent map predictors: state handling and the sequence loop."""
@@ -24,6 +26,15 @@ class RecurrentMapModel(nn.Module):
     #: Channels of the maps ``step`` takes (``(O, V)``; a model may ask for more, see
     #: :attr:`lidarflow.models.flownet.LidarFlowNet.input_channels`).
     input_channels: int = 2
+
+    @property
+    def capabilities(self) -> Capabilities:
+        """What the model takes and gives (the streaming engine reads this, not attributes)."""
+        return Capabilities(self.input_channels, self.out_channels, flow=self.out_channels >= 4)
+
+    def warp_gain(self) -> float | None:
+        """An occupancy head's warp gain ``g``; ``None`` for a model without one."""
+        return None
 
     def state_channels(self) -> tuple[int, ...]:
         """Channels of each state tensor, in state order."""

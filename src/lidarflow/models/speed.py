@@ -17,6 +17,7 @@ from typing import Literal
 
 import torch
 
+from lidarflow.models.convgru import ConvGRUCell
 from lidarflow.models.recurrent import RecurrentMapModel
 
 CompileMode = Literal["none", "cells", "step"]
@@ -56,8 +57,9 @@ def accelerate(
     if channels_last:
         model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
     if compile == "cells":
-        for cell in model.grus:  # type: ignore[union-attr]
-            cell.compile()
+        for cell in model.modules():
+            if isinstance(cell, ConvGRUCell):
+                cell.compile()
     elif compile == "step":
         # An instance attribute shadows the method; forward() calls self.step, so it follows.
         model.step = torch.compile(model.step)  # type: ignore[method-assign]

@@ -1,9 +1,13 @@
 """Loading trained models: a run directory, or a ``.safetensors`` file with its JSON beside it.
 
 A trained model is two files written by ``lidarflow train``: ``model.safetensors`` (weights)
-and ``model.json`` (``{"model": name, "model_kwargs": {...}, "grid": {...}, ...}``: enough to
-rebuild the net, and where it came from). A weights file ``X.safetensors`` looks for ``X.json``
-first, then ``model.json`` in its folder.
+and ``model.json`` (``{"model": name, "model_kwargs": {...}, "decision": {...}, "grid": {...},
+...}``: enough to rebuild the net, how to decide its next map, and where it came from). A
+weights file ``X.safetensors`` looks for ``X.json`` first, then ``model.json`` in its folder.
+
+Files written before the model was built from blocks (issue 35) keep loading: their parameter
+names are moved to the blocks' (:func:`upgrade_state`) and the decision keys among their
+``model_kwargs`` become the ``decision`` record.
 """
 
 from __future__ import annotations
@@ -14,9 +18,21 @@ from pathlib import Path
 from typing import Any
 
 from lidarflow.errors import ModelError
+from lidarflow.models.config import ModelSpec
 from lidarflow.models.recurrent import RecurrentMapModel
 
-__all__ = ["describe_source", "load_trained", "sha256"]
+__all__ = ["decision_record", "describe_source", "load_trained", "sha256", "upgrade_state"]
+
+#: LiDAR-FlowNet's parameter names before its blocks, and the blocks' names for them.
+_BLOCK_NAMES = (
+    ("conv0.", "flow.conv0."),
+    ("grus.", "flow.grus."),
+    ("conv_flow.", "flow.conv_flow."),
+    ("conv_occupancy.", "head.out."),
+    ("occupancy_hidden.", "head.hidden."),
+    ("warp_gain", "head.gain"),
+)
+_WRAPPER = "inner."  # the ego-motion wrapper's prefix
 
 
 def sha256(path: str | Path) -> str:
@@ -25,6 +41,33 @@ def sha256(path: str | Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def upgrade_state(state: dict[str, Any]) -> dict[str, Any]:
+    """A LiDAR-FlowNet state dict with its parameters under the blocks' names (``flow.``,
+    ``head.``); names already there are kept."""
+    out = {}
+    for key, value in state.items():
+        prefix = _WRAPPER if key.startswith(_WRAPPER) else ""
+        name = key[len(prefix) :]
+        for old, new in _BLOCK_NAMES:
+            if name.startswith(old):
+                name = new + name[len(old) :]
+                break
+        out[prefix + name] = value
+    return out
+
+
+def decision_record(card: dict[str, Any]) -> dict[str, Any]:
+    """The decision a model was shipped with (``{"offset": float, "online": bool}``): its
+    ``decision`` record, or the decision keys older files kept among the ``model_kwargs``."""
+    if isinstance(card.get("decision"), dict):
+        record = card["decision"]
+    else:
+        kwargs = card.get("model_kwargs") or {}
+        record = {"offset": kwargs.get("decision_offset", 0.0)}
+        record["online"] = kwargs.get("online_decision", False)
+    return {"offset": float(record.get("offset", 0.0)), "online": bool(record.get("online"))}
 
 
 def _locate(path: Path) -> tuple[Path, Path]:
@@ -55,11 +98,12 @@ def _locate(path: Path) -> tuple[Path, Path]:
 
 
 def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
-    """Rebuild and load a trained model; returns ``(model in eval mode, its model.json)``."""
+    """Rebuild and load a trained model; returns ``(model in eval mode, its model.json)``, the
+    card's ``decision`` filled in (:func:`decision_record`)."""
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    from lidarflow.models import build_model
+    from lidarflow.models import build
 
     path = Path(path)
     if not path.exists():
@@ -68,20 +112,32 @@ def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
     try:
         card = json.loads(card_path.read_text())
         name = card["model"]
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as err:
+        kwargs = dict(card.get("model_kwargs") or {})
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise ModelError(f"{card_path}: not a lidarflow model description ({err})") from err
-    model = build_model(name, **dict(card.get("model_kwargs") or {}))
+    try:
+        spec, _ = ModelSpec.from_kwargs(name, kwargs, stored=True)
+    except (TypeError, ValueError) as err:
+        raise ModelError(f"{card_path}: {err}") from err
+    model = build(spec)
     try:
         state = load_file(str(weights))
     except (SafetensorError, OSError) as err:
         raise ModelError(f"{weights}: unreadable weights ({err})") from err
+    if spec.name == "flownet":
+        state = upgrade_state(state)
     try:
         model.load_state_dict(state)
     except RuntimeError as err:
         first = str(err).strip().splitlines()[0]
         raise ModelError(f"{weights}: weights do not fit a {name} model ({first})") from err
     model.eval()
-    card = {**card, "weights_path": str(weights), "weights_sha256": sha256(weights)}
+    card = {
+        **card,
+        "decision": decision_record(card),
+        "weights_path": str(weights),
+        "weights_sha256": sha256(weights),
+    }
     return model, card
 
 

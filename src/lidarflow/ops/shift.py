@@ -13,7 +13,7 @@ the maps convolved with one-hot kernels at the chosen shift. A shift is separabl
 applied as a column and a row kernel (2k taps a cell instead of k^2; the v4 step graph 5.92
 against 6.16 ms in onnxruntime). Together 3-4x faster than slicing out every shift, in PyTorch
 and in onnxruntime. :func:`apply_shift` moves any number of channels by the chosen shift (the
-occupancy memories that follow the scene, ``LidarFlowNet(shift_memories=True)``).
+occupancy memories that follow the scene, ``HeadConfig(shift_memories=True)``).
 The batch becomes the convolution's groups, so an exported graph is fixed to its export batch
 (the step graphs are exported for batch 1), and the data-dependent kernels must stay float32:
 ``lidarflow.predict.quantize`` leaves them alone and bf16 autocast is switched off here (it

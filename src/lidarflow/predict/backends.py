@@ -1,8 +1,10 @@
 """Inference backends for :class:`~lidarflow.predict.predictor.Predictor`: PyTorch or ONNX Runtime.
 
 Both run one step ``(maps (1, C, H, W), state) -> (probability, out, state)`` on NumPy in and
-out (``C``: ``input_channels``, 2 or 4); the state is opaque to the caller (tensors for torch,
-arrays for onnxruntime).
+out (``C``: the model's ``input_channels``, 2 or 4), the probability the model's own (calibrated,
+for an occupancy head: no decision offset); the state is opaque to the caller (tensors for
+torch, arrays for onnxruntime). Each says what the model takes and gives
+(:class:`~lidarflow.models.config.Capabilities`) and an occupancy head's warp gain.
 """
 
 from __future__ import annotations
@@ -14,15 +16,18 @@ from typing import Any
 import numpy as np
 
 from lidarflow.errors import PredictError, ScanError
-from lidarflow.predict.decision import decision_of
+from lidarflow.models.config import Capabilities
+from lidarflow.predict.offsets import calibrated_logit
 from lidarflow.scan import GridSpec
 
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
 #: (written by :func:`lidarflow.predict.export.export_onnx`).
 POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
-#: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "offset_free":
-#: b or null, "online": bool, "gain": g}``, what the Predictor needs to choose the offsets online
-#: (files marked before ``gain`` was added try the moved map only).
+#: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "online": bool,
+#: "gain": g, "calibrated": true}``, the policy it ships with and what the Predictor needs to
+#: choose the offsets online. Files exported before issue 35 (no ``calibrated``) output the
+#: probability decided with ``offset``, which the backend takes back out; files marked before
+#: ``gain`` was added try the moved map only.
 DECISION_KEY = "lidarflow.decision"
 #: ONNX metadata key of the grid the model was exported for: JSON ``{"height", "width", "res"}``
 #: (files exported before it existed say only their size, in the graph's shapes).
@@ -70,11 +75,8 @@ class TorchBackend:
         self.torch = torch
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
-        self.out_channels = int(model.out_channels)
-        self.input_channels = int(model.input_channels)
-        self.uses_motion = bool(getattr(model, "ego_motion", False))
-        self.poses_optional = bool(getattr(model, "poses_optional", False))
-        self.decision = decision_of(model)
+        self.capabilities: Capabilities = model.capabilities
+        self.gain: float | None = model.warp_gain()
 
     def init_state(self, height: int, width: int) -> Any:
         return self.model.init_state(1, height, width, device=self.device)
@@ -90,7 +92,7 @@ class TorchBackend:
         ``next_motion`` the guess of the motion to the next frame (``None``: ``motion`` again)."""
         with self.torch.inference_mode():
             x = self.torch.from_numpy(maps).to(self.device)
-            if self.uses_motion:
+            if self.capabilities.ego_motion:
                 m, n = (
                     None
                     if a is None
@@ -129,18 +131,40 @@ class OnnxBackend:
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
         self.motion_inputs, state_inputs = split_step_inputs(inputs)
-        self.uses_motion = bool(self.motion_inputs)
         marks = self.session.get_modelmeta().custom_metadata_map
-        self.poses_optional = marks.get(POSES_OPTIONAL_KEY) == "true"
-        # Files exported before the mark existed have none: no online decision for them.
-        self.decision = json.loads(marks[DECISION_KEY]) if DECISION_KEY in marks else None
+        # Files exported before the mark existed have none: no decision of their own.
+        decision = json.loads(marks[DECISION_KEY]) if DECISION_KEY in marks else None
+        if decision is not None and decision.get("offset_free") is not None:
+            raise PredictError(
+                f"{path}: exported with a decision offset for free cells, an option since "
+                "removed; export the model again"
+            )
+        #: The decision the file ships with (``{"offset", "online"}``), ``None`` if unmarked.
+        self.decision = (
+            None
+            if decision is None
+            else {"offset": float(decision["offset"]), "online": bool(decision.get("online"))}
+        )
+        gain = None if decision is None else decision.get("gain")
+        self.gain = None if gain is None else float(gain)
+        # Exported before issue 35 the graph's probability carries the fixed offset.
+        self._baked_offset = 0.0
+        if decision is not None and not decision.get("calibrated"):
+            self._baked_offset = float(decision["offset"])
         self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.grid = (
             recorded_grid({"grid": json.loads(marks[GRID_KEY])}) if GRID_KEY in marks else None
         )
-        self.input_channels = int(inputs[0].shape[1])
-        self.out_channels = int(self.session.get_outputs()[1].shape[1])
+        out_channels = int(self.session.get_outputs()[1].shape[1])
+        self.capabilities = Capabilities(
+            input_channels=int(inputs[0].shape[1]),
+            out_channels=out_channels,
+            flow=out_channels >= 4,
+            occupancy_head=decision is not None,
+            ego_motion=bool(self.motion_inputs),
+            poses_optional=marks.get(POSES_OPTIONAL_KEY) == "true",
+        )
 
     def init_state(self, height: int, width: int) -> Any:
         if (height, width) != self.grid_shape:
@@ -161,11 +185,14 @@ class OnnxBackend:
         """As :meth:`TorchBackend.run`; a file exported before graphs took ``next_motion``
         guesses the last motion again whatever ``next_motion`` says."""
         feeds = {"maps": maps, **{f"state{i}": s for i, s in enumerate(state)}}
-        if self.uses_motion:  # zeros: no motion known, the same as no compensation
+        if self.capabilities.ego_motion:  # zeros: no motion known, the same as no compensation
             m = np.zeros(3, np.float32) if motion is None else np.asarray(motion, np.float32)
             feeds["motion"] = m.reshape(1, 3)
             if "next_motion" in self.motion_inputs:
                 n = m if next_motion is None else np.asarray(next_motion, np.float32)
                 feeds["next_motion"] = n.reshape(1, 3)
         probability, out, *next_state = self.session.run(None, feeds)
+        if self._baked_offset:
+            logit = calibrated_logit(probability) - self._baked_offset
+            probability = (1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
         return probability, out, next_state

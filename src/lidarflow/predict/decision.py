@@ -1,11 +1,16 @@
-"""The decision offsets chosen online, on the stream itself (issue 11).
+"""How the next map is decided from a model's probability: a fixed offset, or offsets chosen
+online, on the stream itself (issue 11).
 
-An occupancy-head model predicts ``sigmoid(logit + offset)``, the offset ``a`` on the cells that
-the last map, moved by the model's backward flow, says are occupied and ``b`` on the free ones
-(:meth:`lidarflow.models.LidarFlowNet.predict_next`). Fixed offsets are chosen on the training
-recordings, and a recording from another robot may want others: measured in leave-one-out, the
-offsets that the held-out recording itself would have taken differ by up to 1.2 from the chosen
-ones (docs/results/accuracy/loo/).
+An occupancy-head model gives a calibrated probability ``sigmoid(logit)`` (trained by
+cross-entropy). Cross-entropy predicts a change only when it is likelier than the 0.4
+threshold, so a calibrated model gives up most cells that change; a decision *offset* added to
+the logit buys them back at a small price in F1. The offset ``a`` applies on the cells that the
+last map, moved by the model's backward flow, says are occupied and ``b`` on the free ones. The
+:class:`DecisionPolicy` is the Predictor's configuration (a model ships with its own, in its
+``model.json``): a fixed offset chosen on the training recordings (``lidarflow tune-offset``),
+and whether to choose the offsets online, starting from it. A recording from another robot may
+want other offsets: measured in leave-one-out, the offsets that the held-out recording itself
+would have taken differ by up to 1.2 from the chosen ones.
 
 Every frame that arrives is the target of the prediction made one frame before, so the stream
 scores itself as it goes. :class:`OnlineDecision` keeps, for every pair ``(a, b)`` of a grid,
@@ -57,6 +62,7 @@ from lidarflow.predict.baselines import (
 )
 from lidarflow.predict.offsets import (
     THRESHOLD,
+    calibrated_logit,
     counts,
     lookahead_terms,
     moved_last_map,
@@ -65,17 +71,13 @@ from lidarflow.predict.offsets import (
 
 __all__ = [
     "THRESHOLD",
+    "DecisionPolicy",
     "OnlineDecision",
     "OnlineDecisionConfig",
-    "decision_for",
-    "decision_of",
     "moved_last_map",
 ]
 
 _THRESHOLD_LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
-# float32 probabilities saturate near 0 and 1; logits beyond this are far from every offset's
-# threshold anyway.
-_LOGIT_LIMIT = 15.0
 _TIE_BREAK = 1e-3
 MOVED, UNMOVED = 0, 1  # the candidates' maps: moved by the model's flow, or as it is
 _OCCUPIED = tuple(round(-4.8 + 0.3 * i, 1) for i in range(31))  # -4.8 ... 4.2
@@ -123,8 +125,8 @@ class OnlineDecision:
     unmoved) that should leave the stream's win margin largest (see the module's docstring).
 
     ``update(probability, occupancy, visibility, moved)`` once per frame, in order: the model's
-    probability for the next frame (made with its own offsets ``occupied_offset`` /
-    ``free_offset``), this frame's maps, and the last map moved into the next frame by the
+    calibrated probability for the next frame (until ``config.min_frames`` are scored it is
+    decided with ``offset``), this frame's maps, and the last map moved into the next frame by the
     model's flow (``occupancy`` itself for a model without flow). Returns the probability with
     the chosen pair; :attr:`offsets` is that pair and :attr:`unmoved` whether it was applied to
     the unmoved map. ``gain``: the head's warp gain ``g``; without it (or with
@@ -133,16 +135,12 @@ class OnlineDecision:
 
     def __init__(
         self,
-        occupied_offset: float,
-        free_offset: float | None = None,
+        offset: float = 0.0,
         config: OnlineDecisionConfig | None = None,
         gain: float | None = None,
     ) -> None:
         self.config = config or OnlineDecisionConfig()
-        self.own = (
-            float(occupied_offset),
-            float(occupied_offset if free_offset is None else free_offset),
-        )
+        self.own = (float(offset), float(offset))
         self.gain = None if gain is None or not self.config.unmoved else float(gain)
         self._maps = 1 if self.gain is None else 2
         self._a = np.asarray(self.config.occupied_offsets, np.float64)
@@ -255,13 +253,10 @@ class OnlineDecision:
     def _candidates(
         self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray
     ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """The head's logit without offsets and the map splitting occupied from free cells, for
+        """The head's logit (no offset) and the map splitting occupied from free cells, for
         the moved map and (with a gain) the unmoved one."""
         moved = np.clip(np.asarray(moved, np.float64), 0.0, 1.0)
-        p = np.clip(np.asarray(probability, np.float64), 1e-12, 1.0 - 1e-12)
-        own_a, own_b = self.own
-        logit = np.clip(np.log(p) - np.log1p(-p), -_LOGIT_LIMIT, _LOGIT_LIMIT)
-        logit = logit - (own_b + (own_a - own_b) * moved)  # the model's logit, no offset
+        logit = calibrated_logit(probability)
         logits, maps = [logit], [moved]
         if self.gain is not None:
             last = np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)
@@ -289,40 +284,40 @@ class _Pending:
     map: int  # ... on this map (MOVED / UNMOVED)
 
 
-def decision_of(model: object) -> dict[str, Any] | None:
-    """An occupancy-head model's ``{"offset", "offset_free", "online", "gain"}`` (the head inside
-    an ego-motion wrapper; ``gain``: its warp gain ``g``); ``None`` for a model without one. Read
-    from the model's attributes, so no PyTorch is imported here."""
-    head = getattr(model, "inner", model)
-    if not getattr(head, "occupancy_head", False):
-        return None
-    return {
-        "offset": float(head.decision_offset),
-        "offset_free": head.decision_offset_free,
-        "online": bool(getattr(head, "online_decision", False)),
-        "gain": float(head.warp_gain.item()),
-    }
+@dataclass(frozen=True)
+class DecisionPolicy:
+    """How an occupancy-head model's next map is decided: ``offset`` added to its logit, and
+    with ``online`` a config the offsets chosen on the stream (:class:`OnlineDecision`,
+    starting from ``offset``). The default decides the calibrated probability at 0.4 as it is."""
 
+    offset: float = 0.0
+    online: OnlineDecisionConfig | None = None
 
-def decision_for(
-    decision: dict[str, Any] | None,
-    wanted: bool | OnlineDecisionConfig | None,
-    config: OnlineDecisionConfig | None = None,
-) -> OnlineDecision | None:
-    """The online decision of a model whose :func:`decision_of` is ``decision``: ``wanted``
-    ``None`` where the model asks for it, ``True`` always, ``False`` never, with ``config``; or
-    a config itself (always, with that one). Raises ``ValueError`` when it is wanted and the
-    model has no head."""
-    if wanted is None:
-        wanted = bool(decision and decision["online"])
-    if wanted is False:
-        return None
-    if decision is None:
-        raise ValueError(
-            "the online decision re-decides an occupancy head's probability; this model has none"
-        )
-    if isinstance(wanted, OnlineDecisionConfig):
-        config = wanted
-    # ONNX files marked before the gain was: their decision tries the moved map only.
-    gain = decision.get("gain")
-    return OnlineDecision(decision["offset"], decision["offset_free"], config, gain)
+    @classmethod
+    def from_record(
+        cls, record: dict[str, Any] | None, config: OnlineDecisionConfig | None = None
+    ) -> DecisionPolicy:
+        """The policy a model ships with (``model.json``'s ``decision``: ``{"offset",
+        "online"}``), its online decision configured by ``config``."""
+        record = record or {}
+        online = (config or OnlineDecisionConfig()) if record.get("online") else None
+        return cls(float(record.get("offset", 0.0)), online)
+
+    def to_record(self) -> dict[str, Any]:
+        return {"offset": self.offset, "online": self.online is not None}
+
+    def with_online(self, online: bool | OnlineDecisionConfig | None) -> DecisionPolicy:
+        """This policy with the online choice overridden (``None``: as it is; ``True``: on,
+        with its config or the default; ``False``: off; a config: on, with it)."""
+        if online is None:
+            return self
+        if online is False:
+            return DecisionPolicy(self.offset, None)
+        config = online if isinstance(online, OnlineDecisionConfig) else None
+        return DecisionPolicy(self.offset, config or self.online or OnlineDecisionConfig())
+
+    def decision(self, gain: float | None) -> OnlineDecision | None:
+        """A fresh :class:`OnlineDecision` where the policy is online, else ``None``."""
+        if self.online is None:
+            return None
+        return OnlineDecision(self.offset, self.online, gain)

@@ -15,12 +15,13 @@ Every user of a trained model streams it through :class:`Engine`: the robot's
    (:func:`lidarflow.motion.pacing.paced_motion`).
 2. **Model step** on the backend (PyTorch or ONNX Runtime, :mod:`lidarflow.predict.backends`),
    its recurrent state carried from frame to frame.
-3. **Decision**: a model with an online decision (:mod:`lidarflow.predict.decision`) re-decides
-   its next map with the offsets that have done best on this stream so far.
-4. **Roll-out** (:meth:`Engine.roll`, on request): the prediction fed back as the next input,
-   ``k`` steps ahead, on a copy of the state (the fed-back maps must not leak into the state the
-   next real frame continues from), each step assuming one more typical step of the same motion
-   and re-decided with the current choice.
+3. **Decision** (:mod:`lidarflow.predict.decision`): an occupancy-head model's calibrated
+   probability is decided with the policy's offset, or online with the offsets that have done
+   best on this stream so far.
+4. **Roll-out** (:meth:`Engine.roll`, on request): the decided prediction fed back as the next
+   input, ``k`` steps ahead, on a copy of the state (the fed-back maps must not leak into the
+   state the next real frame continues from), each step assuming one more typical step of the
+   same motion and re-decided with the current choice.
 """
 
 from __future__ import annotations
@@ -30,13 +31,14 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from lidarflow.models.config import Capabilities
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
-from lidarflow.predict.decision import OnlineDecision
-from lidarflow.predict.offsets import moved_last_map
+from lidarflow.predict.decision import DecisionPolicy
+from lidarflow.predict.offsets import decided_probability, moved_last_map
 
-__all__ = ["Backend", "Engine", "Frame", "MotionSource", "Step"]
+__all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
 
 #: Where a frame's motion came from (see the module's docstring).
 MotionSource = Literal["pose", "scans", "none"]
@@ -46,10 +48,8 @@ class Backend(Protocol):
     """One model step on NumPy arrays (:class:`~lidarflow.predict.backends.TorchBackend`,
     :class:`~lidarflow.predict.backends.OnnxBackend`)."""
 
-    uses_motion: bool
-    poses_optional: bool
-    input_channels: int
-    out_channels: int
+    capabilities: Capabilities
+    gain: float | None  # an occupancy head's warp gain (the online decision's unmoved map)
 
     def init_state(self, height: int, width: int) -> Any: ...
 
@@ -82,15 +82,24 @@ class Frame:
 
 
 @dataclass(frozen=True)
-class Step:
-    """What one :meth:`Engine.step` made: ``probability`` ``(H, W)``, the next map's (decided
-    online where the model has an online decision), ``model_probability`` the model's own,
-    ``flow`` ``(4, H, W)`` in cells (``B_col, B_row, F_col, F_row``; ``None`` for models
-    without flow), ``motion`` the motion the step was compensated by (``None``: not
-    compensated). The rest is what :meth:`Engine.roll` continues from."""
+class Rollout:
+    """The probabilities ``1 .. K`` frames ahead ``(K, H, W)``, as :class:`Step` has them."""
 
     probability: np.ndarray
-    model_probability: np.ndarray
+    decided: np.ndarray
+
+
+@dataclass(frozen=True)
+class Step:
+    """What one :meth:`Engine.step` made: ``probability`` ``(H, W)``, the model's (calibrated,
+    for an occupancy head) probability of the next map, and ``decided``, the probability its
+    decision policy thresholds at 0.4 (the same for a model without a head); ``flow``
+    ``(4, H, W)`` in cells (``B_col, B_row, F_col, F_row``; ``None`` for models without flow);
+    ``motion`` the motion the step was compensated by (``None``: not compensated). The rest is
+    what :meth:`Engine.roll` continues from."""
+
+    probability: np.ndarray
+    decided: np.ndarray
     flow: np.ndarray | None
     motion: np.ndarray | None
     maps: np.ndarray
@@ -104,7 +113,8 @@ class Engine:
     Args:
         backend: runs the model's step.
         res: the grid's cell size in metres (scan matching on returns needs it).
-        decision: the online decision, if the model is to be re-decided on the stream.
+        policy: how an occupancy head's next map is decided (default: at 0.4 as it is); a
+            ``ValueError`` for a model without one, unless it is the default.
         check_odometry: a model that may run without poses checks odometry against the scans.
         scan_odometry: such a model takes the motion from the scans where odometry is missing
             or disagrees (off: those steps run uncompensated).
@@ -116,15 +126,22 @@ class Engine:
         self,
         backend: Backend,
         res: float = 0.1,
-        decision: OnlineDecision | None = None,
+        policy: DecisionPolicy | None = None,
         check_odometry: bool = True,
         scan_odometry: bool = True,
         oracle: bool = False,
     ) -> None:
         self.backend = backend
-        self.decision = decision
-        self.oracle = oracle and backend.uses_motion
-        optional = backend.uses_motion and backend.poses_optional
+        caps = self.capabilities = backend.capabilities
+        self.policy = policy or DecisionPolicy()
+        if self.policy != DecisionPolicy() and not caps.occupancy_head:
+            raise ValueError(
+                "a decision offset or online decision needs a model with an occupancy head"
+            )
+        #: The online decision (None where the policy has none), for a look inside.
+        self.decision = self.policy.decision(backend.gain)
+        self.oracle = oracle and caps.ego_motion
+        optional = caps.ego_motion and caps.poses_optional
         #: The odometry check (None where the model does not check it), for a look inside.
         self.odometry = OdometryCheck() if optional and check_odometry else None
         self._scans = ScanOdometry(res) if optional and scan_odometry else None
@@ -134,10 +151,6 @@ class Engine:
     def wants_returns(self) -> bool:
         """Whether a frame's ``returns`` are used (to match or check the motion)."""
         return self._scans is not None
-
-    @property
-    def has_flow(self) -> bool:
-        return self.backend.out_channels >= 4
 
     def reset(self) -> None:
         """Forget the past: the next step starts a new stream from a zero state."""
@@ -149,7 +162,7 @@ class Engine:
     def _motion(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """The motion this frame is compensated by, and whether the odometry check trusts
         the motion given."""
-        if not self.backend.uses_motion:
+        if not self.capabilities.ego_motion:
             return None, False
         motion, scans = frame.motion, self._scans
         if frame.source == "none" and scans is not None:
@@ -166,7 +179,7 @@ class Engine:
     def _maps(self, occupancy: Any, visibility: Any, subcell: np.ndarray | None) -> np.ndarray:
         """``(1, C, H, W)`` float32: the model's input for one frame."""
         maps = np.stack([occupancy, visibility]).astype(np.float32)
-        if self.backend.input_channels > 2:
+        if self.capabilities.input_channels > 2:
             extra = np.zeros((2, *maps.shape[1:])) if subcell is None else subcell
             maps = np.concatenate([maps, np.asarray(extra, np.float32)])
         return maps[None]
@@ -182,30 +195,41 @@ class Engine:
         else:
             guess = paced_motion(motion, frame.pace)  # None: the last motion again
         probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
-        flow = out[0, :4] if self.has_flow else None
+        flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
-        decided = own
-        if self.decision is not None:
-            moved = moved_last_map(frame.occupancy, None if flow is None else flow[:2])
-            decided = self.decision.update(own, frame.occupancy, frame.visibility, moved)
+        moved = None if flow is None else flow[:2]
+        decided = self._decide(own, frame.occupancy, moved, frame.visibility)
         # Each step of a roll-out is one typical step of the same motion.
         ahead = motion if guess is None else guess
-        return Step(decided, own, flow, motion, maps, self._state, ahead)
+        return Step(own, decided, flow, motion, maps, self._state, ahead)
 
-    def roll(self, step: Step, horizon: int) -> list[np.ndarray]:
-        """The probabilities ``1 .. horizon`` frames ahead of ``step`` (the first is
-        ``step.probability``): each prediction fed back with the frame's visibility (and no
-        returns: zero sub-cell maps), on a copy of the state."""
-        future = [step.probability]
+    def _decide(
+        self,
+        probability: np.ndarray,
+        last: np.ndarray,
+        flow: np.ndarray | None,
+        visibility: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The probability the policy thresholds: with an online decision, updated on this
+        frame (``visibility`` given) or applied with its current choice (a roll-out's step)."""
+        if self.decision is None:
+            return decided_probability(probability, self.policy.offset)
+        moved = moved_last_map(last, flow)
+        if visibility is None:
+            return self.decision.apply(probability, last, moved)
+        return self.decision.update(probability, last, visibility, moved)
+
+    def roll(self, step: Step, horizon: int) -> Rollout:
+        """The predictions ``1 .. horizon`` frames ahead of ``step`` (the first is the step's
+        own): each decided prediction fed back with the frame's visibility (and no returns: zero
+        sub-cell maps), on a copy of the state, and decided with the current choice."""
+        probabilities, decided = [step.probability], [step.decided]
         state = step.state
         for _ in range(horizon - 1):
             fed = np.zeros_like(step.maps)
-            fed[0, 0], fed[0, 1] = future[-1], step.maps[0, 1]
+            fed[0, 0], fed[0, 1] = decided[-1], step.maps[0, 1]
             probability, out, state = self.backend.run(fed, state, step.ahead)
-            if self.decision is not None:
-                flow = out[0, :2] if self.has_flow else None
-                moved = moved_last_map(future[-1], flow)
-                future.append(self.decision.apply(probability[0, 0], future[-1], moved))
-            else:
-                future.append(probability[0, 0])
-        return future
+            flow = out[0, :2] if self.capabilities.flow else None
+            probabilities.append(probability[0, 0])
+            decided.append(self._decide(probability[0, 0], decided[-1], flow))
+        return Rollout(np.stack(probabilities), np.stack(decided))

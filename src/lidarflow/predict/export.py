@@ -13,8 +13,9 @@ motion to the next frame: ``motion`` again (constant velocity, as in PyTorch), s
 a long step in time (:func:`lidarflow.motion.pacing.paced_motion`; files exported before this input
 existed take ``motion`` again). One built with ``poses_optional`` (it may run without
 poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
-:data:`POSES_OPTIONAL_KEY`. An occupancy-head model's decision offsets (and whether to choose
-them online) are in :data:`DECISION_KEY`, so that the Predictor can choose them online.
+:data:`POSES_OPTIONAL_KEY`. An occupancy-head model's ``probability`` is calibrated (no
+offset); the decision policy it ships with (offset, online or not) and its warp gain are in
+:data:`DECISION_KEY`, so that the Predictor decides as PyTorch does.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from torch import Tensor, nn
 from lidarflow.errors import PredictError
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.predict.backends import DECISION_KEY, GRID_KEY, POSES_OPTIONAL_KEY
-from lidarflow.predict.decision import decision_of
+from lidarflow.predict.decision import DecisionPolicy
 
 __all__ = ["DECISION_KEY", "OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "copy_marks", "export_onnx"]
 
@@ -64,18 +65,21 @@ def export_onnx(
     height: int = 100,
     width: int = 100,
     res: float | None = None,
+    decision: DecisionPolicy | None = None,
 ) -> Path:
     """Write ``model``'s streaming step to ``path`` as ONNX (opset :data:`OPSET`); ``res``, the
     cell size it is meant for, goes into the file's metadata (:data:`GRID_KEY`) beside the
-    size, so that the Predictor runs it on that grid."""
+    size, so that the Predictor runs it on that grid; ``decision``, the policy an occupancy
+    head ships with (default: at 0.4 as it is), into :data:`DECISION_KEY`."""
     path = Path(path)
     if not path.parent.exists():
         raise PredictError(f"{path.parent}: no such folder for the ONNX file")
-    ego = bool(getattr(model, "ego_motion", False))
+    caps = model.capabilities
+    ego = caps.ego_motion
     model = model.eval()
     graph = EgoStepGraph(model) if ego else StepGraph(model)
     state = model.init_state(1, height, width)
-    maps = torch.zeros(1, model.input_channels, height, width)
+    maps = torch.zeros(1, caps.input_channels, height, width)
     extra = (torch.zeros(1, 3), torch.zeros(1, 3)) if ego else ()  # motion, next_motion
     motions = ["motion", "next_motion"] if ego else []
     names_in = ["maps", *motions, *[f"state{i}" for i in range(len(state))]]
@@ -98,10 +102,11 @@ def export_onnx(
     marks = {}
     if res is not None:
         marks[GRID_KEY] = json.dumps({"height": height, "width": width, "res": res})
-    if getattr(model, "poses_optional", False):
+    if caps.poses_optional:
         marks[POSES_OPTIONAL_KEY] = "true"
-    if (decision := decision_of(model)) is not None:
-        marks[DECISION_KEY] = json.dumps(decision)
+    if caps.occupancy_head:
+        record = (decision or DecisionPolicy()).to_record()
+        marks[DECISION_KEY] = json.dumps({**record, "gain": model.warp_gain(), "calibrated": True})
     if marks:
         _write_marks(path, marks)
     return path

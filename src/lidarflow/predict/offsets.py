@@ -13,8 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "LOGIT_LIMIT",
     "THRESHOLD",
+    "calibrated_logit",
     "counts",
+    "decided_probability",
     "f1_from_counts",
     "lookahead_terms",
     "moved_last_map",
@@ -24,6 +27,25 @@ __all__ = [
 #: The project's decision threshold: a cell is predicted occupied where its probability is at
 #: least this (design notes §1 and §5).
 THRESHOLD = 0.4
+#: float32 probabilities saturate near 0 and 1; logits beyond this are far from every offset's
+#: threshold anyway.
+LOGIT_LIMIT = 15.0
+
+
+def calibrated_logit(probability: np.ndarray) -> np.ndarray:
+    """``log(p / (1 - p))`` in float64, within :data:`LOGIT_LIMIT`: a calibrated probability's
+    logit, which the decision offsets shift."""
+    p = np.clip(np.asarray(probability, np.float64), 1e-12, 1.0 - 1e-12)
+    return np.clip(np.log(p) - np.log1p(-p), -LOGIT_LIMIT, LOGIT_LIMIT)
+
+
+def decided_probability(probability: np.ndarray, offset: float) -> np.ndarray:
+    """``sigmoid(logit(p) + offset)`` float32: the probability a fixed decision offset
+    thresholds at 0.4 (``p`` itself for offset 0)."""
+    if offset == 0.0:
+        return np.asarray(probability, np.float32)
+    out = 1.0 / (1.0 + np.exp(-(calibrated_logit(probability) + offset)))
+    return out.astype(np.float32)
 
 
 def counts(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray) -> tuple[int, int, int]:

@@ -40,7 +40,7 @@ from lidarflow.motion.icp import scan_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import StepClock
 from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
-from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig, decision_for
+from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
 from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
@@ -54,11 +54,17 @@ class Prediction:
     """What one update returns.
 
     Attributes:
-        probability: ``(H, W)`` probability that each cell is occupied in the next frame.
-        occupied: ``probability >= 0.4`` (the project's decision threshold).
+        probability: ``(H, W)`` probability that each cell is occupied in the next frame
+            (calibrated, for an occupancy-head model such as the bundled one).
+        occupied: ``(H, W)`` bool, the decided next map: the probability decided by the
+            Predictor's :class:`~lidarflow.predict.decision.DecisionPolicy` (an offset on the
+            logit, chosen online for the bundled model) at 0.4. For a model without a head it
+            is ``probability >= 0.4``.
         backward_flow, forward_flow: ``(2, H, W)`` flow in cells (column, row), ``None`` for
             models that predict occupancy directly (DeepTracking).
-        horizon: ``(K, H, W)`` probabilities 1..K frames ahead (``horizon[0] is probability``).
+        horizon: ``(K, H, W)`` probabilities 1..K frames ahead (``horizon[0]`` is
+            ``probability``); each step ahead is fed the decided map before it.
+        horizon_occupied: ``(K, H, W)`` bool, the decided maps 1..K frames ahead.
         occupancy, visibility: the maps of the frame just given.
         ego_compensated: an ego-motion model was given the motion since the previous scan (from
             the pose, or matched from the scans).
@@ -70,6 +76,7 @@ class Prediction:
     backward_flow: np.ndarray | None
     forward_flow: np.ndarray | None
     horizon: np.ndarray
+    horizon_occupied: np.ndarray
     occupancy: np.ndarray
     visibility: np.ndarray
     ego_compensated: bool = False
@@ -108,13 +115,13 @@ class Predictor:
             (:class:`lidarflow.motion.scanmatch.ScanOdometry`: the maps matched, and refined on
             the returns where ``update`` is given a :class:`~lidarflow.scan.Scan`); off: those
             steps run uncompensated.
-        online_decision: re-decide an occupancy-head model's next map with the decision offsets
-            that have done best on this stream so far (:mod:`lidarflow.predict.decision`; a
-            roll-out feeds back the decided map and re-decides every step with the same
-            choice). ``None``: where
-            the model asks for it (``online_decision`` in its kwargs or the ONNX file's marks);
-            an :class:`~lidarflow.predict.decision.OnlineDecisionConfig`: always, with that grid
-            and those constants.
+        decision: how the next map is decided (``Prediction.occupied``): a
+            :class:`~lidarflow.predict.decision.DecisionPolicy`; ``None``: the one the model
+            ships with (its ``model.json``, or the ONNX file's marks).
+        online_decision: overrides whether that policy chooses its offsets online, on this
+            stream's own past frames (:mod:`lidarflow.predict.decision`; a roll-out feeds back
+            the decided map and re-decides every step with the same choice): ``None`` as the
+            policy says, ``True`` / ``False`` on / off, a config on with it.
     """
 
     def __init__(
@@ -128,6 +135,7 @@ class Predictor:
         check_odometry: bool = True,
         scan_odometry: bool = True,
         online_decision: bool | OnlineDecisionConfig | None = None,
+        decision: DecisionPolicy | None = None,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
@@ -139,6 +147,7 @@ class Predictor:
         if model is not None and Path(model).suffix.lower() == ".onnx":
             self.backend = OnnxBackend(model, threads)
             self.card: dict[str, Any] = {"model": "onnx", "weights_path": str(model)}
+            self.card["decision"] = self.backend.decision
             recorded = self.backend.grid
         else:
             from lidarflow.models.presets import resolve_model
@@ -152,30 +161,30 @@ class Predictor:
         # Scans' stamps: after a long step the last motion spans it, and the guess of the next
         # one is scaled to a typical step (lidarflow.motion.pacing, as evaluate does).
         self._clock = StepClock()
-        self.online = self._online_decision(online_decision)
-        self.engine = Engine(
-            self.backend, self.grid.res, self.online, check_odometry, scan_odometry
-        )
-
-    def _online_decision(self, wanted: bool | OnlineDecisionConfig | None) -> OnlineDecision | None:
+        if decision is None:  # the policy the model ships with
+            decision = DecisionPolicy.from_record(self.card.get("decision"))
+        #: How the next map is decided (``Prediction.occupied``).
+        self.decision = decision.with_online(online_decision)
         try:
-            return decision_for(getattr(self.backend, "decision", None), wanted)
+            self.engine = Engine(
+                self.backend, self.grid.res, self.decision, check_odometry, scan_odometry
+            )
         except ValueError as err:
             raise PredictError(
-                "the online decision needs an occupancy-head model (an ONNX file exported "
-                "before lidarflow marked the decision offsets in it: export it again)"
+                f"{err} (an ONNX file exported before lidarflow marked the decision in it: "
+                "export it again)"
             ) from err
 
     @property
     def uses_motion(self) -> bool:
         """Whether the model compensates ego motion (then give ``update`` the sensor pose)."""
-        return bool(getattr(self.backend, "uses_motion", False))
+        return self.backend.capabilities.ego_motion
 
     @property
     def poses_optional(self) -> bool:
         """Whether an ego-motion model may run without poses (without one it takes the motion
         from the scans, ``scan_odometry``, else runs uncompensated)."""
-        return bool(getattr(self.backend, "poses_optional", False))
+        return self.backend.capabilities.poses_optional
 
     def reset(self) -> None:
         """Forget the past: the next update starts from a zero state."""
@@ -211,7 +220,7 @@ class Predictor:
         ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
         occupancy, visibility = self._maps(item)
         subcell = None
-        if takes_subcell(self.backend.input_channels):
+        if takes_subcell(self.backend.capabilities.input_channels):
             if not isinstance(item, Scan):
                 raise PredictError(
                     "this model also uses where each return lies inside its cell "
@@ -231,14 +240,15 @@ class Predictor:
                 pace=None if scan is None else self._clock.update(scan.stamp_ns),
             )
         )
-        future = self.engine.roll(step, self.horizon)
+        ahead = self.engine.roll(step, self.horizon)
         flow = step.flow
         return Prediction(
-            probability=future[0],
-            occupied=future[0] >= THRESHOLD,
+            probability=step.probability,
+            occupied=step.decided >= THRESHOLD,
             backward_flow=None if flow is None else flow[:2],
             forward_flow=None if flow is None else flow[2:],
-            horizon=np.stack(future),
+            horizon=ahead.probability,
+            horizon_occupied=ahead.decided >= THRESHOLD,
             occupancy=np.asarray(occupancy, bool),
             visibility=np.asarray(visibility, bool),
             ego_compensated=step.motion is not None,

@@ -29,7 +29,7 @@ from torch import Tensor
 
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
-from lidarflow.models import build_model, uses_ego_motion
+from lidarflow.models import ModelSpec, build, uses_ego_motion
 from lidarflow.models.speed import accelerate, native_bf16
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import TrainConfig
@@ -74,7 +74,7 @@ def make_loss(
     if config.model.name == "deeptracking":
         return lambda seq, out: deeptracking_loss(seq, out, warmup=warmup)
     weight = config.loss.occupancy_bce
-    head = model is not None and getattr(model, "occupancy_head", False)
+    head = model is not None and model.capabilities.occupancy_head
     if weight > 0.0 and not head:
         raise TrainError(
             "loss.occupancy_bce needs a model with an occupancy head: add "
@@ -181,8 +181,8 @@ def _train(
         say(f"note: {note}")
 
     try:
-        model = build_model(config.model.name, **config.model.kwargs)
-    except ModelError as err:
+        model = build(ModelSpec.from_kwargs(config.model.name, config.model.kwargs)[0])
+    except (ModelError, ValueError) as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
     if config.model.init and not resume:
         new_head = load_init(model, config.model.init)

@@ -13,15 +13,15 @@ import torch
 
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.models import uses_ego_motion
-from lidarflow.models.flownet import OCCUPANCY_HEAD_PARAMETERS
 from lidarflow.train.config import TrainConfig
 
 __all__ = ["is_head", "load_init", "make_optimizer", "parameter_groups"]
 
 
 def is_head(parameter_name: str) -> bool:
-    """Whether a parameter belongs to the occupancy head (its own learning rate, may be new)."""
-    return any(key in parameter_name for key in OCCUPANCY_HEAD_PARAMETERS)
+    """Whether a parameter belongs to the occupancy head block (its own learning rate, may be
+    new): ``head.``, inside the ego-motion wrapper ``inner.head.``."""
+    return parameter_name.removeprefix("inner.").startswith("head.")
 
 
 def _unwrapped(model: torch.nn.Module) -> torch.nn.Module:

@@ -4,7 +4,7 @@ What a run directory holds is listed in :mod:`lidarflow.train.checkpoint`. Here:
 and ``run.json`` at the start (the command, commit, device; every resume appended), the check
 that a resumed run keeps the config that shaped its weights, and at the end ``model.safetensors``
 + ``model.json`` — the pair :func:`lidarflow.models.weights.load_trained` reads: ``model`` and
-``model_kwargs`` rebuild the net, ``grid`` / ``warmup`` / ``threshold`` say how to run it, and
+``model_kwargs`` rebuild the net, ``decision`` / ``grid`` / ``warmup`` say how to run it, and
 ``training`` / ``config`` where it came from.
 """
 
@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from lidarflow.errors import TrainError
-from lidarflow.models import count_parameters
+from lidarflow.models import ModelSpec, count_parameters
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import TrainConfig
 from lidarflow.train.config_io import config_from_dict, config_to_dict, load_config_file
@@ -60,9 +60,15 @@ def model_record(
 ) -> dict[str, Any]:
     """What ``model.json`` says: enough to rebuild the net and to know where it came from
     (``commit``: the code it trained with, by default the checkout's HEAD now)."""
+    spec, decision = ModelSpec.from_kwargs(config.model.name, config.model.kwargs)
     return {
         "model": config.model.name,
-        "model_kwargs": config.model.kwargs,
+        "model_kwargs": spec.to_kwargs(),
+        # How its next map is decided: the Predictor's policy, shipped with the model.
+        "decision": {
+            "offset": float(decision.get("decision_offset", 0.0)),
+            "online": bool(decision.get("online_decision", False)),
+        },
         "out_channels": int(getattr(model, "out_channels", 0)),
         "parameters": int(count_parameters(model)),
         "grid": data.grid.to_dict(),

@@ -54,7 +54,7 @@ def stream_start_states(model: RecurrentMapModel, windows: Windows) -> None:
     recording reaches the window's first frame (with poses, and without them where windows are
     served without). ``model`` must have an occupancy head (the state is its memories); it is
     left on the CPU in eval mode."""
-    if not getattr(model, "occupancy_head", False):
+    if not model.capabilities.occupancy_head:
         raise ValueError("memories_from_stream needs a model with an occupancy head")
     model = model.cpu().eval()
     states: dict[tuple[int, int, bool], np.ndarray] = {}

@@ -1,0 +1,201 @@
+"""Typed configuration of the models, and the capability record every model carries.
+
+A model is described by a :class:`ModelSpec`: the architecture's name, Table I's flow network
+(:class:`FlowConfig`), the occupancy head if any (:class:`HeadConfig`) and the ego-motion
+wrapper's two switches. ``model.json`` files store it flat, as ``model_kwargs`` (what
+``build_model(name, **kwargs)`` has always taken); :meth:`ModelSpec.from_kwargs` reads every
+file ``lidarflow train`` ever wrote, says which measured-useless option a model needs where one
+is set (the option is gone; its evidence is in ``docs/research/``), and hands back the decision
+keys older files kept among the model's (the decision is the Predictor's configuration now).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+__all__ = [
+    "DECISION_KEYS",
+    "MODEL_NAMES",
+    "REMOVED_OPTIONS",
+    "Capabilities",
+    "FlowConfig",
+    "HeadConfig",
+    "ModelSpec",
+]
+
+MODEL_NAMES: tuple[str, ...] = ("flownet", "deeptracking")
+#: Keys older ``model_kwargs`` held that belong to the decision policy, not the model.
+DECISION_KEYS = ("decision_offset", "online_decision")
+#: Options measured without gain and removed (issue 35), with the value a model built without
+#: them had: a file that sets one otherwise names a model this version cannot build.
+REMOVED_OPTIONS: dict[str, Any] = {
+    "memory_bias_correction": False,
+    "decision_offset_free": None,
+    "warp_input": False,
+    "visibility_memories": False,
+    "transition_memories": False,
+    "conv0_activation": "relu",
+    "in_channels": 2,
+}
+# The head of each cell's own past is the only head left: a 1x1 kernel, no GRU features.
+_HEAD_SHAPE = {"head_kernel_size": 1, "head_flow_features": False}
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a model takes and gives, read by the streaming engine instead of probing:
+    ``input_channels`` per frame (2: ``(O, V)``; 4 with the sub-cell maps), ``out_channels``
+    per step, ``flow`` (its output starts with ``B_col, B_row, F_col, F_row``),
+    ``occupancy_head`` (its probability is a calibrated ``sigmoid`` of a logit, which a decision
+    policy may offset), ``ego_motion`` (``step`` takes the sensor's motion) and
+    ``poses_optional`` (it may run where a recording has no poses)."""
+
+    input_channels: int = 2
+    out_channels: int = 4
+    flow: bool = True
+    occupancy_head: bool = False
+    ego_motion: bool = False
+    poses_optional: bool = False
+
+
+@dataclass(frozen=True)
+class FlowConfig:
+    """Table I's flow network: ``conv0`` 3x3 to ``hidden_channels`` (ReLU), one ConvGRU per
+    dilation, ``conv_flow`` to 4 channels; ``zero_init`` starts the flow head at zero (the
+    untrained net is copy-last)."""
+
+    hidden_channels: int = 16
+    dilations: tuple[int, ...] = (1, 2, 4)
+    kernel_size: int = 3
+    zero_init: bool = True
+
+    def __post_init__(self) -> None:
+        if self.hidden_channels < 1 or not self.dilations or self.kernel_size % 2 == 0:
+            raise ValueError(
+                "the flow network needs hidden_channels >= 1, at least one dilation and an odd "
+                f"kernel_size, got {self.hidden_channels}, {self.dilations}, {self.kernel_size}"
+            )
+
+
+@dataclass(frozen=True)
+class HeadConfig:
+    """The occupancy head of each cell's own past (:mod:`lidarflow.models.head`): memories of
+    the occupancy at ``memory_decays``; with ``constant_velocity_input`` the constant-velocity
+    map (and ``shift_memories``: memories moved with the scene by its shift); one hidden layer
+    of ``hidden_channels`` (0: none); ``visibility_input`` (``V^t``) and ``subcell_input``
+    (where the returns lie inside their cells, two more map channels)."""
+
+    memory_decays: tuple[float, ...] = (0.5, 0.8)
+    constant_velocity_input: bool = False
+    shift_memories: bool = False
+    hidden_channels: int = 0
+    visibility_input: bool = False
+    subcell_input: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "memory_decays", tuple(float(d) for d in self.memory_decays))
+        if not all(0.0 <= d < 1.0 for d in self.memory_decays):
+            raise ValueError(f"memory_decays must be in [0, 1), got {self.memory_decays}")
+        if self.shift_memories and not self.constant_velocity_input:
+            raise ValueError("shift_memories needs constant_velocity_input (it finds the shift)")
+        if self.hidden_channels < 0:
+            raise ValueError(f"head hidden_channels must be >= 0, got {self.hidden_channels}")
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A whole model: ``name`` (one of :data:`MODEL_NAMES`); for ``flownet`` its ``flow`` and
+    ``head``; for ``deeptracking`` its own ``options`` (:class:`~lidarflow.models.deeptracking.
+    DeepTracking`'s arguments); ``ego_motion`` wraps it in
+    :class:`~lidarflow.models.egomotion.EgoCompensated`, ``poses_optional`` lets that run
+    without poses."""
+
+    name: str = "flownet"
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    head: HeadConfig | None = None
+    ego_motion: bool = False
+    poses_optional: bool = False
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.name not in MODEL_NAMES:
+            raise ValueError(f"unknown model {self.name!r}: choose one of {', '.join(MODEL_NAMES)}")
+        if self.poses_optional and not self.ego_motion:
+            raise ValueError("poses_optional needs ego_motion (it says when poses may be missing)")
+        if self.name != "flownet" and self.head is not None:
+            raise ValueError("the occupancy head belongs to flownet")
+
+    @classmethod
+    def from_kwargs(
+        cls, name: str, kwargs: dict[str, Any], stored: bool = False
+    ) -> tuple[ModelSpec, dict[str, Any]]:
+        """The spec of a model described flat (``model.json``'s ``model_kwargs``, or a training
+        config's ``model.kwargs``), and the decision keys found among them
+        (:data:`DECISION_KEYS`). ``stored``: the kwargs come from a file, where a head without
+        ``head_kernel_size`` 1 and ``head_flow_features`` false is the removed 3x3 head. Raises
+        ``ValueError`` naming an unknown argument or a removed option the model needs."""
+        kwargs = dict(kwargs)
+        decision = {k: kwargs.pop(k) for k in DECISION_KEYS if k in kwargs}
+        ego = bool(kwargs.pop("ego_motion", False))
+        optional = bool(kwargs.pop("poses_optional", False))
+        for option, default in REMOVED_OPTIONS.items():
+            if option in kwargs and kwargs.pop(option) != default:
+                raise ValueError(
+                    f"{option} was measured without gain and removed; this model needs it "
+                    "(train it again, or use lidarflow before issue 35 for it)"
+                )
+        if name != "flownet":
+            return cls(name, ego_motion=ego, poses_optional=optional, options=kwargs), decision
+        flow = FlowConfig(
+            hidden_channels=int(kwargs.pop("hidden_channels", 16)),
+            dilations=tuple(kwargs.pop("dilations", (1, 2, 4))),
+            kernel_size=int(kwargs.pop("kernel_size", 3)),
+            zero_init=bool(kwargs.pop("zero_init_flow", True)),
+        )
+        head = None
+        if kwargs.pop("occupancy_head", False):
+            for key, value in _HEAD_SHAPE.items():
+                if kwargs.pop(key, None if stored else value) != value:
+                    raise ValueError(
+                        "a head with a 3x3 kernel or the GRUs' features was measured without "
+                        "gain and removed; this model has one (train it again with the head "
+                        "recipe)"
+                    )
+            head = HeadConfig(
+                memory_decays=tuple(kwargs.pop("memory_decays", (0.5, 0.8))),
+                constant_velocity_input=bool(kwargs.pop("constant_velocity_input", False)),
+                shift_memories=bool(kwargs.pop("shift_memories", False)),
+                hidden_channels=int(kwargs.pop("head_hidden_channels", 0)),
+                visibility_input=bool(kwargs.pop("visibility_input", False)),
+                subcell_input=bool(kwargs.pop("subcell_input", False)),
+            )
+        if kwargs:
+            raise ValueError(f"unexpected model arguments: {', '.join(sorted(kwargs))}")
+        return cls(name, flow, head, ego, optional), decision
+
+    def to_kwargs(self) -> dict[str, Any]:
+        """The flat form :meth:`from_kwargs` reads (what ``model.json`` stores)."""
+        out: dict[str, Any] = dict(self.options)
+        if self.name == "flownet":
+            default = FlowConfig()
+            flow = {
+                "hidden_channels": self.flow.hidden_channels,
+                "dilations": list(self.flow.dilations),
+                "kernel_size": self.flow.kernel_size,
+                "zero_init_flow": self.flow.zero_init,
+            }
+            keys = ("hidden_channels", "dilations", "kernel_size", "zero_init")
+            for (name, value), key in zip(flow.items(), keys, strict=True):
+                if getattr(default, key) != getattr(self.flow, key):
+                    out[name] = value
+        if self.head is not None:
+            head = asdict(self.head)
+            head["memory_decays"] = list(self.head.memory_decays)
+            head["head_hidden_channels"] = head.pop("hidden_channels")
+            out.update({"occupancy_head": True, **head, **_HEAD_SHAPE})
+        if self.ego_motion:
+            out["ego_motion"] = True
+        if self.poses_optional:
+            out["poses_optional"] = True
+        return out

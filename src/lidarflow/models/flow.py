@@ -1,0 +1,66 @@
+"""Table I of the paper: the flow network (design notes section 4).
+
+    input (O, V)       2 x H x W
+    conv0              3x3, 16 ch, d 1, p 1, ReLU
+    gru0 / gru1 / gru2 ConvGRU 16 ch, 3x3, dilation 1 / 2 / 4, 'same' padding
+    conv_flow          3x3, 4 ch, d 1, p 1   -> B_col, B_row, F_col, F_row (cells), linear
+
+42,500 parameters with the bias choice documented in :mod:`lidarflow.models.convgru`.
+
+Activations: the paper names none outside the GRUs. conv_flow is linear (flow is unbounded,
+signed). After conv0 a ReLU: the paper calls conv0 a feature extractor, and without a
+non-linearity conv0 would merely compose with each gate's ``W_x*`` into one larger linear filter
+(the linear variant was measured no better and removed). It adds no parameters.
+
+The flow head starts at zero (``FlowConfig.zero_init``): the untrained net outputs zero flow, so
+its prediction ``W(O^t, 0) = O^t`` is copy-last, the baseline it has to beat (issue 11 measured
+this start to train better than a random head). Every layer is a 'same' convolution, so the grid
+size is free.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor, nn
+
+from lidarflow.models.config import FlowConfig
+from lidarflow.models.convgru import ConvGRUCell
+
+__all__ = ["FlowNetwork"]
+
+
+class FlowNetwork(nn.Module):
+    """``(maps (B, 2, H, W), states) -> (flow (B, 4, H, W), new states)``, one state per GRU.
+
+    >>> import torch
+    >>> net = FlowNetwork(FlowConfig())
+    >>> states = tuple(torch.zeros(1, 16, 12, 10) for _ in range(3))
+    >>> flow, states = net(torch.zeros(1, 2, 12, 10), states)
+    >>> tuple(flow.shape), len(states), sum(p.numel() for p in net.parameters())
+    ((1, 4, 12, 10), 3, 42500)
+    """
+
+    def __init__(self, config: FlowConfig) -> None:
+        super().__init__()
+        k, hidden = config.kernel_size, config.hidden_channels
+        self.conv0 = nn.Conv2d(2, hidden, k, padding=k // 2)
+        self.act0 = nn.ReLU()
+        self.grus = nn.ModuleList(
+            ConvGRUCell(hidden, hidden, k, dilation=d) for d in config.dilations
+        )
+        self.conv_flow = nn.Conv2d(hidden, 4, k, padding=k // 2)
+        if config.zero_init:
+            nn.init.zeros_(self.conv_flow.weight)
+            nn.init.zeros_(self.conv_flow.bias)
+
+    def state_channels(self) -> tuple[int, ...]:
+        return tuple(cell.hidden_channels for cell in self.grus)
+
+    def forward(
+        self, maps: Tensor, states: tuple[Tensor, ...]
+    ) -> tuple[Tensor, tuple[Tensor, ...]]:
+        x = self.act0(self.conv0(maps))
+        new_states = []
+        for cell, y_prev in zip(self.grus, states, strict=True):
+            x = cell(x, y_prev)
+            new_states.append(x)
+        return self.conv_flow(x), tuple(new_states)

@@ -1,0 +1,124 @@
+"""The occupancy head: a per-cell probability of the next map on top of the flow's warp.
+
+Not in the paper (issue 11). Warping can only move cells that were seen, and a thresholded warp
+of a binary map cannot say "this cell flickers" or "this cell will likely be free". The head
+keeps, as recurrent state, exponential moving averages ``m`` of the occupancy (decays
+``HeadConfig.memory_decays``; what the temporal-average baseline knows), and from each cell's own
+past (``O^t``, its memories and, as configured, the inputs below; no neighbours, no GRU features:
+a 3x3 head with them did worse on the recording it had not seen and was removed) gives a
+residual logit ``r``. The model predicts ``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with a learnt
+gain ``g`` (:class:`~lidarflow.models.flownet.LidarFlowNet`). Trained with a cross-entropy against
+``O^{t+1}`` the output is a calibrated probability; the decision (offsets chosen on the training
+recordings or online) is the Predictor's (:mod:`lidarflow.predict.decision`).
+
+At initialisation ``r`` is the constant logit of :data:`FREE_PROBABILITY_INIT` and ``g`` lifts an
+occupied cell to :data:`OCCUPIED_PROBABILITY_INIT`, so the untrained model is exactly copy-last at
+the 0.4 threshold (a symmetric start at 0.05 / 0.95 made the first epoch predict nothing
+occupied).
+
+Inputs, each measured in issue 11's leave-one-out study (``docs/research/``):
+
+- ``constant_velocity_input``: the constant-velocity baseline's prediction (the current map moved
+  once more by the integer shift that best maps the previous map onto it,
+  :mod:`lidarflow.ops.shift`), with the previous map kept as one more state channel. On a moving
+  platform the flow network trained on simulation lost to that baseline; as an input the head
+  weighs it per cell.
+- ``shift_memories``: each memory is first moved by that shift, then updated, so it averages the
+  world rather than the sensor's frame; the head sees the memories moved once more (into the next
+  frame). Where nothing moves the shift is zero and the head is the one without the option.
+- ``hidden_channels``: one hidden 1x1 layer and a ReLU (a cell's next value is not linear in its
+  past: the causal per-cell history table beat the linear head on both static held-out
+  recordings).
+- ``visibility_input``: ``V^t`` (a cell occupied in a memory but not visible now is hidden behind
+  something and likely still there; one seen free now has likely gone).
+- ``subcell_input``: where the returns lie inside their cells, ``(edge, near)``
+  (:func:`lidarflow.scan.subcell_batch`): most cells that change on a static scene are a return
+  crossing a cell edge along its beam, which the binary map cannot see coming.
+
+The output layer starts at zero, so whatever the inputs the untrained model is copy-last.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from lidarflow.models.config import HeadConfig
+from lidarflow.ops.shift import apply_shift, best_shift_kernel
+
+__all__ = ["FREE_PROBABILITY_INIT", "OCCUPIED_PROBABILITY_INIT", "OccupancyHead"]
+
+# Roughly what copy-last's cells do on the development recordings: a free cell stays free,
+# an occupied one stays occupied nine times in ten.
+FREE_PROBABILITY_INIT = 0.01
+OCCUPIED_PROBABILITY_INIT = 0.9
+
+
+class OccupancyHead(nn.Module):
+    """``(maps (B, C, H, W), memory state) -> (residual logit (B, 1, H, W), new memory state)``;
+    :attr:`gain` is ``g``. ``maps`` are ``(O, V)``, with ``subcell_input`` ``(O, V, edge,
+    near)``. State: one tensor of the memories, then (with the constant-velocity input) the
+    previous occupancy.
+
+    >>> head = OccupancyHead(HeadConfig(memory_decays=(0.5,), hidden_channels=4))
+    >>> r, m = head(torch.zeros(1, 2, 6, 5), torch.zeros(1, head.state_channels, 6, 5))
+    >>> tuple(r.shape), tuple(m.shape), sum(p.numel() for p in head.parameters())
+    ((1, 1, 6, 5), (1, 1, 6, 5), 18)
+    """
+
+    def __init__(self, config: HeadConfig) -> None:
+        super().__init__()
+        self.config = config
+        c = config
+        features = 1 + len(c.memory_decays) + int(c.constant_velocity_input)
+        features += int(c.visibility_input) + 2 * int(c.subcell_input)
+        if c.hidden_channels:
+            self.hidden = nn.Conv2d(features, c.hidden_channels, 1)
+            self.out = nn.Conv2d(c.hidden_channels, 1, 1)
+        else:
+            self.out = nn.Conv2d(features, 1, 1)
+        free, occupied = (
+            math.log(p / (1.0 - p)) for p in (FREE_PROBABILITY_INIT, OCCUPIED_PROBABILITY_INIT)
+        )
+        nn.init.zeros_(self.out.weight)
+        nn.init.constant_(self.out.bias, free)
+        self.gain = nn.Parameter(torch.tensor(occupied - free))
+
+    @property
+    def state_channels(self) -> int:
+        return len(self.config.memory_decays) + int(self.config.constant_velocity_input)
+
+    def forward(self, maps: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
+        c = self.config
+        occupancy = maps[:, 0:1]
+        k = len(c.memory_decays)
+        decays = torch.tensor(c.memory_decays, dtype=maps.dtype, device=maps.device)
+        decays = decays.view(1, -1, 1, 1)
+        past = state[:, :k]
+        if c.constant_velocity_input:
+            kernel = best_shift_kernel(state[:, -1:], occupancy)
+            if c.shift_memories:
+                past = apply_shift(past, kernel)
+        memory = decays * past + (1.0 - decays) * occupancy
+        features, kept = [occupancy], [memory]
+        if c.constant_velocity_input:
+            if c.shift_memories:
+                # One apply_shift moves the memories and the map into the next frame together.
+                moved = apply_shift(torch.cat([memory, occupancy], dim=1), kernel)
+                seen, extrapolated = moved[:, :k], moved[:, k:]
+            else:
+                seen, extrapolated = memory, apply_shift(occupancy, kernel)
+            features.extend((seen, extrapolated))
+            kept.append(occupancy)
+        else:
+            features.append(memory)
+        if c.visibility_input:
+            features.append(maps[:, 1:2])
+        if c.subcell_input:
+            features.append(maps[:, 2:4])
+        x = torch.cat(features, dim=1)
+        if c.hidden_channels:
+            x = torch.relu(self.hidden(x))
+        return self.out(x), torch.cat(kept, dim=1)
