@@ -44,15 +44,21 @@ def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):
     import torch
     from safetensors.torch import save_file
 
-    from lidarflow.models import build_model
+    from lidarflow.models import ModelSpec, build
 
     torch.manual_seed(seed)
-    net = build_model(name, **kwargs)
+    spec, decision = ModelSpec.from_kwargs(name, kwargs)  # the decision keys: its policy
+    net = build(spec)
     folder.mkdir(parents=True, exist_ok=True)
     save_file(
         {k: v.contiguous() for k, v in net.state_dict().items()}, folder / "model.safetensors"
     )
-    (folder / "model.json").write_text(json.dumps({"model": name, "model_kwargs": kwargs}))
+    record = {"model": name, "model_kwargs": spec.to_kwargs()}
+    record["decision"] = {
+        "offset": float(decision.get("decision_offset", 0.0)),
+        "online": bool(decision.get("online_decision", False)),
+    }
+    (folder / "model.json").write_text(json.dumps(record))
     return folder
 
 

@@ -51,9 +51,13 @@ def test_the_online_decision_is_fed_back_through_the_roll_out():
     # Untrained, the head is copy-last at logit 2.2: at its own offset -3 it predicts nothing,
     # at any step. Chosen online (here the one occupied-cell offset, 6), the cells are found,
     # and fed back decided they are found again at every step.
-    head = build_model("flownet", occupancy_head=True, decision_offset=-3.0).eval()
+    head = build_model("flownet", occupancy_head=True).eval()
     config = OnlineDecisionConfig(occupied_offsets=(6.0,), free_offsets=(-0.6,), min_frames=2)
-    methods = [ModelMethod("fixed", head), ModelMethod("online", head, online=config)]
+    own = {"offset": -3.0, "online": False}  # the policy it ships with
+    methods = [
+        ModelMethod("fixed", head, decision=own),
+        ModelMethod("online", head, online=config, decision=own),
+    ]
     scores = horizon_f1(occupancy, visibility, methods, horizon=3, warmup=4)
     assert scores["fixed"] == [0.0, 0.0, 0.0]
     assert scores["online"] == pytest.approx(scores["copy_last"])

@@ -57,7 +57,7 @@ def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain, wind
         occupied_offsets=(0.0, 1.5), free_offsets=(-0.3, 0.9), decay=1, lookahead=7, min_frames=99,
         ta_window=window, ta_threshold=0.5, history_decay=history,
     )  # fmt: skip
-    decision = OnlineDecision(0.6, 0.2, config, gain)  # min_frames: it decides with (0.6, 0.2)
+    decision = OnlineDecision(0.6, config, gain)  # min_frames: it decides with 0.6
     baselines = [CopyLast(), TemporalAverage(window, 0.5), ConstantVelocity()]
     visibility = np.ones_like(maps[0])
     # The candidates: each pair on the moved map, and (with a gain) on the last map unmoved,
@@ -68,8 +68,8 @@ def test_margins_look_ahead_from_the_decisions_made_and_the_baselines(gain, wind
     per_pair = {c: np.zeros((2, 3)) for c in candidates}
     made, per_baseline = np.zeros((2, 3)), np.zeros((len(baselines), 2, 3))
     for t in range(len(maps)):
-        own = logits[t] + 0.2 + (0.6 - 0.2) * moved[t]
-        decision.update(_sigmoid(own), maps[t], visibility, moved[t])
+        own = logits[t] + 0.6  # the logit decided with the model's own offset
+        decision.update(_sigmoid(logits[t]), maps[t], visibility, moved[t])
         if t > 0:  # frames 1..t scored: the decisions made, plus 7 frames of each pair's mean
             expected = [_margin(made, per_pair[c], 7 / t, per_baseline) for c in candidates]
             assert np.allclose(decision.margins(), np.reshape(expected, (-1, 2, 2)))
@@ -101,14 +101,13 @@ def _margin(made: np.ndarray, pair: np.ndarray, h: float, baselines: np.ndarray)
 
 def test_the_model_is_unchanged_until_enough_frames_are_scored():
     maps, logits, moved = _stream(8, seed=1)
-    decision = OnlineDecision(0.6, 0.2, OnlineDecisionConfig(min_frames=5))
+    decision = OnlineDecision(0.65, OnlineDecisionConfig(min_frames=5))
     for t in range(5):  # frame t scores the prediction made at t - 1
-        given_probability = _sigmoid(logits[t] + 0.2 + 0.4 * moved[t])
-        out = decision.update(given_probability, maps[t], np.ones_like(maps[t]), moved[t])
-        assert decision.offsets == (0.6, 0.2)
-        assert np.allclose(out, given_probability, atol=1e-6)
+        out = decision.update(_sigmoid(logits[t]), maps[t], np.ones_like(maps[t]), moved[t])
+        assert decision.offsets == (0.65, 0.65)
+        assert np.allclose(out, _sigmoid(logits[t] + 0.65), atol=1e-6)
     decision.update(_sigmoid(logits[5]), maps[5], np.ones_like(maps[5]), moved[5])
-    assert decision.offsets != (0.6, 0.2)  # the grid does not hold the model's own pair
+    assert decision.offsets != (0.65, 0.65)  # the grid does not hold the model's own pair
 
 
 def test_it_moves_to_the_offsets_that_would_have_found_the_cells():
@@ -117,7 +116,7 @@ def test_it_moves_to_the_offsets_that_would_have_found_the_cells():
     pattern = np.zeros((10, 10), bool)
     pattern[2:5, 3:8] = True
     probability = _sigmoid(np.where(pattern, LOGIT - 0.5, -6.0))
-    decision = OnlineDecision(0.0, None, OnlineDecisionConfig(min_frames=3))
+    decision = OnlineDecision(0.0, OnlineDecisionConfig(min_frames=3))
     for t in range(6):
         out = decision.update(probability, pattern, np.ones_like(pattern), pattern.astype(float))
         if t < 3:
@@ -138,13 +137,13 @@ def test_where_the_flow_moves_what_stays_the_unmoved_map_is_chosen():
     probability = _sigmoid(gain * moved + residual)
     visibility = np.ones_like(pattern)
     for given_gain in (gain, None):
-        decision = OnlineDecision(0.0, None, OnlineDecisionConfig(min_frames=3), given_gain)
+        decision = OnlineDecision(0.0, OnlineDecisionConfig(min_frames=3), given_gain)
         for _ in range(6):
             out = decision.update(probability, pattern, visibility, moved)
         assert decision.unmoved == (given_gain is not None)
         assert np.array_equal(out >= THRESHOLD, pattern) == (given_gain is not None)
     unmoved_off = OnlineDecisionConfig(min_frames=3, unmoved=False)
-    decision = OnlineDecision(0.0, None, unmoved_off, gain)
+    decision = OnlineDecision(0.0, unmoved_off, gain)
     for _ in range(6):
         decision.update(probability, pattern, visibility, moved)
     assert not decision.unmoved and decision.margins().shape[0] == 1
@@ -152,9 +151,9 @@ def test_where_the_flow_moves_what_stays_the_unmoved_map_is_chosen():
 
 def test_reset_forgets_the_stream_and_a_new_shape_needs_one():
     maps, logits, moved = _stream(14, seed=2)
-    decision = OnlineDecision(0.6, None, OnlineDecisionConfig(min_frames=2))
+    decision = OnlineDecision(0.6, OnlineDecisionConfig(min_frames=2))
     for t in range(14):
-        decision.update(_sigmoid(logits[t] + 0.6), maps[t], np.ones_like(maps[t]), moved[t])
+        decision.update(_sigmoid(logits[t]), maps[t], np.ones_like(maps[t]), moved[t])
     with pytest.raises(ValueError, match="shape changed"):
         decision.update(
             np.zeros((5, 5), np.float32), np.zeros((5, 5)), np.ones((5, 5)), np.zeros((5, 5))
@@ -189,15 +188,16 @@ def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path,
 
     # Untrained, the head is copy-last (logit 2.2 on occupied cells): an occupied-cell offset of
     # -3 predicts nothing, which the stream shows at once.
-    kwargs = {"occupancy_head": True, "decision_offset": -3.0, "decision_offset_free": 0.3}
-    net, _ = resolve_model(make_model_dir(tmp_path / "m", seed=4, **kwargs))
+    kwargs = {"occupancy_head": True, "decision_offset": -3.0}
+    net, card = resolve_model(make_model_dir(tmp_path / "m", seed=4, **kwargs))
+    own = card["decision"]
     occupancy, visibility = sample_recording.slice(0, 40).maps(GridSpec())
     late = OnlineDecisionConfig(min_frames=100)
     soon = OnlineDecisionConfig(min_frames=1)
     methods = [
-        ModelMethod("fixed", net),
-        ModelMethod("late", net, online=late),
-        ModelMethod("soon", net, online=soon),
+        ModelMethod("fixed", net, decision=own),
+        ModelMethod("late", net, online=late, decision=own),
+        ModelMethod("soon", net, online=soon, decision=own),
     ]
     scores = evaluate_maps(occupancy, visibility, methods)
     assert scores["late"].counts == scores["fixed"].counts
@@ -274,7 +274,7 @@ def test_predict_chooses_online_unless_told_fixed(tmp_path, capsys):
         out = tmp_path / f"out{len(flags)}.mcap"
         code, _, err = run(["predict", str(rec), "-o", str(out), "-m", str(model), *flags], capsys)
         assert code == 0, err
-        last = read_all(out)["/lidarflow/predicted"][-1]
-        peaks[len(flags)] = int(np.max(last.data))  # probability x 100
-    # Online, the occupied cells come back above the threshold; fixed at -3 they stay below.
-    assert peaks[0] >= 40 > peaks[1]
+        last = read_all(out)["/lidarflow/decided"][-1]
+        peaks[len(flags)] = int(np.max(last.data))  # 100: decided occupied
+    # Online, the occupied cells are decided occupied; fixed at -3 none is.
+    assert peaks[0] == 100 and peaks[1] == 0

@@ -11,6 +11,7 @@ from lidarflow.errors import PredictError
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.backends import DECISION_KEY
+from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.export import export_onnx
 from tests.conftest import make_model_dir
 
@@ -107,38 +108,18 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
 @pytest.mark.parametrize(
     "kwargs",
     [
-        {"memory_decays": [0.5, 0.95], "memory_bias_correction": True},
         {"memory_decays": [0.5, 0.95], "constant_velocity_input": True},
         {"memory_decays": [0.5, 0.95], "head_hidden_channels": 4},
         {"memory_decays": [0.5, 0.95], "constant_velocity_input": True, "shift_memories": True},
-        {"memory_decays": [0.5, 0.95], "visibility_input": True, "warp_input": True},
-        {
-            "memory_decays": [0.5, 0.95],
-            "constant_velocity_input": True,
-            "head_hidden_channels": 4,
-            "head_kernel_size": 1,
-            "head_flow_features": False,
-            "decision_offset": 0.4,
-            "decision_offset_free": 1.3,
-        },
-        {
-            "memory_decays": [0.5, 0.95],
-            "visibility_memories": True,
-            "memory_bias_correction": True,
-            "constant_velocity_input": True,
-            "shift_memories": True,
-        },
-        {"subcell_input": True, "head_kernel_size": 1, "head_hidden_channels": 4},
+        {"memory_decays": [0.5, 0.95], "visibility_input": True, "decision_offset": 0.4},
+        {"subcell_input": True, "head_hidden_channels": 4, "decision_offset": -0.7},
     ],
     ids=[
-        "bias_corrected_memories",
         "constant_velocity_input",
         "hidden_layer",
         "shift_memories",
-        "visibility_and_warp",
-        "per_cell_head_two_offsets",
-        "visibility_memories",
-        "subcell_input",
+        "visibility_input_with_an_offset",
+        "subcell_input_with_an_offset",
     ],
 )
 def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recording, kwargs):
@@ -149,13 +130,18 @@ def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recordi
 
     folder = make_model_dir(tmp_path / "bc", occupancy_head=True, **kwargs)
     weights = load_file(folder / "model.safetensors")
-    weights["conv_occupancy.weight"] = torch.randn_like(weights["conv_occupancy.weight"])
+    weights["head.out.weight"] = torch.randn_like(weights["head.out.weight"])
     save_file(weights, folder / "model.safetensors")
-    net, _ = resolve_model(folder)
-    torch_p, onnx_p = Predictor(folder), Predictor(export_onnx(net, tmp_path / "bc.onnx"))
+    net, card = resolve_model(folder)
+    policy = DecisionPolicy.from_record(card["decision"])
+    onnx_path = export_onnx(net, tmp_path / "bc.onnx", decision=policy)
+    torch_p, onnx_p = Predictor(folder), Predictor(onnx_path)
+    assert torch_p.decision == onnx_p.decision == policy  # the offset travels with the file
     for scan in frames(sample_recording, 12):
         a, b = torch_p.update(scan), onnx_p.update(scan)
-    np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
+        np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
+        near = np.abs(a.probability - 0.4) < 1e-3  # decided alike but where it is a coin toss
+        assert np.array_equal(a.occupied[~near], b.occupied[~near])
 
 
 def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
@@ -168,16 +154,20 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
     # nothing, so the offsets chosen online are not the model's.
     kwargs = {"occupancy_head": True, "decision_offset": -3.0, "online_decision": True}
     folder = make_model_dir(tmp_path / "m", seed=2, zero_init_flow=False, **kwargs)
-    net, _ = resolve_model(folder)
-    onnx_path = export_onnx(net, tmp_path / "m.onnx")
+    net, card = resolve_model(folder)
+    policy = DecisionPolicy.from_record(card["decision"])
+    onnx_path = export_onnx(net, tmp_path / "m.onnx", decision=policy)
     torch_p, onnx_p = Predictor(folder), Predictor(onnx_path)
     fixed = Predictor(folder, online_decision=False)
     assert torch_p.online is not None and onnx_p.online is not None and fixed.online is None
-    method = ModelMethod("m", net)  # the model asks for it: online here too
+    # The model ships with an online decision: evaluate decides online too.
+    method = ModelMethod("m", net, decision=card["decision"])
     occupancy, visibility = sample_recording.slice(0, 25).maps(GridSpec())
     for occ, vis in zip(occupancy, visibility, strict=True):
         a, b = torch_p.update((occ, vis)), onnx_p.update((occ, vis))
-        assert np.allclose(a.probability, method.update(occ, vis), atol=1e-6)
+        decided = method.update(occ, vis)
+        assert np.array_equal(a.occupied, decided >= 0.4)
+        assert np.allclose(a.probability, method.last.probability, atol=1e-6)
         assert np.abs(a.probability - b.probability).max() < 1e-4
         assert np.array_equal(a.horizon[0], a.probability)
         own = fixed.update((occ, vis))
@@ -193,7 +183,7 @@ def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, ran
 
     from lidarflow.predict.decision import OnlineDecisionConfig
 
-    with pytest.raises(PredictError, match="occupancy-head"):
+    with pytest.raises(PredictError, match="occupancy head"):
         Predictor(random_flownet_dir, online_decision=True)
     config = OnlineDecisionConfig(occupied_offsets=(0.0, 1.0), free_offsets=(0.5,), decay=0.9)
     tuned = Predictor(make_model_dir(tmp_path / "t", occupancy_head=True), online_decision=config)
@@ -234,9 +224,10 @@ def test_the_roll_out_feeds_back_the_online_decision(tmp_path, sample_recording)
     occupancy, visibility = sample_recording.slice(0, 25).maps(GridSpec())
     for occ, vis in zip(occupancy, visibility, strict=True):
         online, onnx, fixed = (p.update((occ, vis)) for p in predictors)
-    assert (online.horizon[1:] >= 0.4).any(axis=(1, 2)).all()
+    assert online.horizon_occupied[1:].any(axis=(1, 2)).all()
     assert np.abs(online.horizon - onnx.horizon).max() < 1e-3
-    assert not (fixed.horizon >= 0.4).any()
+    assert np.array_equal(online.horizon_occupied, onnx.horizon_occupied)
+    assert not fixed.horizon_occupied.any()
 
 
 def test_a_subcell_model_takes_its_scans_subcell_maps_and_refuses_bare_maps(
@@ -249,7 +240,7 @@ def test_a_subcell_model_takes_its_scans_subcell_maps_and_refuses_bare_maps(
 
     folder = make_model_dir(tmp_path / "sub", occupancy_head=True, subcell_input=True)
     weights = load_file(folder / "model.safetensors")  # a head that uses its inputs
-    weights["conv_occupancy.weight"] = torch.randn_like(weights["conv_occupancy.weight"])
+    weights["head.out.weight"] = torch.randn_like(weights["head.out.weight"])
     save_file(weights, folder / "model.safetensors")
     predictor = Predictor(folder, horizon=3)
     scans = frames(sample_recording, 5)

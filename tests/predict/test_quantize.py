@@ -11,6 +11,7 @@ from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import f1_score
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
+from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.export import export_onnx
 from lidarflow.predict.quantize import head_convs, quantize_onnx
 from tests.test_cli import run
@@ -24,8 +25,9 @@ def stacked_maps(recording, start, stop, subcell=True):
 @pytest.fixture(scope="module")
 def float_and_int8(tmp_path_factory, sample_recording):
     folder = tmp_path_factory.mktemp("q")
-    net, _ = resolve_model(None)  # the bundled model: trained weights, realistic ranges
-    float_path = export_onnx(net, folder / "float.onnx")
+    net, card = resolve_model(None)  # the bundled model: trained weights, realistic ranges
+    policy = DecisionPolicy.from_record(card["decision"])
+    float_path = export_onnx(net, folder / "float.onnx", decision=policy)
     calibration = stacked_maps(sample_recording, 0, 40)
     int8_path = quantize_onnx(float_path, folder / "int8.onnx", calibration)
     return float_path, int8_path
@@ -50,7 +52,7 @@ def test_table_one_convs_are_int8_and_the_head_stays_float(float_and_int8):
     head = set(head_convs(float_path))
     assert len(head) == 2 and head <= {n.name for n in convs}  # the bundled head: hidden, output
     assert not head & int8
-    assert {"/conv0/Conv", "/conv_flow/Conv"} <= int8
+    assert {"/flow/conv0/Conv", "/flow/conv_flow/Conv"} <= int8
     assert sum("/grus." in name for name in int8) == 6  # three ConvGRUs, two convs each
 
 
@@ -73,7 +75,7 @@ def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
     f1_float = f1_score(np.stack(predicted_a[10:-1]), targets)
     f1_int8 = f1_score(np.stack(predicted_b[10:-1]), targets)
     assert abs(f1_float - f1_int8) < 0.01 and f1_float > 0.9
-    online = [Predictor(p) for p in (float_path, int8_path)]  # v6's marks ask for it
+    online = [Predictor(p) for p in (float_path, int8_path)]  # the bundled policy asks for it
     assert all(p.online is not None for p in online)
     decided = [[p.update(scan).occupied for scan in scans] for p in online]
     f1_online = [f1_score(np.stack(d[10:-1]), targets) for d in decided]

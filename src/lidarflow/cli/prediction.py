@@ -178,6 +178,7 @@ def export(
 
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.backends import recorded_grid
+    from lidarflow.predict.decision import DecisionPolicy
     from lidarflow.predict.export import export_onnx
     from lidarflow.scan import takes_subcell
 
@@ -188,10 +189,11 @@ def export(
             param_hint="--calibration",
         )
     net, card = resolve_model(model)
+    policy = DecisionPolicy.from_record(card.get("decision"))  # travels with the file
     spec = _completed(recorded_grid(card), grid, res)
     size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
-        path = export_onnx(net, onnx, spec.height, spec.width, spec.res)
+        path = export_onnx(net, onnx, spec.height, spec.width, spec.res, policy)
         typer.echo(f"wrote {path} ({card.get('model')}, {size})")
         return
 
@@ -200,9 +202,11 @@ def export(
 
     source = calibration or sample_bag_path()
     recording = load_input(source, topic)
-    maps = recording.stacked_maps(spec, subcell=takes_subcell(net.input_channels))
+    maps = recording.stacked_maps(spec, subcell=takes_subcell(net.capabilities.input_channels))
     with tempfile.TemporaryDirectory() as tmp:
-        float_path = export_onnx(net, Path(tmp) / "float.onnx", spec.height, spec.width, spec.res)
+        float_path = export_onnx(
+            net, Path(tmp) / "float.onnx", spec.height, spec.width, spec.res, policy
+        )
         path = quantize_onnx(float_path, onnx, maps)
     typer.echo(
         f"wrote {path} ({card.get('model')}, {size}, int8 convolutions calibrated on "

@@ -69,7 +69,10 @@ def methods_and_config(
         name = "bundled" if source is None else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"
-        method = ModelMethod(name, net, moving_threshold, online_config=online_config, res=res)
+        own = card["decision"]  # the decision policy the model ships with
+        method = ModelMethod(
+            name, net, moving_threshold, online_config=online_config, res=res, decision=own
+        )
         methods.append(method)
         keys = ("model", "weights_path", "weights_sha256", "grid")
         models_used[name] = {k: card.get(k) for k in keys}
@@ -85,6 +88,7 @@ def methods_and_config(
                     online=not wants_online,
                     online_config=online_config,
                     res=res,
+                    decision=own,
                 )
             )
     if any(getattr(m, "uses_motion", False) for m in methods):

@@ -106,7 +106,8 @@ def horizon_f1(
             if t not in scoring:
                 continue
             assert method.last is not None
-            for k, probability in enumerate(method.engine.roll(method.last, horizon)):
-                counts[k] = counts[k] + confusion(probability >= THRESHOLD, occupancy[t + 1 + k])
+            ahead = method.engine.roll(method.last, horizon).decided
+            for k, decided in enumerate(ahead):
+                counts[k] = counts[k] + confusion(decided >= THRESHOLD, occupancy[t + 1 + k])
         result[method.name] = [c.f1 for c in counts]
     return result

@@ -5,9 +5,12 @@ the bag's header clock went back, reading re-stamps its later sessions, and this
 
 - the input scan topic: the scans themselves (ranges and geometry; intensities are not kept);
 - ``/lidarflow/occupancy``: the current occupancy map (``nav_msgs/OccupancyGrid``);
-- ``/lidarflow/predicted``: the predicted next map, probability x 100 (``-1`` where the current
-  scan saw nothing and nothing is predicted);
-- ``/lidarflow/predicted_k{K}``: K frames ahead, for ``--horizon`` K > 1;
+- ``/lidarflow/predicted``: the predicted next map, probability x 100 (calibrated, for an
+  occupancy-head model; ``-1`` where the current scan saw nothing and nothing is predicted);
+- ``/lidarflow/decided``: the next map as the model's decision policy decides it (100 occupied,
+  0 free, ``-1`` as above): ``Prediction.occupied``;
+- ``/lidarflow/predicted_k{K}``, ``/lidarflow/decided_k{K}``: K frames ahead, for ``--horizon``
+  K > 1;
 - ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image`` ``32FC2``,
   per map cell the (column, row) displacement in cells (flow models only);
 - ``/lidarflow/moving``: the moving-object segmentation of the current map
@@ -24,7 +27,6 @@ from pathlib import Path
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
-from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.predict.predictor import Predictor
 from lidarflow.predict.rosout import BagOutput
 
@@ -73,9 +75,13 @@ def predict_to_bag(
             out.write_scan(scan_topic, dataclasses.replace(scan, stamp_ns=stamp), frame_id, at)
             count(scan_topic)
             grids = [(f"{TOPIC_PREFIX}/occupancy", p.occupancy.astype(float), ~p.visibility)]
-            for k, probability in enumerate(p.horizon, start=1):
-                topic = f"{TOPIC_PREFIX}/predicted" + (f"_k{k}" if k > 1 else "")
-                grids.append((topic, probability, ~p.visibility & (probability < THRESHOLD)))
+            for k, (probability, occupied) in enumerate(
+                zip(p.horizon, p.horizon_occupied, strict=True), start=1
+            ):
+                suffix = f"_k{k}" if k > 1 else ""
+                unknown = ~p.visibility & ~occupied
+                grids.append((f"{TOPIC_PREFIX}/predicted{suffix}", probability, unknown))
+                grids.append((f"{TOPIC_PREFIX}/decided{suffix}", occupied.astype(float), unknown))
             if p.moving is not None:
                 grids.append((f"{TOPIC_PREFIX}/moving", p.moving.astype(float), ~p.visibility))
             for topic, values, unknown in grids:

@@ -40,7 +40,7 @@ from lidarflow.motion.icp import scan_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import StepClock
 from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
-from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
+from lidarflow.predict.decision import DecisionPolicy, OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
 from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
@@ -174,6 +174,12 @@ class Predictor:
                 f"{err} (an ONNX file exported before lidarflow marked the decision in it: "
                 "export it again)"
             ) from err
+
+    @property
+    def online(self) -> OnlineDecision | None:
+        """The online decision choosing the offsets on this stream, ``None`` where the policy
+        decides with a fixed offset."""
+        return self.engine.decision
 
     @property
     def uses_motion(self) -> bool:

@@ -84,9 +84,9 @@ def _data_dependent(graph: Any) -> list[str]:
     ]
 
 
-#: Modules of the occupancy head (``LidarFlowNet``'s ``conv_occupancy`` and
-#: ``occupancy_hidden``), as their names appear in the exported graph's node names.
-HEAD_MODULES = ("/occupancy_hidden/", "/conv_occupancy/")
+#: The occupancy head block (``LidarFlowNet.head``: its ``hidden`` and ``out`` convolutions),
+#: as its name appears in the exported graph's node names.
+HEAD_MODULES = ("/head/hidden/", "/head/out/")
 
 
 def head_convs(path: str | Path) -> list[str]:
