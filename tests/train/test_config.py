@@ -47,11 +47,12 @@ def test_recipes_differ_only_where_they_should():
 
 
 def test_head_recipe_is_the_one_validated_leave_one_out():
-    # docs/results/accuracy/loo/online/README.md: the residual recipe, that study's config
+    # docs/research/leave_one_out/README.md: the residual recipe, that study's config
     # file and these flags. The recipe must not drift from what was measured.
     from pathlib import Path
 
-    study = Path(__file__).parents[2] / "docs/results/accuracy/loo/head_subcell_online.json"
+    configs = Path(__file__).parents[2] / "docs/research/leave_one_out/configs"
+    study = configs / "head_subcell_online.json"
     flags = {"optim.epochs": 3, "optim.batch_size": 4, "data.seq_len": 16, "data.warmup": 6}
     # The folds ran with --amp bf16 on CPUs that compute it natively, which is what the
     # recipe's "auto" picks there (and fp32 where bf16 would be emulated).
