@@ -296,15 +296,15 @@ def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, 
     bundled = unwrapped(resolve_model("bundled")[0].state_dict())
     assert json.loads((run / "model.json").read_text())["model_kwargs"]["poses_optional"]
     # The flow network is the bundled one (lr 1e-6: moved by about 1e-6 per step) ...
-    flow = bundled["conv_flow.weight"]
-    torch.testing.assert_close(trained["conv_flow.weight"], flow, atol=1e-4, rtol=0)
+    flow = bundled["flow.conv_flow.weight"]
+    torch.testing.assert_close(trained["flow.conv_flow.weight"], flow, atol=1e-4, rtol=0)
     # ... the head (the bundled one where it has the same inputs, else a new one) has learnt.
-    head, before = trained["conv_occupancy.weight"], bundled.get("conv_occupancy.weight")
+    head, before = trained["head.out.weight"], bundled.get("head.out.weight")
     assert head.abs().max() > 1e-3
     assert before is None or before.shape != head.shape or (head - before).abs().max() > 1e-3
     # A head of each cell's own past: the current map, five memories, the constant-velocity map,
     # the visibility map, and the two sub-cell channels.
-    assert trained["occupancy_hidden.weight"].shape[1:] == (1 + 5 + 1 + 1 + 2, 1, 1)
+    assert trained["head.hidden.weight"].shape[1:] == (1 + 5 + 1 + 1 + 2, 1, 1)
 
 
 def test_a_config_file_naming_deeptracking_gets_the_papers_recipe(tmp_path, blob_files, capsys):

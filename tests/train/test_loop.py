@@ -11,7 +11,7 @@ from safetensors.torch import load_file, save_file
 import lidarflow.train.loop as loop
 import lidarflow.train.model_setup as model_setup
 from lidarflow.errors import EvaluateError, TrainError
-from lidarflow.models import build_model
+from lidarflow.models import ModelSpec, build_model
 from lidarflow.scan import GridSpec
 from lidarflow.train import build_config, train
 from lidarflow.train.checkpoint import latest_epoch
@@ -186,16 +186,21 @@ def test_amp_auto_says_its_choice_in_the_training_log(blob_files, tmp_path, monk
         train(tiny_config(blob_files[:1], **{"runtime.amp": "fp16"}), tmp_path / "fp16")
 
 
-def test_residual_recipe_trains_the_head_and_needs_one(blob_files, tmp_path):
+#: A head fitted by cross-entropy on a fresh flow network (the head recipe starts from trained
+#: weights, frozen).
+HEAD = {"loss.occupancy_bce": 1.0, "model.kwargs": {"occupancy_head": True}}
+
+
+def test_a_head_trains_by_cross_entropy_and_needs_one(blob_files, tmp_path):
     flags = {"data.stride": 0, "data.epoch_windows": 0, "data.val_fraction": 0.0}
-    cfg = tiny_config(blob_files[:1], "residual", **flags, **{"optim.epochs": 1})
-    assert cfg.model.kwargs == {"occupancy_head": True} and cfg.loss.occupancy_bce == 1.0
+    cfg = tiny_config(blob_files[:1], **HEAD, **flags, **{"optim.epochs": 1})
     result = train(cfg, tmp_path / "res")
     gain = result.model.warp_gain()
     assert gain != pytest.approx(build_model("flownet", occupancy_head=True).warp_gain())
     record = json.loads((tmp_path / "res" / "model.json").read_text())
-    assert record["out_channels"] == 5 and record["model_kwargs"] == {"occupancy_head": True}
-    without_head = build_config("residual", None, {"model.kwargs": {}})
+    assert record["out_channels"] == 5 and record["model_kwargs"]["occupancy_head"]
+    assert record["decision"] == {"offset": 0.0, "online": False}
+    without_head = build_config("blurred", None, {"loss.occupancy_bce": 1.0})
     with pytest.raises(TrainError, match="occupancy head"):
         loop.make_loss(without_head, 1, build_model("flownet"))
 
@@ -210,7 +215,7 @@ def test_init_starts_from_given_weights(blob_files, tmp_path):
     assert second.rows[0]["val_loss"] != pytest.approx(first.rows[0]["val_loss"])
     # A head model may start from a plain flow model: flow copied, head at its copy-last start.
     model = build_model("flownet", occupancy_head=True)
-    fresh_head = {k: v.clone() for k, v in model.state_dict().items() if "occupancy" in k}
+    fresh_head = {k: v.clone() for k, v in model.state_dict().items() if k.startswith("head.")}
     assert model_setup.load_init(model, str(tmp_path / "a")) is True
     for name, value in first.model.state_dict().items():
         assert torch.equal(model.state_dict()[name], value), name
@@ -226,7 +231,7 @@ def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
 
     source = make_model_dir(tmp_path / "head", occupancy_head=True, zero_init_flow=False)
     weights = load_file(source / "model.safetensors")
-    for name in ("conv_occupancy.bias", "warp_gain"):  # a trained-looking head: copying shows
+    for name in ("head.out.bias", "head.gain"):  # a trained-looking head: copying shows
         weights[name] = weights[name] + 1.0
     save_file(weights, source / "model.safetensors")
     model = build_model("flownet", occupancy_head=True, constant_velocity_input=True)
@@ -239,7 +244,7 @@ def test_a_head_of_other_inputs_starts_afresh_on_the_copied_flow(tmp_path):
 
 
 def test_head_learning_rate_scale_applies_to_the_head_only():
-    cfg = build_config("residual", None, {"optim.lr": 0.002, "optim.head_lr_scale": 10.0})
+    cfg = build_config("head", None, {"optim.lr": 0.002, "optim.head_lr_scale": 10.0})
     model = build_model("flownet", occupancy_head=True)
     optimizer = model_setup.make_optimizer(cfg, model)
     rest, head = optimizer.param_groups
@@ -251,7 +256,7 @@ def test_head_learning_rate_scale_applies_to_the_head_only():
     plain = build_model("flownet")
     assert len(model_setup.parameter_groups(plain, cfg)) == 1
     with pytest.raises(TrainError, match="head_lr_scale"):
-        build_config("residual", None, {"optim.head_lr_scale": 0.0})
+        build_config("head", None, {"optim.head_lr_scale": 0.0})
 
 
 def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
@@ -268,9 +273,9 @@ def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
     folder.mkdir()
     state = {k: v.contiguous() for k, v in ego.state_dict().items()}
     save_file(state, folder / "model.safetensors")
-    (folder / "model.json").write_text(
-        '{"model": "flownet", "model_kwargs": {"occupancy_head": true, "ego_motion": true}}'
-    )
+    kwargs = ModelSpec.from_kwargs("flownet", {"occupancy_head": True, "ego_motion": True})[0]
+    card = {"model": "flownet", "model_kwargs": kwargs.to_kwargs()}
+    (folder / "model.json").write_text(json.dumps(card))
     back = build_model("flownet", occupancy_head=True)
     assert model_setup.load_init(back, str(folder)) is False
     for name, value in weights.items():
@@ -282,9 +287,9 @@ def test_a_subcell_model_trains_validates_and_evaluates(blob_files, tmp_path):
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.stream import evaluate_recording
 
-    kwargs = {"occupancy_head": True, "subcell_input": True, "head_kernel_size": 1}
-    flags = {"optim.epochs": 1, "model.kwargs": kwargs}
-    result = train(tiny_config(blob_files[:1], "residual", **flags), tmp_path / "sub")
+    kwargs = {"occupancy_head": True, "subcell_input": True}
+    flags = {**HEAD, "optim.epochs": 1, "model.kwargs": kwargs}
+    result = train(tiny_config(blob_files[:1], **flags), tmp_path / "sub")
     head = result.model.head.out.weight[0, -2:]  # the edge and near inputs' weights
     assert head.abs().max() > 0  # trained: the loss reached them
     method = ModelMethod("sub", result.model)

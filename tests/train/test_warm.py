@@ -29,8 +29,9 @@ def driving(tmp_path_factory):
     return rec.save(tmp_path_factory.mktemp("warm") / "drive.npz")
 
 
-def _config(path, recipe="residual", **flags):
+def _config(path, recipe="blurred", **flags):
     base = {
+        "loss.occupancy_bce": 1.0,  # a head fitted by cross-entropy
         "data.sources": [str(path)],
         "data.grid": GRID.height,
         "data.res": GRID.res,

@@ -24,6 +24,7 @@ from typing import Any
 from lidarflow.data.views import SensorView
 from lidarflow.errors import RecordingError, TrainError
 from lidarflow.losses import LossConfig
+from lidarflow.models.config import MODEL_NAMES
 
 __all__ = [
     "RECIPES",
@@ -36,9 +37,6 @@ __all__ = [
     "default_recipe",
     "recipe",
 ]
-
-MODELS = ("flownet", "deeptracking")
-
 
 @dataclass
 class ModelConfig:
@@ -187,7 +185,7 @@ class TrainConfig:
         """Raise :class:`TrainError` naming the first impossible setting; return self."""
         d, o, s, r = self.data, self.optim, self.schedule, self.runtime
         checks = [
-            (self.model.name in MODELS, f"model.name must be one of {MODELS}"),
+            (self.model.name in MODEL_NAMES, f"model.name must be one of {MODEL_NAMES}"),
             (d.seq_len >= 2, "data.seq_len must be at least 2"),
             (0 <= d.warmup < d.seq_len - 1, "data.warmup must be in [0, seq_len - 2]"),
             (d.stride >= 0, "data.stride must be >= 0"),
@@ -263,23 +261,6 @@ def _blurred() -> TrainConfig:
     return TrainConfig(recipe="blurred", loss=LossConfig.blurred_both())
 
 
-def _residual() -> TrainConfig:
-    """Issue 11's recipe: LiDAR-FlowNet with the occupancy head, both sides of the warp loss
-    blurred plus a cross-entropy on the predicted next map, sized for about an hour of CPU."""
-    loss = LossConfig.blurred_both().replace(occupancy_bce=1.0)
-    config = TrainConfig(recipe="residual", loss=loss)
-    config.model.kwargs = {"occupancy_head": True}
-    config.data.stride = 10
-    config.data.epoch_windows = 400
-    config.optim.lr = 3e-3
-    config.optim.batch_size = 8
-    config.optim.epochs = 8
-    config.schedule.lr_step_epochs = 3
-    config.schedule.gaussian_start = 5
-    config.schedule.gaussian_step_epochs = 2
-    return config
-
-
 def _head() -> TrainConfig:
     """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
     memories that follow the constant-velocity shift, the constant-velocity map, the current
@@ -295,8 +276,9 @@ def _head() -> TrainConfig:
     shapes fit, so the default fine-tunes the bundled head; ``--recipe blurred`` trains a flow
     network of your own). About 8 CPU-minutes on the seven development recordings; its
     validation is ``docs/results/accuracy/loo/online/``."""
-    config = _residual()
-    config.recipe = "head"
+    # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
+    # (nearly frozen) flow where it was.
+    config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
     config.model.kwargs = {
         "occupancy_head": True,
         "memory_decays": [0.5, 0.8, 0.95, 0.98, 0.995],
@@ -318,6 +300,8 @@ def _head() -> TrainConfig:
     config.optim.head_lr_scale = 30_000.0
     config.optim.batch_size = 4
     config.optim.epochs = 3
+    config.schedule.lr_step_epochs = 3
+    config.schedule.gaussian_step_epochs = 2
     config.data.seq_len = 16
     config.data.warmup = 6
     config.data.stride = 8
@@ -336,7 +320,6 @@ def _head() -> TrainConfig:
 RECIPES: dict[str, Callable[[], TrainConfig]] = {
     "paper": _paper,  # the loss exactly as written in the paper (Table II reproduction)
     "blurred": _blurred,  # both sides of the loss blurred: zero flow is optimal when nothing moves
-    "residual": _residual,  # + occupancy head trained by cross-entropy (issue 11)
     "head": _head,  # the head alone on a trained flow network: issue 11's best, the bundled one
 }
 

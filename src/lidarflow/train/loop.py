@@ -78,7 +78,7 @@ def make_loss(
     if weight > 0.0 and not head:
         raise TrainError(
             "loss.occupancy_bce needs a model with an occupancy head: add "
-            "--set model.kwargs.occupancy_head=true (or use --recipe residual)"
+            "--set model.kwargs.occupancy_head=true (or use --recipe head)"
         )
 
     def loss(seq: Tensor, out: Tensor) -> Tensor:
