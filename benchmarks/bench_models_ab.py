@@ -6,8 +6,10 @@ round by round: each round streams the same scans of the sample through a fresh 
 of each model in turn (PyTorch eager, no poses, so the motion from the scans is included), and
 the result is the median over rounds of the per-round ratio of median step times.
 
-    python benchmarks/bench_models_ab.py docs/results/accuracy/bundled_v6 bundled \\
-        [--rounds 6] [--scans 120] [--threads 1]
+    python benchmarks/bench_models_ab.py RUN_A bundled [--rounds 6] [--scans 120] [--threads 1]
+
+(the v6 / v8 comparison in ``benchmarks/results/models_ab_v8.json`` took v6's weights, since
+left the tree: ``git show a4a22da:docs/results/accuracy/bundled_v6/model.safetensors``).
 
 Writes JSON (default ``benchmarks/results/models_ab.json``).
 """

@@ -13,7 +13,7 @@ clip their readings write no return that way, and read as a return it draws a ri
 readings just under ``range_max`` are no return too (:func:`ring_band`: simulators that add
 noise before clipping leave half the ring there). This departs from the design notes
 (``range_min <= rho <= range_max``) for that one value; why, measured:
-``docs/results/sensors_range_max/README.md``.
+``docs/research/range_max/README.md``.
 
 Visibility: a cell is visible when the beam nearest to the bearing of its centre exists and
 either returned beyond the centre's distance, or had no return and the centre lies within
@@ -207,7 +207,7 @@ def _returns(r: np.ndarray, range_min: float, range_max: float) -> tuple[np.ndar
     stored as the message's ``range_max`` (float32) is no return whatever that value's float64
     neighbours. In a scan that writes no return as ``range_max`` (:data:`RING_SHARE`), readings
     within :func:`ring_band` under it are no return too: measured, such a noisy half-ring
-    turned a simulated win into a loss (docs/results/sensors_range_max/)."""
+    turned a simulated win into a loss (docs/research/range_max/)."""
     # a range_max beyond float32 (pointcloud_to_laserscan's default, 1.8e308) casts to inf
     with np.errstate(invalid="ignore", over="ignore"):
         top = r.dtype.type(range_max)
@@ -361,7 +361,7 @@ def subcell_batch(
     Why: most cells that change between frames on a static scene are a return jittering along
     its beam across a cell edge, and the binary map cannot tell a return at a cell's centre
     from one about to cross (measured on the development recordings,
-    docs/results/accuracy/positive_4/subcell/). Both channels are zero for a return at a cell's
+    docs/research/subcell/). Both channels are zero for a return at a cell's
     centre, so zeros are also the neutral input where no scan is known (a predicted map fed
     back). Cells use :func:`rasterize_batch`'s arithmetic, so an ``edge`` cell is always one it
     marks occupied.

@@ -104,7 +104,7 @@ def methods_and_config(
             "threshold": ta_threshold,
             "chosen": "the default: of a grid of windows and thresholds, the highest mean F1 on "
             "the development recordings among settings that predict changes "
-            "(docs/results/accuracy/temporal_average/)"
+            "(docs/research/temporal_average/)"
             if (ta_window, ta_threshold) == (TA_WINDOW, TA_THRESHOLD)
             else "given on the command line",
         },

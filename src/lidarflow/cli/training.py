@@ -15,7 +15,7 @@ from lidarflow.cli.app import TopicOpt, app
     help="Train LiDAR-FlowNet or the DeepTracking baseline, self-supervised, on recordings and "
     "bags.\n\n"
     "The default recipe for LiDAR-FlowNet is head, the best measured on recordings it never "
-    "saw (docs/results/accuracy/loo): the bundled flow network (or --init RUN) with an "
+    "saw (docs/research/leave_one_out/): the bundled flow network (or --init RUN) with an "
     "occupancy head fitted to your recordings, about 8 CPU-minutes. --recipe paper is the "
     "paper's (and the default for deeptracking and --ego-motion): sequences of 20 frames, 10 "
     "warm-up frames, Gaussian size 9 -> 1 (minus 2 every 25 epochs), batch 32, Adam at lr 0.01 "
@@ -70,7 +70,7 @@ def train(
             "sides of the loss blurred), residual (blurred + occupancy head trained by "
             "cross-entropy; sized for ~1 CPU-hour) or head (the default: an occupancy "
             "head with the constant-velocity input trained on a frozen flow network, --init, "
-            "by default the bundled one; ~8 CPU-minutes; docs/results/accuracy/loo)."
+            "by default the bundled one; ~8 CPU-minutes; docs/research/leave_one_out/)."
         ),
     ] = None,
     config: Annotated[

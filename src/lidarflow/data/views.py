@@ -13,7 +13,7 @@ and a number:
 
 ``range3.5+beams2+rate2`` is a hobby scanner. Scans are dropped first, then each kept scan is
 narrowed, shortened and thinned, in that order. Used to train on such copies
-(``data.sensor_copies``) and to score on them (``experiments/other_sensors.py``).
+(``data.sensor_copies``) and to score on them (``python -m studies.other_sensors``).
 """
 
 from __future__ import annotations

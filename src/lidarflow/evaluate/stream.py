@@ -10,7 +10,7 @@ state carries across, as the :class:`~lidarflow.predict.Predictor`'s does: measu
 development recordings with gaps cut in (0.3 s to 13 s), the bundled model predicted the
 frames after a gap better carrying its state than restarting over all but the first ten (about
 even there; restarting better on the moving recordings and after moving to another place:
-``docs/results/gaps/``).
+``docs/research/gaps/``).
 
 A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of the frame just
 given that move on their own) is also scored for moving-object segmentation against the

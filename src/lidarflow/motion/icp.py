@@ -7,7 +7,7 @@ maps show a motion on 5 % of the steps). The scans' own returns resolve millimet
 simulation :func:`align` of consecutive scans is within 0.03 cells and 0.07° of the true motion
 (median), and on the driving development recording within 0.07 cells and 0.14° of its odometry,
 where the maps give 0.15 cells and 0.32° on the 70 % of steps they resolve
-(``docs/results/accuracy/scan_odometry/``).
+(``docs/research/scan_odometry/``).
 
 Method (Censi's PL-ICP, simplified): the current scan's returns, moved by the motion guessed so
 far, are paired with the nearest of the previous scan's returns around the same bearing (the

@@ -24,7 +24,7 @@ to move cells between two frames. That is what ``evaluate``, training and the Pr
 the driving recording the motion is then found on 89 % of steps (the maps: 70 %), within 0.07
 cells and 0.14 degrees of the odometry (median), and the car recording's fold model scores
 0.649 / 0.653 against 0.591 / 0.582 with the maps' matches alone
-(``docs/results/accuracy/scan_odometry/``).
+(``docs/research/scan_odometry/``).
 """
 
 from __future__ import annotations

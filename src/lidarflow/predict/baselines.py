@@ -25,13 +25,13 @@ __all__ = [
 
 
 # The temporal average's default, chosen on the development recordings by one rule: of the grid
-# in experiments/ta_sweep.py (windows 2-20, thresholds 0.2-0.7), the setting with the highest
+# in studies/ta_sweep.py (windows 2-20, thresholds 0.2-0.7), the setting with the highest
 # mean F1 over the seven development recordings among those that predict changes at all (the
 # intersection of the last two or three maps never predicts a cell to appear, so its changed-cell
 # F1 is 0: copy-last thinned, not an average). That is three frames: any threshold in (1/3, 2/3]
 # is the same majority of three, and 0.4, the metric's own, leaves the mean unrescaled. The
 # former default, 5 / 0.4, was chosen by no rule; the verdicts against it and against the
-# settings other rules would choose are in docs/results/accuracy/temporal_average/.
+# settings other rules would choose are in docs/research/temporal_average/.
 TA_WINDOW = 3
 TA_THRESHOLD = 0.4
 

@@ -25,7 +25,7 @@ where the stream is behind in F1 it picks a pair that gains F1, where behind in 
 F1 one that gains those. (Picking the pair with the best recent margin of its own scores
 within a few thousandths of it in leave-one-out, a little lower on the recording it wins by
 least; what mattered more is the grid: occupied-cell offsets down to -0.6 lost a recording
-that -2.4 and below win. docs/results/accuracy/loo/online/.) Only past frames are used;
+that -2.4 and below win. docs/research/online_decision/.) Only past frames are used;
 nothing is trained.
 
 Why the decisions made are decayed too: a robot's stream runs through places that want other
@@ -33,7 +33,7 @@ decisions, and with counts since the stream began the margin of the first place 
 choices in the next (replayed on the development recordings played back to back in four orders,
 a recording's own stretch was won 15 times of 28 with the shipped model, 20 with
 ``history_decay`` 0.98; played alone, each recording scores the same within 0.003;
-``experiments/long_stream.py``, docs/results/accuracy/loo/online/).
+``python -m studies.long_stream``, docs/research/online_decision/).
 
 Every pair is also tried on the last map *unmoved* (``unmoved``, given the head's warp gain
 ``g``): the head's logit is ``g * W(O^t, B^t) + r``, and ``g * O^t + r`` is what it would say

@@ -5,7 +5,7 @@ recordings that a cell occupied for minutes and seen free for a frame or two is 
 next frame: at the edges of walls and furniture that is scan noise, and it is right. When the
 structure itself moves (a chair pushed, the sensor nudged on its mount), the same rule keeps
 predicting the old cells for hundreds of frames while copying the last map follows at once
-(measured on ``positive_4``, ``docs/results/accuracy/positive_4/``). The development recordings
+(measured on ``positive_4``, ``docs/research/positive_4/``). The development recordings
 hold almost no such events, so the head never pays for the rule.
 
 :func:`shift_patch` makes one: from a frame ``k`` of the window on, the maps in a box around an

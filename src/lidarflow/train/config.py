@@ -275,7 +275,7 @@ def _head() -> TrainConfig:
     is unchanged by it): ``model.init`` (the bundled model unless set; its head too where the
     shapes fit, so the default fine-tunes the bundled head; ``--recipe blurred`` trains a flow
     network of your own). About 8 CPU-minutes on the seven development recordings; its
-    validation is ``docs/results/accuracy/loo/online/``."""
+    validation is ``docs/research/online_decision/``."""
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
