@@ -92,16 +92,39 @@ def table(study: dict[str, dict[str, dict]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, dict]]:
     p = parser("leave_one_out", __doc__)
-    p.add_argument("--recordings", type=Path, nargs="+", default=development(),
-                   help="the recordings held out in turn (default: the development ones)")
-    p.add_argument("--variant", type=Variant.parse, action="append", required=True,
-                   help="NAME=RECIPE [KEY=VALUE ...], e.g. 'head=head optim.epochs=3'")
-    p.add_argument("--extra", type=Path, nargs="*", default=[],
-                   help="sources added to every training set (simulated data)")
-    p.add_argument("--held-out", type=Path, nargs="*", default=[],
-                   help="run only the folds holding out these (some of --recordings)")
-    p.add_argument("--online-decision", action="store_true",
-                   help="also score each fold's model with the other decision rule")
+    p.add_argument(
+        "--recordings",
+        type=Path,
+        nargs="+",
+        default=development(),
+        help="the recordings held out in turn (default: the development ones)",
+    )
+    p.add_argument(
+        "--variant",
+        type=Variant.parse,
+        action="append",
+        required=True,
+        help="NAME=RECIPE [KEY=VALUE ...], e.g. 'head=head optim.epochs=3'",
+    )
+    p.add_argument(
+        "--extra",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="sources added to every training set (simulated data)",
+    )
+    p.add_argument(
+        "--held-out",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="run only the folds holding out these (some of --recordings)",
+    )
+    p.add_argument(
+        "--online-decision",
+        action="store_true",
+        help="also score each fold's model with the other decision rule",
+    )
     args = parse(p, argv)  # fmt: skip
     if unknown := [str(r) for r in args.held_out if r not in args.recordings]:
         p.error(f"--held-out must be among --recordings: {', '.join(unknown)}")

@@ -8,10 +8,13 @@ Each run is a folder of ``lidarflow evaluate --online-decision`` reports, one pe
 recording, named ``eval_REC.json``, or a path with ``{}`` where the recording's name goes
 (``other_sensors/eval/{}__recorded.json``):
 
-    python experiments/seed_table.py -o docs/results/accuracy/seeds \\
-        --run s0=docs/results/accuracy/temporal_average/loo_3_0.4 \\
-        --run s1=docs/results/accuracy/seeds/s1 --run s2=docs/results/accuracy/seeds/s2 \\
-        --run s0_again=docs/results/accuracy/other_sensors/eval/{}__recorded.json
+    python -m studies.seed_table -o runs/studies/seeds \\
+        --run s0=runs/loo_s0 --run s1=runs/loo_s1 --run s2=runs/loo_s2 \\
+        --run s0_again=runs/studies/other_sensors/{}__recorded.json
+
+(reports of `lidarflow evaluate --online-decision --json`; the folds of
+``studies.leave_one_out --online-decision`` are
+``--run s0=runs/studies/leave_one_out/head/{}/evaluation_online.json``.)
 
 Writes OUT/seeds.json (per recording and run: the model's and the baselines' scores, the
 margins over the best baselines, the verdict) and OUT/seeds.md (the table, and per recording
@@ -20,24 +23,17 @@ the runs won, the mean and the smallest margin).
 
 from __future__ import annotations
 
-import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from study import DEVELOPMENT, margins, model_and_baselines, split_online, stem, verdict
+from studies.harness import DEVELOPMENT, judged, parse, parser, read_json, stem, write_summary
 
 
-def scores_of(report: Path) -> dict:
+def scores_of(report: Path) -> dict[str, Any]:
     """The online-decided model's scores, the baselines', the margins and the verdict."""
-    methods = json.loads(report.read_text())["recordings"][0]["methods"]
-    scores = model_and_baselines(split_online(methods)[0])
-    f1, changed = margins(scores)
-    return {
-        **scores,
-        "margins": {"f1": round(f1, 6), "changed_f1": round(changed, 6)},
-        "verdict": verdict(scores["model"], scores["baselines"]),
-        "report": str(report),
-    }
+    methods = read_json(report)["recordings"][0]["methods"]
+    return {**judged(methods), "report": str(report)}
 
 
 def collect(runs: dict[str, str], recordings: list[str]) -> dict[str, dict[str, dict]]:
@@ -91,10 +87,9 @@ def markdown(table: dict[str, dict[str, dict]], runs: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument(
+def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, dict]]:
+    p = parser("seed_table", __doc__)
+    p.add_argument(
         "--run",
         action="append",
         required=True,
@@ -102,29 +97,24 @@ def main() -> None:
         help="a run's name and its folder of eval_REC.json reports, or their path with {} for "
         "the recording's name (repeatable, in table order)",
     )
-    parser.add_argument(
-        "--recordings",
-        nargs="+",
-        default=[stem(Path(name)) for name in DEVELOPMENT],
+    p.add_argument(
+        "--recordings", nargs="+", default=[stem(name) for name in DEVELOPMENT],
         help="the held-out recordings' names, as in eval_NAME.json (default: the seven)",
-    )
-    args = parser.parse_args()
+    )  # fmt: skip
+    args = parse(p, argv)
     runs: dict[str, str] = {}
     for spec in args.run:
         name, sep, path = spec.partition("=")
         if "{}" not in path and Path(path).is_dir():
             path = str(Path(path) / "eval_{}.json")
         if not sep or not name or "{}" not in path or not Path(path.format("")).parent.is_dir():
-            parser.error(f"--run wants NAME=FOLDER or NAME=PATH with {{}}, got {spec!r}")
+            p.error(f"--run wants NAME=FOLDER or NAME=PATH with {{}}, got {spec!r}")
         runs[name] = path
     table = collect(runs, args.recordings)
     if not table:
-        parser.error("no report found for any recording in any run")
-    args.output.mkdir(parents=True, exist_ok=True)
-    (args.output / "seeds.json").write_text(json.dumps(table, indent=1))
-    text = markdown(table, list(runs))
-    (args.output / "seeds.md").write_text(text)
-    print(text, end="")
+        p.error("no report found for any recording in any run")
+    write_summary(args, "seeds", table, markdown(table, list(runs)))
+    return table
 
 
 if __name__ == "__main__":

@@ -27,3 +27,18 @@ def sim_recordings(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
         write_simulation(path, 24, seed, SimConfig(scenario=scenario))
         paths.append(path)
     return paths
+
+
+@pytest.fixture(scope="session")
+def eval_reports(sim_recordings: list[Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder of evaluation reports as `lidarflow evaluate --online-decision --json` writes
+    them, ``eval_<recording>.json``: the bundled model (named ``run``) on each simulated one."""
+    from lidarflow.data import load_any
+    from studies.harness import stem, write_json
+    from studies.scoring import evaluate
+
+    folder = tmp_path_factory.mktemp("reports")
+    for path in sim_recordings:
+        report = evaluate([(str(path), load_any(path))], {"run": "bundled"}, online=True)
+        write_json(folder / f"eval_{stem(path)}.json", report)
+    return folder
