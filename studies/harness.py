@@ -59,6 +59,14 @@ def parse(p: argparse.ArgumentParser, argv: Sequence[str] | None) -> argparse.Na
     return args
 
 
+def fold(spec: str) -> tuple[Path, str]:
+    """``--fold RECORDING=MODEL``: a recording and the model that never trained on it."""
+    recording, _, model = spec.partition("=")
+    if not recording or not model:
+        raise argparse.ArgumentTypeError(f"--fold wants RECORDING=MODEL, got {spec!r}")
+    return Path(recording), model
+
+
 def development(folder: Path = DATA) -> list[Path]:
     """The development recordings found in ``folder`` (those missing are left out)."""
     return [folder / name for name in DEVELOPMENT if (folder / name).exists()]

@@ -14,28 +14,28 @@ another sensor would have seen of the same scene, keeping their real noise, drop
 
 Each view of each recording is scored with the model that never trained on the recording
 (``--fold REC=MODEL``; the bundled model has seen every development recording), with
-``lidarflow evaluate --online-decision``, beside the three baselines.
+both decision rules (as ``lidarflow evaluate --online-decision``), beside the three
+baselines; the model's own rule is judged.
 
-    python experiments/other_sensors.py -o runs/other_sensors \\
-        --fold ../shared/data/positive_1.bag=runs/loo/p1 ... [--views fov86 range3.5]
+    python -m studies.other_sensors -o runs/studies/other_sensors \\
+        --fold ../shared/data/positive_1.bag=runs/studies/leave_one_out/head/positive_1/run \\
+        ... [--views fov86 range3.5]
 
-Writes OUT/other_sensors.json (added to where it exists; per recording and view: the model's
+Writes OUT/<recording>__<view>.json (each evaluation), OUT/other_sensors.json (added to where it
+exists; per recording and view: the model's
 and the baselines' F1, changed-cell F1 and AP, the verdict and the margins) and
 OUT/other_sensors.md.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-from collections.abc import Callable
-from pathlib import Path
-
-from study import lidarflow, margins, model_and_baselines, split_online, stem, verdict
+from collections.abc import Callable, Sequence
 
 from lidarflow.data.recording import Recording
 from lidarflow.data.sources import load_any
 from lidarflow.data.views import SensorView
+from studies.harness import fold, judged, parse, parser, read_json, stem, write_json, write_summary
+from studies.scoring import evaluate_one
 
 # name -> the sensor view it scores; "cheap" is the three milder at once (a hobby scanner)
 SPECS = {
@@ -51,45 +51,31 @@ VIEWS: dict[str, Callable[[Recording], Recording]] = {
 }
 
 
-def fold(spec: str) -> tuple[Path, str]:
-    recording, _, model = spec.partition("=")
-    if not model:
-        raise argparse.ArgumentTypeError(f"--fold wants REC=MODEL, got {spec!r}")
-    return Path(recording), model
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument("--fold", type=fold, action="append", required=True)
-    parser.add_argument("--views", nargs="+", choices=list(VIEWS), default=list(VIEWS))
-    args = parser.parse_args()
-    args.output.mkdir(parents=True, exist_ok=True)
+def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, dict]]:
+    p = parser("other_sensors", __doc__)
+    p.add_argument(
+        "--fold",
+        type=fold,
+        action="append",
+        required=True,
+        metavar="REC=MODEL",
+        help="a recording and the model that never trained on it (repeatable)",
+    )
+    p.add_argument("--views", nargs="+", choices=list(VIEWS), default=list(VIEWS))
+    args = parse(p, argv)  # fmt: skip
     summary = args.output / "other_sensors.json"
     # Several runs into one folder add up (one per fold model, say, as each finishes training).
-    results: dict[str, dict[str, dict]] = (
-        json.loads(summary.read_text()) if summary.exists() else {}
-    )
+    results: dict[str, dict[str, dict]] = read_json(summary)["results"] if summary.exists() else {}
     for source, model in args.fold:
         name = stem(source)
         recording = load_any(source)
         for view in args.views:
-            path = args.output / f"{name}__{view}.npz"
-            VIEWS[view](recording).save(path)
-            report = args.output / f"{name}__{view}.json"
-            lidarflow("evaluate", str(path), "--model", model, "--online-decision",
-                      "--json", str(report))  # fmt: skip
-            methods = json.loads(report.read_text())["recordings"][0]["methods"]
-            scores = model_and_baselines(split_online(methods)[0])
-            scores["verdict"] = verdict(scores["model"], scores["baselines"])
-            f1_margin, changed_margin = margins(scores)
-            scores["margins"] = {"f1": round(f1_margin, 4), "changed_f1": round(changed_margin, 4)}
-            scores["model_path"] = model
-            results.setdefault(name, {})[view] = scores
-            summary.write_text(json.dumps(results, indent=1))
+            methods = evaluate_one(VIEWS[view](recording), f"{name}__{view}", model, online=True)
+            write_json(args.output / f"{name}__{view}.json", methods)
+            results.setdefault(name, {})[view] = {**judged(methods), "model_path": model}
     views = [v for v in VIEWS if any(v in by_view for by_view in results.values())]
-    (args.output / "other_sensors.md").write_text(table(results, views))
-    print(table(results, views))
+    write_summary(args, "other_sensors", results, table(results, views))
+    return results
 
 
 def table(results: dict[str, dict[str, dict]], views: list[str]) -> str:

@@ -5,31 +5,31 @@ nothing as ``range_max`` rather than ``+inf``. Read as a return, that draws a ri
 cells at ``range_max`` that stays put in the sensor's frame however the robot moves: copy-last
 gets it right for free, and a model that moves the map with the robot's motion moves the ring
 too.
-This simulates the sensors of `sensor_sweep.py` whose ``range_max`` lies inside the grid, each
-static and driving, writes a copy of each recording with every ``+inf`` replaced by its scan's
-``range_max``, and evaluates the model on both (`lidarflow evaluate`, with the simulator's
-odometry). With ``--written-as zero`` the copy writes no return as ``0.0`` instead, as
-TurtleBot3's LDS driver does (read as unknown beams, by the design notes' rule); with
+This simulates the sensors of ``studies.sensor_sweep`` whose ``range_max`` lies inside the grid,
+each static and driving, writes a copy of each recording with every ``+inf`` replaced by its
+scan's ``range_max``, and evaluates the model on both (`lidarflow evaluate`, with the
+simulator's odometry). With ``--written-as zero`` the copy writes no return as ``0.0`` instead,
+as TurtleBot3's LDS driver does (read as unknown beams, by the design notes' rule); with
 ``--written-as noisy`` as ``range_max`` plus 1 cm Gaussian noise, clipped to ``range_max`` (as
 Gazebo versions that add noise before clipping do: half the ring just under ``range_max``).
 
-    python experiments/range_max_ring.py -o runs/range_max_ring [--model bundled] [--seed 202]
+    python -m studies.range_max_ring -o runs/studies/range_max_ring [--model bundled] [--seed 202]
 
-Writes OUT/range_max_ring.json and .md.
+Writes OUT/range_max_ring.json and .md (with --written-as zero / noisy:
+OUT/written_as_<zero|noisy>.*).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from sensor_sweep import SENSORS
-from study import lidarflow, model_and_baselines, verdict
 
 from lidarflow.data import load_recording
-from lidarflow.sim import PeopleConfig, SimConfig, lidar_preset, write_simulation
+from studies.harness import parse, parser, write_summary
+from studies.sensor_sweep import SCENARIOS, scored, simulated
 
 #: the sweep's sensors whose range_max (3.5 m, 5.6 m) draws the ring inside the 10 m grid
 RING_SENSORS = ("86deg_5Hz_3.5m", "180deg_15Hz_5.6m", "360deg_15Hz_3.5m")
@@ -53,52 +53,43 @@ def write_ring(source: Path, target: Path, written_as: str = "range_max") -> flo
     return float(ring.mean())
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument("--model", default="bundled")
-    parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--seed", type=int, default=202)
-    parser.add_argument("--written-as", choices=("range_max", "zero", "noisy"), default="range_max")
-    args = parser.parse_args()
-    args.output.mkdir(parents=True, exist_ok=True)
-    study: dict[str, dict] = {}
-    for name in RING_SENSORS:
-        preset, fields = SENSORS[name]
-        for scenario in ("static", "dynamic"):
-            plain = args.output / f"{name}_{scenario}.npz"
-            if not plain.exists():
-                config = SimConfig(
-                    scenario=scenario,
-                    sensor=lidar_preset(preset, **fields),
-                    people=PeopleConfig(count=8),
-                )
-                write_simulation(plain, args.frames, args.seed, config)
-            ringed = args.output / f"{name}_{scenario}_{args.written_as}.npz"
-            share = write_ring(plain, ringed, args.written_as)
-            row: dict[str, object] = {"no_return_share": share}
-            for kind, recording in (("inf", plain), (args.written_as, ringed)):
-                report = recording.with_suffix(".json")
-                lidarflow("evaluate", str(recording), "--model", args.model, "--json", str(report))
-                methods = json.loads(report.read_text())["recordings"][0]["methods"]
-                scores = model_and_baselines(methods)
-                row[kind] = {**scores, "verdict": verdict(scores["model"], scores["baselines"])}
-            study[f"{name}/{scenario}"] = row
+def markdown(study: dict[str, dict[str, Any]], written_as: str) -> str:
     lines = [
         "| sensor / scenario | no return | written +inf: model / copy-last F1, verdict "
-        f"| written {args.written_as}: model / copy-last F1, verdict |",
+        f"| written {written_as}: model / copy-last F1, verdict |",
         "|---|---|---|---|",
     ]
     for key, row in study.items():
         cells = [
             f"{r['model']['f1']:.3f} / {r['baselines']['copy_last']['f1']:.3f}, {r['verdict']}"
-            for r in (row["inf"], row[args.written_as])
+            for r in (row["inf"], row[written_as])
         ]
         lines.append(f"| {key} | {row['no_return_share']:.0%} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    p = parser("range_max_ring", __doc__)
+    p.add_argument("--model", default="bundled")
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--seed", type=int, default=202)
+    p.add_argument("--sensors", nargs="+", choices=RING_SENSORS, default=list(RING_SENSORS))
+    p.add_argument("--written-as", choices=("range_max", "zero", "noisy"), default="range_max")
+    args = parse(p, argv)
+    args.output.mkdir(parents=True, exist_ok=True)
+    study: dict[str, dict[str, Any]] = {}
+    for sensor in args.sensors:
+        for scenario in SCENARIOS:
+            plain = args.output / f"{sensor}_{scenario}.npz"
+            simulated(plain, sensor, scenario, args.frames, args.seed)
+            ringed = args.output / f"{sensor}_{scenario}_{args.written_as}.npz"
+            row: dict[str, Any] = {"no_return_share": write_ring(plain, ringed, args.written_as)}
+            row["inf"] = scored(plain, args.model)
+            row[args.written_as] = scored(ringed, args.model)
+            study[f"{sensor}/{scenario}"] = row
     name = "range_max_ring" if args.written_as == "range_max" else f"written_as_{args.written_as}"
-    (args.output / f"{name}.json").write_text(json.dumps(study, indent=2) + "\n")
-    (args.output / f"{name}.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_summary(args, name, study, markdown(study, args.written_as))
+    return study
 
 
 if __name__ == "__main__":

@@ -4,31 +4,41 @@ Simulates short static and driving recordings with LiDARs of other fields of vie
 360°), rates (5 to 15 Hz), beam counts and range limits (3.5 to 12 m) than the development
 data, all rasterized to the same 100 x 100 x 0.1 m grid, evaluates the model beside the
 baselines (`lidarflow evaluate`, streaming, 10 warm-up frames) and writes the per-sensor verdict
-(the rule of experiments/leave_one_out.py).
+(the rule of ``studies.leave_one_out``).
 
-    python experiments/sensor_sweep.py -o runs/sensors [--model bundled] [--frames 300]
+    python -m studies.sensor_sweep -o runs/studies/sensor_sweep [--model bundled] [--frames 300]
 
 The simulated platform's poses are exact odometry, which an ego-motion model uses; with
 ``--without-poses`` every recording is evaluated with its poses removed instead (a robot without
 odometry). Beside an ego-motion model the table shows copy_last_ego (the last map moved by the
 odometry) as a reference; verdicts count the three baselines only.
 
-Writes OUT/sensors.json and OUT/sensors.md (with --without-poses: OUT/sensors_noposes.*).
+Writes the recordings (OUT/<sensor>_<scenario>.npz, reused), each evaluation beside its
+recording (.json), and OUT/sensors.json and OUT/sensors.md (with --without-poses:
+OUT/sensors_noposes.*).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
-
-from study import BASELINES, lidarflow, model_and_baselines, verdict
+from typing import Any
 
 from lidarflow.data import load_recording
 from lidarflow.sim import PeopleConfig, SimConfig, lidar_preset, write_simulation
+from studies.harness import (
+    BASELINES,
+    model_and_baselines,
+    parse,
+    parser,
+    verdict,
+    write_json,
+    write_summary,
+)
+from studies.scoring import evaluate_one
 
 # name -> (preset, fields replaced); none of these is a training preset as it stands.
-SENSORS: dict[str, tuple[str, dict[str, object]]] = {
+SENSORS: dict[str, tuple[str, dict[str, Any]]] = {
     "86deg_5Hz_3.5m": (
         "hokuyo-urg",
         {"fov_deg": 86.0, "beams": 245, "rate_hz": 5.0, "range_max": 3.5},
@@ -38,55 +48,41 @@ SENSORS: dict[str, tuple[str, dict[str, object]]] = {
     "360deg_5Hz_12m": ("rplidar", {"rate_hz": 5.0, "range_max": 12.0, "beams": 720}),
     "360deg_15Hz_3.5m": ("rplidar", {"rate_hz": 15.0, "range_max": 3.5}),
 }
+SCENARIOS = ("static", "dynamic")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument("--model", default="bundled")
-    parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--seed", type=int, default=101, help="not a seed of the training sets")
-    parser.add_argument(
-        "--without-poses", action="store_true", help="evaluate the recordings without their poses"
-    )
-    parser.add_argument(
-        "--noise", type=float, help="every sensor's range noise std (m), instead of its preset's"
-    )
-    parser.add_argument(
-        "--dropout", type=float, help="every sensor's chance of a beam dropping out, ditto"
-    )
-    args = parser.parse_args()
-    noise = {} if args.noise is None else {"noise_std": args.noise}
-    noise |= {} if args.dropout is None else {"dropout_prob": args.dropout}
-    args.output.mkdir(parents=True, exist_ok=True)
-    study: dict[str, dict] = {}
-    for name, (preset, fields) in SENSORS.items():
-        for scenario in ("static", "dynamic"):
-            key = f"{name}/{scenario}"
-            recording = args.output / f"{name}_{scenario}.npz"
-            suffix = "_noposes" if args.without_poses else ""
-            report = args.output / f"{name}_{scenario}{suffix}.json"
-            if not recording.exists():
-                config = SimConfig(
-                    scenario=scenario,
-                    sensor=lidar_preset(preset, **fields, **noise),
-                    people=PeopleConfig(count=8),
-                )
-                write_simulation(recording, args.frames, args.seed, config)
-            evaluated = recording
-            if args.without_poses:
-                evaluated = args.output / f"{name}_{scenario}_noposes.npz"
-                if not evaluated.exists():
-                    blind = load_recording(recording)
-                    blind.poses = None
-                    blind.save(evaluated)
-            if not report.exists():
-                lidarflow("evaluate", str(evaluated), "--model", args.model, "--json", str(report))
-            scores = model_and_baselines(json.loads(report.read_text())["recordings"][0]["methods"])
-            study[key] = {**scores, "verdict": verdict(scores["model"], scores["baselines"])}
+def simulated(
+    path: Path, sensor: str, scenario: str, frames: int, seed: int, **fields: Any
+) -> Path:
+    """The recording of ``sensor`` (:data:`SENSORS`, its fields replaced by ``fields``) in
+    ``scenario`` with eight people, written to ``path`` unless there already."""
+    if not path.exists():
+        preset, own = SENSORS[sensor]
+        config = SimConfig(
+            scenario=scenario,
+            sensor=lidar_preset(preset, **{**own, **fields}),
+            people=PeopleConfig(count=8),
+        )
+        write_simulation(path, frames, seed, config)
+    return path
+
+
+def scored(path: Path, model: str, poses: bool = True) -> dict[str, Any]:
+    """The model's and the baselines' scores on the recording at ``path`` (without its poses
+    unless ``poses``) and the verdict; the evaluation is kept beside it (``.json``)."""
+    recording = load_recording(path)
+    if not poses:
+        recording.poses = None
+    methods = evaluate_one(recording, path.name, model)
+    write_json(path.with_name(path.stem + ("" if poses else "_noposes") + ".json"), methods)
+    scores: dict[str, Any] = model_and_baselines(methods)
+    return {**scores, "verdict": verdict(scores["model"], scores["baselines"])}
+
+
+def markdown(study: dict[str, dict[str, Any]], model: str) -> str:
     ego = any("copy_last_ego" in r.get("references", {}) for r in study.values())
     lines = [
-        f"| sensor / scenario | {args.model} F1 / changed F1 | copy last | temporal average | "
+        f"| sensor / scenario | {model} F1 / changed F1 | copy last | temporal average | "
         "constant velocity |" + (" copy last ego (reference) |" if ego else "") + " verdict |",
         "|---|---|---|---|---|" + ("---|" if ego else "") + "---|",
     ]
@@ -99,10 +95,37 @@ def main() -> None:
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {r['verdict']} |")
     wins = sum(r["verdict"] == "wins" for r in study.values())
     lines.append(f"| **wins on {wins} of {len(study)}** | | | | |" + (" |" if ego else "") + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    p = parser("sensor_sweep", __doc__)
+    p.add_argument("--model", default="bundled")
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--seed", type=int, default=101, help="not a seed of the training sets")
+    p.add_argument("--sensors", nargs="+", choices=list(SENSORS), default=list(SENSORS))
+    p.add_argument(
+        "--without-poses", action="store_true", help="evaluate the recordings without their poses"
+    )
+    p.add_argument(
+        "--noise", type=float, help="every sensor's range noise std (m), instead of its preset's"
+    )
+    p.add_argument(
+        "--dropout", type=float, help="every sensor's chance of a beam dropping out, ditto"
+    )
+    args = parse(p, argv)  # fmt: skip
+    noise = {} if args.noise is None else {"noise_std": args.noise}
+    noise |= {} if args.dropout is None else {"dropout_prob": args.dropout}
+    study: dict[str, dict[str, Any]] = {}
+    for sensor in args.sensors:
+        for scenario in SCENARIOS:
+            path = args.output / f"{sensor}_{scenario}.npz"
+            args.output.mkdir(parents=True, exist_ok=True)
+            simulated(path, sensor, scenario, args.frames, args.seed, **noise)
+            study[f"{sensor}/{scenario}"] = scored(path, args.model, not args.without_poses)
     name = "sensors_noposes" if args.without_poses else "sensors"
-    (args.output / f"{name}.json").write_text(json.dumps(study, indent=2) + "\n")
-    (args.output / f"{name}.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_summary(args, name, study, markdown(study, args.model))
+    return study
 
 
 if __name__ == "__main__":
