@@ -7,26 +7,27 @@ restarting every method after it (as a fresh ``Predictor`` would), and scores th
 made after the gap (the step across the gap is scored by neither: it is not a one-step
 prediction). Scores are split into the first ``--warmup`` predictions after the gap (which a
 streaming evaluation that restarted would not score, its warm-up) and the rest. Carrying won
-and is what ``evaluate`` and the ``Predictor`` do (``docs/results/gaps/README.md``).
+and is what ``evaluate`` and the ``Predictor`` do (docs/research/gaps/).
 
-    python experiments/gap_restart.py --json docs/results/gaps/gap_restart.json
+    python -m studies.gap_restart -o runs/studies/gap_restart [--splice]
+
+Writes OUT/gap_restart.json (F1 of all and of the changed cells, per case, method and part,
+over all recordings and per recording).
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from study import DEVELOPMENT, add_counts, early_late, f1_table, kept_frames, scores_from
 
-from lidarflow.cli.scoring import methods_and_config
 from lidarflow.data import load_any
 from lidarflow.data.recording import Recording
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from studies.harness import development, parse, parser, stem, write_summary
+from studies.scoring import add_counts, early_late, f1_table, kept_frames, methods_for, scores_from
 
 
 def with_gap(recording: Recording, at: int, frames: int, before: int, after: int) -> Recording:
@@ -56,30 +57,36 @@ def score_after_gap(
     return scores_from(recording, methods, early_late(before, warmup))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--gaps", type=int, nargs="+", default=[3, 10, 30, 100])
-    parser.add_argument("--places", type=int, default=3)
-    parser.add_argument("--before", type=int, default=60)
-    parser.add_argument("--after", type=int, default=40)
-    parser.add_argument("--warmup", type=int, default=10)
-    parser.add_argument(
-        "--splice", action="store_true",
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    p = parser("gap_restart", __doc__)
+    p.add_argument(
+        "--recordings",
+        type=Path,
+        nargs="+",
+        default=development(),
+        help="recordings to cut (default: the development ones)",
+    )
+    p.add_argument("--model", default="bundled")
+    p.add_argument("--gaps", type=int, nargs="+", default=[3, 10, 30, 100])
+    p.add_argument("--places", type=int, default=3)
+    p.add_argument("--before", type=int, default=60)
+    p.add_argument("--after", type=int, default=40)
+    p.add_argument("--warmup", type=int, default=10)
+    p.add_argument(
+        "--splice",
+        action="store_true",
         help="instead of cutting frames out: each recording after the end of the one before "
         "it in the list (another place after the gap)",
-    )  # fmt: skip
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
-    methods, _ = methods_and_config([None])
+    )
+    args = parse(p, argv)  # fmt: skip
+    methods = methods_for({args.model: args.model})
     total: dict = {}
     per_recording: dict[str, dict] = {}
-    loaded = {name: load_any(DATA / name) for name in DEVELOPMENT}
-    for i, name in enumerate(DEVELOPMENT):
-        recording = loaded[name]
+    loaded = [load_any(path) for path in args.recordings]
+    for i, (path, recording) in enumerate(zip(args.recordings, loaded, strict=True)):
+        name = stem(path)
         if args.splice:
-            cuts = {
-                "splice": [spliced(loaded[DEVELOPMENT[i - 1]], recording, args.before, args.after)]
-            }
+            cuts = {"splice": [spliced(loaded[i - 1], recording, args.before, args.after)]}
         else:
             cuts = {}
             for k in args.gaps:
@@ -98,16 +105,12 @@ def main() -> None:
                     add_counts(total, f"{case}_{variant}", got)
                     add_counts(per_recording.setdefault(name, {}), f"{case}_{variant}", got)
             print(name, case, flush=True)
-    out = {
+    results = {
         "overall": f1_table(total),
         "recordings": {r: f1_table(t) for r, t in per_recording.items()},
-        "args": {k: v for k, v in vars(args).items() if k != "json"},
     }
-    for case, by_method in out["overall"].items():
-        print(case, json.dumps(by_method))
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(out, indent=1))
+    write_summary(args, "gap_restart", results)
+    return results
 
 
 if __name__ == "__main__":

@@ -12,25 +12,24 @@ and ``--turn`` degrees), streams the bundled model and the baselines over it and
 frames without the jump, and scores the first ``--early`` predictions made from the jump's frame
 on and the rest (F1 / changed-cell F1).
 
-    python experiments/pose_jumps.py --json docs/results/gaps/pose_jumps.json
+    python -m studies.pose_jumps -o runs/studies/pose_jumps [RECORDING ...]
+
+Writes OUT/pose_jumps.json (F1 of all and of the changed cells, per case, method and part;
+over all recordings and per recording).
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from study import add_counts, early_late, f1_table, scores_from
 
-from lidarflow.cli.scoring import methods_and_config
-from lidarflow.data import load_any
-from lidarflow.sim import SimConfig, simulate
 from lidarflow.sim.platform import compose, relative
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from studies.harness import parse, parser, write_summary
+from studies.scoring import add_counts, drives, early_late, f1_table, methods_for, scores_from
 
 
 def jumped(poses: np.ndarray, at: int, jump: tuple[float, float, float] | None) -> np.ndarray:
@@ -44,34 +43,29 @@ def jumped(poses: np.ndarray, at: int, jump: tuple[float, float, float] | None) 
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "recordings", nargs="*", type=Path,
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    p = parser("pose_jumps", __doc__)
+    p.add_argument(
+        "recordings",
+        nargs="*",
+        type=Path,
         help="recordings with poses (default: general_tracking_moving_1 and a simulated drive)",
-    )  # fmt: skip
-    parser.add_argument("--places", type=int, default=4)
-    parser.add_argument("--before", type=int, default=40)
-    parser.add_argument("--after", type=int, default=30)
-    parser.add_argument("--early", type=int, default=5)
-    parser.add_argument("--shift", type=float, nargs=2, default=[2.0, -1.0])
-    parser.add_argument("--turn", type=float, default=30.0)
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
-    methods, _ = methods_and_config([None])
-    if args.recordings:
-        loaded = {p.name: load_any(p) for p in args.recordings}
-    else:
-        sim = simulate(600, seed=7, config=SimConfig(scenario="dynamic"))
-        loaded = {
-            "general_tracking_moving_1": load_any(DATA / "general_tracking_moving_1.bag.zip"),
-            "simulated_drive": sim,
-        }
+    )
+    p.add_argument("--model", default="bundled")
+    p.add_argument("--places", type=int, default=4)
+    p.add_argument("--before", type=int, default=40)
+    p.add_argument("--after", type=int, default=30)
+    p.add_argument("--early", type=int, default=5)
+    p.add_argument("--shift", type=float, nargs=2, default=[2.0, -1.0])
+    p.add_argument("--turn", type=float, default=30.0)
+    args = parse(p, argv)  # fmt: skip
+    methods = methods_for({args.model: args.model})
+    loaded = drives(args.recordings, 600)
     relocalise = (args.shift[0], args.shift[1], float(np.deg2rad(args.turn)))
     tree: dict = {}
     for name, recording in loaded.items():
         if not recording.has_poses:
-            raise SystemExit(f"{name} has no poses: a pose jump needs them")
+            p.error(f"{name} has no poses: a pose jump needs them")
         last = len(recording) - args.after - 1
         for at in np.linspace(args.before, last, args.places).astype(int):
             cut = recording.slice(int(at) - args.before, int(at) + args.after + 1)
@@ -82,13 +76,9 @@ def main() -> None:
                 add_counts(tree, case, got)
                 add_counts(tree, f"{name}/{case}", got)
             print(name, int(at), flush=True)
-    out = f1_table(tree)
-    out["args"] = {k: v for k, v in vars(args).items() if k not in ("json", "recordings")}
-    for case, by_method in out.items():
-        print(case, json.dumps(by_method))
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(out, indent=1, default=str))
+    results = f1_table(tree)
+    write_summary(args, "pose_jumps", results)
+    return results
 
 
 if __name__ == "__main__":

@@ -11,26 +11,32 @@ the whole drive after ``--before`` dropped at random, scored after one long step
 a row, and after a typical one (a rule that took two long steps for a slower rate would guess
 the next step long where it is mostly typical).
 
-    python experiments/rate_drop.py --json docs/results/gaps/rate_drop.json
+    python -m studies.rate_drop -o runs/studies/rate_drop [RECORDING ...]
+
+Writes OUT/rate_drop.json (F1 of all and of the changed cells, per case, method and part;
+over all recordings and per recording).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from study import add_counts, early_late, f1_table, kept_frames, scores_from
 
-from lidarflow.cli.scoring import methods_and_config
-from lidarflow.data import load_any
 from lidarflow.data.gaps import PACE_ABOVE
 from lidarflow.data.recording import Recording
-from lidarflow.sim import SimConfig, simulate
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from studies.harness import parse, parser, write_summary
+from studies.scoring import (
+    add_counts,
+    drives,
+    early_late,
+    f1_table,
+    kept_frames,
+    methods_for,
+    scores_from,
+)
 
 
 def slowed(recording: Recording, at: int, every: int, before: int, after: int) -> Recording:
@@ -47,9 +53,10 @@ def dropped(recording: Recording, start: int, p: float, seed: int) -> Recording:
 
 
 def after_drops(recording: Recording, start: int) -> Callable[[int], str | None]:
-    """Parts of :func:`study.scores_from` for a recording with scans dropped: predictions made
-    at a frame after one long step (``after_one``), after two in a row (``after_two``), or
-    after a typical step (``after_none``), from ``start`` on. Long: over 1.5 typical steps."""
+    """Parts of :func:`studies.scoring.scores_from` for a recording with scans dropped:
+    predictions made at a frame after one long step (``after_one``), after two in a row
+    (``after_two``), or after a typical step (``after_none``), from ``start`` on. Long: over
+    1.5 typical steps."""
     steps = np.diff(np.asarray(recording.stamps_ns, dtype=np.float64))
     long = np.r_[False, steps > PACE_ABOVE * float(np.median(steps))]
 
@@ -61,26 +68,31 @@ def after_drops(recording: Recording, start: int) -> Callable[[int], str | None]
     return part
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--places", type=int, default=4)
-    parser.add_argument("--before", type=int, default=60)
-    parser.add_argument("--after", type=int, default=60)
-    parser.add_argument("--every", type=int, nargs="*", default=[2, 3])
-    parser.add_argument("--early", type=int, default=25)
-    parser.add_argument(
-        "--drops", type=float, nargs="*", default=[0.1, 0.3],
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    p = parser("rate_drop", __doc__)
+    p.add_argument(
+        "recordings",
+        nargs="*",
+        type=Path,
+        help="driving recordings (default: general_tracking_moving_1 and a simulated drive)",
+    )
+    p.add_argument("--model", default="bundled")
+    p.add_argument("--places", type=int, default=4)
+    p.add_argument("--before", type=int, default=60)
+    p.add_argument("--after", type=int, default=60)
+    p.add_argument("--every", type=int, nargs="*", default=[2, 3])
+    p.add_argument("--early", type=int, default=25)
+    p.add_argument(
+        "--drops",
+        type=float,
+        nargs="*",
+        default=[0.1, 0.3],
         help="also: each scan after --before dropped with this probability, on the whole drive",
-    )  # fmt: skip
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
-    methods, _ = methods_and_config([None])
-    recordings = {
-        "general_tracking_moving_1": load_any(DATA / "general_tracking_moving_1.bag.zip"),
-        "simulated_drive": simulate(1000, seed=7, config=SimConfig(scenario="dynamic")),
-    }
+    )
+    args = parse(p, argv)  # fmt: skip
+    methods = methods_for({args.model: args.model})
     tree: dict = {}
-    for name, full in recordings.items():
+    for name, full in drives(args.recordings, 1000).items():
         for every in args.every:
             last = len(full) - every * args.after
             for at in np.linspace(args.before, last, args.places).astype(int):
@@ -89,19 +101,15 @@ def main() -> None:
                 add_counts(tree, f"every_{every}", got)
                 add_counts(tree, f"{name}/every_{every}", got)
             print(name, every, flush=True)
-        for p in args.drops:
-            recording = dropped(full, args.before, p, seed=0)
+        for chance in args.drops:
+            recording = dropped(full, args.before, chance, seed=0)
             got = scores_from(recording, methods, after_drops(recording, args.before))
-            add_counts(tree, f"drops_{p:g}", got)
-            add_counts(tree, f"{name}/drops_{p:g}", got)
-            print(name, p, flush=True)
-    out = f1_table(tree)
-    for case, by_method in out.items():
-        print(case, json.dumps(by_method))
-    out["args"] = {k: v for k, v in vars(args).items() if k != "json"}
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(out, indent=1))
+            add_counts(tree, f"drops_{chance:g}", got)
+            add_counts(tree, f"{name}/drops_{chance:g}", got)
+            print(name, chance, flush=True)
+    results = f1_table(tree)
+    write_summary(args, "rate_drop", results)
+    return results
 
 
 if __name__ == "__main__":

@@ -98,6 +98,21 @@ def evaluate_one(
     return report["recordings"][0]["methods"]
 
 
+def drives(paths: Sequence[Path], sim_frames: int) -> dict[str, Recording]:
+    """The recordings at ``paths`` by name, or by default a real drive with odometry
+    (general_tracking_moving_1) and a simulated one of ``sim_frames`` frames (seed 7)."""
+    from lidarflow.data import load_any
+    from lidarflow.sim import SimConfig, simulate
+    from studies.harness import DATA, stem
+
+    if paths:
+        return {stem(path): load_any(path) for path in paths}
+    return {
+        "general_tracking_moving_1": load_any(DATA / "general_tracking_moving_1.bag.zip"),
+        "simulated_drive": simulate(sim_frames, seed=7, config=SimConfig(scenario="dynamic")),
+    }
+
+
 def kept_frames(recording: Recording, kept: Sequence[int]) -> Recording:
     """The frames ``kept`` (indices, in order) of ``recording``, with their poses."""
     poses = None if recording.poses is None else recording.poses[list(kept)]
