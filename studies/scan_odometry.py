@@ -9,17 +9,20 @@ of steps with a motion, and the median error of those in cells and degrees. Wher
 (standing still, or a car without odometry) the share of steps reported says how often the
 platform was taken to move.
 
-    python experiments/scan_odometry.py --json docs/results/accuracy/scan_odometry/motions.json \\
+    python -m studies.scan_odometry -o runs/studies/scan_odometry \\
         ../shared/data/general_tracking_moving_1.bag.zip ../shared/data/datmo_overtakes.bag \\
         ../shared/data/{positive_1,positive_4,demo_stationary_simple_environment}.bag \\
-        runs/sensors_s202/360deg_15Hz_3.5m_dynamic.npz
+        runs/studies/sensor_sweep/360deg_15Hz_3.5m_dynamic.npz
+
+Writes OUT/motions.json (per recording: frames, whether it has poses, and for each way the
+share of steps with a motion and the median errors) and OUT/motions.md.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,6 +31,7 @@ from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
+from studies.harness import parse, parser, write_summary
 
 
 def summary(found: np.ndarray, true: np.ndarray | None, known: np.ndarray) -> dict[str, float]:
@@ -45,13 +49,31 @@ def summary(found: np.ndarray, true: np.ndarray | None, known: np.ndarray) -> di
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recordings", type=Path, nargs="+")
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
+def markdown(results: dict[str, dict[str, Any]]) -> str:
+    lines = [
+        "| recording | poses | way | steps with a motion | median error (cells) | "
+        "median error (deg) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, row in results.items():
+        for way in ("maps_only", "refined_on_returns"):
+            s = row[way]
+            cells = [
+                f"{s[k]:.3f}" if k in s else "-" for k in ("median_error_cells", "median_error_deg")
+            ]
+            lines.append(
+                f"| {name} | {'yes' if row['has_poses'] else 'no'} | {way} | "
+                f"{s['steps_with_motion']:.2f} | " + " | ".join(cells) + " |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    p = parser("scan_odometry", __doc__)
+    p.add_argument("recordings", type=Path, nargs="+")
+    args = parse(p, argv)
     grid = GridSpec()
-    results: dict[str, dict] = {}
+    results: dict[str, dict[str, Any]] = {}
     for path in args.recordings:
         recording = load_any(path)
         occupancy = recording.maps(grid)[0]
@@ -59,22 +81,16 @@ def main() -> None:
         if recording.has_poses:
             motions, known = relative_motions(recording.poses, len(recording))
             true = metres_to_cells(motions, grid.res).astype(np.float64)
-        row = {
+        refined = scan_motions(occupancy, recording_points(recording), grid.res)
+        results[path.name] = {
             "frames": len(recording),
             "has_poses": recording.has_poses,
             "maps_only": summary(scan_motions(occupancy).astype(np.float64), true, known),
-            "refined_on_returns": summary(
-                scan_motions(occupancy, recording_points(recording), grid.res).astype(np.float64),
-                true,
-                known,
-            ),
+            "refined_on_returns": summary(refined.astype(np.float64), true, known),
         }
-        results[path.name] = row
-        print(path.name, json.dumps({k: row[k] for k in ("maps_only", "refined_on_returns")}))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        payload = {"grid": grid.to_dict(), "results": results}
-        args.json.write_text(json.dumps(payload, indent=2) + "\n")
+    args.grid = grid.to_dict()
+    write_summary(args, "motions", results, markdown(results))
+    return results
 
 
 if __name__ == "__main__":
