@@ -19,8 +19,8 @@ decision does).
 The replay counts from the first scored frame; `lidarflow evaluate --online-decision` (whose
 numbers the docs report) also counts the warm-up frames, so it differs in the last digits.
 
-    python experiments/online_rules.py --folds runs/loo/cell/head_cell -o runs/online_rules \\
-        --recordings ../shared/data/{positive_1,positive_2}.bag
+    python -m studies.online_rules --folds runs/studies/leave_one_out/head \\
+        -o runs/studies/online_rules --recordings ../shared/data/{positive_1,positive_2}.bag
 
 With ``--model M`` instead of ``--folds``, M runs on every recording: replayed on a fold's own
 training recordings, the rules can be chosen there, fold-clean (see the docs' table).
@@ -31,15 +31,13 @@ margin per recording).
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from study import BASELINES, stem
 
 from lidarflow.data import Recording, load_any
 from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
@@ -51,6 +49,7 @@ from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.models.streaming import StreamingModel
 from lidarflow.scan import GridSpec
+from studies.harness import BASELINES, parse, parser, read_json, stem, write_json, write_summary
 
 OCCUPIED = np.round(np.arange(-4.8, 4.21, 0.3), 2)
 FREE = np.round(np.arange(-0.6, 3.01, 0.3), 2)
@@ -192,30 +191,39 @@ def margin(pairs: np.ndarray, baselines: np.ndarray, chosen: np.ndarray) -> tupl
     return float(scores[0]), float(scores[1]), float(min(scores - best))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    which = parser.add_mutually_exclusive_group(required=True)
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    p = parser("online_rules", __doc__)
+    which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--folds", type=Path, help="each recording's model: FOLDS/<recording>/run")
     which.add_argument(
         "--model", type=Path, help="one model for every recording (e.g. a fold's own training set)"
     )
-    parser.add_argument("--recordings", type=Path, nargs="+", required=True)
-    parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument(
-        "--choose-from",
-        type=Path,
+    p.add_argument("--recordings", type=Path, nargs="+", required=True)
+    p.add_argument(
+        "--choose-from", type=Path,
         help="with --folds: a folder of per-fold runs with --model on each fold's training "
         "recordings (TRAIN/<held-out recording>/rules.json); choose each fold's rule there",
-    )
-    args = parser.parse_args()
+    )  # fmt: skip
+    args = parse(p, argv)
     args.output.mkdir(parents=True, exist_ok=True)
     data = {}
     for path in args.recordings:
+        # the counts take one streaming pass of the model; every replay after it is cheap
         cache = args.output / f"{stem(path)}.npz"
         if not cache.exists() or "unmoved" not in np.load(cache).files:
             model = args.model or args.folds / stem(path) / "run"
             np.savez(cache, **collect(model, path))
         data[stem(path)] = dict(np.load(cache))
+    results = replayed(data)
+    write_summary(args, "rules", results, markdown(results))
+    if args.choose_from:
+        choose_fold_clean(results, args.choose_from, args.output / "chosen.json")
+    return results
+
+
+def replayed(data: dict[str, dict[str, np.ndarray]]) -> list[dict[str, Any]]:
+    """Every rule (grid range, maps, rule and its constants) replayed on every recording's
+    counts: its F1, changed-cell F1 and margin there, and the recordings it wins."""
     ranges = {"a -0.6..3.0": (-0.6, 3.0), "a -2.4..3.0": (-2.4, 3.0), "a -4.8..4.2": (-4.8, 4.2)}
     constants = [("recent", 0.98, 0), ("lookahead", 0.95, 5), ("lookahead", 0.98, 20)]
     constants += [("lookahead", 0.99, 100)]
@@ -224,43 +232,51 @@ def main() -> None:
         ranges.items(), ("moved", "both"), constants
     ):
         keep = np.abs(OCCUPIED - (low + high) / 2) <= (high - low) / 2 + 1e-9
-        row = {"grid": label, "maps": maps, "rule": rule, "decay": decay, "lookahead": h}
-        row["recordings"] = {}
+        row: dict[str, Any] = {
+            "grid": label, "maps": maps, "rule": rule, "decay": decay, "lookahead": h,
+            "recordings": {},
+        }  # fmt: skip
         for name, d in data.items():
             tried = [d["pairs"]] + ([d["unmoved"]] if maps == "both" else [])
             pairs = np.stack([t[:, keep] for t in tried], 1).reshape(len(d["pairs"]), -1, 2, 3)
             chosen = replay(pairs, d["baselines"], rule, decay, h)
             f, changed, m = margin(pairs, d["baselines"], chosen)
             row["recordings"][name] = {"f1": f, "changed_f1": changed, "margin": m}
-        wins = sum(r["margin"] > 0 for r in row["recordings"].values())
-        row["wins"] = wins
+        row["wins"] = sum(r["margin"] > 0 for r in row["recordings"].values())
         results.append(row)
-        print(
-            f"{label} {maps} {rule} decay {decay} h {h}: wins {wins}/{len(data)}; "
-            + ", ".join(f"{n[:10]} {r['margin']:+.4f}" for n, r in row["recordings"].items())
+    return results
+
+
+def markdown(results: list[dict[str, Any]]) -> str:
+    names = list(results[0]["recordings"])
+    lines = [
+        "| grid | maps | rule | decay | look-ahead | wins | " + " | ".join(names) + " |",
+        "|---" * (6 + len(names)) + "|",
+    ]
+    for row in results:
+        margins = [f"{row['recordings'][n]['margin']:+.4f}" for n in names]
+        lines.append(
+            f"| {row['grid']} | {row['maps']} | {row['rule']} | {row['decay']} | "
+            f"{row['lookahead']} | {row['wins']} of {len(names)} | " + " | ".join(margins) + " |"
         )
-    (args.output / "rules.json").write_text(json.dumps(results, indent=1) + "\n")
-    if args.choose_from:
-        choose_fold_clean(results, args.choose_from, args.output / "chosen.json")
+    return "\n".join(lines) + "\n"
 
 
-def choose_fold_clean(held_out: list[dict], train_dir: Path, out: Path) -> None:
+def choose_fold_clean(held_out: list[dict], train_dir: Path, out: Path) -> dict[str, Any]:
     """Per held-out recording: the rule (grid, rule, constants) with the largest summed margin
     on that fold's own training recordings (``train_dir/<recording>/rules.json``, written with
     ``--model``), and what it scores on the held-out recording."""
     key = ("grid", "maps", "rule", "decay", "lookahead")
     chosen = {}
     for name in held_out[0]["recordings"]:
-        trained = json.loads((train_dir / name / "rules.json").read_text())
+        trained = read_json(train_dir / name / "rules.json")["results"]
         sums = [sum(r["margin"] for r in row["recordings"].values()) for row in trained]
         best = trained[int(np.argmax(sums))]
         rule = {k: best[k] for k in key}
         (row,) = [r for r in held_out if all(r[k] == rule[k] for k in key)]
         chosen[name] = {**rule, "training_margin": max(sums), **row["recordings"][name]}
-        print(f"{name}: {rule} -> {chosen[name]['margin']:+.4f}")
-    wins = sum(c["margin"] > 0 for c in chosen.values())
-    print(f"fold-clean choice of the rule: wins {wins}/{len(chosen)}")
-    out.write_text(json.dumps(chosen, indent=1) + "\n")
+    write_json(out, chosen)
+    return chosen
 
 
 if __name__ == "__main__":
