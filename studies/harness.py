@@ -51,6 +51,23 @@ def parser(name: str, doc: str | None) -> argparse.ArgumentParser:
     return out
 
 
+def stretch_arguments(
+    p: argparse.ArgumentParser, what: str, before: int, after: int, early: int
+) -> None:
+    """The arguments of the studies that change a drive at a few places and score the
+    stretches after them: the recordings (``what`` they must be), the model, ``--places``,
+    ``--before``, ``--after`` and ``--early`` with their defaults."""
+    p.add_argument(
+        "recordings", nargs="*", type=Path,
+        help=f"{what} (default: general_tracking_moving_1 and a simulated drive)",
+    )  # fmt: skip
+    p.add_argument("--model", default="bundled")
+    p.add_argument("--places", type=int, default=4)
+    p.add_argument("--before", type=int, default=before, help="frames kept before each place")
+    p.add_argument("--after", type=int, default=after, help="frames kept after each place")
+    p.add_argument("--early", type=int, default=early, help="predictions scored as early")
+
+
 def parse(p: argparse.ArgumentParser, argv: Sequence[str] | None) -> argparse.Namespace:
     """``p``'s arguments, with ``command``: the line that reruns the study (kept in its JSON)."""
     args = p.parse_args(argv)

@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from lidarflow.sim.platform import compose, relative
-from studies.harness import parse, parser, write_summary
+from studies.harness import parse, parser, stretch_arguments, write_summary
 from studies.scoring import add_counts, drives, early_late, f1_table, methods_for, scores_from
 
 
@@ -45,17 +44,7 @@ def jumped(poses: np.ndarray, at: int, jump: tuple[float, float, float] | None) 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p = parser("pose_jumps", __doc__)
-    p.add_argument(
-        "recordings",
-        nargs="*",
-        type=Path,
-        help="recordings with poses (default: general_tracking_moving_1 and a simulated drive)",
-    )
-    p.add_argument("--model", default="bundled")
-    p.add_argument("--places", type=int, default=4)
-    p.add_argument("--before", type=int, default=40)
-    p.add_argument("--after", type=int, default=30)
-    p.add_argument("--early", type=int, default=5)
+    stretch_arguments(p, "recordings with poses", before=40, after=30, early=5)
     p.add_argument("--shift", type=float, nargs=2, default=[2.0, -1.0])
     p.add_argument("--turn", type=float, default=30.0)
     args = parse(p, argv)  # fmt: skip

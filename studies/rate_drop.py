@@ -20,14 +20,13 @@ over all recordings and per recording).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from lidarflow.data.gaps import PACE_ABOVE
 from lidarflow.data.recording import Recording
-from studies.harness import parse, parser, write_summary
+from studies.harness import parse, parser, stretch_arguments, write_summary
 from studies.scoring import (
     add_counts,
     drives,
@@ -70,18 +69,8 @@ def after_drops(recording: Recording, start: int) -> Callable[[int], str | None]
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p = parser("rate_drop", __doc__)
-    p.add_argument(
-        "recordings",
-        nargs="*",
-        type=Path,
-        help="driving recordings (default: general_tracking_moving_1 and a simulated drive)",
-    )
-    p.add_argument("--model", default="bundled")
-    p.add_argument("--places", type=int, default=4)
-    p.add_argument("--before", type=int, default=60)
-    p.add_argument("--after", type=int, default=60)
-    p.add_argument("--every", type=int, nargs="*", default=[2, 3])
-    p.add_argument("--early", type=int, default=25)
+    stretch_arguments(p, "driving recordings", before=60, after=60, early=25)
+    p.add_argument("--every", type=int, nargs="*", default=[2, 3], help="the slower rates")
     p.add_argument(
         "--drops",
         type=float,
