@@ -1,4 +1,4 @@
-"""The held-out table of models already trained, from `lidarflow evaluate --json` reports.
+"""The held-out table of models already trained, from evaluation reports.
 
 Where the models were trained elsewhere (the same training recordings, different recipes), this
 turns their evaluations on recordings none of them trained on into the table that
@@ -41,7 +41,7 @@ def collect(reports: list[Path], names: dict[str, str]) -> dict[str, dict[str, d
 
 def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, dict]]:
     p = parser("heldout_table", __doc__)
-    p.add_argument("reports", type=Path, nargs="+", help="`lidarflow evaluate --json` files")
+    p.add_argument("reports", type=Path, nargs="+", help="`lidarflow evaluate` reports (JSON)")
     p.add_argument(
         "--name", action="append", default=[], help="METHOD=VARIANT: rename a method (repeatable)"
     )

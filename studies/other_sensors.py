@@ -1,7 +1,7 @@
 """Real scans seen through other sensors: does a fold model still beat the baselines?
 
 The recordings lidarflow is judged on come from other robots: other fields of view, range
-limits, beam counts and rates. The simulated sensors (`sensor_sweep.py`) vary those on exact
+limits, beam counts and rates. The simulated sensors (``studies.sensor_sweep``) vary those on exact
 geometry with Gaussian noise; here the development recordings themselves are cut down to what
 another sensor would have seen of the same scene, keeping their real noise, dropouts and people:
 

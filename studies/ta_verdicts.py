@@ -1,6 +1,6 @@
 """Would a model's verdicts hold against other settings of the temporal average? (issue 11)
 
-Reads `lidarflow evaluate --json` files (one recording each, the model named ``--method``) and
+Reads `lidarflow evaluate` reports (JSON, one recording each, the model named ``--method``) and
 the grid of temporal-average scores that ``studies.ta_sweep`` wrote, and judges the
 model's F1 / changed-cell F1 in each file against copy-last, constant velocity and each named
 temporal-average setting, by the verdict's rule (F1 above the best baseline's, changed-cell F1
@@ -45,7 +45,7 @@ def markdown(table: dict[str, dict[str, list[float]]], settings: list[str]) -> s
 
 def main(argv: Sequence[str] | None = None) -> dict[str, dict[str, list[float]]]:
     p = parser("ta_verdicts", __doc__)
-    p.add_argument("evaluations", type=Path, nargs="+", help="`lidarflow evaluate --json` files")
+    p.add_argument("evaluations", type=Path, nargs="+", help="`lidarflow evaluate` reports (JSON)")
     p.add_argument("--sweep", type=Path, required=True, help="studies.ta_sweep's JSON")
     p.add_argument("--settings", nargs="+", default=["3/0.4", "5/0.4"])
     p.add_argument("--method", default="run", help="the model's name in the evaluations")
