@@ -10,11 +10,17 @@ import pytest
 from lidarflow.sim import SimConfig, write_simulation
 
 #: a training run of one epoch of two short windows on a small grid
-TINY_TRAINING = (
+_TINY_TRAINING = (
     "data.grid=32", "data.seq_len=6", "data.warmup=2", "data.epoch_windows=2",
     "data.val_fraction=0.25", "optim.epochs=1", "optim.batch_size=2",
     "runtime.threads=1", "runtime.tensorboard=false",
 )  # fmt: skip
+
+
+@pytest.fixture
+def tiny_training() -> list[str]:
+    """Config keys (``KEY=VALUE``) that make a training run one epoch of two short windows."""
+    return list(_TINY_TRAINING)
 
 
 @pytest.fixture(scope="session")

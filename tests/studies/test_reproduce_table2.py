@@ -1,13 +1,12 @@
 import json
 
 from studies import reproduce_table2
-from tests.studies.conftest import TINY_TRAINING
 
 
-def test_table2_trains_the_three_rows_and_scores_them_beside_the_baselines(tmp_path):
+def test_table2_trains_the_three_rows_and_scores_them_beside_the_baselines(tiny_training, tmp_path):
     argv = ["-o", str(tmp_path), "--platforms", "dynamic", "--train-frames", "24",
             "--val-frames", "16", "--epochs", "1", "--batch-size", "2", "--no-report",
-            "--set", *[k for k in TINY_TRAINING if not k.startswith("optim.")]]  # fmt: skip
+            "--set", *[k for k in tiny_training if not k.startswith("optim.")]]  # fmt: skip
     table = reproduce_table2.main(argv)
 
     overall = table["sim dynamic"]
