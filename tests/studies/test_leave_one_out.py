@@ -22,14 +22,18 @@ def test_leave_one_out_trains_a_fold_per_recording_and_judges_it(
     assert "| tiny | static |" in table and "wins on" in table
 
 
-def test_leave_one_out_reuses_finished_folds(sim_recordings, tiny_training, tmp_path):
-    variant = "tiny=blurred " + " ".join(tiny_training)
-    argv = ["-o", str(tmp_path), "--recordings", *map(str, sim_recordings), "--variant", variant]
-    leave_one_out.main([*argv, "--held-out", str(sim_recordings[0])])
-    weights = tmp_path / "tiny" / "static" / "run" / "model.safetensors"
+def test_leave_one_out_online_decision_and_reuse(sim_recordings, tiny_training, tmp_path):
+    # the head recipe (the bundled model's, fine-tuned from it) decides online: both rules scored
+    variant = "head=head data.memories_from_stream=false " + " ".join(tiny_training)
+    argv = ["-o", str(tmp_path), "--recordings", *map(str, sim_recordings), "--variant", variant,
+            "--held-out", str(sim_recordings[0]), "--online-decision"]  # fmt: skip
+    study = leave_one_out.main(argv)
+    scores = study["head"]["static"]
+    assert set(scores["other_rule"]) == {"f1", "changed_f1", "ap"}
+    assert scores["other_rule"] != scores["model"]
+    weights = tmp_path / "head" / "static" / "run" / "model.safetensors"
     trained_at = weights.stat().st_mtime_ns
 
-    again = leave_one_out.main([*argv, "--held-out", str(sim_recordings[0])])
-    assert list(again["tiny"]) == ["static"]
-    assert weights.stat().st_mtime_ns == trained_at  # not trained again
-    assert not (tmp_path / "tiny" / "dynamic").exists()
+    assert leave_one_out.main(argv) == study
+    assert weights.stat().st_mtime_ns == trained_at  # a finished fold is not trained again
+    assert not (tmp_path / "head" / "dynamic").exists()
