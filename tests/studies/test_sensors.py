@@ -64,3 +64,11 @@ def test_range_max_ring_rewrites_no_return(tmp_path):
     ringed = load_recording(tmp_path / "360deg_15Hz_3.5m_dynamic_range_max.npz")
     assert not np.isposinf(ringed.ranges).any()
     assert "| 360deg_15Hz_3.5m/static |" in (tmp_path / "range_max_ring.md").read_text()
+
+
+def test_the_40hz_scanner_is_there_but_not_swept(tmp_path):
+    assert "270deg_40Hz_30m" not in sensor_sweep.SWEPT
+    path = sensor_sweep.simulated(tmp_path / "fast.npz", "270deg_40Hz_30m", "static", 8, 505)
+    recording = load_recording(path)
+    assert np.median(np.diff(recording.stamps_ns)) == 25_000_000  # 40 Hz
+    assert float(recording.range_max[0]) == 30.0
