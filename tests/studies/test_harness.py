@@ -29,6 +29,8 @@ def test_each_study_has_help_and_writes_under_runs(name, capsys):
     text = capsys.readouterr().out
     assert text.startswith(f"usage: python -m studies.{name}")
     assert f"runs/studies/{name}" in text  # the default output folder, not docs/
+    # the command that reruns it and what it writes, for the research page that cites it
+    assert f"python -m studies.{name}" in module.__doc__ and "Writes" in module.__doc__
 
 
 @pytest.mark.parametrize("name", sorted(SHARED) + STUDIES)
