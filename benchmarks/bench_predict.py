@@ -10,7 +10,7 @@ An ego-motion model (the bundled one since v5) is given a pose with every scan, 
 odometry does (without a pose PyTorch skips it and the ONNX graph does not; the odometry check
 is off, since the sample's sensor stands still and the check would drop that drive). These run
 with fixed decision offsets; ``onnxruntime_fp32_online`` adds the offsets chosen online
-(:mod:`lidarflow.evaluate.online`, NumPy after the graph), its cost a ratio against the same
+(:mod:`lidarflow.predict.decision`, NumPy after the graph), its cost a ratio against the same
 backend without it. Writes JSON
 (default ``benchmarks/results/predict.json``).
 

@@ -25,8 +25,8 @@ import torch
 
 from lidarflow.data import load_any
 from lidarflow.evaluate.metrics import Counts, confusion
+from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
 from lidarflow.scan import GridSpec
 from lidarflow.segmentation import moving_mask
 from lidarflow.sim.storage import dense_flow
@@ -36,7 +36,7 @@ THRESHOLDS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 1.0, 1.2, 1.5)
 
 def sweep(paths: list[str], model: str | None, warmup: int = 10) -> dict:
     net, card = resolve_model(model)
-    stream = StreamingModel(net)
+    stream = ModelMethod("model", net, online=False)
     grid = GridSpec()
     keys = [(src, comp, th) for src in ("model", "ground_truth") for comp in (True, False)
             for th in THRESHOLDS]
@@ -48,12 +48,12 @@ def sweep(paths: list[str], model: str | None, warmup: int = 10) -> dict:
         truth = recording.extras["moving"]
         stream.reset()
         for t in range(len(recording) - 1):
-            result = stream.step(occupancy[t], visibility[t])
+            stream.update(occupancy[t], visibility[t])
             if t < warmup:
                 continue
             frames += 1
             gt = truth[t] & occupancy[t]
-            flows = {"model": result.flow[2:], "ground_truth": dense_flow(recording, t)[1]}
+            flows = {"model": stream.forward_flow, "ground_truth": dense_flow(recording, t)[1]}
             for src, comp, th in keys:
                 mask = moving_mask(occupancy[t], flows[src], th, comp)
                 totals[src, comp, th] = totals[src, comp, th] + confusion(mask, gt)

@@ -8,7 +8,7 @@ Any rule that picks a pair per frame from past frames only can then be replayed 
 milliseconds. Two rules are replayed over the grid's sub-ranges and their constants:
 
 - ``recent``: the pair with the largest win margin of its own recent (decayed) counts;
-- ``lookahead`` (what :mod:`lidarflow.evaluate.online` does): the pair that would leave the
+- ``lookahead`` (what :mod:`lidarflow.predict.decision` does): the pair that would leave the
   stream's margin largest if ``h`` more frames went as its recent ones did, after the decisions
   made so far.
 
@@ -40,14 +40,13 @@ import numpy as np
 import torch
 
 from lidarflow.data import Recording, load_any
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.online import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
+from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.predict.offsets import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
 from lidarflow.scan import GridSpec
 from studies.harness import BASELINES, parse, parser, read_json, stem, write_json, write_summary
 
@@ -103,7 +102,7 @@ def stream_beside_baselines(
     (motions, sub-cell maps where the model takes them), calling ``add(name, t, probability,
     flow)`` for every prediction."""
     occupancy, visibility = maps
-    methods = [ModelMethod("model", StreamingModel(net), online=False)]
+    methods = [ModelMethod("model", net, online=False)]
     methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
     motions = recording_motions(recording, GridSpec(), methods, occupancy)
     subcell = recording.subcell_maps(GridSpec()) if methods[0].takes_subcell else None

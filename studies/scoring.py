@@ -13,20 +13,19 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.recording import Recording
-from lidarflow.evaluate.baselines import (
+from lidarflow.evaluate.ego import CopyLastEgo
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.models.presets import resolve_model
+from lidarflow.predict.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
     ConstantVelocity,
     CopyLast,
     TemporalAverage,
 )
-from lidarflow.evaluate.ego import CopyLastEgo
-from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
-from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.online import OnlineDecisionConfig
-from lidarflow.evaluate.stream import evaluate_recording
-from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
+from lidarflow.predict.decision import OnlineDecisionConfig
 from lidarflow.scan import GridSpec
 from lidarflow.viz.evaluation import evaluate_and_report
 
@@ -51,14 +50,14 @@ def methods_for(
     config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
     for name, source in models.items():
         net, _ = resolve_model(None if source in (None, "bundled") else source)
-        method = ModelMethod(name, StreamingModel(net), online_config=config, res=res)
+        method = ModelMethod(name, net, online_config=config, res=res)
         methods.append(method)
         if online:
             own_online = method.online is not None
             other = name + ("_fixed" if own_online else "_online")
             methods.append(
                 ModelMethod(
-                    other, StreamingModel(net), online=not own_online, online_config=config,
+                    other, net, online=not own_online, online_config=config,
                     res=res,
                 )
             )  # fmt: skip

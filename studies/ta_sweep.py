@@ -20,8 +20,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lidarflow.data import frames_after_gaps, load_any
-from lidarflow.evaluate.baselines import CopyLast, TemporalAverage
 from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.predict.baselines import CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, stem, write_summary
 

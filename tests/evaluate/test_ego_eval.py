@@ -9,21 +9,21 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import EvaluateError, PredictError
-from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import evaluate_recording
 from lidarflow.models import build_model
-from lidarflow.models.streaming import StreamingModel
 from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.predict import Predictor
+from lidarflow.predict.baselines import CopyLast
 from lidarflow.predict.export import copy_marks, export_onnx
 from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
 from tests.conftest import make_model_dir
+from tests.hand_stream import HandStream
 from tests.test_cli import run
 
 GRID = GridSpec(40, 40, 0.05)
@@ -35,9 +35,8 @@ def driving():
 
 
 def test_compensation_beats_copy_last_and_the_untrained_ego_model_is_exactly_it(driving):
-    untrained = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
-    oracle = ModelMethod(
-        "ego_oracle", StreamingModel(build_model("flownet", ego_motion=True)), oracle=True
+    untrained = ModelMethod("ego", build_model("flownet", ego_motion=True))
+    oracle = ModelMethod("ego_oracle", build_model("flownet", ego_motion=True), oracle=True
     )
     scores = evaluate_recording(
         driving, [CopyLast(), CopyLastEgo(), CopyLastEgo(oracle=True), untrained, oracle], GRID
@@ -55,7 +54,7 @@ def test_compensation_beats_copy_last_and_the_untrained_ego_model_is_exactly_it(
 def test_ego_models_refuse_a_recording_without_poses(driving):
     blind = driving.slice(0, len(driving))
     blind.poses = None
-    ego = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
+    ego = ModelMethod("ego", build_model("flownet", ego_motion=True))
     methods = [CopyLast(), ego]
     with pytest.raises(EvaluateError, match=r"no sensor poses.*ego"):
         evaluate_recording(blind, methods, GRID)
@@ -66,7 +65,7 @@ def test_predictor_takes_poses_like_the_streaming_evaluation(driving, tmp_path):
     folder = make_model_dir(tmp_path / "ego", ego_motion=True, zero_init_flow=False)
     predictor = Predictor(folder, GRID)
     assert predictor.uses_motion
-    stream = StreamingModel(predictor.backend.model)
+    stream = HandStream(predictor.backend.model)
     occ, vis = driving.maps(GRID)
     motions = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
     for t in range(8):
@@ -187,7 +186,7 @@ def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driv
     assert optional.uses_motion and optional.poses_optional
     model = optional.backend.model
     scores = evaluate_recording(
-        blind, [CopyLast(), CopyLastEgo(), ModelMethod("opt", StreamingModel(model))], GRID
+        blind, [CopyLast(), CopyLastEgo(), ModelMethod("opt", model)], GRID
     )
     s = {k: v.summary() for k, v in scores.items()}
     # The drive's motion matched from the scans: moving the last map by it beats copying it.
@@ -196,7 +195,7 @@ def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driv
     # off) it is the inner network, step for step.
     occ, vis = blind.maps(GRID)
     motions = scan_motions(occ)
-    stream, inner = StreamingModel(model), StreamingModel(model.inner)
+    stream, inner = HandStream(model), HandStream(model.inner)
     blind_predictor = Predictor(folder, GRID, scan_odometry=False)
     for t in range(8):
         known = None if np.isnan(motions[t]).any() else motions[t]
@@ -210,7 +209,7 @@ def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driv
     counts = predict_to_bag(blind, optional, tmp_path / "out.mcap")
     assert sum(counts.values()) > 0
     # A model that needs poses beside it is still refused, and named.
-    needing = ModelMethod("needs", StreamingModel(build_model("flownet", ego_motion=True)))
+    needing = ModelMethod("needs", build_model("flownet", ego_motion=True))
     with pytest.raises(EvaluateError, match=r"no sensor poses.*needs") as err:
         evaluate_recording(blind, [CopyLast(), needing, CopyLastEgo()], GRID)
     assert "copy_last_ego" not in str(err.value)
@@ -236,7 +235,7 @@ def test_a_predictor_given_scans_steps_the_model_with_the_motion_refined_on_thei
     maps_only = scan_motions(occ)
     # Past the window the returns refine every step, so the two sources differ.
     assert not np.allclose(np.nan_to_num(refined[12:]), np.nan_to_num(maps_only[12:]))
-    stream = StreamingModel(predictor.backend.model)
+    stream = HandStream(predictor.backend.model)
     for t in range(len(blind)):
         known = None if np.isnan(refined[t]).any() else refined[t]
         a, b = predictor.update(blind.scan(t)), stream.step(occ[t], vis[t], known)
@@ -260,7 +259,7 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
     flags = [optional.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
     assert flags[1] and sum(flags[-20:]) >= 15
     # The evaluation decides the same, frame by frame; a model that needs poses never drops them.
-    method = ModelMethod("opt", StreamingModel(optional.backend.model), res=GRID.res)
+    method = ModelMethod("opt", optional.backend.model, res=GRID.res)
     motions = metres_to_cells(relative_motions(mirrored)[0], GRID.res)
     optional.reset()
     for t in range(60):
@@ -276,7 +275,7 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
     errors = []
     for t in range(60):
         method.update(occ[t], vis[t], motions[t] if t else None, returns=returns[t])
-        if not method.odometry.trusted and method.motion is not None:
+        if not method.engine.odometry.trusted and method.motion is not None:
             errors.append(np.abs(method.motion - true[t]))
     assert len(errors) >= 15
     error = np.median(errors, axis=0)
@@ -287,11 +286,11 @@ def test_evaluate_gives_the_model_the_returns_to_replace_odometry_that_disagrees
     folder = make_model_dir(tmp_path / "opt", ego_motion=True, poses_optional=True)
     mirrored = driving.slice(0, 60)
     mirrored.poses = mirrored.poses * np.array([1, -1, -1])
-    method = ModelMethod("opt", StreamingModel(Predictor(folder, GRID).backend.model), res=GRID.res)
+    method = ModelMethod("opt", Predictor(folder, GRID).backend.model, res=GRID.res)
     evaluate_recording(mirrored, [CopyLast(), method], GRID)
     # The last frame evaluated (58) was compensated by the scans' motion, not the mirror's.
     true = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)[58]
-    assert not method.odometry.trusted and method.motion is not None
+    assert not method.engine.odometry.trusted and method.motion is not None
     np.testing.assert_allclose(method.motion[:2], true[:2], atol=0.15)
 
 
@@ -316,7 +315,7 @@ def test_a_pose_jump_is_not_compensated_in_the_predictor_or_the_evaluation(drivi
     true = metres_to_cells(relative_motions(true_poses[kept])[0], GRID.res)
     jumped = metres_to_cells(relative_motions(cut.poses)[0], GRID.res)
     predictor = Predictor(folder, GRID)
-    method = ModelMethod("opt", StreamingModel(predictor.backend.model), res=GRID.res)
+    method = ModelMethod("opt", predictor.backend.model, res=GRID.res)
     returns = recording_points(cut)
     for t in range(len(kept)):
         p = predictor.update(cut.scan(t), cut.poses[t])
@@ -325,11 +324,11 @@ def test_a_pose_jump_is_not_compensated_in_the_predictor_or_the_evaluation(drivi
         )
         np.testing.assert_allclose(p.probability, q, atol=1e-6)  # the same decisions
         if t in jumps:  # a motion close to the true one, not the jump
-            assert p.ego_compensated and method.odometry.jumped
+            assert p.ego_compensated and method.engine.odometry.jumped
             np.testing.assert_allclose(
                 method.motion[:2], true[t][:2], atol=0.3 * (1 + 3 * (t == 39))
             )
-    assert method.odometry.jumps == 2
+    assert method.engine.odometry.jumps == 2
 
 
 def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving, tmp_path, capsys):
@@ -356,7 +355,7 @@ def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     occ, vis = driving.maps(GRID)
     motions = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
     model = build_model("flownet", occupancy_head=True, ego_motion=True, poses_optional=True)
-    models = {"ego": model.eval()}
+    models = [ModelMethod("ego", model, res=GRID.res)]
     moved = horizon_f1(occ, vis, models, horizon=2, warmup=5, motions=motions)
     still = horizon_f1(occ, vis, models, horizon=2, warmup=5)
     # Untrained it is copy-last in its own frame: without motions exactly copy-last, with the
@@ -368,7 +367,7 @@ def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     # then replaced by the scans' own motion (refined on the returns), as the Predictor does.
     mirrored = metres_to_cells(relative_motions(driving.poses * [1, -1, -1])[0], GRID.res)
     returns = recording_points(driving)
-    kwargs = {"horizon": 2, "warmup": 5, "motions": mirrored, "res": GRID.res}
+    kwargs = {"horizon": 2, "warmup": 5, "motions": mirrored}
     dropped = horizon_f1(occ, vis, models, **kwargs)
     replaced = horizon_f1(occ, vis, models, **kwargs, returns=returns, motions_from_poses=True)
     assert replaced["ego"][0] > dropped["ego"][0] + 0.02
@@ -408,7 +407,7 @@ def test_after_a_gap_the_next_motion_is_guessed_for_one_step_not_for_the_gap(dri
         if t == 30:
             after[name] = probability >= 0.4
 
-    ego = ModelMethod("ego", StreamingModel(build_model("flownet", ego_motion=True)))
+    ego = ModelMethod("ego", build_model("flownet", ego_motion=True))
     evaluate_recording(cut, [CopyLast(), CopyLastEgo(), ego], GRID, on_prediction=keep)
     assert _f1(after["ego"], occupancy[31]) == pytest.approx(scores[True])
     assert _f1(after["copy_last_ego"], occupancy[31]) == pytest.approx(scores[True])

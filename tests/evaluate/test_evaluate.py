@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.baselines import (
+from lidarflow.evaluate.report import build_report, format_table
+from lidarflow.evaluate.scoring import Scorer
+from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.predict.baselines import (
     ConstantVelocity,
     CopyLast,
     TemporalAverage,
     best_rigid_shift,
     shift_map,
 )
-from lidarflow.evaluate.report import build_report, format_table
-from lidarflow.evaluate.scoring import Scorer
-from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.scan import GridSpec
 
 
@@ -230,17 +230,18 @@ def test_horizon_scores_no_roll_out_across_a_gap():
     import torch
 
     from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models import build_model
 
     maps = two_scenes()
-    model = build_model("deeptracking")
+    model = [ModelMethod("m", build_model("deeptracking"))]
     torch.manual_seed(0)
-    across = horizon_f1(maps, maps, {"m": model}, horizon=3, warmup=2)
-    skipped = horizon_f1(maps, maps, {"m": model}, horizon=3, warmup=2, gaps=[15])
+    across = horizon_f1(maps, maps, model, horizon=3, warmup=2)
+    skipped = horizon_f1(maps, maps, model, horizon=3, warmup=2, gaps=[15])
     assert min(across["copy_last"]) < 1.0
     assert skipped["copy_last"] == [1.0, 1.0, 1.0]
     with pytest.raises(EvaluateError, match="without a gap"):
-        horizon_f1(maps[:8], maps[:8], {"m": model}, horizon=3, warmup=2, gaps=[4, 6])
+        horizon_f1(maps[:8], maps[:8], model, horizon=3, warmup=2, gaps=[4, 6])
 
 
 def test_against_baselines_wins_only_above_the_best_baseline_on_both_terms():

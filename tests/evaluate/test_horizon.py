@@ -7,6 +7,7 @@ import pytest
 
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.horizon import horizon_f1
+from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.models import build_model
 
 
@@ -21,7 +22,7 @@ def _walker(n: int = 8) -> tuple[np.ndarray, np.ndarray]:
 
 def test_copy_last_per_horizon_by_hand():
     occupancy, visibility = _walker()
-    scores = horizon_f1(occupancy, visibility, {}, horizon=2, warmup=2)
+    scores = horizon_f1(occupancy, visibility, [], horizon=2, warmup=2)
     # every scored frame: predicted {wall, walker at t}, true {wall, walker at t+k}:
     # tp 1, fp 1, fn 1 at each k -> F1 = 2 / (2 + 1 + 1) = 0.5
     assert scores == {"copy_last": [pytest.approx(0.5), pytest.approx(0.5)]}
@@ -31,7 +32,8 @@ def test_untrained_flownet_rolls_forward_as_copy_last():
     occupancy, visibility = _walker(10)
     net = build_model("flownet").eval()  # zero flow: every step predicts the map it is given
     head = build_model("flownet", occupancy_head=True).eval()
-    scores = horizon_f1(occupancy, visibility, {"net": net, "head": head}, horizon=3, warmup=2)
+    methods = [ModelMethod("net", net), ModelMethod("head", head)]
+    scores = horizon_f1(occupancy, visibility, methods, horizon=3, warmup=2)
     for name in ("net", "head"):
         assert scores[name] == pytest.approx(scores["copy_last"])
 
@@ -39,11 +41,11 @@ def test_untrained_flownet_rolls_forward_as_copy_last():
 def test_too_short_for_the_horizon_is_refused():
     occupancy, visibility = _walker(5)
     with pytest.raises(EvaluateError, match="horizon 3"):
-        horizon_f1(occupancy, visibility, {}, horizon=3, warmup=2)
+        horizon_f1(occupancy, visibility, [], horizon=3, warmup=2)
 
 
 def test_the_online_decision_is_fed_back_through_the_roll_out():
-    from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig
+    from lidarflow.predict.decision import OnlineDecisionConfig
 
     occupancy, visibility = _walker(12)
     # Untrained, the head is copy-last at logit 2.2: at its own offset -3 it predicts nothing,
@@ -51,11 +53,8 @@ def test_the_online_decision_is_fed_back_through_the_roll_out():
     # and fed back decided they are found again at every step.
     head = build_model("flownet", occupancy_head=True, decision_offset=-3.0).eval()
     config = OnlineDecisionConfig(occupied_offsets=(6.0,), free_offsets=(-0.6,), min_frames=2)
-    decision = OnlineDecision(-3.0, None, config)
-    models = {"fixed": head, "online": head}
-    scores = horizon_f1(
-        occupancy, visibility, models, horizon=3, warmup=4, decisions={"online": decision}
-    )
+    methods = [ModelMethod("fixed", head), ModelMethod("online", head, online=config)]
+    scores = horizon_f1(occupancy, visibility, methods, horizon=3, warmup=4)
     assert scores["fixed"] == [0.0, 0.0, 0.0]
     assert scores["online"] == pytest.approx(scores["copy_last"])
 
@@ -67,6 +66,6 @@ def test_horizon_on_frame_blocks_is_the_same_as_on_arrays():
     for t in range(30):
         maps[t, 2, t % 8] = True  # a cell running along a row
     model = build_model("deeptracking")
-    whole = horizon_f1(maps, maps, {"m": model}, horizon=3, warmup=2)
+    whole = horizon_f1(maps, maps, [ModelMethod("m", model)], horizon=3, warmup=2)
     blocks = FrameBlocks(lambda a, b: maps[a:b], len(maps), block=4)
-    assert horizon_f1(blocks, blocks, {"m": model}, horizon=3, warmup=2) == whole
+    assert horizon_f1(blocks, blocks, [ModelMethod("m", model)], horizon=3, warmup=2) == whole

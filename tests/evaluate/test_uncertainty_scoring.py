@@ -7,12 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import build_report, format_table, format_uncertainty_table
 from lidarflow.evaluate.stream import evaluate_maps, evaluate_recording, ground_truth_moving
 from lidarflow.models.presets import resolve_model
-from lidarflow.models.streaming import StreamingModel
+from lidarflow.predict.baselines import CopyLast
 from lidarflow.scan import GridSpec
 from lidarflow.segmentation import moving_mask
 from tests.conftest import make_model_dir
@@ -126,7 +125,7 @@ def test_simulated_moving_truth_lines_up_with_the_frames():
 
 def test_model_method_exposes_flows_and_moving(tmp_path):
     net, _ = resolve_model(make_model_dir(tmp_path / "f", zero_init_flow=False))
-    method = ModelMethod("f", StreamingModel(net), moving_threshold=0.2)
+    method = ModelMethod("f", net, moving_threshold=0.2)
     maps = moving_square(n=3, size=100)
     method.update(maps[0], maps[0])
     assert method.forward_flow.shape == (2, 100, 100)
@@ -136,7 +135,7 @@ def test_model_method_exposes_flows_and_moving(tmp_path):
     method.reset()
     assert method.moving is None and method.forward_flow is None
     dt, _ = resolve_model(make_model_dir(tmp_path / "dt", name="deeptracking"))
-    deep = ModelMethod("dt", StreamingModel(dt))
+    deep = ModelMethod("dt", dt)
     deep.update(maps[0], maps[0])
     assert deep.moving is None and deep.backward_flow is None
 

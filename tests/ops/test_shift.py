@@ -8,8 +8,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarflow.evaluate.baselines import ConstantVelocity, best_rigid_shift, shift_map
 from lidarflow.ops.shift import constant_velocity_map, shift_scores
+from lidarflow.predict.baselines import ConstantVelocity, best_rigid_shift, shift_map
 
 
 def _torch(*maps: np.ndarray) -> list[torch.Tensor]:

@@ -162,7 +162,6 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
     tmp_path, sample_recording
 ):
     from lidarflow.evaluate.model_method import ModelMethod
-    from lidarflow.models.streaming import StreamingModel
     from lidarflow.scan import GridSpec
 
     # Untrained, the head is copy-last at logit 2.2: an occupied-cell offset of -3 predicts
@@ -174,7 +173,7 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
     torch_p, onnx_p = Predictor(folder), Predictor(onnx_path)
     fixed = Predictor(folder, online_decision=False)
     assert torch_p.online is not None and onnx_p.online is not None and fixed.online is None
-    method = ModelMethod("m", StreamingModel(net))  # the model asks for it: online here too
+    method = ModelMethod("m", net)  # the model asks for it: online here too
     occupancy, visibility = sample_recording.slice(0, 25).maps(GridSpec())
     for occ, vis in zip(occupancy, visibility, strict=True):
         a, b = torch_p.update((occ, vis)), onnx_p.update((occ, vis))
@@ -192,7 +191,7 @@ def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
 def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, random_flownet_dir):
     import onnx
 
-    from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.predict.decision import OnlineDecisionConfig
 
     with pytest.raises(PredictError, match="occupancy-head"):
         Predictor(random_flownet_dir, online_decision=True)
@@ -216,7 +215,7 @@ def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, ran
 
 
 def test_the_roll_out_feeds_back_the_online_decision(tmp_path, sample_recording):
-    from lidarflow.evaluate.online import OnlineDecisionConfig
+    from lidarflow.predict.decision import OnlineDecisionConfig
     from lidarflow.scan import GridSpec
 
     # At its own offset -3 the untrained head predicts nothing at any step; chosen online (here
@@ -260,14 +259,14 @@ def test_a_subcell_model_takes_its_scans_subcell_maps_and_refuses_bare_maps(
     with pytest.raises(PredictError, match="give update a Scan"):
         predictor.update((p.occupancy, p.visibility))
     # What the predictor feeds is the scan's own subcell maps: the same as streaming by hand.
-    from lidarflow.models.streaming import StreamingModel
+    from tests.hand_stream import HandStream
 
-    stream = StreamingModel(resolve_model(folder)[0])
+    stream = HandStream(resolve_model(folder)[0])
     for scan in scans:
         occ, vis = rasterize(scan)
         by_hand = stream.step(occ, vis, subcell=subcell_batch(scan.ranges[None], scan.geometry)[0])
     np.testing.assert_allclose(p.probability, by_hand.probability, atol=1e-6)
-    blind = StreamingModel(resolve_model(folder)[0])  # the same without them differs
+    blind = HandStream(resolve_model(folder)[0])  # the same without them differs
     for scan in scans:
         without = blind.step(*rasterize(scan))
     assert np.abs(without.probability - p.probability).max() > 1e-3

@@ -281,14 +281,13 @@ def test_a_subcell_model_trains_validates_and_evaluates(blob_files, tmp_path):
     from lidarflow.data import load_any
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.stream import evaluate_recording
-    from lidarflow.models.streaming import StreamingModel
 
     kwargs = {"occupancy_head": True, "subcell_input": True, "head_kernel_size": 1}
     flags = {"optim.epochs": 1, "model.kwargs": kwargs}
     result = train(tiny_config(blob_files[:1], "residual", **flags), tmp_path / "sub")
     head = result.model.conv_occupancy.weight[0, -2:]  # the edge and near inputs' weights
     assert head.abs().max() > 0  # trained: the loss reached them
-    method = ModelMethod("sub", StreamingModel(result.model))
+    method = ModelMethod("sub", result.model)
     recording = load_any(blob_files[1])
     scores = evaluate_recording(recording, [method], GridSpec(32, 32, 0.1))
     assert scores["sub"].summary()["f1"] > 0

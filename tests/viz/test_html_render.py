@@ -8,9 +8,9 @@ import subprocess
 import numpy as np
 import pytest
 
-from lidarflow.evaluate.baselines import CopyLast
 from lidarflow.evaluate.report import build_report
 from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.predict.baselines import CopyLast
 from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import overlay_rgb, write_gif
 

@@ -22,7 +22,7 @@ from lidarflow.cli.app import (
     load_input,
     progress_bar,
 )
-from lidarflow.evaluate.baselines import TA_THRESHOLD, TA_WINDOW
+from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
 
 
 def _above_zero(value: float) -> float:
@@ -49,14 +49,13 @@ def methods_and_config(
     compensation alone; ``ego_oracle`` adds the variants that know the
     true next pose; ``online`` adds, for each model, the decision rule it was not built with:
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``."""
-    from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.evaluate.ego import CopyLastEgo
     from lidarflow.evaluate.model_method import ModelMethod
-    from lidarflow.evaluate.online import OnlineDecisionConfig
     from lidarflow.evaluate.report import ORACLE_SUFFIX
     from lidarflow.models.presets import resolve_model
-    from lidarflow.models.streaming import StreamingModel
     from lidarflow.models.weights import describe_source
+    from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+    from lidarflow.predict.decision import OnlineDecisionConfig
     from lidarflow.segmentation import MOVING_THRESHOLD
 
     if moving_threshold is None:
@@ -70,22 +69,18 @@ def methods_and_config(
         name = "bundled" if source is None else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"
-        method = ModelMethod(
-            name, StreamingModel(net), moving_threshold, online_config=online_config, res=res
-        )
+        method = ModelMethod(name, net, moving_threshold, online_config=online_config, res=res)
         methods.append(method)
         keys = ("model", "weights_path", "weights_sha256", "grid")
         models_used[name] = {k: card.get(k) for k in keys}
         if method.uses_motion and ego_oracle:
-            methods.append(
-                ModelMethod(name + ORACLE_SUFFIX, StreamingModel(net), oracle=True, res=res)
-            )
+            methods.append(ModelMethod(name + ORACLE_SUFFIX, net, oracle=True, res=res))
         if online:  # the other decision rule beside the model's own
             wants_online = method.online is not None
             methods.append(
                 ModelMethod(
                     name + ("_fixed" if wants_online else "_online"),
-                    StreamingModel(net),
+                    net,
                     moving_threshold,
                     online=not wants_online,
                     online_config=online_config,
@@ -360,20 +355,19 @@ def _add_horizon_scores(
     horizon: int,
 ) -> None:
     from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.stream import recording_inputs
 
     # one roll-out per model (an oracle variant has no roll-out of its own)
-    streamed = [m for m in methods if hasattr(m, "stream") and not getattr(m, "oracle", False)]
-    models = {m.name: m.stream.model for m in streamed}
-    decisions = {m.name: m.online for m in streamed if m.online is not None}
+    streamed = [m for m in methods if isinstance(m, ModelMethod) and not m.oracle]
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         inputs = recording_inputs(recording, spec, streamed)
-        total = len(models) * max(0, len(inputs.occupancy) - horizon)
+        total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
         with progress_bar(total, f"horizon {horizon}, {Path(name).name}") as bar:
             entry["horizon_f1"] = horizon_f1(
-                inputs.occupancy, inputs.visibility, models, horizon, warmup, bar.update,
-                inputs.motions, decisions, inputs.returns, inputs.motions_from_poses, spec.res,
-                inputs.subcell, inputs.gaps, inputs.paces,
+                inputs.occupancy, inputs.visibility, streamed, horizon, warmup, bar.update,
+                inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
+                inputs.gaps, inputs.paces,
             )  # fmt: skip
 
 

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["THRESHOLD", "Counts", "confusion", "f1_score"]
+from lidarflow.predict.offsets import THRESHOLD
 
-THRESHOLD = 0.4
+__all__ = ["THRESHOLD", "Counts", "confusion", "f1_score"]
 
 
 @dataclass

@@ -36,11 +36,11 @@ from lidarflow.data.blocks import Frames, streamed_maps, streamed_subcell
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.motion.icp import streamed_points
 from lidarflow.motion.pacing import paces_after_long_steps
+from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 from lidarflow.sim.storage import dense_flow
 
@@ -53,6 +53,7 @@ __all__ = [
     "ground_truth_backward_flow",
     "ground_truth_moving",
     "has_ground_truth",
+    "method_inputs",
     "other_recorded_grid",
     "recording_inputs",
 ]
@@ -180,7 +181,7 @@ def evaluate_maps(
         m.reset()
     for t in range(n - 1):
         for m in methods:
-            extra = _inputs(m, t, motions, returns, motions_from_poses, subcell, paces)
+            extra = method_inputs(m, t, motions, returns, motions_from_poses, subcell, paces)
             probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
             if t < warmup:
                 continue
@@ -208,7 +209,7 @@ def evaluate_maps(
     return scorers
 
 
-def _inputs(
+def method_inputs(
     method: Method,
     t: int,
     motions: np.ndarray | None,

@@ -102,7 +102,7 @@ history_keys/). In the model, leave-one-out on all seven folds, it moved that re
 Offsets chosen online (``online_decision=True``, with the occupancy head; issue 11). The model
 is unchanged; the flag tells ``evaluate`` and the ``Predictor`` to re-decide its probabilities
 with the decision offsets that have done best on the stream so far
-(:mod:`lidarflow.evaluate.online`).
+(:mod:`lidarflow.predict.decision`).
 
 Grid size is not fixed: every layer is a 'same' convolution. ``forward`` has no data-dependent
 Python branching, so ``step`` exports to ONNX unchanged.
@@ -266,7 +266,7 @@ class LidarFlowNet(RecurrentMapModel):
         )
         # Not used by the network: it tells the streaming users (evaluate, the Predictor) to
         # choose the offsets online, on the stream's own past frames, starting from these
-        # (lidarflow.evaluate.online).
+        # (lidarflow.predict.decision).
         self.online_decision = bool(online_decision)
         self.conv0 = nn.Conv2d(in_channels, hidden_channels, kernel_size, padding=pad)
         self.act0 = nn.ReLU() if conv0_activation == "relu" else nn.Identity()

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.errors import PredictError, ScanError
-from lidarflow.evaluate.online import decision_of
+from lidarflow.predict.decision import decision_of
 from lidarflow.scan import GridSpec
 
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses

@@ -27,9 +27,9 @@ import torch
 from torch import Tensor, nn
 
 from lidarflow.errors import PredictError
-from lidarflow.evaluate.online import decision_of
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.predict.backends import DECISION_KEY, GRID_KEY, POSES_OPTIONAL_KEY
+from lidarflow.predict.decision import decision_of
 
 __all__ = ["DECISION_KEY", "OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "copy_marks", "export_onnx"]
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
-from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.predict.predictor import Predictor
 from lidarflow.predict.rosout import BagOutput
 

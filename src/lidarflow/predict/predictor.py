@@ -36,18 +36,13 @@ from typing import Any
 import numpy as np
 
 from lidarflow.errors import PredictError
-from lidarflow.evaluate.metrics import THRESHOLD
-from lidarflow.evaluate.online import (
-    OnlineDecision,
-    OnlineDecisionConfig,
-    decision_for,
-    moved_last_map,
-)
 from lidarflow.motion.icp import scan_points
-from lidarflow.motion.odometry import OdometryCheck, metres_to_cells, relative_motions
-from lidarflow.motion.pacing import StepClock, paced_motion
-from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
+from lidarflow.motion.odometry import metres_to_cells, relative_motions
+from lidarflow.motion.pacing import StepClock
 from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
+from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig, decision_for
+from lidarflow.predict.engine import Engine, Frame
+from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
 from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
@@ -114,11 +109,11 @@ class Predictor:
             the returns where ``update`` is given a :class:`~lidarflow.scan.Scan`); off: those
             steps run uncompensated.
         online_decision: re-decide an occupancy-head model's next map with the decision offsets
-            that have done best on this stream so far (:mod:`lidarflow.evaluate.online`; a
+            that have done best on this stream so far (:mod:`lidarflow.predict.decision`; a
             roll-out feeds back the decided map and re-decides every step with the same
             choice). ``None``: where
             the model asks for it (``online_decision`` in its kwargs or the ONNX file's marks);
-            an :class:`~lidarflow.evaluate.online.OnlineDecisionConfig`: always, with that grid
+            an :class:`~lidarflow.predict.decision.OnlineDecisionConfig`: always, with that grid
             and those constants.
     """
 
@@ -153,16 +148,14 @@ class Predictor:
             recorded = recorded_grid(self.card)
         # The grid the model was trained (or exported) for, unless told otherwise.
         self.grid = grid or recorded or GridSpec()
-        self._state: Any = None
         self._pose: np.ndarray | None = None
-        # See lidarflow.evaluate.model_method: the same check, the same decisions.
-        self._odometry = OdometryCheck() if check_odometry else None
-        self.scan_odometry = scan_odometry
-        self._scans = ScanOdometry(self.grid.res)
         # Scans' stamps: after a long step the last motion spans it, and the guess of the next
-        # one is scaled to a typical step (lidarflow.data.gaps, as evaluate does).
+        # one is scaled to a typical step (lidarflow.motion.pacing, as evaluate does).
         self._clock = StepClock()
         self.online = self._online_decision(online_decision)
+        self.engine = Engine(
+            self.backend, self.grid.res, self.online, check_odometry, scan_odometry
+        )
 
     def _online_decision(self, wanted: bool | OnlineDecisionConfig | None) -> OnlineDecision | None:
         try:
@@ -186,14 +179,9 @@ class Predictor:
 
     def reset(self) -> None:
         """Forget the past: the next update starts from a zero state."""
-        self._state = None
         self._pose = None
-        if self._odometry is not None:
-            self._odometry.reset()
-        self._scans.reset()
         self._clock.reset()
-        if self.online is not None:
-            self.online.reset()
+        self.engine.reset()
 
     def _motion(self, pose: Any) -> np.ndarray | None:
         """Motion since the previous update in cells, ``None`` when either pose is unknown."""
@@ -222,62 +210,37 @@ class Predictor:
         ``subcell_input``: the bundled one has it) and predict what comes next; ``pose``
         ``(x, y, yaw)``: the sensor pose at this scan, for ego-motion models."""
         occupancy, visibility = self._maps(item)
-        maps = np.stack([occupancy, visibility]).astype(np.float32)[None]
-        subcell = takes_subcell(self.backend.input_channels)
-        if subcell and not isinstance(item, Scan):
-            raise PredictError(
-                "this model also uses where each return lies inside its cell (subcell_input): "
-                "give update a Scan, not maps"
+        subcell = None
+        if takes_subcell(self.backend.input_channels):
+            if not isinstance(item, Scan):
+                raise PredictError(
+                    "this model also uses where each return lies inside its cell "
+                    "(subcell_input): give update a Scan, not maps"
+                )
+            subcell = subcell_batch(item.ranges[None], item.geometry, self.grid)[0]
+        scan = item if isinstance(item, Scan) else None
+        wants_returns = self.engine.wants_returns and scan is not None
+        step = self.engine.step(
+            Frame(
+                occupancy,
+                visibility,
+                subcell=subcell,
+                returns=scan_points(scan) if wants_returns else None,
+                motion=self._motion(pose) if self.uses_motion else None,
+                source="none" if pose is None else "pose",
+                pace=None if scan is None else self._clock.update(scan.stamp_ns),
             )
-        if subcell:
-            extra = subcell_batch(item.ranges[None], item.geometry, self.grid)
-            maps = np.concatenate([maps, extra.astype(np.float32)], axis=1)
-        if self._state is None:
-            self._state = self.backend.init_state(*self.grid.shape)
-        motion = self._motion(pose) if self.uses_motion else None
-        scans = self._scans if self.poses_optional and self.scan_odometry else None
-        points = scan_points(item) if scans is not None and isinstance(item, Scan) else None
-        pace = self._clock.update(item.stamp_ns) if isinstance(item, Scan) else None
-        if pose is None and scans is not None:
-            motion = scans.update(occupancy, points)
-        if self.poses_optional and self._odometry is not None:
-            # Odometry that disagrees with the scans (or jumps) is replaced by the scans' motion.
-            motion, _ = checked_motion(
-                self._odometry, scans, occupancy, motion, pose is not None, points, pace
-            )
-        elif pose is not None and scans is not None:
-            scans.observe(occupancy, points)
-        guess = paced_motion(motion, pace)  # None: the last motion again
-        probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
-        flow = out[0, :4] if self.backend.out_channels >= 4 else None
-        future = [probability[0, 0]]
-        if self.online is not None:
-            moved = moved_last_map(occupancy, None if flow is None else flow[:2])
-            future[0] = self.online.update(future[0], occupancy, visibility, moved)
-        # Roll forward on a copy of the state: the fed-back predictions must not leak into
-        # the state that the next real scan continues from. With the online decision each
-        # step is re-decided with its current choice (see lidarflow.evaluate.horizon).
-        state = self._state
-        ahead = motion if guess is None else guess  # each step ahead is one typical step
-        for _ in range(self.horizon - 1):
-            fed = np.zeros_like(maps)  # a predicted map has no returns: subcell zeros
-            fed[0, 0], fed[0, 1] = future[-1], visibility
-            next_probability, out_k, state = self.backend.run(fed, state, ahead)
-            if self.online is not None:
-                flow_k = out_k[0, :2] if self.backend.out_channels >= 4 else None
-                moved = moved_last_map(future[-1], flow_k)
-                future.append(self.online.apply(next_probability[0, 0], future[-1], moved))
-            else:
-                future.append(next_probability[0, 0])
-        occupied_now = np.asarray(occupancy, bool)
+        )
+        future = self.engine.roll(step, self.horizon)
+        flow = step.flow
         return Prediction(
             probability=future[0],
             occupied=future[0] >= THRESHOLD,
             backward_flow=None if flow is None else flow[:2],
             forward_flow=None if flow is None else flow[2:],
             horizon=np.stack(future),
-            occupancy=occupied_now,
+            occupancy=np.asarray(occupancy, bool),
             visibility=np.asarray(visibility, bool),
-            ego_compensated=motion is not None,
+            ego_compensated=step.motion is not None,
             moving_threshold=self.moving_threshold,
         )

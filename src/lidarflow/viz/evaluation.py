@@ -15,7 +15,6 @@ import numpy as np
 from lidarflow.data.blocks import Frames, streamed_maps
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.evaluate.baselines import Method
 from lidarflow.evaluate.metrics import THRESHOLD
 from lidarflow.evaluate.report import build_report
 from lidarflow.evaluate.scoring import Scorer
@@ -24,6 +23,7 @@ from lidarflow.evaluate.stream import (
     has_ground_truth,
     other_recorded_grid,
 )
+from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 from lidarflow.viz.flow import flow_to_rgb
 from lidarflow.viz.html import write_html_report

@@ -1,4 +1,6 @@
-"""A trained model run one frame at a time on NumPy maps, its recurrent state kept inside."""
+"""A model stepped by hand, one frame at a time, for tests: the reference the streaming engine
+(:mod:`lidarflow.predict.engine`) is checked against. Written straight from the model's
+``step`` / ``predict_next``, with none of the engine's motion checks or decisions."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import torch
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.scan import takes_subcell
 
-__all__ = ["StepResult", "StreamingModel", "model_input"]
+__all__ = ["HandStream", "StepResult", "model_input"]
 
 
 def model_input(
@@ -37,7 +39,7 @@ class StepResult:
     flow: np.ndarray | None
 
 
-class StreamingModel:
+class HandStream:
     """Feeds ``(occupancy, visibility)`` frames through ``model.step`` with the state carried.
 
     ``reset()`` starts a new stream (zero state); the grid size is taken from the first frame

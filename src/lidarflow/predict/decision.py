@@ -37,10 +37,7 @@ the 180-degree recording it never saw, and the shipped model on it in-sample, wh
 flow's warp alone it lost by 0.0006) the unmoved candidates win more; on a driving platform the
 unmoved map is in the wrong frame and the choice keeps to the moved one.
 
-Counting every pair is cheap because a cell's decision depends on one offset alone unless the
-moved map is fractional there: a free cell is predicted occupied iff ``b >= threshold_logit -
-logit``, an occupied one iff ``a >= ...``, so one sorted search per offset grid counts all pairs;
-only the few fractional cells are counted pair by pair.
+Every pair is counted at the cost of a few sorted searches (:mod:`lidarflow.predict.offsets`).
 """
 
 from __future__ import annotations
@@ -50,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.evaluate.baselines import (
+from lidarflow.predict.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
     ConstantVelocity,
@@ -58,17 +55,21 @@ from lidarflow.evaluate.baselines import (
     Method,
     TemporalAverage,
 )
-from lidarflow.evaluate.metrics import THRESHOLD, confusion
+from lidarflow.predict.offsets import (
+    THRESHOLD,
+    counts,
+    lookahead_terms,
+    moved_last_map,
+    pair_counts,
+)
 
 __all__ = [
+    "THRESHOLD",
     "OnlineDecision",
     "OnlineDecisionConfig",
     "decision_for",
     "decision_of",
-    "f1_from_counts",
-    "lookahead_terms",
     "moved_last_map",
-    "pair_counts",
 ]
 
 _THRESHOLD_LOGIT = float(np.log(THRESHOLD / (1.0 - THRESHOLD)))
@@ -115,92 +116,6 @@ class OnlineDecisionConfig:
         if self.min_frames < 1:
             raise ValueError(f"min_frames must be >= 1, got {self.min_frames}")
         TemporalAverage(self.ta_window, self.ta_threshold)  # raises on a bad window / threshold
-
-
-def moved_last_map(occupancy: np.ndarray, backward_flow: np.ndarray | None) -> np.ndarray:
-    """``clamp(W(O^t, B^t), 0, 1)`` ``(H, W)``: the last map moved into the next frame, the
-    split of :meth:`~lidarflow.models.LidarFlowNet.predict_next`; ``O^t`` itself without a flow.
-
-    NumPy (the ONNX Predictor runs without PyTorch); equal to :func:`lidarflow.ops.warp.warp`
-    (bilinear, zero outside the map).
-    """
-    image = np.asarray(occupancy, np.float64)
-    if backward_flow is None:
-        return np.clip(image, 0.0, 1.0)
-    h, w = image.shape
-    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
-    x = cols + np.asarray(backward_flow[0], np.float64)
-    y = rows + np.asarray(backward_flow[1], np.float64)
-    x0, y0 = np.floor(x), np.floor(y)
-    out = np.zeros_like(image)
-    for dy in (0, 1):
-        for dx in (0, 1):
-            xi, yi = x0 + dx, y0 + dy
-            weight = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
-            inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
-            xi = np.clip(xi, 0, w - 1).astype(np.intp)
-            yi = np.clip(yi, 0, h - 1).astype(np.intp)
-            out += np.where(inside, weight * image[yi, xi], 0.0)
-    return np.clip(out, 0.0, 1.0)
-
-
-def _at_least(values: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """For each offset, how many of ``values`` are ``<= offset``."""
-    return np.searchsorted(np.sort(values), offsets, side="right")
-
-
-def pair_counts(
-    need: np.ndarray,
-    moved: np.ndarray,
-    target: np.ndarray,
-    occupied_offsets: np.ndarray,
-    free_offsets: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """``(true positives (A, B), predicted (A, B), positives)`` over the given cells.
-
-    A cell is predicted occupied under the pair ``(a, b)`` when ``moved * a + (1 - moved) * b
-    >= need`` (``need``: the logit the threshold asks for minus the model's own logit);
-    ``moved`` in [0, 1] is the last map moved into the next frame; ``target`` bool.
-    """
-    need, moved, target = (np.ravel(x) for x in (need, moved, target))
-    a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
-    free, occupied = moved <= 0.0, moved >= 1.0
-    fractional = ~(free | occupied)
-    tp = _at_least(need[occupied & target], a)[:, None] + _at_least(need[free & target], b)
-    predicted = _at_least(need[occupied], a)[:, None] + _at_least(need[free], b)
-    if fractional.any():
-        w, n, t = moved[fractional], need[fractional], target[fractional]
-        hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
-        tp = tp + np.count_nonzero(hit & t, axis=-1)
-        predicted = predicted + np.count_nonzero(hit, axis=-1)
-    return tp, predicted, int(np.count_nonzero(target))
-
-
-def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
-    """F1 from counts (arrays alike): ``2TP / (2TP + FP + FN) = 2TP / (predicted + positives)``,
-    1 where there is nothing to find and nothing predicted (as ``metrics.Counts.f1``)."""
-    denominator = predicted + positives
-    return np.where(denominator > 0, 2.0 * tp / np.maximum(denominator, 1e-12), 1.0)
-
-
-def lookahead_terms(
-    made: np.ndarray,
-    recent: np.ndarray,
-    weight: float,
-    baselines: np.ndarray,
-    lookahead: float,
-) -> np.ndarray:
-    """``(2, *pairs)``: the F1 and changed-cell F1 (first axis) less the best baseline's, if
-    ``lookahead`` more frames went as each candidate's recent ones did, after the decisions
-    made. Counts are ``(tp, predicted, positives)`` on the last axis, over all cells and over
-    the changed ones on the first: ``made`` ``(2, 3)`` and ``baselines`` ``(2, n, 3)`` over the
-    stream so far, ``recent`` ``(2, *pairs, 3)`` decayed, ``weight`` frames' worth of them.
-    With ``made`` zero it is each candidate's own recent margin."""
-    extra = (1,) * (recent.ndim - 2)
-    h = lookahead / weight  # the recent counts per frame, h frames of them
-    f1 = f1_from_counts(*np.moveaxis(made.reshape(2, *extra, 3) + h * recent, -1, 0))
-    best = f1_from_counts(*np.moveaxis(baselines, -1, 0)).max(axis=1)
-    return f1 - best.reshape(2, *extra)
 
 
 class OnlineDecision:
@@ -293,11 +208,9 @@ class OnlineDecision:
                 self._tp[k, m] += tp
                 self._predicted[k, m] += predicted
             self._positives[k] += positives
-            c = confusion(made, target, mask)
-            self._made[k] += (c.tp, c.tp + c.fp, positives)
+            self._made[k] += counts(made, target, mask)
             for j, p in enumerate(pending.baselines):
-                c = confusion(p, target, mask)
-                self._base[k, j] += (c.tp, c.tp + c.fp, positives)
+                self._base[k, j] += counts(p, target, mask)
         self._scored += 1
 
     def update(

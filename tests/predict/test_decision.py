@@ -7,9 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarflow.evaluate.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
-from lidarflow.evaluate.online import OnlineDecision, OnlineDecisionConfig, pair_counts
+from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
+from lidarflow.predict.offsets import pair_counts
 
 LOGIT = float(np.log(THRESHOLD / (1 - THRESHOLD)))
 GRID = np.array([-0.6, 0.0, 0.3, 1.2, 2.7])
@@ -183,7 +184,6 @@ def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path,
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.stream import evaluate_maps
     from lidarflow.models.presets import resolve_model
-    from lidarflow.models.streaming import StreamingModel
     from lidarflow.scan import GridSpec
     from tests.conftest import make_model_dir
 
@@ -195,9 +195,9 @@ def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path,
     late = OnlineDecisionConfig(min_frames=100)
     soon = OnlineDecisionConfig(min_frames=1)
     methods = [
-        ModelMethod("fixed", StreamingModel(net)),
-        ModelMethod("late", StreamingModel(net), online=late),
-        ModelMethod("soon", StreamingModel(net), online=soon),
+        ModelMethod("fixed", net),
+        ModelMethod("late", net, online=late),
+        ModelMethod("soon", net, online=soon),
     ]
     scores = evaluate_maps(occupancy, visibility, methods)
     assert scores["late"].counts == scores["fixed"].counts
@@ -211,11 +211,10 @@ def test_a_model_without_an_occupancy_head_is_refused(random_flownet_dir):
     from lidarflow.errors import EvaluateError
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models.presets import resolve_model
-    from lidarflow.models.streaming import StreamingModel
 
     net, _ = resolve_model(random_flownet_dir)
     with pytest.raises(EvaluateError, match="occupancy head"):
-        ModelMethod("m", StreamingModel(net), online=OnlineDecisionConfig())
+        ModelMethod("m", net, online=OnlineDecisionConfig())
 
 
 def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_flownet_dir):
@@ -246,8 +245,8 @@ def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_f
 def test_the_numpy_moved_map_equals_the_models_warp(seed):
     import torch
 
-    from lidarflow.evaluate.online import moved_last_map
     from lidarflow.ops.warp import warp
+    from lidarflow.predict.decision import moved_last_map
 
     rng = np.random.default_rng(seed)
     occupancy = rng.random((7, 9)) < 0.4
