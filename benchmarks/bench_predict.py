@@ -3,8 +3,8 @@
 Single stream, the bundled model: median and p99 milliseconds per scan over a real recording's
 scans, for the PyTorch eager backend (the reference, measured in the same run), onnxruntime
 float32 and onnxruntime int8 (`lidarflow export --int8`, calibrated on the same sample; its
-accuracy cost is measured on other recordings by experiments/int8_accuracy.py), each at the
-given thread counts. Batched: scans/s for B streams stepped together (many robots at once).
+accuracy cost is measured on other recordings by `python -m studies.int8_accuracy`), each at
+the given thread counts. Batched: scans/s for B streams stepped together (many robots at once).
 An ego-motion model (the bundled one since v5) is given a pose with every scan, a slow drive
 (5 cm and 0.5 degrees a scan), so every backend pays for the compensation as a robot with
 odometry does (without a pose PyTorch skips it and the ONNX graph does not; the odometry check

@@ -1,0 +1,93 @@
+"""The studies' shared parts, and the house rules every study keeps."""
+
+import importlib
+import json
+import pkgutil
+import re
+from pathlib import Path
+
+import pytest
+
+import studies
+from studies import harness
+
+ROOT = Path(__file__).resolve().parents[2]
+SHARED = {"harness", "scoring", "folds"}
+STUDIES = sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if m.name not in SHARED)
+
+
+def test_every_kept_study_is_here():
+    assert len(STUDIES) == 17 and "leave_one_out" in STUDIES and "reproduce_table2" in STUDIES
+
+
+@pytest.mark.parametrize("name", STUDIES)
+def test_each_study_has_help_and_writes_under_runs(name, capsys):
+    module = importlib.import_module(f"studies.{name}")
+    with pytest.raises(SystemExit) as stopped:
+        module.main(["--help"])
+    assert stopped.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"usage: python -m studies.{name}")
+    assert f"runs/studies/{name}" in text  # the default output folder, not docs/
+    # the command that reruns it and what it writes, for the research page that cites it
+    assert f"python -m studies.{name}" in module.__doc__ and "Writes" in module.__doc__
+
+
+@pytest.mark.parametrize("name", sorted(SHARED) + STUDIES)
+def test_no_study_imports_the_cli(name):
+    source = (ROOT / "studies" / f"{name}.py").read_text()
+    assert not re.search(r"lidarflow\.cli|subprocess", source)
+    assert len(source.splitlines()) <= 400
+
+
+def test_nothing_under_src_imports_studies():
+    for path in (ROOT / "src").rglob("*.py"):
+        assert not re.search(r"^\s*(from|import) studies\b", path.read_text(), re.M), path
+
+
+def test_write_summary_is_atomic_and_keeps_the_command(tmp_path, capsys):
+    p = harness.parser("example", "An example.")
+    p.add_argument("--k", type=int, default=3)
+    args = harness.parse(p, ["-o", str(tmp_path), "--k", "5"])
+    path = harness.write_summary(args, "example", {"a": (1, Path("x"))}, "| a |\n")
+
+    written = json.loads(path.read_text())
+    assert written == {
+        "config": {"k": 5, "command": f"python -m studies.example -o {tmp_path} --k 5"},
+        "results": {"a": [1, "x"]},
+    }
+    assert (tmp_path / "example.md").read_text() == "| a |\n"
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["example.json", "example.md"]
+    assert capsys.readouterr().out == "| a |\n"
+
+
+def test_write_atomic_leaves_the_old_file_when_killed(tmp_path, monkeypatch):
+    target = harness.write_atomic(tmp_path / "x.json", "old")
+
+    def killed(*_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(harness.os, "replace", killed)
+    with pytest.raises(KeyboardInterrupt):
+        harness.write_atomic(target, "new")
+    assert target.read_text() == "old"
+    assert list(tmp_path.iterdir()) == [target]  # no temporary left beside it
+
+
+def test_verdict_and_judged_follow_the_rule():
+    base = {b: {"f1": 0.5, "changed_f1": 0.2, "ap": 0.5} for b in harness.BASELINES}
+    methods = {**base, "m": {"f1": 0.6, "changed_f1": 0.1, "ap": 0.6}}
+    scores = harness.judged(methods)
+    assert scores["verdict"] == "F1 only"
+    assert scores["margins"] == {"f1": 0.1, "changed_f1": -0.1}
+    methods["m_fixed"] = {"f1": 0.7, "changed_f1": 0.3, "ap": 0.7}  # the other rule: not judged
+    assert harness.judged(methods)["verdict"] == "F1 only"
+
+
+def test_variant_parses_name_recipe_and_keys():
+    from studies.folds import Variant
+
+    v = Variant.parse("tiny=blurred optim.epochs=1 data.grid=32")
+    assert v == Variant("tiny", "blurred", ("optim.epochs=1", "data.grid=32"))
+    with pytest.raises(Exception, match="NAME=RECIPE"):
+        Variant.parse("tiny=optim.epochs=1")
