@@ -61,10 +61,8 @@ def collect(
     """Per scored frame: ``pairs`` (T, A, B, 2 masks, tp/predicted/positives) on the moved map,
     ``unmoved`` (the same on the last map unmoved) and ``baselines`` (T, 3, 2, tp/...); the
     pairs of the ``occupied`` x ``free`` offsets."""
-    net, _ = resolve_model(model)
-    head = getattr(net, "inner", net)
-    head.decision_offset, head.decision_offset_free, head.online_decision = 0.0, None, False
-    gain = float(head.warp_gain.item())
+    net, _ = resolve_model(model)  # streamed with no decision: its calibrated probability
+    gain = net.warp_gain()
     recording = load_any(path)
     occupancy, visibility = recording.maps(GridSpec())
     pairs, unmoved, baselines = [], [], {}

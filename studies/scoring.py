@@ -49,8 +49,9 @@ def methods_for(
     # an online decision measures itself against the temporal average it is scored beside
     config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
     for name, source in models.items():
-        net, _ = resolve_model(None if source in (None, "bundled") else source)
-        method = ModelMethod(name, net, online_config=config, res=res)
+        net, card = resolve_model(None if source in (None, "bundled") else source)
+        own = card["decision"]  # the decision policy the model ships with
+        method = ModelMethod(name, net, online_config=config, res=res, decision=own)
         methods.append(method)
         if online:
             own_online = method.online is not None
@@ -58,7 +59,7 @@ def methods_for(
             methods.append(
                 ModelMethod(
                     other, net, online=not own_online, online_config=config,
-                    res=res,
+                    res=res, decision=own,
                 )
             )  # fmt: skip
     if any(getattr(m, "uses_motion", False) for m in methods):
