@@ -11,9 +11,7 @@ import torch
 
 from lidarflow.models import EgoCompensated
 from lidarflow.models.weights import load_trained
-from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
-from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
 from lidarflow.train import build_config, train
@@ -90,25 +88,3 @@ def test_ego_training_runs_reloads_and_compensation_pays_untrained(driving, tmp_
     # Zero world flow moved by the odometry beats copying the last map on a moving platform.
     assert untrained["val_f1"] > untrained["val_copy_last_f1"] + 0.02
     assert np.isfinite(result.rows[-1]["train_loss"])
-
-
-def test_scan_motions_train_a_recording_without_poses_on_the_motion_from_its_scans(
-    driving, tmp_path
-):
-    rec, _ = driving
-    blind = rec.slice(0, len(rec))
-    blind.poses = None
-    path = blind.save(tmp_path / "blind.npz")
-    plain = load_train_data(_config(path).data, with_motion=True)
-    matched = load_train_data(_config(path, **{"data.scan_motions": True}).data, with_motion=True)
-    # What evaluate and the Predictor give a poses_optional model there, refined on the returns
-    # (causal, so the training part's motions are the whole recording's first ones); identity
-    # where unmatched.
-    returns = recording_points(blind)
-    expected = np.nan_to_num(scan_motions(blind.maps(GRID)[0], returns, GRID.res), nan=0.0)
-    assert np.abs(expected).sum(axis=1).astype(bool).sum() > 10
-    for i, (_, start) in enumerate(matched.sources[0].index):
-        assert plain.sources[0][i][1].abs().sum() == 0  # without the option: uncompensated
-        got = matched.sources[0][i][1].numpy()
-        np.testing.assert_allclose(got, expected[start : start + 10], atol=1e-6)
-    assert any("matched from its scans" in note for note in matched.notes)

@@ -21,8 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from lidarflow.data.views import SensorView
-from lidarflow.errors import RecordingError, TrainError
+from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
 from lidarflow.models.config import MODEL_NAMES
 
@@ -68,22 +67,12 @@ class DataConfig:
     also learns from a moving platform seen uncompensated; which windows is fixed per window,
     so ``--resume`` sees the same. ``memories_from_stream`` (occupancy-head models): every
     window starts with the head's memories as streaming its recording leaves them at the
-    window's first frame, not at zero (:mod:`lidarflow.train.warm`). ``scan_motions``
-    (ego-motion models): a recording without poses is trained on the motion matched from its
-    scans, as it is evaluated, rather than uncompensated. ``static_shift``: the fraction of
-    training windows whose motions are all zero (a sensor standing still, or a recording
-    without poses) in which a piece of the scene moves by a cell or two partway through and
-    stays moved (:mod:`lidarflow.train.augment`). ``slower_copies``: the training frames of every
-    recording are also served at every k-th scan, for each k given
+    window's first frame, not at zero (:mod:`lidarflow.train.warm`). ``slower_copies``: the
+    training frames of every recording are also served at every k-th scan, for each k given
     (:meth:`~lidarflow.data.Recording.every`; validation stays as recorded), so the head also
     learns rates k times below those recorded (its memories decay per frame, not per second).
     The copies' windows join the pool an epoch draws from: with ``epoch_windows`` 0 (every
-    window) an epoch grows by about 1/k of its length per copy. ``sensor_copies``: the
-    training frames of every recording also served as each sensor named would have seen them
-    (:class:`~lidarflow.data.views.SensorView` specs: ``fov180``, ``range4``, ``beams3``,
-    ``range3.5+beams2+rate2``...), so that the head meets other fields of view, ranges and beam
-    spacings with the recording's own noise and people; a copy that keeps every scan adds about
-    a whole epoch's windows to the pool.
+    window) an epoch grows by about 1/k of its length per copy.
     """
 
     sources: list[str] = field(default_factory=list)
@@ -102,10 +91,7 @@ class DataConfig:
     num_workers: int = 0
     pose_dropout: float = 0.0
     memories_from_stream: bool = False
-    scan_motions: bool = False
-    static_shift: float = 0.0
     slower_copies: list[int] = field(default_factory=list)
-    sensor_copies: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -198,8 +184,8 @@ class TrainConfig:
             (d.grid >= 4 and d.res > 0, "data.grid must be >= 4 and data.res > 0"),
             (d.max_gap_periods > 1, "data.max_gap_periods must be > 1 (frame periods)"),
             (
-                0 <= d.pose_dropout <= 1 and 0 <= d.static_shift <= 1,
-                "data.pose_dropout and data.static_shift are fractions of windows, in [0, 1]",
+                0 <= d.pose_dropout <= 1,
+                "data.pose_dropout is a fraction of windows, in [0, 1]",
             ),
             (
                 all(isinstance(k, int) and k >= 2 for k in d.slower_copies)
@@ -232,23 +218,6 @@ class TrainConfig:
         for ok, message in checks:
             if not ok:
                 raise TrainError(f"bad training config: {message}")
-        # the same copy twice (or one that changes nothing) would only re-weight the data
-        views = [SensorView(every_scan=k) for k in d.slower_copies]
-        for spec in d.sensor_copies:
-            try:
-                view = SensorView.parse(str(spec))
-            except RecordingError as err:
-                raise TrainError(f"bad training config: data.sensor_copies: {err}") from err
-            if view == SensorView():
-                raise TrainError(
-                    f"bad training config: data.sensor_copies: {spec!r} changes nothing"
-                )
-            if view in views:
-                raise TrainError(
-                    f"bad training config: data.sensor_copies: {spec!r} asks for a copy "
-                    "already asked for (here or in data.slower_copies)"
-                )
-            views.append(view)
         return self
 
 

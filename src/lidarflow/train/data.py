@@ -29,10 +29,7 @@ every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx,
 ``dx, dy`` in cells (:mod:`lidarflow.motion.odometry`; index ``t`` is frame ``t`` in frame
 ``t - 1``, identity where a pose is unknown), appended as the item's last element. Without it
 the items are exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry
-identity motions instead (chosen by a hash of the window, the same every epoch). With
-``DataConfig.scan_motions`` a recording without poses carries the motion matched from its scans
-(:mod:`lidarflow.motion.scanmatch`, identity where no match counts), the motion ``evaluate`` and
-the ``Predictor`` give ``poses_optional`` models there.
+identity motions instead (chosen by a hash of the window, the same every epoch).
 """
 
 from __future__ import annotations
@@ -52,11 +49,8 @@ from lidarflow.data import Recording, SequenceSet, load_any
 from lidarflow.data.sources import topic_notes
 from lidarflow.data.views import SensorView
 from lidarflow.errors import LidarflowError, TrainError
-from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
-from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
-from lidarflow.train.augment import shift_patch
 from lidarflow.train.config import DataConfig
 
 __all__ = ["TrainData", "Windows", "expand_source", "load_train_data"]
@@ -100,8 +94,6 @@ class Windows(Dataset):
         with_flow: bool = False,
         motions: Sequence[np.ndarray] | None = None,
         pose_dropout: float = 0.0,
-        static_shift: float = 0.0,
-        shift_first: int = 0,
     ) -> None:
         self.maps = list(maps)
         self.index = list(index)
@@ -110,8 +102,6 @@ class Windows(Dataset):
         self.with_flow = with_flow
         self.motions = None if motions is None else list(motions)
         self.pose_dropout = pose_dropout
-        self.static_shift = static_shift
-        self.shift_first = shift_first
         # (recording, start, posed) -> the head's state before the window's first frame.
         self.start_states: dict[tuple[int, int, bool], np.ndarray] | None = None
 
@@ -137,24 +127,9 @@ class Windows(Dataset):
             np.random.default_rng((rec, start)).random() < self.pose_dropout
         )
 
-    def shifted(self, i: int) -> bool:
-        """Whether window ``i`` is served with a piece of its scene moved
-        (:func:`lidarflow.train.augment.shift_patch`; fixed per window). Only windows whose
-        motions are all zero (standing still, or a recording without poses): where the sensor
-        is known to move, the whole scene moves anyway."""
-        if not self.static_shift:
-            return False
-        rec, start = self.index[i]
-        if self.motions is not None and self.motions[rec][start : start + self.length].any():
-            return False
-        return bool(np.random.default_rng((rec, start, 1)).random() < self.static_shift)
-
     def _item(self, i: int) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, bool]:
         rec, start = self.index[i]
         window = self.maps[rec][start : start + self.length]
-        if self.shifted(i):
-            rng = np.random.default_rng((rec, start, 1))
-            window = shift_patch(window, rng, self.shift_first)
         maps = torch.from_numpy(np.ascontiguousarray(window).view(np.uint8))
         if not self.with_flow:
             return maps
@@ -231,7 +206,6 @@ def _windows(
     with_flow: bool,
     with_motion: bool = False,
     pose_dropout: float = 0.0,
-    static_shift: float = 0.0,
     with_subcell: bool = False,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
@@ -248,17 +222,8 @@ def _windows(
     motions = None
     if with_motion:
         motions = []
-        for i, rec in enumerate(recordings):
+        for rec in recordings:
             source = rec.meta.get("source", "a recording")
-            if cfg.scan_motions and not rec.has_poses:
-                matched = scan_motions(seqs.maps[i][:, 0], recording_points(rec), grid.res)
-                unmatched = np.isnan(matched).any(axis=1)
-                motions.append(np.where(unmatched[:, None], 0.0, matched).astype(np.float32))
-                notes.append(
-                    f"{source}: no poses; motion matched from its scans in "
-                    f"{int((~unmatched).sum())} of {len(rec) - 1} frame steps"
-                )
-                continue
             m, known = relative_motions(rec.poses, len(rec))
             motions.append(metres_to_cells(m, grid.res))
             if len(rec) > 1 and not known[1:].all():
@@ -266,19 +231,7 @@ def _windows(
                     f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
                     "steps; those steps are not ego-motion compensated"
                 )
-    # A moved piece is scored from the frame after it moves, so it moves inside the scored part.
-    first = max(cfg.warmup - 1, 1)
-    windows = Windows(
-        seqs.maps,
-        seqs.index,
-        cfg.seq_len,
-        flows,
-        with_flow,
-        motions,
-        pose_dropout,
-        static_shift,
-        first,
-    )
+    windows = Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout)
     return windows, notes
 
 
@@ -353,10 +306,9 @@ def load_train_data(
                     train_recs[i].append(train)
                 if val is not None:
                     val_recs.append(val)
-    if cfg.slower_copies or cfg.sensor_copies:
+    if cfg.slower_copies:
         # copies of the training frames only: validation stays as recorded
         views = [SensorView(every_scan=k) for k in cfg.slower_copies]
-        views += [SensorView.parse(spec) for spec in cfg.sensor_copies]
         copied = []
         for spec, recs in zip(cfg.sources, train_recs, strict=True):
             try:
@@ -371,9 +323,8 @@ def load_train_data(
         try:
             # Validation keeps every pose: it measures the model where odometry is there.
             windows, more = _windows(
-                recs, cfg, grid, False, with_motion, cfg.pose_dropout, cfg.static_shift,
-                with_subcell,
-            )  # fmt: skip
+                recs, cfg, grid, False, with_motion, cfg.pose_dropout, with_subcell
+            )
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
         sources.append(windows)
