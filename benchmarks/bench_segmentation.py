@@ -1,7 +1,7 @@
 """Per-scan cost of moving-object segmentation (when ``Prediction.moving`` is read) and of the
 calibration sums (in every evaluated frame), as ratios to a reference measured in the same run.
 
-Segmentation: :func:`lidarflow.segmentation.moving_mask` on the bundled model's forward flow of
+Segmentation: :func:`lidarflow.predict.moving.moving_mask` on the bundled model's forward flow of
 the bundled sample's scans, against ``Predictor.update`` (rasterize + model step; segmentation
 is computed on first access to ``Prediction.moving``, so it is no longer in the update) on the
 same scans. Calibration: ``Calibration.add`` against ``Scorer.add`` (which
@@ -26,7 +26,7 @@ from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.evaluate.calibration import Calibration
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.predict import Predictor
-from lidarflow.segmentation import moving_mask
+from lidarflow.predict.moving import moving_mask
 
 
 def median_ms(call: Callable[[int], object], n: int) -> float:

@@ -1,7 +1,7 @@
 """Choose the moving-segmentation threshold on simulated *tuning* recordings (issue 8).
 
 Runs a flow model (default: the bundled one) over each recording, streaming with 10 warm-up
-frames, and scores :func:`lidarflow.segmentation.moving_mask` against the simulator's ``moving``
+frames, and scores :func:`lidarflow.predict.moving.moving_mask` against the simulator's ``moving``
 ground truth for a sweep of thresholds, with and without background-motion compensation. The
 same sweep on the ground-truth forward flow is the upper bound of the rule itself. Writes JSON.
 
@@ -27,8 +27,8 @@ from lidarflow.data import load_any
 from lidarflow.evaluate.metrics import Counts, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.models.presets import resolve_model
+from lidarflow.predict.moving import moving_mask
 from lidarflow.scan import GridSpec
-from lidarflow.segmentation import moving_mask
 from lidarflow.sim.storage import dense_flow
 
 THRESHOLDS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 1.0, 1.2, 1.5)

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.gaps import PACE_ABOVE
 from lidarflow.data.recording import Recording
+from lidarflow.motion.pacing import PACE_ABOVE
 from studies.harness import parse, parser, stretch_arguments, write_summary
 from studies.scoring import (
     add_counts,

@@ -12,8 +12,8 @@ from lidarflow.evaluate.report import build_report, format_table, format_uncerta
 from lidarflow.evaluate.stream import evaluate_maps, evaluate_recording, ground_truth_moving
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict.baselines import CopyLast
+from lidarflow.predict.moving import moving_mask
 from lidarflow.scan import GridSpec
-from lidarflow.segmentation import moving_mask
 from tests.conftest import make_model_dir
 from tests.evaluate.test_evaluate import moving_square
 

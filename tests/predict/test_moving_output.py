@@ -8,8 +8,8 @@ import pytest
 from lidarflow.errors import PredictError
 from lidarflow.predict import Predictor
 from lidarflow.predict.job import predict_to_bag
+from lidarflow.predict.moving import moving_mask
 from lidarflow.predict.rosout import map_from_grid_data
-from lidarflow.segmentation import moving_mask
 from tests.conftest import make_model_dir
 from tests.predict.test_rosout import read_all
 

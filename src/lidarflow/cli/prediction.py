@@ -132,7 +132,7 @@ def predict(
     from lidarflow.predict.job import predict_to_bag
 
     recording = load_input(input, topic, odom_topic)
-    from lidarflow.segmentation import MOVING_THRESHOLD
+    from lidarflow.predict.moving import MOVING_THRESHOLD
 
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
     given = None if grid is None and res is None else _completed(_recorded(model), grid, res)

@@ -56,7 +56,7 @@ def methods_and_config(
     from lidarflow.models.weights import describe_source
     from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.predict.decision import OnlineDecisionConfig
-    from lidarflow.segmentation import MOVING_THRESHOLD
+    from lidarflow.predict.moving import MOVING_THRESHOLD
 
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD

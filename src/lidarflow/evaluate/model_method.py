@@ -11,8 +11,8 @@ from lidarflow.errors import EvaluateError
 from lidarflow.predict.backends import TorchBackend
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
+from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
 from lidarflow.scan import takes_subcell
-from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["ModelMethod"]
 
@@ -23,7 +23,7 @@ class ModelMethod:
     :class:`~lidarflow.predict.baselines.Method`. After each update a flow model exposes
     ``backward_flow`` and ``forward_flow`` ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool,
     the occupied cells of the frame just given that move on their own
-    (:func:`lidarflow.segmentation.moving_mask` of the forward flow at ``moving_threshold``
+    (:func:`lidarflow.predict.moving.moving_mask` of the forward flow at ``moving_threshold``
     cells); all three are ``None`` for other models. :attr:`last` is the engine's last
     :class:`~lidarflow.predict.engine.Step`, which a roll-out continues from.
 

@@ -15,7 +15,7 @@ the bag's header clock went back, reading re-stamps its later sessions, and this
   per map cell the (column, row) displacement in cells (flow models only);
 - ``/lidarflow/moving``: the moving-object segmentation of the current map
   (``nav_msgs/OccupancyGrid``; 100 on occupied cells that move on their own, 0 on other visible
-  cells, -1 where not visible; flow models only; see :mod:`lidarflow.segmentation`).
+  cells, -1 where not visible; flow models only; see :mod:`lidarflow.predict.moving`).
 """
 
 from __future__ import annotations

@@ -42,9 +42,9 @@ from lidarflow.motion.pacing import StepClock
 from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
+from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
 from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
-from lidarflow.segmentation import MOVING_THRESHOLD, moving_mask
 
 __all__ = ["Prediction", "Predictor"]
 
@@ -86,7 +86,7 @@ class Prediction:
     def moving(self) -> np.ndarray | None:
         """``(H, W)`` bool, the occupied cells of the frame just given that move on their own
         (forward flow less the platform's motion longer than ``moving_threshold`` cells;
-        :func:`lidarflow.segmentation.moving_mask`); ``None`` for models without flow.
+        :func:`lidarflow.predict.moving.moving_mask`); ``None`` for models without flow.
 
         Computed on first access (~0.6 ms on a 100 x 100 grid, a tenth of an update), so a
         robot that only wants the next map does not pay for it.
@@ -107,7 +107,7 @@ class Predictor:
         horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
         threads: CPU threads for inference (default: the library's choice).
         moving_threshold: cells per frame of motion of its own above which an occupied cell is
-            reported moving (:data:`lidarflow.segmentation.MOVING_THRESHOLD` by default).
+            reported moving (:data:`lidarflow.predict.moving.MOVING_THRESHOLD` by default).
         check_odometry: for a model that may run without poses (``poses_optional``, the bundled
             one): stop compensating while the poses disagree with the scans
             (:class:`~lidarflow.motion.odometry.OdometryCheck`). Off: every pose given is used.

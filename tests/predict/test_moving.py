@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lidarflow.evaluate.metrics import confusion
-from lidarflow.segmentation import (
+from lidarflow.predict.moving import (
     MIN_BACKGROUND_CELLS,
     MOVING_THRESHOLD,
     background_flow,
