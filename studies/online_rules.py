@@ -103,7 +103,7 @@ def stream_beside_baselines(
     methods = [ModelMethod("model", net, online=False)]
     methods += [CopyLast(), TemporalAverage(), ConstantVelocity()]
     motions = recording_motions(recording, GridSpec(), methods, occupancy)
-    subcell = recording.subcell_maps(GridSpec()) if methods[0].takes_subcell else None
+    subcell = recording.subcell_maps(GridSpec()) if methods[0].takes.subcell else None
     evaluate_maps(
         occupancy, visibility, methods, on_prediction=add, motions=motions, subcell=subcell
     )

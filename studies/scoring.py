@@ -62,7 +62,7 @@ def methods_for(
                     res=res, decision=own,
                 )
             )  # fmt: skip
-    if any(getattr(m, "uses_motion", False) for m in methods):
+    if any(m.takes.motion for m in methods):
         methods.insert(3, CopyLastEgo())
     return methods
 

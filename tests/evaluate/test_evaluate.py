@@ -14,6 +14,7 @@ from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.predict.baselines import (
     ConstantVelocity,
     CopyLast,
+    Takes,
     TemporalAverage,
     best_rigid_shift,
     shift_map,
@@ -34,6 +35,7 @@ class Oracle:
     """Knows the future: predicts exactly the next map."""
 
     name = "oracle"
+    takes = Takes()
 
     def __init__(self, maps: np.ndarray) -> None:
         self.maps = maps
@@ -137,6 +139,7 @@ class FlowOracle:
     """Copies the last map but reports the simulator's true backward flow."""
 
     name = "flow_oracle"
+    takes = Takes()
 
     def __init__(self, flow_of):
         self.flow_of, self.t = flow_of, -1

@@ -11,7 +11,7 @@ from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import build_report, format_table, format_uncertainty_table
 from lidarflow.evaluate.stream import evaluate_maps, evaluate_recording, ground_truth_moving
 from lidarflow.models.presets import resolve_model
-from lidarflow.predict.baselines import CopyLast
+from lidarflow.predict.baselines import CopyLast, Takes
 from lidarflow.predict.moving import moving_mask
 from lidarflow.scan import GridSpec
 from tests.conftest import make_model_dir
@@ -22,6 +22,8 @@ OLD_KEYS = {"f1", "precision", "recall", "ap", "changed_f1", "frames"}
 
 class MovingFromTruth:
     """Copies the last map and reports ``moving_of(t)`` as its moving cells (frame t given)."""
+
+    takes = Takes()
 
     def __init__(self, name, moving_of):
         self.name, self.moving_of, self.t = name, moving_of, -1

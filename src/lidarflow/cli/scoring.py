@@ -76,7 +76,7 @@ def methods_and_config(
         methods.append(method)
         keys = ("model", "weights_path", "weights_sha256", "grid")
         models_used[name] = {k: card.get(k) for k in keys}
-        if method.uses_motion and ego_oracle:
+        if method.takes.motion and ego_oracle:
             methods.append(ModelMethod(name + ORACLE_SUFFIX, net, oracle=True, res=res))
         if online:  # the other decision rule beside the model's own
             wants_online = method.online is not None
@@ -91,7 +91,7 @@ def methods_and_config(
                     decision=own,
                 )
             )
-    if any(getattr(m, "uses_motion", False) for m in methods):
+    if any(m.takes.motion for m in methods):
         methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
     config = {
         "threshold": 0.4,
@@ -129,7 +129,7 @@ def methods_and_config(
             "baselines largest if the next `lookahead` frames went as its recent (decayed) ones; "
             "the decisions made and the baselines' counts decay by `history_decay`",
         }
-    if any(getattr(m, "uses_motion", False) for m in methods):
+    if any(m.takes.motion for m in methods):
         config["ego_motion"] = (
             "models built with ego_motion get the recordings' poses (odometry); the motion to "
             "the next frame is the last one again (constant velocity, causal); *_oracle* "

@@ -1,9 +1,10 @@
 """Ego-motion inputs of the streaming evaluation: per-frame motions of a recording, and the
 baseline that only compensates the platform's own motion.
 
-A method with ``uses_motion = True`` is called ``update(occupancy, visibility, motion=m_t,
-next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in cells
-(:mod:`lidarflow.motion.odometry`; identity where a pose is unknown); ``next_motion`` is the future
+A method that takes the motion (``takes.motion``) is called ``update(occupancy, visibility,
+motion=m_t, next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in
+cells (:mod:`lidarflow.motion.odometry`; identity where a pose is unknown); ``next_motion`` is the
+future
 and only an oracle may use it. After a long step in time (a gap, scans dropped) it also gets
 ``pace`` (typical step / this step, :func:`lidarflow.motion.pacing.paces_after_long_steps`) to scale
 its guess of the next motion.
@@ -24,20 +25,21 @@ from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.ops.rigid import rigid_warp
+from lidarflow.predict.baselines import Method, Takes
 from lidarflow.scan import GridSpec
 
 __all__ = ["CopyLastEgo", "recording_motions", "wants_motion"]
 
 
-def wants_motion(methods: Sequence[object]) -> list[str]:
+def wants_motion(methods: Sequence[Method]) -> list[str]:
     """Names of the methods that take the ego motion."""
-    return [str(getattr(m, "name", m)) for m in methods if getattr(m, "uses_motion", False)]
+    return [m.name for m in methods if m.takes.motion]
 
 
 def recording_motions(
     recording: Recording,
     grid: GridSpec,
-    methods: Sequence[object],
+    methods: Sequence[Method],
     occupancy: Frames | None = None,
 ) -> np.ndarray | None:
     """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``.
@@ -56,16 +58,12 @@ def recording_motions(
     if not users:
         return None
     if not recording.has_poses:
-        needing = [
-            m
-            for m in methods
-            if getattr(m, "uses_motion", False) and not getattr(m, "poses_optional", False)
-        ]
+        needing = [m for m in methods if m.takes.motion and not m.takes.poses_optional]
         if not needing:
             if occupancy is None:
                 occupancy = streamed_maps(recording, grid)[0]
             return scan_motions(occupancy, streamed_points(recording), grid.res)
-        users = [str(getattr(m, "name", m)) for m in needing]
+        users = [m.name for m in needing]
         source = recording.meta.get("source") or recording.meta.get("path") or "the recording"
         raise EvaluateError(
             f"{source}: no sensor poses, but {', '.join(users)} compensate(s) ego motion; "
@@ -81,8 +79,8 @@ class CopyLastEgo:
     to the next frame equals the last one (constant velocity, causal); the oracle variant uses
     the true next motion. What ego-motion compensation alone buys, with no learned flow."""
 
-    uses_motion = True
-    poses_optional = True  # without poses it is copy_last: never the reason to refuse one
+    # without poses it is copy_last: never the reason to refuse one
+    takes = Takes(motion=True, poses_optional=True)
 
     def __init__(self, oracle: bool = False) -> None:
         self.oracle = oracle

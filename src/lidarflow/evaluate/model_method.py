@@ -9,6 +9,7 @@ import numpy as np
 
 from lidarflow.errors import EvaluateError
 from lidarflow.predict.backends import TorchBackend
+from lidarflow.predict.baselines import Takes
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
@@ -27,10 +28,10 @@ class ModelMethod:
     cells); all three are ``None`` for other models. :attr:`last` is the engine's last
     :class:`~lidarflow.predict.engine.Step`, which a roll-out continues from.
 
-    Ego-motion models (``uses_motion``) take the frame's ``motion`` (cells, this frame in the
+    Ego-motion models (``takes.motion``) take the frame's ``motion`` (cells, this frame in the
     previous one, see :mod:`lidarflow.motion.odometry`) in ``update``; ``oracle=True`` also takes
     the true ``next_motion`` instead of the causal guess (an upper bound that needs the future
-    pose, for evaluation only). A model that may run without poses (``poses_optional``) checks
+    pose, for evaluation only). A model that may run without poses (``takes.poses_optional``) checks
     the odometry against the scans and, where they disagree, takes the scans' own motion, refined
     on the scans' returns when ``update`` is given them (``res``: the grid's cell size in
     metres).
@@ -59,10 +60,10 @@ class ModelMethod:
         self.backend: Backend = model if hasattr(model, "run") else TorchBackend(model, device)
         self.moving_threshold = moving_threshold
         caps = self.backend.capabilities
-        self.uses_motion = caps.ego_motion
-        self.poses_optional = caps.ego_motion and caps.poses_optional
-        self.takes_returns = self.poses_optional
-        self.takes_subcell = takes_subcell(caps.input_channels)
+        optional = caps.ego_motion and caps.poses_optional
+        #: What ``update`` takes beside the maps; a model that may run without poses checks
+        #: odometry against the scans' returns.
+        self.takes = Takes(caps.ego_motion, optional, optional, takes_subcell(caps.input_channels))
         record = decision if decision is not None else getattr(self.backend, "decision", None)
         policy = DecisionPolicy.from_record(record, online_config)
         policy = policy.with_online(online_config if online is True and online_config else online)
@@ -115,10 +116,10 @@ class ModelMethod:
         """One frame; ``returns``: its scan's returns (:func:`~lidarflow.motion.icp.
         scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
         scans, and is only checked); ``subcell``: where its returns lie inside their cells
-        ``(2, H, W)``, which a model with ``takes_subcell`` needs; ``pace``: after a long step in
+        ``(2, H, W)``, which a model with ``takes.subcell`` needs; ``pace``: after a long step in
         time, the typical step over this one (the guess of the next motion is scaled by it,
         :func:`lidarflow.motion.pacing.paced_motion`)."""
-        if self.takes_subcell and subcell is None:
+        if self.takes.subcell and subcell is None:
             raise EvaluateError(
                 f"{self.name} needs where the returns lie inside their cells (subcell_input): "
                 "evaluate it on a recording, not on maps alone"

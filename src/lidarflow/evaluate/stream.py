@@ -220,16 +220,16 @@ def method_inputs(
 ) -> dict[str, object]:
     """What ``method.update`` takes for frame ``t`` beside the maps."""
     extra: dict[str, object] = {}
-    if motions is not None and getattr(method, "uses_motion", False):
+    if motions is not None and method.takes.motion:
         # NaN: no motion known for that step (scan matching found none): not compensated
         motion, following = (None if np.isnan(v).any() else v for v in motions[t : t + 2])
         extra = {"motion": motion, "next_motion": following}
         if paces and t in paces:
             extra["pace"] = paces[t]
-        if getattr(method, "takes_returns", False):
+        if method.takes.returns:
             extra["returns"] = None if returns is None else returns[t]
             extra["from_pose"] = motions_from_poses
-    if subcell is not None and getattr(method, "takes_subcell", False):
+    if subcell is not None and method.takes.subcell:
         extra["subcell"] = subcell[t]
     return extra
 
@@ -250,7 +250,7 @@ class RecordingInputs:
 
 
 def recording_inputs(
-    recording: Recording, grid: GridSpec, methods: Sequence[object]
+    recording: Recording, grid: GridSpec, methods: Sequence[Method]
 ) -> RecordingInputs:
     """The inputs ``methods`` (baselines, :class:`~lidarflow.evaluate.model_method.ModelMethod`
     ...) need from ``recording`` on ``grid``; what none of them asks for is ``None``."""
@@ -260,11 +260,9 @@ def recording_inputs(
     # The returns matter only where the motions are odometry that a model may replace; without
     # poses the motions already came from the scans (recording_motions) and are only checked.
     takes_returns = (
-        recording.has_poses
-        and motions is not None
-        and any(getattr(m, "takes_returns", False) for m in methods)
+        recording.has_poses and motions is not None and any(m.takes.returns for m in methods)
     )
-    takes_subcell = any(getattr(m, "takes_subcell", False) for m in methods)
+    takes_subcell = any(m.takes.subcell for m in methods)
     return RecordingInputs(
         occupancy,
         visibility,

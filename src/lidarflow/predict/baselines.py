@@ -8,6 +8,7 @@ frame's occupancy, ``(H, W)`` float32 in [0, 1].
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -18,6 +19,7 @@ __all__ = [
     "ConstantVelocity",
     "CopyLast",
     "Method",
+    "Takes",
     "TemporalAverage",
     "best_rigid_shift",
     "shift_map",
@@ -36,10 +38,26 @@ TA_WINDOW = 3
 TA_THRESHOLD = 0.4
 
 
+@dataclass(frozen=True)
+class Takes:
+    """What a :class:`Method` takes in ``update`` beside the maps (what the streaming
+    evaluation reads instead of probing): ``motion`` (the sensor's motion, ``motion=`` /
+    ``next_motion=`` / ``pace=``), ``poses_optional`` (it may run where a recording has no poses,
+    on the motion matched from the scans), ``returns`` (the scan's returns and ``from_pose``, to
+    check odometry against the scans) and ``subcell`` (where the returns lie inside their
+    cells)."""
+
+    motion: bool = False
+    poses_optional: bool = False
+    returns: bool = False
+    subcell: bool = False
+
+
 class Method(Protocol):
-    """A next-map predictor run one frame at a time."""
+    """A next-map predictor run one frame at a time; ``takes`` says what else ``update`` takes."""
 
     name: str
+    takes: Takes
 
     def reset(self) -> None: ...
 
@@ -50,6 +68,7 @@ class CopyLast:
     """Predict that the next map equals the current one."""
 
     name = "copy_last"
+    takes = Takes()
 
     def reset(self) -> None:
         pass
@@ -65,6 +84,8 @@ class TemporalAverage:
 
     Defaults: :data:`TA_WINDOW`, :data:`TA_THRESHOLD` (the majority of the last three maps).
     """
+
+    takes = Takes()
 
     name = "temporal_average"
 
@@ -126,6 +147,8 @@ class ConstantVelocity:
     Flow-free and whole-map: it captures a moving platform's translation (and is copy-last when
     nothing moves), not individual people. Rotation is not modelled.
     """
+
+    takes = Takes()
 
     name = "constant_velocity"
 
