@@ -6,22 +6,17 @@ the left edge, and the sensor sits at the middle of the bottom edge.
 
 Beam validity: a finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf``
 or ``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
-or ``rho < range_min`` are *unknown* (the beam says nothing). A reading of exactly
-``range_max`` is the sensor saying "nothing nearer": older Gazebo laser plugins and drivers that
-clip their readings write no return that way, and read as a return it draws a ring at
-``range_max`` that stays put in the sensor's frame; where a scan writes no return that way,
-readings just under ``range_max`` are no return too (:func:`ring_band`: simulators that add
-noise before clipping leave half the ring there). This departs from the design notes
-(``range_min <= rho <= range_max``) for that one value; why, measured:
-``docs/research/range_max/README.md``.
+or ``rho < range_min`` are *unknown*. Exactly ``range_max`` is how clipping drivers and older
+Gazebo plugins write no return (read as a return it draws a ring that stays put in the sensor's
+frame), and where a scan does so, readings just under it are no return too (:func:`ring_band`):
+a departure from the design notes, measured in ``docs/research/range_max/``.
 
 Visibility: a cell is visible when the beam nearest to the bearing of its centre exists and
 either returned beyond the centre's distance, or had no return and the centre lies within
 ``range_max``. Occupied cells are always visible.
 
-Everything here is pure NumPy. The per-cell beam lookup depends only on the grid and the beam
-geometry, so it is computed once per geometry and cached; a scan then costs one gather and one
-comparison per cell, which is what makes batch rasterization fast.
+Pure NumPy. The per-cell beam lookup depends only on the grid and the beam geometry, so it is
+cached per geometry: a scan then costs one gather and one comparison per cell.
 """
 
 from __future__ import annotations
@@ -358,12 +353,9 @@ def subcell_batch(
     ``res / SUBCELL`` of its border. Channel 1 (``near``): a return in one of the cell's four
     neighbours lies within ``res / SUBCELL`` of the edge they share.
 
-    Why: most cells that change between frames on a static scene are a return jittering along
-    its beam across a cell edge, and the binary map cannot tell a return at a cell's centre
-    from one about to cross (measured on the development recordings,
-    docs/research/subcell/). Both channels are zero for a return at a cell's
-    centre, so zeros are also the neutral input where no scan is known (a predicted map fed
-    back). Cells use :func:`rasterize_batch`'s arithmetic, so an ``edge`` cell is always one it
+    Why: most cells that change on a static scene are a return jittering along its beam across
+    a cell edge, which the binary map cannot see coming (docs/research/subcell/). Both channels
+    are zero for a return at a cell's centre: the neutral input where no scan is known. Cells use :func:`rasterize_batch`'s arithmetic, so an ``edge`` cell is always one it
     marks occupied.
 
     Straight ahead on a grid 101 cells wide (the beam runs down the middle of column 50), a
