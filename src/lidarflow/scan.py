@@ -355,8 +355,8 @@ def subcell_batch(
 
     Why: most cells that change on a static scene are a return jittering along its beam across
     a cell edge, which the binary map cannot see coming (docs/research/subcell/). Both channels
-    are zero for a return at a cell's centre: the neutral input where no scan is known. Cells use :func:`rasterize_batch`'s arithmetic, so an ``edge`` cell is always one it
-    marks occupied.
+    are zero for a return at a cell's centre: the neutral input where no scan is known. Cells
+    are :func:`rasterize_batch`'s, so an ``edge`` cell is always one it marks occupied.
 
     Straight ahead on a grid 101 cells wide (the beam runs down the middle of column 50), a
     return 1 cm short of cell 49's near edge, then one at its centre:
