@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import inspect
 import os
+import signal
 import sys
+import threading
 
 import typer
 
@@ -21,7 +23,7 @@ from lidarflow.errors import LidarflowError
 from lidarflow.cli import recordings, scoring, prediction, training, simulation  # noqa: F401
 # isort: on
 
-__all__ = ["app", "main"]
+__all__ = ["app", "main", "stop_on_sigterm"]
 
 
 def _reflow(text: str) -> str:
@@ -34,9 +36,21 @@ for _command in app.registered_commands:
     _command.help = _reflow(_command.help or inspect.getdoc(_command.callback) or "")
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"stopped by signal {signal.Signals(signum).name}")
+
+
+def stop_on_sigterm() -> None:
+    """Make SIGTERM (``kill``, a scheduler's stop) stop the process as Ctrl-C does, so that a
+    file being written is removed (:mod:`lidarflow.atomic`) rather than left half-written."""
+    if threading.current_thread() is threading.main_thread():  # signals go to that one only
+        signal.signal(signal.SIGTERM, _interrupt)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script."""
     debug = os.environ.get("LIDARFLOW_DEBUG") == "1"
+    stop_on_sigterm()
     try:
         app(args=argv, prog_name="lidarflow", standalone_mode=True)
     except LidarflowError as err:

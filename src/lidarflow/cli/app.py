@@ -21,6 +21,32 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            number = version("lidarflow")
+        except PackageNotFoundError:  # a source tree on PYTHONPATH, not installed
+            number = "unknown (not installed)"
+        typer.echo(f"lidarflow {number}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    pass
+
+
 TopicOpt = Annotated[
     str | None,
     typer.Option(
