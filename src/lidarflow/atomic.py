@@ -42,11 +42,21 @@ __all__ = [
 _SUFFIX = ".partial"
 
 
-def check_writable(path: str | Path, force: bool = False) -> None:
-    """Refuse an existing ``path`` unless ``force``: one line saying what to do."""
+def check_writable(path: str | Path, force: bool = False, marker: str | None = None) -> None:
+    """Refuse an existing ``path`` unless ``force``: one line saying what to do. For an output
+    that is a folder, ``marker`` names a file that such a folder holds: a folder without it
+    (or a file) is not replaced even with ``force``, since replacing a folder removes all it
+    holds (``--report .``)."""
     path = Path(path)
-    if not force and (path.exists() or path.is_symlink()):
+    if not (path.exists() or path.is_symlink()):
+        return
+    if not force:
         raise OutputError(f"{path} already exists; use --force to overwrite it")
+    if marker is not None and not (path / marker).is_file():
+        raise OutputError(
+            f"{path} exists and is not a folder lidarflow wrote (no {marker} in it); "
+            "name a new folder"
+        )
 
 
 def temporary(target: str | Path) -> Path:

@@ -22,7 +22,6 @@ app = typer.Typer(
 )
 
 
-
 def _print_version(value: bool) -> None:
     if value:
         from importlib.metadata import PackageNotFoundError, version
@@ -96,6 +95,42 @@ MovingOpt = Annotated[
         min=0.0,
     ),
 ]
+
+
+ForceOpt = Annotated[
+    bool, typer.Option("--force", help="Overwrite the output if it exists (else refused).")
+]
+#: One thread by default: a streaming model steps one small map at a time, which a second
+#: thread barely speeds up on an idle machine and slows many times over on a busy one
+#: (benchmarks/bench_threads.py, benchmarks/results/threads.json).
+DEFAULT_THREADS = 1
+ThreadsOpt = Annotated[
+    int,
+    typer.Option(
+        "--threads",
+        help="CPU threads for the model (0: one per core, PyTorch's own default; more than 1 "
+        "pays only on an idle machine).",
+        min=0,
+    ),
+]
+
+
+def use_threads(threads: int) -> None:
+    """Run PyTorch on ``threads`` CPU threads (0: leave its default)."""
+    if threads > 0:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
+def refuse_existing(*paths: Path | None, force: bool = False, marker: str | None = None) -> None:
+    """Stop before any work where an output is there already, unless ``--force``; outputs that
+    are folders name the ``marker`` file they hold (:func:`lidarflow.atomic.check_writable`)."""
+    from lidarflow.atomic import check_writable
+
+    for path in paths:
+        if path is not None:
+            check_writable(path, force, marker)
 
 
 def progress_bar(total: int | None, desc: str) -> Any:
