@@ -60,10 +60,8 @@ OdomOpt = Annotated[
     str | None,
     typer.Option(
         "--odom-topic",
-        help="Odometry (nav_msgs/Odometry or PoseStamped) topic for sensor poses; by default the "
-        "bag's Odometry topic (of several: odometry/filtered, else odom, else the busiest; "
-        "`info` says which). The base's poses are moved to the scanner by the bag's TF "
-        "(base -> scan frame) when it has it.",
+        help="Odometry (Odometry or PoseStamped) topic for the sensor's poses; default: the "
+        "bag's (`info` says which), moved to the scanner by the bag's TF.",
     ),
 ]
 GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
@@ -89,9 +87,8 @@ MovingOpt = Annotated[
     float | None,
     typer.Option(
         "--moving-threshold",
-        help="Moving-object segmentation: an occupied cell is moving when its forward flow, less "
-        "the background's (platform's) fitted motion, is longer than this many cells per frame "
-        "(default 0.4, chosen on simulated tuning data).",
+        help="Moving-object segmentation: an occupied cell moves when its flow, less the "
+        "platform's, exceeds this many cells per frame (default 0.4).",
         min=0.0,
     ),
 ]
@@ -161,17 +158,14 @@ def load_input(
 
 #: What every --model that loads PyTorch weights takes (models.weights.load_trained); an .onnx
 #: file only runs (predict), so each command's help says whether it takes one.
-TORCH_MODEL_SOURCES = (
-    "a run folder from `lidarflow train`, a .safetensors file (its .json or a model.json "
-    "beside it), a model.json"
-)
+TORCH_MODEL_SOURCES = "a run folder, .safetensors or model.json from `lidarflow train`"
 ModelOpt = Annotated[
     Path | None,
     typer.Option(
         "--model",
         "-m",
-        help=f"Model: {TORCH_MODEL_SOURCES}, an .onnx file from `lidarflow export` or "
-        "`bundled` (the default: the bundled pretrained model).",
+        help=f"Model: {TORCH_MODEL_SOURCES}, an .onnx file from `lidarflow export`, or "
+        "`bundled` (the default).",
     ),
 ]
 ExportModelOpt = Annotated[
@@ -179,8 +173,8 @@ ExportModelOpt = Annotated[
     typer.Option(
         "--model",
         "-m",
-        help=f"Model to export: {TORCH_MODEL_SOURCES} or `bundled` (the default: the bundled "
-        "pretrained model); not an .onnx file (it is exported already).",
+        help=f"Model to export: {TORCH_MODEL_SOURCES} or `bundled` (the default); not an .onnx "
+        "file.",
     ),
 ]
 

@@ -13,9 +13,8 @@ from lidarflow.atomic import write_text
 from lidarflow.cli.app import ForceOpt, GridOpt, ResOpt, app, progress_bar, refuse_existing
 
 _SENSOR_HELP = (
-    "LiDAR preset: tim561 (paper: 15 Hz, 270 deg, 811 beams, 10 m), hokuyo-urg (10 Hz, 180 deg, "
-    "512 beams, 5.6 m), hokuyo-utm (7.5 Hz, 270 deg, 768 beams, 11 m), rplidar (10 Hz, 360 deg, "
-    "360 beams, 8 m)."
+    "LiDAR preset: tim561 (the paper's: 15 Hz, 270 deg, 811 beams, 10 m), hokuyo-urg, "
+    "hokuyo-utm or rplidar."
 )
 
 

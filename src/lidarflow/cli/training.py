@@ -164,6 +164,10 @@ def train(
             "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Start the run in -o over (its old files are removed)."),
+    ] = False,
 ) -> None:
     """``lidarflow train``: the help text above says it all (kept there for --help)."""
     import dataclasses
@@ -199,6 +203,10 @@ def train(
         "runtime.seed": seed,
     }
     if resume is not None:
+        if force:
+            raise typer.BadParameter(
+                "--resume continues a run, --force starts one over; give one", param_hint="--force"
+            )
         if output is not None and output.resolve() != resume.resolve():
             raise typer.BadParameter(
                 f"--resume {resume} and -o {output} name different runs; give one",
@@ -259,6 +267,10 @@ def train(
         if ego_motion:  # added to, not replacing, any other model kwargs
             kwargs = {**cfg.model.kwargs, "ego_motion": True}
             cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, kwargs=kwargs))
+        if force and (output / "config.json").is_file():  # a run (else nothing to replace)
+            from lidarflow.atomic import discard
+
+            discard(output)
         run_dir = output
     from tqdm import tqdm
 
