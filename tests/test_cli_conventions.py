@@ -38,11 +38,12 @@ WRITERS: dict[str, list[str] | None] = {
     "evaluate": ["evaluate", "{rec}", "--baselines-only", "--warmup", "2", "-o", "{out}.json"],
     "demo": None,  # 3 minutes; tests/test_cli.py runs it once
     "train": None,  # its -o is a run folder: test_train_force_starts_a_run_over
+    "choose-offset": None,  # its -o is a model folder: tests/evaluate/test_offsets.py
 }
 #: Commands that write nothing.
 READERS = {"info"}
 #: Commands that run a model: each takes --threads.
-RUN_MODELS = {"demo", "predict", "evaluate", "export", "train"}
+RUN_MODELS = {"demo", "predict", "evaluate", "export", "train", "choose-offset"}
 
 
 def commands() -> dict[str, Any]:
@@ -102,7 +103,8 @@ def test_version_and_python_dash_m(capsys):
 
 def writer_argv(name: str, inputs: dict[str, str], stem: Path) -> tuple[list[str], Path]:
     """``name``'s command line writing ``stem`` (with the suffix it writes), and that path."""
-    argv = [a.format(**inputs, out=stem) for a in WRITERS[name] or [name, "-o", "{out}"]]
+    default = [name, *(["{rec}"] if name == "choose-offset" else []), "-o", "{out}"]
+    argv = [a.format(**inputs, out=stem) for a in WRITERS[name] or default]
     return argv, Path(argv[argv.index("-o") + 1])
 
 
