@@ -113,3 +113,23 @@ def test_sigterm_mid_write_leaves_nothing(tmp_path):
     proc.send_signal(signal.SIGTERM)
     proc.wait(timeout=60)
     assert proc.returncode != 0 and names(tmp_path) == []
+
+
+def test_an_onnx_export_that_fails_leaves_the_old_file(tmp_path, monkeypatch):
+    import torch
+
+    from lidarflow.errors import PredictError
+    from lidarflow.models import build_model
+    from lidarflow.predict.export import export_onnx
+
+    target = tmp_path / "m.onnx"
+    target.write_bytes(b"the old export")
+
+    def broken(model, args, f, **kwargs):
+        Path(f).write_bytes(b"half a graph")
+        raise RuntimeError("out of memory")
+
+    monkeypatch.setattr(torch.onnx, "export", broken)
+    with pytest.raises(PredictError, match="ONNX export failed"):
+        export_onnx(build_model("flownet"), target, 16, 16)
+    assert target.read_bytes() == b"the old export" and names(tmp_path) == ["m.onnx"]

@@ -200,7 +200,6 @@ def export(
     onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
     import tempfile
 
-    from lidarflow.atomic import atomic_path
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.export import export_onnx
@@ -225,8 +224,7 @@ def export(
     spec = _completed(recorded_grid(card), grid, res)
     size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
-        with atomic_path(output) as tmp:
-            export_onnx(net, tmp, spec.height, spec.width, spec.res)
+        export_onnx(net, output, spec.height, spec.width, spec.res)  # whole or not at all
         typer.echo(f"wrote {output} ({card.get('model')}, {size})")
         return
 
@@ -238,8 +236,7 @@ def export(
     maps = recording.stacked_maps(spec, subcell=takes_subcell(net.input_channels))
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(net, Path(tmp) / "float.onnx", spec.height, spec.width, spec.res)
-        with atomic_path(output) as partial:
-            quantize_onnx(float_path, partial, maps)
+        quantize_onnx(float_path, output, maps)
     typer.echo(
         f"wrote {output} ({card.get('model')}, {size}, int8 convolutions calibrated on "
         f"{len(maps)} frames of {source.name})"
