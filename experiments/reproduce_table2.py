@@ -28,9 +28,9 @@ import sys
 from pathlib import Path
 
 ROWS = {
-    "lidar_flownet": ["-m", "flownet", "--recipe", "paper"],
-    "lidar_flownet_no_gaussian": ["-m", "flownet", "--recipe", "paper", "--no-gaussian"],
-    "deeptracking": ["-m", "deeptracking", "--recipe", "paper"],
+    "lidar_flownet": ["--arch", "flownet", "--recipe", "paper"],
+    "lidar_flownet_no_gaussian": ["--arch", "flownet", "--recipe", "paper", "--no-gaussian"],
+    "deeptracking": ["--arch", "deeptracking", "--recipe", "paper"],
 }
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 
