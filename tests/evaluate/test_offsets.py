@@ -7,7 +7,7 @@ import json
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
-from lidarflow.evaluate.offsets import choose_offset, win_margin, with_offset
+from lidarflow.evaluate.offsets import choose_offset, decided_online, win_margin, with_offset
 from lidarflow.models.presets import resolve_model
 from tests.conftest import make_model_dir
 from tests.test_cli import run
@@ -42,7 +42,10 @@ def test_candidates_decide_with_their_fixed_offset_only():
             "weights_path": "/x", "grid": {"height": 100}}  # fmt: skip
     copy = with_offset(card, 0.3)
     assert copy["model_kwargs"] == {"decision_offset": 0.3} and "weights_path" not in copy
+    assert copy["decision"] == {"offset": 0.3, "online": False}
     assert card["model_kwargs"]["online_decision"] is True  # the original is not changed
+    assert decided_online(card) and not decided_online(copy)
+    assert with_offset(card, 1.0, online=True)["decision"] == {"offset": 1.0, "online": True}
 
 
 def test_choose_offset_writes_the_model_with_the_chosen_offset(tmp_path, capsys):
@@ -57,10 +60,10 @@ def test_choose_offset_writes_the_model_with_the_chosen_offset(tmp_path, capsys)
     margins = record["summed_win_margin"]
     assert set(margins) == {"0", "2"} and record["chosen"] == float(max(margins, key=margins.get))
     assert f"decision offset {record['chosen']:g}" in text
-    net, card = resolve_model(out)  # loads, and decides with the chosen offset
-    assert card["model_kwargs"]["decision_offset"] == record["chosen"]
-    assert card["model_kwargs"]["online_decision"] is True  # the model's own rule is kept
-    assert net.decision_offset == record["chosen"]
+    resolve_model(out)  # loads
+    card = json.loads((out / "model.json").read_text())
+    assert card["decision"] == {"offset": record["chosen"], "online": True}  # its own rule kept
+    assert card["model_kwargs"]["decision_offset"] == record["chosen"]  # as older files had it
     assert (out / "model.safetensors").read_bytes() == (model / "model.safetensors").read_bytes()
     code, _, err = run(argv, capsys)  # the output is there now
     assert code == 1 and "--force" in err

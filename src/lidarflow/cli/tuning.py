@@ -76,7 +76,7 @@ def choose_offset(
     from lidarflow.cli.scoring import _check_length, methods_and_config
     from lidarflow.errors import ModelError
     from lidarflow.evaluate.offsets import choose_offset as choose
-    from lidarflow.evaluate.offsets import with_offset
+    from lidarflow.evaluate.offsets import decided_online, with_offset
     from lidarflow.models.presets import resolve_model
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
@@ -85,7 +85,7 @@ def choose_offset(
     use_threads(threads)
     offsets = list(dict.fromkeys(offset or DEFAULT_OFFSETS))
     net, card = resolve_model(model)
-    if not getattr(getattr(net, "inner", net), "occupancy_head", False):  # ego-motion wrapped
+    if not _has_occupancy_head(net):
         raise ModelError(
             f"{card.get('weights_path')}: this model has no occupancy head, so no decision "
             "offset to choose (train one with the default recipe)"
@@ -117,8 +117,7 @@ def choose_offset(
         )
         typer.echo(f"{Path(entry['path']).name} (F1/changed F1 by offset): {scores}")
     typer.echo("summed win margin: " + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items()))
-    chosen = {k: v for k, v in card.items() if k not in ("weights_path", "weights_sha256")}
-    chosen["model_kwargs"] = {**(card.get("model_kwargs") or {}), "decision_offset": best}
+    chosen = with_offset(card, best, online=decided_online(card))  # the model's own rule kept
     record = {
         "command": "lidarflow " + " ".join(sys.argv[1:]),
         "model": str(weights),
@@ -138,3 +137,12 @@ def choose_offset(
         write_text(folder / "model.json", json.dumps(chosen, indent=2) + "\n")
         write_text(folder / "offsets.json", json.dumps(record, indent=2) + "\n")
     typer.echo(f"wrote {output}: decision offset {best:g} (use it with -m {output})")
+
+
+def _has_occupancy_head(net: object) -> bool:
+    """Whether ``net`` has an occupancy head (whose logit an offset shifts): its capability
+    record where it has one, else its (or its ego-motion wrapper's inner model's) flag."""
+    capabilities = getattr(net, "capabilities", None)
+    if capabilities is not None:
+        return bool(capabilities.occupancy_head)
+    return bool(getattr(getattr(net, "inner", net), "occupancy_head", False))

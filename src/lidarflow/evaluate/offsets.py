@@ -16,7 +16,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-__all__ = ["BASELINES", "DEFAULT_OFFSETS", "choose_offset", "win_margin", "with_offset"]
+__all__ = [
+    "BASELINES",
+    "DEFAULT_OFFSETS",
+    "choose_offset",
+    "decided_online",
+    "win_margin",
+    "with_offset",
+]
 
 #: The baselines a model must beat, as `evaluate` names them.
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
@@ -37,14 +44,28 @@ def win_margin(methods: Mapping[str, Mapping[str, Any]], name: str) -> float:
     return min(value(name, "f1") - best_f1, value(name, "changed_f1") - best_changed)
 
 
-def with_offset(card: Mapping[str, Any], offset: float) -> dict[str, Any]:
+def decided_online(card: Mapping[str, Any]) -> bool:
+    """Whether the model described by ``card`` chooses its offsets online: its ``decision``
+    record, else (files written before the record) its ``model_kwargs``."""
+    record = card.get("decision")
+    if isinstance(record, Mapping):
+        return bool(record.get("online"))
+    return bool((card.get("model_kwargs") or {}).get("online_decision"))
+
+
+def with_offset(card: Mapping[str, Any], offset: float, online: bool = False) -> dict[str, Any]:
     """A copy of the model description ``card`` (a model.json) deciding with the fixed
-    ``offset``: online decisions off, so that every candidate is scored on its own offset."""
+    ``offset``, and online where ``online`` (off for the candidates, so that each is scored on
+    its own offset). Written both ways a model.json has carried its decision: the ``decision``
+    record and the ``model_kwargs`` keys that older files hold."""
     kwargs = {**(card.get("model_kwargs") or {}), "decision_offset": float(offset)}
-    kwargs.pop("online_decision", None)
     kwargs.pop("decision_offset_free", None)
+    kwargs.pop("online_decision", None)
+    if online:
+        kwargs["online_decision"] = True
     kept = {k: v for k, v in card.items() if k not in ("weights_path", "weights_sha256")}
-    return {**kept, "model_kwargs": kwargs}
+    decision = {"offset": float(offset), "online": bool(online)}
+    return {**kept, "model_kwargs": kwargs, "decision": decision}
 
 
 def choose_offset(
