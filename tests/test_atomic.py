@@ -115,12 +115,10 @@ def test_sigterm_mid_write_leaves_nothing(tmp_path):
     assert proc.returncode != 0 and names(tmp_path) == []
 
 
-def test_an_onnx_export_that_fails_leaves_the_old_file(tmp_path, monkeypatch):
+def test_an_onnx_export_that_fails_leaves_the_old_file(tmp_path, monkeypatch, capsys):
     import torch
 
-    from lidarflow.errors import PredictError
-    from lidarflow.models import build_model
-    from lidarflow.predict.export import export_onnx
+    from tests.test_cli import run
 
     target = tmp_path / "m.onnx"
     target.write_bytes(b"the old export")
@@ -130,6 +128,6 @@ def test_an_onnx_export_that_fails_leaves_the_old_file(tmp_path, monkeypatch):
         raise RuntimeError("out of memory")
 
     monkeypatch.setattr(torch.onnx, "export", broken)
-    with pytest.raises(PredictError, match="ONNX export failed"):
-        export_onnx(build_model("flownet"), target, 16, 16)
+    code, _, err = run(["export", "-o", str(target), "--force"], capsys)
+    assert code == 1 and "ONNX export failed" in err
     assert target.read_bytes() == b"the old export" and names(tmp_path) == ["m.onnx"]

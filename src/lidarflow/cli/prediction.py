@@ -200,6 +200,7 @@ def export(
     onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
     import tempfile
 
+    from lidarflow.atomic import atomic_path
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.export import export_onnx
@@ -224,7 +225,8 @@ def export(
     spec = _completed(recorded_grid(card), grid, res)
     size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
-        export_onnx(net, output, spec.height, spec.width, spec.res)  # whole or not at all
+        with atomic_path(output) as tmp:  # whole or not at all
+            export_onnx(net, tmp, spec.height, spec.width, spec.res)
         typer.echo(f"wrote {output} ({card.get('model')}, {size})")
         return
 

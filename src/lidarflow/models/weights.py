@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from lidarflow.errors import ModelError
 from lidarflow.models.recurrent import RecurrentMapModel
 
-__all__ = ["check_finite", "check_finite_onnx", "describe_source", "load_trained", "sha256"]
+__all__ = ["describe_source", "load_trained", "sha256"]
 
 
 def sha256(path: str | Path) -> str:
@@ -26,38 +25,6 @@ def sha256(path: str | Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def check_finite(tensors: Mapping[str, Any], source: str | Path) -> None:
-    """Raise :class:`ModelError` where a floating-point tensor (torch or NumPy) of ``tensors``
-    holds NaN or infinity: such a model loads and runs, and breaks far from the cause."""
-    import numpy as np
-    import torch
-
-    bad = []
-    for name, value in tensors.items():
-        array = value.detach().float().cpu().numpy() if isinstance(value, torch.Tensor) else value
-        array = np.asarray(array)
-        if np.issubdtype(array.dtype, np.floating) and not np.isfinite(array).all():
-            bad.append(name)
-    if bad:
-        more = f" and {len(bad) - 3} more" if len(bad) > 3 else ""
-        raise ModelError(
-            f"{source}: weights are not finite (NaN or inf in {', '.join(bad[:3])}{more}); "
-            "the file is damaged or its training diverged: use an earlier checkpoint or retrain"
-        )
-
-
-def check_finite_onnx(path: str | Path) -> None:
-    """:func:`check_finite` on the initializers (weights) of the ONNX file ``path``."""
-    import onnx
-    from onnx import numpy_helper
-
-    try:
-        graph = onnx.load(str(path), load_external_data=False).graph
-    except Exception as err:  # onnx raises its own (protobuf) errors
-        raise ModelError(f"{path}: not a loadable ONNX model ({err})") from err
-    check_finite({i.name: numpy_helper.to_array(i) for i in graph.initializer}, path)
 
 
 def _locate(path: Path) -> tuple[Path, Path]:
@@ -108,7 +75,9 @@ def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
         state = load_file(str(weights))
     except (SafetensorError, OSError) as err:
         raise ModelError(f"{weights}: unreadable weights ({err})") from err
-    check_finite(state, weights)
+    from lidarflow.models.finite import check_finite
+
+    check_finite(state, weights)  # NaN weights load, run, and break far from the cause
     try:
         model.load_state_dict(state)
     except RuntimeError as err:

@@ -125,7 +125,7 @@ class OnnxBackend:
             )
         except Exception as err:  # onnxruntime raises its own exception classes
             raise PredictError(f"{path}: not a loadable ONNX model ({err})") from err
-        from lidarflow.models.weights import check_finite_onnx
+        from lidarflow.models.finite import check_finite_onnx
 
         check_finite_onnx(path)  # NaN weights run, and break far from the cause
         inputs = self.session.get_inputs()

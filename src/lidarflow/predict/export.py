@@ -26,7 +26,6 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from lidarflow.atomic import atomic_path
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.online import decision_of
 from lidarflow.models.recurrent import RecurrentMapModel
@@ -81,14 +80,14 @@ def export_onnx(
     motions = ["motion", "next_motion"] if ego else []
     names_in = ["maps", *motions, *[f"state{i}" for i in range(len(state))]]
     names_out = ["probability", "out", *[f"next_state{i}" for i in range(len(state))]]
-    with atomic_path(path) as tmp, warnings.catch_warnings():  # whole or not at all
+    with warnings.catch_warnings():
         # The tracer warns that the grid size becomes a constant: that is intended (see above).
         warnings.simplefilter("ignore")
         try:
             torch.onnx.export(
                 graph,
                 (maps, *extra, *state),
-                str(tmp),
+                str(path),
                 input_names=names_in,
                 output_names=names_out,
                 opset_version=OPSET,
@@ -96,15 +95,15 @@ def export_onnx(
             )
         except Exception as err:  # the exporter raises many types
             raise PredictError(f"ONNX export failed: {type(err).__name__}: {err}") from err
-        marks = {}
-        if res is not None:
-            marks[GRID_KEY] = json.dumps({"height": height, "width": width, "res": res})
-        if getattr(model, "poses_optional", False):
-            marks[POSES_OPTIONAL_KEY] = "true"
-        if (decision := decision_of(model)) is not None:
-            marks[DECISION_KEY] = json.dumps(decision)
-        if marks:
-            _write_marks(tmp, marks)
+    marks = {}
+    if res is not None:
+        marks[GRID_KEY] = json.dumps({"height": height, "width": width, "res": res})
+    if getattr(model, "poses_optional", False):
+        marks[POSES_OPTIONAL_KEY] = "true"
+    if (decision := decision_of(model)) is not None:
+        marks[DECISION_KEY] = json.dumps(decision)
+    if marks:
+        _write_marks(path, marks)
     return path
 
 
