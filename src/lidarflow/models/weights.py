@@ -75,14 +75,14 @@ def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
         state = load_file(str(weights))
     except (SafetensorError, OSError) as err:
         raise ModelError(f"{weights}: unreadable weights ({err})") from err
-    from lidarflow.models.finite import check_finite
-
-    check_finite(state, weights)  # NaN weights load, run, and break far from the cause
     try:
         model.load_state_dict(state)
     except RuntimeError as err:
         first = str(err).strip().splitlines()[0]
         raise ModelError(f"{weights}: weights do not fit a {name} model ({first})") from err
+    from lidarflow.models.finite import check_finite
+
+    check_finite(model.state_dict(), weights)  # NaN weights load, run, break far from the cause
     model.eval()
     card = {**card, "weights_path": str(weights), "weights_sha256": sha256(weights)}
     return model, card
