@@ -2,6 +2,13 @@
 
 Every sub-command turns lidarflow errors into one line on stderr and exit status 1; usage errors
 exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see tracebacks.
+
+Conventions every sub-command keeps (tests/test_cli_conventions.py walks them all, and a new
+sub-command must be declared there): what it writes is named by ``-o/--output``, refused where
+it exists unless ``--force``, and written whole or not at all (:mod:`lidarflow.atomic`; SIGTERM
+stops a run as Ctrl-C does, so nothing half-written stays); ``-m/--model`` is a trained model;
+a command that runs a model takes ``--threads`` (default 1, :data:`app.DEFAULT_THREADS`); a
+command's help is a few lines, an option's a line or two.
 """
 
 from __future__ import annotations
