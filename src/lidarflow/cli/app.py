@@ -51,9 +51,8 @@ TopicOpt = Annotated[
     typer.Option(
         "--topic",
         "-t",
-        help="Scan topic (LaserScan, or MultiEchoLaserScan: each beam's nearest echo); by "
-        "default the bag's, and of several the one named `scan`, else the busiest (each "
-        "command says which it read).",
+        help="Scan topic (LaserScan, or MultiEchoLaserScan: nearest echo); default: the bag's, "
+        "of several `scan`, else the busiest.",
     ),
 ]
 OdomOpt = Annotated[
