@@ -49,7 +49,10 @@ def test_candidates_decide_with_their_fixed_offset_only():
 
 
 def test_choose_offset_writes_the_model_with_the_chosen_offset(tmp_path, capsys):
-    model = make_model_dir(tmp_path / "head", occupancy_head=True, online_decision=True)
+    model = make_model_dir(tmp_path / "head", occupancy_head=True)
+    card = json.loads((model / "model.json").read_text())
+    card["model_kwargs"]["online_decision"] = True  # as the bundled model's file has it
+    (model / "model.json").write_text(json.dumps(card))
     rec = read_bag(sample_bag_path()).slice(0, 16).save(tmp_path / "r.npz")
     out = tmp_path / "tuned"
     argv = ["choose-offset", str(rec), "-m", str(model), "-o", str(out), "--warmup", "2",
