@@ -52,6 +52,7 @@ def test_choose_offset_writes_the_model_with_the_chosen_offset(tmp_path, capsys)
     model = make_model_dir(tmp_path / "head", occupancy_head=True)
     card = json.loads((model / "model.json").read_text())
     card["model_kwargs"]["online_decision"] = True  # as the bundled model's file has it
+    card["decision"] = {"offset": 0.0, "online": True}  # as files written since issue 35
     (model / "model.json").write_text(json.dumps(card))
     rec = read_bag(sample_bag_path()).slice(0, 16).save(tmp_path / "r.npz")
     out = tmp_path / "tuned"
