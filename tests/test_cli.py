@@ -171,7 +171,7 @@ def test_console_script_demo_end_to_end(tmp_path):
 
 def test_evaluate_writes_the_documented_json(tmp_path, capsys):
     out = tmp_path / "e.json"
-    code, text, err = run(["evaluate", str(sample_bag_path()), "--json", str(out)], capsys)
+    code, text, err = run(["evaluate", str(sample_bag_path()), "-o", str(out)], capsys)
     assert code == 0, err
     assert "copy_last" in text and "temporal_average" in text and "constant_velocity" in text
     report = json.loads(out.read_text())
@@ -218,13 +218,14 @@ def test_evaluate_says_which_gaps_in_time_it_did_not_score_across(tmp_path, caps
     ]
     rec = Recording.from_scans(scans, meta={"source": "gapped"}).save(tmp_path / "g")
     out = tmp_path / "e.json"
-    argv = ["evaluate", str(rec), "--baselines-only", "--json", str(out), "--report", str(tmp_path)]
+    argv = ["evaluate", str(rec), "--baselines-only", "-o", str(out)]
+    argv += ["--report", str(tmp_path / "r")]
     code, stdout, err = run([*argv, "--gif-frames", "2"], capsys)
     assert code == 0, err
     assert "(18 frames; 1 gap in time, not scored across)" in stdout
     assert (
         "18 frames evaluated; 1 gap in time, not scored across"
-        in (tmp_path / "index.html").read_text()
+        in (tmp_path / "r" / "index.html").read_text()
     )
     entry = json.loads(out.read_text())["recordings"][0]
     assert entry["gaps_not_scored"] == [{"before_frame": 20, "seconds": 3.1}]
@@ -250,7 +251,7 @@ def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):
     (run_dir / "model.json").write_text(json.dumps({"model": "flownet", "model_kwargs": {}}))
     out = tmp_path / "e.json"
     code, _, err = run(
-        ["evaluate", str(sample_bag_path()), "--model", str(run_dir), "--json", str(out)], capsys
+        ["evaluate", str(sample_bag_path()), "--model", str(run_dir), "-o", str(out)], capsys
     )
     assert code == 0, err
     methods = json.loads(out.read_text())["overall"]
@@ -259,8 +260,8 @@ def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):
         assert methods["untrained"][key] == methods["copy_last"][key]
     # ... and so does its roll-out several frames ahead (evaluate --horizon)
     code, text, err = run(
-        ["evaluate", str(sample_bag_path()), "-m", str(run_dir), "--horizon", "2", "--json",
-         str(out)], capsys,
+        ["evaluate", str(sample_bag_path()), "-m", str(run_dir), "--horizon", "2", "-o",
+         str(out), "--force"], capsys,
     )  # fmt: skip
     assert code == 0, err
     assert "F1 per horizon step" in text
@@ -304,16 +305,14 @@ def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_di
 
 def test_export_calibration_without_int8_is_a_usage_error(tmp_path, capsys):
     # it used to write a float model, the calibration silently ignored
-    code, _, err = run(
-        ["export", "--onnx", str(tmp_path / "m.onnx"), "--calibration", "x.bag"], capsys
-    )
+    code, _, err = run(["export", "-o", str(tmp_path / "m.onnx"), "--calibration", "x.bag"], capsys)
     assert code == 2 and "--calibration calibrates --int8" in err
     assert not (tmp_path / "m.onnx").exists()
 
 
 def test_export_then_predict_with_onnx(tmp_path, capsys, random_flownet_dir):
     onnx = tmp_path / "m.onnx"
-    code, _, err = run(["export", "--onnx", str(onnx), "--model", str(random_flownet_dir)], capsys)
+    code, _, err = run(["export", "-o", str(onnx), "--model", str(random_flownet_dir)], capsys)
     assert code == 0, err
     rec = tmp_path / "short.npz"
     from lidarflow.data import read_bag
@@ -386,7 +385,7 @@ def test_evaluate_flags_metrics_with_nothing_to_find(tmp_path, capsys):
     blind = write_bag(tmp_path / "blind.bag", "ros1", {"/scan": [np.full(50, np.nan)] * 14})
     still = write_bag(tmp_path / "still.bag", "ros1", {"/scan": [np.full(50, 3.0)] * 14})
     out = tmp_path / "e.json"
-    argv = ["evaluate", str(blind), str(still), "--baselines-only", "--json", str(out)]
+    argv = ["evaluate", str(blind), str(still), "--baselines-only", "-o", str(out)]
     code, text, err = run(argv, capsys)
     assert code == 0, err
     assert "note: no occupied cell in any scored target frame" in text
@@ -406,7 +405,7 @@ def test_evaluate_notes_a_recording_made_on_another_grid(tmp_path, capsys):
     code, _, err = run([*argv, "-o", str(sim)], capsys)
     assert code == 0, err
     out = tmp_path / "e.json"
-    code, text, err = run(["evaluate", str(sim), "--baselines-only", "--json", str(out)], capsys)
+    code, text, err = run(["evaluate", str(sim), "--baselines-only", "-o", str(out)], capsys)
     assert code == 0, err
     assert (
         "note: recorded on 32 x 32 x 0.2 m; scored on 100 x 100 x 0.1 m (--grid/--res to "
@@ -416,7 +415,7 @@ def test_evaluate_notes_a_recording_made_on_another_grid(tmp_path, capsys):
     assert entry["recorded_grid"] == {"height": 32, "width": 32, "res": 0.2}
     assert entry["ground_truth_not_scored"] is True
     argv = ["evaluate", str(sim), "--baselines-only", "--grid", "32", "--res", "0.2"]
-    code, text, err = run([*argv, "--json", str(out)], capsys)
+    code, text, err = run([*argv, "-o", str(out), "--force"], capsys)
     assert code == 0, err
     assert "note: recorded on" not in text
     assert "recorded_grid" not in json.loads(out.read_text())["recordings"][0]
@@ -433,5 +432,5 @@ def test_each_model_option_says_what_its_command_takes(tmp_path, capsys, monkeyp
     assert "an .onnx file from `lidarflow export`" in helps["predict"]
     onnx = tmp_path / "m.onnx"
     onnx.write_bytes(b"not really")
-    code, _, err = run(["export", "--onnx", str(tmp_path / "again.onnx"), "-m", str(onnx)], capsys)
+    code, _, err = run(["export", "-o", str(tmp_path / "again.onnx"), "-m", str(onnx)], capsys)
     assert code == 1 and "an ONNX model runs only in `lidarflow predict`" in err

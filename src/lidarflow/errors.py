@@ -42,3 +42,7 @@ class EvaluateError(LidarflowError):
 
 class PredictError(LidarflowError):
     """Prediction, export or writing of predictions failed."""
+
+
+class OutputError(LidarflowError):
+    """An output cannot be written: it exists already (and overwriting was not asked for)."""

@@ -341,7 +341,7 @@ def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving
         out = tmp_path / "e.json"
         data = recording.save(tmp_path / "r.npz")
         args = ["evaluate", str(data), "-m", str(folder), "--grid", "40", "--res", "0.05"]
-        code, _, err = run([*args, "--json", str(out)], capsys)
+        code, _, err = run([*args, "--json", str(out), "--force"], capsys)
         assert code == 0, err
         entry = json.loads(out.read_text())["recordings"][0]
         methods = entry["methods"]

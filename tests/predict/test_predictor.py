@@ -287,7 +287,8 @@ def test_a_model_runs_on_the_grid_it_was_trained_for_unless_told(
     )
     assert code == 0, err
     # half a grid given: the other half is the model's own
-    code, out, err = run(["export", "--onnx", str(onnx), "-m", str(folder), "--res", "0.2"], capsys)
+    argv = ["export", "-o", str(onnx), "-m", str(folder), "--res", "0.2", "--force"]
+    code, out, err = run(argv, capsys)
     assert code == 0 and "48x48 grid of 0.2 m" in out, err
     # evaluate scores every model on one grid, and says when that is not a model's own
     code, _, err = run(["evaluate", str(data), "-m", str(folder)], capsys)

@@ -96,16 +96,17 @@ def test_cli_export_int8(tmp_path, capsys, sample_recording):
     calibration = sample_recording.slice(0, 30).save(tmp_path / "cal.npz")
     out = tmp_path / "m8.onnx"
     code, stdout, err = run(
-        ["export", "--onnx", str(out), "--int8", "--calibration", str(calibration)], capsys
+        ["export", "-o", str(out), "--int8", "--calibration", str(calibration)], capsys
     )
     assert code == 0, err
     assert "int8 convolutions calibrated on 30 frames of cal.npz" in stdout
     assert Predictor(out).update(sample_recording.scan(0)).probability.shape == (100, 100)
     code, _, err = run(
-        ["export", "--onnx", str(out), "--int8", "--calibration", str(tmp_path / "no.bag")],
-        capsys,
-    )
+        ["export", "-o", str(tmp_path / "again.onnx"), "--int8", "--calibration",
+         str(tmp_path / "no.bag")], capsys,
+    )  # fmt: skip
     assert code == 1 and err.count("\n") == 1 and "no such file" in err
+    assert not (tmp_path / "again.onnx").exists()
 
 
 def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sample_recording):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidarflow.data import read_bag
-from lidarflow.errors import PredictError
+from lidarflow.errors import OutputError, PredictError
 from lidarflow.predict.rosout import BagOutput, grid_data, map_from_grid_data
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, cell_centres
 
@@ -98,7 +98,32 @@ def test_an_interrupted_output_leaves_nothing(tmp_path, name):
 
 def test_existing_output_is_refused(tmp_path):
     (tmp_path / "x.bag").write_bytes(b"")
-    with pytest.raises(PredictError, match="already exists"):
+    with pytest.raises(OutputError, match="already exists; use --force"):
         BagOutput(tmp_path / "x.bag")
     with pytest.raises(PredictError, match="no such folder"):
         BagOutput(tmp_path / "missing" / "x.mcap")
+
+
+@pytest.mark.parametrize("name", ["out.bag", "out.mcap", "outdir"])
+def test_the_target_appears_only_when_the_bag_is_closed_and_force_replaces_it(tmp_path, name):
+    path = tmp_path / name
+    if name == "outdir":
+        path.mkdir()
+        (path / "metadata.yaml").write_text("old bag")
+    else:
+        path.write_bytes(b"old")
+    geom = BeamGeometry(5, -0.2, 0.1, 0.05, 8.0)
+    with BagOutput(path, force=True) as out:
+        out.write_scan("/scan", Scan(np.full(5, 2.0, np.float32), geom, 1_000_000_000), "laser")
+        staged = [p.name for p in tmp_path.iterdir() if p.name != name]
+        assert len(staged) == 1 and ".partial" in staged[0]  # written beside, not in place
+        assert path.is_dir() if name == "outdir" else path.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == [name]
+    assert len(read_all(path)["/scan"]) == 1
+
+
+def test_force_does_not_empty_a_folder_that_is_not_a_bag(tmp_path):
+    (tmp_path / "keep.txt").write_text("mine")
+    with pytest.raises(OutputError, match="not a folder lidarflow wrote"):
+        BagOutput(tmp_path, force=True)
+    assert (tmp_path / "keep.txt").read_text() == "mine"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import random
 import stat
 
@@ -36,10 +37,13 @@ def test_atomic_write_leaves_the_old_file_when_the_writer_fails(tmp_path):
     assert remove_temporaries(tmp_path) == 1 and list(tmp_path.iterdir()) == [target]
 
 
-def test_written_files_follow_the_umask(tmp_path, monkeypatch):
+def test_written_files_follow_the_umask(tmp_path):
     # mkstemp's 0600 left every file of a run unreadable to other users
-    monkeypatch.setattr(checkpoint, "_UMASK", 0o022)
-    checkpoint.write_json(tmp_path / "model.json", {})
+    old = os.umask(0o022)
+    try:
+        checkpoint.write_json(tmp_path / "model.json", {})
+    finally:
+        os.umask(old)
     assert stat.S_IMODE((tmp_path / "model.json").stat().st_mode) == 0o644
 
 

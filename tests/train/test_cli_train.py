@@ -37,7 +37,7 @@ def test_help_explains_the_options(capsys):
     code, out, _ = run_cli(["train", "--help"], capsys)
     assert code == 0
     for option in (
-        "--model",
+        "--arch",
         "--recipe",
         "--resume",
         "--no-gaussian",
@@ -93,7 +93,7 @@ def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
     [
         (["--lr", "1e30", "--epochs", "2"], "training diverged at epoch 1, step 2"),
         (["--set", "optim.nope=1"], "unknown setting 'optim.nope'"),
-        (["--model", "resnet"], "model.name must be one of"),
+        (["--arch", "resnet"], "model.name must be one of"),
     ],
 )
 def test_failures_are_one_line_with_exit_1(blob_files, tmp_path, capsys, extra, message):
@@ -169,7 +169,7 @@ def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, c
         SAMPLE_TOPIC,
         "--mix",
         "0.5",
-        "--model",
+        "--arch",
         "deeptracking",
         "--epochs",
         "1",

@@ -1,4 +1,6 @@
-"""The HTML report renders in a real browser (headless Chromium, where installed)."""
+"""The HTML report renders in a real browser: headless Chromium, which `.ci/run` installs
+(Debian's chromium-headless-shell) where it is missing. Not skipped without it: it fails, saying
+what to install, so that CI cannot pass without having looked at the page."""
 
 from __future__ import annotations
 
@@ -14,13 +16,23 @@ from lidarflow.predict.baselines import CopyLast
 from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import overlay_rgb, write_gif
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+BROWSERS = ("chromium-headless-shell", "chromium", "chromium-browser")
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium is not installed")
+def find_chromium() -> str:
+    for name in BROWSERS:
+        if found := shutil.which(name):
+            return found
+    pytest.fail(
+        "no headless Chromium found (looked for " + ", ".join(BROWSERS) + "): "
+        "apt-get install chromium-headless-shell, as .ci/run does"
+    )
+
+
 def test_report_renders_in_headless_chromium(tmp_path):
     import imageio.v2 as imageio
 
+    chromium = find_chromium()
     maps = np.zeros((14, 20, 20), bool)
     maps[:, 5:9, 5:9] = True
     report = build_report([("rec.npz", evaluate_maps(maps, maps, [CopyLast()], warmup=2))])
@@ -29,7 +41,7 @@ def test_report_renders_in_headless_chromium(tmp_path):
     shot = tmp_path / "shot.png"
     subprocess.run(
         [
-            CHROMIUM,
+            chromium,
             "--headless",
             "--no-sandbox",
             "--disable-gpu",

@@ -2,13 +2,22 @@
 
 Every sub-command turns lidarflow errors into one line on stderr and exit status 1; usage errors
 exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see tracebacks.
+
+Conventions every sub-command keeps (tests/test_cli_conventions.py walks them all, and a new
+sub-command must be declared there): what it writes is named by ``-o/--output``, refused where
+it exists unless ``--force``, and written whole or not at all (:mod:`lidarflow.atomic`; SIGTERM
+stops a run as Ctrl-C does, so nothing half-written stays); ``-m/--model`` is a trained model;
+a command that runs a model takes ``--threads`` (default 1, :data:`app.DEFAULT_THREADS`); a
+command's help is a few lines, an option's a line or two.
 """
 
 from __future__ import annotations
 
 import inspect
 import os
+import signal
 import sys
+import threading
 
 import typer
 
@@ -18,10 +27,10 @@ from lidarflow.errors import LidarflowError
 # Importing the command modules registers their commands on ``app``; --help lists them in this
 # order.
 # isort: off
-from lidarflow.cli import recordings, scoring, prediction, training, simulation  # noqa: F401
+from lidarflow.cli import recordings, scoring, prediction, training, simulation, tuning  # noqa: F401
 # isort: on
 
-__all__ = ["app", "main"]
+__all__ = ["app", "main", "stop_on_sigterm"]
 
 
 def _reflow(text: str) -> str:
@@ -34,9 +43,21 @@ for _command in app.registered_commands:
     _command.help = _reflow(_command.help or inspect.getdoc(_command.callback) or "")
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"stopped by signal {signal.Signals(signum).name}")
+
+
+def stop_on_sigterm() -> None:
+    """Make SIGTERM (``kill``, a scheduler's stop) stop the process as Ctrl-C does, so that a
+    file being written is removed (:mod:`lidarflow.atomic`) rather than left half-written."""
+    if threading.current_thread() is threading.main_thread():  # signals go to that one only
+        signal.signal(signal.SIGTERM, _interrupt)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script."""
     debug = os.environ.get("LIDARFLOW_DEBUG") == "1"
+    stop_on_sigterm()
     try:
         app(args=argv, prog_name="lidarflow", standalone_mode=True)
     except LidarflowError as err:

@@ -21,24 +21,46 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
+
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            number = version("lidarflow")
+        except PackageNotFoundError:  # a source tree on PYTHONPATH, not installed
+            number = "unknown (not installed)"
+        typer.echo(f"lidarflow {number}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    pass
+
+
 TopicOpt = Annotated[
     str | None,
     typer.Option(
         "--topic",
         "-t",
-        help="Scan topic (LaserScan, or MultiEchoLaserScan: each beam's nearest echo); by "
-        "default the bag's, and of several the one named `scan`, else the busiest (each "
-        "command says which it read).",
+        help="Scan topic (LaserScan, or MultiEchoLaserScan: nearest echo); default: the bag's, "
+        "of several `scan`, else the busiest.",
     ),
 ]
 OdomOpt = Annotated[
     str | None,
     typer.Option(
         "--odom-topic",
-        help="Odometry (nav_msgs/Odometry or PoseStamped) topic for sensor poses; by default the "
-        "bag's Odometry topic (of several: odometry/filtered, else odom, else the busiest; "
-        "`info` says which). The base's poses are moved to the scanner by the bag's TF "
-        "(base -> scan frame) when it has it.",
+        help="Odometry (Odometry or PoseStamped) topic for the sensor's poses; default: the "
+        "bag's (`info` says which), moved to the scanner by the bag's TF.",
     ),
 ]
 GridOpt = Annotated[int, typer.Option("--grid", help="Map size in cells (square grid).", min=4)]
@@ -64,12 +86,47 @@ MovingOpt = Annotated[
     float | None,
     typer.Option(
         "--moving-threshold",
-        help="Moving-object segmentation: an occupied cell is moving when its forward flow, less "
-        "the background's (platform's) fitted motion, is longer than this many cells per frame "
-        "(default 0.4, chosen on simulated tuning data).",
+        help="Moving-object segmentation: an occupied cell moves when its flow, less the "
+        "platform's, exceeds this many cells per frame (default 0.4).",
         min=0.0,
     ),
 ]
+
+
+ForceOpt = Annotated[
+    bool, typer.Option("--force", help="Overwrite the output if it exists (else refused).")
+]
+#: One thread by default: a streaming model steps one small map at a time, which a second
+#: thread barely speeds up on an idle machine and slows many times over on a busy one
+#: (benchmarks/bench_threads.py, benchmarks/results/threads.json).
+DEFAULT_THREADS = 1
+ThreadsOpt = Annotated[
+    int,
+    typer.Option(
+        "--threads",
+        help="CPU threads for the model (0: one per core, PyTorch's own default; more than 1 "
+        "pays only on an idle machine).",
+        min=0,
+    ),
+]
+
+
+def use_threads(threads: int) -> None:
+    """Run PyTorch on ``threads`` CPU threads (0: leave its default)."""
+    if threads > 0:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
+def refuse_existing(*paths: Path | None, force: bool = False, marker: str | None = None) -> None:
+    """Stop before any work where an output is there already, unless ``--force``; outputs that
+    are folders name the ``marker`` file they hold (:func:`lidarflow.atomic.check_writable`)."""
+    from lidarflow.atomic import check_writable
+
+    for path in paths:
+        if path is not None:
+            check_writable(path, force, marker)
 
 
 def progress_bar(total: int | None, desc: str) -> Any:
@@ -100,17 +157,14 @@ def load_input(
 
 #: What every --model that loads PyTorch weights takes (models.weights.load_trained); an .onnx
 #: file only runs (predict), so each command's help says whether it takes one.
-TORCH_MODEL_SOURCES = (
-    "a run folder from `lidarflow train`, a .safetensors file (its .json or a model.json "
-    "beside it), a model.json"
-)
+TORCH_MODEL_SOURCES = "a run folder, .safetensors or model.json from `lidarflow train`"
 ModelOpt = Annotated[
     Path | None,
     typer.Option(
         "--model",
         "-m",
-        help=f"Model: {TORCH_MODEL_SOURCES}, an .onnx file from `lidarflow export` or "
-        "`bundled` (the default: the bundled pretrained model).",
+        help=f"Model: {TORCH_MODEL_SOURCES}, an .onnx file from `lidarflow export`, or "
+        "`bundled` (the default).",
     ),
 ]
 ExportModelOpt = Annotated[
@@ -118,8 +172,8 @@ ExportModelOpt = Annotated[
     typer.Option(
         "--model",
         "-m",
-        help=f"Model to export: {TORCH_MODEL_SOURCES} or `bundled` (the default: the bundled "
-        "pretrained model); not an .onnx file (it is exported already).",
+        help=f"Model to export: {TORCH_MODEL_SOURCES} or `bundled` (the default); not an .onnx "
+        "file.",
     ),
 ]
 

@@ -8,19 +8,25 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from lidarflow.atomic import write_text
 from lidarflow.cli.app import (
+    DEFAULT_THREADS,
     ExportModelOpt,
+    ForceOpt,
     ModelGridOpt,
     ModelOpt,
     ModelResOpt,
     MovingOpt,
     OdomOpt,
+    ThreadsOpt,
     TopicOpt,
     app,
     bundled_model_available,
     eval_progress,
     load_input,
     progress_bar,
+    refuse_existing,
+    use_threads,
 )
 from lidarflow.cli.scoring import methods_and_config
 
@@ -33,39 +39,51 @@ def demo(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="Folder for the demo's outputs.")
     ] = Path("demo_out"),
+    force: ForceOpt = False,
+    threads: ThreadsOpt = DEFAULT_THREADS,
 ) -> None:
     """Run the main job on the bundled sample recording: convert it, draw a frame, predict
     every next map with the bundled model, score it beside the baselines (report.json and an
     HTML page), and write the predictions as an MCAP file for Foxglove."""
+    from lidarflow.atomic import atomic_path
+
+    refuse_existing(output, force=force, marker="results.json")
+    use_threads(threads)
+    with atomic_path(output) as folder:  # the folder appears once complete
+        folder.mkdir()
+        _demo(folder, output)
+
+
+def _demo(folder: Path, output: Path) -> None:
+    """``demo``'s work: writes into ``folder``, which becomes ``output`` once complete."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
     from lidarflow.evaluate.report import format_comparison, format_table
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
     from lidarflow.viz.maps import draw_maps
 
-    output.mkdir(parents=True, exist_ok=True)
     bag = sample_bag_path()
     recording = load_input(bag, SAMPLE_TOPIC)
-    rec_path = recording.save(output / "sample.npz")
+    recording.save(folder / "sample.npz")
     summary = describe_recording(recording)
     typer.echo(
         f"sample: {bag.name} ({summary['scans']} scans, {summary['frame_rate_hz']} Hz, "
-        f"{summary['beams_per_scan']} beams) -> {rec_path}"
+        f"{summary['beams_per_scan']} beams) -> {output / 'sample.npz'}"
     )
     spec = GridSpec()
     frame = len(recording) // 2
     occ, vis = recording.maps(spec, frame, frame + 1)
-    png = draw_maps(occ[0], vis[0], output / "maps.png", spec, title=f"{bag.name} frame {frame}")
-    typer.echo(f"maps of frame {frame}: {png}")
+    draw_maps(occ[0], vis[0], folder / "maps.png", spec, title=f"{bag.name} frame {frame}")
+    typer.echo(f"maps of frame {frame}: {output / 'maps.png'}")
     has_model = bundled_model_available()
     if not has_model:
         typer.echo("no bundled model in this installation: scoring the baselines only")
     methods, config = methods_and_config([None] if has_model else [])
     config.update({"warmup": 10, "grid": spec.to_dict()})
     report = evaluate_and_report(
-        [(str(bag), recording)], methods, spec, 10, config, output / "report", 60, eval_progress
+        [(str(bag), recording)], methods, spec, 10, config, folder / "report", 60, eval_progress
     )
-    (output / "results.json").write_text(json.dumps(report, indent=2))
+    write_text(folder / "results.json", json.dumps(report, indent=2))
     entry = report["recordings"][0]
     title = f"next-map prediction, {entry['frames_evaluated']} frames"
     typer.echo(format_table(entry["methods"], title))
@@ -81,13 +99,10 @@ def demo(
         from lidarflow.predict import Predictor
         from lidarflow.predict.job import predict_to_bag
 
-        target = output / "predictions.mcap"
-        if target.exists():
-            target.unlink()
-        predictor = Predictor(None, spec)
+        predictor = Predictor(None, spec, threads=None)  # the demo's --threads set already
         with progress_bar(len(recording), "writing predictions") as bar:
-            predict_to_bag(recording, predictor, target, bar.update)
-        typer.echo(f"predictions for Foxglove: {target}")
+            predict_to_bag(recording, predictor, folder / "predictions.mcap", bar.update)
+        typer.echo(f"predictions for Foxglove: {output / 'predictions.mcap'}")
 
 
 @app.command()
@@ -118,19 +133,22 @@ def predict(
     grid: ModelGridOpt = None,
     res: ModelResOpt = None,
     moving_threshold: MovingOpt = None,
+    force: ForceOpt = False,
+    threads: ThreadsOpt = DEFAULT_THREADS,
 ) -> None:
-    """Write the input scans plus, per scan, the predicted next map (nav_msgs/OccupancyGrid in
-    the scan's frame, ready for RViz/Foxglove), the flow (32FC2 images) and the moving cells of
-    the current map (/lidarflow/moving, OccupancyGrid: 100 moving, 0 not, -1 unseen) to a new
-    bag.
+    """Write the input scans plus, per scan, the predicted next map (OccupancyGrid in the
+    scan's frame, for RViz/Foxglove), the flow (32FC2 images) and the moving cells
+    (/lidarflow/moving) to a new bag.
 
-    A model that compensates ego motion gets the recording's poses (odometry) with every scan;
-    on a recording without poses a model built with poses_optional (the bundled one, the
-    default recipe's) takes the motion matched from the scans instead (and where the poses
-    disagree with the scans), any other is refused."""
+    An ego-motion model gets the recording's poses; without poses the bundled model matches
+    the motion from the scans."""
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
+    from lidarflow.predict.rosout import output_kind
 
+    # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
+    marker = "metadata.yaml" if output_kind(output) == "ros2" else None
+    refuse_existing(output, force=force, marker=marker)
     recording = load_input(input, topic, odom_topic)
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
@@ -140,17 +158,20 @@ def predict(
         model,
         given,
         horizon=horizon,
+        threads=threads or None,
         moving_threshold=threshold,
         online_decision=False if fixed_decision else None,
     )
     with progress_bar(len(recording), f"predicting {input.name}") as bar:
-        counts = predict_to_bag(recording, predictor, output, bar.update)
+        counts = predict_to_bag(recording, predictor, output, bar.update, force)
     typer.echo(f"wrote {output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))
 
 
 @app.command()
 def export(
-    onnx: Annotated[Path, typer.Option("--onnx", help="ONNX file to write.")],
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="ONNX file to write (required).")
+    ] = None,
     model: ExportModelOpt = None,
     grid: ModelGridOpt = None,
     res: ModelResOpt = None,
@@ -171,11 +192,15 @@ def export(
         ),
     ] = None,
     topic: TopicOpt = None,
+    force: ForceOpt = False,
+    threads: ThreadsOpt = DEFAULT_THREADS,
+    onnx: Annotated[Path | None, typer.Option("--onnx", hidden=True)] = None,
 ) -> None:
     """Export one streaming step (hidden state as explicit inputs/outputs) to ONNX, for
     onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
     import tempfile
 
+    from lidarflow.atomic import atomic_path
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.decision import DecisionPolicy
@@ -188,13 +213,23 @@ def export(
             "--calibration calibrates --int8; add --int8 or drop --calibration",
             param_hint="--calibration",
         )
+    if onnx is not None:  # the spelling before -o/--output, kept working
+        if output is not None:
+            raise typer.BadParameter("give -o/--output once (--onnx is its old name)")
+        typer.echo("note: --onnx is now -o/--output", err=True)
+        output = onnx
+    if output is None:
+        raise typer.BadParameter("name the ONNX file to write: -o FILE.onnx", param_hint="-o")
+    refuse_existing(output, force=force)
+    use_threads(threads)
     net, card = resolve_model(model)
     policy = DecisionPolicy.from_record(card.get("decision"))  # travels with the file
     spec = _completed(recorded_grid(card), grid, res)
     size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
-        path = export_onnx(net, onnx, spec.height, spec.width, spec.res, policy)
-        typer.echo(f"wrote {path} ({card.get('model')}, {size})")
+        with atomic_path(output) as tmp:  # whole or not at all
+            export_onnx(net, tmp, spec.height, spec.width, spec.res, policy)
+        typer.echo(f"wrote {output} ({card.get('model')}, {size})")
         return
 
     from lidarflow.data import sample_bag_path
@@ -207,9 +242,9 @@ def export(
         float_path = export_onnx(
             net, Path(tmp) / "float.onnx", spec.height, spec.width, spec.res, policy
         )
-        path = quantize_onnx(float_path, onnx, maps)
+        quantize_onnx(float_path, output, maps)
     typer.echo(
-        f"wrote {path} ({card.get('model')}, {size}, int8 convolutions calibrated on "
+        f"wrote {output} ({card.get('model')}, {size}, int8 convolutions calibrated on "
         f"{len(maps)} frames of {source.name})"
     )
 

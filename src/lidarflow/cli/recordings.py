@@ -8,8 +8,17 @@ from typing import Annotated, Any
 
 import typer
 
-from lidarflow.cli.app import GridOpt, OdomOpt, ResOpt, TopicOpt, app, load_input
-from lidarflow.errors import LidarflowError
+from lidarflow.cli.app import (
+    ForceOpt,
+    GridOpt,
+    OdomOpt,
+    ResOpt,
+    TopicOpt,
+    app,
+    load_input,
+    refuse_existing,
+)
+from lidarflow.errors import BagError, LidarflowError
 
 
 @app.command()
@@ -20,16 +29,19 @@ def convert(
     odom_topic: OdomOpt = None,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
+    force: ForceOpt = False,
 ) -> None:
     """Convert a LaserScan topic into a lidarflow recording (raw scans, stamps, poses).
 
-    The raw ranges are kept, so maps can be rasterized later on any grid: the commands that
-    read the recording take their own --grid/--res (default 100 cells of 0.1 m). --grid/--res
-    here are the grid every scan is checked on (by rasterizing it) and which is written in the
-    recording's meta; evaluate notes when it scores a recording on another grid.
+    The raw ranges are kept, so the commands that read the recording rasterize it on their own
+    --grid/--res; here those are the grid every scan is checked on and which the recording's
+    meta records.
     """
     from lidarflow.scan import GridSpec
 
+    if output.suffix != ".npz":  # as Recording.save names it
+        output = output.with_name(output.name + ".npz")
+    refuse_existing(output, force=force)
     recording = load_input(input, topic, odom_topic)
     spec = GridSpec(grid, grid, res)
     recording.maps(spec)  # fail now, not in training, if any scan cannot be rasterized
@@ -63,7 +75,8 @@ def info(
         report["topics"] = [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in topics]
         if topic is None and not any(t.msgtype in SCAN_TYPES for t in topics):
             _print_info(report, as_json)  # an odometry-only bag: its topics say what it holds
-            return
+            kinds = " or ".join(t.rsplit("/", 1)[-1] for t in sorted(SCAN_TYPES))
+            raise BagError(f"{input}: no scan topic ({kinds}) in this bag; nothing to predict on")
     try:
         recording = load_input(input, topic, notes=False)  # of several, the one read says why
     except LidarflowError:
@@ -128,15 +141,17 @@ def show(
     flow_scale: Annotated[
         float, typer.Option("--flow-scale", help="Draw flow arrows N times longer.", min=0.0)
     ] = 1.0,
+    force: ForceOpt = False,
 ) -> None:
     """Draw the occupancy and visibility maps of one frame (sensor at the bottom middle).
 
-    On a simulated recording the ground truth is overlaid: cells on moving objects in red, and
-    the forward flow F^t (where each occupied cell of this frame goes in the next) as arrows."""
+    On a simulated recording the ground truth is overlaid: moving cells in red, the forward
+    flow as arrows."""
     from lidarflow.errors import RecordingError
     from lidarflow.scan import GridSpec
     from lidarflow.viz.maps import draw_maps
 
+    refuse_existing(output, force=force)
     rec = load_input(recording, topic)
     if not -len(rec) <= frame < len(rec):
         raise RecordingError(f"{recording}: frame {frame} out of range (it has {len(rec)} frames)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 from pathlib import Path
@@ -9,18 +10,24 @@ from typing import Annotated, Any
 
 import typer
 
+from lidarflow.atomic import atomic_path, write_text
 from lidarflow.cli.app import (
+    DEFAULT_THREADS,
     TORCH_MODEL_SOURCES,
+    ForceOpt,
     GridOpt,
     MovingOpt,
     OdomOpt,
     ResOpt,
+    ThreadsOpt,
     TopicOpt,
     app,
     bundled_model_available,
     eval_progress,
     load_input,
     progress_bar,
+    refuse_existing,
+    use_threads,
 )
 from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
 
@@ -154,9 +161,8 @@ def evaluate(
         typer.Option(
             "--model",
             "-m",
-            help=f"Trained model to evaluate beside the baselines: {TORCH_MODEL_SOURCES} or "
-            "`bundled` (the bundled model); not an .onnx file (evaluate runs PyTorch). Repeat "
-            "for several; default: the bundled model.",
+            help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES} or "
+            "`bundled` (the default); not an .onnx file. Repeatable.",
         ),
     ] = None,
     baselines_only: Annotated[
@@ -165,15 +171,16 @@ def evaluate(
             "--baselines-only", help="Score the baselines alone (no model; not with --model)."
         ),
     ] = False,
-    json_out: Annotated[
-        Path | None, typer.Option("--json", help="Write the full report (JSON) here.")
+    output: Annotated[
+        Path | None,
+        typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
     ] = None,
     report_dir: Annotated[
         Path | None,
         typer.Option(
             "--report",
-            help="Folder for a self-contained HTML report (index.html) with PR curves and "
-            "overlay GIFs (truth green, prediction red, both yellow), plus report.json.",
+            help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
+            "report.json).",
         ),
     ] = None,
     gif_frames: Annotated[
@@ -185,8 +192,7 @@ def evaluate(
     ta_window: Annotated[
         int,
         typer.Option(
-            help="Temporal-average baseline: frames averaged (default: the setting of highest "
-            "mean F1 on the development recordings).",
+            help="Temporal-average baseline: frames averaged.",
             min=1,
         ),
     ] = TA_WINDOW,
@@ -203,59 +209,38 @@ def evaluate(
         bool,
         typer.Option(
             "--ego-oracle",
-            help="For ego-motion models: also score the variant told the true next pose (an "
-            "upper bound; at run time only poses up to now are known).",
+            help="Also score ego-motion models told the true next pose (an upper bound).",
         ),
     ] = False,
     horizon: Annotated[
         int,
         typer.Option(
             min=1,
-            help="Also score F1 1..K frames ahead (models roll forward on their own "
-            "predictions, as `predict --horizon`; copy-last beside them); JSON key horizon_f1.",
+            help="Also score F1 1..K frames ahead (models fed their own predictions).",
         ),
     ] = 1,
     online_decision: Annotated[
         bool,
         typer.Option(
             "--online-decision",
-            help="Score each occupancy-head model both ways: with its fixed decision offsets and "
-            "with offsets chosen online (every frame, the pair of offsets, for the cells occupied "
-            "/ free in the last map moved by the model's flow, that would have beaten the three "
-            "baselines by the most on the frames so far; past frames only). The one the model "
-            "was not built with is NAME_online or NAME_fixed.",
+            help="Score each occupancy-head model with both decision rules, fixed and online "
+            "offsets (the other one as NAME_fixed or NAME_online).",
         ),
     ] = False,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     moving_threshold: MovingOpt = None,
+    force: ForceOpt = False,
+    threads: ThreadsOpt = DEFAULT_THREADS,
+    json_out: Annotated[Path | None, typer.Option("--json", hidden=True)] = None,
 ) -> None:
-    """Score next-map prediction on each recording, streaming (one step per frame, state
-    carried across the recording), with F1 at 0.4, precision, recall, average precision and
-    changed-cell F1, for the baselines copy-last, temporal average and constant velocity and
-    for every --model given, by default the bundled model (and flow end-point error where the
-    recording has ground truth). Each model is said to win or lose against the baselines (F1
-    above the best baseline's and changed-cell F1 above every baseline's). Where the scans stop
-    for a while (a step longer than 2.5 frame periods: a gap, as `lidarflow info` lists them),
-    the step across the gap is not scored.
+    """Score next-map prediction on each recording, streaming, for the baselines (copy-last,
+    temporal average, constant velocity) and each --model (default: the bundled one): F1 at
+    0.4, precision, recall, average precision, changed-cell F1, calibration, and flow error and
+    moving segmentation where the recording has ground truth.
 
-    A second table gives the calibration of every method's probabilities (expected calibration
-    error over bins of 0.1 on all cells, ece_active on the cells predicted >= 0.1, and Brier
-    score; lower is better) and, for flow models on simulated recordings, moving-object
-    segmentation (IoU, precision, recall of the moving cells against the simulator's truth).
-    The JSON has them per method under "calibration" (with the reliability-diagram bins) and
-    "segmentation"; --report draws the reliability diagram and the moving cells.
-
-    A model that compensates ego motion (the bundled one, the default recipe's, --ego-motion)
-    gets each recording's poses (odometry) and the copy_last_ego baseline (the last map moved by
-    the odometry) is scored beside it; on a recording without poses a model built with
-    poses_optional (the bundled one, the default recipe's) takes the motion matched from the scans
-    instead, any other is refused. Such a model also takes the scans' motion where the poses
-    disagree with the scans (a base's odometry read as the scanner's).
-
-    A model built with online_decision (the bundled one, the default recipe's) chooses its
-    decision offsets as the recording streams, from the frames already seen; --online-decision
-    scores every occupancy-head model both ways."""
+    A model wins when its F1 beats the best baseline's and its changed-cell F1 every
+    baseline's. Steps across gaps in time are not scored; -o writes every number as JSON."""
     from lidarflow.evaluate.report import (
         format_comparison,
         format_table,
@@ -270,6 +255,13 @@ def evaluate(
 
     if baselines_only and model:
         raise typer.BadParameter("--baselines-only scores no model; drop --model or it")
+    if json_out is not None:  # the spelling before -o/--output, kept working
+        if output is not None:
+            raise typer.BadParameter("give -o/--output once (--json is its old name)")
+        output = json_out
+    refuse_existing(output, force=force)
+    refuse_existing(report_dir, force=force, marker="index.html")
+    use_threads(threads)
     sources: list[Path | None] = list(model or [])
     if not sources and not baselines_only:
         if bundled_model_available():
@@ -301,9 +293,11 @@ def evaluate(
                 f"(--grid {trained.height} --res {trained.res:g} scores it on its own)",
                 err=True,
             )
-    report = evaluate_and_report(
-        named, methods, spec, warmup, config, report_dir, gif_frames, eval_progress
-    )
+    with contextlib.ExitStack() as stack:  # the report folder appears once complete
+        staged = None if report_dir is None else stack.enter_context(atomic_path(report_dir))
+        report = evaluate_and_report(
+            named, methods, spec, warmup, config, staged, gif_frames, eval_progress
+        )
     if horizon > 1:
         _add_horizon_scores(report, named, methods, spec, warmup, horizon)
     for entry in report["recordings"]:
@@ -329,10 +323,9 @@ def evaluate(
         extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")
         if extra:
             typer.echo(extra)
-    if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(report, indent=2))
-        typer.echo(f"wrote {json_out}")
+    if output is not None:
+        write_text(output, json.dumps(report, indent=2))
+        typer.echo(f"wrote {output}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
 

@@ -9,12 +9,12 @@ from typing import Annotated
 
 import typer
 
-from lidarflow.cli.app import GridOpt, ResOpt, app, progress_bar
+from lidarflow.atomic import write_text
+from lidarflow.cli.app import ForceOpt, GridOpt, ResOpt, app, progress_bar, refuse_existing
 
 _SENSOR_HELP = (
-    "LiDAR preset: tim561 (paper: 15 Hz, 270 deg, 811 beams, 10 m), hokuyo-urg (10 Hz, 180 deg, "
-    "512 beams, 5.6 m), hokuyo-utm (7.5 Hz, 270 deg, 768 beams, 11 m), rplidar (10 Hz, 360 deg, "
-    "360 beams, 8 m)."
+    "LiDAR preset: tim561 (the paper's: 15 Hz, 270 deg, 811 beams, 10 m), hokuyo-urg, "
+    "hokuyo-utm or rplidar."
 )
 
 
@@ -68,14 +68,13 @@ def simulate(
             "(flow_*_cells, flow_*_values; read with lidarflow.sim.dense_flow), far smaller.",
         ),
     ] = "dense",
+    force: ForceOpt = False,
 ) -> None:
     """Simulate 2-D LiDAR scans of people walking in offices, with exact ground-truth flow.
 
-    Writes recordings like `convert`, plus the ground truth in extras: flow_backward and
-    flow_forward (N, 2, H, W) float16 in cells (channel 0 column, 1 row; index t holds B^t or
-    F^t; the last frame of each episode is zero), moving (N, H, W) and true_poses (N, 3); the
-    recording's poses are the odometry. Every episode is a new floor plan; the data depend only
-    on the seed. The paper's sets: --frames 36000 (training) and --frames 7200 (validation).
+    Writes recordings like `convert` with the ground truth in extras (flow_backward,
+    flow_forward, moving, true_poses; see lidarflow.sim), and the run's record (.json) beside.
+    The data depend only on the seed; the paper's sets: --frames 36000 and --frames 7200.
     """
     import time
 
@@ -97,6 +96,12 @@ def simulate(
     if flow_storage not in ("dense", "sparse"):
         hint = "--flow-storage"
         raise typer.BadParameter(f"dense or sparse, not {flow_storage!r}", param_hint=hint)
+    if output.suffix != ".npz":  # as Recording.save names it
+        output = output.with_name(output.name + ".npz")
+    stem = output.name.removesuffix(".npz")
+    record = output.with_name(stem + ".json")
+    chunks = sorted(output.parent.glob(f"{stem}-[0-9][0-9][0-9].npz"))
+    refuse_existing(output, record, *chunks, force=force)
     config = SimConfig(
         scenario=scenario,
         flow_storage=flow_storage,
@@ -113,8 +118,8 @@ def simulate(
         )
     seconds = time.perf_counter() - start
     # The run's record beside its outputs: what was asked, what came out, how fast.
-    record = output.with_name(output.name.removesuffix(".npz") + ".json")
-    record.write_text(
+    write_text(
+        record,
         json.dumps(
             {
                 "command": "lidarflow " + " ".join(sys.argv[1:]),
@@ -126,7 +131,7 @@ def simulate(
                 "config": config.to_dict(),
             },
             indent=2,
-        )
+        ),
     )
     shown = str(paths[0]) if len(paths) == 1 else f"{len(paths)} files {paths[0]}..{paths[-1].name}"
     typer.echo(

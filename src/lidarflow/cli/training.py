@@ -14,17 +14,11 @@ from lidarflow.cli.app import TopicOpt, app
 @app.command(
     help="Train LiDAR-FlowNet or the DeepTracking baseline, self-supervised, on recordings and "
     "bags.\n\n"
-    "The default recipe for LiDAR-FlowNet is head, the best measured on recordings it never "
-    "saw (docs/research/leave_one_out/): the bundled flow network (or --init RUN) with an "
-    "occupancy head fitted to your recordings, about 8 CPU-minutes. --recipe paper is the "
-    "paper's (and the default for deeptracking and --ego-motion): sequences of 20 frames, 10 "
-    "warm-up frames, Gaussian size 9 -> 1 (minus 2 every 25 epochs), batch 32, Adam at lr 0.01 "
-    "halved every 25 epochs, 200 epochs. Settings come from the recipe, then --config, then "
-    "these flags, then --set.\n\n"
-    "The run directory gets config.json, metrics.csv/.jsonl (losses, validation F1 against "
-    "copy-last, flow EPE on simulated data), a checkpoint every epoch (a killed run loses at most "
-    "one), best/last weights, and model.safetensors + model.json for the other commands. "
-    "Runs unchanged under torchrun (DDP: gloo on CPU, nccl on GPU).",
+    "By default (--recipe head) the bundled flow network gets an occupancy head fitted to your "
+    "recordings, about 8 CPU-minutes. Settings come from the recipe, then --config, then these "
+    "flags, then --set. The run directory gets its config, metrics, a checkpoint every epoch "
+    "and model.safetensors + model.json for the other commands; torchrun runs it on several "
+    "processes.",
     epilog="Examples:\n\n"
     "lidarflow train real.npz 'sim/*.npz' --mix 0.5 -o runs/a  (half of each epoch from each)\n\n"
     "lidarflow train a.bag --recipe blurred --set loss.smoothness=0.1 -o runs/b\n\n"
@@ -32,6 +26,7 @@ from lidarflow.cli.app import TopicOpt, app
     "lidarflow train 'sim/*.npz' my_robot.bag --recipe blurred -o runs/flow; lidarflow train "
     "my_robot.bag --init runs/flow -o runs/h  (your own flow network first)\n\n"
     "lidarflow train drive.npz --ego-motion -o runs/e  (odometry-compensated; needs poses)\n\n"
+    "lidarflow train drive.npz --arch deeptracking -o runs/d  (the DeepTracking baseline)\n\n"
     "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
 )
@@ -48,29 +43,23 @@ def train(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Run directory to create.")
     ] = None,
-    model: Annotated[
-        str | None, typer.Option("--model", "-m", help="flownet (LiDAR-FlowNet) or deeptracking.")
+    arch: Annotated[
+        str | None,
+        typer.Option("--arch", help="Architecture: flownet (LiDAR-FlowNet) or deeptracking."),
     ] = None,
     ego_motion: Annotated[
         bool,
         typer.Option(
             "--ego-motion",
-            help="Ego-motion compensation: before each step the recurrent state is warped "
-            "rigidly into the current sensor frame by the odometry (the recordings' poses; "
-            "`convert --odom-topic`, or the simulator's), and the prediction is moved into the "
-            "next frame at constant velocity, so the net only explains the world's motion. "
-            "Same as --set model.kwargs.ego_motion=true. evaluate/predict then use the poses "
-            "of their recordings by themselves.",
+            help="Compensate the sensor's own motion by the recordings' poses (odometry), so "
+            "the net only explains the world's motion.",
         ),
     ] = False,
     recipe: Annotated[
         str | None,
         typer.Option(
-            help="Named preset: paper (the loss exactly as published), blurred (both "
-            "sides of the loss blurred), residual (blurred + occupancy head trained by "
-            "cross-entropy; sized for ~1 CPU-hour) or head (the default: an occupancy "
-            "head with the constant-velocity input trained on a frozen flow network, --init, "
-            "by default the bundled one; ~8 CPU-minutes; docs/research/leave_one_out/)."
+            help="Preset: head (the default: an occupancy head on a frozen flow network, "
+            "--init or the bundled one), paper (as published) or blurred."
         ),
     ] = None,
     config: Annotated[
@@ -160,7 +149,12 @@ def train(
     channels_last: Annotated[
         bool, typer.Option("--channels-last", help="Channels-last memory format.")
     ] = False,
-    threads: Annotated[int | None, typer.Option(help="Torch CPU threads (0: default).")] = None,
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            help="CPU threads (0: one per core, the default: training steps big batches).", min=0
+        ),
+    ] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed (default 0).")] = None,
     set_: Annotated[
         list[str] | None,
@@ -170,6 +164,10 @@ def train(
             "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Start the run in -o over (its old files are removed)."),
+    ] = False,
 ) -> None:
     """``lidarflow train``: the help text above says it all (kept there for --help)."""
     import dataclasses
@@ -180,7 +178,7 @@ def train(
     from lidarflow.train.loop import train as run_training
 
     flags = {
-        "model.name": model,
+        "model.name": arch,
         "model.init": init if init in (None, "bundled") else os.path.abspath(init),
         "optim.epochs": epochs,
         "optim.batch_size": batch_size,
@@ -205,6 +203,10 @@ def train(
         "runtime.seed": seed,
     }
     if resume is not None:
+        if force:
+            raise typer.BadParameter(
+                "--resume continues a run, --force starts one over; give one", param_hint="--force"
+            )
         if output is not None and output.resolve() != resume.resolve():
             raise typer.BadParameter(
                 f"--resume {resume} and -o {output} name different runs; give one",
@@ -259,12 +261,16 @@ def train(
         in_file = load_config_file(config) if config else {}
         if recipe is None and "recipe" not in in_file:
             section = in_file.get("model")  # not a table: build_config says so, in one line
-            named = model or (section.get("name") if isinstance(section, dict) else None)
+            named = arch or (section.get("name") if isinstance(section, dict) else None)
             recipe = default_recipe(named, ego_motion)
         cfg = build_config(recipe, config, flags, set_ or ())
         if ego_motion:  # added to, not replacing, any other model kwargs
             kwargs = {**cfg.model.kwargs, "ego_motion": True}
             cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, kwargs=kwargs))
+        if force and (output / "config.json").is_file():  # a run (else nothing to replace)
+            from lidarflow.atomic import discard
+
+            discard(output)
         run_dir = output
     from tqdm import tqdm
 

@@ -272,11 +272,14 @@ class Recording:
 
     # ----------------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:
-        """Write the recording to ``path`` (``.npz`` is appended when missing)."""
+        """Write the recording to ``path`` (``.npz`` is appended when missing), whole or not at
+        all (:func:`lidarflow.atomic.atomic_path`: an existing file is replaced only once the
+        new one is complete)."""
+        from lidarflow.atomic import atomic_path
+
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
-        path.parent.mkdir(parents=True, exist_ok=True)
         arrays: dict[str, np.ndarray] = {
             "ranges": self.ranges.astype(np.float32),
             "offsets": self.offsets,
@@ -293,7 +296,8 @@ class Recording:
             arrays["poses"] = self.poses
         for key, value in self.extras.items():
             arrays[_EXTRA_PREFIX + key] = value
-        np.savez_compressed(path, **arrays)
+        with atomic_path(path) as tmp:
+            np.savez_compressed(tmp, **arrays)
         return path
 
 

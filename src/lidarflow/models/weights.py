@@ -131,6 +131,9 @@ def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
     except RuntimeError as err:
         first = str(err).strip().splitlines()[0]
         raise ModelError(f"{weights}: weights do not fit a {name} model ({first})") from err
+    from lidarflow.models.finite import check_finite
+
+    check_finite(model.state_dict(), weights)  # NaN weights load, run, break far from the cause
     model.eval()
     card = {
         **card,

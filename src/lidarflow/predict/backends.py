@@ -127,6 +127,9 @@ class OnnxBackend:
             )
         except Exception as err:  # onnxruntime raises its own exception classes
             raise PredictError(f"{path}: not a loadable ONNX model ({err})") from err
+        from lidarflow.models.finite import check_finite_onnx
+
+        check_finite_onnx(path)  # NaN weights run, and break far from the cause
         inputs = self.session.get_inputs()
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")

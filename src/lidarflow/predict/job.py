@@ -40,11 +40,13 @@ def predict_to_bag(
     predictor: Predictor,
     output: str | Path,
     progress: Callable[[int], None] | None = None,
+    force: bool = False,
 ) -> dict[str, int]:
     """Run ``predictor`` over ``recording`` and write everything to ``output``; returns the
     number of messages per topic. An ego-motion model gets the recording's poses; a recording
     without any is refused (:class:`PredictError`) unless the model may run without
-    (``poses_optional``: the Predictor then matches the motion from the scans)."""
+    (``poses_optional``: the Predictor then matches the motion from the scans). An existing
+    ``output`` is refused unless ``force`` (:class:`BagOutput`)."""
     poses = recording.poses
     if predictor.uses_motion and not recording.has_poses and not predictor.poses_optional:
         source = recording.meta.get("source") or "the recording"
@@ -68,7 +70,7 @@ def predict_to_bag(
     # read_bag) takes the sessions one after the other as they were recorded.
     stamps = recorded_stamps(recording.stamps_ns, recording.meta.get("clock_jumps") or [])
     predictor.reset()
-    with BagOutput(output) as out:
+    with BagOutput(output, force) as out:
         for i, scan in enumerate(recording):
             p = predictor.update(scan, None if poses is None else poses[i])
             stamp, at = int(stamps[i]), scan.stamp_ns  # header stamp, log time

@@ -105,7 +105,8 @@ class Predictor:
         grid: the map grid (default: the one the model was trained on, as its model.json or
             the ONNX file's metadata says; else 100 x 100 at 0.1 m, the bundled model's).
         horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
-        threads: CPU threads for inference (default: the library's choice).
+        threads: CPU threads for inference, process-wide (default 1: many times faster beside
+            a busy process, benchmarks/results/threads.json; ``None``: leave PyTorch's setting).
         moving_threshold: cells per frame of motion of its own above which an occupied cell is
             reported moving (:data:`lidarflow.predict.moving.MOVING_THRESHOLD` by default).
         check_odometry: for a model that may run without poses (``poses_optional``, the bundled
@@ -129,7 +130,7 @@ class Predictor:
         model: str | Path | None = None,
         grid: GridSpec | None = None,
         horizon: int = 1,
-        threads: int | None = None,
+        threads: int | None = 1,
         device: str = "cpu",
         moving_threshold: float = MOVING_THRESHOLD,
         check_odometry: bool = True,

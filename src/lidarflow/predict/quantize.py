@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.atomic import atomic_path
 from lidarflow.errors import PredictError
 from lidarflow.predict.backends import split_step_inputs
 from lidarflow.predict.export import copy_marks
@@ -133,14 +134,14 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
         def get_next(self) -> dict[str, np.ndarray] | None:
             return next(self.feeds, None)
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, atomic_path(out_path) as written:
         prepared = Path(tmp) / "prepared.onnx"
         try:
             quant_pre_process(str(float_path), str(prepared))
             graph = _graph(prepared)  # loaded once for both kinds of float convs
             quantize_static(
                 str(prepared),
-                str(out_path),
+                str(written),
                 Reader(),
                 quant_format=QuantFormat.QDQ,
                 per_channel=True,
@@ -151,5 +152,5 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
             )
         except Exception as err:  # onnxruntime's tools raise many types
             raise PredictError(f"int8 quantization failed: {type(err).__name__}: {err}") from err
-    copy_marks(float_path, out_path)
+        copy_marks(float_path, written)
     return out_path

@@ -12,14 +12,13 @@ as in the map arrays), the two channels ``(column, row)`` displacement in cells.
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 import numpy as np
 
+from lidarflow.atomic import check_writable, commit, discard, temporary
 from lidarflow.errors import PredictError
 from lidarflow.scan import GridSpec, Scan
 
@@ -56,25 +55,28 @@ class BagOutput:
     """A bag being written: LaserScans, OccupancyGrids and flow images, by topic.
 
     ``with BagOutput(path) as out: out.write_scan("/scan", scan, "laser")`` ... The target
-    must not exist yet. A ``.mcap`` target is written as a ROS 2 bag in a temporary folder and
-    its single MCAP file moved into place (Foxglove opens it directly).
+    must not exist yet unless ``force``. The bag is written under a temporary name beside the
+    target and renamed onto it when closed (:mod:`lidarflow.atomic`), so the target is never
+    a bag cut short; an error or interrupt removes what was written. A ``.mcap`` target is
+    written as a ROS 2 bag in a temporary folder and its single MCAP file moved into place
+    (Foxglove opens it directly).
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, force: bool = False) -> None:
         from rosbags.typesys import Stores, get_typestore
 
         self.path = Path(path)
-        if self.path.exists():
-            raise PredictError(f"{self.path}: already exists; choose a new output path")
+        self.kind = output_kind(self.path)
+        check_writable(self.path, force, "metadata.yaml" if self.kind == "ros2" else None)
         if not self.path.parent.exists():
             raise PredictError(f"{self.path.parent}: no such folder for the output")
-        self.kind = output_kind(self.path)
         self.ros1 = self.kind == "ros1"
         self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         self._serialize = (
             self.typestore.serialize_ros1 if self.ros1 else self.typestore.serialize_cdr
         )
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._staged: Path | None = None  # what the writer writes, under a temporary name
+        self._written: Path | None = None  # what becomes the target: the bag file or folder
         self._writer: Any = None
         self._connections: dict[str, Any] = {}
 
@@ -84,17 +86,21 @@ class BagOutput:
         from rosbags.rosbag2 import StoragePlugin
         from rosbags.rosbag2 import Writer as Writer2
 
+        self._staged = temporary(self.path)
         if self.ros1:
-            self._writer = Writer1(self.path)
+            self._written = self._staged
+            self._writer = Writer1(self._staged)
         else:
-            target = self.path
-            if self.kind == "mcap":
-                self._tmp = tempfile.TemporaryDirectory(dir=self.path.parent)
-                target = Path(self._tmp.name) / self.path.stem
-            self._writer = Writer2(target, version=9, storage_plugin=StoragePlugin.MCAP)
+            # rosbags names the storage file after the bag's folder: stage a folder of the
+            # target's own name, then move it (ROS 2) or its .mcap file (MCAP) onto the target
+            self._staged.mkdir()
+            folder = self._staged / self.path.stem
+            self._written = folder if self.kind == "ros2" else folder / f"{self.path.stem}.mcap"
+            self._writer = Writer2(folder, version=9, storage_plugin=StoragePlugin.MCAP)
         try:
             self._writer.open()
-        except Exception as err:
+        except BaseException as err:
+            discard(self._staged)
             raise PredictError(f"{self.path}: cannot open for writing ({err})") from err
         return self
 
@@ -104,19 +110,15 @@ class BagOutput:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self._writer.close()
-        if self._tmp is not None:
+        assert self._staged is not None and self._written is not None
+        try:
+            self._writer.close()
+            # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed):
+            # it never takes the target's name.
             if exc is None:
-                written = sorted(Path(self._tmp.name).rglob("*.mcap"))
-                shutil.move(str(written[0]), self.path)
-            self._tmp.cleanup()
-        elif exc is not None:
-            # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed)
-            # and makes the rerun refuse the path; the path did not exist before (__init__).
-            if self.path.is_dir():
-                shutil.rmtree(self.path, ignore_errors=True)
-            else:
-                self.path.unlink(missing_ok=True)
+                commit(self._written, self.path)
+        finally:
+            discard(self._staged)
 
     # ------------------------------------------------------------------ messages
     def _types(self) -> dict[str, Any]:

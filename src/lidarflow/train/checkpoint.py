@@ -19,9 +19,7 @@ is loaded with ``torch.load(weights_only=True)``: it holds tensors and plain Pyt
 from __future__ import annotations
 
 import json
-import os
 import random
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -31,6 +29,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
+from lidarflow.atomic import atomic_path, discard
 from lidarflow.errors import TrainError
 
 __all__ = [
@@ -48,40 +47,24 @@ __all__ = [
 ]
 
 
-def _read_umask() -> int:
-    mask = os.umask(0)  # reading the umask means setting it: put it straight back, once, at
-    os.umask(mask)  # import (not per write, where another thread could create a file meanwhile)
-    return mask
-
-
-_UMASK = _read_umask()
 KEEP = 2  # epochs of checkpoints kept on disk (the newest and the one before)
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``
+    (:func:`lidarflow.atomic.atomic_path`)."""
+    with atomic_path(path) as tmp:
         write(tmp)
-        # mkstemp creates the file 0600: without this every file of a run (model.safetensors
-        # too) is unreadable to the other users of a robot or a shared machine.
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 
 def remove_temporaries(run_dir: Path) -> int:
-    """Delete what a killed writer left behind (``.NAME.*.tmp``); returns how many."""
-    stale = [*run_dir.glob(".*.tmp"), *_ckpt_dir(run_dir).glob(".*.tmp")]
+    """Delete what a killed writer left behind (``.NAME.PID.partial*``, and ``.NAME.*.tmp`` of
+    older versions); returns how many."""
+    folders = (run_dir, _ckpt_dir(run_dir))
+    stale = [p for d in folders for pattern in (".*.tmp", ".*.partial*") for p in d.glob(pattern)]
     for path in stale:
-        path.unlink(missing_ok=True)
+        discard(path)
     return len(stale)
 
 

@@ -240,7 +240,7 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
     if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
         raise TrainError(
             f"{run_dir} already holds a training run; use --resume {run_dir} to continue it, "
-            "or another -o folder"
+            "--force to start it over, or another -o folder"
         )
     if ctx.is_main:
         ckpt.write_json(run_dir / "config.json", config_to_dict(config))

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.atomic import write_text
 from lidarflow.data.blocks import Frames, streamed_maps
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
@@ -191,6 +192,6 @@ def evaluate_and_report(
             entry["ground_truth_not_scored"] = True
     if report_dir is not None:
         report_dir.mkdir(parents=True, exist_ok=True)
-        (report_dir / "report.json").write_text(json.dumps(report, indent=2))
+        write_text(report_dir / "report.json", json.dumps(report, indent=2))
         write_html_report(report, report_dir / "index.html", figures)
     return report

@@ -19,9 +19,13 @@ def pyplot() -> Any:
 
 
 def save_figure(fig: Any, path: str | Path, dpi: int = 100) -> Path:
-    """Save ``fig`` as ``path`` (parents created) and release it."""
+    """Save ``fig`` as ``path`` (parents created; whole or not at all) and release it."""
+    from lidarflow.atomic import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    pyplot().close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        pyplot().close(fig)
     return path

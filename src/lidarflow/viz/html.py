@@ -138,7 +138,6 @@ def write_html_report(
         parts.append(html.escape(json.dumps(report["config"], indent=2)))
         parts.append("</pre>")
     parts.append("</body></html>")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(parts), encoding="utf-8")
-    return path
+    from lidarflow.atomic import write_text
+
+    return write_text(Path(path), "\n".join(parts))

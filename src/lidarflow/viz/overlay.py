@@ -73,7 +73,9 @@ def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 7.5) 
     """Write RGB frames as an animated GIF that loops."""
     import imageio.v2 as imageio
 
+    from lidarflow.atomic import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    imageio.mimsave(path, list(frames), duration=1.0 / fps, loop=0)
+    with atomic_path(path) as tmp:
+        imageio.mimsave(tmp, list(frames), duration=1.0 / fps, loop=0)
     return path

@@ -1,0 +1,5 @@
+"""``python -m lidarflow``: the ``lidarflow`` command."""
+
+from lidarflow.cli import main
+
+main()

@@ -1,0 +1,139 @@
+"""``choose-offset``: a trained model's fixed decision offset, chosen on the user's recordings."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from lidarflow.cli.app import (
+    DEFAULT_THREADS,
+    TORCH_MODEL_SOURCES,
+    ForceOpt,
+    GridOpt,
+    OdomOpt,
+    ResOpt,
+    ThreadsOpt,
+    TopicOpt,
+    app,
+    eval_progress,
+    load_input,
+    refuse_existing,
+    use_threads,
+)
+from lidarflow.evaluate.offsets import DEFAULT_OFFSETS
+
+
+@app.command("choose-offset")
+def choose_offset(
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to choose on.")
+    ],
+    output: Annotated[
+        Path,
+        typer.Option("--output", "-o", help="Model folder to write: the model with the offset."),
+    ],
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            "--model",
+            "-m",
+            help=f"Model with an occupancy head: {TORCH_MODEL_SOURCES} or `bundled` (the default).",
+        ),
+    ] = None,
+    offset: Annotated[
+        list[float] | None,
+        typer.Option(
+            "--offset",
+            help="Candidate offset (repeatable; default "
+            + ", ".join(f"{o:g}" for o in DEFAULT_OFFSETS)
+            + ").",
+        ),
+    ] = None,
+    topic: TopicOpt = None,
+    odom_topic: OdomOpt = None,
+    warmup: Annotated[
+        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+    ] = 10,
+    grid: GridOpt = 100,
+    res: ResOpt = 0.1,
+    force: ForceOpt = False,
+    threads: ThreadsOpt = DEFAULT_THREADS,
+) -> None:
+    """Choose an occupancy-head model's fixed decision offset on your recordings: each
+    candidate is scored beside the baselines, and the one with the largest summed win margin
+    goes into a copy of the model (-o), with every score in its offsets.json.
+
+    A larger offset predicts more changed cells at some cost in calibration; a model that
+    chooses offsets online uses the fixed one for its first frames."""
+    import tempfile
+
+    from lidarflow.atomic import atomic_path, write_text
+    from lidarflow.cli.scoring import _check_length, methods_and_config
+    from lidarflow.errors import ModelError
+    from lidarflow.evaluate.offsets import choose_offset as choose
+    from lidarflow.evaluate.offsets import decided_online, with_offset
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.scan import GridSpec
+    from lidarflow.viz.evaluation import evaluate_and_report
+
+    refuse_existing(output, force=force, marker="model.json")
+    use_threads(threads)
+    offsets = list(dict.fromkeys(offset or DEFAULT_OFFSETS))
+    net, card = resolve_model(model)
+    if not net.capabilities.occupancy_head:
+        raise ModelError(
+            f"{card.get('weights_path')}: this model has no occupancy head, so no decision "
+            "offset to choose (train one with the default recipe)"
+        )
+    weights = Path(card["weights_path"])
+    spec = GridSpec(grid, grid, res)
+    named = []
+    for path in inputs:
+        recording = load_input(path, topic, odom_topic)
+        _check_length(str(path), recording, warmup, 1)
+        named.append((str(path), recording))
+    with tempfile.TemporaryDirectory() as tmp:
+        folders: dict[float, Path] = {}
+        for candidate in offsets:
+            folder = Path(tmp) / f"offset_{candidate:g}"
+            folder.mkdir()
+            (folder / "model.json").write_text(json.dumps(with_offset(card, candidate)))
+            (folder / "model.safetensors").symlink_to(weights.resolve())
+            folders[candidate] = folder
+        methods, config = methods_and_config(list(folders.values()), res=spec.res)
+        config.update({"warmup": warmup, "grid": spec.to_dict()})
+        report = evaluate_and_report(named, methods, spec, warmup, config, None, 1, eval_progress)
+    names = {o: f.name for o, f in folders.items()}
+    best, totals = choose(report["recordings"], names)
+    for entry in report["recordings"]:
+        scores = ", ".join(
+            f"{o:g}: {entry['methods'][n]['f1']:.3f}/{entry['methods'][n]['changed_f1']:.3f}"
+            for o, n in names.items()
+        )
+        typer.echo(f"{Path(entry['path']).name} (F1/changed F1 by offset): {scores}")
+    typer.echo("summed win margin: " + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items()))
+    chosen = with_offset(card, best, online=decided_online(card))  # the model's own rule kept
+    record = {
+        "command": "lidarflow " + " ".join(sys.argv[1:]),
+        "model": str(weights),
+        "recordings": [name for name, _ in named],
+        "offsets": offsets,
+        "summed_win_margin": {f"{o:g}": t for o, t in totals.items()},
+        "chosen": best,
+        "scores": {
+            entry["path"]: {f"{o:g}": entry["methods"][n] for o, n in names.items()}
+            for entry in report["recordings"]
+        },
+    }
+    chosen["decision_offset_chosen_on"] = record["recordings"]
+    with atomic_path(output) as folder:
+        folder.mkdir()
+        shutil.copyfile(weights, folder / "model.safetensors")
+        write_text(folder / "model.json", json.dumps(chosen, indent=2) + "\n")
+        write_text(folder / "offsets.json", json.dumps(record, indent=2) + "\n")
+    typer.echo(f"wrote {output}: decision offset {best:g} (use it with -m {output})")

@@ -1,0 +1,76 @@
+"""Choosing an occupancy-head model's fixed decision offset on recordings (`lidarflow
+choose-offset`).
+
+The head is trained by cross-entropy, so its probabilities are calibrated and it predicts that
+a cell changes only when the change is likelier than the 0.4 threshold. An offset added to its
+logit when deciding (the ``decision`` record of its ``model.json``, the Predictor's policy)
+trades calibration for cells that change. Each candidate offset is scored with fixed decisions
+beside the three baselines, and the one with the largest summed *win margin* is chosen: per
+recording ``min(F1 - best baseline F1, changed F1 - best baseline changed F1)``, positive
+exactly where the model wins there. (A model that chooses its offsets online, as the bundled one
+does, still uses the fixed offset for its first frames and wherever online decisions are turned
+off.)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from lidarflow.models.config import DECISION_KEYS
+from lidarflow.models.weights import decision_record
+
+__all__ = [
+    "BASELINES",
+    "DEFAULT_OFFSETS",
+    "choose_offset",
+    "decided_online",
+    "win_margin",
+    "with_offset",
+]
+
+#: The baselines a model must beat, as `evaluate` names them.
+BASELINES = ("copy_last", "temporal_average", "constant_velocity")
+#: The candidates tried unless told otherwise (the bundled model's 1.2 among them).
+DEFAULT_OFFSETS = (0.0, 0.3, 0.6, 0.9, 1.2)
+
+
+def win_margin(methods: Mapping[str, Mapping[str, Any]], name: str) -> float:
+    """``min(F1 - best baseline F1, changed F1 - best baseline changed F1)`` of method ``name``
+    in one recording's ``methods`` (an `evaluate` report's); a metric with nothing to find
+    (``None``) counts as 0."""
+
+    def value(method: str, metric: str) -> float:
+        return float(methods[method].get(metric) or 0.0)
+
+    best_f1 = max(value(b, "f1") for b in BASELINES)
+    best_changed = max(value(b, "changed_f1") for b in BASELINES)
+    return min(value(name, "f1") - best_f1, value(name, "changed_f1") - best_changed)
+
+
+def decided_online(card: Mapping[str, Any]) -> bool:
+    """Whether the model described by ``card`` (its model.json) chooses its offsets online."""
+    return decision_record(dict(card))["online"]
+
+
+def with_offset(card: Mapping[str, Any], offset: float, online: bool = False) -> dict[str, Any]:
+    """A copy of the model description ``card`` (a model.json) deciding with the fixed
+    ``offset``, and online where ``online`` (off for the candidates, so that each is scored on
+    its own offset); the decision keys older files kept among the model's kwargs are dropped."""
+    kwargs = {k: v for k, v in (card.get("model_kwargs") or {}).items() if k not in DECISION_KEYS}
+    kept = {k: v for k, v in card.items() if k not in ("weights_path", "weights_sha256")}
+    decision = {"offset": float(offset), "online": bool(online)}
+    return {**kept, "model_kwargs": kwargs, "decision": decision}
+
+
+def choose_offset(
+    recordings: Sequence[Mapping[str, Any]], names: Mapping[float, str]
+) -> tuple[float, dict[float, float]]:
+    """The offset (of ``names``: offset -> method name in the report) whose summed win margin
+    over the report's ``recordings`` is largest (the first such of equals), and every offset's
+    sum."""
+    totals = {
+        offset: sum(win_margin(entry["methods"], name) for entry in recordings)
+        for offset, name in names.items()
+    }
+    return max(totals, key=lambda o: totals[o]), totals
