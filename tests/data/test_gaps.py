@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from lidarflow.data.gaps import frames_after_gaps
-from lidarflow.motion.pacing import HISTORY, MIN_STEPS
+from lidarflow.stamps import HISTORY, MIN_STEPS
 
 MS = 1_000_000
 
@@ -52,7 +52,7 @@ def test_a_gap_in_the_first_steps_or_right_after_another_is_found():
 
 
 def test_a_changed_rate_is_learnt_within_rate_steps():
-    from lidarflow.motion.pacing import RATE_STEPS
+    from lidarflow.stamps import RATE_STEPS
 
     # 20 Hz then 5 Hz: the first slower steps are gaps, not every one from then on
     assert frames_after_gaps(stamps([50.0] * 60 + [200.0] * 60)) == list(range(61, 66))

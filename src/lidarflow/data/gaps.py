@@ -8,8 +8,8 @@ info`` lists them, all by this one rule.
 
 The rule is relative to the stream's own rate (scanners run at 5-40 Hz): a step longer than
 ``max_gap_periods`` times the typical step, forwards or backwards (a clock that jumps back). The
-typical step (:class:`lidarflow.motion.pacing.RecentSteps`, which also paces the guess of the
-sensor's next motion after a long step) is the median of the last forward steps, long ones
+typical step (:mod:`lidarflow.stamps`, which also paces the guess of the sensor's next motion
+after a long step) is the median of the last forward steps, long ones
 included: one gap does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is
 learnt once a few steps at the new rate agree (its first slower steps are gaps). Until a few
 steps are known, the median of all the stream's forward steps stands in, so a gap in the first
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from lidarflow.motion.pacing import long_steps
+from lidarflow.stamps import long_steps
 
 __all__ = ["MAX_GAP_PERIODS", "frames_after_gaps"]
 
