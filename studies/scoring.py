@@ -14,18 +14,13 @@ import numpy as np
 
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.ego import CopyLastEgo
+from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
-from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import evaluate_recording
-from lidarflow.models.presets import resolve_model
 from lidarflow.predict.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
-    ConstantVelocity,
-    CopyLast,
-    TemporalAverage,
 )
-from lidarflow.predict.decision import OnlineDecisionConfig
 from lidarflow.scan import GridSpec
 from lidarflow.viz.evaluation import evaluate_and_report
 
@@ -45,26 +40,10 @@ def methods_for(
     evaluate` builds them; with an ego-motion model, ``copy_last_ego`` beside it (a reference,
     never judged). ``online``: each model also with the decision rule it was not built with
     (``NAME_online`` or ``NAME_fixed``, :func:`studies.harness.split_online`)."""
-    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
-    # an online decision measures itself against the temporal average it is scored beside
-    config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
-    for name, source in models.items():
-        net, card = resolve_model(None if source in (None, "bundled") else source)
-        own = card["decision"]  # the decision policy the model ships with
-        method = ModelMethod(name, net, online_config=config, res=res, decision=own)
-        methods.append(method)
-        if online:
-            own_online = method.online is not None
-            other = name + ("_fixed" if own_online else "_online")
-            methods.append(
-                ModelMethod(
-                    other, net, online=not own_online, online_config=config,
-                    res=res, decision=own,
-                )
-            )  # fmt: skip
-    if any(m.takes.motion for m in methods):
-        methods.insert(3, CopyLastEgo())
-    return methods
+    sources, names = list(models.values()), list(models)
+    return methods_and_config(
+        sources, ta_window, ta_threshold, online=online, res=res, names=names
+    )[0]
 
 
 def evaluate(

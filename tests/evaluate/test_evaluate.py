@@ -311,9 +311,9 @@ def test_frame_blocks_are_the_arrays_they_stand_for(sample_recording):
 def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
     sample_recording, monkeypatch
 ):
-    from lidarflow.cli.scoring import methods_and_config
     from lidarflow.data import blocks
     from lidarflow.evaluate.ego import recording_motions
+    from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.stream import evaluate_recording
 
     rec, grid = sample_recording.slice(0, 40), GridSpec()

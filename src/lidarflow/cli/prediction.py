@@ -28,7 +28,7 @@ from lidarflow.cli.app import (
     refuse_existing,
     use_threads,
 )
-from lidarflow.cli.scoring import methods_and_config
+from lidarflow.evaluate.methods import methods_and_config
 
 if TYPE_CHECKING:
     from lidarflow.scan import GridSpec

@@ -73,8 +73,9 @@ def choose_offset(
     import tempfile
 
     from lidarflow.atomic import atomic_path, write_text
-    from lidarflow.cli.scoring import _check_length, methods_and_config
+    from lidarflow.cli.scoring import _check_length
     from lidarflow.errors import ModelError
+    from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.offsets import choose_offset as choose
     from lidarflow.evaluate.offsets import decided_online, with_offset
     from lidarflow.models.presets import resolve_model

@@ -1,0 +1,134 @@
+"""The methods `lidarflow evaluate` scores, built once for the command line and the studies: the
+three baselines, each model as streamed by the engine (with the decision policy it ships with),
+the variants asked for, and the configuration a report states them by."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from lidarflow.evaluate.ego import CopyLastEgo
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.report import ORACLE_SUFFIX
+from lidarflow.models.presets import resolve_model
+from lidarflow.models.weights import describe_source
+from lidarflow.predict.baselines import (
+    TA_THRESHOLD,
+    TA_WINDOW,
+    ConstantVelocity,
+    CopyLast,
+    TemporalAverage,
+)
+from lidarflow.predict.decision import OnlineDecisionConfig
+from lidarflow.predict.moving import MOVING_THRESHOLD
+
+__all__ = ["methods_and_config"]
+
+
+def methods_and_config(
+    sources: Sequence[str | Path | None],
+    ta_window: int = TA_WINDOW,
+    ta_threshold: float = TA_THRESHOLD,
+    moving_threshold: float | None = None,
+    ego_oracle: bool = False,
+    online: bool = False,
+    res: float = 0.1,
+    names: Sequence[str] | None = None,
+) -> tuple[list[Any], dict[str, Any]]:
+    """The baselines plus one method per model source (``None``: the bundled model), and the
+    configuration that describes them for the report. With an ego-motion model among them the
+    last map moved by the same motion comes too (``copy_last_ego``: odometry, or on a recording
+    without poses the motion matched from its scans), to show what the model adds to ego-motion
+    compensation alone; ``ego_oracle`` adds the variants that know the
+    true next pose; ``online`` adds, for each model, the decision rule it was not built with:
+    ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``. A source
+    ``None`` or ``"bundled"`` is the bundled model; ``names`` name the models (default: the
+    bundled one ``bundled``, others by their folder or file)."""
+    if moving_threshold is None:
+        moving_threshold = MOVING_THRESHOLD
+    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    # An online decision measures itself against the temporal average reported here.
+    online_config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
+    models_used = {}
+    for i, source in enumerate(sources):
+        bundled = source is None or str(source) == "bundled"
+        net, card = resolve_model(None if bundled else source)
+        name = names[i] if names else "bundled" if bundled else describe_source(source)
+        while name in {m.name for m in methods}:
+            name += "_"
+        own = card["decision"]  # the decision policy the model ships with
+        method = ModelMethod(
+            name, net, moving_threshold, online_config=online_config, res=res, decision=own
+        )
+        methods.append(method)
+        keys = ("model", "weights_path", "weights_sha256", "grid")
+        models_used[name] = {k: card.get(k) for k in keys}
+        if method.takes.motion and ego_oracle:
+            oracle = ModelMethod(name + ORACLE_SUFFIX, net, oracle=True, res=res, decision=own)
+            methods.append(oracle)
+        if online:  # the other decision rule beside the model's own
+            wants_online = method.online is not None
+            methods.append(
+                ModelMethod(
+                    name + ("_fixed" if wants_online else "_online"),
+                    net,
+                    moving_threshold,
+                    online=not wants_online,
+                    online_config=online_config,
+                    res=res,
+                    decision=own,
+                )
+            )
+    if any(m.takes.motion for m in methods):
+        methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
+    config = {
+        "threshold": 0.4,
+        # what knows the future or only moves the last map is reported, never judged
+        "no_verdict": [
+            m.name
+            for m in methods
+            if isinstance(m, CopyLastEgo) or (isinstance(m, ModelMethod) and m.oracle)
+        ],
+        "temporal_average": {
+            "window": ta_window,
+            "threshold": ta_threshold,
+            "chosen": "the default: of a grid of windows and thresholds, the highest mean F1 on "
+            "the development recordings among settings that predict changes "
+            "(docs/research/temporal_average/)"
+            if (ta_window, ta_threshold) == (TA_WINDOW, TA_THRESHOLD)
+            else "given on the command line",
+        },
+        "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+        # how a reading became a map (lidarflow.scan), since it changed: numbers made under
+        # another rule are not these
+        "beams": "a return where range_min <= range < range_max; range_max itself, beyond and "
+        "+inf no return (free to range_max), and in a scan with 1 % of its beams at range_max "
+        "also readings within 1 % (3 cm) under it; NaN, -inf, 0 and below range_min unknown",
+        "models": models_used,
+        "calibration": {"bins": 10, "over": "every cell of every scored frame"},
+        "moving_segmentation": {
+            "threshold_cells": moving_threshold,
+            "rule": "occupied and |forward flow - fitted background flow| > threshold",
+        },
+    }
+    if online or any(isinstance(m, ModelMethod) and m.online is not None for m in methods):
+        config["online_decision"] = {
+            **dataclasses.asdict(online_config),
+            "rule": "each frame, the (occupied, free) offset pair, on the last map moved by the "
+            "flow or unmoved, that would leave the recording's win margin over the three "
+            "baselines largest if the next `lookahead` frames went as its recent (decayed) ones; "
+            "the decisions made and the baselines' counts decay by `history_decay`",
+        }
+    if any(m.takes.motion for m in methods):
+        config["ego_motion"] = (
+            "models built with ego_motion get the recordings' poses (odometry); the motion to "
+            "the next frame is the last one again (constant velocity, causal); *_oracle* "
+            "variants use the true next pose instead; copy_last_ego moves the last map by the same "
+            "motion (reported beside, not one of the three baselines a model must beat); "
+            "on a recording without poses, models built with poses_optional (the head recipe's, "
+            "the bundled one) and copy_last_ego get the motion matched from the scans "
+            "(lidarflow.motion.scanmatch; uncompensated where no match counts)"
+        )
+    return methods, config
