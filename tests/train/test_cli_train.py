@@ -294,7 +294,9 @@ def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, 
 
     trained = unwrapped(load_file(run / "model.safetensors"))
     bundled = unwrapped(resolve_model("bundled")[0].state_dict())
-    assert json.loads((run / "model.json").read_text())["model_kwargs"]["poses_optional"]
+    record = json.loads((run / "model.json").read_text())
+    assert record["model_kwargs"]["poses_optional"]
+    assert record["decision"] == {"offset": 0.0, "online": True}  # the recipe's policy
     # The flow network is the bundled one (lr 1e-6: moved by about 1e-6 per step) ...
     flow = bundled["flow.conv_flow.weight"]
     torch.testing.assert_close(trained["flow.conv_flow.weight"], flow, atol=1e-4, rtol=0)

@@ -63,9 +63,12 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
     measured = build_config("blurred", study, flags | residual)
     head = recipe("head")
     assert head.model.init == "bundled" and measured.model.init is None
-    for section in ("data", "optim", "schedule", "loss", "runtime"):
+    for section in ("data", "optim", "schedule", "loss", "runtime", "decision"):
         assert getattr(head, section) == getattr(measured, section), section
     assert head.model.kwargs == measured.model.kwargs
+    # That study's file kept the decision among the model's kwargs, as configs did then: it is
+    # read into the decision section, where the recipe has it.
+    assert head.decision.online and "online_decision" not in measured.model.kwargs
 
 
 def test_default_recipe_is_the_head_for_lidar_flownet_only():
@@ -175,3 +178,17 @@ def test_a_gap_threshold_of_one_period_or_less_is_refused_before_any_data_loads(
     # every step would be a gap; it reached the gap rule as an internal error after loading
     with pytest.raises(TrainError, match=r"data\.max_gap_periods must be > 1"):
         build_config(None, None, {}, ["data.max_gap_periods=1.0"])
+
+
+def test_the_decision_is_its_own_section_and_old_configs_move_it_there():
+    from lidarflow.train.config import DecisionConfig
+
+    assert recipe("head").decision == DecisionConfig(0.0, True)
+    assert recipe("paper").decision == DecisionConfig()
+    config = build_config(None, None, {}, ["decision.offset=0.9", "decision.online=true"])
+    assert config.decision == DecisionConfig(0.9, True)
+    # Before issue 35 it travelled among the model's kwargs: read from there, it moves.
+    old = {"occupancy_head": True, "online_decision": True, "decision_offset": 0.5}
+    config = build_config(None, None, {"model.kwargs": old})
+    assert config.decision == DecisionConfig(0.5, True)
+    assert config.model.kwargs == {"occupancy_head": True}

@@ -28,6 +28,7 @@ from lidarflow.models.config import MODEL_NAMES
 __all__ = [
     "RECIPES",
     "DataConfig",
+    "DecisionConfig",
     "ModelConfig",
     "OptimConfig",
     "RuntimeConfig",
@@ -49,6 +50,17 @@ class ModelConfig:
     name: str = "flownet"
     kwargs: dict[str, Any] = field(default_factory=dict)
     init: str | None = None
+
+
+@dataclass
+class DecisionConfig:
+    """How the trained model's next map is to be decided, written beside it (``model.json``'s
+    ``decision`` record): the Predictor's policy, not the model's (training never uses it).
+    ``offset`` is added to the occupancy head's logit; ``online``: offsets chosen on the stream
+    itself, starting from it (:mod:`lidarflow.predict.decision`)."""
+
+    offset: float = 0.0
+    online: bool = False
 
 
 @dataclass
@@ -166,6 +178,7 @@ class TrainConfig:
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
     loss: LossConfig = field(default_factory=LossConfig.paper)
     runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
 
     def validate(self) -> TrainConfig:
         """Raise :class:`TrainError` naming the first impossible setting; return self."""
@@ -240,7 +253,7 @@ def _head() -> TrainConfig:
     (``memories_from_stream``), compensating the platform's own motion where a recording has
     poses (``ego_motion``, ``poses_optional``: uncompensated where it has none; half the
     training windows without their poses, so it learns both ways), its decision offsets chosen
-    online as it streams (``online_decision``, applied by evaluate and the Predictor; training
+    online as it streams (``decision.online``, applied by evaluate and the Predictor; training
     is unchanged by it): ``model.init`` (the bundled model unless set; its head too where the
     shapes fit, so the default fine-tunes the bundled head; ``--recipe blurred`` trains a flow
     network of your own). About 8 CPU-minutes on the seven development recordings; its
@@ -259,9 +272,9 @@ def _head() -> TrainConfig:
         "head_kernel_size": 1,
         "head_flow_features": False,
         "visibility_input": True,
-        "online_decision": True,
         "subcell_input": True,
     }
+    config.decision.online = True
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
     # steps); the head learns at 0.03.

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from lidarflow.errors import TrainError
-from lidarflow.train.config import TrainConfig, recipe
+from lidarflow.models.config import DECISION_KEYS
+from lidarflow.train.config import DecisionConfig, TrainConfig, recipe
 
 __all__ = [
     "apply_overrides",
@@ -117,7 +118,22 @@ def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
 def config_from_dict(data: dict[str, Any]) -> TrainConfig:
     """Inverse of :func:`config_to_dict`: missing settings keep the named recipe's values."""
     base = recipe(str(data.get("recipe", "paper")))
-    return _merge(base, data)
+    return _decision_apart(_merge(base, data))
+
+
+def _decision_apart(config: TrainConfig) -> TrainConfig:
+    """The decision keys that configs before issue 35 kept among ``model.kwargs``
+    (``decision_offset``, ``online_decision``) moved to the ``decision`` section."""
+    kwargs = config.model.kwargs
+    if not any(k in kwargs for k in DECISION_KEYS):
+        return config
+    decision = DecisionConfig(
+        float(kwargs.get("decision_offset", config.decision.offset)),
+        bool(kwargs.get("online_decision", config.decision.online)),
+    )
+    rest = {k: v for k, v in kwargs.items() if k not in DECISION_KEYS}
+    model = dataclasses.replace(config.model, kwargs=rest)
+    return dataclasses.replace(config, model=model, decision=decision)
 
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
@@ -187,4 +203,4 @@ def build_config(
             node = node.setdefault(part, {})
         node[parts[-1]] = value
         config = _merge(config, nested)
-    return apply_overrides(config, overrides).validate()
+    return _decision_apart(apply_overrides(config, overrides)).validate()

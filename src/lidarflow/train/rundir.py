@@ -60,15 +60,12 @@ def model_record(
 ) -> dict[str, Any]:
     """What ``model.json`` says: enough to rebuild the net and to know where it came from
     (``commit``: the code it trained with, by default the checkout's HEAD now)."""
-    spec, decision = ModelSpec.from_kwargs(config.model.name, config.model.kwargs)
+    spec, _ = ModelSpec.from_kwargs(config.model.name, config.model.kwargs)
     return {
         "model": config.model.name,
         "model_kwargs": spec.to_kwargs(),
         # How its next map is decided: the Predictor's policy, shipped with the model.
-        "decision": {
-            "offset": float(decision.get("decision_offset", 0.0)),
-            "online": bool(decision.get("online_decision", False)),
-        },
+        "decision": dataclasses.asdict(config.decision),
         "out_channels": int(getattr(model, "out_channels", 0)),
         "parameters": int(count_parameters(model)),
         "grid": data.grid.to_dict(),
