@@ -92,7 +92,7 @@ def _demo(folder: Path, output: Path) -> None:
         # honest about what this number is: the bundled model trained on every dev recording
         typer.echo(
             "(in-sample: the bundled model trained on this recording; on recordings it never "
-            "saw, see the README's 'The bundled model')"
+            "saw, see the README's 'Results on recordings it never saw')"
         )
     typer.echo(f"results: {output / 'results.json'}; report: {output / 'report' / 'index.html'}")
     if has_model:
