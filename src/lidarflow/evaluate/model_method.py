@@ -64,7 +64,7 @@ class ModelMethod:
         #: What ``update`` takes beside the maps; a model that may run without poses checks
         #: odometry against the scans' returns.
         self.takes = Takes(caps.ego_motion, optional, optional, takes_subcell(caps.input_channels))
-        record = decision if decision is not None else getattr(self.backend, "decision", None)
+        record = decision if decision is not None else self.backend.decision
         policy = DecisionPolicy.from_record(record, online_config)
         policy = policy.with_online(online_config if online is True and online_config else online)
         try:

@@ -77,6 +77,8 @@ class TorchBackend:
         self.model = model.to(self.device).eval()
         self.capabilities: Capabilities = model.capabilities
         self.gain: float | None = model.warp_gain()
+        # The policy a model ships with is in its model.json, not in its weights.
+        self.decision: dict[str, Any] | None = None
 
     def init_state(self, height: int, width: int) -> Any:
         return self.model.init_state(1, height, width, device=self.device)

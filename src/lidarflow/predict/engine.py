@@ -37,6 +37,7 @@ from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
+from lidarflow.scan import takes_subcell
 
 __all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
 
@@ -50,6 +51,7 @@ class Backend(Protocol):
 
     capabilities: Capabilities
     gain: float | None  # an occupancy head's warp gain (the online decision's unmoved map)
+    decision: dict[str, Any] | None  # the policy a file ships with ({"offset", "online"})
 
     def init_state(self, height: int, width: int) -> Any: ...
 
@@ -179,7 +181,7 @@ class Engine:
     def _maps(self, occupancy: Any, visibility: Any, subcell: np.ndarray | None) -> np.ndarray:
         """``(1, C, H, W)`` float32: the model's input for one frame."""
         maps = np.stack([occupancy, visibility]).astype(np.float32)
-        if self.capabilities.input_channels > 2:
+        if takes_subcell(self.capabilities.input_channels):
             extra = np.zeros((2, *maps.shape[1:])) if subcell is None else subcell
             maps = np.concatenate([maps, np.asarray(extra, np.float32)])
         return maps[None]
@@ -197,8 +199,8 @@ class Engine:
         probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
         flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
-        moved = None if flow is None else flow[:2]
-        decided = self._decide(own, frame.occupancy, moved, frame.visibility)
+        backward = None if flow is None else flow[:2]
+        decided = self._decide(own, frame.occupancy, backward, frame.visibility)
         # Each step of a roll-out is one typical step of the same motion.
         ahead = motion if guess is None else guess
         return Step(own, decided, flow, motion, maps, self._state, ahead)
@@ -207,14 +209,15 @@ class Engine:
         self,
         probability: np.ndarray,
         last: np.ndarray,
-        flow: np.ndarray | None,
+        backward: np.ndarray | None,
         visibility: np.ndarray | None = None,
     ) -> np.ndarray:
-        """The probability the policy thresholds: with an online decision, updated on this
+        """The probability the policy thresholds (``last``: the map the prediction was made
+        from, ``backward``: the step's backward flow): with an online decision, updated on this
         frame (``visibility`` given) or applied with its current choice (a roll-out's step)."""
         if self.decision is None:
             return decided_probability(probability, self.policy.offset)
-        moved = moved_last_map(last, flow)
+        moved = moved_last_map(last, backward)
         if visibility is None:
             return self.decision.apply(probability, last, moved)
         return self.decision.update(probability, last, visibility, moved)
