@@ -247,7 +247,7 @@ def _head() -> TrainConfig:
     """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
     memories that follow the constant-velocity shift, the constant-velocity map, the current
     map and its visibility, and where the current returns lie inside their cells,
-    ``subcell_input``; one hidden layer; ``head_kernel_size`` 1, no GRU features) trained
+    ``subcell_input``; one hidden layer; 1 x 1, no GRU features) trained
     by cross-entropy on top of a trained flow network that stays (nearly) frozen, each window
     starting from the memories that streaming its recording leaves there
     (``memories_from_stream``), compensating the platform's own motion where a recording has
@@ -269,8 +269,6 @@ def _head() -> TrainConfig:
         "shift_memories": True,
         "ego_motion": True,
         "poses_optional": True,
-        "head_kernel_size": 1,
-        "head_flow_features": False,
         "visibility_input": True,
         "subcell_input": True,
     }
