@@ -195,3 +195,10 @@ def test_the_decision_is_its_own_section_and_old_configs_move_it_there():
     config = build_config(None, None, {"model.kwargs": old})
     assert config.decision == DecisionConfig(0.5, True)
     assert config.model.kwargs == {"occupancy_head": True}
+
+
+def test_model_arguments_are_checked_when_the_config_is_built():
+    with pytest.raises(TrainError, match=r"model\.kwargs: unexpected model arguments: nonsense"):
+        build_config(None, None, {"model.kwargs": {"nonsense": 1}})
+    with pytest.raises(TrainError, match=r"model\.kwargs: warp_input was measured without gain"):
+        build_config(None, None, {"model.kwargs": {"occupancy_head": True, "warp_input": True}})

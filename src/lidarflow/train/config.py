@@ -23,7 +23,7 @@ from typing import Any
 
 from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
-from lidarflow.models.config import MODEL_NAMES
+from lidarflow.models.config import MODEL_NAMES, ModelSpec
 
 __all__ = [
     "RECIPES",
@@ -231,6 +231,10 @@ class TrainConfig:
         for ok, message in checks:
             if not ok:
                 raise TrainError(f"bad training config: {message}")
+        try:  # the model's arguments, read as the typed spec the model is built from
+            ModelSpec.from_kwargs(self.model.name, self.model.kwargs)
+        except (TypeError, ValueError) as err:
+            raise TrainError(f"bad training config: model.kwargs: {err}") from err
         return self
 
 
