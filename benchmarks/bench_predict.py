@@ -31,6 +31,7 @@ from _output import machine, write_json
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
+from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.export import export_onnx
 from lidarflow.predict.quantize import quantize_onnx
 from lidarflow.scan import GridSpec, takes_subcell
@@ -105,9 +106,10 @@ def main() -> None:
     scans = [recording.scan(i % len(recording)) for i in range(args.scans)]
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        net, _ = resolve_model(None)
+        net, card = resolve_model(None)
         net = net.eval()
-        onnx_path = export_onnx(net, Path(tmp) / "m.onnx")
+        policy = DecisionPolicy.from_record(card["decision"])  # the bundled model's own
+        onnx_path = export_onnx(net, Path(tmp) / "m.onnx", decision=policy)
         maps = recording.stacked_maps(GridSpec(), subcell=takes_subcell(net.input_channels))
         int8_path = quantize_onnx(onnx_path, Path(tmp) / "m8.onnx", maps)
         for threads in args.threads:
