@@ -8,7 +8,7 @@ import pytest
 
 from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
-from lidarflow.models import ModelSpec
+from lidarflow.models import HeadConfig, ModelSpec
 from lidarflow.train.config import RECIPES, TrainConfig, recipe
 from lidarflow.train.config_io import (
     apply_overrides,
@@ -66,12 +66,11 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
     assert head.model.init == "bundled" and measured.model.init is None
     for section in ("data", "optim", "schedule", "loss", "runtime", "decision"):
         assert getattr(head, section) == getattr(measured, section), section
-    # the same model (the study's file spells out the head's shape, the only one left)
-    spec = lambda kwargs: ModelSpec.from_kwargs("flownet", kwargs)[0]  # noqa: E731
-    assert spec(head.model.kwargs) == spec(measured.model.kwargs)
+    # the same model: the study's file gave it flat (model.kwargs), as configs did then
+    assert head.model.spec() == measured.model.spec()
     # That study's file kept the decision among the model's kwargs, as configs did then: it is
     # read into the decision section, where the recipe has it.
-    assert head.decision.online and "online_decision" not in measured.model.kwargs
+    assert head.decision.online
 
 
 def test_default_recipe_is_the_head_for_lidar_flownet_only():
@@ -100,14 +99,15 @@ def test_overrides_are_typed():
             "data.mix=0.7,0.3",
             "data.topic=/scan",
             "optim.grad_clip=1",  # an int where a float is expected is fine
-            'model.kwargs={"conv0_activation": "none"}',
+            "model.head.hidden_channels=8",
+            "model.head.memory_decays=0.5,0.9",
         ],
     )
     assert c.optim.lr == 0.003 and isinstance(c.optim.lr, float)
     assert c.optim.epochs == 5 and c.schedule.gaussian is False
     assert c.data.mix == [0.7, 0.3] and c.data.topic == "/scan"
     assert c.optim.grad_clip == 1.0 and isinstance(c.optim.grad_clip, float)
-    assert c.model.kwargs == {"conv0_activation": "none"}
+    assert c.model.head == HeadConfig(memory_decays=(0.5, 0.9), hidden_channels=8)
     assert apply_overrides(c, ["data.topic=null"]).data.topic is None
 
 
@@ -194,11 +194,22 @@ def test_the_decision_is_its_own_section_and_old_configs_move_it_there():
     old = {"occupancy_head": True, "online_decision": True, "decision_offset": 0.5}
     config = build_config(None, None, {"model.kwargs": old})
     assert config.decision == DecisionConfig(0.5, True)
-    assert config.model.kwargs == {"occupancy_head": True}
+    assert config.model.spec() == ModelSpec(head=HeadConfig())
 
 
-def test_model_arguments_are_checked_when_the_config_is_built():
+def test_the_model_is_typed_and_its_flat_form_still_read():
+    config = build_config(
+        None, None, {}, ["model.head.subcell_input=true", "model.ego_motion=true"]
+    )
+    assert config.model.spec() == ModelSpec(head=HeadConfig(subcell_input=True), ego_motion=True)
+    # a file from before issue 35: the whole model as one flat table, read as the same model
+    flat = {"occupancy_head": True, "subcell_input": True, "ego_motion": True}
+    assert build_config(None, None, {"model.kwargs": flat}).model.spec() == config.model.spec()
     with pytest.raises(TrainError, match=r"model\.kwargs: unexpected model arguments: nonsense"):
         build_config(None, None, {"model.kwargs": {"nonsense": 1}})
     with pytest.raises(TrainError, match=r"model\.kwargs: warp_input was measured without gain"):
         build_config(None, None, {"model.kwargs": {"occupancy_head": True, "warp_input": True}})
+    with pytest.raises(TrainError, match="shift_memories needs constant_velocity_input"):
+        build_config(None, None, {}, ["model.head.shift_memories=true"])
+    with pytest.raises(TrainError, match="poses_optional needs ego_motion"):
+        build_config(None, None, {"model.poses_optional": True})

@@ -264,9 +264,8 @@ def train(
             named = arch or (section.get("name") if isinstance(section, dict) else None)
             recipe = default_recipe(named, ego_motion)
         cfg = build_config(recipe, config, flags, set_ or ())
-        if ego_motion:  # added to, not replacing, any other model kwargs
-            kwargs = {**cfg.model.kwargs, "ego_motion": True}
-            cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, kwargs=kwargs))
+        if ego_motion:  # added to, not replacing, the rest of the model
+            cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, ego_motion=True))
         if force and (output / "config.json").is_file():  # a run (else nothing to replace)
             from lidarflow.atomic import discard
 

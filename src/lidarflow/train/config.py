@@ -23,7 +23,7 @@ from typing import Any
 
 from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
-from lidarflow.models.config import MODEL_NAMES, ModelSpec
+from lidarflow.models.config import MODEL_NAMES, FlowConfig, HeadConfig, ModelSpec
 
 __all__ = [
     "RECIPES",
@@ -40,7 +40,12 @@ __all__ = [
 
 @dataclass
 class ModelConfig:
-    """Which network to train; ``kwargs`` go to :func:`lidarflow.models.build_model`.
+    """Which network to train, typed as the model is built (:class:`lidarflow.models.ModelSpec`):
+    ``name`` (``flownet`` or ``deeptracking``), Table I's ``flow`` network, the occupancy
+    ``head`` (``None``: none; ``--set model.head.hidden_channels=16`` adds one), the ego-motion
+    wrapper (``ego_motion``, ``poses_optional``) and, for DeepTracking, its own ``options``.
+    Configs written before issue 35 gave these as one flat ``model.kwargs`` table, which is still
+    read (:func:`lidarflow.train.config_io.build_config`).
 
     ``init``: weights to start from instead of the initialisation (a run folder or weights file
     of the same architecture, or ``"bundled"``), e.g. to fine-tune a simulator-pretrained net on
@@ -48,8 +53,18 @@ class ModelConfig:
     """
 
     name: str = "flownet"
-    kwargs: dict[str, Any] = field(default_factory=dict)
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    head: HeadConfig | None = None
+    ego_motion: bool = False
+    poses_optional: bool = False
+    options: dict[str, Any] = field(default_factory=dict)
     init: str | None = None
+
+    def spec(self) -> ModelSpec:
+        """The model to build (raises ``ValueError`` naming what does not fit)."""
+        return ModelSpec(
+            self.name, self.flow, self.head, self.ego_motion, self.poses_optional, self.options
+        )
 
 
 @dataclass
@@ -231,10 +246,10 @@ class TrainConfig:
         for ok, message in checks:
             if not ok:
                 raise TrainError(f"bad training config: {message}")
-        try:  # the model's arguments, read as the typed spec the model is built from
-            ModelSpec.from_kwargs(self.model.name, self.model.kwargs)
+        try:
+            self.model.spec()
         except (TypeError, ValueError) as err:
-            raise TrainError(f"bad training config: model.kwargs: {err}") from err
+            raise TrainError(f"bad training config: model: {err}") from err
         return self
 
 
@@ -265,17 +280,15 @@ def _head() -> TrainConfig:
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
-    config.model.kwargs = {
-        "occupancy_head": True,
-        "memory_decays": [0.5, 0.8, 0.95, 0.98, 0.995],
-        "constant_velocity_input": True,
-        "head_hidden_channels": 16,
-        "shift_memories": True,
-        "ego_motion": True,
-        "poses_optional": True,
-        "visibility_input": True,
-        "subcell_input": True,
-    }
+    config.model.head = HeadConfig(
+        memory_decays=(0.5, 0.8, 0.95, 0.98, 0.995),
+        constant_velocity_input=True,
+        shift_memories=True,
+        hidden_channels=16,
+        visibility_input=True,
+        subcell_input=True,
+    )
+    config.model.ego_motion = config.model.poses_optional = True
     config.decision.online = True
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred

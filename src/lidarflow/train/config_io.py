@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from lidarflow.errors import TrainError
-from lidarflow.models.config import DECISION_KEYS
-from lidarflow.train.config import DecisionConfig, TrainConfig, recipe
+from lidarflow.models.config import ModelSpec
+from lidarflow.train.config import TrainConfig, recipe
 
 __all__ = [
     "apply_overrides",
@@ -49,6 +49,13 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, dict):
             raise TrainError(f"config {where}: expected a table of settings, got {value!r}")
         return _from_dict(hint, value, where)
+    if origin is tuple:  # tuple[X, ...]: a list in JSON, TOML and on the command line
+        inner = typing.get_args(hint)[0]
+        if isinstance(value, str | int | float) and not isinstance(value, bool):
+            value = [value]
+        if not isinstance(value, list | tuple):
+            raise TrainError(f"config {where}: expected a list, got {value!r}")
+        return tuple(_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value))
     if origin is list:
         (inner,) = typing.get_args(hint)
         if isinstance(value, str | int | float) and not isinstance(value, bool):
@@ -95,6 +102,8 @@ def _from_dict(cls: type, data: dict[str, Any], where: str = "") -> Any:
 
 def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
     """A copy of dataclass ``base`` with the (possibly partial, nested) settings of ``data``."""
+    if isinstance(base, TrainConfig):
+        data = _flat_model_read(base, data)
     hints = typing.get_type_hints(type(base))
     names = {f.name for f in dataclasses.fields(base)}
     changes: dict[str, Any] = {}
@@ -115,25 +124,43 @@ def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
         raise TrainError(f"config {where or 'top level'}: {err}") from err
 
 
+def _flat_model_read(base: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with a flat ``model.kwargs`` table (configs before issue 35: the whole model in
+    ``build_model``'s keyword form, decision keys included) read as the typed model settings and
+    the ``decision`` section it describes. As then, it describes the whole model."""
+    model = data.get("model")
+    if not isinstance(model, dict) or "kwargs" not in model:
+        return data
+    model = dict(model)
+    kwargs = model.pop("kwargs") or {}
+    if not isinstance(kwargs, dict):
+        raise TrainError(f"config model.kwargs: expected a table, got {kwargs!r}")
+    name = str(model.get("name", base.model.name))
+    try:
+        spec, decision = ModelSpec.from_kwargs(name, kwargs)
+    except (TypeError, ValueError) as err:
+        raise TrainError(f"config model.kwargs: {err}") from err
+    model.update(
+        flow=dataclasses.asdict(spec.flow),
+        head=None if spec.head is None else dataclasses.asdict(spec.head),
+        ego_motion=spec.ego_motion,
+        poses_optional=spec.poses_optional,
+        options=spec.options,
+    )
+    out = {**data, "model": model}
+    if decision:
+        out["decision"] = {
+            **(data.get("decision") or {}),
+            **({"offset": decision["decision_offset"]} if "decision_offset" in decision else {}),
+            **({"online": decision["online_decision"]} if "online_decision" in decision else {}),
+        }
+    return out
+
+
 def config_from_dict(data: dict[str, Any]) -> TrainConfig:
     """Inverse of :func:`config_to_dict`: missing settings keep the named recipe's values."""
     base = recipe(str(data.get("recipe", "paper")))
-    return _decision_apart(_merge(base, data))
-
-
-def _decision_apart(config: TrainConfig) -> TrainConfig:
-    """The decision keys that configs before issue 35 kept among ``model.kwargs``
-    (``decision_offset``, ``online_decision``) moved to the ``decision`` section."""
-    kwargs = config.model.kwargs
-    if not any(k in kwargs for k in DECISION_KEYS):
-        return config
-    decision = DecisionConfig(
-        float(kwargs.get("decision_offset", config.decision.offset)),
-        bool(kwargs.get("online_decision", config.decision.online)),
-    )
-    rest = {k: v for k, v in kwargs.items() if k not in DECISION_KEYS}
-    model = dataclasses.replace(config.model, kwargs=rest)
-    return dataclasses.replace(config, model=model, decision=decision)
+    return _merge(base, data)
 
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
@@ -203,4 +230,4 @@ def build_config(
             node = node.setdefault(part, {})
         node[parts[-1]] = value
         config = _merge(config, nested)
-    return _decision_apart(apply_overrides(config, overrides)).validate()
+    return apply_overrides(config, overrides).validate()

@@ -29,7 +29,7 @@ from torch import Tensor
 
 from lidarflow.errors import ModelError, TrainError
 from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
-from lidarflow.models import ModelSpec, build, uses_ego_motion
+from lidarflow.models import build, uses_ego_motion
 from lidarflow.models.speed import accelerate, native_bf16
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import TrainConfig
@@ -78,7 +78,7 @@ def make_loss(
     if weight > 0.0 and not head:
         raise TrainError(
             "loss.occupancy_bce needs a model with an occupancy head: add "
-            "--set model.kwargs.occupancy_head=true (or use --recipe head)"
+            "--set model.head.hidden_channels=0 (or use --recipe head)"
         )
 
     def loss(seq: Tensor, out: Tensor) -> Tensor:
@@ -170,18 +170,18 @@ def _train(
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
     prepare_run_dir(run_dir, config, resume, ctx)
-    kwargs = config.model.kwargs
+    spec = config.model.spec()
     data = load_train_data(
         config.data,
-        with_motion=bool(kwargs.get("ego_motion")),
-        with_subcell=bool(kwargs.get("subcell_input")),
+        with_motion=spec.ego_motion,
+        with_subcell=spec.head is not None and spec.head.subcell_input,
     )
     say(data.summary())
     for note in data.notes:
         say(f"note: {note}")
 
     try:
-        model = build(ModelSpec.from_kwargs(config.model.name, config.model.kwargs)[0])
+        model = build(spec)
     except (ModelError, ValueError) as err:
         raise TrainError(f"cannot build model {config.model.name!r}: {err}") from err
     if config.model.init and not resume:

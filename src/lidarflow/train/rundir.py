@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from lidarflow.errors import TrainError
-from lidarflow.models import ModelSpec, count_parameters
+from lidarflow.models import count_parameters
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import TrainConfig
 from lidarflow.train.config_io import config_from_dict, config_to_dict, load_config_file
@@ -60,10 +60,9 @@ def model_record(
 ) -> dict[str, Any]:
     """What ``model.json`` says: enough to rebuild the net and to know where it came from
     (``commit``: the code it trained with, by default the checkout's HEAD now)."""
-    spec, _ = ModelSpec.from_kwargs(config.model.name, config.model.kwargs)
     return {
         "model": config.model.name,
-        "model_kwargs": spec.to_kwargs(),
+        "model_kwargs": config.model.spec().to_kwargs(),
         # How its next map is decided: the Predictor's policy, shipped with the model.
         "decision": dataclasses.asdict(config.decision),
         "out_channels": int(getattr(model, "out_channels", 0)),
