@@ -205,6 +205,13 @@ def test_the_model_is_typed_and_its_flat_form_still_read():
     # a file from before issue 35: the whole model as one flat table, read as the same model
     flat = {"occupancy_head": True, "subcell_input": True, "ego_motion": True}
     assert build_config(None, None, {"model.kwargs": flat}).model.spec() == config.model.spec()
+    # a run's config.json from before resumes as the same config
+    head = recipe("head")
+    saved = config_to_dict(head)
+    saved["model"] = {"name": "flownet", "init": "bundled", "kwargs": head.model.spec().to_kwargs()}
+    saved["model"]["kwargs"]["online_decision"] = True
+    del saved["decision"]
+    assert config_from_dict(saved) == head
     with pytest.raises(TrainError, match=r"model\.kwargs: unexpected model arguments: nonsense"):
         build_config(None, None, {"model.kwargs": {"nonsense": 1}})
     with pytest.raises(TrainError, match=r"model\.kwargs: warp_input was measured without gain"):
