@@ -45,6 +45,7 @@ def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):
     from safetensors.torch import save_file
 
     from lidarflow.models import ModelSpec, build
+    from lidarflow.models.weights import decision_record
 
     torch.manual_seed(seed)
     spec, decision = ModelSpec.from_kwargs(name, kwargs)  # the decision keys: its policy
@@ -54,10 +55,7 @@ def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):
         {k: v.contiguous() for k, v in net.state_dict().items()}, folder / "model.safetensors"
     )
     record = {"model": name, "model_kwargs": spec.to_kwargs()}
-    record["decision"] = {
-        "offset": float(decision.get("decision_offset", 0.0)),
-        "online": bool(decision.get("online_decision", False)),
-    }
+    record["decision"] = decision_record({"model_kwargs": decision})
     (folder / "model.json").write_text(json.dumps(record))
     return folder
 

@@ -66,7 +66,7 @@ class ModelMethod:
         self.takes = Takes(caps.ego_motion, optional, optional, takes_subcell(caps.input_channels))
         record = decision if decision is not None else self.backend.decision
         policy = DecisionPolicy.from_record(record, online_config)
-        policy = policy.with_online(online_config if online is True and online_config else online)
+        policy = policy.with_online(online, online_config)
         try:
             self.engine = Engine(self.backend, res, policy, oracle=oracle)
         except ValueError as err:

@@ -306,15 +306,20 @@ class DecisionPolicy:
     def to_record(self) -> dict[str, Any]:
         return {"offset": self.offset, "online": self.online is not None}
 
-    def with_online(self, online: bool | OnlineDecisionConfig | None) -> DecisionPolicy:
+    def with_online(
+        self,
+        online: bool | OnlineDecisionConfig | None,
+        config: OnlineDecisionConfig | None = None,
+    ) -> DecisionPolicy:
         """This policy with the online choice overridden (``None``: as it is; ``True``: on,
-        with its config or the default; ``False``: off; a config: on, with it)."""
+        with ``config``, else its own, else the default; ``False``: off; a config: on, with
+        it)."""
         if online is None:
             return self
         if online is False:
             return DecisionPolicy(self.offset, None)
-        config = online if isinstance(online, OnlineDecisionConfig) else None
-        return DecisionPolicy(self.offset, config or self.online or OnlineDecisionConfig())
+        chosen = online if isinstance(online, OnlineDecisionConfig) else config
+        return DecisionPolicy(self.offset, chosen or self.online or OnlineDecisionConfig())
 
     def decision(self, gain: float | None) -> OnlineDecision | None:
         """A fresh :class:`OnlineDecision` where the policy is online, else ``None``."""
