@@ -149,11 +149,12 @@ def _flat_model_read(base: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
     )
     out = {**data, "model": model}
     if decision:
-        out["decision"] = {
-            **(data.get("decision") or {}),
-            **({"offset": decision["decision_offset"]} if "decision_offset" in decision else {}),
-            **({"online": decision["online_decision"]} if "online_decision" in decision else {}),
-        }
+        section = dict(data.get("decision") or {})
+        if "decision_offset" in decision:
+            section["offset"] = decision["decision_offset"]
+        if "online_decision" in decision:
+            section["online"] = decision["online_decision"]
+        out["decision"] = section
     return out
 
 
