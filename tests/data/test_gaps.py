@@ -145,3 +145,22 @@ def test_a_new_rate_is_learnt_through_jittery_stamps():
         paced = [i for i in paces_after_long_steps(stamps(list(steps))) if i > 60]
         learnt.append(max(paced, default=60) - 60)
     assert np.median(learnt) <= 15
+
+
+def test_the_stream_step_is_the_last_step_until_the_typical_one_is_known():
+    from lidarflow.motion.pacing import StepClock
+
+    clock = StepClock()
+    assert clock.step_ns is None
+    stamped = stamps([120.0] + [100.0] * 12 + [700.0])
+    clock.update(stamped[0])
+    assert clock.step_ns is None  # one stamp: no step yet
+    clock.update(stamped[1])
+    assert clock.step_ns == 120 * MS  # the last step until the typical one is known
+    for s in stamped[2:-1]:
+        clock.update(s)
+    assert clock.step_ns == 100 * MS
+    clock.update(stamped[-1])  # a gap does not move the typical step
+    assert clock.step_ns == 100 * MS
+    clock.reset()
+    assert clock.step_ns is None

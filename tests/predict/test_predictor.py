@@ -297,3 +297,16 @@ def test_a_model_runs_on_the_grid_it_was_trained_for_unless_told(
     export_onnx(resolve_model(folder)[0], tmp_path / "old.onnx", 48, 48)
     with pytest.raises(PredictError, match="run it on that grid"):
         Predictor(tmp_path / "old.onnx").update(sample_recording.scan(0))
+
+
+def test_predictions_are_stamped_with_the_time_they_predict(random_flownet_dir, sample_recording):
+    predictor = Predictor(random_flownet_dir, horizon=3)
+    scans = frames(sample_recording, 6)
+    first = predictor.update(scans[0])
+    assert first.stamp_ns == scans[0].stamp_ns and first.step_ns is None
+    assert first.stamp_ahead_ns(2) == scans[0].stamp_ns  # no step known: the scan's own time
+    for scan in scans[1:]:
+        p = predictor.update(scan)
+    steps = np.diff([s.stamp_ns for s in scans])
+    assert steps.min() <= p.step_ns <= steps.max()  # the stream's step so far
+    assert p.stamp_ahead_ns(3) == scans[-1].stamp_ns + 3 * p.step_ns

@@ -53,10 +53,20 @@ class StepClock:
         self.above = above
         self._recent = RecentSteps()
         self._last: int | None = None
+        self._last_step: int | None = None
 
     def reset(self) -> None:
         self._recent.clear()
         self._last = None
+        self._last_step = None
+
+    @property
+    def step_ns(self) -> int | None:
+        """The stream's step between scans so far: the typical one once known, before that the
+        last forward step, ``None`` before two stamped scans (what a prediction ``k`` steps
+        ahead is stamped with, ``k`` times over)."""
+        typical = self._recent.typical()
+        return round(typical) if typical is not None else self._last_step
 
     def update(self, stamp_ns: int) -> float | None:
         """This stamp's pace (typical step / this step) if a long step forwards in time precedes
@@ -70,4 +80,6 @@ class StepClock:
         step = self._last - last
         typical = self._recent.typical()
         self._recent.add(step)
+        if step > 0:
+            self._last_step = step
         return typical / step if typical is not None and step > self.above * typical else None

@@ -69,6 +69,10 @@ class Prediction:
         ego_compensated: an ego-motion model was given the motion since the previous scan (from
             the pose, or matched from the scans).
         moving_threshold: cells per frame of motion of its own above which a cell is moving.
+        stamp_ns: the stamp of the scan just given (0 for maps, or a scan without one).
+        step_ns: the stream's step between scans so far (the typical one once known;
+            :attr:`lidarflow.motion.pacing.StepClock.step_ns`), ``None`` until two stamped
+            scans came: what :meth:`stamp_ahead_ns` counts ahead by.
     """
 
     probability: np.ndarray
@@ -81,6 +85,13 @@ class Prediction:
     visibility: np.ndarray
     ego_compensated: bool = False
     moving_threshold: float = MOVING_THRESHOLD
+    stamp_ns: int = 0
+    step_ns: int | None = None
+
+    def stamp_ahead_ns(self, k: int = 1) -> int:
+        """The time the prediction ``k`` frames ahead is for: the scan's stamp plus ``k``
+        steps; the scan's own stamp while no step is known yet (the first scan)."""
+        return self.stamp_ns + k * (self.step_ns or 0)
 
     @cached_property
     def moving(self) -> np.ndarray | None:
@@ -260,4 +271,6 @@ class Predictor:
             visibility=np.asarray(visibility, bool),
             ego_compensated=step.motion is not None,
             moving_threshold=self.moving_threshold,
+            stamp_ns=0 if scan is None else int(scan.stamp_ns),
+            step_ns=self._clock.step_ns,
         )
