@@ -23,6 +23,7 @@ import typer
 
 from lidarflow.cli.app import app
 from lidarflow.errors import LidarflowError
+from lidarflow.extras import missing_extra
 
 # Importing the command modules registers their commands on ``app``; --help lists them in this
 # order.
@@ -85,6 +86,13 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as err:  # a bug: still one line, with the way to the traceback
         if debug:
             raise
+        # unless it is a package of an extra this install lacks: then say which extra
+        words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+        what = f"`lidarflow {words[0]}`" if words else "this"
+        missing = missing_extra(err, what) if isinstance(err, ImportError) else None
+        if missing is not None:
+            typer.echo(f"lidarflow: error: {missing}", err=True)
+            sys.exit(1)
         typer.echo(
             f"lidarflow: internal error: {type(err).__name__}: {err} "
             "(rerun with LIDARFLOW_DEBUG=1 for the traceback, and please report it)",

@@ -112,8 +112,11 @@ ThreadsOpt = Annotated[
 
 
 def use_threads(threads: int) -> None:
-    """Run PyTorch on ``threads`` CPU threads (0: leave its default)."""
-    if threads > 0:
+    """Run PyTorch on ``threads`` CPU threads (0: leave its default); nothing where PyTorch is
+    not installed (ONNX Runtime sessions take their threads when made)."""
+    from lidarflow.extras import torch_available
+
+    if threads > 0 and torch_available():
         import torch
 
         torch.set_num_threads(threads)
@@ -179,8 +182,10 @@ ExportModelOpt = Annotated[
 
 
 def bundled_model_available() -> bool:
-    """Whether this installation has the bundled weights (a source checkout without them runs
-    the baselines alone)."""
+    """Whether this installation has the bundled model it can run (a source checkout without
+    it runs the baselines alone): its weights, or without PyTorch its ONNX export."""
+    from lidarflow.extras import torch_available
     from lidarflow.models.presets import bundled_model_dir
 
-    return (bundled_model_dir() / "model.safetensors").exists()
+    name = "model.safetensors" if torch_available() else "model.onnx"
+    return (bundled_model_dir() / name).exists()

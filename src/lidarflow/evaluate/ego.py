@@ -15,7 +15,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-import torch
 
 from lidarflow.data.blocks import Frames, streamed_maps
 from lidarflow.data.recording import Recording
@@ -24,7 +23,7 @@ from lidarflow.motion.icp import streamed_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import scan_motions
-from lidarflow.ops.rigid import rigid_warp
+from lidarflow.motion.warp import rigid_moved
 from lidarflow.predict.baselines import Method, Takes
 from lidarflow.scan import GridSpec
 
@@ -102,6 +101,4 @@ class CopyLastEgo:
         m = next_motion if self.oracle else (motion if guessed is None else guessed)
         if m is None:
             return occupancy.astype(np.float32)
-        maps = torch.from_numpy(occupancy.astype(np.float32))[None, None]
-        moved = rigid_warp(maps, torch.as_tensor(m, dtype=torch.float32).reshape(1, 3))
-        return moved[0, 0].clamp(0.0, 1.0).numpy()
+        return np.clip(rigid_moved(occupancy, m), 0.0, 1.0).astype(np.float32)

@@ -12,8 +12,8 @@ from typing import Any
 from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import ORACLE_SUFFIX
-from lidarflow.models.presets import resolve_model
 from lidarflow.models.weights import describe_source
+from lidarflow.predict.backends import load_backend
 from lidarflow.predict.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
@@ -54,7 +54,7 @@ def methods_and_config(
     models_used = {}
     for i, source in enumerate(sources):
         bundled = source is None or str(source) == "bundled"
-        net, card = resolve_model(None if bundled else source)
+        net, card = load_backend(None if bundled else source, threads=None)
         name = names[i] if names else "bundled" if bundled else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"

@@ -7,15 +7,17 @@ Interface (train, evaluate and predict depend on it; details in
 :class:`~lidarflow.models.config.ModelSpec`; :func:`build_model` from the flat keyword form
 that ``model.json`` and training configs store. Pretrained weights: :mod:`lidarflow.models.presets`
 (``lidar_flownet(weights=...)``).
+
+Importing this package needs no PyTorch (the core install runs exported models on ONNX
+Runtime, :mod:`lidarflow.predict.backends`): the configuration types load at once, the blocks
+and the builder, which need PyTorch, on first use.
 """
 
 from __future__ import annotations
 
+import importlib
 from typing import Any
 
-from torch import nn
-
-from lidarflow.errors import ModelError
 from lidarflow.models.config import (
     DECISION_KEYS,
     MODEL_NAMES,
@@ -24,65 +26,28 @@ from lidarflow.models.config import (
     HeadConfig,
     ModelSpec,
 )
-from lidarflow.models.convgru import ConvGRUCell
-from lidarflow.models.deeptracking import DeepTracking
-from lidarflow.models.egomotion import EgoCompensated
-from lidarflow.models.flow import FlowNetwork
-from lidarflow.models.flownet import LidarFlowNet
-from lidarflow.models.head import OccupancyHead
-from lidarflow.models.recurrent import RecurrentMapModel
+
+#: The names that need PyTorch, and the module each comes from.
+_TORCH_NAMES = {
+    "ConvGRUCell": "convgru",
+    "DeepTracking": "deeptracking",
+    "EgoCompensated": "egomotion",
+    "FlowNetwork": "flow",
+    "LidarFlowNet": "flownet",
+    "OccupancyHead": "head",
+    "RecurrentMapModel": "recurrent",
+    "build": "builder",
+    "build_model": "builder",
+    "count_parameters": "builder",
+    "uses_ego_motion": "builder",
+}
 
 
-def build(spec: ModelSpec) -> RecurrentMapModel:
-    """The model ``spec`` describes, its blocks freshly initialised.
-
-    Raises:
-        ModelError: arguments the model does not take.
-    """
-    try:
-        if spec.name == "deeptracking":
-            model: RecurrentMapModel = DeepTracking(**spec.options)
-        else:
-            head = None if spec.head is None else OccupancyHead(spec.head)
-            model = LidarFlowNet(FlowNetwork(spec.flow), head)
-    except (TypeError, ValueError) as err:
-        raise ModelError(f"cannot build model {spec.name!r}: {err}") from err
-    if not spec.ego_motion:
-        return model
-    return EgoCompensated(model, poses_optional=spec.poses_optional)
-
-
-def build_model(name: str, **kwargs: Any) -> RecurrentMapModel:
-    """Build the model called ``name`` (one of :data:`MODEL_NAMES`) from the flat keyword form
-    (:meth:`ModelSpec.from_kwargs`): ``ego_motion`` wraps it in :class:`EgoCompensated`,
-    ``poses_optional`` lets that run where a recording has no poses.
-
-    Raises:
-        ModelError: unknown name, arguments the model does not take, a removed option, or a
-            decision key (the decision is the Predictor's, :mod:`lidarflow.predict.decision`).
-    """
-    if name not in MODEL_NAMES:
-        raise ModelError(f"unknown model {name!r}: choose one of {', '.join(MODEL_NAMES)}")
-    try:
-        spec, decision = ModelSpec.from_kwargs(name, kwargs)
-    except (TypeError, ValueError) as err:
-        raise ModelError(f"cannot build model {name!r} with {kwargs}: {err}") from err
-    if decision:
-        raise ModelError(
-            f"{', '.join(decision)}: the decision is the Predictor's configuration, not the "
-            "model's (lidarflow.predict.decision.DecisionPolicy)"
-        )
-    return build(spec)
-
-
-def uses_ego_motion(model: RecurrentMapModel) -> bool:
-    """Whether ``model`` wants the sensor's motion with every step (:class:`EgoCompensated`)."""
-    return model.capabilities.ego_motion
-
-
-def count_parameters(model: nn.Module) -> int:
-    """Number of trainable parameters of ``model``."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+def __getattr__(name: str) -> Any:
+    module = _TORCH_NAMES.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
 
 
 __all__ = [

@@ -12,17 +12,29 @@ recipe did on real recordings it never saw (leave-one-recording-out), beside the
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lidarflow.errors import ModelError
 from lidarflow.models.config import FlowConfig, HeadConfig, ModelSpec
-from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.models.weights import load_trained, sha256
 
-__all__ = ["BUNDLED", "WeightsRecord", "bundled_model_dir", "lidar_flownet", "resolve_model"]
+if TYPE_CHECKING:  # the records and the ONNX file need no PyTorch; loading the weights does
+    from lidarflow.models.recurrent import RecurrentMapModel
+
+__all__ = [
+    "BUNDLED",
+    "WeightsRecord",
+    "bundled_model_dir",
+    "bundled_onnx",
+    "is_bundled",
+    "lidar_flownet",
+    "resolve_model",
+    "sha256",
+]
 
 
 @dataclass(frozen=True)
@@ -35,6 +47,8 @@ class WeightsRecord:
     weights_sha256: str
     description: str
     meta: dict[str, Any] = field(default_factory=dict)
+    #: The same model exported to ONNX (``model.onnx`` beside the weights), the core install's.
+    onnx_sha256: str = ""
 
     def path(self) -> Path:
         return Path(str(resources.files("lidarflow") / self.folder))
@@ -43,6 +57,9 @@ class WeightsRecord:
 BUNDLED = WeightsRecord(
     folder="assets/model",
     weights_sha256="2cdec0acd8fecfdecdfbcf6755848eefd52b10e2d847d4d46b9a9dfcd2aeddca",
+    # `lidarflow export -o src/lidarflow/assets/model/model.onnx` (the bundled model, its
+    # decision policy marked in the file); tests/models/test_presets.py holds it to the weights
+    onnx_sha256="2795af3402c97bcfcad553a0519d7fedbec40e38d3b07e9ad78ceec83b98c186",
     description="LiDAR-FlowNet v8 trained by lidarflow's default recipe (see MODEL_CARD.md)",
     meta={
         "version": "v8",
@@ -90,6 +107,19 @@ def bundled_model_dir() -> Path:
     return BUNDLED.path()
 
 
+def bundled_onnx() -> tuple[Path, dict[str, Any]]:
+    """The bundled model's ONNX file (checked against its recorded checksum) and its
+    ``model.json``: what runs the bundled model where PyTorch is not installed."""
+    folder = bundled_model_dir()
+    path = folder / "model.onnx"
+    if not path.exists():
+        raise ModelError(f"no bundled ONNX model in this installation ({path} is missing)")
+    if BUNDLED.onnx_sha256 and sha256(path) != BUNDLED.onnx_sha256:
+        raise ModelError(f"{path}: checksum differs from the record; the file is damaged")
+    card = json.loads((folder / "model.json").read_text())
+    return path, {**card, "weights_path": str(path)}
+
+
 def lidar_flownet(
     weights: WeightsRecord | None = None, head: HeadConfig | None = None
 ) -> RecurrentMapModel:
@@ -114,10 +144,15 @@ def _load_folder(folder: Path, checksum: str) -> tuple[RecurrentMapModel, dict[s
     return load_trained(folder)
 
 
+def is_bundled(source: str | Path | None) -> bool:
+    """Whether ``source`` names the bundled model: ``None``, or the word ``bundled`` (unless a
+    file of that name exists)."""
+    return source is None or (str(source) == "bundled" and not Path(source).exists())
+
+
 def resolve_model(source: str | Path | None) -> tuple[RecurrentMapModel, dict[str, Any]]:
-    """Load ``source`` (run folder / weights file), or the bundled model when ``None`` or the
-    word ``bundled`` (unless a file of that name exists); the bundled weights are checked
-    against their recorded checksum."""
-    if source is not None and not (str(source) == "bundled" and not Path(source).exists()):
+    """Load ``source`` (run folder / weights file), or the bundled model (:func:`is_bundled`);
+    the bundled weights are checked against their recorded checksum."""
+    if not is_bundled(source):
         return load_trained(source)
     return _load_folder(bundled_model_dir(), BUNDLED.weights_sha256)

@@ -15,11 +15,13 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lidarflow.errors import ModelError
 from lidarflow.models.config import ModelSpec
-from lidarflow.models.recurrent import RecurrentMapModel
+
+if TYPE_CHECKING:  # reading records and checksums needs no PyTorch; loading weights does
+    from lidarflow.models.recurrent import RecurrentMapModel
 
 __all__ = ["decision_record", "describe_source", "load_trained", "sha256", "upgrade_state"]
 

@@ -9,13 +9,15 @@ torch, arrays for onnxruntime). Each says what the model takes and gives
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lidarflow.errors import PredictError, ScanError
+from lidarflow.errors import ModelError, PredictError, ScanError
 from lidarflow.models.config import Capabilities
 from lidarflow.predict.offsets import calibrated_logit
 from lidarflow.scan import GridSpec
@@ -39,6 +41,7 @@ __all__ = [
     "POSES_OPTIONAL_KEY",
     "OnnxBackend",
     "TorchBackend",
+    "load_backend",
     "recorded_grid",
     "split_step_inputs",
 ]
@@ -129,9 +132,6 @@ class OnnxBackend:
             )
         except Exception as err:  # onnxruntime raises its own exception classes
             raise PredictError(f"{path}: not a loadable ONNX model ({err})") from err
-        from lidarflow.models.finite import check_finite_onnx
-
-        check_finite_onnx(path)  # NaN weights run, and break far from the cause
         inputs = self.session.get_inputs()
         if not inputs or inputs[0].name != "maps":
             raise PredictError(f"{path}: not a lidarflow step graph (first input is not 'maps')")
@@ -170,6 +170,27 @@ class OnnxBackend:
             ego_motion=bool(self.motion_inputs),
             poses_optional=marks.get(POSES_OPTIONAL_KEY) == "true",
         )
+        self._check_finite(path)
+
+    def _check_finite(self, path: Path) -> None:
+        """Refuse a file whose weights are not finite: such a model loads and runs, and breaks
+        far from the cause. One step on empty maps from a zero state must give finite outputs
+        (a NaN weight reaches them: NaN times zero is NaN); the ``onnx`` package, where it is
+        installed (the torch extra), then names the tensors."""
+        h, w = self.grid_shape
+        state = self.init_state(int(h), int(w))
+        maps = np.zeros((1, self.capabilities.input_channels, int(h), int(w)), np.float32)
+        outputs = self.run(maps, state)
+        if all(np.isfinite(np.asarray(a)).all() for a in (outputs[0], outputs[1], *outputs[2])):
+            return
+        from lidarflow.models.finite import check_finite_onnx
+
+        with contextlib.suppress(ImportError):  # no onnx package: the probe's own words
+            check_finite_onnx(path)
+        raise ModelError(
+            f"{path}: weights are not finite (one step on empty maps gives NaN or inf); the "
+            "file is damaged or its training diverged: export an earlier checkpoint"
+        )
 
     def init_state(self, height: int, width: int) -> Any:
         if (height, width) != self.grid_shape:
@@ -201,3 +222,38 @@ class OnnxBackend:
             logit = calibrated_logit(probability) - self._baked_offset
             probability = (1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
         return probability, out, next_state
+
+
+def load_backend(
+    source: str | Path | None, threads: int | None = None, device: str = "cpu"
+) -> tuple[TorchBackend | OnnxBackend, dict[str, Any]]:
+    """The backend that runs ``source`` and its card (``model.json``'s record; for an ONNX file
+    what its marks say): an ``.onnx`` file on onnxruntime; ``None`` or ``"bundled"`` the bundled
+    model, on PyTorch where it is installed, else its ONNX export (the core install's); a run
+    folder or weights file on PyTorch.
+
+    Raises:
+        MissingExtraError: PyTorch weights, and PyTorch not installed.
+    """
+    from lidarflow.extras import missing_extra, torch_available
+    from lidarflow.models.presets import bundled_onnx, is_bundled
+
+    if is_bundled(source) and not torch_available():
+        path, card = bundled_onnx()
+        return OnnxBackend(path, threads), card
+    if source is not None and Path(source).suffix.lower() == ".onnx":
+        backend = OnnxBackend(source, threads)
+        card = {"model": "onnx", "weights_path": str(source), "decision": backend.decision}
+        if backend.grid is not None:
+            card["grid"] = dataclasses.asdict(backend.grid)
+        return backend, card
+    try:
+        from lidarflow.models.presets import resolve_model
+
+        net, card = resolve_model(source)
+    except ImportError as err:
+        missing = missing_extra(err, f"the model {source}")
+        if missing is None:
+            raise
+        raise missing from err
+    return TorchBackend(net, device, threads), card

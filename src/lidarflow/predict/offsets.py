@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarflow.motion.warp import warp_map
+
 __all__ = [
     "LOGIT_LIMIT",
     "THRESHOLD",
@@ -63,27 +65,11 @@ def moved_last_map(occupancy: np.ndarray, backward_flow: np.ndarray | None) -> n
     """``clamp(W(O^t, B^t), 0, 1)`` ``(H, W)``: the last map moved into the next frame, the
     split of :meth:`~lidarflow.models.LidarFlowNet.predict_next`; ``O^t`` itself without a flow.
 
-    NumPy (the ONNX Predictor runs without PyTorch); equal to :func:`lidarflow.ops.warp.warp`
-    (bilinear, zero outside the map).
+    NumPy (the ONNX Predictor runs without PyTorch): :func:`lidarflow.motion.warp.warp_map`.
     """
-    image = np.asarray(occupancy, np.float64)
     if backward_flow is None:
-        return np.clip(image, 0.0, 1.0)
-    h, w = image.shape
-    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
-    x = cols + np.asarray(backward_flow[0], np.float64)
-    y = rows + np.asarray(backward_flow[1], np.float64)
-    x0, y0 = np.floor(x), np.floor(y)
-    out = np.zeros_like(image)
-    for dy in (0, 1):
-        for dx in (0, 1):
-            xi, yi = x0 + dx, y0 + dy
-            weight = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
-            inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
-            xi = np.clip(xi, 0, w - 1).astype(np.intp)
-            yi = np.clip(yi, 0, h - 1).astype(np.intp)
-            out += np.where(inside, weight * image[yi, xi], 0.0)
-    return np.clip(out, 0.0, 1.0)
+        return np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)
+    return np.clip(warp_map(occupancy, backward_flow), 0.0, 1.0)
 
 
 def _at_least(values: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ from lidarflow.errors import PredictError
 from lidarflow.motion.icp import scan_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import StepClock
-from lidarflow.predict.backends import OnnxBackend, TorchBackend, recorded_grid
+from lidarflow.predict.backends import load_backend, recorded_grid
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
@@ -112,7 +112,8 @@ class Predictor:
 
     Args:
         model: a run folder or ``.safetensors`` file (PyTorch), an ``.onnx`` file (onnxruntime,
-            no PyTorch needed), or ``None`` for the bundled pretrained model.
+            no PyTorch needed), or ``None`` for the bundled pretrained model (on PyTorch where it
+            is installed, else its ONNX export: :func:`~lidarflow.predict.backends.load_backend`).
         grid: the map grid (default: the one the model was trained on, as its model.json or
             the ONNX file's metadata says; else 100 x 100 at 0.1 m, the bundled model's).
         horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
@@ -156,17 +157,8 @@ class Predictor:
         self.moving_threshold = moving_threshold
         self.horizon = horizon
         self.backend: Any
-        if model is not None and Path(model).suffix.lower() == ".onnx":
-            self.backend = OnnxBackend(model, threads)
-            self.card: dict[str, Any] = {"model": "onnx", "weights_path": str(model)}
-            self.card["decision"] = self.backend.decision
-            recorded = self.backend.grid
-        else:
-            from lidarflow.models.presets import resolve_model
-
-            net, self.card = resolve_model(model)
-            self.backend = TorchBackend(net, device, threads)
-            recorded = recorded_grid(self.card)
+        self.backend, self.card = load_backend(model, threads, device)
+        recorded = recorded_grid(self.card)
         # The grid the model was trained (or exported) for, unless told otherwise.
         self.grid = grid or recorded or GridSpec()
         self._pose: np.ndarray | None = None

@@ -1,0 +1,43 @@
+"""What the core install leaves out: PyTorch and what comes with it, the ``torch`` extra.
+
+The core install (``pip install lidarflow``: NumPy, rosbags, ONNX Runtime, the CLI) reads bags,
+runs exported models (the bundled one ships as ONNX too) and scores them; training, export and
+models given as PyTorch weights need ``pip install 'lidarflow[torch]'``. Where one of those is
+asked for without it, the user reads one line naming the extra, not a traceback.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+from lidarflow.errors import LidarflowError
+
+__all__ = ["TORCH_EXTRA_MODULES", "MissingExtraError", "missing_extra", "torch_available"]
+
+#: The packages only the ``torch`` extra installs.
+TORCH_EXTRA_MODULES = frozenset({"torch", "safetensors", "onnx"})
+INSTALL_TORCH = "pip install 'lidarflow[torch]'"
+
+
+class MissingExtraError(LidarflowError):
+    """What was asked for needs a package of an extra this install lacks."""
+
+
+def torch_available() -> bool:
+    """Whether PyTorch can be imported (looked up, not imported: that takes seconds)."""
+    try:
+        return importlib.util.find_spec("torch") is not None
+    except (ImportError, ValueError):  # ValueError: blocked (sys.modules["torch"] = None)
+        return False
+
+
+def missing_extra(err: ImportError, what: str = "this") -> MissingExtraError | None:
+    """The one-line error for ``err`` where it is a package of the ``torch`` extra missing
+    (``what``: what needed it), else ``None`` (a bug, to be reported as one)."""
+    name = (getattr(err, "name", None) or "").split(".")[0]
+    if name not in TORCH_EXTRA_MODULES:
+        return None
+    return MissingExtraError(
+        f"{what} needs PyTorch ({name} is not installed: the core install runs .onnx models "
+        f"and the bundled one); add it with {INSTALL_TORCH}"
+    )
