@@ -159,7 +159,8 @@ def load_input(
 
 
 #: What every --model that loads PyTorch weights takes (models.weights.load_trained); an .onnx
-#: file only runs (predict), so each command's help says whether it takes one.
+#: file runs (predict, evaluate) but does not train or export, so each command's help says
+#: whether it takes one.
 TORCH_MODEL_SOURCES = "a run folder, .safetensors or model.json from `lidarflow train`"
 ModelOpt = Annotated[
     Path | None,

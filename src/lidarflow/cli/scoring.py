@@ -52,8 +52,8 @@ def evaluate(
         typer.Option(
             "--model",
             "-m",
-            help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES} or "
-            "`bundled` (the default); not an .onnx file. Repeatable.",
+            help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
+            ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
         ),
     ] = None,
     baselines_only: Annotated[
