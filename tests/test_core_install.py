@@ -59,9 +59,10 @@ def test_user_commands_run_without_torch_on_the_bundled_onnx_model(short):
     assert "/lidarflow/predicted x40" in predicted.stdout
     assert len(read_bag(folder / "p.mcap", topic="/right_scan")) == 40
     scored = without_torch(
-        CLI, "evaluate", str(short), "--warmup", "5", "-o", "e.json", cwd=folder
+        CLI, "evaluate", str(short), "--warmup", "5", "-o", "e.json", "--report", "r", cwd=folder
     )
     assert scored.returncode == 0, scored.stderr
+    assert (folder / "r" / "index.html").exists()  # the HTML report's pictures: no PyTorch
     report = json.loads((folder / "e.json").read_text())
     bundled = report["config"]["models"]["bundled"]
     assert bundled["weights_path"].endswith("model.onnx")
