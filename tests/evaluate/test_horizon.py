@@ -73,3 +73,45 @@ def test_horizon_on_frame_blocks_is_the_same_as_on_arrays():
     whole = horizon_f1(maps, maps, [ModelMethod("m", model)], horizon=3, warmup=2)
     blocks = FrameBlocks(lambda a, b: maps[a:b], len(maps), block=4)
     assert horizon_f1(blocks, blocks, [ModelMethod("m", model)], horizon=3, warmup=2) == whole
+
+
+def test_the_baselines_roll_forward_as_the_models_do():
+    from lidarflow.evaluate.horizon import horizon_scores
+    from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
+
+    # the whole scene drifts one column a frame (as under a platform moving sideways)
+    occupancy = np.zeros((10, 6, 16), bool)
+    for t in range(10):
+        occupancy[t, 1, t] = occupancy[t, 4, t + 2] = True
+    visibility = np.ones_like(occupancy)
+    methods = [CopyLast(), TemporalAverage(3, 0.4), ConstantVelocity()]
+    scores = horizon_scores(occupancy, visibility, methods, horizon=3, warmup=3)
+    # constant velocity, applied k times, finds the scene k columns on at every k
+    assert scores["f1"]["constant_velocity"] == pytest.approx([1.0, 1.0, 1.0])
+    assert scores["changed_f1"]["constant_velocity"] == pytest.approx([1.0, 1.0, 1.0])
+    assert scores["f1"]["copy_last"] == scores["changed_f1"]["copy_last"] == [0.0, 0.0, 0.0]
+    # the temporal average's majority of three frames keeps nothing that moves: fed back, it
+    # goes on predicting nothing
+    assert scores["f1"]["temporal_average"] == [0.0, 0.0, 0.0]
+    # on the walker beside a wall it keeps the wall (one of the two cells) at every k
+    occupancy, visibility = _walker(10)
+    scores = horizon_scores(occupancy, visibility, methods[1:2], horizon=3, warmup=3)
+    assert scores["f1"]["temporal_average"] == pytest.approx([2 / 3] * 3)
+    assert list(scores) == ["f1", "changed_f1"]
+
+
+def test_the_last_map_moved_by_the_ego_motion_moves_on_each_step_ahead():
+    from lidarflow.evaluate.ego import CopyLastEgo
+    from lidarflow.evaluate.horizon import horizon_scores
+
+    # a still wall seen from a platform driving one row a frame towards it
+    n, h, w = 12, 20, 8
+    occupancy = np.zeros((n, h, w), bool)
+    for t in range(n):
+        occupancy[t, 2 + t, 3] = True
+    motions = np.tile(np.array([1.0, 0.0, 0.0], np.float32), (n, 1))
+    scores = horizon_scores(
+        occupancy, np.ones_like(occupancy), [CopyLastEgo()], horizon=3, warmup=2, motions=motions
+    )
+    assert scores["f1"]["copy_last_ego"] == pytest.approx([1.0, 1.0, 1.0])
+    assert scores["f1"]["copy_last"] == [0.0, 0.0, 0.0]

@@ -35,8 +35,10 @@ def moved(report: dict[str, Any], pinned: dict[str, Any] | None = None) -> list[
                 now = entry["methods"][method][key]
                 if abs(now - values[key]) > TOLERANCE:
                     out.append(f"{name} {method} {key}: {now:.6f}, pinned {values[key]:.6f}")
-        for method, values in (entry.get("horizon_f1") or {}).items():
-            for k, (now, was) in enumerate(zip(values, pin["horizon10_f1"][method], strict=False)):
+        horizon = entry.get("horizon_f1") or {}
+        for method, was_values in (pin.get("horizon10_f1") or {}).items() if horizon else ():
+            values = horizon[method]  # the baselines rolled forward since are not pinned
+            for k, (now, was) in enumerate(zip(values, was_values, strict=False)):
                 if abs(now - was) > TOLERANCE:
                     out.append(f"{name} {method} k={k + 1}: {now:.6f}, pinned {was:.6f}")
     return out

@@ -201,6 +201,7 @@ def evaluate(
         typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:
             typer.echo(_format_horizon(entry["horizon_f1"]) + "\n")
+            typer.echo(_format_horizon(entry["horizon_changed_f1"], "changed F1") + "\n")
         extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
         if extra:
             typer.echo(extra + "\n")
@@ -242,26 +243,27 @@ def _add_horizon_scores(
     warmup: int,
     horizon: int,
 ) -> None:
-    from lidarflow.evaluate.horizon import horizon_f1
-    from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.evaluate.horizon import horizon_scores
     from lidarflow.evaluate.stream import recording_inputs
 
-    # one roll-out per model (an oracle variant has no roll-out of its own)
-    streamed = [m for m in methods if isinstance(m, ModelMethod) and not m.oracle]
+    # every model and baseline rolls forward (what knows the future has no roll-out of its own)
+    streamed = [m for m in methods if not getattr(m, "oracle", False)]
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         inputs = recording_inputs(recording, spec, streamed)
         total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
         with progress_bar(total, f"horizon {horizon}, {Path(name).name}") as bar:
-            entry["horizon_f1"] = horizon_f1(
+            scores = horizon_scores(
                 inputs.occupancy, inputs.visibility, streamed, horizon, warmup, bar.update,
                 inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
                 inputs.gaps, inputs.paces,
             )  # fmt: skip
+        entry["horizon_f1"], entry["horizon_changed_f1"] = scores["f1"], scores["changed_f1"]
 
 
-def _format_horizon(scores: dict[str, list[float]]) -> str:
+def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:
     k = len(next(iter(scores.values())))
-    lines = ["F1 per horizon step     " + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
+    title = f"{what} per horizon step"
+    lines = [f"{title:<24}" + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
     for name, values in scores.items():
         lines.append(f"{name:<24}" + "".join(f"{v:>10.4f}" for v in values))
     return "\n".join(lines)

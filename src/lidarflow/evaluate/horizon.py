@@ -5,7 +5,12 @@ Each model streams as in :mod:`lidarflow.evaluate.stream` (the same
 state carried). After frame ``t`` (``t >= warmup``) it also rolls forward ``K - 1`` more steps
 from a copy of its state (:meth:`lidarflow.predict.engine.Engine.roll`, what
 :class:`lidarflow.predict.Predictor` does for ``horizon=K``), and the prediction ``k`` steps
-ahead is scored (F1 at 0.4) against ``O^{t+k}``. Copy-last's ``k``-step prediction is ``O^t``.
+ahead is scored (F1 at 0.4, and changed-cell F1: the cells of ``O^{t+k}`` that differ from
+``O^t``) against ``O^{t+k}``. Copy-last's ``k``-step prediction is ``O^t``; the other baselines
+roll forward as the models do, their decided prediction fed back to a copy of their state:
+constant velocity shifts the last map ``k`` times, the last map moved by the ego motion
+(``copy_last_ego``) moves on by the same motion each step, the temporal average takes its own
+prediction into its window.
 Frames ``t`` without a frame ``t + K``, or with a gap in time before one of ``t + 1 .. t + K``
 (:func:`lidarflow.data.gaps.frames_after_gaps`), are not scored, so every horizon sees the same
 frames.
@@ -22,6 +27,7 @@ Predictor does.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -31,8 +37,9 @@ from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import method_inputs
+from lidarflow.predict.baselines import Method
 
-__all__ = ["horizon_f1", "scored_frames"]
+__all__ = ["horizon_f1", "horizon_scores", "scored_frames"]
 
 
 def scored_frames(
@@ -70,7 +77,7 @@ def scored_frames(
 def horizon_f1(
     occupancy: Frames,
     visibility: Frames,
-    methods: Sequence[ModelMethod],
+    methods: Sequence[Method],
     horizon: int,
     warmup: int = 10,
     progress: Callable[[int], None] | None = None,
@@ -81,33 +88,99 @@ def horizon_f1(
     gaps: Sequence[int] = (),
     paces: Mapping[int, float] | None = None,
 ) -> dict[str, list[float]]:
-    """``{"copy_last": [F1 at k = 1..K], name: [...] for each model}`` on maps ``(N, H, W)``.
+    """``{"copy_last": [F1 at k = 1..K], name: [...] for each method}``: the F1 half of
+    :func:`horizon_scores` (same arguments)."""
+    return horizon_scores(
+        occupancy, visibility, methods, horizon, warmup, progress, motions, returns,
+        motions_from_poses, subcell, gaps, paces,
+    )["f1"]  # fmt: skip
 
-    ``progress(1)`` is called after every model step on a recorded frame. The other inputs are
+
+def horizon_scores(
+    occupancy: Frames,
+    visibility: Frames,
+    methods: Sequence[Method],
+    horizon: int,
+    warmup: int = 10,
+    progress: Callable[[int], None] | None = None,
+    motions: np.ndarray | None = None,
+    returns: Sequence[np.ndarray] | None = None,
+    motions_from_poses: bool = False,
+    subcell: Frames | None = None,
+    gaps: Sequence[int] = (),
+    paces: Mapping[int, float] | None = None,
+) -> dict[str, dict[str, list[float]]]:
+    """``{"f1": {name: [k = 1..K]}, "changed_f1": {...}}`` on maps ``(N, H, W)``: copy-last
+    (always, first) and each method, models and baselines alike (see the module's docstring);
+    changed-cell F1 ``k`` ahead scores the cells of ``O^{t+k}`` that differ from ``O^t``.
+
+    ``progress(1)`` is called after every method step on a recorded frame. The other inputs are
     :func:`~lidarflow.evaluate.stream.evaluate_maps`' (the motions, returns, sub-cell maps and
     paces each method takes); ``gaps``: the frames that follow a gap in time (no roll-out
     across one is scored; states carry on)."""
     n = len(occupancy)
     scored = scored_frames(n, horizon, warmup, gaps)
     scoring = set(scored)
-    copy = [Counts() for _ in range(horizon)]
+    copy, copy_changed = _counts(horizon), _counts(horizon)
     for t in scored:
         for k in range(horizon):
-            copy[k] = copy[k] + confusion(occupancy[t], occupancy[t + 1 + k])
-    result = {"copy_last": [c.f1 for c in copy]}
+            truth = occupancy[t + 1 + k]
+            copy[k] = copy[k] + confusion(occupancy[t], truth)
+            copy_changed[k] = copy_changed[k] + confusion(occupancy[t], truth, _changed(
+                occupancy[t], truth))  # fmt: skip
+    f1, changed_f1 = {"copy_last": _f1(copy)}, {"copy_last": _f1(copy_changed)}
     for method in methods:
-        counts = [Counts() for _ in range(horizon)]
+        if method.name in f1:  # copy-last is scored above, by its definition
+            continue
+        counts, changed = _counts(horizon), _counts(horizon)
         method.reset()
         for t in range(n - horizon):
             extra = method_inputs(method, t, motions, returns, motions_from_poses, subcell, paces)
-            method.update(occupancy[t], visibility[t], **extra)  # type: ignore[arg-type]
+            prediction = method.update(occupancy[t], visibility[t], **extra)  # type: ignore[arg-type]
             if progress is not None:
                 progress(1)
             if t not in scoring:
                 continue
-            assert method.last is not None
-            ahead = method.engine.roll(method.last, horizon).decided
-            for k, decided in enumerate(ahead):
-                counts[k] = counts[k] + confusion(decided >= THRESHOLD, occupancy[t + 1 + k])
-        result[method.name] = [c.f1 for c in counts]
-    return result
+            for k, decided in enumerate(_ahead(method, prediction, visibility[t], extra, horizon)):
+                truth = occupancy[t + 1 + k]
+                counts[k] = counts[k] + confusion(decided >= THRESHOLD, truth)
+                changed[k] = changed[k] + confusion(
+                    decided >= THRESHOLD, truth, _changed(occupancy[t], truth)
+                )
+        f1[method.name], changed_f1[method.name] = _f1(counts), _f1(changed)
+    return {"f1": f1, "changed_f1": changed_f1}
+
+
+def _ahead(
+    method: Method,
+    prediction: np.ndarray,
+    visibility: np.ndarray,
+    extra: dict[str, object],
+    horizon: int,
+) -> list[np.ndarray]:
+    """``method``'s predictions 1..``horizon`` frames ahead of the frame it was just given: a
+    model's roll-out (:meth:`lidarflow.predict.engine.Engine.roll`), a baseline's by feeding its
+    decided prediction back to a copy of it, with the frame's visibility and the same motion
+    (constant velocity so shifts ``k`` times, the last map moved by the ego motion moves ``k``
+    steps, the temporal average takes its own prediction into its window)."""
+    if isinstance(method, ModelMethod):
+        assert method.last is not None
+        return list(method.engine.roll(method.last, horizon).decided)
+    rolled, ahead = copy.deepcopy(method), [prediction]
+    fed_extra = {key: value for key, value in extra.items() if key != "next_motion"}
+    for _ in range(horizon - 1):
+        fed = (ahead[-1] >= THRESHOLD).astype(np.float32)
+        ahead.append(rolled.update(fed, visibility, **fed_extra))  # type: ignore[arg-type]
+    return ahead
+
+
+def _changed(last: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    return np.asarray(last, bool) != np.asarray(truth, bool)
+
+
+def _counts(horizon: int) -> list[Counts]:
+    return [Counts() for _ in range(horizon)]
+
+
+def _f1(counts: list[Counts]) -> list[float]:
+    return [c.f1 for c in counts]
