@@ -54,8 +54,8 @@ def _decompressed(compression: str, data: bytes) -> bytes:
 class _DataSection:
     """The data section's schema, channel and message records in file order, chunks opened,
     up to the last intact one (``cut``: whether the file ended inside a record; ``read_to``:
-    where the last intact record ends, in a compressed chunk read in part in proportion to
-    what its first part decompressed to)."""
+    where the last intact record ends; in a compressed chunk read in part, the share of the
+    chunk's data that its records up to there take uncompressed)."""
 
     def __init__(self, path: Path) -> None:
         self.path, self.read_to, self.cut = path, 0, False
@@ -98,7 +98,8 @@ class _DataSection:
         from mcap.stream_reader import StreamReader
 
         stream.seek(at)
-        if stream.read(9)[:1] != bytes([Opcode.CHUNK]):
+        head = stream.read(9)
+        if head[:1] != bytes([Opcode.CHUNK]):
             return
         start = stream.tell()
         try:
@@ -106,13 +107,15 @@ class _DataSection:
             content = _decompressed(chunk.compression, chunk.data)
         except Exception:  # no chunk data, or data that does not decompress: nothing to read
             return
-        data_start = start + 8 * 3 + 4 * 2 + len(chunk.compression.encode()) + 8
+        fields = 8 * 3 + 4 * 2 + len(chunk.compression.encode()) + 8  # before the data
+        whole = int.from_bytes(head[1:], "little") - fields  # the chunk's data, uncut
         inner = io.BytesIO(content)
         records = StreamReader(inner, skip_magic=True).records
         with contextlib.suppress(*_library_errors()):
             for record in records:
                 yield record
-                self.read_to = data_start + round(len(chunk.data) * inner.tell() / len(content))
+                share = inner.tell() / max(chunk.uncompressed_size, len(content))
+                self.read_to = start + fields + round(whole * share)
 
 
 def _summary(path: Path) -> tuple[list[Any], list[Any], dict[int, int]] | None:
@@ -232,4 +235,3 @@ class McapReader:
         if self.encoding == "ros1":
             return self.typestore.deserialize_ros1(raw, msgtype)
         return self.typestore.deserialize_cdr(raw, msgtype)
-

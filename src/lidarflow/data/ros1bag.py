@@ -146,8 +146,8 @@ class Ros1BagSequentialReader:
     def _records(self) -> Iterator[tuple[int, dict[str, bytes], bytes]]:
         """``(op, header, data)`` of each record in file order, those in chunks in their place,
         up to the first record cut or damaged (``_cut``: whether there was one; ``_read_to``:
-        where the last intact record ends; in a compressed chunk read in part, in proportion
-        to what its first part decompressed to)."""
+        where the last intact record ends; in a compressed chunk read in part, the share of
+        the chunk's data that its records up to there take uncompressed)."""
         with self.path.open("rb") as stream, contextlib.ExitStack() as stack:
             if self.size <= len(MAGIC) or stream.read(len(MAGIC)) != MAGIC:
                 raise ValueError("not a ROS 1 bag (no '#ROSBAG V2.0' line)")
@@ -159,7 +159,8 @@ class Ros1BagSequentialReader:
                 if op == _BAG_HEADER:
                     self._index_pos = int.from_bytes(header.get("index_pos", b""), "little")
                 if op == _CHUNK:
-                    intact = yield from self._chunk(header, bytes(buf[start:end]), start, whole)
+                    data = bytes(buf[start:end])
+                    intact = yield from self._chunk(header, data, start, end - start)
                     if not (whole and intact):
                         break
                 elif not whole:
@@ -170,10 +171,11 @@ class Ros1BagSequentialReader:
             self._cut = self._read_to < self.size
 
     def _chunk(
-        self, header: dict[str, bytes], data: bytes, start: int, whole: bool
+        self, header: dict[str, bytes], data: bytes, start: int, length: int
     ) -> Generator[tuple[int, dict[str, bytes], bytes], None, bool]:
-        """The records of a chunk whose data starts at ``start`` (of one cut short, those its
-        first part holds); returns whether it decompressed."""
+        """The records of a chunk whose ``length`` bytes of data start at ``start`` (of one cut
+        short, those its first part ``data`` holds); returns whether it decompressed."""
+        whole = len(data) == length
         try:
             content = _decompressed(header.get("compression", b"none"), data, whole)
         except Exception:  # a damaged chunk: what came before it stands
@@ -181,8 +183,9 @@ class Ros1BagSequentialReader:
         place = 0
         while (inner := _record(content, place)) is not None and inner[2] <= len(content):
             inner_header, inner_start, place = inner
-            if not whole:
-                self._read_to = start + round(len(data) * place / len(content))
+            if not whole:  # the share of the chunk's data up to here, uncompressed
+                size = max(_u32(header.get("size", b""), 0), len(content))
+                self._read_to = start + round(length * place / size)
             yield inner_header["op"][0], inner_header, content[inner_start:place]
         return True
 
