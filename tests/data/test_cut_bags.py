@@ -161,11 +161,13 @@ def test_an_mcap_cut_before_its_first_message_is_a_clear_error(tmp_path):
         read_bag(junk)
 
 
+@pytest.mark.parametrize("compression", [None, "message"])
 @pytest.mark.parametrize("keep", [0.5, 0.9])
-def test_a_ros2_mcap_cut_short_reads_up_to_its_last_intact_message(tmp_path, keep):
+def test_a_ros2_mcap_cut_short_reads_up_to_its_last_intact_message(tmp_path, keep, compression):
+    # "message": `ros2 bag record --compression-mode message`, each message zstd on its own
     rng = np.random.default_rng(5)
     frames = [rng.uniform(0.3, 7.0, 300) for _ in range(150)]
-    folder = write_bag(tmp_path / "w", "mcap", {"/scan": frames})
+    folder = write_bag(tmp_path / "w", "mcap", {"/scan": frames}, compression=compression)
     whole = read_bag(folder)
     (mcap,) = folder.glob("*.mcap")
     # the bare file, its folder with its metadata.yaml, and the folder without (as `ros2 bag

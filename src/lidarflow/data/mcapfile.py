@@ -159,6 +159,18 @@ def _definition(schema: Any) -> Any:
     return MessageDefinition(MessageDefinitionFormat[kind], text)
 
 
+#: The start of a zstd frame: ``ros2 bag record --compression-mode message`` compresses each
+#: message on its own (its metadata.yaml says so, which a recording cut short lacks); CDR data
+#: starts with its encapsulation kind (``00 01``), never with these bytes.
+_ZSTD_FRAME = b"\x28\xb5\x2f\xfd"
+
+
+def _zstd_message(data: bytes) -> bytes:
+    import zstandard
+
+    return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+
+
 class McapReader:
     """The messages of one encoding (``ros1`` or ``cdr``) in an MCAP file, read like a rosbags
     ``AnyReader`` (see :mod:`lidarflow.data.readers`); channels of other encodings (JSON
@@ -229,7 +241,10 @@ class McapReader:
         wanted = {c.id: c for c in connections} or {c.id: c for c in self.connections}
         for record in _DataSection(self.path):
             if isinstance(record, Message) and record.channel_id in wanted:
-                yield wanted[record.channel_id], record.log_time, record.data
+                data = record.data
+                if data[:4] == _ZSTD_FRAME and self.encoding == "cdr":
+                    data = _zstd_message(data)
+                yield wanted[record.channel_id], record.log_time, data
 
     def deserialize(self, raw: bytes, msgtype: str) -> Any:
         if self.encoding == "ros1":
