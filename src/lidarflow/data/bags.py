@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.mcapfile import McapReader, channel_encoding
+from lidarflow.data.readers import cut_short_reader
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
 from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
@@ -110,31 +111,11 @@ def open_bag(path: str | Path) -> Iterator[Any]:
             else:
                 reader = stack.enter_context(AnyReader([target], default_typestore=store))
         except Exception as err:  # rosbags raises many types for damaged files
-            reader = _cut_short(target, store)
+            reader = cut_short_reader(target, store)
             if reader is None:
                 why = _why(err)
                 raise BagError(f"{path}: cannot open as a bag ({why}); is it complete?") from err
         yield reader
-
-
-def _cut_short(target: Path, store: Any) -> Any:
-    """A reader of what a bag cut short holds up to its last intact message, where rosbags
-    could not open it (a ROS 1 bag without its index, an MCAP file without its summary or
-    footer, a ROS 2 folder around one); ``None`` where that finds no message either (a file
-    that is no bag, or damaged from its start)."""
-    from lidarflow.data.ros1bag import Ros1BagSequentialReader
-
-    if target.is_dir():
-        mcaps = sorted(target.glob("*.mcap"))
-        target = mcaps[0] if len(mcaps) == 1 else target
-    try:
-        if target.is_file() and target.suffix.lower() == ".bag":
-            return Ros1BagSequentialReader(target, store)
-        if target.is_file() and target.suffix.lower() == ".mcap":
-            return McapReader(target, channel_encoding(target) or "cdr", store)
-    except Exception:  # what rosbags said of the file is the better message
-        return None
-    return None
 
 
 def _folder_without_metadata(path: Path, folder: Path) -> Path:

@@ -91,7 +91,6 @@ class Ros1BagSequentialReader:
     def __init__(self, path: str | Path, default_typestore: Any) -> None:
         self.path = Path(path)
         self.size = self.path.stat().st_size
-        self._index_pos = 0
         self._index_pos, self._read_to, self._cut = 0, 0, False
         found: dict[int, dict[str, bytes]] = {}
         counts: dict[int, int] = {}
