@@ -6,8 +6,9 @@ closes the bag; a bag cut short has none, or one that points past its end. Its d
 still there, in order: the bag header record, then chunks (each holding the connection records
 it introduces and its messages; uncompressed, bz2 or lz4), each followed by its index records.
 This reader walks them in file order up to the last intact message, a chunk cut in two
-included (its first part decompressed as far as it goes), and deserialises with rosbags'
-typestore built from the bag's own message definitions.
+included (its first part decompressed as far as it goes), noting where each message is (the
+index the bag lacks, so that reading a topic opens only the chunks that hold it), and
+deserialises with rosbags' typestore built from the bag's own message definitions.
 
 Format (ROS bag 2.0): ``#ROSBAG V2.0\\n``, then records of a ``u32`` header length, header
 fields (each a ``u32`` length and ``name=value``; ``op`` the record type), a ``u32`` data length
@@ -17,9 +18,11 @@ and the data; integers little-endian.
 from __future__ import annotations
 
 import bz2
-import contextlib
 import mmap
-from collections.abc import Generator, Iterable, Iterator
+import struct
+from array import array
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,23 +34,23 @@ MAGIC = b"#ROSBAG V2.0\n"
 _MESSAGE, _BAG_HEADER, _CHUNK, _CONNECTION = 0x02, 0x03, 0x05, 0x07
 
 
-def _u32(buf: Any, at: int) -> int:
-    return int.from_bytes(buf[at : at + 4], "little")
+_U32 = struct.Struct("<I")
 
 
 def _fields(data: bytes) -> dict[str, bytes] | None:
     """A record header's ``name=value`` fields; ``None`` where they do not parse (the bytes are
     no header: a cut or damaged file)."""
     out: dict[str, bytes] = {}
-    at = 0
-    while at < len(data):
-        n = _u32(data, at)
-        field = data[at + 4 : at + 4 + n]
-        if at + 4 > len(data) or len(field) < n or b"=" not in field:
+    at, size = 0, len(data)
+    while at < size:
+        if at + 4 > size:
             return None
-        name, _, value = field.partition(b"=")
-        out[name.decode("latin-1")] = value
-        at += 4 + n
+        end = at + 4 + _U32.unpack_from(data, at)[0]
+        equals = data.find(b"=", at + 4, end)
+        if end > size or equals < 0:
+            return None
+        out[data[at + 4 : equals].decode("latin-1")] = data[equals + 1 : end]
+        at = end
     return out
 
 
@@ -57,15 +60,14 @@ def _record(buf: Any, at: int) -> tuple[dict[str, bytes], int, int] | None:
     is no header."""
     if at + 4 > len(buf):
         return None
-    start_header = at + 4
-    end_header = start_header + _u32(buf, at)
+    end_header = at + 4 + _U32.unpack_from(buf, at)[0]
     if end_header + 4 > len(buf):
         return None
-    header = _fields(bytes(buf[start_header:end_header]))
+    header = _fields(buf[at + 4 : end_header])
     if header is None or len(header.get("op", b"")) != 1:
         return None
     start = end_header + 4
-    return header, start, start + _u32(buf, end_header)
+    return header, start, start + _U32.unpack_from(buf, end_header)[0]
 
 
 def _decompressed(compression: bytes, data: bytes, whole: bool) -> bytes:
@@ -83,36 +85,119 @@ def _decompressed(compression: bytes, data: bytes, whole: bool) -> bytes:
     raise ValueError(f"chunk compression {compression.decode(errors='replace')!r}")
 
 
+def _conn(header: dict[str, bytes]) -> int:
+    return int.from_bytes(header.get("conn", b""), "little")
+
+
+@dataclass
+class _Chunk:
+    """Where a chunk's data is in the file (``length`` bytes whole, ``read`` of them there),
+    and its messages: ``(connection, log time ns, start, end)`` in its decompressed records,
+    flat."""
+
+    start: int
+    length: int
+    read: int
+    compression: bytes
+    messages: array = field(default_factory=lambda: array("q"))
+    connections: set[int] = field(default_factory=set)
+
+    def content(self, stream: Any) -> bytes:
+        stream.seek(self.start)
+        data = stream.read(self.read)
+        return _decompressed(self.compression, data, self.read == self.length)
+
+
 class Ros1BagSequentialReader:
     """A ROS 1 bag read in file order without its index (see the module). Opening reads the
-    whole data section once, for the connections and their message counts; ``recovered`` says
-    how much of the file that was."""
+    whole data section once, for the connections, their messages and where each is;
+    ``recovered`` says how much of the file that was."""
 
     def __init__(self, path: str | Path, default_typestore: Any) -> None:
         self.path = Path(path)
         self.size = self.path.stat().st_size
-        self._index_pos, self._read_to, self._cut = 0, 0, False
-        found: dict[int, dict[str, bytes]] = {}
+        if self.size <= len(MAGIC):
+            raise ValueError("not a ROS 1 bag (empty)")
+        with self.path.open("rb") as stream:
+            if stream.read(len(MAGIC)) != MAGIC:
+                raise ValueError("not a ROS 1 bag (no '#ROSBAG V2.0' line)")
+            with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+                found, index_pos, read_to = self._walk(buf)
         counts: dict[int, int] = {}
-        for op, header, data in self._records():
-            conn = _u32(header.get("conn", b""), 0)
-            if op == _CONNECTION and conn not in found:
-                fields = _fields(data)
-                if fields is not None and "type" in fields:
-                    found[conn] = {**fields, "topic": header.get("topic", b"")}
-            elif op == _MESSAGE and conn in found:
+        for chunk in self._chunks:
+            for conn in chunk.messages[::4]:
                 counts[conn] = counts.get(conn, 0) + 1
-        if not counts:
+        if not any(counts.get(conn) for conn in found):
             raise ValueError("no intact message in the bag")
         self.connections = [self._connection(i, found[i], counts.get(i, 0)) for i in sorted(found)]
         self.typestore = typestore_from(self.connections, default_typestore)
-        if self._cut:
+        if read_to < self.size:
             why = "cut short"
-        elif self._index_pos == 0:
+        elif index_pos == 0:
             why = "never closed by its writer (no index)"
         else:
             why = "its index damaged"
-        self.recovered = CutShort(self.size, self._read_to, self._index_pos or None, why)
+        self.recovered = CutShort(self.size, read_to, index_pos or None, why)
+
+    def _walk(self, buf: Any) -> tuple[dict[int, dict[str, bytes]], int, int]:
+        """Every record in file order up to the first one cut or damaged, those in chunks in
+        their place: the connections' fields, the header's index position and where the last
+        intact record ends (in a compressed chunk read in part, the share of the chunk's data
+        its records up to there take uncompressed); the chunks in ``_chunks``."""
+        found: dict[int, dict[str, bytes]] = {}
+        self._chunks: list[_Chunk] = []
+        index_pos, at = 0, len(MAGIC)
+        read_to = at
+        while (record := _record(buf, at)) is not None:
+            header, start, end = record
+            op, whole = header["op"][0], end <= len(buf)
+            if op == _BAG_HEADER:
+                index_pos = int.from_bytes(header.get("index_pos", b""), "little")
+            elif op == _CONNECTION and whole:  # the index section repeats them
+                self._connection_record(found, header, buf[start:end])
+            if op == _CHUNK:
+                chunk = _Chunk(start, end - start, min(end, len(buf)) - start,
+                               header.get("compression", b"none"))  # fmt: skip
+                try:
+                    content = _decompressed(chunk.compression, buf[start:end], whole)
+                except Exception:  # a damaged chunk: what came before it stands
+                    break
+                last = self._chunk_records(chunk, content, found)
+                if not whole:  # the share of the chunk's data up to there, uncompressed
+                    size = max(int.from_bytes(header.get("size", b""), "little"), len(content))
+                    read_to = start + round(chunk.length * last / size)
+                self._chunks.append(chunk)
+            if not whole:
+                break
+            read_to = at = end
+        return found, index_pos, read_to
+
+    def _chunk_records(
+        self, chunk: _Chunk, content: bytes, found: dict[int, dict[str, bytes]]
+    ) -> int:
+        """Note a chunk's connections and where its messages are in its ``content``; returns
+        where its last intact record ends there."""
+        place = 0
+        while (inner := _record(content, place)) is not None and inner[2] <= len(content):
+            header, start, place = inner
+            if header["op"][0] == _CONNECTION:
+                self._connection_record(found, header, content[start:place])
+            elif header["op"][0] == _MESSAGE:
+                time = header.get("time", b"").ljust(8, b"\0")
+                stamp = _U32.unpack_from(time)[0] * 1_000_000_000 + _U32.unpack_from(time, 4)[0]
+                chunk.messages.extend((_conn(header), stamp, start, place))
+                chunk.connections.add(_conn(header))
+        return place
+
+    @staticmethod
+    def _connection_record(
+        found: dict[int, dict[str, bytes]], header: dict[str, bytes], data: bytes
+    ) -> None:
+        """Note a connection record's fields (its data is a header of them: type, md5sum,
+        message_definition, callerid, latching; the topic is in its own header)."""
+        fields = _fields(data)
+        if _conn(header) not in found and fields is not None and "type" in fields:
+            found[_conn(header)] = {**fields, "topic": header.get("topic", b"")}
 
     def _connection(self, conn: int, fields: dict[str, bytes], count: int) -> Any:
         """A connection record's fields as rosbags' connection."""
@@ -142,63 +227,20 @@ class Ros1BagSequentialReader:
             owner=self,
         )
 
-    def _records(self) -> Iterator[tuple[int, dict[str, bytes], bytes]]:
-        """``(op, header, data)`` of each record in file order, those in chunks in their place,
-        up to the first record cut or damaged (``_cut``: whether there was one; ``_read_to``:
-        where the last intact record ends; in a compressed chunk read in part, the share of
-        the chunk's data that its records up to there take uncompressed)."""
-        with self.path.open("rb") as stream, contextlib.ExitStack() as stack:
-            if self.size <= len(MAGIC) or stream.read(len(MAGIC)) != MAGIC:
-                raise ValueError("not a ROS 1 bag (no '#ROSBAG V2.0' line)")
-            buf = stack.enter_context(mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ))
-            at = self._read_to = len(MAGIC)
-            while (found := _record(buf, at)) is not None:
-                header, start, end = found
-                op, whole = header["op"][0], end <= len(buf)
-                if op == _BAG_HEADER:
-                    self._index_pos = int.from_bytes(header.get("index_pos", b""), "little")
-                if op == _CHUNK:
-                    data = bytes(buf[start:end])
-                    intact = yield from self._chunk(header, data, start, end - start)
-                    if not (whole and intact):
-                        break
-                elif not whole:
-                    break
-                else:
-                    yield op, header, bytes(buf[start:end])
-                self._read_to = at = end
-            self._cut = self._read_to < self.size
-
-    def _chunk(
-        self, header: dict[str, bytes], data: bytes, start: int, length: int
-    ) -> Generator[tuple[int, dict[str, bytes], bytes], None, bool]:
-        """The records of a chunk whose ``length`` bytes of data start at ``start`` (of one cut
-        short, those its first part ``data`` holds); returns whether it decompressed."""
-        whole = len(data) == length
-        try:
-            content = _decompressed(header.get("compression", b"none"), data, whole)
-        except Exception:  # a damaged chunk: what came before it stands
-            return False
-        place = 0
-        while (inner := _record(content, place)) is not None and inner[2] <= len(content):
-            inner_header, inner_start, place = inner
-            if not whole:  # the share of the chunk's data up to here, uncompressed
-                size = max(_u32(header.get("size", b""), 0), len(content))
-                self._read_to = start + round(length * place / size)
-            yield inner_header["op"][0], inner_header, content[inner_start:place]
-        return True
-
     def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
         """``(connection, log time ns, raw message)`` of ``connections`` (default all), in file
-        order, up to the last intact message."""
+        order, up to the last intact message; only the chunks that hold them are read."""
         wanted = {c.id: c for c in connections} or {c.id: c for c in self.connections}
-        for op, header, data in self._records():
-            if op != _MESSAGE:
-                continue
-            connection = wanted.get(_u32(header.get("conn", b""), 0))
-            if connection is not None:
-                time = header.get("time", b"")
-                yield connection, _u32(time, 0) * 1_000_000_000 + _u32(time, 4), data
+        with self.path.open("rb") as stream:
+            for chunk in self._chunks:
+                if chunk.connections.isdisjoint(wanted):
+                    continue
+                content = chunk.content(stream)
+                entries = chunk.messages
+                for i in range(0, len(entries), 4):
+                    connection = wanted.get(entries[i])
+                    if connection is not None:
+                        yield connection, entries[i + 1], content[entries[i + 2] : entries[i + 3]]
 
     def deserialize(self, raw: bytes, msgtype: str) -> Any:
         return self.typestore.deserialize_ros1(raw, msgtype)
