@@ -94,7 +94,7 @@ class _DataSection:
         the record at ``at`` is a chunk."""
         from mcap.data_stream import ReadDataStream
         from mcap.opcode import Opcode
-        from mcap.records import Chunk
+        from mcap.records import Channel, Chunk, Message, Schema
         from mcap.stream_reader import StreamReader
 
         stream.seek(at)
@@ -113,7 +113,8 @@ class _DataSection:
         records = StreamReader(inner, skip_magic=True).records
         with contextlib.suppress(*_library_errors()):
             for record in records:
-                yield record
+                if isinstance(record, (Schema, Channel, Message)):
+                    yield record
                 share = inner.tell() / max(chunk.uncompressed_size, len(content))
                 self.read_to = start + fields + round(whole * share)
 
