@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from lidarflow.data.mcap1 import MAGIC as MCAP_MAGIC
+from lidarflow.data.mcapfile import MAGIC as MCAP_MAGIC
 
 
 def _header(ts, stamp_ns: int, frame: str):

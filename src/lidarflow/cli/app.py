@@ -147,13 +147,14 @@ def load_input(
 ) -> Any:
     """Read a recording or bag for a command; where the bag offered several scan or odometry
     topics, say on stderr which was read (``notes``; `info` lists them itself; a recording
-    converted from such a bag keeps the note but no longer has the topics to pick from)."""
+    converted from such a bag keeps the note but no longer has the topics to pick from); and
+    always, where the bag was cut short, how much of it was read."""
     from lidarflow.data import load_any
-    from lidarflow.data.sources import topic_notes
+    from lidarflow.data.sources import recovered_notes, topic_notes
 
     with progress_bar(None, f"reading {path.name}") as bar:
         recording = load_any(path, topic=topic, odom_topic=odom_topic, progress=bar.update)
-    for note in topic_notes(path, recording) if notes else ():
+    for note in (topic_notes if notes else recovered_notes)(path, recording):
         typer.echo(note, err=True)
     return recording
 

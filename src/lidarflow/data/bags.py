@@ -7,7 +7,12 @@ beam's nearest valid echo (:func:`nearest_echoes`), the first surface it met.
 Uses ``rosbags`` (pure Python, no ROS install). Accepted inputs: a ROS 1 ``.bag``, a zipped
 ``.bag.zip`` (extracted to a temporary folder), a ROS 2 bag folder (sqlite3 or mcap storage), or
 a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as ``mcap convert`` leaves a ROS 1
-bag (read by :mod:`lidarflow.data.mcap1`).
+bag (read by :mod:`lidarflow.data.mcapfile`).
+
+A bag cut short (a robot that lost power, a writer stopped early: a ROS 1 bag without its index,
+an MCAP file without its summary or footer) is read up to its last intact message
+(:mod:`lidarflow.data.ros1bag`, :mod:`lidarflow.data.mcapfile`), and the recording says how
+much in ``meta["recovered"]``.
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.mcap1 import Ros1McapReader, channel_encoding
+from lidarflow.data.mcapfile import McapReader, channel_encoding
+from lidarflow.data.readers import cut_short_reader
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
 from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
@@ -68,8 +74,10 @@ def _is_bag_like(path: Path) -> bool:
 
 @contextlib.contextmanager
 def open_bag(path: str | Path) -> Iterator[Any]:
-    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader`` (for an MCAP file of
-    ROS 1 messages a :class:`~lidarflow.data.mcap1.Ros1McapReader`, read the same way).
+    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``, or where rosbags
+    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way:
+    for an MCAP file of ROS 1 messages, or a bag cut short (its ``recovered`` says how much of
+    the file it reads; ``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
 
     Raises :class:`BagError` for missing, unsupported or corrupt inputs.
     """
@@ -94,16 +102,19 @@ def open_bag(path: str | Path) -> Iterator[Any]:
             target = path.parent  # a ROS 2 bag is read through its folder
         if target.is_dir() and not (target / "metadata.yaml").exists():
             target = _folder_without_metadata(path, target)
-        ros1_mcap = target.suffix.lower() == ".mcap" and channel_encoding(target) == "ros1"
-        ros1 = target.suffix.lower() == ".bag" or ros1_mcap
+        encoding = channel_encoding(target) if target.suffix.lower() == ".mcap" else None
+        ros1 = target.suffix.lower() == ".bag" or encoding == "ros1"
         store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
         try:
-            if ros1_mcap:  # `mcap convert` of a ROS 1 bag: rosbags reads MCAP as ROS 2 only
-                reader = Ros1McapReader(target, store)
+            if encoding == "ros1":  # `mcap convert` of a ROS 1 bag: rosbags reads MCAP as ROS 2
+                reader = McapReader(target, "ros1", store)
             else:
                 reader = stack.enter_context(AnyReader([target], default_typestore=store))
         except Exception as err:  # rosbags raises many types for damaged files
-            raise BagError(f"{path}: cannot open as a bag ({_why(err)}); is it complete?") from err
+            reader = cut_short_reader(target, store)
+            if reader is None:
+                why = _why(err)
+                raise BagError(f"{path}: cannot open as a bag ({why}); is it complete?") from err
         yield reader
 
 
@@ -244,6 +255,9 @@ def read_bag(
             mirrored: its poses are given in the mirrored world, so that their motions are its.
         progress: called with the number of scans read since the last call.
 
+    A bag cut short is read up to its last intact message; ``meta["recovered"]`` says how much
+    (see :class:`~lidarflow.data.readers.CutShort`).
+
     Scans that are empty, malformed (impossible geometry) or the same message recorded twice
     are dropped and counted in ``meta`` (``*_scans_dropped``). Scans are ordered by their
     header stamps, or by their log times where the header stamps do not advance
@@ -318,6 +332,7 @@ def read_bag(
                 "the bag may be truncated or corrupt"
             ) from err
         total = sum(c.msgcount for c in reader.connections if c.topic == scan_topic)
+        recovered = getattr(reader, "recovered", None)  # a bag cut short: how much was read
     # where the topic was chosen among several, the error says which others there are
     others = f" ({topic_choice})" if topic_choice else ""
     if not scans and malformed:
@@ -390,4 +405,7 @@ def read_bag(
             meta["sensor_upside_down"] = True
     recording = Recording.from_scans(scans, poses=poses, meta=meta)
     recording.meta["frame_rate_hz"] = round(recording.frame_rate, 3)
+    if recovered is not None:
+        seconds = (int(recording.stamps_ns[-1]) - int(recording.stamps_ns[0])) / 1e9
+        recording.meta["recovered"] = recovered.note(len(recording), seconds)
     return recording

@@ -92,8 +92,8 @@ def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:
 def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
     """What reading the bag left out or replaced (read_bag's meta), so that it is never silent:
     the scans it dropped, by kind, the stamps it ordered them by where not the headers', the
-    scan and odometry topics it chose among several, and where the header clock went back (the
-    sessions it re-stamped to follow one another)."""
+    scan and odometry topics it chose among several, where the header clock went back (the
+    sessions it re-stamped to follow one another), and how much of a bag cut short it read."""
     notes: dict[str, Any] = {}
     dropped = {kind: int(meta.get(f"{kind}_scans_dropped") or 0)
                for kind in ("empty", "duplicate", "malformed")}  # fmt: skip
@@ -109,4 +109,6 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
         notes["pose_topic_choice"] = meta["pose_topic_choice"]
     if meta.get("clock_jumps"):
         notes["clock_jumps"] = meta["clock_jumps"]
+    if meta.get("recovered"):  # a bag cut short: how much of it was read
+        notes["recovered"] = meta["recovered"]
     return notes

@@ -9,7 +9,7 @@ from lidarflow.data.bags import read_bag
 from lidarflow.data.recording import Recording, load_recording
 from lidarflow.errors import BagError, RecordingError
 
-__all__ = ["is_recording_file", "load_any", "topic_notes"]
+__all__ = ["is_recording_file", "load_any", "recovered_notes", "topic_notes"]
 
 
 def is_recording_file(path: str | Path) -> bool:
@@ -40,9 +40,21 @@ def load_any(
 def topic_notes(path: str | Path, recording: Recording) -> list[str]:
     """What a command says of how ``recording`` was read from the bag ``path``: the scan and
     odometry topics chosen among several (none for a recording file, which keeps the bag's
-    notes but no longer has the topics to pick from)."""
+    notes but no longer has the topics to pick from), and how much of a bag cut short was
+    read (:func:`recovered_notes`)."""
     if is_recording_file(path):
-        return []
+        return recovered_notes(path, recording)
     name = Path(path).name
     keys = ("topic_choice", "pose_topic_choice")
-    return [f"{name}: {recording.meta[k]}" for k in keys if recording.meta.get(k)]
+    notes = [f"{name}: {recording.meta[k]}" for k in keys if recording.meta.get(k)]
+    return notes + recovered_notes(path, recording)
+
+
+def recovered_notes(path: str | Path, recording: Recording) -> list[str]:
+    """Where ``recording`` was read from a bag cut short, the note that says how much of it
+    (named for the bag; a recording converted from one keeps the note: it still holds only
+    that much)."""
+    if not recording.meta.get("recovered"):
+        return []
+    source = recording.meta.get("source") if is_recording_file(path) else None
+    return [f"{Path(source or path).name}: {recording.meta['recovered']}"]
