@@ -25,17 +25,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from websockets.sync.client import connect
 
-pytest.importorskip("websockets")
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
-
-from lidarflow.data import read_bag, sample_bag_path  # noqa: E402
-from lidarflow.live.replay import loop_shift_ns  # noqa: E402
-from lidarflow.predict import Predictor  # noqa: E402
-from lidarflow.predict.rosout import map_from_grid_data  # noqa: E402
-from lidarflow.viz.flow import flow_to_rgb  # noqa: E402
-from tests.test_cli import run  # noqa: E402
+from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.live.replay import loop_shift_ns
+from lidarflow.predict import Predictor
+from lidarflow.predict.rosout import map_from_grid_data
+from lidarflow.viz.flow import flow_to_rgb
+from tests.test_cli import run
 
 ROOT = Path(__file__).resolve().parents[2]
 SUBPROTOCOL = "foxglove.sdk.v1"  # the one foxglove-sdk's server accepts
@@ -76,7 +74,8 @@ def start_live(short: Path, model: Path, *extra: str) -> tuple[subprocess.Popen,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     lines: queue.Queue[str] = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
+    reader = threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True)
+    reader.start()
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         try:
@@ -85,7 +84,7 @@ def start_live(short: Path, model: Path, *extra: str) -> tuple[subprocess.Popen,
             assert proc.poll() is None, proc.stderr.read()
             continue
         if " on ws://" in line:
-            proc.lines = lines  # the rest of stdout, for the end
+            proc.lines, proc.reader = lines, reader  # the rest of stdout, for the end
             return proc, line.split(" on ")[-1].strip()
     proc.kill()
     raise AssertionError("lidarflow live printed no ws:// address within a minute")
@@ -172,8 +171,9 @@ def test_live_serves_what_the_predictor_makes_of_each_scan(short_and_model):
         by_time, complete = receive(url, enough)
     finally:
         proc.send_signal(signal.SIGTERM)  # a server's Ctrl-C: ends it, not an error
-        _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
+        proc.wait(timeout=60)
+        proc.reader.join(timeout=10)  # stdout read to its end
+    assert proc.returncode == 0, proc.stderr.read()
     summary = list(proc.lines.queue)[-1]
     assert summary.startswith("stopped; served ") and "publish" in summary, summary
 
