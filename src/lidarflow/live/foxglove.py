@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import foxglove
 import numpy as np
@@ -43,11 +43,13 @@ from foxglove.messages import (
 )
 
 from lidarflow.errors import PredictError
-from lidarflow.predict.predictor import Prediction
 from lidarflow.predict.rosout import grid_data
 from lidarflow.predict.topics import FLOW_RGB_TOPIC, GridOut, grid_topics, prediction_grids
 from lidarflow.scan import GridSpec, Scan
 from lidarflow.viz.flow import flow_to_rgb
+
+if TYPE_CHECKING:
+    from lidarflow.predict.predictor import Prediction
 
 __all__ = ["DEFAULT_PORT", "LiveServer"]
 

@@ -17,13 +17,16 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.data.recording import Recording
-from lidarflow.live.foxglove import LiveServer
 from lidarflow.predict.job import check_poses
-from lidarflow.predict.predictor import Predictor
+
+if TYPE_CHECKING:
+    from lidarflow.data.recording import Recording
+    from lidarflow.live.foxglove import LiveServer
+    from lidarflow.predict.predictor import Predictor
 
 __all__ = ["Served", "loop_shift_ns", "replay"]
 

@@ -21,11 +21,12 @@ The flow goes out beside them as images (``/lidarflow/flow_backward`` / ``_forwa
 from __future__ import annotations
 
 from collections.abc import Container
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from lidarflow.predict.predictor import Prediction
+if TYPE_CHECKING:
+    from lidarflow.predict.predictor import Prediction
 
 __all__ = ["FLOW_RGB_TOPIC", "TOPIC_PREFIX", "GridOut", "grid_topics", "prediction_grids"]
 
