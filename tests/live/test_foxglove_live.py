@@ -29,6 +29,8 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.sync.client import connect
 
 from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.errors import PredictError
+from lidarflow.live.foxglove import LiveServer
 from lidarflow.live.replay import loop_shift_ns
 from lidarflow.predict import Predictor
 from lidarflow.predict.rosout import map_from_grid_data
@@ -252,3 +254,17 @@ def test_a_taken_port_and_an_unreadable_source_are_one_line_errors(
     bad.write_bytes(sample_bag_path().read_bytes()[:100])
     code, _, err = run(["live", str(bad), "-m", str(model), "--port", "0"], capsys)
     assert code == 1 and err.startswith(f"lidarflow: error: {bad}") and len(err.splitlines()) == 1
+
+
+def test_the_server_refuses_predictions_it_was_not_made_for(short_and_model):
+    _, model = short_and_model
+    scan = read_bag(sample_bag_path()).scan(0)
+    predictor = Predictor(model, horizon=2)
+    p = predictor.update(scan)
+    server = LiveServer(predictor.grid, "laser", port=0)  # horizon 1
+    with pytest.raises(PredictError, match="2 frames ahead, but the server was made for 1"):
+        server.publish(scan, p)
+    server.close()
+    server.close()  # twice: harmless
+    with pytest.raises(PredictError, match="closed"):
+        server.publish(scan, p)

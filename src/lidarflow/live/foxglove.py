@@ -131,18 +131,20 @@ class LiveServer:
         host = f"[{self.host}]" if ":" in self.host else self.host  # an IPv6 address
         return f"ws://{host}:{self.port}"
 
+    def _channels(self) -> list[Any]:
+        return [self._scan, *self._grids.values(), *([self._flow] if self._flow else [])]
+
     @property
     def topics(self) -> list[str]:
         """Every topic served, the scan's first."""
-        channels: list[Any] = [self._scan, *self._grids.values()]
-        return [c.topic() for c in channels + ([self._flow] if self._flow else [])]
+        return [channel.topic() for channel in self._channels()]
 
     def close(self) -> None:
         """Stop serving (clients are disconnected); closing twice is harmless."""
         if self._closed:
             return
         self._closed = True
-        for channel in [self._scan, *self._grids.values(), *([self._flow] if self._flow else [])]:
+        for channel in self._channels():
             channel.close()
         self._server.stop()
 
