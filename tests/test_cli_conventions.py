@@ -41,9 +41,9 @@ WRITERS: dict[str, list[str] | None] = {
     "choose-offset": None,  # its -o is a model folder: tests/evaluate/test_offsets.py
 }
 #: Commands that write nothing.
-READERS = {"info"}
+READERS = {"info", "live"}
 #: Commands that run a model: each takes --threads.
-RUN_MODELS = {"demo", "predict", "evaluate", "export", "train", "choose-offset"}
+RUN_MODELS = {"demo", "predict", "evaluate", "export", "train", "choose-offset", "live"}
 
 
 def commands() -> dict[str, Any]:

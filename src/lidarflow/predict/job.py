@@ -29,10 +29,21 @@ from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
 from lidarflow.predict.predictor import Predictor
 from lidarflow.predict.rosout import BagOutput
+from lidarflow.predict.topics import TOPIC_PREFIX
 
-__all__ = ["TOPIC_PREFIX", "predict_to_bag"]
+__all__ = ["TOPIC_PREFIX", "check_poses", "predict_to_bag"]
 
-TOPIC_PREFIX = "/lidarflow"
+
+def check_poses(recording: Recording, predictor: Predictor) -> None:
+    """Refuse (:class:`PredictError`) to run an ego-motion model over a recording without
+    sensor poses, unless the model may run without (``poses_optional``: the Predictor then
+    matches the motion from the scans)."""
+    if predictor.uses_motion and not recording.has_poses and not predictor.poses_optional:
+        source = recording.meta.get("source") or "the recording"
+        raise PredictError(
+            f"{source}: no sensor poses, but the model compensates ego motion; convert the bag "
+            "with --odom-topic, or use a model trained without --ego-motion"
+        )
 
 
 def predict_to_bag(
@@ -47,13 +58,8 @@ def predict_to_bag(
     without any is refused (:class:`PredictError`) unless the model may run without
     (``poses_optional``: the Predictor then matches the motion from the scans). An existing
     ``output`` is refused unless ``force`` (:class:`BagOutput`)."""
+    check_poses(recording, predictor)
     poses = recording.poses
-    if predictor.uses_motion and not recording.has_poses and not predictor.poses_optional:
-        source = recording.meta.get("source") or "the recording"
-        raise PredictError(
-            f"{source}: no sensor poses, but the model compensates ego motion; convert the bag "
-            "with --odom-topic, or use a model trained without --ego-motion"
-        )
     scan_topic = recording.meta.get("topic") or "/scan"
     if not scan_topic.startswith("/"):
         scan_topic = "/" + scan_topic  # ROS 2 requires absolute names; ROS 1 accepts them

@@ -1,0 +1,1 @@
+"""Running lidarflow live: predictions served per scan as it comes (Foxglove, ROS)."""

@@ -1,0 +1,220 @@
+"""Predictions served live to Foxglove over its WebSocket protocol (the ``foxglove-sdk``).
+
+:class:`LiveServer` knows nothing of where scans come from: any loop that holds a scan and the
+:class:`~lidarflow.predict.Predictor`'s prediction for it calls :meth:`LiveServer.publish`
+(``lidarflow live`` replays a bag; a ROS node feeds it from its callback). Per scan it sends,
+in Foxglove's own schemas (protobuf, which the Foxglove app decodes without any ROS install):
+
+- the scan (``foxglove.LaserScan``) under the scan's topic;
+- the grids of :func:`lidarflow.predict.topics.prediction_grids` (``foxglove.Grid``: one
+  ``int8`` field ``occupancy``, probability x 100 in 0..100 and -1 where unknown, laid out as
+  ``nav_msgs/OccupancyGrid`` is in the scan's frame, design notes §8: columns along x from the
+  sensor forward, rows along y, the grid's pose the corner of cell (0, 0) at
+  ``(0, -W/2 * res)``), stamped by the team's convention (a grid k frames ahead carries
+  ``Prediction.stamp_ahead_ns(k)``);
+- the forward flow as an ``rgb8`` colour-wheel image (``foxglove.RawImage``, row 0 the map's
+  far edge, so forward is up) under :data:`~lidarflow.predict.topics.FLOW_RGB_TOPIC`.
+
+A message goes out only on channels a client subscribes to (``has_sinks``): with nobody
+watching, publishing costs building the grid list and nothing more. Every message of one
+scan is logged at the scan's stamp, so Foxglove's timeline reads the recording's clock.
+"""
+
+from __future__ import annotations
+
+import time
+from types import TracebackType
+from typing import TYPE_CHECKING, Any
+
+import foxglove
+import numpy as np
+from foxglove.channels import GridChannel, LaserScanChannel, RawImageChannel
+from foxglove.messages import (
+    Grid,
+    LaserScan,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    Pose,
+    Quaternion,
+    RawImage,
+    Timestamp,
+    Vector2,
+    Vector3,
+)
+
+from lidarflow.errors import PredictError
+from lidarflow.predict.rosout import grid_data
+from lidarflow.predict.topics import FLOW_RGB_TOPIC, GridOut, grid_topics, prediction_grids
+from lidarflow.scan import GridSpec, Scan
+from lidarflow.viz.flow import flow_to_rgb
+
+if TYPE_CHECKING:
+    from lidarflow.predict.predictor import Prediction
+
+__all__ = ["DEFAULT_PORT", "LiveServer"]
+
+#: Foxglove's own default: its "Open connection" dialog offers ``ws://localhost:8765``.
+DEFAULT_PORT = 8765
+#: The field a grid's cells carry (int8: probability x 100, -1 unknown, as OccupancyGrid).
+GRID_FIELD = "occupancy"
+
+
+def _stamp(ns: int) -> Timestamp:
+    return Timestamp(int(ns // 1_000_000_000), int(ns % 1_000_000_000))
+
+
+class LiveServer:
+    """A Foxglove WebSocket server for one scan stream's predictions.
+
+    ``with LiveServer(grid, "laser", port=8765, horizon=2) as server: ...
+    server.publish(scan, predictor.update(scan))``. ``grid`` is the Predictor's
+    (``predictor.grid``), ``frame_id`` the scans' frame; ``horizon`` and ``flow`` say which
+    grids will come (``predictor.horizon``; ``flow``: a model with flow, hence moving cells
+    and the flow image) so that a client sees every topic advertised as it connects. ``port``
+    0 takes a free one (:attr:`port` says which). Refused in one line
+    (:class:`~lidarflow.errors.PredictError`) where the port is taken.
+    """
+
+    def __init__(
+        self,
+        grid: GridSpec,
+        frame_id: str = "laser",
+        *,
+        host: str = "127.0.0.1",
+        port: int = DEFAULT_PORT,
+        horizon: int = 1,
+        flow: bool = True,
+        scan_topic: str = "/scan",
+        name: str = "lidarflow",
+    ) -> None:
+        self.grid = grid
+        self.frame_id = frame_id
+        self.horizon = horizon
+        self.host = host
+        # a context of its own: two servers in one process (tests) never share channels
+        self._context = foxglove.Context()
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context
+            )
+        except RuntimeError as err:  # the SDK's one error type; its text names the cause
+            reason = str(err).removeprefix("FoxgloveError: ").removeprefix("Failed to bind port: ")
+            raise PredictError(
+                f"cannot serve on {host}:{port}: {reason} (another server there? pick another "
+                "--port)"
+            ) from err
+        self._scan = LaserScanChannel(scan_topic, context=self._context)
+        self._grids = {
+            topic: GridChannel(topic, context=self._context)
+            for topic in grid_topics(horizon, flow)
+        }
+        self._flow = RawImageChannel(FLOW_RGB_TOPIC, context=self._context) if flow else None
+        # the grid's pose: the corner of cell (0, 0) in the scan's frame (design notes §8)
+        self._pose = Pose(
+            position=Vector3(x=0.0, y=-grid.width / 2 * grid.res, z=0.0),
+            orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        self._fields = [
+            PackedElementField(name=GRID_FIELD, offset=0, type=PackedElementFieldNumericType.Int8)
+        ]
+        self._closed = False
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def port(self) -> int:
+        """The port served on (the one the system picked where 0 was asked for)."""
+        return self._server.port
+
+    @property
+    def url(self) -> str:
+        """What to open in Foxglove ("Open connection" > "Foxglove WebSocket")."""
+        host = f"[{self.host}]" if ":" in self.host else self.host  # an IPv6 address
+        return f"ws://{host}:{self.port}"
+
+    def _channels(self) -> list[Any]:
+        return [self._scan, *self._grids.values(), *([self._flow] if self._flow else [])]
+
+    @property
+    def topics(self) -> list[str]:
+        """Every topic served, the scan's first."""
+        return [channel.topic() for channel in self._channels()]
+
+    def close(self) -> None:
+        """Stop serving (clients are disconnected); closing twice is harmless."""
+        if self._closed:
+            return
+        self._closed = True
+        for channel in self._channels():
+            channel.close()
+        self._server.stop()
+
+    def __enter__(self) -> LiveServer:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ messages
+    def publish(self, scan: Scan, prediction: Prediction, log_time_ns: int | None = None) -> None:
+        """Send ``scan`` and what was predicted from it to the clients subscribed; logged at
+        ``log_time_ns`` (default: the scan's stamp, else now for a scan without one)."""
+        if self._closed:
+            raise PredictError("the live server is closed: nothing can be published")
+        at = log_time_ns if log_time_ns is not None else scan.stamp_ns or time.time_ns()
+        if self._scan.has_sinks():
+            self._scan.log(self._laser_scan(scan), log_time=at)
+        if len(prediction.horizon) != self.horizon:
+            raise PredictError(
+                f"a prediction {len(prediction.horizon)} frames ahead, but the server was made "
+                f"for {self.horizon}: give it the Predictor's horizon"
+            )
+        watched = {topic for topic, channel in self._grids.items() if channel.has_sinks()}
+        for out in prediction_grids(prediction, watched):
+            self._grids[out.topic].log(self._grid_message(out), log_time=at)
+        flow = prediction.forward_flow
+        if self._flow is not None and flow is not None and self._flow.has_sinks():
+            self._flow.log(self._flow_image(flow, prediction.stamp_ns or at), log_time=at)
+
+    def _laser_scan(self, scan: Scan) -> LaserScan:
+        g = scan.geometry
+        return LaserScan(
+            timestamp=_stamp(scan.stamp_ns),
+            frame_id=self.frame_id,
+            pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
+            start_angle=g.angle_min,
+            end_angle=g.angle_min + g.angle_increment * (g.count - 1),
+            ranges=np.asarray(scan.ranges, np.float64).tolist(),
+        )
+
+    def _grid_message(self, out: GridOut) -> Grid:
+        if out.values.shape != self.grid.shape:
+            raise PredictError(f"map {out.values.shape} does not match the grid {self.grid.shape}")
+        return Grid(
+            timestamp=_stamp(out.stamp_ns),
+            frame_id=self.frame_id,
+            pose=self._pose,
+            column_count=self.grid.height,  # cells along x: the map's rows, far edge last
+            cell_size=Vector2(x=self.grid.res, y=self.grid.res),
+            row_stride=self.grid.height,
+            cell_stride=1,
+            fields=self._fields,
+            data=grid_data(out.values, out.unknown).tobytes(),
+        )
+
+    def _flow_image(self, flow: np.ndarray, stamp_ns: int) -> RawImage:
+        rgb = np.ascontiguousarray(flow_to_rgb(flow))
+        height, width, _ = rgb.shape
+        return RawImage(
+            timestamp=_stamp(stamp_ns),
+            frame_id=self.frame_id,
+            width=width,
+            height=height,
+            encoding="rgb8",
+            step=width * 3,
+            data=rgb.tobytes(),
+        )
