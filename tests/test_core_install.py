@@ -17,23 +17,15 @@ import numpy as np
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
-from lidarflow.extras import TORCH_EXTRA_MODULES
+from tests.without_torch import PRELUDE
 
-#: Runs the CLI as an install without the torch extra would.
-WITHOUT_TORCH = (
-    "import sys\n"
-    f"for name in {sorted(TORCH_EXTRA_MODULES)!r}:\n"
-    "    sys.modules[name] = None\n"
-    "{body}\n"
-)
 CLI = "from lidarflow.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
 CLI += "    if e.code:\n        raise\n"
 
 
 def without_torch(body: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
-    script = WITHOUT_TORCH.replace("{body}", body)
     return subprocess.run(
-        [sys.executable, "-c", script, *args],
+        [sys.executable, "-c", PRELUDE + body, *args],
         cwd=cwd,
         capture_output=True,
         text=True,

@@ -36,6 +36,7 @@ from lidarflow.predict import Predictor
 from lidarflow.predict.rosout import map_from_grid_data
 from lidarflow.viz.flow import flow_to_rgb
 from tests.test_cli import run
+from tests.without_torch import MAIN
 
 ROOT = Path(__file__).resolve().parents[2]
 SUBPROTOCOL = "foxglove.sdk.v1"  # the one foxglove-sdk's server accepts
@@ -58,19 +59,18 @@ FLOW_IMAGE = "/lidarflow/flow_forward_rgb"
 def short_and_model(tmp_path_factory):
     """Eight scans of the bundled sample, and the bundled model as ONNX (what a robot without
     PyTorch runs; onnxruntime on one thread gives the same numbers in every process)."""
-    from lidarflow.cli import app
+    from lidarflow.models.presets import bundled_onnx
 
     folder = tmp_path_factory.mktemp("live")
     short = read_bag(sample_bag_path()).slice(0, SCANS).save(folder / "short.npz")
-    model = folder / "bundled.onnx"
-    app(args=["export", "-o", str(model)], standalone_mode=False)
-    return short, model
+    return short, bundled_onnx()[0]
 
 
 def start_live(short: Path, model: Path, *extra: str) -> tuple[subprocess.Popen, str]:
-    """``lidarflow live`` on a free port, and the ws:// address it printed."""
+    """``lidarflow live`` on a free port, as the core install runs it (no PyTorch), and the
+    ws:// address it printed."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "lidarflow", "live", str(short), "-m", str(model),
+        [sys.executable, "-c", MAIN, "live", str(short), "-m", str(model),
          "--port", "0", "--horizon", str(HORIZON), *extra],
         env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"},
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
