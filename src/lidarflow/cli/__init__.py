@@ -27,7 +27,7 @@ from lidarflow.errors import LidarflowError
 # Importing the command modules registers their commands on ``app``; --help lists them in this
 # order.
 # isort: off
-from lidarflow.cli import recordings, scoring, prediction, training, simulation, tuning  # noqa: F401
+from lidarflow.cli import recordings, scoring, prediction, robot, training, simulation, tuning  # noqa: F401
 # isort: on
 
 __all__ = ["app", "main", "stop_on_sigterm"]

@@ -1,0 +1,1 @@
+"""Live prediction on a running robot: the per-scan step, the ROS 1 node and live viewers."""
