@@ -41,6 +41,11 @@ def ros1(
     grid: ModelGridOpt = None,
     res: ModelResOpt = None,
     moving_threshold: MovingOpt = None,
+    queue: Annotated[
+        int,
+        typer.Option(help="Scans kept while the model is busy; beyond them the oldest are dropped.",
+                     min=1),
+    ] = 10,
     summary_every: Annotated[
         int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
     ] = 100,
@@ -53,13 +58,13 @@ def ros1(
     the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
     predicts. Needs a roscore (ROS_MASTER_URI); stop it with Ctrl-C."""
     from lidarflow.cli.prediction import _completed, _recorded
-    from lidarflow.live.ros1 import Ros1Node, import_ros
+    from lidarflow.live.ros1 import Ros1Node, check_master, import_ros
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
     _log_to_stderr(logging.DEBUG if verbose else logging.INFO)
-    import_ros()  # before loading a model: say at once where ROS is missing
+    check_master(import_ros())  # before loading a model: say at once what is missing
     given = None if grid is None and res is None else _completed(_recorded(model), grid, res)
     predictor = Predictor(
         model,
@@ -69,7 +74,7 @@ def ros1(
         moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
     )
     step = LiveStep(predictor, summary_every=summary_every)
-    node = Ros1Node(step, topic, odom_topic, moving)
+    node = Ros1Node(step, topic, odom_topic, moving, queue=queue)
     node.start()
     try:
         node.spin()

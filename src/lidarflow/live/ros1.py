@@ -37,7 +37,7 @@ from lidarflow.live.step import LiveFrame, LiveStep, clock_ns
 from lidarflow.predict.grids import TOPIC_PREFIX, GridLayout, prediction_grids
 from lidarflow.scan import BeamGeometry, Scan
 
-__all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "grid_topics", "import_ros"]
+__all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "grid_topics", "import_ros"]
 
 log = logging.getLogger("lidarflow.live")
 
@@ -106,15 +106,18 @@ def grid_topics(horizon: int, moving: bool, prefix: str = TOPIC_PREFIX) -> list[
     return [*topics, f"{prefix}/moving"] if moving else topics
 
 
-def master_reachable(ros: Ros, timeout_s: float = 3.0) -> bool:
-    """Whether the ROS master of ``ROS_MASTER_URI`` answers within ``timeout_s`` (rospy itself
-    would wait for one forever, saying nothing useful)."""
+def check_master(ros: Ros, timeout_s: float = 3.0) -> None:
+    """Stop with one line where the ROS master of ``ROS_MASTER_URI`` does not answer within
+    ``timeout_s`` (rospy itself would wait for one forever, saying nothing useful)."""
     previous = socket.getdefaulttimeout()
     socket.setdefaulttimeout(timeout_s)
     try:
-        return bool(ros.rosgraph.is_master_online())
+        online = bool(ros.rosgraph.is_master_online())
     finally:
         socket.setdefaulttimeout(previous)
+    if not online:
+        uri = ros.rosgraph.get_master_uri()
+        raise PredictError(f"no ROS master at {uri}: start roscore, or set ROS_MASTER_URI")
 
 
 class Ros1Node:
@@ -160,9 +163,7 @@ class Ros1Node:
         """Register with the master: publishers first, so that a grid never goes out before
         its topic is advertised, then the subscribers."""
         rospy = self.ros.rospy
-        uri = self.ros.rosgraph.get_master_uri()
-        if not master_reachable(self.ros):
-            raise PredictError(f"no ROS master at {uri}: start roscore, or set ROS_MASTER_URI")
+        check_master(self.ros)
         # signals stay the CLI's (Ctrl-C and SIGTERM stop spin); remappings are not read from
         # lidarflow's own command line
         rospy.init_node(self.name, argv=[], disable_signals=True)
@@ -176,6 +177,7 @@ class Ros1Node:
             rospy.Subscriber("/tf_static", self.ros.TFMessage, self._on_tf, queue_size=100)
         rospy.Subscriber(self.topic, self.ros.LaserScan, self._on_scan, queue_size=self.queue)
         odom = f", poses from {self.odom_topic}" if self.odom_topic else ""
+        uri = self.ros.rosgraph.get_master_uri()
         log.info("%s at %s: scans from %s%s; publishing %s", rospy.get_name(), uri, self.topic,
                  odom, ", ".join(self.topics))  # fmt: skip
 

@@ -77,6 +77,8 @@ class LatencyLog:
 
     def describe(self, values: list[float] | None = None) -> str:
         s = self.summary(self.all_ms if values is None else values)
+        if not s["scans"]:
+            return "0 scans"
         return f"{s['scans']} scans: median {s['median_ms']:.2f} ms, p99 {s['p99_ms']:.2f} ms"
 
 
