@@ -34,6 +34,7 @@ def main() -> None:
     parser.add_argument("--keep", type=int, default=0, help="grids per topic kept whole")
     parser.add_argument("--publish", default=None, help="a bag whose scans to publish")
     parser.add_argument("--rate", type=float, default=1.0)
+    parser.add_argument("--limit", type=int, default=0, help="publish only the first N scans")
     parser.add_argument("--idle", type=float, default=10.0)
     parser.add_argument("--timeout", type=float, default=120.0)
     args = parser.parse_args()
@@ -85,7 +86,7 @@ def main() -> None:
         time.sleep(0.05)
     print("ready", flush=True)
     if args.publish:
-        publish(args.publish, args.scan_topic, args.rate, sent, args.timeout)
+        publish(args.publish, args.scan_topic, args.rate, sent, args.timeout, args.limit)
     last[0] = time.monotonic()
     while time.monotonic() - start < args.timeout and time.monotonic() - last[0] < args.idle:
         with lock:
@@ -99,9 +100,12 @@ def main() -> None:
     rospy.signal_shutdown("done")
 
 
-def publish(bag_path: str, topic: str, rate: float, sent: list[dict], timeout: float) -> None:
-    """The bag's scans on ``topic`` at ``rate`` times their recorded pace, once the node (a
-    subscriber other than this peer) listens; each send time noted."""
+def publish(
+    bag_path: str, topic: str, rate: float, sent: list[dict], timeout: float, limit: int = 0
+) -> None:
+    """The bag's scans (the first ``limit``, where given) on ``topic`` at ``rate`` times their
+    recorded pace, once the node (a subscriber other than this peer) listens; each send time
+    noted."""
     import rosbag
 
     pub = rospy.Publisher(topic, LaserScan, queue_size=1000, tcp_nodelay=True)
@@ -112,7 +116,7 @@ def publish(bag_path: str, topic: str, rate: float, sent: list[dict], timeout: f
         time.sleep(0.05)
     time.sleep(1.0)  # the connections' handshakes finish
     with rosbag.Bag(bag_path) as bag:
-        messages = [m for _, m, _ in bag.read_messages()]
+        messages = [m for _, m, _ in bag.read_messages()][: limit or None]
     first_stamp, t0 = messages[0].header.stamp.to_nsec(), time.monotonic()
     for msg in messages:
         due = t0 + (msg.header.stamp.to_nsec() - first_stamp) / 1e9 / rate
