@@ -40,10 +40,10 @@ WRITERS: dict[str, list[str] | None] = {
     "train": None,  # its -o is a run folder: test_train_force_starts_a_run_over
     "choose-offset": None,  # its -o is a model folder: tests/evaluate/test_offsets.py
 }
-#: Commands that write nothing.
-READERS = {"info", "live"}
+#: Commands that write nothing (ros1 publishes on ROS topics, live serves Foxglove).
+READERS = {"info", "live", "ros1"}
 #: Commands that run a model: each takes --threads.
-RUN_MODELS = {"demo", "predict", "evaluate", "export", "train", "choose-offset", "live"}
+RUN_MODELS = {"demo", "predict", "evaluate", "export", "train", "choose-offset", "live", "ros1"}
 
 
 def commands() -> dict[str, Any]:

@@ -28,7 +28,7 @@ from lidarflow.extras import missing_extra
 # Importing the command modules registers their commands on ``app``; --help lists them in this
 # order.
 # isort: off
-from lidarflow.cli import recordings, scoring, prediction, live, training, simulation, tuning  # noqa: F401
+from lidarflow.cli import recordings, scoring, prediction, live, robot, training, simulation, tuning  # noqa: F401
 # isort: on
 
 __all__ = ["app", "main", "stop_on_sigterm"]

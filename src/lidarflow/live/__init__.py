@@ -1,1 +1,2 @@
-"""Running lidarflow live: predictions served per scan as it comes (Foxglove, ROS)."""
+"""Live prediction on a running robot: the per-scan step, the ROS 1 node and the Foxglove
+server."""

@@ -169,18 +169,23 @@ class BagOutput:
         unknown: np.ndarray | None = None,
         log_time_ns: int | None = None,
     ) -> None:
+        from lidarflow.predict.grids import GridLayout  # the live nodes lay grids out so too
+
         types = self._types()
         if probability.shape != grid.shape:
             raise PredictError(f"map {probability.shape} does not match the grid {grid.shape}")
+        layout = GridLayout.of(grid)
         origin = types["geometry_msgs/msg/Pose"](
-            position=types["geometry_msgs/msg/Point"](x=0.0, y=-grid.width / 2 * grid.res, z=0.0),
+            position=types["geometry_msgs/msg/Point"](
+                x=layout.origin_x, y=layout.origin_y, z=0.0
+            ),
             orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
         )
         info = types["nav_msgs/msg/MapMetaData"](
             map_load_time=self._header(stamp_ns, frame_id).stamp,
-            resolution=float(grid.res),
-            width=grid.height,
-            height=grid.width,
+            resolution=layout.resolution,
+            width=layout.width,
+            height=layout.height,
             origin=origin,
         )
         msg = types["nav_msgs/msg/OccupancyGrid"](

@@ -1,0 +1,311 @@
+"""``lidarflow ros1``: a live ROS 1 node predicting the next maps of a LaserScan topic.
+
+Per scan on ``topic`` (``sensor_msgs/LaserScan``) it runs the Predictor once and publishes, in
+the scan's frame, one ``nav_msgs/OccupancyGrid`` on each of ``/lidarflow/predicted`` and
+``/lidarflow/decided`` (``_kK`` for every further step of the horizon) and, where asked,
+``/lidarflow/moving``: the grids, layout and stamps of the bag output
+(:mod:`lidarflow.predict.grids`). With an odometry topic (``nav_msgs/Odometry``) an ego-motion
+model gets the sensor's pose: the latest odometry pose moved to the scanner by its mount on the
+robot, read from ``/tf`` and ``/tf_static`` (:class:`lidarflow.data.tf.TransformTree`, as
+``predict`` reads a bag's); without one the bundled model matches the motion from the scans.
+
+ROS 1 comes from Debian's packages (:data:`DEBIAN_PACKAGES`), installed for the system's
+Python 3 in ``/usr/lib/python3/dist-packages``; a virtual environment of the same Python
+version finds them there (:func:`import_ros`: the folder is appended to ``sys.path``, so the
+environment's own packages, NumPy among them, still come first).
+
+The per-scan work is a :class:`lidarflow.live.step.LiveStep`; this node is one of its sources
+and one of its sinks (:meth:`Ros1Node.publish`), so other sinks attach beside it.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import LidarflowError, PredictError, ScanError
+from lidarflow.live.step import LiveFrame, LiveStep, clock_ns
+from lidarflow.predict.grids import TOPIC_PREFIX, GridLayout, prediction_grids
+from lidarflow.scan import BeamGeometry, Scan
+
+__all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "grid_topics", "import_ros"]
+
+log = logging.getLogger("lidarflow.live")
+
+#: What Debian (bookworm and later) installs ROS 1 with for this node: roscore, rospy, rosbag
+#: and the message packages it speaks.
+DEBIAN_PACKAGES = "ros-core python3-rospy python3-sensor-msgs python3-nav-msgs python3-tf2-msgs"
+#: Where Debian's Python packages (rospy, genpy, the messages) live.
+DIST_PACKAGES = "/usr/lib/python3/dist-packages"
+
+SCAN_TYPE = "sensor_msgs/LaserScan"
+ODOM_TYPE = "nav_msgs/Odometry"
+
+
+@dataclass(frozen=True)
+class Ros:
+    """rospy and the message classes the node uses."""
+
+    rospy: ModuleType
+    rosgraph: ModuleType
+    LaserScan: type
+    Odometry: type
+    OccupancyGrid: type
+    TFMessage: type
+
+
+def import_ros() -> Ros:
+    """rospy and the messages, from this environment or else from Debian's system folder.
+
+    Raises :class:`PredictError` (one line naming the apt packages) where they are missing.
+    """
+    try:
+        return _import_ros()
+    except ImportError as err:
+        missing = err
+    if DIST_PACKAGES not in sys.path:
+        sys.path.append(DIST_PACKAGES)  # appended: this environment's NumPy still wins
+        importlib.invalidate_caches()
+        try:
+            return _import_ros()
+        except ImportError as err:
+            missing = err
+    version = ".".join(map(str, sys.version_info[:2]))
+    raise PredictError(
+        f"ROS 1 is not installed for this Python ({missing}); on Debian: sudo apt-get install "
+        f"{DEBIAN_PACKAGES} (for Debian's python3, whose version this {version} must match)"
+    ) from missing
+
+
+def _import_ros() -> Ros:
+    import rosgraph
+    import rospy
+    from nav_msgs.msg import OccupancyGrid, Odometry
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+
+    return Ros(rospy, rosgraph, LaserScan, Odometry, OccupancyGrid, TFMessage)
+
+
+def grid_topics(horizon: int, moving: bool, prefix: str = TOPIC_PREFIX) -> list[str]:
+    """The topics a node predicting ``horizon`` frames ahead publishes, in the order
+    :func:`~lidarflow.predict.grids.prediction_grids` yields them."""
+    topics = []
+    for k in range(1, horizon + 1):
+        suffix = f"_k{k}" if k > 1 else ""
+        topics += [f"{prefix}/predicted{suffix}", f"{prefix}/decided{suffix}"]
+    return [*topics, f"{prefix}/moving"] if moving else topics
+
+
+def check_master(ros: Ros, timeout_s: float = 3.0) -> None:
+    """Stop with one line where the ROS master of ``ROS_MASTER_URI`` does not answer within
+    ``timeout_s`` (rospy itself would wait for one forever, saying nothing useful)."""
+    previous = socket.getdefaulttimeout()
+    socket.setdefaulttimeout(timeout_s)
+    try:
+        online = bool(ros.rosgraph.is_master_online())
+    finally:
+        socket.setdefaulttimeout(previous)
+    if not online:
+        uri = ros.rosgraph.get_master_uri()
+        raise PredictError(f"no ROS master at {uri}: start roscore, or set ROS_MASTER_URI")
+
+
+class Ros1Node:
+    """The ROS side of the node: scans and odometry in, grids out.
+
+    Args:
+        step: the per-scan step; the node appends :meth:`publish` to its sinks.
+        topic: the LaserScan topic.
+        odom_topic: a ``nav_msgs/Odometry`` topic for the sensor's poses, or ``None``.
+        moving: also publish ``/lidarflow/moving`` (flow models).
+        name: the node's name.
+        queue: scans rospy keeps while the node is busy; beyond it the oldest are dropped
+            (a node slower than its scanner falls behind by at most this many).
+    """
+
+    def __init__(
+        self,
+        step: LiveStep,
+        topic: str = "/scan",
+        odom_topic: str | None = None,
+        moving: bool = False,
+        name: str = "lidarflow",
+        queue: int = 10,
+    ) -> None:
+        from lidarflow.data.tf import TransformTree
+
+        self.ros = import_ros()
+        self.step, self.topic, self.odom_topic = step, topic, odom_topic
+        self.moving, self.name, self.queue = moving, name, queue
+        self.layout = GridLayout.of(step.predictor.grid)
+        self.topics = grid_topics(step.predictor.horizon, moving)
+        self._publishers: dict[str, Any] = {}
+        self._geometry: dict[tuple[float, ...], BeamGeometry] = {}
+        self._tree = TransformTree()
+        self._tf_lock = threading.Lock()
+        self._odom: tuple[tuple[float, float, float], str] | None = None
+        self._failure: LidarflowError | None = None
+        self._warned: set[str] = set()
+        step.sinks.append(self.publish)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Register with the master: publishers first, so that a grid never goes out before
+        its topic is advertised, then the subscribers."""
+        rospy = self.ros.rospy
+        check_master(self.ros)
+        # signals stay the CLI's (Ctrl-C and SIGTERM stop spin); remappings are not read from
+        # lidarflow's own command line
+        rospy.init_node(self.name, argv=[], disable_signals=True)
+        for topic in self.topics:
+            self._publishers[topic] = rospy.Publisher(
+                topic, self.ros.OccupancyGrid, queue_size=self.queue
+            )
+        if self.odom_topic:
+            rospy.Subscriber(self.odom_topic, self.ros.Odometry, self._on_odom, queue_size=1)
+            rospy.Subscriber("/tf", self.ros.TFMessage, self._on_tf, queue_size=100)
+            rospy.Subscriber("/tf_static", self.ros.TFMessage, self._on_tf, queue_size=100)
+        rospy.Subscriber(self.topic, self.ros.LaserScan, self._on_scan, queue_size=self.queue)
+        odom = f", poses from {self.odom_topic}" if self.odom_topic else ""
+        uri = self.ros.rosgraph.get_master_uri()
+        log.info("%s at %s: scans from %s%s; publishing %s", rospy.get_name(), uri, self.topic,
+                 odom, ", ".join(self.topics))  # fmt: skip
+
+    def spin(self, check_every_s: float = 2.0) -> None:
+        """Run until Ctrl-C or SIGTERM (returns), ROS shuts the node down (returns), or a scan
+        fails (raises its error); every ``check_every_s`` the master is asked whether the
+        topics carry the types the node expects."""
+        rospy = self.ros.rospy
+        next_check = 0.0
+        try:
+            while not rospy.is_shutdown() and self._failure is None:
+                if time.monotonic() >= next_check:
+                    self._check_types()
+                    next_check = time.monotonic() + check_every_s
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            log.info("stopping")
+        finally:
+            rospy.signal_shutdown("lidarflow stopped")
+        if self._failure is not None:
+            raise self._failure
+
+    def _check_types(self) -> None:
+        wanted = {self.topic: SCAN_TYPE}
+        if self.odom_topic:
+            wanted[self.odom_topic] = ODOM_TYPE
+        try:
+            published = dict(self.ros.rospy.get_published_topics())
+        except Exception:  # the master gone for a moment: rospy retries, and so do we
+            return
+        for topic, msgtype in wanted.items():
+            resolved = self.ros.rospy.resolve_name(topic)
+            if resolved in published and published[resolved] != msgtype:
+                raise PredictError(
+                    f"{resolved} carries {published[resolved]}, not {msgtype}: name the right "
+                    f"topic with {'--topic' if msgtype == SCAN_TYPE else '--odom-topic'}"
+                )
+
+    # ------------------------------------------------------------------ in
+    def _on_scan(self, msg: Any) -> None:
+        received = clock_ns()
+        if self._failure is not None:
+            return
+        frame_id = str(msg.header.frame_id).lstrip("/")
+        try:
+            scan = Scan(
+                np.asarray(msg.ranges, dtype=np.float32),
+                self._beams(msg, len(msg.ranges)),
+                int(msg.header.stamp.to_nsec()),
+            )
+        except ScanError as err:  # one malformed scan (a driver's first) is skipped
+            self._warn_once("scan", f"{self.topic}: scan skipped ({err})")
+            return
+        try:
+            self.step(scan, frame_id, received, self._pose(frame_id))
+        except LidarflowError as err:
+            self._failure = err
+        except Exception as err:  # a bug: stop with it rather than log one per scan
+            self._failure = PredictError(f"{type(err).__name__}: {err}")
+            self._failure.__cause__ = err
+
+    def _beams(self, msg: Any, count: int) -> BeamGeometry:
+        key = (count, msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max)
+        geometry = self._geometry.get(key)
+        if geometry is None:
+            geometry = BeamGeometry(count, float(msg.angle_min), float(msg.angle_increment),
+                                    float(msg.range_min), float(msg.range_max))  # fmt: skip
+            self._geometry = {key: geometry}  # a scanner keeps its geometry: one is enough
+        return geometry
+
+    def _on_odom(self, msg: Any) -> None:
+        from lidarflow.data.bags import _pose_of  # the planar pose, as a bag's is read
+
+        self._odom = (_pose_of(msg), str(msg.child_frame_id).lstrip("/"))
+
+    def _on_tf(self, msg: Any) -> None:
+        with self._tf_lock:
+            self._tree.add(msg)
+
+    def _pose(self, frame_id: str) -> tuple[float, float, float] | None:
+        """The scanner's pose: the latest odometry moved by the scanner's mount on the body
+        odometry reports (``child_frame_id``), where TF has it; ``None`` without odometry."""
+        from lidarflow.data.tf import compose_poses, mirrored
+
+        if self._odom is None:
+            return None
+        pose, body = self._odom
+        with self._tf_lock:
+            found = self._tree.mount(body, frame_id) if body and frame_id else None
+        if found is None:
+            body = body or "(no child_frame_id)"
+            self._warn_once(
+                "mount", f"no TF from {body} to {frame_id}: odometry taken as the scanner's pose"
+            )
+            return pose
+        mount, upside_down = found
+        moved = compose_poses(np.asarray(pose)[None], mount)
+        if upside_down:  # the scanner sees the world mirrored, and so moves in it
+            moved = mirrored(moved)
+        return (float(moved[0, 0]), float(moved[0, 1]), float(moved[0, 2]))
+
+    def _warn_once(self, key: str, text: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            log.warning(text)
+
+    # ------------------------------------------------------------------ out
+    def publish(self, frame: LiveFrame) -> None:
+        """The node's sink: the frame's grids on their topics, in the scan's frame."""
+        grids = prediction_grids(frame.prediction, moving=self.moving)
+        if self.moving and frame.prediction.moving is None:
+            self._warn_once("moving", "this model has no flow: nothing on /lidarflow/moving")
+        for grid in grids:
+            msg = self._message(grid.data, grid.stamp_ns, grid.scan_stamp_ns, frame.frame_id)
+            self._publishers[grid.topic].publish(msg)
+
+    def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
+        Time = self.ros.rospy.Time
+        msg = self.ros.OccupancyGrid()
+        msg.header.stamp = Time(*divmod(int(stamp_ns), 1_000_000_000))
+        msg.header.frame_id = frame_id
+        info = msg.info
+        info.map_load_time = Time(*divmod(int(scan_ns), 1_000_000_000))
+        info.resolution = self.layout.resolution
+        info.width, info.height = self.layout.width, self.layout.height
+        info.origin.position.x, info.origin.position.y = self.layout.origin_x, self.layout.origin_y
+        info.origin.orientation.w = 1.0
+        # a list: genpy packs a list of ints 3x faster than a NumPy array's elements
+        msg.data = data.tolist()
+        return msg
+

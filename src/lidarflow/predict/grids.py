@@ -1,0 +1,93 @@
+"""The OccupancyGrids one prediction becomes, and how a grid lies in the scan's frame.
+
+Written once for every writer of predictions (the bag output, the live nodes), so that a grid on
+a robot's topic and the same grid in a bag are the same message. Layout (design notes §8): the
+map of ``(H, W)`` cells of ``res`` metres is laid in the scan's own frame with
+``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x (forward), ``height = W`` along
+y; values are :func:`lidarflow.predict.rosout.grid_data`'s (probability x 100, -1 unknown).
+
+Stamps (the team's convention): a grid predicted ``k`` frames ahead is stamped
+``prediction.stamp_ahead_ns(k)`` (the scan's stamp plus ``k`` typical scan periods), with
+``info.map_load_time`` the stamp of the scan it was made from; a grid of the current map
+(``/lidarflow/occupancy``, ``/lidarflow/moving``) keeps the scan's stamp in both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lidarflow.predict.rosout import grid_data
+from lidarflow.scan import GridSpec
+
+if TYPE_CHECKING:
+    from lidarflow.predict.predictor import Prediction
+
+__all__ = ["TOPIC_PREFIX", "GridLayout", "OutGrid", "prediction_grids"]
+
+TOPIC_PREFIX = "/lidarflow"
+
+
+@dataclass(frozen=True)
+class GridLayout:
+    """``nav_msgs/MapMetaData`` of a map grid laid in the scan's frame (yaw 0, z 0).
+
+    >>> GridLayout.of(GridSpec(6, 4, 0.5))
+    GridLayout(width=6, height=4, resolution=0.5, origin_x=0.0, origin_y=-1.0)
+    """
+
+    width: int  # cells along the scan frame's x (forward): the map's rows, H
+    height: int  # cells along y (left): the map's columns, W
+    resolution: float
+    origin_x: float
+    origin_y: float
+
+    @classmethod
+    def of(cls, grid: GridSpec) -> GridLayout:
+        return cls(grid.height, grid.width, float(grid.res), 0.0, -grid.width / 2 * grid.res)
+
+
+@dataclass(frozen=True)
+class OutGrid:
+    """One OccupancyGrid to publish or write: its topic, ``data`` (int8, ``H * W``), header
+    stamp and ``info.map_load_time`` (the stamp of the scan it was made from)."""
+
+    topic: str
+    data: np.ndarray
+    stamp_ns: int
+    scan_stamp_ns: int
+
+
+def prediction_grids(
+    prediction: Prediction,
+    moving: bool = True,
+    occupancy: bool = False,
+    prefix: str = TOPIC_PREFIX,
+) -> list[OutGrid]:
+    """The grids of one prediction: ``{prefix}/predicted`` and ``/decided`` (and ``_kK`` for
+    every step ``K > 1`` of its horizon), ``/moving`` (flow models, where ``moving``) and
+    ``/occupancy`` (where ``occupancy``).
+
+    Unknown (-1): a predicted cell the current scan did not see and that is not decided
+    occupied; a current-map cell the scan did not see.
+    """
+    p = prediction
+    scan_ns = int(p.stamp_ns)
+    unseen = ~np.asarray(p.visibility, bool)
+    out: list[OutGrid] = []
+    if occupancy:
+        out.append(OutGrid(f"{prefix}/occupancy", grid_data(p.occupancy, unseen), scan_ns, scan_ns))
+    for k, (probability, occupied) in enumerate(
+        zip(p.horizon, p.horizon_occupied, strict=True), start=1
+    ):
+        suffix = f"_k{k}" if k > 1 else ""
+        unknown = unseen & ~occupied
+        ahead = p.stamp_ahead_ns(k)
+        predicted, decided = grid_data(probability, unknown), grid_data(occupied, unknown)
+        out.append(OutGrid(f"{prefix}/predicted{suffix}", predicted, ahead, scan_ns))
+        out.append(OutGrid(f"{prefix}/decided{suffix}", decided, ahead, scan_ns))
+    if moving and p.moving is not None:
+        out.append(OutGrid(f"{prefix}/moving", grid_data(p.moving, unseen), scan_ns, scan_ns))
+    return out
