@@ -38,8 +38,8 @@ import numpy as np
 from _output import machine, write_json
 
 from lidarflow.data import read_bag, sample_bag_path
-from lidarflow.live.ros1 import grid_topics
 from lidarflow.predict import Predictor
+from lidarflow.predict.grids import grid_topics
 
 ROOT = Path(__file__).resolve().parents[1]
 PEER = ROOT / "tests" / "live" / "ros1_peer.py"
@@ -105,7 +105,7 @@ def ros_loop(model: Path, n: int, horizon: int, moving: bool, tmp: Path) -> tupl
                 break
             except OSError:
                 time.sleep(0.2)
-        topics = grid_topics(horizon, moving)
+        topics = grid_topics(horizon, moving, occupancy=False)
         node_argv = [sys.executable, "-m", "lidarflow", "ros1", "-m", str(model), "--topic", TOPIC,
                      "--horizon", str(horizon), "-v", "--queue", "1000",
                      *(["--moving"] if moving else [])]  # fmt: skip

@@ -24,15 +24,14 @@ import numpy as np
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
-from lidarflow.live.ros1 import grid_topics
 from lidarflow.predict import Predictor
-from lidarflow.predict.grids import GridLayout, prediction_grids
+from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
 from tests.live.rosmaster import SYSTEM_PYTHON, stop
 
 PEER = Path(__file__).with_name("ros1_peer.py")
 SCAN_TOPIC = "/right_scan"  # the sample bag's topic, `right_scan`, as rosbag play names it
 HORIZON = 2
-GRIDS = grid_topics(HORIZON, moving=True)
+GRIDS = grid_topics(HORIZON, moving=True, occupancy=False)
 SECONDS = "10"  # of the sample played, at its recorded pace: 75 scans at 7.5 Hz
 KEEP = 12  # grids per topic compared with the Predictor's own
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.predict.grids import GridLayout, prediction_grids
+from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
 from lidarflow.predict.predictor import Prediction
 from lidarflow.predict.rosout import map_from_grid_data
 from lidarflow.scan import GridSpec
@@ -30,7 +30,7 @@ def prediction(step_ns: int | None, moving_flow: bool = True) -> Prediction:
 
 
 def test_topics_and_stamps_follow_the_convention():
-    grids = prediction_grids(prediction(100_000_000), occupancy=True)
+    grids = prediction_grids(prediction(100_000_000))
     stamps = {g.topic: (g.stamp_ns, g.scan_stamp_ns) for g in grids}
     scan = 10_000_000_000
     assert list(stamps) == [
@@ -46,12 +46,16 @@ def test_the_first_scan_predicts_for_its_own_stamp_and_flowless_models_have_no_m
     grids = prediction_grids(prediction(None, moving_flow=False))
     assert [g.topic for g in grids][-1] == "/lidarflow/decided_k2"
     assert all(g.stamp_ns == g.scan_stamp_ns == 10_000_000_000 for g in grids)
-    assert "/lidarflow/moving" not in {g.topic for g in prediction_grids(prediction(1), False)}
+    unwanted = prediction_grids(prediction(1), grid_topics(2, moving=False, occupancy=False))
+    assert {g.topic for g in unwanted} == {
+        "/lidarflow/predicted", "/lidarflow/decided", "/lidarflow/predicted_k2",
+        "/lidarflow/decided_k2",
+    }  # fmt: skip
 
 
 def test_values_and_unknown_cells():
     maps = {g.topic: map_from_grid_data(g.data, *GRID.shape) for g in prediction_grids(
-        prediction(1), occupancy=True)}  # fmt: skip
+        prediction(1))}  # fmt: skip
     predicted = maps["/lidarflow/predicted"]
     assert (predicted[:5] == 25).all()
     assert predicted[5].tolist() == [-1, 25, -1, -1]  # unseen, unless decided occupied

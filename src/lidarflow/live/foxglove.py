@@ -6,14 +6,14 @@
 in Foxglove's own schemas (protobuf, which the Foxglove app decodes without any ROS install):
 
 - the scan (``foxglove.LaserScan``) under the scan's topic;
-- the grids of :func:`lidarflow.predict.topics.prediction_grids` (``foxglove.Grid``: one
+- the grids of :func:`lidarflow.predict.grids.prediction_grids` (``foxglove.Grid``: one
   ``int8`` field ``occupancy``, probability x 100 in 0..100 and -1 where unknown, laid out as
   ``nav_msgs/OccupancyGrid`` is in the scan's frame, design notes §8: columns along x from the
   sensor forward, rows along y, the grid's pose the corner of cell (0, 0) at
   ``(0, -W/2 * res)``), stamped by the team's convention (a grid k frames ahead carries
   ``Prediction.stamp_ahead_ns(k)``);
 - the forward flow as an ``rgb8`` colour-wheel image (``foxglove.RawImage``, row 0 the map's
-  far edge, so forward is up) under :data:`~lidarflow.predict.topics.FLOW_RGB_TOPIC`.
+  far edge, so forward is up) under :data:`~lidarflow.predict.grids.FLOW_RGB_TOPIC`.
 
 A message goes out only on channels a client subscribes to (``has_sinks``): with nobody
 watching, publishing costs building the grid list and nothing more. Every message of one
@@ -43,8 +43,7 @@ from foxglove.messages import (
 )
 
 from lidarflow.errors import PredictError
-from lidarflow.predict.rosout import grid_data
-from lidarflow.predict.topics import FLOW_RGB_TOPIC, GridOut, grid_topics, prediction_grids
+from lidarflow.predict.grids import FLOW_RGB_TOPIC, OutGrid, grid_topics, prediction_grids
 from lidarflow.scan import GridSpec, Scan
 from lidarflow.viz.flow import flow_to_rgb
 
@@ -106,7 +105,7 @@ class LiveServer:
         self._scan = LaserScanChannel(scan_topic, context=self._context)
         self._grids = {
             topic: GridChannel(topic, context=self._context)
-            for topic in grid_topics(horizon, flow)
+            for topic in grid_topics(horizon, moving=flow)
         }
         self._flow = RawImageChannel(FLOW_RGB_TOPIC, context=self._context) if flow else None
         # the grid's pose: the corner of cell (0, 0) in the scan's frame (design notes §8)
@@ -191,9 +190,9 @@ class LiveServer:
             ranges=np.asarray(scan.ranges, np.float64).tolist(),
         )
 
-    def _grid_message(self, out: GridOut) -> Grid:
-        if out.values.shape != self.grid.shape:
-            raise PredictError(f"map {out.values.shape} does not match the grid {self.grid.shape}")
+    def _grid_message(self, out: OutGrid) -> Grid:
+        if out.data.size != self.grid.height * self.grid.width:
+            raise PredictError(f"a map of {out.data.size} cells does not fit the grid {self.grid}")
         return Grid(
             timestamp=_stamp(out.stamp_ns),
             frame_id=self.frame_id,
@@ -203,7 +202,7 @@ class LiveServer:
             row_stride=self.grid.height,
             cell_stride=1,
             fields=self._fields,
-            data=grid_data(out.values, out.unknown).tobytes(),
+            data=out.data.tobytes(),
         )
 
     def _flow_image(self, flow: np.ndarray, stamp_ns: int) -> RawImage:

@@ -34,10 +34,10 @@ import numpy as np
 
 from lidarflow.errors import LidarflowError, PredictError, ScanError
 from lidarflow.live.step import LiveFrame, LiveStep, clock_ns
-from lidarflow.predict.grids import TOPIC_PREFIX, GridLayout, prediction_grids
+from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
 from lidarflow.scan import BeamGeometry, Scan
 
-__all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "grid_topics", "import_ros"]
+__all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "import_ros"]
 
 log = logging.getLogger("lidarflow.live")
 
@@ -96,16 +96,6 @@ def _import_ros() -> Ros:
     return Ros(rospy, rosgraph, LaserScan, Odometry, OccupancyGrid, TFMessage)
 
 
-def grid_topics(horizon: int, moving: bool, prefix: str = TOPIC_PREFIX) -> list[str]:
-    """The topics a node predicting ``horizon`` frames ahead publishes, in the order
-    :func:`~lidarflow.predict.grids.prediction_grids` yields them."""
-    topics = []
-    for k in range(1, horizon + 1):
-        suffix = f"_k{k}" if k > 1 else ""
-        topics += [f"{prefix}/predicted{suffix}", f"{prefix}/decided{suffix}"]
-    return [*topics, f"{prefix}/moving"] if moving else topics
-
-
 def check_master(ros: Ros, timeout_s: float = 3.0) -> None:
     """Stop with one line where the ROS master of ``ROS_MASTER_URI`` does not answer within
     ``timeout_s`` (rospy itself would wait for one forever, saying nothing useful)."""
@@ -148,7 +138,7 @@ class Ros1Node:
         self.step, self.topic, self.odom_topic = step, topic, odom_topic
         self.moving, self.name, self.queue = moving, name, queue
         self.layout = GridLayout.of(step.predictor.grid)
-        self.topics = grid_topics(step.predictor.horizon, moving)
+        self.topics = grid_topics(step.predictor.horizon, moving, occupancy=False)
         self._publishers: dict[str, Any] = {}
         self._geometry: dict[tuple[float, ...], BeamGeometry] = {}
         self._tree = TransformTree()
@@ -287,7 +277,7 @@ class Ros1Node:
     # ------------------------------------------------------------------ out
     def publish(self, frame: LiveFrame) -> None:
         """The node's sink: the frame's grids on their topics, in the scan's frame."""
-        grids = prediction_grids(frame.prediction, moving=self.moving)
+        grids = prediction_grids(frame.prediction, self.topics)
         if self.moving and frame.prediction.moving is None:
             self._warn_once("moving", "this model has no flow: nothing on /lidarflow/moving")
         for grid in grids:

@@ -1,4 +1,5 @@
-"""The OccupancyGrids one prediction becomes, and how a grid lies in the scan's frame.
+"""The OccupancyGrids one prediction becomes: topics, data, stamps, and how a grid lies in the
+scan's frame.
 
 Written once for every writer of predictions (the bag output, the live nodes), so that a grid on
 a robot's topic and the same grid in a bag are the same message. Layout (design notes §8): the
@@ -14,6 +15,7 @@ Stamps (the team's convention): a grid predicted ``k`` frames ahead is stamped
 
 from __future__ import annotations
 
+from collections.abc import Container
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -25,9 +27,20 @@ from lidarflow.scan import GridSpec
 if TYPE_CHECKING:
     from lidarflow.predict.predictor import Prediction
 
-__all__ = ["TOPIC_PREFIX", "GridLayout", "OutGrid", "prediction_grids"]
+__all__ = [
+    "FLOW_RGB_TOPIC",
+    "TOPIC_PREFIX",
+    "GridLayout",
+    "OutGrid",
+    "grid_topics",
+    "prediction_grids",
+]
 
 TOPIC_PREFIX = "/lidarflow"
+#: The forward flow as an ``rgb8`` colour-wheel image (:func:`lidarflow.viz.flow.flow_to_rgb`):
+#: where each occupied cell of the current map goes next, hue the direction, saturation the
+#: length; the flow viewers can show, as neither RViz nor Foxglove shows a 32FC2 image.
+FLOW_RGB_TOPIC = f"{TOPIC_PREFIX}/flow_forward_rgb"
 
 
 @dataclass(frozen=True)
@@ -60,15 +73,28 @@ class OutGrid:
     scan_stamp_ns: int
 
 
+def _suffix(k: int) -> str:
+    return f"_k{k}" if k > 1 else ""
+
+
+def grid_topics(
+    horizon: int = 1, moving: bool = True, occupancy: bool = True, prefix: str = TOPIC_PREFIX
+) -> list[str]:
+    """The topics of :func:`prediction_grids` for a Predictor ``horizon`` frames ahead, in its
+    order: ``/occupancy`` (where ``occupancy``), ``/predicted`` and ``/decided`` (``_kK`` for
+    ``K > 1``), ``/moving`` (where ``moving``: a flow model's)."""
+    topics = [f"{prefix}/occupancy"] if occupancy else []
+    for k in range(1, horizon + 1):
+        topics += [f"{prefix}/predicted{_suffix(k)}", f"{prefix}/decided{_suffix(k)}"]
+    return [*topics, f"{prefix}/moving"] if moving else topics
+
+
 def prediction_grids(
-    prediction: Prediction,
-    moving: bool = True,
-    occupancy: bool = False,
-    prefix: str = TOPIC_PREFIX,
+    prediction: Prediction, wanted: Container[str] | None = None, prefix: str = TOPIC_PREFIX
 ) -> list[OutGrid]:
-    """The grids of one prediction: ``{prefix}/predicted`` and ``/decided`` (and ``_kK`` for
-    every step ``K > 1`` of its horizon), ``/moving`` (flow models, where ``moving``) and
-    ``/occupancy`` (where ``occupancy``).
+    """The grids of one prediction (:func:`grid_topics`' topics, in its order; ``/moving`` only
+    for a model with flow), only those ``wanted`` where given: what nobody asked for is not
+    computed (the moving cells cost about as much as the rest together).
 
     Unknown (-1): a predicted cell the current scan did not see and that is not decided
     occupied; a current-map cell the scan did not see.
@@ -77,17 +103,22 @@ def prediction_grids(
     scan_ns = int(p.stamp_ns)
     unseen = ~np.asarray(p.visibility, bool)
     out: list[OutGrid] = []
-    if occupancy:
-        out.append(OutGrid(f"{prefix}/occupancy", grid_data(p.occupancy, unseen), scan_ns, scan_ns))
+
+    def want(topic: str) -> bool:
+        return wanted is None or topic in wanted
+
+    if want(topic := f"{prefix}/occupancy"):
+        out.append(OutGrid(topic, grid_data(p.occupancy, unseen), scan_ns, scan_ns))
     for k, (probability, occupied) in enumerate(
         zip(p.horizon, p.horizon_occupied, strict=True), start=1
     ):
-        suffix = f"_k{k}" if k > 1 else ""
         unknown = unseen & ~occupied
         ahead = p.stamp_ahead_ns(k)
-        predicted, decided = grid_data(probability, unknown), grid_data(occupied, unknown)
-        out.append(OutGrid(f"{prefix}/predicted{suffix}", predicted, ahead, scan_ns))
-        out.append(OutGrid(f"{prefix}/decided{suffix}", decided, ahead, scan_ns))
-    if moving and p.moving is not None:
-        out.append(OutGrid(f"{prefix}/moving", grid_data(p.moving, unseen), scan_ns, scan_ns))
+        if want(topic := f"{prefix}/predicted{_suffix(k)}"):
+            out.append(OutGrid(topic, grid_data(probability, unknown), ahead, scan_ns))
+        if want(topic := f"{prefix}/decided{_suffix(k)}"):
+            out.append(OutGrid(topic, grid_data(occupied, unknown), ahead, scan_ns))
+    if want(topic := f"{prefix}/moving") and p.forward_flow is not None:
+        assert p.moving is not None
+        out.append(OutGrid(topic, grid_data(p.moving, unseen), scan_ns, scan_ns))
     return out

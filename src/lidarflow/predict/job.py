@@ -27,9 +27,9 @@ from pathlib import Path
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
+from lidarflow.predict.grids import TOPIC_PREFIX
 from lidarflow.predict.predictor import Predictor
 from lidarflow.predict.rosout import BagOutput
-from lidarflow.predict.topics import TOPIC_PREFIX
 
 __all__ = ["TOPIC_PREFIX", "check_poses", "predict_to_bag"]
 
