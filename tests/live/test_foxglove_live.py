@@ -268,3 +268,41 @@ def test_the_server_refuses_predictions_it_was_not_made_for(short_and_model):
     server.close()  # twice: harmless
     with pytest.raises(PredictError, match="closed"):
         server.publish(scan, p)
+
+
+def test_a_live_step_feeds_the_server_as_the_ros_node_does(short_and_model):
+    """``lidarflow ros1 --foxglove``: the server is one more sink of the node's
+    :class:`~lidarflow.live.step.LiveStep`, each scan served in its own frame."""
+    from lidarflow.live.step import LiveStep, clock_ns
+
+    _, model = short_and_model
+    recording = read_bag(sample_bag_path()).slice(0, SCANS)
+    expected_predictor = Predictor(model, horizon=HORIZON)
+    expected = [expected_predictor.update(scan) for scan in recording]
+    stamps = [int(s) for s in recording.stamps_ns]
+    predictor = Predictor(model, horizon=HORIZON)
+    done = threading.Event()
+    with LiveServer(predictor.grid, port=0, horizon=HORIZON, scan_topic=SCAN_TOPIC) as server:
+        step = LiveStep(predictor, [server.publish_frame])
+
+        def feed() -> None:  # the node's callbacks, pass after pass until the client has seen
+            while not done.is_set():
+                predictor.reset()
+                for scan in recording:
+                    step(scan, "right_laser", clock_ns())
+                    time.sleep(0.01)
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        try:
+            by_time, complete = receive(
+                server.url, lambda c: any(stamps.index(t) >= 2 for t in c)
+            )
+        finally:
+            done.set()
+            feeder.join(timeout=30)
+    checked = [t for t in complete if stamps.index(t) >= 2]
+    for t in checked:
+        i = stamps.index(t)
+        check_scan_messages(by_time[t], recording.scan(i), expected[i], 0)
+    assert checked

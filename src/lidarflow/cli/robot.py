@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from typing import Annotated
 
@@ -49,6 +50,20 @@ def ros1(
     summary_every: Annotated[
         int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
     ] = 100,
+    foxglove: Annotated[
+        int | None,
+        typer.Option(
+            "--foxglove",
+            metavar="PORT",
+            help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, "
+            "as `lidarflow live`; 0: any free port).",
+            min=0,
+            max=65535,
+        ),
+    ] = None,
+    host: Annotated[
+        str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
+    ] = "127.0.0.1",
     verbose: Annotated[
         bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
     ] = False,
@@ -74,12 +89,22 @@ def ros1(
         moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
     )
     step = LiveStep(predictor, summary_every=summary_every)
-    node = Ros1Node(step, topic, odom_topic, moving, queue=queue)
-    node.start()
-    try:
-        node.spin()
-    finally:
-        typer.echo(f"lidarflow ros1: latency over {step.latency.describe()}", err=True)
+    with contextlib.ExitStack() as stack:
+        if foxglove is not None:
+            from lidarflow.live.foxglove import LiveServer
+
+            server = stack.enter_context(LiveServer(
+                predictor.grid, host=host, port=foxglove, horizon=horizon,
+                flow=predictor.backend.capabilities.flow, scan_topic=topic,
+            ))  # fmt: skip
+            step.sinks.append(server.publish_frame)
+            typer.echo(f"lidarflow ros1: serving Foxglove on {server.url}", err=True)
+        node = Ros1Node(step, topic, odom_topic, moving, queue=queue)
+        node.start()
+        try:
+            node.spin()
+        finally:
+            typer.echo(f"lidarflow ros1: latency over {step.latency.describe()}", err=True)
 
 
 def _log_to_stderr(level: int) -> None:

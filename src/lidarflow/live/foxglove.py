@@ -48,6 +48,7 @@ from lidarflow.scan import GridSpec, Scan
 from lidarflow.viz.flow import flow_to_rgb
 
 if TYPE_CHECKING:
+    from lidarflow.live.step import LiveFrame
     from lidarflow.predict.predictor import Prediction
 
 __all__ = ["DEFAULT_PORT", "LiveServer"]
@@ -178,6 +179,12 @@ class LiveServer:
         flow = prediction.forward_flow
         if self._flow is not None and flow is not None and self._flow.has_sinks():
             self._flow.log(self._flow_image(flow, prediction.stamp_ns or at), log_time=at)
+
+    def publish_frame(self, frame: LiveFrame) -> None:
+        """:meth:`publish` as a sink of :class:`~lidarflow.live.step.LiveStep` (the ROS node's
+        ``--foxglove``): the frame's scan and prediction, in the frame's own scan frame."""
+        self.frame_id = frame.frame_id
+        self.publish(frame.scan, frame.prediction)
 
     def _laser_scan(self, scan: Scan) -> LaserScan:
         g = scan.geometry
