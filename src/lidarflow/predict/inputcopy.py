@@ -154,7 +154,9 @@ def copied_messages(
     ``keep`` keeps, in the reader's order, converted for ``out`` (see the module)."""
     source = reader.typestore
     connections = [c for c in reader.connections if keep(c.topic)]
-    routes: dict[Any, tuple[Any, Callable[[bytes], Any]]] = {}
+    # by identity: the reader yields its own connection objects, which may not hash (ROS 2
+    # connections hold lists of QoS profiles)
+    routes: dict[int, tuple[Any, Callable[[bytes], Any]]] = {}
     converters: dict[bool, _Converter] = {}
     for conn in connections:
         from_ros1 = serialization(reader, conn) == "ros1"
@@ -177,11 +179,11 @@ def copied_messages(
             callerid=getattr(ext, "callerid", None),
             qos=getattr(ext, "offered_qos_profiles", None) if same else None,
         )
-        routes[conn] = (target, convert)
+        routes[id(conn)] = (target, convert)
     if not routes:
         return
     for conn, log_time, raw in reader.messages(connections=connections):
-        target, convert = routes[conn]
+        target, convert = routes[id(conn)]
         yield int(log_time), target, convert(raw)
 
 
