@@ -208,3 +208,29 @@ def test_ros1_messages_in_an_mcap_file_are_copied(tmp_path, output):
         laser = "sensor_msgs/msg/LaserScan"
         scans = [reader.deserialize(g[2], laser) for g in given if g[0] == "/scan"]
         assert [plain(s) for s in scans] == [plain(c[3]) for c in copied if c[0] == "/scan"]
+
+
+def test_a_message_that_cannot_be_converted_is_one_clear_error(tmp_path):
+    from rosbags.rosbag1 import Writer
+
+    from lidarflow.errors import BagError
+    from tests.bagutil import write_bag
+
+    bag = write_bag(tmp_path / "in.bag", "ros1", {"/scan": [np.full(50, 2.0)] * 4})
+    broken = tmp_path / "broken.bag"  # the same scans and a String whose length runs off
+    given = read_messages(bag)
+    with Writer(broken) as writer:
+        store = get_typestore(Stores.ROS1_NOETIC)
+        scans = writer.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=store)
+        for _, log_time, raw, *_ in given:
+            writer.write(scans, log_time, raw)
+        chatter = writer.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+        writer.write(chatter, given[-1][1], b"\xff\xff\xff\x7fabc")
+    recording = read_bag(broken)
+    with pytest.raises(BagError, match=r"cannot copy the input bag's messages .*--topics"):
+        predict_to_bag(recording, Predictor(), tmp_path / "o.mcap", source=broken)
+    assert list(tmp_path.glob("o.mcap*")) == []
+    # raw bytes into a ROS 1 bag are copied as they are; without the input, no copy at all
+    predict_to_bag(recording, Predictor(), tmp_path / "o.bag", source=broken)
+    predict_to_bag(recording, Predictor(), tmp_path / "p.mcap", source=broken,
+                   topics={"predicted"})  # fmt: skip

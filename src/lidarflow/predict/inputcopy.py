@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.errors import BagError, LidarflowError
 from lidarflow.predict.rosout import BagOutput
 
 __all__ = ["copied_messages", "output_topic", "scan_log_times", "serialization"]
@@ -151,7 +152,25 @@ def copied_messages(
     reader: Any, out: BagOutput, keep: Callable[[str], bool] = lambda topic: True
 ) -> Iterator[tuple[int, Any, Any]]:
     """``(log time ns, output connection, bytes)`` of every message of ``reader`` on a topic
-    ``keep`` keeps, in the reader's order, converted for ``out`` (see the module)."""
+    ``keep`` keeps, in the reader's order, converted for ``out`` (see the module). A message
+    that cannot be read or converted stops it with a :class:`BagError` saying how to leave
+    the input out."""
+    try:
+        yield from _copied(reader, out, keep)
+    except LidarflowError:
+        raise
+    except Exception as err:  # rosbags raises many types for damaged or unusual messages
+        text = str(err).strip().splitlines()
+        why = f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
+        raise BagError(
+            f"cannot copy the input bag's messages ({why}); --topics without 'input' "
+            "writes the predictions alone"
+        ) from err
+
+
+def _copied(
+    reader: Any, out: BagOutput, keep: Callable[[str], bool]
+) -> Iterator[tuple[int, Any, Any]]:
     source = reader.typestore
     connections = [c for c in reader.connections if keep(c.topic)]
     # by identity: the reader yields its own connection objects, which may not hash (ROS 2
@@ -163,9 +182,9 @@ def copied_messages(
         same = from_ros1 == out.ros1
         if not same:
             _take_types(source, out.typestore, [conn.msgtype])
-        convert = converters.setdefault(
-            from_ros1, _Converter(source, out.typestore, from_ros1, out.ros1)
-        )(conn.msgtype)
+        if from_ros1 not in converters:
+            converters[from_ros1] = _Converter(source, out.typestore, from_ros1, out.ros1)
+        convert = converters[from_ros1](conn.msgtype)
         msgdef, digest = _definition(
             source if same else out.typestore, conn if same else None, conn.msgtype, out.ros1
         )
