@@ -8,7 +8,12 @@ import pytest
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.errors import PredictError
 from lidarflow.predict import Predictor
-from lidarflow.predict.job import DEFAULT_TOPICS, FLOW_RGB_FULL_CELLS, predict_to_bag
+from lidarflow.predict.job import (
+    DEFAULT_TOPICS,
+    FLOW_QUANTUM_CELLS,
+    FLOW_RGB_FULL_CELLS,
+    predict_to_bag,
+)
 from lidarflow.viz.flow import flow_to_rgb
 from tests.conftest import make_model_dir
 from tests.predict.test_rosout import read_all
@@ -24,8 +29,9 @@ def test_by_default_everything_but_the_flow(tmp_path, sample_recording):
 
 def test_flow_comes_with_its_colour_wheel_picture(tmp_path, sample_recording):
     recording = sample_recording.slice(0, 3)
+    predictor = Predictor()
     counts = predict_to_bag(
-        recording, Predictor(), tmp_path / "o.mcap", topics=DEFAULT_TOPICS | {"flow"}
+        recording, predictor, tmp_path / "o.mcap", topics=DEFAULT_TOPICS | {"flow"}
     )
     for name in ("backward", "forward"):
         assert counts[f"/lidarflow/flow_{name}"] == counts[f"/lidarflow/flow_{name}_rgb"] == 3
@@ -37,6 +43,12 @@ def test_flow_comes_with_its_colour_wheel_picture(tmp_path, sample_recording):
     np.testing.assert_array_equal(
         np.asarray(picture.data).reshape(100, 100, 3), flow_to_rgb(flow, FLOW_RGB_FULL_CELLS)
     )
+    # the flow as the predictor gave it, to the quantum that lets it compress
+    predictor.reset()
+    for scan in recording:
+        p = predictor.update(scan)
+    np.testing.assert_allclose(flow, p.forward_flow, rtol=0, atol=FLOW_QUANTUM_CELLS / 2 + 1e-6)
+    assert np.all(flow * 1024 == np.round(flow * 1024))
 
 
 def test_only_the_groups_asked_for(tmp_path, sample_recording):
