@@ -271,18 +271,8 @@ class BagOutput:
         """Flow ``(2, H, W)`` in cells as a ``32FC2`` image (row 0 the map's far edge)."""
         if flow.ndim != 3 or flow.shape[0] != 2:
             raise PredictError(f"flow must be (2, H, W), got {tuple(flow.shape)}")
-        _, h, w = flow.shape
-        pixels = np.ascontiguousarray(np.moveaxis(flow.astype("<f4"), 0, -1))
-        msg = self._types()["sensor_msgs/msg/Image"](
-            header=self._header(stamp_ns, frame_id),
-            height=h,
-            width=w,
-            encoding="32FC2",
-            is_bigendian=0,
-            step=w * 8,
-            data=pixels.view(np.uint8).ravel(),
-        )
-        self._write(topic, "sensor_msgs/msg/Image", _logged(stamp_ns, log_time_ns), msg)
+        pixels = np.moveaxis(flow.astype("<f4"), 0, -1)
+        self._write_image(topic, pixels, "32FC2", stamp_ns, frame_id, log_time_ns)
 
     def write_rgb(
         self,
@@ -295,15 +285,28 @@ class BagOutput:
         """A picture ``(H, W, 3)`` of ``uint8`` as an ``rgb8`` image (Foxglove and RViz show it)."""
         if pixels.ndim != 3 or pixels.shape[2] != 3 or pixels.dtype != np.uint8:
             raise PredictError(f"an rgb8 image must be (H, W, 3) uint8, got {pixels.shape}")
+        self._write_image(topic, pixels, "rgb8", stamp_ns, frame_id, log_time_ns)
+
+    def _write_image(
+        self,
+        topic: str,
+        pixels: np.ndarray,
+        encoding: str,
+        stamp_ns: int,
+        frame_id: str,
+        log_time_ns: int | None,
+    ) -> None:
+        """``pixels`` ``(H, W, channels)`` (little-endian) as a ``sensor_msgs/Image``."""
         h, w, _ = pixels.shape
+        data = np.ascontiguousarray(pixels).view(np.uint8).reshape(h, -1)
         msg = self._types()["sensor_msgs/msg/Image"](
             header=self._header(stamp_ns, frame_id),
             height=h,
             width=w,
-            encoding="rgb8",
+            encoding=encoding,
             is_bigendian=0,
-            step=w * 3,
-            data=np.ascontiguousarray(pixels).ravel(),
+            step=data.shape[1],
+            data=data.ravel(),
         )
         self._write(topic, "sensor_msgs/msg/Image", _logged(stamp_ns, log_time_ns), msg)
 
