@@ -50,8 +50,8 @@ def _tf(ts, ros1: bool, stamp_ns: int, parent: str, child: str, x: float):
 def write_robot_bag(path: Path, kind: str) -> Path:
     """A bag as a robot records one: a relative-named scan topic with every LaserScan field set
     (ROS 1 ``right_scan``, sequence numbers 100...; ROS 2 ``/right_scan``), ``/tf`` and a
-    latched ``/tf_static``; log times a little after the stamps. ``kind``: "ros1" (.bag) or
-    "mcap" (a ROS 2 bag folder, MCAP storage)."""
+    latched ``/tf_static``; log times a little after the stamps. ``kind``: "ros1" (.bag),
+    "mcap" or "sqlite3" (a ROS 2 bag folder of that storage)."""
     ros1 = kind == "ros1"
     ts = _store(ros1)
     if ros1:
@@ -61,7 +61,8 @@ def write_robot_bag(path: Path, kind: str) -> Path:
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer(path, version=9, storage_plugin=plugin)
     with writer:
         if ros1:
             scan_c = writer.add_connection("right_scan", "sensor_msgs/msg/LaserScan", typestore=ts,
@@ -127,17 +128,23 @@ def robot_bags(tmp_path_factory):
     return {
         "ros1": write_robot_bag(folder / "robot.bag", "ros1"),
         "mcap": write_robot_bag(folder / "robot2", "mcap"),
+        "sqlite3": write_robot_bag(folder / "robot3", "sqlite3"),
     }
 
 
-@pytest.mark.parametrize("output", ["out.bag", "out.mcap", "outdir"])
-@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+@pytest.mark.parametrize(
+    ("kind", "output"),
+    [(k, o) for k in ("ros1", "mcap") for o in ("out.bag", "out.mcap", "outdir")]
+    + [("sqlite3", "out.mcap"), ("sqlite3", "out.bag")],
+)
 def test_every_input_message_is_copied_unchanged(tmp_path, robot_bags, kind, output):
     source = robot_bags[kind]
+    if kind == "sqlite3":
+        source = source / "robot3.db3"  # as a user may name it: the folder is read
     recording = read_bag(source)
     predict_to_bag(recording, Predictor(), tmp_path / output, source=source)
     ros1_in, ros1_out = kind == "ros1", output.endswith(".bag")
-    given, written = read_messages(source), read_messages(tmp_path / output)
+    given, written = read_messages(robot_bags[kind]), read_messages(tmp_path / output)
     # names as recorded; made absolute for ROS 2 only
     scan_topic = "right_scan" if ros1_in and ros1_out else "/right_scan"
     names = {"right_scan": scan_topic, "/right_scan": scan_topic}

@@ -15,8 +15,8 @@ and transient-local durability (ROS 2) stand for each other, so that ``/tf_stati
 late subscribers get.
 
 The reader is what :func:`lidarflow.data.bags.open_bag` yields: ``connections``,
-``messages(connections=...)`` of ``(connection, log time ns, raw bytes)``, ``deserialize`` and
-``typestore`` (the input's types).
+``messages(connections=...)`` of ``(connection, log time ns, raw bytes)``, ``deserialize`` and,
+where it has one, ``typestore`` (the input's own types; else the standard ones of its ROS).
 """
 
 from __future__ import annotations
@@ -171,8 +171,13 @@ def copied_messages(
 def _copied(
     reader: Any, out: BagOutput, keep: Callable[[str], bool]
 ) -> Iterator[tuple[int, Any, Any]]:
-    source = reader.typestore
     connections = [c for c in reader.connections if keep(c.topic)]
+    source = getattr(reader, "typestore", None)
+    if source is None:  # a reader that keeps no types of its own: the standard ones
+        from rosbags.typesys import Stores, get_typestore
+
+        ros1 = bool(connections) and serialization(reader, connections[0]) == "ros1"
+        source = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     # by identity: the reader yields its own connection objects, which may not hash (ROS 2
     # connections hold lists of QoS profiles)
     routes: dict[int, tuple[Any, Callable[[bytes], Any]]] = {}
