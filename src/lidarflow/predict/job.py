@@ -18,9 +18,9 @@ default, :data:`DEFAULT_TOPICS`), all in the scan's frame:
   models only; see :mod:`lidarflow.predict.moving`);
 - ``flow``: ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image``
   ``32FC2``, per map cell the (column, row) displacement in cells, rounded to
-  :data:`FLOW_QUANTUM_CELLS`; beside each, ``..._rgb``: the
-  same as an ``rgb8`` colour wheel (hue the direction, white no motion, full colour at
-  :data:`FLOW_RGB_FULL_CELLS` cells or more) that Foxglove and RViz show (flow models only).
+  :data:`FLOW_QUANTUM_CELLS`; beside each, ``..._rgb``: the same as an ``rgb8`` colour wheel
+  (hue the direction, white no motion, full colour at :data:`FLOW_RGB_FULL_CELLS` cells or
+  more) that Foxglove and RViz show (flow models only).
 
 Stamps (the team's convention): a map predicted k frames ahead has ``header.stamp`` = the time
 it is for, the scan's stamp plus k typical scan periods (``Prediction.stamp_ahead_ns(k)``), and
