@@ -4,9 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from lidarflow.data import Recording, read_bag, sample_bag_path
 from lidarflow.scan import BeamGeometry, Scan
+
+# The machines are shared: a loaded core makes generating examples "too slow" and examples miss
+# deadlines, which says nothing about the code under test.
+settings.register_profile(
+    "shared", suppress_health_check=[HealthCheck.too_slow], deadline=None
+)
+settings.load_profile("shared")
 
 
 def make_recording(

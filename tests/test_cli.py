@@ -290,17 +290,51 @@ def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_di
     read_bag(sample_bag_path()).slice(0, 12).save(rec)
     out = tmp_path / suffix
     code, _, err = run(
-        ["predict", str(rec), "-o", str(out), "--model", str(random_flownet_dir), "--horizon", "2"],
+        ["predict", str(rec), "-o", str(out), "--model", str(random_flownet_dir), "--horizon", "2",
+         "--topics", "default,flow"],
         capsys,
-    )
+    )  # fmt: skip
     assert code == 0, err
     msgs = read_all(out)
-    assert len(msgs["/right_scan"]) == 12
-    for topic in ("occupancy", "predicted", "predicted_k2", "flow_backward", "flow_forward"):
+    # a recording's scans, named as the bag had them (ROS 2 takes absolute names only)
+    assert len(msgs["right_scan" if suffix == "out.bag" else "/right_scan"]) == 12
+    for topic in ("occupancy", "predicted", "predicted_k2", "flow_backward", "flow_forward",
+                  "flow_forward_rgb"):  # fmt: skip
         assert len(msgs[f"/lidarflow/{topic}"]) == 12, topic
     grid = msgs["/lidarflow/predicted"][0]
     assert grid.header.frame_id == "right_laser"
     assert (grid.info.width, grid.info.height, len(grid.data)) == (100, 100, 10000)
+
+
+def test_predict_on_a_bag_copies_it_and_leaves_the_flow_out(tmp_path, capsys, random_flownet_dir):
+    from tests.predict.test_inputcopy import read_messages, write_robot_bag
+    from tests.predict.test_rosout import read_all
+
+    bag = write_robot_bag(tmp_path / "robot.bag", "ros1")
+    out = tmp_path / "o.bag"
+    code, stdout, err = run(["predict", str(bag), "-o", str(out), "-m", str(random_flownet_dir)],
+                            capsys)  # fmt: skip
+    assert code == 0, err
+    written = read_messages(out)
+    topics = {m[0] for m in written}
+    assert {"right_scan", "/tf", "/tf_static", "/lidarflow/predicted"} <= topics
+    assert not any(t.startswith("/lidarflow/flow") for t in topics)
+    given = [m[2] for m in read_messages(bag) if m[0] == "right_scan"]
+    assert [m[2] for m in written if m[0] == "right_scan"] == given  # byte for byte
+    assert "/tf_static x1" in stdout
+    code, _, err = run(["predict", str(bag), "-o", str(tmp_path / "p.mcap"), "-m",
+                        str(random_flownet_dir), "--topics", "predicted"], capsys)  # fmt: skip
+    assert code == 0, err
+    assert set(read_all(tmp_path / "p.mcap")) == {"/lidarflow/predicted"}
+
+
+def test_predict_topics_usage_error(tmp_path, capsys):
+    code, _, err = run(
+        ["predict", str(sample_bag_path()), "-o", str(tmp_path / "o.mcap"), "--topics", "flwo"],
+        capsys,
+    )
+    assert code == 2 and "'flwo' is none of input, occupancy" in err
+    assert not (tmp_path / "o.mcap").exists()
 
 
 def test_export_calibration_without_int8_is_a_usage_error(tmp_path, capsys):
@@ -422,15 +456,16 @@ def test_evaluate_notes_a_recording_made_on_another_grid(tmp_path, capsys):
 
 
 def test_each_model_option_says_what_its_command_takes(tmp_path, capsys, monkeypatch):
-    # export's help offered an .onnx file, which it (and evaluate) refuse; predict runs one
+    # export's help offered an .onnx file, which it refuses; predict and evaluate run one
     monkeypatch.setenv("COLUMNS", "200")
     helps = {}
     for name in ("export", "evaluate", "predict"):
         _, text, _ = run([name, "--help"], capsys)
         helps[name] = " ".join(text.replace("│", " ").split())
-    assert "not an .onnx file" in helps["export"] and "not an .onnx file" in helps["evaluate"]
+    assert "not an .onnx file" in helps["export"]
     assert "an .onnx file from `lidarflow export`" in helps["predict"]
+    assert "an .onnx file from `lidarflow export`" in helps["evaluate"]
     onnx = tmp_path / "m.onnx"
     onnx.write_bytes(b"not really")
     code, _, err = run(["export", "-o", str(tmp_path / "again.onnx"), "-m", str(onnx)], capsys)
-    assert code == 1 and "an ONNX model runs only in `lidarflow predict`" in err
+    assert code == 1 and "an ONNX model only runs" in err

@@ -33,6 +33,7 @@ from lidarflow.errors import PredictError
 from lidarflow.live.foxglove import LiveServer
 from lidarflow.live.replay import loop_shift_ns
 from lidarflow.predict import Predictor
+from lidarflow.predict.grids import FLOW_RGB_FULL_CELLS
 from lidarflow.predict.rosout import map_from_grid_data
 from lidarflow.viz.flow import flow_to_rgb
 from tests.test_cli import run
@@ -235,7 +236,7 @@ def check_scan_messages(messages, scan, p, moved):
     assert (image.width, image.height, image.encoding, image.step) == (100, 100, "rgb8", 300)
     assert ns(image.timestamp) == scan_stamp and image.frame_id == "right_laser"
     pixels = np.frombuffer(image.data, np.uint8).reshape(100, 100, 3)
-    np.testing.assert_array_equal(pixels, flow_to_rgb(p.forward_flow))
+    np.testing.assert_array_equal(pixels, flow_to_rgb(p.forward_flow, FLOW_RGB_FULL_CELLS))
 
 
 def test_a_taken_port_and_an_unreadable_source_are_one_line_errors(

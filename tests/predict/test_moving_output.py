@@ -60,8 +60,9 @@ def test_deeptracking_bag_has_no_moving_topic(tmp_path, sample_recording):
     assert "/lidarflow/moving" not in counts and counts["/lidarflow/predicted"] == 2
 
 
+@pytest.mark.parametrize("copy", [False, True], ids=["recording", "bag copied"])
 @pytest.mark.parametrize("name", ["out.bag", "out.mcap"])
-def test_predictions_keep_the_bags_own_stamps_where_its_clock_went_back(tmp_path, name):
+def test_predictions_keep_the_bags_own_stamps_where_its_clock_went_back(tmp_path, name, copy):
     # read, the second session is re-stamped to follow the first; written, it must line up with
     # the bag it came from again
     from lidarflow.data import read_bag
@@ -73,11 +74,20 @@ def test_predictions_keep_the_bags_own_stamps_where_its_clock_went_back(tmp_path
     bag = write_bag(tmp_path / "j.bag", "ros1", {"/scan": frames}, header_stamps=headers)
     recording = read_bag(bag)
     assert recording.meta["clock_jumps"] and recording.stamps_ns[8] > headers[7]
-    predict_to_bag(recording, Predictor(), tmp_path / name)
+    predict_to_bag(recording, Predictor(), tmp_path / name, source=bag if copy else None)
     written = read_all(tmp_path / name)
-    for topic in ("/scan", "/lidarflow/predicted"):
-        stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in written[topic]]
-        assert stamps == headers, topic  # in the order recorded, each with its own stamp
+
+    def stamps(messages, field="header"):
+        times = [m.header.stamp if field == "header" else m.info.map_load_time for m in messages]
+        return [t.sec * 10**9 + t.nanosec for t in times]
+
+    # in the order recorded, each with its own stamp; a prediction for one period later (the
+    # first scan's for its own time: no period known yet), made from its scan
+    assert stamps(written["/scan"]) == headers
+    assert stamps(written["/lidarflow/occupancy"]) == headers
+    ahead = [headers[0]] + [h + period for h in headers[1:]]
+    assert stamps(written["/lidarflow/predicted"]) == ahead
+    assert stamps(written["/lidarflow/predicted"], "made") == headers
     # and read back, the output is the same two sessions, not interleaved
     back = read_bag(tmp_path / name)
     np.testing.assert_array_equal(back.stamps_ns, recording.stamps_ns)

@@ -101,7 +101,9 @@ def _demo(folder: Path, output: Path) -> None:
 
         predictor = Predictor(None, spec, threads=None)  # the demo's --threads set already
         with progress_bar(len(recording), "writing predictions") as bar:
-            predict_to_bag(recording, predictor, folder / "predictions.mcap", bar.update)
+            predict_to_bag(
+                recording, predictor, folder / "predictions.mcap", bar.update, source=bag
+            )
         typer.echo(f"predictions for Foxglove: {output / 'predictions.mcap'}")
 
 
@@ -133,18 +135,30 @@ def predict(
     grid: ModelGridOpt = None,
     res: ModelResOpt = None,
     moving_threshold: MovingOpt = None,
+    topics: Annotated[
+        str,
+        typer.Option(
+            "--topics",
+            help="What to write, comma-separated: input, occupancy, predicted, decided, moving, "
+            "flow; 'default' is all but flow, 'all' everything (e.g. default,flow).",
+        ),
+    ] = "default",
     force: ForceOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
 ) -> None:
-    """Write the input scans plus, per scan, the predicted next map (OccupancyGrid in the
-    scan's frame, for RViz/Foxglove), the flow (32FC2 images) and the moving cells
-    (/lidarflow/moving) to a new bag.
+    """Write the input bag's messages, unchanged, plus per scan the predicted next map
+    (OccupancyGrid in the scan's frame, stamped with the time it predicts, for RViz/Foxglove),
+    the current map and the moving cells to a new bag (compressed chunks). --topics adds the
+    flow (32FC2 images and rgb8 colour-wheel pictures) or leaves groups out.
 
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
+    from lidarflow.data.sources import is_recording_file
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.predict.rosout import output_kind
+
+    groups = _topic_groups(topics)
 
     # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
     marker = "metadata.yaml" if output_kind(output) == "ros2" else None
@@ -163,8 +177,27 @@ def predict(
         online_decision=False if fixed_decision else None,
     )
     with progress_bar(len(recording), f"predicting {input.name}") as bar:
-        counts = predict_to_bag(recording, predictor, output, bar.update, force)
+        source = None if is_recording_file(input) else input
+        counts = predict_to_bag(recording, predictor, output, bar.update, force, groups, source)
     typer.echo(f"wrote {output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))
+
+
+def _topic_groups(text: str) -> frozenset[str]:
+    """``--topics``: the groups named, ``default`` and ``all`` spelled out."""
+    from lidarflow.predict.job import DEFAULT_TOPICS, TOPIC_GROUPS
+
+    groups: set[str] = set()
+    for name in (n.strip().lower() for n in text.split(",")):
+        if name == "default":
+            groups |= DEFAULT_TOPICS
+        elif name == "all":
+            groups |= set(TOPIC_GROUPS)
+        elif name in TOPIC_GROUPS:
+            groups.add(name)
+        else:
+            choices = ", ".join((*TOPIC_GROUPS, "default", "all"))
+            raise typer.BadParameter(f"{name!r} is none of {choices}", param_hint="--topics")
+    return frozenset(groups)
 
 
 @app.command()

@@ -43,7 +43,13 @@ from foxglove.messages import (
 )
 
 from lidarflow.errors import PredictError
-from lidarflow.predict.grids import FLOW_RGB_TOPIC, OutGrid, grid_topics, prediction_grids
+from lidarflow.predict.grids import (
+    FLOW_RGB_FULL_CELLS,
+    FLOW_RGB_TOPIC,
+    OutGrid,
+    grid_topics,
+    prediction_grids,
+)
 from lidarflow.scan import GridSpec, Scan
 from lidarflow.viz.flow import flow_to_rgb
 
@@ -213,7 +219,7 @@ class LiveServer:
         )
 
     def _flow_image(self, flow: np.ndarray, stamp_ns: int) -> RawImage:
-        rgb = np.ascontiguousarray(flow_to_rgb(flow))
+        rgb = np.ascontiguousarray(flow_to_rgb(flow, FLOW_RGB_FULL_CELLS))
         height, width, _ = rgb.shape
         return RawImage(
             timestamp=_stamp(stamp_ns),

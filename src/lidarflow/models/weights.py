@@ -85,8 +85,8 @@ def _locate(path: Path) -> tuple[Path, Path]:
         weights = path.parent / "model.safetensors"
     elif path.suffix.lower() == ".onnx":  # exported, so its PyTorch source exists somewhere
         raise ModelError(
-            f"{path}: an ONNX model runs only in `lidarflow predict` (and Predictor); pass the "
-            "run folder or .safetensors file it was exported from"
+            f"{path}: an ONNX model only runs (`lidarflow predict`, `evaluate`, `live`, `ros1`, "
+            "Predictor); pass the run folder or .safetensors file it was exported from"
         )
     else:
         raise ModelError(f"{path}: expected a run folder, a .safetensors file or a model.json")

@@ -21,18 +21,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.predict.rosout import grid_data
 from lidarflow.scan import GridSpec
 
 if TYPE_CHECKING:
     from lidarflow.predict.predictor import Prediction
 
 __all__ = [
+    "FLOW_RGB_FULL_CELLS",
     "FLOW_RGB_TOPIC",
     "TOPIC_PREFIX",
     "GridLayout",
     "OutGrid",
+    "grid_data",
     "grid_topics",
+    "map_from_grid_data",
     "prediction_grids",
 ]
 
@@ -41,6 +43,9 @@ TOPIC_PREFIX = "/lidarflow"
 #: where each occupied cell of the current map goes next, hue the direction, saturation the
 #: length; the flow viewers can show, as neither RViz nor Foxglove shows a 32FC2 image.
 FLOW_RGB_TOPIC = f"{TOPIC_PREFIX}/flow_forward_rgb"
+#: Flow (cells per frame) drawn in full colour on the colour wheels: a fixed scale, so that
+#: colours compare across frames (the bundled model's flow: median 0.4, 99th percentile ~1.2).
+FLOW_RGB_FULL_CELLS = 2.0
 
 
 @dataclass(frozen=True)
@@ -71,6 +76,25 @@ class OutGrid:
     data: np.ndarray
     stamp_ns: int
     scan_stamp_ns: int
+
+
+def grid_data(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
+    """OccupancyGrid ``data`` (int8, ``H * W``) of a probability map ``(H, W)`` in [0, 1].
+
+    >>> m = np.zeros((2, 3)); m[0, 0] = 1.0  # far-left cell
+    >>> grid_data(m).reshape(3, 2).tolist()  # rows j (along y), columns i (along x)
+    [[0, 0], [0, 0], [0, 100]]
+    """
+    p = np.clip(np.nan_to_num(np.asarray(probability, np.float64)), 0.0, 1.0)
+    values = np.rint(p * 100).astype(np.int8)
+    if unknown is not None:
+        values[np.asarray(unknown, bool)] = -1
+    return np.ascontiguousarray(values[::-1, ::-1].T).ravel()
+
+
+def map_from_grid_data(data: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Inverse of :func:`grid_data`: the ``(H, W)`` int8 map (-1 unknown, 0..100)."""
+    return np.asarray(data, np.int8).reshape(width, height).T[::-1, ::-1].copy()
 
 
 def _suffix(k: int) -> str:

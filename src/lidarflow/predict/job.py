@@ -1,37 +1,81 @@
-"""``lidarflow predict``: a recording in, a bag out with the scans and their predictions.
+"""``lidarflow predict``: a recording in, a bag out with the input and the predictions.
 
-Topics written (all stamped with the scan's stamp as the bag had it, in the scan's frame; where
-the bag's header clock went back, reading re-stamps its later sessions, and this undoes that):
+Topics, by the group ``topics`` names them (:data:`TOPIC_GROUPS`; every one but ``flow`` by
+default, :data:`DEFAULT_TOPICS`), all in the scan's frame:
 
-- the input scan topic: the scans themselves (ranges and geometry; intensities are not kept);
-- ``/lidarflow/occupancy``: the current occupancy map (``nav_msgs/OccupancyGrid``);
-- ``/lidarflow/predicted``: the predicted next map, probability x 100 (calibrated, for an
-  occupancy-head model; ``-1`` where the current scan saw nothing and nothing is predicted);
-- ``/lidarflow/decided``: the next map as the model's decision policy decides it (100 occupied,
-  0 free, ``-1`` as above): ``Prediction.occupied``;
-- ``/lidarflow/predicted_k{K}``, ``/lidarflow/decided_k{K}``: K frames ahead, for ``--horizon``
-  K > 1;
-- ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image`` ``32FC2``,
-  per map cell the (column, row) displacement in cells (flow models only);
-- ``/lidarflow/moving``: the moving-object segmentation of the current map
-  (``nav_msgs/OccupancyGrid``; 100 on occupied cells that move on their own, 0 on other visible
-  cells, -1 where not visible; flow models only; see :mod:`lidarflow.predict.moving`).
+- ``input``: from a bag (``source``), every connection of it copied unchanged, names as recorded
+  (made absolute in ROS 2 outputs; :mod:`lidarflow.predict.inputcopy`), except topics under
+  ``/lidarflow/`` (an earlier prediction's, which the new ones would clash with); from a
+  recording file, its scans (ranges and geometry, stamped as the bag had them);
+- ``occupancy``: ``/lidarflow/occupancy``, the current occupancy map (``nav_msgs/OccupancyGrid``);
+- ``predicted``: ``/lidarflow/predicted``, the predicted next map, probability x 100 (calibrated,
+  for an occupancy-head model; ``-1`` where the current scan saw nothing and nothing is
+  predicted), and ``/lidarflow/predicted_k{K}`` K frames ahead, for ``--horizon`` K > 1;
+- ``decided``: ``/lidarflow/decided`` (and ``_k{K}``), the next map as the model's decision
+  policy decides it (100 occupied, 0 free, ``-1`` as above): ``Prediction.occupied``;
+- ``moving``: ``/lidarflow/moving``, the moving-object segmentation of the current map (100 on
+  occupied cells that move on their own, 0 on other visible cells, -1 where not visible; flow
+  models only; see :mod:`lidarflow.predict.moving`);
+- ``flow``: ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image``
+  ``32FC2``, per map cell the (column, row) displacement in cells, rounded to
+  :data:`FLOW_QUANTUM_CELLS`; beside each, ``..._rgb``: the same as an ``rgb8`` colour wheel
+  (hue the direction, white no motion, full colour at :data:`FLOW_RGB_FULL_CELLS` cells or
+  more) that Foxglove and RViz show (flow models only).
+
+Stamps (the team's convention): a map predicted k frames ahead has ``header.stamp`` = the time
+it is for, the scan's stamp plus k typical scan periods (``Prediction.stamp_ahead_ns(k)``), and
+``info.map_load_time`` = the stamp of the scan it was made from; the maps of the present
+(occupancy, moving) and the flow images have the scan's stamp. Every prediction is *logged* at
+its scan's log time (in the input bag; the scan's stamp for a recording file), so that a reader
+meets it right after its scan, in scan order, never ahead of the scans it was made from.
+
+Where the bag's header clock went back, reading re-stamped its later sessions to follow the
+first (:mod:`lidarflow.data.sessions`): headers get the bag's own stamps back, to line up with
+it, and log times stay in the order recorded.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable
+import heapq
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
-from lidarflow.predict.grids import TOPIC_PREFIX
-from lidarflow.predict.predictor import Predictor
+from lidarflow.predict.grids import (
+    FLOW_RGB_FULL_CELLS,
+    TOPIC_PREFIX,
+    OutGrid,
+    grid_topics,
+    prediction_grids,
+)
+from lidarflow.predict.predictor import Prediction, Predictor
 from lidarflow.predict.rosout import BagOutput
 
-__all__ = ["TOPIC_PREFIX", "check_poses", "predict_to_bag"]
+__all__ = [
+    "DEFAULT_TOPICS",
+    "FLOW_QUANTUM_CELLS",
+    "TOPIC_GROUPS",
+    "TOPIC_PREFIX",
+    "check_poses",
+    "predict_to_bag",
+]
+
+#: What ``topics`` may name (see the module).
+TOPIC_GROUPS = ("input", "occupancy", "predicted", "decided", "moving", "flow")
+#: Every group but the flow: two float images per scan were 83 % of an output, and the maps
+#: show what the flow does.
+DEFAULT_TOPICS = frozenset(TOPIC_GROUPS) - {"flow"}
+#: The flow images' values are rounded to this (cells): 0.1 mm on the bundled model's 0.1 m
+#: cells, far below what the flow is good for. Their float noise bits compressed by 1.2x;
+#: rounded, by 4x (the sample's forward flow: 19.4 MB raw, 16.1 MB zstd, 4.3 MB rounded).
+FLOW_QUANTUM_CELLS = 1 / 1024
 
 
 def check_poses(recording: Recording, predictor: Predictor) -> None:
@@ -52,53 +96,134 @@ def predict_to_bag(
     output: str | Path,
     progress: Callable[[int], None] | None = None,
     force: bool = False,
+    topics: Iterable[str] = DEFAULT_TOPICS,
+    source: str | Path | None = None,
 ) -> dict[str, int]:
-    """Run ``predictor`` over ``recording`` and write everything to ``output``; returns the
-    number of messages per topic. An ego-motion model gets the recording's poses; a recording
-    without any is refused (:class:`PredictError`) unless the model may run without
-    (``poses_optional``: the Predictor then matches the motion from the scans). An existing
-    ``output`` is refused unless ``force`` (:class:`BagOutput`)."""
+    """Run ``predictor`` over ``recording`` and write the ``topics`` groups to ``output``;
+    returns the number of messages per topic. ``source``: the bag ``recording`` was read from,
+    whose messages the ``input`` group copies (``None``: a recording file; its scans are
+    written instead). An ego-motion model gets the recording's poses; a recording without any
+    is refused (:class:`PredictError`) unless the model may run without (``poses_optional``:
+    the Predictor then matches the motion from the scans). An existing ``output`` is refused
+    unless ``force`` (:class:`BagOutput`)."""
+    groups = frozenset(topics)
+    if unknown := sorted(groups - set(TOPIC_GROUPS)):
+        raise PredictError(f"unknown topic group {unknown[0]!r}; choose from {TOPIC_GROUPS}")
     check_poses(recording, predictor)
-    poses = recording.poses
-    scan_topic = recording.meta.get("topic") or "/scan"
-    if not scan_topic.startswith("/"):
-        scan_topic = "/" + scan_topic  # ROS 2 requires absolute names; ROS 1 accepts them
-    frame_id = recording.meta.get("frame_id") or "laser"
-    grid = predictor.grid
-    counts: dict[str, int] = {}
-
-    def count(topic: str) -> None:
-        counts[topic] = counts.get(topic, 0) + 1
-
-    # Where the bag's header clock went back, reading re-stamped its later sessions to follow
-    # the first (lidarflow.data.sessions): headers get the bag's own stamps back, to line up
-    # with it, and the log times stay the re-stamped ones, in order, so that a reader (Foxglove,
-    # read_bag) takes the sessions one after the other as they were recorded.
+    # headers: the bag's own stamps (see the module); log times: the scans' in the input
     stamps = recorded_stamps(recording.stamps_ns, recording.meta.get("clock_jumps") or [])
+    counts: dict[str, int] = {}
+    with contextlib.ExitStack() as stack:
+        reader = None
+        if source is not None:
+            from lidarflow.data.bags import open_bag
+
+            reader = stack.enter_context(open_bag(source))
+        out = stack.enter_context(BagOutput(output, force))
+        log_times = np.asarray(recording.stamps_ns, dtype=np.int64)
+        copies: Iterator[tuple[int, Any, Any]] = iter(())
+        if reader is not None:
+            from lidarflow.predict.inputcopy import copied_messages, scan_log_times
+
+            topic = recording.meta.get("topic") or ""
+            by_header = str(recording.meta.get("stamps", "header")) == "header"
+            if by_header:  # else the recording's stamps are the log times already
+                log_times = scan_log_times(reader, topic, stamps, log_times)
+            if "input" in groups:
+                copies = copied_messages(
+                    reader, out, lambda t: not t.startswith(f"{TOPIC_PREFIX}/")
+                )
+        write_scans = "input" in groups and reader is None
+        frames = _frames(
+            recording, predictor, out, groups, stamps, log_times, write_scans, progress
+        )
+        items = heapq.merge(_copy_writes(out, copies), frames, key=lambda item: item[0])
+        for _, write in items:
+            for topic in write():
+                counts[topic] = counts.get(topic, 0) + 1
+    return counts
+
+
+Write = Callable[[], list[str]]  # writes a message or a frame's; returns the topics written
+
+
+def _copy_writes(out: BagOutput, copies: Iterator[tuple[int, Any, Any]]) -> Iterator[Any]:
+    for log_time, connection, data in copies:
+
+        def write(c: Any = connection, t: int = log_time, d: Any = data) -> list[str]:
+            out.write_raw(c, t, d)
+            return [c.topic]
+
+        yield log_time, write
+
+
+def _frames(
+    recording: Recording,
+    predictor: Predictor,
+    out: BagOutput,
+    groups: frozenset[str],
+    stamps: np.ndarray,
+    log_times: np.ndarray,
+    write_scans: bool,
+    progress: Callable[[int], None] | None,
+) -> Iterator[tuple[int, Write]]:
+    """``(log time, write)`` per scan: its prediction, made when asked for, in scan order;
+    with the scan itself where ``write_scans`` (a recording file's, not copied from a bag)."""
+    from lidarflow.predict.inputcopy import output_topic
+
+    poses = recording.poses
+    scan_topic = output_topic(recording.meta.get("topic") or "/scan", out.ros1)
+    frame_id = recording.meta.get("frame_id") or "laser"
     predictor.reset()
-    with BagOutput(output, force) as out:
-        for i, scan in enumerate(recording):
-            p = predictor.update(scan, None if poses is None else poses[i])
-            stamp, at = int(stamps[i]), scan.stamp_ns  # header stamp, log time
-            out.write_scan(scan_topic, dataclasses.replace(scan, stamp_ns=stamp), frame_id, at)
-            count(scan_topic)
-            grids = [(f"{TOPIC_PREFIX}/occupancy", p.occupancy.astype(float), ~p.visibility)]
-            for k, (probability, occupied) in enumerate(
-                zip(p.horizon, p.horizon_occupied, strict=True), start=1
-            ):
-                suffix = f"_k{k}" if k > 1 else ""
-                unknown = ~p.visibility & ~occupied
-                grids.append((f"{TOPIC_PREFIX}/predicted{suffix}", probability, unknown))
-                grids.append((f"{TOPIC_PREFIX}/decided{suffix}", occupied.astype(float), unknown))
-            if p.moving is not None:
-                grids.append((f"{TOPIC_PREFIX}/moving", p.moving.astype(float), ~p.visibility))
-            for topic, values, unknown in grids:
-                out.write_grid(topic, values, grid, stamp, frame_id, unknown, log_time_ns=at)
-                count(topic)
-            if p.backward_flow is not None and p.forward_flow is not None:
-                for name, flow in (("backward", p.backward_flow), ("forward", p.forward_flow)):
-                    out.write_flow(f"{TOPIC_PREFIX}/flow_{name}", flow, stamp, frame_id, at)
-                    count(f"{TOPIC_PREFIX}/flow_{name}")
+    for i, scan in enumerate(recording):
+        p = predictor.update(scan, None if poses is None else poses[i])
+        stamp, at = int(stamps[i]), int(log_times[i])
+
+        def write(p: Prediction = p, i: int = i, stamp: int = stamp, at: int = at) -> list[str]:
+            written = []
+            if write_scans:
+                scan = dataclasses.replace(recording.scan(i), stamp_ns=stamp)
+                out.write_scan(scan_topic, scan, frame_id, at, seq=i)
+                written.append(scan_topic)
+            written += _write_prediction(out, p, groups, predictor, stamp, at, frame_id)
             if progress is not None:
                 progress(1)
-    return counts
+            return written
+
+        yield at, write
+
+
+def _group(topic: str) -> str:
+    """The group of a grid's topic: ``/lidarflow/predicted_k2`` is ``predicted``."""
+    return topic.removeprefix(f"{TOPIC_PREFIX}/").split("_k")[0]
+
+
+def _write_prediction(
+    out: BagOutput,
+    p: Prediction,
+    groups: frozenset[str],
+    predictor: Predictor,
+    stamp: int,
+    at: int,
+    frame_id: str,
+) -> list[str]:
+    """Write one scan's prediction ``p`` (the scan stamped ``stamp`` in the bag, logged at
+    ``at``); returns the topics written."""
+    ahead = stamp - p.stamp_ns  # the bag's stamp minus the re-stamped one the predictor saw
+    wanted = {t for t in grid_topics(len(p.horizon)) if _group(t) in groups}
+    grids = prediction_grids(p, wanted)
+    for g in grids:  # on the bag's clock
+        g = OutGrid(g.topic, g.data, g.stamp_ns + ahead, g.scan_stamp_ns + ahead)
+        out.write_grid_data(g, predictor.grid, frame_id, log_time_ns=at)
+    written = [g.topic for g in grids]
+    if "flow" in groups and p.backward_flow is not None and p.forward_flow is not None:
+        from lidarflow.viz.flow import flow_to_rgb
+
+        for name, flow in (("backward", p.backward_flow), ("forward", p.forward_flow)):
+            topic = f"{TOPIC_PREFIX}/flow_{name}"
+            rounded = np.round(flow / FLOW_QUANTUM_CELLS) * FLOW_QUANTUM_CELLS
+            out.write_flow(topic, rounded, stamp, frame_id, at)
+            picture = flow_to_rgb(rounded, FLOW_RGB_FULL_CELLS)  # the picture of the image
+            out.write_rgb(f"{topic}_rgb", picture, stamp, frame_id, at)
+            written += [topic, f"{topic}_rgb"]
+    return written

@@ -7,7 +7,18 @@ cell ``r = H - 1 - i``, ``c = W - 1 - j``. Values are occupancy probability x 10
 -1 where unknown.
 
 Flow goes out as ``sensor_msgs/Image`` with encoding ``32FC2``: per map cell (row 0 the far edge,
-as in the map arrays), the two channels ``(column, row)`` displacement in cells.
+as in the map arrays), the two channels ``(column, row)`` displacement in cells; pictures (the
+flow's colour wheel) as ``rgb8`` images laid out the same way.
+
+Stamps: ``header.stamp`` is the time a map is *for*, ``info.map_load_time`` the stamp of the scan
+it was made from (``write_grid(..., made_ns=)``; the two are equal for a map of the present). A
+message's log time is its own argument (default: the header stamp), so that a writer can keep
+predictions in the order of the scans they came from (:mod:`lidarflow.predict.job`).
+
+Chunks are compressed: zstd in MCAP files and ROS 2 bags (MCAP storage; Foxglove and ``ros2 bag``
+read them), lz4 in ROS 1 bags (``rosbag`` reads it; bz2 compresses a little more, several
+times slower). Messages of the input bag are copied in as they are with :meth:`add_copy` and
+:meth:`write_raw` (:mod:`lidarflow.predict.inputcopy`).
 """
 
 from __future__ import annotations
@@ -20,28 +31,10 @@ import numpy as np
 
 from lidarflow.atomic import check_writable, commit, discard, temporary
 from lidarflow.errors import PredictError
+from lidarflow.predict.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
 from lidarflow.scan import GridSpec, Scan
 
 __all__ = ["BagOutput", "grid_data", "map_from_grid_data", "output_kind"]
-
-
-def grid_data(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
-    """OccupancyGrid ``data`` (int8, ``H * W``) of a probability map ``(H, W)`` in [0, 1].
-
-    >>> m = np.zeros((2, 3)); m[0, 0] = 1.0  # far-left cell
-    >>> grid_data(m).reshape(3, 2).tolist()  # rows j (along y), columns i (along x)
-    [[0, 0], [0, 0], [0, 100]]
-    """
-    p = np.clip(np.nan_to_num(np.asarray(probability, np.float64)), 0.0, 1.0)
-    values = np.rint(p * 100).astype(np.int8)
-    if unknown is not None:
-        values[np.asarray(unknown, bool)] = -1
-    return np.ascontiguousarray(values[::-1, ::-1].T).ravel()
-
-
-def map_from_grid_data(data: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Inverse of :func:`grid_data`: the ``(H, W)`` int8 map (-1 unknown, 0..100)."""
-    return np.asarray(data, np.int8).reshape(width, height).T[::-1, ::-1].copy()
 
 
 def output_kind(path: Path) -> str:
@@ -79,17 +72,20 @@ class BagOutput:
         self._written: Path | None = None  # what becomes the target: the bag file or folder
         self._writer: Any = None
         self._connections: dict[str, Any] = {}
+        self._copies: dict[tuple[Any, ...], Any] = {}
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> BagOutput:
         from rosbags.rosbag1 import Writer as Writer1
         from rosbags.rosbag2 import StoragePlugin
         from rosbags.rosbag2 import Writer as Writer2
+        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
         self._staged = temporary(self.path)
         if self.ros1:
             self._written = self._staged
             self._writer = Writer1(self._staged)
+            self._writer.set_compression(Writer1.CompressionFormat.LZ4)
         else:
             # rosbags names the storage file after the bag's folder: stage a folder of the
             # target's own name, then move it (ROS 2) or its .mcap file (MCAP) onto the target
@@ -97,6 +93,9 @@ class BagOutput:
             folder = self._staged / self.path.stem
             self._written = folder if self.kind == "ros2" else folder / f"{self.path.stem}.mcap"
             self._writer = Writer2(folder, version=9, storage_plugin=StoragePlugin.MCAP)
+            # STORAGE: the MCAP file's own chunks are zstd-compressed (what Foxglove and the
+            # rosbag2 MCAP plugin read), not the whole file or each message
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         try:
             self._writer.open()
         except BaseException as err:
@@ -124,14 +123,16 @@ class BagOutput:
     def _types(self) -> dict[str, Any]:
         return self.typestore.types
 
-    def _header(self, stamp_ns: int, frame_id: str) -> Any:
-        types = self._types()
-        stamp = types["builtin_interfaces/msg/Time"](
+    def _time(self, stamp_ns: int) -> Any:
+        return self._types()["builtin_interfaces/msg/Time"](
             sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)
         )
+
+    def _header(self, stamp_ns: int, frame_id: str, seq: int = 0) -> Any:
+        header = self._types()["std_msgs/msg/Header"]
         if self.ros1:
-            return types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame_id)
-        return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+            return header(seq=seq, stamp=self._time(stamp_ns), frame_id=frame_id)
+        return header(stamp=self._time(stamp_ns), frame_id=frame_id)
 
     def _write(self, topic: str, msgtype: str, log_time_ns: int, msg: Any) -> None:
         conn = self._connections.get(topic)
@@ -140,13 +141,62 @@ class BagOutput:
             self._connections[topic] = conn
         self._writer.write(conn, int(log_time_ns), self._serialize(msg, msgtype))
 
+    def add_copy(
+        self,
+        topic: str,
+        msgtype: str,
+        msgdef: str,
+        digest: str,
+        latching: bool = False,
+        callerid: str | None = None,
+        qos: Any = None,
+    ) -> Any:
+        """The connection that copied messages of ``topic`` go to: ``msgdef`` and ``digest``
+        (ROS 1: the md5sum; ROS 2: the RIHS01 hash) say what their bytes are. A topic latched in
+        ROS 1 (``/tf_static``) is offered transient-local in ROS 2 (``qos``: the ROS 2
+        profiles to offer as recorded, where known), and the other way round. Asked twice for
+        the same, gives the one connection (ROS 2 takes each topic and type once)."""
+        key = (topic, msgtype, latching, callerid if self.ros1 else None)
+        conn = self._copies.get(key)
+        if conn is not None:
+            return conn
+        if self.ros1:
+            conn = self._writer.add_connection(
+                topic,
+                msgtype,
+                msgdef=msgdef,
+                md5sum=digest,
+                callerid=callerid,
+                latching=int(latching) if latching else None,
+            )
+        else:
+            if qos is None:
+                from rosbags.convert.converter import LATCH
+
+                qos = LATCH if latching else []
+            conn = self._writer.add_connection(
+                topic, msgtype, msgdef=msgdef, rihs01=digest, offered_qos_profiles=qos
+            )
+        self._copies[key] = conn
+        return conn
+
+    def write_raw(self, connection: Any, log_time_ns: int, data: bytes | memoryview) -> None:
+        """A message already serialised as the output takes it (:meth:`add_copy`)."""
+        self._writer.write(connection, int(log_time_ns), data)
+
     def write_scan(
-        self, topic: str, scan: Scan, frame_id: str, log_time_ns: int | None = None
+        self,
+        topic: str,
+        scan: Scan,
+        frame_id: str,
+        log_time_ns: int | None = None,
+        seq: int = 0,
     ) -> None:
-        """``scan`` stamped with its stamp; logged at ``log_time_ns`` (default: the stamp)."""
+        """``scan`` stamped with its stamp; logged at ``log_time_ns`` (default: the stamp);
+        ``seq``: its header's sequence number (ROS 1 only)."""
         g = scan.geometry
         msg = self._types()["sensor_msgs/msg/LaserScan"](
-            header=self._header(scan.stamp_ns, frame_id),
+            header=self._header(scan.stamp_ns, frame_id, seq),
             angle_min=g.angle_min,
             angle_max=g.angle_min + g.angle_increment * (g.count - 1),
             angle_increment=g.angle_increment,
@@ -168,12 +218,25 @@ class BagOutput:
         frame_id: str,
         unknown: np.ndarray | None = None,
         log_time_ns: int | None = None,
+        made_ns: int | None = None,
     ) -> None:
-        from lidarflow.predict.grids import GridLayout  # the live nodes lay grids out so too
-
-        types = self._types()
+        """``probability`` as an OccupancyGrid for ``stamp_ns`` (``header.stamp``), made from
+        the scan of ``made_ns`` (``info.map_load_time``; default ``stamp_ns``: a map of the
+        present)."""
         if probability.shape != grid.shape:
             raise PredictError(f"map {probability.shape} does not match the grid {grid.shape}")
+        data = grid_data(probability, unknown)
+        made = stamp_ns if made_ns is None else made_ns
+        self.write_grid_data(OutGrid(topic, data, stamp_ns, made), grid, frame_id, log_time_ns)
+
+    def write_grid_data(
+        self, out: OutGrid, grid: GridSpec, frame_id: str, log_time_ns: int | None = None
+    ) -> None:
+        """One grid of :func:`lidarflow.predict.grids.prediction_grids` as an OccupancyGrid,
+        laid out in the scan's frame as the live nodes lay theirs (:class:`GridLayout`)."""
+        types = self._types()
+        if out.data.size != grid.height * grid.width:
+            raise PredictError(f"a map of {out.data.size} cells does not fit the grid {grid}")
         layout = GridLayout.of(grid)
         origin = types["geometry_msgs/msg/Pose"](
             position=types["geometry_msgs/msg/Point"](
@@ -182,16 +245,17 @@ class BagOutput:
             orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
         )
         info = types["nav_msgs/msg/MapMetaData"](
-            map_load_time=self._header(stamp_ns, frame_id).stamp,
+            map_load_time=self._time(out.scan_stamp_ns),
             resolution=layout.resolution,
             width=layout.width,
             height=layout.height,
             origin=origin,
         )
         msg = types["nav_msgs/msg/OccupancyGrid"](
-            header=self._header(stamp_ns, frame_id), info=info, data=grid_data(probability, unknown)
+            header=self._header(out.stamp_ns, frame_id), info=info, data=out.data
         )
-        self._write(topic, "nav_msgs/msg/OccupancyGrid", _logged(stamp_ns, log_time_ns), msg)
+        at = _logged(out.stamp_ns, log_time_ns)
+        self._write(out.topic, "nav_msgs/msg/OccupancyGrid", at, msg)
 
     def write_flow(
         self,
@@ -204,16 +268,42 @@ class BagOutput:
         """Flow ``(2, H, W)`` in cells as a ``32FC2`` image (row 0 the map's far edge)."""
         if flow.ndim != 3 or flow.shape[0] != 2:
             raise PredictError(f"flow must be (2, H, W), got {tuple(flow.shape)}")
-        _, h, w = flow.shape
-        pixels = np.ascontiguousarray(np.moveaxis(flow.astype("<f4"), 0, -1))
+        pixels = np.moveaxis(flow.astype("<f4"), 0, -1)
+        self._write_image(topic, pixels, "32FC2", stamp_ns, frame_id, log_time_ns)
+
+    def write_rgb(
+        self,
+        topic: str,
+        pixels: np.ndarray,
+        stamp_ns: int,
+        frame_id: str,
+        log_time_ns: int | None = None,
+    ) -> None:
+        """A picture ``(H, W, 3)`` of ``uint8`` as an ``rgb8`` image (Foxglove and RViz show it)."""
+        if pixels.ndim != 3 or pixels.shape[2] != 3 or pixels.dtype != np.uint8:
+            raise PredictError(f"an rgb8 image must be (H, W, 3) uint8, got {pixels.shape}")
+        self._write_image(topic, pixels, "rgb8", stamp_ns, frame_id, log_time_ns)
+
+    def _write_image(
+        self,
+        topic: str,
+        pixels: np.ndarray,
+        encoding: str,
+        stamp_ns: int,
+        frame_id: str,
+        log_time_ns: int | None,
+    ) -> None:
+        """``pixels`` ``(H, W, channels)`` (little-endian) as a ``sensor_msgs/Image``."""
+        h, w, _ = pixels.shape
+        data = np.ascontiguousarray(pixels).view(np.uint8).reshape(h, -1)
         msg = self._types()["sensor_msgs/msg/Image"](
             header=self._header(stamp_ns, frame_id),
             height=h,
             width=w,
-            encoding="32FC2",
+            encoding=encoding,
             is_bigendian=0,
-            step=w * 8,
-            data=pixels.view(np.uint8).ravel(),
+            step=data.shape[1],
+            data=data.ravel(),
         )
         self._write(topic, "sensor_msgs/msg/Image", _logged(stamp_ns, log_time_ns), msg)
 

@@ -1,0 +1,237 @@
+"""The input bag's messages copied into a prediction output, so that it stands on its own.
+
+Every connection of the input (the scans with every field, ``/tf``, ``/tf_static``, odometry,
+anything else) goes to the output with its log times. Where the output serialises as the input
+does (ROS 1 into a ``.bag``; CDR into an MCAP file or a ROS 2 bag) the bytes are copied as they
+are, with the message definition recorded for them; across the two, each message is converted
+as ``rosbags-convert`` converts it: on the bytes where the wire formats differ only in the
+header (ROS 1's ``seq``, which ROS 2 has not, is dropped; ROS 1 gets ``seq`` 0 back), else
+through the message objects, field by field. Types the output's type store lacks
+(``tf2_msgs/TFMessage`` in a ROS 1 bag, a robot's own messages) are taken from the input's.
+
+Names stay as recorded (a ROS 1 ``right_scan`` stays ``right_scan`` in a ``.bag``), except that
+ROS 2 takes only absolute names: there ``right_scan`` becomes ``/right_scan``. Latching (ROS 1)
+and transient-local durability (ROS 2) stand for each other, so that ``/tf_static`` stays what
+late subscribers get.
+
+The reader is what :func:`lidarflow.data.bags.open_bag` yields: ``connections``,
+``messages(connections=...)`` of ``(connection, log time ns, raw bytes)``, ``deserialize`` and,
+where it has one, ``typestore`` (the input's own types; else the standard ones of its ROS).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import BagError, LidarflowError
+from lidarflow.predict.rosout import BagOutput
+
+__all__ = ["copied_messages", "output_topic", "scan_log_times", "serialization"]
+
+_COPIES_WITHIN_NS = 1_000_000_000  # one message recorded twice arrives well within 1 s
+
+
+def serialization(reader: Any, connection: Any) -> str:
+    """``ros1`` or ``cdr``: how the input stores ``connection``'s messages (a rosbags ROS 2
+    connection says so; the reader of ROS 1 messages in MCAP files has no ``is2``)."""
+    ext = getattr(connection, "ext", None)
+    fmt = getattr(ext, "serialization_format", None)
+    if fmt:
+        return str(fmt)
+    if ext is not None and hasattr(ext, "latching"):
+        return "ros1"
+    return "cdr" if getattr(reader, "is2", False) else "ros1"
+
+
+def output_topic(topic: str, ros1: bool) -> str:
+    """The name ``topic`` takes in the output: as recorded in a ROS 1 bag, absolute in ROS 2."""
+    return topic if ros1 or topic.startswith("/") else "/" + topic
+
+
+def _latched(connection: Any) -> bool:
+    ext = getattr(connection, "ext", None)
+    if getattr(ext, "latching", None):
+        return True
+    profiles = getattr(ext, "offered_qos_profiles", None) or []
+    durability = [getattr(getattr(q, "durability", None), "name", "") for q in profiles]
+    return "TRANSIENT_LOCAL" in durability
+
+
+def _needed(store: Any, msgtype: str) -> set[str]:
+    """``msgtype`` and every message type its fields use, in ``store``."""
+    from rosbags.interfaces import Nodetype
+
+    out: set[str] = set()
+    todo = [msgtype]
+    while todo:
+        name = todo.pop()
+        if name in out or name not in store.fielddefs:
+            continue
+        out.add(name)
+        for _, (kind, detail) in store.fielddefs[name][1]:
+            if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+                kind, detail = detail[0]
+            if kind == Nodetype.NAME:
+                todo.append(detail)
+    return out
+
+
+def _take_types(source: Any, target: Any, msgtypes: Iterable[str]) -> None:
+    """Register in ``target`` the types of ``msgtypes`` it lacks, as ``source`` defines them;
+    never a header (each ROS has its own) or a type ``target`` has already."""
+    wanted: dict[str, Any] = {}
+    for msgtype in msgtypes:
+        for name in _needed(source, msgtype):
+            if name not in target.fielddefs and name != "std_msgs/msg/Header":
+                wanted[name] = source.fielddefs[name]
+    if wanted:
+        target.register(wanted)
+
+
+class _Converter:
+    """The converter of each message type from the input's serialisation to the output's."""
+
+    def __init__(self, source: Any, target: Any, from_ros1: bool, to_ros1: bool) -> None:
+        self.source, self.target = source, target
+        self.from_ros1, self.to_ros1 = from_ros1, to_ros1
+        self._cache: dict[str, Any] = {}
+        self._converters: dict[str, Callable[[bytes], Any]] = {}
+
+    def __call__(self, msgtype: str) -> Callable[[bytes], Any]:
+        found = self._converters.get(msgtype)
+        if found is None:
+            found = self._converters[msgtype] = self._make(msgtype)
+        return found
+
+    def _make(self, msgtype: str) -> Callable[[bytes], Any]:
+        from rosbags.convert.converter import is_same_wireformat, migrate_bytes
+
+        if self.from_ros1 == self.to_ros1:
+            return bytes  # the input's bytes are the output's
+        if is_same_wireformat(self.source, self.target, msgtype, msgtype):  # but the header
+            if self.from_ros1:
+                return partial(self.target.ros1_to_cdr, typename=msgtype)
+            return partial(self.source.cdr_to_ros1, typename=msgtype)
+        return partial(
+            migrate_bytes,
+            self.source,
+            self.target,
+            msgtype,
+            msgtype,
+            self._cache,
+            src_is2=not self.from_ros1,
+            dst_is2=not self.to_ros1,
+        )
+
+
+def _definition(store: Any, connection: Any, msgtype: str, ros1: bool) -> tuple[str, str]:
+    """The message definition and hash (md5sum in ROS 1, RIHS01 in ROS 2) to record for
+    ``msgtype``: the input connection's own where it recorded one in the output's format, else
+    made from ``store``'s types."""
+    recorded = getattr(connection, "msgdef", None)
+    digest = getattr(connection, "digest", "")
+    if (
+        recorded is not None
+        and getattr(recorded.format, "name", "") == "MSG"
+        and digest
+        and digest.startswith("RIHS01_") != ros1
+    ):
+        return str(recorded.data), str(digest)
+    if ros1:
+        msgdef, md5sum = store.generate_msgdef(msgtype)
+        return msgdef, md5sum
+    return store.generate_msgdef(msgtype, ros_version=2)[0], store.hash_rihs01(msgtype)
+
+
+def copied_messages(
+    reader: Any, out: BagOutput, keep: Callable[[str], bool] = lambda topic: True
+) -> Iterator[tuple[int, Any, Any]]:
+    """``(log time ns, output connection, bytes)`` of every message of ``reader`` on a topic
+    ``keep`` keeps, in the reader's order, converted for ``out`` (see the module). A message
+    that cannot be read or converted stops it with a :class:`BagError` saying how to leave
+    the input out."""
+    try:
+        yield from _copied(reader, out, keep)
+    except LidarflowError:
+        raise
+    except Exception as err:  # rosbags raises many types for damaged or unusual messages
+        text = str(err).strip().splitlines()
+        why = f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
+        raise BagError(
+            f"cannot copy the input bag's messages ({why}); --topics without 'input' "
+            "writes the predictions alone"
+        ) from err
+
+
+def _copied(
+    reader: Any, out: BagOutput, keep: Callable[[str], bool]
+) -> Iterator[tuple[int, Any, Any]]:
+    connections = [c for c in reader.connections if keep(c.topic)]
+    source = getattr(reader, "typestore", None)
+    if source is None:  # a reader that keeps no types of its own: the standard ones
+        from rosbags.typesys import Stores, get_typestore
+
+        ros1 = bool(connections) and serialization(reader, connections[0]) == "ros1"
+        source = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    # by identity: the reader yields its own connection objects, which may not hash (ROS 2
+    # connections hold lists of QoS profiles)
+    routes: dict[int, tuple[Any, Callable[[bytes], Any]]] = {}
+    converters: dict[bool, _Converter] = {}
+    for conn in connections:
+        from_ros1 = serialization(reader, conn) == "ros1"
+        same = from_ros1 == out.ros1
+        if not same:
+            _take_types(source, out.typestore, [conn.msgtype])
+        if from_ros1 not in converters:
+            converters[from_ros1] = _Converter(source, out.typestore, from_ros1, out.ros1)
+        convert = converters[from_ros1](conn.msgtype)
+        msgdef, digest = _definition(
+            source if same else out.typestore, conn if same else None, conn.msgtype, out.ros1
+        )
+        ext = getattr(conn, "ext", None)
+        target = out.add_copy(
+            output_topic(conn.topic, out.ros1),
+            conn.msgtype,
+            msgdef,
+            digest,
+            latching=_latched(conn),
+            callerid=getattr(ext, "callerid", None),
+            qos=getattr(ext, "offered_qos_profiles", None) if same else None,
+        )
+        routes[id(conn)] = (target, convert)
+    if not routes:
+        return
+    for conn, log_time, raw in reader.messages(connections=connections):
+        target, convert = routes[id(conn)]
+        yield int(log_time), target, convert(raw)
+
+
+def scan_log_times(
+    reader: Any, topic: str, header_stamps: np.ndarray, fallback_ns: np.ndarray
+) -> np.ndarray:
+    """The log time in the input of each scan of a recording read from it: the scan message of
+    ``topic`` whose header stamp is the scan's (``header_stamps``, as the bag has them), taken
+    in order (a stamp that comes back after a clock jump is the later message's; copies of
+    one message recorded together count once). Where none has that stamp (a stamp the reading
+    filled in), ``fallback_ns``, the recording's stamp. Made non-decreasing, so that
+    predictions logged at them come in the order of their scans."""
+    by_stamp: dict[int, deque[int]] = {}
+    connections = [c for c in reader.connections if c.topic == topic]
+    for conn, log_time, raw in reader.messages(connections=connections):
+        stamp = reader.deserialize(raw, conn.msgtype).header.stamp
+        key = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        by_stamp.setdefault(key, deque()).append(int(log_time))
+    out = np.array(fallback_ns, dtype=np.int64)
+    for i, stamp in enumerate(np.asarray(header_stamps, dtype=np.int64)):
+        queue = by_stamp.get(int(stamp))
+        if not queue:
+            continue
+        out[i] = first = queue.popleft()
+        while queue and queue[0] - first <= _COPIES_WITHIN_NS:
+            queue.popleft()
+    return np.maximum.accumulate(out) if out.size else out
