@@ -23,4 +23,12 @@ def test_ci_installs_the_browser_the_html_test_looks_for():
     script = (ROOT / ".ci" / "run").read_text()
     assert "apt-get install" in script and "chromium-headless-shell" in script
     checked = set(re.findall(r"command -v ([\w-]+)", script))
-    assert checked == set(BROWSERS)
+    assert checked - {"roscore", "rosbag"} == set(BROWSERS)
+
+
+def test_ci_installs_ros_1_and_makes_its_tests_fail_rather_than_skip():
+    from lidarflow.live.ros1 import DEBIAN_PACKAGES
+
+    script = (ROOT / ".ci" / "run").read_text()
+    assert all(package in script for package in DEBIAN_PACKAGES.split())
+    assert "export LIDARFLOW_REQUIRE_ROS=1" in script

@@ -27,6 +27,7 @@ from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.predict import Predictor
 from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
 from tests.live.rosmaster import SYSTEM_PYTHON, stop
+from tests.without_torch import MAIN
 
 PEER = Path(__file__).with_name("ros1_peer.py")
 SCAN_TOPIC = "/right_scan"  # the sample bag's topic, `right_scan`, as rosbag play names it
@@ -37,22 +38,18 @@ KEEP = 12  # grids per topic compared with the Predictor's own
 
 
 @pytest.fixture(scope="module")
-def onnx_model(tmp_path_factory) -> Path:
+def onnx_model() -> Path:
     """The bundled model as ONNX: what a robot without PyTorch runs."""
-    from lidarflow.models.presets import resolve_model
-    from lidarflow.predict.decision import DecisionPolicy
-    from lidarflow.predict.export import export_onnx
+    from lidarflow.models.presets import bundled_onnx
 
-    net, card = resolve_model(None)
-    path = tmp_path_factory.mktemp("model") / "bundled.onnx"
-    return export_onnx(net.eval(), path, decision=DecisionPolicy.from_record(card["decision"]))
+    return bundled_onnx()[0]
 
 
 def start_node(env: dict, log: Path, *args: str) -> subprocess.Popen:
-    """``lidarflow ros1 ARGS`` in its own process group, logging to ``log``; returns once it
-    published its topics (or ended)."""
+    """``lidarflow ros1 ARGS`` as the core install runs it (no PyTorch), in its own process
+    group, logging to ``log``; returns once it published its topics (or ended)."""
     node = subprocess.Popen(
-        [sys.executable, "-m", "lidarflow", "ros1", *args], env={**env, "OMP_NUM_THREADS": "1"},
+        [sys.executable, "-c", MAIN, "ros1", *args], env={**env, "OMP_NUM_THREADS": "1"},
         stdout=subprocess.DEVNULL, stderr=log.open("w"), start_new_session=True,
     )  # fmt: skip
     wait_for(lambda: "publishing" in log.read_text() or node.poll() is not None, 90, log)
