@@ -258,6 +258,9 @@ def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):
     # zero flow head: warping by zero flow is the identity, so the prediction is the last map
     for key in ("f1", "precision", "recall", "changed_f1"):
         assert methods["untrained"][key] == methods["copy_last"][key]
+    # ... and so are the peers' metrics of its probability
+    for key in ("wmse", "ssim"):
+        assert methods["untrained"][key] == pytest.approx(methods["copy_last"][key], abs=1e-6)
     # ... and so does its roll-out several frames ahead (evaluate --horizon)
     code, text, err = run(
         ["evaluate", str(sample_bag_path()), "-m", str(run_dir), "--horizon", "2", "-o",
@@ -265,8 +268,13 @@ def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):
     )  # fmt: skip
     assert code == 0, err
     assert "F1 per horizon step" in text
-    scores = json.loads(out.read_text())["recordings"][0]["horizon_f1"]
+    assert "WMSE per horizon step" in text and "SSIM per horizon step" in text
+    entry = json.loads(out.read_text())["recordings"][0]
+    scores = entry["horizon_f1"]
     assert len(scores["copy_last"]) == 2 and scores["untrained"] == scores["copy_last"]
+    for key in ("horizon_wmse", "horizon_ssim"):
+        assert set(entry[key]) == set(scores) and len(entry[key]["untrained"]) == 2
+        assert entry[key]["untrained"] == pytest.approx(entry[key]["copy_last"], abs=1e-6)
 
 
 def test_evaluate_with_a_missing_or_broken_model(tmp_path, capsys):

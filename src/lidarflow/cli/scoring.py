@@ -134,6 +134,7 @@ def evaluate(
     baseline's. Steps across gaps in time are not scored; -o writes every number as JSON."""
     from lidarflow.evaluate.report import (
         format_comparison,
+        format_peer_table,
         format_table,
         format_uncertainty_table,
         gaps_note,
@@ -200,11 +201,15 @@ def evaluate(
         comparison = format_comparison(entry["against_baselines"])
         typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:
-            typer.echo(_format_horizon(entry["horizon_f1"]) + "\n")
-            typer.echo(_format_horizon(entry["horizon_changed_f1"], "changed F1") + "\n")
+            for key, what in _HORIZON_TABLES:
+                if key in entry:
+                    typer.echo(_format_horizon(entry[key], what) + "\n")
         extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
         if extra:
             typer.echo(extra + "\n")
+        peers = format_peer_table(entry["methods"], _PEER_TITLE)
+        if peers:
+            typer.echo(peers + "\n")
     if len(report["recordings"]) > 1:
         typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
         note = undefined_note(report.get("undefined", []))
@@ -215,11 +220,24 @@ def evaluate(
         extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")
         if extra:
             typer.echo(extra)
+        peers = format_peer_table(report["overall"], f"overall {_PEER_TITLE}")
+        if peers:
+            typer.echo(peers)
     if output is not None:
         write_text(output, json.dumps(report, indent=2))
         typer.echo(f"wrote {output}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
+
+
+_PEER_TITLE = "peers' metrics (mean per frame; WMSE lower is better, SSIM higher)"
+#: The horizon tables, report key and title, in the order printed.
+_HORIZON_TABLES = (
+    ("horizon_f1", "F1"),
+    ("horizon_changed_f1", "changed F1"),
+    ("horizon_wmse", "WMSE"),
+    ("horizon_ssim", "SSIM"),
+)
 
 
 def _check_length(name: str, recording: Any, warmup: int, horizon: int) -> None:
@@ -257,7 +275,8 @@ def _add_horizon_scores(
                 inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
                 inputs.gaps, inputs.paces,
             )  # fmt: skip
-        entry["horizon_f1"], entry["horizon_changed_f1"] = scores["f1"], scores["changed_f1"]
+        for key, scored in scores.items():  # f1, changed_f1, wmse, ssim (none on a tiny grid)
+            entry[f"horizon_{key}"] = scored
 
 
 def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:

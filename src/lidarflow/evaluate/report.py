@@ -12,10 +12,12 @@ from lidarflow.evaluate.scoring import Scorer
 __all__ = [
     "BASELINES",
     "ORACLE_SUFFIX",
+    "PEER_COLUMNS",
     "UNCERTAINTY_COLUMNS",
     "against_baselines",
     "build_report",
     "format_comparison",
+    "format_peer_table",
     "format_table",
     "format_uncertainty_table",
     "gaps_note",
@@ -41,6 +43,8 @@ UNCERTAINTY_COLUMNS = (
     "moving_recall",
 )
 _LOWER_IS_BETTER = ("ece", "ece_active", "brier")
+#: The peers' metrics (:mod:`lidarflow.evaluate.peer_metrics`): WMSE lower is better, SSIM higher.
+PEER_COLUMNS = ("wmse", "ssim")
 
 
 def build_report(
@@ -293,3 +297,17 @@ def format_uncertainty_table(methods: dict[str, dict[str, Any]], title: str = ""
         return ""
     widths = {c: max(len(c), 9) + 1 for c in present}
     return _text_table(rows, present, best, widths, title)
+
+
+def format_peer_table(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> str:
+    """The peers' metrics, one row per method: WMSE (lower is better) and SSIM (higher), the
+    best of each marked *; "" when no method has them."""
+    rows = {n: {c: m[c] for c in PEER_COLUMNS if c in m} for n, m in methods.items()}
+    present = [c for c in PEER_COLUMNS if any(c in r for r in rows.values())]
+    if not present:
+        return ""
+    best = {}
+    for c in present:
+        values = [r[c] for r in rows.values() if c in r]
+        best[c] = min(values) if c == "wmse" else max(values)
+    return _text_table(rows, present, best, dict.fromkeys(present, 10), title)

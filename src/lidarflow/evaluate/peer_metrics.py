@@ -1,0 +1,158 @@
+"""The metrics the peers report beside F1: weighted MSE and SSIM of a predicted map.
+
+SOGMP (Xie and Dames, "Stochastic Occupancy Grid Map Prediction in Dynamic Scenes", CoRL 2023)
+and its successor SCOPE report a weighted mean squared error (WMSE) and the structural
+similarity index (SSIM) of the predicted occupancy map against the observed one, per prediction
+step, and no F1. These functions let a lidarflow report be read in that convention too (design
+notes section 5: beside F1, never instead of it). Both are pure NumPy on maps ``(..., H, W)`` and
+return one value per map (shape ``(...)``).
+
+**WMSE.** Most cells are free, so a plain MSE rewards predicting nothing. The squared error is
+weighted by class so that occupied and free cells count equally (median-frequency balancing,
+Eigen and Fergus 2015: weight ``median_c f_c / f_c`` for class frequency ``f_c``; with two
+classes that is ``1 / (2 f_c)``):
+
+    WMSE = sum_i w_i (p_i - y_i)^2 / sum_i w_i,   w_i = 1 / n_{y_i}
+
+with ``n_1`` the target's occupied cells and ``n_0`` its free cells, i.e. the mean of the MSE
+over the occupied cells and the MSE over the free cells. The frequencies are each target map's
+own, so that the metric streams frame by frame; a map with one class only is its plain MSE.
+``weights=(w_free, w_occupied)`` gives fixed class weights instead (``(1, 1)``: the plain MSE).
+
+**SSIM** (Wang et al. 2004, the reference definition): an 11 x 11 Gaussian window of sigma 1.5,
+``C1 = (0.01 L)^2``, ``C2 = (0.03 L)^2`` with data range ``L = 1`` (probabilities against a 0/1
+map), local means, variances and covariance weighted by the window, averaged over the window
+positions wholly inside the map (no padding: ``(H - 10) x (W - 10)`` of them). It equals
+``skimage.metrics.structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
+use_sample_covariance=False, data_range=1)`` (the tests check it).
+
+What is scored is what each method outputs: the probability its decision thresholds at 0.4 (a
+model's decided probability; copy-last's last map, 0 or 1) against the observed next map, 0 or
+1, as SOGMP scores its mean prediction against the observed scan's map.
+
+Against SOGMP's own numbers: our grid is 100 x 100 cells of 0.1 m in front of the sensor (10 m
+ahead, 5 m to each side, design notes section 2); theirs is 64 x 64 cells of 0.1 m, also in
+front (``MAP_X_LIMIT = [0, 6.4]``, ``MAP_Y_LIMIT = [-3.2, 3.2]`` in their ``decode_demo.py``),
+of a 270-degree scan, its target the binary map of the scan's returns as ours. The share of
+occupied cells, and with it both metrics, differ by grid alone: compare methods on one grid, not
+numbers across papers. Their public repository (``TempleRAIL/SOGMP``: training and demonstration
+scripts) holds no evaluation code, so the weighting and the SSIM window above are the standard
+definitions named, not read off their code.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+__all__ = ["SSIM_C1", "SSIM_C2", "SSIM_SIGMA", "SSIM_WINDOW", "gaussian_window", "ssim", "wmse"]
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_C1 = 0.01**2  # (K1 L)^2 with L = 1
+SSIM_C2 = 0.03**2  # (K2 L)^2
+
+
+def _pair(
+    predicted: np.ndarray, target: np.ndarray, dtype: type = np.float64
+) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(predicted, dtype)
+    t = np.asarray(target, dtype)
+    if p.shape != t.shape or p.ndim < 2:
+        raise ValueError(
+            f"predicted and target must be maps (..., H, W) of one shape, got {p.shape} and "
+            f"{t.shape}"
+        )
+    return p, t
+
+
+def wmse(
+    predicted: np.ndarray,
+    target: np.ndarray,
+    weights: tuple[float, float] | None = None,
+) -> np.ndarray:
+    """Class-weighted mean squared error of ``predicted`` probabilities against the 0/1
+    ``target`` (cells ``>= 0.5`` occupied), one value per map ``(..., H, W) -> (...)``; lower is
+    better, 0 for a perfect prediction, at most 1 for probabilities in [0, 1]. ``weights=None``
+    balances the classes per map (see the module); ``(w_free, w_occupied)`` fixes them.
+
+    >>> target = np.array([[1.0, 0.0, 0.0, 0.0]])
+    >>> float(wmse(np.zeros((1, 4)), target))  # misses the one occupied cell: half the weight
+    0.5
+    >>> float(wmse(np.zeros((1, 4)), target, weights=(1.0, 1.0)))  # the plain MSE
+    0.25
+    """
+    p, t = _pair(predicted, target)
+    occupied = t >= 0.5
+    error = (p - t) ** 2
+    axes = (-2, -1)
+    if weights is not None:
+        w_free, w_occupied = (float(w) for w in weights)
+        if w_free < 0 or w_occupied < 0 or w_free + w_occupied == 0:
+            raise ValueError(f"weights must be >= 0 and not both 0, got {weights}")
+        w = np.where(occupied, w_occupied, w_free)
+        return np.sum(w * error, axis=axes) / np.maximum(np.sum(w, axis=axes), 1e-300)
+    n_occupied = np.count_nonzero(occupied, axis=axes)
+    n_free = occupied.shape[-2] * occupied.shape[-1] - n_occupied
+    sse_occupied = np.sum(np.where(occupied, error, 0.0), axis=axes)
+    sse_free = np.sum(np.where(occupied, 0.0, error), axis=axes)
+    # the mean of the per-class MSEs over the classes present
+    mse_occupied = sse_occupied / np.maximum(n_occupied, 1)
+    mse_free = sse_free / np.maximum(n_free, 1)
+    present = (n_occupied > 0).astype(np.float64) + (n_free > 0)
+    return (mse_occupied + mse_free) / present
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:
+    """The normalised 1-D Gaussian ``(size,)`` whose outer product is SSIM's window."""
+    x = np.arange(size, dtype=np.float64) - (size - 1) / 2
+    g = np.exp(-(x**2) / (2 * sigma**2))
+    return g / g.sum()
+
+
+@functools.lru_cache(maxsize=8)
+def _band(size: int, n: int = SSIM_WINDOW) -> np.ndarray:
+    """``(size, size - n + 1)``: column ``j`` holds the window over cells ``j .. j + n - 1``, so
+    that a product with it filters one axis (a BLAS product: ~20 times faster on a 100 x 100
+    map than a product over strided windows). float32: the statistics of values in [0, 1] lose
+    ~1e-9 of SSIM to it, and it takes ~40 % less time than float64."""
+    g = gaussian_window(n)
+    band = np.zeros((size, size - n + 1), np.float32)
+    for j in range(size - n + 1):
+        band[j : j + n, j] = g
+    band.setflags(write=False)
+    return band
+
+
+def _filter(maps: np.ndarray) -> np.ndarray:
+    """``maps (..., H, W)`` filtered by the Gaussian window, valid positions only:
+    ``(..., H - 10, W - 10)``."""
+    return _band(maps.shape[-2]).T @ (maps @ _band(maps.shape[-1]))
+
+
+def ssim(predicted: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Mean structural similarity of two maps with values in [0, 1], one value per map
+    ``(..., H, W) -> (...)`` (see the module for the definition); higher is better, 1 for
+    identical maps, symmetric, within [-1, 1]. Maps must be at least 11 x 11 cells.
+
+    >>> x = np.zeros((12, 12)); x[3:8, 4:6] = 1.0
+    >>> float(ssim(x, x))
+    1.0
+    >>> round(float(ssim(x, np.zeros((12, 12)))), 4)  # a blank prediction
+    0.0
+    """
+    x, y = _pair(predicted, target, np.float32)
+    if min(x.shape[-2:]) < SSIM_WINDOW:
+        raise ValueError(
+            f"SSIM needs maps of at least {SSIM_WINDOW} x {SSIM_WINDOW} cells, got "
+            f"{x.shape[-2]} x {x.shape[-1]}"
+        )
+    mu_x, mu_y, xx, yy, xy = _filter(np.stack([x, y, x * x, y * y, x * y]))
+    var_x = xx - mu_x * mu_x
+    var_y = yy - mu_y * mu_y
+    cov = xy - mu_x * mu_y
+    local = ((2 * mu_x * mu_y + SSIM_C1) * (2 * cov + SSIM_C2)) / (
+        (mu_x * mu_x + mu_y * mu_y + SSIM_C1) * (var_x + var_y + SSIM_C2)
+    )
+    return local.mean(axis=(-2, -1), dtype=np.float64)
