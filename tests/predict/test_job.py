@@ -7,6 +7,7 @@ import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.errors import PredictError
+from lidarflow.flowcolor import flow_to_rgb
 from lidarflow.predict import Predictor
 from lidarflow.predict.job import (
     DEFAULT_TOPICS,
@@ -14,7 +15,6 @@ from lidarflow.predict.job import (
     FLOW_RGB_FULL_CELLS,
     predict_to_bag,
 )
-from lidarflow.viz.flow import flow_to_rgb
 from tests.conftest import make_model_dir
 from tests.predict.test_rosout import read_all
 

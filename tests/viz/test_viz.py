@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.viz.flow import flow_to_rgb
+from lidarflow.flowcolor import flow_to_rgb
 from lidarflow.viz.overlay import overlay_rgb, write_gif
 from lidarflow.viz.plots import plot_pr_curves
 

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.data.cutshort import cut_short_reader
 from lidarflow.data.mcapfile import McapReader, channel_encoding
-from lidarflow.data.readers import cut_short_reader
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
 from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored

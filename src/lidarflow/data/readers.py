@@ -6,17 +6,17 @@ Both give the reader :func:`lidarflow.data.bags.open_bag` promises, as rosbags' 
 does: ``connections`` (rosbags' own :class:`~rosbags.interfaces.Connection`), ``messages(
 connections=...)`` yielding ``(connection, log time ns, raw)``, ``deserialize(raw, msgtype)``
 and ``typestore``; and ``recovered``, a :class:`CutShort` where the file ended early (``None``
-where it was whole). :func:`cut_short_reader` picks the one for a file rosbags gave up on.
+where it was whole). :func:`lidarflow.data.cutshort.cut_short_reader` picks the one for a file
+rosbags gave up on.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-__all__ = ["CutShort", "cut_short_reader", "typestore_from"]
+__all__ = ["CutShort", "typestore_from"]
 
 _MB = 1 << 20
 
@@ -77,25 +77,3 @@ def typestore_from(connections: Iterable[Any], default: Any) -> Any:
     store = get_typestore(Stores.EMPTY)
     store.register(types)
     return store
-
-
-def cut_short_reader(target: Path, store: Any) -> Any:
-    """A reader of what a bag cut short holds up to its last intact message, where rosbags
-    could not open it (a ROS 1 bag without its index, an MCAP file without its summary or
-    footer, a ROS 2 folder around one); ``None`` where that finds no message either (a file
-    that is no bag, or damaged from its start)."""
-    from lidarflow.data.mcapfile import McapReader, channel_encoding
-    from lidarflow.data.ros1bag import Ros1BagSequentialReader
-
-    if target.is_dir():
-        mcaps = sorted(target.glob("*.mcap"))
-        target = mcaps[0] if len(mcaps) == 1 else target
-    try:
-        if target.is_file() and target.suffix.lower() == ".bag":
-            return Ros1BagSequentialReader(target, store)
-        if target.is_file() and target.suffix.lower() == ".mcap":
-            return McapReader(target, channel_encoding(target) or "cdr", store)
-    except Exception:  # what rosbags said of the file is the better message
-        return None
-    return None
-

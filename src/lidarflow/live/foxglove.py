@@ -43,6 +43,7 @@ from foxglove.messages import (
 )
 
 from lidarflow.errors import PredictError
+from lidarflow.flowcolor import flow_to_rgb
 from lidarflow.predict.grids import (
     FLOW_RGB_FULL_CELLS,
     FLOW_RGB_TOPIC,
@@ -51,7 +52,6 @@ from lidarflow.predict.grids import (
     prediction_grids,
 )
 from lidarflow.scan import GridSpec, Scan
-from lidarflow.viz.flow import flow_to_rgb
 
 if TYPE_CHECKING:
     from lidarflow.live.step import LiveFrame

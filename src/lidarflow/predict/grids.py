@@ -39,7 +39,7 @@ __all__ = [
 ]
 
 TOPIC_PREFIX = "/lidarflow"
-#: The forward flow as an ``rgb8`` colour-wheel image (:func:`lidarflow.viz.flow.flow_to_rgb`):
+#: The forward flow as an ``rgb8`` colour-wheel image (:func:`lidarflow.flowcolor.flow_to_rgb`):
 #: where each occupied cell of the current map goes next, hue the direction, saturation the
 #: length; the flow viewers can show, as neither RViz nor Foxglove shows a 32FC2 image.
 FLOW_RGB_TOPIC = f"{TOPIC_PREFIX}/flow_forward_rgb"

@@ -217,7 +217,7 @@ def _write_prediction(
         out.write_grid_data(g, predictor.grid, frame_id, log_time_ns=at)
     written = [g.topic for g in grids]
     if "flow" in groups and p.backward_flow is not None and p.forward_flow is not None:
-        from lidarflow.viz.flow import flow_to_rgb
+        from lidarflow.flowcolor import flow_to_rgb
 
         for name, flow in (("backward", p.backward_flow), ("forward", p.forward_flow)):
             topic = f"{TOPIC_PREFIX}/flow_{name}"

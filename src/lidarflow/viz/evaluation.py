@@ -24,9 +24,9 @@ from lidarflow.evaluate.stream import (
     has_ground_truth,
     other_recorded_grid,
 )
+from lidarflow.flowcolor import flow_to_rgb
 from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
-from lidarflow.viz.flow import flow_to_rgb
 from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import moving_rgb, overlay_rgb, write_gif
 from lidarflow.viz.plots import plot_epe_per_frame, plot_pr_curves, plot_reliability

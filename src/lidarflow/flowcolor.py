@@ -1,5 +1,7 @@
-"""Flow pictures: the standard optical-flow colour wheel (Baker et al., as in Middlebury and
-RAFT's ``flow_to_image``) and arrows on occupied cells."""
+"""The standard optical-flow colour wheel (Baker et al., as in Middlebury and RAFT's
+``flow_to_image``): a flow as an RGB picture, for the reports (:mod:`lidarflow.viz`) and for what
+the predictions are written and served as (:mod:`lidarflow.predict.job`, :mod:`lidarflow.live`);
+NumPy alone."""
 
 from __future__ import annotations
 
