@@ -21,7 +21,9 @@ What is adapted to lidarflow, and why:
 
 - **Grid**: lidarflow's 100 x 100 cells of 0.1 m (the same layout, sensor at the middle of the
   bottom edge; 10 m x 10 m instead of 6.4 m x 6.4 m). Every block is convolutional, so the
-  structure is unchanged; the latent is 2 x 25 x 25 and the grid must be a multiple of 4.
+  structure is unchanged; the latent is 2 x 25 x 25. A grid whose sides are not multiples
+  of 4 is padded with zeros at the far and right edges inside the model, and the prediction
+  cropped back.
 - **Input channels**: the peer sees occupancy only; so does this model by default. With
   ``visibility_input`` each frame of the window is ``(O, V)`` (lidarflow's visibility map), an
   extension, off unless asked for.
@@ -40,10 +42,10 @@ What is adapted to lidarflow, and why:
 - **Output**: a logit instead of a sigmoid (the loss takes logits; the same maths, stabler),
   its bias starting at ``logit(0.02)`` (as DeepTracking's) so that the untrained net predicts
   "mostly free"; and a second channel, the KL divergence of this step's latent from the prior
-  spread over the cells (each latent cell's KL divided evenly over the 4 x 4 cells it decodes
-  to, so the channel sums to the step's KL): the loss reads it from the output, which keeps
-  the model a plain step function for training, validation and export. It is a statistic of
-  the step, not a map of the world: the ego-motion wrapper does not move it.
+  divided evenly over the cells (so the channel sums to the step's KL): the loss reads it from
+  the output, which keeps the model a plain step function for training, validation and
+  export. It is a statistic of the step, not a map of the world: the ego-motion wrapper does
+  not move it.
 - **KL**: the analytic KL of two Gaussians, where the peer's code uses a one-sample Monte
   Carlo estimate of it (same expectation, no sampling noise in the loss).
 - **Mean and samples**: ``step`` in eval mode decodes ``z = mu`` (the posterior mean: one
@@ -159,9 +161,9 @@ class SOGMP(RecurrentMapModel):
     the module docstring.
 
     >>> net = SOGMP().eval()
-    >>> out, state = net.step(torch.zeros(1, 2, 16, 12), net.init_state(1, 16, 12))
+    >>> out, state = net.step(torch.zeros(1, 2, 14, 11), net.init_state(1, 14, 11))
     >>> tuple(out.shape), tuple(state[0].shape), sum(p.numel() for p in net.parameters())
-    ((1, 2, 16, 12), (1, 10, 16, 12), 730245)
+    ((1, 2, 14, 11), (1, 10, 14, 11), 730245)
     """
 
     out_channels: int = 2
@@ -209,16 +211,20 @@ class SOGMP(RecurrentMapModel):
         return (self.window * self.frame_channels,)
 
     def encode(self, window: Tensor) -> tuple[Tensor, Tensor]:
-        """``mu, log_sd`` of ``q(z | window)`` for a window ``(B, window x c, H, W)``."""
+        """``mu, log_sd`` of ``q(z | window)`` for a window ``(B, window x c, H, W)``; the
+        latent is ``ceil(H / 4) x ceil(W / 4)`` (the ConvLSTM's output padded with zeros at the
+        far and right edges to a multiple of 4, which :meth:`decode` crops away)."""
         b, _, h, w = window.shape
-        if h % DOWNSAMPLING or w % DOWNSAMPLING:
-            raise ValueError(f"SOGMP needs a grid whose sides are multiples of 4, got {h}x{w}")
         frames = window.reshape(b, self.window, self.frame_channels, h, w)
         hidden = window.new_zeros(b, self.lstm.hidden_channels, h, w)
         cell = hidden
         for t in range(self.window):
             hidden, cell = self.lstm(frames[:, t], (hidden, cell))
-        return self.encoder(hidden)
+        return self.encoder(F.pad(hidden, (0, -w % DOWNSAMPLING, 0, -h % DOWNSAMPLING)))
+
+    def decode(self, z: Tensor, height: int, width: int) -> Tensor:
+        """The next-occupancy logit ``(B, 1, height, width)`` decoded from ``z``."""
+        return self.decoder(z)[..., :height, :width]
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
         """Slide ``maps`` into the window, encode it, decode ``z`` (``mu`` in eval mode, a draw
@@ -229,10 +235,11 @@ class SOGMP(RecurrentMapModel):
         z = mu
         if self.training:
             z = mu + torch.exp(log_sd) * torch.randn_like(mu)
-        logit = self.decoder(z)
-        kl = kl_to_standard_normal(mu, log_sd).sum(dim=1, keepdim=True)
-        kl = F.interpolate(kl, size=logit.shape[-2:], mode="nearest") / DOWNSAMPLING**2
-        return torch.cat([logit, kl.to(logit.dtype)], dim=1), (window,)
+        h, w = int(maps.shape[-2]), int(maps.shape[-1])
+        logit = self.decode(z, h, w)
+        kl = kl_to_standard_normal(mu, log_sd).sum(dim=(1, 2, 3)) / (h * w)
+        kl = kl.to(logit.dtype)[:, None, None, None].expand_as(logit)
+        return torch.cat([logit, kl], dim=1), (window,)
 
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
         """``sigmoid(logit)`` ``(B, 1, H, W)``; ``maps`` is unused (kept for the interface)."""
@@ -262,7 +269,7 @@ class SOGMP(RecurrentMapModel):
             (n, *mu.shape), generator=generator, device=mu.device, dtype=mu.dtype
         )
         z = (mu + torch.exp(log_sd) * eps).flatten(0, 1)
-        logit = self.decoder(z)
+        logit = self.decode(z, *state[0].shape[-2:])
         if next_motion is not None:
             motion = next_motion.to(logit.dtype).repeat(n, 1)
             logit = rigid_warp(logit, motion, fill=OCCUPANCY_FILL_LOGIT)
