@@ -40,14 +40,14 @@ def test_shapes_state_and_parameters():
     vis = _net(visibility_input=True, window=4)
     assert vis.state_channels() == (8,)
     # a grid that is not a multiple of 4 is padded inside and the prediction cropped back:
-    # the far and right edges pad with empty cells, the sensor's corner is what it was
+    # empty cells beyond the far (row 0) and right edges, the sensor's edge as it was
     odd = torch.zeros(1, 2, 18, 19)
     odd[0, 0, 5, 7] = 1.0
     with torch.no_grad():
         out, _ = net.step(odd, net.init_state(1, 18, 19))
-        full, _ = net.step(torch.nn.functional.pad(odd, (0, 1, 0, 2)), net.init_state(1, 20, 20))
+        full, _ = net.step(torch.nn.functional.pad(odd, (0, 1, 2, 0)), net.init_state(1, 20, 20))
     assert out.shape == (1, 2, 18, 19)
-    torch.testing.assert_close(out[:, :1], full[:, :1, :18, :19], atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(out[:, :1], full[:, :1, 2:, :19], atol=1e-5, rtol=1e-5)
 
 
 def test_window_keeps_exactly_the_last_maps():

@@ -22,7 +22,8 @@ What is adapted to lidarflow, and why:
 - **Grid**: lidarflow's 100 x 100 cells of 0.1 m (the same layout, sensor at the middle of the
   bottom edge; 10 m x 10 m instead of 6.4 m x 6.4 m). Every block is convolutional, so the
   structure is unchanged; the latent is 2 x 25 x 25. A grid whose sides are not multiples
-  of 4 is padded with zeros at the far and right edges inside the model, and the prediction
+  of 4 is padded with zeros at the far and right edges inside the model (the sensor's
+  edge stays as it is), and the prediction
   cropped back.
 - **Input channels**: the peer sees occupancy only; so does this model by default. With
   ``visibility_input`` each frame of the window is ``(O, V)`` (lidarflow's visibility map), an
@@ -213,18 +214,21 @@ class SOGMP(RecurrentMapModel):
     def encode(self, window: Tensor) -> tuple[Tensor, Tensor]:
         """``mu, log_sd`` of ``q(z | window)`` for a window ``(B, window x c, H, W)``; the
         latent is ``ceil(H / 4) x ceil(W / 4)`` (the ConvLSTM's output padded with zeros at the
-        far and right edges to a multiple of 4, which :meth:`decode` crops away)."""
+        far edge, row 0's side, and the right edge to a multiple of 4; :meth:`decode` crops
+        them away)."""
         b, _, h, w = window.shape
         frames = window.reshape(b, self.window, self.frame_channels, h, w)
         hidden = window.new_zeros(b, self.lstm.hidden_channels, h, w)
         cell = hidden
         for t in range(self.window):
             hidden, cell = self.lstm(frames[:, t], (hidden, cell))
-        return self.encoder(F.pad(hidden, (0, -w % DOWNSAMPLING, 0, -h % DOWNSAMPLING)))
+        return self.encoder(F.pad(hidden, (0, -w % DOWNSAMPLING, -h % DOWNSAMPLING, 0)))
 
     def decode(self, z: Tensor, height: int, width: int) -> Tensor:
-        """The next-occupancy logit ``(B, 1, height, width)`` decoded from ``z``."""
-        return self.decoder(z)[..., :height, :width]
+        """The next-occupancy logit ``(B, 1, height, width)`` decoded from ``z`` (the padding
+        of :meth:`encode`, far rows first, cropped away)."""
+        logit = self.decoder(z)
+        return logit[..., logit.shape[-2] - height :, :width]
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
         """Slide ``maps`` into the window, encode it, decode ``z`` (``mu`` in eval mode, a draw
