@@ -1,7 +1,7 @@
-"""The self-supervised losses: LiDAR-FlowNet's warp loss (paper eq. 3, design notes section 4)
-and DeepTracking's cross-entropy.
+"""The self-supervised losses: LiDAR-FlowNet's warp loss (paper eq. 3, design notes section 4),
+DeepTracking's cross-entropy and SOGMP's cross-entropy plus KL.
 
-Indexing (both losses). ``seq`` is ``(B, T, 2, H, W)`` with channels ``(O, V)``; the model's
+Indexing (every loss). ``seq`` is ``(B, T, 2, H, W)`` with channels ``(O, V)``; the model's
 output at index ``t`` (0-based) has seen frames ``0..t`` and speaks about the pair ``(t, t+1)``.
 The loss counts pairs ``t = warmup .. T-2``: with the paper's ``T = 20`` and ``warmup = 10``,
 frames 0-9 (the first ten) only warm up the hidden state, and the loss starts with the output
@@ -56,6 +56,8 @@ class LossConfig:
             default: the metric scores every cell, an occluded one as free.
         occupancy_changed_weight: in that term, the weight of cells that change between
             ``O^t`` and ``O^{t+1}`` relative to the others (1 = plain mean).
+        kl_weight: SOGMP only (:func:`sogmp_loss`): the weight ``beta`` of its latent's KL
+            divergence from the prior (the peer's 0.01).
     """
 
     blur_source: bool = True
@@ -68,8 +70,11 @@ class LossConfig:
     occupancy_bce: float = 0.0
     occupancy_visible_only: bool = False
     occupancy_changed_weight: float = 1.0
+    kl_weight: float = 0.01
 
     def __post_init__(self) -> None:
+        if not self.kl_weight >= 0.0:
+            raise ValueError(f"kl_weight must be >= 0, got {self.kl_weight}")
         if not self.smoothness >= 0.0:
             raise ValueError(f"smoothness must be >= 0, got {self.smoothness}")
         if not self.occupied_weight > 0.0:
@@ -209,6 +214,29 @@ def deeptracking_loss(
 
 
 next_map_bce = deeptracking_loss
+
+
+def sogmp_loss(seq: Tensor, out: Tensor, warmup: int = 9, kl_weight: float = 0.01) -> Tensor:
+    """SOGMP's loss (Xie & Dames 2023, as its public training code computes it): the binary
+    cross-entropy of the predicted next map against ``O^{t+1}`` summed over every cell of the
+    map (no visibility mask), plus ``kl_weight`` times the KL divergence of the step's latent
+    from the prior ``N(0, I)`` summed over the latent; both averaged over windows and pairs.
+
+    ``out[:, t]`` ``(B, T, 2, H, W)`` is :class:`~lidarflow.models.sogmp.SOGMP`'s output:
+    channel 0 the next-occupancy logit, channel 1 the KL spread over the cells (its sum over
+    the map is the step's KL). Pairs ``t = warmup .. T-2`` as in :func:`flow_loss` (the
+    recipe's warm-up of 9 fills the ten-map window before the first counted pair). The sums
+    per map (not means) keep the peer's balance between the two terms: the KL weighs as much
+    against ~10^4 cells here as it did against its 64 x 64.
+    """
+    _check(seq, out, 2, warmup)
+    t = seq.shape[1]
+    target = seq[:, warmup + 1 :, 0:1]
+    pred = out[:, warmup : t - 1].to(seq.dtype)
+    with torch.autocast(seq.device.type, enabled=False):
+        bce = F.binary_cross_entropy_with_logits(pred[:, :, :1], target, reduction="none")
+    per_map = bce.sum(dim=(2, 3, 4)) + kl_weight * pred[:, :, 1].sum(dim=(2, 3))
+    return per_map.mean()
 
 
 def gaussian_schedule(epoch: int, start: int = 9, step_epochs: int = 25, minimum: int = 1) -> int:

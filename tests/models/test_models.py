@@ -8,6 +8,7 @@ import torch
 from lidarflow.errors import ModelError
 from lidarflow.models import (
     MODEL_NAMES,
+    SOGMP,
     DeepTracking,
     LidarFlowNet,
     build_model,
@@ -28,15 +29,18 @@ def _seq(b=2, t=4, h=12, w=10, seed=0) -> torch.Tensor:
 def _randomise_head(model: torch.nn.Module) -> None:
     torch.manual_seed(5)
     head = model.flow.conv_flow if isinstance(model, LidarFlowNet) else model.decoder
+    if isinstance(model, SOGMP):
+        head = model.decoder.net[-1]
     with torch.no_grad():
         head.weight.normal_(0, 0.5)
         head.bias.normal_(0, 0.5)
 
 
 def test_model_names_and_builder():
-    assert set(MODEL_NAMES) == {"flownet", "deeptracking"}
+    assert set(MODEL_NAMES) == {"flownet", "deeptracking", "sogmp"}
     assert isinstance(build_model("flownet"), LidarFlowNet)
     assert isinstance(build_model("deeptracking"), DeepTracking)
+    assert isinstance(build_model("sogmp"), SOGMP)
     assert build_model("flownet", hidden_channels=8).flow.state_channels() == (8, 8, 8)
     with pytest.raises(ModelError, match="unknown model 'raft'"):
         build_model("raft")
@@ -92,7 +96,7 @@ def test_shapes_and_state_of_both_models(name, channels):
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
 def test_step_over_time_equals_forward_and_forward_resumes(name):
-    model = build_model(name)
+    model = build_model(name).eval()  # SOGMP draws its latent in training mode
     _randomise_head(model)
     seq = _seq(2, 6)
     expected, expected_state = model(seq)
@@ -110,7 +114,7 @@ def test_step_over_time_equals_forward_and_forward_resumes(name):
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
 def test_state_carries_history(name):
-    model = build_model(name)
+    model = build_model(name).eval()  # SOGMP draws its latent in training mode
     _randomise_head(model)
     seq = _seq(1, 3, seed=1)
     out_with_history, _ = model(seq)

@@ -12,8 +12,8 @@ from lidarflow.cli.app import TopicOpt, app
 
 
 @app.command(
-    help="Train LiDAR-FlowNet or the DeepTracking baseline, self-supervised, on recordings and "
-    "bags.\n\n"
+    help="Train LiDAR-FlowNet or a peer (DeepTracking, SOGMP), self-supervised, on recordings "
+    "and bags.\n\n"
     "By default (--recipe head) the bundled flow network gets an occupancy head fitted to your "
     "recordings, about 8 CPU-minutes. Settings come from the recipe, then --config, then these "
     "flags, then --set. The run directory gets its config, metrics, a checkpoint every epoch "
@@ -27,6 +27,8 @@ from lidarflow.cli.app import TopicOpt, app
     "my_robot.bag --init runs/flow -o runs/h  (your own flow network first)\n\n"
     "lidarflow train drive.npz --ego-motion -o runs/e  (odometry-compensated; needs poses)\n\n"
     "lidarflow train drive.npz --arch deeptracking -o runs/d  (the DeepTracking baseline)\n\n"
+    "lidarflow train drive.npz --arch sogmp --batch-size 8 --epochs 5 -o runs/s  (the SOGMP "
+    "peer, its own recipe)\n\n"
     "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
 )
@@ -45,7 +47,11 @@ def train(
     ] = None,
     arch: Annotated[
         str | None,
-        typer.Option("--arch", help="Architecture: flownet (LiDAR-FlowNet) or deeptracking."),
+        typer.Option(
+            "--arch",
+            help="Architecture: flownet (LiDAR-FlowNet), deeptracking or sogmp (each with its "
+            "own recipe unless --recipe names one).",
+        ),
     ] = None,
     ego_motion: Annotated[
         bool,
@@ -59,7 +65,8 @@ def train(
         str | None,
         typer.Option(
             help="Preset: head (the default: an occupancy head on a frozen flow network, "
-            "--init or the bundled one), paper (as published) or blurred."
+            "--init or the bundled one), paper (as published), blurred or sogmp (the SOGMP "
+            "peer's, the default of --arch sogmp)."
         ),
     ] = None,
     config: Annotated[

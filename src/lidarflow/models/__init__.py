@@ -1,5 +1,5 @@
 """Models: LiDAR-FlowNet (the flow network of Table I, an occupancy head, the ego-motion
-wrapper), the DeepTracking baseline, their ConvGRU cell, and the builder.
+wrapper), the DeepTracking and SOGMP peers, their recurrent cells, and the builder.
 
 Interface (train, evaluate and predict depend on it; details in
 :mod:`lidarflow.models.recurrent`): every model has ``capabilities``, ``init_state``, ``step``,
@@ -36,6 +36,7 @@ _TORCH_NAMES = {
     "LidarFlowNet": "flownet",
     "OccupancyHead": "head",
     "RecurrentMapModel": "recurrent",
+    "SOGMP": "sogmp",
     "build": "builder",
     "build_model": "builder",
     "count_parameters": "builder",
@@ -53,6 +54,7 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "DECISION_KEYS",
     "MODEL_NAMES",
+    "SOGMP",
     "Capabilities",
     "ConvGRUCell",
     "DeepTracking",

@@ -16,6 +16,7 @@ from lidarflow.models.flow import FlowNetwork
 from lidarflow.models.flownet import LidarFlowNet
 from lidarflow.models.head import OccupancyHead
 from lidarflow.models.recurrent import RecurrentMapModel
+from lidarflow.models.sogmp import SOGMP
 
 __all__ = ["build", "build_model", "count_parameters", "uses_ego_motion"]
 
@@ -29,6 +30,8 @@ def build(spec: ModelSpec) -> RecurrentMapModel:
     try:
         if spec.name == "deeptracking":
             model: RecurrentMapModel = DeepTracking(**spec.options)
+        elif spec.name == "sogmp":
+            model = SOGMP(**spec.options)
         else:
             head = None if spec.head is None else OccupancyHead(spec.head)
             model = LidarFlowNet(FlowNetwork(spec.flow), head)

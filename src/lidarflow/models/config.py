@@ -24,7 +24,7 @@ __all__ = [
     "ModelSpec",
 ]
 
-MODEL_NAMES: tuple[str, ...] = ("flownet", "deeptracking")
+MODEL_NAMES: tuple[str, ...] = ("flownet", "deeptracking", "sogmp")
 #: Keys older ``model_kwargs`` held that belong to the decision policy, not the model.
 DECISION_KEYS = ("decision_offset", "online_decision")
 #: Options measured without gain and removed (issue 35), with the value a model built without
@@ -106,8 +106,9 @@ class HeadConfig:
 @dataclass(frozen=True)
 class ModelSpec:
     """A whole model: ``name`` (one of :data:`MODEL_NAMES`); for ``flownet`` its ``flow`` and
-    ``head``; for ``deeptracking`` its own ``options`` (:class:`~lidarflow.models.deeptracking.
-    DeepTracking`'s arguments); ``ego_motion`` wraps it in
+    ``head``; for ``deeptracking`` and ``sogmp`` their own ``options`` (the arguments of
+    :class:`~lidarflow.models.deeptracking.DeepTracking`, :class:`~lidarflow.models.sogmp.SOGMP`);
+    ``ego_motion`` wraps it in
     :class:`~lidarflow.models.egomotion.EgoCompensated`, ``poses_optional`` lets that run
     without poses."""
 

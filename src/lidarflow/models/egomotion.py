@@ -16,9 +16,10 @@ own motion, so that the inner network only has to explain the motion of the worl
    - ``B(q) = T(q) + B_in(T(q)) - q`` with ``T`` the change of frame ``t+1 -> t`` in cells
      (``B_in`` sampled bilinearly at ``T(q)``);
    - ``F(p) = T^{-1}(p + F_in(p)) - p`` (exact, ``T^{-1}`` is affine);
-   - an occupancy logit (DeepTracking's output, or the occupancy head's residual logit, the
-     fifth channel of a flow model built with ``occupancy_head``) is warped rigidly, cells
-     coming into view at the prior logit ``logit(0.02)``.
+   - an occupancy logit (DeepTracking's output, SOGMP's first channel, or the occupancy head's
+     residual logit, the fifth channel of a flow model built with ``occupancy_head``) is warped
+     rigidly, cells coming into view at the prior logit ``logit(0.02)``; SOGMP's second
+     channel (its latent's KL, a statistic of the step) is not moved.
 
 Causality: at run time only poses up to ``t`` are known, so ``next_motion`` defaults to the
 constant-velocity guess ``motion`` (the same increment again); training does the same, so the
@@ -73,10 +74,10 @@ class EgoCompensated(RecurrentMapModel):
     def __init__(self, inner: RecurrentMapModel, poses_optional: bool = False) -> None:
         super().__init__()
         self.poses_optional = bool(poses_optional)
-        if inner.out_channels not in (1, 4, 5):
+        if inner.out_channels not in (1, 2, 4, 5):
             raise ValueError(
-                "inner model must output 4 flow channels, 1 logit or both (5), "
-                f"not {inner.out_channels}"
+                "inner model must output 4 flow channels, 1 logit (and SOGMP's KL: 2) or both "
+                f"(5), not {inner.out_channels}"
             )
         self.inner = inner
         self.out_channels = inner.out_channels
@@ -130,6 +131,9 @@ class EgoCompensated(RecurrentMapModel):
         next_motion = next_motion.to(out.dtype)
         if self.out_channels == 1:
             return rigid_warp(out, next_motion, fill=OCCUPANCY_FILL_LOGIT)
+        if self.out_channels == 2:  # SOGMP's KL channel is a statistic of the step: not moved
+            logit = rigid_warp(out[:, :1], next_motion, fill=OCCUPANCY_FILL_LOGIT)
+            return torch.cat([logit, out[:, 1:]], dim=1)
         h, w = int(out.shape[-2]), int(out.shape[-1])
         ego = rigid_flow(next_motion, h, w, dtype=out.dtype)
         backward = ego + warp(out[:, 0:2], ego)

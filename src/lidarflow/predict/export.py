@@ -3,8 +3,10 @@
 Graph: inputs ``maps (1, C, H, W)`` (``C`` the model's ``input_channels``: 2, ``(O, V)``, or
 4 with ``subcell_input``), ``state0..stateN-1``; outputs ``probability (1, 1, H, W)``
 (next-map occupancy), ``out (1, C, H, W)`` (flow channels for LiDAR-FlowNet, the logit for
-DeepTracking) and ``next_state0..``. The grid size is fixed at export time (the warp's sampling
-grid is a constant of the graph).
+DeepTracking, the logit and its step's KL for SOGMP) and ``next_state0..``. The grid size is
+fixed at export time (the warp's sampling grid is a constant of the graph). A stochastic model
+is exported in eval mode, so the graph holds its mean path: SOGMP decodes its latent's mean,
+no noise input (its samples are PyTorch's, :meth:`lidarflow.models.sogmp.SOGMP.sample`).
 
 Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more input after
 ``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and

@@ -41,9 +41,10 @@ __all__ = [
 @dataclass
 class ModelConfig:
     """Which network to train, typed as the model is built (:class:`lidarflow.models.ModelSpec`):
-    ``name`` (``flownet`` or ``deeptracking``), Table I's ``flow`` network, the occupancy
-    ``head`` (``None``: none; ``--set model.head.hidden_channels=16`` adds one), the ego-motion
-    wrapper (``ego_motion``, ``poses_optional``) and, for DeepTracking, its own ``options``.
+    ``name`` (``flownet``, ``deeptracking`` or ``sogmp``), Table I's ``flow`` network, the
+    occupancy ``head`` (``None``: none; ``--set model.head.hidden_channels=16`` adds one), the
+    ego-motion wrapper (``ego_motion``, ``poses_optional``) and, for DeepTracking and SOGMP,
+    their own ``options`` (e.g. ``--set model.options.visibility_input=true``).
     Configs written before issue 35 gave these as one flat ``model.kwargs`` table, which is still
     read (:func:`lidarflow.train.config_io.build_config`).
 
@@ -314,18 +315,48 @@ def _head() -> TrainConfig:
     return config
 
 
+def _sogmp() -> TrainConfig:
+    """SOGMP's own recipe (Xie & Dames 2023; :mod:`lidarflow.models.sogmp`), as its public
+    training code sets it: the loss is the cross-entropy of the next map summed over the map
+    plus 0.01 x the latent's KL (:func:`lidarflow.losses.sogmp_loss`); Adam at a constant
+    learning rate of 1e-4 (the code sets 1e-3, then its schedule function overrides it with
+    1e-4 every epoch of the 50 it runs) with weight decay 1e-3; batch 128; 50 epochs. Windows
+    of 20 frames, the first 9 filling the ten-map window, 10 pairs counted each, windows
+    every 10 frames so that every frame is a target once. Ego motion compensated by the
+    recordings' poses (the peer's always is), by the motion matched from the scans where a
+    recording has none. The batch and epochs are a GPU's: on a CPU give ``--batch-size`` and
+    ``--epochs`` (and ``--lr``) that fit the budget."""
+    config = TrainConfig(recipe="sogmp", loss=LossConfig(kl_weight=0.01))
+    config.model.name = "sogmp"
+    config.model.ego_motion = config.model.poses_optional = True
+    config.optim.lr = 1e-4
+    config.optim.weight_decay = 1e-3
+    config.optim.batch_size = 128
+    config.optim.epochs = 50
+    config.schedule.lr_gamma = 1.0  # constant
+    config.schedule.lr_step_epochs = 50
+    config.schedule.gaussian = False  # the flow loss's filter: no part of this loss
+    config.data.seq_len = 20
+    config.data.warmup = 9
+    config.data.stride = 10
+    return config
+
+
 RECIPES: dict[str, Callable[[], TrainConfig]] = {
     "paper": _paper,  # the loss exactly as written in the paper (Table II reproduction)
     "blurred": _blurred,  # both sides of the loss blurred: zero flow is optimal when nothing moves
     "head": _head,  # the head alone on a trained flow network: issue 11's best, the bundled one
+    "sogmp": _sogmp,  # the SOGMP peer's own recipe (issue 38)
 }
 
 
 def default_recipe(model: str | None = None, ego_motion: bool = False) -> str:
     """The recipe `lidarflow train` uses when none is named: the best measured one (``head``,
-    issue 11's leave-one-out study) for LiDAR-FlowNet; the paper's for DeepTracking and for
-    ego-motion models, which the head recipe does not apply to. The dataclasses' own defaults
-    stay the paper's."""
+    issue 11's leave-one-out study) for LiDAR-FlowNet; SOGMP's own for SOGMP; the paper's for
+    DeepTracking and for ego-motion models, which the head recipe does not apply to. The
+    dataclasses' own defaults stay the paper's."""
+    if model == "sogmp":
+        return "sogmp"
     return "head" if model in (None, "flownet") and not ego_motion else "paper"
 
 

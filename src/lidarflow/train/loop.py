@@ -8,7 +8,8 @@ naming the epoch and step; nothing of the failing epoch is written.
 
 Loss per model: ``flownet`` -> :func:`lidarflow.losses.flow_loss` with the epoch's Gaussian size
 (``config.loss`` says which variant), plus ``loss.occupancy_bce`` x the cross-entropy of the
-occupancy head's next map when the model has one; ``deeptracking`` -> :func:`deeptracking_loss`.
+occupancy head's next map when the model has one; ``deeptracking`` -> :func:`deeptracking_loss`;
+``sogmp`` -> :func:`sogmp_loss` with ``loss.kl_weight``.
 All count only steps after ``data.warmup`` frames.
 """
 
@@ -28,7 +29,13 @@ import torch
 from torch import Tensor
 
 from lidarflow.errors import ModelError, TrainError
-from lidarflow.losses import deeptracking_loss, flow_loss, gaussian_schedule, next_map_bce
+from lidarflow.losses import (
+    deeptracking_loss,
+    flow_loss,
+    gaussian_schedule,
+    next_map_bce,
+    sogmp_loss,
+)
 from lidarflow.models import build, uses_ego_motion
 from lidarflow.models.speed import accelerate, native_bf16
 from lidarflow.train import checkpoint as ckpt
@@ -73,6 +80,8 @@ def make_loss(
     warmup = config.data.warmup
     if config.model.name == "deeptracking":
         return lambda seq, out: deeptracking_loss(seq, out, warmup=warmup)
+    if config.model.name == "sogmp":
+        return lambda seq, out: sogmp_loss(seq, out, warmup, config.loss.kl_weight)
     weight = config.loss.occupancy_bce
     head = model is not None and model.capabilities.occupancy_head
     if weight > 0.0 and not head:
