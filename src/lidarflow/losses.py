@@ -56,6 +56,15 @@ class LossConfig:
             default: the metric scores every cell, an occluded one as free.
         occupancy_changed_weight: in that term, the weight of cells that change between
             ``O^t`` and ``O^{t+1}`` relative to the others (1 = plain mean).
+        warp: weight of the self-supervised warp loss above (1 = the paper; 0 = off, e.g.
+            when only the exact flow teaches, ``flow_epe``).
+        flow_epe: weight of the supervised end-point error against exact (simulated) flow,
+            :func:`lidarflow.flow_supervision.window_flow_loss`; 0 = off. Needs recordings
+            with ground-truth flow.
+        flow_epe_moving_weight: in that term, the weight of a moving cell (its exact flow
+            differs from the platform's by more than ``flow_epe_moving_threshold`` cells)
+            relative to a static one.
+        flow_epe_moving_threshold: that threshold, in cells per frame.
     """
 
     blur_source: bool = True
@@ -68,8 +77,15 @@ class LossConfig:
     occupancy_bce: float = 0.0
     occupancy_visible_only: bool = False
     occupancy_changed_weight: float = 1.0
+    warp: float = 1.0
+    flow_epe: float = 0.0
+    flow_epe_moving_weight: float = 10.0
+    flow_epe_moving_threshold: float = 0.15
 
     def __post_init__(self) -> None:
+        for name in ("warp", "flow_epe", "flow_epe_moving_weight", "flow_epe_moving_threshold"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.smoothness >= 0.0:
             raise ValueError(f"smoothness must be >= 0, got {self.smoothness}")
         if not self.occupied_weight > 0.0:
