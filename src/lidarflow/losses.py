@@ -58,6 +58,15 @@ class LossConfig:
             ``O^t`` and ``O^{t+1}`` relative to the others (1 = plain mean).
         kl_weight: SOGMP only (:func:`sogmp_loss`): the weight ``beta`` of its latent's KL
             divergence from the prior (the peer's 0.01).
+        warp: weight of the self-supervised warp loss above (1 = the paper; 0 = off, e.g.
+            when only the exact flow teaches, ``flow_epe``).
+        flow_epe: weight of the supervised end-point error against exact (simulated) flow,
+            :func:`lidarflow.flow_supervision.window_flow_loss`; 0 = off. Needs recordings
+            with ground-truth flow.
+        flow_epe_moving_weight: in that term, the weight of a moving cell (its exact flow
+            differs from the platform's by more than ``flow_epe_moving_threshold`` cells)
+            relative to a static one.
+        flow_epe_moving_threshold: that threshold, in cells per frame.
     """
 
     blur_source: bool = True
@@ -71,10 +80,16 @@ class LossConfig:
     occupancy_visible_only: bool = False
     occupancy_changed_weight: float = 1.0
     kl_weight: float = 0.01
+    warp: float = 1.0
+    flow_epe: float = 0.0
+    flow_epe_moving_weight: float = 10.0
+    flow_epe_moving_threshold: float = 0.15
 
     def __post_init__(self) -> None:
-        if not self.kl_weight >= 0.0:
-            raise ValueError(f"kl_weight must be >= 0, got {self.kl_weight}")
+        names = ("kl_weight", "warp", "flow_epe", "flow_epe_moving_weight")
+        for name in (*names, "flow_epe_moving_threshold"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.smoothness >= 0.0:
             raise ValueError(f"smoothness must be >= 0, got {self.smoothness}")
         if not self.occupied_weight > 0.0:

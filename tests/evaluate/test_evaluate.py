@@ -363,3 +363,29 @@ def test_a_run_folder_named_like_an_oracle_is_still_judged(sample_recording, tmp
     average = report["config"]["temporal_average"]
     assert (average["window"], average["threshold"]) == (3, 0.4)
     assert average["chosen"].startswith("the default: of a grid of windows and thresholds")
+
+
+def test_flow_error_split_into_moving_and_static_cells():
+    from lidarflow.evaluate.stream import evaluate_recording, ground_truth_backward_flow
+    from lidarflow.sim import SimConfig, simulate
+
+    rec = simulate(16, seed=2, config=SimConfig(scenario="dynamic"))  # people in view
+    truth = ground_truth_backward_flow(rec, GridSpec())
+    zero = FlowOracle(lambda t: np.zeros((2, 100, 100)))
+    zero.name = "zero_flow"
+    scores = evaluate_recording(rec, [FlowOracle(truth), zero], GridSpec(), warmup=2)
+    exact = scores["flow_oracle"].summary()
+    assert exact["epe_moving"] == pytest.approx(0.0, abs=1e-6)
+    assert exact["epe_static"] == pytest.approx(0.0, abs=1e-6)
+    z = scores["zero_flow"]
+    # the split covers every scored cell once: the two means pool back to the overall one
+    assert z.epe_moving_cells + z.epe_static_cells == z.epe_cells > 0
+    assert (z.epe_moving_sum + z.epe_static_sum) / z.epe_cells == pytest.approx(
+        z.summary()["epe"]
+    )
+    # walls move with the driving robot: zero flow errs there too, but people move more
+    assert z.epe_moving_cells > 0 and z.summary()["epe_static"] > 0.05
+    # a robot standing still: zero flow is exact on every static cell
+    still = simulate(16, seed=0, config=SimConfig(scenario="static"))
+    s = evaluate_recording(still, [zero], GridSpec(), warmup=2)["zero_flow"].summary()
+    assert s["epe_static"] < 0.15 < s.get("epe_moving", 1.0)

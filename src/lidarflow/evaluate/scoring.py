@@ -40,6 +40,11 @@ class Scorer:
     epe_sum: float = 0.0
     epe_cells: int = 0
     epe_per_frame: list[float] = field(default_factory=list)
+    # end-point error split by the truth: cells that move on their own / with the platform
+    epe_moving_sum: float = 0.0
+    epe_moving_cells: int = 0
+    epe_static_sum: float = 0.0
+    epe_static_cells: int = 0
     positives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
     negatives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
     calibration: Calibration = field(default_factory=Calibration)
@@ -77,6 +82,16 @@ class Scorer:
         self.epe_cells += cells
         self.epe_per_frame.append(error_sum / cells if cells else float("nan"))
 
+    def add_epe_split(self, error: np.ndarray, cells: np.ndarray, moving: np.ndarray) -> None:
+        """Add one frame's end-point errors ``(H, W)`` on ``cells`` split by the truly
+        ``moving`` ones (flow unlike the platform's) and the rest (static)."""
+        moving = cells & moving
+        static = cells & ~moving
+        self.epe_moving_sum += float(error[moving].sum())
+        self.epe_moving_cells += int(moving.sum())
+        self.epe_static_sum += float(error[static].sum())
+        self.epe_static_cells += int(static.sum())
+
     def __add__(self, other: Scorer) -> Scorer:
         return Scorer(
             counts=self.counts + other.counts,
@@ -85,6 +100,10 @@ class Scorer:
             epe_sum=self.epe_sum + other.epe_sum,
             epe_cells=self.epe_cells + other.epe_cells,
             epe_per_frame=self.epe_per_frame + other.epe_per_frame,
+            epe_moving_sum=self.epe_moving_sum + other.epe_moving_sum,
+            epe_moving_cells=self.epe_moving_cells + other.epe_moving_cells,
+            epe_static_sum=self.epe_static_sum + other.epe_static_sum,
+            epe_static_cells=self.epe_static_cells + other.epe_static_cells,
             positives=self.positives + other.positives,
             negatives=self.negatives + other.negatives,
             calibration=self.calibration + other.calibration,
@@ -127,6 +146,10 @@ class Scorer:
         }
         if self.epe_cells:
             out["epe"] = self.epe_sum / self.epe_cells
+        if self.epe_moving_cells:
+            out["epe_moving"] = self.epe_moving_sum / self.epe_moving_cells
+        if self.epe_static_cells:
+            out["epe_static"] = self.epe_static_sum / self.epe_static_cells
         if self.frames:
             out["wmse"] = self.wmse_sum / self.frames
         if self.ssim_frames:

@@ -16,6 +16,12 @@ A method that exposes ``moving`` (``(H, W)`` bool after ``update``: the cells of
 given that move on their own) is also scored for moving-object segmentation against the
 simulator's ``moving`` ground truth of that frame, where the recording has it.
 
+The flow's end-point error is also split into the cells that truly move on their own and the
+rest (``epe_moving`` / ``epe_static``): a cell of ``O^{t+1}`` moves when its true ``B^t``
+differs from the platform's own backward flow (from the simulator's true poses; zero without
+poses) by more than :data:`lidarflow.flow_supervision.MOVING_FLOW_THRESHOLD` cells, the rule
+the supervised flow loss weights by.
+
 Ego motion: methods with ``uses_motion`` (ego-motion models, :class:`~lidarflow.evaluate.ego.
 CopyLastEgo`) also get the sensor's motion per frame from the recording's poses (see
 :mod:`lidarflow.evaluate.ego`). On a recording without poses, models built with
@@ -52,6 +58,7 @@ __all__ = [
     "evaluate_recording",
     "ground_truth_backward_flow",
     "ground_truth_moving",
+    "ground_truth_platform_flow",
     "has_ground_truth",
     "method_inputs",
     "other_recorded_grid",
@@ -141,6 +148,7 @@ def evaluate_maps(
     subcell: Frames | None = None,
     gaps: Sequence[int] = (),
     paces: Mapping[int, float] | None = None,
+    gt_platform: Callable[[int], np.ndarray] | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
@@ -167,7 +175,8 @@ def evaluate_maps(
 
     A method that exposes ``backward_flow`` (``(2, H, W)`` cells, after ``update``) is also
     scored for end-point error against ``gt_flow(t)`` (``B^t``) on the cells occupied in the
-    next frame.
+    next frame; with ``gt_platform(t)`` (the platform's own ``B^t``, see the module docstring)
+    also on the moving and the static ones of those cells apart.
 
     A method that exposes ``moving`` is scored (IoU of the moving class) against
     ``gt_moving(t)`` on the cells occupied in frame ``t``; ``on_moving(method_name, t, moving,
@@ -177,6 +186,7 @@ def evaluate_maps(
     check_length(n, warmup, gaps)
     unscored = {int(g) - 1 for g in gaps}  # the steps t -> t + 1 across a gap
     scorers = {m.name: Scorer() for m in methods}
+    threshold = _moving_flow_threshold() if gt_platform is not None else 0.0
     for m in methods:
         m.reset()
     for t in range(n - 1):
@@ -191,9 +201,13 @@ def evaluate_maps(
                 if on_prediction is not None:
                     on_prediction(m.name, t, probability, flow)
                 if gt_flow is not None and flow is not None:
-                    cells = occupancy[t + 1]
-                    error = np.hypot(*(np.asarray(flow, np.float64) - gt_flow(t)))[cells]
-                    scorers[m.name].add_epe(float(error.sum()), int(cells.sum()))
+                    cells = np.asarray(occupancy[t + 1], bool)
+                    truth = gt_flow(t)
+                    error = np.hypot(*(np.asarray(flow, np.float64) - truth))
+                    scorers[m.name].add_epe(float(error[cells].sum()), int(cells.sum()))
+                    if gt_platform is not None:
+                        moving = np.hypot(*(truth - gt_platform(t))) > threshold
+                        scorers[m.name].add_epe_split(error, cells, moving)
             # The moving cells of frame t are scored against frame t's own truth, gap or not.
             # Segmentation costs ~0.6 ms a frame: only ask for it when it is scored or drawn.
             wanted = gt_moving is not None or on_moving is not None
@@ -207,6 +221,12 @@ def evaluate_maps(
         if progress is not None:
             progress(1)
     return scorers
+
+
+def _moving_flow_threshold() -> float:
+    from lidarflow.flow_supervision import MOVING_FLOW_THRESHOLD  # torch: only when scored
+
+    return MOVING_FLOW_THRESHOLD
 
 
 def method_inputs(
@@ -232,6 +252,32 @@ def method_inputs(
     if subcell is not None and method.takes.subcell:
         extra["subcell"] = subcell[t]
     return extra
+
+
+def ground_truth_platform_flow(
+    recording: Recording, grid: GridSpec
+) -> Callable[[int], np.ndarray] | None:
+    """``t -> `` the backward flow ``(2, H, W)`` a static world would have from frame ``t + 1``
+    to ``t``, from the true poses (``extras["true_poses"]``, else the poses; zero without
+    any), where the recording has ground-truth flow on ``grid``; else ``None``."""
+    if ground_truth_backward_flow(recording, grid) is None:
+        return None
+    import torch
+
+    from lidarflow.flow_supervision import platform_flows
+    from lidarflow.motion.odometry import metres_to_cells, relative_motions
+
+    poses = recording.extras.get("true_poses", recording.poses)
+    if poses is None:
+        zero = np.zeros((2, *grid.shape))
+        return lambda t: zero
+    motions = metres_to_cells(relative_motions(np.asarray(poses), len(recording))[0], grid.res)
+
+    def platform(t: int) -> np.ndarray:
+        motion = torch.from_numpy(motions[t + 1 : t + 2].astype(np.float64))
+        return platform_flows(motion, grid.height, grid.width)[0, :2].numpy()
+
+    return platform
 
 
 @dataclass(frozen=True)
@@ -304,4 +350,5 @@ def evaluate_recording(
         inputs.subcell,
         inputs.gaps,
         inputs.paces,
+        ground_truth_platform_flow(recording, grid),
     )

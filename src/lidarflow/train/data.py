@@ -56,6 +56,7 @@ from lidarflow.train.config import DataConfig
 __all__ = ["TrainData", "Windows", "expand_source", "load_train_data"]
 
 FLOW_KEY = "flow_backward"
+FORWARD_KEY = "flow_forward"
 # ground-truth backward flow of a recording: dense (N, 2, H, W), sparse (cells, values) or none
 Flow = np.ndarray | tuple[np.ndarray, np.ndarray] | None
 
@@ -80,7 +81,9 @@ def expand_source(spec: str) -> list[Path]:
 class Windows(Dataset):
     """Windows ``(rec, start)`` over boolean maps; item: uint8 ``(T, 2, H, W)`` maps, and with
     ``with_flow`` also float32 ``(T, 2, H, W)`` ground-truth backward flow (zeros where the
-    recording has none) and a bool telling whether it is real. With ``motions`` (one float32
+    recording has none) and a bool telling whether it is real; with ``forward`` flows as well
+    (``flows_forward``) the flow is ``(T, 4, H, W)``, ``B^t`` then ``F^t``, and real only where
+    the recording has both. With ``motions`` (one float32
     ``(N, 3)`` array per recording, cells) the item also ends with the window's ``(T, 3)``
     motions. With ``start_states`` set (:func:`lidarflow.train.warm.stream_start_states`) it
     ends with the occupancy head's state where streaming reaches the window's first frame."""
@@ -94,12 +97,14 @@ class Windows(Dataset):
         with_flow: bool = False,
         motions: Sequence[np.ndarray] | None = None,
         pose_dropout: float = 0.0,
+        flows_forward: Sequence[Flow] | None = None,
     ) -> None:
         self.maps = list(maps)
         self.index = list(index)
         self.length = length
         self.flows = list(flows) or [None] * len(self.maps)
         self.with_flow = with_flow
+        self.flows_forward = None if flows_forward is None else list(flows_forward)
         self.motions = None if motions is None else list(motions)
         self.pose_dropout = pose_dropout
         # (recording, start, posed) -> the head's state before the window's first frame.
@@ -133,17 +138,26 @@ class Windows(Dataset):
         maps = torch.from_numpy(np.ascontiguousarray(window).view(np.uint8))
         if not self.with_flow:
             return maps
-        flow = self.flows[rec]
         shape = window.shape[-2:]
-        if flow is None:
-            return maps, torch.zeros((self.length, 2, *shape)), False
+        flows = [self.flows[rec]]
+        if self.flows_forward is not None:
+            flows.append(self.flows_forward[rec])
+        if any(f is None for f in flows):
+            return maps, torch.zeros((self.length, 2 * len(flows), *shape)), False
+        dense = [self._dense(f, start, shape) for f in flows]  # type: ignore[arg-type]
+        return maps, torch.from_numpy(np.concatenate(dense, axis=1)), True
+
+    def _dense(
+        self, flow: np.ndarray | tuple[np.ndarray, np.ndarray], start: int, shape: tuple[int, ...]
+    ) -> np.ndarray:
+        """float32 ``(T, 2, H, W)`` of the window at ``start`` from a dense or sparse flow."""
         if isinstance(flow, tuple):  # sparse: (cells (N, K), values (N, K, 2))
             cells, values = (a[start : start + self.length] for a in flow)
             dense = np.zeros((len(cells), 2, shape[0] * shape[1]), dtype=np.float32)
             frame, slot = np.nonzero(cells >= 0)
             dense[frame, :, cells[frame, slot]] = values[frame, slot]
-            return maps, torch.from_numpy(dense.reshape(len(cells), 2, *shape)), True
-        return maps, torch.from_numpy(flow[start : start + self.length].astype(np.float32)), True
+            return dense.reshape(len(cells), 2, *shape)
+        return flow[start : start + self.length].astype(np.float32)
 
     @property
     def has_flow(self) -> bool:
@@ -174,16 +188,19 @@ class TrainData:
         return f"training: {'; '.join(parts)}; {val}"
 
 
-def _ground_truth(rec: Recording, grid: GridSpec) -> tuple[Flow, str | None]:
-    """The recording's ground-truth ``B^t`` (simulator extras, dense or sparse layout, see
-    :mod:`lidarflow.sim.storage`) if it is on ``grid``; else ``None`` and why."""
+def _ground_truth(
+    rec: Recording, grid: GridSpec, key: str = FLOW_KEY
+) -> tuple[Flow, str | None]:
+    """The recording's ground-truth ``B^t`` (``key``: or ``F^t``; simulator extras, dense or
+    sparse layout, see :mod:`lidarflow.sim.storage`) if it is on ``grid``; else ``None`` and
+    why."""
     extras = rec.extras
     flow: Flow = None
-    if FLOW_KEY in extras:
-        flow = extras[FLOW_KEY]
+    if key in extras:
+        flow = extras[key]
         shape = tuple(flow.shape[-2:])
-    elif f"{FLOW_KEY}_cells" in extras and f"{FLOW_KEY}_values" in extras:
-        flow = (extras[f"{FLOW_KEY}_cells"], extras[f"{FLOW_KEY}_values"])
+    elif f"{key}_cells" in extras and f"{key}_values" in extras:
+        flow = (extras[f"{key}_cells"], extras[f"{key}_values"])
         spec = rec.meta.get("grid") or {}
         shape = (spec.get("height"), spec.get("width"))
     else:
@@ -207,6 +224,7 @@ def _windows(
     with_motion: bool = False,
     pose_dropout: float = 0.0,
     with_subcell: bool = False,
+    forward: bool = False,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods,
@@ -231,7 +249,10 @@ def _windows(
                     f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
                     "steps; those steps are not ego-motion compensated"
                 )
-    windows = Windows(seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout)
+    forwards = [_ground_truth(rec, grid, FORWARD_KEY)[0] for rec in recordings] if forward else None
+    windows = Windows(
+        seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout, forwards
+    )
     return windows, notes
 
 
@@ -265,11 +286,16 @@ def _split_tail(
 
 
 def load_train_data(
-    cfg: DataConfig, with_motion: bool = False, with_subcell: bool = False
+    cfg: DataConfig,
+    with_motion: bool = False,
+    with_subcell: bool = False,
+    train_flow: bool = False,
 ) -> TrainData:
     """Load every source, split off validation, and cut windows (see the module docstring);
     ``with_motion``: items carry the per-frame ego motion too; ``with_subcell``: maps carry
-    :meth:`~lidarflow.data.Recording.subcell_maps` as channels 2 and 3."""
+    :meth:`~lidarflow.data.Recording.subcell_maps` as channels 2 and 3; ``train_flow``: the
+    training windows carry the exact ``B^t, F^t`` too (``(T, 4, H, W)``; supervised flow,
+    :mod:`lidarflow.train.supervised`)."""
     if not cfg.sources:
         raise TrainError("no training data: give at least one recording or bag")
     if cfg.mix and len(cfg.mix) not in (len(cfg.sources), len(cfg.sources) - 1):
@@ -323,8 +349,9 @@ def load_train_data(
         try:
             # Validation keeps every pose: it measures the model where odometry is there.
             windows, more = _windows(
-                recs, cfg, grid, False, with_motion, cfg.pose_dropout, with_subcell
-            )
+                recs, cfg, grid, train_flow, with_motion, cfg.pose_dropout, with_subcell,
+                forward=train_flow,
+            )  # fmt: skip
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
         sources.append(windows)

@@ -46,6 +46,7 @@ from lidarflow.train.loaders import make_loader, make_val_loader
 from lidarflow.train.logbook import Logbook
 from lidarflow.train.model_setup import load_init, make_optimizer
 from lidarflow.train.rundir import prepare_run_dir, release_run_dir, write_final
+from lidarflow.train.supervised import flow_term, require_flow, supervised, take_flow
 from lidarflow.train.validate import validate
 from lidarflow.train.warm import split_batch, start_state, stream_start_states
 
@@ -91,7 +92,10 @@ def make_loss(
         )
 
     def loss(seq: Tensor, out: Tensor) -> Tensor:
-        value = flow_loss(seq, out[:, :, :4], kernel, config.loss, warmup=warmup)
+        value = seq.new_zeros(())  # loss.warp = 0: the exact flow alone teaches (supervised)
+        if config.loss.warp > 0.0:
+            flows = out[:, :, :4]
+            value = config.loss.warp * flow_loss(seq, flows, kernel, config.loss, warmup=warmup)
         if weight > 0.0:
             b, t, c, h, w = out.shape
             logits = model.next_logit(seq.reshape(b * t, -1, h, w), out.reshape(b * t, c, h, w))
@@ -184,7 +188,10 @@ def _train(
         config.data,
         with_motion=spec.ego_motion,
         with_subcell=spec.head is not None and spec.head.subcell_input,
+        train_flow=supervised(config),
     )
+    if supervised(config):
+        require_flow(config, data)
     say(data.summary())
     for note in data.notes:
         say(f"note: {note}")
@@ -279,12 +286,17 @@ def _train(
             disable=None if ctx.is_main else True,
         )
         for step, batch in enumerate(bar, 1):
+            truth = None
+            if supervised(config):
+                batch, truth = take_flow(batch)
             maps_u8, motions, first = split_batch(batch, uses_ego_motion(model), warm)
             seq = maps_u8.to(ctx.device, non_blocking=True).float()
             state = start_state(model, seq, first)
             with autocast():
                 out, _ = net(seq, state, *(m.to(ctx.device) for m in motions))
             loss = loss_fn(seq, out.float())
+            if truth is not None:
+                loss = loss + flow_term(config, seq, out.float(), truth, motions)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
