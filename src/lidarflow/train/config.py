@@ -339,6 +339,7 @@ def _sogmp() -> TrainConfig:
     config.data.seq_len = 20
     config.data.warmup = 9
     config.data.stride = 10
+    return config
 
 
 def _supervised_flow() -> TrainConfig:
