@@ -59,7 +59,8 @@ def train(
         str | None,
         typer.Option(
             help="Preset: head (the default: an occupancy head on a frozen flow network, "
-            "--init or the bundled one), paper (as published) or blurred."
+            "--init or the bundled one), paper (as published), blurred, or supervised_flow "
+            "(the flow taught by simulated exact flow)."
         ),
     ] = None,
     config: Annotated[
