@@ -65,8 +65,9 @@ def train(
         str | None,
         typer.Option(
             help="Preset: head (the default: an occupancy head on a frozen flow network, "
-            "--init or the bundled one), paper (as published), blurred or sogmp (the SOGMP "
-            "peer's, the default of --arch sogmp)."
+            "--init or the bundled one), paper (as published), blurred, supervised_flow (the "
+            "flow taught by simulated exact flow) or sogmp (the SOGMP peer's, the default of "
+            "--arch sogmp)."
         ),
     ] = None,
     config: Annotated[
