@@ -64,10 +64,9 @@ def train(
     recipe: Annotated[
         str | None,
         typer.Option(
-            help="Preset: head (the default: an occupancy head on a frozen flow network, "
-            "--init or the bundled one), paper (as published), blurred, supervised_flow (the "
-            "flow taught by simulated exact flow) or sogmp (the SOGMP peer's, the default of "
-            "--arch sogmp)."
+            help="Preset: head (default: a head on a frozen flow network), paper, blurred, "
+            "supervised_flow (flow taught by simulated exact flow) or sogmp (the peer's; "
+            "default of --arch sogmp)."
         ),
     ] = None,
     config: Annotated[
