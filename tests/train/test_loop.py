@@ -126,7 +126,9 @@ def test_resume_continues_exactly(blob_files, tmp_path):
 
 
 def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, monkeypatch):
-    real = loop.flow_loss
+    from lidarflow.train import objective
+
+    real = objective.flow_loss
     calls = {"n": 0}
 
     def poisoned(seq, flows, kernel_size, config, warmup=10):
@@ -134,7 +136,7 @@ def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, m
         calls["n"] += 1
         return loss * float("nan") if calls["n"] == 7 else loss
 
-    monkeypatch.setattr(loop, "flow_loss", poisoned)
+    monkeypatch.setattr(objective, "flow_loss", poisoned)
     cfg = tiny_config(blob_files, **{"runtime.eval_before_training": False, "optim.epochs": 3})
     # per epoch: 10 training windows in batches of 3 (4 steps) + 1 validation batch = 5 calls
     with pytest.raises(TrainError, match=r"epoch 2, step 2 of 4 .*non-finite .*loss nan"):
