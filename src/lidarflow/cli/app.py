@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+
+if TYPE_CHECKING:
+    from lidarflow.scan import GridSpec
 
 app = typer.Typer(
     name="lidarflow",
@@ -191,3 +194,23 @@ def bundled_model_available() -> bool:
 
     name = "model.safetensors" if torch_available() else "model.onnx"
     return (bundled_model_dir() / name).exists()
+
+
+def completed_grid(recorded: GridSpec | None, grid: int | None, res: float | None) -> GridSpec:
+    """The grid ``--grid/--res`` ask for, what they leave out the model's own (``recorded``),
+    else the bundled model's (100 cells of 0.1 m)."""
+    from lidarflow.scan import GridSpec
+
+    base = recorded or GridSpec()
+    return GridSpec(grid or base.height, grid or base.width, res or base.res)
+
+
+def model_grid(model: Path | None, grid: int | None, res: float | None) -> GridSpec | None:
+    """The grid a command runs ``model`` on: ``None`` (the model's own) unless ``--grid`` or
+    ``--res`` is given, else :func:`completed_grid` from the grid the model was made for (its
+    card or ONNX marks, read through the backend any install can load)."""
+    if grid is None and res is None:
+        return None
+    from lidarflow.predict.backends import load_backend, recorded_grid
+
+    return completed_grid(recorded_grid(load_backend(model)[1]), grid, res)

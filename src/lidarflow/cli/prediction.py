@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 
@@ -22,16 +22,15 @@ from lidarflow.cli.app import (
     TopicOpt,
     app,
     bundled_model_available,
+    completed_grid,
     eval_progress,
     load_input,
+    model_grid,
     progress_bar,
     refuse_existing,
     use_threads,
 )
 from lidarflow.evaluate.methods import methods_and_config
-
-if TYPE_CHECKING:
-    from lidarflow.scan import GridSpec
 
 
 @app.command()
@@ -167,7 +166,7 @@ def predict(
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
-    given = None if grid is None and res is None else _completed(_recorded(model), grid, res)
+    given = model_grid(model, grid, res)
     predictor = Predictor(
         model,
         given,
@@ -257,7 +256,7 @@ def export(
     use_threads(threads)
     net, card = resolve_model(model)
     policy = DecisionPolicy.from_record(card.get("decision"))  # travels with the file
-    spec = _completed(recorded_grid(card), grid, res)
+    spec = completed_grid(recorded_grid(card), grid, res)
     size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
     if not int8:
         with atomic_path(output) as tmp:  # whole or not at all
@@ -280,23 +279,3 @@ def export(
         f"wrote {output} ({card.get('model')}, {size}, int8 convolutions calibrated on "
         f"{len(maps)} frames of {source.name})"
     )
-
-
-def _completed(recorded: GridSpec | None, grid: int | None, res: float | None) -> GridSpec:
-    """The grid ``--grid/--res`` ask for, what they leave out the model's own (``recorded``),
-    else the bundled model's (100 cells of 0.1 m)."""
-    from lidarflow.scan import GridSpec
-
-    base = recorded or GridSpec()
-    return GridSpec(grid or base.height, grid or base.width, res or base.res)
-
-
-def _recorded(model: Path | None) -> GridSpec | None:
-    """The grid ``model`` (run folder, weights, ONNX file, or the bundled one) was made for."""
-    from lidarflow.predict.backends import OnnxBackend, recorded_grid
-
-    if model is not None and Path(model).suffix.lower() == ".onnx":
-        return OnnxBackend(model).grid
-    from lidarflow.models.presets import resolve_model
-
-    return recorded_grid(resolve_model(model)[1])

@@ -16,6 +16,7 @@ from lidarflow.cli.app import (
     MovingOpt,
     ThreadsOpt,
     app,
+    model_grid,
 )
 
 
@@ -72,7 +73,6 @@ def ros1(
     """Run a ROS 1 node: per scan on --topic, publish the predicted next map (OccupancyGrid in
     the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
     predicts. Needs a roscore (ROS_MASTER_URI); stop it with Ctrl-C."""
-    from lidarflow.cli.prediction import _completed, _recorded
     from lidarflow.live.ros1 import Ros1Node, check_master, import_ros
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
@@ -80,7 +80,7 @@ def ros1(
 
     _log_to_stderr(logging.DEBUG if verbose else logging.INFO)
     check_master(import_ros())  # before loading a model: say at once what is missing
-    given = None if grid is None and res is None else _completed(_recorded(model), grid, res)
+    given = model_grid(model, grid, res)
     predictor = Predictor(
         model,
         given,
