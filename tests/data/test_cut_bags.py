@@ -12,13 +12,13 @@ import pytest
 import rosbags.rosbag1
 from rosbags.typesys import Stores, get_typestore
 
-from lidarflow.cli import main
 from lidarflow.data import load_recording, read_bag, sample_bag_path
 from lidarflow.data.mcapfile import McapReader
 from lidarflow.data.ros1bag import Ros1BagSequentialReader
 from lidarflow.data.sources import topic_notes
 from lidarflow.errors import BagError
 from tests.bagutil import write_bag, write_ros1_mcap
+from tests.test_cli import run
 
 
 def _cut(source, path, keep):
@@ -192,16 +192,6 @@ def test_a_ros2_mcap_cut_short_keeps_its_types(tmp_path):
     types = {c.topic: c.msgtype for c in reader.connections}
     assert types == {"/scan": "sensor_msgs/msg/LaserScan", "/odom": "nav_msgs/msg/Odometry"}
     assert reader.recovered is not None and 0 < reader.recovered.read_to < cut.stat().st_size
-
-
-def run(argv, capsys):
-    try:
-        main(argv)
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_info_and_convert_of_a_cut_bag_say_how_much_was_read(tmp_path, capsys):
