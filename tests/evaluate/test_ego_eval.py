@@ -350,14 +350,14 @@ def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving
 
 
 def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
-    from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.evaluate.horizon import horizon_scores
 
     occ, vis = driving.maps(GRID)
     motions = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
     model = build_model("flownet", occupancy_head=True, ego_motion=True, poses_optional=True)
     models = [ModelMethod("ego", model, res=GRID.res)]
-    moved = horizon_f1(occ, vis, models, horizon=2, warmup=5, motions=motions)
-    still = horizon_f1(occ, vis, models, horizon=2, warmup=5)
+    moved = horizon_scores(occ, vis, models, horizon=2, warmup=5, motions=motions)["f1"]
+    still = horizon_scores(occ, vis, models, horizon=2, warmup=5)["f1"]
     # Untrained it is copy-last in its own frame: without motions exactly copy-last, with the
     # odometry the last map moved into the next frame(s), which is better on a drive.
     assert still["ego"] == pytest.approx(still["copy_last"])
@@ -368,8 +368,10 @@ def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     mirrored = metres_to_cells(relative_motions(driving.poses * [1, -1, -1])[0], GRID.res)
     returns = recording_points(driving)
     kwargs = {"horizon": 2, "warmup": 5, "motions": mirrored}
-    dropped = horizon_f1(occ, vis, models, **kwargs)
-    replaced = horizon_f1(occ, vis, models, **kwargs, returns=returns, motions_from_poses=True)
+    dropped = horizon_scores(occ, vis, models, **kwargs)["f1"]
+    replaced = horizon_scores(
+        occ, vis, models, **kwargs, returns=returns, motions_from_poses=True
+    )["f1"]
     assert replaced["ego"][0] > dropped["ego"][0] + 0.02
 
 

@@ -232,19 +232,19 @@ def test_evaluate_recording_finds_the_gaps_in_its_stamps():
 def test_horizon_scores_no_roll_out_across_a_gap():
     import torch
 
-    from lidarflow.evaluate.horizon import horizon_f1
+    from lidarflow.evaluate.horizon import horizon_scores
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.models import build_model
 
     maps = two_scenes()
     model = [ModelMethod("m", build_model("deeptracking"))]
     torch.manual_seed(0)
-    across = horizon_f1(maps, maps, model, horizon=3, warmup=2)
-    skipped = horizon_f1(maps, maps, model, horizon=3, warmup=2, gaps=[15])
+    across = horizon_scores(maps, maps, model, horizon=3, warmup=2)["f1"]
+    skipped = horizon_scores(maps, maps, model, horizon=3, warmup=2, gaps=[15])["f1"]
     assert min(across["copy_last"]) < 1.0
     assert skipped["copy_last"] == [1.0, 1.0, 1.0]
     with pytest.raises(EvaluateError, match="without a gap"):
-        horizon_f1(maps[:8], maps[:8], model, horizon=3, warmup=2, gaps=[4, 6])
+        horizon_scores(maps[:8], maps[:8], model, horizon=3, warmup=2, gaps=[4, 6])["f1"]
 
 
 def test_against_baselines_wins_only_above_the_best_baseline_on_both_terms():

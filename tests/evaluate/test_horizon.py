@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.horizon import horizon_f1
+from lidarflow.evaluate.horizon import horizon_scores
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.models import build_model
 
@@ -22,7 +22,7 @@ def _walker(n: int = 8) -> tuple[np.ndarray, np.ndarray]:
 
 def test_copy_last_per_horizon_by_hand():
     occupancy, visibility = _walker()
-    scores = horizon_f1(occupancy, visibility, [], horizon=2, warmup=2)
+    scores = horizon_scores(occupancy, visibility, [], horizon=2, warmup=2)["f1"]
     # every scored frame: predicted {wall, walker at t}, true {wall, walker at t+k}:
     # tp 1, fp 1, fn 1 at each k -> F1 = 2 / (2 + 1 + 1) = 0.5
     assert scores == {"copy_last": [pytest.approx(0.5), pytest.approx(0.5)]}
@@ -33,7 +33,7 @@ def test_untrained_flownet_rolls_forward_as_copy_last():
     net = build_model("flownet").eval()  # zero flow: every step predicts the map it is given
     head = build_model("flownet", occupancy_head=True).eval()
     methods = [ModelMethod("net", net), ModelMethod("head", head)]
-    scores = horizon_f1(occupancy, visibility, methods, horizon=3, warmup=2)
+    scores = horizon_scores(occupancy, visibility, methods, horizon=3, warmup=2)["f1"]
     for name in ("net", "head"):
         assert scores[name] == pytest.approx(scores["copy_last"])
 
@@ -41,7 +41,7 @@ def test_untrained_flownet_rolls_forward_as_copy_last():
 def test_too_short_for_the_horizon_is_refused():
     occupancy, visibility = _walker(5)
     with pytest.raises(EvaluateError, match="horizon 3"):
-        horizon_f1(occupancy, visibility, [], horizon=3, warmup=2)
+        horizon_scores(occupancy, visibility, [], horizon=3, warmup=2)["f1"]
 
 
 def test_the_online_decision_is_fed_back_through_the_roll_out():
@@ -58,7 +58,7 @@ def test_the_online_decision_is_fed_back_through_the_roll_out():
         ModelMethod("fixed", head, decision=own),
         ModelMethod("online", head, online=config, decision=own),
     ]
-    scores = horizon_f1(occupancy, visibility, methods, horizon=3, warmup=4)
+    scores = horizon_scores(occupancy, visibility, methods, horizon=3, warmup=4)["f1"]
     assert scores["fixed"] == [0.0, 0.0, 0.0]
     assert scores["online"] == pytest.approx(scores["copy_last"])
 
@@ -70,9 +70,10 @@ def test_horizon_on_frame_blocks_is_the_same_as_on_arrays():
     for t in range(30):
         maps[t, 2, t % 8] = True  # a cell running along a row
     model = build_model("deeptracking")
-    whole = horizon_f1(maps, maps, [ModelMethod("m", model)], horizon=3, warmup=2)
+    whole = horizon_scores(maps, maps, [ModelMethod("m", model)], horizon=3, warmup=2)["f1"]
     blocks = FrameBlocks(lambda a, b: maps[a:b], len(maps), block=4)
-    assert horizon_f1(blocks, blocks, [ModelMethod("m", model)], horizon=3, warmup=2) == whole
+    blocked = horizon_scores(blocks, blocks, [ModelMethod("m", model)], horizon=3, warmup=2)
+    assert blocked["f1"] == whole
 
 
 def test_the_baselines_roll_forward_as_the_models_do():

@@ -46,7 +46,7 @@ from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
 from lidarflow.evaluate.stream import method_inputs
 from lidarflow.predict.baselines import Method
 
-__all__ = ["horizon_f1", "horizon_scores", "scored_frames"]
+__all__ = ["horizon_scores", "scored_frames"]
 
 
 def scored_frames(
@@ -79,28 +79,6 @@ def scored_frames(
             "--horizon or leave it out"
         )
     return scored
-
-
-def horizon_f1(
-    occupancy: Frames,
-    visibility: Frames,
-    methods: Sequence[Method],
-    horizon: int,
-    warmup: int = 10,
-    progress: Callable[[int], None] | None = None,
-    motions: np.ndarray | None = None,
-    returns: Sequence[np.ndarray] | None = None,
-    motions_from_poses: bool = False,
-    subcell: Frames | None = None,
-    gaps: Sequence[int] = (),
-    paces: Mapping[int, float] | None = None,
-) -> dict[str, list[float]]:
-    """``{"copy_last": [F1 at k = 1..K], name: [...] for each method}``: the F1 half of
-    :func:`horizon_scores` (same arguments)."""
-    return horizon_scores(
-        occupancy, visibility, methods, horizon, warmup, progress, motions, returns,
-        motions_from_poses, subcell, gaps, paces,
-    )["f1"]  # fmt: skip
 
 
 def horizon_scores(
