@@ -349,3 +349,31 @@ def test_a_run_copied_elsewhere_resumes_on_its_recordings_found_again(blob_files
     assert json.loads((run / "config.json").read_text())["data"]["sources"] == [
         str(there / "a.npz")
     ]
+
+
+def test_a_time_budget_ends_the_run_after_an_epoch_and_resume_continues(
+    blob_files, tmp_path, capsys
+):
+    run = tmp_path / "run"
+    first = ["train", *map(str, blob_files), "-o", str(run), "--recipe", "paper", "--epochs", "3"]
+    code, out, err = run_cli([*first, "--max-minutes", "0.0001", *TINY], capsys)
+    assert code in (0, None), err
+    assert "time budget of 0.0001 min spent" in out + err
+    card = json.loads((run / "model.json").read_text())
+    assert card["training"]["epochs"] == 3 and card["training"]["epochs_done"] == 1
+    epochs = [
+        json.loads(line)["epoch"] for line in (run / "metrics.jsonl").read_text().splitlines()
+    ]
+    assert max(epochs) == 1
+    # the budget is how the run executes: lifted on resume, the run goes on to its epochs
+    code, out, err = run_cli(["train", "--resume", str(run), "--max-minutes", "0"], capsys)
+    assert code in (0, None), err
+    card = json.loads((run / "model.json").read_text())
+    assert card["training"]["epochs_done"] == 3
+
+
+def test_a_negative_time_budget_is_refused_in_one_line(blob_files, tmp_path, capsys):
+    code, _, err = run_cli(
+        ["train", str(blob_files[0]), "-o", str(tmp_path / "r"), "--max-minutes", "-1"], capsys
+    )
+    assert code == 2 and "Traceback" not in err

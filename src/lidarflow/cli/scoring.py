@@ -123,6 +123,13 @@ def evaluate(
     moving_threshold: MovingOpt = None,
     force: ForceOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
+    device: Annotated[
+        str,
+        typer.Option(
+            help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
+            "and the baselines run on the CPU."
+        ),
+    ] = "cpu",
     json_out: Annotated[Path | None, typer.Option("--json", hidden=True)] = None,
 ) -> None:
     """Score next-map prediction on each recording, streaming, for the baselines (copy-last,
@@ -141,7 +148,7 @@ def evaluate(
         grid_note,
         undefined_note,
     )
-    from lidarflow.predict.backends import recorded_grid
+    from lidarflow.predict.backends import recorded_grid, resolve_device
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
@@ -174,6 +181,7 @@ def evaluate(
         ego_oracle,
         online_decision,
         spec.res,
+        device=resolve_device(device),
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
     for name, used in config["models"].items():

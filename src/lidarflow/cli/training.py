@@ -163,6 +163,14 @@ def train(
         ),
     ] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed (default 0).")] = None,
+    max_minutes: Annotated[
+        float | None,
+        typer.Option(
+            help="Wall-clock budget: stop after the first epoch that ends past this many "
+            "minutes, finished as if --epochs were that epoch (--resume continues).",
+            min=0,
+        ),
+    ] = None,
     set_: Annotated[
         list[str] | None,
         typer.Option(
@@ -208,6 +216,7 @@ def train(
         "runtime.channels_last": True if channels_last else None,
         "runtime.threads": threads,
         "runtime.seed": seed,
+        "runtime.max_minutes": max_minutes,
     }
     if resume is not None:
         if force:

@@ -36,6 +36,7 @@ def methods_and_config(
     online: bool = False,
     res: float = 0.1,
     names: Sequence[str] | None = None,
+    device: str = "cpu",
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
     configuration that describes them for the report. With an ego-motion model among them the
@@ -45,7 +46,8 @@ def methods_and_config(
     true next pose; ``online`` adds, for each model, the decision rule it was not built with:
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``. A source
     ``None`` or ``"bundled"`` is the bundled model; ``names`` name the models (default: the
-    bundled one ``bundled``, others by their folder or file)."""
+    bundled one ``bundled``, others by their folder or file); ``device``: where PyTorch models
+    run (``cpu``, ``cuda``, ``cuda:N``; ONNX files run on the CPU)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
@@ -54,7 +56,7 @@ def methods_and_config(
     models_used = {}
     for i, source in enumerate(sources):
         bundled = source is None or str(source) == "bundled"
-        net, card = load_backend(None if bundled else source, threads=None)
+        net, card = load_backend(None if bundled else source, threads=None, device=device)
         name = names[i] if names else "bundled" if bundled else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"

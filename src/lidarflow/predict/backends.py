@@ -43,6 +43,7 @@ __all__ = [
     "TorchBackend",
     "load_backend",
     "recorded_grid",
+    "resolve_device",
     "split_step_inputs",
 ]
 
@@ -222,6 +223,24 @@ class OnnxBackend:
             logit = calibrated_logit(probability) - self._baked_offset
             probability = (1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
         return probability, out, next_state
+
+
+def resolve_device(name: str) -> str:
+    """``auto`` -> ``cuda`` where PyTorch sees a GPU, else ``cpu``; ``cpu``, ``cuda`` and
+    ``cuda:N`` as given, once checked (:class:`PredictError` in one line otherwise)."""
+    if name == "cpu":
+        return name
+    if name != "auto" and name != "cuda" and not name.startswith("cuda:"):
+        raise PredictError(f"unknown device {name!r}: auto, cpu, cuda or cuda:N")
+    try:
+        import torch
+    except ImportError:  # the core install: ONNX on the CPU
+        torch = None
+    if torch is None or not torch.cuda.is_available():
+        if name == "auto":
+            return "cpu"
+        raise PredictError(f"--device {name} asked for, but PyTorch sees no CUDA device")
+    return "cuda" if name == "auto" else name
 
 
 def load_backend(

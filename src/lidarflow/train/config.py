@@ -38,6 +38,7 @@ __all__ = [
     "recipe",
 ]
 
+
 @dataclass
 class ModelConfig:
     """Which network to train, typed as the model is built (:class:`lidarflow.models.ModelSpec`):
@@ -166,7 +167,10 @@ class RuntimeConfig:
     emulated bf16 is slower: :func:`lidarflow.models.speed.native_bf16`); ``channels_last`` /
     ``compile``: see :func:`lidarflow.models.speed.accelerate` (compiling costs tens of seconds
     up front on a small CPU, so it pays on long runs only); ``threads``: torch intra-op threads,
-    0 = torch's default.
+    0 = torch's default. ``max_minutes``: a wall-clock budget for this process (0: none): the
+    run stops after the first epoch that ends past it, and is finished as if ``optim.epochs``
+    were that epoch (``model.json`` says ``epochs_done``; ``--resume`` continues it), so that
+    models are compared at equal budgets whatever their speed.
     """
 
     device: str = "auto"
@@ -174,6 +178,7 @@ class RuntimeConfig:
     compile: str = "none"  # torch.compile: "cells" (each ConvGRU cell) or "step" (whole step)
     channels_last: bool = False
     threads: int = 0
+    max_minutes: float = 0.0
     seed: int = 0
     eval_before_training: bool = True
     final_weights: str = "last"  # which weights become model.safetensors: "last" (paper) or "best"
@@ -243,6 +248,7 @@ class TrainConfig:
             (r.amp in AMP_MODES, f"runtime.amp must be one of {', '.join(AMP_MODES)}"),
             (r.compile in ("none", "cells", "step"), "runtime.compile must be none, cells or step"),
             (r.final_weights in ("last", "best"), "runtime.final_weights must be last or best"),
+            (r.max_minutes >= 0, "runtime.max_minutes must be >= 0 (0: no budget)"),
         ]
         for ok, message in checks:
             if not ok:
@@ -320,18 +326,20 @@ def _sogmp() -> TrainConfig:
     training code sets it: the loss is the cross-entropy of the next map summed over the map
     plus 0.01 x the latent's KL (:func:`lidarflow.losses.sogmp_loss`); Adam at a constant
     learning rate of 1e-4 (the code sets 1e-3, then its schedule function overrides it with
-    1e-4 every epoch of the 50 it runs) with weight decay 1e-3; batch 128; 50 epochs. Windows
-    of 20 frames, the first 9 filling the ten-map window, 10 pairs counted each, windows
-    every 10 frames so that every frame is a target once. Ego motion compensated by the
-    recordings' poses (the peer's always is), by the motion matched from the scans where a
-    recording has none. The batch and epochs are a GPU's: on a CPU give ``--batch-size`` and
-    ``--epochs`` (and ``--lr``) that fit the budget."""
+    1e-4 every epoch of the 50 it runs) with weight decay 1e-3; batches of 128 predictions;
+    50 epochs. Windows of 20 frames, the first 9 filling the ten-map window, 10 pairs counted
+    each (the loss averages over pairs), windows every 10 frames so that every frame is a
+    target once: a batch of 13 windows is 130 predictions, the peer's 128. Ego motion
+    compensated by the recordings' poses (the peer's always is); a training recording without
+    poses is served uncompensated (its steps are noted), while `evaluate` and `predict` match
+    the motion from its scans. The batch and epochs are a GPU's: on a CPU give
+    ``--batch-size`` and ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
     config = TrainConfig(recipe="sogmp", loss=LossConfig(kl_weight=0.01))
     config.model.name = "sogmp"
     config.model.ego_motion = config.model.poses_optional = True
     config.optim.lr = 1e-4
     config.optim.weight_decay = 1e-3
-    config.optim.batch_size = 128
+    config.optim.batch_size = 13  # x 10 counted pairs: the peer's batch of 128 predictions
     config.optim.epochs = 50
     config.schedule.lr_gamma = 1.0  # constant
     config.schedule.lr_step_epochs = 50

@@ -127,6 +127,7 @@ def _train(
             echo(message)
 
     rt = config.runtime
+    began = time.perf_counter()  # the budget (runtime.max_minutes) counts data loading too
     if rt.threads > 0:
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
@@ -281,6 +282,7 @@ def _train(
                 "score": score,
                 "metric": "val_f1" if "val_f1" in metrics else "-train_loss",
             }
+        extra["epochs_done"] = epoch + 1
         if ctx.is_main:
             # The checkpoint goes last: until it is complete, a resume starts from the epoch
             # before, and drops this row and overwrites these weights.
@@ -294,6 +296,13 @@ def _train(
         say(f"epoch {epoch + 1}/{config.optim.epochs}: " + _describe(row))
         if on_epoch_end is not None:
             on_epoch_end(epoch + 1, row)
+        spent = rt.max_minutes > 0 and time.perf_counter() - began > 60 * rt.max_minutes
+        if any_flag(ctx, spent) and epoch + 1 < config.optim.epochs:
+            say(
+                f"time budget of {rt.max_minutes:g} min spent: the run ends after epoch "
+                f"{epoch + 1} of {config.optim.epochs} (--resume continues it)"
+            )
+            break
 
     if ctx.is_main:
         write_final(run_dir, config, model, data, extra)

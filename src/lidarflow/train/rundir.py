@@ -76,6 +76,7 @@ def model_record(
             "sources": config.data.sources,
             "mix": config.data.mix,
             "epochs": config.optim.epochs,
+            "epochs_done": extra.get("epochs_done", config.optim.epochs),
             "final_weights": config.runtime.final_weights,
             "best": extra.get("best"),
             "commit": commit if commit is not None else _git_commit(),

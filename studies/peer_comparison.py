@@ -1,0 +1,302 @@
+"""Issue 38's comparison: LiDAR-FlowNet (the bundled recipe, fold-clean), SOGMP and DeepTracking,
+each trained leave-one-recording-out on the development recordings and scored on the held-out
+one beside the baselines, one step and about one second ahead, in both conventions (F1 and
+changed-cell F1; the peers' WMSE and SSIM).
+
+Three steps, each a subcommand, so that training can go where the compute is (a GPU, or
+several processes) and the scoring and the table follow::
+
+    python -m studies.peer_comparison train -o OUT --model sogmp --jobs 2 \\
+        --recordings R1.npz R2.npz ... -- --amp auto --max-minutes 1.3
+    python -m studies.peer_comparison evaluate -o OUT --recordings R... --device cuda --jobs 7
+    python -m studies.peer_comparison table -o OUT
+
+``train`` runs ``lidarflow train`` once per held-out recording on all the others (arguments
+after ``--`` go to every run; a finished run is kept). Models: ``flownet`` (``--recipe head``
+on the flow network given by ``--flow-init``, trained on simulation only, so no fold sees its
+held-out recording), ``sogmp`` and ``deeptracking`` (their own recipes). ``evaluate`` scores
+each held-out recording with every fold model found, plus ``flownet_noflow`` (the flownet fold
+model with its flow head set to zero: what the flow buys), with ``lidarflow evaluate --horizon
+K``, K the recording's scans in about one second. ``table`` writes OUT/peer_comparison.md and
+.json: per recording and on average, each method at k = 1 and k = K.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from studies.harness import development, stem, write_atomic, write_json
+
+#: the recipe of each model (the arguments `lidarflow train` gets before the data)
+RECIPES = {
+    "flownet": ["--recipe", "head", "--init", "{flow_init}"],
+    "sogmp": ["--arch", "sogmp"],
+    "deeptracking": ["--arch", "deeptracking"],
+}
+NOFLOW = "flownet_noflow"
+BASELINES = ("copy_last", "temporal_average", "constant_velocity")
+#: reported beside the others, never judged (it only moves the last map by the ego motion)
+REFERENCES = ("copy_last_ego",)
+
+
+def horizon_of(recording: Path) -> int:
+    """Scans in about one second of ``recording`` (at least 2)."""
+    from lidarflow.data import load_any
+
+    return max(2, round(load_any(recording).frame_rate))
+
+
+def _lidarflow(args: Sequence[str], log: Path) -> int:
+    """``python -m lidarflow ARGS`` with its output in ``log``; its exit status."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "w") as out:
+        done = subprocess.run(
+            [sys.executable, "-m", "lidarflow", *args], stdout=out, stderr=subprocess.STDOUT
+        )
+    return done.returncode
+
+
+def fold_run(out: Path, model: str, held: Path) -> Path:
+    return out / model / stem(held) / "run"
+
+
+def train_fold(
+    out: Path, model: str, held: Path, recordings: Sequence[Path], flow_init: str, extra: list[str]
+) -> str:
+    """Train ``model`` on every recording but ``held`` (kept if already finished)."""
+    run = fold_run(out, model, held)
+    if (run / "model.safetensors").exists():
+        return f"{model} without {stem(held)}: kept"
+    recipe = [a.format(flow_init=flow_init) for a in RECIPES[model]]
+    others = [str(r) for r in recordings if r != held]
+    args = ["train", *others, "-o", str(run), "--force", *recipe, *extra]
+    args += ["--set", "runtime.tensorboard=false"]
+    code = _lidarflow(args, run.parent / "train.log")
+    return f"{model} without {stem(held)}: " + ("done" if code == 0 else f"FAILED ({code})")
+
+
+def zero_flow(run: Path, into: Path) -> Path:
+    """A copy of the flownet run ``run`` with its flow head's weights and bias set to zero."""
+    from safetensors.numpy import load_file, save_file
+
+    into.mkdir(parents=True, exist_ok=True)
+    weights = load_file(str(run / "model.safetensors"))
+    zeroed = [k for k in weights if k.rsplit(".", 2)[-2:-1] == ["conv_flow"]]
+    if not zeroed:
+        raise SystemExit(f"{run}: no conv_flow weights to set to zero")
+    for key in zeroed:
+        weights[key][:] = 0
+    save_file(weights, str(into / "model.safetensors"))
+    (into / "model.json").write_text((run / "model.json").read_text())
+    return into
+
+
+def evaluate_fold(out: Path, held: Path, device: str, threads: int, horizon: int = 0) -> str:
+    """Score every fold model of ``held`` found under ``out`` with ``lidarflow evaluate``,
+    ``horizon`` steps ahead (0: about one second of ``held``)."""
+    report = out / "evaluation" / f"{stem(held)}.json"
+    if report.exists():
+        return f"{stem(held)}: kept"
+    models = []
+    for model in RECIPES:
+        run = fold_run(out, model, held)
+        if (run / "model.safetensors").exists():
+            models += ["-m", str(run)]
+            if model == "flownet":
+                models += ["-m", str(zero_flow(run, run.parent / NOFLOW))]
+    if not models:
+        return f"{stem(held)}: no fold model"
+    card = json.loads((Path(models[1]) / "model.json").read_text())
+    grid = card["grid"]  # every fold model trains on the grid of the study's --grid/--res
+    k = horizon or horizon_of(held)
+    args = ["evaluate", str(held), *models, "--horizon", str(k)]
+    args += ["--grid", str(grid["height"]), "--res", str(grid["res"])]
+    args += ["--device", device, "--threads", str(threads), "-o", str(report)]
+    code = _lidarflow(args, out / "evaluation" / f"{stem(held)}.log")
+    return f"{stem(held)}: " + ("done" if code == 0 else f"FAILED ({code})")
+
+
+def fold_scores(report: dict[str, Any], out: Path) -> dict[str, dict[str, float]]:
+    """``{method: {f1_1, changed_f1_1, wmse_1, ssim_1, f1_K, ...}}`` of one held-out report."""
+    entry = report["recordings"][0]
+    names = {m: _model_of(m, report, out) for m in entry["horizon_f1"]}
+    scores: dict[str, dict[str, float]] = {}
+    for method, model in names.items():
+        row = {}
+        for key in ("f1", "changed_f1", "wmse", "ssim"):
+            values = entry[f"horizon_{key}"][method]
+            row[f"{key}_1"], row[f"{key}_K"] = values[0], values[-1]
+        row["K"] = len(entry["horizon_f1"][method])
+        scores[model] = row
+    return scores
+
+
+def _model_of(method: str, report: dict[str, Any], out: Path) -> str:
+    """The table's name of a report's method: a baseline's own, a model's by its run folder."""
+    used = report["config"]["models"].get(method)
+    if used is None:
+        return method
+    path = Path(used["weights_path"]).resolve()
+    for model in (NOFLOW, *RECIPES):
+        if model in path.parts:
+            return model
+    return method
+
+
+def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]], k: str) -> str:
+    """``wins`` when F1 beats the best baseline's and changed-cell F1 every baseline's."""
+    best = max(b[f"f1_{k}"] for b in baselines.values())
+    best_changed = max(b[f"changed_f1_{k}"] for b in baselines.values())
+    f1_ok, changed_ok = model[f"f1_{k}"] > best, model[f"changed_f1_{k}"] > best_changed
+    return (
+        "wins"
+        if f1_ok and changed_ok
+        else "loses F1"
+        if changed_ok
+        else ("loses changed F1" if f1_ok else "loses both")
+    )
+
+
+def collect(out: Path) -> dict[str, Any]:
+    """Every scored fold under ``out``: ``{"folds": {recording: {method: row}}, "mean": ...}``."""
+    folds = {}
+    for path in sorted((out / "evaluation").glob("*.json")):
+        folds[path.stem] = fold_scores(json.loads(path.read_text()), out)
+    methods = sorted({m for f in folds.values() for m in f}, key=_order)
+    mean = {}
+    for method in methods:
+        rows = [f[method] for f in folds.values() if method in f]
+        if len(rows) == len(folds):
+            mean[method] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "K"}
+    wins = {
+        method: {
+            k: sum(
+                verdict(f[method], {b: f[b] for b in BASELINES}, k) == "wins"
+                for f in folds.values()
+                if method in f
+            )
+            for k in ("1", "K")
+        }
+        for method in methods
+        if method not in BASELINES + REFERENCES
+    }
+    params = {m: _parameters(out, m) for m in (*RECIPES,)}
+    return {"folds": folds, "mean": mean, "wins": wins, "parameters": params}
+
+
+def _order(method: str) -> tuple[int, str]:
+    known = [*BASELINES, *REFERENCES, "flownet", NOFLOW, "sogmp", "deeptracking"]
+    return (known.index(method) if method in known else len(known), method)
+
+
+def _parameters(out: Path, model: str) -> int | None:
+    from safetensors.numpy import load_file
+
+    for weights in sorted(out.glob(f"{model}/*/run/model.safetensors")):
+        tensors = load_file(str(weights))
+        # BatchNorm's running statistics are buffers, not parameters
+        return int(
+            sum(
+                v.size
+                for k, v in tensors.items()
+                if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))
+            )
+        )
+    return None
+
+
+def table(study: dict[str, Any]) -> str:
+    """Markdown: per held-out recording and on average, every method at k = 1 and k = K."""
+    head = (
+        "| held-out | method | F1 k=1 | changed F1 k=1 | WMSE k=1 | SSIM k=1 | F1 ~1 s | "
+        "changed F1 ~1 s | WMSE ~1 s | SSIM ~1 s | verdict k=1 / ~1 s |"
+    )
+    lines = [head, "|" + "---|" * 11]
+
+    def row(where: str, method: str, r: dict[str, float], said: str) -> str:
+        cells = [
+            r[f"{key}_{k}"] for k in ("1", "K") for key in ("f1", "changed_f1", "wmse", "ssim")
+        ]
+        return f"| {where} | {method} | " + " | ".join(f"{c:.4f}" for c in cells) + f" | {said} |"
+
+    for rec, fold in study["folds"].items():
+        k = next(iter(fold.values()))["K"]
+        baselines = {b: fold[b] for b in BASELINES}
+        for method in sorted(fold, key=_order):
+            said = (
+                ""
+                if method in BASELINES + REFERENCES
+                else f"{verdict(fold[method], baselines, '1')} / "
+                f"{verdict(fold[method], baselines, 'K')}"
+            )
+            lines.append(row(f"{rec} (K={k})", method, fold[method], said))
+    for method, r in study["mean"].items():
+        w = study["wins"].get(method)
+        said = "" if w is None else f"wins {w['1']} / {w['K']} of {len(study['folds'])}"
+        lines.append(row("**mean**", method, r, said))
+    return "\n".join(lines) + "\n"
+
+
+def _each(jobs: int, task: Any, items: Sequence[Any]) -> None:
+    """``task`` on every item, ``jobs`` at a time, each outcome printed; exit 1 if any failed
+    (its log, beside its run or report, says why)."""
+    failed = 0
+    with ThreadPoolExecutor(jobs) as pool:
+        for said in pool.map(task, items):
+            print(said, flush=True)
+            failed += "FAILED" in said
+    if failed:
+        raise SystemExit(f"{failed} of {len(items)} failed; see their logs")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    extra: list[str] = []
+    if "--" in argv:
+        cut = argv.index("--")
+        argv, extra = argv[:cut], argv[cut + 1 :]
+    p = argparse.ArgumentParser(prog="peer_comparison", description=__doc__.split("\n\n")[0])
+    p.add_argument("step", choices=("train", "evaluate", "table"))
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("--recordings", type=Path, nargs="+", default=development())
+    p.add_argument("--model", choices=tuple(RECIPES), help="train: the model to train")
+    p.add_argument("--flow-init", default="runs/sim_flow_2", help="flownet: the flow network")
+    p.add_argument("--held-out", type=Path, nargs="*", default=[], help="only these folds")
+    p.add_argument("--jobs", type=int, default=1, help="folds at a time")
+    p.add_argument("--device", default="cpu", help="evaluate: where the models run")
+    p.add_argument("--threads", type=int, default=1, help="evaluate: CPU threads per fold")
+    p.add_argument("--horizon", type=int, default=0, help="evaluate: K (0: scans in ~1 s)")
+    args = p.parse_args(argv)
+    out: Path = args.output
+    held = args.held_out or args.recordings
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if args.step == "train":
+        if args.model is None:
+            p.error("train needs --model")
+        work = [(out, args.model, h, args.recordings, args.flow_init, extra) for h in held]
+        _each(args.jobs, lambda a: train_fold(*a), work)
+    elif args.step == "evaluate":
+        _each(
+            args.jobs,
+            lambda h: evaluate_fold(out, h, args.device, args.threads, args.horizon),
+            held,
+        )
+    else:
+        study = collect(out)
+        write_json(out / "peer_comparison.json", study)
+        write_atomic(out / "peer_comparison.md", table(study))
+        print(table(study))
+
+
+if __name__ == "__main__":
+    main()
