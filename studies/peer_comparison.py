@@ -167,10 +167,11 @@ def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]], k: 
     )
 
 
-def collect(out: Path) -> dict[str, Any]:
-    """Every scored fold under ``out``: ``{"folds": {recording: {method: row}}, "mean": ...}``."""
+def collect(out: Path, reports: Sequence[Path] = ()) -> dict[str, Any]:
+    """Every scored fold under ``out`` (or the `lidarflow evaluate` ``reports`` given, named by
+    their files): ``{"folds": {recording: {method: row}}, "mean": ...}``."""
     folds = {}
-    for path in sorted((out / "evaluation").glob("*.json")):
+    for path in reports or sorted((out / "evaluation").glob("*.json")):
         folds[path.stem] = fold_scores(json.loads(path.read_text()), out)
     methods = sorted({m for f in folds.values() for m in f}, key=_order)
     mean = {}
@@ -190,7 +191,7 @@ def collect(out: Path) -> dict[str, Any]:
         for method in methods
         if method not in BASELINES + REFERENCES
     }
-    params = {m: _parameters(out, m) for m in (*RECIPES,)}
+    params = {m: _parameters(out, m) for m in RECIPES}
     return {"folds": folds, "mean": mean, "wins": wins, "parameters": params}
 
 
@@ -276,6 +277,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--device", default="cpu", help="evaluate: where the models run")
     p.add_argument("--threads", type=int, default=1, help="evaluate: CPU threads per fold")
     p.add_argument("--horizon", type=int, default=0, help="evaluate: K (0: scans in ~1 s)")
+    p.add_argument(
+        "--reports", type=Path, nargs="*", default=[], help="table: these reports, not OUT's"
+    )
     args = p.parse_args(argv)
     out: Path = args.output
     held = args.held_out or args.recordings
@@ -292,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             held,
         )
     else:
-        study = collect(out)
+        study = collect(out, args.reports)
         write_json(out / "peer_comparison.json", study)
         write_atomic(out / "peer_comparison.md", table(study))
         print(table(study))
