@@ -31,7 +31,7 @@ def test_onnx_matches_pytorch_and_both_decide_as_the_zeroed_flow(tmp_path, sampl
     model = head_only(ego=True, seed=3)
     folder = save_model_dir(model, tmp_path / "noflow", ONLINE)
     twin = save_model_dir(zeroed_twin(model), tmp_path / "zeroed", ONLINE)
-    net, card = resolve_model(folder)
+    net, _ = resolve_model(folder)
     path = export_onnx(net, tmp_path / "m.onnx", decision=DecisionPolicy.from_record(ONLINE))
     marks = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
     assert marks[FLOW_KEY] == "false"
