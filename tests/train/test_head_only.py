@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import torch
 
+from lidarflow.errors import TrainError
 from lidarflow.models import build
 from lidarflow.models.presets import resolve_model
 from lidarflow.scan import GridSpec
@@ -76,3 +78,18 @@ def test_a_tiny_run_learns_and_leaves_a_flow_free_model(tmp_path):
     trained, card = resolve_model(tmp_path / "run")
     assert card["model_kwargs"]["flow_network"] is False
     assert not trained.capabilities.flow and trained.capabilities.occupancy_head
+
+
+def test_a_head_of_other_inputs_starts_afresh_and_a_flow_model_refuses_a_flow_free_init(tmp_path):
+    config = build_config("head_only", None, None, ["model.head.memory_decays=0.5"])
+    model = build(config.model.spec())
+    fresh = {k: v.clone() for k, v in model.state_dict().items()}
+    assert load_init(model, "bundled")  # no weight fits: the head is left new
+    for name, value in model.state_dict().items():
+        torch.testing.assert_close(value, fresh[name])
+    from tests.head_only_pair import head_only, save_model_dir
+
+    run = save_model_dir(head_only(ego=True), tmp_path / "noflow")
+    flow_model = build(recipe("head").model.spec())
+    with pytest.raises(TrainError, match=r"model.init .*cannot start from these weights"):
+        load_init(flow_model, str(run))
