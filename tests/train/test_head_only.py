@@ -15,6 +15,7 @@ from lidarflow.sim import SimConfig, simulate
 from lidarflow.train import build_config, recipe, train
 from lidarflow.train.config_io import config_from_dict, config_to_dict
 from lidarflow.train.model_setup import load_init, make_optimizer
+from tests.head_only_pair import head_only, save_model_dir
 
 GRID = GridSpec(40, 40, 0.05)
 
@@ -87,8 +88,6 @@ def test_a_head_of_other_inputs_starts_afresh_and_a_flow_model_refuses_a_flow_fr
     assert load_init(model, "bundled")  # no weight fits: the head is left new
     for name, value in model.state_dict().items():
         torch.testing.assert_close(value, fresh[name])
-    from tests.head_only_pair import head_only, save_model_dir
-
     run = save_model_dir(head_only(ego=True), tmp_path / "noflow")
     flow_model = build(recipe("head").model.spec())
     with pytest.raises(TrainError, match=r"model.init .*cannot start from these weights"):
