@@ -65,8 +65,8 @@ def train(
         str | None,
         typer.Option(
             help="Preset: head (default: a head on a frozen flow network), head_only (the "
-            "head without the flow network), paper, blurred, supervised_flow (flow taught by "
-            "simulated exact flow) or sogmp (the peer's; default of --arch sogmp)."
+            "head alone), paper, blurred, supervised_flow (flow from simulated truth) or sogmp "
+            "(the peer's)."
         ),
     ] = None,
     config: Annotated[
