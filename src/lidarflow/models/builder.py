@@ -34,7 +34,8 @@ def build(spec: ModelSpec) -> RecurrentMapModel:
             model = SOGMP(**spec.options)
         else:
             head = None if spec.head is None else OccupancyHead(spec.head)
-            model = LidarFlowNet(FlowNetwork(spec.flow), head)
+            flow = None if spec.flow is None else FlowNetwork(spec.flow)
+            model = LidarFlowNet(flow, head)
     except (TypeError, ValueError) as err:
         raise ModelError(f"cannot build model {spec.name!r}: {err}") from err
     if not spec.ego_motion:

@@ -1,12 +1,13 @@
 """Typed configuration of the models, and the capability record every model carries.
 
 A model is described by a :class:`ModelSpec`: the architecture's name, Table I's flow network
-(:class:`FlowConfig`), the occupancy head if any (:class:`HeadConfig`) and the ego-motion
-wrapper's two switches. ``model.json`` files store it flat, as ``model_kwargs`` (what
-``build_model(name, **kwargs)`` has always taken); :meth:`ModelSpec.from_kwargs` reads every
-file ``lidarflow train`` ever wrote, says which measured-useless option a model needs where one
-is set (the option is gone; its evidence is in ``docs/research/``), and hands back the decision
-keys older files kept among the model's (the decision is the Predictor's configuration now).
+(:class:`FlowConfig`; ``None``: none, the occupancy head alone), the occupancy head if any
+(:class:`HeadConfig`) and the ego-motion wrapper's two switches. ``model.json`` files store it
+flat, as ``model_kwargs`` (what ``build_model(name, **kwargs)`` has always taken);
+:meth:`ModelSpec.from_kwargs` reads every file ``lidarflow train`` ever wrote, says which
+measured-useless option a model needs where one is set (the option is gone; its evidence is in
+``docs/research/``), and hands back the decision keys older files kept among the model's (the
+decision is the Predictor's configuration now).
 """
 
 from __future__ import annotations
@@ -40,13 +41,18 @@ REMOVED_OPTIONS: dict[str, Any] = {
 }
 # The head of each cell's own past is the only head left: a 1x1 kernel, no GRU features.
 _HEAD_SHAPE = {"head_kernel_size": 1, "head_flow_features": False}
+# The flat keys of the flow network (``flow_network: false`` stores a model without one).
+_FLOW_KEYS = ("hidden_channels", "dilations", "kernel_size", "zero_init_flow")
 
 
 @dataclass(frozen=True)
 class Capabilities:
     """What a model takes and gives, read by the streaming engine instead of probing:
     ``input_channels`` per frame (2: ``(O, V)``; 4 with the sub-cell maps), ``out_channels``
-    per step, ``flow`` (its output starts with ``B_col, B_row, F_col, F_row``),
+    per step, ``flow`` (it estimates the flow: its output starts with ``B_col, B_row, F_col,
+    F_row``, which the Predictor reports with the moving cells; a model without a flow network
+    keeps those channels, zero or the platform's own motion, but says ``False``: it tells
+    nothing of what moves),
     ``occupancy_head`` (its probability is a calibrated ``sigmoid`` of a logit, which a decision
     policy may offset), ``ego_motion`` (``step`` takes the sensor's motion) and
     ``poses_optional`` (it may run where a recording has no poses)."""
@@ -106,20 +112,23 @@ class HeadConfig:
 @dataclass(frozen=True)
 class ModelSpec:
     """A whole model: ``name`` (one of :data:`MODEL_NAMES`); for ``flownet`` its ``flow`` and
-    ``head``; for ``deeptracking`` and ``sogmp`` their own ``options`` (the arguments of
+    ``head`` (``flow`` ``None``: no flow network, the head alone, which it then needs); for
+    ``deeptracking`` and ``sogmp`` their own ``options`` (the arguments of
     :class:`~lidarflow.models.deeptracking.DeepTracking`, :class:`~lidarflow.models.sogmp.SOGMP`);
     ``ego_motion`` wraps it in
     :class:`~lidarflow.models.egomotion.EgoCompensated`, ``poses_optional`` lets that run
     without poses."""
 
     name: str = "flownet"
-    flow: FlowConfig = field(default_factory=FlowConfig)
+    flow: FlowConfig | None = field(default_factory=FlowConfig)
     head: HeadConfig | None = None
     ego_motion: bool = False
     poses_optional: bool = False
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.name == "flownet" and self.flow is None and self.head is None:
+            raise ValueError("a flownet without a flow network needs an occupancy head")
         if self.name not in MODEL_NAMES:
             raise ValueError(f"unknown model {self.name!r}: choose one of {', '.join(MODEL_NAMES)}")
         if self.poses_optional and not self.ego_motion:
@@ -148,12 +157,17 @@ class ModelSpec:
                 )
         if name != "flownet":
             return cls(name, ego_motion=ego, poses_optional=optional, options=kwargs), decision
-        flow = FlowConfig(
-            hidden_channels=int(kwargs.pop("hidden_channels", 16)),
-            dilations=tuple(kwargs.pop("dilations", (1, 2, 4))),
-            kernel_size=int(kwargs.pop("kernel_size", 3)),
-            zero_init=bool(kwargs.pop("zero_init_flow", True)),
-        )
+        flow: FlowConfig | None = None
+        if kwargs.pop("flow_network", True):
+            flow = FlowConfig(
+                hidden_channels=int(kwargs.pop("hidden_channels", 16)),
+                dilations=tuple(kwargs.pop("dilations", (1, 2, 4))),
+                kernel_size=int(kwargs.pop("kernel_size", 3)),
+                zero_init=bool(kwargs.pop("zero_init_flow", True)),
+            )
+        elif given := [k for k in _FLOW_KEYS if k in kwargs]:
+            raise ValueError(f"{', '.join(given)}: options of a flow network, and flow_network "
+                             "is false")
         head = None
         if kwargs.pop("occupancy_head", False):
             for key, value in _HEAD_SHAPE.items():
@@ -178,7 +192,9 @@ class ModelSpec:
     def to_kwargs(self) -> dict[str, Any]:
         """The flat form :meth:`from_kwargs` reads (what ``model.json`` stores)."""
         out: dict[str, Any] = dict(self.options)
-        if self.name == "flownet":
+        if self.name == "flownet" and self.flow is None:
+            out["flow_network"] = False
+        elif self.name == "flownet":
             default = FlowConfig()
             flow = {
                 "hidden_channels": self.flow.hidden_channels,

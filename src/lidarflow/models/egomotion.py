@@ -145,12 +145,22 @@ class EgoCompensated(RecurrentMapModel):
             moved.append(rigid_warp(out[:, 4:5], next_motion, fill=OCCUPANCY_FILL_LOGIT))
         return torch.cat(moved, dim=1)
 
+    def _inner_maps(self, maps: Tensor, out: Tensor) -> Tensor:
+        """``maps`` as the inner model's prediction takes them: a flow model warps ``O^t`` by
+        the output's backward flow itself; a model without a flow network (its flow channels
+        the platform's motion alone, ``capabilities.flow`` false) weighs the map as given, so
+        here it is moved by that motion first (the same ``clamp(W(O^t, B^t), 0, 1)``)."""
+        if self.out_channels != 5 or self.inner.capabilities.flow:
+            return maps
+        moved = warp(maps[:, 0:1], out[:, 0:2]).clamp(0.0, 1.0)
+        return torch.cat([moved, maps[:, 1:]], dim=1)
+
     def predict_next(self, maps: Tensor, out: Tensor) -> Tensor:
-        return self.inner.predict_next(maps, out)
+        return self.inner.predict_next(self._inner_maps(maps, out), out)
 
     def next_logit(self, maps: Tensor, out: Tensor) -> Tensor:
         """The inner occupancy head's logit (its output already in the frame of ``t + 1``)."""
-        return self.inner.next_logit(maps, out)  # type: ignore[attr-defined]
+        return self.inner.next_logit(self._inner_maps(maps, out), out)  # type: ignore[attr-defined]
 
     def forward(  # type: ignore[override]
         self,

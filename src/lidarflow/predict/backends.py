@@ -34,9 +34,14 @@ DECISION_KEY = "lidarflow.decision"
 #: ONNX metadata key of the grid the model was exported for: JSON ``{"height", "width", "res"}``
 #: (files exported before it existed say only their size, in the graph's shapes).
 GRID_KEY = "lidarflow.grid"
+#: ONNX metadata key (value ``"false"``) of a model whose four flow channels are no flow of its
+#: own (LiDAR-FlowNet without its flow network: zero, or the platform's motion): the Predictor
+#: reports no flow and no moving cells for it. Unmarked files with flow channels estimate flow.
+FLOW_KEY = "lidarflow.flow"
 
 __all__ = [
     "DECISION_KEY",
+    "FLOW_KEY",
     "GRID_KEY",
     "POSES_OPTIONAL_KEY",
     "OnnxBackend",
@@ -166,7 +171,7 @@ class OnnxBackend:
         self.capabilities = Capabilities(
             input_channels=int(inputs[0].shape[1]),
             out_channels=out_channels,
-            flow=out_channels >= 4,
+            flow=out_channels >= 4 and marks.get(FLOW_KEY) != "false",
             occupancy_head=decision is not None,
             ego_motion=bool(self.motion_inputs),
             poses_optional=marks.get(POSES_OPTIONAL_KEY) == "true",

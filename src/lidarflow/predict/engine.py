@@ -199,11 +199,16 @@ class Engine:
         probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
         flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
-        backward = None if flow is None else flow[:2]
-        decided = self._decide(own, frame.occupancy, backward, frame.visibility)
+        decided = self._decide(own, frame.occupancy, self._backward(out), frame.visibility)
         # Each step of a roll-out is one typical step of the same motion.
         ahead = motion if guess is None else guess
         return Step(own, decided, flow, motion, maps, self._state, ahead)
+
+    def _backward(self, out: np.ndarray) -> np.ndarray | None:
+        """The step's backward flow ``(2, H, W)``, which moves the last map for the online
+        decision: also that of a model without a flow network (``capabilities.flow`` false),
+        whose flow channels hold the platform's own motion (zero without ego motion)."""
+        return out[0, :2] if self.capabilities.out_channels >= 4 else None
 
     def _decide(
         self,
@@ -232,7 +237,6 @@ class Engine:
             fed = np.zeros_like(step.maps)
             fed[0, 0], fed[0, 1] = decided[-1], step.maps[0, 1]
             probability, out, state = self.backend.run(fed, state, step.ahead)
-            flow = out[0, :2] if self.capabilities.flow else None
             probabilities.append(probability[0, 0])
-            decided.append(self._decide(probability[0, 0], decided[-1], flow))
+            decided.append(self._decide(probability[0, 0], decided[-1], self._backward(out)))
         return Rollout(np.stack(probabilities), np.stack(decided))

@@ -17,7 +17,9 @@ existed take ``motion`` again). One built with ``poses_optional`` (it may run wi
 poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
 :data:`POSES_OPTIONAL_KEY`. An occupancy-head model's ``probability`` is calibrated (no
 offset); the decision policy it ships with (offset, online or not) and its warp gain are in
-:data:`DECISION_KEY`, so that the Predictor decides as PyTorch does.
+:data:`DECISION_KEY`, so that the Predictor decides as PyTorch does. A model without a flow
+network keeps the four flow channels (zero, or the platform's motion) and is marked
+:data:`~lidarflow.predict.backends.FLOW_KEY` ``"false"``: the Predictor reports no flow for it.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from torch import Tensor, nn
 
 from lidarflow.errors import PredictError
 from lidarflow.models.recurrent import RecurrentMapModel
-from lidarflow.predict.backends import DECISION_KEY, GRID_KEY, POSES_OPTIONAL_KEY
+from lidarflow.predict.backends import DECISION_KEY, FLOW_KEY, GRID_KEY, POSES_OPTIONAL_KEY
 from lidarflow.predict.decision import DecisionPolicy
 
 __all__ = ["DECISION_KEY", "OPSET", "POSES_OPTIONAL_KEY", "StepGraph", "copy_marks", "export_onnx"]
@@ -106,6 +108,8 @@ def export_onnx(
         marks[GRID_KEY] = json.dumps({"height": height, "width": width, "res": res})
     if caps.poses_optional:
         marks[POSES_OPTIONAL_KEY] = "true"
+    if caps.out_channels >= 4 and not caps.flow:  # the flow channels without a flow network
+        marks[FLOW_KEY] = "false"
     if caps.occupancy_head:
         record = (decision or DecisionPolicy()).to_record()
         marks[DECISION_KEY] = json.dumps({**record, "gain": model.warp_gain(), "calibrated": True})

@@ -61,7 +61,8 @@ class Prediction:
             logit, chosen online for the bundled model) at 0.4. For a model without a head it
             is ``probability >= 0.4``.
         backward_flow, forward_flow: ``(2, H, W)`` flow in cells (column, row), ``None`` for
-            models that predict occupancy directly (DeepTracking).
+            models that predict occupancy directly (DeepTracking) and LiDAR-FlowNet without its
+            flow network (``capabilities.flow`` false).
         horizon: ``(K, H, W)`` probabilities 1..K frames ahead (``horizon[0]`` is
             ``probability``); each step ahead is fed the decided map before it.
         horizon_occupied: ``(K, H, W)`` bool, the decided maps 1..K frames ahead.

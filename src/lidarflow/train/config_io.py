@@ -141,7 +141,7 @@ def _flat_model_read(base: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
     except (TypeError, ValueError) as err:
         raise TrainError(f"config model.kwargs: {err}") from err
     model.update(
-        flow=dataclasses.asdict(spec.flow),
+        flow=None if spec.flow is None else dataclasses.asdict(spec.flow),
         head=None if spec.head is None else dataclasses.asdict(spec.head),
         ego_motion=spec.ego_motion,
         poses_optional=spec.poses_optional,

@@ -33,7 +33,8 @@ def load_init(model: torch.nn.Module, source: str) -> bool:
 
     A flow model without an occupancy head, or with a head of other inputs (other memories, no
     constant-velocity input), may start a model with one: the flow part is copied and the head
-    keeps its copy-last initialisation (fine-tuning a head onto trained flow).
+    keeps its copy-last initialisation (fine-tuning a head onto trained flow). A model without
+    a flow network takes the head alone (the flow's weights are left out).
     Returns whether the head was left new."""
     from lidarflow.models.presets import resolve_model
 
@@ -43,6 +44,8 @@ def load_init(model: torch.nn.Module, source: str) -> bool:
         # with it starts from one without and the other way round.
         model, init = _unwrapped(model), _unwrapped(init)
         own, weights = model.state_dict(), init.state_dict()
+        if not any(n.startswith("flow.") for n in own):  # no flow network: its head alone
+            weights = {n: v for n, v in weights.items() if not n.startswith("flow.")}
         if any(is_head(n) and n in own and own[n].shape != v.shape for n, v in weights.items()):
             # A head of other inputs: none of it fits, the new head starts afresh.
             weights = {n: v for n, v in weights.items() if not is_head(n)}
@@ -56,11 +59,13 @@ def load_init(model: torch.nn.Module, source: str) -> bool:
 
 
 def parameter_groups(model: torch.nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
-    """The optimizer's groups: the network, then (if any) the head at its scaled rate."""
+    """The optimizer's groups: the network (if any besides the head), then (if any) the head
+    at its scaled rate."""
     head, rest = [], []
     for name, p in model.named_parameters():
         (head if is_head(name) else rest).append(p)
-    groups: list[dict[str, Any]] = [{"params": rest}]
+    # A model of the head alone (no flow network) has no other group.
+    groups: list[dict[str, Any]] = [{"params": rest}] if rest else []
     if head:
         groups.append({"params": head, "lr": config.optim.lr * config.optim.head_lr_scale})
     return groups
