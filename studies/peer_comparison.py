@@ -14,7 +14,9 @@ several processes) and the scoring and the table follow::
 ``train`` runs ``lidarflow train`` once per held-out recording on all the others (arguments
 after ``--`` go to every run; a finished run is kept). Models: ``flownet`` (``--recipe head``
 on the flow network given by ``--flow-init``, trained on simulation only, so no fold sees its
-held-out recording), ``sogmp`` and ``deeptracking`` (their own recipes). ``evaluate`` scores
+held-out recording), ``head_only`` (the same head without the flow network, ``--recipe
+head_only`` started from the fold's flownet run: train flownet first), ``sogmp`` and
+``deeptracking`` (their own recipes). ``evaluate`` scores
 each held-out recording with every fold model found, plus ``flownet_noflow`` (the flownet fold
 model with its flow head set to zero: what the flow buys), with ``lidarflow evaluate --horizon
 K``, K the recording's scans in about one second. ``table`` writes OUT/peer_comparison.md and
@@ -40,6 +42,8 @@ from studies.harness import development, stem, write_atomic, write_json
 #: the recipe of each model (the arguments `lidarflow train` gets before the data)
 RECIPES = {
     "flownet": ["--recipe", "head", "--init", "{flow_init}"],
+    # the same head without the flow network, from the fold's flownet head (fold-clean)
+    "head_only": ["--recipe", "head_only", "--init", "{fold_flownet}"],
     "sogmp": ["--arch", "sogmp"],
     "deeptracking": ["--arch", "deeptracking"],
 }
@@ -77,7 +81,10 @@ def train_fold(
     run = fold_run(out, model, held)
     if (run / "model.safetensors").exists():
         return f"{model} without {stem(held)}: kept"
-    recipe = [a.format(flow_init=flow_init) for a in RECIPES[model]]
+    fold_flownet = fold_run(out, "flownet", held)
+    if "{fold_flownet}" in RECIPES[model] and not (fold_flownet / "model.safetensors").exists():
+        return f"{model} without {stem(held)}: FAILED (train flownet first: {fold_flownet})"
+    recipe = [a.format(flow_init=flow_init, fold_flownet=fold_flownet) for a in RECIPES[model]]
     others = [str(r) for r in recordings if r != held]
     args = ["train", *others, "-o", str(run), "--force", *recipe, *extra]
     args += ["--set", "runtime.tensorboard=false"]
@@ -196,7 +203,7 @@ def collect(out: Path, reports: Sequence[Path] = ()) -> dict[str, Any]:
 
 
 def _order(method: str) -> tuple[int, str]:
-    known = [*BASELINES, *REFERENCES, "flownet", NOFLOW, "sogmp", "deeptracking"]
+    known = [*BASELINES, *REFERENCES, "flownet", NOFLOW, "head_only", "sogmp", "deeptracking"]
     return (known.index(method) if method in known else len(known), method)
 
 
