@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
@@ -33,6 +35,12 @@ def make_recording(
         scans.append(Scan(ranges, geom, int(1_000_000_000 + i * 1e9 / rate_hz)))
     pose_arr = np.column_stack([np.arange(n) * 0.1, np.zeros(n), np.zeros(n)]) if poses else None
     return Recording.from_scans(scans, poses=pose_arr, meta={"source": "synthetic"})
+
+
+#: lidarflow's bundled model to v8: the head on a trained flow network. The bundled model is the
+#: head alone since v9 (issue 36), so tests of the flow path (flow fields, moving cells, flow
+#: topics) stream this one.
+FLOW_MODEL = Path(__file__).parent / "fixtures" / "flownet_v8"
 
 
 @pytest.fixture
@@ -72,3 +80,16 @@ def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):
 def random_flownet_dir(tmp_path):
     """A flownet whose flow head is random (not zero), so its flow is not trivially zero."""
     return make_model_dir(tmp_path / "random_flownet", zero_init_flow=False)
+
+
+@pytest.fixture(scope="session")
+def flow_onnx(tmp_path_factory) -> Path:
+    """:data:`FLOW_MODEL` as ONNX with its decision policy, as `lidarflow export` writes it:
+    what the live tests of moving cells and the flow image serve."""
+    from lidarflow.models.presets import resolve_model
+    from lidarflow.predict.decision import DecisionPolicy
+    from lidarflow.predict.export import export_onnx
+
+    net, card = resolve_model(FLOW_MODEL)
+    path = tmp_path_factory.mktemp("flow_onnx") / "flownet_v8.onnx"
+    return export_onnx(net, path, 100, 100, 0.1, DecisionPolicy.from_record(card["decision"]))

@@ -336,6 +336,24 @@ def test_predict_on_a_bag_copies_it_and_leaves_the_flow_out(tmp_path, capsys, ra
     assert set(read_all(tmp_path / "p.mcap")) == {"/lidarflow/predicted"}
 
 
+def test_predict_says_the_bundled_model_has_no_flow_to_write(tmp_path, capsys):
+    from tests.predict.test_rosout import read_all
+
+    rec = tmp_path / "short.npz"
+    from lidarflow.data import read_bag
+
+    read_bag(sample_bag_path()).slice(0, 3).save(rec)
+    out = tmp_path / "o.mcap"
+    code, stdout, err = run(["predict", str(rec), "-o", str(out), "--topics", "all"], capsys)
+    assert code == 0, err
+    assert "note: this model has no flow network" in stdout and "--model" in stdout
+    topics = set(read_all(out))
+    assert "/lidarflow/predicted" in topics
+    assert not any(t.startswith(("/lidarflow/flow", "/lidarflow/moving")) for t in topics)
+    code, stdout, err = run(["predict", str(rec), "-o", str(out), "--force"], capsys)
+    assert code == 0 and "note:" not in stdout  # the default topics do not ask for the flow
+
+
 def test_predict_topics_usage_error(tmp_path, capsys):
     code, _, err = run(
         ["predict", str(sample_bag_path()), "-o", str(tmp_path / "o.mcap"), "--topics", "flwo"],

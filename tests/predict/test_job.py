@@ -13,23 +13,28 @@ from lidarflow.predict.job import (
     DEFAULT_TOPICS,
     FLOW_QUANTUM_CELLS,
     FLOW_RGB_FULL_CELLS,
+    TOPIC_GROUPS,
     predict_to_bag,
 )
-from tests.conftest import make_model_dir
+from tests.conftest import FLOW_MODEL, make_model_dir
 from tests.predict.test_rosout import read_all
 
 PREDICTIONS = {"occupancy", "predicted", "decided", "moving"}
 
 
 def test_by_default_everything_but_the_flow(tmp_path, sample_recording):
-    counts = predict_to_bag(sample_recording.slice(0, 3), Predictor(), tmp_path / "o.mcap")
+    recording = sample_recording.slice(0, 3)
+    counts = predict_to_bag(recording, Predictor(FLOW_MODEL), tmp_path / "o.mcap")
     assert set(counts) == {"/right_scan"} | {f"/lidarflow/{t}" for t in PREDICTIONS}
     assert {"input"} | PREDICTIONS == DEFAULT_TOPICS
+    # The bundled model, the occupancy head alone since v9: no moving cells, no flow, even asked
+    counts = predict_to_bag(recording, Predictor(), tmp_path / "b.mcap", topics=set(TOPIC_GROUPS))
+    assert set(counts) == {"/right_scan"} | {f"/lidarflow/{t}" for t in PREDICTIONS - {"moving"}}
 
 
 def test_flow_comes_with_its_colour_wheel_picture(tmp_path, sample_recording):
     recording = sample_recording.slice(0, 3)
-    predictor = Predictor()
+    predictor = Predictor(FLOW_MODEL)
     counts = predict_to_bag(
         recording, predictor, tmp_path / "o.mcap", topics=DEFAULT_TOPICS | {"flow"}
     )

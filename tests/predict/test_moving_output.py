@@ -10,21 +10,22 @@ from lidarflow.predict import Predictor
 from lidarflow.predict.job import predict_to_bag
 from lidarflow.predict.moving import moving_mask
 from lidarflow.predict.rosout import map_from_grid_data
-from tests.conftest import make_model_dir
+from tests.conftest import FLOW_MODEL, make_model_dir
 from tests.predict.test_rosout import read_all
 
-# The bundled model: a random flow head's flow is too small and smooth to move anything.
+# A trained flow model (v8, the bundled one until v9 dropped the flow network): a random flow
+# head's flow is too small and smooth to move anything.
 
 
 def test_prediction_moving_is_the_segmentation_of_its_forward_flow(sample_recording):
-    predictor = Predictor(moving_threshold=0.3)
+    predictor = Predictor(FLOW_MODEL, moving_threshold=0.3)
     for i in range(3):
         p = predictor.update(sample_recording.scan(i))
     assert p.moving.dtype == bool and p.moving.shape == (100, 100)
     np.testing.assert_array_equal(p.moving, moving_mask(p.occupancy, p.forward_flow, 0.3))
     assert not (p.moving & ~p.occupancy).any()
     assert p.moving.any()
-    still = Predictor(moving_threshold=1e6).update(sample_recording.scan(0))
+    still = Predictor(FLOW_MODEL, moving_threshold=1e6).update(sample_recording.scan(0))
     assert not still.moving.any()
 
 
@@ -33,6 +34,8 @@ def test_no_flow_no_moving_and_bad_threshold(tmp_path, sample_recording):
         sample_recording.scan(0)
     )
     assert p.moving is None
+    # nor from the bundled model, the occupancy head alone since v9
+    assert Predictor().update(sample_recording.scan(0)).moving is None
     with pytest.raises(PredictError, match="moving_threshold"):
         Predictor(tmp_path / "dt", moving_threshold=-1.0)
 
@@ -40,7 +43,7 @@ def test_no_flow_no_moving_and_bad_threshold(tmp_path, sample_recording):
 @pytest.mark.parametrize("name", ["out.bag", "out.mcap"])
 def test_moving_grid_is_written_and_reads_back(tmp_path, sample_recording, name):
     recording = sample_recording.slice(0, 4)
-    predictor = Predictor()
+    predictor = Predictor(FLOW_MODEL)
     counts = predict_to_bag(recording, predictor, tmp_path / name)
     assert counts["/lidarflow/moving"] == 4
     grid = read_all(tmp_path / name)["/lidarflow/moving"][-1]
@@ -54,8 +57,10 @@ def test_moving_grid_is_written_and_reads_back(tmp_path, sample_recording, name)
     assert set(np.unique(back)) <= {-1, 0, 100} and (back == 100).any()
 
 
-def test_deeptracking_bag_has_no_moving_topic(tmp_path, sample_recording):
-    predictor = Predictor(make_model_dir(tmp_path / "dt", name="deeptracking"))
+@pytest.mark.parametrize("flow_free", ["deeptracking", "bundled"])
+def test_a_flow_free_models_bag_has_no_moving_topic(tmp_path, sample_recording, flow_free):
+    model = make_model_dir(tmp_path / "dt", name="deeptracking") if flow_free != "bundled" else None
+    predictor = Predictor(model)
     counts = predict_to_bag(sample_recording.slice(0, 2), predictor, tmp_path / "o.mcap")
     assert "/lidarflow/moving" not in counts and counts["/lidarflow/predicted"] == 2
 

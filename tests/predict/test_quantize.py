@@ -14,18 +14,20 @@ from lidarflow.predict import Predictor
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.export import export_onnx
 from lidarflow.predict.quantize import head_convs, quantize_onnx
+from tests.conftest import FLOW_MODEL
 from tests.test_cli import run
 
 
 def stacked_maps(recording, start, stop, subcell=True):
-    """A recording's maps as the bundled model takes them (it has ``subcell_input``)."""
+    """A recording's maps as v8 and the bundled model take them (they have ``subcell_input``)."""
     return recording.stacked_maps(start=start, stop=stop, subcell=subcell)
 
 
 @pytest.fixture(scope="module")
 def float_and_int8(tmp_path_factory, sample_recording):
     folder = tmp_path_factory.mktemp("q")
-    net, card = resolve_model(None)  # the bundled model: trained weights, realistic ranges
+    # v8, a trained flow model (the bundled one is the head alone since v9): realistic ranges
+    net, card = resolve_model(FLOW_MODEL)
     policy = DecisionPolicy.from_record(card["decision"])
     float_path = export_onnx(net, folder / "float.onnx", decision=policy)
     calibration = stacked_maps(sample_recording, 0, 40)
@@ -50,7 +52,7 @@ def test_table_one_convs_are_int8_and_the_head_stays_float(float_and_int8):
     convs = [n for n in graph.node if n.op_type == "Conv"]
     int8 = {n.name for n in convs if n.input[1] in dequantized}
     head = set(head_convs(float_path))
-    assert len(head) == 2 and head <= {n.name for n in convs}  # the bundled head: hidden, output
+    assert len(head) == 2 and head <= {n.name for n in convs}  # v8's head: hidden, output
     assert not head & int8
     assert {"/flow/conv0/Conv", "/flow/conv_flow/Conv"} <= int8
     assert sum("/grus." in name for name in int8) == 6  # three ConvGRUs, two convs each
@@ -75,7 +77,7 @@ def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
     f1_float = f1_score(np.stack(predicted_a[10:-1]), targets)
     f1_int8 = f1_score(np.stack(predicted_b[10:-1]), targets)
     assert abs(f1_float - f1_int8) < 0.01 and f1_float > 0.9
-    online = [Predictor(p) for p in (float_path, int8_path)]  # the bundled policy asks for it
+    online = [Predictor(p) for p in (float_path, int8_path)]  # v8's policy asks for it
     assert all(p.online is not None for p in online)
     decided = [[p.update(scan).occupied for scan in scans] for p in online]
     f1_online = [f1_score(np.stack(d[10:-1]), targets) for d in decided]

@@ -1,4 +1,5 @@
-"""Write the pins of the bundled model's calibrated probability (run once, at main ``9f9eedb``).
+"""Write the pins of a model's calibrated probability: the bundled model's (run at v9's install),
+and v8's (``--model flownet_v8``, run once at main ``9f9eedb``, when v8 was the bundled model).
 
 Until issue 35 the Predictor's ``probability`` was the decided one (the head's logit shifted by
 the decision offsets); since, it is the calibrated ``sigmoid(logit)`` and the decision is only in
@@ -6,7 +7,8 @@ the decision offsets); since, it is the calibrated ``sigmoid(logit)`` and the de
 that), and this script records there the calibrated probability of every one-step prediction:
 the head's own logit of the same step, without offsets.
 
-    PYTHONPATH=src:. OMP_NUM_THREADS=1 python tests/regression/make_calibrated_pins.py
+    PYTHONPATH=src:. OMP_NUM_THREADS=1 python tests/regression/make_calibrated_pins.py \\
+        [--model flownet_v8]
 """
 
 from __future__ import annotations
@@ -17,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.regression.make_bundled_pins import FULL_EVERY, STREAMS, stream_recording
+from tests.regression.make_bundled_pins import FULL_EVERY, MODELS, STREAMS, stream_recording
 
 OUT = Path(__file__).resolve().parent / "calibrated_pins.npz"
+PINS = {"bundled": OUT, "flownet_v8": OUT.with_name("flownet_v8_calibrated_pins.npz")}
 
 
-def main() -> None:
+def main(argv: list[str]) -> None:
     import torch
 
     from lidarflow.predict import Predictor
@@ -31,7 +34,9 @@ def main() -> None:
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=OUT.parent
     ).stdout.strip()
     arrays: dict[str, np.ndarray] = {"commit": np.asarray(commit)}
-    predictor = Predictor(threads=1)
+    model_name = argv[argv.index("--model") + 1] if "--model" in argv else "bundled"
+    out_path = PINS[model_name]
+    predictor = Predictor(MODELS[model_name], threads=1)
     model, run = predictor.backend.model, predictor.backend.run
     calibrated: list[np.ndarray] = []
 
@@ -54,9 +59,9 @@ def main() -> None:
         arrays[f"{name}/calibrated_sum"] = stack.sum(axis=(1, 2))
         arrays[f"{name}/calibrated_full"] = np.stack(calibrated[::FULL_EVERY]).astype(np.float32)
         print(name, len(stack), "frames", file=sys.stderr)
-    np.savez_compressed(OUT, **arrays)
-    print(OUT, OUT.stat().st_size, "bytes", file=sys.stderr)
+    np.savez_compressed(out_path, **arrays)
+    print(out_path, out_path.stat().st_size, "bytes", file=sys.stderr)
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

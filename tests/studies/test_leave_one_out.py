@@ -1,6 +1,7 @@
 import json
 
 from studies import leave_one_out
+from tests.conftest import FLOW_MODEL
 
 
 def test_leave_one_out_trains_a_fold_per_recording_and_judges_it(
@@ -23,8 +24,9 @@ def test_leave_one_out_trains_a_fold_per_recording_and_judges_it(
 
 
 def test_leave_one_out_online_decision_and_reuse(sim_recordings, tiny_training, tmp_path):
-    # the head recipe (the bundled model's, fine-tuned from it) decides online: both rules scored
-    variant = "head=head data.memories_from_stream=false " + " ".join(tiny_training)
+    # the head recipe (on v8's flow network, fine-tuned from v8) decides online: both rules scored
+    variant = f"head=head model.init={FLOW_MODEL} data.memories_from_stream=false "
+    variant += " ".join(tiny_training)
     argv = ["-o", str(tmp_path), "--recordings", *map(str, sim_recordings), "--variant", variant,
             "--held-out", str(sim_recordings[0]), "--online-decision"]  # fmt: skip
     study = leave_one_out.main(argv)

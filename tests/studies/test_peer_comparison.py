@@ -4,6 +4,7 @@ import numpy as np
 from safetensors.numpy import load_file
 
 from studies import peer_comparison
+from tests.conftest import FLOW_MODEL
 
 
 def test_every_model_trains_per_fold_and_the_table_scores_both_horizons(
@@ -13,7 +14,7 @@ def test_every_model_trains_per_fold_and_the_table_scores_both_horizons(
     tiny = [a for key in tiny_training for a in ("--set", key)]
     for model in ("flownet", "sogmp", "deeptracking"):
         peer_comparison.main(
-            ["train", "-o", str(tmp_path), "--model", model, "--flow-init", "bundled",
+            ["train", "-o", str(tmp_path), "--model", model, "--flow-init", str(FLOW_MODEL),
              "--recordings", *recordings, "--", *tiny]
         )  # fmt: skip
     for model in ("flownet", "sogmp", "deeptracking"):
@@ -39,14 +40,11 @@ def test_every_model_trains_per_fold_and_the_table_scores_both_horizons(
 
 
 def test_zero_flow_sets_only_the_flow_head_to_zero(tmp_path):
-    from lidarflow.models.presets import BUNDLED
-
-    bundled = BUNDLED.path()
-    weights = load_file(str(bundled / "model.safetensors"))
+    weights = load_file(str(FLOW_MODEL / "model.safetensors"))
     run = tmp_path / "run"
     run.mkdir()
-    (run / "model.safetensors").write_bytes((bundled / "model.safetensors").read_bytes())
-    (run / "model.json").write_text((bundled / "model.json").read_text())
+    (run / "model.safetensors").write_bytes((FLOW_MODEL / "model.safetensors").read_bytes())
+    (run / "model.json").write_text((FLOW_MODEL / "model.json").read_text())
     zeroed = load_file(
         str(peer_comparison.zero_flow(run, tmp_path / "noflow") / "model.safetensors")
     )

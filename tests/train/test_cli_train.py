@@ -274,38 +274,66 @@ def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
     assert not list(run.glob("**/.*.tmp"))  # what the kill left half-written is gone
 
 
-def test_default_recipe_trains_a_head_on_the_bundled_flow(tmp_path, blob_files, capsys):
+def test_default_recipe_trains_the_bundled_head_without_a_flow_network(
+    tmp_path, blob_files, capsys
+):
     import torch
     from safetensors.torch import load_file
 
     from lidarflow.models.presets import resolve_model
 
-    run = tmp_path / "head"
-    args = ["train", *map(str, blob_files), "-o", str(run), *TINY]  # no --recipe: head
+    run = tmp_path / "head_only"
+    args = ["train", *map(str, blob_files), "-o", str(run), *TINY]  # no --recipe: head_only
     code, out, err = run_cli([*args, "--epochs", "1", "--set", "data.epoch_windows=6"], capsys)
     assert code in (0, None), err
     assert "starting from the weights of bundled" in out
     config = json.loads((run / "config.json").read_text())
-    assert config["recipe"] == "head" and config["model"]["init"] == "bundled"
+    assert config["recipe"] == "head_only" and config["model"]["init"] == "bundled"
+    record = json.loads((run / "model.json").read_text())
+    assert record["model_kwargs"]["poses_optional"] and not record["model_kwargs"]["flow_network"]
+    assert record["decision"] == {"offset": 0.0, "online": True}  # the recipe's policy
+    trained = load_file(run / "model.safetensors")
+    bundled = resolve_model("bundled")[0].state_dict()
+    assert set(trained) == set(bundled) and not any(".flow." in k for k in trained)
+    # the bundled head, trained on: every input of the head recipe's (the current map, five
+    # memories, the constant-velocity map, the visibility map and the two sub-cell channels)
+    head = trained["inner.head.out.weight"]
+    assert (head - bundled["inner.head.out.weight"]).abs().max() > 1e-3
+    assert trained["inner.head.hidden.weight"].shape[1:] == (1 + 5 + 1 + 1 + 2, 1, 1)
+    assert all(torch.isfinite(v).all() for v in trained.values())
+
+
+def test_the_head_recipe_trains_a_head_on_a_given_flow_network(tmp_path, blob_files, capsys):
+    import torch
+    from safetensors.torch import load_file
+
+    from tests.conftest import FLOW_MODEL
+
+    run = tmp_path / "head"
+    args = ["train", *map(str, blob_files), "-o", str(run), *TINY, "--recipe", "head"]
+    # the bundled model has no flow network since v9: the recipe's default start is refused
+    code, _, err = run_cli([*args, "--epochs", "1"], capsys)
+    assert code == 1 and "has no flow network" in err and "--init" in err, err
+    assert len(err.strip().splitlines()) == 1
+    code, _, err = run_cli(
+        [*args, "--init", str(FLOW_MODEL), "--epochs", "1", "--set", "data.epoch_windows=6"],
+        capsys,
+    )
+    assert code in (0, None), err
 
     # The recipe compensates ego motion (a wrapper: every name gets "inner.").
     def unwrapped(weights: dict) -> dict:
         return {k.removeprefix("inner."): v for k, v in weights.items()}
 
     trained = unwrapped(load_file(run / "model.safetensors"))
-    bundled = unwrapped(resolve_model("bundled")[0].state_dict())
-    record = json.loads((run / "model.json").read_text())
-    assert record["model_kwargs"]["poses_optional"]
-    assert record["decision"] == {"offset": 0.0, "online": True}  # the recipe's policy
-    # The flow network is the bundled one (lr 1e-6: moved by about 1e-6 per step) ...
-    flow = bundled["flow.conv_flow.weight"]
+    given = unwrapped(load_file(FLOW_MODEL / "model.safetensors"))
+    # The flow network is the given one (lr 1e-6: moved by about 1e-6 per step) ...
+    flow = given["flow.conv_flow.weight"]
+    assert flow.abs().max() > 1e-3  # a trained flow head, not zero
     torch.testing.assert_close(trained["flow.conv_flow.weight"], flow, atol=1e-4, rtol=0)
-    # ... the head (the bundled one where it has the same inputs, else a new one) has learnt.
-    head, before = trained["head.out.weight"], bundled.get("head.out.weight")
-    assert head.abs().max() > 1e-3
-    assert before is None or before.shape != head.shape or (head - before).abs().max() > 1e-3
-    # A head of each cell's own past: the current map, five memories, the constant-velocity map,
-    # the visibility map, and the two sub-cell channels.
+    # ... the head (the given one: the same inputs) has learnt.
+    head, before = trained["head.out.weight"], given["head.out.weight"]
+    assert (head - before).abs().max() > 1e-3
     assert trained["head.hidden.weight"].shape[1:] == (1 + 5 + 1 + 1 + 2, 1, 1)
 
 

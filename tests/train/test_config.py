@@ -73,10 +73,10 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
     assert head.decision.online
 
 
-def test_default_recipe_is_the_head_for_lidar_flownet_only():
+def test_default_recipe_is_head_only_for_lidar_flownet_only():
     from lidarflow.train.config import default_recipe
 
-    assert default_recipe() == default_recipe("flownet") == "head"
+    assert default_recipe() == default_recipe("flownet") == "head_only"  # v9: no flow network
     assert default_recipe("deeptracking") == "paper"
     assert default_recipe("flownet", ego_motion=True) == "paper"
     assert TrainConfig().recipe == "paper"  # the dataclasses keep the paper's values

@@ -15,6 +15,7 @@ from lidarflow.sim import SimConfig, simulate
 from lidarflow.train import build_config, recipe, train
 from lidarflow.train.config_io import config_from_dict, config_to_dict
 from lidarflow.train.model_setup import load_init, make_optimizer
+from tests.conftest import FLOW_MODEL
 from tests.head_only_pair import head_only, save_model_dir
 
 GRID = GridSpec(40, 40, 0.05)
@@ -72,6 +73,7 @@ def test_a_tiny_run_learns_and_leaves_a_flow_free_model(tmp_path):
         "optim.epochs": 3,
         "runtime.tensorboard": False,
         "runtime.threads": 1,
+        "model.init": str(FLOW_MODEL),  # v8's head (v9, the bundled one, is it trained on)
     }
     result = train(build_config("head_only", None, flags), tmp_path / "run")
     losses = [row["train_loss"] for row in result.rows if "train_loss" in row]
@@ -90,5 +92,7 @@ def test_a_head_of_other_inputs_starts_afresh_and_a_flow_model_refuses_a_flow_fr
         torch.testing.assert_close(value, fresh[name])
     run = save_model_dir(head_only(ego=True), tmp_path / "noflow")
     flow_model = build(recipe("head").model.spec())
-    with pytest.raises(TrainError, match=r"model.init .*cannot start from these weights"):
+    with pytest.raises(TrainError, match=r"model.init .*has no flow network.*--init RUN"):
         load_init(flow_model, str(run))
+    with pytest.raises(TrainError, match=r"model.init bundled: it has no flow network"):
+        load_init(flow_model, "bundled")  # the head alone since v9

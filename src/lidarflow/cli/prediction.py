@@ -147,8 +147,9 @@ def predict(
 ) -> None:
     """Write the input bag's messages, unchanged, plus per scan the predicted next map
     (OccupancyGrid in the scan's frame, stamped with the time it predicts, for RViz/Foxglove),
-    the current map and the moving cells to a new bag (compressed chunks). --topics adds the
-    flow (32FC2 images and rgb8 colour-wheel pictures) or leaves groups out.
+    the current map and, from a flow model, the moving cells to a new bag (compressed chunks).
+    --topics adds a flow model's flow (32FC2 images and rgb8 colour-wheel pictures) or leaves
+    groups out. The bundled model has no flow network.
 
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
@@ -179,6 +180,12 @@ def predict(
         source = None if is_recording_file(input) else input
         counts = predict_to_bag(recording, predictor, output, bar.update, force, groups, source)
     typer.echo(f"wrote {output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))
+    if "flow" in groups and not predictor.backend.capabilities.flow:
+        # The bundled model is the occupancy head alone since v9 (issue 36): say why it is absent.
+        typer.echo(
+            "note: this model has no flow network, so no flow or moving cells were written; "
+            "pass --model of a flow model (e.g. one trained with --recipe blurred) for them"
+        )
 
 
 def _topic_groups(text: str) -> frozenset[str]:

@@ -64,9 +64,9 @@ def train(
     recipe: Annotated[
         str | None,
         typer.Option(
-            help="Preset: head (default: a head on a frozen flow network), head_only (the "
-            "head alone), paper, blurred, supervised_flow (flow from simulated truth) or sogmp "
-            "(the peer's)."
+            help="Preset: head_only (default: the occupancy head alone), head (a head on a "
+            "flow network: --init RUN), paper, blurred, supervised_flow (flow from simulated "
+            "truth) or sogmp (the peer's)."
         ),
     ] = None,
     config: Annotated[

@@ -281,10 +281,11 @@ def _head() -> TrainConfig:
     poses (``ego_motion``, ``poses_optional``: uncompensated where it has none; half the
     training windows without their poses, so it learns both ways), its decision offsets chosen
     online as it streams (``decision.online``, applied by evaluate and the Predictor; training
-    is unchanged by it): ``model.init`` (the bundled model unless set; its head too where the
-    shapes fit, so the default fine-tunes the bundled head; ``--recipe blurred`` trains a flow
-    network of your own). About 8 CPU-minutes on the seven development recordings; its
-    validation is ``docs/research/online_decision/``."""
+    is unchanged by it): ``model.init``, a trained flow network (``--init RUN``; its head too
+    where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains one). Left at
+    ``bundled`` it is refused: the bundled model is the head alone since v9 (issue 36). About
+    8 CPU-minutes on the seven development recordings; its validation is
+    ``docs/research/online_decision/``."""
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
@@ -399,23 +400,24 @@ def _supervised_flow() -> TrainConfig:
 RECIPES: dict[str, Callable[[], TrainConfig]] = {
     "paper": _paper,  # the loss exactly as written in the paper (Table II reproduction)
     "blurred": _blurred,  # both sides of the loss blurred: zero flow is optimal when nothing moves
-    "head": _head,  # the head alone on a trained flow network: issue 11's best, the bundled one
-    "head_only": _head_only,  # the same head without the flow network (issue 36)
+    "head": _head,  # the head on a trained flow network: issue 11's best, the bundled one to v8
+    "head_only": _head_only,  # the same head without the flow network: the bundled one (v9)
     "sogmp": _sogmp,  # the SOGMP peer's own recipe (issue 38)
     "supervised_flow": _supervised_flow,  # the flow taught by simulated exact flow (issue 36)
 }
 
 
-#: LiDAR-FlowNet's default recipe. ``head_only`` (the same head without the flow network, which
-#: buys nothing measured, issue 36) replaces it once its leave-one-out validation holds.
-DEFAULT_FLOWNET_RECIPE = "head"
+#: LiDAR-FlowNet's default recipe: ``head_only``, the ``head`` recipe's head without the flow
+#: network, which bought nothing leave-one-recording-out (issue 36); ``head`` fits a head onto a
+#: flow network of your own (``--init RUN``).
+DEFAULT_FLOWNET_RECIPE = "head_only"
 
 
 def default_recipe(model: str | None = None, ego_motion: bool = False) -> str:
-    """The recipe `lidarflow train` uses when none is named: the best measured one (``head``,
-    issue 11's leave-one-out study) for LiDAR-FlowNet; SOGMP's own for SOGMP; the paper's for
-    DeepTracking and for ego-motion models, which the head recipe does not apply to. The
-    dataclasses' own defaults stay the paper's."""
+    """The recipe `lidarflow train` uses when none is named: for LiDAR-FlowNet the best measured
+    one (``head_only``: issue 11's ``head`` without the flow network, issue 36); SOGMP's own for
+    SOGMP; the paper's for DeepTracking and for ego-motion models, which the head recipes do not
+    apply to. The dataclasses' own defaults stay the paper's."""
     if model == "sogmp":
         return "sogmp"
     return DEFAULT_FLOWNET_RECIPE if model in (None, "flownet") and not ego_motion else "paper"

@@ -44,6 +44,15 @@ def load_init(model: torch.nn.Module, source: str) -> bool:
         # with it starts from one without and the other way round.
         model, init = _unwrapped(model), _unwrapped(init)
         own, weights = model.state_dict(), init.state_dict()
+        if any(n.startswith("flow.") for n in own) and not any(
+            n.startswith("flow.") for n in weights
+        ):
+            # The bundled model is the head alone since v9: a flow model cannot start from it.
+            raise TrainError(
+                f"model.init {source}: it has no flow network to start this model's from; pass "
+                "--init RUN of a flow model (--recipe blurred or supervised_flow), or train "
+                "--recipe head_only"
+            )
         if not any(n.startswith("flow.") for n in own):  # no flow network: its head alone
             weights = {n: v for n, v in weights.items() if not n.startswith("flow.")}
         if any(is_head(n) and n in own and own[n].shape != v.shape for n, v in weights.items()):
