@@ -33,7 +33,7 @@ from tests.regression.make_bundled_pins import (
 from tests.regression.make_calibrated_pins import PINS as CALIBRATED_PINS
 
 #: The commit at which the bundled model's pins were made (v9 installed, issue 36).
-V9_PINNED_AT = "PENDING"
+V9_PINNED_AT = "6efe81a"
 THRESHOLD = 0.4
 TOLERANCE = 1e-4
 

@@ -147,9 +147,9 @@ def predict(
 ) -> None:
     """Write the input bag's messages, unchanged, plus per scan the predicted next map
     (OccupancyGrid in the scan's frame, stamped with the time it predicts, for RViz/Foxglove),
-    the current map and, from a flow model, the moving cells to a new bag (compressed chunks).
-    --topics adds a flow model's flow (32FC2 images and rgb8 colour-wheel pictures) or leaves
-    groups out. The bundled model has no flow network.
+    the current map and, from a flow model (not the bundled one), the moving cells to a new bag
+    (compressed chunks). --topics adds a flow model's flow (32FC2 and rgb8 colour-wheel
+    images) or leaves groups out.
 
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
