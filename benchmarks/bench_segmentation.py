@@ -1,7 +1,8 @@
 """Per-scan cost of moving-object segmentation (when ``Prediction.moving`` is read) and of the
 calibration sums (in every evaluated frame), as ratios to a reference measured in the same run.
 
-Segmentation: :func:`lidarflow.predict.moving.moving_mask` on the bundled model's forward flow of
+Segmentation: :func:`lidarflow.predict.moving.moving_mask` on a flow model's forward flow
+(``--model``; default v8, ``tests/fixtures/flownet_v8``: the bundled model has none since v9) of
 the bundled sample's scans, against ``Predictor.update`` (rasterize + model step; segmentation
 is computed on first access to ``Prediction.moving``, so it is no longer in the update) on the
 same scans. Calibration: ``Calibration.add`` against ``Scorer.add`` (which
@@ -28,6 +29,9 @@ from lidarflow.evaluate.scoring import Scorer
 from lidarflow.predict import Predictor
 from lidarflow.predict.moving import moving_mask
 
+#: v8, the bundled model until v9 (which has no flow network), kept as a test fixture.
+FLOW_MODEL = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "flownet_v8"
+
 
 def median_ms(call: Callable[[int], object], n: int) -> float:
     times = []
@@ -41,6 +45,7 @@ def median_ms(call: Callable[[int], object], n: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scans", type=int, default=200)
+    parser.add_argument("--model", default=str(FLOW_MODEL), help="a model with a flow network")
     parser.add_argument(
         "--json", type=Path, default=Path("benchmarks/results/segmentation.json")
     )
@@ -48,7 +53,7 @@ def main() -> None:
     torch.set_num_threads(1)
     recording = read_bag(sample_bag_path())
     scans = [recording.scan(i % len(recording)) for i in range(args.scans)]
-    predictor = Predictor(threads=1)
+    predictor = Predictor(args.model, threads=1)
     predictions = [predictor.update(s) for s in scans]  # also warms up
     predictor.reset()
     update = median_ms(lambda i: predictor.update(scans[i]), args.scans)

@@ -44,7 +44,8 @@ TOPIC_PREFIX = "/lidarflow"
 #: length; the flow viewers can show, as neither RViz nor Foxglove shows a 32FC2 image.
 FLOW_RGB_TOPIC = f"{TOPIC_PREFIX}/flow_forward_rgb"
 #: Flow (cells per frame) drawn in full colour on the colour wheels: a fixed scale, so that
-#: colours compare across frames (the bundled model's flow: median 0.4, 99th percentile ~1.2).
+#: colours compare across frames (v8's flow, the bundled model until v9: median 0.4, 99th
+#: percentile ~1.2).
 FLOW_RGB_FULL_CELLS = 2.0
 
 
