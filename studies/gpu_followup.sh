@@ -26,7 +26,8 @@ R=(.devdata/positive_1.npz .devdata/positive_2.npz .devdata/positive_3.npz .devd
    .devdata/general_tracking_moving_1.npz)
 
 python3 -m studies.peer_comparison train -o "$W/c" --model sogmp --recordings "${R[@]}" \
-  --held-out .devdata/positive_2.npz -- --amp auto --max-minutes "${SOGMP_MINUTES:-1.8}" \
+  --held-out .devdata/positive_2.npz \
+  --set runtime.amp=auto "runtime.max_minutes=${SOGMP_MINUTES:-1.8}" \
   > "$W/sogmp.log" 2>&1 &
 TRAIN=$!
 $LF simulate -s dynamic --frames 300 --seed 11 -o "$W/held_dyn11.npz" > /dev/null &
@@ -40,11 +41,11 @@ for pair in "dyn11 general_tracking_moving_1" "sta11 positive_1"; do
     -o "$OUT/sim_$1_fold_$2.json" > "$W/sim_$1.log" 2>&1 &
 done
 wait $TRAIN
-t "sogmp trained: $(grep -o 'ends after epoch [0-9]* of [0-9]*' "$W"/c/sogmp/*/train.log)"
+t "sogmp trained: $(grep -o 'ends after epoch [0-9]* of [0-9]*' "$W/sogmp.log")"
 timeout "${EVAL_SECONDS:-60}" python3 -m studies.peer_comparison evaluate -o "$W/c" \
   --recordings "${R[@]}" --held-out .devdata/positive_2.npz --device cuda --threads 4
 cp "$W"/c/evaluation/positive_2.json "$OUT/sogmp_alone_positive_2.json" 2>/dev/null
 (cd "$W/c" && tar -czf "$OUT/sogmp_alone.tgz" sogmp/positive_2/run/model.safetensors \
-  sogmp/positive_2/run/model.json sogmp/positive_2/run/metrics.jsonl sogmp/positive_2/train.log)
+  sogmp/positive_2/run/model.json sogmp/positive_2/run/metrics.jsonl)
 wait
 t "end: $(ls "$OUT")"

@@ -10,6 +10,8 @@
 # .whl/ (typer and its needs for the image's Python). Writes everything under OUT (default
 # $OUT, else runs/gpu_session) and tars the small files of every run there.
 #   studies/gpu_session.sh            # on the device: carry .devdata and .whl
+# (docs/research/peer_comparison's run was made at 9e367e6, when the study passed the same
+# settings as `lidarflow train` flags after `--` and ran each fold as a `lidarflow` process.)
 set -u
 OUT=${OUT:-runs/gpu_session}
 W=$OUT/work  # runs and data; only the tars below leave the machine
@@ -61,12 +63,12 @@ for seed in 0 1; do
     --set data.epoch_windows=1600 --set schedule.lr_step_epochs=10 \
     --set runtime.tensorboard=false -o "$W/supflow_s$seed" > "$W/supflow_s$seed.log" 2>&1 & PIDS+=($!)
 done
-$STUDY train -o "$C" --model sogmp --jobs 3 --recordings "${R[@]}" -- \
-  --amp auto --max-minutes 1.35 > "$W/sogmp.log" 2>&1 & PIDS+=($!)
-$STUDY train -o "$C" --model deeptracking --jobs 2 --recordings "${R[@]}" -- \
-  --amp auto --max-minutes 0.8 > "$W/deeptracking.log" 2>&1 & PIDS+=($!)
+$STUDY train -o "$C" --model sogmp --jobs 3 --recordings "${R[@]}" \
+  --set runtime.amp=auto runtime.max_minutes=1.35 > "$W/sogmp.log" 2>&1 & PIDS+=($!)
+$STUDY train -o "$C" --model deeptracking --jobs 2 --recordings "${R[@]}" \
+  --set runtime.amp=auto runtime.max_minutes=0.8 > "$W/deeptracking.log" 2>&1 & PIDS+=($!)
 $STUDY train -o "$C" --model flownet --jobs 3 --flow-init .devdata/sim_flow_2 \
-  --recordings "${R[@]}" -- --threads 2 --max-minutes 1.2 > "$W/flownet.log" 2>&1 & PIDS+=($!)
+  --recordings "${R[@]}" --set runtime.threads=2 runtime.max_minutes=1.2 > "$W/flownet.log" 2>&1 & PIDS+=($!)
 wait "${PIDS[@]}"
 t "phase A done"
 cat "$W"/sogmp.log "$W"/deeptracking.log "$W"/flownet.log

@@ -7,45 +7,46 @@ Three steps, each a subcommand, so that training can go where the compute is (a 
 several processes) and the scoring and the table follow::
 
     python -m studies.peer_comparison train -o OUT --model sogmp --jobs 2 \\
-        --recordings R1.npz R2.npz ... -- --amp auto --max-minutes 1.3
+        --recordings R1.npz R2.npz ... --set runtime.amp=auto runtime.max_minutes=1.3
     python -m studies.peer_comparison evaluate -o OUT --recordings R... --device cuda --jobs 7
     python -m studies.peer_comparison table -o OUT
 
-``train`` runs ``lidarflow train`` once per held-out recording on all the others (arguments
-after ``--`` go to every run; a finished run is kept). Models: ``flownet`` (``--recipe head``
+``train`` trains the model once per held-out recording on all the others, each fold in its
+own process (``--set`` keys as `lidarflow train --set` takes them go to every run; a finished
+run is kept). Models: ``flownet`` (``--recipe head``
 on the flow network given by ``--flow-init``, trained on simulation only, so no fold sees its
 held-out recording), ``head_only`` (the same head without the flow network, ``--recipe
 head_only`` started from the fold's flownet run: train flownet first), ``sogmp`` and
 ``deeptracking`` (their own recipes). ``evaluate`` scores
 each held-out recording with every fold model found, plus ``flownet_noflow`` (the flownet fold
 model with its flow head set to zero: what the flow buys), with ``lidarflow evaluate --horizon
-K``, K the recording's scans in about one second. ``table`` writes OUT/peer_comparison.md and
-.json: per recording and on average, each method at k = 1 and k = K.
+K``, K the recording's scans in about one second. Writes OUT/<model>/<recording>/run/ per
+fold, OUT/evaluation/<recording>.json per held-out recording and, with ``table``,
+OUT/peer_comparison.md and .json: per recording and on average, each method at k = 1 and K.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
+import multiprocessing
 import os
-import subprocess
-import sys
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from studies.harness import development, stem, write_atomic, write_json
+from studies.harness import development, parse, parser, stem, write_atomic, write_json
 
-#: the recipe of each model (the arguments `lidarflow train` gets before the data)
-RECIPES = {
-    "flownet": ["--recipe", "head", "--init", "{flow_init}"],
+#: each model's recipe and the settings it starts from (``{flow_init}``: --flow-init;
+#: ``{fold_flownet}``: the same fold's flownet run)
+RECIPES: dict[str, tuple[str, dict[str, str]]] = {
+    "flownet": ("head", {"model.init": "{flow_init}"}),
     # the same head without the flow network, from the fold's flownet head (fold-clean)
-    "head_only": ["--recipe", "head_only", "--init", "{fold_flownet}"],
-    "sogmp": ["--arch", "sogmp"],
-    "deeptracking": ["--arch", "deeptracking"],
+    "head_only": ("head_only", {"model.init": "{fold_flownet}"}),
+    "sogmp": ("sogmp", {}),
+    "deeptracking": ("paper", {"model.name": "deeptracking"}),
 }
 NOFLOW = "flownet_noflow"
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
@@ -53,43 +54,37 @@ BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 REFERENCES = ("copy_last_ego",)
 
 
-def horizon_of(recording: Path) -> int:
-    """Scans in about one second of ``recording`` (at least 2)."""
-    from lidarflow.data import load_any
-
-    return max(2, round(load_any(recording).frame_rate))
-
-
-def _lidarflow(args: Sequence[str], log: Path) -> int:
-    """``python -m lidarflow ARGS`` with its output in ``log``; its exit status."""
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "w") as out:
-        done = subprocess.run(
-            [sys.executable, "-m", "lidarflow", *args], stdout=out, stderr=subprocess.STDOUT
-        )
-    return done.returncode
-
-
 def fold_run(out: Path, model: str, held: Path) -> Path:
     return out / model / stem(held) / "run"
 
 
 def train_fold(
-    out: Path, model: str, held: Path, recordings: Sequence[Path], flow_init: str, extra: list[str]
+    out: Path,
+    model: str,
+    held: Path,
+    recordings: Sequence[Path],
+    flow_init: str,
+    overrides: Sequence[str],
 ) -> str:
     """Train ``model`` on every recording but ``held`` (kept if already finished)."""
+    from lidarflow.errors import LidarflowError
+    from studies.folds import train_model
+
     run = fold_run(out, model, held)
     if (run / "model.safetensors").exists():
         return f"{model} without {stem(held)}: kept"
     fold_flownet = fold_run(out, "flownet", held)
-    if "{fold_flownet}" in RECIPES[model] and not (fold_flownet / "model.safetensors").exists():
+    recipe, flags = RECIPES[model]
+    if "{fold_flownet}" in flags.values() and not (fold_flownet / "model.safetensors").exists():
         return f"{model} without {stem(held)}: FAILED (train flownet first: {fold_flownet})"
-    recipe = [a.format(flow_init=flow_init, fold_flownet=fold_flownet) for a in RECIPES[model]]
-    others = [str(r) for r in recordings if r != held]
-    args = ["train", *others, "-o", str(run), "--force", *recipe, *extra]
-    args += ["--set", "runtime.tensorboard=false"]
-    code = _lidarflow(args, run.parent / "train.log")
-    return f"{model} without {stem(held)}: " + ("done" if code == 0 else f"FAILED ({code})")
+    names = {"flow_init": flow_init, "fold_flownet": str(fold_flownet)}
+    flags = {key: value.format(**names) for key, value in flags.items()}
+    others = [r for r in recordings if r != held]
+    try:
+        train_model(others, run, recipe, [*overrides, "runtime.tensorboard=false"], flags)
+    except LidarflowError as err:
+        return f"{model} without {stem(held)}: FAILED ({err})"
+    return f"{model} without {stem(held)}: done"
 
 
 def zero_flow(run: Path, into: Path) -> Path:
@@ -109,28 +104,37 @@ def zero_flow(run: Path, into: Path) -> Path:
 
 
 def evaluate_fold(out: Path, held: Path, device: str, threads: int, horizon: int = 0) -> str:
-    """Score every fold model of ``held`` found under ``out`` with ``lidarflow evaluate``,
+    """Score every fold model of ``held`` found under ``out`` as `lidarflow evaluate` does,
     ``horizon`` steps ahead (0: about one second of ``held``)."""
+    import torch
+
+    from lidarflow.data import load_any
+    from lidarflow.scan import GridSpec
+    from studies.scoring import evaluate
+
     report = out / "evaluation" / f"{stem(held)}.json"
     if report.exists():
         return f"{stem(held)}: kept"
-    models = []
+    models: dict[str, str] = {}
     for model in RECIPES:
         run = fold_run(out, model, held)
         if (run / "model.safetensors").exists():
-            models += ["-m", str(run)]
+            models[model] = str(run)
             if model == "flownet":
-                models += ["-m", str(zero_flow(run, run.parent / NOFLOW))]
+                models[NOFLOW] = str(zero_flow(run, run.parent / NOFLOW))
     if not models:
         return f"{stem(held)}: no fold model"
-    card = json.loads((Path(models[1]) / "model.json").read_text())
-    grid = card["grid"]  # every fold model trains on the grid of the study's --grid/--res
-    k = horizon or horizon_of(held)
-    args = ["evaluate", str(held), *models, "--horizon", str(k)]
-    args += ["--grid", str(grid["height"]), "--res", str(grid["res"])]
-    args += ["--device", device, "--threads", str(threads), "-o", str(report)]
-    code = _lidarflow(args, out / "evaluation" / f"{stem(held)}.log")
-    return f"{stem(held)}: " + ("done" if code == 0 else f"FAILED ({code})")
+    # every fold model trains on the grid of the study's recordings
+    grid = json.loads((Path(next(iter(models.values()))) / "model.json").read_text())["grid"]
+    torch.set_num_threads(threads)
+    recording = load_any(held)
+    k = horizon or max(2, round(recording.frame_rate))
+    scores = evaluate(
+        [(str(held), recording)], models, grid=GridSpec(grid["height"], grid["width"], grid["res"]),
+        horizon=k, device=device,
+    )  # fmt: skip
+    write_json(report, scores)
+    return f"{stem(held)}: done"
 
 
 def fold_scores(report: dict[str, Any], out: Path) -> dict[str, dict[str, float]]:
@@ -150,10 +154,12 @@ def fold_scores(report: dict[str, Any], out: Path) -> dict[str, dict[str, float]
 
 def _model_of(method: str, report: dict[str, Any], out: Path) -> str:
     """The table's name of a report's method: a baseline's own, a model's by its run folder."""
+    if method in (NOFLOW, *RECIPES):  # the study's own reports name them so
+        return method
     used = report["config"]["models"].get(method)
     if used is None:
         return method
-    path = Path(used["weights_path"]).resolve()
+    path = Path(used["weights_path"] if isinstance(used, dict) else used).resolve()
     for model in (NOFLOW, *RECIPES):
         if model in path.parts:
             return model
@@ -255,30 +261,35 @@ def table(study: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _train_item(item: tuple) -> str:
+    return train_fold(*item)
+
+
+def _evaluate_item(item: tuple) -> str:
+    return evaluate_fold(*item)
+
+
 def _each(jobs: int, task: Any, items: Sequence[Any]) -> None:
-    """``task`` on every item, ``jobs`` at a time, each outcome printed; exit 1 if any failed
-    (its log, beside its run or report, says why)."""
+    """``task`` on every item, ``jobs`` processes at a time (spawned: CUDA-safe), each outcome
+    printed; exit 1 if any failed."""
     failed = 0
-    with ThreadPoolExecutor(jobs) as pool:
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         for said in pool.map(task, items):
             print(said, flush=True)
             failed += "FAILED" in said
     if failed:
-        raise SystemExit(f"{failed} of {len(items)} failed; see their logs")
+        raise SystemExit(f"{failed} of {len(items)} failed")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    extra: list[str] = []
-    if "--" in argv:
-        cut = argv.index("--")
-        argv, extra = argv[:cut], argv[cut + 1 :]
-    p = argparse.ArgumentParser(prog="peer_comparison", description=__doc__.split("\n\n")[0])
+    p = parser("peer_comparison", __doc__)
     p.add_argument("step", choices=("train", "evaluate", "table"))
-    p.add_argument("-o", "--output", type=Path, required=True)
     p.add_argument("--recordings", type=Path, nargs="+", default=development())
     p.add_argument("--model", choices=tuple(RECIPES), help="train: the model to train")
     p.add_argument("--flow-init", default="runs/sim_flow_2", help="flownet: the flow network")
+    p.add_argument(
+        "--set", dest="overrides", nargs="*", default=[], help="train: KEY=VALUE for every run"
+    )
     p.add_argument("--held-out", type=Path, nargs="*", default=[], help="only these folds")
     p.add_argument("--jobs", type=int, default=1, help="folds at a time")
     p.add_argument("--device", default="cpu", help="evaluate: where the models run")
@@ -287,21 +298,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument(
         "--reports", type=Path, nargs="*", default=[], help="table: these reports, not OUT's"
     )
-    args = p.parse_args(argv)
+    args = parse(p, argv)
     out: Path = args.output
     held = args.held_out or args.recordings
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if args.step == "train":
         if args.model is None:
             p.error("train needs --model")
-        work = [(out, args.model, h, args.recordings, args.flow_init, extra) for h in held]
-        _each(args.jobs, lambda a: train_fold(*a), work)
-    elif args.step == "evaluate":
         _each(
             args.jobs,
-            lambda h: evaluate_fold(out, h, args.device, args.threads, args.horizon),
-            held,
+            _train_item,
+            [(out, args.model, h, args.recordings, args.flow_init, args.overrides) for h in held],
         )
+    elif args.step == "evaluate":
+        items = [(out, h, args.device, args.threads, args.horizon) for h in held]
+        _each(args.jobs, _evaluate_item, items)
     else:
         study = collect(out, args.reports)
         write_json(out / "peer_comparison.json", study)

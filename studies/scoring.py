@@ -14,6 +14,7 @@ import numpy as np
 
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.ego import CopyLastEgo
+from lidarflow.evaluate.horizon import add_horizon_scores
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.stream import evaluate_recording
@@ -35,6 +36,7 @@ def methods_for(
     ta_window: int = TA_WINDOW,
     ta_threshold: float = TA_THRESHOLD,
     res: float = 0.1,
+    device: str = "cpu",
 ) -> list[Any]:
     """The three baselines and one method per model (``{name: source}``), as `lidarflow
     evaluate` builds them; with an ego-motion model, ``copy_last_ego`` beside it (a reference,
@@ -42,7 +44,7 @@ def methods_for(
     (``NAME_online`` or ``NAME_fixed``, :func:`studies.harness.split_online`)."""
     sources, names = list(models.values()), list(models)
     return methods_and_config(
-        sources, ta_window, ta_threshold, online=online, res=res, names=names
+        sources, ta_window, ta_threshold, online=online, res=res, names=names, device=device
     )[0]
 
 
@@ -53,12 +55,16 @@ def evaluate(
     warmup: int = WARMUP,
     report_dir: Path | None = None,
     grid: GridSpec | None = None,
+    horizon: int = 1,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """`lidarflow evaluate`'s report of ``models`` beside the baselines on ``recordings``
     (``(name, recording)`` pairs): ``{"recordings": [{"path", "methods", ...}], "overall",
-    "against_baselines"}``; with ``report_dir`` its figures and HTML report too."""
+    "against_baselines"}``; with ``report_dir`` its figures and HTML report too; with
+    ``horizon`` K > 1 every method rolled 1..K frames ahead too (``horizon_f1`` etc., as
+    ``--horizon``); ``device``: where PyTorch models run."""
     grid = grid or GridSpec()
-    methods = methods_for(models, online, res=grid.res)
+    methods = methods_for(models, online, res=grid.res, device=device)
     config = {
         "warmup": warmup,
         "grid": grid.to_dict(),
@@ -66,7 +72,10 @@ def evaluate(
         "online_decision_both_ways": online,
         "no_verdict": [m.name for m in methods if isinstance(m, CopyLastEgo)],
     }
-    return evaluate_and_report(recordings, methods, grid, warmup, config, report_dir)
+    report = evaluate_and_report(recordings, methods, grid, warmup, config, report_dir)
+    if horizon > 1:
+        add_horizon_scores(report, recordings, methods, grid, warmup, horizon)
+    return report
 
 
 def evaluate_one(

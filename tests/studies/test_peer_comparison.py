@@ -11,30 +11,30 @@ def test_every_model_trains_per_fold_and_the_table_scores_both_horizons(
     sim_recordings, tiny_training, tmp_path
 ):
     recordings = [str(r) for r in sim_recordings]
-    tiny = [a for key in tiny_training for a in ("--set", key)]
-    for model in ("flownet", "sogmp", "deeptracking"):
+    for model in ("flownet", "head_only", "sogmp", "deeptracking"):  # head_only after flownet
         peer_comparison.main(
             ["train", "-o", str(tmp_path), "--model", model, "--flow-init", str(FLOW_MODEL),
-             "--recordings", *recordings, "--", *tiny]
+             "--recordings", *recordings, "--jobs", "2", "--set", *tiny_training]
         )  # fmt: skip
-    for model in ("flownet", "sogmp", "deeptracking"):
+    for model in ("flownet", "head_only", "sogmp", "deeptracking"):
         for held in ("static", "dynamic"):
             assert (tmp_path / model / held / "run" / "model.safetensors").exists(), model
     peer_comparison.main(
-        ["evaluate", "-o", str(tmp_path), "--recordings", *recordings, "--horizon", "3"]
+        ["evaluate", "-o", str(tmp_path), "--recordings", *recordings, "--horizon", "3",
+         "--jobs", "2"]
     )
     peer_comparison.main(["table", "-o", str(tmp_path)])
 
     study = json.loads((tmp_path / "peer_comparison.json").read_text())
     assert set(study["folds"]) == {"static", "dynamic"}
     expected = {"copy_last", "temporal_average", "constant_velocity", "flownet",
-                "flownet_noflow", "sogmp", "deeptracking"}  # fmt: skip
+                "flownet_noflow", "head_only", "sogmp", "deeptracking"}  # fmt: skip
     for fold in study["folds"].values():
         assert expected <= set(fold)
         for row in fold.values():
             assert row["K"] >= 2 and 0.0 <= row["f1_1"] <= 1.0 and 0.0 <= row["f1_K"] <= 1.0
     assert study["parameters"]["sogmp"] == 730_245
-    assert set(study["wins"]) >= {"flownet", "flownet_noflow", "sogmp", "deeptracking"}
+    assert set(study["wins"]) >= {"flownet", "flownet_noflow", "head_only", "sogmp", "deeptracking"}
     table = (tmp_path / "peer_comparison.md").read_text()
     assert "| **mean** | sogmp |" in table and "wins" in table
 

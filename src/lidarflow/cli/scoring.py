@@ -199,7 +199,12 @@ def evaluate(
             named, methods, spec, warmup, config, staged, gif_frames, eval_progress
         )
     if horizon > 1:
-        _add_horizon_scores(report, named, methods, spec, warmup, horizon)
+        from lidarflow.evaluate.horizon import add_horizon_scores
+
+        add_horizon_scores(
+            report, named, methods, spec, warmup, horizon,
+            lambda total, name: progress_bar(total, f"horizon {horizon}, {Path(name).name}"),
+        )  # fmt: skip
     for entry in report["recordings"]:
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
         typer.echo(format_table(entry["methods"], title))
@@ -259,32 +264,6 @@ def _check_length(name: str, recording: Any, warmup: int, horizon: int) -> None:
     check_length(len(recording), warmup, gaps, name)
     if horizon > 1:
         scored_frames(len(recording), horizon, warmup, gaps, name)
-
-
-def _add_horizon_scores(
-    report: dict[str, Any],
-    named: list[tuple[str, Any]],
-    methods: list[Any],
-    spec: Any,
-    warmup: int,
-    horizon: int,
-) -> None:
-    from lidarflow.evaluate.horizon import horizon_scores
-    from lidarflow.evaluate.stream import recording_inputs
-
-    # every model and baseline rolls forward (what knows the future has no roll-out of its own)
-    streamed = [m for m in methods if not getattr(m, "oracle", False)]
-    for entry, (name, recording) in zip(report["recordings"], named, strict=True):
-        inputs = recording_inputs(recording, spec, streamed)
-        total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
-        with progress_bar(total, f"horizon {horizon}, {Path(name).name}") as bar:
-            scores = horizon_scores(
-                inputs.occupancy, inputs.visibility, streamed, horizon, warmup, bar.update,
-                inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
-                inputs.gaps, inputs.paces,
-            )  # fmt: skip
-        for key, scored in scores.items():  # f1, changed_f1, wmse, ssim (none on a tiny grid)
-            entry[f"horizon_{key}"] = scored
 
 
 def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:

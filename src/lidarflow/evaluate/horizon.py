@@ -33,8 +33,10 @@ Predictor does.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -43,10 +45,11 @@ from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
-from lidarflow.evaluate.stream import method_inputs
+from lidarflow.evaluate.stream import method_inputs, recording_inputs
 from lidarflow.predict.baselines import Method
+from lidarflow.scan import GridSpec
 
-__all__ = ["horizon_scores", "scored_frames"]
+__all__ = ["add_horizon_scores", "horizon_scores", "scored_frames"]
 
 
 def scored_frames(
@@ -79,6 +82,35 @@ def scored_frames(
             "--horizon or leave it out"
         )
     return scored
+
+
+def add_horizon_scores(
+    report: dict[str, Any],
+    named: Sequence[tuple[str, Any]],
+    methods: Sequence[Method],
+    spec: GridSpec,
+    warmup: int,
+    horizon: int,
+    bar: Callable[[int, str], Any] | None = None,
+) -> None:
+    """:func:`horizon_scores` of every recording of ``named`` (``(name, Recording)``) into its
+    entry of ``report`` (what ``evaluate_and_report`` returned for them) as ``horizon_f1``,
+    ``horizon_changed_f1``, ``horizon_wmse``, ``horizon_ssim``. Every model and baseline rolls
+    forward; what knows the future (``oracle``) has no roll-out of its own. ``bar(total, name)``:
+    a progress bar (a context manager with ``update``) per recording."""
+    streamed = [m for m in methods if not getattr(m, "oracle", False)]
+    for entry, (name, recording) in zip(report["recordings"], named, strict=True):
+        inputs = recording_inputs(recording, spec, streamed)
+        total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
+        with bar(total, name) if bar is not None else contextlib.nullcontext() as progress:
+            scores = horizon_scores(
+                inputs.occupancy, inputs.visibility, streamed, horizon, warmup,
+                None if progress is None else progress.update,
+                inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
+                inputs.gaps, inputs.paces,
+            )  # fmt: skip
+        for key, scored in scores.items():  # f1, changed_f1, wmse, ssim (none on a tiny grid)
+            entry[f"horizon_{key}"] = scored
 
 
 def horizon_scores(
