@@ -9,13 +9,14 @@ import pytest
 from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
 from lidarflow.models import HeadConfig, ModelSpec
-from lidarflow.train.config import RECIPES, TrainConfig, recipe
+from lidarflow.train.config import TrainConfig
 from lidarflow.train.config_io import (
     apply_overrides,
     build_config,
     config_from_dict,
     config_to_dict,
 )
+from lidarflow.train.recipes import RECIPES, recipe
 
 
 def test_defaults_are_the_papers_recipe():
@@ -74,7 +75,7 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
 
 
 def test_default_recipe_is_head_only_for_lidar_flownet_only():
-    from lidarflow.train.config import default_recipe
+    from lidarflow.train.recipes import default_recipe
 
     assert default_recipe() == default_recipe("flownet") == "head_only"  # v9: no flow network
     assert default_recipe("deeptracking") == "paper"

@@ -188,9 +188,9 @@ def train(
     import dataclasses
 
     from lidarflow.errors import TrainError
-    from lidarflow.train.config import default_recipe
     from lidarflow.train.config_io import build_config, config_from_dict, load_config_file
     from lidarflow.train.loop import train as run_training
+    from lidarflow.train.recipes import default_recipe
 
     flags = {
         "model.name": arch,

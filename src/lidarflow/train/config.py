@@ -11,13 +11,12 @@ barely moves; Adam's per-parameter scaling is what makes such a loss trainable a
 it is what the FlowNet family of flow networks the paper builds on was trained with. ``sgd`` and
 ``adamw`` are available as configuration.
 
-A configuration is built in layers from a named *recipe* (:data:`RECIPES`):
+A configuration is built in layers from a named *recipe* (:mod:`lidarflow.train.recipes`):
 :mod:`lidarflow.train.config_io`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,7 +25,6 @@ from lidarflow.losses import LossConfig
 from lidarflow.models.config import MODEL_NAMES, FlowConfig, HeadConfig, ModelSpec
 
 __all__ = [
-    "RECIPES",
     "DataConfig",
     "DecisionConfig",
     "ModelConfig",
@@ -34,8 +32,6 @@ __all__ = [
     "RuntimeConfig",
     "ScheduleConfig",
     "TrainConfig",
-    "default_recipe",
-    "recipe",
 ]
 
 
@@ -259,172 +255,3 @@ class TrainConfig:
         except (TypeError, ValueError) as err:
             raise TrainError(f"bad training config: model: {err}") from err
         return self
-
-
-# ----------------------------------------------------------------------------- recipes
-def _paper() -> TrainConfig:
-    return TrainConfig(recipe="paper", loss=LossConfig.paper())
-
-
-def _blurred() -> TrainConfig:
-    return TrainConfig(recipe="blurred", loss=LossConfig.blurred_both())
-
-
-def _head() -> TrainConfig:
-    """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
-    memories that follow the constant-velocity shift, the constant-velocity map, the current
-    map and its visibility, and where the current returns lie inside their cells,
-    ``subcell_input``; one hidden layer; 1 x 1, no GRU features) trained
-    by cross-entropy on top of a trained flow network that stays (nearly) frozen, each window
-    starting from the memories that streaming its recording leaves there
-    (``memories_from_stream``), compensating the platform's own motion where a recording has
-    poses (``ego_motion``, ``poses_optional``: uncompensated where it has none; half the
-    training windows without their poses, so it learns both ways), its decision offsets chosen
-    online as it streams (``decision.online``, applied by evaluate and the Predictor; training
-    is unchanged by it): ``model.init``, a trained flow network (``--init RUN``; its head too
-    where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains one). Left at
-    ``bundled`` it is refused: the bundled model is the head alone since v9 (issue 36). About
-    8 CPU-minutes on the seven development recordings; its validation is
-    ``docs/research/online_decision/``."""
-    # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
-    # (nearly frozen) flow where it was.
-    config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
-    config.model.head = HeadConfig(
-        memory_decays=(0.5, 0.8, 0.95, 0.98, 0.995),
-        constant_velocity_input=True,
-        shift_memories=True,
-        hidden_channels=16,
-        visibility_input=True,
-        subcell_input=True,
-    )
-    config.model.ego_motion = config.model.poses_optional = True
-    config.decision.online = True
-    config.model.init = "bundled"
-    # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
-    # steps); the head learns at 0.03.
-    config.optim.lr = 1e-6
-    config.optim.head_lr_scale = 30_000.0
-    config.optim.batch_size = 4
-    config.optim.epochs = 3
-    config.schedule.lr_step_epochs = 3
-    config.schedule.gaussian_step_epochs = 2
-    config.data.seq_len = 16
-    config.data.warmup = 6
-    config.data.stride = 8
-    config.data.epoch_windows = 200
-    config.data.pose_dropout = 0.5
-    config.data.memories_from_stream = True
-    config.schedule.gaussian_start = 1
-    # bf16 where the machine computes it natively (the bundled model and the documented folds
-    # were trained under bf16); fp32 on a CPU without it, where emulated bf16 trained ~10x slower
-    # (benchmarks/results/train_loop_amp_avx2.json).
-    config.runtime.amp = "auto"
-    config.runtime.channels_last = True
-    return config
-
-
-def _head_only() -> TrainConfig:
-    """The ``head`` recipe without the flow network (issue 36): the flow it trained on top of
-    was measured to buy nothing, leave-one-recording-out on the seven development recordings
-    (zeroing it: mean F1 0.8600 -> 0.8592 one step ahead, 0.6695 -> 0.6770 one second ahead),
-    while its ConvGRUs were ~98 % of a step's arithmetic. The model is the same head
-    (``model.flow`` ``None``; the platform's own motion still compensated), started from the
-    bundled model's head (``model.init``: its head's weights, the flow's left out), taught by
-    the cross-entropy alone (no flow to warp: the warp loss and its filter are off) at the rate
-    the ``head`` recipe gives its head, 0.03, now the only parameter group."""
-    config = _head()
-    config.recipe = "head_only"
-    config.model.flow = None
-    config.loss = config.loss.replace(warp=0.0)
-    config.schedule.gaussian = False
-    config.optim.lr = 0.03
-    config.optim.head_lr_scale = 1.0
-    return config
-
-
-def _sogmp() -> TrainConfig:
-    """SOGMP's own recipe (Xie & Dames 2023; :mod:`lidarflow.models.sogmp`), as its public
-    training code sets it: the loss is the cross-entropy of the next map summed over the map
-    plus 0.01 x the latent's KL (:func:`lidarflow.losses.sogmp_loss`); Adam at a constant
-    learning rate of 1e-4 (the code sets 1e-3, then its schedule function overrides it with
-    1e-4 every epoch of the 50 it runs) with weight decay 1e-3; batches of 128 predictions;
-    50 epochs. Windows of 20 frames, the first 9 filling the ten-map window, 10 pairs counted
-    each (the loss averages over pairs), windows every 10 frames so that every frame is a
-    target once: a batch of 13 windows is 130 predictions, the peer's 128. Ego motion
-    compensated by the recordings' poses (the peer's always is); a training recording without
-    poses is served uncompensated (its steps are noted), while `evaluate` and `predict` match
-    the motion from its scans. The batch and epochs are a GPU's: on a CPU give
-    ``--batch-size`` and ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
-    config = TrainConfig(recipe="sogmp", loss=LossConfig(kl_weight=0.01))
-    config.model.name = "sogmp"
-    config.model.ego_motion = config.model.poses_optional = True
-    config.optim.lr = 1e-4
-    config.optim.weight_decay = 1e-3
-    config.optim.batch_size = 13  # x 10 counted pairs: the peer's batch of 128 predictions
-    config.optim.epochs = 50
-    config.schedule.lr_gamma = 1.0  # constant
-    config.schedule.lr_step_epochs = 50
-    config.schedule.gaussian = False  # the flow loss's filter: no part of this loss
-    config.data.seq_len = 20
-    config.data.warmup = 9
-    config.data.stride = 10
-    return config
-
-
-def _supervised_flow() -> TrainConfig:
-    """The flow network alone, taught by the simulator's exact flow (issue 36): end-point error
-    of ``B^t`` and ``F^t`` on the cells where the truth is defined, moving cells weighted 10x
-    (``loss.flow_epe*``, :mod:`lidarflow.flow_supervision`), no warp loss; compensating the
-    platform's own motion (``ego_motion``), so the net learns only what moves in the world. No
-    occupancy head: fit one on top with ``--recipe head --init RUN``. Starts from zero flow.
-    Needs recordings from ``lidarflow simulate`` (any scenario and sensor preset)."""
-    config = TrainConfig(recipe="supervised_flow", loss=LossConfig(warp=0.0, flow_epe=1.0))
-    config.model.ego_motion = config.model.poses_optional = True
-    # Short windows: a dense loss needs little warm-up, and every frame after it is taught.
-    config.data.seq_len = 12
-    config.data.warmup = 4
-    config.data.stride = 6
-    config.data.epoch_windows = 120
-    # Adam at the paper's 0.01: at 0.002 the zero-initialised flow head had not moved after 150
-    # steps; clipped, as a dense loss on a moving platform gives large early gradients.
-    config.optim.lr = 0.01
-    config.optim.batch_size = 4
-    config.optim.epochs = 40  # about 35 minutes on one CPU thread (docs/research/flow_supervised)
-    config.optim.grad_clip = 10.0
-    config.schedule.lr_step_epochs = 12
-    config.schedule.gaussian = False  # no warp loss to filter
-    config.runtime.amp = "auto"
-    return config
-
-
-RECIPES: dict[str, Callable[[], TrainConfig]] = {
-    "paper": _paper,  # the loss exactly as written in the paper (Table II reproduction)
-    "blurred": _blurred,  # both sides of the loss blurred: zero flow is optimal when nothing moves
-    "head": _head,  # the head on a trained flow network: issue 11's best, the bundled one to v8
-    "head_only": _head_only,  # the same head without the flow network: the bundled one (v9)
-    "sogmp": _sogmp,  # the SOGMP peer's own recipe (issue 38)
-    "supervised_flow": _supervised_flow,  # the flow taught by simulated exact flow (issue 36)
-}
-
-
-#: LiDAR-FlowNet's default recipe: ``head_only``, the ``head`` recipe's head without the flow
-#: network, which bought nothing leave-one-recording-out (issue 36); ``head`` fits a head onto a
-#: flow network of your own (``--init RUN``).
-DEFAULT_FLOWNET_RECIPE = "head_only"
-
-
-def default_recipe(model: str | None = None, ego_motion: bool = False) -> str:
-    """The recipe `lidarflow train` uses when none is named: for LiDAR-FlowNet the best measured
-    one (``head_only``: issue 11's ``head`` without the flow network, issue 36); SOGMP's own for
-    SOGMP; the paper's for DeepTracking and for ego-motion models, which the head recipes do not
-    apply to. The dataclasses' own defaults stay the paper's."""
-    if model == "sogmp":
-        return "sogmp"
-    return DEFAULT_FLOWNET_RECIPE if model in (None, "flownet") and not ego_motion else "paper"
-
-
-def recipe(name: str) -> TrainConfig:
-    """A fresh config of the named recipe."""
-    if name not in RECIPES:
-        raise TrainError(f"unknown recipe {name!r}; known: {', '.join(sorted(RECIPES))}")
-    return RECIPES[name]()

@@ -1,7 +1,7 @@
 """Training configurations in and out: dicts, JSON/TOML files, command-line overrides.
 
 A configuration is built in layers, later ones winning: a named *recipe*
-(:data:`lidarflow.train.config.RECIPES`), a config file (JSON, or TOML via :mod:`tomllib`),
+(:data:`lidarflow.train.recipes.RECIPES`), a config file (JSON, or TOML via :mod:`tomllib`),
 first-class command-line flags, then ``--set section.field=value`` overrides
 (:func:`build_config`). Every value is checked against its field's type on the way in, with the
 field named in the error. The result is saved as ``config.json`` in the run directory and
@@ -21,7 +21,8 @@ from typing import Any
 
 from lidarflow.errors import TrainError
 from lidarflow.models.config import ModelSpec
-from lidarflow.train.config import TrainConfig, recipe
+from lidarflow.train.config import TrainConfig
+from lidarflow.train.recipes import recipe
 
 __all__ = [
     "apply_overrides",
