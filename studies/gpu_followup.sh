@@ -8,19 +8,8 @@
 set -u
 OUT=${OUT:-runs/gpu_followup}
 W=$OUT/work
-mkdir -p "$W"
-exec > >(tee -a "$OUT/log.txt") 2>&1
-T0=$(date +%s)
-t() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
-if [ -d .whl ]; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-    --target /tmp/site .whl/*.whl || exit 1
-  export PYTHONPATH=/tmp/site:$PWD/src:$PWD
-else
-  export PYTHONPATH=$PWD/src:$PWD
-fi
-export OMP_NUM_THREADS=4 PYTHONUNBUFFERED=1
-LF="python3 -m lidarflow"
+source studies/gpu_env.sh
+export OMP_NUM_THREADS=4
 R=(.devdata/positive_1.npz .devdata/positive_2.npz .devdata/positive_3.npz .devdata/positive_4.npz
    .devdata/demo_stationary_simple_environment.npz .devdata/datmo_overtakes.npz
    .devdata/general_tracking_moving_1.npz)

@@ -15,20 +15,8 @@
 set -u
 OUT=${OUT:-runs/gpu_session}
 W=$OUT/work  # runs and data; only the tars below leave the machine
-mkdir -p "$W"
-exec > >(tee -a "$OUT/log.txt") 2>&1
-T0=$(date +%s)
-t() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
-
-if [ -d .whl ]; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-    --target /tmp/site .whl/*.whl || exit 1
-  export PYTHONPATH=/tmp/site:$PWD/src:$PWD
-else
-  export PYTHONPATH=$PWD/src:$PWD
-fi
-export OMP_NUM_THREADS=2 PYTHONUNBUFFERED=1
-LF="python3 -m lidarflow"
+source studies/gpu_env.sh
+export OMP_NUM_THREADS=2
 nvidia-smi -L
 python3 -c "import torch, numpy; print('torch', torch.__version__, 'numpy', numpy.__version__, torch.cuda.get_device_name())"
 nvidia-smi --query-gpu=timestamp,memory.used,utilization.gpu --format=csv -l 15 > "$OUT/gpu.csv" &

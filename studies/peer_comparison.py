@@ -37,7 +37,15 @@ from typing import Any
 
 import numpy as np
 
-from studies.harness import development, parse, parser, stem, write_atomic, write_json
+from studies.harness import (
+    best_baselines,
+    development,
+    parse,
+    parser,
+    stem,
+    write_atomic,
+    write_json,
+)
 
 #: each model's recipe and the settings it starts from (``{flow_init}``: --flow-init;
 #: ``{fold_flownet}``: the same fold's flownet run)
@@ -167,9 +175,14 @@ def _model_of(method: str, report: dict[str, Any], out: Path) -> str:
 
 
 def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]], k: str) -> str:
-    """``wins`` when F1 beats the best baseline's and changed-cell F1 every baseline's."""
-    best = max(b[f"f1_{k}"] for b in baselines.values())
-    best_changed = max(b[f"changed_f1_{k}"] for b in baselines.values())
+    """``wins`` when F1 beats the best baseline's and changed-cell F1 every baseline's, at
+    horizon ``k`` (``"1"`` or ``"K"``)."""
+    best, best_changed = best_baselines(
+        {
+            name: {"f1": b[f"f1_{k}"], "changed_f1": b[f"changed_f1_{k}"]}
+            for name, b in baselines.items()
+        }
+    )
     f1_ok, changed_ok = model[f"f1_{k}"] > best, model[f"changed_f1_{k}"] > best_changed
     return (
         "wins"
@@ -214,18 +227,9 @@ def _order(method: str) -> tuple[int, str]:
 
 
 def _parameters(out: Path, model: str) -> int | None:
-    from safetensors.numpy import load_file
-
-    for weights in sorted(out.glob(f"{model}/*/run/model.safetensors")):
-        tensors = load_file(str(weights))
-        # BatchNorm's running statistics are buffers, not parameters
-        return int(
-            sum(
-                v.size
-                for k, v in tensors.items()
-                if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))
-            )
-        )
+    """The model's parameter count, as its first fold run's ``model.json`` records it."""
+    for card in sorted(out.glob(f"{model}/*/run/model.json")):
+        return int(json.loads(card.read_text())["parameters"])
     return None
 
 
