@@ -1,4 +1,5 @@
-"""CI runs what the README says, after installing what the tests need."""
+"""The README's test command and CI are one script, scripts/test.sh, which installs what the tests
+need before it runs them."""
 
 from __future__ import annotations
 
@@ -6,29 +7,44 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "test.sh"
 
 
-def test_ci_runs_the_readmes_test_command_last():
+def _lines(path: Path) -> list[str]:
+    return [line.strip() for line in path.read_text().splitlines() if line.strip()]
+
+
+def test_the_readme_and_ci_run_the_same_script():
     readme = (ROOT / "README.md").read_text()
-    command = next(line for line in readme.splitlines() if "-m pytest" in line).strip()
-    script = (ROOT / ".ci" / "run").read_text()
-    lines = [line.strip() for line in script.splitlines() if line.strip()]
-    assert lines[-1] == command
-    assert "set -euo pipefail" in script  # any failure stops it, non-zero
+    blocks = re.findall(r"```bash\n(.*?)```", readme, flags=re.S)
+    commands = [line.strip() for block in blocks for line in block.splitlines()]
+    assert "bash scripts/test.sh" in commands
+    ci = _lines(ROOT / ".ci" / "run")
+    assert ci[-1] == "bash scripts/test.sh"
+    assert "set -euo pipefail" in ci
 
 
-def test_ci_installs_the_browser_the_html_test_looks_for():
+def test_the_script_stops_on_any_failure_and_ends_in_pytest():
+    lines = _lines(SCRIPT)
+    assert "set -euo pipefail" in lines
+    assert lines[-1].startswith("exec .venv/bin/python -m pytest")
+    assert ".venv/bin/ruff check ." in lines
+    assert 'python3 -m venv .venv' in lines
+
+
+def test_the_script_installs_the_browser_the_html_test_looks_for():
     from tests.viz.test_html_render import BROWSERS
 
-    script = (ROOT / ".ci" / "run").read_text()
+    script = SCRIPT.read_text()
     assert "apt-get install" in script and "chromium-headless-shell" in script
     checked = set(re.findall(r"command -v ([\w-]+)", script))
     assert checked - {"roscore", "rosbag"} == set(BROWSERS)
+    assert '(sudo)' in script and "id -u" in script  # sudo when not root
 
 
-def test_ci_installs_ros_1_and_makes_its_tests_fail_rather_than_skip():
+def test_the_script_installs_ros_1_and_makes_its_tests_fail_rather_than_skip():
     from lidarflow.live.ros1 import DEBIAN_PACKAGES
 
-    script = (ROOT / ".ci" / "run").read_text()
+    script = SCRIPT.read_text()
     assert all(package in script for package in DEBIAN_PACKAGES.split())
     assert "export LIDARFLOW_REQUIRE_ROS=1" in script

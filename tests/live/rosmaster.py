@@ -1,9 +1,10 @@
 """A real ROS 1 master for tests: ``roscore`` on a free port, its logs in a temporary folder.
 
 ROS 1 comes from Debian's packages (``lidarflow.live.ros1.DEBIAN_PACKAGES``). Where they are
-missing the tests using it skip, unless ROS is required: under ``.ci/run`` (which installs the
-packages and sets ``LIDARFLOW_REQUIRE_ROS=1``) or where ``CI`` is set they fail instead, so that
-CI never passes by skipping them.
+missing the tests using it skip, unless ROS is required: under ``scripts/test.sh`` (the README's
+test command, which ``.ci/run`` runs; it installs the packages and sets
+``LIDARFLOW_REQUIRE_ROS=1``) or where ``CI`` is set they fail instead, so that CI never passes by
+skipping them.
 """
 
 from __future__ import annotations

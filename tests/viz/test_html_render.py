@@ -1,5 +1,6 @@
-"""The HTML report renders in a real browser: headless Chromium, which `.ci/run` installs
-(Debian's chromium-headless-shell) where it is missing. Not skipped without it: it fails, saying
+"""The HTML report renders in a real browser: headless Chromium, which `scripts/test.sh` (the
+README's test command, which `.ci/run` runs) installs (Debian's chromium-headless-shell) where it
+is missing. Not skipped without it: it fails, saying
 what to install, so that CI cannot pass without having looked at the page."""
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def find_chromium() -> str:
             return found
     pytest.fail(
         "no headless Chromium found (looked for " + ", ".join(BROWSERS) + "): "
-        "apt-get install chromium-headless-shell, as .ci/run does"
+        "apt-get install chromium-headless-shell, as scripts/test.sh does"
     )
 
 
