@@ -52,11 +52,13 @@ def live(
     """Play SOURCE scan by scan at its recorded pace, predict each with the model and serve
     the scans, predicted grids, moving cells and the flow (a colour-wheel image) over
     Foxglove's WebSocket protocol: open the printed ws:// address in Foxglove. Ctrl-C stops."""
+    from lidarflow.evaluate.horizon import check_horizon
     from lidarflow.live.foxglove import LiveServer
     from lidarflow.live.replay import Served, replay
     from lidarflow.predict import Predictor
 
     recording = load_input(source, topic)
+    check_horizon(len(recording), horizon, 0, str(source))
     predictor = Predictor(model, horizon=horizon, threads=threads or None)
     scan_topic = "/" + (recording.meta.get("topic") or "scan").lstrip("/")
     frame_id = recording.meta.get("frame_id") or "laser"

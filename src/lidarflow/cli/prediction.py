@@ -154,6 +154,7 @@ def predict(
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
     from lidarflow.data.sources import is_recording_file
+    from lidarflow.evaluate.horizon import check_horizon
     from lidarflow.predict import Predictor
     from lidarflow.predict.job import predict_to_bag
     from lidarflow.predict.rosout import output_kind
@@ -164,6 +165,7 @@ def predict(
     marker = "metadata.yaml" if output_kind(output) == "ros2" else None
     refuse_existing(output, force=force, marker=marker)
     recording = load_input(input, topic, odom_topic)
+    check_horizon(len(recording), horizon, 0, str(input))
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold

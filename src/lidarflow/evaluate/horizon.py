@@ -49,7 +49,26 @@ from lidarflow.evaluate.stream import method_inputs, recording_inputs
 from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 
-__all__ = ["add_horizon_scores", "horizon_scores", "scored_frames"]
+__all__ = ["add_horizon_scores", "check_horizon", "horizon_scores", "scored_frames"]
+
+
+def check_horizon(frames: int, horizon: int, warmup: int = 10, name: str = "the recording") -> None:
+    """Refuse, before any work, a ``horizon`` that a recording of ``frames`` frames cannot use:
+    no frame after the ``warmup`` has a frame ``horizon`` ahead of it. ``evaluate`` checks its
+    recordings with it (:func:`scored_frames`), ``predict`` and ``live`` theirs with no
+    warm-up (they predict from the first scan): a roll-out of a huge horizon per scan would
+    otherwise run for hours, to predict frames that are not there."""
+    if horizon < 1:
+        raise EvaluateError(f"horizon must be >= 1, got {horizon}")
+    if frames < warmup + horizon + 1:
+        has = f"{frames} frame{'s' * (frames != 1)}"
+        first = f"{warmup} to warm up" if warmup else "one to predict from"
+        lower = "--horizon or --warmup" if warmup else "--horizon"
+        raise EvaluateError(
+            f"{name}: too short for --horizon {horizon}: needs at least "
+            f"{warmup + horizon + 1} frames ({first}, then {horizon} ahead), it has {has}; "
+            f"lower {lower}, or leave it out"
+        )
 
 
 def scored_frames(
@@ -63,15 +82,7 @@ def scored_frames(
     recording of ``frames`` frames with ``gaps`` (the frames after a gap in time). Raises
     :class:`EvaluateError` naming ``name`` when there are none; the command line checks every
     recording with it before the long work on any of them."""
-    if horizon < 1:
-        raise EvaluateError(f"horizon must be >= 1, got {horizon}")
-    if frames < warmup + horizon + 1:
-        has = f"{frames} frame{'s' * (frames != 1)}"
-        raise EvaluateError(
-            f"{name}: too short for --horizon {horizon}: needs at least "
-            f"{warmup + horizon + 1} frames ({warmup} to warm up, then {horizon} ahead), it has "
-            f"{has}; lower --horizon or --warmup, or leave it out"
-        )
+    check_horizon(frames, horizon, warmup, name)
     after_gap = np.zeros(frames + 1, bool)
     after_gap[[g for g in gaps if 0 < g < frames]] = True
     crossed = np.convolve(after_gap, np.ones(horizon, int))  # any gap in t + 1 .. t + horizon
