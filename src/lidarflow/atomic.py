@@ -24,13 +24,14 @@ import contextlib
 import os
 import re
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from lidarflow.errors import OutputError
 
 __all__ = [
     "atomic_path",
+    "check_not_input",
     "check_writable",
     "commit",
     "discard",
@@ -57,6 +58,44 @@ def check_writable(path: str | Path, force: bool = False, marker: str | None = N
             f"{path} exists and is not a folder lidarflow wrote (no {marker} in it); "
             "name a new folder"
         )
+
+
+def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Refuse an ``output`` that would replace one of ``inputs``, whatever ``--force`` says:
+    the same file (by its resolved path, through symbolic links, or by inode: a hard link), a
+    folder that holds an input, or a path inside an input ROS 2 bag folder. Inputs that are
+    not there (``bundled``, a glob pattern) are skipped: there is nothing to destroy."""
+    out = Path(os.path.abspath(output)).resolve()
+    for given in inputs:
+        if given is None or not Path(given).exists():
+            continue
+        source = Path(os.path.abspath(given)).resolve()
+        if out == source or _same_file(out, source):
+            raise OutputError(
+                f"{output} is the input {given}: name another output (not even --force "
+                "overwrites an input)"
+            )
+        if out in source.parents:
+            raise OutputError(
+                f"{output} holds the input {given}: writing it would remove that; name "
+                "another output"
+            )
+        if (source / "metadata.yaml").is_file() and (
+            source in out.parents or any(_same_file(out, f) for f in source.rglob("*"))
+        ):
+            raise OutputError(
+                f"{output} is inside the input bag {given}: writing it would change that bag; "
+                "name an output outside it"
+            )
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` are one file on disk (hard links too); ``False`` where one is
+    not there."""
+    try:
+        return a.samefile(b)
+    except OSError:
+        return False
 
 
 def temporary(target: str | Path) -> Path:

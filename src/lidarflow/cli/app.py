@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -125,13 +126,21 @@ def use_threads(threads: int) -> None:
         torch.set_num_threads(threads)
 
 
-def refuse_existing(*paths: Path | None, force: bool = False, marker: str | None = None) -> None:
+def refuse_existing(
+    *paths: Path | None,
+    force: bool = False,
+    marker: str | None = None,
+    inputs: Sequence[Path | str | None] = (),
+) -> None:
     """Stop before any work where an output is there already, unless ``--force``; outputs that
-    are folders name the ``marker`` file they hold (:func:`lidarflow.atomic.check_writable`)."""
-    from lidarflow.atomic import check_writable
+    are folders name the ``marker`` file they hold (:func:`lidarflow.atomic.check_writable`).
+    An output that would replace one of the command's ``inputs`` is refused even with
+    ``--force`` (:func:`lidarflow.atomic.check_not_input`)."""
+    from lidarflow.atomic import check_not_input, check_writable
 
     for path in paths:
         if path is not None:
+            check_not_input(path, inputs)
             check_writable(path, force, marker)
 
 

@@ -163,7 +163,7 @@ def predict(
 
     # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
     marker = "metadata.yaml" if output_kind(output) == "ros2" else None
-    refuse_existing(output, force=force, marker=marker)
+    refuse_existing(output, force=force, marker=marker, inputs=[input, model])
     recording = load_input(input, topic, odom_topic)
     check_horizon(len(recording), horizon, 0, str(input))
     from lidarflow.predict.moving import MOVING_THRESHOLD
@@ -261,7 +261,7 @@ def export(
         output = onnx
     if output is None:
         raise typer.BadParameter("name the ONNX file to write: -o FILE.onnx", param_hint="-o")
-    refuse_existing(output, force=force)
+    refuse_existing(output, force=force, inputs=[model, calibration])
     use_threads(threads)
     net, card = resolve_model(model)
     policy = DecisionPolicy.from_record(card.get("decision"))  # travels with the file

@@ -41,7 +41,7 @@ def convert(
 
     if output.suffix != ".npz":  # as Recording.save names it
         output = output.with_name(output.name + ".npz")
-    refuse_existing(output, force=force)
+    refuse_existing(output, force=force, inputs=[input])
     recording = load_input(input, topic, odom_topic)
     spec = GridSpec(grid, grid, res)
     recording.maps(spec)  # fail now, not in training, if any scan cannot be rasterized
@@ -151,7 +151,7 @@ def show(
     from lidarflow.scan import GridSpec
     from lidarflow.viz.maps import draw_maps
 
-    refuse_existing(output, force=force)
+    refuse_existing(output, force=force, inputs=[recording])
     rec = load_input(recording, topic)
     if not -len(rec) <= frame < len(rec):
         raise RecordingError(f"{recording}: frame {frame} out of range (it has {len(rec)} frames)")

@@ -158,8 +158,9 @@ def evaluate(
         if output is not None:
             raise typer.BadParameter("give -o/--output once (--json is its old name)")
         output = json_out
-    refuse_existing(output, force=force)
-    refuse_existing(report_dir, force=force, marker="index.html")
+    read = [*inputs, *(model or [])]
+    refuse_existing(output, force=force, inputs=read)
+    refuse_existing(report_dir, force=force, marker="index.html", inputs=read)
     use_threads(threads)
     sources: list[Path | None] = list(model or [])
     if not sources and not baselines_only:

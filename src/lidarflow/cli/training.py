@@ -282,6 +282,7 @@ def train(
         cfg = build_config(recipe, config, flags, set_ or ())
         if ego_motion:  # added to, not replacing, the rest of the model
             cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, ego_motion=True))
+        _refuse_inputs_in(output, [*cfg.data.sources, *cfg.data.val_sources, cfg.model.init])
         if force and (output / "config.json").is_file():  # a run (else nothing to replace)
             from lidarflow.atomic import discard
 
@@ -294,6 +295,16 @@ def train(
     except KeyboardInterrupt as interrupt:
         raise KeyboardInterrupt(_where_it_stopped(run_dir)) from interrupt
     typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")
+
+
+def _refuse_inputs_in(run_dir: Path, inputs: list[str | None]) -> None:
+    """Refuse a run folder that is, or holds, what the run reads (``--force`` would remove
+    it), the sources' glob patterns expanded."""
+    import glob
+
+    from lidarflow.atomic import check_not_input
+
+    check_not_input(run_dir, [m for s in inputs if s for m in [s, *glob.glob(s)]])
 
 
 def _where_it_stopped(run_dir: Path) -> str:

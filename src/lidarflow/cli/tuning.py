@@ -82,7 +82,7 @@ def choose_offset(
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
-    refuse_existing(output, force=force, marker="model.json")
+    refuse_existing(output, force=force, marker="model.json", inputs=[*inputs, model])
     use_threads(threads)
     offsets = list(dict.fromkeys(offset or DEFAULT_OFFSETS))
     net, card = resolve_model(model)
