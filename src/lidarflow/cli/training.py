@@ -283,15 +283,13 @@ def train(
         if ego_motion:  # added to, not replacing, the rest of the model
             cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, ego_motion=True))
         _refuse_inputs_in(output, [*cfg.data.sources, *cfg.data.val_sources, cfg.model.init])
-        if force and (output / "config.json").is_file():  # a run (else nothing to replace)
-            from lidarflow.atomic import discard
-
-            discard(output)
         run_dir = output
     from tqdm import tqdm
 
     try:
-        result = run_training(cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write)
+        result = run_training(
+            cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write, start_over=force
+        )
     except KeyboardInterrupt as interrupt:
         raise KeyboardInterrupt(_where_it_stopped(run_dir)) from interrupt
     typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")

@@ -96,16 +96,18 @@ def train(
     resume: bool = False,
     echo: Callable[[str], None] | None = None,
     on_epoch_end: EpochHook | None = None,
+    start_over: bool = False,
 ) -> TrainResult:
     """Train ``config`` into ``run_dir`` (see the module docstring). ``echo`` receives one-line
-    progress messages (rank 0 only); ``on_epoch_end(epoch, row)`` runs after each checkpoint."""
+    progress messages (rank 0 only); ``on_epoch_end(epoch, row)`` runs after each checkpoint;
+    ``start_over``: replace a run already in ``run_dir`` (``--force``), once it is locked."""
     from lidarflow.train.distributed import teardown
 
     config.validate()
     run_dir = Path(run_dir)
     ctx = setup(config.runtime.device)
     try:
-        return _train(config, run_dir, resume, ctx, echo, on_epoch_end)
+        return _train(config, run_dir, resume, ctx, echo, on_epoch_end, start_over)
     finally:
         if ctx.is_main:
             release_run_dir(run_dir)
@@ -119,6 +121,7 @@ def _train(
     ctx: Dist,
     echo: Callable[[str], None] | None,
     on_epoch_end: EpochHook | None,
+    start_over: bool = False,
 ) -> TrainResult:
     from tqdm import tqdm
 
@@ -131,7 +134,7 @@ def _train(
     if rt.threads > 0:
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
-    prepare_run_dir(run_dir, config, resume, ctx)
+    prepare_run_dir(run_dir, config, resume, ctx, start_over)
     spec = config.model.spec()
     data = load_train_data(
         config.data,

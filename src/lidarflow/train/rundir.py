@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 
+from lidarflow.atomic import discard
 from lidarflow.errors import TrainError
 from lidarflow.models import count_parameters
 from lidarflow.train import checkpoint as ckpt
@@ -103,31 +104,57 @@ def _names(sources: list[str]) -> list[str]:
 
 
 def _lock(run_dir: Path) -> None:
-    """Refuse a run folder that another live process on this machine trains into; take over a
-    lock whose process is gone, or one left on another machine (a run copied here, a job
-    requeued on another node: its liveness cannot be known from here)."""
+    """Refuse a run folder that another live process on this machine trains into (whatever
+    the command: ``--force`` and ``--resume`` too); take over a lock whose process is gone, or
+    one left on another machine (a run copied here, a job requeued on another node: its
+    liveness cannot be known from here). A lock this process holds is kept."""
     path = run_dir / LOCK
     host = socket.gethostname()
+    mine = json.dumps({"pid": os.getpid(), "host": host})
     for _ in range(3):
-        try:  # created only if absent: two processes starting together cannot both hold it
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        except FileExistsError:
-            try:
-                held = json.loads(path.read_text())
-                pid, same_host = int(held["pid"]), held.get("host") == host
-            except (OSError, ValueError, KeyError, TypeError):
-                pid, same_host = -1, False
-            if same_host and pid != os.getpid() and pid > 0 and _alive(pid):
-                raise TrainError(
-                    f"{run_dir} is being trained by process {pid} on this machine; wait for "
-                    "it, stop it, or train into another -o folder"
-                ) from None
-            path.unlink(missing_ok=True)
+        if _create(path, mine):
+            return
+        try:
+            held = json.loads(path.read_text())
+            pid, same_host = int(held["pid"]), held.get("host") == host
+        except FileNotFoundError:  # released meanwhile
             continue
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps({"pid": os.getpid(), "host": host}))
-        return
+        except (OSError, ValueError, KeyError, TypeError):
+            pid, same_host = -1, False
+        if same_host and pid == os.getpid():
+            return
+        if same_host and pid > 0 and _alive(pid):
+            raise TrainError(
+                f"{run_dir} is being trained by process {pid} on this machine; wait for "
+                "it, stop it, or train into another -o folder (not even --force takes it over)"
+            ) from None
+        path.unlink(missing_ok=True)
     raise TrainError(f"{run_dir}: could not lock it ({path} keeps coming back)")
+
+
+def _create(path: Path, content: str) -> bool:
+    """Create ``path`` holding ``content`` if it is absent, in one step (a hard link of a
+    finished file): two processes starting together cannot both hold it, and no reader sees
+    it empty and takes it for a stale lock. ``False`` where it exists."""
+    staged = path.with_name(f".{path.name}.{os.getpid()}")
+    staged.write_text(content)
+    try:
+        os.link(staged, path)
+    except FileExistsError:
+        return False
+    finally:
+        staged.unlink(missing_ok=True)
+    return True
+
+
+def _start_over(run_dir: Path) -> None:
+    """``--force``: empty a run folder (one with ``config.json``; another folder is written
+    into as it is), keeping the lock this process took on it first."""
+    if not (run_dir / "config.json").is_file():
+        return
+    for entry in run_dir.iterdir():
+        if entry.name != LOCK:
+            discard(entry)
 
 
 def _alive(pid: int) -> bool:
@@ -206,14 +233,20 @@ def _check_same_data(run_dir: Path, config: TrainConfig, facts: dict[str, Any]) 
             )
 
 
-def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist) -> None:
-    """Check and start ``run_dir`` (a new run, or a resume of it), and lock it for this
-    process (:func:`release_run_dir` unlocks it)."""
+def prepare_run_dir(
+    run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist, start_over: bool = False
+) -> None:
+    """Check and start ``run_dir`` (a new run, or a resume of it; ``start_over``: a new run
+    that replaces the one there, ``--force``), and lock it for this process
+    (:func:`release_run_dir` unlocks it). The lock comes first: a folder another live process
+    trains into is refused before anything in it is touched."""
     if ctx.is_main:
         if not resume:
             run_dir.mkdir(parents=True, exist_ok=True)
         if run_dir.is_dir():
             _lock(run_dir)
+        if start_over and not resume:
+            _start_over(run_dir)
     if resume:
         _check_resumable(run_dir, config)
         started = run_dir / "run.json"
@@ -234,7 +267,9 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist)
             facts.setdefault("resumed", []).append({**_run_facts(ctx), "after_epoch": done})
             ckpt.write_json(started, facts)
         return
-    if ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists():
+    # with start_over the main process empties it, maybe after the others look
+    judged = ctx.is_main or not start_over
+    if judged and (ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists()):
         raise TrainError(
             f"{run_dir} already holds a training run; use --resume {run_dir} to continue it, "
             "--force to start it over, or another -o folder"
