@@ -76,7 +76,7 @@ def test_temporaries_of_dead_processes_are_cleared_on_the_next_write(tmp_path):
                           capture_output=True, text=True, check=True)  # fmt: skip
     stale = tmp_path / f".r.json.{int(dead.stdout)}.partial.json"
     stale.write_text("{")
-    other = tmp_path / ".other.json.1.partial.json"  # another target's: not touched
+    other = tmp_path / ".other.json.1.partial.json"  # a live process's (PID 1): kept
     other.write_text("{")
     write_text(tmp_path / "r.json", "{}")
     assert names(tmp_path) == [other.name, "r.json"]

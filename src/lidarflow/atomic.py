@@ -7,8 +7,11 @@ working), and only a writer that finished sees its output renamed onto the targe
 ``os.replace`` (atomic on one file system). A writer that fails, or is interrupted
 (``KeyboardInterrupt``; the CLI turns SIGTERM into one too), leaves the target as it was, and its
 temporary is removed. A run killed outright (SIGKILL, power loss) can leave a temporary, never
-a half-written target: the temporaries are named ``.NAME.PID.partial`` and the next write of
-that target clears those of processes that are gone.
+a half-written target: the temporaries are named ``.NAME.PID.partial`` (+ the suffix), and
+the next write into that folder, of any target, removes those whose process is gone. A
+temporary is never removed while its process runs: one whose PID another live process has
+since taken stays until that process ends too; one whose PID is this process's own (a
+container's PIDs repeat from run to run) goes unless this process made it.
 
 >>> import tempfile
 >>> folder = Path(tempfile.mkdtemp())
@@ -33,6 +36,7 @@ __all__ = [
     "atomic_path",
     "check_not_input",
     "check_writable",
+    "clear_stale",
     "commit",
     "discard",
     "temporary",
@@ -41,6 +45,8 @@ __all__ = [
 ]
 
 _SUFFIX = ".partial"
+#: The temporaries this process has handed out: the only ones named with its PID that are its.
+_MINE: set[Path] = set()
 
 
 def check_writable(path: str | Path, force: bool = False, marker: str | None = None) -> None:
@@ -100,15 +106,17 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def temporary(target: str | Path) -> Path:
     """A path beside ``target`` that does not exist: ``.NAME.PID[.N].partial`` + its suffix
-    (``.x.npz.123.partial.npz``), so that format-by-suffix writers still see ``.npz``. Temporaries
-    of ``target`` left by processes killed outright are removed first; the parent is created."""
+    (``.x.npz.123.partial.npz``), so that format-by-suffix writers still see ``.npz``. The
+    temporaries in its folder that processes killed outright left are removed first
+    (:func:`clear_stale`); the parent is created."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    _clear_stale(target)
+    clear_stale(target.parent)
     stem = f".{target.name}.{os.getpid()}"
     for n in range(1000):
         tmp = target.with_name(f"{stem}{'' if n == 0 else f'.{n}'}{_SUFFIX}{target.suffix}")
         if not (tmp.exists() or tmp.is_symlink()):
+            _MINE.add(Path(os.path.abspath(tmp)))
             return tmp
     raise FileExistsError(f"{target}: no free temporary name beside it")
 
@@ -156,16 +164,51 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _clear_stale(target: Path) -> None:
-    """Remove temporaries of ``target`` (and what was staged beside them) that processes killed
-    outright left."""
-    pattern = re.compile(rf"\.{re.escape(target.name)}\.(\d+)(\.\d+)?{re.escape(_SUFFIX)}.*")
-    if not target.parent.is_dir():
-        return
-    for entry in target.parent.iterdir():
-        match = pattern.fullmatch(entry.name)
-        if match and int(match.group(1)) != os.getpid() and not _alive(int(match.group(1))):
+def clear_stale(folder: str | Path) -> list[Path]:
+    """Remove the temporaries in ``folder`` (files, or folders with what was staged in them)
+    that processes killed outright left: those whose process is gone (see the module's
+    docstring for PIDs taken again); returns them."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    stale = []
+    for entry in folder.iterdir():
+        owners = _owners(entry.name)
+        if owners and not any(_running(pid, entry) for pid in owners):
             discard(entry)
+            stale.append(entry)
+    return stale
+
+
+_NUMBER = re.compile(r"[0-9]+")
+
+
+def _owners(name: str) -> list[int]:
+    """The PIDs a temporary named ``name`` (``.NAME.PID[.N].partial`` + NAME's suffix) may have
+    been made by: none for a name :func:`temporary` does not make, two where it reads both
+    ways (``.x.5.5.7.partial.5``)."""
+    owners = []
+    for found in re.finditer(re.escape(_SUFFIX), name):
+        head, tail = name[: found.start()], name[found.end() :]
+        parts = head.split(".")
+        for numbers in (1, 2):  # .NAME.PID or .NAME.PID.N
+            target = ".".join(parts[1:-numbers])
+            if (
+                parts[0] == ""
+                and len(parts) > numbers + 1
+                and all(_NUMBER.fullmatch(p) for p in parts[-numbers:])
+                and target
+                and Path(target).suffix == tail
+            ):
+                owners.append(int(parts[-numbers]))
+    return owners
+
+
+def _running(pid: int, entry: Path) -> bool:
+    """Whether the temporary ``entry`` named with ``pid`` may still be written."""
+    if pid == os.getpid():
+        return Path(os.path.abspath(entry)) in _MINE
+    return _alive(pid)
 
 
 @contextlib.contextmanager
