@@ -148,6 +148,7 @@ def evaluate(
         grid_note,
         undefined_note,
     )
+    from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
     from lidarflow.predict.backends import recorded_grid, resolve_device
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
@@ -172,6 +173,7 @@ def evaluate(
     for path in inputs:
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, horizon)
+        warn_unknown_beams(path, recording)
         named.append((str(path), recording))
     methods, config = methods_and_config(
         sources,
@@ -206,6 +208,7 @@ def evaluate(
             lambda total, name: progress_bar(total, f"horizon {horizon}, {Path(name).name}"),
         )  # fmt: skip
     for entry in report["recordings"]:
+        warn_nothing_scored(entry)
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
         typer.echo(format_table(entry["methods"], title))
         for note in (undefined_note(entry.get("undefined", [])), grid_note(entry, config["grid"])):
