@@ -139,6 +139,7 @@ def evaluate(
 
     A model wins when its F1 beats the best baseline's and its changed-cell F1 every
     baseline's. Steps across gaps in time are not scored; -o writes every number as JSON."""
+    from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
     from lidarflow.evaluate.report import (
         format_comparison,
         format_peer_table,
@@ -148,7 +149,6 @@ def evaluate(
         grid_note,
         undefined_note,
     )
-    from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
     from lidarflow.predict.backends import recorded_grid, resolve_device
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
