@@ -121,8 +121,8 @@ def test_info_says_where_the_header_clock_went_back(tmp_path, capsys):
         (["convert", "{tmp}/missing.bag", "-o", "{tmp}/o.npz"], "missing.bag: no such file"),
         (["convert", "{two}", "-o", "{tmp}/o.npz", "--topic", "/c"], "no topic /c"),
         (["show", "{rec}", "--frame", "99", "-o", "{tmp}/x.png"], "frame 99 out of range"),
-        (["info", "{tmp}/junk.bag"], "junk.bag: cannot open as a bag"),
-        (["show", "{tmp}/junk.npz"], "junk.npz: not a readable lidarflow recording"),
+        (["info", "{tmp}/junk.bag"], "junk.bag: not a ROS 1 bag"),
+        (["show", "{tmp}/junk.npz"], "junk.npz: not a lidarflow recording (not an .npz archive"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_1(tmp_path, capsys, argv, message):

@@ -219,10 +219,22 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     tmp = temporary(target)
     try:
         yield tmp
+    except OSError as err:
+        discard(tmp)
+        raise _named_for(err, tmp, target) from err
     except BaseException:
         discard(tmp)
         raise
     commit(tmp, target)
+
+
+def _named_for(err: OSError, tmp: Path, target: str | Path) -> OSError | OutputError:
+    """``err`` as the user should read it: where it names the temporary (or a file inside a
+    temporary folder), a refusal naming ``target``, which the user asked for."""
+    named = Path(err.filename) if isinstance(err.filename, str | os.PathLike) else None
+    if named is None or not (named == tmp or tmp in named.parents):
+        return err
+    return OutputError(f"{target}: cannot be written there ({err.strerror or err})")
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -37,6 +37,11 @@ def missing_extra(err: ImportError, what: str = "this") -> MissingExtraError | N
     name = (getattr(err, "name", None) or "").split(".")[0]
     if name not in TORCH_EXTRA_MODULES:
         return None
+    if torch_available():  # PyTorch is there, another package of its extra is not
+        return MissingExtraError(
+            f"{what} needs {name}, which comes with PyTorch in the torch extra but is not "
+            f"installed; add it with {INSTALL_TORCH}"
+        )
     return MissingExtraError(
         f"{what} needs PyTorch ({name} is not installed: the core install runs .onnx models "
         f"and the bundled one); add it with {INSTALL_TORCH}"

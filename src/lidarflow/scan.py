@@ -30,6 +30,7 @@ import numpy as np
 from lidarflow.errors import ScanError
 
 __all__ = [
+    "MAX_GRID_CELLS",
     "BeamGeometry",
     "GridSpec",
     "Scan",
@@ -48,6 +49,14 @@ __all__ = [
 UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
 
 
+#: The most cells a grid may have: 2048 x 2048. A model step takes about 1.1 kB a cell (peak
+#: memory of `lidarflow predict`, 280 MB at 100 x 100 cells and 980 MB at 800 x 800), so this
+#: many take ~4.6 GB, what a laptop has to spare; a larger grid is refused before anything is
+#: allocated rather than failing deep inside with a MemoryError (or the kernel's OOM killer).
+MAX_GRID_CELLS = 2048 * 2048
+_MAX_SIDE = math.isqrt(MAX_GRID_CELLS)
+
+
 @dataclass(frozen=True)
 class GridSpec:
     """The map grid: ``height`` rows along x (forward), ``width`` columns along y, cell ``res`` m.
@@ -62,6 +71,12 @@ class GridSpec:
     def __post_init__(self) -> None:
         if self.height <= 0 or self.width <= 0:
             raise ScanError(f"grid must have positive size, got {self.height} x {self.width}")
+        if self.height * self.width > MAX_GRID_CELLS:
+            raise ScanError(
+                f"a grid of {self.height} x {self.width} cells is too large: at most "
+                f"{MAX_GRID_CELLS:,} cells ({_MAX_SIDE} x {_MAX_SIDE}) fit in memory, a model "
+                "taking about 1 kB a cell"
+            )
         if not (self.res > 0 and math.isfinite(self.res)):
             raise ScanError(f"grid resolution must be a positive number of metres, got {self.res}")
 

@@ -157,7 +157,7 @@ def test_an_mcap_cut_before_its_first_message_is_a_clear_error(tmp_path):
         read_bag(_cut(path, tmp_path / "cut.mcap", 40))
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(bytes(range(256)) * 20)
-    with pytest.raises(BagError, match=r"junk\.mcap: cannot open as a bag"):
+    with pytest.raises(BagError, match=r"junk\.mcap: not an MCAP file"):
         read_bag(junk)
 
 

@@ -68,3 +68,21 @@ def test_weights_round_trip_and_non_finite_weights_are_refused(tmp_path):
     with pytest.raises(TrainError, match="non-finite weights"):
         save_weights(net, tmp_path / "bad.safetensors")
     assert not (tmp_path / "bad.safetensors").exists()
+
+
+@pytest.mark.parametrize("name", ["epoch_0001.safetensors", "epoch_0001.state.pt"])
+@pytest.mark.parametrize("keep", [0.0, 0.5])
+def test_a_damaged_checkpoint_is_named_as_such(name, keep, tmp_path):
+    # a state file cut short said "[Errno 22] Invalid argument"; an empty one raised EOFError,
+    # which the CLI's library took for Ctrl-D ("Aborted.")
+    net = torch.nn.Linear(3, 2)
+    optimizer = torch.optim.Adam(net.parameters())
+    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, 5)
+    checkpoint.save_checkpoint(tmp_path, 1, net, optimizer, scheduler, {})
+    damaged = tmp_path / "checkpoints" / name
+    damaged.write_bytes(damaged.read_bytes()[: int(damaged.stat().st_size * keep)])
+    with pytest.raises(TrainError) as caught:
+        checkpoint.load_checkpoint(tmp_path, net, optimizer, scheduler)
+    text = str(caught.value)
+    assert text.startswith(f"{damaged}: damaged checkpoint"), text
+    assert "Errno" not in text and "header" not in text, text

@@ -139,6 +139,7 @@ def evaluate(
 
     A model wins when its F1 beats the best baseline's and its changed-cell F1 every
     baseline's. Steps across gaps in time are not scored; -o writes every number as JSON."""
+    from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
     from lidarflow.evaluate.report import (
         format_comparison,
         format_peer_table,
@@ -173,6 +174,7 @@ def evaluate(
     for path in inputs:
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, horizon)
+        warn_unknown_beams(path, recording)
         named.append((str(path), recording))
     methods, config = methods_and_config(
         sources,
@@ -207,6 +209,7 @@ def evaluate(
             lambda total, name: progress_bar(total, f"horizon {horizon}, {Path(name).name}"),
         )  # fmt: skip
     for entry in report["recordings"]:
+        warn_nothing_scored(entry)
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
         typer.echo(format_table(entry["methods"], title))
         for note in (undefined_note(entry.get("undefined", [])), grid_note(entry, config["grid"])):

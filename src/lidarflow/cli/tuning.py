@@ -74,7 +74,8 @@ def choose_offset(
 
     from lidarflow.atomic import atomic_path, write_text
     from lidarflow.cli.scoring import _check_length
-    from lidarflow.errors import ModelError
+    from lidarflow.cli.useless import nothing_scored, warn_nothing_scored, warn_unknown_beams
+    from lidarflow.errors import EvaluateError, ModelError
     from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.offsets import choose_offset as choose
     from lidarflow.evaluate.offsets import decided_online, with_offset
@@ -97,6 +98,7 @@ def choose_offset(
     for path in inputs:
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, 1)
+        warn_unknown_beams(path, recording)
         named.append((str(path), recording))
     with tempfile.TemporaryDirectory() as tmp:
         folders: dict[float, Path] = {}
@@ -109,6 +111,13 @@ def choose_offset(
         methods, config = methods_and_config(list(folders.values()), res=spec.res)
         config.update({"warmup": warmup, "grid": spec.to_dict()})
         report = evaluate_and_report(named, methods, spec, warmup, config, None, 1, eval_progress)
+    for entry in report["recordings"]:
+        warn_nothing_scored(entry)
+    if all(nothing_scored(entry) for entry in report["recordings"]):
+        raise EvaluateError(
+            "nothing was scored on any recording (no occupied cell in a scored frame): no "
+            "offset to choose; choose on recordings whose scans see something"
+        )
     names = {o: f.name for o, f in folders.items()}
     best, totals = choose(report["recordings"], names)
     for entry in report["recordings"]:

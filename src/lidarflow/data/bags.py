@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.data.cutshort import cut_short_reader
+from lidarflow.data.cutshort import cut_short_reader, not_a_bag
 from lidarflow.data.mcapfile import McapReader, channel_encoding
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
@@ -112,6 +112,9 @@ def open_bag(path: str | Path) -> Iterator[Any]:
                 reader = stack.enter_context(AnyReader([target], default_typestore=store))
         except Exception as err:  # rosbags raises many types for damaged files
             reader = cut_short_reader(target, store)
+            foreign = not_a_bag(target) if reader is None else None
+            if foreign is not None:
+                raise BagError(f"{path}: {foreign}") from err
             if reader is None:
                 why = _why(err)
                 raise BagError(f"{path}: cannot open as a bag ({why}); is it complete?") from err

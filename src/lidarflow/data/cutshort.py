@@ -6,10 +6,32 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from lidarflow.data.mcapfile import MAGIC as MCAP_MAGIC
 from lidarflow.data.mcapfile import McapReader, channel_encoding
+from lidarflow.data.ros1bag import MAGIC as ROS1_MAGIC
 from lidarflow.data.ros1bag import Ros1BagSequentialReader
 
-__all__ = ["cut_short_reader"]
+__all__ = ["cut_short_reader", "not_a_bag"]
+
+#: What a file of each suffix is, and the bytes it must begin with.
+_KINDS = {".bag": ("a ROS 1 bag", ROS1_MAGIC), ".mcap": ("an MCAP file", MCAP_MAGIC)}
+
+
+def not_a_bag(target: Path) -> str | None:
+    """Why ``target``, a file rosbags could not open, is no bag at all, judged by its first
+    bytes (an empty file; a ROS 1 bag or MCAP file without the header every one begins with);
+    ``None`` where it begins as its kind does (a damaged bag, not a foreign file)."""
+    kind = _KINDS.get(target.suffix.lower()) if target.is_file() else None
+    if kind is None:
+        return None
+    what, magic = kind
+    with target.open("rb") as f:
+        start = f.read(len(magic))
+    if not start:
+        return "the file is empty"
+    if start != magic:
+        return f"not {what}: it does not begin with the header every one begins with"
+    return None
 
 
 def cut_short_reader(target: Path, store: Any) -> Any:

@@ -11,7 +11,7 @@ from lidarflow.data.gaps import MAX_GAP_PERIODS, frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, at_range_max, beam_status, ring_scans
 
-__all__ = ["describe_recording", "find_gaps"]
+__all__ = ["describe_recording", "find_gaps", "unknown_share"]
 
 
 def find_gaps(
@@ -73,6 +73,13 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         **({"sensor_upside_down": True} if recording.meta.get("sensor_upside_down") else {}),
         **_read_notes(recording.meta),
     }
+
+
+def unknown_share(recording: Recording) -> float:
+    """The share of ``recording``'s beams that say nothing (NaN, -inf, 0 or under
+    ``range_min``: unknown, as the rasterizer reads them); 0 for a recording without beams."""
+    status = _beam_census(recording)[0]
+    return float(np.mean(status == UNKNOWN)) if status.size else 0.0
 
 
 def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:

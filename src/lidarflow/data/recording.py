@@ -301,16 +301,48 @@ class Recording:
         return path
 
 
+#: How every zip archive (an .npz is one) begins: a member, or for an empty one its directory.
+_ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
+    instead, in lidarflow's words: not an .npz at all, one cut short, or one holding Python
+    objects (which a recording never does, and which unpickling would run as code)."""
+    with path.open("rb") as f:
+        start = f.read(4)
+    if not start:
+        raise RecordingError(f"{path}: not a lidarflow recording (the file is empty)")
+    if start not in _ZIP_STARTS:
+        raise RecordingError(
+            f"{path}: not a lidarflow recording (not an .npz archive, as `lidarflow convert` "
+            "writes)"
+        )
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {}
+            for key in z.files:
+                try:
+                    data[key] = z[key]
+                except ValueError as err:
+                    raise RecordingError(
+                        f"{path}: not a lidarflow recording (its array {key!r} is not plain "
+                        "numbers: Python objects, which lidarflow does not load)"
+                    ) from err
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError) as err:
+        raise RecordingError(
+            f"{path}: a damaged recording (cut short, or its archive broken); convert its "
+            "source again"
+        ) from err
+    return data
+
+
 def load_recording(path: str | Path) -> Recording:
     """Read a recording written by :meth:`Recording.save`."""
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
-        raise RecordingError(f"{path}: not a readable lidarflow recording ({err})") from err
+    data = _read_arrays(path)
     required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
     missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]
     if missing:

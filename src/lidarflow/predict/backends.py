@@ -276,7 +276,8 @@ def load_backend(
 
         net, card = resolve_model(source)
     except ImportError as err:
-        missing = missing_extra(err, f"the model {source}")
+        what = "the bundled model" if is_bundled(source) else f"the model {source}"
+        missing = missing_extra(err, what)
         if missing is None:
             raise
         raise missing from err

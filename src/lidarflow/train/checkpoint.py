@@ -93,11 +93,18 @@ def save_weights(model: torch.nn.Module, path: Path, meta: dict[str, Any] | None
     return atomic_write(path, lambda tmp: save_file(state, str(tmp), metadata=metadata))
 
 
+#: What a checkpoint file that cannot be read is, and what to do (the kill it survived was
+#: not atomic: a copy, a disk that filled, a file system that lost its tail).
+_DAMAGED = "damaged checkpoint ({what} cannot be read: the file is cut short or overwritten)"
+
+
 def load_weights(model: torch.nn.Module, path: Path) -> None:
+    if not path.exists():
+        raise TrainError(f"{path}: no such weights file")
     try:
         state = load_file(str(path))
     except (OSError, SafetensorError) as err:
-        raise TrainError(f"{path}: cannot read the weights ({err})") from err
+        raise TrainError(f"{path}: {_DAMAGED.format(what='its weights')}") from err
     try:
         unwrap(model).load_state_dict(state)
     except RuntimeError as err:
@@ -186,8 +193,14 @@ def load_checkpoint(
         )
     stem = _ckpt_dir(run_dir) / f"epoch_{epoch:04d}"
     load_weights(model, stem.with_suffix(".safetensors"))
+    state_path = stem.with_suffix(".state.pt")
     try:
-        state = torch.load(stem.with_suffix(".state.pt"), map_location="cpu", weights_only=True)
+        state = torch.load(state_path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise
+    except Exception as err:  # torch says a cut file many ways, EOFError (click's Ctrl-D) too
+        raise TrainError(f"{state_path}: {_DAMAGED.format(what='its training state')}") from err
+    try:
         optimizer.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
         restore_rng(state["rng"])

@@ -20,9 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from lidarflow.errors import TrainError
+from lidarflow.errors import ScanError, TrainError
 from lidarflow.losses import LossConfig
 from lidarflow.models.config import MODEL_NAMES, FlowConfig, HeadConfig, ModelSpec
+from lidarflow.scan import GridSpec
 
 __all__ = [
     "DataConfig",
@@ -250,6 +251,10 @@ class TrainConfig:
         for ok, message in checks:
             if not ok:
                 raise TrainError(f"bad training config: {message}")
+        try:  # the grid's own bound (a size that cannot fit), checked before the run folder
+            GridSpec(d.grid, d.grid, d.res)
+        except ScanError as err:
+            raise TrainError(f"bad training config: data.grid: {err}") from err
         try:
             self.model.spec()
         except (TypeError, ValueError) as err:

@@ -1,0 +1,46 @@
+"""Saying so where a command's input leaves nothing worth scoring, rather than scoring it in
+silence: a recording whose beams are mostly unknown, a recording where nothing was scored."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+__all__ = ["MOST_BEAMS_UNKNOWN", "nothing_scored", "warn_nothing_scored", "warn_unknown_beams"]
+
+#: Over this share of a recording's beams unknown (NaN, -inf, 0, under range_min), its maps are
+#: mostly blank and its scores say little: warned of. A real scanner loses a few percent
+#: (glass, sky, its own frame); half is a broken driver or a wrong topic.
+MOST_BEAMS_UNKNOWN = 0.5
+
+
+def warn_unknown_beams(path: str | Path, recording: Any) -> None:
+    """One line on stderr where more than :data:`MOST_BEAMS_UNKNOWN` of ``recording``'s beams
+    are unknown."""
+    from lidarflow.data.info import unknown_share
+
+    share = unknown_share(recording)
+    if share > MOST_BEAMS_UNKNOWN:
+        typer.echo(
+            f"warning: {Path(path).name}: {share:.0%} of its beams are invalid (NaN, -inf, 0 or "
+            "under range_min): its maps are mostly blank (`lidarflow info` counts them)",
+            err=True,
+        )
+
+
+def nothing_scored(entry: dict[str, Any]) -> bool:
+    """Whether a recording's report ``entry`` scored nothing: no frame, or no occupied cell in
+    any scored target frame (every F1 then 0/0)."""
+    return not entry.get("frames_evaluated") or "f1" in entry.get("undefined", [])
+
+
+def warn_nothing_scored(entry: dict[str, Any]) -> None:
+    """One line on stderr where ``entry`` (a recording's report) scored nothing."""
+    if nothing_scored(entry):
+        typer.echo(
+            f"warning: {Path(entry['path']).name}: nothing was scored (no occupied cell in any "
+            f"of its {entry.get('frames_evaluated', 0)} scored frames): its scores say nothing",
+            err=True,
+        )
