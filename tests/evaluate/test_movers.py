@@ -153,7 +153,10 @@ def test_dynamic_cells_needs_an_occupancy_and_a_low_share():
         dynamic_cells(np.zeros(2), np.zeros(3))
 
 
-def driving_past_a_wall(n: int = 60, grid: GridSpec = GridSpec(40, 40, 0.1)):
+SMALL = GridSpec(40, 40, 0.1)
+
+
+def driving_past_a_wall(n: int = 60, grid: GridSpec = SMALL):
     """A sensor driving forward one cell every two frames towards a wall across the map at
     world x = 3.55 m, and a 2 x 1 person crossing the map at world x = 1.55 m (a cell a frame)."""
     poses = np.zeros((n, 3))
@@ -201,8 +204,12 @@ def test_a_frame_of_unknown_pose_has_an_empty_region():
 
 
 def test_a_simulated_recording_scores_its_true_movers():
-    from lidarflow.evaluate.stream import evaluate_recording, ground_truth_moving, mover_region
-    from lidarflow.evaluate.stream import recording_inputs
+    from lidarflow.evaluate.stream import (
+        evaluate_recording,
+        ground_truth_moving,
+        mover_region,
+        recording_inputs,
+    )
     from lidarflow.predict.baselines import CopyLast
     from lidarflow.sim import SimConfig, simulate
 
