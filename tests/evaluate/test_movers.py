@@ -260,3 +260,23 @@ def test_the_horizon_verdict_needs_the_movers_k_steps_ahead_too():
     verdict = entry["against_baselines"]["m"]
     assert verdict["wins"] is False
     assert verdict["mover_f1_horizon_margin"] == pytest.approx(-0.1)
+
+
+def test_horizon_scores_the_movers_k_steps_ahead():
+    from lidarflow.evaluate.horizon import horizon_scores
+
+    n = 25
+    occupancy = np.zeros((n, 20, 30), np.float32)
+    occupancy[:, 0, :] = 1  # a wall
+    for t in range(n):  # a person crossing once, a cell every frame
+        occupancy[t, 10:12, t] = 1
+    visibility = np.ones_like(occupancy)
+    cells = WorldCells(GridSpec(20, 30, 0.1), None, n)
+    region = frame_region(
+        dynamic_cells(*world_counts(lambda t: (occupancy[t], visibility[t]), cells)), cells
+    )
+    scores = horizon_scores(occupancy, visibility, [], horizon=3, warmup=2, region=region)
+    exact, tolerant = scores["mover_f1"]["copy_last"], scores["mover_f1_tolerant"]["copy_last"]
+    assert exact[0] == 0.0  # the person is always a cell further on
+    assert tolerant[0] == 1.0 and tolerant[1] == 1.0 and tolerant[2] == 0.0  # 3 cells: too far
+    assert scores["mover_true_cells"]["copy_last"][0] > 0

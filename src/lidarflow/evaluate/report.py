@@ -120,7 +120,8 @@ def undefined_metrics(scorers: Mapping[str, Scorer]) -> list[str]:
         out += ["f1", "recall", "ap"]
     if all(s.changed.tp + s.changed.fn == 0 for s in scorers.values()):
         out.append("changed_f1")
-    if all(not s.movers.defined for s in scorers.values()):
+    movers = [s.movers for s in scorers.values() if s.movers.frames]
+    if movers and not any(m.defined for m in movers):
         out.append("mover_f1")
     return out
 
