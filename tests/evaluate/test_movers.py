@@ -280,3 +280,30 @@ def test_horizon_scores_the_movers_k_steps_ahead():
     assert exact[0] == 0.0  # the person is always a cell further on
     assert tolerant[0] == 1.0 and tolerant[1] == 1.0 and tolerant[2] == 0.0  # 3 cells: too far
     assert scores["mover_true_cells"]["copy_last"][0] > 0
+
+
+def test_the_table_and_the_html_report_show_the_mover_metric(tmp_path):
+    from lidarflow.evaluate.report import build_report, format_table
+    from lidarflow.evaluate.stream import evaluate_maps
+    from lidarflow.predict.baselines import CopyLast, TemporalAverage
+    from lidarflow.viz.html import write_html_report
+
+    n = 25
+    occupancy = np.zeros((n, 20, 30), np.float32)
+    occupancy[:, 0, :] = 1
+    for t in range(n):
+        occupancy[t, 10:12, t] = 1
+    cells = WorldCells(GridSpec(20, 30, 0.1), None, n)
+    region = frame_region(
+        dynamic_cells(*world_counts(lambda t: (occupancy[t], occupancy[t] >= 0), cells)), cells
+    )
+    scores = evaluate_maps(
+        occupancy, occupancy >= 0, [CopyLast(), TemporalAverage()], warmup=2, region=region
+    )
+    report = build_report([("scene", scores)])
+    methods = report["recordings"][0]["methods"]
+    copied = methods["copy_last"]
+    assert copied["mover_f1"] == 0.0 and copied["mover_f1_tolerant"] == 1
+    assert "mover_f1_tolerant" in format_table(methods).splitlines()[0]
+    page = write_html_report(report, tmp_path / "index.html").read_text()
+    assert "mover_f1_tolerant" in page and "mover_soft_iou" in page
