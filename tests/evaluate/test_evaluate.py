@@ -312,6 +312,7 @@ def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
     sample_recording, monkeypatch
 ):
     from lidarflow.data import blocks
+    from lidarflow.evaluate.dynamic import recording_region
     from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.stream import evaluate_recording
@@ -322,6 +323,7 @@ def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
     whole = evaluate_maps(
         occupancy, visibility, methods, motions=recording_motions(rec, grid, methods, occupancy),
         subcell=rec.subcell_maps(grid),
+        region=recording_region(rec, grid, occupancy, visibility),
     )  # fmt: skip
     monkeypatch.setattr(blocks, "BLOCK_FRAMES", 7)
     streamed = evaluate_recording(rec, methods, grid)

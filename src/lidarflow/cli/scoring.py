@@ -137,8 +137,11 @@ def evaluate(
     0.4, precision, recall, average precision, changed-cell F1, calibration, and flow error and
     moving segmentation where the recording has ground truth.
 
-    A model wins when its F1 beats the best baseline's and its changed-cell F1 every
-    baseline's. Steps across gaps in time are not scored; -o writes every number as JSON."""
+    Mover F1 (exact and within 0.2 m) scores only the cells something moved through (the
+    dynamic region, found over the whole recording; the simulator's true movers on simulated
+    data). A model wins when its F1 beats the best baseline's, its changed-cell F1 every
+    baseline's, and its tolerant mover F1 copy-last's (at k=1 and at --horizon). Steps across
+    gaps in time are not scored; -o writes every number as JSON."""
     from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
     from lidarflow.evaluate.report import (
         format_comparison,
@@ -254,6 +257,10 @@ _HORIZON_TABLES = (
     ("horizon_changed_f1", "changed F1"),
     ("horizon_wmse", "WMSE"),
     ("horizon_ssim", "SSIM"),
+    ("horizon_mover_f1", "mover F1"),
+    ("horizon_mover_f1_tolerant", "tolerant mover F1"),
+    ("horizon_mover_auc", "mover AUC"),
+    ("horizon_mover_soft_iou", "mover soft IoU"),
 )
 
 
@@ -275,5 +282,8 @@ def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:
     title = f"{what} per horizon step"
     lines = [f"{title:<24}" + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
     for name, values in scores.items():
-        lines.append(f"{name:<24}" + "".join(f"{v:>10.4f}" for v in values))
+        # an AUC is None where a region held one class only
+        lines.append(
+            f"{name:<24}" + "".join(f"{'-':>10}" if v is None else f"{v:>10.4f}" for v in values)
+        )
     return "\n".join(lines)

@@ -29,12 +29,17 @@ is above at every k.
 
 Ego-motion models roll forward assuming one more typical step of the same motion, as the
 Predictor does.
+
+The mover metric (:mod:`lidarflow.evaluate.movers`) is scored per ``k`` too, inside the
+dynamic region of the target frame ``t + k`` (:func:`lidarflow.evaluate.stream.mover_region`):
+exact and tolerant F1 of the decided map, AUC and soft IoU of the output.
 """
 
 from __future__ import annotations
 
 import contextlib
 import copy
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -44,8 +49,10 @@ from lidarflow.data.blocks import Frames
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
-from lidarflow.evaluate.stream import method_inputs, recording_inputs
+from lidarflow.evaluate.report import add_horizon_verdict, count_recordings_won
+from lidarflow.evaluate.stream import method_inputs, mover_region, recording_inputs
 from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 
@@ -106,22 +113,32 @@ def add_horizon_scores(
 ) -> None:
     """:func:`horizon_scores` of every recording of ``named`` (``(name, Recording)``) into its
     entry of ``report`` (what ``evaluate_and_report`` returned for them) as ``horizon_f1``,
-    ``horizon_changed_f1``, ``horizon_wmse``, ``horizon_ssim``. Every model and baseline rolls
+    ``horizon_changed_f1``, ``horizon_wmse``, ``horizon_ssim``, ``horizon_mover_f1``,
+    ``horizon_mover_f1_tolerant``, ``horizon_mover_auc``, ``horizon_mover_soft_iou`` (with
+    ``horizon_undefined: ["mover_f1"]`` where no true cell lay in the region ``K`` ahead),
+    and extends the recording's verdicts by the movers at ``K``
+    (:func:`~lidarflow.evaluate.report.add_horizon_verdict`). Every model and baseline rolls
     forward; what knows the future (``oracle``) has no roll-out of its own. ``bar(total, name)``:
     a progress bar (a context manager with ``update``) per recording."""
     streamed = [m for m in methods if not getattr(m, "oracle", False)]
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         inputs = recording_inputs(recording, spec, streamed)
+        region = mover_region(recording, spec, inputs)
         total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
         with bar(total, name) if bar is not None else contextlib.nullcontext() as progress:
             scores = horizon_scores(
                 inputs.occupancy, inputs.visibility, streamed, horizon, warmup,
                 None if progress is None else progress.update,
                 inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
-                inputs.gaps, inputs.paces,
+                inputs.gaps, inputs.paces, region,
             )  # fmt: skip
+        true_cells = scores.pop("mover_true_cells")
         for key, scored in scores.items():  # f1, changed_f1, wmse, ssim (none on a tiny grid)
             entry[f"horizon_{key}"] = scored
+        if not true_cells["copy_last"][-1]:
+            entry["horizon_undefined"] = ["mover_f1"]
+        add_horizon_verdict(entry)
+    count_recordings_won(report)
 
 
 def horizon_scores(
@@ -137,7 +154,8 @@ def horizon_scores(
     subcell: Frames | None = None,
     gaps: Sequence[int] = (),
     paces: Mapping[int, float] | None = None,
-) -> dict[str, dict[str, list[float]]]:
+    region: Callable[[int], np.ndarray] | None = None,
+) -> dict[str, dict[str, list[Any]]]:
     """``{"f1": {name: [k = 1..K]}, "changed_f1": {...}, "wmse": {...}, "ssim": {...}}`` on
     maps ``(N, H, W)``: copy-last (always, first) and each method, models and baselines alike
     (see the module's docstring); changed-cell F1 ``k`` ahead scores the cells of ``O^{t+k}``
@@ -147,19 +165,24 @@ def horizon_scores(
     ``progress(1)`` is called after every method step on a recorded frame. The other inputs are
     :func:`~lidarflow.evaluate.stream.evaluate_maps`' (the motions, returns, sub-cell maps and
     paces each method takes); ``gaps``: the frames that follow a gap in time (no roll-out
-    across one is scored; states carry on)."""
+    across one is scored; states carry on). With ``region`` (``t ->`` frame ``t``'s dynamic
+    region) also ``mover_f1``, ``mover_f1_tolerant``, ``mover_auc`` (``None`` where the
+    region held one class only), ``mover_soft_iou`` and ``mover_true_cells`` (the true cells
+    in the regions ``k`` ahead, alike for every method)."""
     n = len(occupancy)
     scored = scored_frames(n, horizon, warmup, gaps)
     scoring = set(scored)
     shape = np.shape(occupancy[0])
-    copy = _Ahead(horizon, shape)
+    if region is not None:  # each method asks for the regions of t + 1 .. t + K in turn
+        region = functools.lru_cache(maxsize=horizon + 1)(region)
+    copy = _Ahead(horizon, shape, region)
     for t in scored:
         copy.add(np.broadcast_to(occupancy[t], (horizon, *shape)), occupancy, t)
     scores = {name: {"copy_last": value} for name, value in copy.means().items()}
     for method in methods:
         if method.name in scores["f1"]:  # copy-last is scored above, by its definition
             continue
-        ahead = _Ahead(horizon, shape)
+        ahead = _Ahead(horizon, shape, region)
         method.reset()
         for t in range(n - horizon):
             extra = method_inputs(method, t, motions, returns, motions_from_poses, subcell, paces)
@@ -177,10 +200,18 @@ def horizon_scores(
 
 
 class _Ahead:
-    """Sums per step ``k`` over the scored frames: F1 and changed-cell F1 counts, WMSE, SSIM."""
+    """Sums per step ``k`` over the scored frames: F1 and changed-cell F1 counts, WMSE, SSIM,
+    and the mover metric where there is a ``region``."""
 
-    def __init__(self, horizon: int, shape: tuple[int, ...]) -> None:
+    def __init__(
+        self,
+        horizon: int,
+        shape: tuple[int, ...],
+        region: Callable[[int], np.ndarray] | None = None,
+    ) -> None:
         self.counts, self.changed = _counts(horizon), _counts(horizon)
+        self.region = region
+        self.movers = [MoverScore() for _ in range(horizon)]
         self.wmse = np.zeros(horizon)
         self.ssim = np.zeros(horizon) if min(shape) >= SSIM_WINDOW else None
         self.frames = 0
@@ -193,16 +224,22 @@ class _Ahead:
             self.changed[k] = self.changed[k] + confusion(
                 decided >= THRESHOLD, truth, _changed(occupancy[t], truth)
             )
+            if self.region is not None:
+                self.movers[k].add(decided, truth, self.region(t + 1 + k))
         self.wmse += wmse(predicted, truths)
         if self.ssim is not None:
             self.ssim += ssim(predicted, truths)
         self.frames += 1
 
-    def means(self) -> dict[str, list[float]]:
-        out = {"f1": _f1(self.counts), "changed_f1": _f1(self.changed)}
+    def means(self) -> dict[str, list[Any]]:
+        out: dict[str, list[Any]] = {"f1": _f1(self.counts), "changed_f1": _f1(self.changed)}
         out["wmse"] = [float(v) for v in self.wmse / max(self.frames, 1)]
         if self.ssim is not None:
             out["ssim"] = [float(v) for v in self.ssim / max(self.frames, 1)]
+        if self.region is not None:
+            summaries = [m.summary() for m in self.movers]
+            for key in ("f1", "f1_tolerant", "auc", "soft_iou", "true_cells"):
+                out[f"mover_{key}"] = [s[key] for s in summaries]
         return out
 
 

@@ -11,11 +11,14 @@ from lidarflow.evaluate.scoring import Scorer
 
 __all__ = [
     "BASELINES",
+    "MOVER_KEY",
     "ORACLE_SUFFIX",
     "PEER_COLUMNS",
     "UNCERTAINTY_COLUMNS",
+    "add_horizon_verdict",
     "against_baselines",
     "build_report",
+    "count_recordings_won",
     "format_comparison",
     "format_peer_table",
     "format_table",
@@ -31,7 +34,18 @@ __all__ = [
 BASELINES = ("copy_last", "temporal_average", "constant_velocity")
 #: Names ending so are variants that know the true next pose: no deployable method, no verdict.
 ORACLE_SUFFIX = "_oracle"
-_COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "epe")
+_COLUMNS = (
+    "f1",
+    "precision",
+    "recall",
+    "ap",
+    "changed_f1",
+    "mover_f1",
+    "mover_f1_tolerant",
+    "epe",
+)
+#: The verdict's mover metric (:mod:`lidarflow.evaluate.movers`), against copy-last's.
+MOVER_KEY = "mover_f1_tolerant"
 #: Columns of the second table: calibration of the probabilities (lower is better) and
 #: moving-object segmentation of the moving class (flow models on simulated data).
 UNCERTAINTY_COLUMNS = (
@@ -79,20 +93,12 @@ def build_report(
     overall = {name: s.summary() for name, s in overall_scorers.items()}
     overall_undefined = undefined_metrics(overall_scorers)
     compared = against_baselines(overall, overall_undefined, no_verdict)
-    for name, verdict in compared.items():
-        verdicts = [
-            e["against_baselines"][name] for e in recordings if name in e["against_baselines"]
-        ]
-        verdict["recordings_won"] = sum(v["wins"] is True for v in verdicts)
-        verdict["recordings"] = len(verdicts)
-        undecided = sum(v["wins"] is None for v in verdicts)
-        if undecided:
-            verdict["recordings_undecided"] = undecided
     report: dict[str, Any] = {
         "recordings": recordings,
         "overall": overall,
         "against_baselines": compared,
     }
+    count_recordings_won(report)
     if overall_undefined:
         report["undefined"] = overall_undefined
     if config:
@@ -114,6 +120,9 @@ def undefined_metrics(scorers: Mapping[str, Scorer]) -> list[str]:
         out += ["f1", "recall", "ap"]
     if all(s.changed.tp + s.changed.fn == 0 for s in scorers.values()):
         out.append("changed_f1")
+    movers = [s.movers for s in scorers.values() if s.movers.frames]
+    if movers and not any(m.defined for m in movers):
+        out.append("mover_f1")
     return out
 
 
@@ -126,12 +135,18 @@ def undefined_note(undefined: Sequence[str]) -> str:
             "beams): F1, recall, AP and changed-cell F1 have nothing to find (F1 is 1.0 for "
             "predicting nothing, 0 for predicting anything)"
         )
+    notes = []
     if "changed_f1" in undefined:
-        return (
+        notes.append(
             "note: no cell becomes occupied in any scored frame: changed-cell F1 has nothing to "
             "find (1.0 for predicting no vanished cell occupied, else 0)"
         )
-    return ""
+    if "mover_f1" in undefined:
+        notes.append(
+            "note: no occupied cell in the dynamic region of any scored target (nothing moved): "
+            "the mover metric has nothing to find and does not decide the verdict"
+        )
+    return "\n".join(notes)
 
 
 def against_baselines(
@@ -142,11 +157,16 @@ def against_baselines(
     """Each model among ``methods`` (every one that is not one of :data:`BASELINES`, the
     copy-last moved by the ego motion, or a variant that knows the next pose) against the
     baselines, by the rule that decides whether a model is worth using: it wins when its F1 is
-    above the best baseline's and its changed-cell F1 above every baseline's. ``{name: {"wins",
-    "f1_margin", "f1_baseline", "changed_f1_margin", "changed_f1_baseline"}}`` (margins
-    against the best baseline, which is named); ``{}`` without baselines. Where F1 or
-    changed-cell F1 is among ``undefined`` (nothing to find, :func:`undefined_metrics`) the
-    rule cannot decide: ``"wins"`` is ``None``. ``no_verdict``: the methods that get none
+    above the best baseline's, its changed-cell F1 above every baseline's, and its tolerant
+    mover F1 (:data:`MOVER_KEY`) above copy-last's (a model that loses on what moves is no
+    better than copying the last map, whatever its walls score). ``{name: {"wins",
+    "f1_margin", "f1_baseline", "changed_f1_margin", "changed_f1_baseline",
+    "mover_f1_margin"}}`` (margins against the best baseline, which is named; the mover margin
+    against copy-last, ``None`` where the mover metric had nothing to find or was not scored:
+    then it does not decide); ``{}`` without baselines. Where F1 or changed-cell F1 is among
+    ``undefined`` (nothing to find, :func:`undefined_metrics`) the rule cannot decide:
+    ``"wins"`` is ``None``. :func:`add_horizon_verdict` adds the mover condition at the
+    report's horizon. ``no_verdict``: the methods that get none
     (``evaluate`` names them in its config, so that a run folder called ``..._oracle`` is still
     judged); ``None``: told apart by their names."""
     present = [b for b in BASELINES if b in methods]
@@ -164,16 +184,65 @@ def against_baselines(
             continue
         f1_margin = metrics["f1"] - methods[best_f1]["f1"]
         changed_margin = metrics["changed_f1"] - methods[best_changed]["changed_f1"]
+        mover_margin = _mover_margin(metrics, methods.get("copy_last"), undefined)
         # a margin on a metric with nothing to find is no win and no loss
         decided = not {"f1", "changed_f1"} & set(undefined)
+        wins = f1_margin > 0 and changed_margin > 0 and (mover_margin is None or mover_margin > 0)
         out[name] = {
-            "wins": bool(f1_margin > 0 and changed_margin > 0) if decided else None,
+            "wins": bool(wins) if decided else None,
             "f1_margin": f1_margin,
             "f1_baseline": best_f1,
             "changed_f1_margin": changed_margin,
             "changed_f1_baseline": best_changed,
+            "mover_f1_margin": mover_margin,
         }
     return out
+
+
+def _mover_margin(
+    metrics: Mapping[str, Any], copy_last: Mapping[str, Any] | None, undefined: Collection[str]
+) -> float | None:
+    if copy_last is None or "mover_f1" in undefined:
+        return None
+    if MOVER_KEY not in metrics or MOVER_KEY not in copy_last:
+        return None
+    return float(metrics[MOVER_KEY] - copy_last[MOVER_KEY])
+
+
+def add_horizon_verdict(entry: dict[str, Any]) -> None:
+    """Extend a recording's verdicts (``entry["against_baselines"]``) by the mover condition
+    at its horizon: the tolerant mover F1 ``K`` steps ahead (``entry["horizon_mover_f1_
+    tolerant"]``, :mod:`lidarflow.evaluate.horizon`) must be above copy-last's too. Adds
+    ``mover_f1_horizon_margin`` (``None`` where nothing moved into the region); a no-op
+    without horizon mover scores."""
+    scores = entry.get("horizon_mover_f1_tolerant")
+    if not scores or "copy_last" not in scores:
+        return
+    nothing = "mover_f1" in entry.get("horizon_undefined", [])
+    for name, verdict in entry.get("against_baselines", {}).items():
+        if name not in scores:
+            continue
+        margin = None if nothing else float(scores[name][-1] - scores["copy_last"][-1])
+        verdict["mover_f1_horizon_margin"] = margin
+        if margin is not None and margin <= 0 and verdict["wins"] is not None:
+            verdict["wins"] = False
+
+
+def count_recordings_won(report: dict[str, Any]) -> None:
+    """Set the overall verdicts' ``recordings_won`` (and ``recordings``, ``recordings_
+    undecided``) from the recordings' verdicts."""
+    for name, verdict in report.get("against_baselines", {}).items():
+        verdicts = [
+            e["against_baselines"][name]
+            for e in report["recordings"]
+            if name in e.get("against_baselines", {})
+        ]
+        verdict["recordings_won"] = sum(v["wins"] is True for v in verdicts)
+        verdict["recordings"] = len(verdicts)
+        undecided = sum(v["wins"] is None for v in verdicts)
+        verdict.pop("recordings_undecided", None)
+        if undecided:
+            verdict["recordings_undecided"] = undecided
 
 
 def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
@@ -187,10 +256,16 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
             if v.get("recordings_undecided"):
                 won += f" ({v['recordings_undecided']} undecided)"
         verdict = {True: "wins", False: "loses", None: "undecided (nothing to find)"}[v["wins"]]
+        movers = ""
+        if v.get("mover_f1_margin") is not None:
+            movers = f", tolerant mover F1 {v['mover_f1_margin']:+.4f} (copy_last"
+            if v.get("mover_f1_horizon_margin") is not None:
+                movers += f"; {v['mover_f1_horizon_margin']:+.4f} at the horizon"
+            movers += ")"
         lines.append(
             f"{name} against the best baseline: F1 {v['f1_margin']:+.4f} ({v['f1_baseline']}), "
-            f"changed-cell F1 {v['changed_f1_margin']:+.4f} ({v['changed_f1_baseline']}): "
-            f"{verdict}{won}"
+            f"changed-cell F1 {v['changed_f1_margin']:+.4f} ({v['changed_f1_baseline']})"
+            f"{movers}: {verdict}{won}"
         )
     return "\n".join(lines)
 
@@ -246,13 +321,15 @@ def _text_table(
 
 
 def format_table(methods: dict[str, dict[str, float]], title: str = "") -> str:
-    """A plain-text table, one row per method; the best F1 / changed-cell F1 marked with *."""
+    """A plain-text table, one row per method; the best F1 / changed-cell F1 / mover F1s
+    marked with *."""
     present = [c for c in _COLUMNS if any(c in m for m in methods.values())]
     best = {
         c: max((m[c] for m in methods.values() if c in m), default=None)
-        for c in ("f1", "changed_f1")
+        for c in ("f1", "changed_f1", "mover_f1", MOVER_KEY)
     }
-    return _text_table(methods, present, best, dict.fromkeys(present, 10), title)
+    widths = {c: max(10, len(c) + 1) for c in present}
+    return _text_table(methods, present, best, widths, title)
 
 
 def uncertainty_row(metrics: dict[str, Any]) -> dict[str, float]:

@@ -25,6 +25,7 @@ import numpy as np
 
 from lidarflow.evaluate.calibration import Calibration
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
 
 __all__ = ["BINS", "Scorer"]
@@ -53,6 +54,7 @@ class Scorer:
     wmse_sum: float = 0.0
     ssim_sum: float = 0.0
     ssim_frames: int = 0
+    movers: MoverScore = field(default_factory=MoverScore)
 
     def add(self, probability: np.ndarray, current: np.ndarray, target: np.ndarray) -> None:
         """Score one predicted map against the true next map ``target``; ``current`` is the
@@ -71,6 +73,11 @@ class Scorer:
             self.ssim_sum += float(ssim(probability, target))
             self.ssim_frames += 1
         self.frames += 1
+
+    def add_movers(self, probability: np.ndarray, target: np.ndarray, region: np.ndarray) -> None:
+        """Score one predicted map inside the target frame's dynamic ``region`` (the mover
+        metric, :mod:`lidarflow.evaluate.movers`)."""
+        self.movers.add(probability, target, region)
 
     def add_moving(self, predicted: np.ndarray, truth: np.ndarray) -> None:
         """Score one frame's moving-cell mask ``(H, W)`` against the true moving cells."""
@@ -112,6 +119,7 @@ class Scorer:
             wmse_sum=self.wmse_sum + other.wmse_sum,
             ssim_sum=self.ssim_sum + other.ssim_sum,
             ssim_frames=self.ssim_frames + other.ssim_frames,
+            movers=self.movers + other.movers,
         )
 
     def pr_curve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -135,7 +143,9 @@ class Scorer:
         ``wmse`` and ``ssim`` (means over the frames; no ``ssim`` on a grid under 11 x 11), plus
         ``calibration`` (:meth:`Calibration.summary`) and, when moving cells were scored,
         ``segmentation`` (``iou``, ``precision``, ``recall``, ``f1`` of the moving class,
-        counts and frames)."""
+        counts and frames) and, when the mover metric was scored, ``movers``
+        (:meth:`MoverScore.summary <lidarflow.evaluate.movers.MoverScore.summary>`) with the
+        flat ``mover_f1`` and ``mover_f1_tolerant`` beside the others."""
         out: dict[str, Any] = {
             "f1": self.counts.f1,
             "precision": self.counts.precision,
@@ -155,6 +165,10 @@ class Scorer:
         if self.ssim_frames:
             out["ssim"] = self.ssim_sum / self.ssim_frames
         out["calibration"] = self.calibration.summary()
+        if self.movers.frames:
+            out["movers"] = self.movers.summary()
+            out["mover_f1"] = out["movers"]["f1"]
+            out["mover_f1_tolerant"] = out["movers"]["f1_tolerant"]
         if self.moving_frames:
             out["segmentation"] = {
                 "iou": self.moving.iou,

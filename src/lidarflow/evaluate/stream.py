@@ -42,6 +42,7 @@ from lidarflow.data.blocks import Frames, streamed_maps, streamed_subcell
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
+from lidarflow.evaluate.dynamic import recording_region
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.motion.icp import streamed_points
@@ -61,6 +62,7 @@ __all__ = [
     "ground_truth_platform_flow",
     "has_ground_truth",
     "method_inputs",
+    "mover_region",
     "other_recorded_grid",
     "recording_inputs",
 ]
@@ -149,6 +151,7 @@ def evaluate_maps(
     gaps: Sequence[int] = (),
     paces: Mapping[int, float] | None = None,
     gt_platform: Callable[[int], np.ndarray] | None = None,
+    region: Callable[[int], np.ndarray] | None = None,
 ) -> dict[str, Scorer]:
     """Score every method on one recording's maps ``(N, H, W)``.
 
@@ -181,6 +184,9 @@ def evaluate_maps(
     A method that exposes ``moving`` is scored (IoU of the moving class) against
     ``gt_moving(t)`` on the cells occupied in frame ``t``; ``on_moving(method_name, t, moving,
     truth_or_None)`` is called with every such mask, e.g. to draw it.
+
+    With ``region`` (``t ->`` frame ``t``'s dynamic region, :mod:`lidarflow.evaluate.dynamic`)
+    every scored prediction is also scored inside its target frame's region (the mover metric).
     """
     n = len(occupancy)
     check_length(n, warmup, gaps)
@@ -190,6 +196,7 @@ def evaluate_maps(
     for m in methods:
         m.reset()
     for t in range(n - 1):
+        inside = None if region is None or t < warmup or t in unscored else region(t + 1)
         for m in methods:
             extra = method_inputs(m, t, motions, returns, motions_from_poses, subcell, paces)
             probability = m.update(occupancy[t], visibility[t], **extra)  # type: ignore[call-arg]
@@ -197,6 +204,8 @@ def evaluate_maps(
                 continue
             if t not in unscored:  # the next map and the flow to it: not across a gap
                 scorers[m.name].add(probability, occupancy[t], occupancy[t + 1])
+                if inside is not None:
+                    scorers[m.name].add_movers(probability, occupancy[t + 1], inside)
                 flow = getattr(m, "backward_flow", None)
                 if on_prediction is not None:
                     on_prediction(m.name, t, probability, flow)
@@ -331,9 +340,11 @@ def evaluate_recording(
     on_moving: Callable[[str, int, np.ndarray, np.ndarray | None], None] | None = None,
 ) -> dict[str, Scorer]:
     """Rasterize ``recording`` on ``grid`` and score every method on it (with the
-    simulator's ground truth flow and moving cells where it has them), not across its gaps."""
+    simulator's ground truth flow and moving cells where it has them), not across its gaps,
+    and inside its dynamic region (:func:`mover_region`)."""
     grid = grid or GridSpec()
     inputs = recording_inputs(recording, grid, methods)
+    region = mover_region(recording, grid, inputs)
     return evaluate_maps(
         inputs.occupancy,
         inputs.visibility,
@@ -351,4 +362,20 @@ def evaluate_recording(
         inputs.gaps,
         inputs.paces,
         ground_truth_platform_flow(recording, grid),
+        region,
+    )
+
+
+def mover_region(
+    recording: Recording, grid: GridSpec, inputs: RecordingInputs
+) -> Callable[[int], np.ndarray]:
+    """``t -> `` the dynamic region of frame ``t`` where the mover metric scores
+    (:func:`lidarflow.evaluate.dynamic.recording_region`): the simulator's true moving cells
+    where the recording has them on ``grid``, else the cells rarely occupied."""
+    return recording_region(
+        recording,
+        grid,
+        inputs.occupancy,
+        inputs.visibility,
+        ground_truth_moving(recording, grid),
     )

@@ -1,0 +1,153 @@
+"""The dynamic region of a recording: where the mover metric (:mod:`lidarflow.evaluate.movers`)
+scores, found in hindsight over the whole recording (for scoring only, never for predicting).
+
+On a real recording a cell is dynamic when it was occupied at least once but in under
+:data:`SHARE` (5 %) of the frames that saw it (visible, design notes §2): a person walked
+through; a wall, seen occupied nearly every time, is not; free space never occupied is not
+either (the region says where movers went, so that scoring there does not drown in free space).
+On a simulated recording the simulator's true moving cells stand in: a cell is dynamic when it
+held a moving object in some frame.
+
+Counts are taken in the world frame where the recording has poses (the true ones of a
+simulated recording, else its odometry): every map cell's centre is moved by its frame's pose
+into a fixed grid of the same resolution large enough for the whole trajectory, counted there,
+and each frame's region is read back at its own cells' centres. A platform standing still has
+constant poses, so this is the sensor frame; a recording without poses is counted in the sensor
+frame as if it stood still (a limitation: a moving recording without odometry gets no
+registration; its walls smear and some of them read as dynamic). A frame whose pose is unknown
+is not counted and has an empty region. Where two map cells of a frame fall into one world cell
+(a turned frame, nearest cell) the world cell counts once for that frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from lidarflow.data.blocks import Frames
+from lidarflow.data.recording import Recording
+from lidarflow.scan import GridSpec
+
+__all__ = [
+    "SHARE",
+    "WorldCells",
+    "dynamic_cells",
+    "frame_region",
+    "recording_region",
+    "world_counts",
+]
+
+#: A cell is dynamic when occupied in under this share of the frames that saw it.
+SHARE = 0.05
+
+
+def dynamic_cells(occupied: np.ndarray, seen: np.ndarray, share: float = SHARE) -> np.ndarray:
+    """Where ``occupied`` (counts of frames occupied) is positive and under ``share`` of
+    ``seen`` (counts of frames visible; a cell is visible whenever it is occupied).
+
+    >>> dynamic_cells(np.array([0, 1, 1, 20]), np.array([50, 50, 10, 20])).tolist()
+    [False, True, False, False]
+    """
+    occupied = np.asarray(occupied)
+    seen = np.asarray(seen)
+    if occupied.shape != seen.shape:
+        raise ValueError(f"occupied {occupied.shape} and seen {seen.shape} differ in shape")
+    return (occupied > 0) & (occupied < share * seen)
+
+
+class WorldCells:
+    """Where each cell of a frame's map falls in a fixed grid covering every frame: flat
+    indices ``(H, W)`` into :attr:`size` cells, ``-1`` for a frame of unknown pose.
+
+    ``poses`` ``(N, 3)`` ``(x, y, yaw)`` of the sensor in a fixed frame (metres, radians; NaN
+    unknown) or ``None``: the sensor frame, each cell its own.
+    """
+
+    def __init__(self, grid: GridSpec, poses: np.ndarray | None, frames: int) -> None:
+        self.grid, self.frames = grid, frames
+        h, w, res = grid.height, grid.width, grid.res
+        rows, cols = np.mgrid[0:h, 0:w]
+        # cell centres in the sensor frame (design notes §2)
+        self._x = (h - rows - 0.5) * res
+        self._y = (w / 2 - cols - 0.5) * res
+        self.poses = None if poses is None else np.asarray(poses, np.float64)
+        if self.poses is not None and self.poses.shape != (frames, 3):
+            raise ValueError(f"poses must be ({frames}, 3), got {self.poses.shape}")
+        known = None if self.poses is None else self.poses[np.isfinite(self.poses).all(axis=1)]
+        if known is None or not len(known):
+            self.poses, self.shape = None, (h, w)
+            return
+        reach = float(np.hypot(h * res, w / 2 * res)) + 2 * res
+        self._low = known[:, :2].min(axis=0) - reach
+        high = known[:, :2].max(axis=0) + reach
+        self.shape = tuple(int(v) for v in np.ceil((high - self._low) / res))
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+    def __call__(self, t: int) -> np.ndarray:
+        h, w = self.grid.shape
+        if self.poses is None:
+            return np.arange(h * w).reshape(h, w)
+        px, py, yaw = self.poses[t]
+        if not np.isfinite(self.poses[t]).all():
+            return np.full((h, w), -1)
+        c, s = np.cos(yaw), np.sin(yaw)
+        wx = px + c * self._x - s * self._y
+        wy = py + s * self._x + c * self._y
+        i = np.floor((wx - self._low[0]) / self.grid.res).astype(np.int64)
+        j = np.floor((wy - self._low[1]) / self.grid.res).astype(np.int64)
+        return i * self.shape[1] + j
+
+
+def world_counts(
+    masks: Callable[[int], Sequence[np.ndarray]], cells: WorldCells
+) -> list[np.ndarray]:
+    """For each of the bool maps ``masks(t)`` gives per frame (the same number every frame),
+    the number of frames in which each world cell of ``cells`` was ``True`` (flat,
+    ``cells.size``)."""
+    counts: list[np.ndarray] = []
+    for t in range(cells.frames):
+        where = cells(t)
+        known = where >= 0
+        for i, mask in enumerate(masks(t)):
+            if len(counts) <= i:
+                counts.append(np.zeros(cells.size, np.int64))
+            hit = np.unique(where[known & np.asarray(mask, bool)])
+            counts[i][hit] += 1
+    return counts
+
+
+def frame_region(dynamic: np.ndarray, cells: WorldCells) -> Callable[[int], np.ndarray]:
+    """``t -> `` frame ``t``'s region ``(H, W)`` bool from the world cells' ``dynamic`` (flat)."""
+
+    def region(t: int) -> np.ndarray:
+        where = cells(t)
+        return np.where(where >= 0, dynamic[np.maximum(where, 0)], False)
+
+    return region
+
+
+def recording_region(
+    recording: Recording,
+    grid: GridSpec,
+    occupancy: Frames,
+    visibility: Frames,
+    moving: Callable[[int], np.ndarray] | None = None,
+) -> Callable[[int], np.ndarray]:
+    """``t -> `` the dynamic region ``(H, W)`` bool of frame ``t`` of ``recording``, whose maps
+    on ``grid`` are ``occupancy`` and ``visibility``; ``moving`` (``t ->`` the simulator's true
+    moving cells of frame ``t``, :func:`~lidarflow.evaluate.stream.ground_truth_moving`) stands
+    in for the counts where given. One pass over the maps (see the module docstring)."""
+    poses = recording.extras.get("true_poses", recording.poses)
+    cells = WorldCells(grid, poses, len(occupancy))
+    if moving is not None:
+        (held,) = world_counts(lambda t: (moving(t) & np.asarray(occupancy[t], bool),), cells)
+        return frame_region(held > 0, cells)
+    occupied, seen = world_counts(
+        lambda t: (occupancy[t], np.asarray(visibility[t], bool) | np.asarray(occupancy[t], bool)),
+        cells,
+    )
+    return frame_region(dynamic_cells(occupied, seen), cells)

@@ -1,0 +1,218 @@
+"""The mover metric (design notes §5): how well a prediction foresees what moves.
+
+All-cell F1 is dominated by walls and changed-cell F1 by edge flicker; the cells that hold a
+moving person are about 1 % of the occupied ones. This module scores a prediction inside the
+*dynamic region* of its target frame only (:mod:`lidarflow.evaluate.dynamic` finds it):
+
+- **exact F1** at the decision threshold, on the region's cells (TP/FP/FN as
+  :func:`~lidarflow.evaluate.metrics.confusion`);
+- **tolerant F1** with a tolerance of :data:`TOLERANCE` cells (0.2 m on the default 0.1 m grid),
+  Euclidean: a predicted cell of the region is right when a true occupied cell of the region lies
+  within the tolerance, a true cell of the region is found when a predicted one of the region
+  does. Precision counts predicted cells, recall true cells, F1 their harmonic mean. Both sides
+  are kept to the region so that a wall copied next to a person does not "find" the person;
+  a prediction off by up to two cells (a person predicted a step short) still counts;
+- **AUC** (area under the ROC curve) of the probability on the region's cells, from
+  :data:`BINS` equal bins (ties in a bin count half, so it is exact for binary predictors);
+- **soft IoU** of the probability, the Waymo occupancy-flow definition
+  ``sum(p * y) / sum(p + y - p * y)``.
+
+Every sum is micro-averaged over the frames of a recording (and over recordings for
+"overall"), as the other F1s are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+
+__all__ = ["BINS", "TOLERANCE", "MoverScore", "TolerantCounts", "near", "roc_auc"]
+
+#: Cells of tolerance (Euclidean) of the tolerant F1: 0.2 m on the default grid.
+TOLERANCE = 2
+BINS = 200
+
+
+def _disc(radius: int) -> list[tuple[int, int]]:
+    return [
+        (dr, dc)
+        for dr in range(-radius, radius + 1)
+        for dc in range(-radius, radius + 1)
+        if dr * dr + dc * dc <= radius * radius
+    ]
+
+
+def near(mask: np.ndarray, radius: int = TOLERANCE) -> np.ndarray:
+    """The cells of ``(..., H, W)`` bool ``mask`` dilated by a Euclidean disc of ``radius``
+    cells: ``True`` where a ``True`` cell of ``mask`` lies within ``radius`` cells.
+
+    >>> near(np.eye(1, 5, 2, dtype=bool), 1).astype(int)
+    array([[0, 1, 1, 1, 0]])
+    """
+    mask = np.asarray(mask, bool)
+    if mask.ndim < 2:
+        raise ValueError(f"mask must be (..., H, W), got {mask.shape}")
+    if radius < 0:
+        raise ValueError(f"radius must be >= 0, got {radius}")
+    h, w = mask.shape[-2:]
+    out = mask.copy()
+    for dr, dc in _disc(radius):
+        if (dr, dc) == (0, 0) or abs(dr) >= h or abs(dc) >= w:
+            continue
+        # out[r, c] |= mask[r + dr, c + dc] where that cell exists
+        out[..., max(0, -dr) : h - max(0, dr), max(0, -dc) : w - max(0, dc)] |= mask[
+            ..., max(0, dr) : h - max(0, -dr), max(0, dc) : w - max(0, -dc)
+        ]
+    return out
+
+
+@dataclass
+class TolerantCounts:
+    """Counts of the tolerant F1: predicted cells right / wrong, true cells found / missed."""
+
+    right: int = 0
+    wrong: int = 0
+    found: int = 0
+    missed: int = 0
+
+    def __add__(self, other: TolerantCounts) -> TolerantCounts:
+        return TolerantCounts(
+            self.right + other.right,
+            self.wrong + other.wrong,
+            self.found + other.found,
+            self.missed + other.missed,
+        )
+
+    @property
+    def precision(self) -> float:
+        predicted = self.right + self.wrong
+        return self.right / predicted if predicted else 0.0
+
+    @property
+    def recall(self) -> float:
+        true = self.found + self.missed
+        return self.found / true if true else 0.0
+
+    @property
+    def f1(self) -> float:
+        """Harmonic mean of precision and recall; 1.0 when there is nothing to find and
+        nothing predicted (as :attr:`Counts.f1 <lidarflow.evaluate.metrics.Counts.f1>`)."""
+        if not (self.right + self.wrong + self.found + self.missed):
+            return 1.0
+        p, r = self.precision, self.recall
+        return 2 * p * r / (p + r) if p + r else 0.0
+
+    @classmethod
+    def of(
+        cls, predicted: np.ndarray, target: np.ndarray, region: np.ndarray, radius: int = TOLERANCE
+    ) -> TolerantCounts:
+        """Counts of bool ``predicted`` against bool ``target`` inside ``region`` (same shape,
+        ``(..., H, W)``), with a tolerance of ``radius`` cells."""
+        p = np.asarray(predicted, bool) & region
+        t = np.asarray(target, bool) & region
+        right = int(np.count_nonzero(p & near(t, radius)))
+        found = int(np.count_nonzero(t & near(p, radius)))
+        return cls(right, int(np.count_nonzero(p)) - right, found, int(np.count_nonzero(t)) - found)
+
+
+def roc_auc(positives: np.ndarray, negatives: np.ndarray) -> float:
+    """Area under the ROC curve from histograms of the probabilities of the positive and the
+    negative cells over the same equal bins (low to high); two cells in one bin count as tied
+    (half). NaN when either class is empty.
+
+    >>> roc_auc(np.array([0, 1]), np.array([1, 0]))
+    1.0
+    """
+    positives = np.asarray(positives, np.float64)
+    negatives = np.asarray(negatives, np.float64)
+    n_pos, n_neg = positives.sum(), negatives.sum()
+    if not n_pos or not n_neg:
+        return float("nan")
+    below = np.concatenate([[0.0], np.cumsum(negatives)[:-1]])  # negatives in lower bins
+    return float((positives * (below + 0.5 * negatives)).sum() / (n_pos * n_neg))
+
+
+@dataclass
+class MoverScore:
+    """The mover metric of one method, summed over the frames it scored (see the module)."""
+
+    exact: Counts = field(default_factory=Counts)
+    tolerant: TolerantCounts = field(default_factory=TolerantCounts)
+    positives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
+    negatives: np.ndarray = field(default_factory=lambda: np.zeros(BINS + 1, np.int64))
+    soft_intersection: float = 0.0
+    soft_union: float = 0.0
+    cells: int = 0  # region cells scored, over all frames
+    frames: int = 0
+
+    def add(
+        self,
+        probability: np.ndarray,
+        target: np.ndarray,
+        region: np.ndarray,
+        threshold: float = THRESHOLD,
+    ) -> None:
+        """Score one predicted map ``probability`` ``(H, W)`` against the true map ``target``
+        inside ``region`` (bool, the target frame's dynamic region)."""
+        p = np.asarray(probability, np.float64)
+        y = np.asarray(target, bool)
+        region = np.asarray(region, bool)
+        if not p.shape == y.shape == region.shape:
+            raise ValueError(
+                f"probability {p.shape}, target {y.shape} and region {region.shape} differ"
+            )
+        decided = p >= threshold
+        self.exact = self.exact + confusion(decided, y, region)
+        self.tolerant = self.tolerant + TolerantCounts.of(decided, y, region)
+        inside, truth = np.clip(p[region], 0.0, 1.0), y[region]
+        bins = np.minimum(np.floor(inside * BINS), BINS).astype(int)
+        self.positives += np.bincount(bins[truth], minlength=BINS + 1)
+        self.negatives += np.bincount(bins[~truth], minlength=BINS + 1)
+        both = inside * truth
+        self.soft_intersection += float(both.sum())
+        self.soft_union += float((inside + truth - both).sum())
+        self.cells += int(region.sum())
+        self.frames += 1
+
+    def __add__(self, other: MoverScore) -> MoverScore:
+        return MoverScore(
+            self.exact + other.exact,
+            self.tolerant + other.tolerant,
+            self.positives + other.positives,
+            self.negatives + other.negatives,
+            self.soft_intersection + other.soft_intersection,
+            self.soft_union + other.soft_union,
+            self.cells + other.cells,
+            self.frames + other.frames,
+        )
+
+    @property
+    def defined(self) -> bool:
+        """Whether any true cell lay in the region: without one the scores say nothing."""
+        return self.exact.tp + self.exact.fn > 0
+
+    @property
+    def soft_iou(self) -> float:
+        return self.soft_intersection / self.soft_union if self.soft_union else 1.0
+
+    def summary(self) -> dict[str, Any]:
+        """``f1`` (exact), ``f1_tolerant``, their precision and recall, ``auc`` (``None``
+        without both classes in the region), ``soft_iou``, region ``cells`` and ``frames``."""
+        auc = roc_auc(self.positives, self.negatives)
+        return {
+            "f1": self.exact.f1,
+            "precision": self.exact.precision,
+            "recall": self.exact.recall,
+            "f1_tolerant": self.tolerant.f1,
+            "precision_tolerant": self.tolerant.precision,
+            "recall_tolerant": self.tolerant.recall,
+            "auc": None if np.isnan(auc) else auc,
+            "soft_iou": self.soft_iou,
+            "true_cells": self.exact.tp + self.exact.fn,
+            "cells": self.cells,
+            "frames": self.frames,
+        }
