@@ -1,5 +1,6 @@
 """The methods `lidarflow evaluate` scores, built once for the command line and the studies: the
-four baselines (copy-last, temporal average, constant velocity, the tracker), each model as streamed by the engine (with the decision policy it ships with),
+four baselines (copy-last, temporal average, constant velocity, the tracker), each model as
+streamed by the engine (with the decision policy it ships with),
 the variants asked for, and the configuration a report states them by."""
 
 from __future__ import annotations
@@ -116,8 +117,8 @@ def methods_and_config(
             "rule": "running background rate in the world frame; foreground cells clustered "
             "(link metres), matched to the tracks' predicted centroids (gate metres), a "
             "constant-velocity Kalman filter per track; k ahead: the background stays, each "
-            "track's cells move k times its velocity (lidarflow.predict.tracker); the ego motion from "
-            "the poses, on a recording without them matched from its scans",
+            "track's cells move k times its velocity (lidarflow.predict.tracker); the ego "
+            "motion from the poses, on a recording without them matched from its scans",
         },
         # how a reading became a map (lidarflow.scan), since it changed: numbers made under
         # another rule are not these
