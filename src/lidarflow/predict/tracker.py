@@ -93,9 +93,7 @@ class TrackerConfig:
             raise ValueError(f"max_missed must be >= 0, got {self.max_missed}")
 
 
-def foreground(
-    occupancy: np.ndarray, background: np.ndarray, threshold: float
-) -> np.ndarray:
+def foreground(occupancy: np.ndarray, background: np.ndarray, threshold: float) -> np.ndarray:
     """The occupied cells of ``occupancy`` ``(H, W)`` whose ``background`` rate, the largest
     over their 3 x 3 neighbourhood, is under ``threshold``: ``(H, W)`` bool.
 
