@@ -51,7 +51,7 @@ __all__ = [
 class TrackerConfig:
     """The tracker's few parameters, lengths in metres (``res`` turns them into cells).
 
-    Defaults chosen on the development recordings (see ``docs/guide/evaluate.md``): ``link``
+    Defaults chosen on the development recordings (``docs/guide/conventions.md``): ``link``
     and ``gate`` from the geometry of people (legs under 0.5 m apart, walking under ~1.5 m/s,
     so at 7.5-13 Hz under 0.2 m a frame; the gate allows for a missed frame and a centroid that
     jumps as a leg is hidden), the rest by the mean all-cell F1 one second ahead over
