@@ -199,7 +199,7 @@ def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     )
     assert code == 0, err
     page = (out / "index.html").read_text()
-    assert page.count("data:image/gif;base64,") == 3 and "data:image/png;base64," in page
+    assert page.count("data:image/gif;base64,") == 4 and "data:image/png;base64," in page
     assert "copy_last" in page and "changed_f1" in page and "src='/" not in page
     entry = json.loads((out / "report.json").read_text())["recordings"][0]
     assert entry["frames_evaluated"] == 232
