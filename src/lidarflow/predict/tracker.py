@@ -51,11 +51,14 @@ __all__ = [
 class TrackerConfig:
     """The tracker's few parameters, lengths in metres (``res`` turns them into cells).
 
-    Defaults chosen on the development recordings (``docs/guide/conventions.md``): ``link``
-    and ``gate`` from the geometry of people (legs under 0.5 m apart, walking under ~1.5 m/s,
-    so at 7.5-13 Hz under 0.2 m a frame; the gate allows for a missed frame and a centroid that
-    jumps as a leg is hidden), the rest by the mean all-cell F1 one second ahead over
-    positive_1, demo_stationary and datmo_overtakes among a few values each.
+    Defaults: ``link`` and ``gate`` from the geometry of people (legs under 0.5 m apart,
+    walking under ~1.5 m/s, so at 7.5-13 Hz under 0.2 m a frame; the gate allows for a missed
+    frame and a centroid that jumps as a leg is hidden); ``alpha`` a background time constant
+    of ~20 frames (2-3 s: someone standing that long becomes background), the threshold one
+    that a wall's edge flicker (~50 %) clears and a passer-by's first frames (``alpha`` each)
+    do not; the Kalman noises let the velocity settle within ~5 frames. Not yet tuned on the
+    development recordings: positive_1, datmo_overtakes and demo_stationary were only scored
+    with them (``docs/guide/conventions.md``).
 
     Attributes:
         alpha: weight of the new frame in the running background rate (1 / time constant in
