@@ -20,7 +20,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-BASELINES = ("copy_last", "temporal_average", "constant_velocity")
+# The tracker since issue 44; reports made before it lack it and are judged by the three.
+BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker")
 METRICS = ("f1", "changed_f1", "ap")
 # Scored beside ego-motion models on recordings with poses; reported, not counted in a verdict
 # (the issue's baselines need no odometry).
@@ -167,7 +168,7 @@ def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
     (model_key,) = [k for k in methods if k not in (*BASELINES, *REFERENCES)]
     scores = {
         "model": {k: methods[model_key][k] for k in METRICS},
-        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES},
+        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES if b in methods},
     }
     if refs := {r: {k: methods[r][k] for k in METRICS} for r in REFERENCES if r in methods}:
         scores["references"] = refs

@@ -27,7 +27,7 @@ def collect(reports: list[Path], names: dict[str, str]) -> dict[str, dict[str, d
     for report in reports:
         for recording in read_json(report)["recordings"]:
             methods = recording["methods"]
-            baselines = {b: {k: methods[b][k] for k in METRICS} for b in BASELINES}
+            baselines = {b: {k: methods[b][k] for k in METRICS} for b in BASELINES if b in methods}
             for key, metrics in methods.items():
                 if key in BASELINES or key.startswith("copy_last_ego"):
                     continue

@@ -1,5 +1,5 @@
 """Scoring for the studies through the library, as `lidarflow evaluate` scores: models beside
-the three baselines, streaming over recordings, and the counts of a stretch of a stream.
+the baselines, streaming over recordings, and the counts of a stretch of a stream.
 
 Only public functions of :mod:`lidarflow.evaluate` are called, so that a study follows the
 library when its modules move."""
@@ -38,7 +38,7 @@ def methods_for(
     res: float = 0.1,
     device: str = "cpu",
 ) -> list[Any]:
-    """The three baselines and one method per model (``{name: source}``), as `lidarflow
+    """The baselines and one method per model (``{name: source}``), as `lidarflow
     evaluate` builds them; with an ego-motion model, ``copy_last_ego`` beside it (a reference,
     never judged). ``online``: each model also with the decision rule it was not built with
     (``NAME_online`` or ``NAME_fixed``, :func:`studies.harness.split_online`)."""

@@ -90,18 +90,20 @@ def markdown(study: dict[str, dict[str, Any]], model: str) -> str:
     ego = any("copy_last_ego" in r.get("references", {}) for r in study.values())
     lines = [
         f"| sensor / scenario | {model} F1 / changed F1 | copy last | temporal average | "
-        "constant velocity |" + (" copy last ego (reference) |" if ego else "") + " verdict |",
-        "|---|---|---|---|---|" + ("---|" if ego else "") + "---|",
+        "constant velocity | tracker |"
+        + (" copy last ego (reference) |" if ego else "")
+        + " verdict |",
+        "|---|---|---|---|---|---|" + ("---|" if ego else "") + "---|",
     ]
     for key, r in study.items():
         cells = [f"{r['model']['f1']:.3f} / {r['model']['changed_f1']:.3f}"]
-        scores = [r["baselines"][b] for b in BASELINES]
+        scores = [r["baselines"].get(b) for b in BASELINES]  # no tracker before issue 44
         if ego:
             scores.append(r.get("references", {}).get("copy_last_ego"))
         cells += ["-" if s is None else f"{s['f1']:.3f} / {s['changed_f1']:.3f}" for s in scores]
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {r['verdict']} |")
     wins = sum(r["verdict"] == "wins" for r in study.values())
-    lines.append(f"| **wins on {wins} of {len(study)}** | | | | |" + (" |" if ego else "") + " |")
+    lines.append(f"| **wins on {wins} of {len(study)}** | | | | | |" + (" |" if ego else "") + " |")
     return "\n".join(lines) + "\n"
 
 

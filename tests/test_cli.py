@@ -177,7 +177,7 @@ def test_evaluate_writes_the_documented_json(tmp_path, capsys):
     report = json.loads(out.read_text())
     entry = report["recordings"][0]
     assert entry["frames_evaluated"] == 243 - 1 - 10
-    for name in ("copy_last", "temporal_average", "constant_velocity"):
+    for name in ("copy_last", "temporal_average", "constant_velocity", "tracker"):
         assert set(entry["methods"][name]) >= {"f1", "precision", "recall", "ap", "changed_f1"}
         assert report["overall"][name]["f1"] == entry["methods"][name]["f1"]
     assert entry["methods"]["copy_last"]["changed_f1"] == 0.0
@@ -199,11 +199,16 @@ def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     )
     assert code == 0, err
     page = (out / "index.html").read_text()
-    assert page.count("data:image/gif;base64,") == 3 and "data:image/png;base64," in page
+    assert page.count("data:image/gif;base64,") == 4 and "data:image/png;base64," in page
     assert "copy_last" in page and "changed_f1" in page and "src='/" not in page
     entry = json.loads((out / "report.json").read_text())["recordings"][0]
     assert entry["frames_evaluated"] == 232
-    assert set(entry["methods"]) == {"copy_last", "temporal_average", "constant_velocity"}
+    assert set(entry["methods"]) == {
+        "copy_last",
+        "temporal_average",
+        "constant_velocity",
+        "tracker",
+    }
 
 
 def test_evaluate_says_which_gaps_in_time_it_did_not_score_across(tmp_path, capsys):

@@ -20,7 +20,7 @@ def test_seed_table_lays_runs_side_by_side(eval_reports, tmp_path):
         assert by_run["s0"]["verdict"] in ("wins", "F1 only", "changed only", "loses")
         # the model's own rule (online) was judged, not the fixed offsets beside it
         assert set(by_run["s0"]["baselines"]) == {"copy_last", "temporal_average",
-                                                  "constant_velocity"}  # fmt: skip
+                                                  "constant_velocity", "tracker"}  # fmt: skip
     assert "| **recordings won** |" in (tmp_path / "seeds.md").read_text()
     assert json.loads((tmp_path / "seeds.json").read_text())["results"] == table
 

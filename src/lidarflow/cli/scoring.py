@@ -133,15 +133,11 @@ def evaluate(
     json_out: Annotated[Path | None, typer.Option("--json", hidden=True)] = None,
 ) -> None:
     """Score next-map prediction on each recording, streaming, for the baselines (copy-last,
-    temporal average, constant velocity) and each --model (default: the bundled one): F1 at
-    0.4, precision, recall, average precision, changed-cell F1, calibration, and flow error and
-    moving segmentation where the recording has ground truth.
-
-    Mover F1 (exact and within 0.2 m) scores only the cells something moved through (the
-    dynamic region, found over the whole recording; the simulator's true movers on simulated
-    data). A model wins when its F1 beats the best baseline's, its changed-cell F1 every
-    baseline's, and its tolerant mover F1 copy-last's (at k=1 and at --horizon). Steps across
-    gaps in time are not scored; -o writes every number as JSON."""
+    temporal average, constant velocity, tracker) and each --model (default: the bundled one):
+    F1, AP, changed-cell F1, calibration, and mover F1 (exact and within 0.2 m, in the cells
+    something moved through). A model wins when its F1 beats the best baseline's, its
+    changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
+    --horizon). -o writes every number as JSON."""
     from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
     from lidarflow.evaluate.report import (
         format_comparison,

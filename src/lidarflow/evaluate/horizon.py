@@ -10,7 +10,9 @@ ahead is scored (F1 at 0.4, and changed-cell F1: the cells of ``O^{t+k}`` that d
 roll forward as the models do, their decided prediction fed back to a copy of their state:
 constant velocity shifts the last map ``k`` times, the last map moved by the ego motion
 (``copy_last_ego``) moves on by the same motion each step, the temporal average takes its own
-prediction into its window.
+prediction into its window. A method with ``ahead(K)`` predicts 1..K ahead itself, nothing fed
+back: the tracker (:mod:`lidarflow.predict.tracker`) moves each object by ``k`` times its
+velocity and leaves the background where it is.
 Beside F1 the peers' metrics (:mod:`lidarflow.evaluate.peer_metrics`) are averaged per ``k``
 over the same frames: the WMSE and SSIM of what each method outputs ``k`` ahead (the decided
 probability a model's roll-out thresholds, a baseline's own output, copy-last's ``O^t``) against
@@ -251,13 +253,17 @@ def _ahead(
     horizon: int,
 ) -> list[np.ndarray]:
     """``method``'s predictions 1..``horizon`` frames ahead of the frame it was just given: a
-    model's roll-out (:meth:`lidarflow.predict.engine.Engine.roll`), a baseline's by feeding its
+    model's roll-out (:meth:`lidarflow.predict.engine.Engine.roll`), a method's own
+    ``ahead(horizon)`` where it has one (the tracker), another baseline's by feeding its
     decided prediction back to a copy of it, with the frame's visibility and the same motion
     (constant velocity so shifts ``k`` times, the last map moved by the ego motion moves ``k``
     steps, the temporal average takes its own prediction into its window)."""
     if isinstance(method, ModelMethod):
         assert method.last is not None
         return list(method.engine.roll(method.last, horizon).decided)
+    native = getattr(method, "ahead", None)
+    if callable(native):  # predicts k ahead itself (the tracker moves each object k steps)
+        return list(native(horizon))
     rolled, ahead = copy.deepcopy(method), [prediction]
     fed_extra = {key: value for key, value in extra.items() if key != "next_motion"}
     for _ in range(horizon - 1):

@@ -1,5 +1,6 @@
 """The methods `lidarflow evaluate` scores, built once for the command line and the studies: the
-three baselines, each model as streamed by the engine (with the decision policy it ships with),
+four baselines (copy-last, temporal average, constant velocity, the tracker), each model as
+streamed by the engine (with the decision policy it ships with),
 the variants asked for, and the configuration a report states them by."""
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from lidarflow.predict.baselines import (
 )
 from lidarflow.predict.decision import OnlineDecisionConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD
+from lidarflow.predict.tracker import Tracker, TrackerConfig
 
 __all__ = ["methods_and_config"]
 
@@ -50,7 +52,12 @@ def methods_and_config(
     run (``cpu``, ``cuda``, ``cuda:N``; ONNX files run on the CPU)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
-    methods: list[Any] = [CopyLast(), TemporalAverage(ta_window, ta_threshold), ConstantVelocity()]
+    methods: list[Any] = [
+        CopyLast(),
+        TemporalAverage(ta_window, ta_threshold),
+        ConstantVelocity(),
+        Tracker(res=res),
+    ]
     # An online decision measures itself against the temporal average reported here.
     online_config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
     models_used = {}
@@ -83,8 +90,10 @@ def methods_and_config(
                     decision=own,
                 )
             )
-    if any(m.takes.motion for m in methods):
-        methods[3:3] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
+    # the tracker takes the motion too, but copy_last_ego stands beside ego-motion models only
+    ego_models = any(isinstance(m, ModelMethod) and m.takes.motion for m in methods)
+    if ego_models:
+        methods[4:4] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
     config = {
         "threshold": 0.4,
         # what knows the future or only moves the last map is reported, never judged
@@ -103,6 +112,14 @@ def methods_and_config(
             else "given on the command line",
         },
         "constant_velocity": "best integer rigid shift (radius 3 cells) of the last two maps",
+        "tracker": {
+            **dataclasses.asdict(TrackerConfig()),
+            "rule": "running background rate in the world frame; foreground cells clustered "
+            "(link metres), matched to the tracks' predicted centroids (gate metres), a "
+            "constant-velocity Kalman filter per track; k ahead: the background stays, each "
+            "track's cells move k times its velocity (lidarflow.predict.tracker); the ego "
+            "motion from the poses, on a recording without them matched from its scans",
+        },
         # how a reading became a map (lidarflow.scan), since it changed: numbers made under
         # another rule are not these
         "beams": "a return where range_min <= range < range_max; range_max itself, beyond and "
@@ -123,12 +140,12 @@ def methods_and_config(
             "baselines largest if the next `lookahead` frames went as its recent (decayed) ones; "
             "the decisions made and the baselines' counts decay by `history_decay`",
         }
-    if any(m.takes.motion for m in methods):
+    if ego_models:
         config["ego_motion"] = (
             "models built with ego_motion get the recordings' poses (odometry); the motion to "
             "the next frame is the last one again (constant velocity, causal); *_oracle* "
             "variants use the true next pose instead; copy_last_ego moves the last map by the same "
-            "motion (reported beside, not one of the three baselines a model must beat); "
+            "motion (reported beside, not one of the baselines a model must beat); "
             "on a recording without poses, models built with poses_optional (the head recipe's, "
             "the bundled one) and copy_last_ego get the motion matched from the scans "
             "(lidarflow.motion.scanmatch; uncompensated where no match counts)"
