@@ -10,7 +10,8 @@ def test_table2_trains_the_three_rows_and_scores_them_beside_the_baselines(tiny_
     table = reproduce_table2.main(argv)
 
     overall = table["sim dynamic"]
-    for row in (*reproduce_table2.ROWS, "copy_last", "temporal_average", "constant_velocity"):
+    baselines = ("copy_last", "temporal_average", "constant_velocity", "tracker")
+    for row in (*reproduce_table2.ROWS, *baselines):
         assert 0.0 <= overall[row]["f1"] <= 1.0
     # simulated validation data has ground-truth flow: the flow models get an end-point error
     assert overall["lidar_flownet"]["epe"] is not None
@@ -19,4 +20,4 @@ def test_table2_trains_the_three_rows_and_scores_them_beside_the_baselines(tiny_
     )
     assert run["schedule"]["gaussian"] is False
     lines = (tmp_path / "table2.md").read_text().splitlines()
-    assert sum(line.startswith("| sim dynamic |") for line in lines) == 6
+    assert sum(line.startswith("| sim dynamic |") for line in lines) == 3 + len(baselines)
