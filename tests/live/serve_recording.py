@@ -7,13 +7,16 @@ address, waits (a minute at most) until every topic has a subscriber, replays th
 fast as the model goes, prints ``published N``, closes the server and exits at once
 (``os._exit``): what ``close()`` promises must hold when it returns, not thanks to the second
 or so an interpreter's teardown would otherwise give the SDK's threads.
+Tests start it with :func:`serve_once`, on :data:`SCANS` scans (the ``short_flow`` fixture).
 """
 
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
+from pathlib import Path
 
 from lidarflow.data.recording import load_recording
 from lidarflow.live.foxglove import LiveServer
@@ -21,6 +24,23 @@ from lidarflow.live.replay import replay
 from lidarflow.predict import Predictor
 
 WAIT_S = 60.0
+ROOT = Path(__file__).resolve().parents[2]
+#: Scans served (of the bundled sample) and frames predicted ahead: every topic, 80 kB a scan.
+SCANS = 8
+HORIZON = 2
+
+
+def serve_once(recording: Path, model: Path) -> tuple[subprocess.Popen, str]:
+    """This module in a process of its own, and the ws:// address it serves on."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tests.live.serve_recording", str(recording), str(model),
+         str(HORIZON)],
+        cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    url = proc.stdout.readline().strip()
+    assert url.startswith("ws://"), proc.communicate(timeout=60)
+    return proc, url
 
 
 def main(recording_path: str, model: str, horizon: str) -> int:

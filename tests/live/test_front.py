@@ -5,13 +5,10 @@ reaches a client when the server stops and its process ends, and the close carri
 from __future__ import annotations
 
 import json
-import os
 import socket
 import struct
 import subprocess
-import sys
 from collections import Counter
-from pathlib import Path
 
 import pytest
 from websockets.client import ClientProtocol
@@ -21,35 +18,10 @@ from websockets.sync.client import connect
 from websockets.typing import Subprotocol
 from websockets.uri import parse_uri
 
-from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.live.foxglove import LiveServer
 from lidarflow.live.front import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, ask_sdk_subprotocol
 from lidarflow.scan import GridSpec
-
-ROOT = Path(__file__).resolve().parents[2]
-SCANS = 8
-HORIZON = 2
-
-
-@pytest.fixture(scope="module")
-def short_and_model(tmp_path_factory, flow_onnx):
-    """Eight scans of the bundled sample and a flow model (every topic, 80 kB a scan)."""
-    folder = tmp_path_factory.mktemp("front")
-    short = read_bag(sample_bag_path()).slice(0, SCANS).save(folder / "short.npz")
-    return short, flow_onnx
-
-
-def serve_once(short: Path, model: Path) -> tuple[subprocess.Popen, str]:
-    """``tests.live.serve_recording`` in a process of its own, and its ws:// address."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tests.live.serve_recording", str(short), str(model),
-         str(HORIZON)],
-        cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"},
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    url = proc.stdout.readline().strip()
-    assert url.startswith("ws://"), proc.communicate(timeout=60)
-    return proc, url
+from tests.live.serve_recording import SCANS, serve_once
 
 
 def slow_client(url: str, server: subprocess.Popen) -> tuple[Counter, int | None]:
@@ -96,8 +68,8 @@ def slow_client(url: str, server: subprocess.Popen) -> tuple[Counter, int | None
 
 
 @pytest.fixture(scope="module")
-def stopped(short_and_model):
-    proc, url = serve_once(*short_and_model)
+def stopped(short_flow):
+    proc, url = serve_once(*short_flow)
     try:
         counts, code = slow_client(url, proc)
     except BaseException:
@@ -136,7 +108,8 @@ def test_either_name_of_the_protocol_connects_and_is_answered_as_offered(offered
 
 
 def test_a_client_of_another_protocol_is_still_refused():
-    with LiveServer(GridSpec(10, 10, 0.1), port=0) as server, pytest.raises(InvalidStatus):
+    server = LiveServer(GridSpec(10, 10, 0.1), port=0)
+    with server, pytest.raises(InvalidStatus, match="400"):
         connect(server.url, subprotocols=["graphql-ws"], open_timeout=10)
 
 
