@@ -18,6 +18,11 @@ in Foxglove's own schemas (protobuf, which the Foxglove app decodes without any 
 A message goes out only on channels a client subscribes to (``has_sinks``): with nobody
 watching, publishing costs building the grid list and nothing more. Every message of one
 scan is logged at the scan's stamp, so Foxglove's timeline reads the recording's clock.
+
+The SDK's server listens on localhost only, behind :class:`~lidarflow.live.front.Front` on the
+served port: clients offering either name of the protocol connect (``foxglove.sdk.v1``,
+``foxglove.websocket.v1``), and :meth:`LiveServer.close` lets what was published reach them
+before it closes each with code 1001.
 """
 
 from __future__ import annotations
