@@ -69,6 +69,8 @@ __all__ = ["DEFAULT_PORT", "LiveServer"]
 DEFAULT_PORT = 8765
 #: How long :meth:`LiveServer.close` waits at most for what is queued to reach the clients.
 DRAIN_S = 2.0
+#: Silence from the SDK that says it has written what was published (a scan is well under it).
+QUIET_S = 0.05
 #: The field a grid's cells carry (int8: probability x 100, -1 unknown, as OccupancyGrid).
 GRID_FIELD = "occupancy"
 
@@ -169,6 +171,8 @@ class LiveServer:
         if self._closed:
             return
         self._closed = True
+        # the SDK drops at stop() what it has not yet written: let it write first
+        self._front.wait_quiet(QUIET_S, DRAIN_S)
         for channel in self._channels():
             channel.close()
         self._server.stop()

@@ -27,6 +27,7 @@ import contextlib
 import socket
 import struct
 import threading
+import time
 
 __all__ = ["LEGACY_SUBPROTOCOL", "SDK_SUBPROTOCOL", "Front"]
 
@@ -88,23 +89,6 @@ async def _pipe(src: asyncio.StreamReader, dst: asyncio.StreamWriter) -> None:
         await dst.drain()
 
 
-async def _server_frames(src: asyncio.StreamReader, dst: asyncio.StreamWriter) -> None:
-    """The server's frames to the client, one by one, until the server closes the connection;
-    a close frame without a code gets :data:`GOING_AWAY`."""
-    with contextlib.suppress(asyncio.IncompleteReadError):  # the server's end of the stream
-        while True:
-            head = await src.readexactly(2)
-            size = head[1] & 0x7F
-            extended = await src.readexactly({126: 2, 127: 8}.get(size, 0))
-            size = int.from_bytes(extended, "big") if extended else size
-            mask = await src.readexactly(4 if head[1] & 0x80 else 0)
-            payload = await src.readexactly(size)
-            if head[0] & 0x0F == CLOSE_OPCODE and size == 0:
-                head, payload = bytes([head[0], len(GOING_AWAY)]), GOING_AWAY
-            dst.write(head + extended + mask + payload)
-            await dst.drain()
-
-
 class Front:
     """Listens on ``host:port`` (bound here: ``OSError`` where it cannot be) and, once
     :meth:`start` named the SDK server's port, relays every connection to it (module
@@ -120,6 +104,7 @@ class Front:
         self._connections: set[asyncio.Task[None]] = set()
         self._server: asyncio.base_events.Server | None = None
         self._backend = 0
+        self._last_from_sdk = time.monotonic()
 
     def start(self, backend_port: int) -> None:
         """Relay to the SDK server on ``127.0.0.1:backend_port`` from now on."""
@@ -127,6 +112,13 @@ class Front:
         self._thread.start()
         start = asyncio.start_server(self._relay, sock=self._sock)
         self._server = asyncio.run_coroutine_threadsafe(start, self._loop).result()
+
+    def wait_quiet(self, quiet_s: float, within_s: float) -> None:
+        """Wait until nothing came from the SDK for ``quiet_s`` (``within_s`` at most): the SDK
+        drops, when stopped, what it has not yet written, the last scan's latest messages."""
+        deadline = time.monotonic() + within_s
+        while (now := time.monotonic()) < deadline and now - self._last_from_sdk < quiet_s:
+            time.sleep(min(quiet_s, deadline - now) / 4)
 
     def close(self, drain_s: float) -> None:
         """Take no more connections; wait (``drain_s`` at most) for those open to end, which
@@ -148,6 +140,25 @@ class Front:
                 task.cancel()
             await asyncio.gather(*late, return_exceptions=True)
 
+    async def _server_frames(
+        self, src: asyncio.StreamReader, dst: asyncio.StreamWriter
+    ) -> None:
+        """The server's frames to the client, one by one, until the server closes the
+        connection; a close frame without a code gets :data:`GOING_AWAY`."""
+        with contextlib.suppress(asyncio.IncompleteReadError):  # the server's end of the stream
+            while True:
+                head = await src.readexactly(2)
+                self._last_from_sdk = time.monotonic()
+                size = head[1] & 0x7F
+                extended = await src.readexactly({126: 2, 127: 8}.get(size, 0))
+                size = int.from_bytes(extended, "big") if extended else size
+                mask = await src.readexactly(4 if head[1] & 0x80 else 0)
+                payload = await src.readexactly(size)
+                if head[0] & 0x0F == CLOSE_OPCODE and size == 0:
+                    head, payload = bytes([head[0], len(GOING_AWAY)]), GOING_AWAY
+                dst.write(head + extended + mask + payload)
+                await dst.drain()
+
     async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
@@ -163,7 +174,7 @@ class Front:
             writer.write(answer_legacy(response) if legacy else response)
             to_server = asyncio.create_task(_pipe(reader, upstream))
             if response.startswith(b"HTTP/1.1 101"):
-                await _server_frames(from_sdk, writer)
+                await self._server_frames(from_sdk, writer)
             else:  # refused (no subprotocol of the SDK's): its explanation, as it comes
                 await _pipe(from_sdk, writer)
         except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError):
