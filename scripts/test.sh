@@ -4,9 +4,12 @@
 #   1. from Debian, what the tests need where it is missing: headless Chromium (the HTML report's
 #      browser test, tests/viz/test_html_render.py) and ROS 1 (the live node's end-to-end tests,
 #      tests/live/test_ros1_node.py), with sudo when not root;
-#   2. the venv (.venv) with the project and its dev extra;
-#   3. ruff, then the whole suite. LIDARFLOW_REQUIRE_ROS=1 makes the ROS tests fail rather than
-#      skip, so the suite never passes by skipping them.
+#   2. the npm Foxglove client of tests/live/test_foxglove_npm.py (`npm ci` in
+#      tests/live/npm_client, where its node_modules is missing or older than its lock file);
+#      Node 20 and npm must be there already: missing, the script stops and says so;
+#   3. the venv (.venv) with the project and its dev extra;
+#   4. ruff, then the whole suite. LIDARFLOW_REQUIRE_ROS=1 makes the ROS tests and the npm
+#      client's fail rather than skip, so the suite never passes by skipping them.
 # Any failure stops it with a non-zero exit, pytest's 5 ("no tests collected") included.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -30,6 +33,17 @@ if [ "${#missing[@]}" -gt 0 ]; then
     "${sudo[@]}" apt-get update -q
     DEBIAN_FRONTEND=noninteractive "${sudo[@]}" apt-get install -y -q --no-install-recommends \
         "${missing[@]}"
+fi
+
+npm_client=tests/live/npm_client
+if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
+    echo "scripts/test.sh: node and npm are needed (Node 20; Debian: apt-get install nodejs npm)" >&2
+    exit 1
+fi
+if [ ! -d "$npm_client/node_modules" ] \
+    || [ "$npm_client/package-lock.json" -nt "$npm_client/node_modules/.package-lock.json" ]; then
+    echo "scripts/test.sh: installing the npm Foxglove client ($npm_client)" >&2
+    npm ci --prefix "$npm_client" --no-audit --no-fund
 fi
 
 python3 -m venv .venv

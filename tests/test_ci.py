@@ -38,7 +38,7 @@ def test_the_script_installs_the_browser_the_html_test_looks_for():
     script = SCRIPT.read_text()
     assert "apt-get install" in script and "chromium-headless-shell" in script
     checked = set(re.findall(r"command -v ([\w-]+)", script))
-    assert checked - {"roscore", "rosbag"} == set(BROWSERS)
+    assert checked - {"roscore", "rosbag", "node", "npm"} == set(BROWSERS)
     assert '(sudo)' in script and "id -u" in script  # sudo when not root
 
 
@@ -48,3 +48,15 @@ def test_the_script_installs_ros_1_and_makes_its_tests_fail_rather_than_skip():
     script = SCRIPT.read_text()
     assert all(package in script for package in DEBIAN_PACKAGES.split())
     assert "export LIDARFLOW_REQUIRE_ROS=1" in script
+
+
+def test_the_script_installs_the_npm_foxglove_client_and_stops_without_node():
+    from tests.live.test_foxglove_npm import CLIENT
+
+    script = SCRIPT.read_text()
+    folder = CLIENT.relative_to(ROOT).as_posix()
+    assert f"npm_client={folder}" in script
+    assert 'npm ci --prefix "$npm_client"' in script
+    assert (CLIENT / "package-lock.json").is_file()  # what `npm ci` installs, pinned
+    assert "command -v node" in script and "command -v npm" in script
+    assert "exit 1" in script

@@ -18,6 +18,11 @@ in Foxglove's own schemas (protobuf, which the Foxglove app decodes without any 
 A message goes out only on channels a client subscribes to (``has_sinks``): with nobody
 watching, publishing costs building the grid list and nothing more. Every message of one
 scan is logged at the scan's stamp, so Foxglove's timeline reads the recording's clock.
+
+The SDK's server listens on localhost only, behind :class:`~lidarflow.live.front.Front` on the
+served port: clients offering either name of the protocol connect (``foxglove.sdk.v1``,
+``foxglove.websocket.v1``), and :meth:`LiveServer.close` lets what was published reach them
+before it closes each with code 1001.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from foxglove.messages import (
 
 from lidarflow.errors import PredictError
 from lidarflow.flowcolor import flow_to_rgb
+from lidarflow.live.front import Front
 from lidarflow.predict.grids import (
     FLOW_RGB_FULL_CELLS,
     FLOW_RGB_TOPIC,
@@ -61,6 +67,10 @@ __all__ = ["DEFAULT_PORT", "LiveServer"]
 
 #: Foxglove's own default: its "Open connection" dialog offers ``ws://localhost:8765``.
 DEFAULT_PORT = 8765
+#: How long :meth:`LiveServer.close` waits at most for what is queued to reach the clients.
+DRAIN_S = 2.0
+#: Silence from the SDK that says it has written what was published (a scan is well under it).
+QUIET_S = 0.05
 #: The field a grid's cells carry (int8: probability x 100, -1 unknown, as OccupancyGrid).
 GRID_FIELD = "occupancy"
 
@@ -100,15 +110,20 @@ class LiveServer:
         # a context of its own: two servers in one process (tests) never share channels
         self._context = foxglove.Context()
         try:
+            self._front = Front(host, port)
+        except OSError as err:
+            raise PredictError(
+                f"cannot serve on {host}:{port}: {err.strerror or err} (another server there? "
+                "pick another --port)"
+            ) from err
+        try:  # the SDK on localhost, behind the front (lidarflow.live.front says why)
             self._server = foxglove.start_server(
-                name=name, host=host, port=port, context=self._context
+                name=name, host="127.0.0.1", port=0, context=self._context
             )
         except RuntimeError as err:  # the SDK's one error type; its text names the cause
-            reason = str(err).removeprefix("FoxgloveError: ").removeprefix("Failed to bind port: ")
-            raise PredictError(
-                f"cannot serve on {host}:{port}: {reason} (another server there? pick another "
-                "--port)"
-            ) from err
+            self._front.close(0.0)
+            raise PredictError(f"cannot start the Foxglove server: {err}") from err
+        self._front.start(self._server.port)
         self._scan = LaserScanChannel(scan_topic, context=self._context)
         self._grids = {
             topic: GridChannel(topic, context=self._context)
@@ -129,7 +144,7 @@ class LiveServer:
     @property
     def port(self) -> int:
         """The port served on (the one the system picked where 0 was asked for)."""
-        return self._server.port
+        return self._front.port
 
     @property
     def url(self) -> str:
@@ -145,14 +160,23 @@ class LiveServer:
         """Every topic served, the scan's first."""
         return [channel.topic() for channel in self._channels()]
 
+    @property
+    def subscribed(self) -> list[str]:
+        """The topics some client subscribes to now."""
+        return [channel.topic() for channel in self._channels() if channel.has_sinks()]
+
     def close(self) -> None:
-        """Stop serving (clients are disconnected); closing twice is harmless."""
+        """Stop serving: what was published reaches the clients connected (:data:`DRAIN_S` at
+        most), then they are disconnected with 1001, "going away". Closing twice is harmless."""
         if self._closed:
             return
         self._closed = True
+        # the SDK drops at stop() what it has not yet written: let it write first
+        self._front.wait_quiet(QUIET_S, DRAIN_S)
         for channel in self._channels():
             channel.close()
         self._server.stop()
+        self._front.close(DRAIN_S)
 
     def __enter__(self) -> LiveServer:
         return self

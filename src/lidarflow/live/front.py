@@ -1,0 +1,190 @@
+"""The port a :class:`~lidarflow.live.foxglove.LiveServer` serves on: a small TCP front before
+foxglove-sdk's WebSocket server, which listens on localhost only, for three things the SDK
+(0.30) does not do itself:
+
+- **The first name of the protocol.** The SDK's server accepts the subprotocol
+  ``foxglove.sdk.v1`` alone (it has no option for more), and answers HTTP 400 to a client that
+  offers only ``foxglove.websocket.v1``: ``@foxglove/ws-protocol``'s ``FoxgloveClient``, the
+  Foxglove app before it learnt the new name, Lichtblick before 1.22. The two are one protocol
+  under two names (ws-protocol's spec is the SDK's). The front reads the client's upgrade
+  request, asks the SDK for ``foxglove.sdk.v1`` where the client offered only the old name, and
+  answers the client with the name it offered.
+- **Nothing queued is lost at close.** The SDK's ``stop()`` returns at once, while what it
+  queued for a client is still on its way (a process that then exits loses the last scan).
+  :meth:`Front.close` waits until the SDK has sent each client all it had and closed it, and
+  the front has handed that to the system, ``drain_s`` at most.
+- **A close code.** The SDK closes without one (clients see 1005, "no status"); the front sends
+  1001, "going away", as a server that stops should.
+
+Everything else passes through untouched: the front reads only the upgrade request and answer
+and the headers of the server's frames (unmasked, RFC 6455 §5.2).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+import struct
+import threading
+import time
+
+__all__ = ["LEGACY_SUBPROTOCOL", "SDK_SUBPROTOCOL", "Front"]
+
+SDK_SUBPROTOCOL = "foxglove.sdk.v1"
+LEGACY_SUBPROTOCOL = "foxglove.websocket.v1"
+#: How long a client may take to send its upgrade request (a port scanner sends nothing).
+REQUEST_TIMEOUT_S = 10.0
+CLOSE_OPCODE = 0x8
+#: The close frame's payload where the SDK sends none: 1001 "going away", and why.
+GOING_AWAY = struct.pack("!H", 1001) + b"server stopped"
+_PROTOCOL_HEADER = b"sec-websocket-protocol:"
+
+
+def _offered(line: bytes) -> list[bytes]:
+    return [p.strip() for p in line[len(_PROTOCOL_HEADER) :].split(b",")]
+
+
+def ask_sdk_subprotocol(request: bytes) -> tuple[bytes, bool]:
+    """The upgrade request as the SDK accepts it, and whether the client offered only the old
+    name (so its answer must name that). Any other request goes on as it came."""
+    lines = request.split(b"\r\n")
+    for i, line in enumerate(lines):
+        if line.lower().startswith(_PROTOCOL_HEADER):
+            offered = _offered(line)
+            sdk, legacy = SDK_SUBPROTOCOL.encode(), LEGACY_SUBPROTOCOL.encode()
+            if legacy in offered and sdk not in offered:
+                lines[i] = b"Sec-WebSocket-Protocol: " + sdk
+                return b"\r\n".join(lines), True
+    return request, False
+
+
+def answer_legacy(response: bytes) -> bytes:
+    """The SDK's upgrade answer with the subprotocol it chose named as the client knows it."""
+    lines = response.split(b"\r\n")
+    for i, line in enumerate(lines):
+        if line.lower().startswith(_PROTOCOL_HEADER):
+            lines[i] = b"Sec-WebSocket-Protocol: " + LEGACY_SUBPROTOCOL.encode()
+    return b"\r\n".join(lines)
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A listening socket on ``host:port`` (0: a free port); ``OSError`` where it is taken."""
+    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # not over a live listener
+        sock.bind(address)
+        sock.listen()
+    except OSError:
+        sock.close()
+        raise
+    sock.setblocking(False)
+    return sock
+
+
+async def _pipe(src: asyncio.StreamReader, dst: asyncio.StreamWriter) -> None:
+    while chunk := await src.read(1 << 16):
+        dst.write(chunk)
+        await dst.drain()
+
+
+class Front:
+    """Listens on ``host:port`` (bound here: ``OSError`` where it cannot be) and, once
+    :meth:`start` named the SDK server's port, relays every connection to it (module
+    docstring). The relaying runs on an event loop of its own, in a daemon thread."""
+
+    def __init__(self, host: str, port: int) -> None:
+        self._sock = listen(host, port)
+        self.port: int = self._sock.getsockname()[1]
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(
+            target=self._loop.run_forever, name="lidarflow-front", daemon=True
+        )
+        self._connections: set[asyncio.Task[None]] = set()
+        self._server: asyncio.base_events.Server | None = None
+        self._backend = 0
+        self._last_from_sdk = time.monotonic()
+
+    def start(self, backend_port: int) -> None:
+        """Relay to the SDK server on ``127.0.0.1:backend_port`` from now on."""
+        self._backend = backend_port
+        self._thread.start()
+        start = asyncio.start_server(self._relay, sock=self._sock)
+        self._server = asyncio.run_coroutine_threadsafe(start, self._loop).result()
+
+    def wait_quiet(self, quiet_s: float, within_s: float) -> None:
+        """Wait until nothing came from the SDK for ``quiet_s`` (``within_s`` at most): the SDK
+        drops, when stopped, what it has not yet written, the last scan's latest messages."""
+        deadline = time.monotonic() + within_s
+        while (now := time.monotonic()) < deadline and now - self._last_from_sdk < quiet_s:
+            time.sleep(min(quiet_s, deadline - now) / 4)
+
+    def close(self, drain_s: float) -> None:
+        """Take no more connections; wait (``drain_s`` at most) for those open to end, which
+        they do once the SDK, stopped before, has sent all it had and closed them."""
+        if self._thread.is_alive():
+            asyncio.run_coroutine_threadsafe(self._drain(drain_s), self._loop).result()
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join()
+        else:
+            self._sock.close()
+        self._loop.close()
+
+    async def _drain(self, drain_s: float) -> None:
+        assert self._server is not None
+        self._server.close()
+        if self._connections:
+            _, late = await asyncio.wait(set(self._connections), timeout=drain_s)
+            for task in late:
+                task.cancel()
+            await asyncio.gather(*late, return_exceptions=True)
+
+    async def _server_frames(
+        self, src: asyncio.StreamReader, dst: asyncio.StreamWriter
+    ) -> None:
+        """The server's frames to the client, one by one, until the server closes the
+        connection; a close frame without a code gets :data:`GOING_AWAY`."""
+        with contextlib.suppress(asyncio.IncompleteReadError):  # the server's end of the stream
+            while True:
+                head = await src.readexactly(2)
+                self._last_from_sdk = time.monotonic()
+                size = head[1] & 0x7F
+                extended = await src.readexactly({126: 2, 127: 8}.get(size, 0))
+                size = int.from_bytes(extended, "big") if extended else size
+                mask = await src.readexactly(4 if head[1] & 0x80 else 0)
+                payload = await src.readexactly(size)
+                if head[0] & 0x0F == CLOSE_OPCODE and size == 0:
+                    head, payload = bytes([head[0], len(GOING_AWAY)]), GOING_AWAY
+                dst.write(head + extended + mask + payload)
+                await dst.drain()
+
+    async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._connections.add(task)
+        upstream: asyncio.StreamWriter | None = None
+        to_server: asyncio.Task[None] | None = None
+        try:
+            request = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), REQUEST_TIMEOUT_S)
+            request, legacy = ask_sdk_subprotocol(request)
+            from_sdk, upstream = await asyncio.open_connection("127.0.0.1", self._backend)
+            upstream.write(request)
+            response = await from_sdk.readuntil(b"\r\n\r\n")
+            writer.write(answer_legacy(response) if legacy else response)
+            to_server = asyncio.create_task(_pipe(reader, upstream))
+            if response.startswith(b"HTTP/1.1 101"):
+                await self._server_frames(from_sdk, writer)
+            else:  # refused (no subprotocol of the SDK's): its explanation, as it comes
+                await _pipe(from_sdk, writer)
+        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError):
+            pass  # a client gone or a request that is none: that connection ends, no other
+        finally:
+            if to_server is not None:
+                to_server.cancel()
+            for end in (writer, upstream):
+                if end is not None:
+                    end.close()
+                    with contextlib.suppress(OSError):
+                        await end.wait_closed()  # what is buffered has gone to the system
+            self._connections.discard(task)
