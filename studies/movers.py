@@ -36,7 +36,6 @@ from studies.harness import (
     parser,
     read_json,
     stem,
-    write_atomic,
     write_json,
     write_summary,
 )
@@ -143,7 +142,7 @@ def grid_of(run: str | Path) -> Any:
 
 
 def evaluate_held(
-    out: Path, held: Path, seeds: Sequence[int], references: bool, horizon: int = 0
+    out: Path, held: Path, seeds: Sequence[int], references: Sequence[str], horizon: int = 0
 ) -> Path | None:
     """Score ``held`` with its fold models (and the references), ``horizon`` steps ahead (0:
     about one second): OUT/evaluation/<held>.json. Kept where it exists with every fold model
@@ -164,8 +163,7 @@ def evaluate_held(
     if path.exists() and set(models) <= set(read_json(path)["fold_models"]):
         return path
     grid = grid_of(next(iter(models.values())))
-    if references:
-        models.update(REFERENCES)
+    models.update({name: REFERENCES[name] for name in references})
     recording = load_any(held)
     k = horizon or horizon_of(recording)
     people = people_by_frame(held, recording, 1.0)
@@ -262,7 +260,7 @@ def baselines_of(fold: dict) -> list[str]:
 def targets(fold: dict) -> dict[str, dict[str, Any]]:
     """Issue 44's targets for one held-out recording: each ``{"model", "bar", "margin",
     "spread", "said"}``; ``said`` is ``met``, ``missed``, or ``tie`` where the margin is
-    within the spread over training seeds (max - min)."""
+    within the spread over training seeds (max - min; ``None`` with one seed, said so)."""
     s, seeds = fold["scores"], fold["fold_models"]
     cl = s["copy_last"]
     best = {k: max(at(s[b], "f1", k) for b in baselines_of(fold)) for k in ("1", "K")}
@@ -284,10 +282,16 @@ def targets(fold: dict) -> dict[str, dict[str, Any]]:
     out = {}
     for name, (key, k, bar) in bars.items():
         values = [at(s[m], key, k) for m in seeds]
-        mean, spread = float(np.mean(values)), max(values) - min(values)
+        mean = float(np.mean(values))
+        # with one seed there is no spread to call a tie by: said so
+        spread = max(values) - min(values) if len(values) > 1 else None
         margin = mean - bar
         above = margin >= 0 if ">=" in name else margin > 0
-        said = "tie" if abs(margin) < spread else ("met" if above else "missed")
+        said = "met" if above else "missed"
+        if spread is None:
+            said += " (1 seed)"
+        elif abs(margin) < spread:
+            said = "tie"
         out[name] = {"model": mean, "bar": bar, "margin": margin, "spread": spread, "said": said}
     return out
 
@@ -361,9 +365,9 @@ def table(study: dict[str, Any]) -> str:
             name = f"head_only ({seeds})" if method == "model" else method
             if method in REFERENCES:
                 name += " (in-sample)"
+            spread = method == "model" and len(fold["fold_models"]) > 1
             cells = [
-                f"{v:.3f} ± {h:.3f}" if method == "model" else f"{v:.3f}"
-                for v, h in (row[c] for c in cols)
+                f"{v:.3f} ± {h:.3f}" if spread else f"{v:.3f}" for v, h in (row[c] for c in cols)
             ]
             lines.append(f"| {rec} ({fold['K']}) | {name} | " + " | ".join(cells) + " |")
     lines += ["", "## Mean over folds", "", head.replace("held-out (K)", "folds")]
@@ -375,12 +379,13 @@ def table(study: dict[str, Any]) -> str:
             cells = [f"{row[c]:.3f}" for c in cols]
             lines.append(f"| {group} ({n}) | {method} | " + " | ".join(cells) + " |")
     lines += ["", "## Issue 44's targets (tie: margin within the seeds' spread)", ""]
-    lines += ["| held-out | target | model | bar | margin | spread | said |", "|---|" * 7]
+    lines += ["| held-out | target | model | bar | margin | spread | said |", "|" + "---|" * 7]
     for rec, fold in study["folds"].items():
         for name, t in fold["targets"].items():
+            spread = "–" if t["spread"] is None else f"{t['spread']:.3f}"
             lines.append(
                 f"| {rec} | {name} | {t['model']:.3f} | {t['bar']:.3f} | {t['margin']:+.3f} | "
-                f"{t['spread']:.3f} | {t['said']} |"
+                f"{spread} | {t['said']} |"
             )
     for rec, fold in study["folds"].items():
         if "people" not in fold:
@@ -407,6 +412,51 @@ def table(study: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def summary(study: dict[str, Any]) -> dict[str, Any]:
+    """The study at k = 1 and K only (what the research page keeps): per fold each method's
+    F1, exact and tolerant mover F1 (the fold models' mean and half-spread), the targets, the
+    people shares; the aggregates; the simulated recordings."""
+    folds = {}
+    for rec, fold in study["folds"].items():
+        if not fold["fold_models"]:
+            continue
+        rows = {
+            m: {c: [round(v, 4), round(h, 4)] for c, (v, h) in r.items()}
+            for m, r in summary_rows(fold).items()
+        }
+        folds[rec] = {
+            "K": fold["K"],
+            "moving": fold["moving"],
+            "fold_models": fold["fold_models"],
+            "scores": rows,
+            "targets": {
+                n: {k: (round(v, 4) if isinstance(v, float) else v) for k, v in t.items()}
+                for n, t in fold["targets"].items()
+            },
+        }
+        for key in ("people", "people_stamp_check"):
+            if key in fold:
+                folds[rec][key] = fold[key]
+    sims = {
+        name: {
+            "K": sim["K"],
+            "scores": {
+                m: {f"{key}_{k}": round(at(row, key, k), 4) for k in ("1", "K") for key in KEYS}
+                for m, row in sim["scores"].items()
+            },
+        }
+        for name, sim in study["sims"].items()
+    }
+    for sim in sims.values():  # the fold models together: mean, min and max
+        models = [r for m, r in sim["scores"].items() if m not in (*BASELINES, EGO)]
+        if models:
+            values = {c: [r[c] for r in models] for c in models[0]}
+            sim["fold_models"] = {
+                c: [round(float(f(v)), 4) for f in (np.mean, min, max)] for c, v in values.items()
+            }
+    return {"folds": folds, "aggregate": study["aggregate"], "sims": sims}
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p = parser("movers", __doc__)
     p.add_argument("--recordings", type=Path, nargs="+", default=development())
@@ -414,9 +464,13 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="training seeds")
     p.add_argument("--set", dest="sets", nargs="*", default=[], help="KEY=VALUE for every run")
     p.add_argument(
-        "--no-references", dest="references", action="store_false",
-        help="leave the in-sample references (the v8 fixture, the bundled v9) out",
-    )  # fmt: skip
+        "--references",
+        nargs="*",
+        choices=tuple(REFERENCES),
+        default=list(REFERENCES),
+        help="the in-sample references scored beside the fold models (default: both; none: "
+        "give the flag alone)",
+    )
     p.add_argument("--sim", nargs="*", default=[], help="SCENARIO:SEED simulated recordings")
     p.add_argument("--sim-frames", type=int, default=SIM_FRAMES, help="frames per simulation")
     p.add_argument("--horizon", type=int, default=0, help="K (0: the scans in about 1 s)")
@@ -444,7 +498,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     study = collect(out)
     markdown = table(study)
     write_summary(args, "movers", study, markdown)
-    write_atomic(out / "movers.md", markdown)
+    write_json(out / "summary.json", {"command": args.command, **summary(study)})
     return study
 
 
