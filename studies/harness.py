@@ -1,7 +1,8 @@
 """What the studies share: the command line (``-o/--output``), the development recordings,
 writing a study's config and results atomically, reading an evaluation's model and baselines,
-and the one rule for "wins" (F1 above the best baseline's and changed-cell F1 above every
-baseline's).
+and the one rule for "wins" (F1 above the best baseline's, changed-cell F1 above every
+baseline's and, where the mover metric was scored, tolerant mover F1 above copy-last's: the rule
+of :func:`lidarflow.evaluate.report.against_baselines`).
 
 Scoring through the library lives in :mod:`studies.scoring`, training folds in
 :mod:`studies.folds`; this module needs no PyTorch, so that the studies that only read reports
@@ -23,6 +24,10 @@ from typing import Any
 # The tracker since issue 44; reports made before it lack it and are judged by the three.
 BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker")
 METRICS = ("f1", "changed_f1", "ap")
+# The mover metric (issue 44), kept where an evaluation scored it; reports made before it lack it.
+MOVER_METRICS = ("mover_f1", "mover_f1_tolerant")
+# A model must also beat copy-last on it (lidarflow.evaluate.report.MOVER_KEY).
+MOVER_KEY = "mover_f1_tolerant"
 # Scored beside ego-motion models on recordings with poses; reported, not counted in a verdict
 # (the issue's baselines need no odometry).
 REFERENCES = ("copy_last_ego", "copy_last_ego_oracle")
@@ -167,12 +172,28 @@ def model_and_baselines(methods: dict[str, dict]) -> dict[str, dict]:
     # (copy_last_ego, scored beside an ego-motion model on a recording with poses).
     (model_key,) = [k for k in methods if k not in (*BASELINES, *REFERENCES)]
     scores = {
-        "model": {k: methods[model_key][k] for k in METRICS},
-        "baselines": {b: {k: methods[b][k] for k in METRICS} for b in BASELINES if b in methods},
+        "model": _metrics(methods[model_key]),
+        "baselines": {b: _metrics(methods[b]) for b in BASELINES if b in methods},
     }
-    if refs := {r: {k: methods[r][k] for k in METRICS} for r in REFERENCES if r in methods}:
+    if refs := {r: _metrics(methods[r]) for r in REFERENCES if r in methods}:
         scores["references"] = refs
     return scores
+
+
+def _metrics(scores: dict[str, Any]) -> dict[str, Any]:
+    """METRICS of one method's scores, and the mover metric where it was scored (not None)."""
+    kept = {k: scores[k] for k in METRICS}
+    kept.update({k: scores[k] for k in MOVER_METRICS if scores.get(k) is not None})
+    return kept
+
+
+def mover_margin(model: dict[str, Any], baselines: dict[str, dict[str, Any]]) -> float | None:
+    """The model's tolerant mover F1 less copy-last's; ``None`` where either was not scored
+    (then the mover metric does not decide a verdict)."""
+    copy_last = baselines.get("copy_last", {})
+    if model.get(MOVER_KEY) is None or copy_last.get(MOVER_KEY) is None:
+        return None
+    return float(model[MOVER_KEY] - copy_last[MOVER_KEY])
 
 
 def split_online(methods: dict[str, dict]) -> tuple[dict[str, dict], dict | None]:
@@ -191,10 +212,14 @@ def split_online(methods: dict[str, dict]) -> tuple[dict[str, dict], dict | None
 
 
 def verdict(model: dict[str, float], baselines: dict[str, dict[str, float]]) -> str:
+    """``wins``: F1 above the best baseline's, changed-cell F1 above every baseline's and
+    tolerant mover F1 above copy-last's where it was scored (``loses movers`` where only that
+    fails); else ``F1 only``, ``changed only`` or ``loses``."""
     best_f1, best_changed = best_baselines(baselines)
     wins_f1, wins_changed = model["f1"] > best_f1, model["changed_f1"] > best_changed
     if wins_f1 and wins_changed:
-        return "wins"
+        movers = mover_margin(model, baselines)
+        return "wins" if movers is None or movers > 0 else "loses movers"
     if wins_f1:
         return "F1 only"
     if wins_changed:
@@ -209,4 +234,6 @@ def judged(methods: dict[str, dict]) -> dict[str, Any]:
     f1_margin, changed_margin = margins(scores)
     scores["verdict"] = verdict(scores["model"], scores["baselines"])
     scores["margins"] = {"f1": round(f1_margin, 4), "changed_f1": round(changed_margin, 4)}
+    if (movers := mover_margin(scores["model"], scores["baselines"])) is not None:
+        scores["margins"]["mover_f1_tolerant"] = round(movers, 4)
     return scores

@@ -57,12 +57,14 @@ def evaluate(
     grid: GridSpec | None = None,
     horizon: int = 1,
     device: str = "cpu",
+    on_ahead: Callable[[str, str, int, np.ndarray], None] | None = None,
 ) -> dict[str, Any]:
     """`lidarflow evaluate`'s report of ``models`` beside the baselines on ``recordings``
     (``(name, recording)`` pairs): ``{"recordings": [{"path", "methods", ...}], "overall",
     "against_baselines"}``; with ``report_dir`` its figures and HTML report too; with
     ``horizon`` K > 1 every method rolled 1..K frames ahead too (``horizon_f1`` etc., as
-    ``--horizon``); ``device``: where PyTorch models run."""
+    ``--horizon``); ``device``: where PyTorch models run; ``on_ahead``: each scored prediction
+    1..K ahead (:func:`lidarflow.evaluate.horizon.add_horizon_scores`)."""
     grid = grid or GridSpec()
     methods = methods_for(models, online, res=grid.res, device=device)
     config = {
@@ -74,7 +76,9 @@ def evaluate(
     }
     report = evaluate_and_report(recordings, methods, grid, warmup, config, report_dir)
     if horizon > 1:
-        add_horizon_scores(report, recordings, methods, grid, warmup, horizon)
+        add_horizon_scores(
+            report, recordings, methods, grid, warmup, horizon, on_ahead=on_ahead
+        )
     return report
 
 

@@ -116,3 +116,21 @@ def test_the_last_map_moved_by_the_ego_motion_moves_on_each_step_ahead():
     )
     assert scores["f1"]["copy_last_ego"] == pytest.approx([1.0, 1.0, 1.0])
     assert scores["f1"]["copy_last"] == [0.0, 0.0, 0.0]
+
+
+def test_on_ahead_sees_every_scored_prediction_1_to_k_ahead():
+    from lidarflow.predict.baselines import ConstantVelocity
+
+    occupancy = np.zeros((10, 6, 16), bool)
+    for t in range(10):
+        occupancy[t, 1, t] = True
+    seen: dict[str, dict[int, np.ndarray]] = {}
+    horizon_scores(
+        occupancy, np.ones_like(occupancy), [ConstantVelocity()], horizon=3, warmup=3,
+        on_ahead=lambda name, t, predicted: seen.setdefault(name, {}).update({t: predicted}),
+    )  # fmt: skip
+    assert set(seen) == {"copy_last", "constant_velocity"}
+    assert sorted(seen["copy_last"]) == sorted(seen["constant_velocity"]) == [3, 4, 5, 6]
+    assert seen["copy_last"][4].shape == (3, 6, 16) and seen["copy_last"][4][2, 1, 4]
+    # constant velocity k ahead: the walker k columns on
+    assert [seen["constant_velocity"][4][k, 1, 5 + k] >= 0.4 for k in range(3)] == [True] * 3

@@ -17,7 +17,7 @@ STUDIES = sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if m.nam
 
 
 def test_every_kept_study_is_here():
-    assert len(STUDIES) == 18 and "leave_one_out" in STUDIES and "reproduce_table2" in STUDIES
+    assert len(STUDIES) == 20 and "leave_one_out" in STUDIES and "reproduce_table2" in STUDIES
 
 
 @pytest.mark.parametrize("name", STUDIES)
@@ -91,3 +91,16 @@ def test_variant_parses_name_recipe_and_keys():
     assert v == Variant("tiny", "blurred", ("optim.epochs=1", "data.grid=32"))
     with pytest.raises(Exception, match="NAME=RECIPE"):
         Variant.parse("tiny=optim.epochs=1")
+
+
+def test_a_model_that_loses_on_movers_does_not_win():
+    base = {b: {"f1": 0.5, "changed_f1": 0.2, "ap": 0.5} for b in harness.BASELINES}
+    base["copy_last"]["mover_f1_tolerant"] = 0.4
+    methods = {**base, "m": {"f1": 0.6, "changed_f1": 0.3, "ap": 0.6, "mover_f1_tolerant": 0.3}}
+    scores = harness.judged(methods)
+    assert scores["verdict"] == "loses movers"
+    assert scores["margins"]["mover_f1_tolerant"] == -0.1
+    methods["m"]["mover_f1_tolerant"] = 0.45
+    assert harness.judged(methods)["verdict"] == "wins"
+    del methods["m"]["mover_f1_tolerant"]  # a report without the mover metric: as before
+    assert harness.judged(methods)["verdict"] == "wins"

@@ -112,6 +112,7 @@ def add_horizon_scores(
     warmup: int,
     horizon: int,
     bar: Callable[[int, str], Any] | None = None,
+    on_ahead: Callable[[str, str, int, np.ndarray], None] | None = None,
 ) -> None:
     """:func:`horizon_scores` of every recording of ``named`` (``(name, Recording)``) into its
     entry of ``report`` (what ``evaluate_and_report`` returned for them) as ``horizon_f1``,
@@ -121,7 +122,9 @@ def add_horizon_scores(
     and extends the recording's verdicts by the movers at ``K``
     (:func:`~lidarflow.evaluate.report.add_horizon_verdict`). Every model and baseline rolls
     forward; what knows the future (``oracle``) has no roll-out of its own. ``bar(total, name)``:
-    a progress bar (a context manager with ``update``) per recording."""
+    a progress bar (a context manager with ``update``) per recording. ``on_ahead(recording,
+    method, t, predicted)``: each scored prediction 1..K ahead of frame ``t``, as
+    :func:`horizon_scores` passes it."""
     streamed = [m for m in methods if not getattr(m, "oracle", False)]
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
         inputs = recording_inputs(recording, spec, streamed)
@@ -133,6 +136,7 @@ def add_horizon_scores(
                 None if progress is None else progress.update,
                 inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
                 inputs.gaps, inputs.paces, region,
+                None if on_ahead is None else functools.partial(on_ahead, name),
             )  # fmt: skip
         true_cells = scores.pop("mover_true_cells")
         for key, scored in scores.items():  # f1, changed_f1, wmse, ssim (none on a tiny grid)
@@ -157,6 +161,7 @@ def horizon_scores(
     gaps: Sequence[int] = (),
     paces: Mapping[int, float] | None = None,
     region: Callable[[int], np.ndarray] | None = None,
+    on_ahead: Callable[[str, int, np.ndarray], None] | None = None,
 ) -> dict[str, dict[str, list[Any]]]:
     """``{"f1": {name: [k = 1..K]}, "changed_f1": {...}, "wmse": {...}, "ssim": {...}}`` on
     maps ``(N, H, W)``: copy-last (always, first) and each method, models and baselines alike
@@ -170,7 +175,9 @@ def horizon_scores(
     across one is scored; states carry on). With ``region`` (``t ->`` frame ``t``'s dynamic
     region) also ``mover_f1``, ``mover_f1_tolerant``, ``mover_auc`` (``None`` where the
     region held one class only), ``mover_soft_iou`` and ``mover_true_cells`` (the true cells
-    in the regions ``k`` ahead, alike for every method)."""
+    in the regions ``k`` ahead, alike for every method). ``on_ahead(method, t, predicted)`` is
+    called with every scored prediction, ``predicted`` ``(K, H, W)`` the output 1..K ahead of
+    frame ``t`` (copy-last's too): what a caller scores beside these (annotated people)."""
     n = len(occupancy)
     scored = scored_frames(n, horizon, warmup, gaps)
     scoring = set(scored)
@@ -180,6 +187,8 @@ def horizon_scores(
     copy = _Ahead(horizon, shape, region)
     for t in scored:
         copy.add(np.broadcast_to(occupancy[t], (horizon, *shape)), occupancy, t)
+        if on_ahead is not None:
+            on_ahead("copy_last", t, np.broadcast_to(occupancy[t], (horizon, *shape)))
     scores = {name: {"copy_last": value} for name, value in copy.means().items()}
     for method in methods:
         if method.name in scores["f1"]:  # copy-last is scored above, by its definition
@@ -193,9 +202,10 @@ def horizon_scores(
                 progress(1)
             if t not in scoring:
                 continue
-            ahead.add(
-                np.stack(_ahead(method, prediction, visibility[t], extra, horizon)), occupancy, t
-            )
+            predicted = np.stack(_ahead(method, prediction, visibility[t], extra, horizon))
+            ahead.add(predicted, occupancy, t)
+            if on_ahead is not None:
+                on_ahead(method.name, t, predicted)
         for name, value in ahead.means().items():
             scores[name][method.name] = value
     return scores
