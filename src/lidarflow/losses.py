@@ -32,6 +32,8 @@ from lidarflow.ops.gaussian import gaussian_blur
 from lidarflow.ops.warp import warp
 
 _EPS = 1e-6
+#: which cells of the dynamic region ``LossConfig.mover_weight`` weighs
+MOVER_CELLS = ("all", "occupied")
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,9 @@ class LossConfig:
             :func:`lidarflow.evaluate.dynamic.recording_region`, found in hindsight on the
             training recording itself) relative to the others; 1 = plain mean (no region is
             computed). Training windows only: the validation loss stays unweighted.
+        mover_cells: which of the region's cells ``mover_weight`` weighs: ``"all"``, or
+            ``"occupied"``: only those occupied in the target map (the movers themselves, not
+            the free cells they left; weighting all of them weighs "erase" as much as "keep").
     """
 
     blur_source: bool = True
@@ -91,6 +96,7 @@ class LossConfig:
     flow_epe_moving_weight: float = 10.0
     flow_epe_moving_threshold: float = 0.15
     mover_weight: float = 1.0
+    mover_cells: str = "all"
 
     def __post_init__(self) -> None:
         names = ("kl_weight", "warp", "flow_epe", "flow_epe_moving_weight")
@@ -105,6 +111,8 @@ class LossConfig:
             raise ValueError(f"occupancy_bce must be >= 0, got {self.occupancy_bce}")
         if not self.mover_weight > 0.0:
             raise ValueError(f"mover_weight must be > 0, got {self.mover_weight}")
+        if self.mover_cells not in MOVER_CELLS:
+            raise ValueError(f"mover_cells must be one of {MOVER_CELLS}, got {self.mover_cells!r}")
         if not self.occupancy_changed_weight > 0.0:
             raise ValueError(
                 f"occupancy_changed_weight must be > 0, got {self.occupancy_changed_weight}"
@@ -211,6 +219,7 @@ def deeptracking_loss(
     changed_weight: float = 1.0,
     region: Tensor | None = None,
     region_weight: float = 1.0,
+    region_occupied_only: bool = False,
 ) -> Tensor:
     """DeepTracking's published loss: binary cross-entropy of the predicted next occupancy
     (also the occupancy-head term of LiDAR-FlowNet, ``next_map_bce``).
@@ -230,6 +239,7 @@ def deeptracking_loss(
     ``region_weight`` weighs the cells of the target frame's region that many times (on top of
     the other weights): the movers, ~1 % of the occupied cells, whose terms the plain mean
     drowns in those of walls and free space. ``region_weight = 1`` or no region: unchanged.
+    ``region_occupied_only``: only the region's cells occupied in the target map are weighed.
     """
     _check(seq, logits, 1, warmup)
     t = seq.shape[1]
@@ -248,6 +258,8 @@ def deeptracking_loss(
                 f"{tuple(region.shape)}"
             )
         movers = region[:, warmup + 1 :, None].to(device=err.device, dtype=err.dtype)
+        if region_occupied_only:
+            movers = movers * target
         weight = weight * (1.0 + (region_weight - 1.0) * movers)
     return (err * weight).sum() / weight.sum().clamp_min(1.0)
 

@@ -75,6 +75,43 @@ def test_the_weight_multiplies_exactly_the_target_frames_region_cells(visible_on
     )
 
 
+def test_occupied_only_weighs_the_regions_occupied_target_cells_alone():
+    seq, logits, region = _window(seed=5)
+    warmup, w = 2, 7.0
+    got = next_map_bce(seq, logits, warmup, True, region=region, region_weight=w,
+                       region_occupied_only=True)  # fmt: skip
+    target = seq[:, warmup + 1 :, 0]
+    err = F.binary_cross_entropy_with_logits(logits[:, warmup:-1, 0], target, reduction="none")
+    keep = region[:, warmup + 1 :] & (target > 0.5)
+    assert keep.any() and (region[:, warmup + 1 :] & (target < 0.5)).any()
+    weight = seq[:, warmup + 1 :, 1] * torch.where(keep, w, 1.0)
+    torch.testing.assert_close(got, (err * weight).sum() / weight.sum())
+    config = build_config("head_movers", None, None, ["loss.mover_cells=occupied"])
+    assert config.loss.mover_cells == "occupied"
+    with pytest.raises(ValueError, match="mover_cells"):
+        LossConfig(mover_cells="free")
+
+
+def test_make_loss_passes_the_weight_and_the_cells_on():
+    seq, _, region = _window(seed=6, t=10)
+    full = torch.cat([seq, torch.rand(2, 10, 2, 5, 7)], dim=2)
+    values = {}
+    for keys in (
+        [],
+        ["loss.mover_weight=10"],
+        ["loss.mover_weight=10", "loss.mover_cells=occupied"],
+    ):
+        config = build_config("head_only", None, None, ["model.init=null", *keys])
+        model = build(config.model.spec())
+        torch.manual_seed(0)
+        for p in model.parameters():
+            torch.nn.init.normal_(p, std=0.3)
+        with torch.no_grad():
+            out, _ = model(full)
+            values[len(keys)] = make_loss(config, 1, model)(full, out, region)
+    assert len({float(v) for v in values.values()}) == 3, values
+
+
 def test_a_region_of_the_wrong_shape_is_refused():
     seq, logits, region = _window()
     with pytest.raises(ValueError, match="region must be"):

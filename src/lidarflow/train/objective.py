@@ -76,6 +76,7 @@ def make_loss(config: TrainConfig, kernel: int, model: torch.nn.Module | None = 
                 changed_weight=config.loss.occupancy_changed_weight,
                 region=region,
                 region_weight=config.loss.mover_weight,
+                region_occupied_only=config.loss.mover_cells == "occupied",
             )
         return value
 
