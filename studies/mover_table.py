@@ -1,7 +1,8 @@
 """The mover table of a leave-one-recording-out study (issue 44): per variant and held-out
 recording, the model's all-cell F1 and its exact and tolerant mover F1 (inside the held-out
 recording's dynamic region, :mod:`lidarflow.evaluate.movers`), beside copy-last's and the
-tracker's on the same fold; then the mean over the folds of each.
+tracker's on the same fold; then the mean of each over the folds that every variant has
+finished (so that variants are compared on the same folds).
 
 It reads what `studies.leave_one_out` left in OUT (``OUT/<variant>/<recording>/evaluation.json``)
 and trains nothing:
@@ -61,12 +62,25 @@ def _cell(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"
 
 
+def common_folds(study: dict[str, dict[str, dict]]) -> list[str]:
+    """The held-out recordings that every variant of ``study`` has finished."""
+    names = [set(folds) for folds in study.values()]
+    return sorted(set.intersection(*names)) if names else []
+
+
+def _means(study: dict[str, dict[str, dict]]) -> dict[str, dict[str, dict]]:
+    shared = common_folds(study)
+    return {n: mean_scores({k: f[k] for k in shared}) for n, f in study.items() if shared}
+
+
 def table(study: dict[str, dict[str, dict]]) -> str:
-    """Markdown: per variant one row per fold and one of the means."""
+    """Markdown: per variant one row per fold and one of the means over the common folds."""
     head = " | ".join(f"{who} {c}" for who in ("model", *BESIDE) for c in COLUMNS)
     lines = [f"| variant | held out | {head} |", "|---|---|" + "---|" * 3 * len(COLUMNS)]
+    shared = common_folds(study)
+    means = _means(study)
     for name, folds in study.items():
-        rows = {**folds, "**mean**": mean_scores(folds)}
+        rows = {**folds, f"**mean of {len(shared)}**": means.get(name, {})}
         for rec, scores in rows.items():
             cells = " | ".join(
                 _cell(scores.get(who, {}).get(c)) for who in ("model", *BESIDE) for c in COLUMNS
@@ -94,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     study = collect(args.output, args.variant)
     if not any(study.values()):
         p.error(f"no finished fold (*/evaluation.json) under {args.output}")
-    results = {"folds": study, "means": {n: mean_scores(f) for n, f in study.items() if f}}
+    results = {"folds": study, "common_folds": common_folds(study), "means": _means(study)}
     write_summary(args, "mover_table", results, table(study))
     return results
 

@@ -36,16 +36,27 @@ def test_the_table_reads_each_fold_and_means_what_is_defined(tmp_path):
         "f1": 0.8, "mover_f1": 0.4, "mover_f1_tolerant": 0.2,
     }  # fmt: skip
     assert list(results["folds"]["w10"]) == ["a"]
-    means = results["means"]["w1"]
+    # the means: over the folds both variants finished (a alone)
+    assert results["common_folds"] == ["a"]
+    assert results["means"]["w1"]["model"]["f1"] == pytest.approx(0.8)
+    assert results["means"]["w10"]["model"]["f1"] == pytest.approx(0.6)
+    text = (tmp_path / "mover_table.md").read_text()
+    assert "| w1 | a | 0.800 | 0.400 | 0.200 | 0.600 | 0.300 | 0.150 | 0.700 | - | - |" in text
+    assert "| w1 | **mean of 1** | 0.800 |" in text
+    written = json.loads((tmp_path / "mover_table.json").read_text())
+    assert written["results"]["means"]["w10"]["model"]["f1"] == 0.6
+
+
+def test_the_means_skip_undefined_scores():
+    folds = {
+        "a": mover_table.fold_scores(_methods(0.8, 0.6, 0.7)),
+        "b": mover_table.fold_scores(_methods(0.4, 0.2)),
+    }
+    means = mover_table.mean_scores(folds)
     assert means["model"]["f1"] == pytest.approx(0.6)
     assert means["model"]["mover_f1_tolerant"] == pytest.approx(0.15)
     assert means["copy_last"]["mover_f1"] == pytest.approx(0.2)
     assert means["tracker"] == {"f1": 0.7, "mover_f1": None, "mover_f1_tolerant": None}
-    text = (tmp_path / "mover_table.md").read_text()
-    assert "| w1 | a | 0.800 | 0.400 | 0.200 | 0.600 | 0.300 | 0.150 | 0.700 | - | - |" in text
-    assert "| w1 | **mean** | 0.600 |" in text
-    written = json.loads((tmp_path / "mover_table.json").read_text())
-    assert written["results"]["means"]["w10"]["model"]["f1"] == 0.6
 
 
 def test_no_finished_fold_is_a_usage_error(tmp_path):
