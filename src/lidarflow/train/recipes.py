@@ -99,8 +99,9 @@ def _head_movers() -> TrainConfig:
     training recording's dynamic region (where the mover metric scores, found in hindsight on
     that recording) weigh ``loss.mover_weight`` = 10 times the others
     (:mod:`lidarflow.train.movers`), so that erasing the transients, ~1 % of the occupied
-    cells, is no longer nearly free. Measured leave one recording out:
-    ``docs/research/mover_weight/``."""
+    cells, is no longer nearly free. Measured leave one recording out, it ties ``head_only``
+    (tolerant mover F1 0.551 both, copy-last 0.708: a per-cell head keeps or erases a mover,
+    it cannot move it; ``docs/research/mover_weight/``): kept to reproduce that line."""
     config = _head_only()
     config.recipe = "head_movers"
     config.loss = config.loss.replace(mover_weight=10.0)
