@@ -32,8 +32,6 @@ from lidarflow.ops.gaussian import gaussian_blur
 from lidarflow.ops.warp import warp
 
 _EPS = 1e-6
-#: which cells of the dynamic region ``LossConfig.mover_weight`` weighs
-MOVER_CELLS = ("all", "occupied")
 
 
 @dataclass(frozen=True)
@@ -69,15 +67,6 @@ class LossConfig:
             differs from the platform's by more than ``flow_epe_moving_threshold`` cells)
             relative to a static one.
         flow_epe_moving_threshold: that threshold, in cells per frame.
-        mover_weight: in the occupancy cross-entropy (``occupancy_bce``), the weight of the
-            cells of the training recording's dynamic region (cells occupied in under 5 % of
-            the frames that saw them, the mover metric's region,
-            :func:`lidarflow.evaluate.dynamic.recording_region`, found in hindsight on the
-            training recording itself) relative to the others; 1 = plain mean (no region is
-            computed). Training windows only: the validation loss stays unweighted.
-        mover_cells: which of the region's cells ``mover_weight`` weighs: ``"all"``, or
-            ``"occupied"``: only those occupied in the target map (the movers themselves, not
-            the free cells they left; weighting all of them weighs "erase" as much as "keep").
     """
 
     blur_source: bool = True
@@ -95,8 +84,6 @@ class LossConfig:
     flow_epe: float = 0.0
     flow_epe_moving_weight: float = 10.0
     flow_epe_moving_threshold: float = 0.15
-    mover_weight: float = 1.0
-    mover_cells: str = "all"
 
     def __post_init__(self) -> None:
         names = ("kl_weight", "warp", "flow_epe", "flow_epe_moving_weight")
@@ -109,10 +96,6 @@ class LossConfig:
             raise ValueError(f"occupied_weight must be > 0, got {self.occupied_weight}")
         if not self.occupancy_bce >= 0.0:
             raise ValueError(f"occupancy_bce must be >= 0, got {self.occupancy_bce}")
-        if not self.mover_weight > 0.0:
-            raise ValueError(f"mover_weight must be > 0, got {self.mover_weight}")
-        if self.mover_cells not in MOVER_CELLS:
-            raise ValueError(f"mover_cells must be one of {MOVER_CELLS}, got {self.mover_cells!r}")
         if not self.occupancy_changed_weight > 0.0:
             raise ValueError(
                 f"occupancy_changed_weight must be > 0, got {self.occupancy_changed_weight}"
@@ -217,9 +200,6 @@ def deeptracking_loss(
     warmup: int = 10,
     visible_only: bool = True,
     changed_weight: float = 1.0,
-    region: Tensor | None = None,
-    region_weight: float = 1.0,
-    region_occupied_only: bool = False,
 ) -> Tensor:
     """DeepTracking's published loss: binary cross-entropy of the predicted next occupancy
     (also the occupancy-head term of LiDAR-FlowNet, ``next_map_bce``).
@@ -234,12 +214,6 @@ def deeptracking_loss(
     that many times the others (a weighted mean). Under 1 % of cells change per frame, so the
     plain mean is dominated by cells that copying already gets right; weighting the changes
     moves the 0.4 decision towards predicting them (at some cost in calibration).
-
-    ``region`` ``(B, T, H, W)`` (bool or 0/1; ``region[:, t]`` in frame ``t``'s cells) with
-    ``region_weight`` weighs the cells of the target frame's region that many times (on top of
-    the other weights): the movers, ~1 % of the occupied cells, whose terms the plain mean
-    drowns in those of walls and free space. ``region_weight = 1`` or no region: unchanged.
-    ``region_occupied_only``: only the region's cells occupied in the target map are weighed.
     """
     _check(seq, logits, 1, warmup)
     t = seq.shape[1]
@@ -251,16 +225,6 @@ def deeptracking_loss(
     if changed_weight != 1.0:
         changed = (target != seq[:, warmup : t - 1, 0:1]).to(err.dtype)
         weight = weight * (1.0 + (changed_weight - 1.0) * changed)
-    if region is not None and region_weight != 1.0:
-        if region.shape != (seq.shape[0], t, *seq.shape[3:]):
-            raise ValueError(
-                f"region must be (B, T, H, W) = {(seq.shape[0], t, *seq.shape[3:])}, got "
-                f"{tuple(region.shape)}"
-            )
-        movers = region[:, warmup + 1 :, None].to(device=err.device, dtype=err.dtype)
-        if region_occupied_only:
-            movers = movers * target
-        weight = weight * (1.0 + (region_weight - 1.0) * movers)
     return (err * weight).sum() / weight.sum().clamp_min(1.0)
 
 

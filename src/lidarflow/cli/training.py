@@ -65,9 +65,8 @@ def train(
         str | None,
         typer.Option(
             help="Preset: head_only (default: the occupancy head alone), head (a head on a "
-            "flow network: --init RUN), head_movers (head_only, the dynamic region's cells "
-            "weighted), paper, blurred, supervised_flow (flow from simulated truth) or sogmp "
-            "(the peer's)."
+            "flow network: --init RUN), paper, blurred, supervised_flow (flow from simulated "
+            "truth) or sogmp (the peer's)."
         ),
     ] = None,
     config: Annotated[

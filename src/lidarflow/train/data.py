@@ -30,10 +30,6 @@ every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx,
 ``t - 1``, identity where a pose is unknown), appended as the item's last element. Without it
 the items are exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry
 identity motions instead (chosen by a hash of the window, the same every epoch).
-
-Mover weighting (``load_train_data(..., with_regions=True)``, ``loss.mover_weight``): every
-training item ends with its window's dynamic region, bool ``(T, H, W)``
-(:mod:`lidarflow.train.movers`); validation items carry none.
 """
 
 from __future__ import annotations
@@ -56,7 +52,6 @@ from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.scan import GridSpec
 from lidarflow.train.config import DataConfig
-from lidarflow.train.movers import recording_regions
 
 __all__ = ["TrainData", "Windows", "expand_source", "load_train_data"]
 
@@ -91,9 +86,7 @@ class Windows(Dataset):
     the recording has both. With ``motions`` (one float32
     ``(N, 3)`` array per recording, cells) the item also ends with the window's ``(T, 3)``
     motions. With ``start_states`` set (:func:`lidarflow.train.warm.stream_start_states`) it
-    ends with the occupancy head's state where streaming reaches the window's first frame;
-    with ``regions`` (one bool ``(N, H, W)`` per recording) it ends with the window's dynamic
-    region ``(T, H, W)`` after that."""
+    ends with the occupancy head's state where streaming reaches the window's first frame."""
 
     def __init__(
         self,
@@ -105,7 +98,6 @@ class Windows(Dataset):
         motions: Sequence[np.ndarray] | None = None,
         pose_dropout: float = 0.0,
         flows_forward: Sequence[Flow] | None = None,
-        regions: Sequence[np.ndarray] | None = None,
     ) -> None:
         self.maps = list(maps)
         self.index = list(index)
@@ -115,7 +107,6 @@ class Windows(Dataset):
         self.flows_forward = None if flows_forward is None else list(flows_forward)
         self.motions = None if motions is None else list(motions)
         self.pose_dropout = pose_dropout
-        self.regions = None if regions is None else list(regions)
         # (recording, start, posed) -> the head's state before the window's first frame.
         self.start_states: dict[tuple[int, int, bool], np.ndarray] | None = None
 
@@ -132,8 +123,6 @@ class Windows(Dataset):
             parts.append(motion if posed else torch.zeros_like(motion))
         if self.start_states is not None:
             parts.append(torch.from_numpy(self.start_states[(rec, start, posed)]))
-        if self.regions is not None:
-            parts.append(torch.from_numpy(self.regions[rec][start : start + self.length]))
         return parts[0] if len(parts) == 1 else tuple(parts)
 
     def dropped(self, i: int) -> bool:
@@ -236,7 +225,6 @@ def _windows(
     pose_dropout: float = 0.0,
     with_subcell: bool = False,
     forward: bool = False,
-    with_regions: bool = False,
 ) -> tuple[Windows, list[str]]:
     seqs = SequenceSet(
         recordings, cfg.seq_len, cfg.stride or cfg.seq_len, grid, cfg.max_gap_periods,
@@ -262,11 +250,9 @@ def _windows(
                     "steps; those steps are not ego-motion compensated"
                 )
     forwards = [_ground_truth(rec, grid, FORWARD_KEY)[0] for rec in recordings] if forward else None
-    regions = recording_regions(recordings, seqs.maps, grid) if with_regions else None
     windows = Windows(
-        seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout, forwards,
-        regions,
-    )  # fmt: skip
+        seqs.maps, seqs.index, cfg.seq_len, flows, with_flow, motions, pose_dropout, forwards
+    )
     return windows, notes
 
 
@@ -304,14 +290,12 @@ def load_train_data(
     with_motion: bool = False,
     with_subcell: bool = False,
     train_flow: bool = False,
-    with_regions: bool = False,
 ) -> TrainData:
     """Load every source, split off validation, and cut windows (see the module docstring);
     ``with_motion``: items carry the per-frame ego motion too; ``with_subcell``: maps carry
     :meth:`~lidarflow.data.Recording.subcell_maps` as channels 2 and 3; ``train_flow``: the
     training windows carry the exact ``B^t, F^t`` too (``(T, 4, H, W)``; supervised flow,
-    :mod:`lidarflow.train.supervised`); ``with_regions``: the training windows carry their
-    dynamic region too (``loss.mover_weight``, :mod:`lidarflow.train.movers`)."""
+    :mod:`lidarflow.train.supervised`)."""
     if not cfg.sources:
         raise TrainError("no training data: give at least one recording or bag")
     if cfg.mix and len(cfg.mix) not in (len(cfg.sources), len(cfg.sources) - 1):
@@ -366,7 +350,7 @@ def load_train_data(
             # Validation keeps every pose: it measures the model where odometry is there.
             windows, more = _windows(
                 recs, cfg, grid, train_flow, with_motion, cfg.pose_dropout, with_subcell,
-                forward=train_flow, with_regions=with_regions,
+                forward=train_flow,
             )  # fmt: skip
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err

@@ -38,7 +38,6 @@ from lidarflow.train.distributed import Dist, any_flag, barrier, setup
 from lidarflow.train.loaders import make_loader, make_val_loader
 from lidarflow.train.logbook import Logbook
 from lidarflow.train.model_setup import load_init, make_optimizer
-from lidarflow.train.movers import mover_weighted, take_region
 from lidarflow.train.objective import gaussian_size, make_loss
 from lidarflow.train.rundir import prepare_run_dir, release_run_dir, write_final
 from lidarflow.train.supervised import flow_term, require_flow, supervised, take_flow
@@ -142,7 +141,6 @@ def _train(
         with_motion=spec.ego_motion,
         with_subcell=spec.head is not None and spec.head.subcell_input,
         train_flow=supervised(config),
-        with_regions=mover_weighted(config),
     )
     if supervised(config):
         require_flow(config, data)
@@ -240,9 +238,7 @@ def _train(
             disable=None if ctx.is_main else True,
         )
         for step, batch in enumerate(bar, 1):
-            truth = region = None
-            if mover_weighted(config):
-                batch, region = take_region(batch)
+            truth = None
             if supervised(config):
                 batch, truth = take_flow(batch)
             maps_u8, motions, first = split_batch(batch, uses_ego_motion(model), warm)
@@ -250,7 +246,7 @@ def _train(
             state = start_state(model, seq, first)
             with autocast():
                 out, _ = net(seq, state, *(m.to(ctx.device) for m in motions))
-            loss = loss_fn(seq, out.float(), region)
+            loss = loss_fn(seq, out.float())
             if truth is not None:
                 loss = loss + flow_term(config, seq, out.float(), truth, motions)
             optimizer.zero_grad(set_to_none=True)

@@ -5,7 +5,6 @@ follows."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
 
 import torch
 from torch import Tensor
@@ -20,13 +19,7 @@ from lidarflow.losses import (
 )
 from lidarflow.train.config import TrainConfig
 
-__all__ = ["Loss", "gaussian_size", "make_loss"]
-
-
-class Loss(Protocol):
-    """``loss(seq (B,T,C,H,W), out (B,T,C',H,W), region (B,T,H,W) or None) -> scalar``."""
-
-    def __call__(self, seq: Tensor, out: Tensor, region: Tensor | None = None) -> Tensor: ...
+__all__ = ["gaussian_size", "make_loss"]
 
 
 def gaussian_size(config: TrainConfig, epoch: int) -> int:
@@ -37,22 +30,17 @@ def gaussian_size(config: TrainConfig, epoch: int) -> int:
     return gaussian_schedule(epoch, s.gaussian_start, s.gaussian_step_epochs, s.gaussian_min)
 
 
-def make_loss(config: TrainConfig, kernel: int, model: torch.nn.Module | None = None) -> Loss:
-    """``loss(seq (B,T,2,H,W), out (B,T,C,H,W), region=None) -> scalar`` for the configured
-    model (the unwrapped ``model`` is needed for the occupancy head's cross-entropy);
-    ``region``: the windows' dynamic regions, weighed ``loss.mover_weight`` times in the
-    occupancy head's cross-entropy (:mod:`lidarflow.train.movers`; ``None``: unweighted)."""
+def make_loss(
+    config: TrainConfig, kernel: int, model: torch.nn.Module | None = None
+) -> Callable[[Tensor, Tensor], Tensor]:
+    """``loss(seq (B,T,2,H,W), out (B,T,C,H,W)) -> scalar`` for the configured model (the
+    unwrapped ``model`` is needed for the occupancy head's cross-entropy)."""
     warmup = config.data.warmup
-    weight = config.loss.occupancy_bce
-    if config.loss.mover_weight != 1.0 and (config.model.name != "flownet" or weight <= 0.0):
-        raise TrainError(
-            "loss.mover_weight weighs the occupancy head's cross-entropy: it needs a flownet "
-            "model with loss.occupancy_bce > 0 (e.g. --recipe head_movers)"
-        )
     if config.model.name == "deeptracking":
-        return _plain(lambda seq, out: deeptracking_loss(seq, out, warmup=warmup))
+        return lambda seq, out: deeptracking_loss(seq, out, warmup=warmup)
     if config.model.name == "sogmp":
-        return _plain(lambda seq, out: sogmp_loss(seq, out, warmup, config.loss.kl_weight))
+        return lambda seq, out: sogmp_loss(seq, out, warmup, config.loss.kl_weight)
+    weight = config.loss.occupancy_bce
     head = model is not None and model.capabilities.occupancy_head
     if weight > 0.0 and not head:
         raise TrainError(
@@ -60,7 +48,7 @@ def make_loss(config: TrainConfig, kernel: int, model: torch.nn.Module | None = 
             "--set model.head.hidden_channels=0 (or use --recipe head)"
         )
 
-    def loss(seq: Tensor, out: Tensor, region: Tensor | None = None) -> Tensor:
+    def loss(seq: Tensor, out: Tensor) -> Tensor:
         value = seq.new_zeros(())  # loss.warp = 0: the exact flow alone teaches (supervised)
         if config.loss.warp > 0.0:
             flows = out[:, :, :4]
@@ -74,19 +62,7 @@ def make_loss(config: TrainConfig, kernel: int, model: torch.nn.Module | None = 
                 warmup=warmup,
                 visible_only=config.loss.occupancy_visible_only,
                 changed_weight=config.loss.occupancy_changed_weight,
-                region=region,
-                region_weight=config.loss.mover_weight,
-                region_occupied_only=config.loss.mover_cells == "occupied",
             )
         return value
 
     return loss
-
-
-def _plain(loss: Callable[[Tensor, Tensor], Tensor]) -> Loss:
-    """A loss without a mover weight (``make_loss`` refuses one for these models)."""
-
-    def weighed(seq: Tensor, out: Tensor, region: Tensor | None = None) -> Tensor:
-        return loss(seq, out)
-
-    return weighed

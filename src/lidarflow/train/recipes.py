@@ -94,20 +94,6 @@ def _head_only() -> TrainConfig:
     return config
 
 
-def _head_movers() -> TrainConfig:
-    """``head_only`` with the movers weighted (issue 44): in its cross-entropy the cells of each
-    training recording's dynamic region (where the mover metric scores, found in hindsight on
-    that recording) weigh ``loss.mover_weight`` = 10 times the others
-    (:mod:`lidarflow.train.movers`), so that erasing the transients, ~1 % of the occupied
-    cells, is no longer nearly free. Measured leave one recording out, it ties ``head_only``
-    (tolerant mover F1 0.551 both, copy-last 0.708: a per-cell head keeps or erases a mover,
-    it cannot move it; ``docs/research/mover_weight/``): kept to reproduce that line."""
-    config = _head_only()
-    config.recipe = "head_movers"
-    config.loss = config.loss.replace(mover_weight=10.0)
-    return config
-
-
 def _sogmp() -> TrainConfig:
     """SOGMP's own recipe (Xie & Dames 2023; :mod:`lidarflow.models.sogmp`), as its public
     training code sets it: the loss is the cross-entropy of the next map summed over the map
@@ -168,7 +154,6 @@ RECIPES: dict[str, Callable[[], TrainConfig]] = {
     "blurred": _blurred,  # both sides of the loss blurred: zero flow is optimal when nothing moves
     "head": _head,  # the head on a trained flow network: issue 11's best, the bundled one to v8
     "head_only": _head_only,  # the same head without the flow network: the bundled one (v9)
-    "head_movers": _head_movers,  # head_only, the dynamic region's cells weighted (issue 44)
     "sogmp": _sogmp,  # the SOGMP peer's own recipe (issue 38)
     "supervised_flow": _supervised_flow,  # the flow taught by simulated exact flow (issue 36)
 }
