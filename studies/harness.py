@@ -23,6 +23,8 @@ from typing import Any
 
 # The tracker since issue 44; reports made before it lack it and are judged by the three.
 BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker")
+#: Every verdict :func:`verdict` gives.
+VERDICTS = ("wins", "loses movers", "F1 only", "changed only", "loses")
 METRICS = ("f1", "changed_f1", "ap")
 # The mover metric (issue 44), kept where an evaluation scored it; reports made before it lack it.
 MOVER_METRICS = ("mover_f1", "mover_f1_tolerant")

@@ -7,8 +7,7 @@ import numpy as np
 
 from lidarflow.data import load_recording
 from studies import other_sensors, range_max_ring, sensor_sweep, short_clips
-
-VERDICTS = ("wins", "F1 only", "changed only", "loses")
+from studies.harness import VERDICTS
 
 
 def test_other_sensors_judges_each_view_and_adds_up_runs(sim_recordings, tmp_path):
