@@ -35,6 +35,9 @@ SDK_SUBPROTOCOL = "foxglove.sdk.v1"
 LEGACY_SUBPROTOCOL = "foxglove.websocket.v1"
 #: How long a client may take to send its upgrade request (a port scanner sends nothing).
 REQUEST_TIMEOUT_S = 10.0
+#: How long a closing connection waits for the client to close its side (its close frame's
+#: answer) before the front closes the socket anyway.
+LINGER_S = 1.0
 CLOSE_OPCODE = 0x8
 #: The close frame's payload where the SDK sends none: 1001 "going away", and why.
 GOING_AWAY = struct.pack("!H", 1001) + b"server stopped"
@@ -182,9 +185,29 @@ class Front:
         finally:
             if to_server is not None:
                 to_server.cancel()
-            for end in (writer, upstream):
-                if end is not None:
-                    end.close()
-                    with contextlib.suppress(OSError):
-                        await end.wait_closed()  # what is buffered has gone to the system
+                await asyncio.gather(to_server, return_exceptions=True)
+            if upstream is not None:
+                upstream.close()
+                with contextlib.suppress(OSError):
+                    await upstream.wait_closed()
+            await _lingering_close(reader, writer)
             self._connections.discard(task)
+
+
+async def _lingering_close(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    """Close toward the client without a reset: half-close (everything written goes first),
+    read and drop what the client still sends until it closes, :data:`LINGER_S` at most, then
+    close. A socket closed with unread data in it sends a reset, and the client's system then
+    drops what its application had not yet read: the last scan, for a slow reader."""
+    try:
+        with contextlib.suppress(OSError, RuntimeError):
+            if writer.can_write_eof():
+                writer.write_eof()
+        with contextlib.suppress(OSError, TimeoutError, asyncio.IncompleteReadError):
+            async with asyncio.timeout(LINGER_S):
+                while await reader.read(1 << 16):
+                    pass
+    finally:
+        writer.close()
+        with contextlib.suppress(OSError):
+            await writer.wait_closed()
