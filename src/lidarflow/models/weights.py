@@ -61,15 +61,20 @@ def upgrade_state(state: dict[str, Any]) -> dict[str, Any]:
 
 
 def decision_record(card: dict[str, Any]) -> dict[str, Any]:
-    """The decision a model was shipped with (``{"offset": float, "online": bool}``): its
-    ``decision`` record, or the decision keys older files kept among the ``model_kwargs``."""
+    """The decision a model was shipped with (``{"offset": float, "online": bool, "movers":
+    bool}``): its ``decision`` record, or the decision keys older files kept among the
+    ``model_kwargs``."""
     if isinstance(card.get("decision"), dict):
         record = card["decision"]
     else:
         kwargs = card.get("model_kwargs") or {}
         record = {"offset": kwargs.get("decision_offset", 0.0)}
         record["online"] = kwargs.get("online_decision", False)
-    return {"offset": float(record.get("offset", 0.0)), "online": bool(record.get("online"))}
+    return {
+        "offset": float(record.get("offset", 0.0)),
+        "online": bool(record.get("online")),
+        "movers": bool(record.get("movers")),
+    }
 
 
 def _locate(path: Path) -> tuple[Path, Path]:

@@ -150,11 +150,16 @@ class OnnxBackend:
                 f"{path}: exported with a decision offset for free cells, an option since "
                 "removed; export the model again"
             )
-        #: The decision the file ships with (``{"offset", "online"}``), ``None`` if unmarked.
+        #: The decision the file ships with (``{"offset", "online", "movers"}``), ``None`` if
+        #: unmarked.
         self.decision = (
             None
             if decision is None
-            else {"offset": float(decision["offset"]), "online": bool(decision.get("online"))}
+            else {
+                "offset": float(decision["offset"]),
+                "online": bool(decision.get("online")),
+                "movers": bool(decision.get("movers")),
+            }
         )
         gain = None if decision is None else decision.get("gain")
         self.gain = None if gain is None else float(gain)

@@ -17,11 +17,15 @@ Every user of a trained model streams it through :class:`Engine`: the robot's
    its recurrent state carried from frame to frame.
 3. **Decision** (:mod:`lidarflow.predict.decision`): an occupancy-head model's calibrated
    probability is decided with the policy's offset, or online with the offsets that have done
-   best on this stream so far.
+   best on this stream so far. With the policy's ``movers`` a tracker runs beside the model on
+   the same frames and motion (:class:`lidarflow.predict.tracker.Tracker`), and the objects it
+   follows join the decided map where their velocity takes them.
 4. **Roll-out** (:meth:`Engine.roll`, on request): the decided prediction fed back as the next
    input, ``k`` steps ahead, on a copy of the state (the fed-back maps must not leak into the
    state the next real frame continues from), each step assuming one more typical step of the
-   same motion and re-decided with the current choice.
+   same motion and re-decided with the current choice. The tracked objects join each step
+   where ``k`` steps of their velocity take them, and are not fed back: the model rolls out as
+   it would alone, so that what the tracker adds at one step does not linger in the next.
 """
 
 from __future__ import annotations
@@ -37,9 +41,16 @@ from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
+from lidarflow.predict.tracker import Movers, Tracker
 from lidarflow.scan import takes_subcell
 
 __all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
+
+#: Frames a carried map keeps the tracker's held cells (rare cells no track took, mostly a
+#: person beside a wall): one, where the head alone would let them fade; leave one out this
+#: lifted the tolerant mover F1 one step ahead without moving it one second ahead
+#: (docs/research/carry_movers/).
+HELD_FRAMES = 1
 
 #: Where a frame's motion came from (see the module's docstring).
 MotionSource = Literal["pose", "scans", "none"]
@@ -98,7 +109,8 @@ class Step:
     decision policy thresholds at 0.4 (the same for a model without a head); ``flow``
     ``(4, H, W)`` in cells (``B_col, B_row, F_col, F_row``; ``None`` for models without flow);
     ``motion`` the motion the step was compensated by (``None``: not compensated). The rest is
-    what :meth:`Engine.roll` continues from."""
+    what :meth:`Engine.roll` continues from (``movers``: the tracked objects, where the policy
+    carries them, and ``own``: the model's own decided map, without them)."""
 
     probability: np.ndarray
     decided: np.ndarray
@@ -107,6 +119,8 @@ class Step:
     maps: np.ndarray
     state: Any
     ahead: np.ndarray | None
+    movers: Movers | None = None
+    own: np.ndarray | None = None
 
 
 class Engine:
@@ -147,6 +161,8 @@ class Engine:
         #: The odometry check (None where the model does not check it), for a look inside.
         self.odometry = OdometryCheck() if optional and check_odometry else None
         self._scans = ScanOdometry(res) if optional and scan_odometry else None
+        #: The tracker whose objects join the decided map (None where the policy has none).
+        self.tracker = Tracker(res=res) if self.policy.movers else None
         self._state: Any = None
 
     @property
@@ -157,7 +173,7 @@ class Engine:
     def reset(self) -> None:
         """Forget the past: the next step starts a new stream from a zero state."""
         self._state = None
-        for part in (self.odometry, self._scans, self.decision):
+        for part in (self.odometry, self._scans, self.decision, self.tracker):
             if part is not None:
                 part.reset()
 
@@ -200,9 +216,14 @@ class Engine:
         flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
         decided = self._decide(own, frame.occupancy, self._backward(out), frame.visibility)
+        movers, alone = None, decided
+        if self.tracker is not None:
+            self.tracker.update(frame.occupancy, frame.visibility, motion, pace=frame.pace)
+            movers = self.tracker.movers(HELD_FRAMES)
+            decided = np.maximum(decided, movers.at(1))
         # Each step of a roll-out is one typical step of the same motion.
         ahead = motion if guess is None else guess
-        return Step(own, decided, flow, motion, maps, self._state, ahead)
+        return Step(own, decided, flow, motion, maps, self._state, ahead, movers, alone)
 
     def _backward(self, out: np.ndarray) -> np.ndarray | None:
         """The step's backward flow ``(2, H, W)``, which moves the last map for the online
@@ -232,11 +253,14 @@ class Engine:
         own): each decided prediction fed back with the frame's visibility (and no returns: zero
         sub-cell maps), on a copy of the state, and decided with the current choice."""
         probabilities, decided = [step.probability], [step.decided]
+        alone = step.decided if step.own is None else step.own  # what is fed back
         state = step.state
-        for _ in range(horizon - 1):
+        for k in range(2, horizon + 1):
             fed = np.zeros_like(step.maps)
-            fed[0, 0], fed[0, 1] = decided[-1], step.maps[0, 1]
+            fed[0, 0], fed[0, 1] = alone, step.maps[0, 1]
             probability, out, state = self.backend.run(fed, state, step.ahead)
             probabilities.append(probability[0, 0])
-            decided.append(self._decide(probability[0, 0], decided[-1], self._backward(out)))
+            alone = self._decide(probability[0, 0], alone, self._backward(out))
+            movers = step.movers
+            decided.append(alone if movers is None else np.maximum(alone, movers.at(k)))
         return Rollout(np.stack(probabilities), np.stack(decided))

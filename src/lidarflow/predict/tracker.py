@@ -38,6 +38,7 @@ from lidarflow.motion.warp import rigid_moved
 from lidarflow.predict.baselines import Takes
 
 __all__ = [
+    "Movers",
     "Tracker",
     "TrackerConfig",
     "associate",
@@ -212,6 +213,50 @@ def _to_xy(rows_cols: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.stack([height - 0.5 - rc[..., 0], width / 2 - 0.5 - rc[..., 1]], axis=-1)
 
 
+@dataclass(frozen=True)
+class Movers:
+    """The tracked objects of one frame, frozen (:meth:`Tracker.movers`): ``shape`` ``(H, W)``
+    of the grid, per object its velocity ``(vx, vy)`` (cells per frame, sensor frame) and its
+    cells ``(N, 2)`` ``(row, col)``; ``motion`` the ego motion guessed per frame (``None``: the
+    sensor stands still); ``held`` ``(H, W)`` bool, the transient cells no track took (rarely
+    occupied before, but beside a wall or still), kept where they are for ``hold`` frames."""
+
+    shape: tuple[int, int]
+    tracks: list[tuple[np.ndarray, np.ndarray]]
+    motion: np.ndarray | None
+    held: np.ndarray | None = None
+    hold: int = 0
+
+    def cells_at(self, k: int) -> np.ndarray:
+        """``(H, W)`` bool: every object's cells shifted by ``k`` times its velocity (rounded
+        to whole cells), in the sensor frame of the last frame."""
+        h, w = self.shape
+        out = np.zeros(self.shape, bool)
+        for velocity, cells in self.tracks:
+            d_row = int(np.rint(-k * velocity[0]))
+            d_col = int(np.rint(-k * velocity[1]))
+            r, c = cells[:, 0] + d_row, cells[:, 1] + d_col
+            inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            out[r[inside], c[inside]] = True
+        return out
+
+    def moved_to_sensor(self, image: np.ndarray, k: int) -> np.ndarray:
+        """``image`` ``(H, W)`` of the last frame moved into the sensor frame ``k`` guessed
+        steps on (unchanged on a still sensor): float32 in [0, 1]."""
+        image = np.asarray(image, np.float32)
+        if self.motion is not None:
+            image = np.clip(rigid_moved(image, composed_motion(self.motion, k)), 0.0, 1.0)
+        return image.astype(np.float32)
+
+    def at(self, k: int) -> np.ndarray:
+        """``(H, W)`` float32: the objects ``k`` frames on (and the held cells up to ``hold``),
+        in the sensor frame then."""
+        cells = self.cells_at(k)
+        if self.held is not None and k <= self.hold:
+            cells |= self.held
+        return self.moved_to_sensor(cells, k)
+
+
 class Tracker:
     """The tracking baseline (see the module docstring); a streaming ``Method`` that takes the
     ego motion where a recording has it (without, the sensor is taken to stand still)."""
@@ -239,6 +284,7 @@ class Tracker:
         self._seen: np.ndarray | None = None
         self._tracks: list[_Track] = []
         self._static: np.ndarray | None = None
+        self._transient: np.ndarray | None = None
         self._motion: np.ndarray | None = None
 
     @property
@@ -271,7 +317,10 @@ class Tracker:
         new = visible & ~self._seen
         self._background[new] = occupied[new]
         self._seen |= visible
-        moving = foreground(occupied, self._background, self.config.background_threshold)
+        threshold = self.config.background_threshold
+        moving = foreground(occupied, self._background, threshold)
+        # rare here but beside a wall (the 3 x 3 neighbourhood above): held, not tracked
+        self._transient = occupied & ~moving & (self._background < threshold)
         a = self.config.alpha
         rate = (1 - a) * self._background + a * occupied
         self._background = np.where(visible, rate, self._background)
@@ -284,23 +333,21 @@ class Tracker:
         float32 in [0, 1] (see the module docstring)."""
         if self._static is None:
             raise RuntimeError("ahead() before any update()")
-        h, w = self._static.shape
+        movers = self.movers()
         out = []
         for k in range(1, horizon + 1):
-            predicted = self._static.copy()
-            for track in self._tracks:
-                if track.missed:
-                    continue
-                d_row = int(np.rint(-k * track.state[2]))
-                d_col = int(np.rint(-k * track.state[3]))
-                r, c = track.cells[:, 0] + d_row, track.cells[:, 1] + d_col
-                inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-                predicted[r[inside], c[inside]] = True
-            image = predicted.astype(np.float32)
-            if self._motion is not None:
-                image = np.clip(rigid_moved(image, composed_motion(self._motion, k)), 0.0, 1.0)
-            out.append(image.astype(np.float32))
+            image = (self._static | movers.cells_at(k)).astype(np.float32)
+            out.append(movers.moved_to_sensor(image, k))
         return out
+
+    def movers(self, hold: int = 0) -> Movers:
+        """The objects tracked in the last frame, frozen: what :class:`Movers` moves ``k``
+        frames on, without the background (later updates do not change it); ``hold``: the
+        transient cells no track took are kept that many frames."""
+        if self._static is None or self._transient is None:
+            raise RuntimeError("movers() before any update()")
+        tracks = [(t.state[2:].copy(), t.cells.copy()) for t in self._tracks if not t.missed]
+        return Movers(self._static.shape, tracks, self._motion, self._transient.copy(), hold)
 
     def _carry(self, motion: np.ndarray) -> None:
         """Re-express the background and the tracks in the new sensor frame."""

@@ -72,10 +72,12 @@ class DecisionConfig:
     """How the trained model's next map is to be decided, written beside it (``model.json``'s
     ``decision`` record): the Predictor's policy, not the model's (training never uses it).
     ``offset`` is added to the occupancy head's logit; ``online``: offsets chosen on the stream
-    itself, starting from it (:mod:`lidarflow.predict.decision`)."""
+    itself, starting from it (:mod:`lidarflow.predict.decision`); ``movers``: a tracker's moved
+    objects join the decided map (:class:`lidarflow.predict.decision.DecisionPolicy`)."""
 
     offset: float = 0.0
     online: bool = False
+    movers: bool = False
 
 
 @dataclass
