@@ -449,4 +449,4 @@ def test_weights_saved_before_the_blocks_load_into_them(tmp_path):
     loaded, card = load_trained(tmp_path)
     for key, value in net.state_dict().items():
         torch.testing.assert_close(loaded.state_dict()[key], value)
-    assert card["decision"] == {"offset": 0.7, "online": False}
+    assert card["decision"] == {"offset": 0.7, "online": False, "movers": False}
