@@ -30,21 +30,20 @@ from __future__ import annotations
 
 import contextlib
 import io
-import multiprocessing
 import os
-import queue
 import signal
 import sys
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from lidarflow.errors import LidarflowError
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 __all__ = ["JobsOpt", "Outcome", "error_line", "job_bar", "resolve_jobs", "run_jobs"]
 
@@ -239,6 +238,10 @@ def _run_pool(
     desc: str,
     hand_on: Callable[[Outcome], bool],
 ) -> None:
+    # imported here: one input in one process (the memory-bounded `predict`) never needs them
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
     from tqdm import tqdm
 
     from lidarflow.extras import torch_available
@@ -284,6 +287,8 @@ def _run_pool(
 
 
 def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:
+    from concurrent.futures.process import BrokenProcessPool
+
     try:
         return future.result()
     except BrokenProcessPool:
@@ -297,6 +302,8 @@ def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:
 
 def _drain(progress: Any, bar: Any) -> None:
     """Move what the workers reported onto the parent's bar."""
+    import queue
+
     while True:
         try:
             kind, n = progress.get_nowait()
