@@ -68,7 +68,7 @@ def test_predict_jobs_writes_each_bag_as_one_process_and_a_failure_stops_no_othe
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a recording")
     inputs = [str(short[0]), str(bad), str(short[2])]
-    code, out, err = run(["predict", *inputs, "-o", str(tmp_path / "one")], capsys)
+    code, _, err = run(["predict", *inputs, "-o", str(tmp_path / "one")], capsys)
     assert code == 1
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("lidarflow: error: ") and "bad.npz" in lines[0]
@@ -88,7 +88,7 @@ def test_two_inputs_of_one_name_get_two_outputs(short, tmp_path, capsys):
     other.mkdir()
     twin = other / short[0].name
     twin.write_bytes(short[1].read_bytes())
-    code, out, err = run(["predict", str(short[0]), str(twin), "-o", str(tmp_path / "o")], capsys)
+    code, _, err = run(["predict", str(short[0]), str(twin), "-o", str(tmp_path / "o")], capsys)
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["r0.mcap", "r0_2.mcap"]
 
