@@ -5,8 +5,10 @@ The workers fork from a fork server (``forkserver``), not from the command's pro
 of a process holding threads (ONNX Runtime's, PyTorch's, tqdm's monitor) can deadlock in the
 child, and the fork server holds none. It imports lidarflow and, where installed, PyTorch once
 for all the workers: imported in each (``spawn``), PyTorch alone took seconds per worker, and
-``evaluate --jobs 2`` of two short recordings 25 s against 14 s on a busy 2-core machine. What a worker runs is what the same command runs in one process, so
-the outputs are the same (tests/test_cli_jobs.py compares them). Each worker
+``evaluate --jobs 2`` of two short recordings 25 s against 14 s on a busy 2-core machine.
+
+What a worker runs is what the same command runs in one process, so the outputs are the same
+(tests/test_cli_jobs.py compares them). Each worker
 
 - runs the model on ``threads`` threads, and NumPy's BLAS and OpenMP on one: N workers on N
   cores, not N times as many threads as cores (a busy core makes a step many times slower,
