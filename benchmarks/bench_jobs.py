@@ -8,7 +8,10 @@ baselines) runs in a fresh process with ``--jobs 1`` and with ``--jobs N``, in t
 count changes SSIM's sums in the 10th digit), so the two reports must be the same, byte for
 byte. The judged number is the ratio within one run (``speedup``: the median wall time of
 ``--jobs 1`` over ``--jobs N``'s), beside the machine's load average before and after: the
-machine is shared. Writes JSON (default ``benchmarks/results/jobs.json``).
+machine is shared. Where Linux groups the processes of a session for the scheduler
+(``autogroup``, recorded), the workers of one command share their session's part of a busy
+machine: beside other busy sessions, more workers cannot buy more CPU than that part.
+Writes JSON (default ``benchmarks/results/jobs.json``).
 
     python benchmarks/bench_jobs.py [--frames 60] [--jobs 2] [--repeats 1] [--json PATH] [BAG...]
 """
@@ -44,6 +47,14 @@ def evaluate_seconds(recordings: list[Path], jobs: int, out: Path) -> float:
     if done.returncode != 0:
         raise RuntimeError(f"evaluate --jobs {jobs} failed: {done.stderr[-2000:]}")
     return seconds
+
+
+def _autogroup() -> bool | None:
+    """Whether the scheduler shares the CPU between sessions first (Linux autogroup)."""
+    try:
+        return Path("/proc/sys/kernel/sched_autogroup_enabled").read_text().strip() == "1"
+    except OSError:
+        return None
 
 
 def main() -> None:
@@ -87,6 +98,7 @@ def main() -> None:
                 "repeats": args.repeats,
             },
             "load_average_1_5_15_min": {"before": load_before, "after": load_after},
+            "sched_autogroup": _autogroup(),
             "seconds": {f"jobs={j}": [round(s, 2) for s in t] for j, t in times.items()},
             "speedup": round(speedup, 3),
             "same_report": same,
