@@ -161,13 +161,12 @@ def predict(
     from lidarflow.cli.jobs import Outcome, resolve_jobs, run_jobs
     from lidarflow.cli.per_input import PredictSettings, PredictTask, predict_input
     from lidarflow.predict.moving import MOVING_THRESHOLD
+    from lidarflow.predict.rosout import output_kind
 
     groups = _topic_groups(topics)
     outputs = _outputs(inputs, output)
     for out in outputs:
         # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
-        from lidarflow.predict.rosout import output_kind
-
         marker = "metadata.yaml" if output_kind(out) == "ros2" else None
         refuse_existing(out, force=force, marker=marker, inputs=[*inputs, model])
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
