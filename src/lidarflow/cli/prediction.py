@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -30,6 +30,7 @@ from lidarflow.cli.app import (
     refuse_existing,
     use_threads,
 )
+from lidarflow.cli.jobs import JobsOpt
 from lidarflow.evaluate.methods import methods_and_config
 
 
@@ -108,13 +109,16 @@ def _demo(folder: Path, output: Path) -> None:
 
 @app.command()
 def predict(
-    input: Annotated[Path, typer.Argument(help="Recording (.npz) or bag/MCAP to predict on.")],
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to predict on.")
+    ],
     output: Annotated[
         Path,
         typer.Option(
             "--output",
             "-o",
-            help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag).",
+            help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag); for "
+            "several inputs a folder, one NAME.mcap in it per input.",
         ),
     ],
     topic: TopicOpt = None,
@@ -144,6 +148,7 @@ def predict(
     ] = "default",
     force: ForceOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
+    jobs: JobsOpt = 1,
 ) -> None:
     """Write the input bag's messages, unchanged, plus per scan the predicted next map
     (OccupancyGrid in the scan's frame, stamped with the time it predicts, for RViz/Foxglove),
@@ -153,41 +158,72 @@ def predict(
 
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
-    from lidarflow.data.sources import is_recording_file
-    from lidarflow.evaluate.horizon import check_horizon
-    from lidarflow.predict import Predictor
-    from lidarflow.predict.job import predict_to_bag
+    from lidarflow.cli.jobs import Outcome, resolve_jobs, run_jobs
+    from lidarflow.cli.per_input import PredictSettings, PredictTask, predict_input
+    from lidarflow.predict.moving import MOVING_THRESHOLD
     from lidarflow.predict.rosout import output_kind
 
     groups = _topic_groups(topics)
-
-    # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
-    marker = "metadata.yaml" if output_kind(output) == "ros2" else None
-    refuse_existing(output, force=force, marker=marker, inputs=[input, model])
-    recording = load_input(input, topic, odom_topic)
-    check_horizon(len(recording), horizon, 0, str(input))
-    from lidarflow.predict.moving import MOVING_THRESHOLD
-
+    outputs = _outputs(inputs, output)
+    for out in outputs:
+        # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
+        marker = "metadata.yaml" if output_kind(out) == "ros2" else None
+        refuse_existing(out, force=force, marker=marker, inputs=[*inputs, model])
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
-    given = model_grid(model, grid, res)
-    predictor = Predictor(
-        model,
-        given,
-        horizon=horizon,
-        threads=threads or None,
-        moving_threshold=threshold,
-        online_decision=False if fixed_decision else None,
-    )
-    with progress_bar(len(recording), f"predicting {input.name}") as bar:
-        source = None if is_recording_file(input) else input
-        counts = predict_to_bag(recording, predictor, output, bar.update, force, groups, source)
-    typer.echo(f"wrote {output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))
-    if "flow" in groups and not predictor.backend.capabilities.flow:
+    settings = PredictSettings(
+        topic, odom_topic, model, model_grid(model, grid, res), horizon, threads, threshold,
+        False if fixed_decision else None, groups, force,
+    )  # fmt: skip
+    tasks = [PredictTask(i, o, settings) for i, o in zip(inputs, outputs, strict=True)]
+    if len(tasks) > 1:
+        output.mkdir(exist_ok=True)  # each output in it is written whole or not at all
+    if len(tasks) == 1:  # one input: its errors are the command's
+        done = [Outcome(0, predict_input(tasks[0]))]
+        _say_written(tasks[0], done[0])
+    else:
+
+        def said(outcome: Outcome) -> None:  # in input order, as each is in
+            if outcome.notes:
+                typer.echo(outcome.notes, err=True, nl=False)
+            if outcome.error is not None:
+                typer.echo(f"lidarflow: error: {outcome.error}", err=True)
+            else:
+                _say_written(tasks[outcome.index], outcome)
+
+        workers = resolve_jobs(jobs, len(tasks))
+        desc = f"predicting {len(tasks)} inputs, {workers} at once"
+        names = [str(i) for i in inputs]
+        done = run_jobs(predict_input, tasks, names, workers, threads, desc, said)
+    if "flow" in groups and any(o.value is not None and not o.value.has_flow for o in done):
         # The bundled model is the occupancy head alone since v9 (issue 36): say why it is absent.
         typer.echo(
             "note: this model has no flow network, so no flow or moving cells were written; "
             "pass --model of a flow model (e.g. one trained with --recipe blurred) for them"
         )
+    if any(o.error is not None for o in done):  # each said in its one line above
+        raise typer.Exit(1)
+
+
+def _outputs(inputs: list[Path], output: Path) -> list[Path]:
+    """Where ``predict`` writes each input's predictions: ``output`` for one input; for several,
+    the folder ``output``, holding ``STEM.mcap`` per input (numbered where two inputs share a
+    stem, as the report's pictures are)."""
+    if len(inputs) == 1:
+        return [output]
+    from lidarflow.predict.rosout import output_kind
+    from lidarflow.viz.evaluation import unique_stems
+
+    if output_kind(output) != "ros2" or output.is_file():
+        raise typer.BadParameter(
+            f"{output}: for several inputs -o names a folder (one NAME.mcap per input in it)",
+            param_hint="-o",
+        )
+    return [output / f"{stem}.mcap" for stem in unique_stems([str(i) for i in inputs])]
+
+
+def _say_written(task: Any, outcome: Any) -> None:
+    counts = outcome.value.counts
+    typer.echo(f"wrote {task.output}: " + ", ".join(f"{t} x{n}" for t, n in counts.items()))
 
 
 def _topic_groups(text: str) -> frozenset[str]:

@@ -28,6 +28,8 @@ from lidarflow.cli.app import (
     refuse_existing,
     use_threads,
 )
+from lidarflow.cli.jobs import JobsOpt
+from lidarflow.cli.per_input import EvaluateSettings
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
 
@@ -123,6 +125,7 @@ def evaluate(
     moving_threshold: MovingOpt = None,
     force: ForceOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
+    jobs: JobsOpt = 1,
     device: Annotated[
         str,
         typer.Option(
@@ -184,6 +187,7 @@ def evaluate(
         online_decision,
         spec.res,
         device=resolve_device(device),
+        threads=threads or None,
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
     for name, used in config["models"].items():
@@ -195,12 +199,30 @@ def evaluate(
                 f"(--grid {trained.height} --res {trained.res:g} scores it on its own)",
                 err=True,
             )
+    from lidarflow.cli.jobs import resolve_jobs
+
+    workers = resolve_jobs(jobs, len(named))
     with contextlib.ExitStack() as stack:  # the report folder appears once complete
         staged = None if report_dir is None else stack.enter_context(atomic_path(report_dir))
-        report = evaluate_and_report(
-            named, methods, spec, warmup, config, staged, gif_frames, eval_progress
-        )
-    if horizon > 1:
+        if workers > 1:
+            settings = EvaluateSettings(
+                tuple(sources), ta_window, ta_threshold, moving_threshold, ego_oracle,
+                online_decision, spec, resolve_device(device), threads, warmup, horizon, staged,
+                gif_frames,
+            )  # fmt: skip
+            report, horizons = _evaluate_in_jobs(named, settings, config, workers)
+        else:
+            report = evaluate_and_report(
+                named, methods, spec, warmup, config, staged, gif_frames, eval_progress
+            )
+    if horizon > 1 and workers > 1:
+        from lidarflow.evaluate.horizon import add_horizon_entry
+        from lidarflow.evaluate.report import count_recordings_won
+
+        for entry, scored in zip(report["recordings"], horizons, strict=True):
+            add_horizon_entry(entry, scored)
+        count_recordings_won(report)
+    elif horizon > 1:
         from lidarflow.evaluate.horizon import add_horizon_scores
 
         add_horizon_scores(
@@ -258,6 +280,43 @@ _HORIZON_TABLES = (
     ("horizon_mover_auc", "mover AUC"),
     ("horizon_mover_soft_iou", "mover soft IoU"),
 )
+
+
+def _evaluate_in_jobs(
+    named: list[tuple[str, Any]], settings: EvaluateSettings, config: dict[str, Any], workers: int
+) -> tuple[dict[str, Any], list[Any]]:
+    """``evaluate``'s scoring, one worker process per recording (:mod:`lidarflow.cli.jobs`):
+    the report as one process makes it, and the recordings' horizon scores. The first
+    recording that fails stops the others: the report needs every one, and nothing is written
+    without it."""
+    from lidarflow.cli.jobs import Outcome, run_jobs
+    from lidarflow.cli.per_input import score_input
+    from lidarflow.errors import EvaluateError
+    from lidarflow.viz.evaluation import finish_report, unique_stems
+
+    names = [name for name, _ in named]
+    stems = unique_stems(names)
+    tasks = [(n, rec, stem, settings) for (n, rec), stem in zip(named, stems, strict=True)]
+
+    def show(outcome: Outcome) -> None:  # a recording's notes, in input order
+        if outcome.notes:
+            typer.echo(outcome.notes, err=True, nl=False)
+
+    desc = f"evaluating {len(named)} recordings, {workers} at once"
+    outcomes = run_jobs(score_input, tasks, names, workers, settings.threads, desc, show, True)
+    for outcome in outcomes:
+        if outcome.error is not None:
+            raise EvaluateError(f"{outcome.error} (the other recordings were stopped: nothing "
+                                "is written without every one)")  # fmt: skip
+    scored = [outcome.value for outcome in outcomes]
+    figures = None if settings.report_dir is None else {
+        name: s.figures for name, s in zip(names, scored, strict=True)
+    }  # fmt: skip
+    report = finish_report(
+        [(name, s.scorers) for name, s in zip(names, scored, strict=True)],
+        [s.notes for s in scored], config, settings.report_dir, figures,
+    )  # fmt: skip
+    return report, [s.horizon for s in scored]
 
 
 def _check_length(name: str, recording: Any, warmup: int, horizon: int) -> None:

@@ -58,7 +58,14 @@ from lidarflow.evaluate.stream import method_inputs, mover_region, recording_inp
 from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 
-__all__ = ["add_horizon_scores", "check_horizon", "horizon_scores", "scored_frames"]
+__all__ = [
+    "add_horizon_entry",
+    "add_horizon_scores",
+    "check_horizon",
+    "horizon_scores",
+    "recording_horizon",
+    "scored_frames",
+]
 
 
 def check_horizon(frames: int, horizon: int, warmup: int = 10, name: str = "the recording") -> None:
@@ -125,26 +132,59 @@ def add_horizon_scores(
     a progress bar (a context manager with ``update``) per recording. ``on_ahead(recording,
     method, t, predicted)``: each scored prediction 1..K ahead of frame ``t``, as
     :func:`horizon_scores` passes it."""
-    streamed = [m for m in methods if not getattr(m, "oracle", False)]
     for entry, (name, recording) in zip(report["recordings"], named, strict=True):
-        inputs = recording_inputs(recording, spec, streamed)
-        region = mover_region(recording, spec, inputs)
-        total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
-        with bar(total, name) if bar is not None else contextlib.nullcontext() as progress:
-            scores = horizon_scores(
-                inputs.occupancy, inputs.visibility, streamed, horizon, warmup,
-                None if progress is None else progress.update,
-                inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
-                inputs.gaps, inputs.paces, region,
-                None if on_ahead is None else functools.partial(on_ahead, name),
-            )  # fmt: skip
-        true_cells = scores.pop("mover_true_cells")
-        for key, scored in scores.items():  # f1, changed_f1, wmse, ssim (none on a tiny grid)
-            entry[f"horizon_{key}"] = scored
-        if not true_cells["copy_last"][-1]:
-            entry["horizon_undefined"] = ["mover_f1"]
-        add_horizon_verdict(entry)
+        progress = None if bar is None else functools.partial(_bar_of, bar, name)
+        scored = recording_horizon(
+            name, recording, methods, spec, warmup, horizon, progress, on_ahead
+        )
+        add_horizon_entry(entry, scored)
     count_recordings_won(report)
+
+
+def _bar_of(bar: Callable[[int, str], Any], name: str, total: int) -> Any:
+    return bar(total, name)
+
+
+def recording_horizon(
+    name: str,
+    recording: Any,
+    methods: Sequence[Method],
+    spec: GridSpec,
+    warmup: int,
+    horizon: int,
+    bar: Callable[[int], Any] | None = None,
+    on_ahead: Callable[[str, str, int, np.ndarray], None] | None = None,
+) -> dict[str, Any]:
+    """One recording's share of :func:`add_horizon_scores`: the ``horizon_*`` keys of its
+    report entry (and ``horizon_undefined``), for :func:`add_horizon_entry`. ``bar(total)``: a
+    progress bar (a context manager with ``update``). ``evaluate --jobs`` runs it in a worker
+    process per recording."""
+    streamed = [m for m in methods if not getattr(m, "oracle", False)]
+    inputs = recording_inputs(recording, spec, streamed)
+    region = mover_region(recording, spec, inputs)
+    total = len(streamed) * max(0, len(inputs.occupancy) - horizon)
+    with bar(total) if bar is not None else contextlib.nullcontext() as progress:
+        scores = horizon_scores(
+            inputs.occupancy, inputs.visibility, streamed, horizon, warmup,
+            None if progress is None else progress.update,
+            inputs.motions, inputs.returns, inputs.motions_from_poses, inputs.subcell,
+            inputs.gaps, inputs.paces, region,
+            None if on_ahead is None else functools.partial(on_ahead, name),
+        )  # fmt: skip
+    true_cells = scores.pop("mover_true_cells")
+    # f1, changed_f1, wmse, ssim (none on a tiny grid)
+    keys: dict[str, Any] = {f"horizon_{key}": scored for key, scored in scores.items()}
+    if not true_cells["copy_last"][-1]:
+        keys["horizon_undefined"] = ["mover_f1"]
+    return keys
+
+
+def add_horizon_entry(entry: dict[str, Any], scored: dict[str, Any]) -> None:
+    """Put a recording's :func:`recording_horizon` into its report ``entry`` and extend its
+    verdicts by the movers at ``K`` (:func:`~lidarflow.evaluate.report.add_horizon_verdict`);
+    the report's counts of recordings won follow from :func:`count_recordings_won` after."""
+    entry.update(scored)
+    add_horizon_verdict(entry)
 
 
 def horizon_scores(

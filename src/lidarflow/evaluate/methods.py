@@ -39,6 +39,7 @@ def methods_and_config(
     res: float = 0.1,
     names: Sequence[str] | None = None,
     device: str = "cpu",
+    threads: int | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
     configuration that describes them for the report. With an ego-motion model among them the
@@ -49,7 +50,9 @@ def methods_and_config(
     ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``. A source
     ``None`` or ``"bundled"`` is the bundled model; ``names`` name the models (default: the
     bundled one ``bundled``, others by their folder or file); ``device``: where PyTorch models
-    run (``cpu``, ``cuda``, ``cuda:N``; ONNX files run on the CPU)."""
+    run (``cpu``, ``cuda``, ``cuda:N``; ONNX files run on the CPU); ``threads``: the CPU threads
+    each model runs on (``None``: the backend's default; ONNX Runtime takes them when its session
+    is made, PyTorch process-wide)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [
@@ -63,7 +66,7 @@ def methods_and_config(
     models_used = {}
     for i, source in enumerate(sources):
         bundled = source is None or str(source) == "bundled"
-        net, card = load_backend(None if bundled else source, threads=None, device=device)
+        net, card = load_backend(None if bundled else source, threads=threads, device=device)
         name = names[i] if names else "bundled" if bundled else describe_source(source)
         while name in {m.name for m in methods}:
             name += "_"

@@ -31,7 +31,16 @@ from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import moving_rgb, overlay_rgb, write_gif
 from lidarflow.viz.plots import plot_epe_per_frame, plot_pr_curves, plot_reliability
 
-__all__ = ["OverlayCollector", "evaluate_and_report", "pr_figure", "safe_stem"]
+__all__ = [
+    "OverlayCollector",
+    "evaluate_and_report",
+    "finish_report",
+    "pr_figure",
+    "recording_notes",
+    "safe_stem",
+    "score_and_draw",
+    "unique_stems",
+]
 
 
 def safe_stem(path: str | Path) -> str:
@@ -124,6 +133,102 @@ def pr_figure(scorers: Mapping[str, Scorer], path: Path, title: str) -> Path:
     return plot_pr_curves(curves, path, title)
 
 
+def unique_stems(names: Sequence[str]) -> list[str]:
+    """A file-name stem per recording name (:func:`safe_stem`), numbered where two share one
+    (``a/run.bag``, ``b/run.bag`` -> ``run``, ``run_2``): the pictures of two recordings must
+    not share a file."""
+    stems: list[str] = []
+    for name in names:
+        stem, n = safe_stem(name), 1
+        while stem in stems:
+            n += 1
+            stem = f"{safe_stem(name)}_{n}"
+        stems.append(stem)
+    return stems
+
+
+def score_and_draw(
+    name: str,
+    recording: Recording,
+    methods: Sequence[Method],
+    grid: GridSpec,
+    warmup: int,
+    report_dir: Path | None = None,
+    stem: str | None = None,
+    gif_frames: int = 100,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[dict[str, Scorer], list[tuple[str, Path]]]:
+    """Score ``methods`` on one recording; with ``report_dir``, draw its PR curves, reliability
+    diagram and overlay GIFs there (files named by ``stem``). Returns the scorers and the
+    figures (caption, path). One recording's share of :func:`evaluate_and_report`, which
+    ``evaluate --jobs`` runs in a worker process per recording."""
+    collector = None
+    if report_dir is not None:
+        collector = OverlayCollector(*streamed_maps(recording, grid), max_frames=gif_frames)
+    scorers = evaluate_recording(
+        recording,
+        methods,
+        grid,
+        warmup,
+        progress,
+        collector,
+        None if collector is None else collector.add_moving,
+    )
+    if report_dir is None or collector is None:
+        return scorers, []
+    stem = stem or safe_stem(name)
+    title = f"{Path(name).name}: PR curves"
+    pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", title)
+    gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
+    reliability = plot_reliability(
+        {m: sc.calibration.summary() for m, sc in scorers.items()},
+        report_dir / f"{stem}_reliability.png",
+        f"{Path(name).name}: reliability",
+    )
+    figures = [("precision-recall", pr), ("reliability diagram", reliability), *gifs]
+    epe = {m: s.epe_per_frame for m, s in scorers.items() if s.epe_per_frame}
+    if epe:
+        plot = plot_epe_per_frame(epe, report_dir / f"{stem}_epe.png", f"{Path(name).name}")
+        figures.append(("flow end-point error per frame", plot))
+    return scorers, figures
+
+
+def recording_notes(recording: Recording, grid: GridSpec) -> dict[str, Any]:
+    """What a recording's report entry says beside its scores: the gaps not scored across,
+    and a grid it was recorded on other than ``grid``."""
+    notes: dict[str, Any] = {}
+    gaps = find_gaps(recording)
+    if gaps:  # steps not scored: the frame after a gap is not the next scan
+        notes["gaps_not_scored"] = [{"before_frame": i, "seconds": round(s, 3)} for i, s in gaps]
+    recorded = other_recorded_grid(recording, grid)
+    # a real recording is rasterized on any grid alike; a simulated one's ground truth
+    # was made on its own grid and is not scored on another
+    if recorded is not None and has_ground_truth(recording):
+        notes["recorded_grid"] = recorded
+        notes["ground_truth_not_scored"] = True
+    return notes
+
+
+def finish_report(
+    scored: Sequence[tuple[str, dict[str, Scorer]]],
+    notes: Sequence[Mapping[str, Any]],
+    config: dict[str, Any],
+    report_dir: Path | None = None,
+    figures: Mapping[str, list[tuple[str, Path]]] | None = None,
+) -> dict[str, Any]:
+    """The report of the recordings ``scored`` (name, scorers), in order, each entry with its
+    :func:`recording_notes`; with ``report_dir``, ``report.json`` and ``index.html`` written
+    there too, showing ``figures`` (per recording name)."""
+    report = build_report(list(scored), config)
+    for entry, extra in zip(report["recordings"], notes, strict=True):
+        entry.update(extra)
+    if report_dir is not None:
+        report_dir.mkdir(parents=True, exist_ok=True)
+        write_text(report_dir / "report.json", json.dumps(report, indent=2))
+        write_html_report(report, report_dir / "index.html", figures or {})
+    return report
+
+
 def evaluate_and_report(
     named_recordings: Sequence[tuple[str, Recording]],
     methods: Sequence[Method],
@@ -140,58 +245,16 @@ def evaluate_and_report(
     ``progress(name, total)`` may return a context manager with ``update(n)`` (a tqdm bar)."""
     results = []
     figures: dict[str, list[tuple[str, Path]]] = {}
-    stems: set[str] = set()
-    for name, recording in named_recordings:
-        collector = None
-        if report_dir is not None:
-            collector = OverlayCollector(*streamed_maps(recording, grid), max_frames=gif_frames)
+    names = [name for name, _ in named_recordings]
+    for (name, recording), stem in zip(named_recordings, unique_stems(names), strict=True):
         bar = progress(name, len(recording) - 1) if progress else contextlib.nullcontext()
         with bar as b:
-            scorers = evaluate_recording(
-                recording,
-                methods,
-                grid,
-                warmup,
+            scorers, drawn = score_and_draw(
+                name, recording, methods, grid, warmup, report_dir, stem, gif_frames,
                 getattr(b, "update", None),
-                collector,
-                None if collector is None else collector.add_moving,
-            )
+            )  # fmt: skip
         results.append((name, scorers))
-        if report_dir is not None and collector is not None:
-            # two recordings of one file name (a/run.bag, b/run.bag) must not share pictures
-            stem, n = safe_stem(name), 1
-            while stem in stems:
-                n += 1
-                stem = f"{safe_stem(name)}_{n}"
-            stems.add(stem)
-            title = f"{Path(name).name}: PR curves"
-            pr = pr_figure(scorers, report_dir / f"{stem}_pr.png", title)
-            gifs = collector.write(report_dir, stem, fps=recording.frame_rate or 10.0)
-            reliability = plot_reliability(
-                {m: sc.calibration.summary() for m, sc in scorers.items()},
-                report_dir / f"{stem}_reliability.png",
-                f"{Path(name).name}: reliability",
-            )
-            figures[name] = [("precision-recall", pr), ("reliability diagram", reliability), *gifs]
-            epe = {m: s.epe_per_frame for m, s in scorers.items() if s.epe_per_frame}
-            if epe:
-                plot = plot_epe_per_frame(epe, report_dir / f"{stem}_epe.png", f"{Path(name).name}")
-                figures[name].append(("flow end-point error per frame", plot))
-    report = build_report(results, config)
-    for entry, (_, recording) in zip(report["recordings"], named_recordings, strict=True):
-        gaps = find_gaps(recording)
-        if gaps:  # steps not scored: the frame after a gap is not the next scan
-            entry["gaps_not_scored"] = [
-                {"before_frame": i, "seconds": round(s, 3)} for i, s in gaps
-            ]
-        recorded = other_recorded_grid(recording, grid)
-        # a real recording is rasterized on any grid alike; a simulated one's ground truth
-        # was made on its own grid and is not scored on another
-        if recorded is not None and has_ground_truth(recording):
-            entry["recorded_grid"] = recorded
-            entry["ground_truth_not_scored"] = True
-    if report_dir is not None:
-        report_dir.mkdir(parents=True, exist_ok=True)
-        write_text(report_dir / "report.json", json.dumps(report, indent=2))
-        write_html_report(report, report_dir / "index.html", figures)
-    return report
+        if report_dir is not None:
+            figures[name] = drawn
+    notes = [recording_notes(recording, grid) for _, recording in named_recordings]
+    return finish_report(results, notes, config, report_dir, figures)

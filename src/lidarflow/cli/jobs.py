@@ -1,0 +1,323 @@
+"""``--jobs N``: the inputs of ``evaluate`` and ``predict`` run N at once, one worker process
+per input, each on one thread (``--threads``).
+
+The workers fork from a fork server (``forkserver``), not from the command's process: a fork
+of a process holding threads (ONNX Runtime's, PyTorch's, tqdm's monitor) can deadlock in the
+child, and the fork server holds none. It imports lidarflow and, where installed, PyTorch once
+for all the workers: imported in each (``spawn``), PyTorch alone took seconds per worker, and
+``evaluate --jobs 2`` of two short recordings 25 s against 14 s on a busy 2-core machine.
+
+What a worker runs is what the same command runs in one process, so the outputs are the same
+(tests/test_cli_jobs.py compares them). Each worker
+
+- runs the model on ``threads`` threads, and NumPy's BLAS and OpenMP on one: N workers on N
+  cores, not N times as many threads as cores (a busy core makes a step many times slower,
+  benchmarks/results/threads.json);
+- runs the backends its parent runs: where the parent cannot import PyTorch (the core install,
+  or a test that blocks it), the worker blocks it too, so that it loads the ONNX model the parent
+  chose rather than import PyTorch beside it;
+- sends its progress to the parent, which draws one bar for all inputs, and keeps what it
+  writes on stderr (notes on its input) for the parent to print with its result.
+
+Results come back in input order, whatever order the workers finish in. A task that fails comes
+back as one line naming its input (:func:`error_line`); the caller says what happens to the
+others (``predict`` finishes them, ``evaluate`` stops: its one report needs every input).
+
+Stopping: Ctrl-C or SIGTERM in the parent (the CLI turns SIGTERM into a ``KeyboardInterrupt``)
+stops every worker: a worker in a task raises ``KeyboardInterrupt`` there, so the output it was
+writing is removed (:mod:`lidarflow.atomic`); an idle one exits. The parent waits for them all
+to end before it goes on, so that nothing is written into what it removes next (a staged report
+folder). A worker killed outright leaves at most a temporary, never a half-written output.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import signal
+import sys
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from lidarflow.errors import LidarflowError
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
+
+__all__ = ["JobsOpt", "Outcome", "error_line", "job_bar", "resolve_jobs", "run_jobs"]
+
+JobsOpt = Annotated[
+    int,
+    typer.Option(
+        "--jobs",
+        "-j",
+        help="Inputs run at once, each in its own process on --threads threads (0: one per "
+        "core); 1 runs them one after another in this process.",
+        min=0,
+    ),
+]
+
+#: The environment variables that size BLAS and OpenMP thread pools, read when those load.
+_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One input's result: ``value`` or the one-line ``error`` naming the input, and what its
+    task wrote on stderr (``notes``)."""
+
+    index: int
+    value: Any = None
+    error: str | None = None
+    notes: str = ""
+
+
+def resolve_jobs(jobs: int, inputs: int) -> int:
+    """The worker processes for ``inputs`` inputs: ``jobs``, 0 meaning one per core this
+    process may run on, never more than the inputs."""
+    if jobs == 0:
+        jobs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(jobs or 1, inputs))
+
+
+def error_line(name: str, err: BaseException) -> str:
+    """``err`` as one line naming the input ``name``, as the CLI would print it."""
+    from lidarflow.extras import missing_extra
+
+    if isinstance(err, LidarflowError):
+        text = str(err)
+    elif isinstance(err, OSError):
+        text = (f"{err.filename}: " if err.filename else "") + (err.strerror or str(err))
+    elif isinstance(err, ImportError) and (missing := missing_extra(err)) is not None:
+        text = str(missing)
+    else:
+        text = (
+            f"internal error: {type(err).__name__}: {err} (rerun it with --jobs 1 and "
+            "LIDARFLOW_DEBUG=1 for the traceback, and please report it)"
+        )
+    return text if name in text else f"{name}: {text}"
+
+
+# What a worker process holds (set by _start_worker); None in the parent.
+_PROGRESS: Any = None
+_STOP: Any = None
+_BUSY = False
+
+
+class _QueueBar:
+    """A worker's progress bar: its total and its steps go to the parent's one bar."""
+
+    def __init__(self, total: int | None) -> None:
+        self.total = total
+
+    def __enter__(self) -> _QueueBar:
+        if self.total:
+            _PROGRESS.put(("total", self.total))
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def update(self, n: int = 1) -> None:
+        _PROGRESS.put(("done", n))
+
+
+def job_bar(total: int | None, desc: str) -> Any:
+    """A progress bar for one input's work (a context manager with ``update``): its own bar in
+    the parent process, a share of the parent's one bar in a worker."""
+    if _PROGRESS is not None:
+        return _QueueBar(total)
+    from lidarflow.cli.app import progress_bar
+
+    return progress_bar(total, desc)
+
+
+def _on_signal(signum: int, frame: object) -> None:
+    if _BUSY:  # stop the task, whose outputs go through lidarflow.atomic
+        raise KeyboardInterrupt(f"stopped by signal {signal.Signals(signum).name}")
+    os._exit(128 + signum)  # idle: nothing to clean up, and no traceback from the pool's loop
+
+
+def _start_worker(progress: Any, stop: Any, threads: int, block_torch: bool) -> None:
+    """A worker's set-up, before its first task (see the module)."""
+    global _PROGRESS, _STOP
+    _PROGRESS, _STOP = progress, stop
+    if block_torch:
+        from lidarflow.extras import TORCH_EXTRA_MODULES
+
+        for name in TORCH_EXTRA_MODULES:
+            sys.modules[name] = None  # type: ignore[assignment]
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    from lidarflow.cli.app import use_threads
+
+    use_threads(threads)
+
+
+def _run_task(work: Callable[[Any], Any], index: int, name: str, task: Any) -> Outcome:
+    """Run ``work(task)`` in a worker: its result, or its error as one line."""
+    global _BUSY
+    notes = io.StringIO()
+    _BUSY = True
+    try:
+        if _STOP is not None and _STOP.is_set():  # a task handed out as the run stopped
+            raise KeyboardInterrupt("stopped")
+        with contextlib.redirect_stderr(notes):
+            value = work(task)
+        return Outcome(index, value, None, notes.getvalue())
+    except Exception as err:
+        if os.environ.get("LIDARFLOW_DEBUG") == "1":
+            notes.write(traceback.format_exc())
+        return Outcome(index, None, error_line(name, err), notes.getvalue())
+    finally:
+        _BUSY = False
+
+
+@contextlib.contextmanager
+def _one_thread_libraries() -> Iterator[None]:
+    """Spawned children inherit the environment: BLAS and OpenMP read these when they load."""
+    saved = {k: os.environ.get(k) for k in _THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def run_jobs(
+    work: Callable[[Any], Any],
+    tasks: Sequence[Any],
+    names: Sequence[str],
+    jobs: int,
+    threads: int,
+    desc: str,
+    on_outcome: Callable[[Outcome], None],
+    stop_on_error: bool = False,
+) -> list[Outcome]:
+    """Run ``work(task)`` for each of ``tasks`` (inputs named ``names``), ``jobs`` at once in
+    worker processes (1: one after another in this process), and hand each :class:`Outcome`
+    to ``on_outcome`` in input order as soon as those before it are in. ``work`` must be a
+    module-level function and ``tasks`` picklable. ``stop_on_error``: the first failure stops
+    the other tasks. Returns the outcomes handed on."""
+    done: list[Outcome] = []
+
+    def hand_on(outcome: Outcome) -> bool:
+        on_outcome(outcome)
+        done.append(outcome)
+        return stop_on_error and outcome.error is not None
+
+    if jobs <= 1:
+        for i, (name, task) in enumerate(zip(names, tasks, strict=True)):
+            if hand_on(_run_here(work, i, name, task)):
+                break
+        return done
+    _run_pool(work, tasks, names, jobs, threads, desc, hand_on)
+    return done
+
+
+def _run_here(work: Callable[[Any], Any], index: int, name: str, task: Any) -> Outcome:
+    try:
+        return Outcome(index, work(task))
+    except Exception as err:
+        if os.environ.get("LIDARFLOW_DEBUG") == "1":
+            raise
+        return Outcome(index, None, error_line(name, err))
+
+
+def _run_pool(
+    work: Callable[[Any], Any],
+    tasks: Sequence[Any],
+    names: Sequence[str],
+    jobs: int,
+    threads: int,
+    desc: str,
+    hand_on: Callable[[Outcome], bool],
+) -> None:
+    # imported here: one input in one process (the memory-bounded `predict`) never needs them
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    from tqdm import tqdm
+
+    from lidarflow.extras import torch_available
+
+    context = multiprocessing.get_context("forkserver")
+    # Imported once in the fork server, not once per worker: PyTorch alone takes seconds.
+    preload = ["lidarflow.cli.per_input", "lidarflow.evaluate.methods", "lidarflow.predict"]
+    context.set_forkserver_preload(preload + (["torch"] if torch_available() else []))
+    progress, stop = context.Queue(), context.Event()
+    args = (progress, stop, threads, not torch_available())
+    executor = ProcessPoolExecutor(jobs, context, initializer=_start_worker, initargs=args)
+    bar = tqdm(total=0, desc=desc, unit="scan", disable=None, leave=False)
+    ready: dict[int, Outcome] = {}
+    finished = False
+    try:
+        with _one_thread_libraries():  # the workers start as the tasks are handed out
+            pending: dict[Future[Outcome], int] = {
+                executor.submit(_run_task, work, i, names[i], task): i
+                for i, task in enumerate(tasks)
+            }
+        following = 0
+        while following < len(tasks):
+            completed, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(progress, bar)
+            for future in completed:
+                i = pending.pop(future)
+                ready[i] = _outcome_of(future, i, names[i])
+            while following in ready:
+                with tqdm.external_write_mode():
+                    if hand_on(ready.pop(following)):
+                        return
+                following += 1
+            bar.set_postfix_str(f"{following}/{len(tasks)} inputs")
+        finished = True
+    finally:
+        bar.close()
+        if not finished:  # interrupted, failed, or stopped on an error: stop the workers
+            stop.set()  # a task still handed out after this returns at once
+            # the pool has no public way to stop its workers before Python 3.14's
+            # terminate_workers(); SIGTERM is the one each worker handles (_on_signal)
+            for process in list(getattr(executor, "_processes", {}).values()):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(process.pid, signal.SIGTERM)
+        executor.shutdown(wait=True, cancel_futures=True)
+        progress.close()
+
+
+def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        return Outcome(
+            index,
+            None,
+            f"{name}: not done: a worker process ended abruptly (killed, or out of "
+            "memory?); rerun it, with fewer --jobs if memory is short",
+        )
+
+
+def _drain(progress: Any, bar: Any) -> None:
+    """Move what the workers reported onto the parent's bar."""
+    import queue
+
+    while True:
+        try:
+            kind, n = progress.get_nowait()
+        except (queue.Empty, OSError, ValueError):
+            return
+        if kind == "total":
+            bar.total += n
+            bar.refresh()
+        else:
+            bar.update(n)

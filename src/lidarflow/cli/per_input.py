@@ -1,0 +1,162 @@
+"""What ``evaluate`` and ``predict`` do to one input: the work ``--jobs`` hands a worker process
+(:mod:`lidarflow.cli.jobs`), and ``predict`` runs in its own process too. Each takes one
+picklable task and returns a picklable result; the command prints and writes the rest."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lidarflow.cli.jobs import job_bar
+
+__all__ = [
+    "EvaluateSettings",
+    "PredictSettings",
+    "PredictTask",
+    "Predicted",
+    "Scored",
+    "predict_input",
+    "score_input",
+]
+
+
+@dataclass(frozen=True)
+class EvaluateSettings:
+    """What every recording of one ``evaluate`` run is scored with: the methods'
+    (:func:`lidarflow.evaluate.methods.methods_and_config`), the grid, the warm-up, the horizon
+    and the report folder the pictures go to (the staged one)."""
+
+    sources: tuple[Path | None, ...]
+    ta_window: int
+    ta_threshold: float
+    moving_threshold: float | None
+    ego_oracle: bool
+    online_decision: bool
+    spec: Any  # GridSpec
+    device: str
+    threads: int
+    warmup: int
+    horizon: int
+    report_dir: Path | None
+    gif_frames: int
+
+
+@dataclass(frozen=True)
+class Scored:
+    """One recording scored: its scorers, the pictures drawn of it, the notes of its report
+    entry (:func:`lidarflow.viz.evaluation.recording_notes`) and, for ``horizon`` > 1, its
+    ``horizon_*`` keys."""
+
+    scorers: dict[str, Any]
+    figures: list[tuple[str, Path]]
+    notes: dict[str, Any]
+    horizon: dict[str, Any] | None
+
+
+#: The methods a worker built, by the settings they were built for: made once per process, as
+#: the one-process run makes them once, and reset between recordings alike.
+_METHODS: dict[EvaluateSettings, list[Any]] = {}
+
+
+def _methods(settings: EvaluateSettings) -> list[Any]:
+    from lidarflow.evaluate.methods import methods_and_config
+
+    if settings not in _METHODS:
+        _METHODS[settings] = methods_and_config(
+            settings.sources,
+            settings.ta_window,
+            settings.ta_threshold,
+            settings.moving_threshold,
+            settings.ego_oracle,
+            settings.online_decision,
+            settings.spec.res,
+            device=settings.device,
+            threads=settings.threads or None,
+        )[0]
+    return _METHODS[settings]
+
+
+def score_input(task: tuple[str, Any, str, EvaluateSettings]) -> Scored:
+    """Score the recording of ``task`` (name, recording, picture stem, settings) as ``evaluate``
+    scores each of its recordings, its horizon too."""
+    from lidarflow.viz.evaluation import recording_notes, score_and_draw
+
+    name, recording, stem, settings = task
+    methods = _methods(settings)
+    spec, warmup = settings.spec, settings.warmup
+    with job_bar(len(recording) - 1, f"evaluating {Path(name).name}") as bar:
+        scorers, figures = score_and_draw(
+            name, recording, methods, spec, warmup, settings.report_dir, stem,
+            settings.gif_frames, bar.update,
+        )  # fmt: skip
+    horizon = None
+    if settings.horizon > 1:
+        from lidarflow.evaluate.horizon import recording_horizon
+
+        desc = f"horizon {settings.horizon}, {Path(name).name}"
+        horizon = recording_horizon(
+            name, recording, methods, spec, warmup, settings.horizon,
+            lambda total: job_bar(total, desc),
+        )  # fmt: skip
+    return Scored(scorers, figures, recording_notes(recording, spec), horizon)
+
+
+@dataclass(frozen=True)
+class PredictSettings:
+    """What every input of one ``predict`` run is predicted with (its options)."""
+
+    topic: str | None
+    odom_topic: str | None
+    model: Path | None
+    grid: Any  # GridSpec or None: the model's own
+    horizon: int
+    threads: int
+    moving_threshold: float
+    online_decision: bool | None
+    groups: frozenset[str]
+    force: bool
+
+
+@dataclass(frozen=True)
+class PredictTask:
+    input: Path
+    output: Path
+    settings: PredictSettings
+
+
+@dataclass(frozen=True)
+class Predicted:
+    """One input predicted: the messages written per topic, and whether the model had flow to
+    write (``--topics ...,flow``)."""
+
+    counts: dict[str, int]
+    has_flow: bool
+
+
+def predict_input(task: PredictTask) -> Predicted:
+    """Read ``task.input``, predict every scan of it and write ``task.output``, as ``predict``
+    does for each input."""
+    from lidarflow.cli.app import load_input
+    from lidarflow.data.sources import is_recording_file
+    from lidarflow.evaluate.horizon import check_horizon
+    from lidarflow.predict import Predictor
+    from lidarflow.predict.job import predict_to_bag
+
+    s = task.settings
+    recording = load_input(task.input, s.topic, s.odom_topic)
+    check_horizon(len(recording), s.horizon, 0, str(task.input))
+    predictor = Predictor(
+        s.model,
+        s.grid,
+        horizon=s.horizon,
+        threads=s.threads or None,
+        moving_threshold=s.moving_threshold,
+        online_decision=s.online_decision,
+    )
+    source = None if is_recording_file(task.input) else task.input
+    with job_bar(len(recording), f"predicting {task.input.name}") as bar:
+        counts = predict_to_bag(
+            recording, predictor, task.output, bar.update, s.force, s.groups, source
+        )
+    return Predicted(counts, predictor.backend.capabilities.flow)
