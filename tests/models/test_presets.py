@@ -17,8 +17,10 @@ def test_bundled_model_loads_and_matches_its_record():
     # The occupancy head alone since v9 (issue 36): no flow network, a few hundred weights
     assert net.inner.flow is None and not net.capabilities.flow
     assert sum(p.numel() for p in net.parameters()) == card["parameters"] < 1000
-    assert BUNDLED.meta["version"] == "v9" and BUNDLED.meta["recipe"] == card["recipe"]
+    assert BUNDLED.meta["version"] == "v10" and BUNDLED.meta["recipe"] == card["recipe"]
     assert card["parameters"] == BUNDLED.meta["parameters"] and card["decision"]["online"]
+    # v10 is v9's head with the tracked movers laid over its map (issue 44)
+    assert card["decision"]["movers"]
 
     card_text = (bundled_model_dir() / "MODEL_CARD.md").read_text()
     assert "Held-out recordings" in card_text and "copy_last" in card_text

@@ -59,13 +59,14 @@ BUNDLED = WeightsRecord(
     weights_sha256="62182f7c75731acd8b53bf0c3d9415a5eb3271584b6f6ebf0eb3f39caf7b45a6",
     # `lidarflow export -o src/lidarflow/assets/model/model.onnx` (the bundled model, its
     # decision policy marked in the file); tests/models/test_presets.py holds it to the weights
-    onnx_sha256="9d39e2709148857bd77b9f0261f063a6cb9889a1ffaf0e34ad607ce690eb6ac6",
+    onnx_sha256="1dcc4f5d5f63ebe1a9b5a6b25d7ef1d64c3d0facd9f4560ab6e4fec3d87a0b29",
     description=(
-        "LiDAR-FlowNet's occupancy head without the flow network, v9, trained by lidarflow's "
-        "default recipe head_only (see MODEL_CARD.md)"
+        "LiDAR-FlowNet's occupancy head without the flow network, v10: v9's head, trained by "
+        "lidarflow's default recipe head_only, with a tracker's moved objects laid over its "
+        "decided map (see MODEL_CARD.md)"
     ),
     meta={
-        "version": "v9",
+        "version": "v10",
         "recipe": "head_only",
         "parameters": 194,
         "grid": {"height": 100, "width": 100, "res": 0.1},

@@ -33,7 +33,8 @@ def _head() -> TrainConfig:
     poses (``ego_motion``, ``poses_optional``: uncompensated where it has none; half the
     training windows without their poses, so it learns both ways), its decision offsets chosen
     online as it streams (``decision.online``, applied by evaluate and the Predictor; training
-    is unchanged by it): ``model.init``, a trained flow network (``--init RUN``; its head too
+    is unchanged by it), a tracker's moved objects laid over its decided map
+    (``decision.movers``, as unchanged): ``model.init``, a trained flow network (``--init RUN``; its head too
     where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains one). Left at
     ``bundled`` it is refused: the bundled model is the head alone since v9 (issue 36). About
     8 CPU-minutes on the seven development recordings; its validation is
@@ -51,6 +52,9 @@ def _head() -> TrainConfig:
     )
     config.model.ego_motion = config.model.poses_optional = True
     config.decision.online = True
+    # The head keeps walls but lets passers-by fade; a tracker's objects laid over its map
+    # carry them forward (docs/research/carry_movers/; the head is trained as before).
+    config.decision.movers = True
     config.model.init = "bundled"
     # The flow keeps its weights (Adam moves each by about lr per step: 1e-6 x a few hundred
     # steps); the head learns at 0.03.
