@@ -6,8 +6,9 @@ For each recording, two timings per frame, one thread: scan matching alone
 Predictor without poses does) and ``Predictor.update`` of the bundled model without poses.
 The reference is ``git archive``'d into a temporary folder and both codes run in
 subprocesses (``PYTHONPATH`` pointing at each), alternating, ``--rounds`` times each; a
-timing is the median over frames, then over rounds. Beside the speed: the motions found, and
-where the recording has odometry their median error against it (as
+timing is the median over frames, then over rounds, taken as wall time and as the thread's CPU
+time (on a loaded shared CPU the wall time also counts the waits for a core). Beside the speed:
+the motions found, and where the recording has odometry their median error against it (as
 ``studies/scan_odometry.py`` measures), for both codes. Writes JSON (default
 ``benchmarks/results/scan_odometry.json``).
 
@@ -32,6 +33,7 @@ from _output import machine, write_json
 REFERENCE = "d4a7e7a"
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
+TIMINGS = ("scan_matching", "scan_matching_cpu", "update_without_poses", "update_without_poses_cpu")
 RECORDINGS = [
     SHARED / "positive_2.bag",  # standing still, 768 beams 7.5 Hz: issue 46's recording
     SHARED / "general_tracking_moving_1.bag.zip",  # driving, with odometry
@@ -60,21 +62,31 @@ def worker(recording: str, frames: int) -> dict[str, Any]:
     occupancy, points = rec.maps(grid)[0], recording_points(rec)
     odometry, motions, matching = ScanOdometry(grid.res), [], []
     for t in range(len(rec)):
-        start = time.perf_counter()
+        start = _clocks()
         found = odometry.update(occupancy[t], points[t])
-        matching.append(time.perf_counter() - start)
+        matching.append(_clocks() - start)
         motions.append([np.nan] * 3 if found is None else [float(v) for v in found])
     predictor, update = Predictor(threads=1), []
     for scan in rec:
-        start = time.perf_counter()
+        start = _clocks()
         predictor.update(scan)
-        update.append(time.perf_counter() - start)
+        update.append(_clocks() - start)
+    # (wall, CPU) medians of each, frame 0 left out (nothing to match it with)
+    matched, updated = (1e3 * np.median(np.asarray(t)[1:], axis=0) for t in (matching, update))
     return {
-        "scan_matching_ms": 1e3 * float(np.median(matching[1:])),
-        "update_without_poses_ms": 1e3 * float(np.median(update[1:])),
+        "scan_matching_ms": float(matched[0]),
+        "scan_matching_cpu_ms": float(matched[1]),
+        "update_without_poses_ms": float(updated[0]),
+        "update_without_poses_cpu_ms": float(updated[1]),
         "motions": motions,
         "poses": None if rec.poses is None else np.asarray(rec.poses).tolist(),
     }
+
+
+def _clocks() -> np.ndarray:
+    """Wall time and this thread's CPU time (s): on a shared, loaded CPU the second leaves out
+    the time spent waiting for a core."""
+    return np.array([time.perf_counter(), time.thread_time()])
 
 
 def run(src: Path, recording: Path, frames: int) -> dict[str, Any]:
@@ -128,10 +140,10 @@ def main() -> None:
                     runs[name].append(run(src, recording, args.frames))
             row: dict[str, Any] = {}
             for name, done in runs.items():
-                for key in ("scan_matching_ms", "update_without_poses_ms"):
-                    row[f"{key[:-3]}_{name}_ms"] = float(np.median([r[key] for r in done]))
+                for key in TIMINGS:
+                    row[f"{key}_{name}_ms"] = float(np.median([r[f"{key}_ms"] for r in done]))
                 row[f"accuracy_{name}"] = accuracy(done[0]["motions"], done[0]["poses"])
-            for key in ("scan_matching", "update_without_poses"):
+            for key in TIMINGS:
                 row[f"{key}_ratio"] = row[f"{key}_now_ms"] / row[f"{key}_reference_ms"]
             results[recording.name] = row
             print(recording.name, json.dumps(row, indent=1))
