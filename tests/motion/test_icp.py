@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarflow.motion import scanmatch
-from lidarflow.motion.icp import align, fit, recording_points, scan_points
+from lidarflow.motion import icp, scanmatch
+from lidarflow.motion.icp import Reference, align, fit, recording_points, scan_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import STILL_WINDOW, ScanOdometry, compose, scan_motions
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize
@@ -200,3 +200,47 @@ def test_a_scanner_mounted_upside_down_sweeping_backwards_aligns_the_same():
     found = align(current, previous)
     assert found is not None
     np.testing.assert_allclose(found.motion, _motion(start, end), atol=2e-3)
+
+
+def test_a_reference_made_once_aligns_as_the_returns_do_and_can_be_reused():
+    start, end = (0.0, 0.0, 0.0), (0.15, 0.05, -0.04)
+    current, previous = scan_points(_scan_from(end)), scan_points(_scan_from(start))
+    reference = Reference(previous)
+    plain = align(current, previous)
+    assert plain is not None
+    for _ in range(2):  # nothing in it is changed by aligning to it
+        again = align(current, reference)
+        assert again is not None
+        np.testing.assert_array_equal(again.motion, plain.motion)
+        assert (again.inliers, again.rms) == (plain.inliers, plain.rms)
+    np.testing.assert_allclose(plain.motion, _motion(start, end), atol=1e-3)
+    assert fit(current, reference, plain.motion) == fit(current, previous, plain.motion)
+    with pytest.raises(ValueError, match=r"\(N, 2\)"):
+        Reference(previous[:, :1])
+
+
+def test_pairing_wraps_around_the_bearings_of_a_reference_with_few_returns():
+    # fewer returns than the window of candidates: every one is a candidate of every point
+    few = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [0.7, 0.7]])
+    reference = Reference(few)
+    source = np.array([[0.98, 0.01], [-0.05, -0.97], [0.69, 0.72]])
+    _, best, _ = reference.pair(source, np.zeros(3), gate=0.5)
+    nearest = np.argmin(((source[:, None] - reference.points[None]) ** 2).sum(-1), axis=1)
+    np.testing.assert_array_equal(best, nearest)
+
+
+def test_the_gauss_newton_step_solves_the_damped_normal_equations():
+    rng = np.random.default_rng(7)
+    reference = Reference(scan_points(_scan_from((0.0, 0.0, 0.0))))
+    paired = rng.choice(len(reference), 200, replace=False)
+    p = reference.points[paired] + rng.normal(0, 0.02, (200, 2))
+    motion = np.array([0.1, -0.2, 0.05])
+    step = icp._gauss_newton_step(reference, p, paired, motion)
+    # the same system written out plainly, solved by LAPACK
+    n = reference.normal[paired]
+    lever = p - motion[:2]
+    jacobian = np.stack([n[:, 0], n[:, 1], n[:, 1] * lever[:, 0] - n[:, 0] * lever[:, 1]], 1)
+    residual = ((p - reference.points[paired]) * n).sum(axis=1)
+    hessian = jacobian.T @ jacobian
+    hessian += (icp._DAMPING * np.trace(hessian) + 1e-12) * np.eye(3)
+    np.testing.assert_allclose(step, -np.linalg.solve(hessian, jacobian.T @ residual), rtol=1e-9)

@@ -17,6 +17,11 @@ scan's surface normal. Pairs farther apart than a shrinking distance are left ou
 people walking by and the unseen parts of the scene out of the fit; the damping keeps what the
 scene cannot tell (the motion along a bare corridor) at the guess.
 
+Cost: the arrays are a few hundred returns, so numpy's overhead per call, not arithmetic, sets
+the time; the previous scan is made ready once (:class:`Reference`, reused by a stream for the
+next frame, the stillness test and the far end of its window) and an iteration is a few dozen
+calls (``docs/research/scan_speed/``).
+
 Motion convention: :mod:`lidarflow.motion.odometry`'s, ``(dx, dy, dyaw)`` in metres and radians,
 the current sensor pose in the previous one's frame: a current return ``p`` lies at ``R p + d``
 in the previous frame.
@@ -24,6 +29,7 @@ in the previous frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +38,15 @@ from lidarflow.data.blocks import FrameBlocks
 from lidarflow.data.recording import Recording
 from lidarflow.scan import RETURN, Scan, beam_status
 
-__all__ = ["Alignment", "align", "fit", "recording_points", "scan_points", "streamed_points"]
+__all__ = [
+    "Alignment",
+    "Reference",
+    "align",
+    "fit",
+    "recording_points",
+    "scan_points",
+    "streamed_points",
+]
 
 #: Current returns used at most (evenly thinned); the cost is linear in them.
 MAX_POINTS = 400
@@ -99,31 +113,58 @@ def _normals(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _rotation(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s], [s, c]])
 
 
-class _Target:
-    """The previous scan's returns, ready to be paired with: bearings and surface normals."""
+class Reference:
+    """A scan's returns ready to be paired with (the previous scan of an alignment): ordered
+    by bearing, with their surface normals and each one's window of bearing neighbours. Built
+    once per scan: a stream aligns to the same scan several times (the next frame, the
+    stillness test, the window's far end), and building it was a third of an alignment."""
 
     def __init__(self, points: np.ndarray) -> None:
+        points = np.asarray(points, np.float64)
+        if points.ndim != 2 or points.shape[-1] != 2:
+            raise ValueError(f"points must be (N, 2), got {points.shape}")
         bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         order = np.argsort(bearings, kind="stable")  # scan_points' order, whatever was given
         self.points, self.bearings = points[order], bearings[order]
         self.normal, self.has_normal = _normals(self.points)
-        self._offsets = np.arange(-WINDOW, WINDOW)
+        n = len(self.points)
+        # row i: the returns i - WINDOW ... i + WINDOW - 1 around the bearing circle, the
+        # candidates of a point whose bearing sorts in at i (one gather per pairing)
+        around = np.mod(np.arange(-WINDOW, n + WINDOW), max(n, 1))
+        windows = np.lib.stride_tricks.sliding_window_view(
+            self.points[around] if n else np.zeros((2 * WINDOW, 2)), 2 * WINDOW, axis=0
+        )[: n + 1]
+        self._window_x, self._window_y = (np.ascontiguousarray(windows[:, i]) for i in (0, 1))
+
+    def __len__(self) -> int:
+        return len(self.points)
 
     def pair(
         self, source: np.ndarray, motion: np.ndarray, gate: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``source`` moved by ``motion``, the index of each one's nearest return around its
         bearing, and whether that pair counts (within ``gate`` metres, on a surface)."""
-        moved = source @ _rotation(motion[2]).T + motion[:2]
-        at = np.searchsorted(self.bearings, np.mod(np.arctan2(moved[:, 1], moved[:, 0]), 2 * np.pi))
-        candidates = np.mod(at[:, None] + self._offsets[None, :], len(self.points))
-        gap = ((moved[:, None, :] - self.points[candidates]) ** 2).sum(-1)
-        best = candidates[np.arange(len(source)), gap.argmin(axis=1)]
-        inliers = (gap.min(axis=1) < gate**2) & self.has_normal[best]
+        # Small arrays: the cost is numpy's per-call overhead, so as few calls as will do.
+        moved = source @ _rotation(float(motion[2])).T + motion[:2]
+        x, y = moved[:, 0], moved[:, 1]
+        at = np.searchsorted(self.bearings, np.mod(np.arctan2(y, x), 2 * np.pi))
+        gap = np.take(self._window_x, at, axis=0)  # take: half the time of fancy indexing
+        gap -= x[:, None]
+        np.square(gap, out=gap)
+        across = np.take(self._window_y, at, axis=0)
+        across -= y[:, None]
+        gap += np.square(across, out=across)
+        nearest = gap.argmin(axis=1)
+        closest = np.take(gap, np.arange(0, gap.size, 2 * WINDOW) + nearest)
+        best = at + nearest
+        best -= WINDOW
+        best %= len(self.points)
+        inliers = closest < gate * gate
+        inliers &= self.has_normal[best]
         return moved, best, inliers
 
     def distances(self, moved: np.ndarray, best: np.ndarray) -> np.ndarray:
@@ -131,37 +172,36 @@ class _Target:
         return ((moved - self.points[best]) * self.normal[best]).sum(axis=1)
 
 
-def _checked(current: np.ndarray, previous: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    current, previous = np.asarray(current, np.float64), np.asarray(previous, np.float64)
-    if current.ndim != 2 or current.shape[-1] != 2 or previous.ndim != 2 or previous.shape[-1] != 2:
-        raise ValueError(f"points must be (N, 2), got {current.shape} and {previous.shape}")
-    return current[:: int(np.ceil(len(current) / MAX_POINTS)) or 1], previous
+def _source(current: np.ndarray) -> np.ndarray:
+    """``current``'s returns, checked, evenly thinned to :data:`MAX_POINTS` at most."""
+    current = np.asarray(current, np.float64)
+    if current.ndim != 2 or current.shape[-1] != 2:
+        raise ValueError(f"points must be (N, 2), got {current.shape}")
+    return current[:: int(np.ceil(len(current) / MAX_POINTS)) or 1]
+
+
+def _reference(previous: np.ndarray | Reference) -> Reference:
+    return previous if isinstance(previous, Reference) else Reference(previous)
 
 
 def align(
-    current: np.ndarray, previous: np.ndarray, initial: np.ndarray | None = None
+    current: np.ndarray, previous: np.ndarray | Reference, initial: np.ndarray | None = None
 ) -> Alignment | None:
     """The motion that lays ``current``'s returns onto ``previous``'s (both from
-    :func:`scan_points`), starting from ``initial`` (``(dx, dy, dyaw)``, default none), or
-    ``None`` where too few returns pair up (:data:`MIN_INLIERS`)."""
-    source, previous = _checked(current, previous)
-    if len(source) < _MIN_PAIRS or len(previous) < 3:
+    :func:`scan_points`; ``previous`` also as a :class:`Reference` made once), starting from
+    ``initial`` (``(dx, dy, dyaw)``, default none), or ``None`` where too few returns pair up
+    (:data:`MIN_INLIERS`)."""
+    source, target = _source(current), _reference(previous)
+    if len(source) < _MIN_PAIRS or len(target) < 3:
         return None
-    target = _Target(previous)
     motion = np.zeros(3) if initial is None else np.asarray(initial, np.float64).reshape(3).copy()
     for iteration in range(MAX_ITERATIONS):
         moved, best, inliers = target.pair(source, motion, GATES[min(iteration, len(GATES) - 1)])
         if inliers.sum() < _MIN_PAIRS:
             return None
-        n, p = target.normal[best[inliers]], moved[inliers]
-        lever = p - motion[:2]  # d(R s)/d(yaw) is R s turned by 90 degrees
-        jacobian = np.stack([n[:, 0], n[:, 1], n[:, 1] * lever[:, 0] - n[:, 0] * lever[:, 1]], 1)
-        residual = target.distances(p, best[inliers])
-        hessian = jacobian.T @ jacobian
-        hessian += (_DAMPING * np.trace(hessian) + 1e-12) * np.eye(3)
-        step = -np.linalg.solve(hessian, jacobian.T @ residual)
+        step = _gauss_newton_step(target, moved[inliers], best[inliers], motion)
         motion += step
-        settled = np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6
+        settled = math.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6
         if settled and iteration >= len(GATES) - 1:
             break
     share, rms = _fit(target, source, motion)
@@ -170,17 +210,47 @@ def align(
     return Alignment(motion=motion, inliers=share, rms=rms)
 
 
-def fit(current: np.ndarray, previous: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
-    """How well ``motion`` lays ``current``'s returns onto ``previous``'s, without fitting: the
-    share of the returns paired within the last gate and their RMS distance (metres) from the
-    surface (``(0, inf)`` where none pair)."""
-    source, previous = _checked(current, previous)
-    if len(source) == 0 or len(previous) < 3:
+def _gauss_newton_step(
+    target: Reference, p: np.ndarray, paired: np.ndarray, motion: np.ndarray
+) -> list[float]:
+    """The damped Gauss-Newton step on the distances of the moved returns ``p`` from the
+    surface through their ``paired`` returns."""
+    n = target.normal[paired]
+    # columns: d distance / d (dx, dy, dyaw), then the distance; one product gives J^T J and
+    # J^T r. d(R s)/d(yaw) is R s turned by 90 degrees, s = p - d.
+    system = np.empty((len(p), 4))
+    system[:, :2] = n
+    lever = p - motion[:2]
+    np.subtract(n[:, 1] * lever[:, 0], n[:, 0] * lever[:, 1], out=system[:, 2])
+    offset = (p - target.points[paired]) * n
+    np.add(offset[:, 0], offset[:, 1], out=system[:, 3])
+    (a, b, c, g0), (_, d, e, g1), (_, _, f, g2), _ = (system.T @ system).tolist()
+    damping = _DAMPING * (a + d + f) + 1e-12
+    a, d, f = a + damping, d + damping, f + damping
+    # the symmetric 3 x 3 system [[a, b, c], [b, d, e], [c, e, f]] x = -g by Cramer's rule
+    m0, m1, m2 = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * m0 + b * m1 + c * m2
+    m4, m5, m8 = a * f - c * c, b * c - a * e, a * d - b * b
+    return [
+        -(m0 * g0 + m1 * g1 + m2 * g2) / det,
+        -(m1 * g0 + m4 * g1 + m5 * g2) / det,
+        -(m2 * g0 + m5 * g1 + m8 * g2) / det,
+    ]
+
+
+def fit(
+    current: np.ndarray, previous: np.ndarray | Reference, motion: np.ndarray
+) -> tuple[float, float]:
+    """How well ``motion`` lays ``current``'s returns onto ``previous``'s (as for
+    :func:`align`), without fitting: the share of the returns paired within the last gate and
+    their RMS distance (metres) from the surface (``(0, inf)`` where none pair)."""
+    source, target = _source(current), _reference(previous)
+    if len(source) == 0 or len(target) < 3:
         return 0.0, float("inf")
-    return _fit(_Target(previous), source, np.asarray(motion, np.float64).reshape(3))
+    return _fit(target, source, np.asarray(motion, np.float64).reshape(3))
 
 
-def _fit(target: _Target, source: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
+def _fit(target: Reference, source: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
     moved, best, inliers = target.pair(source, motion, GATES[-1])
     if not inliers.any():
         return 0.0, float("inf")

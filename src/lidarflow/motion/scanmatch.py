@@ -3,8 +3,8 @@
 Correlative scan matching of two consecutive occupancy maps: for each candidate turn
 (:data:`YAWS`) the previous map's occupied cells are turned about the sensor into the current
 frame, and the translation that lands most of them on occupied cells of the current map is found
-by one cross-correlation (FFT, shifts up to :data:`MAX_SHIFT` cells each way), refined to a
-fraction of a cell and of a turn step by a parabola through the peak. A match counts only when it
+(shifts up to :data:`MAX_SHIFT` cells each way; branch and bound, :mod:`.correlative`), refined to
+a fraction of a cell and of a turn step by a parabola through the peak. A match counts only when it
 explains the current map clearly better than standing still (:data:`MIN_GAIN`); otherwise there
 is no motion to report (``None``), so a platform that stands still is left uncompensated, as
 without odometry.
@@ -34,8 +34,9 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from lidarflow.motion.icp import Alignment, align, fit
-from lidarflow.motion.odometry import OdometryCheck, cells_in_new_frame
+from lidarflow.motion.correlative import MAX_SHIFT, YAWS, correlate
+from lidarflow.motion.icp import Alignment, Reference, align, fit
+from lidarflow.motion.odometry import OdometryCheck
 
 __all__ = [
     "MAX_SHIFT",
@@ -52,10 +53,6 @@ __all__ = [
     "scan_motions",
 ]
 
-#: Candidate turns between two frames (radians): +-4 degrees in 0.5 degree steps.
-YAWS = np.deg2rad(np.linspace(-4.0, 4.0, 17))
-#: Largest translation searched, cells per frame each way (12 cells: 1.2 m at 0.1 m).
-MAX_SHIFT = 12
 #: A match must land this many times the cells standing still does (and 3 cells more).
 MIN_GAIN = 1.05
 _MIN_EXTRA_CELLS = 3.0
@@ -89,40 +86,38 @@ def match_maps(previous: np.ndarray, current: np.ndarray) -> np.ndarray | None:
     previous, current = np.asarray(previous, bool), np.asarray(current, bool)
     if previous.shape != current.shape or previous.ndim != 2:
         raise ValueError(f"maps must be two (H, W) grids, got {previous.shape} and {current.shape}")
-    h, w = current.shape
-    rows, cols = np.nonzero(previous)
-    if rows.size == 0 or not current.any():
+    found = correlate(previous, current)
+    if found is None or found.score < max(found.still * MIN_GAIN, found.still + _MIN_EXTRA_CELLS):
         return None
-    turned = np.zeros((len(YAWS), h, w), np.float32)
-    for k, yaw in enumerate(YAWS):
-        r, q = cells_in_new_frame(rows, cols, np.array([0.0, 0.0, yaw]), h, w)
-        inside = (r >= 0) & (r < h) & (q >= 0) & (q < w)
-        turned[k, r[inside], q[inside]] = 1.0
-    # Zero-padded by MAX_SHIFT (no wrap-around within the shifts searched), to a power of two.
-    size = tuple(1 << int(np.ceil(np.log2(n + MAX_SHIFT + 1))) for n in (h, w))
-    spectrum = np.fft.rfft2(current.astype(np.float32), s=size)
-    # corr[k, a, b] = sum_q current(q) * turned_k(q - (a, b)) (index shifts, modulo size)
-    corr = np.fft.irfft2(spectrum[None] * np.conj(np.fft.rfft2(turned, s=size)), s=size)
-    row_shifts = np.r_[0 : MAX_SHIFT + 1, size[0] - MAX_SHIFT : size[0]]
-    col_shifts = np.r_[0 : MAX_SHIFT + 1, size[1] - MAX_SHIFT : size[1]]
-    window = corr[:, row_shifts][:, :, col_shifts]
-    k, i, j = np.unravel_index(int(np.argmax(window)), window.shape)
-    best, still = float(window[k, i, j]), float(corr[len(YAWS) // 2, 0, 0])
-    if best < max(still * MIN_GAIN, still + _MIN_EXTRA_CELLS):
-        return None
-    a, b = int(row_shifts[i]), int(col_shifts[j])
-    da = _parabola(corr[k, a - 1, b], corr[k, a, b], corr[k, (a + 1) % size[0], b])
-    db = _parabola(corr[k, a, b - 1], corr[k, a, b], corr[k, a, (b + 1) % size[1]])
-    yaw = float(YAWS[k])
-    if 0 < k < len(YAWS) - 1:
-        step = float(YAWS[1] - YAWS[0])
-        yaw += step * _parabola(corr[k - 1, a, b], corr[k, a, b], corr[k + 1, a, b])
+    up, down, left, right, before, after = found.neighbours
+    da = _parabola(up, found.score, down)
+    db = _parabola(left, found.score, right)
+    yaw = float(YAWS[found.k])
+    if before is not None and after is not None:
+        yaw += float(YAWS[1] - YAWS[0]) * _parabola(before, found.score, after)
     # Index shift (a, b) down/right = (x, y) = (a, b) cells in the metric frame (x up, y left,
     # both against the indices, and the match samples at q - shift): u = (a, b); d = R u.
-    ux = (a if a <= MAX_SHIFT else a - size[0]) + da
-    uy = (b if b <= MAX_SHIFT else b - size[1]) + db
+    ux, uy = found.a + da, found.b + db
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([c * ux - s * uy, s * ux + c * uy, yaw])
+
+
+class _Returns:
+    """A frame's returns, and the :class:`~lidarflow.motion.icp.Reference` they are aligned
+    to by, made the first time it is needed (a frame kept after a pose is often never
+    aligned to, and one that is is aligned to two or three times)."""
+
+    __slots__ = ("_reference", "points")
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = points
+        self._reference: Reference | None = None
+
+    @property
+    def reference(self) -> Reference:
+        if self._reference is None:
+            self._reference = Reference(self.points)
+        return self._reference
 
 
 class ScanOdometry:
@@ -145,7 +140,7 @@ class ScanOdometry:
     def __init__(self, res: float = 0.1) -> None:
         self.res = res
         self._previous: np.ndarray | None = None
-        self._returns: deque[np.ndarray] = deque(maxlen=STILL_WINDOW + 1)
+        self._returns: deque[_Returns] = deque(maxlen=STILL_WINDOW + 1)
         self._steps: deque[np.ndarray] = deque(maxlen=STILL_WINDOW)  # metres, between returns
 
     def reset(self) -> None:
@@ -172,12 +167,12 @@ class ScanOdometry:
         guess = self._steps[-1] if self._steps else np.zeros(3)
         if coarse is not None:
             guess = np.array([coarse[0] * self.res, coarse[1] * self.res, coarse[2]])
-        fine = align(points, self._returns[-1], guess) or align(points, self._returns[-1])
+        previous_points = self._returns[-1].reference
+        fine = align(points, previous_points, guess) or align(points, previous_points)
         if fine is None:
             self._restart(points)
             return coarse
-        previous_points = self._returns[-1]
-        self._returns.append(points)
+        self._returns.append(_Returns(points))
         self._steps.append(fine.motion)
         if coarse is not None:
             moved = _fits_better_than_still(points, previous_points, fine)
@@ -191,22 +186,22 @@ class ScanOdometry:
         self._returns.clear()
         self._steps.clear()
         if points is not None:
-            self._returns.append(points)
+            self._returns.append(_Returns(points))
 
     def _travelled(self) -> bool:
         """Whether the returns have moved by :data:`MIN_TRAVEL` cells over the window, and
         standing still would explain them clearly worse (see :data:`STILL_FIT`)."""
         latest, oldest = self._returns[-1], self._returns[0]
-        direct = align(latest, oldest, compose(self._steps))
+        direct = align(latest.points, oldest.reference, compose(self._steps))
         if direct is None:
             return False
         dx, dy, dyaw = direct.motion
         if float(np.hypot(dx, dy)) / self.res + abs(float(dyaw)) * TURN_REACH < MIN_TRAVEL:
             return False
-        return _fits_better_than_still(latest, oldest, direct)
+        return _fits_better_than_still(latest.points, oldest.reference, direct)
 
 
-def _fits_better_than_still(current: np.ndarray, earlier: np.ndarray, found: Alignment) -> bool:
+def _fits_better_than_still(current: np.ndarray, earlier: Reference, found: Alignment) -> bool:
     """Whether ``found`` lays ``current`` onto ``earlier`` clearly better than no motion does
     (:data:`STILL_FIT`)."""
     share, rms = fit(current, earlier, np.zeros(3))
