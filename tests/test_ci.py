@@ -60,3 +60,15 @@ def test_the_script_installs_node_and_the_npm_foxglove_client():
     assert (CLIENT / "package-lock.json").is_file()  # what `npm ci` installs, pinned
     assert "command -v node" in script and "command -v npm" in script
     assert "missing+=(nodejs npm)" in script  # from Debian where missing, as the rest
+
+
+def test_the_script_installs_the_ros_2_extra_its_test_requires():
+    import tomllib
+
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]
+    assert "lidarflow[ros2]" in extras["dev"]  # what the script's `-e ".[dev]"` installs
+    assert any(package.startswith("ros-jazzy-rclpy") for package in extras["ros2"])
+    assert '.venv/bin/pip install -q -e ".[dev]"' in _lines(SCRIPT)
+    assert "export LIDARFLOW_REQUIRE_ROS=1" in SCRIPT.read_text()
