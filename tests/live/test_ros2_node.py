@@ -8,7 +8,10 @@ every topic, stamps (a grid k frames ahead: the scan's stamp plus k steps, ``map
 scan's), the scan's frame, the layout the bag output writes, values in -1..100, the first grids
 cell for cell against the Predictor offline, and a clean shutdown.
 
-ROS 2 comes from the ``ros2`` extra (``scripts/test.sh`` installs it). Where rclpy is missing
+ROS 2 comes from the ``ros2`` extra, which ``scripts/test.sh`` installs in a venv of its own
+(:data:`ROS2_PYTHON`: the core install and ROS 2's wheels, no PyTorch; ROS 2's message packages
+would shadow ROS 1's in the test venv); the node and the peers run with that Python
+(``LIDARFLOW_ROS2_PYTHON`` names another; without either, this one). Where rclpy is missing
 these tests skip, unless ROS is required (``LIDARFLOW_REQUIRE_ROS=1``, as scripts/test.sh sets,
 or ``CI``): then they fail, so that CI never passes by skipping them.
 """
@@ -34,6 +37,17 @@ from tests.live.test_ros1_node import bag_output_layout
 from tests.without_torch import MAIN, PRELUDE
 
 PEER = Path(__file__).with_name("ros2_peer.py")
+ROOT = Path(__file__).resolve().parents[2]
+#: The Python with the ``ros2`` extra that scripts/test.sh sets up.
+ROS2_PYTHON = ROOT / ".venv-ros2" / "bin" / "python"
+
+
+def ros2_python() -> str:
+    """The Python the node and its peers run with."""
+    named = os.environ.get("LIDARFLOW_ROS2_PYTHON")
+    if named:
+        return named
+    return str(ROS2_PYTHON) if ROS2_PYTHON.exists() else sys.executable
 SCAN_TOPIC = "/right_scan"
 HORIZON = 2
 GRIDS = grid_topics(HORIZON, moving=True, occupancy=False)
@@ -44,10 +58,10 @@ KEEP = 12  # grids per topic compared with the Predictor's own
 def ros2_missing() -> str | None:
     """Why rclpy cannot be used by this Python, or ``None`` where it can."""
     probe = "import rclpy, sensor_msgs.msg, nav_msgs.msg, std_msgs.msg"
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+    done = subprocess.run([ros2_python(), "-c", probe], capture_output=True, text=True,
                           timeout=120)  # fmt: skip
     if done.returncode != 0:
-        return f"this Python lacks ROS 2: {done.stderr.strip().splitlines()[-1]}"
+        return f"{ros2_python()} lacks ROS 2: {done.stderr.strip().splitlines()[-1]}"
     return None
 
 
@@ -72,7 +86,7 @@ def ros2_env() -> dict[str, str]:
 def start_node(env: dict, log: Path, *args: str) -> subprocess.Popen:
     """``lidarflow ros2 ARGS`` as the core install runs it (no PyTorch), in its own process
     group, logging to ``log``; returns once it published its topics (or ended)."""
-    node = subprocess.Popen([sys.executable, "-c", MAIN, "ros2", *args], env=env,
+    node = subprocess.Popen([ros2_python(), "-c", MAIN, "ros2", *args], env=env,
                             stdout=subprocess.DEVNULL, stderr=log.open("w"),
                             start_new_session=True)  # fmt: skip
     wait_for(lambda: "publishing" in log.read_text() or node.poll() is not None, 90, log)
@@ -80,7 +94,7 @@ def start_node(env: dict, log: Path, *args: str) -> subprocess.Popen:
 
 
 def peer(env: dict, log: Path, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, str(PEER), *args], env=env, stdout=log.open("w"),
+    return subprocess.Popen([ros2_python(), str(PEER), *args], env=env, stdout=log.open("w"),
                             stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
 
 
