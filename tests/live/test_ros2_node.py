@@ -214,3 +214,32 @@ def test_ros_2_not_installed_is_one_line_naming_the_extra():
         'in sys.modules): pip install "lidarflow[ros2]" (ROS 2 Jazzy\'s wheels), or source a ROS '
         "2 installation built for this Python version"
     ]
+
+
+def test_poses_and_messages_with_ros_2s_own_classes(ros2_env):
+    # rclpy's message classes, as the node receives and sends them; no peers needed
+    code = PRELUDE + (
+        "import math, numpy as np\n"
+        "from lidarflow.live.ros2 import Ros2Node\n"
+        "from lidarflow.live.step import LiveStep\n"
+        "from lidarflow.scan import GridSpec\n"
+        "class GridOnly:\n    grid = GridSpec()\n    horizon = 1\n"
+        "node = Ros2Node(LiveStep(GridOnly()), '/scan', '/odom')\n"
+        "assert node._pose('laser') is None\n"
+        "odom = node.ros.Odometry(child_frame_id='base_link')\n"
+        "odom.pose.pose.position.x, odom.pose.pose.position.y = 2.0, 3.0\n"
+        "odom.pose.pose.orientation.z = math.sin(0.25)\n"
+        "odom.pose.pose.orientation.w = math.cos(0.25)\n"
+        "node._on_odom(odom)\n"
+        "data = (np.arange(10000) % 102 - 1).astype(np.int8)\n"
+        "msg = node._message(data, 3_000_000_001, 2_999_999_999, 'laser')\n"
+        "print(node._pose('laser'), list(msg.data) == data.tolist(), msg.header.stamp.sec,\n"
+        "      msg.header.stamp.nanosec, msg.info.map_load_time.nanosec, msg.header.frame_id,\n"
+        "      msg.info.width, msg.info.origin.position.y)\n"
+    )
+    done = subprocess.run([ros2_python(), "-c", code], env=ros2_env, capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-1500:]
+    pose, rest = done.stdout.strip().rsplit(")", 1)
+    assert [float(v) for v in pose.strip("(").split(",")] == pytest.approx([2.0, 3.0, 0.5])
+    assert rest.split() == ["True", "3", "1", "999999999", "laser", "100", "-5.0"]
