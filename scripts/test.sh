@@ -6,9 +6,12 @@
 #      tests/live/test_ros1_node.py) and Node.js with npm, with sudo when not root;
 #   2. the npm Foxglove client of tests/live/test_foxglove_npm.py (`npm ci` in
 #      tests/live/npm_client, where its node_modules is missing or older than its lock file);
-#   3. the venv (.venv) with the project and its dev extra;
-#   4. ruff, then the whole suite. LIDARFLOW_REQUIRE_ROS=1 makes the ROS tests and the npm
-#      client's fail rather than skip, so the suite never passes by skipping them.
+#   3. the venv (.venv) with the project and its dev extra, and beside it .venv-ros2: the core
+#      install with the ros2 extra (ROS 2 Jazzy's wheels from PyPI), which the ROS 2 node's tests
+#      (tests/live/test_ros2_node.py) run the node and its peers with; a venv of its own, as its
+#      message packages would shadow ROS 1's in .venv;
+#   4. ruff, then the whole suite. LIDARFLOW_REQUIRE_ROS=1 makes the ROS tests (ROS 1 and ROS 2)
+#      and the npm client's fail rather than skip, so the suite never passes by skipping them.
 # Any failure stops it with a non-zero exit, pytest's 5 ("no tests collected") included.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -47,6 +50,8 @@ fi
 
 python3 -m venv .venv
 .venv/bin/pip install -q -e ".[dev]"
+python3 -m venv .venv-ros2
+.venv-ros2/bin/pip install -q -e ".[ros2]"
 .venv/bin/ruff check .
 export LIDARFLOW_REQUIRE_ROS=1
 exec .venv/bin/python -m pytest "$@"

@@ -60,3 +60,21 @@ def test_the_script_installs_node_and_the_npm_foxglove_client():
     assert (CLIENT / "package-lock.json").is_file()  # what `npm ci` installs, pinned
     assert "command -v node" in script and "command -v npm" in script
     assert "missing+=(nodejs npm)" in script  # from Debian where missing, as the rest
+
+
+def test_the_script_installs_the_ros_2_extra_its_test_runs_the_node_with():
+    import tomllib
+
+    from tests.live.test_ros2_node import ROS2_PYTHON
+
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]
+    assert any(package.startswith("ros-jazzy-rclpy") for package in extras["ros2"])
+    # apart from ROS 1: ROS 2's message packages would shadow Debian's ROS 1 ones in one venv
+    assert not any("ros2" in package or "ros-" in package for package in extras["dev"])
+    lines = _lines(SCRIPT)
+    assert "python3 -m venv .venv-ros2" in lines
+    assert '.venv-ros2/bin/pip install -q -e ".[ros2]"' in lines
+    assert ROS2_PYTHON == ROOT / ".venv-ros2" / "bin" / "python"
+    assert "export LIDARFLOW_REQUIRE_ROS=1" in SCRIPT.read_text()

@@ -41,9 +41,11 @@ WRITERS: dict[str, list[str] | None] = {
     "choose-offset": None,  # its -o is a model folder: tests/evaluate/test_offsets.py
 }
 #: Commands that write nothing (ros1 publishes on ROS topics, live serves Foxglove).
-READERS = {"info", "live", "ros1"}
+READERS = {"info", "live", "ros1", "ros2"}
 #: Commands that run a model: each takes --threads.
-RUN_MODELS = {"demo", "predict", "evaluate", "export", "train", "choose-offset", "live", "ros1"}
+RUN_MODELS = {
+    "demo", "predict", "evaluate", "export", "train", "choose-offset", "live", "ros1", "ros2"
+}
 
 
 def commands() -> dict[str, Any]:

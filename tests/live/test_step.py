@@ -67,3 +67,8 @@ def test_latency_is_logged_per_scan_and_summarised(caplog):
     assert info == ["latency over the last 3 scans: median 20.00 ms, p99 29.80 ms"]
     assert log.summary(log.all_ms)["median_ms"] == pytest.approx(15.0)
     assert LatencyLog().describe() == "0 scans"
+    with caplog.at_level(logging.DEBUG, logger="lidarflow.live"):
+        log.add(12.0, 9, predict_ms=10.5)
+    assert caplog.records[-1].getMessage() == (
+        "scan 5 (stamp 9 ns): 12.00 ms from arrival to published, 10.50 ms of it predicting"
+    )

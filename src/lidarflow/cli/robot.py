@@ -1,10 +1,12 @@
-"""``ros1``: the predictor live on a robot, as a ROS 1 node."""
+"""``ros1`` and ``ros2``: the predictor live on a robot, as a ROS 1 or a ROS 2 node."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
-from typing import Annotated
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -19,100 +21,177 @@ from lidarflow.cli.app import (
     model_grid,
 )
 
+if TYPE_CHECKING:
+    from lidarflow.live.step import LiveStep
+
+
+TopicOpt = Annotated[str, typer.Option("--topic", "-t", help="LaserScan topic to predict on.")]
+OdomTopicOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--odom-topic",
+        help="nav_msgs/Odometry topic for the sensor's poses (moved to the scanner by /tf); "
+        "default: none (the bundled model then matches the motion from the scans).",
+    ),
+]
+HorizonOpt = Annotated[
+    int, typer.Option(help="Frames ahead to predict: also publishes the _kK grids.", min=1)
+]
+PublishMovingOpt = Annotated[
+    bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
+]
+QueueOpt = Annotated[
+    int,
+    typer.Option(help="Scans kept while the model is busy; beyond them the oldest are dropped.",
+                 min=1),
+]
+SummaryOpt = Annotated[
+    int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
+]
+FoxgloveOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--foxglove",
+        metavar="PORT",
+        help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, as "
+        "`lidarflow live`; 0: any free port).",
+        min=0,
+        max=65535,
+    ),
+]
+HostOpt = Annotated[
+    str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
+]
+VerboseOpt = Annotated[
+    bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
+]
+
 
 @app.command()
 def ros1(
     model: ModelOpt = None,
-    topic: Annotated[
-        str, typer.Option("--topic", "-t", help="LaserScan topic to predict on.")
-    ] = "/scan",
-    odom_topic: Annotated[
-        str | None,
-        typer.Option(
-            "--odom-topic",
-            help="nav_msgs/Odometry topic for the sensor's poses (moved to the scanner by "
-            "/tf); default: none (the bundled model then matches the motion from the scans).",
-        ),
-    ] = None,
-    horizon: Annotated[
-        int, typer.Option(help="Frames ahead to predict: also publishes the _kK grids.", min=1)
-    ] = 1,
-    moving: Annotated[
-        bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
-    ] = False,
+    topic: TopicOpt = "/scan",
+    odom_topic: OdomTopicOpt = None,
+    horizon: HorizonOpt = 1,
+    moving: PublishMovingOpt = False,
     grid: ModelGridOpt = None,
     res: ModelResOpt = None,
     moving_threshold: MovingOpt = None,
-    queue: Annotated[
-        int,
-        typer.Option(help="Scans kept while the model is busy; beyond them the oldest are dropped.",
-                     min=1),
-    ] = 10,
-    summary_every: Annotated[
-        int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
-    ] = 100,
-    foxglove: Annotated[
-        int | None,
-        typer.Option(
-            "--foxglove",
-            metavar="PORT",
-            help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, "
-            "as `lidarflow live`; 0: any free port).",
-            min=0,
-            max=65535,
-        ),
-    ] = None,
-    host: Annotated[
-        str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
-    ] = "127.0.0.1",
-    verbose: Annotated[
-        bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
-    ] = False,
+    queue: QueueOpt = 10,
+    summary_every: SummaryOpt = 100,
+    foxglove: FoxgloveOpt = None,
+    host: HostOpt = "127.0.0.1",
+    verbose: VerboseOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
 ) -> None:
     """Run a ROS 1 node: per scan on --topic, publish the predicted next map (OccupancyGrid in
     the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
     predicts. Needs a roscore (ROS_MASTER_URI); stop it with Ctrl-C."""
     from lidarflow.live.ros1 import Ros1Node, check_master, import_ros
+
+    _log_to_stderr("ros1", logging.DEBUG if verbose else logging.INFO)
+    check_master(import_ros())  # before loading a model: say at once what is missing
+    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads)
+    _run("ros1", step, lambda: Ros1Node(step, topic, odom_topic, moving, queue=queue),
+         foxglove, host, topic)  # fmt: skip
+
+
+@app.command()
+def ros2(
+    model: ModelOpt = None,
+    topic: TopicOpt = "/scan",
+    odom_topic: OdomTopicOpt = None,
+    horizon: HorizonOpt = 1,
+    moving: PublishMovingOpt = False,
+    grid: ModelGridOpt = None,
+    res: ModelResOpt = None,
+    moving_threshold: MovingOpt = None,
+    queue: QueueOpt = 10,
+    scan_qos: Annotated[
+        str,
+        typer.Option(help="QoS of the scan subscription: sensor (sensor data, best effort; "
+                     "matches any driver) or reliable."),
+    ] = "sensor",
+    grid_qos: Annotated[
+        str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
+    ] = "reliable",
+    summary_every: SummaryOpt = 100,
+    foxglove: FoxgloveOpt = None,
+    host: HostOpt = "127.0.0.1",
+    verbose: VerboseOpt = False,
+    threads: ThreadsOpt = DEFAULT_THREADS,
+) -> None:
+    """Run a ROS 2 node: per scan on --topic, publish the predicted next map (OccupancyGrid in
+    the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
+    predicts. Joins ROS_DOMAIN_ID's domain; stop it with Ctrl-C."""
+    from lidarflow.live.ros2 import GRID_QOS, SCAN_QOS, Ros2Node, import_ros2
+
+    for name, value, choices in (("--scan-qos", scan_qos, SCAN_QOS),
+                                 ("--grid-qos", grid_qos, GRID_QOS)):  # fmt: skip
+        if value not in choices:
+            raise typer.BadParameter(f"{value!r}: one of {', '.join(choices)}", param_hint=name)
+    _log_to_stderr("ros2", logging.DEBUG if verbose else logging.INFO)
+    import_ros2()  # before loading a model: say at once what is missing
+    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads)
+    _run("ros2", step, lambda: Ros2Node(step, topic, odom_topic, moving, queue=queue,
+                                        scan_qos=scan_qos, grid_qos=grid_qos),
+         foxglove, host, topic)  # fmt: skip
+
+
+def _live_step(
+    model: Path | None,
+    grid: int | None,
+    res: float | None,
+    horizon: int,
+    moving_threshold: float | None,
+    summary_every: int,
+    threads: int,
+) -> LiveStep:
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
-    _log_to_stderr(logging.DEBUG if verbose else logging.INFO)
-    check_master(import_ros())  # before loading a model: say at once what is missing
-    given = model_grid(model, grid, res)
     predictor = Predictor(
         model,
-        given,
+        model_grid(model, grid, res),
         horizon=horizon,
         threads=threads or None,
         moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
     )
-    step = LiveStep(predictor, summary_every=summary_every)
+    return LiveStep(predictor, summary_every=summary_every)
+
+
+def _run(
+    kind: str, step: LiveStep, make_node: Callable[[], Any], foxglove: int | None, host: str,
+    topic: str,
+) -> None:
+    """The node ``make_node`` builds, with the Foxglove server beside it where asked, until it
+    stops; the latency over all scans said last."""
     with contextlib.ExitStack() as stack:
         if foxglove is not None:
             from lidarflow.live.foxglove import LiveServer
 
+            predictor = step.predictor
             server = stack.enter_context(LiveServer(
-                predictor.grid, host=host, port=foxglove, horizon=horizon,
+                predictor.grid, host=host, port=foxglove, horizon=predictor.horizon,
                 flow=predictor.backend.capabilities.flow, scan_topic=topic,
             ))  # fmt: skip
             step.sinks.append(server.publish_frame)
-            typer.echo(f"lidarflow ros1: serving Foxglove on {server.url}", err=True)
-        node = Ros1Node(step, topic, odom_topic, moving, queue=queue)
+            typer.echo(f"lidarflow {kind}: serving Foxglove on {server.url}", err=True)
+        node = make_node()
         node.start()
         try:
             node.spin()
         finally:
-            typer.echo(f"lidarflow ros1: latency over {step.latency.describe()}", err=True)
+            typer.echo(f"lidarflow {kind}: latency over {step.latency.describe()}", err=True)
 
 
-def _log_to_stderr(level: int) -> None:
+def _log_to_stderr(kind: str, level: int) -> None:
     """The node's log on stderr, one line a message (rospy configures logging its own way when
     the node starts; this logger does not pass through it)."""
     logger = logging.getLogger("lidarflow.live")
     handler = logging.StreamHandler()
-    handler.setFormatter(logging.Formatter("lidarflow ros1: %(message)s"))
+    handler.setFormatter(logging.Formatter(f"lidarflow {kind}: %(message)s"))
     logger.handlers = [handler]
     logger.setLevel(level)
     logger.propagate = False

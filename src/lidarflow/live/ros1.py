@@ -15,7 +15,8 @@ version finds them there (:func:`import_ros`: the folder is appended to ``sys.pa
 environment's own packages, NumPy among them, still come first).
 
 The per-scan work is a :class:`lidarflow.live.step.LiveStep`; this node is one of its sources
-and one of its sinks (:meth:`Ros1Node.publish`), so other sinks attach beside it.
+and one of its sinks (:meth:`Ros1Node.publish`), so other sinks attach beside it. What it shares
+with the ROS 2 node (scans in, poses, grids out) is :class:`lidarflow.live.rosnode.RosNode`.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import importlib
 import logging
 import socket
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from types import ModuleType
@@ -32,10 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.errors import LidarflowError, PredictError, ScanError
-from lidarflow.live.step import LiveFrame, LiveStep, clock_ns
-from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
-from lidarflow.scan import BeamGeometry, Scan
+from lidarflow.errors import PredictError
+from lidarflow.live.rosnode import RosNode
+from lidarflow.live.step import LiveStep, clock_ns
 
 __all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "import_ros"]
 
@@ -110,18 +109,9 @@ def check_master(ros: Ros, timeout_s: float = 3.0) -> None:
         raise PredictError(f"no ROS master at {uri}: start roscore, or set ROS_MASTER_URI")
 
 
-class Ros1Node:
-    """The ROS side of the node: scans and odometry in, grids out.
-
-    Args:
-        step: the per-scan step; the node appends :meth:`publish` to its sinks.
-        topic: the LaserScan topic.
-        odom_topic: a ``nav_msgs/Odometry`` topic for the sensor's poses, or ``None``.
-        moving: also publish ``/lidarflow/moving`` (flow models).
-        name: the node's name.
-        queue: scans rospy keeps while the node is busy; beyond it the oldest are dropped
-            (a node slower than its scanner falls behind by at most this many).
-    """
+class Ros1Node(RosNode):
+    """The ROS 1 side of the node: rospy's scans and odometry in, grids out (the arguments:
+    :class:`lidarflow.live.rosnode.RosNode`'s)."""
 
     def __init__(
         self,
@@ -132,21 +122,8 @@ class Ros1Node:
         name: str = "lidarflow",
         queue: int = 10,
     ) -> None:
-        from lidarflow.data.tf import TransformTree
-
         self.ros = import_ros()
-        self.step, self.topic, self.odom_topic = step, topic, odom_topic
-        self.moving, self.name, self.queue = moving, name, queue
-        self.layout = GridLayout.of(step.predictor.grid)
-        self.topics = grid_topics(step.predictor.horizon, moving, occupancy=False)
-        self._publishers: dict[str, Any] = {}
-        self._geometry: dict[tuple[float, ...], BeamGeometry] = {}
-        self._tree = TransformTree()
-        self._tf_lock = threading.Lock()
-        self._odom: tuple[tuple[float, float, float], str] | None = None
-        self._failure: LidarflowError | None = None
-        self._warned: set[str] = set()
-        step.sinks.append(self.publish)
+        super().__init__(step, topic, odom_topic, moving, name, queue)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -208,82 +185,9 @@ class Ros1Node:
 
     # ------------------------------------------------------------------ in
     def _on_scan(self, msg: Any) -> None:
-        received = clock_ns()
-        if self._failure is not None:
-            return
-        frame_id = str(msg.header.frame_id).lstrip("/")
-        try:
-            scan = Scan(
-                np.asarray(msg.ranges, dtype=np.float32),
-                self._beams(msg, len(msg.ranges)),
-                int(msg.header.stamp.to_nsec()),
-            )
-        except ScanError as err:  # one malformed scan (a driver's first) is skipped
-            self._warn_once("scan", f"{self.topic}: scan skipped ({err})")
-            return
-        try:
-            self.step(scan, frame_id, received, self._pose(frame_id))
-        except LidarflowError as err:
-            self._failure = err
-        except Exception as err:  # a bug: stop with it rather than log one per scan
-            self._failure = PredictError(f"{type(err).__name__}: {err}")
-            self._failure.__cause__ = err
-
-    def _beams(self, msg: Any, count: int) -> BeamGeometry:
-        key = (count, msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max)
-        geometry = self._geometry.get(key)
-        if geometry is None:
-            geometry = BeamGeometry(count, float(msg.angle_min), float(msg.angle_increment),
-                                    float(msg.range_min), float(msg.range_max))  # fmt: skip
-            self._geometry = {key: geometry}  # a scanner keeps its geometry: one is enough
-        return geometry
-
-    def _on_odom(self, msg: Any) -> None:
-        from lidarflow.data.bags import _pose_of  # the planar pose, as a bag's is read
-
-        self._odom = (_pose_of(msg), str(msg.child_frame_id).lstrip("/"))
-
-    def _on_tf(self, msg: Any) -> None:
-        with self._tf_lock:
-            self._tree.add(msg)
-
-    def _pose(self, frame_id: str) -> tuple[float, float, float] | None:
-        """The scanner's pose: the latest odometry moved by the scanner's mount on the body
-        odometry reports (``child_frame_id``), where TF has it; ``None`` without odometry."""
-        from lidarflow.data.tf import compose_poses, mirrored
-
-        if self._odom is None:
-            return None
-        pose, body = self._odom
-        with self._tf_lock:
-            found = self._tree.mount(body, frame_id) if body and frame_id else None
-        if found is None:
-            body = body or "(no child_frame_id)"
-            self._warn_once(
-                "mount", f"no TF from {body} to {frame_id}: odometry taken as the scanner's pose"
-            )
-            return pose
-        mount, upside_down = found
-        moved = compose_poses(np.asarray(pose)[None], mount)
-        if upside_down:  # the scanner sees the world mirrored, and so moves in it
-            moved = mirrored(moved)
-        return (float(moved[0, 0]), float(moved[0, 1]), float(moved[0, 2]))
-
-    def _warn_once(self, key: str, text: str) -> None:
-        if key not in self._warned:
-            self._warned.add(key)
-            log.warning(text)
+        self._scan_in(msg, int(msg.header.stamp.to_nsec()), clock_ns())
 
     # ------------------------------------------------------------------ out
-    def publish(self, frame: LiveFrame) -> None:
-        """The node's sink: the frame's grids on their topics, in the scan's frame."""
-        grids = prediction_grids(frame.prediction, self.topics)
-        if self.moving and frame.prediction.moving is None:
-            self._warn_once("moving", "this model has no flow: nothing on /lidarflow/moving")
-        for grid in grids:
-            msg = self._message(grid.data, grid.stamp_ns, grid.scan_stamp_ns, frame.frame_id)
-            self._publishers[grid.topic].publish(msg)
-
     def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
         Time = self.ros.rospy.Time
         msg = self.ros.OccupancyGrid()

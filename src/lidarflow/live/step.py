@@ -57,11 +57,14 @@ class LatencyLog:
         self.all_ms: list[float] = []
         self._window: list[float] = []
 
-    def add(self, ms: float, stamp_ns: int) -> None:
+    def add(self, ms: float, stamp_ns: int, predict_ms: float | None = None) -> None:
+        """One scan's latency; ``predict_ms``, where given, the part of it the Predictor took
+        (logged beside it, so that what a node adds is read off one process at one moment)."""
         self.all_ms.append(ms)
         self._window.append(ms)
-        log.debug("scan %d (stamp %d ns): %.2f ms from arrival to published", len(self.all_ms),
-                  stamp_ns, ms)  # fmt: skip
+        of_it = "" if predict_ms is None else f", {predict_ms:.2f} ms of it predicting"
+        log.debug("scan %d (stamp %d ns): %.2f ms from arrival to published%s", len(self.all_ms),
+                  stamp_ns, ms, of_it)  # fmt: skip
         if len(self._window) >= self.summary_every:
             log.info("latency over the last %s", self.describe(self._window))
             self._window = []
@@ -108,8 +111,11 @@ class LiveStep:
         """Predict ``scan`` (arrived at ``received_ns`` on :data:`clock_ns`; ``pose``
         ``(x, y, yaw)`` of the sensor or ``None``), hand it to the sinks, log its latency."""
         with self._lock:
+            started = clock_ns()
             frame = LiveFrame(self.predictor.update(scan, pose), scan, frame_id, received_ns)
+            predicted = clock_ns()
             for sink in self.sinks:
                 sink(frame)
-            self.latency.add((clock_ns() - received_ns) / 1e6, scan.stamp_ns)
+            done = clock_ns()
+            self.latency.add((done - received_ns) / 1e6, scan.stamp_ns, (predicted - started) / 1e6)
         return frame

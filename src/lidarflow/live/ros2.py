@@ -1,0 +1,245 @@
+"""``lidarflow ros2``: a live ROS 2 node predicting the next maps of a LaserScan topic.
+
+The ROS 1 node's counterpart (:mod:`lidarflow.live.ros1`; what they share is
+:class:`lidarflow.live.rosnode.RosNode`): per scan on ``topic`` it runs the live step once and
+publishes, in the scan's frame, one ``nav_msgs/OccupancyGrid`` on each of
+``/lidarflow/predicted`` and ``/lidarflow/decided`` (``_kK`` for every further step of the
+horizon) and, where asked, ``/lidarflow/moving``: the grids, layout and stamps of the bag output.
+Poses: the latest ``nav_msgs/Odometry`` moved to the scanner by its mount from ``/tf`` and
+``/tf_static``.
+
+QoS as ROS 2 drivers and consumers expect: scans with the sensor-data profile (best effort, so
+that it matches a best-effort driver as well as a reliable one), grids reliable (a planner must
+not miss one), both configurable; ``/tf_static`` transient local, as its publishers latch it.
+The domain is ``ROS_DOMAIN_ID``'s (rclpy reads it).
+
+rclpy comes from wherever this Python finds it: the ``ros2`` extra (``pip install
+"lidarflow[ros2]"``: ROS 2 Jazzy's wheels), or a sourced ROS 2 installation of the same Python
+version (``source /opt/ros/jazzy/setup.bash`` puts its packages on ``PYTHONPATH``). The wheels
+carry no ``tf2_msgs``: there the node subscribes to no TF and says so once, taking the odometry
+as the scanner's pose; a sourced installation has it.
+"""
+
+from __future__ import annotations
+
+import array
+import contextlib
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import PredictError
+from lidarflow.live.rosnode import RosNode
+from lidarflow.live.step import LiveStep, clock_ns
+
+__all__ = ["GRID_QOS", "ROS2_EXTRA", "SCAN_QOS", "Ros2", "Ros2Node", "import_ros2"]
+
+log = logging.getLogger("lidarflow.live")
+
+#: How a user gets rclpy for this Python (named in the error where it is missing).
+ROS2_EXTRA = 'pip install "lidarflow[ros2]"'
+SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOM_TYPE = "nav_msgs/msg/Odometry"
+#: ``--scan-qos`` choices: sensor data (best effort) or reliable.
+SCAN_QOS = ("sensor", "reliable")
+#: ``--grid-qos`` choices.
+GRID_QOS = ("reliable", "best-effort")
+
+
+@dataclass(frozen=True)
+class Ros2:
+    """rclpy and the message classes the node uses (``TFMessage`` ``None`` where missing)."""
+
+    rclpy: ModuleType
+    qos: ModuleType
+    LaserScan: type
+    Odometry: type
+    OccupancyGrid: type
+    Time: type
+    TFMessage: type | None
+
+
+def import_ros2() -> Ros2:
+    """rclpy and the messages, from wherever this Python finds them.
+
+    Raises :class:`PredictError` (one line saying how to get them) where they are missing.
+    """
+    try:
+        import rclpy
+        import rclpy.qos
+        from builtin_interfaces.msg import Time
+        from nav_msgs.msg import OccupancyGrid, Odometry
+        from sensor_msgs.msg import LaserScan
+    except ImportError as err:  # rclpy's C part missing for this Python is an ImportError too
+        raise PredictError(
+            f"ROS 2 is not installed for this Python ({err}): {ROS2_EXTRA} (ROS 2 Jazzy's "
+            "wheels), or source a ROS 2 installation built for this Python version"
+        ) from err
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError:  # the PyPI wheels lack it (see the module's docstring)
+        TFMessage = None
+    return Ros2(rclpy, rclpy.qos, LaserScan, Odometry, OccupancyGrid, Time, TFMessage)
+
+
+class Ros2Node(RosNode):
+    """The ROS 2 side of the node: scans and odometry in, grids out.
+
+    Args (besides :class:`lidarflow.live.rosnode.RosNode`'s, ``queue`` being the depth of the
+    scan subscription's and the grid publishers' history):
+        scan_qos: one of :data:`SCAN_QOS`.
+        grid_qos: one of :data:`GRID_QOS`.
+    """
+
+    def __init__(
+        self,
+        step: LiveStep,
+        topic: str = "/scan",
+        odom_topic: str | None = None,
+        moving: bool = False,
+        name: str = "lidarflow",
+        queue: int = 10,
+        scan_qos: str = "sensor",
+        grid_qos: str = "reliable",
+    ) -> None:
+        if scan_qos not in SCAN_QOS or grid_qos not in GRID_QOS:
+            raise PredictError(
+                f"scan QoS {scan_qos!r} or grid QoS {grid_qos!r} unknown: "
+                f"scans {'/'.join(SCAN_QOS)}, grids {'/'.join(GRID_QOS)}"
+            )
+        self.ros = import_ros2()
+        super().__init__(step, topic, odom_topic, moving, name, queue)
+        self.scan_qos, self.grid_qos = scan_qos, grid_qos
+        self._context: Any = None
+        self._node: Any = None
+        self._executor: Any = None
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Join the domain: publishers first, so that no grid goes out unadvertised, then the
+        subscriptions; callbacks run on an executor thread of their own."""
+        rclpy, qos = self.ros.rclpy, self.ros.qos
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        self._context = rclpy.Context()
+        # signals stay the CLI's (Ctrl-C and SIGTERM stop spin); ROS arguments are not read
+        # from lidarflow's own command line
+        rclpy.init(args=[], context=self._context,
+                   signal_handler_options=SignalHandlerOptions.NO)  # fmt: skip
+        node = self._node = rclpy.create_node(self.name, context=self._context)
+        reliability = (qos.ReliabilityPolicy.RELIABLE if self.grid_qos == "reliable"
+                       else qos.ReliabilityPolicy.BEST_EFFORT)  # fmt: skip
+        grids = qos.QoSProfile(depth=self.queue, reliability=reliability)
+        for topic in self.topics:
+            self._publishers[topic] = node.create_publisher(self.ros.OccupancyGrid, topic, grids)
+        if self.odom_topic:
+            node.create_subscription(self.ros.Odometry, self.odom_topic, self._on_odom, 1)
+            self._subscribe_tf(node, qos)
+        scans = qos.QoSProfile(depth=self.queue, reliability=(
+            qos.ReliabilityPolicy.BEST_EFFORT if self.scan_qos == "sensor"
+            else qos.ReliabilityPolicy.RELIABLE))  # fmt: skip
+        if self.scan_qos == "sensor":  # the rest of the sensor-data profile, the depth ours
+            scans.durability = qos.qos_profile_sensor_data.durability
+        node.create_subscription(self.ros.LaserScan, self.topic, self._on_scan, scans)
+        self._executor = SingleThreadedExecutor(context=self._context)
+        self._executor.add_node(node)
+        self._thread = threading.Thread(target=self._spin, name="rclpy", daemon=True)
+        self._thread.start()
+        odom = f", poses from {self.odom_topic}" if self.odom_topic else ""
+        log.info("%s in ROS domain %d: scans from %s (%s QoS)%s; publishing %s (%s)",
+                 node.get_fully_qualified_name(), self._context.get_domain_id(),
+                 node.resolve_topic_name(self.topic), self.scan_qos, odom,
+                 ", ".join(self.topics), self.grid_qos)  # fmt: skip
+
+    def _subscribe_tf(self, node: Any, qos: ModuleType) -> None:
+        if self.ros.TFMessage is None:
+            self._warn_once(
+                "mount",
+                "tf2_msgs is not installed (the ROS 2 wheels lack it; a sourced ROS 2 has it): "
+                "no /tf, odometry taken as the scanner's pose",
+            )
+            return
+        node.create_subscription(self.ros.TFMessage, "/tf", self._on_tf, 100)
+        static = qos.QoSProfile(depth=100, durability=qos.DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(self.ros.TFMessage, "/tf_static", self._on_tf, static)
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        # the context shut down: the node is stopping
+        with contextlib.suppress(ExternalShutdownException):
+            self._executor.spin()
+
+    def spin(self, check_every_s: float = 2.0) -> None:
+        """Run until Ctrl-C or SIGTERM (returns) or a scan fails (raises its error); every
+        ``check_every_s`` the graph is asked whether the topics' publishers carry the types the
+        node expects."""
+        next_check = 0.0
+        try:
+            while self._failure is None and self._context.ok():
+                if time.monotonic() >= next_check:
+                    self._check_types()
+                    next_check = time.monotonic() + check_every_s
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            log.info("stopping")
+        finally:
+            self.close()
+        if self._failure is not None:
+            raise self._failure
+
+    def close(self) -> None:
+        """Leave the domain: the executor stopped, the node destroyed, the context shut down."""
+        if self._context is None:
+            return
+        self._executor.shutdown(timeout_sec=5)
+        self._node.destroy_node()
+        if self._context.ok():
+            self._context.try_shutdown()
+        if self._thread is not None:
+            self._thread.join(5)
+        self._context = None
+
+    def _check_types(self) -> None:
+        wanted = {self.topic: (SCAN_TYPE, "--topic")}
+        if self.odom_topic:
+            wanted[self.odom_topic] = (ODOM_TYPE, "--odom-topic")
+        for topic, (msgtype, option) in wanted.items():
+            resolved = self._node.resolve_topic_name(topic)
+            for info in self._node.get_publishers_info_by_topic(resolved):
+                if info.topic_type != msgtype:
+                    raise PredictError(f"{resolved} carries {info.topic_type}, not {msgtype}: "
+                                       f"name the right topic with {option}")  # fmt: skip
+
+    # ------------------------------------------------------------------ in
+    def _on_scan(self, msg: Any) -> None:
+        received = clock_ns()
+        stamp = msg.header.stamp
+        self._scan_in(msg, int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec), received)
+
+    # ------------------------------------------------------------------ out
+    def _stamp(self, ns: int) -> Any:
+        sec, nanosec = divmod(int(ns), 1_000_000_000)
+        return self.ros.Time(sec=sec, nanosec=nanosec)
+
+    def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
+        msg = self.ros.OccupancyGrid()
+        msg.header.stamp = self._stamp(stamp_ns)
+        msg.header.frame_id = frame_id
+        info = msg.info
+        info.map_load_time = self._stamp(scan_ns)
+        info.resolution = float(self.layout.resolution)
+        info.width, info.height = int(self.layout.width), int(self.layout.height)
+        info.origin.position.x = float(self.layout.origin_x)
+        info.origin.position.y = float(self.layout.origin_y)
+        info.origin.orientation.w = 1.0
+        # an int8 array.array: rclpy takes it as it is, where a list has every element checked
+        msg.data = array.array("b", np.ascontiguousarray(data, dtype=np.int8).tobytes())
+        return msg

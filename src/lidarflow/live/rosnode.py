@@ -1,0 +1,146 @@
+"""What the ROS 1 and the ROS 2 node share: a scan message into the live step, the sensor's pose
+from odometry and TF, and the step's grids out as ``nav_msgs/OccupancyGrid`` messages.
+
+The two ROS generations give the same message fields (``ranges``, ``header.frame_id``,
+``pose.pose``, ``transforms``, ``info.origin``...); what differs, and what a subclass supplies,
+is how a stamp is read and written, how a grid message is filled and how the node meets its
+peers (:mod:`lidarflow.live.ros1`, :mod:`lidarflow.live.ros2`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+
+from lidarflow.errors import LidarflowError, PredictError, ScanError
+from lidarflow.live.step import LiveFrame, LiveStep
+from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
+from lidarflow.scan import BeamGeometry, Scan
+
+__all__ = ["RosNode"]
+
+log = logging.getLogger("lidarflow.live")
+
+
+class RosNode(ABC):
+    """Scans and odometry in, grids out, whichever ROS carries them.
+
+    Args:
+        step: the per-scan step; the node appends :meth:`publish` to its sinks.
+        topic: the LaserScan topic.
+        odom_topic: a ``nav_msgs/Odometry`` topic for the sensor's poses, or ``None``.
+        moving: also publish ``/lidarflow/moving`` (flow models).
+        name: the node's name.
+        queue: scans kept while the node is busy; beyond it the oldest are dropped
+            (a node slower than its scanner falls behind by at most this many).
+    """
+
+    def __init__(
+        self,
+        step: LiveStep,
+        topic: str = "/scan",
+        odom_topic: str | None = None,
+        moving: bool = False,
+        name: str = "lidarflow",
+        queue: int = 10,
+    ) -> None:
+        from lidarflow.data.tf import TransformTree
+
+        self.step, self.topic, self.odom_topic = step, topic, odom_topic
+        self.moving, self.name, self.queue = moving, name, queue
+        self.layout = GridLayout.of(step.predictor.grid)
+        self.topics = grid_topics(step.predictor.horizon, moving, occupancy=False)
+        self._publishers: dict[str, Any] = {}
+        self._geometry: dict[tuple[float, ...], BeamGeometry] = {}
+        self._tree = TransformTree()
+        self._tf_lock = threading.Lock()
+        self._odom: tuple[tuple[float, float, float], str] | None = None
+        self._failure: LidarflowError | None = None
+        self._warned: set[str] = set()
+        step.sinks.append(self.publish)
+
+    # ------------------------------------------------------------------ in
+    def _scan_in(self, msg: Any, stamp_ns: int, received: int) -> None:
+        """One ``sensor_msgs/LaserScan`` (stamped ``stamp_ns``, arrived at ``received`` on
+        :data:`lidarflow.live.step.clock_ns`) through the step; a failure is kept for the
+        node's loop to raise, so that it stops rather than logs one error per scan."""
+        if self._failure is not None:
+            return
+        frame_id = str(msg.header.frame_id).lstrip("/")
+        try:
+            scan = Scan(np.asarray(msg.ranges, dtype=np.float32),
+                        self._beams(msg, len(msg.ranges)), stamp_ns)  # fmt: skip
+        except ScanError as err:  # one malformed scan (a driver's first) is skipped
+            self._warn_once("scan", f"{self.topic}: scan skipped ({err})")
+            return
+        try:
+            self.step(scan, frame_id, received, self._pose(frame_id))
+        except LidarflowError as err:
+            self._failure = err
+        except Exception as err:  # a bug: stop with it rather than log one per scan
+            self._failure = PredictError(f"{type(err).__name__}: {err}")
+            self._failure.__cause__ = err
+
+    def _beams(self, msg: Any, count: int) -> BeamGeometry:
+        key = (count, msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max)
+        geometry = self._geometry.get(key)
+        if geometry is None:
+            geometry = BeamGeometry(count, float(msg.angle_min), float(msg.angle_increment),
+                                    float(msg.range_min), float(msg.range_max))  # fmt: skip
+            self._geometry = {key: geometry}  # a scanner keeps its geometry: one is enough
+        return geometry
+
+    def _on_odom(self, msg: Any) -> None:
+        from lidarflow.data.bags import _pose_of  # the planar pose, as a bag's is read
+
+        self._odom = (_pose_of(msg), str(msg.child_frame_id).lstrip("/"))
+
+    def _on_tf(self, msg: Any) -> None:
+        with self._tf_lock:
+            self._tree.add(msg)
+
+    def _pose(self, frame_id: str) -> tuple[float, float, float] | None:
+        """The scanner's pose: the latest odometry moved by the scanner's mount on the body
+        odometry reports (``child_frame_id``), where TF has it; ``None`` without odometry."""
+        from lidarflow.data.tf import compose_poses, mirrored
+
+        if self._odom is None:
+            return None
+        pose, body = self._odom
+        with self._tf_lock:
+            found = self._tree.mount(body, frame_id) if body and frame_id else None
+        if found is None:
+            body = body or "(no child_frame_id)"
+            self._warn_once(
+                "mount", f"no TF from {body} to {frame_id}: odometry taken as the scanner's pose"
+            )
+            return pose
+        mount, upside_down = found
+        moved = compose_poses(np.asarray(pose)[None], mount)
+        if upside_down:  # the scanner sees the world mirrored, and so moves in it
+            moved = mirrored(moved)
+        return (float(moved[0, 0]), float(moved[0, 1]), float(moved[0, 2]))
+
+    def _warn_once(self, key: str, text: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            log.warning(text)
+
+    # ------------------------------------------------------------------ out
+    def publish(self, frame: LiveFrame) -> None:
+        """The node's sink: the frame's grids on their topics, in the scan's frame."""
+        grids = prediction_grids(frame.prediction, self.topics)
+        if self.moving and frame.prediction.moving is None:
+            self._warn_once("moving", "this model has no flow: nothing on /lidarflow/moving")
+        for grid in grids:
+            msg = self._message(grid.data, grid.stamp_ns, grid.scan_stamp_ns, frame.frame_id)
+            self._publishers[grid.topic].publish(msg)
+
+    @abstractmethod
+    def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
+        """An ``OccupancyGrid`` of this ROS: ``data`` in the node's layout, stamped ``stamp_ns``,
+        ``map_load_time`` the scan's stamp ``scan_ns``."""
