@@ -5,10 +5,10 @@ streaming step (issue 46).
 grid on every call; in a stream the same grid serves many maps: the recurrent state and the
 next map are moved by one motion, and every step of a roll-out assumes the same motion again.
 A :class:`BilinearSampler` holds, for every cell, the four cells it reads and their weights
-(zero for a cell outside the map), so moving ``C`` maps by it is four gathers; :class:`RigidSamplers`
-keeps the last few by motion. Conventions are the torch ops' (cell centres at integers, zero
-outside the map, :mod:`lidarflow.ops.rigid`'s motions); tests/predict/test_sampling.py holds
-them to those ops.
+(zero for a cell outside the map), so moving ``C`` maps by it is four gathers;
+:class:`RigidSamplers` keeps the last few by motion. Conventions are the torch ops' (cell
+centres at integers, zero outside the map, :mod:`lidarflow.ops.rigid`'s motions);
+tests/predict/test_sampling.py holds them to those ops.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from collections import OrderedDict
 import numpy as np
 
 __all__ = ["BilinearSampler", "RigidSamplers", "rigid_positions"]
-
 
 
 class BilinearSampler:
@@ -62,7 +61,8 @@ class BilinearSampler:
         """``maps`` ``(C, H, W)`` sampled, in their own float precision."""
         maps = np.asarray(maps)
         if maps.shape[-2:] != self.shape:
-            raise ValueError(f"maps must be (C, {self.shape[0]}, {self.shape[1]}), got {maps.shape}")
+            h, w = self.shape
+            raise ValueError(f"maps must be (C, {h}, {w}), got {maps.shape}")
         weight = self._weight32 if maps.dtype == np.float32 else self._weight
         flat = maps.reshape(maps.shape[0], -1)
         out = flat[:, self._index[0]] * weight[0]
