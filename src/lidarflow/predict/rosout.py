@@ -239,7 +239,9 @@ class BagOutput:
             raise PredictError(f"a map of {out.data.size} cells does not fit the grid {grid}")
         layout = GridLayout.of(grid)
         origin = types["geometry_msgs/msg/Pose"](
-            position=types["geometry_msgs/msg/Point"](x=layout.origin_x, y=layout.origin_y, z=0.0),
+            position=types["geometry_msgs/msg/Point"](
+                x=layout.origin_x, y=layout.origin_y, z=0.0
+            ),
             orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
         )
         info = types["nav_msgs/msg/MapMetaData"](
