@@ -142,7 +142,9 @@ def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3)
     side = 2 * radius + 1
     steps = np.arange(-radius, radius + 1)
     rows, cols = np.nonzero(prev)
-    padded = np.pad(cur, radius)
+    h, w = cur.shape
+    padded = np.zeros((h + 2 * radius, w + 2 * radius), bool)  # np.pad: 4x the time here
+    padded[radius : radius + h, radius : radius + w] = cur
     width = padded.shape[1]
     # overlap[i, j]: cells occupied in previous and, moved by (steps[i], steps[j]), in current.
     at = (rows + radius) * width + (cols + radius)

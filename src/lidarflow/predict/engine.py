@@ -37,6 +37,7 @@ from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
+from lidarflow.predict.sampling import FlowWarp
 from lidarflow.scan import takes_subcell
 
 __all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
@@ -148,6 +149,7 @@ class Engine:
         self.odometry = OdometryCheck() if optional and check_odometry else None
         self._scans = ScanOdometry(res) if optional and scan_odometry else None
         self._state: Any = None
+        self._warp = FlowWarp()  # the online decision's moved map; a roll-out's flow repeats
 
     @property
     def wants_returns(self) -> bool:
@@ -222,7 +224,7 @@ class Engine:
         frame (``visibility`` given) or applied with its current choice (a roll-out's step)."""
         if self.decision is None:
             return decided_probability(probability, self.policy.offset)
-        moved = moved_last_map(last, backward)
+        moved = moved_last_map(last, backward, self._warp)
         if visibility is None:
             return self.decision.apply(probability, last, moved)
         return self.decision.update(probability, last, visibility, moved)

@@ -123,6 +123,8 @@ class HeadStepBackend:
         self._state_channels = head.state_channels
         self._fill = float(_fill_logit())
         self._samplers = RigidSamplers()
+        self._flow_key: tuple[float, ...] | None = None
+        self._flow = np.zeros(0, np.float32)
 
     def init_state(self, height: int, width: int) -> Any:
         return [np.zeros((1, self._state_channels, height, width), np.float32)]
@@ -164,11 +166,16 @@ class HeadStepBackend:
         return probability, out, [kept[None]]
 
     def _ego_flow(self, motion: np.ndarray, h: int, w: int) -> np.ndarray:
-        """``(4, H, W)``: the platform's own backward and forward flow (the inner flow zero)."""
-        rows, cols = np.indices((h, w), dtype=np.float64)
-        c1, r1 = rigid_positions(motion, h, w)
-        c2, r2 = rigid_positions(motion, h, w, inverse=True)
-        return np.stack([c1 - cols, r1 - rows, c2 - cols, r2 - rows]).astype(np.float32)
+        """``(4, H, W)``: the platform's own backward and forward flow (the inner flow zero),
+        the last one kept (a roll-out's every step has the same)."""
+        key = (*np.asarray(motion, np.float64).reshape(3).tolist(), h, w)
+        if key != self._flow_key:
+            rows, cols = np.indices((h, w), dtype=np.float64)
+            c1, r1 = rigid_positions(motion, h, w)
+            c2, r2 = rigid_positions(motion, h, w, inverse=True)
+            flow = np.stack([c1 - cols, r1 - rows, c2 - cols, r2 - rows]).astype(np.float32)
+            self._flow_key, self._flow = key, flow
+        return self._flow
 
     def _head(self, maps: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`lidarflow.models.head.OccupancyHead.forward` on one frame: ``maps`` ``(C, H,

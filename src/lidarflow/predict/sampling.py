@@ -17,7 +17,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-__all__ = ["BilinearSampler", "RigidSamplers", "rigid_positions"]
+__all__ = ["BilinearSampler", "FlowWarp", "RigidSamplers", "rigid_positions"]
 
 
 class BilinearSampler:
@@ -65,9 +65,13 @@ class BilinearSampler:
             raise ValueError(f"maps must be (C, {h}, {w}), got {maps.shape}")
         weight = self._weight32 if maps.dtype == np.float32 else self._weight
         flat = maps.reshape(maps.shape[0], -1)
-        out = flat[:, self._index[0]] * weight[0]
+        # np.take, in place: twice as fast as fancy indexing along the second axis.
+        out = np.take(flat, self._index[0], axis=1)
+        out *= weight[0]
         for k in range(1, 4):
-            out += flat[:, self._index[k]] * weight[k]
+            corner = np.take(flat, self._index[k], axis=1)
+            corner *= weight[k]
+            out += corner
         return out.reshape(maps.shape)
 
 
@@ -110,3 +114,20 @@ class RigidSamplers:
         else:
             self._kept.move_to_end(key)
         return sampler
+
+
+class FlowWarp:
+    """:func:`lidarflow.motion.warp.warp_map` (float64) with the sampler of the last flow kept:
+    a roll-out moves every fed-back map by the same flow where the model's flow is the
+    platform's motion alone (comparing the flow costs a tenth of building the sampler)."""
+
+    def __init__(self) -> None:
+        self._flow: np.ndarray | None = None
+        self._sampler: BilinearSampler | None = None
+
+    def __call__(self, image: np.ndarray, flow: np.ndarray) -> np.ndarray:
+        """``image`` ``(H, W)`` sampled at each cell plus ``flow`` ``(2, H, W)``, float64."""
+        if self._sampler is None or self._flow is None or not np.array_equal(flow, self._flow):
+            self._flow = np.array(flow, copy=True)
+            self._sampler = BilinearSampler.from_flow(self._flow)
+        return self._sampler(np.asarray(image, np.float64)[None])[0]
