@@ -286,6 +286,5 @@ def load_backend(
     if device == "cpu" and supports(net):
         # The head alone: its step in NumPy, ~0.2 ms against ~2.4 ms of PyTorch's per-operator
         # overhead (issue 46); the same numbers within 1e-5 (tests/predict/test_headstep.py).
-        TorchBackend(net, device, threads)  # sets the thread count as PyTorch would run it
-        return HeadStepBackend(net), card
+        return HeadStepBackend(net, threads), card
     return TorchBackend(net, device, threads), card

@@ -102,7 +102,7 @@ class HeadStepBackend:
     H, W), state, motion, next_motion) -> (probability (1, 1, H, W), out (1, 5, H, W), state)``
     on float32 arrays; the state is a list of one ``(1, S, H, W)`` array."""
 
-    def __init__(self, model: Any) -> None:
+    def __init__(self, model: Any, threads: int | None = None) -> None:
         parts = _parts(model)
         if parts is None or not supports(model):
             raise ValueError("HeadStepBackend runs a head-only flownet's step only (supports())")
@@ -117,6 +117,8 @@ class HeadStepBackend:
         # size over every core, and beside a busy process that took 9 ms instead of 0.09.
         import torch
 
+        if threads:  # process-wide, as TorchBackend sets it
+            torch.set_num_threads(threads)
         self._torch = torch
         layers = [head.hidden] if c.hidden_channels else []
         self._layers = [_weights(m) for m in [*layers, head.out]]
