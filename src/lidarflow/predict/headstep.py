@@ -76,10 +76,27 @@ def supports(model: Any) -> bool:
     )
 
 
-def _weights(conv: Any) -> tuple[Any, Any]:
-    """A 1x1 convolution as ``(weight (out, in), bias (out, 1))`` float32 tensors of their own."""
-    weight = conv.weight.detach().float()
-    return weight[:, :, 0, 0].clone(), conv.bias.detach().float()[:, None].clone()
+def _weights(conv: Any) -> tuple[np.ndarray, np.ndarray]:
+    """A 1x1 convolution as ``(weight (out, in), bias (out, 1))`` float32 arrays."""
+    weight = conv.weight.detach().float().cpu().numpy()
+    return weight[:, :, 0, 0].copy(), conv.bias.detach().float().cpu().numpy()[:, None].copy()
+
+
+# OpenBLAS runs a matrix product on one thread below m * n * k = 65536 * 4; above it wakes a
+# thread per core, and beside a busy process the head's whole-map product took 9 ms instead of
+# 0.09 (its threads wait on each other). A product of ~2 MFLOP cannot gain from a second
+# thread, so it goes in slices of columns that stay below that size.
+_SINGLE_THREAD_MNK = 65536 * 2
+
+
+def _layer(weight: np.ndarray, bias: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``weight @ x + bias`` ``(out, cells)`` float32, computed on one thread."""
+    out = np.empty((weight.shape[0], x.shape[1]), np.float32)
+    step = max(64, _SINGLE_THREAD_MNK // max(1, weight.size))
+    for start in range(0, x.shape[1], step):
+        np.matmul(weight, x[:, start : start + step], out=out[:, start : start + step])
+    out += bias
+    return out
 
 
 def _shifted(maps: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
@@ -112,14 +129,10 @@ class HeadStepBackend:
         self.gain: float | None = float(head.gain.detach())
         self.decision: dict[str, Any] | None = None  # as TorchBackend: the policy is the card's
         self._decays = np.asarray(c.memory_decays, np.float32).reshape(-1, 1, 1)
-        # The 1x1 layers are matrix products on PyTorch (present: the weights come from it),
-        # which keeps to the Predictor's thread count: NumPy's OpenBLAS threads a product this
-        # size over every core, and beside a busy process that took 9 ms instead of 0.09.
-        import torch
+        if threads:  # process-wide, as TorchBackend sets it (this step itself takes one)
+            import torch
 
-        if threads:  # process-wide, as TorchBackend sets it
             torch.set_num_threads(threads)
-        self._torch = torch
         layers = [head.hidden] if c.hidden_channels else []
         self._layers = [_weights(m) for m in [*layers, head.out]]
         self._state_channels = head.state_channels
@@ -205,12 +218,12 @@ class HeadStepBackend:
             features.append(maps[1:2])
         if c.subcell_input:
             features.append(maps[2:4])
-        x = self._torch.from_numpy(np.concatenate(features).reshape(-1, occupancy[0].size))
-        *hidden, (weight, bias) = self._layers
-        with self._torch.inference_mode():
-            for w, b in hidden:
-                x = self._torch.addmm(b, w, x).relu_()
-            residual = self._torch.addmm(bias, weight, x).numpy().reshape(occupancy.shape)
+        x = np.concatenate(features).reshape(-1, occupancy[0].size)
+        *hidden, last = self._layers
+        for weight, bias in hidden:
+            x = _layer(weight, bias, x)
+            np.maximum(x, 0.0, out=x)
+        residual = _layer(*last, x).reshape(occupancy.shape)
         return residual, np.concatenate(kept)
 
 
