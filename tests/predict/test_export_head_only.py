@@ -43,7 +43,9 @@ def test_onnx_matches_pytorch_and_both_decide_as_the_zeroed_flow(tmp_path, sampl
         scan = sample_recording.scan(i)
         a, b, z = (p.update(scan, pose) for p in predictors)
         np.testing.assert_allclose(a.probability, b.probability, atol=1e-4)
-        np.testing.assert_allclose(a.probability, z.probability, atol=1e-5)
+        # The head alone runs on the NumPy step (issue 46), whose sampling positions are
+        # float64 where PyTorch's grid is float32: ~1e-5 apart, as ONNX is from PyTorch.
+        np.testing.assert_allclose(a.probability, z.probability, atol=1e-4)
         np.testing.assert_array_equal(a.occupied, z.occupied)  # decided on the moved map
         np.testing.assert_array_equal(a.horizon_occupied, z.horizon_occupied)
         assert np.mean(a.occupied != b.occupied) < 1e-3

@@ -127,17 +127,33 @@ def shift_map(image: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
 
 def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3) -> tuple[int, int]:
     """The integer shift ``(d_col, d_row)`` within ``radius`` that best maps ``previous`` onto
-    ``current`` (most overlapping occupied cells; ties prefer the smallest shift)."""
-    prev = previous.astype(bool)
-    cur = current.astype(bool)
-    best, best_key = (0, 0), (-1, 0)
-    for d_row in range(-radius, radius + 1):
-        for d_col in range(-radius, radius + 1):
-            overlap = int(np.count_nonzero(shift_map(prev, d_col, d_row) & cur))
-            key = (overlap, -(abs(d_col) + abs(d_row)))
-            if key > best_key:
-                best, best_key = (d_col, d_row), key
-    return best
+    ``current`` (most overlapping occupied cells; ties prefer the smallest ``|d_col| + |d_row|``,
+    then the first in row-major ``(d_row, d_col)`` order).
+
+    Counted from the occupied cells of ``previous`` alone (one gather of ``current`` at each of
+    them moved by every shift): occupied cells are a few hundred of ten thousand, so this costs
+    a tenth of sliding the whole map through every shift (issue 46).
+
+    >>> best_rigid_shift(np.eye(4), shift_map(np.eye(4), 1, 0))
+    (1, 0)
+    """
+    prev = np.asarray(previous).astype(bool)
+    cur = np.asarray(current).astype(bool)
+    side = 2 * radius + 1
+    steps = np.arange(-radius, radius + 1)
+    rows, cols = np.nonzero(prev)
+    h, w = cur.shape
+    padded = np.zeros((h + 2 * radius, w + 2 * radius), bool)  # np.pad: 4x the time here
+    padded[radius : radius + h, radius : radius + w] = cur
+    width = padded.shape[1]
+    # overlap[i, j]: cells occupied in previous and, moved by (steps[i], steps[j]), in current.
+    at = (rows + radius) * width + (cols + radius)
+    offsets = (steps[:, None] * width + steps[None, :]).ravel()
+    overlap = np.count_nonzero(padded.ravel()[at[:, None] + offsets[None, :]], axis=0)
+    size = (np.abs(steps)[:, None] + np.abs(steps)[None, :]).ravel()
+    # Overlaps are integers and sizes below 4 radius + 1: this orders by (overlap, -size).
+    i = int(np.argmax(overlap * (4 * radius + 1) - size))
+    return int(steps[i % side]), int(steps[i // side])
 
 
 class ConstantVelocity:

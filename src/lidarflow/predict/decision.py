@@ -248,17 +248,18 @@ class OnlineDecision:
         """``probability`` re-decided with the current choice (:attr:`offsets`, :attr:`unmoved`),
         nothing scored: for the predictions a roll-out feeds back (``occupancy`` may then be a
         fed-back probability map)."""
-        return self._decided(*self._candidates(probability, occupancy, moved))
+        return self._decided(*self._candidates(probability, occupancy, moved, every=False))
 
     def _candidates(
-        self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray
+        self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray, every: bool = True
     ) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """The head's logit (no offset) and the map splitting occupied from free cells, for
-        the moved map and (with a gain) the unmoved one."""
+        the moved map and (with a gain) the unmoved one; not ``every``: the unmoved one only
+        where it is the current choice (a roll-out's step decides with that alone)."""
         moved = np.clip(np.asarray(moved, np.float64), 0.0, 1.0)
         logit = calibrated_logit(probability)
         logits, maps = [logit], [moved]
-        if self.gain is not None:
+        if self.gain is not None and (every or self.unmoved):
             last = np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)
             logits.append(logit + self.gain * (last - moved))  # g * O^t + r
             maps.append(last)

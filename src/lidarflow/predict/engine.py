@@ -41,6 +41,7 @@ from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
+from lidarflow.predict.sampling import FlowWarp
 from lidarflow.predict.tracker import Movers, Tracker
 from lidarflow.scan import takes_subcell
 
@@ -164,6 +165,7 @@ class Engine:
         #: The tracker whose objects join the decided map (None where the policy has none).
         self.tracker = Tracker(res=res) if self.policy.movers else None
         self._state: Any = None
+        self._warp = FlowWarp()  # the online decision's moved map; a roll-out's flow repeats
 
     @property
     def wants_returns(self) -> bool:
@@ -243,7 +245,7 @@ class Engine:
         frame (``visibility`` given) or applied with its current choice (a roll-out's step)."""
         if self.decision is None:
             return decided_probability(probability, self.policy.offset)
-        moved = moved_last_map(last, backward)
+        moved = moved_last_map(last, backward, self._warp)
         if visibility is None:
             return self.decision.apply(probability, last, moved)
         return self.decision.update(probability, last, visibility, moved)

@@ -1,0 +1,233 @@
+"""The step of an occupancy-head model without a flow network, in NumPy (issue 46).
+
+Such a model (the bundled one since v9, :class:`~lidarflow.models.flownet.LidarFlowNet` with
+``flow=None``, ego-compensated or not) does a few arithmetic operations per cell: move the
+state by the platform's motion, update the memories, find the constant-velocity shift, a 1x1
+layer or two, move the logit into the next frame. In eager PyTorch that was ~60 small operators
+a step, ~2.4 ms of overhead against ~0.05 ms of arithmetic; here it is a few fused NumPy
+operations on the same weights, the gathers of the rigid warps kept from step to step
+(:mod:`lidarflow.predict.sampling`), and the shift counted on the occupied cells only
+(:func:`lidarflow.predict.baselines.best_rigid_shift`).
+
+Generic over :class:`~lidarflow.models.config.HeadConfig` as it stands (memories, the
+constant-velocity input and moved memories, the hidden layer, the visibility and sub-cell
+inputs), with the weights read from the model; :func:`supports` says no to anything else (a
+flow network, a head of another kind, a config field this step does not know, a model not in
+float32 on the CPU), and :func:`~lidarflow.predict.backends.load_backend` then runs the model on
+PyTorch as before. tests/predict/test_headstep.py holds it to the PyTorch step within 1e-5.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from lidarflow.models.config import Capabilities
+from lidarflow.predict.baselines import best_rigid_shift
+from lidarflow.predict.sampling import RigidSamplers, rigid_positions
+
+__all__ = ["HeadStepBackend", "supports"]
+
+#: The HeadConfig fields this step computes; a head with any other is left to PyTorch.
+KNOWN_FIELDS = frozenset(
+    {
+        "memory_decays",
+        "constant_velocity_input",
+        "shift_memories",
+        "hidden_channels",
+        "visibility_input",
+        "subcell_input",
+    }
+)
+# As lidarflow.ops.shift: a map moved by exactly half a cell holds 0.5, counted on neither side.
+_OCCUPIED_ABOVE = 0.5 - 1e-3
+
+
+def _parts(model: Any) -> tuple[Any, bool] | None:
+    """``(head, ego)`` of a head-only flownet (ego-compensated or not), else ``None``."""
+    from lidarflow.models.egomotion import EgoCompensated
+    from lidarflow.models.flownet import LidarFlowNet
+    from lidarflow.models.head import OccupancyHead
+
+    ego = isinstance(model, EgoCompensated)
+    inner = model.inner if ego else model
+    if type(inner) is not LidarFlowNet or inner.flow is not None:
+        return None
+    head = inner.head
+    if type(head) is not OccupancyHead:
+        return None
+    return head, ego
+
+
+def supports(model: Any) -> bool:
+    """Whether :class:`HeadStepBackend` computes ``model``'s step (see the module docstring)."""
+    parts = _parts(model)
+    if parts is None:
+        return False
+    head = parts[0]
+    if {f.name for f in dataclasses.fields(head.config)} != KNOWN_FIELDS:
+        return False
+    weights = list(head.parameters())
+    convs = [head.out] + ([head.hidden] if head.config.hidden_channels else [])
+    return all(p.device.type == "cpu" and str(p.dtype) == "torch.float32" for p in weights) and all(
+        tuple(c.kernel_size) == (1, 1) and c.groups == 1 for c in convs
+    )
+
+
+def _weights(conv: Any) -> tuple[np.ndarray, np.ndarray]:
+    """A 1x1 convolution as ``(weight (out, in), bias (out, 1))`` float32 arrays."""
+    weight = conv.weight.detach().float().cpu().numpy()
+    return weight[:, :, 0, 0].copy(), conv.bias.detach().float().cpu().numpy()[:, None].copy()
+
+
+# OpenBLAS runs a matrix product on one thread below m * n * k = 65536 * 4; above it wakes a
+# thread per core, and beside a busy process the head's whole-map product took 9 ms instead of
+# 0.09 (its threads wait on each other). A product of ~2 MFLOP cannot gain from a second
+# thread, so it goes in slices of columns that stay below that size.
+_SINGLE_THREAD_MNK = 65536 * 2
+
+
+def _layer(weight: np.ndarray, bias: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``weight @ x + bias`` ``(out, cells)`` float32, computed on one thread."""
+    out = np.empty((weight.shape[0], x.shape[1]), np.float32)
+    step = max(64, _SINGLE_THREAD_MNK // max(1, weight.size))
+    for start in range(0, x.shape[1], step):
+        np.matmul(weight, x[:, start : start + step], out=out[:, start : start + step])
+    out += bias
+    return out
+
+
+def _shifted(maps: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
+    """``maps`` ``(C, H, W)`` with their content moved by ``(d_col, d_row)``, zeros entering
+    (:func:`lidarflow.ops.shift.apply_shift`)."""
+    if d_col == 0 and d_row == 0:
+        return maps
+    out = np.zeros_like(maps)
+    h, w = maps.shape[-2:]
+    if abs(d_row) < h and abs(d_col) < w:
+        out[:, max(0, d_row) : h + min(0, d_row), max(0, d_col) : w + min(0, d_col)] = maps[
+            :, max(0, -d_row) : h + min(0, -d_row), max(0, -d_col) : w + min(0, -d_col)
+        ]
+    return out
+
+
+class HeadStepBackend:
+    """Runs a head-only model's step in NumPy (:func:`supports` says which), as
+    :class:`~lidarflow.predict.backends.TorchBackend` does on PyTorch: one step ``(maps (1, C,
+    H, W), state, motion, next_motion) -> (probability (1, 1, H, W), out (1, 5, H, W), state)``
+    on float32 arrays; the state is a list of one ``(1, S, H, W)`` array."""
+
+    def __init__(self, model: Any, threads: int | None = None) -> None:
+        parts = _parts(model)
+        if parts is None or not supports(model):
+            raise ValueError("HeadStepBackend runs a head-only flownet's step only (supports())")
+        head, self._ego = parts
+        c = self.config = head.config
+        self.capabilities: Capabilities = model.capabilities
+        self.gain: float | None = float(head.gain.detach())
+        self.decision: dict[str, Any] | None = None  # as TorchBackend: the policy is the card's
+        self._decays = np.asarray(c.memory_decays, np.float32).reshape(-1, 1, 1)
+        if threads:  # process-wide, as TorchBackend sets it (this step itself takes one)
+            import torch
+
+            torch.set_num_threads(threads)
+        layers = [head.hidden] if c.hidden_channels else []
+        self._layers = [_weights(m) for m in [*layers, head.out]]
+        self._state_channels = head.state_channels
+        self._fill = float(_fill_logit())
+        self._samplers = RigidSamplers()
+        self._flow_key: tuple[float, ...] | None = None
+        self._flow = np.zeros(0, np.float32)
+
+    def init_state(self, height: int, width: int) -> Any:
+        return [np.zeros((1, self._state_channels, height, width), np.float32)]
+
+    def run(
+        self,
+        maps: np.ndarray,
+        state: Any,
+        motion: np.ndarray | None = None,
+        next_motion: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, Any]:
+        """One step (``motion``, ``next_motion`` as :meth:`TorchBackend.run`'s)."""
+        maps = np.asarray(maps, np.float32)
+        if maps.ndim != 4 or maps.shape[0] != 1:
+            raise ValueError(f"maps must be (1, C, H, W), got {maps.shape}")
+        h, w = maps.shape[-2:]
+        past = state[0][0]
+        if not self._ego:
+            motion = next_motion = None
+        if motion is not None:
+            past = self._samplers(motion, h, w)(past)
+        residual, kept = self._head(maps[0], past)
+        nxt = motion if next_motion is None else next_motion
+        occupancy = maps[0, 0:1]
+        out = np.zeros((1, 5, h, w), np.float32)
+        if nxt is None:  # no motion: the flow channels stay zero, nothing moves
+            out[0, 4:5] = residual
+            moved = occupancy
+        else:
+            # The logit and the map it weighs, moved into the next frame by one sampler: the
+            # residual's cells coming into view at the fill logit (EgoCompensated.to_next_frame).
+            sampler = self._samplers(nxt, h, w)
+            both = sampler(np.concatenate([residual - self._fill, occupancy]))
+            out[0, 4] = both[0] + self._fill
+            moved = np.clip(both[1:2], 0.0, 1.0)
+            out[0, :4] = self._ego_flow(nxt, h, w)
+        logit = np.float32(self.gain) * moved + out[0, 4:5]
+        probability = (1.0 / (1.0 + np.exp(-logit)))[None].astype(np.float32)
+        return probability, out, [kept[None]]
+
+    def _ego_flow(self, motion: np.ndarray, h: int, w: int) -> np.ndarray:
+        """``(4, H, W)``: the platform's own backward and forward flow (the inner flow zero),
+        the last one kept (a roll-out's every step has the same)."""
+        key = (*np.asarray(motion, np.float64).reshape(3).tolist(), h, w)
+        if key != self._flow_key:
+            rows, cols = np.indices((h, w), dtype=np.float64)
+            c1, r1 = rigid_positions(motion, h, w)
+            c2, r2 = rigid_positions(motion, h, w, inverse=True)
+            flow = np.stack([c1 - cols, r1 - rows, c2 - cols, r2 - rows]).astype(np.float32)
+            self._flow_key, self._flow = key, flow
+        return self._flow
+
+    def _head(self, maps: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`lidarflow.models.head.OccupancyHead.forward` on one frame: ``maps`` ``(C, H,
+        W)``, ``state`` ``(S, H, W)`` -> the residual logit ``(1, H, W)`` and the new state."""
+        c = self.config
+        occupancy = maps[0:1]
+        k = len(c.memory_decays)
+        past = state[:k]
+        shift = (0, 0)
+        if c.constant_velocity_input:
+            shift = best_rigid_shift(state[-1] > _OCCUPIED_ABOVE, occupancy[0] > _OCCUPIED_ABOVE)
+            if c.shift_memories:
+                past = _shifted(past, *shift)
+        memory = self._decays * past + (1.0 - self._decays) * occupancy
+        features, kept = [occupancy], [memory]
+        if c.constant_velocity_input:
+            if c.shift_memories:
+                features.append(_shifted(np.concatenate([memory, occupancy]), *shift))
+            else:
+                features.extend((memory, _shifted(occupancy, *shift)))
+            kept.append(occupancy)
+        else:
+            features.append(memory)
+        if c.visibility_input:
+            features.append(maps[1:2])
+        if c.subcell_input:
+            features.append(maps[2:4])
+        x = np.concatenate(features).reshape(-1, occupancy[0].size)
+        *hidden, last = self._layers
+        for weight, bias in hidden:
+            x = _layer(weight, bias, x)
+            np.maximum(x, 0.0, out=x)
+        residual = _layer(*last, x).reshape(occupancy.shape)
+        return residual, np.concatenate(kept)
+
+
+def _fill_logit() -> float:
+    from lidarflow.models.egomotion import OCCUPANCY_FILL_LOGIT
+
+    return OCCUPANCY_FILL_LOGIT
