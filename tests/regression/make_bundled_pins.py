@@ -1,11 +1,11 @@
-"""Write the pins of a model's predictions: the bundled model's (run at v9's install), and
+"""Write the pins of a model's predictions: the bundled model's (run at v10's install), and
 v8's (``--model flownet_v8``, run once at main ``a4a22da``, when v8 was the bundled model).
 
 The house issue (35) restructures the per-frame pipeline and the model without changing what the
 bundled model predicts; ``test_bundled_pins.py`` holds every later commit to what this script
 recorded before the restructuring (v8, a flow model: ``flownet_v8_pins.npz``, which also pins
-the flow path) and to what the bundled model v9 (issue 36: the head alone) predicted when it
-was installed (``bundled_pins.npz``). Do not re-run it to make a failing pin pass: a pin that
+the flow path) and to what the bundled model predicted when it was installed
+(``bundled_pins.npz``: v10, issue 44, v9's head with the tracked movers laid over it). Do not re-run it to make a failing pin pass: a pin that
 moves is a behaviour change, to be explained and pinned on its own (installing a new bundled
 model is one: re-run it for ``bundled`` then).
 
