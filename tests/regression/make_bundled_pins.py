@@ -5,9 +5,9 @@ The house issue (35) restructures the per-frame pipeline and the model without c
 bundled model predicts; ``test_bundled_pins.py`` holds every later commit to what this script
 recorded before the restructuring (v8, a flow model: ``flownet_v8_pins.npz``, which also pins
 the flow path) and to what the bundled model predicted when it was installed
-(``bundled_pins.npz``: v10, issue 44, v9's head with the tracked movers laid over it). Do not re-run it to make a failing pin pass: a pin that
-moves is a behaviour change, to be explained and pinned on its own (installing a new bundled
-model is one: re-run it for ``bundled`` then).
+(``bundled_pins.npz``: v10, issue 44, v9's head with the tracked movers laid over it). Do not
+re-run it to make a failing pin pass: a pin that moves is a behaviour change, to be explained
+and pinned on its own (installing a new bundled model is one: re-run it for ``bundled`` then).
 
     PYTHONPATH=src:. OMP_NUM_THREADS=1 python tests/regression/make_bundled_pins.py \\
         [--model flownet_v8]

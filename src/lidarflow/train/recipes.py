@@ -23,21 +23,20 @@ def _blurred() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy
-    memories that follow the constant-velocity shift, the constant-velocity map, the current
-    map and its visibility, and where the current returns lie inside their cells,
-    ``subcell_input``; one hidden layer; 1 x 1, no GRU features) trained
-    by cross-entropy on top of a trained flow network that stays (nearly) frozen, each window
-    starting from the memories that streaming its recording leaves there
-    (``memories_from_stream``), compensating the platform's own motion where a recording has
-    poses (``ego_motion``, ``poses_optional``: uncompensated where it has none; half the
-    training windows without their poses, so it learns both ways), its decision offsets chosen
-    online as it streams (``decision.online``, applied by evaluate and the Predictor; training
-    is unchanged by it), a tracker's moved objects laid over its decided map
-    (``decision.movers``, as unchanged): ``model.init``, a trained flow network (``--init RUN``; its head too
-    where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains one). Left at
-    ``bundled`` it is refused: the bundled model is the head alone since v9 (issue 36). About
-    8 CPU-minutes on the seven development recordings; its validation is
+    """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy memories
+    that follow the constant-velocity shift, the constant-velocity map, the current map and its
+    visibility, and where the current returns lie inside their cells, ``subcell_input``; one
+    hidden layer; 1 x 1, no GRU features) trained by cross-entropy on top of a trained flow
+    network that stays (nearly) frozen, each window starting from the memories that streaming
+    its recording leaves there (``memories_from_stream``), compensating the platform's own
+    motion where a recording has poses (``ego_motion``, ``poses_optional``: uncompensated where
+    it has none; half the training windows without their poses, so it learns both ways), its
+    decision offsets chosen online as it streams (``decision.online``, applied by evaluate and
+    the Predictor; training is unchanged by it), a tracker's moved objects laid over its decided
+    map (``decision.movers``, as unchanged): ``model.init``, a trained flow network (``--init
+    RUN``; its head too where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains
+    one). Left at ``bundled`` it is refused: the bundled model is the head alone since v9 (issue
+    36). About 8 CPU-minutes on the seven development recordings; its validation is
     ``docs/research/online_decision/``."""
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
