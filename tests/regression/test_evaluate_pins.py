@@ -1,6 +1,6 @@
 """``lidarflow evaluate`` on a development recording reports what main ``a4a22da`` reported for
-the baselines and v8 (a flow model, the bundled one then), and what the bundled model v9 scored
-when it was installed (``check_evaluate.py`` compares all seven and the horizon table; here a
+the baselines and v8 (a flow model, the bundled one then), and what the bundled model (v10)
+scored when it was installed (``check_evaluate.py`` compares all seven and the horizon table; here a
 static one and the driving one without poses, whose motion is matched from its scans)."""
 
 from __future__ import annotations
