@@ -291,7 +291,7 @@ def test_default_recipe_trains_the_bundled_head_without_a_flow_network(
     assert config["recipe"] == "head_only" and config["model"]["init"] == "bundled"
     record = json.loads((run / "model.json").read_text())
     assert record["model_kwargs"]["poses_optional"] and not record["model_kwargs"]["flow_network"]
-    assert record["decision"] == {"offset": 0.0, "online": True}  # the recipe's policy
+    assert record["decision"] == {"offset": 0.0, "online": True, "movers": True}  # the recipe's
     trained = load_file(run / "model.safetensors")
     bundled = resolve_model("bundled")[0].state_dict()
     assert set(trained) == set(bundled) and not any(".flow." in k for k in trained)

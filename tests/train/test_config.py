@@ -62,6 +62,9 @@ def test_head_recipe_is_the_one_validated_leave_one_out():
     flags |= {"optim.lr": 1e-6, "runtime.amp": "auto", "runtime.channels_last": True}
     residual = {"loss.occupancy_bce": 1.0, "schedule.lr_step_epochs": 3}
     residual |= {"schedule.gaussian_step_epochs": 2}
+    # decision.movers came later (issue 44, docs/research/carry_movers/): the decision, not the
+    # training, and validated in its own leave-one-out study
+    residual |= {"decision.movers": True}
     measured = build_config("blurred", study, flags | residual)
     head = recipe("head")
     assert head.model.init == "bundled" and measured.model.init is None
@@ -187,7 +190,7 @@ def test_a_gap_threshold_of_one_period_or_less_is_refused_before_any_data_loads(
 def test_the_decision_is_its_own_section_and_old_configs_move_it_there():
     from lidarflow.train.config import DecisionConfig
 
-    assert recipe("head").decision == DecisionConfig(0.0, True)
+    assert recipe("head").decision == DecisionConfig(0.0, True, movers=True)
     assert recipe("paper").decision == DecisionConfig()
     config = build_config(None, None, {}, ["decision.offset=0.9", "decision.online=true"])
     assert config.decision == DecisionConfig(0.9, True)

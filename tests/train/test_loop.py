@@ -201,7 +201,7 @@ def test_a_head_trains_by_cross_entropy_and_needs_one(blob_files, tmp_path):
     assert gain != pytest.approx(build_model("flownet", occupancy_head=True).warp_gain())
     record = json.loads((tmp_path / "res" / "model.json").read_text())
     assert record["out_channels"] == 5 and record["model_kwargs"]["occupancy_head"]
-    assert record["decision"] == {"offset": 0.0, "online": False}
+    assert record["decision"] == {"offset": 0.0, "online": False, "movers": False}
     without_head = build_config("blurred", None, {"loss.occupancy_bce": 1.0})
     with pytest.raises(TrainError, match="occupancy head"):
         loop.make_loss(without_head, 1, build_model("flownet"))
