@@ -39,10 +39,11 @@ from lidarflow.models.config import Capabilities
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
+from lidarflow.predict.carry import Movers
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
 from lidarflow.predict.sampling import FlowWarp
-from lidarflow.predict.tracker import Movers, Tracker
+from lidarflow.predict.tracker import Tracker
 from lidarflow.scan import takes_subcell
 
 __all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
@@ -111,7 +112,7 @@ class Step:
     ``(4, H, W)`` in cells (``B_col, B_row, F_col, F_row``; ``None`` for models without flow);
     ``motion`` the motion the step was compensated by (``None``: not compensated). The rest is
     what :meth:`Engine.roll` continues from (``movers``: the tracked objects, where the policy
-    carries them, and ``own``: the model's own decided map, without them)."""
+    carries them, and ``alone``: the model's own decided map, without them)."""
 
     probability: np.ndarray
     decided: np.ndarray
@@ -121,7 +122,7 @@ class Step:
     state: Any
     ahead: np.ndarray | None
     movers: Movers | None = None
-    own: np.ndarray | None = None
+    alone: np.ndarray | None = None
 
 
 class Engine:
@@ -220,7 +221,7 @@ class Engine:
         decided = self._decide(own, frame.occupancy, self._backward(out), frame.visibility)
         movers, alone = None, decided
         if self.tracker is not None:
-            self.tracker.update(frame.occupancy, frame.visibility, motion, pace=frame.pace)
+            self.tracker.observe(frame.occupancy, frame.visibility, motion, frame.pace)
             movers = self.tracker.movers(HELD_FRAMES)
             decided = np.maximum(decided, movers.at(1))
         # Each step of a roll-out is one typical step of the same motion.
@@ -255,14 +256,13 @@ class Engine:
         own): each decided prediction fed back with the frame's visibility (and no returns: zero
         sub-cell maps), on a copy of the state, and decided with the current choice."""
         probabilities, decided = [step.probability], [step.decided]
-        alone = step.decided if step.own is None else step.own  # what is fed back
-        state = step.state
+        alone = step.decided if step.alone is None else step.alone  # what is fed back
+        movers, state = step.movers, step.state
         for k in range(2, horizon + 1):
             fed = np.zeros_like(step.maps)
             fed[0, 0], fed[0, 1] = alone, step.maps[0, 1]
             probability, out, state = self.backend.run(fed, state, step.ahead)
             probabilities.append(probability[0, 0])
             alone = self._decide(probability[0, 0], alone, self._backward(out))
-            movers = step.movers
             decided.append(alone if movers is None else np.maximum(alone, movers.at(k)))
         return Rollout(np.stack(probabilities), np.stack(decided))

@@ -36,6 +36,7 @@ import numpy as np
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.warp import rigid_moved
 from lidarflow.predict.baselines import Takes
+from lidarflow.predict.carry import Movers, composed_motion
 
 __all__ = [
     "Movers",
@@ -184,21 +185,6 @@ def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[
     return sorted(pairs)
 
 
-def composed_motion(motion: np.ndarray, steps: int) -> np.ndarray:
-    """The pose after ``steps`` repeats of ``motion`` ``(dx, dy, dyaw)`` (each in the frame the
-    last one reached), in the first frame: ``(3,)`` float64.
-
-    >>> composed_motion(np.array([1.0, 0.0, np.pi / 2]), 2).round(6).tolist()
-    [1.0, 1.0, 3.141593]
-    """
-    dx, dy, yaw = (float(v) for v in np.asarray(motion, np.float64).reshape(3))
-    x = y = heading = 0.0
-    for _ in range(steps):
-        c, s = np.cos(heading), np.sin(heading)
-        x, y, heading = x + c * dx - s * dy, y + s * dx + c * dy, heading + yaw
-    return np.array([x, y, heading])
-
-
 @dataclass
 class _Track:
     state: np.ndarray  # (x, y, vx, vy): cells, cells per frame, sensor frame
@@ -211,50 +197,6 @@ def _to_xy(rows_cols: np.ndarray, height: int, width: int) -> np.ndarray:
     """Cell ``(row, col)`` -> metric-frame ``(x, y)`` in cells (design notes §2)."""
     rc = np.asarray(rows_cols, np.float64)
     return np.stack([height - 0.5 - rc[..., 0], width / 2 - 0.5 - rc[..., 1]], axis=-1)
-
-
-@dataclass(frozen=True)
-class Movers:
-    """The tracked objects of one frame, frozen (:meth:`Tracker.movers`): ``shape`` ``(H, W)``
-    of the grid, per object its velocity ``(vx, vy)`` (cells per frame, sensor frame) and its
-    cells ``(N, 2)`` ``(row, col)``; ``motion`` the ego motion guessed per frame (``None``: the
-    sensor stands still); ``held`` ``(H, W)`` bool, the transient cells no track took (rarely
-    occupied before, but beside a wall or still), kept where they are for ``hold`` frames."""
-
-    shape: tuple[int, int]
-    tracks: list[tuple[np.ndarray, np.ndarray]]
-    motion: np.ndarray | None
-    held: np.ndarray | None = None
-    hold: int = 0
-
-    def cells_at(self, k: int) -> np.ndarray:
-        """``(H, W)`` bool: every object's cells shifted by ``k`` times its velocity (rounded
-        to whole cells), in the sensor frame of the last frame."""
-        h, w = self.shape
-        out = np.zeros(self.shape, bool)
-        for velocity, cells in self.tracks:
-            d_row = int(np.rint(-k * velocity[0]))
-            d_col = int(np.rint(-k * velocity[1]))
-            r, c = cells[:, 0] + d_row, cells[:, 1] + d_col
-            inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-            out[r[inside], c[inside]] = True
-        return out
-
-    def moved_to_sensor(self, image: np.ndarray, k: int) -> np.ndarray:
-        """``image`` ``(H, W)`` of the last frame moved into the sensor frame ``k`` guessed
-        steps on (unchanged on a still sensor): float32 in [0, 1]."""
-        image = np.asarray(image, np.float32)
-        if self.motion is not None:
-            image = np.clip(rigid_moved(image, composed_motion(self.motion, k)), 0.0, 1.0)
-        return image.astype(np.float32)
-
-    def at(self, k: int) -> np.ndarray:
-        """``(H, W)`` float32: the objects ``k`` frames on (and the held cells up to ``hold``),
-        in the sensor frame then."""
-        cells = self.cells_at(k)
-        if self.held is not None and k <= self.hold:
-            cells |= self.held
-        return self.moved_to_sensor(cells, k)
 
 
 class Tracker:
@@ -303,6 +245,18 @@ class Tracker:
     ) -> np.ndarray:
         """Take frame ``t`` (``motion``: its pose in frame ``t - 1``, cells and radians; the
         future ``next_motion`` is not used) and return the map predicted for ``t + 1``."""
+        self.observe(occupancy, visibility, motion, pace)
+        return self.ahead(1)[0]
+
+    def observe(
+        self,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
+        motion: np.ndarray | None = None,
+        pace: float | None = None,
+    ) -> None:
+        """Take frame ``t`` as :meth:`update` does, predicting nothing (a caller that wants
+        only :meth:`movers`, the engine, does not pay for the map)."""
         occupied = np.asarray(occupancy) > 0.5
         visible = (np.asarray(visibility) > 0.5) | occupied
         moved = motion is not None and bool(np.any(np.asarray(motion) != 0))
@@ -326,7 +280,6 @@ class Tracker:
         self._background = np.where(visible, rate, self._background)
         self._static = occupied & ~moving
         self._track(moving)
-        return self.ahead(1)[0]
 
     def ahead(self, horizon: int) -> list[np.ndarray]:
         """The maps predicted 1..``horizon`` frames after the last one given, each ``(H, W)``
