@@ -305,8 +305,9 @@ class Tracker:
     def _carry(self, motion: np.ndarray) -> None:
         """Re-express the background and the tracks in the new sensor frame."""
         if self._background is not None and self._seen is not None:
-            self._background = rigid_moved(self._background, motion)
-            self._seen = rigid_moved(self._seen.astype(np.float64), motion) > 0.5
+            # one warp for both: the same motion's sampling, built once
+            both = rigid_moved(np.stack([self._background, self._seen]), motion)
+            self._background, self._seen = both[0], both[1] > 0.5
         dx, dy, yaw = motion
         c, s = np.cos(yaw), np.sin(yaw)
         turn = np.array([[c, s], [-s, c]])  # R^T: old-frame vectors in the new frame
