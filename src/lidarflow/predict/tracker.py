@@ -128,6 +128,8 @@ def cluster_labels(mask: np.ndarray, link: float) -> tuple[np.ndarray, np.ndarra
     n = len(cells)
     if n == 0:
         return cells, np.zeros(0, np.int64)
+    if n <= _DENSE_CELLS:
+        return cells, _dense_labels(cells, link)
     h, w = mask.shape
     index = np.full((h, w), -1, np.int64)
     index[cells[:, 0], cells[:, 1]] = np.arange(n)
@@ -160,6 +162,30 @@ def cluster_labels(mask: np.ndarray, link: float) -> tuple[np.ndarray, np.ndarra
         parent = updated
     _, labels = np.unique(parent, return_inverse=True)
     return cells, labels.astype(np.int64)
+
+
+#: Up to this many foreground cells (a few dozen a frame on the recordings) the pairs within
+#: ``link`` are found all against all, in a handful of NumPy calls: the offset-by-offset search
+#: below is ~8 calls for each of the ~40 offsets of a 0.5 m disc, 0.7 ms a frame for ~20 cells.
+_DENSE_CELLS = 256
+
+
+def _dense_labels(cells: np.ndarray, link: float) -> np.ndarray:
+    """:func:`cluster_labels`' labels from the all-against-all distances of ``cells`` ``(N, 2)``
+    (the same pairs: integer offsets within ``link``)."""
+    d = cells[:, None, :] - cells[None, :, :]
+    near = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] <= link * link
+    n = len(cells)
+    parent = np.arange(n)
+    # min-label propagation with pointer jumping: every cell ends at its component's least index
+    while True:
+        updated = np.where(near, parent[None, :], n).min(axis=1)
+        updated = updated[updated]
+        if np.array_equal(updated, parent):
+            break
+        parent = updated
+    _, labels = np.unique(parent, return_inverse=True)
+    return labels.astype(np.int64)
 
 
 def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[tuple[int, int]]:
