@@ -26,6 +26,7 @@ __all__ = [
     "lookahead_terms",
     "moved_last_map",
     "pair_counts",
+    "pair_counts_within",
 ]
 
 #: The project's decision threshold: a cell is predicted occupied where its probability is at
@@ -123,6 +124,60 @@ def pair_counts(
         tp = tp + np.count_nonzero(hit & t, axis=-1)
         predicted = predicted + np.count_nonzero(hit, axis=-1)
     return tp, predicted, int(np.count_nonzero(target))
+
+
+def _upto(cells: np.ndarray, indicator: np.ndarray | None, ends: np.ndarray) -> np.ndarray:
+    """For each end, how many of the first ``end`` ``cells`` the ``indicator`` (flat, bool;
+    ``None``: every cell) holds."""
+    if indicator is None:
+        return ends
+    return np.concatenate([[0], np.cumsum(indicator[cells])])[ends]
+
+
+def pair_counts_within(
+    need: np.ndarray,
+    moved: np.ndarray,
+    target: np.ndarray,
+    masks: list[np.ndarray | None],
+    occupied_offsets: np.ndarray,
+    free_offsets: np.ndarray,
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """:func:`pair_counts` over the cells of each of ``masks`` (bool, ``None``: all cells), in
+    one pass: the online decision counts every frame over all cells and over the changed ones,
+    and most of the work (which cells an offset can flip, sorted by ``need``) is the same."""
+    need, moved, target = (np.ravel(x) for x in (need, moved, target))
+    a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
+    free, occupied = moved <= 0.0, moved >= 1.0
+    # Per side: the cells at most its largest offset (the rest flip under no pair), sorted by
+    # need, and how many of them each offset predicts occupied.
+    sides = []
+    for side, offsets in ((occupied, a), (free, b)):
+        cells = np.flatnonzero(side & (need <= offsets.max()))
+        cells = cells[np.argsort(need[cells], kind="stable")]
+        sides.append((cells, np.searchsorted(need[cells], offsets, side="right")))
+    fractional = np.flatnonzero(~(free | occupied))
+    w, n = moved[fractional], need[fractional]
+    always = some = hit = None
+    if len(fractional):  # pair by pair where the pairs disagree (as pair_counts)
+        always = n <= w * a.min() + (1.0 - w) * b.min()
+        some = ~always & (n <= w * a.max() + (1.0 - w) * b.max())
+        w, n = w[some], n[some]
+        hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
+    out = []
+    for mask in (None if m is None else np.ravel(m) for m in masks):
+        hits = target if mask is None else target & mask
+        (oc, o_ends), (fc, f_ends) = sides
+        tp = _upto(oc, hits, o_ends)[:, None] + _upto(fc, hits, f_ends)
+        predicted = _upto(oc, mask, o_ends)[:, None] + _upto(fc, mask, f_ends)
+        if always is not None and some is not None and hit is not None:
+            t = hits[fractional]
+            m = np.ones(len(fractional), bool) if mask is None else mask[fractional]
+            tp = tp + np.count_nonzero(always & t) + np.count_nonzero(hit & t[some], axis=-1)
+            predicted = (
+                predicted + np.count_nonzero(always & m) + np.count_nonzero(hit & m[some], axis=-1)
+            )
+        out.append((tp, predicted, int(np.count_nonzero(hits))))
+    return out
 
 
 def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
