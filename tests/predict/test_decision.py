@@ -53,6 +53,19 @@ def test_pair_counts_within_masks_are_pair_counts_on_each(seed, cells):
         assert positives == want[2]
 
 
+def test_pair_counts_within_many_fractional_cells() -> None:
+    """Enough cells that the pairs' hits are summed in several slices (one thread)."""
+    rng = np.random.default_rng(5)
+    need = rng.normal(0.5, 1.5, 5000)
+    moved = rng.random(5000)
+    target, mask = rng.random(5000) < 0.4, rng.random(5000) < 0.3
+    got = pair_counts_within(need, moved, target, [None, mask], GRID, GRID[::-1])
+    for (tp, predicted, positives), m in zip(got, [np.ones(5000, bool), mask], strict=True):
+        want = pair_counts(need[m], moved[m], target[m], GRID, GRID[::-1])
+        assert np.array_equal(tp, want[0]) and np.array_equal(predicted, want[1])
+        assert positives == want[2]
+
+
 def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Random flickering maps, a model logit and a moved map, frame by frame."""
     rng = np.random.default_rng(seed)

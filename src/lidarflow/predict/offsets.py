@@ -134,6 +134,21 @@ def _upto(cells: np.ndarray, indicator: np.ndarray | None, ends: np.ndarray) -> 
     return np.concatenate([[0], np.cumsum(indicator[cells])])[ends]
 
 
+# OpenBLAS wakes a thread per core above m * n * k = 65536 * 4, and beside a busy process its
+# threads wait on each other (predict/headstep.py): a product this small stays on one thread,
+# in slices along the summed axis (integer-valued floats: the sum is exact in any order).
+_SINGLE_THREAD_MNK = 65536 * 2
+
+
+def _one_thread_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """``left @ right`` (integer-valued float64), computed on one thread."""
+    step = max(16, _SINGLE_THREAD_MNK // max(1, left.shape[0] * right.shape[1]))
+    out = np.zeros((left.shape[0], right.shape[1]))
+    for start in range(0, left.shape[1], step):
+        out += left[:, start : start + step] @ right[start : start + step]
+    return out
+
+
 def pair_counts_within(
     need: np.ndarray,
     moved: np.ndarray,
@@ -156,27 +171,40 @@ def pair_counts_within(
         cells = cells[np.argsort(need[cells], kind="stable")]
         sides.append((cells, np.searchsorted(need[cells], offsets, side="right")))
     fractional = np.flatnonzero(~(free | occupied))
-    w, n = moved[fractional], need[fractional]
-    always = some = hit = None
+    masks = [None if m is None else np.ravel(m) for m in masks]
+    hits = [target if m is None else target & m for m in masks]
+    every = np.ones(len(fractional), bool)
+    # per mask: (hits, cells) on the fractional cells
+    on = [
+        (h[fractional], every if m is None else m[fractional])
+        for h, m in zip(hits, masks, strict=True)
+    ]
+    extra: list[tuple[np.ndarray | int, np.ndarray | int]] = [(0, 0)] * len(masks)
     if len(fractional):  # pair by pair where the pairs disagree (as pair_counts)
+        w, n = moved[fractional], need[fractional]
         always = n <= w * a.min() + (1.0 - w) * b.min()
         some = ~always & (n <= w * a.max() + (1.0 - w) * b.max())
         w, n = w[some], n[some]
         hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
-    out = []
-    for mask in (None if m is None else np.ravel(m) for m in masks):
-        hits = target if mask is None else target & mask
-        (oc, o_ends), (fc, f_ends) = sides
-        tp = _upto(oc, hits, o_ends)[:, None] + _upto(fc, hits, f_ends)
-        predicted = _upto(oc, mask, o_ends)[:, None] + _upto(fc, mask, f_ends)
-        if always is not None and some is not None and hit is not None:
-            t = hits[fractional]
-            m = np.ones(len(fractional), bool) if mask is None else mask[fractional]
-            tp = tp + np.count_nonzero(always & t) + np.count_nonzero(hit & t[some], axis=-1)
-            predicted = (
-                predicted + np.count_nonzero(always & m) + np.count_nonzero(hit & m[some], axis=-1)
+        # Every mask's counts of the pairs' hits in one product of 0/1 columns (integers, exact
+        # in float64): counting the (A, B, cells) cube once per mask and kind was most of this.
+        columns = np.stack([c[some] for pair in on for c in pair], axis=1).astype(np.float64)
+        cube = hit.reshape(len(a) * len(b), len(w)).astype(np.float64)
+        summed = _one_thread_product(cube, columns)
+        summed = summed.astype(np.int64).reshape(len(a), len(b), -1)
+        extra = [
+            (
+                np.count_nonzero(always & t) + summed[..., 2 * i],
+                np.count_nonzero(always & m) + summed[..., 2 * i + 1],
             )
-        out.append((tp, predicted, int(np.count_nonzero(hits))))
+            for i, (t, m) in enumerate(on)
+        ]
+    out = []
+    (oc, o_ends), (fc, f_ends) = sides
+    for mask, h, (tp_extra, predicted_extra) in zip(masks, hits, extra, strict=True):
+        tp = _upto(oc, h, o_ends)[:, None] + _upto(fc, h, f_ends) + tp_extra
+        predicted = _upto(oc, mask, o_ends)[:, None] + _upto(fc, mask, f_ends) + predicted_extra
+        out.append((tp, predicted, int(np.count_nonzero(h))))
     return out
 
 
