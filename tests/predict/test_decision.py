@@ -10,7 +10,12 @@ from hypothesis import strategies as st
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
-from lidarflow.predict.offsets import pair_counts, pair_counts_within
+from lidarflow.predict.offsets import (
+    counts,
+    counts_all_and_changed,
+    pair_counts,
+    pair_counts_within,
+)
 
 LOGIT = float(np.log(THRESHOLD / (1 - THRESHOLD)))
 GRID = np.array([-0.6, 0.0, 0.3, 1.2, 2.7])
@@ -64,6 +69,16 @@ def test_pair_counts_within_many_fractional_cells() -> None:
         want = pair_counts(need[m], moved[m], target[m], GRID, GRID[::-1])
         assert np.array_equal(tp, want[0]) and np.array_equal(predicted, want[1])
         assert positives == want[2]
+
+
+def test_counts_all_and_changed_are_counts() -> None:
+    rng = np.random.default_rng(7)
+    target, changed = rng.random((30, 20)) < 0.3, rng.random((30, 20)) < 0.2
+    predictions = [rng.random((30, 20)) < q for q in (0.1, 0.5, 0.9)]
+    table = counts_all_and_changed(predictions, target, changed)
+    for k, mask in enumerate((np.ones_like(target), changed)):
+        for j, p in enumerate(predictions):
+            assert table[k, j].tolist() == list(counts(p, target, mask))
 
 
 def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -63,7 +63,7 @@ from lidarflow.predict.baselines import (
 from lidarflow.predict.offsets import (
     THRESHOLD,
     calibrated_logit,
-    counts,
+    counts_all_and_changed,
     lookahead_terms,
     moved_last_map,
     pair_counts_within,
@@ -207,10 +207,9 @@ class OnlineDecision:
                 self._predicted[k, m] += predicted
                 if m == 0:
                     self._positives[k] += positives
-        for k, mask in enumerate((np.ones_like(target), changed)):
-            self._made[k] += counts(made, target, mask)
-            for j, p in enumerate(pending.baselines):
-                self._base[k, j] += counts(p, target, mask)
+        table = counts_all_and_changed([made, *pending.baselines], target, changed)
+        self._made += table[:, 0]
+        self._base += table[:, 1:]
         self._scored += 1
 
     def update(

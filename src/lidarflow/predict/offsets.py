@@ -21,6 +21,7 @@ __all__ = [
     "THRESHOLD",
     "calibrated_logit",
     "counts",
+    "counts_all_and_changed",
     "decided_probability",
     "f1_from_counts",
     "lookahead_terms",
@@ -62,6 +63,23 @@ def counts(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray) -> tuple
         int(np.count_nonzero(p)),
         int(np.count_nonzero(t)),
     )
+
+
+def counts_all_and_changed(
+    predictions: list[np.ndarray], target: np.ndarray, changed: np.ndarray
+) -> np.ndarray:
+    """``(2, P, 3)``: :func:`counts` of each of ``predictions`` (bool maps) over all cells
+    (first row) and over the ``changed`` ones (second), from one product of 0/1 columns
+    (integers, exact in float64): twenty-four counts a frame were as many passes over the map."""
+    t, c = np.ravel(target).astype(bool), np.ravel(changed).astype(bool)
+    columns = np.stack([t, np.ones_like(t), t & c, c], axis=1).astype(np.float64)
+    stacked = np.stack([np.ravel(p) for p in predictions]).astype(np.float64)
+    product = _one_thread_product(stacked, columns)  # (P, [tp, predicted] x [all, changed])
+    positives = np.array([np.count_nonzero(t), np.count_nonzero(t & c)], np.float64)
+    out = np.empty((2, len(predictions), 3))
+    out[:, :, :2] = product.reshape(len(predictions), 2, 2).transpose(1, 0, 2)
+    out[:, :, 2] = positives[:, None]
+    return out
 
 
 def moved_last_map(
