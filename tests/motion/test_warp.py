@@ -83,3 +83,26 @@ def test_kept_corners_give_the_single_pass_warp_to_the_bit() -> None:
             alone = rigid_moved(image[k], np.array(motion))
             assert np.array_equal(both[k], alone)
     assert not rigid_moved(np.zeros((12, 9)), np.array([1.0, 0.0, 0.1])).any()
+
+
+def test_a_sparse_map_moved_around_its_cells_is_the_dense_warp_to_the_bit() -> None:
+    """A map with few occupied cells is moved cell by cell on a motion's first use and by the
+    kept corners from its second on: the same numbers, at any size, motion and cell size."""
+    import lidarflow.motion.warp as warp_module
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        h, w = (int(v) for v in rng.integers(5, 90, 2))
+        image = np.zeros((h, w))
+        k = int(rng.integers(1, max(2, int(0.02 * h * w))))
+        image.flat[rng.choice(h * w, k, replace=False)] = rng.choice([1.0, 0.3, 0.77], k)
+        res = float(rng.choice([1.0, 0.1]))
+        motion = np.array([rng.normal(0, 3) * res, rng.normal(0, 3) * res, rng.normal(0, 0.3)])
+        first = rigid_moved(image, motion, res)  # cell by cell (a new motion)
+        second = rigid_moved(image, motion, res)  # the corners built and kept
+        dense = warp_module._sampled(
+            image.reshape(1, -1),
+            warp_module._build_corners((*map(float, motion), h, w, res)),  # type: ignore[arg-type]
+            image.shape,
+        )
+        assert np.array_equal(first, dense) and np.array_equal(second, dense)
