@@ -10,7 +10,12 @@ from hypothesis import strategies as st
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
-from lidarflow.predict.offsets import pair_counts
+from lidarflow.predict.offsets import (
+    counts,
+    counts_all_and_changed,
+    pair_counts,
+    pair_counts_within,
+)
 
 LOGIT = float(np.log(THRESHOLD / (1 - THRESHOLD)))
 GRID = np.array([-0.6, 0.0, 0.3, 1.2, 2.7])
@@ -35,6 +40,45 @@ def test_pair_counts_equal_counting_each_pair(seed, cells):
             hit = moved * a + (1 - moved) * b >= need
             assert tp[i, j] == np.count_nonzero(hit & target)
             assert predicted[i, j] == np.count_nonzero(hit)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 60))
+def test_pair_counts_within_masks_are_pair_counts_on_each(seed, cells):
+    rng = np.random.default_rng(seed)
+    need = rng.normal(0.5, 1.5, cells)
+    need[: cells // 4] = 0.3
+    moved = rng.choice([0.0, 1.0, 0.25, 0.7], cells)
+    target = rng.random(cells) < 0.4
+    mask = rng.random(cells) < 0.5
+    got = pair_counts_within(need, moved, target, [None, mask], GRID, GRID[::-1])
+    for (tp, predicted, positives), m in zip(got, [np.ones(cells, bool), mask], strict=True):
+        want = pair_counts(need[m], moved[m], target[m], GRID, GRID[::-1])
+        assert np.array_equal(tp, want[0]) and np.array_equal(predicted, want[1])
+        assert positives == want[2]
+
+
+def test_pair_counts_within_many_fractional_cells() -> None:
+    """Enough cells that the pairs' hits are summed in several slices (one thread)."""
+    rng = np.random.default_rng(5)
+    need = rng.normal(0.5, 1.5, 5000)
+    moved = rng.random(5000)
+    target, mask = rng.random(5000) < 0.4, rng.random(5000) < 0.3
+    got = pair_counts_within(need, moved, target, [None, mask], GRID, GRID[::-1])
+    for (tp, predicted, positives), m in zip(got, [np.ones(5000, bool), mask], strict=True):
+        want = pair_counts(need[m], moved[m], target[m], GRID, GRID[::-1])
+        assert np.array_equal(tp, want[0]) and np.array_equal(predicted, want[1])
+        assert positives == want[2]
+
+
+def test_counts_all_and_changed_are_counts() -> None:
+    rng = np.random.default_rng(7)
+    target, changed = rng.random((30, 20)) < 0.3, rng.random((30, 20)) < 0.2
+    predictions = [rng.random((30, 20)) < q for q in (0.1, 0.5, 0.9)]
+    table = counts_all_and_changed(predictions, target, changed)
+    for k, mask in enumerate((np.ones_like(target), changed)):
+        for j, p in enumerate(predictions):
+            assert table[k, j].tolist() == list(counts(p, target, mask))
 
 
 def _stream(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

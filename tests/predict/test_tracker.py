@@ -226,3 +226,20 @@ def test_evaluate_scores_the_tracker_among_the_baselines():
     names = [m.name for m in methods]
     assert names == ["copy_last", "temporal_average", "constant_velocity", "tracker"]
     assert "ego_motion" not in config and config["tracker"]["link"] == 0.5
+
+
+def test_cluster_labels_all_against_all_is_the_offset_search(monkeypatch) -> None:
+    """The two ways of finding the pairs within ``link`` (few cells / many) label alike."""
+    import lidarflow.predict.tracker as tracker
+
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        h, w = rng.integers(3, 40, 2)
+        mask = rng.random((h, w)) < rng.uniform(0.01, 0.3)
+        link = float(rng.choice([0.0, 1.0, 1.5, 3.3, 5.0]))
+        dense = tracker.cluster_labels(mask, link)
+        monkeypatch.setattr(tracker, "_DENSE_CELLS", -1)
+        searched = tracker.cluster_labels(mask, link)
+        monkeypatch.undo()
+        assert np.array_equal(dense[0], searched[0])
+        assert np.array_equal(dense[1], searched[1])

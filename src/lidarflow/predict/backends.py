@@ -132,6 +132,10 @@ class OnnxBackend:
         options = ort.SessionOptions()
         if threads:
             options.intra_op_num_threads = threads
+        # A step's operators are small (a 100 x 100 map): onnxruntime's idle workers spinning
+        # for the next one took the core the caller needed, and 2 threads ran 2.5x slower than
+        # 1 beside a busy process (issue 46). Blocking workers cost a wake-up instead.
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(
                 str(path), options, providers=["CPUExecutionProvider"]

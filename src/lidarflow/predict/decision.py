@@ -63,10 +63,10 @@ from lidarflow.predict.baselines import (
 from lidarflow.predict.offsets import (
     THRESHOLD,
     calibrated_logit,
-    counts,
+    counts_all_and_changed,
     lookahead_terms,
     moved_last_map,
-    pair_counts,
+    pair_counts_within,
 )
 
 __all__ = [
@@ -198,17 +198,18 @@ class OnlineDecision:
         a, b = pending.offsets
         need, moved = pending.need[pending.map], pending.moved[pending.map]
         made = moved * a + (1.0 - moved) * b >= need
-        for k, mask in enumerate((np.ones_like(target), pending.last != target)):
-            for m, (need_m, moved_m) in enumerate(zip(pending.need, pending.moved, strict=True)):
-                tp, predicted, positives = pair_counts(
-                    need_m[mask], moved_m[mask], target[mask], self._a, self._b
-                )
+        changed = pending.last != target
+        for m, (need_m, moved_m) in enumerate(zip(pending.need, pending.moved, strict=True)):
+            # all cells (k = 0) and the changed ones (k = 1) in one pass
+            both = pair_counts_within(need_m, moved_m, target, [None, changed], self._a, self._b)
+            for k, (tp, predicted, positives) in enumerate(both):
                 self._tp[k, m] += tp
                 self._predicted[k, m] += predicted
-            self._positives[k] += positives
-            self._made[k] += counts(made, target, mask)
-            for j, p in enumerate(pending.baselines):
-                self._base[k, j] += counts(p, target, mask)
+                if m == 0:
+                    self._positives[k] += positives
+        table = counts_all_and_changed([made, *pending.baselines], target, changed)
+        self._made += table[:, 0]
+        self._base += table[:, 1:]
         self._scored += 1
 
     def update(

@@ -21,11 +21,13 @@ __all__ = [
     "THRESHOLD",
     "calibrated_logit",
     "counts",
+    "counts_all_and_changed",
     "decided_probability",
     "f1_from_counts",
     "lookahead_terms",
     "moved_last_map",
     "pair_counts",
+    "pair_counts_within",
 ]
 
 #: The project's decision threshold: a cell is predicted occupied where its probability is at
@@ -61,6 +63,23 @@ def counts(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray) -> tuple
         int(np.count_nonzero(p)),
         int(np.count_nonzero(t)),
     )
+
+
+def counts_all_and_changed(
+    predictions: list[np.ndarray], target: np.ndarray, changed: np.ndarray
+) -> np.ndarray:
+    """``(2, P, 3)``: :func:`counts` of each of ``predictions`` (bool maps) over all cells
+    (first row) and over the ``changed`` ones (second), from one product of 0/1 columns
+    (integers, exact in float64): twenty-four counts a frame were as many passes over the map."""
+    t, c = np.ravel(target).astype(bool), np.ravel(changed).astype(bool)
+    columns = np.stack([t, np.ones_like(t), t & c, c], axis=1).astype(np.float64)
+    stacked = np.stack([np.ravel(p) for p in predictions]).astype(np.float64)
+    product = _one_thread_product(stacked, columns)  # (P, [tp, predicted] x [all, changed])
+    positives = np.array([np.count_nonzero(t), np.count_nonzero(t & c)], np.float64)
+    out = np.empty((2, len(predictions), 3))
+    out[:, :, :2] = product.reshape(len(predictions), 2, 2).transpose(1, 0, 2)
+    out[:, :, 2] = positives[:, None]
+    return out
 
 
 def moved_last_map(
@@ -123,6 +142,88 @@ def pair_counts(
         tp = tp + np.count_nonzero(hit & t, axis=-1)
         predicted = predicted + np.count_nonzero(hit, axis=-1)
     return tp, predicted, int(np.count_nonzero(target))
+
+
+def _upto(cells: np.ndarray, indicator: np.ndarray | None, ends: np.ndarray) -> np.ndarray:
+    """For each end, how many of the first ``end`` ``cells`` the ``indicator`` (flat, bool;
+    ``None``: every cell) holds."""
+    if indicator is None:
+        return ends
+    return np.concatenate([[0], np.cumsum(indicator[cells])])[ends]
+
+
+# OpenBLAS wakes a thread per core above m * n * k = 65536 * 4, and beside a busy process its
+# threads wait on each other (predict/headstep.py): a product this small stays on one thread,
+# in slices along the summed axis (integer-valued floats: the sum is exact in any order).
+_SINGLE_THREAD_MNK = 65536 * 2
+
+
+def _one_thread_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """``left @ right`` (integer-valued float64), computed on one thread."""
+    step = max(16, _SINGLE_THREAD_MNK // max(1, left.shape[0] * right.shape[1]))
+    out = np.zeros((left.shape[0], right.shape[1]))
+    for start in range(0, left.shape[1], step):
+        out += left[:, start : start + step] @ right[start : start + step]
+    return out
+
+
+def pair_counts_within(
+    need: np.ndarray,
+    moved: np.ndarray,
+    target: np.ndarray,
+    masks: list[np.ndarray | None],
+    occupied_offsets: np.ndarray,
+    free_offsets: np.ndarray,
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """:func:`pair_counts` over the cells of each of ``masks`` (bool, ``None``: all cells), in
+    one pass: the online decision counts every frame over all cells and over the changed ones,
+    and most of the work (which cells an offset can flip, sorted by ``need``) is the same."""
+    need, moved, target = (np.ravel(x) for x in (need, moved, target))
+    a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
+    free, occupied = moved <= 0.0, moved >= 1.0
+    # Per side: the cells at most its largest offset (the rest flip under no pair), sorted by
+    # need, and how many of them each offset predicts occupied.
+    sides = []
+    for side, offsets in ((occupied, a), (free, b)):
+        cells = np.flatnonzero(side & (need <= offsets.max()))
+        cells = cells[np.argsort(need[cells], kind="stable")]
+        sides.append((cells, np.searchsorted(need[cells], offsets, side="right")))
+    fractional = np.flatnonzero(~(free | occupied))
+    masks = [None if m is None else np.ravel(m) for m in masks]
+    hits = [target if m is None else target & m for m in masks]
+    every = np.ones(len(fractional), bool)
+    # per mask: (hits, cells) on the fractional cells
+    on = [
+        (h[fractional], every if m is None else m[fractional])
+        for h, m in zip(hits, masks, strict=True)
+    ]
+    extra: list[tuple[np.ndarray | int, np.ndarray | int]] = [(0, 0)] * len(masks)
+    if len(fractional):  # pair by pair where the pairs disagree (as pair_counts)
+        w, n = moved[fractional], need[fractional]
+        always = n <= w * a.min() + (1.0 - w) * b.min()
+        some = ~always & (n <= w * a.max() + (1.0 - w) * b.max())
+        w, n = w[some], n[some]
+        hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
+        # Every mask's counts of the pairs' hits in one product of 0/1 columns (integers, exact
+        # in float64): counting the (A, B, cells) cube once per mask and kind was most of this.
+        columns = np.stack([c[some] for pair in on for c in pair], axis=1).astype(np.float64)
+        cube = hit.reshape(len(a) * len(b), len(w)).astype(np.float64)
+        summed = _one_thread_product(cube, columns)
+        summed = summed.astype(np.int64).reshape(len(a), len(b), -1)
+        extra = [
+            (
+                np.count_nonzero(always & t) + summed[..., 2 * i],
+                np.count_nonzero(always & m) + summed[..., 2 * i + 1],
+            )
+            for i, (t, m) in enumerate(on)
+        ]
+    out = []
+    (oc, o_ends), (fc, f_ends) = sides
+    for mask, h, (tp_extra, predicted_extra) in zip(masks, hits, extra, strict=True):
+        tp = _upto(oc, h, o_ends)[:, None] + _upto(fc, h, f_ends) + tp_extra
+        predicted = _upto(oc, mask, o_ends)[:, None] + _upto(fc, mask, f_ends) + predicted_extra
+        out.append((tp, predicted, int(np.count_nonzero(h))))
+    return out
 
 
 def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:

@@ -110,7 +110,9 @@ def foreground(occupancy: np.ndarray, background: np.ndarray, threshold: float) 
     """
     padded = np.pad(np.asarray(background, np.float64), 1)
     h, w = np.shape(occupancy)
-    near = np.max([padded[r : r + h, c : c + w] for r in range(3) for c in range(3)], axis=0)
+    # the 3 x 3 maximum as a maximum over rows, then columns (max is exact in any order)
+    rows = np.maximum(np.maximum(padded[0:h], padded[1 : h + 1]), padded[2 : h + 2])
+    near = np.maximum(np.maximum(rows[:, 0:w], rows[:, 1 : w + 1]), rows[:, 2 : w + 2])
     return np.asarray(occupancy, bool) & (near < threshold)
 
 
@@ -128,6 +130,8 @@ def cluster_labels(mask: np.ndarray, link: float) -> tuple[np.ndarray, np.ndarra
     n = len(cells)
     if n == 0:
         return cells, np.zeros(0, np.int64)
+    if n <= _DENSE_CELLS:
+        return cells, _dense_labels(cells, link)
     h, w = mask.shape
     index = np.full((h, w), -1, np.int64)
     index[cells[:, 0], cells[:, 1]] = np.arange(n)
@@ -160,6 +164,30 @@ def cluster_labels(mask: np.ndarray, link: float) -> tuple[np.ndarray, np.ndarra
         parent = updated
     _, labels = np.unique(parent, return_inverse=True)
     return cells, labels.astype(np.int64)
+
+
+#: Up to this many foreground cells (a few dozen a frame on the recordings) the pairs within
+#: ``link`` are found all against all, in a handful of NumPy calls: the offset-by-offset search
+#: below is ~8 calls for each of the ~40 offsets of a 0.5 m disc, 0.7 ms a frame for ~20 cells.
+_DENSE_CELLS = 256
+
+
+def _dense_labels(cells: np.ndarray, link: float) -> np.ndarray:
+    """:func:`cluster_labels`' labels from the all-against-all distances of ``cells`` ``(N, 2)``
+    (the same pairs: integer offsets within ``link``)."""
+    d = cells[:, None, :] - cells[None, :, :]
+    near = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] <= link * link
+    n = len(cells)
+    parent = np.arange(n)
+    # min-label propagation with pointer jumping: every cell ends at its component's least index
+    while True:
+        updated = np.where(near, parent[None, :], n).min(axis=1)
+        updated = updated[updated]
+        if np.array_equal(updated, parent):
+            break
+        parent = updated
+    _, labels = np.unique(parent, return_inverse=True)
+    return labels.astype(np.int64)
 
 
 def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[tuple[int, int]]:
@@ -305,8 +333,9 @@ class Tracker:
     def _carry(self, motion: np.ndarray) -> None:
         """Re-express the background and the tracks in the new sensor frame."""
         if self._background is not None and self._seen is not None:
-            self._background = rigid_moved(self._background, motion)
-            self._seen = rigid_moved(self._seen.astype(np.float64), motion) > 0.5
+            # one warp for both: the same motion's sampling, built once
+            both = rigid_moved(np.stack([self._background, self._seen]), motion)
+            self._background, self._seen = both[0], both[1] > 0.5
         dx, dy, yaw = motion
         c, s = np.cos(yaw), np.sin(yaw)
         turn = np.array([[c, s], [-s, c]])  # R^T: old-frame vectors in the new frame
