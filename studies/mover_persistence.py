@@ -10,6 +10,8 @@ the region of :mod:`lidarflow.evaluate.dynamic`), from the tenth frame on::
 
     python -m studies.mover_persistence ../shared/data/positive_{1,2,3,4}.bag \\
         ../shared/data/demo_stationary_simple_environment.bag
+
+Writes OUT/mover_persistence.{md,json}: per recording each rule's F1, precision and recall.
 """
 
 from __future__ import annotations
