@@ -28,25 +28,30 @@ _KEPT_MOTIONS = 12
 
 
 def _corners(flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(index (4, H*W), weight (4, H*W))``: for each cell of ``flow`` ``(2, H, W)`` the flat
-    index of the four cells it reads (clipped into the map) and their bilinear weights, zero
-    where a corner lies outside the map."""
+    """``(index (4, H*W), weight (4, H*W))`` of every cell of ``flow`` ``(2, H, W)``: each cell
+    reads at itself plus its flow (:func:`_corners_at`)."""
     h, w = flow.shape[1:]
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
     x = cols + np.asarray(flow[0], np.float64)
     y = rows + np.asarray(flow[1], np.float64)
-    x0, y0 = np.floor(x), np.floor(y)
-    index, weight = [], []
-    for dy in (0, 1):
-        for dx in (0, 1):
-            xi, yi = x0 + dx, y0 + dy
-            wi = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
-            inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
-            xi = np.clip(xi, 0, w - 1).astype(np.intp)
-            yi = np.clip(yi, 0, h - 1).astype(np.intp)
-            index.append((yi * w + xi).ravel())
-            weight.append(np.where(inside, wi, 0.0).ravel())
-    return np.stack(index), np.stack(weight)
+    return _corners_at(x.ravel(), y.ravel(), h, w)
+
+
+# The four corners a position reads, as rows (column, row offsets), in the warp's summing order.
+_CORNER_COLS = np.array([0.0, 1.0, 0.0, 1.0])[:, None]
+_CORNER_ROWS = np.array([0.0, 0.0, 1.0, 1.0])[:, None]
+
+
+def _corners_at(x: np.ndarray, y: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(index (4, N), weight (4, N))``: for positions ``(x, y)`` ``(N,)`` (column, row, in
+    cells) on an ``(h, w)`` map, the flat index of the four cells each reads (clipped into the
+    map) and their bilinear weights, zero where a corner lies outside the map. Elementwise, so
+    the same numbers for a position whichever others come with it."""
+    xi, yi = np.floor(x) + _CORNER_COLS, np.floor(y) + _CORNER_ROWS
+    weight = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
+    inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
+    index = np.clip(yi, 0, h - 1).astype(np.intp) * w + np.clip(xi, 0, w - 1).astype(np.intp)
+    return index, np.where(inside, weight, 0.0)
 
 
 def _sampled(
@@ -127,10 +132,8 @@ def _rigid_corners(key: _Key, sparse: bool) -> tuple[np.ndarray, np.ndarray] | N
     return corners
 
 
-# The 5 x 5 window around a cell, and the four corners a position reads (column, row offsets).
+# The 5 x 5 window around a cell.
 _WINDOW_ROWS, _WINDOW_COLS = (a.ravel() for a in np.mgrid[-2:3, -2:3])
-_CORNER_COLS = np.array([0.0, 1.0, 0.0, 1.0])[:, None]
-_CORNER_ROWS = np.array([0.0, 0.0, 1.0, 1.0])[:, None]
 
 # Below this share of occupied cells a map is moved cell by cell around its occupied ones.
 _SPARSE_SHARE = 0.02
@@ -155,13 +158,8 @@ def _sparse_moved(image: np.ndarray, motion: tuple[float, float, float], res: fl
     cells = np.unique(rows[inside] * w + cols[inside])
     rr, cc = np.divmod(cells, w)
     flow = _rigid_flow(rr.astype(np.float64), cc.astype(np.float64), motion, h, w, res)
-    # _corners on the chosen cells alone, the four corners as rows of one array
-    px, py = cc + flow[0], rr + flow[1]
-    xi, yi = np.floor(px) + _CORNER_COLS, np.floor(py) + _CORNER_ROWS  # (4, cells)
-    weight = (1.0 - np.abs(px - xi)) * (1.0 - np.abs(py - yi))
-    ok = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
-    index = np.clip(yi, 0, h - 1).astype(np.intp) * w + np.clip(xi, 0, w - 1).astype(np.intp)
-    terms = np.where(ok, weight, 0.0) * image.ravel()[index]
+    index, weight = _corners_at(cc + flow[0], rr + flow[1], h, w)  # the chosen cells alone
+    terms = weight * image.ravel()[index]
     values = terms[0] + terms[1]  # summed in the dense warp's order
     values += terms[2]
     values += terms[3]
