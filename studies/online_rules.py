@@ -46,7 +46,12 @@ from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
-from lidarflow.predict.offsets import f1_from_counts, lookahead_terms, moved_last_map, pair_counts
+from lidarflow.predict.offsets import (
+    f1_from_counts,
+    lookahead_terms,
+    moved_last_map,
+    pair_counts_within,
+)
 from lidarflow.scan import GridSpec
 from studies.harness import parse, parser, read_json, stem, write_json, write_summary
 
@@ -129,12 +134,10 @@ def pair_frame(
     free: np.ndarray,
 ) -> np.ndarray:
     """One frame's counts ``(A, B, 2 masks, tp/predicted/positives)`` of every offset pair
-    (:func:`pair_counts`), over all cells and over the cells that change."""
+    (:func:`pair_counts_within`), over all cells and over the cells that change."""
     frame = np.zeros((len(occupied), len(free), 2, 3))
-    for k, mask in enumerate((np.ones_like(target), current != target)):
-        tp, predicted, positives = pair_counts(
-            need[mask], split[mask], target[mask], occupied, free
-        )
+    both = pair_counts_within(need, split, target, [None, current != target], occupied, free)
+    for k, (tp, predicted, positives) in enumerate(both):
         frame[:, :, k] = np.stack([tp, predicted, np.full_like(tp, positives)], -1)
     return frame
 

@@ -202,12 +202,11 @@ class OnlineDecision:
         for m, (need_m, moved_m) in enumerate(zip(pending.need, pending.moved, strict=True)):
             # all cells (k = 0) and the changed ones (k = 1) in one pass
             both = pair_counts_within(need_m, moved_m, target, [None, changed], self._a, self._b)
-            for k, (tp, predicted, positives) in enumerate(both):
+            for k, (tp, predicted, _) in enumerate(both):
                 self._tp[k, m] += tp
                 self._predicted[k, m] += predicted
-                if m == 0:
-                    self._positives[k] += positives
         table = counts_all_and_changed([made, *pending.baselines], target, changed)
+        self._positives += table[:, 0, 2]  # the target's, over all cells and the changed ones
         self._made += table[:, 0]
         self._base += table[:, 1:]
         self._scored += 1
