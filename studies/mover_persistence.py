@@ -36,7 +36,7 @@ def scores(path: Path) -> dict[str, dict[str, float]]:
     from lidarflow.scan import GridSpec
 
     recording = load_any(path)
-    grid = GridSpec(100, 100, 0.1)
+    grid = GridSpec()  # the default grid, as evaluate's
     occupancy, visibility = recording.maps(grid)
     region = recording_region(recording, grid, occupancy, visibility)
     occupied = [np.asarray(occupancy[t]) >= 0.5 for t in range(len(occupancy))]
