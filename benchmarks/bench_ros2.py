@@ -70,8 +70,9 @@ def own_latency(
         if moving:
             _ = p.moving
         times.append((time.perf_counter() - t0) * 1e3)
-        due += period_s
-        time.sleep(max(0.0, due - time.perf_counter()))
+        if period_s:  # back to back: no sleep call between scans at all
+            due += period_s
+            time.sleep(max(0.0, due - time.perf_counter()))
     return times[warmup:]
 
 

@@ -18,8 +18,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
+from bench_predict import drive
 
 from lidarflow.data import load_any, read_bag, sample_bag_path
 from lidarflow.predict import Predictor
@@ -54,8 +54,7 @@ def profile(path: str, recording: str, frames: int = 150) -> None:
         read_bag(sample_bag_path()) if recording == "sample" else load_any(SHARED / recording)
     )[:frames]
     n = len(scans)
-    yaw = np.deg2rad(0.5) * np.arange(frames, dtype=np.float64)
-    poses = np.stack([0.05 * np.cumsum(np.cos(yaw)), 0.05 * np.cumsum(np.sin(yaw)), yaw], axis=1)
+    poses = drive(frames)
     online, horizon, with_poses = PATHS[path]
     options: dict[str, Any] = {"threads": 1, "online_decision": online, "horizon": horizon}
     if with_poses:
