@@ -16,6 +16,7 @@ Writes OUT/mover_persistence.{md,json}: per recording each rule's F1, precision 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -71,7 +72,15 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p = parser("mover_persistence", __doc__)
     p.add_argument("recordings", type=Path, nargs="+")
     args = parse(p, argv)
-    results = {stem(path): scores(path) for path in args.recordings}
+    from lidarflow.errors import LidarflowError
+
+    results = {}
+    for path in args.recordings:
+        try:
+            results[stem(path)] = scores(path)
+        except LidarflowError as err:
+            raise SystemExit(f"{path}: {err}") from err
+        print(f"{stem(path)}: scored", file=sys.stderr, flush=True)
     write_summary(args, "mover_persistence", results, table(results))
     return results
 

@@ -124,6 +124,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p.add_argument("--peers", type=Path, required=True, help="a peer_comparison study's folder")
     p.add_argument("--movers", type=Path, required=True, help="a movers study's summary.json")
     args = parse(p, argv)
+    if not args.movers.is_file():
+        raise SystemExit(f"{args.movers}: no such movers summary")
+    if not (args.peers / "evaluation").is_dir():
+        raise SystemExit(f"{args.peers}: no evaluation/ folder (run peer_comparison evaluate)")
     folds = merged(args.peers, read_json(args.movers))
     if not folds:
         raise SystemExit(f"no fold scored by both {args.peers} and {args.movers}")

@@ -67,3 +67,13 @@ def test_a_fold_whose_baselines_differ_between_the_studies_is_refused(tmp_path):
     with pytest.raises(SystemExit, match="b: copy-last differs"):
         peer_movers.main(["-o", str(tmp_path / "out"), "--peers", str(peers),
                           "--movers", str(summary)])  # fmt: skip
+
+
+def test_a_missing_summary_or_peer_study_is_one_line(tmp_path):
+    peers, summary = _study(tmp_path, {"a": (False, 0.8)})
+    with pytest.raises(SystemExit, match="no such movers summary"):
+        peer_movers.main(["-o", str(tmp_path / "out"), "--peers", str(peers),
+                          "--movers", str(tmp_path / "nope.json")])  # fmt: skip
+    with pytest.raises(SystemExit, match="no evaluation/ folder"):
+        peer_movers.main(["-o", str(tmp_path / "out"), "--peers", str(tmp_path),
+                          "--movers", str(summary)])  # fmt: skip
