@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import typer.main
 
+from lidarflow.atomic import STAMP
 from lidarflow.cli import app
 from lidarflow.data import read_bag, sample_bag_path
 from tests.bagutil import write_bag
@@ -114,10 +115,12 @@ def writer_argv(name: str, inputs: dict[str, str], stem: Path) -> tuple[list[str
 def test_an_existing_output_is_refused_in_one_line(tmp_path, capsys, name, inputs):
     argv, out = writer_argv(name, inputs, tmp_path / "old")
     kept = out
-    if name == "train":  # a run folder holding a run
+    if name in ("train", "choose-offset", "demo"):  # a folder lidarflow wrote
         out.mkdir()
-        (out / "config.json").write_text("{}")
+        (out / STAMP).write_text("{}")
         kept = out / "model.safetensors"
+    if name == "train":  # holding a run
+        (out / "config.json").write_text("{}")
         argv = ["train", inputs["rec"], "-o", str(out)]
     kept.write_bytes(b"keep me")
     code, _, err = run(argv, capsys)
@@ -173,6 +176,7 @@ def test_train_force_starts_a_run_over(tmp_path, capsys):
             "--warmup", "2", "--batch-size", "2", "--epochs", "1", "--threads", "1",
             "--set", "runtime.tensorboard=false"]  # fmt: skip
     run_dir.mkdir()
+    (run_dir / STAMP).write_text("{}")  # a run lidarflow wrote
     (run_dir / "config.json").write_text("{}")
     (run_dir / "model.safetensors").write_bytes(b"an old run")
     (run_dir / "stale.txt").write_text("from the old run")

@@ -1,17 +1,31 @@
-"""Writing files whole or not at all: a temporary name beside the target, then a rename.
+"""Writing outputs whole or not at all, and never over what lidarflow did not write.
 
-Every file lidarflow writes (recordings, reports, pictures, ONNX files, bags) goes through
-:func:`atomic_path`: the writer gets a fresh path in the target's folder that does not exist yet
-(bag writers insist on that), with the target's suffix (writers that pick the format by it keep
-working), and only a writer that finished sees its output renamed onto the target with
-``os.replace`` (atomic on one file system). A writer that fails, or is interrupted
-(``KeyboardInterrupt``; the CLI turns SIGTERM into one too), leaves the target as it was, and its
-temporary is removed. A run killed outright (SIGKILL, power loss) can leave a temporary, never
-a half-written target: the temporaries are named ``.NAME.PID.partial`` (+ the suffix), and
-the next write into that folder, of any target, removes those whose process is gone. A
-temporary is never removed while its process runs: one whose PID another live process has
-since taken stays until that process ends too; one whose PID is this process's own (a
-container's PIDs repeat from run to run) goes unless this process made it.
+Every file or folder lidarflow writes goes through :func:`atomic_path` (or
+:func:`atomic_paths` for a set): the writer gets a fresh path in the target's folder that does
+not exist yet (bag writers insist on that), with the target's suffix (writers that pick the
+format by it keep working), and only a writer that finished sees its output moved onto the
+target (:func:`commit`). A writer that fails, or is interrupted (``KeyboardInterrupt``; the CLI
+turns SIGTERM into one too), leaves the target as it was, and its temporary is removed. A run
+killed outright (SIGKILL, power loss) can leave a temporary, never a half-written target: the
+temporaries are named ``.NAME.PID.partial`` (+ the suffix), and the next write into that
+folder, of any target, removes those whose process is gone. A temporary is never removed while
+its process runs: one whose PID another live process has since taken stays until that process
+ends too; one whose PID is this process's own (a container's PIDs repeat from run to run) goes
+unless this process made it.
+
+What may be replaced, the rule every command keeps, is decided here and nowhere else:
+
+- a file is replaced only by a file, a folder only by a folder;
+- a folder is replaced only where lidarflow wrote it: every folder :func:`commit` moves into
+  place carries a :data:`STAMP` file, and a folder without one (or with anything else in it
+  that is not lidarflow's) is never replaced or emptied, ``--force`` or not;
+- an output the user named (:func:`check_writable`) that exists is replaced only with
+  ``force``; one that did not exist when the command started and appeared while it ran
+  (another run writing the same output) is not replaced either: the later run is refused;
+- inputs are never outputs (:func:`check_not_input`).
+
+A folder replaces a folder in one step (``renameat2(RENAME_EXCHANGE)`` on Linux), so an
+interrupt leaves either the old folder or the new one at the target, never neither.
 
 >>> import tempfile
 >>> folder = Path(tempfile.mkdtemp())
@@ -24,21 +38,29 @@ container's PIDs repeat from run to run) goes unless this process made it.
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
+import json
 import os
 import re
 import shutil
-from collections.abc import Iterable, Iterator
+import sys
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 from lidarflow.errors import OutputError
 
 __all__ = [
+    "STAMP",
     "atomic_path",
+    "atomic_paths",
     "check_not_input",
     "check_writable",
     "clear_stale",
     "commit",
     "discard",
+    "is_ours",
+    "stamp",
     "temporary",
     "write_bytes",
     "write_text",
@@ -47,30 +69,73 @@ __all__ = [
 _SUFFIX = ".partial"
 #: The temporaries this process has handed out: the only ones named with its PID that are its.
 _MINE: set[Path] = set()
+#: The file in every folder lidarflow wrote: what makes the folder one it may replace.
+STAMP = ".lidarflow"
+#: The outputs the user named, checked by :func:`check_writable`: whether each may replace what
+#: is there (``--force``). A target not named here (a checkpoint in a run folder) may replace a
+#: file of its kind.
+_NAMED: dict[Path, bool] = {}
 
 
-def check_writable(path: str | Path, force: bool = False, marker: str | None = None) -> None:
-    """Refuse an existing ``path`` unless ``force``: one line saying what to do. For an output
-    that is a folder, ``marker`` names a file that such a folder holds: a folder without it
-    (or a file) is not replaced even with ``force``, since replacing a folder removes all it
-    holds (``--report .``)."""
+def _key(path: str | Path) -> Path:
+    return Path(os.path.abspath(path))
+
+
+def check_writable(path: str | Path, force: bool = False, folder: bool = False) -> None:
+    """Claim ``path`` as an output (a ``folder`` or a file), or refuse it in one line saying
+    what to do: where it exists, unless ``force``; where it is the other kind (a folder where a
+    file is written), or a folder lidarflow did not write (:func:`is_ours`), even with
+    ``force``. :func:`commit` keeps to the claim at the end (the output appearing meanwhile is
+    refused then)."""
     path = Path(path)
+    _NAMED[_key(path)] = force
     if not (path.exists() or path.is_symlink()):
         return
+    _check_kind(path, folder)
     if not force:
         raise OutputError(f"{path} already exists; use --force to overwrite it")
-    if marker is not None and not (path / marker).is_file():
+
+
+def _check_kind(path: Path, folder: bool) -> None:
+    """Refuse replacing ``path`` (which exists) by a ``folder`` or a file, whatever ``--force``
+    says, where that would lose what lidarflow did not write."""
+    is_dir = path.is_dir() and not path.is_symlink()
+    if is_dir and not folder:
         raise OutputError(
-            f"{path} exists and is not a folder lidarflow wrote (no {marker} in it); "
-            "name a new folder"
+            f"{path} is a folder; name a file to write (not even --force replaces a folder "
+            "with a file)"
         )
+    if folder and not is_dir:
+        raise OutputError(f"{path} exists and is not a folder; name a new folder")
+    if is_dir and not is_ours(path):
+        raise OutputError(
+            f"{path} exists and is not a folder lidarflow wrote (no {STAMP} in it); name a new "
+            "folder, or remove it yourself (not even --force replaces it)"
+        )
+
+
+def is_ours(folder: str | Path, ignoring: Callable[[str], bool] | None = None) -> bool:
+    """Whether ``folder`` may be replaced or emptied: it holds lidarflow's :data:`STAMP`, or
+    nothing at all (but entries whose names ``ignoring`` accepts)."""
+    folder = Path(folder)
+    if (folder / STAMP).is_file():
+        return True
+    return all(ignoring is not None and ignoring(e.name) for e in folder.iterdir())
+
+
+def stamp(folder: str | Path) -> None:
+    """Mark ``folder`` as written by lidarflow (:data:`STAMP`: the command that wrote it)."""
+    (Path(folder) / STAMP).write_text(
+        json.dumps({"written_by": "lidarflow", "command": sys.argv}) + "\n"
+    )
 
 
 def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
     """Refuse an ``output`` that would replace one of ``inputs``, whatever ``--force`` says:
     the same file (by its resolved path, through symbolic links, or by inode: a hard link), a
-    folder that holds an input, or a path inside an input ROS 2 bag folder. Inputs that are
-    not there (``bundled``, a glob pattern) are skipped: there is nothing to destroy."""
+    folder that holds an input, a file inside an input folder (a model's run folder), or any
+    path inside an input ROS 2 bag (a new file changes the bag). Inputs that are not there
+    (``bundled``, a glob pattern) are skipped: there is nothing to destroy."""
     out = Path(os.path.abspath(output)).resolve()
     for given in inputs:
         if given is None or not Path(given).exists():
@@ -86,11 +151,12 @@ def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> 
                 f"{output} holds the input {given}: writing it would remove that; name "
                 "another output"
             )
-        if (source / "metadata.yaml").is_file() and (
-            source in out.parents or any(_same_file(out, f) for f in source.rglob("*"))
+        if source.is_dir() and (
+            any(_same_file(out, f) for f in source.rglob("*"))
+            or ((source / "metadata.yaml").is_file() and source in out.parents)
         ):
             raise OutputError(
-                f"{output} is inside the input bag {given}: writing it would change that bag; "
+                f"{output} is inside the input {given}: writing it would change that input; "
                 "name an output outside it"
             )
 
@@ -110,6 +176,11 @@ def temporary(target: str | Path) -> Path:
     temporaries in its folder that processes killed outright left are removed first
     (:func:`clear_stale`); the parent is created."""
     target = Path(target)
+    if not target.name:
+        raise OutputError(f"{target}: not a file name; name the output to write in it")
+    for folder in (target.parent, *target.parent.parents):
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"{target}: {folder} is a file, not a folder; name another output")
     target.parent.mkdir(parents=True, exist_ok=True)
     clear_stale(target.parent)
     stem = f".{target.name}.{os.getpid()}"
@@ -132,26 +203,80 @@ def discard(path: str | Path) -> None:
 
 
 def commit(written: str | Path, target: str | Path) -> None:
-    """Move the finished ``written`` (a file or a folder, beside ``target``) onto ``target``: one
-    rename, or for a folder over an existing folder two (the old one moved aside, then removed).
-    ``written`` is removed if the move fails."""
+    """Move the finished ``written`` (a file or a folder, beside ``target``) onto ``target`` in
+    one step, keeping the module's rule: a folder gets its :data:`STAMP` first; what is at
+    ``target`` is replaced only where it is of the same kind, lidarflow's (a folder), and
+    allowed (a named output that existed needs ``force``; one that appeared while this run
+    wrote is never replaced). ``written`` is removed if the move fails or is refused."""
     written, target = Path(written), Path(target)
     try:
         if not (written.exists() or written.is_symlink()):
             raise FileNotFoundError(f"{target}: the writer wrote nothing")
-        if written.is_file():  # on disk before it carries the target's name
+        folder = written.is_dir() and not written.is_symlink()
+        if folder:
+            stamp(written)
+        else:  # on disk before it carries the target's name
             with written.open("rb") as f:
                 os.fsync(f.fileno())
-        if target.is_dir() and not target.is_symlink():
+        force = _NAMED.get(_key(target), True)
+        if _rename(written, target, _NOREPLACE):
+            return
+        _check_kind(target, folder)
+        if not force:
+            raise OutputError(
+                f"{target} appeared while this run wrote it (another run writing the same "
+                "output?); it was left as it is: rerun with --force to replace it"
+            )
+        if not folder:
+            os.replace(written, target)
+        elif _rename(written, target, _EXCHANGE):
+            discard(written)  # the old folder, now under the temporary name
+        else:  # no atomic exchange here: move the old one aside first
             aside = temporary(target.with_name(target.name + ".old"))
             os.replace(target, aside)
             os.replace(written, target)
             discard(aside)
-        else:
-            os.replace(written, target)
     except BaseException:
         discard(written)
         raise
+
+
+_NOREPLACE, _EXCHANGE = 1, 2  # renameat2's RENAME_NOREPLACE, RENAME_EXCHANGE (linux/fs.h)
+_AT_FDCWD = -100
+_libc = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+_renameat2 = getattr(_libc, "renameat2", None)
+
+
+def _rename(src: Path, dst: Path, flag: int) -> bool:
+    """Linux's ``renameat2(src, dst, flag)``: ``True`` where done; ``False`` where ``dst`` is
+    there (``_NOREPLACE``) or is not (``_EXCHANGE``). Elsewhere, or on a file system without
+    it, the same contract from portable calls: a hard link (a file) or a rename checked just
+    before (a folder) for ``_NOREPLACE``; ``False`` for ``_EXCHANGE`` (the caller moves the
+    old folder aside)."""
+    if _renameat2 is not None:
+        done = _renameat2(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), flag)
+        if done == 0:
+            return True
+        code = ctypes.get_errno()
+        if flag == _NOREPLACE and code == errno.EEXIST:
+            return False
+        if flag == _EXCHANGE and code == errno.ENOENT and src.exists():
+            return False
+        if code not in (errno.ENOSYS, errno.EINVAL, errno.EPERM, errno.EOPNOTSUPP):
+            raise OSError(code, os.strerror(code), str(dst))
+    if flag == _EXCHANGE:
+        return False
+    if dst.exists() or dst.is_symlink():
+        return False
+    if src.is_dir():
+        os.rename(src, dst)
+        return True
+    try:
+        os.link(src, dst)
+    except FileExistsError:
+        return False
+    os.unlink(src)
+    return True
 
 
 def _alive(pid: int) -> bool:
@@ -216,25 +341,52 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``target`` for the caller to write (a file or a folder);
     on a clean exit it replaces ``target`` (:func:`commit`), on any exception
     (``KeyboardInterrupt`` too) it is removed and ``target`` stays as it was."""
-    tmp = temporary(target)
-    try:
+    with atomic_paths([target]) as (tmp,):
         yield tmp
+
+
+@contextlib.contextmanager
+def atomic_paths(targets: Sequence[str | Path]) -> Iterator[list[Path]]:
+    """:func:`atomic_path` for a set of outputs written together (a recording's chunks): a
+    temporary for each, all moved onto their targets, in order, once the caller finished; on
+    any exception none is, and every temporary is removed."""
+    temps = [temporary(t) for t in targets]
+    try:
+        yield temps
     except OSError as err:
-        discard(tmp)
-        raise _named_for(err, tmp, target) from err
+        for tmp in temps:
+            discard(tmp)
+        raise _named_for(err, temps, targets) from err
     except BaseException:
-        discard(tmp)
+        for tmp in temps:
+            discard(tmp)
         raise
-    commit(tmp, target)
+    try:
+        for tmp, target in zip(temps, targets, strict=True):
+            commit(tmp, target)
+    except BaseException:
+        for tmp in temps:
+            discard(tmp)
+        raise
 
 
-def _named_for(err: OSError, tmp: Path, target: str | Path) -> OSError | OutputError:
-    """``err`` as the user should read it: where it names the temporary (or a file inside a
-    temporary folder), a refusal naming ``target``, which the user asked for."""
+def _named_for(
+    err: OSError, temps: Sequence[Path], targets: Sequence[str | Path]
+) -> OSError | OutputError:
+    """``err`` as the user should read it: where it names a temporary (or a file inside a
+    temporary folder), or is a disk's refusal naming no file (a full disk), a refusal naming
+    the target, which the user asked for."""
     named = Path(err.filename) if isinstance(err.filename, str | os.PathLike) else None
-    if named is None or not (named == tmp or tmp in named.parents):
+    if named is None and err.errno not in _DISK_ERRORS:
         return err
-    return OutputError(f"{target}: cannot be written there ({err.strerror or err})")
+    for tmp, target in zip(temps, targets, strict=True):
+        if named is None or named == tmp or tmp in named.parents:
+            return OutputError(f"{target}: cannot be written there ({err.strerror or err})")
+    return err
+
+
+#: What a file system says of a write it cannot take, whether or not it names the file.
+_DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO}
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

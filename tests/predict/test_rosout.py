@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lidarflow.atomic import STAMP
 from lidarflow.data import read_bag
 from lidarflow.errors import OutputError, PredictError
 from lidarflow.predict.rosout import BagOutput, grid_data, map_from_grid_data
@@ -109,6 +110,7 @@ def test_the_target_appears_only_when_the_bag_is_closed_and_force_replaces_it(tm
     path = tmp_path / name
     if name == "outdir":
         path.mkdir()
+        (path / STAMP).write_text("{}")  # a bag lidarflow wrote
         (path / "metadata.yaml").write_text("old bag")
     else:
         path.write_bytes(b"old")

@@ -129,19 +129,19 @@ def use_threads(threads: int) -> None:
 def refuse_existing(
     *paths: Path | None,
     force: bool = False,
-    marker: str | None = None,
+    folder: bool = False,
     inputs: Sequence[Path | str | None] = (),
 ) -> None:
-    """Stop before any work where an output is there already, unless ``--force``; outputs that
-    are folders name the ``marker`` file they hold (:func:`lidarflow.atomic.check_writable`).
-    An output that would replace one of the command's ``inputs`` is refused even with
-    ``--force`` (:func:`lidarflow.atomic.check_not_input`)."""
+    """Stop before any work where an output (a ``folder`` or a file) is there already, unless
+    ``--force``, or where even ``--force`` may not replace it: see
+    :func:`lidarflow.atomic.check_writable`. An output that would replace one of the command's
+    ``inputs`` is refused too (:func:`lidarflow.atomic.check_not_input`)."""
     from lidarflow.atomic import check_not_input, check_writable
 
     for path in paths:
         if path is not None:
             check_not_input(path, inputs)
-            check_writable(path, force, marker)
+            check_writable(path, force, folder)
 
 
 def progress_bar(total: int | None, desc: str) -> Any:

@@ -47,7 +47,7 @@ def demo(
     HTML page), and write the predictions as an MCAP file for Foxglove."""
     from lidarflow.atomic import atomic_path
 
-    refuse_existing(output, force=force, marker="results.json")
+    refuse_existing(output, force=force, folder=True)
     use_threads(threads)
     with atomic_path(output) as folder:  # the folder appears once complete
         folder.mkdir()
@@ -166,9 +166,8 @@ def predict(
     groups = _topic_groups(topics)
     outputs = _outputs(inputs, output)
     for out in outputs:
-        # a ROS 2 bag is a folder: replaced only where it is one (--force -o . would empty .)
-        marker = "metadata.yaml" if output_kind(out) == "ros2" else None
-        refuse_existing(out, force=force, marker=marker, inputs=[*inputs, model])
+        folder = output_kind(out) == "ros2"  # a ROS 2 bag is a folder
+        refuse_existing(out, force=force, folder=folder, inputs=[*inputs, model])
     threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
     settings = PredictSettings(
         topic, odom_topic, model, model_grid(model, grid, res), horizon, threads, threshold,

@@ -39,7 +39,7 @@ def convert(
     """
     from lidarflow.scan import GridSpec
 
-    if output.suffix != ".npz":  # as Recording.save names it
+    if output.suffix != ".npz" and output.name:  # as Recording.save names it
         output = output.with_name(output.name + ".npz")
     refuse_existing(output, force=force, inputs=[input])
     recording = load_input(input, topic, odom_topic)
@@ -149,9 +149,11 @@ def show(
     flow as arrows."""
     from lidarflow.errors import RecordingError
     from lidarflow.scan import GridSpec
+    from lidarflow.viz.figures import check_picture_path
     from lidarflow.viz.maps import draw_maps
 
     refuse_existing(output, force=force, inputs=[recording])
+    check_picture_path(output)
     rec = load_input(recording, topic)
     if not -len(rec) <= frame < len(rec):
         raise RecordingError(f"{recording}: frame {frame} out of range (it has {len(rec)} frames)")

@@ -163,7 +163,7 @@ def evaluate(
         output = json_out
     read = [*inputs, *(model or [])]
     refuse_existing(output, force=force, inputs=read)
-    refuse_existing(report_dir, force=force, marker="index.html", inputs=read)
+    refuse_existing(report_dir, force=force, folder=True, inputs=read)
     use_threads(threads)
     sources: list[Path | None] = list(model or [])
     if not sources and not baselines_only:

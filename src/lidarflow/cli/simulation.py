@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from lidarflow.atomic import write_text
+from lidarflow.atomic import discard, write_text
 from lidarflow.cli.app import ForceOpt, GridOpt, ResOpt, app, progress_bar, refuse_existing
 
 _SENSOR_HELP = (
@@ -96,7 +96,7 @@ def simulate(
     if flow_storage not in ("dense", "sparse"):
         hint = "--flow-storage"
         raise typer.BadParameter(f"dense or sparse, not {flow_storage!r}", param_hint=hint)
-    if output.suffix != ".npz":  # as Recording.save names it
+    if output.suffix != ".npz" and output.name:  # as Recording.save names it
         output = output.with_name(output.name + ".npz")
     stem = output.name.removesuffix(".npz")
     record = output.with_name(stem + ".json")
@@ -117,6 +117,8 @@ def simulate(
             output, frames, seed, config, chunk_frames, workers, progress=bar.update
         )
     seconds = time.perf_counter() - start
+    for old in {output, *chunks} - set(paths):  # --force: the last run's files not rewritten
+        discard(old)
     # The run's record beside its outputs: what was asked, what came out, how fast.
     write_text(
         record,

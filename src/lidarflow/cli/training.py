@@ -187,7 +187,7 @@ def train(
     """``lidarflow train``: the help text above says it all (kept there for --help)."""
     import dataclasses
 
-    from lidarflow.errors import TrainError
+    from lidarflow.errors import OutputError, TrainError
     from lidarflow.train.config_io import build_config, config_from_dict, load_config_file
     from lidarflow.train.loop import train as run_training
     from lidarflow.train.recipes import default_recipe
@@ -292,6 +292,10 @@ def train(
         )
     except KeyboardInterrupt as interrupt:
         raise KeyboardInterrupt(_where_it_stopped(run_dir)) from interrupt
+    except (OSError, OutputError) as err:  # a full disk, mostly: say how to go on once fixed
+        named = isinstance(err, OSError) and err.filename and err.strerror
+        what = f"{err.filename}: {err.strerror}" if named else str(err)
+        raise TrainError(f"{what}; {_where_it_stopped(run_dir)}") from err
     typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")
 
 

@@ -83,7 +83,7 @@ def choose_offset(
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
-    refuse_existing(output, force=force, marker="model.json", inputs=[*inputs, model])
+    refuse_existing(output, force=force, folder=True, inputs=[*inputs, model])
     use_threads(threads)
     offsets = list(dict.fromkeys(offset or DEFAULT_OFFSETS))
     net, card = resolve_model(model)

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.atomic import check_writable, commit, discard, temporary
-from lidarflow.errors import PredictError
+from lidarflow.errors import OutputError, PredictError
 from lidarflow.predict.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
 from lidarflow.scan import GridSpec, Scan
 
@@ -60,7 +60,7 @@ class BagOutput:
 
         self.path = Path(path)
         self.kind = output_kind(self.path)
-        check_writable(self.path, force, "metadata.yaml" if self.kind == "ros2" else None)
+        check_writable(self.path, force, folder=self.kind == "ros2")
         if not self.path.parent.exists():
             raise PredictError(f"{self.path.parent}: no such folder for the output")
         self.ros1 = self.kind == "ros1"
@@ -82,26 +82,41 @@ class BagOutput:
         from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
         self._staged = temporary(self.path)
-        if self.ros1:
-            self._written = self._staged
-            self._writer = Writer1(self._staged)
-            self._writer.set_compression(Writer1.CompressionFormat.LZ4)
-        else:
-            # rosbags names the storage file after the bag's folder: stage a folder of the
-            # target's own name, then move it (ROS 2) or its .mcap file (MCAP) onto the target
-            self._staged.mkdir()
-            folder = self._staged / self.path.stem
-            self._written = folder if self.kind == "ros2" else folder / f"{self.path.stem}.mcap"
-            self._writer = Writer2(folder, version=9, storage_plugin=StoragePlugin.MCAP)
-            # STORAGE: the MCAP file's own chunks are zstd-compressed (what Foxglove and the
-            # rosbag2 MCAP plugin read), not the whole file or each message
-            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         try:
+            if self.ros1:
+                self._written = self._staged
+                self._writer = Writer1(self._staged)
+                self._writer.set_compression(Writer1.CompressionFormat.LZ4)
+            else:
+                # rosbags names the storage file after the bag's folder: stage a folder of the
+                # target's own name, then move it (ROS 2) or its .mcap file (MCAP) onto it
+                self._staged.mkdir()
+                folder = self._staged / self.path.stem
+                mcap = folder / f"{self.path.stem}.mcap"
+                self._written = folder if self.kind == "ros2" else mcap
+                self._writer = Writer2(folder, version=9, storage_plugin=StoragePlugin.MCAP)
+                # STORAGE: the MCAP file's own chunks are zstd-compressed (what Foxglove and
+                # the rosbag2 MCAP plugin read), not the whole file or each message
+                self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
         except BaseException as err:
             discard(self._staged)
-            raise PredictError(f"{self.path}: cannot open for writing ({err})") from err
+            named = self._named(err)
+            if named is err:  # an interrupt: as it came
+                raise
+            raise named from err
         return self
+
+    def _named(self, err: BaseException) -> BaseException:
+        """``err`` naming the target the user asked for, not the temporary it was staged in."""
+        cause = err
+        while not isinstance(cause, OSError) and cause.__cause__ is not None:
+            cause = cause.__cause__
+        if isinstance(cause, OSError):
+            return OutputError(f"{self.path}: cannot be written there ({cause.strerror or cause})")
+        if isinstance(err, Exception):
+            return PredictError(f"{self.path}: cannot open for writing ({err})")
+        return err
 
     def __exit__(
         self,
@@ -111,13 +126,19 @@ class BagOutput:
     ) -> None:
         assert self._staged is not None and self._written is not None
         try:
-            self._writer.close()
+            try:
+                self._writer.close()
+            except OSError as err:
+                if exc is None:
+                    raise self._named(err) from err
             # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed):
             # it never takes the target's name.
             if exc is None:
                 commit(self._written, self.path)
         finally:
             discard(self._staged)
+        if isinstance(exc, OSError):  # a full disk while writing: the target, not the temporary
+            raise self._named(exc) from exc
 
     # ------------------------------------------------------------------ messages
     def _types(self) -> dict[str, Any]:

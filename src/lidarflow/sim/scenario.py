@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.atomic import atomic_paths
 from lidarflow.data.recording import Recording
 from lidarflow.errors import SimError
 from lidarflow.scan import GridSpec
@@ -348,17 +349,20 @@ def write_simulation(
             groups.append([])
         groups[-1].append(item)
     stem = output.name[:-4] if output.name.endswith(".npz") else output.name
-    paths = []
+    paths = (
+        [output.with_name(f"{stem}-{i:03d}.npz") for i in range(len(groups))]
+        if len(groups) > 1
+        else [output]
+    )
     source = _Source(config, seed, plan, workers)
-    try:
-        for i, group in enumerate(groups):
-            recording = _group(config, seed, group, source, progress)
-            if len(groups) > 1:
-                recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
-                path = output.with_name(f"{stem}-{i:03d}.npz")
-            else:
-                path = output
-            paths.append(recording.save(path))
-    finally:
-        source.close()
+    # every file appears at the end, or none: a run stopped midway leaves no chunk behind
+    with atomic_paths(paths) as temps:
+        try:
+            for i, (group, tmp) in enumerate(zip(groups, temps, strict=True)):
+                recording = _group(config, seed, group, source, progress)
+                if len(groups) > 1:
+                    recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
+                recording.save(tmp)
+        finally:
+            source.close()
     return paths

@@ -18,6 +18,7 @@ is loaded with ``torch.load(weights_only=True)``: it holds tensors and plain Pyt
 
 from __future__ import annotations
 
+import io
 import json
 import random
 from collections.abc import Callable
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file, save
 
 from lidarflow.atomic import atomic_path, discard
 from lidarflow.errors import TrainError
@@ -90,7 +91,8 @@ def save_weights(model: torch.nn.Module, path: Path, meta: dict[str, Any] | None
     if bad:
         raise TrainError(f"refusing to save non-finite weights to {path} ({', '.join(bad[:3])})")
     metadata = {k: json.dumps(v) for k, v in (meta or {}).items()}
-    return atomic_write(path, lambda tmp: save_file(state, str(tmp), metadata=metadata))
+    # serialised in memory, written as one file: a full disk is then an OSError naming it
+    return atomic_write(path, lambda tmp: tmp.write_bytes(save(state, metadata=metadata)))
 
 
 #: What a checkpoint file that cannot be read is, and what to do (the kill it survived was
@@ -158,7 +160,9 @@ def save_checkpoint(
         "rng": capture_rng(),
         "extra": extra,
     }
-    atomic_write(stem.with_suffix(".state.pt"), lambda tmp: torch.save(state, tmp))
+    buffer = io.BytesIO()  # torch.save on a full disk says "unexpected pos", not ENOSPC
+    torch.save(state, buffer)
+    atomic_write(stem.with_suffix(".state.pt"), lambda tmp: tmp.write_bytes(buffer.getvalue()))
     write_json(folder / "latest.json", {"epoch": epoch})
     for old in folder.glob("epoch_*"):
         number = int(old.name.split(".")[0].removeprefix("epoch_"))

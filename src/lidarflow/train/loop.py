@@ -39,7 +39,12 @@ from lidarflow.train.loaders import make_loader, make_val_loader
 from lidarflow.train.logbook import Logbook
 from lidarflow.train.model_setup import load_init, make_optimizer
 from lidarflow.train.objective import gaussian_size, make_loss
-from lidarflow.train.rundir import prepare_run_dir, release_run_dir, write_final
+from lidarflow.train.rundir import (
+    abandon_run_dir,
+    prepare_run_dir,
+    release_run_dir,
+    write_final,
+)
 from lidarflow.train.supervised import flow_term, require_flow, supervised, take_flow
 from lidarflow.train.validate import validate
 from lidarflow.train.warm import split_batch, start_state, stream_start_states
@@ -107,7 +112,13 @@ def train(
     run_dir = Path(run_dir)
     ctx = setup(config.runtime.device)
     try:
-        return _train(config, run_dir, resume, ctx, echo, on_epoch_end, start_over)
+        created = prepare_run_dir(run_dir, config, resume, ctx, start_over)
+        try:
+            return _train(config, run_dir, resume, ctx, echo, on_epoch_end)
+        except BaseException:
+            if ctx.is_main and not resume:  # stopped before its first epoch: leave no trace
+                abandon_run_dir(run_dir, created)
+            raise
     finally:
         if ctx.is_main:
             release_run_dir(run_dir)
@@ -121,7 +132,6 @@ def _train(
     ctx: Dist,
     echo: Callable[[str], None] | None,
     on_epoch_end: EpochHook | None,
-    start_over: bool = False,
 ) -> TrainResult:
     from tqdm import tqdm
 
@@ -134,7 +144,6 @@ def _train(
     if rt.threads > 0:
         torch.set_num_threads(rt.threads)
     _seed_everything(rt.seed)
-    prepare_run_dir(run_dir, config, resume, ctx, start_over)
     spec = config.model.spec()
     data = load_train_data(
         config.data,

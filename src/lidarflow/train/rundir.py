@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from lidarflow.atomic import discard
+from lidarflow.atomic import STAMP, discard, is_ours, stamp
 from lidarflow.errors import TrainError
 from lidarflow.models import count_parameters
 from lidarflow.train import checkpoint as ckpt
@@ -32,7 +32,7 @@ from lidarflow.train.config_io import config_from_dict, config_to_dict, load_con
 from lidarflow.train.data import TrainData
 from lidarflow.train.distributed import Dist
 
-__all__ = ["model_record", "prepare_run_dir", "release_run_dir", "write_final"]
+__all__ = ["abandon_run_dir", "model_record", "prepare_run_dir", "release_run_dir", "write_final"]
 
 #: Held while a process trains into a run folder: its PID and host.
 LOCK = "training.lock"
@@ -137,8 +137,8 @@ def _create(path: Path, content: str) -> bool:
     finished file): two processes starting together cannot both hold it, and no reader sees
     it empty and takes it for a stale lock. ``False`` where it exists."""
     staged = path.with_name(f".{path.name}.{os.getpid()}")
-    staged.write_text(content)
     try:
+        staged.write_text(content)
         os.link(staged, path)
     except FileExistsError:
         return False
@@ -147,14 +147,30 @@ def _create(path: Path, content: str) -> bool:
     return True
 
 
-def _start_over(run_dir: Path) -> None:
-    """``--force``: empty a run folder (one with ``config.json``; another folder is written
-    into as it is), keeping the lock this process took on it first."""
-    if not (run_dir / "config.json").is_file():
-        return
+def _is_lock(name: str) -> bool:
+    """Whether ``name`` is a run folder's lock, or one being made (:func:`_create`): a folder
+    holding only those is empty to a new run (the lock says whether another one trains)."""
+    return name == LOCK or name.startswith(f".{LOCK}.")
+
+
+def _empty(run_dir: Path) -> None:
+    """Remove what a run folder holds but its stamp and the lock this process took on it (a
+    folder lidarflow wrote: :func:`prepare_run_dir` checked)."""
     for entry in run_dir.iterdir():
-        if entry.name != LOCK:
+        if entry.name not in (LOCK, STAMP):
             discard(entry)
+
+
+def abandon_run_dir(run_dir: Path, created: bool) -> None:
+    """Undo a new run stopped before its first epoch finished (nothing to resume): remove the
+    folder if this run ``created`` it, else what the run wrote in it. A run with a finished
+    epoch is kept for ``--resume``."""
+    if not run_dir.is_dir() or ckpt.latest_epoch(run_dir) > 0:
+        return
+    _empty(run_dir)
+    if created:
+        release_run_dir(run_dir)
+        discard(run_dir)
 
 
 def _alive(pid: int) -> bool:
@@ -233,20 +249,38 @@ def _check_same_data(run_dir: Path, config: TrainConfig, facts: dict[str, Any]) 
             )
 
 
+def _check_ours(run_dir: Path) -> None:
+    """Refuse, even with ``--force``, a new run into a folder that is not one lidarflow wrote
+    (:func:`lidarflow.atomic.is_ours`): its files would be overwritten or removed."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise TrainError(f"{run_dir} is a file; name a folder for the run with -o")
+    if run_dir.is_dir() and not is_ours(run_dir, ignoring=_is_lock):
+        raise TrainError(
+            f"{run_dir} holds files lidarflow did not write (no {STAMP} in it); train into a "
+            "new or empty folder (not even --force writes into it)"
+        )
+
+
 def prepare_run_dir(
     run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist, start_over: bool = False
-) -> None:
+) -> bool:
     """Check and start ``run_dir`` (a new run, or a resume of it; ``start_over``: a new run
     that replaces the one there, ``--force``), and lock it for this process
-    (:func:`release_run_dir` unlocks it). The lock comes first: a folder another live process
-    trains into is refused before anything in it is touched."""
+    (:func:`release_run_dir` unlocks it); whether this call created the folder. A new run goes
+    only into a new or empty folder or one lidarflow wrote (its stamp), and a folder another
+    live process trains into is refused before anything in it is touched."""
+    created = False
     if ctx.is_main:
         if not resume:
+            _check_ours(run_dir)
+            created = not run_dir.exists()
             run_dir.mkdir(parents=True, exist_ok=True)
         if run_dir.is_dir():
             _lock(run_dir)
+        if not resume:
+            stamp(run_dir)
         if start_over and not resume:
-            _start_over(run_dir)
+            _empty(run_dir)
     if resume:
         _check_resumable(run_dir, config)
         started = run_dir / "run.json"
@@ -266,7 +300,7 @@ def prepare_run_dir(
             ckpt.write_json(run_dir / "config.json", config_to_dict(config))
             facts.setdefault("resumed", []).append({**_run_facts(ctx), "after_epoch": done})
             ckpt.write_json(started, facts)
-        return
+        return created
     # with start_over the main process empties it, maybe after the others look
     judged = ctx.is_main or not start_over
     if judged and (ckpt.latest_epoch(run_dir) > 0 or (run_dir / "model.safetensors").exists()):
@@ -279,6 +313,7 @@ def prepare_run_dir(
         ckpt.write_json(
             run_dir / "run.json", {**_run_facts(ctx), "source_bytes": _source_sizes(config)}
         )
+    return created
 
 
 def write_final(

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-__all__ = ["pyplot", "save_figure"]
+__all__ = ["check_picture_path", "pyplot", "save_figure"]
 
 
 def pyplot() -> Any:
@@ -16,6 +16,19 @@ def pyplot() -> Any:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def check_picture_path(path: str | Path) -> None:
+    """Refuse, in one line, a picture path whose suffix names no format matplotlib writes
+    (it picks the format by the suffix)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from lidarflow.errors import OutputError
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if Path(path).suffix.lower().lstrip(".") not in formats:
+        known = ", ".join(f".{f}" for f in ("png", "pdf", "svg", "jpg"))
+        raise OutputError(f"{path}: not a picture format lidarflow writes; end it in {known}...")
 
 
 def save_figure(fig: Any, path: str | Path, dpi: int = 100) -> Path:

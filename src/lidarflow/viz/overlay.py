@@ -71,11 +71,11 @@ def moving_rgb(
 
 def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 7.5) -> Path:
     """Write RGB frames as an animated GIF that loops."""
-    import imageio.v2 as imageio
+    import imageio.v3 as iio
 
-    from lidarflow.atomic import atomic_path
+    from lidarflow.atomic import write_bytes
 
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        imageio.mimsave(tmp, list(frames), duration=1.0 / fps, loop=0)
-    return path
+    # encoded in memory: a writer that fails on a full disk is then ours to clean up, not a
+    # file plugin that complains again when collected
+    gif = iio.imwrite("<bytes>", list(frames), extension=".gif", duration=1000 / fps, loop=0)
+    return write_bytes(path, gif)
