@@ -11,6 +11,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from tests.train.test_cli_train import TINY, run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -81,3 +83,23 @@ def test_neither_force_nor_resume_touches_a_run_being_trained(blob_files, tmp_pa
         assert [int(r["epoch"]) for r in csv.DictReader(f)] == [0, 1]
     assert sorted(p.name for p in run_dir.glob("*.json")) == ["config.json", "model.json",
                                                               "run.json"]  # fmt: skip
+
+
+def test_a_lock_that_cannot_be_written_leaves_nothing(tmp_path, monkeypatch):
+    # a full disk while the lock is staged: no empty lock file stays behind
+    import errno
+
+    from lidarflow.train import rundir
+
+    original = Path.write_text
+
+    def full(self, *args, **kwargs):
+        if rundir.LOCK in self.name:  # opened (created empty), then the write fails
+            original(self, "")
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OSError, match="No space left"):
+        rundir._lock(tmp_path)
+    assert list(tmp_path.iterdir()) == []
