@@ -13,8 +13,15 @@
 #   4. ruff, then the whole suite. LIDARFLOW_REQUIRE_ROS=1 makes the ROS tests (ROS 1 and ROS 2)
 #      and the npm client's fail rather than skip, so the suite never passes by skipping them.
 # Any failure stops it with a non-zero exit, pytest's 5 ("no tests collected") included.
+# `--fast` (first argument): the fast tier, for a developer's loop: the tests not marked `slow`
+# (under 2 minutes); CI runs everything. Other arguments go to pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+tier=()
+if [ "${1:-}" = "--fast" ]; then
+    shift
+    tier=(-m "not slow")
+fi
 
 missing=()
 if ! command -v chromium-headless-shell >/dev/null && ! command -v chromium >/dev/null \
@@ -54,4 +61,4 @@ python3 -m venv .venv-ros2
 .venv-ros2/bin/pip install -q -e ".[ros2]"
 .venv/bin/ruff check .
 export LIDARFLOW_REQUIRE_ROS=1
-exec .venv/bin/python -m pytest "$@"
+exec .venv/bin/python -m pytest ${tier[@]+"${tier[@]}"} "$@"

@@ -89,12 +89,14 @@ def test_describe_counts_invalid_beams_and_gaps():
     rec.ranges[0] = -np.inf
     rec.ranges[1] = 0.0
     rec.ranges[2] = np.float32(rec.range_max[0])  # a driver's "no return"
+    rec.ranges[3] = np.float32(rec.range_min[0] / 2)  # too close to measure
+    short = rec.ranges[3].size
     info = describe_recording(rec)
     assert info["scans"] == 20 and info["beams_per_scan"] == [50]
     assert info["gaps"] == [{"before_frame": 10, "seconds": 2.1}]
     beams = info["beams"]
     assert beams["neg_inf"] == 1 and beams["zero"] >= 1 and beams["at_range_max"] >= 1
-    assert beams["below_range_min"] >= 0
+    assert beams["below_range_min"] == short
     rec.range_min[:] = 0.0  # a driver that states no minimum, and writes invalid beams as 0
     beams = describe_recording(rec)["beams"]
     assert beams["below_range_min"] == 0 and beams["unknown"] >= beams["zero"] >= 1
