@@ -8,8 +8,13 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarflow.ops.shift import constant_velocity_map, shift_scores
+from lidarflow.ops.shift import apply_shift, best_shift_kernel, shift_scores
 from lidarflow.predict.baselines import ConstantVelocity, best_rigid_shift, shift_map
+
+
+def constant_velocity_map(previous: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
+    """The constant-velocity prediction from the torch shift kernels (as training builds it)."""
+    return apply_shift(current, best_shift_kernel(previous, current))
 
 
 def _torch(*maps: np.ndarray) -> list[torch.Tensor]:

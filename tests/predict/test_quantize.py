@@ -8,7 +8,7 @@ import onnx
 import pytest
 
 from lidarflow.errors import PredictError
-from lidarflow.evaluate.metrics import f1_score
+from lidarflow.evaluate.metrics import confusion
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.decision import DecisionPolicy
@@ -74,13 +74,13 @@ def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
     assert max(differences) > 0  # it did change the arithmetic
     assert max(differences) < 0.35
     targets = occupancy[11:]
-    f1_float = f1_score(np.stack(predicted_a[10:-1]), targets)
-    f1_int8 = f1_score(np.stack(predicted_b[10:-1]), targets)
+    f1_float = confusion(np.stack(predicted_a[10:-1]), targets).f1
+    f1_int8 = confusion(np.stack(predicted_b[10:-1]), targets).f1
     assert abs(f1_float - f1_int8) < 0.01 and f1_float > 0.9
     online = [Predictor(p) for p in (float_path, int8_path)]  # v8's policy asks for it
     assert all(p.online is not None for p in online)
     decided = [[p.update(scan).occupied for scan in scans] for p in online]
-    f1_online = [f1_score(np.stack(d[10:-1]), targets) for d in decided]
+    f1_online = [confusion(np.stack(d[10:-1]), targets).f1 for d in decided]
     assert abs(f1_online[0] - f1_online[1]) < 0.01 and f1_online[0] > 0.9
 
 

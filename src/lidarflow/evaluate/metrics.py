@@ -13,7 +13,7 @@ import numpy as np
 
 from lidarflow.predict.offsets import THRESHOLD
 
-__all__ = ["THRESHOLD", "Counts", "confusion", "f1_score"]
+__all__ = ["THRESHOLD", "Counts", "confusion"]
 
 
 @dataclass
@@ -77,8 +77,3 @@ def confusion(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray | None
         fp=int(np.count_nonzero(p & ~t)),
         fn=int(np.count_nonzero(~p & t)),
     )
-
-
-def f1_score(predicted: np.ndarray, target: np.ndarray) -> float:
-    """Micro F1 of boolean maps of any (matching) shape."""
-    return confusion(predicted, target).f1

@@ -33,7 +33,6 @@ __all__ = [
     "ShiftKernels",
     "apply_shift",
     "best_shift_kernel",
-    "constant_velocity_map",
     "shift_scores",
 ]
 
@@ -119,12 +118,3 @@ def apply_shift(maps: Tensor, kernels: ShiftKernels) -> Tensor:
         )
         moved = F.conv2d(moved, cols, groups=b * c)
     return moved.reshape(b, c, h, w).to(maps.dtype)
-
-
-def constant_velocity_map(
-    previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
-) -> Tensor:
-    """``current`` ``(B, 1, H, W)`` moved once more by the best shift from ``previous`` to it:
-    the constant-velocity baseline's prediction of the next map. A zero ``previous`` (the first
-    frame) gives shift 0, i.e. ``current``."""
-    return apply_shift(current, best_shift_kernel(previous, current, radius))

@@ -28,7 +28,6 @@ __all__ = [
     "World",
     "WorldConfig",
     "build_world",
-    "point_segment_distance",
 ]
 
 
@@ -178,17 +177,6 @@ class World:
             path[:0] = [c - 0.5 * n, c + 0.5 * n]
             room = parent
         return path
-
-
-def point_segment_distance(xy: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Distance ``(N, S)`` from points ``(N, 2)`` to segments ``(S, 4)``."""
-    p = xy[:, None, :]
-    a = segments[None, :, :2]
-    e = segments[None, :, 2:] - segments[None, :, :2]
-    ee = np.maximum((e * e).sum(-1), 1e-12)
-    u = np.clip(((p - a) * e).sum(-1) / ee, 0.0, 1.0)
-    d = p - a - u[..., None] * e
-    return np.hypot(d[..., 0], d[..., 1])
 
 
 # ------------------------------------------------------------------ floor plan
