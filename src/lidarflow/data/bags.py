@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.cutshort import cut_short_reader, not_a_bag
+from lidarflow.data.inputs import check_regular
 from lidarflow.data.mcapfile import McapReader, channel_encoding
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
@@ -87,6 +88,7 @@ def open_bag(path: str | Path) -> Iterator[Any]:
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such file or folder")
+    check_regular(path, BagError, folder=True)
     if not _is_bag_like(path):
         raise BagError(
             f"{path}: not a bag; expected a ROS 1 .bag (or .bag.zip), a ROS 2 bag folder, "
@@ -100,6 +102,7 @@ def open_bag(path: str | Path) -> Iterator[Any]:
             )
         elif path.suffix.lower() == ".db3" or path.name.lower() == "metadata.yaml":
             target = path.parent  # a ROS 2 bag is read through its folder
+            check_regular(target, BagError, folder=True)
         if target.is_dir() and not (target / "metadata.yaml").exists():
             target = _folder_without_metadata(path, target)
         encoding = channel_encoding(target) if target.suffix.lower() == ".mcap" else None
