@@ -216,6 +216,7 @@ def test_stopping_a_jobs_run_ends_every_process_and_leaves_nothing(tmp_path, how
         else:
             os.killpg(proc.pid, signal.SIGINT if how.startswith("ctrl-c") else signal.SIGTERM)
         code = proc.wait(timeout=60)
+        at_exit = _partials(tmp_path)  # the parent waits for the workers' clean-up
         deadline = time.monotonic() + 20  # the workers' clean-up: half a second each
         while _running_in_group(proc.pid) and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -227,7 +228,7 @@ def test_stopping_a_jobs_run_ends_every_process_and_leaves_nothing(tmp_path, how
         proc.stderr.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == [], how
     if how != "sigkill to the parent":
-        assert code == 130 and err == "", err
+        assert code == 130 and err == "" and at_exit == [], (err, at_exit)
 
 
 def torch_in_worker(recording: str) -> tuple[bool, bool]:

@@ -178,15 +178,14 @@ def _watch_parent(parent: int) -> None:
     second."""
 
     def watch() -> None:
-        try:
-            fd = os.pidfd_open(parent)
-        except (AttributeError, OSError):  # no pidfd here, or the parent is gone already
+        fd = _pidfd(parent)
+        if fd is not None:
+            select.select([fd], [], [])  # readable once the process ends
+        else:  # no pidfds here, or the parent is gone already
             with contextlib.suppress(ProcessLookupError):
                 while True:
                     os.kill(parent, 0)
                     time.sleep(0.5)
-        else:
-            select.select([fd], [], [])  # readable once the process ends
         while True:  # again: one taken as a task ends stops that task, not the worker
             os.kill(os.getpid(), signal.SIGTERM)
             time.sleep(1.0)
@@ -348,19 +347,45 @@ def _stop_workers(processes: list[Any], progress: Any) -> None:
     """SIGTERM each of ``processes`` (the one signal a worker handles, :func:`_on_signal`; the
     pool has no public way to stop its workers before Python 3.14's ``terminate_workers()``),
     wait up to :data:`STOP_GRACE_S` for them to end, reading what they report meanwhile (a
-    worker does not wait on it, but a full pipe would stall its report), then kill the rest."""
+    worker does not wait on it, but a full pipe would stall its report), then kill the rest.
+
+    A worker's end is read from its pidfd where the system has them: the pool's own account
+    comes through the fork server, which says a worker ended when the fork server itself was
+    killed (a terminal's SIGTERM to the group), as the worker still removes what it wrote."""
+    pidfds: dict[Any, int | None] = {}
     for process in processes:
-        with contextlib.suppress(ProcessLookupError):
+        with contextlib.suppress(ProcessLookupError):  # not there: ended, and reaped
             os.kill(process.pid, signal.SIGTERM)
-    deadline = time.monotonic() + STOP_GRACE_S
-    for process in processes:
-        while process.is_alive() and time.monotonic() < deadline:
+            pidfds[process] = _pidfd(process.pid)
+
+    def ended(process: Any) -> bool:
+        fd = pidfds[process]
+        if fd is None:
+            return not process.is_alive()
+        return bool(select.select([fd], [], [], 0)[0])  # readable once the process ends
+
+    try:
+        running = list(pidfds)
+        deadline = time.monotonic() + STOP_GRACE_S
+        while running and time.monotonic() < deadline:
             _drain(progress, None)
-            process.join(0.1)
-        if process.is_alive():
+            time.sleep(0.05)
+            running = [process for process in running if not ended(process)]
+        for process in running:
             with contextlib.suppress(ProcessLookupError):
-                process.kill()
-            process.join(5)
+                os.kill(process.pid, signal.SIGKILL)
+    finally:
+        for fd in pidfds.values():
+            if fd is not None:
+                os.close(fd)
+
+
+def _pidfd(pid: int) -> int | None:
+    """A pidfd of the process ``pid`` (Linux), ``None`` where there is none."""
+    try:
+        return os.pidfd_open(pid)
+    except (AttributeError, OSError):
+        return None
 
 
 def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:
