@@ -3,6 +3,7 @@ process writes, in input order, one line per failed input, nothing half-written 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -141,6 +142,93 @@ def test_sigterm_stops_every_worker_and_leaves_nothing_half_written(tmp_path):
         proc.kill()
     assert proc.returncode == 130 and err.strip().endswith("stopped by signal SIGTERM"), err
     assert not _partials(out) and not list(out.glob("*.mcap"))
+
+
+def slow_write(task: tuple[str, float]) -> str:
+    """A task for the pool: writes ``path`` through lidarflow.atomic for ``seconds``, a piece
+    every tenth of a second, and takes half a second to close it (as a bag writer writes its
+    index, on an interrupt too)."""
+    from lidarflow.atomic import atomic_path
+    from lidarflow.cli.jobs import job_bar
+
+    path, seconds = task
+    steps = int(seconds * 10)
+    with job_bar(steps, "writing") as bar, atomic_path(path) as tmp, tmp.open("wb") as f:
+        try:
+            for _ in range(steps):
+                f.write(b"piece")
+                f.flush()
+                time.sleep(0.1)
+                bar.update()
+        finally:
+            time.sleep(0.5)
+    return path
+
+
+#: ``python -c STOPPABLE FOLDER``: two slow_write tasks of a minute in FOLDER, two workers, in a
+#: process that stops on SIGTERM and Ctrl-C as the CLI does.
+STOPPABLE = """
+import sys
+from pathlib import Path
+from lidarflow.cli import stop_on_sigterm
+from lidarflow.cli.jobs import run_jobs
+from tests.test_cli_jobs import slow_write
+stop_on_sigterm()
+folder = Path(sys.argv[1])
+tasks = [(str(folder / "a.bin"), 60.0), (str(folder / "b.bin"), 60.0)]
+try:
+    run_jobs(slow_write, tasks, ["a", "b"], 2, 1, "writing", lambda o: None)
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+def _running_in_group(group: int) -> list[str]:
+    """The processes of process group ``group`` that have not ended (zombies left out)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z" and int(fields[2]) == group:
+            found.append(stat.parent.name)
+    return found
+
+
+@pytest.mark.parametrize(
+    "how", ["ctrl-c to the group", "sigterm to the group", "sigkill to the parent"]
+)
+def test_stopping_a_jobs_run_ends_every_process_and_leaves_nothing(tmp_path, how):
+    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}:{ROOT}", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", STOPPABLE, str(tmp_path)], cwd=ROOT, env=env,
+        stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while len(_partials(tmp_path)) < 2:  # both workers are writing
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.1)
+        time.sleep(0.3)
+        if how == "sigkill to the parent":
+            proc.kill()
+        else:
+            os.killpg(proc.pid, signal.SIGINT if how.startswith("ctrl-c") else signal.SIGTERM)
+        code = proc.wait(timeout=60)
+        at_exit = _partials(tmp_path)  # the parent waits for the workers' clean-up
+        deadline = time.monotonic() + 20  # the workers' clean-up: half a second each
+        while _running_in_group(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _running_in_group(proc.pid), f"still running after {how}"
+        err = proc.stderr.read()
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.stderr.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], how
+    if how != "sigkill to the parent":
+        assert code == 130 and err == "" and at_exit == [], (err, at_exit)
 
 
 def torch_in_worker(recording: str) -> tuple[bool, bool]:

@@ -122,3 +122,20 @@ def test_only_a_request_offering_the_old_name_alone_is_rewritten():
     assert ask_sdk_subprotocol(both) == (both, False)
     other = b"GET / HTTP/1.1\r\nHost: x\r\n\r\n"
     assert ask_sdk_subprotocol(other) == (other, False)
+
+
+def test_closing_with_a_client_that_never_sent_its_request_logs_nothing(caplog):
+    # a connection still waiting for its upgrade request is cancelled at close: that ends it
+    # quietly, not with asyncio's "Exception in callback" traceback
+    import logging
+    import time
+
+    from lidarflow.live.front import Front
+
+    front = Front("127.0.0.1", 0)
+    front.start(backend_port=1)  # never reached: the request never comes
+    with socket.create_connection(("127.0.0.1", front.port)):
+        time.sleep(0.2)  # accepted, waiting for its request
+        with caplog.at_level(logging.DEBUG, logger="asyncio"):
+            front.close(0.1)
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []

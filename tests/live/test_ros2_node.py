@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -243,3 +244,28 @@ def test_poses_and_messages_with_ros_2s_own_classes(ros2_env):
     pose, rest = done.stdout.strip().rsplit(")", 1)
     assert [float(v) for v in pose.strip("(").split(",")] == pytest.approx([2.0, 3.0, 0.5])
     assert rest.split() == ["True", "3", "1", "999999999", "laser", "100", "-5.0"]
+
+
+@pytest.mark.parametrize("given", ["abc", "233"])
+def test_a_bad_ros_domain_id_is_one_line_with_what_was_given_and_the_range(given):
+    # runs everywhere: checked before rclpy is imported
+    env = {**os.environ, "ROS_DOMAIN_ID": given}
+    done = subprocess.run([sys.executable, "-c", MAIN, "ros2"], capture_output=True, text=True,
+                          env=env, timeout=120)  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"lidarflow: error: ROS_DOMAIN_ID={given!r} is no ROS 2 domain: set it to an integer "
+        "from 0 to 232, or unset it for domain 0"
+    ]
+
+
+def test_domain_id_reads_ros_domain_id_without_rclpy():
+    from lidarflow.errors import PredictError
+    from lidarflow.live.ros2 import domain_id
+
+    assert domain_id({}) is None and domain_id({"ROS_DOMAIN_ID": ""}) is None
+    assert domain_id({"ROS_DOMAIN_ID": "0"}) == 0 and domain_id({"ROS_DOMAIN_ID": "232"}) == 232
+    for given in ("abc", "233", "-1", "1.5", "+7", "٣"):
+        expected = re.escape(f"ROS_DOMAIN_ID={given!r} is no ROS 2 domain")
+        with pytest.raises(PredictError, match=expected):
+            domain_id({"ROS_DOMAIN_ID": given})

@@ -23,20 +23,31 @@ Results come back in input order, whatever order the workers finish in. A task t
 back as one line naming its input (:func:`error_line`); the caller says what happens to the
 others (``predict`` finishes them, ``evaluate`` stops: its one report needs every input).
 
-Stopping: Ctrl-C or SIGTERM in the parent (the CLI turns SIGTERM into a ``KeyboardInterrupt``)
-stops every worker: a worker in a task raises ``KeyboardInterrupt`` there, so the output it was
-writing is removed (:mod:`lidarflow.atomic`); an idle one exits. The parent waits for them all
-to end before it goes on, so that nothing is written into what it removes next (a staged report
-folder). A worker killed outright leaves at most a temporary, never a half-written output.
+Stopping: Ctrl-C or SIGTERM in the parent (the CLI turns SIGTERM into a ``KeyboardInterrupt``),
+or a terminal's Ctrl-C, which signals every process of the group at once, stops every worker: a
+worker in a task raises ``KeyboardInterrupt`` there, so the output it was writing is removed
+(:mod:`lidarflow.atomic`), and then exits; an idle one exits at once. A worker takes the first
+stop signal only: the parent's SIGTERM that follows the terminal's SIGINT does not cut its
+clean-up short. A worker whose parent ends without stopping it (SIGKILL, the OOM killer) stops
+as if signalled: it watches the parent's process, since its own parent is the fork server,
+which outlives the command as long as any worker runs. The parent waits for the workers to end
+before it goes on, so that nothing is written into what it removes next (a staged report
+folder); one still running :data:`STOP_GRACE_S` later is killed. A worker killed outright
+leaves at most a temporary, never a half-written output, and the next write into its folder
+removes that temporary (:func:`lidarflow.atomic.clear_stale`).
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import io
 import os
+import select
 import signal
 import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -64,6 +75,8 @@ JobsOpt = Annotated[
 
 #: The environment variables that size BLAS and OpenMP thread pools, read when those load.
 _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: Seconds a stopped worker has to remove what it was writing before it is killed.
+STOP_GRACE_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -107,6 +120,7 @@ def error_line(name: str, err: BaseException) -> str:
 _PROGRESS: Any = None
 _STOP: Any = None
 _BUSY = False
+_SIGNALLED = 0  # the stop signal a worker took (0: none yet)
 
 
 class _QueueBar:
@@ -138,15 +152,52 @@ def job_bar(total: int | None, desc: str) -> Any:
 
 
 def _on_signal(signum: int, frame: object) -> None:
-    if _BUSY:  # stop the task, whose outputs go through lidarflow.atomic
+    global _SIGNALLED
+    first = not _SIGNALLED
+    _SIGNALLED = _SIGNALLED or signum
+    if not _BUSY:  # idle: nothing to clean up
+        _exit(128 + _SIGNALLED)
+    if first:  # stop the task, whose outputs go through lidarflow.atomic; _run_task then exits
         raise KeyboardInterrupt(f"stopped by signal {signal.Signals(signum).name}")
-    os._exit(128 + signum)  # idle: nothing to clean up, and no traceback from the pool's loop
+    # a later one (the parent's SIGTERM after a terminal's SIGINT): the clean-up goes on
 
 
-def _start_worker(progress: Any, stop: Any, threads: int, block_torch: bool) -> None:
+def _exit(code: int) -> None:
+    """End this worker now, as the interpreter ends (its exit handlers run: multiprocessing's
+    releases the named semaphores made here, such as tqdm's lock), but without going back to
+    the pool's loop, which would wait for another task (and no traceback from it)."""
+    for signum in (signal.SIGINT, signal.SIGTERM):  # one raised in the exit handlers would
+        signal.signal(signum, signal.SIG_IGN)  # print a traceback
+    atexit._run_exitfuncs()
+    os._exit(code)
+
+
+def _watch_parent(parent: int) -> None:
+    """Signal this worker (SIGTERM, every second until it ends) once the process ``parent`` has
+    ended: from a thread that waits on a pidfd (Linux), or elsewhere checks every half
+    second."""
+
+    def watch() -> None:
+        fd = _pidfd(parent)
+        if fd is not None:
+            select.select([fd], [], [])  # readable once the process ends
+        else:  # no pidfds here, or the parent is gone already
+            with contextlib.suppress(ProcessLookupError):
+                while True:
+                    os.kill(parent, 0)
+                    time.sleep(0.5)
+        while True:  # again: one taken as a task ends stops that task, not the worker
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)
+
+    threading.Thread(target=watch, name="lidarflow-parent-watch", daemon=True).start()
+
+
+def _start_worker(progress: Any, stop: Any, threads: int, block_torch: bool, parent: int) -> None:
     """A worker's set-up, before its first task (see the module)."""
     global _PROGRESS, _STOP
     _PROGRESS, _STOP = progress, stop
+    progress.cancel_join_thread()  # exit without waiting for the parent to read the progress
     if block_torch:
         from lidarflow.extras import TORCH_EXTRA_MODULES
 
@@ -154,6 +205,7 @@ def _start_worker(progress: Any, stop: Any, threads: int, block_torch: bool) -> 
             sys.modules[name] = None  # type: ignore[assignment]
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+    _watch_parent(parent)
     from lidarflow.cli.app import use_threads
 
     use_threads(threads)
@@ -165,7 +217,7 @@ def _run_task(work: Callable[[Any], Any], index: int, name: str, task: Any) -> O
     notes = io.StringIO()
     _BUSY = True
     try:
-        if _STOP is not None and _STOP.is_set():  # a task handed out as the run stopped
+        if _SIGNALLED or (_STOP is not None and _STOP.is_set()):  # handed out as it stopped
             raise KeyboardInterrupt("stopped")
         with contextlib.redirect_stderr(notes):
             value = work(task)
@@ -175,6 +227,8 @@ def _run_task(work: Callable[[Any], Any], index: int, name: str, task: Any) -> O
             notes.write(traceback.format_exc())
         return Outcome(index, None, error_line(name, err), notes.getvalue())
     finally:
+        if _SIGNALLED:  # the task's clean-up is done: this worker stops with it
+            _exit(128 + _SIGNALLED)
         _BUSY = False
 
 
@@ -255,7 +309,7 @@ def _run_pool(
     preload = ["lidarflow.cli.per_input", "lidarflow.evaluate.methods", "lidarflow.predict"]
     context.set_forkserver_preload(preload + (["torch"] if torch_available() else []))
     progress, stop = context.Queue(), context.Event()
-    args = (progress, stop, threads, not torch_available())
+    args = (progress, stop, threads, not torch_available(), os.getpid())
     executor = ProcessPoolExecutor(jobs, context, initializer=_start_worker, initargs=args)
     bar = tqdm(total=0, desc=desc, unit="scan", disable=None, leave=False)
     ready: dict[int, Outcome] = {}
@@ -284,13 +338,54 @@ def _run_pool(
         bar.close()
         if not finished:  # interrupted, failed, or stopped on an error: stop the workers
             stop.set()  # a task still handed out after this returns at once
-            # the pool has no public way to stop its workers before Python 3.14's
-            # terminate_workers(); SIGTERM is the one each worker handles (_on_signal)
-            for process in list(getattr(executor, "_processes", {}).values()):
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(process.pid, signal.SIGTERM)
+            _stop_workers(list(getattr(executor, "_processes", {}).values()), progress)
         executor.shutdown(wait=True, cancel_futures=True)
         progress.close()
+
+
+def _stop_workers(processes: list[Any], progress: Any) -> None:
+    """SIGTERM each of ``processes`` (the one signal a worker handles, :func:`_on_signal`; the
+    pool has no public way to stop its workers before Python 3.14's ``terminate_workers()``),
+    wait up to :data:`STOP_GRACE_S` for them to end, reading what they report meanwhile (a
+    worker does not wait on it, but a full pipe would stall its report), then kill the rest.
+
+    A worker's end is read from its pidfd where the system has them: the pool's own account
+    comes through the fork server, which says a worker ended when the fork server itself was
+    killed (a terminal's SIGTERM to the group), as the worker still removes what it wrote."""
+    pidfds: dict[Any, int | None] = {}
+    for process in processes:
+        with contextlib.suppress(ProcessLookupError):  # not there: ended, and reaped
+            os.kill(process.pid, signal.SIGTERM)
+            pidfds[process] = _pidfd(process.pid)
+
+    def ended(process: Any) -> bool:
+        fd = pidfds[process]
+        if fd is None:
+            return not process.is_alive()
+        return bool(select.select([fd], [], [], 0)[0])  # readable once the process ends
+
+    try:
+        running = list(pidfds)
+        deadline = time.monotonic() + STOP_GRACE_S
+        while running and time.monotonic() < deadline:
+            _drain(progress, None)
+            time.sleep(0.05)
+            running = [process for process in running if not ended(process)]
+        for process in running:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(process.pid, signal.SIGKILL)
+    finally:
+        for fd in pidfds.values():
+            if fd is not None:
+                os.close(fd)
+
+
+def _pidfd(pid: int) -> int | None:
+    """A pidfd of the process ``pid`` (Linux), ``None`` where there is none."""
+    try:
+        return os.pidfd_open(pid)
+    except (AttributeError, OSError):
+        return None
 
 
 def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:
@@ -308,7 +403,7 @@ def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:
 
 
 def _drain(progress: Any, bar: Any) -> None:
-    """Move what the workers reported onto the parent's bar."""
+    """Move what the workers reported onto the parent's bar (``None``: drop it)."""
     import queue
 
     while True:
@@ -316,6 +411,8 @@ def _drain(progress: Any, bar: Any) -> None:
             kind, n = progress.get_nowait()
         except (queue.Empty, OSError, ValueError):
             return
+        if bar is None:
+            continue
         if kind == "total":
             bar.total += n
             bar.refresh()

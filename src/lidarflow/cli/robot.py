@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -124,12 +125,13 @@ def ros2(
     """Run a ROS 2 node: per scan on --topic, publish the predicted next map (OccupancyGrid in
     the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
     predicts. Joins ROS_DOMAIN_ID's domain; stop it with Ctrl-C."""
-    from lidarflow.live.ros2 import GRID_QOS, SCAN_QOS, Ros2Node, import_ros2
+    from lidarflow.live.ros2 import GRID_QOS, SCAN_QOS, Ros2Node, domain_id, import_ros2
 
     for name, value, choices in (("--scan-qos", scan_qos, SCAN_QOS),
                                  ("--grid-qos", grid_qos, GRID_QOS)):  # fmt: skip
         if value not in choices:
             raise typer.BadParameter(f"{value!r}: one of {', '.join(choices)}", param_hint=name)
+    domain_id(os.environ)  # rclpy fails on a bad one without a word
     _log_to_stderr("ros2", logging.DEBUG if verbose else logging.INFO)
     import_ros2()  # before loading a model: say at once what is missing
     step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads)

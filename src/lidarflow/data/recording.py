@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from lidarflow.data.inputs import check_regular
 from lidarflow.data.sessions import sliced_clock_jumps
 from lidarflow.errors import RecordingError, ScanError
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
@@ -342,6 +343,7 @@ def load_recording(path: str | Path) -> Recording:
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
+    check_regular(path, RecordingError)
     data = _read_arrays(path)
     required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
     missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]

@@ -182,6 +182,9 @@ class Front:
                 await _pipe(from_sdk, writer)
         except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError):
             pass  # a client gone or a request that is none: that connection ends, no other
+        except asyncio.CancelledError:  # the front closing (_drain): the connection ends
+            task.uncancel()  # as any other, not as a cancelled task, which asyncio's stream
+            # server reports with a traceback
         finally:
             if to_server is not None:
                 to_server.cancel()

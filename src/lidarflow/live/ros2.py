@@ -11,7 +11,7 @@ Poses: the latest ``nav_msgs/Odometry`` moved to the scanner by its mount from `
 QoS as ROS 2 drivers and consumers expect: scans with the sensor-data profile (best effort, so
 that it matches a best-effort driver as well as a reliable one), grids reliable (a planner must
 not miss one), both configurable; ``/tf_static`` transient local, as its publishers latch it.
-The domain is ``ROS_DOMAIN_ID``'s (rclpy reads it).
+The domain is ``ROS_DOMAIN_ID``'s (rclpy reads it; :func:`domain_id` checks it first).
 
 rclpy comes from wherever this Python finds it: the ``ros2`` extra (``pip install
 "lidarflow[ros2]"``: ROS 2 Jazzy's wheels), or a sourced ROS 2 installation of the same Python
@@ -27,6 +27,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -37,7 +38,16 @@ from lidarflow.errors import PredictError
 from lidarflow.live.rosnode import RosNode
 from lidarflow.live.step import LiveStep, clock_ns
 
-__all__ = ["GRID_QOS", "ROS2_EXTRA", "SCAN_QOS", "Ros2", "Ros2Node", "import_ros2"]
+__all__ = [
+    "DOMAIN_IDS",
+    "GRID_QOS",
+    "ROS2_EXTRA",
+    "SCAN_QOS",
+    "Ros2",
+    "Ros2Node",
+    "domain_id",
+    "import_ros2",
+]
 
 log = logging.getLogger("lidarflow.live")
 
@@ -49,6 +59,31 @@ ODOM_TYPE = "nav_msgs/msg/Odometry"
 SCAN_QOS = ("sensor", "reliable")
 #: ``--grid-qos`` choices.
 GRID_QOS = ("reliable", "best-effort")
+#: The domains ``ROS_DOMAIN_ID`` may name (ROS 2's range: 232 is the last that maps to UDP
+#: ports on every platform).
+DOMAIN_IDS = range(233)
+
+
+def domain_id(environ: Mapping[str, str]) -> int | None:
+    """The ROS domain ``environ``'s ``ROS_DOMAIN_ID`` names: ``None`` where it is unset or
+    empty (ROS 2's default domain, 0), else an integer in :data:`DOMAIN_IDS`.
+
+    Raises :class:`PredictError` (one line with what was given and the valid range) for
+    anything else, which rclpy would otherwise fail on without a word.
+
+    >>> domain_id({"ROS_DOMAIN_ID": " 42 "}), domain_id({})
+    (42, None)
+    """
+    given = environ.get("ROS_DOMAIN_ID", "")
+    digits = given.strip()
+    if not digits:
+        return None
+    if not (digits.isascii() and digits.isdigit() and int(digits) in DOMAIN_IDS):
+        raise PredictError(
+            f"ROS_DOMAIN_ID={given!r} is no ROS 2 domain: set it to an integer from "
+            f"{DOMAIN_IDS.start} to {DOMAIN_IDS.stop - 1}, or unset it for domain 0"
+        )
+    return int(digits)
 
 
 @dataclass(frozen=True)
