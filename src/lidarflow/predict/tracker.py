@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lidarflow.geometry import rigid_moved
 from lidarflow.motion.pacing import paced_motion
-from lidarflow.motion.warp import rigid_moved
 from lidarflow.predict.baselines import Takes
 from lidarflow.predict.carry import Movers, composed_motion
 
