@@ -44,7 +44,7 @@ __all__ = [
     "warp_map",
 ]
 
-Scalars = float | np.ndarray
+_Scalars = float | np.ndarray
 
 
 def cell_to_metric(
@@ -76,7 +76,7 @@ def metric_to_cell(
     return height - 0.5 - x, width / 2 - 0.5 - y
 
 
-def _motion_parts(motion: np.ndarray) -> tuple[Scalars, Scalars, Scalars]:
+def _motion_parts(motion: np.ndarray) -> tuple[_Scalars, _Scalars, _Scalars]:
     """``(dx, dy, dyaw)``: Python floats for one motion (3 values), arrays ``(...)`` for
     motions ``(..., 3)``."""
     m = np.asarray(motion, np.float64)
@@ -90,7 +90,7 @@ def _motion_parts(motion: np.ndarray) -> tuple[Scalars, Scalars, Scalars]:
     return m[..., 0], m[..., 1], m[..., 2]
 
 
-def _cos_sin(yaw: Scalars) -> tuple[Scalars, Scalars]:
+def _cos_sin(yaw: _Scalars) -> tuple[_Scalars, _Scalars]:
     """``cos`` and ``sin`` of each turn, each taken alone: motions given together move cells
     to the bit as each given alone does."""
     if isinstance(yaw, float):
