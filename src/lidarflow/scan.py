@@ -28,6 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from lidarflow.errors import ScanError
+from lidarflow.geometry import cell_to_metric
 
 __all__ = [
     "MAX_GRID_CELLS",
@@ -157,8 +158,7 @@ def cell_centres(grid: GridSpec) -> tuple[np.ndarray, np.ndarray]:
     """
     rows = np.arange(grid.height, dtype=np.float64)[:, None]
     cols = np.arange(grid.width, dtype=np.float64)[None, :]
-    x = (grid.height - rows - 0.5) * grid.res
-    y = (grid.width / 2 - cols - 0.5) * grid.res
+    x, y = cell_to_metric(rows, cols, grid.height, grid.width, grid.res)
     return np.broadcast_to(x, grid.shape).copy(), np.broadcast_to(y, grid.shape).copy()
 
 

@@ -19,11 +19,11 @@ import numpy as np
 from lidarflow.data.blocks import Frames, streamed_maps
 from lidarflow.data.recording import Recording
 from lidarflow.errors import EvaluateError
+from lidarflow.geometry import rigid_moved
 from lidarflow.motion.icp import streamed_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import scan_motions
-from lidarflow.motion.warp import rigid_moved
 from lidarflow.predict.baselines import Method, Takes
 from lidarflow.scan import GridSpec
 

@@ -18,7 +18,7 @@ order turn, row shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SH
 the order the FFT search read them in (its rounding noise broke the ties it met instead).
 
 Units: maps ``(H, W)`` bool; shifts in index cells; turns in radians (positive turns the world
-counter-clockwise in the metric frame of :mod:`lidarflow.ops.rigid`).
+counter-clockwise in the sensor frame of :mod:`lidarflow.geometry`).
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from lidarflow.geometry import transform_cells
 
 __all__ = ["BLOCK", "MAX_SHIFT", "YAWS", "Correlation", "correlate"]
 
@@ -40,10 +42,8 @@ FIRST_BLOCKS = 8
 
 _SPAN = 2 * MAX_SHIFT + 1
 _PAD = MAX_SHIFT + 1  # the shifts searched, and one more each way for the peak's neighbours
-# cos and sin per turn as Python floats, as cells_in_new_frame computes them, so the turned
-# cells round exactly as they do there
-_COS = np.array([np.cos(float(y)) for y in YAWS])[:, None]
-_SIN = np.array([np.sin(float(y)) for y in YAWS])[:, None]
+# each candidate turn as a motion (0, 0, yaw), one row per turn, for the cells in the last axis
+_TURNS = np.stack([np.zeros_like(YAWS), np.zeros_like(YAWS), YAWS], axis=1)[:, None, :]
 _STARTS = np.arange(-MAX_SHIFT, MAX_SHIFT + 1, BLOCK)  # each block's first shift, a side
 # position of each shift in the FFT search's reading order (0 ... MAX_SHIFT, then -MAX_SHIFT ...)
 _ORDER = np.arange(-MAX_SHIFT, MAX_SHIFT + 1) % _SPAN
@@ -94,9 +94,8 @@ class _Placements:
 
         r, c = np.nonzero(previous)
         # cells_in_new_frame(r, c, (0, 0, yaw)) for every turn at once
-        x, y = h - 0.5 - r, w / 2 - 0.5 - c
-        rows_k = np.rint(h - 0.5 - (_COS * x + _SIN * y)).astype(np.int64)
-        cols_k = np.rint(w / 2 - 0.5 - (-_SIN * x + _COS * y)).astype(np.int64)
+        cols_k, rows_k = transform_cells(c, r, _TURNS, h, w, inverse=True)
+        rows_k, cols_k = np.rint(rows_k).astype(np.int64), np.rint(cols_k).astype(np.int64)
         inside = (rows_k >= 0) & (rows_k < h) & (cols_k >= 0) & (cols_k < w)
         flat = (rows_k + _PAD) * self.width + cols_k + _PAD
         size = grid.size

@@ -19,6 +19,8 @@ from collections import deque
 
 import numpy as np
 
+from lidarflow.geometry import transform_cells
+
 __all__ = ["OdometryCheck", "cells_in_new_frame", "metres_to_cells", "relative_motions"]
 
 
@@ -67,15 +69,10 @@ def cells_in_new_frame(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The nearest cells ``(rows, cols)`` (int64) in the new sensor frame of the old frame's
     cells ``rows, cols`` after the sensor moved by ``motion`` ``(dx, dy, dyaw)`` (cells,
-    radians): ``R^T (p - d)``, the NumPy twin of ``lidarflow.ops.rigid.transform_cells(...,
-    inverse=True)``, rounded; they may fall outside the ``height x width`` grid."""
-    dx, dy, yaw = (float(v) for v in np.asarray(motion, dtype=np.float64).reshape(3))
-    # The grid's metric frame (rigid.py): x forward from the bottom edge, y to the left.
-    x, y = height - 0.5 - rows - dx, width / 2 - 0.5 - cols - dy
-    c, s = np.cos(yaw), np.sin(yaw)
-    new_rows = np.rint(height - 0.5 - (c * x + s * y)).astype(np.int64)
-    new_cols = np.rint(width / 2 - 0.5 - (-s * x + c * y)).astype(np.int64)
-    return new_rows, new_cols
+    radians): :func:`lidarflow.geometry.transform_cells` old -> new, rounded; they may fall
+    outside the ``height x width`` grid."""
+    new_cols, new_rows = transform_cells(cols, rows, motion, height, width, inverse=True)
+    return np.rint(new_rows).astype(np.int64), np.rint(new_cols).astype(np.int64)
 
 
 class OdometryCheck:

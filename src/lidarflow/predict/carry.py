@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidarflow.motion.warp import rigid_moved
+from lidarflow.geometry import rigid_moved
 
 __all__ = ["Movers", "composed_motion"]
 

@@ -35,6 +35,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from lidarflow.geometry import FlowWarp
 from lidarflow.models.config import Capabilities
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
@@ -42,7 +43,6 @@ from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.carry import Movers
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
-from lidarflow.predict.sampling import FlowWarp
 from lidarflow.predict.tracker import Tracker
 from lidarflow.scan import takes_subcell
 

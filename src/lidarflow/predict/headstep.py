@@ -6,7 +6,7 @@ state by the platform's motion, update the memories, find the constant-velocity 
 layer or two, move the logit into the next frame. In eager PyTorch that was ~60 small operators
 a step, ~2.4 ms of overhead against ~0.05 ms of arithmetic; here it is a few fused NumPy
 operations on the same weights, the gathers of the rigid warps kept from step to step
-(:mod:`lidarflow.predict.sampling`), and the shift counted on the occupied cells only
+(:func:`lidarflow.geometry.rigid_sampler`), and the shift counted on the occupied cells only
 (:func:`lidarflow.predict.baselines.best_rigid_shift`).
 
 Generic over :class:`~lidarflow.models.config.HeadConfig` as it stands (memories, the
@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.geometry import rigid_positions, rigid_sampler
 from lidarflow.models.config import Capabilities
 from lidarflow.predict.baselines import best_rigid_shift
-from lidarflow.predict.sampling import RigidSamplers, rigid_positions
 
 __all__ = ["HeadStepBackend", "supports"]
 
@@ -137,7 +137,6 @@ class HeadStepBackend:
         self._layers = [_weights(m) for m in [*layers, head.out]]
         self._state_channels = head.state_channels
         self._fill = float(_fill_logit())
-        self._samplers = RigidSamplers()
         self._flow_key: tuple[float, ...] | None = None
         self._flow = np.zeros(0, np.float32)
 
@@ -160,7 +159,7 @@ class HeadStepBackend:
         if not self._ego:
             motion = next_motion = None
         if motion is not None:
-            past = self._samplers(motion, h, w)(past)
+            past = rigid_sampler(motion, h, w)(past)
         residual, kept = self._head(maps[0], past)
         nxt = motion if next_motion is None else next_motion
         occupancy = maps[0, 0:1]
@@ -171,7 +170,7 @@ class HeadStepBackend:
         else:
             # The logit and the map it weighs, moved into the next frame by one sampler: the
             # residual's cells coming into view at the fill logit (EgoCompensated.to_next_frame).
-            sampler = self._samplers(nxt, h, w)
+            sampler = rigid_sampler(nxt, h, w)
             both = sampler(np.concatenate([residual - self._fill, occupancy]))
             out[0, 4] = both[0] + self._fill
             moved = np.clip(both[1:2], 0.0, 1.0)

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lidarflow.motion.warp import warp_map
+from lidarflow.geometry import warp_map
 
 __all__ = [
     "LOGIT_LIMIT",
@@ -91,8 +91,8 @@ def moved_last_map(
     split of :meth:`~lidarflow.models.LidarFlowNet.predict_next`; ``O^t`` itself without a flow.
 
     NumPy (the ONNX Predictor runs without PyTorch): ``warp`` is
-    :func:`lidarflow.motion.warp.warp_map` or one that computes the same, faster on a stream
-    (:class:`lidarflow.predict.sampling.FlowWarp`).
+    :func:`lidarflow.geometry.warp_map` or one that computes the same, faster on a stream
+    (:class:`lidarflow.geometry.FlowWarp`).
     """
     if backward_flow is None:
         return np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)

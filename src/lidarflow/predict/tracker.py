@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lidarflow.geometry import cell_to_metric, rigid_moved
 from lidarflow.motion.pacing import paced_motion
-from lidarflow.motion.warp import rigid_moved
 from lidarflow.predict.baselines import Takes
 from lidarflow.predict.carry import Movers, composed_motion
 
@@ -221,12 +221,6 @@ class _Track:
     missed: int = 0
 
 
-def _to_xy(rows_cols: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Cell ``(row, col)`` -> metric-frame ``(x, y)`` in cells (design notes §2)."""
-    rc = np.asarray(rows_cols, np.float64)
-    return np.stack([height - 0.5 - rc[..., 0], width / 2 - 0.5 - rc[..., 1]], axis=-1)
-
-
 class Tracker:
     """The tracking baseline (see the module docstring); a streaming ``Method`` that takes the
     ego motion where a recording has it (without, the sensor is taken to stand still)."""
@@ -352,7 +346,9 @@ class Tracker:
         cfg = self.config
         cells, labels = cluster_labels(moving, cfg.link / self.res)
         groups = [cells[labels == i] for i in range(int(labels.max()) + 1 if len(labels) else 0)]
-        centroids = np.array([_to_xy(g, h, w).mean(axis=0) for g in groups]).reshape(-1, 2)
+        # each cluster's cells (row, col) in the sensor frame (x, y), in cells
+        xy = [np.stack(cell_to_metric(g[:, 0], g[:, 1], h, w), axis=-1) for g in groups]
+        centroids = np.array([p.mean(axis=0) for p in xy]).reshape(-1, 2)
         for track in self._tracks:  # one frame on
             track.state = self._transition @ track.state
             track.covariance = (
