@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import struct
 import tempfile
 import zipfile
 from collections.abc import Callable, Iterable, Iterator
@@ -46,10 +47,12 @@ from lidarflow.scan import BeamGeometry, Scan
 
 __all__ = [
     "LASERSCAN",
+    "MAX_BEAMS",
     "MULTI_ECHO",
     "POSE_TYPES",
     "SCAN_TYPES",
     "TopicInfo",
+    "declared_beams",
     "list_topics",
     "nearest_echoes",
     "open_bag",
@@ -186,6 +189,56 @@ def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
     return out
 
 
+#: The most beams a scan may have. Real 2-D scanners give at most a few thousand per scan (a
+#: SICK LMS 5xx at 0.0833 deg: 3241; a Hokuyo UST-30LX: 1081); a message claiming more is
+#: damaged or crafted, and 10 million beams in a few kB of bz2 would take gigabytes to
+#: rasterize: it is refused before it is decoded (one line, not the OOM killer).
+MAX_BEAMS = 100_000
+
+
+def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:
+    """The beam count a serialised ``LaserScan`` or ``MultiEchoLaserScan`` declares (the
+    length of its ``ranges``), read from the raw message before it is deserialised; ``None``
+    where the bytes are too short to say (deserialising them fails on its own).
+
+    Both types begin alike: a header (ROS 1: ``seq``, stamp, ``frame_id``; ROS 2's CDR: a
+    4-byte encapsulation, stamp, ``frame_id``), seven float32 fields, then ``ranges``' length.
+
+    >>> import struct
+    >>> raw = struct.pack("<III", 0, 0, 0) + struct.pack("<I", 5) + b"laser"
+    >>> declared_beams(raw + bytes(28) + struct.pack("<I", 1081), ros1=True)
+    1081
+    """
+    u32 = struct.Struct("<I")
+    try:
+        if ros1:
+            at = 12  # seq, stamp
+            at += 4 + u32.unpack_from(raw, at)[0]  # frame_id
+        else:
+            big = bytes(raw[:2]) in (b"\x00\x00", b"\x00\x02")  # CDR_BE, PL_CDR_BE
+            u32 = struct.Struct(">I" if big else "<I")
+            at = 8  # stamp, after the encapsulation; CDR aligns from there
+            at += 4 + u32.unpack_from(raw, 4 + at)[0]  # frame_id (with its NUL)
+            at = 4 + (at + 3) // 4 * 4
+        return int(u32.unpack_from(raw, at + 7 * 4)[0])
+    except struct.error:
+        return None
+
+
+def _check_beams(path: Path, topic: str, raw: bytes, conn: Any) -> None:
+    """Refuse a scan message that declares more than :data:`MAX_BEAMS` beams, before anything
+    is allocated for them."""
+    from rosbags.interfaces import ConnectionExtRosbag1
+
+    count = declared_beams(raw, isinstance(conn.ext, ConnectionExtRosbag1))
+    if count is not None and count > MAX_BEAMS:
+        raise BagError(
+            f"{path}: topic {topic}: a scan of {count:,} beams; real scanners give at most a "
+            f"few thousand (lidarflow takes up to {MAX_BEAMS:,}): the bag is damaged or not "
+            "a 2-D laser scan"
+        )
+
+
 def _stamp_ns(msg: Any) -> int:
     stamp = msg.header.stamp
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
@@ -296,6 +349,8 @@ def read_bag(
                 if conn.msgtype == TF_TYPE:
                     tree.add(reader.deserialize(raw, conn.msgtype))
                     continue
+                if conn.topic == scan_topic:
+                    _check_beams(path, scan_topic, raw, conn)
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == pose_topic:
                     body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")

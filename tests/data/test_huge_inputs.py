@@ -1,0 +1,67 @@
+"""Small inputs that would take gigabytes (issue 51) end in one line under a memory limit: a
+scan of millions of beams in a few kB of compressed bag."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_typestore
+
+from lidarflow.data.bags import MAX_BEAMS, declared_beams
+from tests.bagutil import _scan_msg, write_bag, write_ros1_mcap
+from tests.memlimit import GIB, one_line_error, run_limited
+
+#: 10 million beams a scan: 40 MB each, that compress to almost nothing; a half turn
+HUGE = 10_000_000
+INC = 3.0 / HUGE
+
+
+@pytest.mark.parametrize("store", ["ros1", "ros2"])
+@pytest.mark.parametrize("beams", [0, 1081, 123_457])
+def test_declared_beams_reads_the_count_of_a_serialised_scan(store, beams):
+    ts = get_typestore(Stores.ROS1_NOETIC if store == "ros1" else Stores.ROS2_HUMBLE)
+    ser = ts.serialize_ros1 if store == "ros1" else ts.serialize_cdr
+    for frame in ("", "l", "laser", "base_scan_x"):  # every padding of the frame id
+        msg = _scan_msg(ts, np.ones(beams, np.float32), 1, frame=frame)
+        raw = ser(msg, "sensor_msgs/msg/LaserScan")
+        assert declared_beams(raw, ros1=store == "ros1") == beams
+        assert declared_beams(raw[:10], ros1=store == "ros1") is None
+
+
+@pytest.mark.parametrize("store", ["ros1", "ros2"])
+def test_declared_beams_of_a_multi_echo_scan(store):
+    ts = get_typestore(Stores.ROS1_NOETIC if store == "ros1" else Stores.ROS2_HUMBLE)
+    ser = ts.serialize_ros1 if store == "ros1" else ts.serialize_cdr
+    Echoes = ts.types["sensor_msgs/msg/MultiEchoLaserScan"]
+    Echo = ts.types["sensor_msgs/msg/LaserEcho"]
+    scan = _scan_msg(ts, np.ones(7, np.float32), 1, frame="abc")
+    msg = Echoes(
+        header=scan.header, angle_min=0.0, angle_max=0.1, angle_increment=0.01,
+        time_increment=0.0, scan_time=0.1, range_min=0.05, range_max=8.0,
+        ranges=[Echo(echoes=np.full(2, 3.0, np.float32))] * 7, intensities=[],
+    )  # fmt: skip
+    raw = ser(msg, "sensor_msgs/msg/MultiEchoLaserScan")
+    assert declared_beams(raw, ros1=store == "ros1") == 7
+
+
+@pytest.mark.parametrize(
+    ("kind", "command"), [("ros1", "convert"), ("ros2", "evaluate"), ("mcap", "predict")]
+)
+def test_a_scan_of_millions_of_beams_is_one_line_under_a_memory_limit(tmp_path, kind, command):
+    frames = [np.full(HUGE, 3.0, np.float32)] * 3
+    sweep = {"angle_min": -1.5, "angle_max": 1.5, "angle_increment": INC}
+    if kind == "ros1":
+        bag = write_bag(tmp_path / "huge.bag", "ros1", {"/scan": frames}, compression="lz4",
+                        overrides=dict.fromkeys(range(3), sweep))  # fmt: skip
+    elif kind == "ros2":  # a ROS 2 bag folder, each message zstd-compressed
+        bag = write_bag(tmp_path / "huge", "mcap", {"/scan": frames}, compression="message",
+                        overrides=dict.fromkeys(range(3), sweep))  # fmt: skip
+    else:  # a bare MCAP file of ROS 1 messages, zstd-compressed (`mcap convert`'s)
+        bag = write_ros1_mcap(tmp_path / "huge.mcap", frames, compression="zstd",
+                              angle_increment=INC)  # fmt: skip
+    out = {"convert": ["-o", "r.npz"], "predict": ["-o", "p.mcap"], "evaluate": ["--warmup", "1"]}
+    out = out[command]
+    done = run_limited([command, str(bag), *out], tmp_path, limit_bytes=2 * GIB)
+    line = one_line_error(done)
+    assert bag.name in line and "/scan" in line and f"{HUGE:,}" in line
+    assert f"{MAX_BEAMS:,}" in line
