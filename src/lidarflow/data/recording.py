@@ -172,6 +172,14 @@ class Recording:
             occ[at], vis[at] = o, v
         return occ, vis
 
+    def check_maps(self, grid: GridSpec | None = None) -> None:
+        """Rasterize every frame on ``grid`` and keep nothing: a scan that cannot be rasterized
+        is a :class:`RecordingError` now, in the memory of one batch of frames, where
+        :meth:`maps` of the whole recording takes ``2 N H W`` bytes (``convert`` checks so)."""
+        grid = grid or GridSpec()
+        for _ in self._per_geometry(lambda r, g: rasterize_batch(r, g, grid), 0, len(self)):
+            pass
+
     def subcell_maps(
         self, grid: GridSpec | None = None, start: int = 0, stop: int | None = None
     ) -> np.ndarray:
@@ -281,7 +289,7 @@ class Recording:
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
         arrays: dict[str, np.ndarray] = {
-            "ranges": self.ranges.astype(np.float32),
+            "ranges": np.asarray(self.ranges, np.float32),  # no copy where it is float32
             "offsets": self.offsets,
             "angle_min": self.angle_min,
             "angle_increment": self.angle_increment,
