@@ -92,3 +92,45 @@ def test_convert_checks_a_long_recording_a_batch_at_a_time_under_a_memory_limit(
     assert len(back) == 40_000 and back.ranges.dtype == np.float32
     np.testing.assert_array_equal(back.ranges, load_recording(source).ranges)
     assert back.meta["grid"] == {"height": 100, "width": 100, "res": 0.1}
+
+
+def _with_member(source, target, key, header: dict, data: bytes):
+    """``source`` (an .npz) with its array ``key`` replaced by ``header`` and ``data``."""
+    import io
+    import zipfile
+
+    npy = io.BytesIO()
+    np.lib.format.write_array_header_1_0(npy, header)
+    with zipfile.ZipFile(source) as old, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as new:
+        for name in old.namelist():
+            body = npy.getvalue() + data if name == f"{key}.npy" else old.read(name)
+            new.writestr(name, body)
+    return target
+
+
+@pytest.mark.parametrize("command", ["info", "evaluate"])
+def test_a_recording_whose_header_claims_4e12_floats_is_one_line(tmp_path, command):
+    source = _long_recording(20).save(tmp_path / "ok.npz")
+    claim = {"descr": "<f4", "fortran_order": False, "shape": (4_000_000_000_000,)}
+    bad = _with_member(source, tmp_path / "claims.npz", "ranges", claim, bytes(16))
+    done = run_limited([command, str(bad)], tmp_path, limit_bytes=2 * GIB)
+    line = one_line_error(done)
+    assert "claims.npz" in line and "'ranges'" in line and "damaged" in line
+
+
+@pytest.mark.parametrize("dtype", ["<c8", "<U4", "|V8"])
+def test_a_recording_of_complex_ranges_is_one_line(tmp_path, dtype):
+    source = _long_recording(20).save(tmp_path / "ok.npz")
+    ranges = np.full(20 * 19, 3.0, np.complex64).view(np.uint8).tobytes()
+    header = {"descr": dtype, "fortran_order": False, "shape": (len(ranges) // 8,)}
+    bad = _with_member(source, tmp_path / "complex.npz", "ranges", header, ranges)
+    line = one_line_error(run_limited(["info", str(bad)], tmp_path))
+    assert "complex.npz" in line and "'ranges'" in line and "not real numbers" in line
+
+
+def test_an_array_whose_member_holds_more_than_its_header_says_is_one_line(tmp_path):
+    source = _long_recording(20).save(tmp_path / "ok.npz")
+    header = {"descr": "<f4", "fortran_order": False, "shape": (4,)}
+    bad = _with_member(source, tmp_path / "long.npz", "offsets", header, bytes(400))
+    line = one_line_error(run_limited(["info", str(bad)], tmp_path))
+    assert "'offsets'" in line and "damaged" in line

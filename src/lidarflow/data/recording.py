@@ -9,6 +9,7 @@ JSON; extra per-frame arrays (the simulator's ground truth, for instance) travel
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -312,6 +313,55 @@ class Recording:
 #: How every zip archive (an .npz is one) begins: a member, or for an empty one its directory.
 _ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")
 
+#: Deflate cannot expand data more than 1032-fold; a member claiming more (plus a header's
+#: worth) than this many times its compressed size lies about its size.
+_DEFLATE_MOST = 1100
+
+
+def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
+    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it: one whose
+    header declares more (or fewer) values than its member holds (a damaged or crafted file:
+    NumPy allocates the declared shape first, 14.6 TiB for a header claiming 4e12 floats), and
+    one of values that are no real numbers (complex, text, records). Python objects are left
+    to :func:`_read_arrays`, which says so."""
+    if f"{key}.npy" not in archive.namelist():
+        raise RecordingError(f"{path}: not a lidarflow recording (its member {key!r} is no array)")
+    info = archive.getinfo(f"{key}.npy")
+    stored = info.compress_size * _DEFLATE_MOST + 4096
+    if info.compress_type == zipfile.ZIP_STORED:
+        stored = info.compress_size
+    if info.file_size > stored:
+        raise RecordingError(
+            f"{path}: a damaged recording (its array {key!r} claims {info.file_size:,} bytes "
+            f"in {info.compress_size:,} compressed); convert its source again"
+        )
+    with archive.open(info) as member:
+        version = np.lib.format.read_magic(member)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+        else:  # 3.0 is for record field names beyond latin-1: no array of a recording
+            raise RecordingError(
+                f"{path}: not a lidarflow recording (its array {key!r} is in .npy format "
+                f"{version[0]}.{version[1]}, which lidarflow does not write)"
+            )
+        header = member.tell()
+    if dtype.hasobject:
+        return
+    if dtype.kind not in "biuf":
+        raise RecordingError(
+            f"{path}: not a lidarflow recording (its array {key!r} holds {dtype} values, not "
+            "real numbers)"
+        )
+    declared = math.prod(shape) * dtype.itemsize
+    if declared != info.file_size - header:
+        raise RecordingError(
+            f"{path}: a damaged recording (its array {key!r} declares shape {shape} of {dtype}, "
+            f"{declared:,} bytes, and holds {info.file_size - header:,}); convert its source "
+            "again"
+        )
+
 
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
@@ -330,6 +380,7 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as z:
             data = {}
             for key in z.files:
+                _check_member(path, z.zip, key)
                 try:
                     data[key] = z[key]
                 except ValueError as err:
