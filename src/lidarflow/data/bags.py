@@ -18,6 +18,7 @@ much in ``meta["recovered"]``.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import struct
 import tempfile
@@ -362,7 +363,7 @@ def read_bag(
                 if conn.msgtype == MULTI_ECHO:
                     ranges = nearest_echoes(msg.ranges, float(msg.range_min))
                 else:
-                    ranges = np.asarray(msg.ranges, dtype=np.float32)
+                    ranges = np.array(msg.ranges, dtype=np.float32)  # not a view of the message
                 if ranges.size == 0:
                     continue  # an empty scan carries nothing; counted below
                 try:
@@ -408,10 +409,12 @@ def read_bag(
     # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
     # copies arrive together; the same scan at the same stamp a session later is a simulator
     # replaying itself after its clock was reset (data.sessions), and is kept.
+    # (a digest of the ranges: their bytes as keys held a second copy of every scan)
     seen: dict[tuple[int, BeamGeometry, bytes], int] = {}
     unique: list[tuple[Scan, int]] = []
     for scan, log_time in zip(scans, log_times, strict=True):
-        key = (scan.stamp_ns, scan.geometry, scan.ranges.tobytes())
+        digest = hashlib.blake2b(np.ascontiguousarray(scan.ranges), digest_size=16).digest()
+        key = (scan.stamp_ns, scan.geometry, digest)
         if key not in seen or abs(int(log_time) - seen[key]) > _COPIES_WITHIN_NS:
             unique.append((scan, log_time))
             seen[key] = int(log_time)
