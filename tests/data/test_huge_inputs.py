@@ -134,3 +134,18 @@ def test_an_array_whose_member_holds_more_than_its_header_says_is_one_line(tmp_p
     bad = _with_member(source, tmp_path / "long.npz", "offsets", header, bytes(400))
     line = one_line_error(run_limited(["info", str(bad)], tmp_path))
     assert "'offsets'" in line and "damaged" in line
+
+
+def test_a_recording_of_millions_of_beams_a_scan_is_one_line_under_a_memory_limit(tmp_path):
+    from lidarflow.data.recording import Recording
+
+    n = 3
+    source = Recording(
+        ranges=np.full(n * HUGE, 3.0, np.float32), offsets=np.arange(n + 1) * HUGE,
+        angle_min=np.full(n, -1.5), angle_increment=np.full(n, INC), range_min=np.full(n, 0.05),
+        range_max=np.full(n, 8.0), stamps_ns=np.arange(n) * 10**8, meta={"source": "huge"},
+    ).save(tmp_path / "huge.npz")  # fmt: skip
+    argv = ["evaluate", str(source), "--warmup", "1", "--baselines-only"]
+    done = run_limited(argv, tmp_path, 2 * GIB)
+    line = one_line_error(done)
+    assert "huge.npz" in line and f"{HUGE:,} beams" in line

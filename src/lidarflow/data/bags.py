@@ -44,7 +44,7 @@ from lidarflow.data.topics import (
     choose_scan_topic,
 )
 from lidarflow.errors import BagError, ScanError
-from lidarflow.scan import BeamGeometry, Scan
+from lidarflow.scan import MAX_BEAMS, BeamGeometry, Scan
 
 __all__ = [
     "LASERSCAN",
@@ -188,13 +188,6 @@ def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
     found = np.bincount(beam[valid], minlength=len(per_beam)) > 0
     out[found] = nearest[found]
     return out
-
-
-#: The most beams a scan may have. Real 2-D scanners give at most a few thousand per scan (a
-#: SICK LMS 5xx at 0.0833 deg: 3241; a Hokuyo UST-30LX: 1081); a message claiming more is
-#: damaged or crafted, and 10 million beams in a few kB of bz2 would take gigabytes to
-#: rasterize: it is refused before it is decoded (one line, not the OOM killer).
-MAX_BEAMS = 100_000
 
 
 def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from lidarflow.data.sessions import sliced_clock_jumps
 from lidarflow.errors import RecordingError, ScanError
-from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
+from lidarflow.scan import MAX_BEAMS, BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
 
 T = TypeVar("T")
 
@@ -415,6 +415,13 @@ def load_recording(path: str | Path) -> Recording:
             f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
         )
     extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
+    beams = np.diff(data["offsets"].astype(np.int64))
+    if beams.size and beams.max() > MAX_BEAMS:
+        frame = int(np.argmax(beams))
+        raise RecordingError(
+            f"{path}: scan {frame} has {int(beams[frame]):,} beams; real scanners give at most "
+            f"a few thousand (lidarflow takes up to {MAX_BEAMS:,}): the recording is damaged"
+        )
     return Recording(
         ranges=data["ranges"],
         offsets=data["offsets"].astype(np.int64),
