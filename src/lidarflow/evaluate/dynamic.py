@@ -153,7 +153,7 @@ def world_counts(
             counts = [np.concatenate([c, np.zeros(room - len(c), c.dtype)]) for c in counts]
         for i, mask in enumerate(masks(t)):
             if len(counts) <= i:
-                counts.append(np.zeros(cells.size, np.int64))
+                counts.append(np.zeros(cells.size, np.int32))  # frames: well under 2**31
             hit = np.unique(where[known & np.asarray(mask, bool)])
             counts[i][hit] += 1
     return [c[: cells.size] for c in counts]
