@@ -239,17 +239,19 @@ def write_ros1_mcap(
     mount: tuple[float, float, float] | None = None,
     compression: str | None = "",
     summary: bool = False,
+    angle_increment: float = 0.01,
 ) -> Path:
     """The MCAP file that ``mcap convert`` makes of :func:`write_bag`'s ROS 1 bag with the
     same arguments (one ``/scan`` topic): ROS 1 messages, ``ros1msg`` schemas, written in one
     chunk (``compression`` "", "lz4" or "zstd") or, with ``compression=None``, unchunked; with
     ``summary``, followed by a summary section (the schemas and channels again and a
-    Statistics record) as ``mcap`` writes one."""
+    Statistics record) as ``mcap`` writes one. The scans' beams are ``angle_increment`` apart."""
     ts = get_typestore(Stores.ROS1_NOETIC)
     t0, period = 1_700_000_000 * 10**9, int(1e9 / rate_hz)
     messages: list[tuple[str, str, int, object]] = [
         ("/scan", "sensor_msgs/msg/LaserScan", t0 + i * period,
-         _scan_msg(ts, np.asarray(r), t0 + i * period)) for i, r in enumerate(scans)
+         _scan_msg(ts, np.asarray(r), t0 + i * period, inc=angle_increment))
+        for i, r in enumerate(scans)
     ]  # fmt: skip
     if odom:
         messages += [

@@ -31,6 +31,7 @@ from lidarflow.errors import ScanError
 from lidarflow.geometry import cell_to_metric
 
 __all__ = [
+    "MAX_BEAMS",
     "MAX_GRID_CELLS",
     "BeamGeometry",
     "GridSpec",
@@ -55,6 +56,12 @@ UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
 #: many take ~4.6 GB, what a laptop has to spare; a larger grid is refused before anything is
 #: allocated rather than failing deep inside with a MemoryError (or the kernel's OOM killer).
 MAX_GRID_CELLS = 2048 * 2048
+
+#: The most beams a scan read from a file may have. Real 2-D scanners give at most a few
+#: thousand per scan (a SICK LMS 5xx at 0.0833 deg: 3241; a Hokuyo UST-30LX: 1081); a scan
+#: claiming more is damaged or crafted, and 10 million beams, a few kB compressed, take
+#: gigabytes to rasterize: bags and recordings holding one are refused before it is decoded.
+MAX_BEAMS = 100_000
 _MAX_SIDE = math.isqrt(MAX_GRID_CELLS)
 
 

@@ -44,7 +44,7 @@ def convert(
     refuse_existing(output, force=force, inputs=[input])
     recording = load_input(input, topic, odom_topic)
     spec = GridSpec(grid, grid, res)
-    recording.maps(spec)  # fail now, not in training, if any scan cannot be rasterized
+    recording.check_maps(spec)  # fail now, not in training, if any scan cannot be rasterized
     recording.meta["grid"] = spec.to_dict()
     path = recording.save(output)
     poses = "with poses" if recording.has_poses else "no poses"

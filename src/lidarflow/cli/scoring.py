@@ -141,7 +141,7 @@ def evaluate(
     something moved through). A model wins when its F1 beats the best baseline's, its
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
-    from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
+    from lidarflow.cli.useless import warn_nothing_scored, warn_pose_jumps, warn_unknown_beams
     from lidarflow.evaluate.report import (
         format_comparison,
         format_peer_table,
@@ -177,6 +177,7 @@ def evaluate(
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, horizon)
         warn_unknown_beams(path, recording)
+        warn_pose_jumps(path, recording)
         named.append((str(path), recording))
     methods, config = methods_and_config(
         sources,

@@ -74,7 +74,12 @@ def choose_offset(
 
     from lidarflow.atomic import atomic_path, write_text
     from lidarflow.cli.scoring import _check_length
-    from lidarflow.cli.useless import nothing_scored, warn_nothing_scored, warn_unknown_beams
+    from lidarflow.cli.useless import (
+        nothing_scored,
+        warn_nothing_scored,
+        warn_pose_jumps,
+        warn_unknown_beams,
+    )
     from lidarflow.errors import EvaluateError, ModelError
     from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.offsets import choose_offset as choose
@@ -99,6 +104,7 @@ def choose_offset(
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, 1)
         warn_unknown_beams(path, recording)
+        warn_pose_jumps(path, recording)
         named.append((str(path), recording))
     with tempfile.TemporaryDirectory() as tmp:
         folders: dict[float, Path] = {}

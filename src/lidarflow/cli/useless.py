@@ -30,6 +30,23 @@ def warn_unknown_beams(path: str | Path, recording: Any) -> None:
         )
 
 
+def warn_pose_jumps(path: str | Path, recording: Any) -> None:
+    """One line on stderr where ``recording``'s poses jump further between two scans than a
+    robot drives (:func:`lidarflow.motion.odometry.pose_jumps`)."""
+    from lidarflow.motion.odometry import MAX_SPEED, pose_jumps
+
+    jumps = pose_jumps(recording.poses, recording.stamps_ns)
+    if jumps:
+        frame, metres = jumps[0]
+        times = "once" if len(jumps) == 1 else f"{len(jumps)} times"
+        typer.echo(
+            f"warning: {Path(path).name}: its poses jump {times} faster than {MAX_SPEED:g} m/s "
+            f"between scans (first {metres:g} m before frame {frame}): odometry glitches, "
+            "which misplace those frames in the world frame the mover region is counted in",
+            err=True,
+        )
+
+
 def nothing_scored(entry: dict[str, Any]) -> bool:
     """Whether a recording's report ``entry`` scored nothing: no frame, or no occupied cell in
     any scored target frame (every F1 then 0/0)."""

@@ -18,9 +18,11 @@ much in ``meta["recovered"]``.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
 import shutil
+import struct
 import tempfile
 import zipfile
 from collections.abc import Callable, Iterable, Iterator
@@ -47,14 +49,16 @@ from lidarflow.data.topics import (
     choose_scan_topic,
 )
 from lidarflow.errors import BagError, ScanError
-from lidarflow.scan import BeamGeometry, Scan
+from lidarflow.scan import MAX_BEAMS, BeamGeometry, Scan
 
 __all__ = [
     "LASERSCAN",
+    "MAX_BEAMS",
     "MULTI_ECHO",
     "POSE_TYPES",
     "SCAN_TYPES",
     "TopicInfo",
+    "declared_beams",
     "list_topics",
     "nearest_echoes",
     "open_bag",
@@ -262,6 +266,49 @@ def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
     return out
 
 
+def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:
+    """The beam count a serialised ``LaserScan`` or ``MultiEchoLaserScan`` declares (the
+    length of its ``ranges``), read from the raw message before it is deserialised; ``None``
+    where the bytes are too short to say (deserialising them fails on its own).
+
+    Both types begin alike: a header (ROS 1: ``seq``, stamp, ``frame_id``; ROS 2's CDR: a
+    4-byte encapsulation, stamp, ``frame_id``), seven float32 fields, then ``ranges``' length.
+
+    >>> import struct
+    >>> raw = struct.pack("<III", 0, 0, 0) + struct.pack("<I", 5) + b"laser"
+    >>> declared_beams(raw + bytes(28) + struct.pack("<I", 1081), ros1=True)
+    1081
+    """
+    u32 = struct.Struct("<I")
+    try:
+        if ros1:
+            at = 12  # seq, stamp
+            at += 4 + u32.unpack_from(raw, at)[0]  # frame_id
+        else:
+            big = bytes(raw[:2]) in (b"\x00\x00", b"\x00\x02")  # CDR_BE, PL_CDR_BE
+            u32 = struct.Struct(">I" if big else "<I")
+            at = 8  # stamp, after the encapsulation; CDR aligns from there
+            at += 4 + u32.unpack_from(raw, 4 + at)[0]  # frame_id (with its NUL)
+            at = 4 + (at + 3) // 4 * 4
+        return int(u32.unpack_from(raw, at + 7 * 4)[0])
+    except struct.error:
+        return None
+
+
+def _check_beams(path: Path, topic: str, raw: bytes, conn: Any) -> None:
+    """Refuse a scan message that declares more than :data:`MAX_BEAMS` beams, before anything
+    is allocated for them."""
+    from rosbags.interfaces import ConnectionExtRosbag1
+
+    count = declared_beams(raw, isinstance(conn.ext, ConnectionExtRosbag1))
+    if count is not None and count > MAX_BEAMS:
+        raise BagError(
+            f"{path}: topic {topic}: a scan of {count:,} beams; real scanners give at most a "
+            f"few thousand (lidarflow takes up to {MAX_BEAMS:,}): the bag is damaged or not "
+            "a 2-D laser scan"
+        )
+
+
 def _stamp_ns(msg: Any) -> int:
     stamp = msg.header.stamp
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
@@ -372,6 +419,8 @@ def read_bag(
                 if conn.msgtype == TF_TYPE:
                     tree.add(reader.deserialize(raw, conn.msgtype))
                     continue
+                if conn.topic == scan_topic:
+                    _check_beams(path, scan_topic, raw, conn)
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == pose_topic:
                     body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
@@ -383,7 +432,7 @@ def read_bag(
                 if conn.msgtype == MULTI_ECHO:
                     ranges = nearest_echoes(msg.ranges, float(msg.range_min))
                 else:
-                    ranges = np.asarray(msg.ranges, dtype=np.float32)
+                    ranges = np.array(msg.ranges, dtype=np.float32)  # not a view of the message
                 if ranges.size == 0:
                     continue  # an empty scan carries nothing; counted below
                 try:
@@ -429,10 +478,12 @@ def read_bag(
     # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
     # copies arrive together; the same scan at the same stamp a session later is a simulator
     # replaying itself after its clock was reset (data.sessions), and is kept.
+    # (a digest of the ranges: their bytes as keys held a second copy of every scan)
     seen: dict[tuple[int, BeamGeometry, bytes], int] = {}
     unique: list[tuple[Scan, int]] = []
     for scan, log_time in zip(scans, log_times, strict=True):
-        key = (scan.stamp_ns, scan.geometry, scan.ranges.tobytes())
+        digest = hashlib.blake2b(np.ascontiguousarray(scan.ranges), digest_size=16).digest()
+        key = (scan.stamp_ns, scan.geometry, digest)
         if key not in seen or abs(int(log_time) - seen[key]) > _COPIES_WITHIN_NS:
             unique.append((scan, log_time))
             seen[key] = int(log_time)

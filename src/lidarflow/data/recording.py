@@ -9,6 +9,7 @@ JSON; extra per-frame arrays (the simulator's ground truth, for instance) travel
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ import numpy as np
 from lidarflow.data.inputs import check_regular
 from lidarflow.data.sessions import sliced_clock_jumps
 from lidarflow.errors import RecordingError, ScanError
-from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
+from lidarflow.scan import MAX_BEAMS, BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
 
 T = TypeVar("T")
 
@@ -173,6 +174,14 @@ class Recording:
             occ[at], vis[at] = o, v
         return occ, vis
 
+    def check_maps(self, grid: GridSpec | None = None) -> None:
+        """Rasterize every frame on ``grid`` and keep nothing: a scan that cannot be rasterized
+        is a :class:`RecordingError` now, in the memory of one batch of frames, where
+        :meth:`maps` of the whole recording takes ``2 N H W`` bytes (``convert`` checks so)."""
+        grid = grid or GridSpec()
+        for _ in self._per_geometry(lambda r, g: rasterize_batch(r, g, grid), 0, len(self)):
+            pass
+
     def subcell_maps(
         self, grid: GridSpec | None = None, start: int = 0, stop: int | None = None
     ) -> np.ndarray:
@@ -282,7 +291,7 @@ class Recording:
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
         arrays: dict[str, np.ndarray] = {
-            "ranges": self.ranges.astype(np.float32),
+            "ranges": np.asarray(self.ranges, np.float32),  # no copy where it is float32
             "offsets": self.offsets,
             "angle_min": self.angle_min,
             "angle_increment": self.angle_increment,
@@ -305,6 +314,55 @@ class Recording:
 #: How every zip archive (an .npz is one) begins: a member, or for an empty one its directory.
 _ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")
 
+#: Deflate cannot expand data more than 1032-fold; a member claiming more (plus a header's
+#: worth) than this many times its compressed size lies about its size.
+_DEFLATE_MOST = 1100
+
+
+def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
+    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it: one whose
+    header declares more (or fewer) values than its member holds (a damaged or crafted file:
+    NumPy allocates the declared shape first, 14.6 TiB for a header claiming 4e12 floats), and
+    one of values that are no real numbers (complex, text, records). Python objects are left
+    to :func:`_read_arrays`, which says so."""
+    if f"{key}.npy" not in archive.namelist():
+        raise RecordingError(f"{path}: not a lidarflow recording (its member {key!r} is no array)")
+    info = archive.getinfo(f"{key}.npy")
+    stored = info.compress_size * _DEFLATE_MOST + 4096
+    if info.compress_type == zipfile.ZIP_STORED:
+        stored = info.compress_size
+    if info.file_size > stored:
+        raise RecordingError(
+            f"{path}: a damaged recording (its array {key!r} claims {info.file_size:,} bytes "
+            f"in {info.compress_size:,} compressed); convert its source again"
+        )
+    with archive.open(info) as member:
+        version = np.lib.format.read_magic(member)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+        else:  # 3.0 is for record field names beyond latin-1: no array of a recording
+            raise RecordingError(
+                f"{path}: not a lidarflow recording (its array {key!r} is in .npy format "
+                f"{version[0]}.{version[1]}, which lidarflow does not write)"
+            )
+        header = member.tell()
+    if dtype.hasobject:
+        return
+    if dtype.kind not in "biuf":
+        raise RecordingError(
+            f"{path}: not a lidarflow recording (its array {key!r} holds {dtype} values, not "
+            "real numbers)"
+        )
+    declared = math.prod(shape) * dtype.itemsize
+    if declared != info.file_size - header:
+        raise RecordingError(
+            f"{path}: a damaged recording (its array {key!r} declares shape {shape} of {dtype}, "
+            f"{declared:,} bytes, and holds {info.file_size - header:,}); convert its source "
+            "again"
+        )
+
 
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
@@ -323,6 +381,7 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as z:
             data = {}
             for key in z.files:
+                _check_member(path, z.zip, key)
                 try:
                     data[key] = z[key]
                 except ValueError as err:
@@ -358,6 +417,13 @@ def load_recording(path: str | Path) -> Recording:
             f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
         )
     extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
+    beams = np.diff(data["offsets"].astype(np.int64))
+    if beams.size and beams.max() > MAX_BEAMS:
+        frame = int(np.argmax(beams))
+        raise RecordingError(
+            f"{path}: scan {frame} has {int(beams[frame]):,} beams; real scanners give at most "
+            f"a few thousand (lidarflow takes up to {MAX_BEAMS:,}): the recording is damaged"
+        )
     return Recording(
         ranges=data["ranges"],
         offsets=data["offsets"].astype(np.int64),

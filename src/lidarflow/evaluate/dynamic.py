@@ -10,13 +10,16 @@ held a moving object in some frame.
 
 Counts are taken in the world frame where the recording has poses (the true ones of a
 simulated recording, else its odometry): every map cell's centre is moved by its frame's pose
-into a fixed grid of the same resolution large enough for the whole trajectory, counted there,
-and each frame's region is read back at its own cells' centres. A platform standing still has
-constant poses, so this is the sensor frame; a recording without poses is counted in the sensor
-frame as if it stood still (a limitation: a moving recording without odometry gets no
+into a fixed world grid of the same resolution, counted there, and each frame's region is read
+back at its own cells' centres. The world grid is held in tiles of :data:`TILE` x :data:`TILE`
+cells, each allocated where a frame first falls: a drive of kilometres, or one odometry glitch
+to a kilometre away, costs the tiles its scans cover, not its bounding box. A platform standing
+still has constant poses, so this is the sensor frame; a recording without poses is counted in
+the sensor frame as if it stood still (a limitation: a moving recording without odometry gets no
 registration; its walls smear and some of them read as dynamic). A frame whose pose is unknown
-is not counted and has an empty region. Where two map cells of a frame fall into one world cell
-(a turned frame, nearest cell) the world cell counts once for that frame.
+is not counted and has an empty region (one further than :data:`FARTHEST` from the origin
+alike). Where two map cells of a frame fall into one world cell (a turned frame, nearest cell)
+the world cell counts once for that frame.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from lidarflow.scan import GridSpec
 
 __all__ = [
     "SHARE",
+    "TILE",
     "WorldCells",
     "dynamic_cells",
     "frame_region",
@@ -40,6 +44,15 @@ __all__ = [
 
 #: A cell is dynamic when occupied in under this share of the frames that saw it.
 SHARE = 0.05
+
+#: Cells a side of one tile of the world grid (a power of two): 6.4 m at 0.1 m, so that a
+#: 10 m map covers a few tiles and a tile left mostly empty costs little (32 KiB of counts).
+TILE = 64
+_SHIFT = TILE.bit_length() - 1
+
+#: Poses further than this from the origin (metres) are no place a robot drove (the Earth's
+#: circumference is 4e7 m) and read as unknown: cell indices from them would lose all precision.
+FARTHEST = 1e9
 
 
 def dynamic_cells(occupied: np.ndarray, seen: np.ndarray, share: float = SHARE) -> np.ndarray:
@@ -57,11 +70,13 @@ def dynamic_cells(occupied: np.ndarray, seen: np.ndarray, share: float = SHARE) 
 
 
 class WorldCells:
-    """Where each cell of a frame's map falls in a fixed grid covering every frame: flat
-    indices ``(H, W)`` into :attr:`size` cells, ``-1`` for a frame of unknown pose.
+    """Where each cell of a frame's map falls in a fixed world grid: flat indices ``(H, W)``
+    into :attr:`size` cells, ``-1`` for a frame of unknown pose.
 
     ``poses`` ``(N, 3)`` ``(x, y, yaw)`` of the sensor in a fixed frame (metres, radians; NaN
-    unknown) or ``None``: the sensor frame, each cell its own.
+    unknown) or ``None``: the sensor frame, each cell its own. With poses, the world grid is
+    tiled (see the module): a frame's first call allocates the tiles its cells fall in, and
+    :attr:`size` grows by them; later calls give the same indices.
     """
 
     def __init__(self, grid: GridSpec, poses: np.ndarray | None, frames: int) -> None:
@@ -74,18 +89,24 @@ class WorldCells:
         self.poses = None if poses is None else np.asarray(poses, np.float64)
         if self.poses is not None and self.poses.shape != (frames, 3):
             raise ValueError(f"poses must be ({frames}, 3), got {self.poses.shape}")
+        if self.poses is not None:
+            with np.errstate(invalid="ignore"):
+                far = ~(np.abs(self.poses[:, :2]) <= FARTHEST).all(axis=1)
+            self.poses = np.where(far[:, None], np.nan, self.poses)
         known = None if self.poses is None else self.poses[np.isfinite(self.poses).all(axis=1)]
+        self._tiles: dict[tuple[int, int], int] = {}  # tile (row, column) -> its slot
         if known is None or not len(known):
-            self.poses, self.shape = None, (h, w)
+            self.poses = None
             return
         reach = float(np.hypot(h * res, w / 2 * res)) + 2 * res
         self._low = known[:, :2].min(axis=0) - reach
-        high = known[:, :2].max(axis=0) + reach
-        self.shape = tuple(int(v) for v in np.ceil((high - self._low) / res))
 
     @property
     def size(self) -> int:
-        return int(np.prod(self.shape))
+        """The world cells allocated so far (all of them: the map's, without poses)."""
+        if self.poses is None:
+            return self.grid.height * self.grid.width
+        return len(self._tiles) * TILE * TILE
 
     def __call__(self, t: int) -> np.ndarray:
         h, w = self.grid.shape
@@ -99,7 +120,22 @@ class WorldCells:
         wy = py + s * self._x + c * self._y
         i = np.floor((wx - self._low[0]) / self.grid.res).astype(np.int64)
         j = np.floor((wy - self._low[1]) / self.grid.res).astype(np.int64)
-        return i * self.shape[1] + j
+        return self._slots(i >> _SHIFT, j >> _SHIFT) * (TILE * TILE) + (
+            (i & (TILE - 1)) * TILE + (j & (TILE - 1))
+        )
+
+    def _slots(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The slot of each cell's tile (``rows``, ``cols``: tile coordinates), allocating
+        the tiles not met before in the order met."""
+        r0, c0 = int(rows.min()), int(cols.min())
+        span = int(cols.max()) - c0 + 1
+        key = (rows - r0) * span + (cols - c0)
+        present = np.flatnonzero(np.bincount(key.ravel()))
+        table = np.zeros(int(key.max()) + 1, np.int64)
+        for k in present.tolist():
+            tile = (r0 + k // span, c0 + k % span)
+            table[k] = self._tiles.setdefault(tile, len(self._tiles))
+        return table[key]
 
 
 def world_counts(
@@ -107,17 +143,20 @@ def world_counts(
 ) -> list[np.ndarray]:
     """For each of the bool maps ``masks(t)`` gives per frame (the same number every frame),
     the number of frames in which each world cell of ``cells`` was ``True`` (flat,
-    ``cells.size``)."""
+    ``cells.size`` once every frame is counted)."""
     counts: list[np.ndarray] = []
     for t in range(cells.frames):
         where = cells(t)
         known = where >= 0
+        if counts and len(counts[0]) < cells.size:  # new tiles: room for twice as many
+            room = max(cells.size, 2 * len(counts[0]))
+            counts = [np.concatenate([c, np.zeros(room - len(c), c.dtype)]) for c in counts]
         for i, mask in enumerate(masks(t)):
             if len(counts) <= i:
-                counts.append(np.zeros(cells.size, np.int64))
+                counts.append(np.zeros(cells.size, np.int32))  # frames: well under 2**31
             hit = np.unique(where[known & np.asarray(mask, bool)])
             counts[i][hit] += 1
-    return counts
+    return [c[: cells.size] for c in counts]
 
 
 def frame_region(dynamic: np.ndarray, cells: WorldCells) -> Callable[[int], np.ndarray]:

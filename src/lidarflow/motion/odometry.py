@@ -21,7 +21,21 @@ import numpy as np
 
 from lidarflow.geometry import transform_cells
 
-__all__ = ["OdometryCheck", "cells_in_new_frame", "metres_to_cells", "relative_motions"]
+__all__ = [
+    "MAX_SPEED",
+    "OdometryCheck",
+    "cells_in_new_frame",
+    "metres_to_cells",
+    "pose_jumps",
+    "relative_motions",
+]
+
+#: Faster than this (m/s) from one scan's pose to the next, the pose jumped: no platform that
+#: carries a 2-D scanner drives so fast (a car on a motorway, ~40 m/s). An odometry glitch, or
+#: a localisation that relocated itself.
+MAX_SPEED = 50.0
+#: A pose may move this far (m) however close the stamps (two scans at one stamp, jitter).
+_JUMP_SLACK = 1.0
 
 
 def relative_motions(
@@ -55,6 +69,28 @@ def relative_motions(
     motions[1:][ok] = rel[ok]
     known[1:] = ok
     return motions, known
+
+
+def pose_jumps(
+    poses: np.ndarray | None, stamps_ns: np.ndarray, max_speed: float = MAX_SPEED
+) -> list[tuple[int, float]]:
+    """``(frame, metres)`` for each frame whose pose is further from the last known one before
+    it than ``max_speed`` (m/s) drives in the time between their stamps (plus 1 m); frames of
+    unknown pose are skipped.
+
+    >>> stamps = np.arange(4) * 100_000_000  # 10 Hz
+    >>> pose_jumps(np.array([[0, 0, 0], [0.1, 0, 0], [1000, 1000, 0], [1000.1, 1000, 0]]), stamps)
+    [(2, 1414.1)]
+    """
+    if poses is None or len(poses) < 2:
+        return []
+    poses = np.asarray(poses, np.float64)
+    known = np.flatnonzero(np.isfinite(poses).all(axis=1))
+    a, b = known[:-1], known[1:]
+    metres = np.hypot(*(poses[b, :2] - poses[a, :2]).T)
+    seconds = np.maximum(np.asarray(stamps_ns, np.int64)[b] - stamps_ns[a], 0) / 1e9
+    jumped = metres > max_speed * seconds + _JUMP_SLACK
+    return [(int(t), round(float(d), 1)) for t, d in zip(b[jumped], metres[jumped], strict=True)]
 
 
 def metres_to_cells(motions: np.ndarray, res: float) -> np.ndarray:

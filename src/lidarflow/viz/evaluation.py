@@ -25,6 +25,7 @@ from lidarflow.evaluate.stream import (
     other_recorded_grid,
 )
 from lidarflow.flowcolor import flow_to_rgb
+from lidarflow.motion.odometry import pose_jumps
 from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 from lidarflow.viz.html import write_html_report
@@ -200,6 +201,10 @@ def recording_notes(recording: Recording, grid: GridSpec) -> dict[str, Any]:
     gaps = find_gaps(recording)
     if gaps:  # steps not scored: the frame after a gap is not the next scan
         notes["gaps_not_scored"] = [{"before_frame": i, "seconds": round(s, 3)} for i, s in gaps]
+    jumps = pose_jumps(recording.poses, recording.stamps_ns)
+    if jumps:  # odometry glitches: the mover region is counted in the world by these poses
+        notes["pose_jumps"] = len(jumps)
+        notes["first_pose_jumps"] = [{"before_frame": t, "metres": d} for t, d in jumps[:10]]
     recorded = other_recorded_grid(recording, grid)
     # a real recording is rasterized on any grid alike; a simulated one's ground truth
     # was made on its own grid and is not scored on another
