@@ -31,6 +31,7 @@ from lidarflow.errors import ScanError
 
 __all__ = [
     "MAX_GRID_CELLS",
+    "MAX_RES",
     "BeamGeometry",
     "GridSpec",
     "Scan",
@@ -55,6 +56,9 @@ UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
 #: allocated rather than failing deep inside with a MemoryError (or the kernel's OOM killer).
 MAX_GRID_CELLS = 2048 * 2048
 _MAX_SIDE = math.isqrt(MAX_GRID_CELLS)
+#: The coarsest cell, in metres: a 2-D LiDAR sees tens of metres, so a coarser cell maps the
+#: whole scan into a few cells (and a cell of 1e300 m overflows the arithmetic of rasterizing).
+MAX_RES = 10.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,11 @@ class GridSpec:
             )
         if not (self.res > 0 and math.isfinite(self.res)):
             raise ScanError(f"grid resolution must be a positive number of metres, got {self.res}")
+        if self.res > MAX_RES:
+            raise ScanError(
+                f"a cell size (--res) of {self.res:g} m is too coarse: at most {MAX_RES:g} m "
+                "(a 2-D LiDAR's whole scan in a few cells)"
+            )
 
     @property
     def shape(self) -> tuple[int, int]:
