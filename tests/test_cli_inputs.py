@@ -3,6 +3,8 @@ an internal error, not gigabytes asked of PyTorch, not an exit 0 with nonsense).
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
@@ -35,3 +37,57 @@ def test_a_cell_size_beyond_reason_is_refused(argv, short, tmp_path, capsys):
     assert code == 1 and "--res" in line and "1e+300 m" in line, line
     assert f"at most {MAX_RES:g} m" in line, line
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_negative_seed_is_refused(short, tmp_path, capsys):
+    code, _, err = run(["simulate", "--frames", "3", "-o", str(tmp_path / "s.npz"), "--seed", "-1"],
+                       capsys)  # fmt: skip
+    assert code == 2 and "--seed" in err and "internal error" not in err, err
+    argv = ["train", str(short), "-o", str(tmp_path / "run"), "--seed", "-1", "--epochs", "1"]
+    code, _, err = run(argv, capsys)
+    line = one_line(err)
+    assert code == 1 and "runtime.seed (--seed)" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["short.npz"]
+
+
+@pytest.mark.parametrize("offset", ["nan", "inf", "-inf", "1e9"])
+def test_choose_offset_refuses_an_offset_that_is_no_number(offset, short, tmp_path, capsys):
+    out = tmp_path / "chosen"
+    code, _, err = run(["choose-offset", str(short), "-o", str(out), "--offset", offset], capsys)
+    line = one_line(err)
+    assert code == 1 and "--offset" in line and "[-20, 20]" in line, line
+    assert not out.exists()
+
+
+def _edit_card(folder, edit) -> None:
+    card = json.loads((folder / "model.json").read_text())
+    edit(card)
+    (folder / "model.json").write_text(json.dumps(card))
+
+
+@pytest.mark.parametrize(
+    ("edit", "says"),
+    [
+        (
+            lambda c: c["model_kwargs"].update(occupancy_head=True, head_hidden_channels=1e9),
+            "head_hidden_channels must be a whole number in [0, 1024]",
+        ),
+        (
+            lambda c: c["model_kwargs"].update(hidden_channels=10**6),
+            "hidden_channels must be a whole number in [1, 1024]",
+        ),
+        (lambda c: c["model_kwargs"].update(dilations=[1, 2, 1e6]), "dilations must be"),
+        (lambda c: c["model_kwargs"].update(kernel_size=float("nan")), "kernel_size must be"),
+        (lambda c: c["decision"].update(offset=float("nan")), "decision.offset: the decision"),
+        (lambda c: c["decision"].update(offset=float("inf")), "decision.offset: the decision"),
+        (lambda c: c["decision"].update(offset="big"), "decision.offset: the decision"),
+    ],
+)
+def test_a_model_json_with_numbers_beyond_reason_is_refused(edit, says, short, random_flownet_dir,
+                                                            capsys):  # fmt: skip
+    # a head of 1e9 hidden channels asked PyTorch for 40 GB; an offset of NaN predicted nonsense
+    # with exit 0
+    _edit_card(random_flownet_dir, edit)
+    code, _, err = run(["evaluate", str(short), "-m", str(random_flownet_dir)], capsys)
+    line = one_line(err)
+    assert code == 1 and str(random_flownet_dir / "model.json") in line and says in line, line
