@@ -4,6 +4,7 @@ an internal error, not gigabytes asked of PyTorch, not an exit 0 with nonsense).
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -91,3 +92,20 @@ def test_a_model_json_with_numbers_beyond_reason_is_refused(edit, says, short, r
     code, _, err = run(["evaluate", str(short), "-m", str(random_flownet_dir)], capsys)
     line = one_line(err)
     assert code == 1 and str(random_flownet_dir / "model.json") in line and says in line, line
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "says"),
+    [
+        ("--people", "100000", "at most 500 at once"),  # asked for 84.6 GiB
+        ("--workers", "1000", f"from 1 to {4 * (os.cpu_count() or 1)} processes"),  # forked them
+        ("--odom-drift", "1e30", "must be in [0, 1] metres of error per metre driven"),  # exit 0
+    ],
+)
+def test_simulate_refuses_options_beyond_reason(option, value, says, tmp_path, capsys):
+    argv = ["simulate", "--frames", "3", "-o", str(tmp_path / "s.npz"), option, value]
+    code, _, err = run(argv, capsys)
+    line = one_line(err)
+    assert code == 1 and option in line and says in line, line
+    assert not any(tmp_path.iterdir())
+
