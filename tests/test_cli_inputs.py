@@ -10,6 +10,7 @@ import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.scan import MAX_RES
+from tests.bagutil import MCAP_MAGIC, _mcap_record, _mcap_string
 from tests.test_cli import run
 from tests.test_cli_faults import one_line
 
@@ -109,3 +110,15 @@ def test_simulate_refuses_options_beyond_reason(option, value, says, tmp_path, c
     assert code == 1 and option in line and says in line, line
     assert not any(tmp_path.iterdir())
 
+
+
+@pytest.mark.parametrize("profile", [None, "ros1", "ros2"])
+def test_an_mcap_file_of_a_header_alone_says_it_holds_no_message(profile, tmp_path, capsys):
+    # the magic alone said `ord() expected a character`; a header record `Profile is not ros2`
+    path = tmp_path / "header.mcap"
+    header = b"" if profile is None else _mcap_record(0x01, _mcap_string(profile), _mcap_string(""))
+    path.write_bytes(MCAP_MAGIC + header)
+    code, _, err = run(["info", str(path)], capsys)
+    line = one_line(err)
+    assert code == 1 and str(path) in line and "holds no ROS message" in line, line
+    assert "not a complete MCAP file" in line and "ord()" not in line and "Profile" not in line
