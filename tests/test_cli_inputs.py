@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 
+import numpy as np
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
@@ -122,3 +123,30 @@ def test_an_mcap_file_of_a_header_alone_says_it_holds_no_message(profile, tmp_pa
     line = one_line(err)
     assert code == 1 and str(path) in line and "holds no ROS message" in line, line
     assert "not a complete MCAP file" in line and "ord()" not in line and "Profile" not in line
+
+
+@pytest.mark.parametrize(
+    ("edit", "says"),
+    [
+        (lambda a: a.update(angle_min=a["angle_min"][:-1]), "angle_min must be (14,), got (13,)"),
+        (lambda a: a.update(offsets=a["offsets"][:-1]), "offsets must be (15,), got (14,)"),
+        (lambda a: a.update(ranges=a["ranges"][:-5]), "offsets do not match the ranges array"),
+        (
+            lambda a: a["angle_increment"].__setitem__(3, 0.0),
+            "frame 3: angle_increment is 0 but the scan has more than one beam",
+        ),
+        (
+            lambda a: a["angle_increment"].__setitem__(5, 0.6),
+            "frame 5: 768 beams 0.6 rad apart sweep",
+        ),
+    ],
+)
+def test_a_recording_with_arrays_that_do_not_fit_is_named(edit, says, short, tmp_path, capsys):
+    arrays = dict(np.load(short))
+    edit(arrays)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **arrays)
+    for argv in (["info", str(bad)], ["evaluate", str(bad), "--baselines-only"]):
+        code, _, err = run(argv, capsys)
+        line = one_line(err)
+        assert code == 1 and f"{bad}: not a usable recording: " in line and says in line, line
