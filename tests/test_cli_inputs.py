@@ -11,7 +11,7 @@ import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.scan import MAX_RES
-from tests.bagutil import MCAP_MAGIC, _mcap_record, _mcap_string
+from tests.bagutil import MCAP_MAGIC, _mcap_record, _mcap_string, write_bag
 from tests.test_cli import run
 from tests.test_cli_faults import one_line
 
@@ -150,3 +150,25 @@ def test_a_recording_with_arrays_that_do_not_fit_is_named(edit, says, short, tmp
         code, _, err = run(argv, capsys)
         line = one_line(err)
         assert code == 1 and f"{bad}: not a usable recording: " in line and says in line, line
+
+
+@pytest.mark.parametrize(
+    ("rate_hz", "says"),
+    [
+        (1e9, "they step 1 ns apart (1e+09 Hz), faster than any scanner"),  # said 1e9 Hz
+        (1e12, "all 20 scans bear one stamp"),  # said 0 Hz
+    ],
+)
+def test_info_says_stamps_that_tell_no_rate_are_unusable(rate_hz, says, tmp_path, capsys):
+    # header stamps all 0, so the log times stand in: written 1 ns apart, or all at once
+    frames = [np.full(50, 3.0) + 0.01 * i for i in range(20)]
+    bag = write_bag(tmp_path / "z.bag", "ros1", {"/scan": frames}, rate_hz=rate_hz,
+                    header_stamps=[0] * 20)  # fmt: skip
+    code, out, _ = run(["info", str(bag)], capsys)
+    assert code == 0 and "frame_rate_hz: unknown" in out, out
+    assert f"stamps_unusable: {says}" in out and "the frame rate is unknown" in out, out
+    code, out, _ = run(["info", str(bag), "--json"], capsys)
+    report = json.loads(out)
+    assert report["frame_rate_hz"] is None and says in report["stamps_unusable"]
+    code, out, _ = run(["info", str(write_bag(tmp_path / "fine.bag"))], capsys)
+    assert "frame_rate_hz: 10.0" in out and "stamps_unusable" not in out, out

@@ -37,6 +37,7 @@ def convert(
     --grid/--res; here those are the grid every scan is checked on and which the recording's
     meta records.
     """
+    from lidarflow.data.info import stamps_problem
     from lidarflow.scan import GridSpec
 
     if output.suffix != ".npz":  # as Recording.save names it
@@ -51,9 +52,10 @@ def convert(
     no_mount = "sensor_mount" in recording.meta and recording.meta["sensor_mount"] is None
     if recording.has_poses and no_mount:
         poses += " (the odometry's own frame: the bag has no TF to the scanner)"
+    problem = stamps_problem(recording)
+    rate = f"an unknown rate ({problem})" if problem else f"{recording.frame_rate:.2f} Hz"
     typer.echo(
-        f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at "
-        f"{recording.frame_rate:.2f} Hz, {poses}"
+        f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at {rate}, {poses}"
     )
 
 
@@ -109,6 +111,8 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
             more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
             shown = ", ".join(_clock_jump_text(j) for j in value[:10])
             typer.echo(f"clock_jumps: {len(value)}: {shown}{more}")
+        elif key == "frame_rate_hz" and value is None:  # stamps_unusable says why
+            typer.echo(f"{key}: unknown")
         else:
             typer.echo(f"{key}: {value}")
 
