@@ -172,3 +172,25 @@ def test_info_says_stamps_that_tell_no_rate_are_unusable(rate_hz, says, tmp_path
     assert report["frame_rate_hz"] is None and says in report["stamps_unusable"]
     code, out, _ = run(["info", str(write_bag(tmp_path / "fine.bag"))], capsys)
     assert "frame_rate_hz: 10.0" in out and "stamps_unusable" not in out, out
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, 0.0, 50.0])  # unknown, no return, out of range
+@pytest.mark.parametrize("command", ["predict", "convert"])
+def test_scans_without_a_single_return_are_refused(command, value, tmp_path, capsys):
+    # wrote blank maps with exit 0 and not a word
+    bag = write_bag(tmp_path / "blind.bag", "ros1", {"/scan": [np.full(50, value)] * 14})
+    out = tmp_path / ("p.mcap" if command == "predict" else "c.npz")
+    code, _, err = run([command, str(bag), "-o", str(out)], capsys)
+    line = one_line(err)
+    assert code == 1 and f"{bag}: none of its 14 scans has a return" in line, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["predict", "convert"])
+def test_scans_mostly_unknown_are_warned_of(command, tmp_path, capsys):
+    frames = [np.full(50, np.nan)] * 13 + [np.full(50, 3.0)]
+    bag = write_bag(tmp_path / "dim.bag", "ros1", {"/scan": frames})
+    out = tmp_path / ("p.mcap" if command == "predict" else "c.npz")
+    code, _, err = run([command, str(bag), "-o", str(out)], capsys)
+    assert code == 0 and out.exists(), err
+    assert "warning: dim.bag: 93% of its beams are invalid" in err, err

@@ -37,6 +37,7 @@ def convert(
     --grid/--res; here those are the grid every scan is checked on and which the recording's
     meta records.
     """
+    from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
     from lidarflow.data.info import stamps_problem
     from lidarflow.scan import GridSpec
 
@@ -44,6 +45,8 @@ def convert(
         output = output.with_name(output.name + ".npz")
     refuse_existing(output, force=force, inputs=[input])
     recording = load_input(input, topic, odom_topic)
+    refuse_without_returns(input, recording, "convert")
+    warn_unknown_beams(input, recording)
     spec = GridSpec(grid, grid, res)
     recording.maps(spec)  # fail now, not in training, if any scan cannot be rasterized
     recording.meta["grid"] = spec.to_dict()
