@@ -194,3 +194,15 @@ def test_scans_mostly_unknown_are_warned_of(command, tmp_path, capsys):
     code, _, err = run([command, str(bag), "-o", str(out)], capsys)
     assert code == 0 and out.exists(), err
     assert "warning: dim.bag: 93% of its beams are invalid" in err, err
+
+
+def test_train_refuses_data_without_an_occupied_cell(tmp_path, capsys):
+    # trained on nothing and reported val_f1 1 (F1's 0/0 convention) with exit 0
+    from tests.train.test_cli_train import TINY
+
+    bag = write_bag(tmp_path / "nan.bag", "ros1", {"/scan": [np.full(50, np.nan)] * 30})
+    argv = ["train", str(bag), "-o", str(tmp_path / "run"), "--epochs", "1", *TINY]
+    code, _, err = run(argv, capsys)
+    line = one_line(err)
+    assert code == 1 and f"data source {bag}: no occupied cell in any of its" in line, line
+    assert "nothing to learn from" in line
