@@ -206,3 +206,12 @@ def test_train_refuses_data_without_an_occupied_cell(tmp_path, capsys):
     line = one_line(err)
     assert code == 1 and f"data source {bag}: no occupied cell in any of its" in line, line
     assert "nothing to learn from" in line
+
+
+@pytest.mark.parametrize("models", [[], ["--baselines-only"]])
+def test_ego_oracle_refuses_a_recording_without_poses(models, short, capsys):
+    # the "oracle" scored beside the rest with exit 0, told poses nobody had
+    code, _, err = run(["evaluate", str(short), "--ego-oracle", *models], capsys)
+    line = one_line(err)
+    assert code == 1 and f"{short}: --ego-oracle tells models the true next pose" in line, line
+    assert "no poses" in line
