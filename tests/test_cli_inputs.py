@@ -215,3 +215,21 @@ def test_ego_oracle_refuses_a_recording_without_poses(models, short, capsys):
     line = one_line(err)
     assert code == 1 and f"{short}: --ego-oracle tells models the true next pose" in line, line
     assert "no poses" in line
+
+
+@pytest.mark.parametrize(
+    ("setting", "says"),
+    [
+        ("model.flow.hidden_channels=1000000000", "hidden_channels must be a whole number in"),
+        ("model.flow.dilations=[1,2,100000]", "dilations must be a whole number in [1, 64]"),
+        ("model.head.hidden_channels=1000000000", "head_hidden_channels must be a whole number"),
+    ],
+)
+def test_train_refuses_a_model_too_large_to_build(setting, says, short, tmp_path, capsys):
+    # PyTorch was asked for 72 GB: an internal error
+    recipe = ["--recipe", "head"] if ".head." in setting else []
+    argv = ["train", str(short), "-o", str(tmp_path / "run"), "--epochs", "1", *recipe]
+    code, _, err = run([*argv, "--set", setting], capsys)
+    line = one_line(err)
+    assert code == 1 and says in line, line
+    assert not (tmp_path / "run").exists()

@@ -63,8 +63,9 @@ _LISTS = ("dilations", "memory_decays")
 
 
 def _check_numbers(kwargs: dict[str, Any]) -> None:
-    """Raise ``ValueError`` naming the first argument of a flat description that is not a
-    finite number where it is one, a size out of :data:`_SIZES`' bounds, or a list too long."""
+    """Raise ``ValueError`` naming the first argument of a flat description (its keys as
+    ``model.json`` stores them) that is not a finite number where it is one, a size out of
+    :data:`_SIZES`' bounds, or a list too long; the typed configs check theirs by it too."""
     for key, value in kwargs.items():
         items = list(value) if isinstance(value, (list, tuple)) else [value]
         numbers = [v for v in items if isinstance(v, (int, float)) and not isinstance(v, bool)]
@@ -118,6 +119,13 @@ class FlowConfig:
     zero_init: bool = True
 
     def __post_init__(self) -> None:
+        _check_numbers(
+            {
+                "hidden_channels": self.hidden_channels,
+                "dilations": self.dilations,
+                "kernel_size": self.kernel_size,
+            }
+        )
         if self.hidden_channels < 1 or not self.dilations or self.kernel_size % 2 == 0:
             raise ValueError(
                 "the flow network needs hidden_channels >= 1, at least one dilation and an odd "
@@ -142,6 +150,9 @@ class HeadConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "memory_decays", tuple(float(d) for d in self.memory_decays))
+        _check_numbers(
+            {"head_hidden_channels": self.hidden_channels, "memory_decays": self.memory_decays}
+        )
         if not all(0.0 <= d < 1.0 for d in self.memory_decays):
             raise ValueError(f"memory_decays must be in [0, 1), got {self.memory_decays}")
         if self.shift_memories and not self.constant_velocity_input:
@@ -168,6 +179,7 @@ class ModelSpec:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        _check_numbers(self.options)
         if self.name == "flownet" and self.flow is None and self.head is None:
             raise ValueError("a flownet without a flow network needs an occupancy head")
         if self.name not in MODEL_NAMES:
