@@ -112,7 +112,6 @@ def test_simulate_refuses_options_beyond_reason(option, value, says, tmp_path, c
     assert not any(tmp_path.iterdir())
 
 
-
 @pytest.mark.parametrize("profile", [None, "ros1", "ros2"])
 def test_an_mcap_file_of_a_header_alone_says_it_holds_no_message(profile, tmp_path, capsys):
     # the magic alone said `ord() expected a character`; a header record `Profile is not ros2`
@@ -233,3 +232,20 @@ def test_train_refuses_a_model_too_large_to_build(setting, says, short, tmp_path
     line = one_line(err)
     assert code == 1 and says in line, line
     assert not (tmp_path / "run").exists()
+
+
+def test_an_onnx_model_with_an_offset_that_is_no_number_is_refused(flow_onnx, short, tmp_path,
+                                                                    capsys):  # fmt: skip
+    import onnx
+
+    from lidarflow.predict.backends import DECISION_KEY
+
+    graph = onnx.load(str(flow_onnx))
+    for mark in graph.metadata_props:
+        if mark.key == DECISION_KEY:
+            mark.value = json.dumps({**json.loads(mark.value), "offset": float("nan")})
+    bad = tmp_path / "bad.onnx"
+    onnx.save(graph, str(bad))
+    code, _, err = run(["evaluate", str(short), "-m", str(bad)], capsys)
+    line = one_line(err)
+    assert code == 1 and f"{bad}: {DECISION_KEY}: the decision offset must be" in line, line
