@@ -31,7 +31,7 @@ def simulate(
         typer.Option("--scenario", "-s", help="static (robot stands still) or dynamic (drives)."),
     ] = "dynamic",
     frames: Annotated[int, typer.Option("--frames", "-n", help="Number of scans.", min=1)] = 1000,
-    seed: Annotated[int, typer.Option("--seed", help="Same seed, same data.", min=0)] = 0,
+    seed: Annotated[int, typer.Option("--seed", help="Same seed, same data.")] = 0,
     sensor: Annotated[str, typer.Option("--sensor", help=_SENSOR_HELP)] = "tim561",
     people: Annotated[
         int, typer.Option("--people", help="People in the building at once.", min=0)

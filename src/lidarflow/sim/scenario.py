@@ -201,6 +201,8 @@ class _Source:
     ) -> None:
         self.config, self.seed = config, seed
         self.pool = None
+        if seed < 0:  # numpy's generators take none
+            raise SimError(f"seed (--seed) must be >= 0, got {seed}")
         # each worker simulates whole episodes: more than a few per core only share the cores
         most = 4 * (os.cpu_count() or 1)
         if not 1 <= workers <= most:
