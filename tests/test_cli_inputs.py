@@ -80,6 +80,10 @@ def _edit_card(folder, edit) -> None:
             lambda c: c["model_kwargs"].update(hidden_channels=10**6),
             "hidden_channels must be a whole number in [1, 1024]",
         ),
+        (
+            lambda c: c["model_kwargs"].update(hidden_channels=10**400),  # no float holds it
+            "hidden_channels must be a whole number in [1, 1024]",
+        ),
         (lambda c: c["model_kwargs"].update(dilations=[1, 2, 1e6]), "dilations must be"),
         (lambda c: c["model_kwargs"].update(kernel_size=float("nan")), "kernel_size must be"),
         (lambda c: c["decision"].update(offset=float("nan")), "decision.offset: the decision"),

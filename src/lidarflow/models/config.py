@@ -69,7 +69,7 @@ def _check_numbers(kwargs: dict[str, Any]) -> None:
     for key, value in kwargs.items():
         items = list(value) if isinstance(value, (list, tuple)) else [value]
         numbers = [v for v in items if isinstance(v, (int, float)) and not isinstance(v, bool)]
-        if not all(math.isfinite(v) for v in numbers):
+        if not all(math.isfinite(v) for v in numbers if isinstance(v, float)):
             raise ValueError(f"{key} must be finite, got {value}")
         if key in _LISTS and len(items) > _MAX_COUNT:
             raise ValueError(f"{key} may have at most {_MAX_COUNT} entries, got {len(items)}")
