@@ -89,6 +89,7 @@ def _edit_card(folder, edit) -> None:
         (lambda c: c["decision"].update(offset=float("nan")), "decision.offset: the decision"),
         (lambda c: c["decision"].update(offset=float("inf")), "decision.offset: the decision"),
         (lambda c: c["decision"].update(offset="big"), "decision.offset: the decision"),
+        (lambda c: c["decision"].update(offset=10**400), "decision.offset: the decision"),
     ],
 )
 def test_a_model_json_with_numbers_beyond_reason_is_refused(edit, says, short, random_flownet_dir,

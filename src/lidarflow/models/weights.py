@@ -79,7 +79,7 @@ def check_decision_offset(offset: Any, where: str) -> float:
     of 0; else a :class:`ModelError` saying so of ``where`` (the file and key it came from)."""
     try:
         value = float(offset)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # not a number, or an int beyond a float
         value = math.nan
     if not (math.isfinite(value) and abs(value) <= MAX_DECISION_OFFSET):
         raise ModelError(
