@@ -33,6 +33,7 @@ from lidarflow.geometry import cell_to_metric
 __all__ = [
     "MAX_BEAMS",
     "MAX_GRID_CELLS",
+    "MAX_RES",
     "BeamGeometry",
     "GridSpec",
     "Scan",
@@ -63,6 +64,9 @@ MAX_GRID_CELLS = 2048 * 2048
 #: gigabytes to rasterize: bags and recordings holding one are refused before it is decoded.
 MAX_BEAMS = 100_000
 _MAX_SIDE = math.isqrt(MAX_GRID_CELLS)
+#: The coarsest cell, in metres: a 2-D LiDAR sees tens of metres, so a coarser cell maps the
+#: whole scan into a few cells (and a cell of 1e300 m overflows the arithmetic of rasterizing).
+MAX_RES = 10.0
 
 
 @dataclass(frozen=True)
@@ -87,6 +91,11 @@ class GridSpec:
             )
         if not (self.res > 0 and math.isfinite(self.res)):
             raise ScanError(f"grid resolution must be a positive number of metres, got {self.res}")
+        if self.res > MAX_RES:
+            raise ScanError(
+                f"a cell size (--res) of {self.res:g} m is too coarse: at most {MAX_RES:g} m "
+                "(a 2-D LiDAR's whole scan in a few cells)"
+            )
 
     @property
     def shape(self) -> tuple[int, int]:

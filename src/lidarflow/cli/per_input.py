@@ -138,6 +138,7 @@ def predict_input(task: PredictTask) -> Predicted:
     """Read ``task.input``, predict every scan of it and write ``task.output``, as ``predict``
     does for each input."""
     from lidarflow.cli.app import load_input
+    from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
     from lidarflow.data.sources import is_recording_file
     from lidarflow.evaluate.horizon import check_horizon
     from lidarflow.predict import Predictor
@@ -145,6 +146,8 @@ def predict_input(task: PredictTask) -> Predicted:
 
     s = task.settings
     recording = load_input(task.input, s.topic, s.odom_topic)
+    refuse_without_returns(task.input, recording, "predict on")
+    warn_unknown_beams(task.input, recording)
     check_horizon(len(recording), s.horizon, 0, str(task.input))
     predictor = Predictor(
         s.model,

@@ -37,12 +37,16 @@ def convert(
     --grid/--res; here those are the grid every scan is checked on and which the recording's
     meta records.
     """
+    from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
+    from lidarflow.data.info import stamps_problem
     from lidarflow.scan import GridSpec
 
     if output.suffix != ".npz" and output.name:  # as Recording.save names it
         output = output.with_name(output.name + ".npz")
     refuse_existing(output, force=force, inputs=[input])
     recording = load_input(input, topic, odom_topic)
+    refuse_without_returns(input, recording, "convert")
+    warn_unknown_beams(input, recording)
     spec = GridSpec(grid, grid, res)
     recording.check_maps(spec)  # fail now, not in training, if any scan cannot be rasterized
     recording.meta["grid"] = spec.to_dict()
@@ -51,9 +55,10 @@ def convert(
     no_mount = "sensor_mount" in recording.meta and recording.meta["sensor_mount"] is None
     if recording.has_poses and no_mount:
         poses += " (the odometry's own frame: the bag has no TF to the scanner)"
+    problem = stamps_problem(recording)
+    rate = f"an unknown rate ({problem})" if problem else f"{recording.frame_rate:.2f} Hz"
     typer.echo(
-        f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at "
-        f"{recording.frame_rate:.2f} Hz, {poses}"
+        f"wrote {path}: {len(recording)} scans from {recording.meta['topic']} at {rate}, {poses}"
     )
 
 
@@ -109,6 +114,8 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
             more = f" (+{len(value) - 10} more)" if len(value) > 10 else ""
             shown = ", ".join(_clock_jump_text(j) for j in value[:10])
             typer.echo(f"clock_jumps: {len(value)}: {shown}{more}")
+        elif key == "frame_rate_hz" and value is None:  # stamps_unusable says why
+            typer.echo(f"{key}: unknown")
         else:
             typer.echo(f"{key}: {value}")
 

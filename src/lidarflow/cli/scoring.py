@@ -142,6 +142,7 @@ def evaluate(
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
     from lidarflow.cli.useless import warn_nothing_scored, warn_pose_jumps, warn_unknown_beams
+    from lidarflow.errors import RecordingError
     from lidarflow.evaluate.report import (
         format_comparison,
         format_peer_table,
@@ -176,6 +177,11 @@ def evaluate(
     for path in inputs:
         recording = load_input(path, topic, odom_topic)
         _check_length(str(path), recording, warmup, horizon)
+        if ego_oracle and not recording.has_poses:  # the oracle's true poses are the recording's
+            raise RecordingError(
+                f"{path}: --ego-oracle tells models the true next pose, and this recording has "
+                "no poses (no odometry; --odom-topic names its topic); drop --ego-oracle"
+            )
         warn_unknown_beams(path, recording)
         warn_pose_jumps(path, recording)
         named.append((str(path), recording))

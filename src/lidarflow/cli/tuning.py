@@ -85,12 +85,14 @@ def choose_offset(
     from lidarflow.evaluate.offsets import choose_offset as choose
     from lidarflow.evaluate.offsets import decided_online, with_offset
     from lidarflow.models.presets import resolve_model
+    from lidarflow.models.weights import check_decision_offset
     from lidarflow.scan import GridSpec
     from lidarflow.viz.evaluation import evaluate_and_report
 
     refuse_existing(output, force=force, folder=True, inputs=[*inputs, model])
     use_threads(threads)
-    offsets = list(dict.fromkeys(offset or DEFAULT_OFFSETS))
+    offsets = [check_decision_offset(o, "--offset") for o in dict.fromkeys(offset or ())]
+    offsets = offsets or list(DEFAULT_OFFSETS)
     net, card = resolve_model(model)
     if not net.capabilities.occupancy_head:
         raise ModelError(

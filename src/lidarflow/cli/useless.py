@@ -8,7 +8,13 @@ from typing import Any
 
 import typer
 
-__all__ = ["MOST_BEAMS_UNKNOWN", "nothing_scored", "warn_nothing_scored", "warn_unknown_beams"]
+__all__ = [
+    "MOST_BEAMS_UNKNOWN",
+    "nothing_scored",
+    "refuse_without_returns",
+    "warn_nothing_scored",
+    "warn_unknown_beams",
+]
 
 #: Over this share of a recording's beams unknown (NaN, -inf, 0, under range_min), its maps are
 #: mostly blank and its scores say little: warned of. A real scanner loses a few percent
@@ -44,6 +50,21 @@ def warn_pose_jumps(path: str | Path, recording: Any) -> None:
             f"between scans (first {metres:g} m before frame {frame}): odometry glitches, "
             "which misplace those frames in the world frame the mover region is counted in",
             err=True,
+        )
+
+
+def refuse_without_returns(path: str | Path, recording: Any, what: str) -> None:
+    """A :class:`~lidarflow.errors.RecordingError` where not one beam of ``recording`` is a
+    return (every range NaN, inf, 0 or outside its limits): its maps are all blank, so there is
+    nothing to ``what`` (a verb: "predict on", "convert")."""
+    from lidarflow.data.info import return_share
+    from lidarflow.errors import RecordingError
+
+    if return_share(recording) == 0:
+        raise RecordingError(
+            f"{path}: none of its {len(recording)} scans has a return (every range NaN, inf, 0 "
+            f"or outside range_min..range_max), so nothing to {what}; is it the scanner's topic? "
+            "(`lidarflow info` counts its beams)"
         )
 
 

@@ -126,6 +126,13 @@ def open_bag(path: str | Path) -> Iterator[Any]:
             foreign = not_a_bag(target) if reader is None else None
             if foreign is not None:
                 raise BagError(f"{path}: {foreign}") from err
+            if reader is None and target.is_file() and target.suffix.lower() == ".mcap":
+                # the library's own words for this (`ord() expected a character`) say nothing
+                raise BagError(
+                    f"{path}: cannot open as a bag: it holds no ROS message that can be read, "
+                    "not a complete MCAP file (it ends after its header, or is damaged before "
+                    "its first message)"
+                ) from err
             if reader is None:
                 why = _why(err)
                 raise BagError(f"{path}: cannot open as a bag ({why}); is it complete?") from err

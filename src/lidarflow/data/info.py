@@ -11,7 +11,18 @@ from lidarflow.data.gaps import MAX_GAP_PERIODS, frames_after_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, at_range_max, beam_status, ring_scans
 
-__all__ = ["describe_recording", "find_gaps", "unknown_share"]
+__all__ = [
+    "MAX_FRAME_RATE_HZ",
+    "describe_recording",
+    "find_gaps",
+    "return_share",
+    "stamps_problem",
+    "unknown_share",
+]
+
+#: The fastest a 2-D LiDAR scans (the fastest run at 50 to 100 Hz, with margin): stamps that
+#: step faster are a counter (a script writing 1 ns apart, say), not a clock.
+MAX_FRAME_RATE_HZ = 1000.0
 
 
 def find_gaps(
@@ -27,6 +38,24 @@ def find_gaps(
     ]
 
 
+def stamps_problem(recording: Recording) -> str | None:
+    """Why ``recording``'s stamps cannot tell its frame rate: every scan at one instant, or
+    steps faster than :data:`MAX_FRAME_RATE_HZ`; ``None`` where they can (or where it has fewer
+    than two scans, which have no rate to tell)."""
+    stamps = recording.stamps_ns
+    if len(stamps) < 2:
+        return None
+    if np.all(stamps == stamps[0]):
+        return f"all {len(stamps)} scans bear one stamp ({int(stamps[0])} ns)"
+    rate = recording.frame_rate
+    if rate > MAX_FRAME_RATE_HZ:
+        return (
+            f"they step {1e9 / rate:.3g} ns apart ({rate:.3g} Hz), faster than any scanner: a "
+            "counter, not a clock"
+        )
+    return None
+
+
 def describe_recording(recording: Recording) -> dict[str, Any]:
     """Scan count, duration, rate, field of view, range limits, beam statistics and gaps."""
     n = len(recording)
@@ -36,10 +65,13 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
     fov = np.abs(recording.angle_increment) * np.maximum(counts - 1, 0)
     duration = float(recording.stamps_ns[-1] - recording.stamps_ns[0]) / 1e9 if n > 1 else 0.0
     gaps = find_gaps(recording)
+    problem = stamps_problem(recording)
+    unusable = {"stamps_unusable": f"{problem}; the frame rate is unknown"} if problem else {}
     return {
         "scans": n,
         "duration_s": round(duration, 3),
-        "frame_rate_hz": round(recording.frame_rate, 3),
+        # unknown (None) where the stamps cannot tell it: 1e9 Hz is no scanner's rate
+        "frame_rate_hz": None if problem else round(recording.frame_rate, 3),
         "beams_per_scan": sorted({int(c) for c in counts}),
         "field_of_view_deg": sorted({round(math.degrees(float(f)), 2) for f in np.unique(fov)}),
         "angle_min_deg": sorted(
@@ -72,6 +104,7 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
         **({"sensor_mount": recording.meta.get("sensor_mount")} if recording.has_poses else {}),
         **({"sensor_upside_down": True} if recording.meta.get("sensor_upside_down") else {}),
         **_read_notes(recording.meta),
+        **unusable,
     }
 
 
@@ -80,6 +113,13 @@ def unknown_share(recording: Recording) -> float:
     ``range_min``: unknown, as the rasterizer reads them); 0 for a recording without beams."""
     status = _beam_census(recording)[0]
     return float(np.mean(status == UNKNOWN)) if status.size else 0.0
+
+
+def return_share(recording: Recording) -> float:
+    """The share of ``recording``'s beams that are returns (a surface within ``[range_min,
+    range_max]``, as the rasterizer reads them); 0 for a recording without beams."""
+    status = _beam_census(recording)[0]
+    return float(np.mean(status == RETURN)) if status.size else 0.0
 
 
 def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:

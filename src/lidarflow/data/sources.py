@@ -7,7 +7,7 @@ from pathlib import Path
 
 from lidarflow.data.bags import read_bag
 from lidarflow.data.recording import Recording, load_recording
-from lidarflow.errors import BagError, RecordingError
+from lidarflow.errors import BagError, RecordingError, ScanError
 
 __all__ = ["is_recording_file", "load_any", "recovered_notes", "topic_notes"]
 
@@ -31,10 +31,28 @@ def load_any(
     if is_recording_file(path):
         if topic is not None or odom_topic is not None:
             raise RecordingError(f"{path}: --topic/--odom-topic apply to bags, not recordings")
-        return load_recording(path)
+        return _checked_recording(path)
     if not path.exists():
         raise BagError(f"{path}: no such file or folder")
     return read_bag(path, topic=topic, odom_topic=odom_topic, progress=progress)
+
+
+def _checked_recording(path: Path) -> Recording:
+    """:func:`load_recording`, with what is wrong inside the file (arrays of mismatched
+    lengths, a scan's beam geometry that no scanner has) said of the file, now rather than
+    when the scan is rasterized."""
+    try:
+        recording = load_recording(path)
+        for start, _ in recording.geometry_runs():
+            try:
+                recording.geometry(start)
+            except ScanError as err:
+                raise RecordingError(f"frame {start}: {err}") from err
+    except RecordingError as err:
+        if str(err).startswith(f"{path}:"):
+            raise
+        raise RecordingError(f"{path}: not a usable recording: {err}") from err
+    return recording
 
 
 def topic_notes(path: str | Path, recording: Recording) -> list[str]:

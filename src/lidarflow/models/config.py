@@ -12,11 +12,13 @@ decision is the Predictor's configuration now).
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 __all__ = [
     "DECISION_KEYS",
+    "MAX_CHANNELS",
     "MODEL_NAMES",
     "REMOVED_OPTIONS",
     "Capabilities",
@@ -39,6 +41,46 @@ REMOVED_OPTIONS: dict[str, Any] = {
     "conv0_activation": "relu",
     "in_channels": 2,
 }
+#: The most channels any layer of a model may have: the largest preset's (SOGMP's 128 hidden
+#: channels) times 8. A file asking for more is damaged, not a model: a head of a billion
+#: hidden channels asked PyTorch for 40 GB.
+MAX_CHANNELS = 1024
+_MAX_COUNT = 32  # dilations, memory decays, residual layers, frames of SOGMP's window
+#: The sizes a flat description may give, each a whole number in ``[low, high]`` (a list's
+#: every entry, for ``dilations``), so that no file builds a model that cannot fit.
+_SIZES: dict[str, tuple[int, int]] = {
+    "hidden_channels": (1, MAX_CHANNELS),
+    "head_hidden_channels": (0, MAX_CHANNELS),
+    "lstm_channels": (1, MAX_CHANNELS),
+    "residual_channels": (1, MAX_CHANNELS),
+    "latent_channels": (1, MAX_CHANNELS),
+    "kernel_size": (1, 15),
+    "dilations": (1, 64),
+    "window": (1, _MAX_COUNT),
+    "residual_layers": (0, _MAX_COUNT),
+}
+_LISTS = ("dilations", "memory_decays")
+
+
+def _check_numbers(kwargs: dict[str, Any]) -> None:
+    """Raise ``ValueError`` naming the first argument of a flat description (its keys as
+    ``model.json`` stores them) that is not a finite number where it is one, a size out of
+    :data:`_SIZES`' bounds, or a list too long; the typed configs check theirs by it too."""
+    for key, value in kwargs.items():
+        items = list(value) if isinstance(value, (list, tuple)) else [value]
+        numbers = [v for v in items if isinstance(v, (int, float)) and not isinstance(v, bool)]
+        if not all(math.isfinite(v) for v in numbers if isinstance(v, float)):
+            raise ValueError(f"{key} must be finite, got {value}")
+        if key in _LISTS and len(items) > _MAX_COUNT:
+            raise ValueError(f"{key} may have at most {_MAX_COUNT} entries, got {len(items)}")
+        if key in _SIZES:
+            low, high = _SIZES[key]
+            if len(numbers) < len(items) or not all(
+                v == int(v) and low <= v <= high for v in numbers
+            ):
+                raise ValueError(f"{key} must be a whole number in [{low}, {high}], got {value}")
+
+
 # The head of each cell's own past is the only head left: a 1x1 kernel, no GRU features.
 _HEAD_SHAPE = {"head_kernel_size": 1, "head_flow_features": False}
 # The flat keys of the flow network (``flow_network: false`` stores a model without one).
@@ -77,6 +119,13 @@ class FlowConfig:
     zero_init: bool = True
 
     def __post_init__(self) -> None:
+        _check_numbers(
+            {
+                "hidden_channels": self.hidden_channels,
+                "dilations": self.dilations,
+                "kernel_size": self.kernel_size,
+            }
+        )
         if self.hidden_channels < 1 or not self.dilations or self.kernel_size % 2 == 0:
             raise ValueError(
                 "the flow network needs hidden_channels >= 1, at least one dilation and an odd "
@@ -101,6 +150,9 @@ class HeadConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "memory_decays", tuple(float(d) for d in self.memory_decays))
+        _check_numbers(
+            {"head_hidden_channels": self.hidden_channels, "memory_decays": self.memory_decays}
+        )
         if not all(0.0 <= d < 1.0 for d in self.memory_decays):
             raise ValueError(f"memory_decays must be in [0, 1), got {self.memory_decays}")
         if self.shift_memories and not self.constant_velocity_input:
@@ -127,6 +179,7 @@ class ModelSpec:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        _check_numbers(self.options)
         if self.name == "flownet" and self.flow is None and self.head is None:
             raise ValueError("a flownet without a flow network needs an occupancy head")
         if self.name not in MODEL_NAMES:
@@ -144,8 +197,10 @@ class ModelSpec:
         config's ``model.kwargs``), and the decision keys found among them
         (:data:`DECISION_KEYS`). ``stored``: the kwargs come from a file, where a head without
         ``head_kernel_size`` 1 and ``head_flow_features`` false is the removed 3x3 head. Raises
-        ``ValueError`` naming an unknown argument or a removed option the model needs."""
+        ``ValueError`` naming an unknown argument, a removed option the model needs, or a number
+        that is not finite or a size beyond reason (:data:`MAX_CHANNELS`)."""
         kwargs = dict(kwargs)
+        _check_numbers(kwargs)
         decision = {k: kwargs.pop(k) for k in DECISION_KEYS if k in kwargs}
         ego = bool(kwargs.pop("ego_motion", False))
         optional = bool(kwargs.pop("poses_optional", False))

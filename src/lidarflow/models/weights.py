@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,7 +24,15 @@ from lidarflow.models.config import ModelSpec
 if TYPE_CHECKING:  # reading records and checksums needs no PyTorch; loading weights does
     from lidarflow.models.recurrent import RecurrentMapModel
 
-__all__ = ["decision_record", "describe_source", "load_trained", "sha256", "upgrade_state"]
+__all__ = [
+    "MAX_DECISION_OFFSET",
+    "check_decision_offset",
+    "decision_record",
+    "describe_source",
+    "load_trained",
+    "sha256",
+    "upgrade_state",
+]
 
 #: LiDAR-FlowNet's parameter names before its blocks, and the blocks' names for them.
 _BLOCK_NAMES = (
@@ -60,18 +69,40 @@ def upgrade_state(state: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def decision_record(card: dict[str, Any]) -> dict[str, Any]:
+#: The largest decision offset, added to the occupancy head's logit: at 20 the decided
+#: probability is within 2e-9 of 0 or 1 whatever the model says, so more decides nothing more.
+MAX_DECISION_OFFSET = 20.0
+
+
+def check_decision_offset(offset: Any, where: str) -> float:
+    """``offset`` as a float, where it is a finite number within :data:`MAX_DECISION_OFFSET`
+    of 0; else a :class:`ModelError` saying so of ``where`` (the file and key it came from)."""
+    try:
+        value = float(offset)
+    except (TypeError, ValueError, OverflowError):  # not a number, or an int beyond a float
+        value = math.nan
+    if not (math.isfinite(value) and abs(value) <= MAX_DECISION_OFFSET):
+        raise ModelError(
+            f"{where}: the decision offset must be a number in [-{MAX_DECISION_OFFSET:g}, "
+            f"{MAX_DECISION_OFFSET:g}], got {offset!r}"
+        )
+    return value
+
+
+def decision_record(card: dict[str, Any], source: str | Path = "model.json") -> dict[str, Any]:
     """The decision a model was shipped with (``{"offset": float, "online": bool, "movers":
     bool}``): its ``decision`` record, or the decision keys older files kept among the
-    ``model_kwargs``."""
+    ``model_kwargs``; an offset that is no usable number is a :class:`ModelError` naming
+    ``source`` (the file ``card`` was read from) and the key."""
     if isinstance(card.get("decision"), dict):
-        record = card["decision"]
+        record, key = card["decision"], "decision.offset"
     else:
         kwargs = card.get("model_kwargs") or {}
         record = {"offset": kwargs.get("decision_offset", 0.0)}
         record["online"] = kwargs.get("online_decision", False)
+        key = "model_kwargs.decision_offset"
     return {
-        "offset": float(record.get("offset", 0.0)),
+        "offset": check_decision_offset(record.get("offset", 0.0), f"{source}: {key}"),
         "online": bool(record.get("online")),
         "movers": bool(record.get("movers")),
     }
@@ -126,6 +157,7 @@ def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
         spec, _ = ModelSpec.from_kwargs(name, kwargs, stored=True)
     except (TypeError, ValueError) as err:
         raise ModelError(f"{card_path}: {err}") from err
+    decision = decision_record(card, card_path)  # before any weights are read
     model = build(spec)
     try:
         state = load_file(str(weights))
@@ -144,7 +176,7 @@ def load_trained(path: str | Path) -> tuple[RecurrentMapModel, dict[str, Any]]:
     model.eval()
     card = {
         **card,
-        "decision": decision_record(card),
+        "decision": decision,
         "weights_path": str(weights),
         "weights_sha256": sha256(weights),
     }

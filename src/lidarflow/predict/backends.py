@@ -19,6 +19,7 @@ import numpy as np
 
 from lidarflow.errors import ModelError, PredictError, ScanError
 from lidarflow.models.config import Capabilities
+from lidarflow.models.weights import check_decision_offset
 from lidarflow.predict.offsets import calibrated_logit
 from lidarflow.scan import GridSpec
 
@@ -160,7 +161,7 @@ class OnnxBackend:
             None
             if decision is None
             else {
-                "offset": float(decision["offset"]),
+                "offset": check_decision_offset(decision["offset"], f"{path}: {DECISION_KEY}"),
                 "online": bool(decision.get("online")),
                 "movers": bool(decision.get("movers")),
             }
@@ -170,7 +171,7 @@ class OnnxBackend:
         # Exported before issue 35 the graph's probability carries the fixed offset.
         self._baked_offset = 0.0
         if decision is not None and not decision.get("calibrated"):
-            self._baked_offset = float(decision["offset"])
+            self._baked_offset = self.decision["offset"]
         self.state_shapes = [tuple(i.shape) for i in state_inputs]
         self.grid_shape = tuple(inputs[0].shape[-2:])
         self.grid = (

@@ -30,6 +30,12 @@ __all__ = ["Crowd", "PeopleConfig", "legs_from"]
 WALK, STOP, OFF = 0, 1, 2
 
 
+#: The most people in the building at once: a crowd fills the offices long before this, and
+#: the pairwise forces between them take memory as the square of the count (100,000 people
+#: asked for 85 GiB).
+MAX_PEOPLE = 500
+
+
 @dataclass(frozen=True)
 class PeopleConfig:
     """People's numbers, sizes and behaviour (SI units)."""
@@ -57,6 +63,11 @@ class PeopleConfig:
         lo, hi = self.speed_range
         if self.count < 0 or not 0 < lo <= hi:
             raise SimError(f"people: count must be >= 0 and 0 < speed_min <= speed_max: {self}")
+        if self.count > MAX_PEOPLE:
+            raise SimError(
+                f"people (--people): at most {MAX_PEOPLE} at once (their pairwise forces take "
+                f"memory as the count squared), got {self.count}"
+            )
 
 
 def legs_from(snapshots: np.ndarray, hip: np.ndarray, leg_r: np.ndarray) -> np.ndarray:

@@ -26,6 +26,11 @@ from lidarflow.sim.world import World
 __all__ = ["Platform", "PlatformConfig", "compose", "relative"]
 
 
+#: The most odometry error per metre driven: at 1 the poses are off by as much as the robot
+#: moved, which no wheel odometry is; beyond it they say nothing at all.
+MAX_ODOM_DRIFT = 1.0
+
+
 @dataclass(frozen=True)
 class PlatformConfig:
     """The robot's motion limits and habits (SI units)."""
@@ -42,8 +47,13 @@ class PlatformConfig:
     odom_drift: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.max_speed <= 0 or self.max_turn_rate <= 0 or self.odom_drift < 0:
-            raise SimError(f"platform limits must be positive and drift >= 0: {self}")
+        if self.max_speed <= 0 or self.max_turn_rate <= 0:
+            raise SimError(f"platform limits must be positive: {self}")
+        if not 0 <= self.odom_drift <= MAX_ODOM_DRIFT:
+            raise SimError(
+                f"odom_drift (--odom-drift) must be in [0, {MAX_ODOM_DRIFT:g}] metres of error "
+                f"per metre driven, got {self.odom_drift:g}"
+            )
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ process ever holds more than one file's worth of dense flow.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -201,6 +202,14 @@ class _Source:
     ) -> None:
         self.config, self.seed = config, seed
         self.pool = None
+        if seed < 0:  # numpy's generators take none
+            raise SimError(f"seed (--seed) must be >= 0, got {seed}")
+        # each worker simulates whole episodes: more than a few per core only share the cores
+        most = 4 * (os.cpu_count() or 1)
+        if not 1 <= workers <= most:
+            raise SimError(
+                f"workers (--workers): from 1 to {most} processes (4 per CPU core), got {workers}"
+            )
         if workers > 1 and len(plan) > 1:
             import multiprocessing
 

@@ -249,6 +249,7 @@ class TrainConfig:
             (r.compile in ("none", "cells", "step"), "runtime.compile must be none, cells or step"),
             (r.final_weights in ("last", "best"), "runtime.final_weights must be last or best"),
             (r.max_minutes >= 0, "runtime.max_minutes must be >= 0 (0: no budget)"),
+            (0 <= r.seed < 2**32, "runtime.seed (--seed) must be in [0, 2**32 - 1]"),
         ]
         for ok, message in checks:
             if not ok:

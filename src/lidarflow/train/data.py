@@ -354,6 +354,13 @@ def load_train_data(
             )  # fmt: skip
         except LidarflowError as err:
             raise TrainError(f"data source {spec}: {err}") from err
+        if not any(m[:, 0].any() for m in windows.maps):  # channel 0: occupancy
+            frames = sum(len(m) for m in windows.maps)
+            raise TrainError(
+                f"data source {spec}: no occupied cell in any of its {frames} training frames "
+                "(its beams NaN, inf or out of range, or its returns off the grid): nothing to "
+                "learn from (`lidarflow info` counts its beams)"
+            )
         sources.append(windows)
         notes += more
     val = None
