@@ -53,6 +53,13 @@ def sample_recording() -> Recording:
     return read_bag(sample_bag_path())
 
 
+@pytest.fixture
+def short(tmp_path) -> Path:
+    """The sample's first 14 scans as a recording file: the smallest real input a command
+    runs on."""
+    return read_bag(sample_bag_path()).slice(0, 14).save(tmp_path / "short.npz")
+
+
 def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):
     """A run folder as `lidarflow train` leaves it, holding an untrained (random) model."""
     import json

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.data import sample_bag_path
 from lidarflow.scan import MAX_GRID_CELLS
 from tests.bagutil import write_bag
 from tests.test_cli import run
@@ -30,11 +30,6 @@ def one_line(err: str) -> str:
     assert len(lines) == 1, err
     assert "internal error" not in lines[0] and "Traceback" not in err, err
     return lines[0]
-
-
-@pytest.fixture
-def short(tmp_path):
-    return read_bag(sample_bag_path()).slice(0, 14).save(tmp_path / "short.npz")
 
 
 @pytest.mark.parametrize(

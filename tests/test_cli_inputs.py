@@ -9,16 +9,10 @@ import os
 import numpy as np
 import pytest
 
-from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.scan import MAX_RES
 from tests.bagutil import MCAP_MAGIC, _mcap_record, _mcap_string, write_bag
 from tests.test_cli import run
 from tests.test_cli_faults import one_line
-
-
-@pytest.fixture
-def short(tmp_path):
-    return read_bag(sample_bag_path()).slice(0, 14).save(tmp_path / "short.npz")
 
 
 @pytest.mark.parametrize(

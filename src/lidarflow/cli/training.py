@@ -1,14 +1,159 @@
-"""``train``: the recipes, configuration layering and resuming."""
+"""``train``: its options and messages; the config a command line resolves to is
+:mod:`lidarflow.train.invocation`'s."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from lidarflow.cli.app import TopicOpt, app
+
+DataArg = Annotated[
+    list[str] | None,
+    typer.Argument(
+        help="Training data sources: recordings (.npz), bags / ROS 2 bag folders / .mcap "
+        "(converted on the fly), folders of .npz, or quoted glob patterns. Each argument is "
+        "one source for --mix.",
+        show_default=False,
+    ),
+]
+OutputOpt = Annotated[Path | None, typer.Option("--output", "-o", help="Run directory to create.")]
+ArchOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--arch",
+        help="Architecture: flownet (LiDAR-FlowNet), deeptracking or sogmp (each with its "
+        "own recipe unless --recipe names one).",
+    ),
+]
+EgoMotionOpt = Annotated[
+    bool,
+    typer.Option(
+        "--ego-motion",
+        help="Compensate the sensor's own motion by the recordings' poses (odometry), so "
+        "the net only explains the world's motion.",
+    ),
+]
+RecipeOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Preset: head_only (default: the occupancy head alone), head (a head on a "
+        "flow network: --init RUN), paper, blurred, supervised_flow (flow from simulated "
+        "truth) or sogmp (the peer's)."
+    ),
+]
+ConfigOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--config",
+        help="JSON or TOML file of settings (partial is fine); a run's config.json works.",
+    ),
+]
+InitOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--init",
+        help="Start from these weights (run folder, weights file, or "
+        "'bundled') instead of from scratch: fine-tuning. A flow-only "
+        "model can start one with an occupancy head (the head starts fresh).",
+    ),
+]
+ResumeOpt = Annotated[
+    Path | None,
+    typer.Option(
+        help="Continue the run in this directory exactly (weights, optimizer, "
+        "schedules, RNG, data order); --epochs may extend it."
+    ),
+]
+EpochsOpt = Annotated[int | None, typer.Option(help="Epochs (paper: 200).", min=1)]
+BatchSizeOpt = Annotated[int | None, typer.Option(help="Sequences per batch (default 32).", min=1)]
+LrOpt = Annotated[float | None, typer.Option(help="Initial learning rate (default 0.01).")]
+OptimizerOpt = Annotated[str | None, typer.Option(help="adam (default), adamw or sgd.")]
+GradClipOpt = Annotated[
+    float | None, typer.Option(help="Clip the global gradient norm to this (0: off, default).")
+]
+SeqLenOpt = Annotated[int | None, typer.Option(help="Frames per sequence (default 20).", min=2)]
+WarmupOpt = Annotated[
+    int | None, typer.Option(help="Frames that only warm up the state (default 10).", min=0)
+]
+NoGaussianOpt = Annotated[
+    bool, typer.Option("--no-gaussian", help="Ablation: no Gaussian filter in the loss.")
+]
+MixOpt = Annotated[
+    list[float] | None,
+    typer.Option(
+        help="Sampling weight per source, repeated (--mix 3 --mix 1); with two "
+        "sources one value is the first's fraction."
+    ),
+]
+ValOpt = Annotated[
+    list[str] | None,
+    typer.Option("--val", help="Validation recordings (repeatable); then nothing is held out."),
+]
+ValFractionOpt = Annotated[
+    float | None, typer.Option(help="Share held out for validation (default 0.1).")
+]
+ValSplitOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="tail: the last frames of each recording (default); recordings: whole recordings."
+    ),
+]
+TrainGridOpt = Annotated[
+    int | None, typer.Option("--grid", help="Map size in cells (default 100).")
+]
+TrainResOpt = Annotated[
+    float | None, typer.Option("--res", help="Cell size in metres (default 0.1).")
+]
+DeviceOpt = Annotated[str | None, typer.Option(help="auto (CUDA if available), cpu, cuda.")]
+AmpOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="none (fp32 reference), bf16 autocast, or auto: bf16 where the device computes "
+        "it natively, fp32 elsewhere (the head recipe's default)."
+    ),
+]
+CompileOpt = Annotated[
+    bool,
+    typer.Option(
+        "--compile",
+        help="torch.compile each ConvGRU cell (pays on long runs; "
+        "--set runtime.compile=step compiles the whole step).",
+    ),
+]
+ChannelsLastOpt = Annotated[
+    bool, typer.Option("--channels-last", help="Channels-last memory format.")
+]
+TrainThreadsOpt = Annotated[
+    int | None,
+    typer.Option(
+        help="CPU threads (0: one per core, the default: training steps big batches).", min=0
+    ),
+]
+SeedOpt = Annotated[int | None, typer.Option(help="Random seed (default 0).")]
+MaxMinutesOpt = Annotated[
+    float | None,
+    typer.Option(
+        help="Wall-clock budget: stop after the first epoch that ends past this many "
+        "minutes, finished as if --epochs were that epoch (--resume continues).",
+        min=0,
+    ),
+]
+SetOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set",
+        help="Any setting as section.field=value, e.g. optim.lr=0.003, "
+        "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
+    ),
+]
+StartOverOpt = Annotated[
+    bool,
+    typer.Option("--force", help="Start the run in -o over (its old files are removed)."),
+]
 
 
 @app.command(
@@ -33,164 +178,47 @@ from lidarflow.cli.app import TopicOpt, app
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
 )
 def train(
-    data: Annotated[
-        list[str] | None,
-        typer.Argument(
-            help="Training data sources: recordings (.npz), bags / ROS 2 bag folders / .mcap "
-            "(converted on the fly), folders of .npz, or quoted glob patterns. Each argument is "
-            "one source for --mix.",
-            show_default=False,
-        ),
-    ] = None,
-    output: Annotated[
-        Path | None, typer.Option("--output", "-o", help="Run directory to create.")
-    ] = None,
-    arch: Annotated[
-        str | None,
-        typer.Option(
-            "--arch",
-            help="Architecture: flownet (LiDAR-FlowNet), deeptracking or sogmp (each with its "
-            "own recipe unless --recipe names one).",
-        ),
-    ] = None,
-    ego_motion: Annotated[
-        bool,
-        typer.Option(
-            "--ego-motion",
-            help="Compensate the sensor's own motion by the recordings' poses (odometry), so "
-            "the net only explains the world's motion.",
-        ),
-    ] = False,
-    recipe: Annotated[
-        str | None,
-        typer.Option(
-            help="Preset: head_only (default: the occupancy head alone), head (a head on a "
-            "flow network: --init RUN), paper, blurred, supervised_flow (flow from simulated "
-            "truth) or sogmp (the peer's)."
-        ),
-    ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            "--config",
-            help="JSON or TOML file of settings (partial is fine); a run's config.json works.",
-        ),
-    ] = None,
-    init: Annotated[
-        str | None,
-        typer.Option(
-            "--init",
-            help="Start from these weights (run folder, weights file, or "
-            "'bundled') instead of from scratch: fine-tuning. A flow-only "
-            "model can start one with an occupancy head (the head starts fresh).",
-        ),
-    ] = None,
-    resume: Annotated[
-        Path | None,
-        typer.Option(
-            help="Continue the run in this directory exactly (weights, optimizer, "
-            "schedules, RNG, data order); --epochs may extend it."
-        ),
-    ] = None,
-    epochs: Annotated[int | None, typer.Option(help="Epochs (paper: 200).", min=1)] = None,
-    batch_size: Annotated[
-        int | None, typer.Option(help="Sequences per batch (default 32).", min=1)
-    ] = None,
-    lr: Annotated[float | None, typer.Option(help="Initial learning rate (default 0.01).")] = None,
-    optimizer: Annotated[str | None, typer.Option(help="adam (default), adamw or sgd.")] = None,
-    grad_clip: Annotated[
-        float | None, typer.Option(help="Clip the global gradient norm to this (0: off, default).")
-    ] = None,
-    seq_len: Annotated[
-        int | None, typer.Option(help="Frames per sequence (default 20).", min=2)
-    ] = None,
-    warmup: Annotated[
-        int | None, typer.Option(help="Frames that only warm up the state (default 10).", min=0)
-    ] = None,
-    no_gaussian: Annotated[
-        bool, typer.Option("--no-gaussian", help="Ablation: no Gaussian filter in the loss.")
-    ] = False,
-    mix: Annotated[
-        list[float] | None,
-        typer.Option(
-            help="Sampling weight per source, repeated (--mix 3 --mix 1); with two "
-            "sources one value is the first's fraction."
-        ),
-    ] = None,
-    val: Annotated[
-        list[str] | None,
-        typer.Option("--val", help="Validation recordings (repeatable); then nothing is held out."),
-    ] = None,
-    val_fraction: Annotated[
-        float | None, typer.Option(help="Share held out for validation (default 0.1).")
-    ] = None,
-    val_split: Annotated[
-        str | None,
-        typer.Option(
-            help="tail: the last frames of each recording (default); recordings: whole recordings."
-        ),
-    ] = None,
+    data: DataArg = None,
+    output: OutputOpt = None,
+    arch: ArchOpt = None,
+    ego_motion: EgoMotionOpt = False,
+    recipe: RecipeOpt = None,
+    config: ConfigOpt = None,
+    init: InitOpt = None,
+    resume: ResumeOpt = None,
+    epochs: EpochsOpt = None,
+    batch_size: BatchSizeOpt = None,
+    lr: LrOpt = None,
+    optimizer: OptimizerOpt = None,
+    grad_clip: GradClipOpt = None,
+    seq_len: SeqLenOpt = None,
+    warmup: WarmupOpt = None,
+    no_gaussian: NoGaussianOpt = False,
+    mix: MixOpt = None,
+    val: ValOpt = None,
+    val_fraction: ValFractionOpt = None,
+    val_split: ValSplitOpt = None,
     topic: TopicOpt = None,
-    grid: Annotated[
-        int | None, typer.Option("--grid", help="Map size in cells (default 100).")
-    ] = None,
-    res: Annotated[
-        float | None, typer.Option("--res", help="Cell size in metres (default 0.1).")
-    ] = None,
-    device: Annotated[str | None, typer.Option(help="auto (CUDA if available), cpu, cuda.")] = None,
-    amp: Annotated[
-        str | None,
-        typer.Option(
-            help="none (fp32 reference), bf16 autocast, or auto: bf16 where the device computes "
-            "it natively, fp32 elsewhere (the head recipe's default)."
-        ),
-    ] = None,
-    compile: Annotated[
-        bool,
-        typer.Option(
-            "--compile",
-            help="torch.compile each ConvGRU cell (pays on long runs; "
-            "--set runtime.compile=step compiles the whole step).",
-        ),
-    ] = False,
-    channels_last: Annotated[
-        bool, typer.Option("--channels-last", help="Channels-last memory format.")
-    ] = False,
-    threads: Annotated[
-        int | None,
-        typer.Option(
-            help="CPU threads (0: one per core, the default: training steps big batches).", min=0
-        ),
-    ] = None,
-    seed: Annotated[int | None, typer.Option(help="Random seed (default 0).")] = None,
-    max_minutes: Annotated[
-        float | None,
-        typer.Option(
-            help="Wall-clock budget: stop after the first epoch that ends past this many "
-            "minutes, finished as if --epochs were that epoch (--resume continues).",
-            min=0,
-        ),
-    ] = None,
-    set_: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--set",
-            help="Any setting as section.field=value, e.g. optim.lr=0.003, "
-            "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
-        ),
-    ] = None,
-    force: Annotated[
-        bool,
-        typer.Option("--force", help="Start the run in -o over (its old files are removed)."),
-    ] = False,
+    grid: TrainGridOpt = None,
+    res: TrainResOpt = None,
+    device: DeviceOpt = None,
+    amp: AmpOpt = None,
+    compile: CompileOpt = False,
+    channels_last: ChannelsLastOpt = False,
+    threads: TrainThreadsOpt = None,
+    seed: SeedOpt = None,
+    max_minutes: MaxMinutesOpt = None,
+    set_: SetOpt = None,
+    force: StartOverOpt = False,
 ) -> None:
     """``lidarflow train``: the help text above says it all (kept there for --help)."""
-    import dataclasses
-
-    from lidarflow.errors import OutputError, TrainError
-    from lidarflow.train.config_io import build_config, config_from_dict, load_config_file
-    from lidarflow.train.loop import train as run_training
-    from lidarflow.train.recipes import default_recipe
+    from lidarflow.train.invocation import (
+        ResumeConflictError,
+        TrainRequest,
+        new_run_config,
+        refuse_inputs_in,
+        resumed_run_config,
+    )
 
     flags = {
         "model.name": arch,
@@ -218,6 +246,7 @@ def train(
         "runtime.seed": seed,
         "runtime.max_minutes": max_minutes,
     }
+    request = TrainRequest(data or [], flags, recipe, config, set_ or [], ego_motion, val or [])
     if resume is not None:
         if force:
             raise typer.BadParameter(
@@ -228,42 +257,10 @@ def train(
                 f"--resume {resume} and -o {output} name different runs; give one",
                 param_hint="--resume",
             )
-        # how the run executes may change (device, amp, threads...), not what it computes
-        free = {"optim.epochs"} | {k for k in flags if k.startswith("runtime.")} - {"runtime.seed"}
-        # a run copied elsewhere names its recordings again (checked below)
-        moved = {"data.val_sources"}
-        changed = [k for k, v in flags.items() if v is not None and k not in free | moved]
-        changed += ["--ego-motion"] if ego_motion else []
-        keys = {o: o.split("=", 1)[0].strip() for o in set_ or ()}
-        runtime_sets = [
-            o
-            for o, k in keys.items()
-            if (k.startswith("runtime.") and k != "runtime.seed") or k == "optim.epochs"
-        ]
-        changed += [f"--set {o}" for o in keys if o not in runtime_sets]
-        if changed or recipe or config:
-            raise typer.BadParameter(
-                "a resumed run keeps its config (only --epochs and runtime options may change); "
-                f"drop {', '.join(changed) or '--recipe/--config'} or start a new run",
-                param_hint="--resume",
-            )
-        if not (resume / "config.json").is_file():
-            raise TrainError(
-                f"{resume}: not a training run (no config.json); --resume takes a folder that "
-                "`lidarflow train -o` wrote"
-            )
-        saved = config_from_dict(load_config_file(resume / "config.json"))
-        kept = {k: v for k, v in flags.items() if k in free}
-        for key, recorded, given, how in (
-            ("data.sources", saved.data.sources, data, "DATA..."),
-            ("data.val_sources", saved.data.val_sources, val, "--val V..."),
-        ):
-            found = _found_again(
-                resume, list(recorded), [os.path.abspath(g) for g in given or ()], how
-            )
-            if found is not None:
-                kept[key] = found
-        cfg = build_config(saved.recipe, resume / "config.json", kept, runtime_sets)
+        try:
+            cfg = resumed_run_config(resume, request)
+        except ResumeConflictError as err:  # a usage error: the command line asked for it
+            raise typer.BadParameter(str(err), param_hint="--resume") from err
         run_dir = resume
     else:
         if output is None:
@@ -272,72 +269,28 @@ def train(
             )
         if not data and config is None:
             raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
-        if data:  # absolute, so that --resume works from any folder (globs too)
-            flags["data.sources"] = [os.path.abspath(d) for d in data]
-        in_file = load_config_file(config) if config else {}
-        if recipe is None and "recipe" not in in_file:
-            section = in_file.get("model")  # not a table: build_config says so, in one line
-            named = arch or (section.get("name") if isinstance(section, dict) else None)
-            recipe = default_recipe(named, ego_motion)
-        cfg = build_config(recipe, config, flags, set_ or ())
-        if ego_motion:  # added to, not replacing, the rest of the model
-            cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, ego_motion=True))
-        _refuse_inputs_in(output, [*cfg.data.sources, *cfg.data.val_sources, cfg.model.init])
+        cfg = new_run_config(request)
+        refuse_inputs_in(output, cfg)
         run_dir = output
+    _run(cfg, run_dir, resume is not None, force)
+
+
+def _run(cfg: Any, run_dir: Path, resume: bool, start_over: bool) -> None:
+    """Train ``cfg`` into ``run_dir``; where it stops (Ctrl-C, a full disk), say how to go on."""
     from tqdm import tqdm
+
+    from lidarflow.errors import OutputError, TrainError
+    from lidarflow.train.invocation import where_it_stopped
+    from lidarflow.train.loop import train as run_training
 
     try:
         result = run_training(
-            cfg.validate(), run_dir, resume=resume is not None, echo=tqdm.write, start_over=force
+            cfg.validate(), run_dir, resume=resume, echo=tqdm.write, start_over=start_over
         )
     except KeyboardInterrupt as interrupt:
-        raise KeyboardInterrupt(_where_it_stopped(run_dir)) from interrupt
+        raise KeyboardInterrupt(where_it_stopped(run_dir)) from interrupt
     except (OSError, OutputError) as err:  # a full disk, mostly: say how to go on once fixed
         named = isinstance(err, OSError) and err.filename and err.strerror
         what = f"{err.filename}: {err.strerror}" if named else str(err)
-        raise TrainError(f"{what}; {_where_it_stopped(run_dir)}") from err
+        raise TrainError(f"{what}; {where_it_stopped(run_dir)}") from err
     typer.echo(f"wrote {result.run_dir / 'model.safetensors'} and {result.run_dir / 'model.json'}")
-
-
-def _refuse_inputs_in(run_dir: Path, inputs: list[str | None]) -> None:
-    """Refuse a run folder that is, or holds, what the run reads (``--force`` would remove
-    it), the sources' glob patterns expanded."""
-    import glob
-
-    from lidarflow.atomic import check_not_input
-
-    check_not_input(run_dir, [m for s in inputs if s for m in [s, *glob.glob(s)]])
-
-
-def _where_it_stopped(run_dir: Path) -> str:
-    """What a user who pressed Ctrl-C needs next: whether the run resumes, and how."""
-    from lidarflow.errors import TrainError
-    from lidarflow.train.checkpoint import latest_epoch
-
-    try:
-        done = latest_epoch(run_dir)
-    except TrainError:
-        done = 0
-    if done:
-        return f"`lidarflow train --resume {run_dir}` continues {run_dir} after epoch {done}"
-    return f"no epoch of {run_dir} finished; run the same command again to start it over"
-
-
-def _found_again(run: Path, recorded: list[str], given: list[str], how: str) -> list[str] | None:
-    """The recordings a resumed run continues on: ``None`` to keep ``recorded``, or ``given``
-    where the run was copied elsewhere (every recorded path gone, the same names given).
-    Raises :class:`TrainError` for other recordings, or for recorded ones gone and not given."""
-    from lidarflow.errors import TrainError
-
-    missing = [r for r in recorded if not os.path.exists(r)]
-    if given and given != recorded:
-        names = [os.path.basename(r) for r in recorded]
-        if missing != recorded or [os.path.basename(g) for g in given] != names:
-            raise TrainError(f"{run} was trained on {recorded}, not {given}")
-        return given
-    if missing:
-        raise TrainError(
-            f"{run} was trained on {', '.join(missing)}, not there any more; give the "
-            f"recordings again where they are now: lidarflow train {how} --resume {run}"
-        )
-    return None
