@@ -44,7 +44,8 @@ class ModelConfig:
     occupancy ``head`` (``None``: none; ``--set model.head.hidden_channels=16`` adds one), the
     ego-motion wrapper (``ego_motion``, ``poses_optional``) and, for DeepTracking and SOGMP,
     their own ``options`` (e.g. ``--set model.options.visibility_input=true``).
-    Configs written before issue 35 gave these as one flat ``model.kwargs`` table, which is still
+    Configs written before the model was built from blocks gave these as one flat
+    ``model.kwargs`` table, which is still
     read (:func:`lidarflow.train.config_io.build_config`).
 
     ``init``: weights to start from instead of the initialisation (a run folder or weights file

@@ -148,7 +148,7 @@ def _without_removed(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def _flat_model_read(base: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` with a flat ``model.kwargs`` table (configs before issue 35: the whole model in
+    """``data`` with a flat ``model.kwargs`` table (older configs: the whole model in
     ``build_model``'s keyword form, decision keys included) read as the typed model settings and
     the ``decision`` section it describes. As then, it describes the whole model."""
     model = data.get("model")
