@@ -14,7 +14,7 @@ odometry). Beside an ego-motion model the table shows copy_last_ego (the last ma
 odometry) as a reference; verdicts count the three baselines only.
 
 ``--sensors 270deg_40Hz_30m --seed 505 --frames 600`` is the 40 Hz scanner (270 degrees, 30 m)
-of the model card, faster than any development recording.
+of the model history (docs/model), faster than any development recording.
 
 Writes the recordings (OUT/<sensor>_<scenario>.npz, reused), each evaluation beside its
 recording (.json), and OUT/sensors.json and OUT/sensors.md (with --without-poses:

@@ -1,4 +1,4 @@
-"""Supervised flow loss: end-point error against exact flow (the simulator's), issue 36 item 1.
+"""Supervised flow loss: end-point error against exact flow (the simulator's).
 
 The self-supervised warp loss (:mod:`lidarflow.losses`) left the flow network's output at noise
 (worse than zero flow on simulated held-out seeds). The simulator knows the exact flow, so the

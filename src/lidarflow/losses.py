@@ -14,7 +14,7 @@ Flow loss variants are configuration (:class:`LossConfig`), not forks; the liter
 
     L = MSE(O^t, W(G(O^{t+1}, k), F^t)) + MSE(O^{t+1}, W(G(O^t, k), B^t))
 
-Issue 11 measured this literal form to collapse on real recordings (a blurred source against a
+This literal form collapses on real recordings (a blurred source against a
 binary target rewards flow that samples from empty space); ``LossConfig.blurred_both()`` blurs
 the target too, so that zero flow is the minimum at every filter size when nothing moves.
 """
@@ -109,7 +109,7 @@ class LossConfig:
     @classmethod
     def blurred_both(cls) -> LossConfig:
         """Source and target both filtered: ``MSE(G(O^{t+1}), W(G(O^t), B))`` and the forward
-        term alike (issue 11: no collapse where the literal loss collapsed)."""
+        term alike: zero flow is the minimum where nothing moves, so no collapse."""
         return cls(blur_target=True)
 
     def replace(self, **changes: object) -> LossConfig:

@@ -475,3 +475,18 @@ def test_odometry_whose_clock_does_not_jump_gives_no_poses_after_the_jump(tmp_pa
     assert np.isnan(rec.poses[12:]).all()
     assert rec.meta["clock_jumps"][0]["poses_matched"] is False
     assert describe_recording(rec)["clock_jumps"][0]["poses_matched"] is False
+
+
+def test_pose_of_reads_the_planar_pose_of_odometry_and_pose_stamped():
+    from types import SimpleNamespace as Ns
+
+    from lidarflow.data.bags import pose_of
+
+    yaw = 0.7
+    q = Ns(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))
+    pose = Ns(position=Ns(x=1.5, y=-2.0, z=9.0), orientation=q)
+    odometry = Ns(pose=Ns(pose=pose, covariance=[0.0] * 36))  # nav_msgs/Odometry
+    stamped = Ns(pose=pose)  # geometry_msgs/PoseStamped
+    for msg in (odometry, stamped):
+        x, y, theta = pose_of(msg)
+        assert (x, y) == (1.5, -2.0) and theta == pytest.approx(yaw)

@@ -22,8 +22,19 @@ def test_bundled_model_loads_and_matches_its_record():
     # v10 is v9's head with the tracked movers laid over its map (issue 44)
     assert card["decision"]["movers"]
 
-    card_text = (bundled_model_dir() / "MODEL_CARD.md").read_text()
-    assert "Held-out recordings" in card_text and "copy_last" in card_text
+
+def test_the_package_ships_the_model_and_a_short_card_not_the_research():
+    folder = bundled_model_dir()
+    # what the code reads at run time, and the card; the history and tables live in docs/model
+    shipped = sorted(p.name for p in folder.iterdir())
+    assert shipped == ["MODEL_CARD.md", "model.json", "model.onnx", "model.safetensors"]
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert len(card) < 8000 and BUNDLED.weights_sha256 in card and BUNDLED.onnx_sha256 in card
+    # its held-out numbers say where it loses, and it points to the full history
+    assert "loses" in card and "6 of 9" in card and "Known limits" in card
+    history = folder.parents[3] / "docs" / "model"
+    if history.is_dir():  # a source checkout, not an installed wheel
+        assert "docs/model/README.md" in card and (history / "heldout.json").is_file()
 
 
 def test_the_word_bundled_names_the_bundled_model(tmp_path, monkeypatch):

@@ -9,6 +9,7 @@ import pytest
 from lidarflow.errors import TrainError
 from lidarflow.losses import LossConfig
 from lidarflow.models import HeadConfig, ModelSpec
+from lidarflow.models.presets import bundled_model_dir
 from lidarflow.train.config import TrainConfig
 from lidarflow.train.config_io import (
     apply_overrides,
@@ -171,10 +172,13 @@ def test_bad_config_files_and_values(tmp_path):
         with pytest.raises(TrainError, match=r"data\.pose_dropout is a fraction"):
             build_config(None, None, {"data.pose_dropout": value})
     assert build_config(None, None, {"data.pose_dropout": 1.0}).data.pose_dropout == 1
-    for copies in ([1], [2, 0], [2, 2]):
-        with pytest.raises(TrainError, match=r"data\.slower_copies"):
-            build_config(None, None, {"data.slower_copies": copies})
-    assert build_config(None, None, {"data.slower_copies": [2, 3]}).data.slower_copies == [2, 3]
+    # data.slower_copies, measured without gain, is gone: a config written while it existed
+    # (off: []) still reads, one that turns it on is refused.
+    assert build_config(None, None, {"data.slower_copies": []}) == build_config()
+    bundled = json.loads((bundled_model_dir() / "model.json").read_text())["config"]
+    assert bundled["data"]["slower_copies"] == [] and config_from_dict(bundled).data.sources
+    with pytest.raises(TrainError, match=r"data\.slower_copies was measured without gain"):
+        build_config(None, None, {"data.slower_copies": [2]})
     # Options measured without gain are gone: a config naming one is refused.
     for removed in ("data.static_shift", "data.sensor_copies", "data.scan_motions"):
         with pytest.raises(TrainError):

@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from lidarflow.data.views import SensorView
 from lidarflow.errors import TrainError
 from lidarflow.train.config import DataConfig
-from lidarflow.train.data import _with_copies, expand_source, load_train_data
+from lidarflow.train.data import expand_source, load_train_data
 from lidarflow.train.loaders import MixSampler, make_loader
 from tests.train.blobs import blob_recording
 
@@ -123,33 +122,3 @@ def test_subcell_windows_carry_each_frames_subcell_maps(blob_files):
     expected = load_any(blob_files[rec]).subcell_maps(GridSpec(32, 32, 0.1))[start : start + 10]
     assert expected.any()
     np.testing.assert_array_equal(item[:, 2:].numpy().astype(bool), expected)
-
-
-def test_slower_copies_serve_every_kth_training_frame_and_leave_validation_alone(blob_files):
-    data = load_train_data(_cfg(blob_files, val_fraction=0.25, slower_copies=[2]))
-    # per source: the recording's 45 training frames (4 windows) and their copy, 23 frames
-    # (2 windows); validation is the 15-frame tails as recorded, one window each
-    assert [len(s) for s in data.sources] == [6, 6]
-    assert data.val is not None and len(data.val) == 2
-    occ, _ = blob_recording(60, seed=1).maps(data.grid)
-    assert np.array_equal(data.sources[0].maps[1][:, 0], occ[0:45:2])
-    assert data.val.maps[0].shape[0] == 15 and np.array_equal(data.val.maps[0][:, 0], occ[45:])
-    # whole recordings held out: no copy of one of them trains, none validates
-    data = load_train_data(
-        _cfg(
-            [blob_files[0].parent / "blob_*.npz"],
-            val_split="recordings",
-            val_fraction=0.5,
-            slower_copies=[2, 3],
-        )
-    )
-    assert [len(s) for s in data.sources] == [6 + 3 + 2] and len(data.val) == 6
-    assert [m.shape[0] for m in data.sources[0].maps] == [60, 30, 20]
-
-
-def test_slower_copies_are_named_by_the_scans_they_keep():
-    rec = blob_recording(60, seed=1)
-    rec.meta["source"] = "A"
-    copies = _with_copies(rec, [SensorView(every_scan=2), SensorView()])
-    assert copies[0] is rec and rec.meta["source"] == "A"  # the view of nothing adds nothing
-    assert [c.meta["source"] for c in copies[1:]] == ["A (1 scan in 2)"]

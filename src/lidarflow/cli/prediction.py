@@ -194,7 +194,7 @@ def predict(
         names = [str(i) for i in inputs]
         done = run_jobs(predict_input, tasks, names, workers, threads, desc, said)
     if "flow" in groups and any(o.value is not None and not o.value.has_flow for o in done):
-        # The bundled model is the occupancy head alone since v9 (issue 36): say why it is absent.
+        # A head-only model (the bundled one) has no flow to write: say why it is absent.
         typer.echo(
             "note: this model has no flow network, so no flow or moving cells were written; "
             "pass --model of a flow model (e.g. one trained with --recipe blurred) for them"

@@ -141,7 +141,12 @@ def evaluate(
     something moved through). A model wins when its F1 beats the best baseline's, its
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
-    from lidarflow.cli.useless import warn_nothing_scored, warn_pose_jumps, warn_unknown_beams
+    from lidarflow.cli.useless import (
+        refuse_too_short,
+        warn_nothing_scored,
+        warn_pose_jumps,
+        warn_unknown_beams,
+    )
     from lidarflow.errors import RecordingError
     from lidarflow.evaluate.report import (
         format_comparison,
@@ -176,7 +181,7 @@ def evaluate(
     named = []
     for path in inputs:
         recording = load_input(path, topic, odom_topic)
-        _check_length(str(path), recording, warmup, horizon)
+        refuse_too_short(str(path), recording, warmup, horizon)
         if ego_oracle and not recording.has_poses:  # the oracle's true poses are the recording's
             raise RecordingError(
                 f"{path}: --ego-oracle tells models the true next pose, and this recording has "
@@ -324,19 +329,6 @@ def _evaluate_in_jobs(
         [s.notes for s in scored], config, settings.report_dir, figures,
     )  # fmt: skip
     return report, [s.horizon for s in scored]
-
-
-def _check_length(name: str, recording: Any, warmup: int, horizon: int) -> None:
-    """Refuse a recording too short to score, naming it, as soon as it is read: not after the
-    long scoring of the ones before it."""
-    from lidarflow.data.gaps import frames_after_gaps
-    from lidarflow.evaluate.horizon import scored_frames
-    from lidarflow.evaluate.stream import check_length
-
-    gaps = frames_after_gaps(recording.stamps_ns)
-    check_length(len(recording), warmup, gaps, name)
-    if horizon > 1:
-        scored_frames(len(recording), horizon, warmup, gaps, name)
 
 
 def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:

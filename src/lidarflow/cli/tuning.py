@@ -73,9 +73,9 @@ def choose_offset(
     import tempfile
 
     from lidarflow.atomic import atomic_path, write_text
-    from lidarflow.cli.scoring import _check_length
     from lidarflow.cli.useless import (
         nothing_scored,
+        refuse_too_short,
         warn_nothing_scored,
         warn_pose_jumps,
         warn_unknown_beams,
@@ -104,7 +104,7 @@ def choose_offset(
     named = []
     for path in inputs:
         recording = load_input(path, topic, odom_topic)
-        _check_length(str(path), recording, warmup, 1)
+        refuse_too_short(str(path), recording, warmup, 1)
         warn_unknown_beams(path, recording)
         warn_pose_jumps(path, recording)
         named.append((str(path), recording))

@@ -1,5 +1,6 @@
 """Saying so where a command's input leaves nothing worth scoring, rather than scoring it in
-silence: a recording whose beams are mostly unknown, a recording where nothing was scored."""
+silence: a recording whose beams are mostly unknown, one too short to score, a recording where
+nothing was scored."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import typer
 __all__ = [
     "MOST_BEAMS_UNKNOWN",
     "nothing_scored",
+    "refuse_too_short",
     "refuse_without_returns",
     "warn_nothing_scored",
     "warn_unknown_beams",
@@ -51,6 +53,20 @@ def warn_pose_jumps(path: str | Path, recording: Any) -> None:
             "which misplace those frames in the world frame the mover region is counted in",
             err=True,
         )
+
+
+def refuse_too_short(name: str, recording: Any, warmup: int, horizon: int) -> None:
+    """Refuse a recording too short to score, naming it, as soon as it is read: not after the
+    long scoring of the ones before it. ``horizon`` above 1 also needs frames ``horizon`` steps
+    ahead of the warm-up."""
+    from lidarflow.data.gaps import frames_after_gaps
+    from lidarflow.evaluate.horizon import scored_frames
+    from lidarflow.evaluate.stream import check_length
+
+    gaps = frames_after_gaps(recording.stamps_ns)
+    check_length(len(recording), warmup, gaps, name)
+    if horizon > 1:
+        scored_frames(len(recording), horizon, warmup, gaps, name)
 
 
 def refuse_without_returns(path: str | Path, recording: Any, what: str) -> None:

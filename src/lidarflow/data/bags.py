@@ -62,6 +62,7 @@ __all__ = [
     "list_topics",
     "nearest_echoes",
     "open_bag",
+    "pose_of",
     "read_bag",
     "unzip_folder",
     "unzipped_bag",
@@ -357,7 +358,10 @@ def _stamped(scans: list[Scan], stamps_ns: np.ndarray) -> list[Scan]:
     return [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, stamps_ns, strict=True)]
 
 
-def _pose_of(msg: Any) -> tuple[float, float, float]:
+def pose_of(msg: Any) -> tuple[float, float, float]:
+    """The planar pose ``(x, y, yaw)`` (metres, radians) of an Odometry or PoseStamped message
+    (anything with ``pose.pose`` or ``pose``: ``position`` and an ``orientation`` quaternion);
+    yaw is the rotation about z."""
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
     q = pose.orientation
     yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
@@ -433,7 +437,7 @@ def read_bag(
                     body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
                     pose_stamps.append(_stamp_ns(msg))
                     pose_log_times.append(int(log_time))
-                    pose_values.append(_pose_of(msg))
+                    pose_values.append(pose_of(msg))
                     continue
                 frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
                 if conn.msgtype == MULTI_ECHO:

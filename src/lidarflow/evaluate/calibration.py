@@ -1,4 +1,4 @@
-"""Calibration of predicted occupancy probabilities (issue 8: uncertainty planners can use).
+"""Calibration of predicted occupancy probabilities (what a planner weighing uncertainty needs).
 
 A predictor is calibrated when, of all cells given probability ``p`` of being occupied in the
 next frame, a share ``p`` really is. Measured, over every cell of every scored frame:

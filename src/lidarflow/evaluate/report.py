@@ -31,7 +31,7 @@ __all__ = [
     "undefined_note",
 ]
 
-#: The baselines a model must beat (the tracker since issue 44).
+#: The baselines a model must beat.
 BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker")
 #: Names ending so are variants that know the true next pose: no deployable method, no verdict.
 ORACLE_SUFFIX = "_oracle"

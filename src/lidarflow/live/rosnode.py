@@ -95,9 +95,9 @@ class RosNode(ABC):
         return geometry
 
     def _on_odom(self, msg: Any) -> None:
-        from lidarflow.data.bags import _pose_of  # the planar pose, as a bag's is read
+        from lidarflow.data.bags import pose_of  # the planar pose, as a bag's is read
 
-        self._odom = (_pose_of(msg), str(msg.child_frame_id).lstrip("/"))
+        self._odom = (pose_of(msg), str(msg.child_frame_id).lstrip("/"))
 
     def _on_tf(self, msg: Any) -> None:
         with self._tf_lock:

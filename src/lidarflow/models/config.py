@@ -30,7 +30,7 @@ __all__ = [
 MODEL_NAMES: tuple[str, ...] = ("flownet", "deeptracking", "sogmp")
 #: Keys older ``model_kwargs`` held that belong to the decision policy, not the model.
 DECISION_KEYS = ("decision_offset", "online_decision")
-#: Options measured without gain and removed (issue 35), with the value a model built without
+#: Options measured without gain and removed, with the value a model built without
 #: them had: a file that sets one otherwise names a model this version cannot build.
 REMOVED_OPTIONS: dict[str, Any] = {
     "memory_bias_correction": False,
@@ -208,7 +208,7 @@ class ModelSpec:
             if option in kwargs and kwargs.pop(option) != default:
                 raise ValueError(
                     f"{option} was measured without gain and removed; this model needs it "
-                    "(train it again, or use lidarflow before issue 35 for it)"
+                    "(train it again, or use lidarflow at commit a4a22da for it)"
                 )
         if name != "flownet":
             return cls(name, ego_motion=ego, poses_optional=optional, options=kwargs), decision

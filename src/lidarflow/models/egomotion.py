@@ -1,4 +1,4 @@
-"""Ego-motion compensation around any recurrent map model (issue 8; Dequaire et al. 2018).
+"""Ego-motion compensation around any recurrent map model (Dequaire et al. 2018).
 
 ``EgoCompensated(inner)`` is a :class:`RecurrentMapModel` whose ``step`` also takes the sensor's
 own motion, so that the inner network only has to explain the motion of the world:

@@ -13,8 +13,8 @@ non-linearity conv0 would merely compose with each gate's ``W_x*`` into one larg
 (the linear variant was measured no better and removed). It adds no parameters.
 
 The flow head starts at zero (``FlowConfig.zero_init``): the untrained net outputs zero flow, so
-its prediction ``W(O^t, 0) = O^t`` is copy-last, the baseline it has to beat (issue 11 measured
-this start to train better than a random head). Every layer is a 'same' convolution, so the grid
+its prediction ``W(O^t, 0) = O^t`` is copy-last, the baseline it has to beat (a start that
+trained better than a random head). Every layer is a 'same' convolution, so the grid
 size is free.
 """
 

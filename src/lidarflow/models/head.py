@@ -1,6 +1,6 @@
 """The occupancy head: a per-cell probability of the next map on top of the flow's warp.
 
-Not in the paper (issue 11). Warping can only move cells that were seen, and a thresholded warp
+Not in the paper. Warping can only move cells that were seen, and a thresholded warp
 of a binary map cannot say "this cell flickers" or "this cell will likely be free". The head
 keeps, as recurrent state, exponential moving averages ``m`` of the occupancy (decays
 ``HeadConfig.memory_decays``; what the temporal-average baseline knows), and from each cell's own
@@ -16,7 +16,7 @@ occupied cell to :data:`OCCUPIED_PROBABILITY_INIT`, so the untrained model is ex
 the 0.4 threshold (a symmetric start at 0.05 / 0.95 made the first epoch predict nothing
 occupied).
 
-Inputs, each measured in issue 11's leave-one-out study (``docs/research/``):
+Inputs (each one's leave-one-out measurement is in ``docs/research/leave_one_out/``):
 
 - ``constant_velocity_input``: the constant-velocity baseline's prediction (the current map moved
   once more by the integer shift that best maps the previous map onto it,

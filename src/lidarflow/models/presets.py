@@ -3,7 +3,8 @@
 A :class:`WeightsRecord` names the files shipped in ``lidarflow/assets/``, their SHA-256, and
 carries their meta: what they were trained on and by which command, their size, and how the
 recipe did on real recordings it never saw (leave-one-recording-out), beside the best baseline
-(the model card, ``MODEL_CARD.md`` beside the weights, has the whole history).
+(``MODEL_CARD.md`` beside the weights is the short card; the whole history is in the source
+repository's ``docs/model/``).
 
 >>> from lidarflow.models.presets import BUNDLED, lidar_flownet   # doctest: +SKIP
 >>> model = lidar_flownet(weights=BUNDLED)       # the bundled model, ready to stream
@@ -103,7 +104,7 @@ BUNDLED = WeightsRecord(
             "general_tracking_moving_1": (0.7571, 0.7014, 0.0489),
         },
         # F1 / changed-cell F1 in-sample (online decision): v8 with its flow, and v9
-        # (MODEL_CARD.md: v8's head in a flow-free model scored lower on five of seven).
+        # (docs/model: v8's head in a flow-free model scored lower on five of seven).
         "insample_v8_v9": {
             "positive_1": ((0.9438, 0.3694), (0.9432, 0.3011)),
             "positive_2": ((0.9535, 0.3821), (0.9531, 0.3661)),

@@ -1,5 +1,5 @@
 """Speed options for the recurrent models, kept out of the models themselves so the plain eager
-fp32 path stays the reference (issue 5).
+fp32 path stays the reference.
 
 Measured on the 2-core CPU (benchmarks/bench_train_step.py): channels-last memory format makes
 oneDNN's convolutions faster, bf16 autocast (AVX512-BF16) faster still, and ``torch.compile``
@@ -7,8 +7,8 @@ fuses the ConvGRU's gate arithmetic (sigmoid, tanh, products, and their backward
 kernels where eager PyTorch makes a pass over memory per operation.
 
 bf16 pays only where the hardware computes it: on a CPU without native bf16 (AVX2 only, no
-AVX512 / AMX) oneDNN emulates it, and the training loop ran ~10x slower under bf16 autocast
-than in fp32 (benchmarks/results/train_loop_amp_avx2.json). :func:`native_bf16` tells which.
+AVX512 / AMX) oneDNN emulates it, and bf16 autocast is then many times slower than fp32
+(benchmarks/results/train_loop_amp_avx2.json). :func:`native_bf16` tells which.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ and ``model.json`` (``{"model": name, "model_kwargs": {...}, "decision": {...}, 
 ...}``: enough to rebuild the net, how to decide its next map, and where it came from). A
 weights file ``X.safetensors`` looks for ``X.json`` first, then ``model.json`` in its folder.
 
-Files written before the model was built from blocks (issue 35) keep loading: their parameter
+Files written before the model was built from blocks keep loading: their parameter
 names are moved to the blocks' (:func:`upgrade_state`) and the decision keys among their
 ``model_kwargs`` become the ``decision`` record.
 """

@@ -4,8 +4,8 @@ A placement is a candidate turn (:data:`YAWS`) and an index shift ``(a, b)`` (up
 :data:`MAX_SHIFT` cells each way); its score is how many of the previous map's occupied cells,
 turned about the sensor into the current frame (each cell once) and shifted, land on an occupied
 cell of the current map. The best of the 17 x 25 x 25 placements is wanted. Scoring them all
-(an FFT per turn, as ``match_maps`` did until issue 46) was most of scan matching's cost, and
-most placements are nowhere near the best.
+(an FFT per turn) would be most of scan matching's cost, and most placements are nowhere near
+the best.
 
 Branch and bound (Olson 2009, "Real-time correlative scan matching", section IV) finds the same
 best placement while scoring few: the shifts are cut into blocks of :data:`BLOCK` x

@@ -28,7 +28,7 @@ from lidarflow.scan import GridSpec
 POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
 #: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "online": bool,
 #: "gain": g, "calibrated": true}``, the policy it ships with and what the Predictor needs to
-#: choose the offsets online. Files exported before issue 35 (no ``calibrated``) output the
+#: choose the offsets online. Older files (no ``calibrated``) output the
 #: probability decided with ``offset``, which the backend takes back out; files marked before
 #: ``gain`` was added try the moved map only.
 DECISION_KEY = "lidarflow.decision"
@@ -134,8 +134,8 @@ class OnnxBackend:
         if threads:
             options.intra_op_num_threads = threads
         # A step's operators are small (a 100 x 100 map): onnxruntime's idle workers spinning
-        # for the next one took the core the caller needed, and 2 threads ran 2.5x slower than
-        # 1 beside a busy process (issue 46). Blocking workers cost a wake-up instead.
+        # for the next one take the core the caller needs beside a busy process
+        # (docs/research/step_speed). Blocking workers cost a wake-up instead.
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(
@@ -168,7 +168,7 @@ class OnnxBackend:
         )
         gain = None if decision is None else decision.get("gain")
         self.gain = None if gain is None else float(gain)
-        # Exported before issue 35 the graph's probability carries the fixed offset.
+        # In an older export (no "calibrated") the graph's probability carries the fixed offset.
         self._baked_offset = 0.0
         if decision is not None and not decision.get("calibrated"):
             self._baked_offset = self.decision["offset"]
@@ -294,7 +294,7 @@ def load_backend(
     from lidarflow.predict.headstep import HeadStepBackend, supports
 
     if device == "cpu" and supports(net):
-        # The head alone: its step in NumPy, ~0.2 ms against ~2.4 ms of PyTorch's per-operator
-        # overhead (issue 46); the same numbers within 1e-5 (tests/predict/test_headstep.py).
+        # The head alone: its step in NumPy, without PyTorch's per-operator overhead; the same
+        # numbers within 1e-5 (tests/predict/test_headstep.py).
         return HeadStepBackend(net, threads), card
     return TorchBackend(net, device, threads), card

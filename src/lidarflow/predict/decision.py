@@ -1,5 +1,5 @@
 """How the next map is decided from a model's probability: a fixed offset, or offsets chosen
-online, on the stream itself (issue 11).
+online, on the stream itself.
 
 An occupancy-head model gives a calibrated probability ``sigmoid(logit)`` (trained by
 cross-entropy). Cross-entropy predicts a change only when it is likelier than the 0.4
@@ -8,39 +8,31 @@ the logit buys them back at a small price in F1. The offset ``a`` applies on the
 last map, moved by the model's backward flow, says are occupied and ``b`` on the free ones. The
 :class:`DecisionPolicy` is the Predictor's configuration (a model ships with its own, in its
 ``model.json``): a fixed offset chosen on the training recordings (``lidarflow tune-offset``),
-and whether to choose the offsets online, starting from it. A recording from another robot may
-want other offsets: measured in leave-one-out, the offsets that the held-out recording itself
-would have taken differ by up to 1.2 from the chosen ones.
+and whether to choose the offsets online, starting from it: a recording from another robot may
+want other offsets than the training recordings (``docs/research/online_decision/``).
 
 Every frame that arrives is the target of the prediction made one frame before, so the stream
 scores itself as it goes. :class:`OnlineDecision` keeps, for every pair ``(a, b)`` of a grid,
 recent (decayed) true-positive / predicted / positive counts of the decisions that pair would
 have made, over all cells and over the cells that changed; and, decayed more slowly
 (``history_decay``), the counts of the decisions it did make and of the three baselines run
-beside it (copy-last, temporal average, constant velocity). The issue's criterion is the *win
+beside it (copy-last, temporal average, constant velocity). The criterion is the *win
 margin* of a whole recording, ``min(F1 - best baseline F1, changed F1 - best baseline changed
 F1)``. Each frame predicts with the pair that would leave that margin largest if the next
 ``lookahead`` frames went as the pair's recent ones did, on top of the decisions made so far:
 where the stream is behind in F1 it picks a pair that gains F1, where behind in changed-cell
-F1 one that gains those. (Picking the pair with the best recent margin of its own scores
-within a few thousandths of it in leave-one-out, a little lower on the recording it wins by
-least; what mattered more is the grid: occupied-cell offsets down to -0.6 lost a recording
-that -2.4 and below win. docs/research/online_decision/.) Only past frames are used;
-nothing is trained.
+F1 one that gains those (the rule and its grid are chosen in
+``docs/research/online_decision/``). Only past frames are used; nothing is trained.
 
 Why the decisions made are decayed too: a robot's stream runs through places that want other
 decisions, and with counts since the stream began the margin of the first place steers the
-choices in the next (replayed on the development recordings played back to back in four orders,
-a recording's own stretch was won 15 times of 28 with the shipped model, 20 with
-``history_decay`` 0.98; played alone, each recording scores the same within 0.003;
-``python -m studies.long_stream``, docs/research/online_decision/).
+choices in the next (``python -m studies.long_stream``, docs/research/online_decision/).
 
 Every pair is also tried on the last map *unmoved* (``unmoved``, given the head's warp gain
 ``g``): the head's logit is ``g * W(O^t, B^t) + r``, and ``g * O^t + r`` is what it would say
-if the flow moved nothing. Where the flow moves cells that stay put (measured: the fold model on
-the 180-degree recording it never saw, and the shipped model on it in-sample, where with the
-flow's warp alone it lost by 0.0006) the unmoved candidates win more; on a driving platform the
-unmoved map is in the wrong frame and the choice keeps to the moved one.
+if the flow moved nothing. Where the flow moves cells that stay put the unmoved candidates win
+more; on a driving platform the unmoved map is in the wrong frame and the choice keeps to the
+moved one.
 
 Every pair is counted at the cost of a few sorted searches (:mod:`lidarflow.predict.offsets`).
 """

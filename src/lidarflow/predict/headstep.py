@@ -1,12 +1,12 @@
-"""The step of an occupancy-head model without a flow network, in NumPy (issue 46).
+"""The step of an occupancy-head model without a flow network, in NumPy.
 
 Such a model (the bundled one since v9, :class:`~lidarflow.models.flownet.LidarFlowNet` with
 ``flow=None``, ego-compensated or not) does a few arithmetic operations per cell: move the
 state by the platform's motion, update the memories, find the constant-velocity shift, a 1x1
-layer or two, move the logit into the next frame. In eager PyTorch that was ~60 small operators
-a step, ~2.4 ms of overhead against ~0.05 ms of arithmetic; here it is a few fused NumPy
-operations on the same weights, the gathers of the rigid warps kept from step to step
-(:func:`lidarflow.geometry.rigid_sampler`), and the shift counted on the occupied cells only
+layer or two, move the logit into the next frame. In eager PyTorch those are dozens of small
+operators whose overhead outweighs the arithmetic (``docs/research/step_speed/``); here it is
+a few fused NumPy operations on the same weights, the gathers of the rigid warps kept from step
+to step (:func:`lidarflow.geometry.rigid_sampler`), and the shift counted on the occupied cells only
 (:func:`lidarflow.predict.baselines.best_rigid_shift`).
 
 Generic over :class:`~lidarflow.models.config.HeadConfig` as it stands (memories, the

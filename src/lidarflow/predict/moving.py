@@ -1,4 +1,4 @@
-"""Moving-object segmentation from motion flow (issue 8; the paper's second future-work item).
+"""Moving-object segmentation from motion flow (the paper's second future-work item).
 
 A cell is *moving* when it is occupied now and its forward flow ``F^t`` (where its content will
 be in the next frame; cells, channel 0 column, channel 1 row, design notes §3) differs from the

@@ -94,8 +94,8 @@ def head_convs(path: str | Path) -> list[str]:
     """Names of the occupancy head's Conv nodes. They stay float: the head is a per-cell
     1 x 1 layer (a few hundred weights, well under 1 % of a step's multiply-adds) whose output
     is the logit the decision thresholds, and its inputs are memories and sub-cell bits that
-    int8 would round. Kept float, v8's int8 changed-cell F1 on positive_2 moves by 0.0027
-    instead of 0.0049, its AP by 0.004 instead of 0.009 (docs/research/speed/)."""
+    int8 would round; kept float, int8 moves changed-cell F1 and AP about half as much
+    (docs/research/speed/)."""
     return _head(_graph(path))
 
 

@@ -1,4 +1,4 @@
-"""A classical tracking baseline (issue 44): background, clusters, constant-velocity motion.
+"""A classical tracking baseline: background, clusters, constant-velocity motion.
 
 Causal, one frame at a time, pure NumPy:
 

@@ -1,4 +1,4 @@
-"""2-D scene simulator with exact ground-truth flow (project issue 4).
+"""2-D scene simulator with exact ground-truth flow.
 
 ``world`` builds floor plans, ``people`` walks two-legged people, ``platform`` drives the robot,
 ``lidar`` casts rays, ``groundtruth`` computes the flow and ``scenario`` puts it all together:

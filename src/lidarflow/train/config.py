@@ -44,7 +44,8 @@ class ModelConfig:
     occupancy ``head`` (``None``: none; ``--set model.head.hidden_channels=16`` adds one), the
     ego-motion wrapper (``ego_motion``, ``poses_optional``) and, for DeepTracking and SOGMP,
     their own ``options`` (e.g. ``--set model.options.visibility_input=true``).
-    Configs written before issue 35 gave these as one flat ``model.kwargs`` table, which is still
+    Configs written before the model was built from blocks gave these as one flat
+    ``model.kwargs`` table, which is still
     read (:func:`lidarflow.train.config_io.build_config`).
 
     ``init``: weights to start from instead of the initialisation (a run folder or weights file
@@ -96,12 +97,7 @@ class DataConfig:
     also learns from a moving platform seen uncompensated; which windows is fixed per window,
     so ``--resume`` sees the same. ``memories_from_stream`` (occupancy-head models): every
     window starts with the head's memories as streaming its recording leaves them at the
-    window's first frame, not at zero (:mod:`lidarflow.train.warm`). ``slower_copies``: the
-    training frames of every recording are also served at every k-th scan, for each k given
-    (:meth:`~lidarflow.data.Recording.every`; validation stays as recorded), so the head also
-    learns rates k times below those recorded (its memories decay per frame, not per second).
-    The copies' windows join the pool an epoch draws from: with ``epoch_windows`` 0 (every
-    window) an epoch grows by about 1/k of its length per copy.
+    window's first frame, not at zero (:mod:`lidarflow.train.warm`).
     """
 
     sources: list[str] = field(default_factory=list)
@@ -120,7 +116,6 @@ class DataConfig:
     num_workers: int = 0
     pose_dropout: float = 0.0
     memories_from_stream: bool = False
-    slower_copies: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -220,11 +215,6 @@ class TrainConfig:
             (
                 0 <= d.pose_dropout <= 1,
                 "data.pose_dropout is a fraction of windows, in [0, 1]",
-            ),
-            (
-                all(isinstance(k, int) and k >= 2 for k in d.slower_copies)
-                and len(set(d.slower_copies)) == len(d.slower_copies),
-                "data.slower_copies are distinct whole numbers of scans >= 2 (every k-th scan)",
             ),
             (o.name in ("adam", "adamw", "sgd"), "optim.name must be adam, adamw or sgd"),
             (

@@ -32,6 +32,11 @@ __all__ = [
     "load_config_file",
 ]
 
+#: Settings measured without gain and removed, with the value that left them off: a config that
+#: gives that value (every run's ``config.json`` written while they existed) still reads; one
+#: that turns a setting on names a training this version cannot repeat, and is refused.
+REMOVED_SETTINGS: dict[tuple[str, str], Any] = {("data", "slower_copies"): []}
+
 
 def config_to_dict(config: TrainConfig) -> dict[str, Any]:
     return dataclasses.asdict(config)
@@ -104,7 +109,7 @@ def _from_dict(cls: type, data: dict[str, Any], where: str = "") -> Any:
 def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
     """A copy of dataclass ``base`` with the (possibly partial, nested) settings of ``data``."""
     if isinstance(base, TrainConfig):
-        data = _flat_model_read(base, data)
+        data = _without_removed(_flat_model_read(base, data))
     hints = typing.get_type_hints(type(base))
     names = {f.name for f in dataclasses.fields(base)}
     changes: dict[str, Any] = {}
@@ -125,8 +130,25 @@ def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
         raise TrainError(f"config {where or 'top level'}: {err}") from err
 
 
+def _without_removed(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` without the :data:`REMOVED_SETTINGS` it gives at their off value; a
+    :class:`TrainError` naming one it turns on."""
+    out = dict(data)
+    for (section, key), off in REMOVED_SETTINGS.items():
+        table = out.get(section)
+        if not isinstance(table, dict) or key not in table:
+            continue
+        if table[key] != off:
+            raise TrainError(
+                f"config {section}.{key} was measured without gain and removed "
+                "(docs/research/options_without_gain); drop it from the config"
+            )
+        out[section] = {k: v for k, v in table.items() if k != key}
+    return out
+
+
 def _flat_model_read(base: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` with a flat ``model.kwargs`` table (configs before issue 35: the whole model in
+    """``data`` with a flat ``model.kwargs`` table (older configs: the whole model in
     ``build_model``'s keyword form, decision keys included) read as the typed model settings and
     the ``decision`` section it describes. As then, it describes the whole model."""
     model = data.get("model")

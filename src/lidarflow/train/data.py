@@ -47,7 +47,6 @@ from torch.utils.data import Dataset
 
 from lidarflow.data import Recording, SequenceSet, load_any
 from lidarflow.data.sources import topic_notes
-from lidarflow.data.views import SensorView
 from lidarflow.errors import LidarflowError, TrainError
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.scan import GridSpec
@@ -332,16 +331,6 @@ def load_train_data(
                     train_recs[i].append(train)
                 if val is not None:
                     val_recs.append(val)
-    if cfg.slower_copies:
-        # copies of the training frames only: validation stays as recorded
-        views = [SensorView(every_scan=k) for k in cfg.slower_copies]
-        copied = []
-        for spec, recs in zip(cfg.sources, train_recs, strict=True):
-            try:
-                copied.append([c for r in recs for c in _with_copies(r, views)])
-            except LidarflowError as err:
-                raise TrainError(f"data source {spec}: {err}") from err
-        train_recs = copied
     sources = []
     for spec, recs in zip(cfg.sources, train_recs, strict=True):
         if not recs:
@@ -371,21 +360,6 @@ def load_train_data(
         except LidarflowError as err:
             notes.append(f"no validation windows ({err})")
     return TrainData(sources, _weights(cfg.mix, len(sources)), val, grid, notes)
-
-
-def _with_copies(rec: Recording, views: list[SensorView]) -> list[Recording]:
-    """``rec``, then its copy as each of ``views`` would have seen it."""
-    source = rec.meta.get("source", "a recording")
-    copies = []
-    for view in views:
-        copy = view.recording(rec)
-        if copy is rec:  # a view that changes nothing (validation refuses one) adds nothing
-            continue
-        rate_only = view == SensorView(every_scan=view.every_scan)
-        seen = f"1 scan in {view.every_scan}" if rate_only else f"seen as {view.name}"
-        copy.meta["source"] = f"{source} ({seen})"
-        copies.append(copy)
-    return [rec, *copies]
 
 
 def _weights(mix: list[float], n: int) -> list[float]:

@@ -23,7 +23,7 @@ def _blurred() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """Issue 11's measured best: an occupancy head of each cell's own past (five occupancy memories
+    """An occupancy head of each cell's own past (five occupancy memories
     that follow the constant-velocity shift, the constant-velocity map, the current map and its
     visibility, and where the current returns lie inside their cells, ``subcell_input``; one
     hidden layer; 1 x 1, no GRU features) trained by cross-entropy on top of a trained flow
@@ -35,9 +35,9 @@ def _head() -> TrainConfig:
     the Predictor; training is unchanged by it), a tracker's moved objects laid over its decided
     map (``decision.movers``, as unchanged): ``model.init``, a trained flow network (``--init
     RUN``; its head too where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains
-    one). Left at ``bundled`` it is refused: the bundled model is the head alone since v9 (issue
-    36). About 8 CPU-minutes on the seven development recordings; its validation is
-    ``docs/research/online_decision/``."""
+    one). Left at ``bundled`` it is refused: the bundled model has no flow network to start from.
+    About 8 CPU-minutes on the seven development recordings; its validation is
+    ``docs/research/leave_one_out/`` and ``docs/research/online_decision/``."""
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
@@ -79,10 +79,8 @@ def _head() -> TrainConfig:
 
 
 def _head_only() -> TrainConfig:
-    """The ``head`` recipe without the flow network (issue 36): the flow it trained on top of
-    was measured to buy nothing, leave-one-recording-out on the seven development recordings
-    (zeroing it: mean F1 0.8600 -> 0.8592 one step ahead, 0.6695 -> 0.6770 one second ahead),
-    while its ConvGRUs were ~98 % of a step's arithmetic. The model is the same head
+    """The ``head`` recipe without the flow network, which bought nothing leave-one-recording-out
+    at most of a step's arithmetic (``docs/research/flow_share/``). The model is the same head
     (``model.flow`` ``None``; the platform's own motion still compensated), started from the
     bundled model's head (``model.init``: its head's weights, the flow's left out), taught by
     the cross-entropy alone (no flow to warp: the warp loss and its filter are off) at the rate
@@ -127,7 +125,7 @@ def _sogmp() -> TrainConfig:
 
 
 def _supervised_flow() -> TrainConfig:
-    """The flow network alone, taught by the simulator's exact flow (issue 36): end-point error
+    """The flow network alone, taught by the simulator's exact flow: end-point error
     of ``B^t`` and ``F^t`` on the cells where the truth is defined, moving cells weighted 10x
     (``loss.flow_epe*``, :mod:`lidarflow.flow_supervision`), no warp loss; compensating the
     platform's own motion (``ego_motion``), so the net learns only what moves in the world. No
@@ -155,22 +153,22 @@ def _supervised_flow() -> TrainConfig:
 RECIPES: dict[str, Callable[[], TrainConfig]] = {
     "paper": _paper,  # the loss exactly as written in the paper (Table II reproduction)
     "blurred": _blurred,  # both sides of the loss blurred: zero flow is optimal when nothing moves
-    "head": _head,  # the head on a trained flow network: issue 11's best, the bundled one to v8
+    "head": _head,  # the head on a trained flow network: the bundled one up to v8
     "head_only": _head_only,  # the same head without the flow network: the bundled one (v9)
-    "sogmp": _sogmp,  # the SOGMP peer's own recipe (issue 38)
-    "supervised_flow": _supervised_flow,  # the flow taught by simulated exact flow (issue 36)
+    "sogmp": _sogmp,  # the SOGMP peer's own recipe
+    "supervised_flow": _supervised_flow,  # the flow taught by simulated exact flow
 }
 
 
 #: LiDAR-FlowNet's default recipe: ``head_only``, the ``head`` recipe's head without the flow
-#: network, which bought nothing leave-one-recording-out (issue 36); ``head`` fits a head onto a
+#: network, which bought nothing leave-one-recording-out; ``head`` fits a head onto a
 #: flow network of your own (``--init RUN``).
 DEFAULT_FLOWNET_RECIPE = "head_only"
 
 
 def default_recipe(model: str | None = None, ego_motion: bool = False) -> str:
-    """The recipe `lidarflow train` uses when none is named: for LiDAR-FlowNet the best measured
-    one (``head_only``: issue 11's ``head`` without the flow network, issue 36); SOGMP's own for
+    """The recipe `lidarflow train` uses when none is named: for LiDAR-FlowNet ``head_only`` (the
+    ``head`` recipe without the flow network); SOGMP's own for
     SOGMP; the paper's for DeepTracking and for ego-motion models, which the head recipes do not
     apply to. The dataclasses' own defaults stay the paper's."""
     if model == "sogmp":
