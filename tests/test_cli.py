@@ -505,3 +505,22 @@ def test_each_model_option_says_what_its_command_takes(tmp_path, capsys, monkeyp
     onnx.write_bytes(b"not really")
     code, _, err = run(["export", "-o", str(tmp_path / "again.onnx"), "-m", str(onnx)], capsys)
     assert code == 1 and "an ONNX model only runs" in err
+
+
+def test_help_shows_flags_bare(capsys, monkeypatch):
+    # a flag labelled <bool> reads as taking a value, and `--verbose true` is refused
+    monkeypatch.setenv("COLUMNS", "120")
+    for name in subcommands():
+        _, sub, _ = run([name, "--help"], capsys)
+        assert "<bool>" not in sub, name
+    _, sub, _ = run(["ros2", "--help"], capsys)
+    assert "<integer" in sub or "<int" in sub  # options that take values still say which
+
+
+def test_info_says_what_its_beam_counts_mean(capsys):
+    code, out, err = run(["info", str(sample_bag_path())], capsys)
+    assert code == 0, err
+    line = next(x for x in out.splitlines() if x.startswith("beams:"))
+    # the sample: 186624 beams, 33236 unknown (22046 zero, 11034 under range_min, 156 -inf)
+    assert "186624: 153283 (82.1%) returns" in line
+    assert "33236 (17.8%) unknown (the maps leave them unseen: 22046 zero, 11034 below" in line

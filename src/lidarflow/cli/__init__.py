@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import threading
+from typing import Any
 
 import typer
 
@@ -42,6 +43,26 @@ def _reflow(text: str) -> str:
 
 for _command in app.registered_commands:
     _command.help = _reflow(_command.help or inspect.getdoc(_command.callback) or "")
+
+
+def _bare_flags() -> None:
+    """Show flags bare in ``--help``: typer's rich help (0.29) labels every flag ``<bool>``, as
+    if it took a value, which ``--verbose true`` is then refused for. Nothing where this typer
+    renders help otherwise."""
+    from typer import core
+
+    option = getattr(core, "TyperOption", None)
+    shown = getattr(option, "display_type_rich", None)
+    if option is None or shown is None:
+        return
+
+    def display_type_rich(self: Any, ctx: Any) -> str | None:
+        return None if getattr(self, "is_flag", False) else shown(self, ctx)
+
+    option.display_type_rich = display_type_rich
+
+
+_bare_flags()
 
 
 def _interrupt(signum: int, frame: object) -> None:

@@ -102,7 +102,9 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
             typer.echo("topics:")
             for t in value:
                 typer.echo(f"  {t['topic']:<40} {t['type']:<40} {t['count']:>8}")
-        elif key in ("beams", "scans_dropped"):
+        elif key == "beams":
+            typer.echo(_beams_text(value))
+        elif key == "scans_dropped":
             typer.echo(f"{key}: " + ", ".join(f"{k}={v}" for k, v in value.items()))
         elif key == "gaps":
             shown = ", ".join(
@@ -118,6 +120,26 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
             typer.echo(f"{key}: unknown")
         else:
             typer.echo(f"{key}: {value}")
+
+
+def _beams_text(beams: dict[str, int]) -> str:
+    """``info``'s beam counts in words: what share returned, what share the maps cannot use
+    (unknown) and why."""
+    total = beams["total"]
+
+    def share(n: int) -> str:
+        return f"{n} ({n / total:.1%})" if total else str(n)
+
+    causes = {"zero": "zero", "below_range_min": "below range_min", "neg_inf": "-inf", "nan": "NaN"}
+    why = ", ".join(f"{beams[k]} {name}" for k, name in causes.items() if beams.get(k))
+    text = (
+        f"beams: {total}: {share(beams['returns'])} returns, {share(beams['no_return'])} no "
+        f"return (+inf, or at or beyond range_max: free along the beam), {share(beams['unknown'])} "
+        f"unknown (the maps leave them unseen{': ' + why if why else ''})"
+    )
+    if beams.get("at_range_max"):
+        text += f"; {beams['at_range_max']} at exactly range_max"
+    return text
 
 
 def _clock_jump_text(jump: dict[str, Any]) -> str:

@@ -92,7 +92,8 @@ def ros1(
 
     _log_to_stderr("ros1", logging.DEBUG if verbose else logging.INFO)
     check_master(import_ros())  # before loading a model: say at once what is missing
-    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads)
+    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads,
+                      moving)  # fmt: skip
     _run("ros1", step, lambda: Ros1Node(step, topic, odom_topic, moving, queue=queue),
          foxglove, host, topic)  # fmt: skip
 
@@ -134,7 +135,8 @@ def ros2(
     domain_id(os.environ)  # rclpy fails on a bad one without a word
     _log_to_stderr("ros2", logging.DEBUG if verbose else logging.INFO)
     import_ros2()  # before loading a model: say at once what is missing
-    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads)
+    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads,
+                      moving)  # fmt: skip
     _run("ros2", step, lambda: Ros2Node(step, topic, odom_topic, moving, queue=queue,
                                         scan_qos=scan_qos, grid_qos=grid_qos),
          foxglove, host, topic)  # fmt: skip
@@ -148,7 +150,11 @@ def _live_step(
     moving_threshold: float | None,
     summary_every: int,
     threads: int,
+    moving: bool = False,
 ) -> LiveStep:
+    """The node's step: the Predictor for ``model``; a :class:`ModelError` where ``moving``
+    asks for the moving cells of a model that estimates no flow (the topic would stay empty)."""
+    from lidarflow.errors import ModelError
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
     from lidarflow.predict.moving import MOVING_THRESHOLD
@@ -160,6 +166,11 @@ def _live_step(
         threads=threads or None,
         moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
     )
+    if moving and not predictor.backend.capabilities.flow:
+        raise ModelError(
+            f"--moving publishes a flow model's moving cells, and {model or 'the bundled model'} "
+            "estimates no flow; name a flow model with --model, or drop --moving"
+        )
     return LiveStep(predictor, summary_every=summary_every)
 
 
@@ -185,7 +196,10 @@ def _run(
         try:
             node.spin()
         finally:
-            typer.echo(f"lidarflow {kind}: latency over {step.latency.describe()}", err=True)
+            if step.latency.all_ms:
+                typer.echo(f"lidarflow {kind}: latency over {step.latency.describe()}", err=True)
+            else:
+                typer.echo(f"lidarflow {kind}: no scan arrived on {topic}", err=True)
 
 
 def _log_to_stderr(kind: str, level: int) -> None:
