@@ -53,6 +53,25 @@ def sample_recording() -> Recording:
     return read_bag(sample_bag_path())
 
 
+#: Tests slow as a whole (left out of the fast tier, ``scripts/test.sh --fast``): the studies'
+#: smoke tests, the regression pins and the benchmarks, and those that need what only
+#: scripts/test.sh installs (ROS 1 and 2, a browser, the npm client). Others say so one by one
+#: (``@pytest.mark.slow``: over about a second on a quiet 2-core machine).
+SLOW_FOLDERS = ("studies", "regression", "benchmarks")
+SLOW_MODULES = {
+    "test_ros1_node.py", "test_ros1_poses.py", "test_ros2_node.py", "test_foxglove_npm.py",
+    "test_html_render.py",
+}  # fmt: skip
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    tests = Path(__file__).parent
+    for item in items:
+        where = item.path.relative_to(tests).parts
+        if where[0] in SLOW_FOLDERS or where[-1] in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture
 def short(tmp_path) -> Path:
     """The sample's first 14 scans as a recording file: the smallest real input a command

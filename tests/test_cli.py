@@ -152,6 +152,7 @@ def test_usage_error_exits_2(capsys):
     assert code == 2
 
 
+@pytest.mark.slow
 def test_console_script_demo_end_to_end(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "lidarflow.cli", "demo", "-o", str(tmp_path / "d")],
@@ -169,6 +170,7 @@ def test_console_script_demo_end_to_end(tmp_path):
     assert (tmp_path / "d" / "maps.png").exists()
 
 
+@pytest.mark.slow
 def test_evaluate_writes_the_documented_json(tmp_path, capsys):
     out = tmp_path / "e.json"
     code, text, err = run(["evaluate", str(sample_bag_path()), "-o", str(out)], capsys)
@@ -193,6 +195,7 @@ def test_evaluate_writes_the_documented_json(tmp_path, capsys):
     assert "bundled against the best baseline: F1 +" in text and "tolerant mover F1 -" in text
 
 
+@pytest.mark.slow
 def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     rec = tmp_path / "s.npz"
     run(["convert", str(sample_bag_path()), "-o", str(rec)], capsys)
@@ -215,6 +218,7 @@ def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
     }
 
 
+@pytest.mark.slow
 def test_evaluate_says_which_gaps_in_time_it_did_not_score_across(tmp_path, capsys):
     import dataclasses
 
@@ -246,6 +250,7 @@ def test_evaluate_baselines_only_takes_no_model(capsys):
     assert code == 2 and "--baselines-only" in err
 
 
+@pytest.mark.slow
 def test_evaluate_an_untrained_flownet_equals_copy_last(tmp_path, capsys):
     from safetensors.torch import save_file
 

@@ -42,6 +42,7 @@ def _cli(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_evaluate_jobs_writes_what_one_process_writes(short, tmp_path):
     common = [*map(str, short), "--warmup", "5", "--horizon", "2"]
     one = _cli("evaluate", *common, "-o", "one.json", "--report", "one", cwd=tmp_path)

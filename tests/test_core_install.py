@@ -40,6 +40,7 @@ def short(tmp_path_factory) -> Path:
     return read_bag(sample_bag_path()).slice(0, 40).save(folder / "short.npz")
 
 
+@pytest.mark.slow
 def test_user_commands_run_without_torch_on_the_bundled_onnx_model(short):
     folder = short.parent
     info = without_torch(CLI, "info", str(sample_bag_path()), cwd=folder)

@@ -39,6 +39,7 @@ def long_recording(tmp_path_factory):
     return read_bag(sample_bag_path()).save(tmp_path_factory.mktemp("in") / "long.npz")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target", ["x.bag", "x.mcap", "bagdir"])  # a file, folders staged
 def test_a_killed_predict_leaves_a_temporary_the_next_run_removes(
     tmp_path, capsys, long_recording, random_flownet_dir, target

@@ -34,6 +34,7 @@ def driving():
     return simulate(60, seed=3, config=SimConfig(scenario="dynamic", episode_frames=100, grid=GRID))
 
 
+@pytest.mark.slow
 def test_compensation_beats_copy_last_and_the_untrained_ego_model_is_exactly_it(driving):
     untrained = ModelMethod("ego", build_model("flownet", ego_motion=True))
     oracle = ModelMethod("ego_oracle", build_model("flownet", ego_motion=True), oracle=True

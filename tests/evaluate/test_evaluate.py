@@ -308,6 +308,7 @@ def test_frame_blocks_are_the_arrays_they_stand_for(sample_recording):
         blocks[23]
 
 
+@pytest.mark.slow
 def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
     sample_recording, monkeypatch
 ):

@@ -48,6 +48,7 @@ def test_candidates_decide_with_their_fixed_offset_only():
     assert with_offset(card, 1.0, online=True)["decision"] == {"offset": 1.0, "online": True}
 
 
+@pytest.mark.slow
 def test_choose_offset_writes_the_model_with_the_chosen_offset(tmp_path, capsys):
     model = make_model_dir(tmp_path / "head", occupancy_head=True)
     card = json.loads((model / "model.json").read_text())

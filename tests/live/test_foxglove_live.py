@@ -149,6 +149,7 @@ def receive(url: str, enough, within_s: float = 30.0):
     return by_time, complete
 
 
+@pytest.mark.slow
 def test_live_serves_what_the_predictor_makes_of_each_scan(short_and_model):
     short, model = short_and_model
     recording = read_bag(sample_bag_path()).slice(0, SCANS)
@@ -270,6 +271,7 @@ def test_the_server_refuses_predictions_it_was_not_made_for(short_and_model):
         server.publish(scan, p)
 
 
+@pytest.mark.slow
 def test_a_live_step_feeds_the_server_as_the_ros_node_does(short_and_model):
     """``lidarflow ros1 --foxglove``: the server is one more sink of the node's
     :class:`~lidarflow.live.step.LiveStep`, each scan served in its own frame."""

@@ -197,6 +197,7 @@ def _cli(args, capsys):
     return out.out
 
 
+@pytest.mark.slow
 def test_train_arch_sogmp_writes_a_run_evaluate_scores(tmp_path, capsys):
     sim = tmp_path / "sim.npz"
     _cli(["simulate", "-o", str(sim), "-n", "24", "--grid", "16", "--seed", "2"], capsys)

@@ -160,6 +160,7 @@ def test_where_the_maps_show_a_motion_the_refined_one_is_reported_at_once():
     assert abs(reported[2] - true[2]) < np.deg2rad(0.05)
 
 
+@pytest.mark.slow
 def test_a_narrow_scanner_standing_still_among_people_is_not_taken_to_travel(monkeypatch):
     sensor = lidar_preset("hokuyo-urg", fov_deg=86.0, beams=245, rate_hz=5.0, range_max=3.5)
     config = SimConfig(

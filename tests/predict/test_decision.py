@@ -223,6 +223,7 @@ def test_bad_configurations_are_refused():
         OnlineDecisionConfig(history_decay=1.5)
 
 
+@pytest.mark.slow
 def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path, sample_recording):
     from lidarflow.evaluate.model_method import ModelMethod
     from lidarflow.evaluate.stream import evaluate_maps
@@ -261,6 +262,7 @@ def test_a_model_without_an_occupancy_head_is_refused(random_flownet_dir):
         ModelMethod("m", net, online=OnlineDecisionConfig())
 
 
+@pytest.mark.slow
 def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_flownet_dir):
     import json
 

@@ -133,6 +133,7 @@ def robot_bags(tmp_path_factory):
     }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kind", "output"),
     [(k, o) for k in ("ros1", "mcap") for o in ("out.bag", "out.mcap", "outdir")]

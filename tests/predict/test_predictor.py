@@ -105,6 +105,7 @@ def test_occupancy_head_model_exports_and_keeps_four_flow_channels(tmp_path, sam
     np.testing.assert_allclose(a.forward_flow, b.forward_flow, atol=1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "kwargs",
     [
@@ -144,6 +145,7 @@ def test_head_inputs_export_with_matching_probabilities(tmp_path, sample_recordi
         assert np.array_equal(a.occupied[~near], b.occupied[~near])
 
 
+@pytest.mark.slow
 def test_online_decision_in_the_predictor_equals_evaluate_and_survives_onnx(
     tmp_path, sample_recording
 ):
@@ -204,6 +206,7 @@ def test_online_decision_needs_an_occupancy_head_and_a_marked_onnx(tmp_path, ran
         Predictor(path, online_decision=True)
 
 
+@pytest.mark.slow
 def test_the_roll_out_feeds_back_the_online_decision(tmp_path, sample_recording):
     from lidarflow.predict.decision import OnlineDecisionConfig
     from lidarflow.scan import GridSpec

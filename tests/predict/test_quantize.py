@@ -35,6 +35,7 @@ def float_and_int8(tmp_path_factory, sample_recording):
     return float_path, int8_path
 
 
+@pytest.mark.slow
 def test_convolutions_are_int8_and_the_rest_is_float(float_and_int8):
     _, int8_path = float_and_int8
     graph = onnx.load(str(int8_path)).graph
@@ -58,6 +59,7 @@ def test_table_one_convs_are_int8_and_the_head_stays_float(float_and_int8):
     assert sum("/grus." in name for name in int8) == 6  # three ConvGRUs, two convs each
 
 
+@pytest.mark.slow
 def test_int8_predicts_what_float_predicts(float_and_int8, sample_recording):
     float_path, int8_path = float_and_int8
     # The arithmetic, with the model's fixed offsets: chosen online, a pair picked differently
@@ -94,6 +96,7 @@ def test_too_short_calibration_is_refused(float_and_int8, tmp_path, sample_recor
         quantize_onnx(float_path, tmp_path / "x.onnx", stacked_maps(sample_recording, 0, 20, False))
 
 
+@pytest.mark.slow
 def test_cli_export_int8(tmp_path, capsys, sample_recording):
     calibration = sample_recording.slice(0, 30).save(tmp_path / "cal.npz")
     out = tmp_path / "m8.onnx"

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 from safetensors.torch import load_file
 
@@ -24,6 +25,7 @@ def test_single_process_needs_no_process_group(monkeypatch):
     assert all_reduce_sum(ctx, [1.0, 2.5]) == [1.0, 2.5] and any_flag(ctx, True)
 
 
+@pytest.mark.slow
 def test_two_processes_under_torchrun_keep_identical_weights(blob_files, tmp_path):
     out = tmp_path / "out"
     out.mkdir()

@@ -4,10 +4,13 @@ against the untrained net (zero flow = copy-last), and predicts better than copy
 
 from __future__ import annotations
 
+import pytest
+
 from lidarflow.train import build_config, train
 from tests.train.blobs import blob_recording
 
 
+@pytest.mark.slow
 def test_short_training_learns_the_motion(tmp_path):
     sources = [
         str(

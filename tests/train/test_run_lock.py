@@ -42,6 +42,7 @@ PAUSED = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_neither_force_nor_resume_touches_a_run_being_trained(blob_files, tmp_path, capsys):
     run_dir, go = tmp_path / "run", tmp_path / "go"
     common = [str(blob_files[0]), "-o", str(run_dir), "--recipe", "paper", *TINY]

@@ -71,6 +71,7 @@ def _mean_window_loss(model, cfg) -> float:
     return total / len(data.sources[0])
 
 
+@pytest.mark.slow
 def test_recipe_learns_the_exact_flow_and_evaluate_scores_it(scenes, tmp_path, capsys):
     cfg = _config(scenes[:1])  # the people walking past a standing robot
     assert cfg.loss.warp == 0.0 and cfg.loss.flow_epe == 1.0 and cfg.model.head is None

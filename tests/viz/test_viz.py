@@ -47,3 +47,18 @@ def test_gif_and_pr_plot_are_written(tmp_path):
         {"x": (np.array([1.0, 0.5]), np.array([0.2, 1.0]), 0.6)}, tmp_path / "pr.png", "t"
     )
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_maps_picture_says_what_its_colours_mean(tmp_path, monkeypatch):
+    from lidarflow.viz import maps
+
+    drawn = []
+    monkeypatch.setattr(maps, "save_figure", lambda fig, path: drawn.append(fig) or path)
+    occupancy = np.zeros((10, 10), bool)
+    occupancy[3, 4] = True
+    flow = np.zeros((2, 10, 10))
+    flow[0, 3, 4] = 1.0
+    maps.draw_maps(occupancy, np.ones((10, 10)), tmp_path / "m.png", flow=flow, moving=occupancy)
+    texts = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in drawn[0].axes[:2]]
+    assert texts[0] == ["occupied", "free or unseen", "sensor", "moving", "flow to the next frame"]
+    assert texts[1][0] == "seen" and texts[1][1].startswith("unseen")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lidarflow.geometry import cell_to_metric
 from lidarflow.scan import GridSpec
 from lidarflow.viz.figures import pyplot, save_figure
 
@@ -53,8 +54,7 @@ def draw_maps(
         axes[0].imshow(overlay, extent=extent, interpolation="nearest")
     if flow is not None:
         rows, cols = np.nonzero(occupancy & (np.hypot(flow[0], flow[1]) > 1e-3))
-        x = (grid.height - rows - 0.5) * grid.res
-        y = (grid.width / 2 - cols - 0.5) * grid.res
+        x, y = cell_to_metric(rows, cols, grid.height, grid.width, grid.res)
         # A flow of +1 column moves towards smaller y; +1 row towards smaller x.
         axes[0].quiver(
             y,
@@ -67,6 +67,26 @@ def draw_maps(
             scale=1,
             width=0.004,
         )
+    _legends(axes, moving is not None and bool((moving & occupancy).any()), flow is not None)
     if title:
         fig.suptitle(title)
     return save_figure(fig, path)
+
+
+def _legends(axes: object, moving: bool, flow: bool) -> None:
+    """What each colour of the two panels means (and the overlays drawn on the first)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    def cell(colour: str, label: str) -> Patch:
+        return Patch(facecolor=colour, edgecolor="0.5", label=label)
+
+    sensor = Line2D([], [], marker="^", color="tab:red", linestyle="", label="sensor")
+    first = [cell("black", "occupied"), cell("white", "free or unseen"), sensor]
+    if moving:
+        first.append(cell((0.85, 0.1, 0.1), "moving"))
+    if flow:
+        first.append(Line2D([], [], color="tab:blue", label="flow to the next frame"))
+    second = [cell("black", "seen"), cell("white", "unseen (behind a return, out of range)")]
+    for ax, handles in zip(axes, (first, second), strict=True):
+        ax.legend(handles=handles, loc="upper left", fontsize="small", framealpha=0.85)
