@@ -107,45 +107,52 @@ def _demo(folder: Path, output: Path) -> None:
         typer.echo(f"predictions for Foxglove: {output / 'predictions.mcap'}")
 
 
+InputsArg = Annotated[
+    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to predict on.")
+]
+OutputOpt = Annotated[
+    Path,
+    typer.Option(
+        "--output",
+        "-o",
+        help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag); for "
+        "several inputs a folder, one NAME.mcap in it per input.",
+    ),
+]
+HorizonOpt = Annotated[
+    int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
+]
+FixedDecisionOpt = Annotated[
+    bool,
+    typer.Option(
+        "--fixed-decision",
+        help="Decide with the model's fixed decision offsets even where it chooses them "
+        "online as it streams (the bundled model does).",
+    ),
+]
+TopicsOpt = Annotated[
+    str,
+    typer.Option(
+        "--topics",
+        help="What to write, comma-separated: input, occupancy, predicted, decided, moving, "
+        "flow; 'default' is all but flow, 'all' everything (e.g. default,flow).",
+    ),
+]
+
+
 @app.command()
 def predict(
-    inputs: Annotated[
-        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to predict on.")
-    ],
-    output: Annotated[
-        Path,
-        typer.Option(
-            "--output",
-            "-o",
-            help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag); for "
-            "several inputs a folder, one NAME.mcap in it per input.",
-        ),
-    ],
+    inputs: InputsArg,
+    output: OutputOpt,
     topic: TopicOpt = None,
     odom_topic: OdomOpt = None,
     model: ModelOpt = None,
-    horizon: Annotated[
-        int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
-    ] = 1,
-    fixed_decision: Annotated[
-        bool,
-        typer.Option(
-            "--fixed-decision",
-            help="Decide with the model's fixed decision offsets even where it chooses them "
-            "online as it streams (the bundled model does).",
-        ),
-    ] = False,
+    horizon: HorizonOpt = 1,
+    fixed_decision: FixedDecisionOpt = False,
     grid: ModelGridOpt = None,
     res: ModelResOpt = None,
     moving_threshold: MovingOpt = None,
-    topics: Annotated[
-        str,
-        typer.Option(
-            "--topics",
-            help="What to write, comma-separated: input, occupancy, predicted, decided, moving, "
-            "flow; 'default' is all but flow, 'all' everything (e.g. default,flow).",
-        ),
-    ] = "default",
+    topics: TopicsOpt = "default",
     force: ForceOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
     jobs: JobsOpt = 1,
