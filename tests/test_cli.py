@@ -402,6 +402,7 @@ def test_export_then_predict_with_onnx(tmp_path, capsys, random_flownet_dir):
     assert code == 1 and "already exists" in err
 
 
+@pytest.mark.slow
 def test_report_on_simulated_data_has_flow_pictures_and_epe(tmp_path, capsys, random_flownet_dir):
     sim = tmp_path / "sim.npz"
     code, _, err = run(["simulate", "--frames", "16", "--seed", "2", "-o", str(sim)], capsys)
@@ -416,6 +417,7 @@ def test_report_on_simulated_data_has_flow_pictures_and_epe(tmp_path, capsys, ra
     assert "backward flow (colour wheel" in (out / "index.html").read_text()
 
 
+@pytest.mark.slow
 def test_report_of_two_recordings_with_one_file_name_keeps_both(tmp_path, capsys):
     bags = []
     for folder, distance in (("a", 3.0), ("b", 5.0)):

@@ -251,6 +251,7 @@ def test_info_on_a_bag_without_scans_says_so(tmp_path, capsys):
     )
 
 
+@pytest.mark.slow
 def test_a_killed_predict_leaves_neither_a_bag_nor_a_temporary(tmp_path, inputs):
     # SIGTERM (what `kill` and schedulers send) while the bag is being written
     rec = read_bag(sample_bag_path()).save(tmp_path / "long.npz")

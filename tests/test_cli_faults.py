@@ -135,6 +135,7 @@ def test_choose_offset_writes_no_offset_from_nothing(nan_bag, tmp_path, capsys):
     assert "100% of its beams are invalid" in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", [None, "run"])
 def test_a_model_needing_a_missing_package_is_named(model, tmp_path, short, random_flownet_dir):
     # torch there, safetensors not: the bundled model was called "the model None", and either

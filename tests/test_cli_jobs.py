@@ -64,6 +64,7 @@ def test_evaluate_jobs_writes_what_one_process_writes(short, tmp_path):
     ).replace("two/", "X/")
 
 
+@pytest.mark.slow
 def test_predict_jobs_writes_each_bag_as_one_process_and_a_failure_stops_no_other(
     short, tmp_path, capsys
 ):
@@ -105,6 +106,7 @@ def sleepy(task: tuple[float, str]) -> str:
     return word
 
 
+@pytest.mark.slow
 def test_outcomes_come_in_input_order_and_an_error_names_its_input():
     tasks = [(1.5, "a"), (0.0, "fail"), (0.0, "c"), (0.0, "d")]
     seen: list[Outcome] = []
@@ -125,6 +127,7 @@ def _partials(folder: Path) -> list[Path]:
     return [p for p in folder.rglob("*") if ".partial" in p.name]
 
 
+@pytest.mark.slow
 def test_sigterm_stops_every_worker_and_leaves_nothing_half_written(tmp_path):
     sample = read_bag(sample_bag_path())
     inputs = [str(sample.slice(0, 200).save(tmp_path / f"long{i}.npz")) for i in range(2)]
@@ -197,6 +200,7 @@ def _running_in_group(group: int) -> list[str]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "how", ["ctrl-c to the group", "sigterm to the group", "sigkill to the parent"]
 )

@@ -92,6 +92,7 @@ def test_train_that_fails_before_its_first_epoch_leaves_no_folder(tmp_path, caps
     assert not run_dir.exists()
 
 
+@pytest.mark.slow
 def test_train_force_starts_over_a_run_it_wrote(tmp_path, capsys):
     from tests.train.blobs import blob_recording
     from tests.train.test_cli_train import TINY
@@ -165,6 +166,7 @@ def _full_disk(monkeypatch, where: str) -> None:
     monkeypatch.setattr(Path, "write_bytes", write_bytes)
 
 
+@pytest.mark.slow
 def test_train_on_a_full_disk_says_so_and_how_to_go_on(tmp_path, capsys, monkeypatch):
     from tests.train.blobs import blob_recording
     from tests.train.test_cli_train import TINY

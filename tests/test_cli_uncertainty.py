@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tests.test_cli import run
 
 
@@ -15,6 +17,7 @@ def test_help_explains_the_new_options(capsys):
     assert "calibration" in text and "segmentation" in text
 
 
+@pytest.mark.slow
 def test_evaluate_on_simulated_data_reports_calibration_and_moving(
     tmp_path, capsys, random_flownet_dir
 ):

@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from lidarflow.data import sample_bag_path
 from tests.without_torch import PRELUDE
 
@@ -18,6 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BOUND_MIB = 137
 
 
+@pytest.mark.slow
 def test_predict_in_the_core_install_stays_within_its_memory(tmp_path):
     code = PRELUDE + (
         "import atexit, sys\n"

@@ -44,6 +44,7 @@ def test_declared_beams_of_a_multi_echo_scan(store):
     assert declared_beams(raw, ros1=store == "ros1") == 7
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kind", "command"), [("ros1", "convert"), ("ros2", "evaluate"), ("mcap", "predict")]
 )
@@ -136,6 +137,7 @@ def test_an_array_whose_member_holds_more_than_its_header_says_is_one_line(tmp_p
     assert "'offsets'" in line and "damaged" in line
 
 
+@pytest.mark.slow
 def test_a_recording_of_millions_of_beams_a_scan_is_one_line_under_a_memory_limit(tmp_path):
     from lidarflow.data.recording import Recording
 

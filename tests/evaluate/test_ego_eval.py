@@ -114,6 +114,7 @@ def test_onnx_matches_pytorch_when_the_robot_steps_exactly_half_a_cell(sample_re
     assert worst < 1e-3
 
 
+@pytest.mark.slow
 def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, capsys):
     data = driving.save(tmp_path / "drive.npz")
     code, _, err = run(

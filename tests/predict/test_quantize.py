@@ -46,6 +46,7 @@ def test_convolutions_are_int8_and_the_rest_is_float(float_and_int8):
     assert "GridSample" in ops and "Sigmoid" in ops  # warp and gates stay float
 
 
+@pytest.mark.slow
 def test_table_one_convs_are_int8_and_the_head_stays_float(float_and_int8):
     float_path, int8_path = float_and_int8
     graph = onnx.load(str(int8_path)).graph
@@ -114,6 +115,7 @@ def test_cli_export_int8(tmp_path, capsys, sample_recording):
     assert not (tmp_path / "again.onnx").exists()
 
 
+@pytest.mark.slow
 def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sample_recording):
     from lidarflow.predict.quantize import data_dependent_convs
     from tests.conftest import make_model_dir

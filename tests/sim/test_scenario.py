@@ -149,6 +149,7 @@ def test_bad_configuration_is_a_sim_error():
         simulate(0)
 
 
+@pytest.mark.slow
 def test_cli_simulate_then_show(tmp_path, capsys):
     out = tmp_path / "s.npz"
     with pytest.raises(SystemExit) as done:

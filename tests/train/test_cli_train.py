@@ -50,6 +50,7 @@ def test_help_explains_the_options(capsys):
         assert option in out
 
 
+@pytest.mark.slow
 def test_train_then_resume_to_more_epochs(blob_files, tmp_path, capsys):
     run = tmp_path / "run"
     code, out, err = run_cli(
@@ -157,6 +158,7 @@ def test_resume_refuses_new_settings_and_needs_a_run(tmp_path, capsys):
     assert code == 2 and "give training data" in err
 
 
+@pytest.mark.slow
 def test_trains_on_a_bag_directly_mixed_with_a_recording(blob_files, tmp_path, capsys):
     from lidarflow.data import SAMPLE_TOPIC, sample_bag_path
 
@@ -229,6 +231,7 @@ def test_ctrl_c_says_how_to_resume(blob_files, tmp_path, capsys, monkeypatch):
     )
 
 
+@pytest.mark.slow
 def test_a_killed_run_resumes_from_its_last_epoch(blob_files, tmp_path, capsys):
     import os
     import signal
@@ -350,6 +353,7 @@ def test_a_config_file_naming_deeptracking_gets_the_papers_recipe(tmp_path, blob
     assert saved["recipe"] == "paper" and saved["model"]["name"] == "deeptracking"
 
 
+@pytest.mark.slow
 def test_a_run_copied_elsewhere_resumes_on_its_recordings_found_again(blob_files, tmp_path, capsys):
     here, there = tmp_path / "robot", tmp_path / "workstation"
     here.mkdir()
@@ -380,6 +384,7 @@ def test_a_run_copied_elsewhere_resumes_on_its_recordings_found_again(blob_files
     ]
 
 
+@pytest.mark.slow
 def test_a_time_budget_ends_the_run_after_an_epoch_and_resume_continues(
     blob_files, tmp_path, capsys
 ):

@@ -56,6 +56,7 @@ def test_it_starts_from_the_bundled_head_and_trains_it_alone_at_0_03():
     assert sum(p.numel() for p in groups[0]["params"]) == sum(v.numel() for v in own.values())
 
 
+@pytest.mark.slow
 def test_a_tiny_run_learns_and_leaves_a_flow_free_model(tmp_path):
     cfg = SimConfig(scenario="dynamic", episode_frames=200, grid=GRID)
     drive = simulate(80, seed=4, config=cfg)

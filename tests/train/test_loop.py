@@ -38,6 +38,7 @@ class KilledError(Exception):
     pass
 
 
+@pytest.mark.slow
 def test_short_training_writes_its_files(blob_files, tmp_path, monkeypatch):
     # HEAD moves during the run: model.json names the commit the run started at (run.json's).
     commits = iter(["started-here", "moved-on"])
@@ -95,6 +96,7 @@ def test_deeptracking_trains_with_its_own_loss(blob_files, tmp_path):
     assert record["training"]["best"]["metric"] == "-train_loss"
 
 
+@pytest.mark.slow
 def test_resume_continues_exactly(blob_files, tmp_path):
     flags = {
         "optim.epochs": 3,
@@ -150,6 +152,7 @@ def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, m
     assert all(torch.isfinite(v).all() for v in weights.values())
 
 
+@pytest.mark.slow
 def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_path):
     cfg = tiny_config(
         blob_files[:1],

@@ -49,7 +49,7 @@ def _checked_recording(path: Path) -> Recording:
             except ScanError as err:
                 raise RecordingError(f"frame {start}: {err}") from err
     except RecordingError as err:
-        if str(err).startswith(f"{path}:"):
+        if str(err).startswith(str(path)):  # named already ("PATH: ...", "PATH (-> ...): ...")
             raise
         raise RecordingError(f"{path}: not a usable recording: {err}") from err
     return recording
