@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from lidarflow.data.bags import MAX_BEAMS, declared_beams
+from lidarflow.data.messages import declared_beams
+from lidarflow.scan import MAX_BEAMS
 from tests.bagutil import _scan_msg, write_bag, write_ros1_mcap
 from tests.memlimit import GIB, one_line_error, run_limited
 

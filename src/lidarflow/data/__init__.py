@@ -1,6 +1,7 @@
 """Recordings in and out: bag/MCAP readers, the recording format, training sequences."""
 
-from lidarflow.data.bags import list_topics, read_bag
+from lidarflow.data.bagfile import list_topics
+from lidarflow.data.bags import read_bag
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.info import describe_recording, find_gaps
 from lidarflow.data.recording import Recording, load_recording

@@ -18,15 +18,14 @@ much in ``meta["recovered"]``.
 from __future__ import annotations
 
 import hashlib
-import math
-import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from lidarflow.data.bagfile import TopicInfo, list_topics, open_bag, why_failed
+from lidarflow.data.messages import check_beams, declared_beams, nearest_echoes, scan_of, stamp_ns
+from lidarflow.data.poses import pose_of
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
 from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
@@ -58,76 +57,6 @@ __all__ = [
     "unzip_folder",
     "unzipped_bag",
 ]
-
-
-def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
-    """A ``MultiEchoLaserScan``'s ``ranges`` (one ``LaserEcho`` per beam) as one range per beam
-    (float32): the nearest echo at or beyond ``range_min``, the first surface the beam met; where
-    none, ``+inf`` if an echo said no return, else NaN (unknown)."""
-    per_beam = [np.asarray(beam.echoes, dtype=np.float32).ravel() for beam in echoes]
-    out = np.full(len(per_beam), np.nan, np.float32)
-    if not per_beam:
-        return out
-    # one flat array of every echo and the beam it belongs to: a 40 Hz scan of 1081 beams in
-    # well under a millisecond (a loop over the beams took 6 ms)
-    values = np.concatenate(per_beam)
-    beam = np.repeat(np.arange(len(per_beam)), [len(v) for v in per_beam])
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(values) & (values >= range_min) & (values > 0)
-    out[beam[np.isposinf(values)]] = np.inf
-    nearest = np.full(len(per_beam), np.inf, np.float32)
-    np.minimum.at(nearest, beam[valid], values[valid])
-    found = np.bincount(beam[valid], minlength=len(per_beam)) > 0
-    out[found] = nearest[found]
-    return out
-
-
-def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:
-    """The beam count a serialised ``LaserScan`` or ``MultiEchoLaserScan`` declares (the
-    length of its ``ranges``), read from the raw message before it is deserialised; ``None``
-    where the bytes are too short to say (deserialising them fails on its own).
-
-    Both types begin alike: a header (ROS 1: ``seq``, stamp, ``frame_id``; ROS 2's CDR: a
-    4-byte encapsulation, stamp, ``frame_id``), seven float32 fields, then ``ranges``' length.
-
-    >>> import struct
-    >>> raw = struct.pack("<III", 0, 0, 0) + struct.pack("<I", 5) + b"laser"
-    >>> declared_beams(raw + bytes(28) + struct.pack("<I", 1081), ros1=True)
-    1081
-    """
-    u32 = struct.Struct("<I")
-    try:
-        if ros1:
-            at = 12  # seq, stamp
-            at += 4 + u32.unpack_from(raw, at)[0]  # frame_id
-        else:
-            big = bytes(raw[:2]) in (b"\x00\x00", b"\x00\x02")  # CDR_BE, PL_CDR_BE
-            u32 = struct.Struct(">I" if big else "<I")
-            at = 8  # stamp, after the encapsulation; CDR aligns from there
-            at += 4 + u32.unpack_from(raw, 4 + at)[0]  # frame_id (with its NUL)
-            at = 4 + (at + 3) // 4 * 4
-        return int(u32.unpack_from(raw, at + 7 * 4)[0])
-    except struct.error:
-        return None
-
-
-def _check_beams(path: Path, topic: str, raw: bytes, conn: Any) -> None:
-    """Refuse a scan message that declares more than :data:`MAX_BEAMS` beams, before anything
-    is allocated for them."""
-    from rosbags.interfaces import ConnectionExtRosbag1
-
-    count = declared_beams(raw, isinstance(conn.ext, ConnectionExtRosbag1))
-    if count is not None and count > MAX_BEAMS:
-        raise BagError(
-            f"{path}: topic {topic}: a scan of {count:,} beams; real scanners give at most a "
-            f"few thousand (lidarflow takes up to {MAX_BEAMS:,}): the bag is damaged or not "
-            "a 2-D laser scan"
-        )
-
-
-def _stamp_ns(msg: Any) -> int:
-    stamp = msg.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 #: Header stamps all below a day after the epoch are a simulator's clock (ROS ``/clock``).
@@ -164,16 +93,6 @@ def _stuck(stamps_ns: np.ndarray) -> bool:
 def _stamped(scans: list[Scan], stamps_ns: np.ndarray) -> list[Scan]:
     """``scans`` with these stamps instead of their own."""
     return [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, stamps_ns, strict=True)]
-
-
-def pose_of(msg: Any) -> tuple[float, float, float]:
-    """The planar pose ``(x, y, yaw)`` (metres, radians) of an Odometry or PoseStamped message
-    (anything with ``pose.pose`` or ``pose``: ``position`` and an ``orientation`` quaternion);
-    yaw is the rotation about z."""
-    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    q = pose.orientation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    return float(pose.position.x), float(pose.position.y), yaw
 
 
 def read_bag(
@@ -239,35 +158,25 @@ def read_bag(
                     tree.add(reader.deserialize(raw, conn.msgtype))
                     continue
                 if conn.topic == scan_topic:
-                    _check_beams(path, scan_topic, raw, conn)
+                    check_beams(path, scan_topic, raw, conn)
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == pose_topic:
                     body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
-                    pose_stamps.append(_stamp_ns(msg))
+                    pose_stamps.append(stamp_ns(msg))
                     pose_log_times.append(int(log_time))
                     pose_values.append(pose_of(msg))
                     continue
                 frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
-                if conn.msgtype == MULTI_ECHO:
-                    ranges = nearest_echoes(msg.ranges, float(msg.range_min))
-                else:
-                    ranges = np.array(msg.ranges, dtype=np.float32)  # not a view of the message
-                if ranges.size == 0:
-                    continue  # an empty scan carries nothing; counted below
                 try:
-                    geometry = BeamGeometry(
-                        count=int(ranges.size),
-                        angle_min=float(msg.angle_min),
-                        angle_increment=float(msg.angle_increment),
-                        range_min=float(msg.range_min),
-                        range_max=float(msg.range_max),
-                    )
+                    scan = scan_of(msg, conn.msgtype)
                 except ScanError as err:
                     # One glitched message (a driver's first scan, say) must not cost the whole
                     # recording; a topic of nothing but malformed scans is refused below.
                     malformed.append(err)
                     continue
-                scans.append(Scan(ranges, geometry, _stamp_ns(msg)))
+                if scan is None:
+                    continue  # an empty scan carries nothing; counted below
+                scans.append(scan)
                 log_times.append(int(log_time))
                 if progress is not None:
                     progress(1)
