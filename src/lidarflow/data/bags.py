@@ -1,34 +1,38 @@
-"""Read LaserScan topics (and optional odometry) from ROS 1 bags, ROS 2 bags and MCAP files.
+"""Read one scan topic of a bag (and optionally its odometry) as a :class:`Recording`.
 
-A ``MultiEchoLaserScan`` topic (Cartographer's backpack recordings, scanners that report every
-echo of a beam) is read where a bag has no LaserScan one, or where ``--topic`` names it: each
-beam's nearest valid echo (:func:`nearest_echoes`), the first surface it met.
-
-Uses ``rosbags`` (pure Python, no ROS install). Accepted inputs: a ROS 1 ``.bag``, a zipped
-``.bag.zip`` (unpacked to a temporary file, :mod:`lidarflow.data.unzip`), a ROS 2 bag folder
-(sqlite3 or mcap storage), or a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as
-``mcap convert`` leaves a ROS 1 bag (read by :mod:`lidarflow.data.mcapfile`).
+:func:`read_bag` in named steps: open the bag (:mod:`lidarflow.data.bagfile`: ROS 1 bags, zipped
+ones, ROS 2 bag folders, MCAP files); choose the topics (:mod:`lidarflow.data.topics`); read the
+scan messages (:mod:`lidarflow.data.messages`), the odometry (:mod:`lidarflow.data.poses`) and
+the TF tree in one pass; clean the scans (:mod:`lidarflow.data.cleaning`); order them in
+sessions where the header clock jumps back (:mod:`lidarflow.data.sessions`); move the poses
+onto the scanner (:func:`lidarflow.data.poses.on_the_scanner`); and say in the recording's
+``meta`` what each step did.
 
 A bag cut short (a robot that lost power, a writer stopped early: a ROS 1 bag without its index,
 an MCAP file without its summary or footer) is read up to its last intact message
 (:mod:`lidarflow.data.ros1bag`, :mod:`lidarflow.data.mcapfile`), and the recording says how
 much in ``meta["recovered"]``.
+
+The names this module gave before its steps had modules of their own (``open_bag``,
+``list_topics``, ``nearest_echoes``, ``declared_beams``, ``pose_of``, ``unzipped_bag``, the topic
+types, ...) are still importable from it.
 """
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
+from typing import Any
 
 from lidarflow.data.bagfile import TopicInfo, list_topics, open_bag, why_failed
-from lidarflow.data.messages import check_beams, declared_beams, nearest_echoes, scan_of, stamp_ns
-from lidarflow.data.poses import pose_of
+from lidarflow.data.cleaning import Cleaned, clean_scans
+from lidarflow.data.messages import check_beams, declared_beams, nearest_echoes, scan_of
+from lidarflow.data.poses import PoseLog, on_the_scanner, pose_of
+from lidarflow.data.readers import CutShort
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
-from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
+from lidarflow.data.tf import TF_TYPE, TransformTree
 from lidarflow.data.topics import (
     LASERSCAN,
     MULTI_ECHO,
@@ -39,7 +43,7 @@ from lidarflow.data.topics import (
 )
 from lidarflow.data.unzip import unzip_folder, unzipped_bag
 from lidarflow.errors import BagError, ScanError
-from lidarflow.scan import MAX_BEAMS, BeamGeometry, Scan
+from lidarflow.scan import MAX_BEAMS, Scan
 
 __all__ = [
     "LASERSCAN",
@@ -59,42 +63,6 @@ __all__ = [
 ]
 
 
-#: Header stamps all below a day after the epoch are a simulator's clock (ROS ``/clock``).
-SIM_CLOCK_NS = 86_400 * 1_000_000_000
-
-
-def _zero_stamps_filled(header_ns: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
-    """Header stamps with each zero (a driver that left the stamp unset) replaced by its log
-    time. On a simulator's clock, which starts at 0, zeros before its first other stamp are its
-    first instants and stay; a later zero is unset, and the log time (a wall clock) no stand-in
-    there: it gets the stamps around it, interpolated by position."""
-    zero = header_ns <= 0
-    if not zero.any():
-        return header_ns
-    rest = np.flatnonzero(~zero)
-    if rest.size == 0 or header_ns[rest].max() >= SIM_CLOCK_NS:
-        return np.where(zero, log_ns, header_ns)
-    out = np.maximum(header_ns, 0)
-    later = np.flatnonzero(zero)
-    later = later[later > rest[0]]
-    out[later] = np.rint(np.interp(later, rest, header_ns[rest])).astype(np.int64)
-    return out
-
-
-_COPIES_WITHIN_NS = 1_000_000_000  # log times of one message recorded twice: well within 1 s
-
-
-def _stuck(stamps_ns: np.ndarray) -> bool:
-    """Whether stamps in arrival order advance between fewer than half of the messages."""
-    advancing = np.count_nonzero(np.diff(stamps_ns) > 0)
-    return len(stamps_ns) > 1 and advancing < (len(stamps_ns) - 1) / 2
-
-
-def _stamped(scans: list[Scan], stamps_ns: np.ndarray) -> list[Scan]:
-    """``scans`` with these stamps instead of their own."""
-    return [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, stamps_ns, strict=True)]
-
-
 def read_bag(
     path: str | Path,
     topic: str | None = None,
@@ -104,7 +72,8 @@ def read_bag(
     """Read one LaserScan topic (and optionally the poses of an odometry topic) as a recording.
 
     Args:
-        path: the bag (see module docstring for accepted kinds).
+        path: the bag: a ROS 1 bag (zipped or not), a ROS 2 bag folder or an MCAP file
+            (:func:`~lidarflow.data.bagfile.open_bag`).
         topic: the scan topic; by default the bag's LaserScan topic, and of several the one
             named ``scan``, else the busiest (``meta["topic_choice"]`` says which, over which).
         odom_topic: an Odometry/PoseStamped topic; by default the bag's ``nav_msgs/Odometry``
@@ -136,134 +105,155 @@ def read_bag(
     """
     path = Path(path)
     with open_bag(path) as reader:
-        scan_topic, topic_choice = choose_scan_topic(path, reader, topic)
-        multi_echo = any(
-            c.topic == scan_topic and c.msgtype == MULTI_ECHO for c in reader.connections
-        )
-        pose_topic, pose_choice = choose_pose_topic(path, reader, odom_topic)
-        wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
-        if pose_topic is not None:  # the TF tree, to find the scanner's mount on the base
-            wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
-        tree, body = TransformTree(), ""
-        scans: list[Scan] = []
-        pose_stamps: list[int] = []
-        pose_log_times: list[int] = []
-        pose_values: list[tuple[float, float, float]] = []
-        frame_id = ""
-        malformed: list[ScanError] = []
-        log_times: list[int] = []
-        try:
-            for conn, log_time, raw in reader.messages(connections=wanted):
-                if conn.msgtype == TF_TYPE:
-                    tree.add(reader.deserialize(raw, conn.msgtype))
-                    continue
-                if conn.topic == scan_topic:
-                    check_beams(path, scan_topic, raw, conn)
-                msg = reader.deserialize(raw, conn.msgtype)
-                if conn.topic == pose_topic:
-                    body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
-                    pose_stamps.append(stamp_ns(msg))
-                    pose_log_times.append(int(log_time))
-                    pose_values.append(pose_of(msg))
-                    continue
-                frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
-                try:
-                    scan = scan_of(msg, conn.msgtype)
-                except ScanError as err:
-                    # One glitched message (a driver's first scan, say) must not cost the whole
-                    # recording; a topic of nothing but malformed scans is refused below.
-                    malformed.append(err)
-                    continue
-                if scan is None:
-                    continue  # an empty scan carries nothing; counted below
-                scans.append(scan)
-                log_times.append(int(log_time))
-                if progress is not None:
-                    progress(1)
-        except BagError:
-            raise
-        except Exception as err:  # truncated chunks, bad CDR, ... all end here
-            raise BagError(
-                f"{path}: cannot read messages on {scan_topic} ({why_failed(err)}); "
-                "the bag may be truncated or corrupt"
-            ) from err
-        total = sum(c.msgcount for c in reader.connections if c.topic == scan_topic)
-        recovered = getattr(reader, "recovered", None)  # a bag cut short: how much was read
-    # where the topic was chosen among several, the error says which others there are
-    others = f" ({topic_choice})" if topic_choice else ""
-    if not scans and malformed:
-        raise BagError(
-            f"{path}: topic {scan_topic}: every scan is a malformed LaserScan ({malformed[0]})"
-            + others
-        ) from malformed[0]
-    if not scans:
-        raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans{others}")
-    header = np.array([s.stamp_ns for s in scans], dtype=np.int64)
-    filled = _zero_stamps_filled(header, np.array(log_times, dtype=np.int64))
-    if not np.array_equal(filled, header):
-        scans = _stamped(scans, filled)
-    # The same message recorded twice (two connections on one topic, merged bags) is one
-    # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
-    # copies arrive together; the same scan at the same stamp a session later is a simulator
-    # replaying itself after its clock was reset (data.sessions), and is kept.
-    # (a digest of the ranges: their bytes as keys held a second copy of every scan)
-    seen: dict[tuple[int, BeamGeometry, bytes], int] = {}
-    unique: list[tuple[Scan, int]] = []
-    for scan, log_time in zip(scans, log_times, strict=True):
-        digest = hashlib.blake2b(np.ascontiguousarray(scan.ranges), digest_size=16).digest()
-        key = (scan.stamp_ns, scan.geometry, digest)
-        if key not in seen or abs(int(log_time) - seen[key]) > _COPIES_WITHIN_NS:
-            unique.append((scan, log_time))
-            seen[key] = int(log_time)
-    duplicates = len(scans) - len(unique)
-    scans, stamps = [scan for scan, _ in unique], "header"
-    arrivals = np.array([log_time for _, log_time in unique], dtype=np.int64)
-    if _stuck(np.array([s.stamp_ns for s in scans])) and not _stuck(arrivals):
-        # A driver that never advances its header stamps (all one value) would leave every scan
-        # at one instant: no frame rate, every frame a gap, every scan at one odometry pose.
-        scans = _stamped(scans, arrivals)
-        stamps = "log time (the header stamps do not advance)"
-    odometry = None
-    if pose_topic is not None:
-        pose_logged = np.array(pose_log_times, dtype=np.int64)
-        odometry = (
-            _zero_stamps_filled(np.array(pose_stamps, dtype=np.int64), pose_logged),
-            pose_logged,
-            np.array(pose_values, dtype=np.float64).reshape(-1, 3),
-        )
-    scans, poses, clock_jumps = in_sessions(scans, arrivals, odometry)
-    mount, upside_down = None, False
+        topics = _topics(path, reader, topic, odom_topic)
+        read = _read_messages(path, reader, topics, progress)
+    _refuse_no_scans(path, topics, read)
+    cleaned = clean_scans(read.scans, read.log_times)
+    odometry = read.odometry.arrays() if topics.pose is not None else None
+    scans, poses, clock_jumps = in_sessions(cleaned.scans, cleaned.arrivals, odometry)
+    meta = _meta(path, topics, read, cleaned, len(scans), clock_jumps)
     if poses is not None:
-        found = tree.mount(body, frame_id) if body and frame_id else None
-        if found is not None:
-            mount, upside_down = found
-            poses = compose_poses(poses, mount)
-            if upside_down:  # the scanner sees the world mirrored, and so moves in it
-                poses = mirrored(poses)
-    meta = {
-        "source": str(path),
-        "topic": scan_topic,
-        "frame_id": frame_id,
-        "pose_topic": pose_topic,
-        "empty_scans_dropped": int(total - len(scans) - duplicates - len(malformed)),
-        "duplicate_scans_dropped": duplicates,
-        "stamps": stamps,
-        "clock_jumps": clock_jumps,
-        "malformed_scans_dropped": len(malformed),
-    }
-    if multi_echo:
-        meta["scan_type"] = "MultiEchoLaserScan (each beam's nearest echo)"
-    if topic_choice is not None:
-        meta["topic_choice"] = topic_choice
-    if pose_choice is not None:
-        meta["pose_topic_choice"] = pose_choice
-    if pose_topic is not None:
-        meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
-        if upside_down:
-            meta["sensor_upside_down"] = True
+        poses, mount = on_the_scanner(poses, read.tree, read.odometry.body, read.frame_id)
+        meta.update(mount)
     recording = Recording.from_scans(scans, poses=poses, meta=meta)
     recording.meta["frame_rate_hz"] = round(recording.frame_rate, 3)
-    if recovered is not None:
+    if read.recovered is not None:
         seconds = (int(recording.stamps_ns[-1]) - int(recording.stamps_ns[0])) / 1e9
-        recording.meta["recovered"] = recovered.note(len(recording), seconds)
+        recording.meta["recovered"] = read.recovered.note(len(recording), seconds)
     return recording
+
+
+@dataclass(frozen=True)
+class _Topics:
+    """The topics :func:`read_bag` reads: the scan topic (``multi_echo``: of
+    ``MultiEchoLaserScan``) and the odometry topic (``None``: none), each with the note on the
+    choice made among several (``None``: named, or the only one)."""
+
+    scan: str
+    scan_choice: str | None
+    multi_echo: bool
+    pose: str | None
+    pose_choice: str | None
+
+
+def _topics(path: Path, reader: Any, topic: str | None, odom_topic: str | None) -> _Topics:
+    """The topics of ``reader``'s bag to read: ``topic`` and ``odom_topic`` where named, else
+    those :func:`~lidarflow.data.topics.choose_scan_topic` and ``choose_pose_topic`` choose."""
+    scan_topic, topic_choice = choose_scan_topic(path, reader, topic)
+    multi_echo = any(c.topic == scan_topic and c.msgtype == MULTI_ECHO for c in reader.connections)
+    pose_topic, pose_choice = choose_pose_topic(path, reader, odom_topic)
+    return _Topics(scan_topic, topic_choice, multi_echo, pose_topic, pose_choice)
+
+
+@dataclass
+class _Read:
+    """What one pass over a bag's messages gathers, before any cleaning: the scans and their
+    log times (ns) in arrival order, the errors of the malformed scans dropped, the scans'
+    frame (the first message's), the odometry (empty without a pose topic), the TF tree (read
+    only with a pose topic), the scan topic's message count, and how much of a bag cut short
+    was read (``None``: the whole bag)."""
+
+    scans: list[Scan] = field(default_factory=list)
+    log_times: list[int] = field(default_factory=list)
+    malformed: list[ScanError] = field(default_factory=list)
+    frame_id: str = ""
+    odometry: PoseLog = field(default_factory=PoseLog)
+    tree: TransformTree = field(default_factory=TransformTree)
+    total: int = 0
+    recovered: CutShort | None = None
+
+
+def _read_messages(
+    path: Path, reader: Any, topics: _Topics, progress: Callable[[int], None] | None
+) -> _Read:
+    """Every message of ``topics``' scan and odometry topics, and with an odometry topic the TF
+    tree, in one pass in the order ``reader`` gives them; ``progress(1)`` after each scan kept.
+
+    Empty scans are skipped and malformed ones (:func:`~lidarflow.data.messages.scan_of`'s
+    :class:`ScanError`) kept apart: one glitched message must not cost the whole recording.
+    Raises :class:`BagError` for a scan of too many beams
+    (:func:`~lidarflow.data.messages.check_beams`) and for messages that cannot be read.
+    """
+    read = _Read()
+    wanted = [c for c in reader.connections if c.topic in {topics.scan, topics.pose}]
+    if topics.pose is not None:  # the TF tree, to find the scanner's mount on the base
+        wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
+    try:
+        for conn, log_time, raw in reader.messages(connections=wanted):
+            if conn.msgtype == TF_TYPE:
+                read.tree.add(reader.deserialize(raw, conn.msgtype))
+                continue
+            if conn.topic == topics.scan:
+                check_beams(path, topics.scan, raw, conn)
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == topics.pose:
+                read.odometry.add(msg, log_time)
+                continue
+            read.frame_id = read.frame_id or str(msg.header.frame_id).lstrip("/")
+            try:
+                scan = scan_of(msg, conn.msgtype)
+            except ScanError as err:
+                read.malformed.append(err)  # a topic of nothing but these is refused later
+                continue
+            if scan is None:
+                continue  # an empty scan carries nothing; counted in meta
+            read.scans.append(scan)
+            read.log_times.append(int(log_time))
+            if progress is not None:
+                progress(1)
+    except BagError:
+        raise
+    except Exception as err:  # truncated chunks, bad CDR, ... all end here
+        raise BagError(
+            f"{path}: cannot read messages on {topics.scan} ({why_failed(err)}); "
+            "the bag may be truncated or corrupt"
+        ) from err
+    read.total = sum(c.msgcount for c in reader.connections if c.topic == topics.scan)
+    read.recovered = getattr(reader, "recovered", None)
+    return read
+
+
+def _refuse_no_scans(path: Path, topics: _Topics, read: _Read) -> None:
+    """Raise :class:`BagError` where the scan topic gave no scan: every one malformed (chained
+    to the first's error) or empty; where the topic was chosen among several, the error names
+    the others."""
+    others = f" ({topics.scan_choice})" if topics.scan_choice else ""
+    if not read.scans and read.malformed:
+        raise BagError(
+            f"{path}: topic {topics.scan}: every scan is a malformed LaserScan "
+            f"({read.malformed[0]}){others}"
+        ) from read.malformed[0]
+    if not read.scans:
+        raise BagError(f"{path}: topic {topics.scan} holds no non-empty scans{others}")
+
+
+def _meta(
+    path: Path,
+    topics: _Topics,
+    read: _Read,
+    cleaned: Cleaned,
+    kept: int,
+    clock_jumps: list[dict[str, Any]],
+) -> dict[str, Any]:
+    """The recording's ``meta`` on what was read of ``path``: the topics and how they were
+    chosen, the scans' frame, the scans dropped as empty (the topic's messages that are neither
+    among the ``kept`` scans nor copies nor malformed), as copies and as malformed, the stamps
+    used and the clock jumps."""
+    meta: dict[str, Any] = {
+        "source": str(path),
+        "topic": topics.scan,
+        "frame_id": read.frame_id,
+        "pose_topic": topics.pose,
+        "empty_scans_dropped": int(read.total - kept - cleaned.duplicates - len(read.malformed)),
+        "duplicate_scans_dropped": cleaned.duplicates,
+        "stamps": cleaned.stamps,
+        "clock_jumps": clock_jumps,
+        "malformed_scans_dropped": len(read.malformed),
+    }
+    if topics.multi_echo:
+        meta["scan_type"] = "MultiEchoLaserScan (each beam's nearest echo)"
+    if topics.scan_choice is not None:
+        meta["topic_choice"] = topics.scan_choice
+    if topics.pose_choice is not None:
+        meta["pose_topic_choice"] = topics.pose_choice
+    return meta
