@@ -83,7 +83,7 @@ def _long_recording(n: int, beams: int = 19):
 
 def test_convert_checks_a_long_recording_a_batch_at_a_time_under_a_memory_limit(tmp_path):
     """40,000 scans: their maps at once take 800 MB (200,000 took 4 GB; on --grid 200, 16)."""
-    from lidarflow.data.recording import load_recording
+    from lidarflow.data.recordfile import load_recording
 
     source = _long_recording(40_000).save(tmp_path / "long.npz")
     done = run_limited(["convert", str(source), "-o", "out.npz"], tmp_path, GIB * 3 // 4)
