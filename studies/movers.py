@@ -77,7 +77,7 @@ def read_people(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``(stamps_ns, xy)`` of the annotated people of a bag: the bag's log stamps (the messages
     have no header) and the positions as recorded (laser frame); empty without the topic or
     where ``path`` is no bag."""
-    from lidarflow.data.bags import open_bag
+    from lidarflow.data.bagfile import open_bag
 
     stamps: list[int] = []
     xy: list[tuple[float, float]] = []

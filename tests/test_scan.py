@@ -9,19 +9,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lidarflow.beams import RETURN, beam_status, ring_band, ring_scans
 from lidarflow.data import describe_recording
 from lidarflow.errors import ScanError
 from lidarflow.scan import (
-    RETURN,
     BeamGeometry,
     GridSpec,
     Scan,
-    beam_status,
     cell_centres,
     rasterize,
     rasterize_batch,
-    ring_band,
-    ring_scans,
     subcell_batch,
 )
 from tests.conftest import make_recording

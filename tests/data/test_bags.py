@@ -480,7 +480,7 @@ def test_odometry_whose_clock_does_not_jump_gives_no_poses_after_the_jump(tmp_pa
 def test_pose_of_reads_the_planar_pose_of_odometry_and_pose_stamped():
     from types import SimpleNamespace as Ns
 
-    from lidarflow.data.bags import pose_of
+    from lidarflow.data.poses import pose_of
 
     yaw = 0.7
     q = Ns(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))

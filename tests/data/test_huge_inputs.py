@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from lidarflow.data.bags import MAX_BEAMS, declared_beams
+from lidarflow.data.messages import declared_beams
+from lidarflow.scan import MAX_BEAMS
 from tests.bagutil import _scan_msg, write_bag, write_ros1_mcap
 from tests.memlimit import GIB, one_line_error, run_limited
 
@@ -83,7 +84,7 @@ def _long_recording(n: int, beams: int = 19):
 
 def test_convert_checks_a_long_recording_a_batch_at_a_time_under_a_memory_limit(tmp_path):
     """40,000 scans: their maps at once take 800 MB (200,000 took 4 GB; on --grid 200, 16)."""
-    from lidarflow.data.recording import load_recording
+    from lidarflow.data.recordfile import load_recording
 
     source = _long_recording(40_000).save(tmp_path / "long.npz")
     done = run_limited(["convert", str(source), "-o", "out.npz"], tmp_path, GIB * 3 // 4)

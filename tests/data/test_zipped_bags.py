@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from lidarflow.data import bags, read_bag
+from lidarflow.data import read_bag, unzip
 from lidarflow.errors import BagError
 from tests.bagutil import write_bag
 
@@ -22,7 +22,7 @@ def unpack_here(tmp_path, monkeypatch) -> Path:
     """The system's temporary folder, for this test alone; returns where bags unpack."""
     (tmp_path / "tmp").mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
-    return bags.unzip_folder()
+    return unzip.unzip_folder()
 
 
 def _zipped(folder: Path, name: str, data: bytes | None = None) -> Path:
@@ -60,7 +60,7 @@ def test_what_a_killed_run_left_is_removed_by_the_next(tmp_path, unpack_here):
 
 
 def test_a_zip_bomb_is_refused_by_the_size_it_declares(tmp_path, unpack_here, monkeypatch):
-    monkeypatch.setattr(bags, "UNZIP_FLOOR", 1 << 20)
+    monkeypatch.setattr(unzip, "UNZIP_FLOOR", 1 << 20)
     bomb = _zipped(tmp_path, "bomb", bytes(8 << 20))  # 8 MB of zeros in ~8 kB
     with pytest.raises(BagError) as caught:
         read_bag(bomb)
@@ -87,9 +87,9 @@ def test_a_bag_that_would_fill_the_disk_is_refused(tmp_path, unpack_here, monkey
     real = shutil.disk_usage
 
     def nearly_full(path):
-        return real(path)._replace(free=bags.UNZIP_RESERVE + 1000)
+        return real(path)._replace(free=unzip.UNZIP_RESERVE + 1000)
 
-    monkeypatch.setattr(bags.shutil, "disk_usage", nearly_full)
+    monkeypatch.setattr(unzip.shutil, "disk_usage", nearly_full)
     with pytest.raises(BagError, match=f"^{zipped}: its bag unpacks to .* kB or more, and "):
         read_bag(zipped)
     assert list(unpack_here.iterdir()) == []

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from lidarflow.data.recording import load_recording
+from lidarflow.data.recordfile import load_recording
 from lidarflow.live.foxglove import LiveServer
 from lidarflow.live.replay import replay
 from lidarflow.predict import Predictor

@@ -1,9 +1,11 @@
 """Recordings in and out: bag/MCAP readers, the recording format, training sequences."""
 
-from lidarflow.data.bags import list_topics, read_bag
+from lidarflow.data.bagfile import list_topics
+from lidarflow.data.bags import read_bag
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.info import describe_recording, find_gaps
-from lidarflow.data.recording import Recording, load_recording
+from lidarflow.data.recordfile import load_recording
+from lidarflow.data.recording import Recording
 from lidarflow.data.samples import SAMPLE_TOPIC, sample_bag_path
 from lidarflow.data.sequences import SequenceSet, split_segments
 from lidarflow.data.sources import load_any

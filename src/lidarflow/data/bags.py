@@ -1,45 +1,38 @@
-"""Read LaserScan topics (and optional odometry) from ROS 1 bags, ROS 2 bags and MCAP files.
+"""Read one scan topic of a bag (and optionally its odometry) as a :class:`Recording`.
 
-A ``MultiEchoLaserScan`` topic (Cartographer's backpack recordings, scanners that report every
-echo of a beam) is read where a bag has no LaserScan one, or where ``--topic`` names it: each
-beam's nearest valid echo (:func:`nearest_echoes`), the first surface it met.
-
-Uses ``rosbags`` (pure Python, no ROS install). Accepted inputs: a ROS 1 ``.bag``, a zipped
-``.bag.zip`` (unpacked to a temporary file, :func:`unzipped_bag`), a ROS 2 bag folder (sqlite3
-or mcap storage), or a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as ``mcap
-convert`` leaves a ROS 1 bag (read by :mod:`lidarflow.data.mcapfile`).
+:func:`read_bag` in named steps: open the bag (:mod:`lidarflow.data.bagfile`: ROS 1 bags, zipped
+ones, ROS 2 bag folders, MCAP files); choose the topics (:mod:`lidarflow.data.topics`); read the
+scan messages (:mod:`lidarflow.data.messages`), the odometry (:mod:`lidarflow.data.poses`) and
+the TF tree in one pass; clean the scans (:mod:`lidarflow.data.cleaning`); order them in
+sessions where the header clock jumps back (:mod:`lidarflow.data.sessions`); move the poses
+onto the scanner (:func:`lidarflow.data.poses.on_the_scanner`); and say in the recording's
+``meta`` what each step did.
 
 A bag cut short (a robot that lost power, a writer stopped early: a ROS 1 bag without its index,
 an MCAP file without its summary or footer) is read up to its last intact message
 (:mod:`lidarflow.data.ros1bag`, :mod:`lidarflow.data.mcapfile`), and the recording says how
 much in ``meta["recovered"]``.
+
+The names this module gave before its steps had modules of their own (``open_bag``,
+``list_topics``, ``nearest_echoes``, ``declared_beams``, ``pose_of``, ``unzipped_bag``, the topic
+types, ...) are still importable from it.
 """
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
-import math
-import os
-import shutil
-import struct
-import tempfile
-import zipfile
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from lidarflow.atomic import discard, temporary
-from lidarflow.data.cutshort import cut_short_reader, not_a_bag
-from lidarflow.data.inputs import check_regular
-from lidarflow.data.mcapfile import McapReader, channel_encoding
-from lidarflow.data.readers import _size
+from lidarflow.data.bagfile import TopicInfo, list_topics, open_bag, why_failed
+from lidarflow.data.cleaning import Cleaned, clean_scans
+from lidarflow.data.messages import check_beams, declared_beams, nearest_echoes, scan_of
+from lidarflow.data.poses import PoseLog, on_the_scanner, pose_of
+from lidarflow.data.readers import CutShort
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
-from lidarflow.data.tf import TF_TYPE, TransformTree, compose_poses, mirrored
+from lidarflow.data.tf import TF_TYPE, TransformTree
 from lidarflow.data.topics import (
     LASERSCAN,
     MULTI_ECHO,
@@ -48,8 +41,9 @@ from lidarflow.data.topics import (
     choose_pose_topic,
     choose_scan_topic,
 )
+from lidarflow.data.unzip import unzip_folder, unzipped_bag
 from lidarflow.errors import BagError, ScanError
-from lidarflow.scan import MAX_BEAMS, BeamGeometry, Scan
+from lidarflow.scan import MAX_BEAMS, Scan
 
 __all__ = [
     "LASERSCAN",
@@ -69,305 +63,6 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class TopicInfo:
-    topic: str
-    msgtype: str
-    count: int
-
-
-_BAG_SUFFIXES = (".bag", ".bag.zip", ".mcap", ".db3")
-
-
-def _is_bag_like(path: Path) -> bool:
-    name = path.name.lower()
-    return path.is_dir() or name == "metadata.yaml" or name.endswith(_BAG_SUFFIXES)
-
-
-@contextlib.contextmanager
-def open_bag(path: str | Path) -> Iterator[Any]:
-    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``, or where rosbags
-    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way:
-    for an MCAP file of ROS 1 messages, or a bag cut short (its ``recovered`` says how much of
-    the file it reads; ``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
-
-    Raises :class:`BagError` for missing, unsupported or corrupt inputs.
-    """
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    path = Path(path)
-    if not path.exists():
-        raise BagError(f"{path}: no such file or folder")
-    check_regular(path, BagError, folder=True)
-    if not _is_bag_like(path):
-        raise BagError(
-            f"{path}: not a bag; expected a ROS 1 .bag (or .bag.zip), a ROS 2 bag folder, "
-            "or an .mcap file"
-        )
-    with contextlib.ExitStack() as stack:
-        target = path
-        if path.name.lower().endswith(".bag.zip"):
-            target = stack.enter_context(unzipped_bag(path))
-        elif path.suffix.lower() == ".db3" or path.name.lower() == "metadata.yaml":
-            target = path.parent  # a ROS 2 bag is read through its folder
-            check_regular(target, BagError, folder=True)
-        if target.is_dir() and not (target / "metadata.yaml").exists():
-            target = _folder_without_metadata(path, target)
-        encoding = channel_encoding(target) if target.suffix.lower() == ".mcap" else None
-        ros1 = target.suffix.lower() == ".bag" or encoding == "ros1"
-        store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-        try:
-            if encoding == "ros1":  # `mcap convert` of a ROS 1 bag: rosbags reads MCAP as ROS 2
-                reader = McapReader(target, "ros1", store)
-            else:
-                reader = stack.enter_context(AnyReader([target], default_typestore=store))
-        except Exception as err:  # rosbags raises many types for damaged files
-            reader = cut_short_reader(target, store)
-            foreign = not_a_bag(target) if reader is None else None
-            if foreign is not None:
-                raise BagError(f"{path}: {foreign}") from err
-            if reader is None and target.is_file() and target.suffix.lower() == ".mcap":
-                # the library's own words for this (`ord() expected a character`) say nothing
-                raise BagError(
-                    f"{path}: cannot open as a bag: it holds no ROS message that can be read, "
-                    "not a complete MCAP file (it ends after its header, or is damaged before "
-                    "its first message)"
-                ) from err
-            if reader is None:
-                why = _why(err)
-                raise BagError(f"{path}: cannot open as a bag ({why}); is it complete?") from err
-        yield reader
-
-
-def _folder_without_metadata(path: Path, folder: Path) -> Path:
-    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (``ros2 bag record``
-    writes it last, so an interrupted recording has none): an MCAP file reads on its own."""
-    mcaps = sorted(folder.glob("*.mcap"))
-    if len(mcaps) == 1:
-        return mcaps[0]
-    raise BagError(
-        f"{path}: cannot open as a bag (a folder with no metadata.yaml"
-        + (f" and {len(mcaps)} .mcap files" if mcaps else "")
-        + " is no ROS 2 bag); if its recording was interrupted, `ros2 bag reindex` rebuilds it"
-    )
-
-
-#: What a zipped bag may unpack to: this many times the archive's size (a bag of scans
-#: unzips to about ten times its zip; deflate reaches a thousand on a zip bomb's zeros), and at
-#: least :data:`UNZIP_FLOOR` bytes.
-UNZIP_RATIO = 50
-UNZIP_FLOOR = 64 << 20
-#: The free space an unpacked bag leaves on the file system it is unpacked to.
-UNZIP_RESERVE = 256 << 20
-_MB = 1 << 20
-
-
-def unzip_folder() -> Path:
-    """Where zipped bags are unpacked: a folder of this user's under the system's temporary
-    folder (``tempfile.gettempdir()``)."""
-    user = os.getuid() if hasattr(os, "getuid") else "user"
-    return Path(tempfile.gettempdir()) / f"lidarflow-unzipped-{user}"
-
-
-@contextlib.contextmanager
-def unzipped_bag(path: Path) -> Iterator[Path]:
-    """The one ``.bag`` of the zip archive ``path``, unpacked for as long as the context lasts.
-
-    It is unpacked to a temporary of :func:`lidarflow.atomic.temporary` in
-    :func:`unzip_folder`, named with this process's PID, so that what a process killed outright
-    leaves there is removed by the next unpacking (:func:`lidarflow.atomic.clear_stale`), and
-    is removed on leaving. Raises :class:`BagError`, naming ``path``, for a damaged archive,
-    one with no or several bags, and one whose bag would unpack to more than
-    :data:`UNZIP_RATIO` times the archive (:data:`UNZIP_FLOOR` at least: a zip bomb) or to
-    more than the free space less :data:`UNZIP_RESERVE`: by the size the archive declares,
-    and while unpacking, should the archive's headers lie.
-    """
-    try:
-        with zipfile.ZipFile(path) as zf:
-            members = [m for m in zf.infolist() if m.filename.lower().endswith(".bag")]
-            if len(members) != 1:
-                raise BagError(f"{path}: expected exactly one .bag inside, found {len(members)}")
-            folder = unzip_folder()
-            folder.mkdir(mode=0o700, exist_ok=True)  # this user's alone
-            tmp = temporary(folder / path.name[: -len(".zip")])
-            try:
-                limit = _unzip_limit(path, members[0].file_size, folder)
-                with zf.open(members[0]) as src, tmp.open("wb") as dst:
-                    while chunk := src.read(_MB):
-                        if dst.tell() + len(chunk) > limit:
-                            _refuse_unzip(path, dst.tell() + len(chunk), folder)
-                        dst.write(chunk)
-            except BaseException:
-                discard(tmp)
-                raise
-    except (zipfile.BadZipFile, EOFError) as err:
-        raise BagError(f"{path}: corrupt zip archive ({err})") from err
-    except OSError as err:
-        raise BagError(f"{path}: cannot unpack ({err.strerror or err})") from err
-    try:
-        yield tmp
-    finally:
-        discard(tmp)
-
-
-def _unzip_limit(path: Path, declared: int, folder: Path) -> int:
-    """The most bytes the bag of ``path`` may unpack to in ``folder`` (see
-    :func:`unzipped_bag`); refuses one whose ``declared`` size is more."""
-    room = shutil.disk_usage(folder).free - UNZIP_RESERVE
-    limit = min(max(UNZIP_RATIO * path.stat().st_size, UNZIP_FLOOR), room)
-    if declared > limit:
-        _refuse_unzip(path, declared, folder)
-    return limit
-
-
-def _refuse_unzip(path: Path, size: int, folder: Path) -> None:
-    zipped = path.stat().st_size
-    if size > max(UNZIP_RATIO * zipped, UNZIP_FLOOR):
-        raise BagError(
-            f"{path}: its bag unpacks to {_size(size)} or more, over {UNZIP_RATIO} times the "
-            f"archive's {_size(zipped)}: a zip bomb or a damaged archive; if it is a bag, "
-            "unzip it yourself and give the .bag"
-        )
-    free = shutil.disk_usage(folder).free
-    raise BagError(
-        f"{path}: its bag unpacks to {_size(size)} or more, and {folder} has {_size(free)} "
-        f"free (lidarflow leaves {_size(UNZIP_RESERVE)}); free some space, or unzip it "
-        "yourself and give the .bag"
-    )
-
-
-def _why(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    return f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
-
-
-def list_topics(path: str | Path) -> list[TopicInfo]:
-    """Every topic of the bag with its message type and count."""
-    with open_bag(path) as reader:
-        counts: dict[tuple[str, str], int] = {}
-        for c in reader.connections:
-            key = (c.topic, c.msgtype)
-            counts[key] = counts.get(key, 0) + c.msgcount
-    return [TopicInfo(t, m, n) for (t, m), n in sorted(counts.items())]
-
-
-def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
-    """A ``MultiEchoLaserScan``'s ``ranges`` (one ``LaserEcho`` per beam) as one range per beam
-    (float32): the nearest echo at or beyond ``range_min``, the first surface the beam met; where
-    none, ``+inf`` if an echo said no return, else NaN (unknown)."""
-    per_beam = [np.asarray(beam.echoes, dtype=np.float32).ravel() for beam in echoes]
-    out = np.full(len(per_beam), np.nan, np.float32)
-    if not per_beam:
-        return out
-    # one flat array of every echo and the beam it belongs to: a 40 Hz scan of 1081 beams in
-    # well under a millisecond (a loop over the beams took 6 ms)
-    values = np.concatenate(per_beam)
-    beam = np.repeat(np.arange(len(per_beam)), [len(v) for v in per_beam])
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(values) & (values >= range_min) & (values > 0)
-    out[beam[np.isposinf(values)]] = np.inf
-    nearest = np.full(len(per_beam), np.inf, np.float32)
-    np.minimum.at(nearest, beam[valid], values[valid])
-    found = np.bincount(beam[valid], minlength=len(per_beam)) > 0
-    out[found] = nearest[found]
-    return out
-
-
-def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:
-    """The beam count a serialised ``LaserScan`` or ``MultiEchoLaserScan`` declares (the
-    length of its ``ranges``), read from the raw message before it is deserialised; ``None``
-    where the bytes are too short to say (deserialising them fails on its own).
-
-    Both types begin alike: a header (ROS 1: ``seq``, stamp, ``frame_id``; ROS 2's CDR: a
-    4-byte encapsulation, stamp, ``frame_id``), seven float32 fields, then ``ranges``' length.
-
-    >>> import struct
-    >>> raw = struct.pack("<III", 0, 0, 0) + struct.pack("<I", 5) + b"laser"
-    >>> declared_beams(raw + bytes(28) + struct.pack("<I", 1081), ros1=True)
-    1081
-    """
-    u32 = struct.Struct("<I")
-    try:
-        if ros1:
-            at = 12  # seq, stamp
-            at += 4 + u32.unpack_from(raw, at)[0]  # frame_id
-        else:
-            big = bytes(raw[:2]) in (b"\x00\x00", b"\x00\x02")  # CDR_BE, PL_CDR_BE
-            u32 = struct.Struct(">I" if big else "<I")
-            at = 8  # stamp, after the encapsulation; CDR aligns from there
-            at += 4 + u32.unpack_from(raw, 4 + at)[0]  # frame_id (with its NUL)
-            at = 4 + (at + 3) // 4 * 4
-        return int(u32.unpack_from(raw, at + 7 * 4)[0])
-    except struct.error:
-        return None
-
-
-def _check_beams(path: Path, topic: str, raw: bytes, conn: Any) -> None:
-    """Refuse a scan message that declares more than :data:`MAX_BEAMS` beams, before anything
-    is allocated for them."""
-    from rosbags.interfaces import ConnectionExtRosbag1
-
-    count = declared_beams(raw, isinstance(conn.ext, ConnectionExtRosbag1))
-    if count is not None and count > MAX_BEAMS:
-        raise BagError(
-            f"{path}: topic {topic}: a scan of {count:,} beams; real scanners give at most a "
-            f"few thousand (lidarflow takes up to {MAX_BEAMS:,}): the bag is damaged or not "
-            "a 2-D laser scan"
-        )
-
-
-def _stamp_ns(msg: Any) -> int:
-    stamp = msg.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-#: Header stamps all below a day after the epoch are a simulator's clock (ROS ``/clock``).
-SIM_CLOCK_NS = 86_400 * 1_000_000_000
-
-
-def _zero_stamps_filled(header_ns: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
-    """Header stamps with each zero (a driver that left the stamp unset) replaced by its log
-    time. On a simulator's clock, which starts at 0, zeros before its first other stamp are its
-    first instants and stay; a later zero is unset, and the log time (a wall clock) no stand-in
-    there: it gets the stamps around it, interpolated by position."""
-    zero = header_ns <= 0
-    if not zero.any():
-        return header_ns
-    rest = np.flatnonzero(~zero)
-    if rest.size == 0 or header_ns[rest].max() >= SIM_CLOCK_NS:
-        return np.where(zero, log_ns, header_ns)
-    out = np.maximum(header_ns, 0)
-    later = np.flatnonzero(zero)
-    later = later[later > rest[0]]
-    out[later] = np.rint(np.interp(later, rest, header_ns[rest])).astype(np.int64)
-    return out
-
-
-_COPIES_WITHIN_NS = 1_000_000_000  # log times of one message recorded twice: well within 1 s
-
-
-def _stuck(stamps_ns: np.ndarray) -> bool:
-    """Whether stamps in arrival order advance between fewer than half of the messages."""
-    advancing = np.count_nonzero(np.diff(stamps_ns) > 0)
-    return len(stamps_ns) > 1 and advancing < (len(stamps_ns) - 1) / 2
-
-
-def _stamped(scans: list[Scan], stamps_ns: np.ndarray) -> list[Scan]:
-    """``scans`` with these stamps instead of their own."""
-    return [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, stamps_ns, strict=True)]
-
-
-def pose_of(msg: Any) -> tuple[float, float, float]:
-    """The planar pose ``(x, y, yaw)`` (metres, radians) of an Odometry or PoseStamped message
-    (anything with ``pose.pose`` or ``pose``: ``position`` and an ``orientation`` quaternion);
-    yaw is the rotation about z."""
-    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    q = pose.orientation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    return float(pose.position.x), float(pose.position.y), yaw
-
-
 def read_bag(
     path: str | Path,
     topic: str | None = None,
@@ -377,7 +72,8 @@ def read_bag(
     """Read one LaserScan topic (and optionally the poses of an odometry topic) as a recording.
 
     Args:
-        path: the bag (see module docstring for accepted kinds).
+        path: the bag: a ROS 1 bag (zipped or not), a ROS 2 bag folder or an MCAP file
+            (:func:`~lidarflow.data.bagfile.open_bag`).
         topic: the scan topic; by default the bag's LaserScan topic, and of several the one
             named ``scan``, else the busiest (``meta["topic_choice"]`` says which, over which).
         odom_topic: an Odometry/PoseStamped topic; by default the bag's ``nav_msgs/Odometry``
@@ -409,144 +105,155 @@ def read_bag(
     """
     path = Path(path)
     with open_bag(path) as reader:
-        scan_topic, topic_choice = choose_scan_topic(path, reader, topic)
-        multi_echo = any(
-            c.topic == scan_topic and c.msgtype == MULTI_ECHO for c in reader.connections
-        )
-        pose_topic, pose_choice = choose_pose_topic(path, reader, odom_topic)
-        wanted = [c for c in reader.connections if c.topic in {scan_topic, pose_topic}]
-        if pose_topic is not None:  # the TF tree, to find the scanner's mount on the base
-            wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
-        tree, body = TransformTree(), ""
-        scans: list[Scan] = []
-        pose_stamps: list[int] = []
-        pose_log_times: list[int] = []
-        pose_values: list[tuple[float, float, float]] = []
-        frame_id = ""
-        malformed: list[ScanError] = []
-        log_times: list[int] = []
-        try:
-            for conn, log_time, raw in reader.messages(connections=wanted):
-                if conn.msgtype == TF_TYPE:
-                    tree.add(reader.deserialize(raw, conn.msgtype))
-                    continue
-                if conn.topic == scan_topic:
-                    _check_beams(path, scan_topic, raw, conn)
-                msg = reader.deserialize(raw, conn.msgtype)
-                if conn.topic == pose_topic:
-                    body = body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
-                    pose_stamps.append(_stamp_ns(msg))
-                    pose_log_times.append(int(log_time))
-                    pose_values.append(pose_of(msg))
-                    continue
-                frame_id = frame_id or str(msg.header.frame_id).lstrip("/")
-                if conn.msgtype == MULTI_ECHO:
-                    ranges = nearest_echoes(msg.ranges, float(msg.range_min))
-                else:
-                    ranges = np.array(msg.ranges, dtype=np.float32)  # not a view of the message
-                if ranges.size == 0:
-                    continue  # an empty scan carries nothing; counted below
-                try:
-                    geometry = BeamGeometry(
-                        count=int(ranges.size),
-                        angle_min=float(msg.angle_min),
-                        angle_increment=float(msg.angle_increment),
-                        range_min=float(msg.range_min),
-                        range_max=float(msg.range_max),
-                    )
-                except ScanError as err:
-                    # One glitched message (a driver's first scan, say) must not cost the whole
-                    # recording; a topic of nothing but malformed scans is refused below.
-                    malformed.append(err)
-                    continue
-                scans.append(Scan(ranges, geometry, _stamp_ns(msg)))
-                log_times.append(int(log_time))
-                if progress is not None:
-                    progress(1)
-        except BagError:
-            raise
-        except Exception as err:  # truncated chunks, bad CDR, ... all end here
-            raise BagError(
-                f"{path}: cannot read messages on {scan_topic} ({_why(err)}); "
-                "the bag may be truncated or corrupt"
-            ) from err
-        total = sum(c.msgcount for c in reader.connections if c.topic == scan_topic)
-        recovered = getattr(reader, "recovered", None)  # a bag cut short: how much was read
-    # where the topic was chosen among several, the error says which others there are
-    others = f" ({topic_choice})" if topic_choice else ""
-    if not scans and malformed:
-        raise BagError(
-            f"{path}: topic {scan_topic}: every scan is a malformed LaserScan ({malformed[0]})"
-            + others
-        ) from malformed[0]
-    if not scans:
-        raise BagError(f"{path}: topic {scan_topic} holds no non-empty scans{others}")
-    header = np.array([s.stamp_ns for s in scans], dtype=np.int64)
-    filled = _zero_stamps_filled(header, np.array(log_times, dtype=np.int64))
-    if not np.array_equal(filled, header):
-        scans = _stamped(scans, filled)
-    # The same message recorded twice (two connections on one topic, merged bags) is one
-    # measurement: kept twice, it would make a copy of the last map a perfect prediction. Its
-    # copies arrive together; the same scan at the same stamp a session later is a simulator
-    # replaying itself after its clock was reset (data.sessions), and is kept.
-    # (a digest of the ranges: their bytes as keys held a second copy of every scan)
-    seen: dict[tuple[int, BeamGeometry, bytes], int] = {}
-    unique: list[tuple[Scan, int]] = []
-    for scan, log_time in zip(scans, log_times, strict=True):
-        digest = hashlib.blake2b(np.ascontiguousarray(scan.ranges), digest_size=16).digest()
-        key = (scan.stamp_ns, scan.geometry, digest)
-        if key not in seen or abs(int(log_time) - seen[key]) > _COPIES_WITHIN_NS:
-            unique.append((scan, log_time))
-            seen[key] = int(log_time)
-    duplicates = len(scans) - len(unique)
-    scans, stamps = [scan for scan, _ in unique], "header"
-    arrivals = np.array([log_time for _, log_time in unique], dtype=np.int64)
-    if _stuck(np.array([s.stamp_ns for s in scans])) and not _stuck(arrivals):
-        # A driver that never advances its header stamps (all one value) would leave every scan
-        # at one instant: no frame rate, every frame a gap, every scan at one odometry pose.
-        scans = _stamped(scans, arrivals)
-        stamps = "log time (the header stamps do not advance)"
-    odometry = None
-    if pose_topic is not None:
-        pose_logged = np.array(pose_log_times, dtype=np.int64)
-        odometry = (
-            _zero_stamps_filled(np.array(pose_stamps, dtype=np.int64), pose_logged),
-            pose_logged,
-            np.array(pose_values, dtype=np.float64).reshape(-1, 3),
-        )
-    scans, poses, clock_jumps = in_sessions(scans, arrivals, odometry)
-    mount, upside_down = None, False
+        topics = _topics(path, reader, topic, odom_topic)
+        read = _read_messages(path, reader, topics, progress)
+    _refuse_no_scans(path, topics, read)
+    cleaned = clean_scans(read.scans, read.log_times)
+    odometry = read.odometry.arrays() if topics.pose is not None else None
+    scans, poses, clock_jumps = in_sessions(cleaned.scans, cleaned.arrivals, odometry)
+    meta = _meta(path, topics, read, cleaned, len(scans), clock_jumps)
     if poses is not None:
-        found = tree.mount(body, frame_id) if body and frame_id else None
-        if found is not None:
-            mount, upside_down = found
-            poses = compose_poses(poses, mount)
-            if upside_down:  # the scanner sees the world mirrored, and so moves in it
-                poses = mirrored(poses)
-    meta = {
-        "source": str(path),
-        "topic": scan_topic,
-        "frame_id": frame_id,
-        "pose_topic": pose_topic,
-        "empty_scans_dropped": int(total - len(scans) - duplicates - len(malformed)),
-        "duplicate_scans_dropped": duplicates,
-        "stamps": stamps,
-        "clock_jumps": clock_jumps,
-        "malformed_scans_dropped": len(malformed),
-    }
-    if multi_echo:
-        meta["scan_type"] = "MultiEchoLaserScan (each beam's nearest echo)"
-    if topic_choice is not None:
-        meta["topic_choice"] = topic_choice
-    if pose_choice is not None:
-        meta["pose_topic_choice"] = pose_choice
-    if pose_topic is not None:
-        meta["sensor_mount"] = None if mount is None else [round(v, 6) for v in mount]
-        if upside_down:
-            meta["sensor_upside_down"] = True
+        poses, mount = on_the_scanner(poses, read.tree, read.odometry.body, read.frame_id)
+        meta.update(mount)
     recording = Recording.from_scans(scans, poses=poses, meta=meta)
     recording.meta["frame_rate_hz"] = round(recording.frame_rate, 3)
-    if recovered is not None:
+    if read.recovered is not None:
         seconds = (int(recording.stamps_ns[-1]) - int(recording.stamps_ns[0])) / 1e9
-        recording.meta["recovered"] = recovered.note(len(recording), seconds)
+        recording.meta["recovered"] = read.recovered.note(len(recording), seconds)
     return recording
+
+
+@dataclass(frozen=True)
+class _Topics:
+    """The topics :func:`read_bag` reads: the scan topic (``multi_echo``: of
+    ``MultiEchoLaserScan``) and the odometry topic (``None``: none), each with the note on the
+    choice made among several (``None``: named, or the only one)."""
+
+    scan: str
+    scan_choice: str | None
+    multi_echo: bool
+    pose: str | None
+    pose_choice: str | None
+
+
+def _topics(path: Path, reader: Any, topic: str | None, odom_topic: str | None) -> _Topics:
+    """The topics of ``reader``'s bag to read: ``topic`` and ``odom_topic`` where named, else
+    those :func:`~lidarflow.data.topics.choose_scan_topic` and ``choose_pose_topic`` choose."""
+    scan_topic, topic_choice = choose_scan_topic(path, reader, topic)
+    multi_echo = any(c.topic == scan_topic and c.msgtype == MULTI_ECHO for c in reader.connections)
+    pose_topic, pose_choice = choose_pose_topic(path, reader, odom_topic)
+    return _Topics(scan_topic, topic_choice, multi_echo, pose_topic, pose_choice)
+
+
+@dataclass
+class _Read:
+    """What one pass over a bag's messages gathers, before any cleaning: the scans and their
+    log times (ns) in arrival order, the errors of the malformed scans dropped, the scans'
+    frame (the first message's), the odometry (empty without a pose topic), the TF tree (read
+    only with a pose topic), the scan topic's message count, and how much of a bag cut short
+    was read (``None``: the whole bag)."""
+
+    scans: list[Scan] = field(default_factory=list)
+    log_times: list[int] = field(default_factory=list)
+    malformed: list[ScanError] = field(default_factory=list)
+    frame_id: str = ""
+    odometry: PoseLog = field(default_factory=PoseLog)
+    tree: TransformTree = field(default_factory=TransformTree)
+    total: int = 0
+    recovered: CutShort | None = None
+
+
+def _read_messages(
+    path: Path, reader: Any, topics: _Topics, progress: Callable[[int], None] | None
+) -> _Read:
+    """Every message of ``topics``' scan and odometry topics, and with an odometry topic the TF
+    tree, in one pass in the order ``reader`` gives them; ``progress(1)`` after each scan kept.
+
+    Empty scans are skipped and malformed ones (:func:`~lidarflow.data.messages.scan_of`'s
+    :class:`ScanError`) kept apart: one glitched message must not cost the whole recording.
+    Raises :class:`BagError` for a scan of too many beams
+    (:func:`~lidarflow.data.messages.check_beams`) and for messages that cannot be read.
+    """
+    read = _Read()
+    wanted = [c for c in reader.connections if c.topic in {topics.scan, topics.pose}]
+    if topics.pose is not None:  # the TF tree, to find the scanner's mount on the base
+        wanted += [c for c in reader.connections if c.msgtype == TF_TYPE]
+    try:
+        for conn, log_time, raw in reader.messages(connections=wanted):
+            if conn.msgtype == TF_TYPE:
+                read.tree.add(reader.deserialize(raw, conn.msgtype))
+                continue
+            if conn.topic == topics.scan:
+                check_beams(path, topics.scan, raw, conn)
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == topics.pose:
+                read.odometry.add(msg, log_time)
+                continue
+            read.frame_id = read.frame_id or str(msg.header.frame_id).lstrip("/")
+            try:
+                scan = scan_of(msg, conn.msgtype)
+            except ScanError as err:
+                read.malformed.append(err)  # a topic of nothing but these is refused later
+                continue
+            if scan is None:
+                continue  # an empty scan carries nothing; counted in meta
+            read.scans.append(scan)
+            read.log_times.append(int(log_time))
+            if progress is not None:
+                progress(1)
+    except BagError:
+        raise
+    except Exception as err:  # truncated chunks, bad CDR, ... all end here
+        raise BagError(
+            f"{path}: cannot read messages on {topics.scan} ({why_failed(err)}); "
+            "the bag may be truncated or corrupt"
+        ) from err
+    read.total = sum(c.msgcount for c in reader.connections if c.topic == topics.scan)
+    read.recovered = getattr(reader, "recovered", None)
+    return read
+
+
+def _refuse_no_scans(path: Path, topics: _Topics, read: _Read) -> None:
+    """Raise :class:`BagError` where the scan topic gave no scan: every one malformed (chained
+    to the first's error) or empty; where the topic was chosen among several, the error names
+    the others."""
+    others = f" ({topics.scan_choice})" if topics.scan_choice else ""
+    if not read.scans and read.malformed:
+        raise BagError(
+            f"{path}: topic {topics.scan}: every scan is a malformed LaserScan "
+            f"({read.malformed[0]}){others}"
+        ) from read.malformed[0]
+    if not read.scans:
+        raise BagError(f"{path}: topic {topics.scan} holds no non-empty scans{others}")
+
+
+def _meta(
+    path: Path,
+    topics: _Topics,
+    read: _Read,
+    cleaned: Cleaned,
+    kept: int,
+    clock_jumps: list[dict[str, Any]],
+) -> dict[str, Any]:
+    """The recording's ``meta`` on what was read of ``path``: the topics and how they were
+    chosen, the scans' frame, the scans dropped as empty (the topic's messages that are neither
+    among the ``kept`` scans nor copies nor malformed), as copies and as malformed, the stamps
+    used and the clock jumps."""
+    meta: dict[str, Any] = {
+        "source": str(path),
+        "topic": topics.scan,
+        "frame_id": read.frame_id,
+        "pose_topic": topics.pose,
+        "empty_scans_dropped": int(read.total - kept - cleaned.duplicates - len(read.malformed)),
+        "duplicate_scans_dropped": cleaned.duplicates,
+        "stamps": cleaned.stamps,
+        "clock_jumps": clock_jumps,
+        "malformed_scans_dropped": len(read.malformed),
+    }
+    if topics.multi_echo:
+        meta["scan_type"] = "MultiEchoLaserScan (each beam's nearest echo)"
+    if topics.scan_choice is not None:
+        meta["topic_choice"] = topics.scan_choice
+    if topics.pose_choice is not None:
+        meta["pose_topic_choice"] = topics.pose_choice
+    return meta

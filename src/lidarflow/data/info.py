@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.beams import NO_RETURN, RETURN, UNKNOWN, at_range_max, beam_status, ring_scans
 from lidarflow.data.gaps import MAX_GAP_PERIODS, frames_after_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.scan import NO_RETURN, RETURN, UNKNOWN, at_range_max, beam_status, ring_scans
 
 __all__ = [
     "MAX_FRAME_RATE_HZ",

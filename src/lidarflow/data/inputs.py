@@ -2,7 +2,7 @@
 
 A named pipe blocks its reader until something writes to it, and a character device
 (``/dev/zero``, a symbolic link to one) never ends; neither is a recording. Both readers of
-inputs (:func:`lidarflow.data.bags.open_bag`, :func:`lidarflow.data.recording.load_recording`)
+inputs (:func:`lidarflow.data.bagfile.open_bag`, :func:`lidarflow.data.recordfile.load_recording`)
 refuse them by what ``stat`` says, which opens nothing. A ROS 2 bag is a folder, and stays one;
 the files in it are held to the same rule.
 """

@@ -2,7 +2,7 @@
 short (:mod:`lidarflow.data.ros1bag`), an MCAP file cut short or holding ROS 1 messages
 (:mod:`lidarflow.data.mcapfile`).
 
-Both give the reader :func:`lidarflow.data.bags.open_bag` promises, as rosbags' ``AnyReader``
+Both give the reader :func:`lidarflow.data.bagfile.open_bag` promises, as rosbags' ``AnyReader``
 does: ``connections`` (rosbags' own :class:`~rosbags.interfaces.Connection`), ``messages(
 connections=...)`` yielding ``(connection, log time ns, raw)``, ``deserialize(raw, msgtype)``
 and ``typestore``; and ``recovered``, a :class:`CutShort` where the file ended early (``None``

@@ -2,15 +2,12 @@
 
 A recording keeps the raw ranges rather than maps, so the grid can change later without
 re-reading the bag. Scans may change beam count mid-recording, so ranges are stored ragged (one
-flat array plus offsets). On disk it is a single ``.npz`` (NumPy, no pickle) with the metadata as
-JSON; extra per-frame arrays (the simulator's ground truth, for instance) travel in ``extras``.
+flat array plus offsets). Extra per-frame arrays (the simulator's ground truth, for instance)
+travel in ``extras``. On disk it is a single ``.npz`` (:mod:`lidarflow.data.recordfile`).
 """
 
 from __future__ import annotations
 
-import json
-import math
-import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,17 +15,14 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from lidarflow.data.inputs import check_regular
 from lidarflow.data.sessions import sliced_clock_jumps
 from lidarflow.errors import RecordingError, ScanError
-from lidarflow.scan import MAX_BEAMS, BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
+from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcell_batch
 
 T = TypeVar("T")
 
-__all__ = ["FORMAT_VERSION", "Recording", "load_recording"]
+__all__ = ["Recording"]
 
-FORMAT_VERSION = 1
-_EXTRA_PREFIX = "extra__"
 _BATCH_FRAMES = 256  # frames rasterized at once
 
 
@@ -283,156 +277,7 @@ class Recording:
     # ----------------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:
         """Write the recording to ``path`` (``.npz`` is appended when missing), whole or not at
-        all (:func:`lidarflow.atomic.atomic_path`: an existing file is replaced only once the
-        new one is complete)."""
-        from lidarflow.atomic import atomic_path
+        all; returns the path written (:func:`lidarflow.data.recordfile.save_recording`)."""
+        from lidarflow.data.recordfile import save_recording  # it imports this module
 
-        path = Path(path)
-        if path.suffix != ".npz":
-            path = path.with_name(path.name + ".npz")
-        arrays: dict[str, np.ndarray] = {
-            "ranges": np.asarray(self.ranges, np.float32),  # no copy where it is float32
-            "offsets": self.offsets,
-            "angle_min": self.angle_min,
-            "angle_increment": self.angle_increment,
-            "range_min": self.range_min,
-            "range_max": self.range_max,
-            "stamps_ns": self.stamps_ns,
-            "meta_json": np.frombuffer(
-                json.dumps({**self.meta, "format_version": FORMAT_VERSION}).encode(), np.uint8
-            ),
-        }
-        if self.poses is not None:
-            arrays["poses"] = self.poses
-        for key, value in self.extras.items():
-            arrays[_EXTRA_PREFIX + key] = value
-        with atomic_path(path) as tmp:
-            np.savez_compressed(tmp, **arrays)
-        return path
-
-
-#: How every zip archive (an .npz is one) begins: a member, or for an empty one its directory.
-_ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")
-
-#: Deflate cannot expand data more than 1032-fold; a member claiming more (plus a header's
-#: worth) than this many times its compressed size lies about its size.
-_DEFLATE_MOST = 1100
-
-
-def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
-    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it: one whose
-    header declares more (or fewer) values than its member holds (a damaged or crafted file:
-    NumPy allocates the declared shape first, 14.6 TiB for a header claiming 4e12 floats), and
-    one of values that are no real numbers (complex, text, records). Python objects are left
-    to :func:`_read_arrays`, which says so."""
-    if f"{key}.npy" not in archive.namelist():
-        raise RecordingError(f"{path}: not a lidarflow recording (its member {key!r} is no array)")
-    info = archive.getinfo(f"{key}.npy")
-    stored = info.compress_size * _DEFLATE_MOST + 4096
-    if info.compress_type == zipfile.ZIP_STORED:
-        stored = info.compress_size
-    if info.file_size > stored:
-        raise RecordingError(
-            f"{path}: a damaged recording (its array {key!r} claims {info.file_size:,} bytes "
-            f"in {info.compress_size:,} compressed); convert its source again"
-        )
-    with archive.open(info) as member:
-        version = np.lib.format.read_magic(member)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
-        else:  # 3.0 is for record field names beyond latin-1: no array of a recording
-            raise RecordingError(
-                f"{path}: not a lidarflow recording (its array {key!r} is in .npy format "
-                f"{version[0]}.{version[1]}, which lidarflow does not write)"
-            )
-        header = member.tell()
-    if dtype.hasobject:
-        return
-    if dtype.kind not in "biuf":
-        raise RecordingError(
-            f"{path}: not a lidarflow recording (its array {key!r} holds {dtype} values, not "
-            "real numbers)"
-        )
-    declared = math.prod(shape) * dtype.itemsize
-    if declared != info.file_size - header:
-        raise RecordingError(
-            f"{path}: a damaged recording (its array {key!r} declares shape {shape} of {dtype}, "
-            f"{declared:,} bytes, and holds {info.file_size - header:,}); convert its source "
-            "again"
-        )
-
-
-def _read_arrays(path: Path) -> dict[str, np.ndarray]:
-    """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
-    instead, in lidarflow's words: not an .npz at all, one cut short, or one holding Python
-    objects (which a recording never does, and which unpickling would run as code)."""
-    with path.open("rb") as f:
-        start = f.read(4)
-    if not start:
-        raise RecordingError(f"{path}: not a lidarflow recording (the file is empty)")
-    if start not in _ZIP_STARTS:
-        raise RecordingError(
-            f"{path}: not a lidarflow recording (not an .npz archive, as `lidarflow convert` "
-            "writes)"
-        )
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {}
-            for key in z.files:
-                _check_member(path, z.zip, key)
-                try:
-                    data[key] = z[key]
-                except ValueError as err:
-                    raise RecordingError(
-                        f"{path}: not a lidarflow recording (its array {key!r} is not plain "
-                        "numbers: Python objects, which lidarflow does not load)"
-                    ) from err
-    except (OSError, zipfile.BadZipFile, EOFError, ValueError) as err:
-        raise RecordingError(
-            f"{path}: a damaged recording (cut short, or its archive broken); convert its "
-            "source again"
-        ) from err
-    return data
-
-
-def load_recording(path: str | Path) -> Recording:
-    """Read a recording written by :meth:`Recording.save`."""
-    path = Path(path)
-    if not path.exists():
-        raise RecordingError(f"{path}: no such file")
-    check_regular(path, RecordingError)
-    data = _read_arrays(path)
-    required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
-    missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]
-    if missing:
-        raise RecordingError(f"{path}: not a lidarflow recording (missing {', '.join(missing)})")
-    try:
-        meta = json.loads(bytes(data["meta_json"]).decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise RecordingError(f"{path}: corrupt metadata ({err})") from err
-    if meta.get("format_version", 0) > FORMAT_VERSION:
-        raise RecordingError(
-            f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
-        )
-    extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
-    beams = np.diff(data["offsets"].astype(np.int64))
-    if beams.size and beams.max() > MAX_BEAMS:
-        frame = int(np.argmax(beams))
-        raise RecordingError(
-            f"{path}: scan {frame} has {int(beams[frame]):,} beams; real scanners give at most "
-            f"a few thousand (lidarflow takes up to {MAX_BEAMS:,}): the recording is damaged"
-        )
-    return Recording(
-        ranges=data["ranges"],
-        offsets=data["offsets"].astype(np.int64),
-        angle_min=data["angle_min"],
-        angle_increment=data["angle_increment"],
-        range_min=data["range_min"],
-        range_max=data["range_max"],
-        stamps_ns=data["stamps_ns"].astype(np.int64),
-        poses=data.get("poses"),
-        meta=meta,
-        extras=extras,
-    )
+        return save_recording(self, path)

@@ -6,7 +6,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from lidarflow.data.bags import read_bag
-from lidarflow.data.recording import Recording, load_recording
+from lidarflow.data.recordfile import load_recording
+from lidarflow.data.recording import Recording
 from lidarflow.errors import BagError, RecordingError, ScanError
 
 __all__ = ["is_recording_file", "load_any", "recovered_notes", "topic_notes"]

@@ -95,7 +95,7 @@ class RosNode(ABC):
         return geometry
 
     def _on_odom(self, msg: Any) -> None:
-        from lidarflow.data.bags import pose_of  # the planar pose, as a bag's is read
+        from lidarflow.data.poses import pose_of  # the planar pose, as a bag's is read
 
         self._odom = (pose_of(msg), str(msg.child_frame_id).lstrip("/"))
 

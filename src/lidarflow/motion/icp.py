@@ -34,9 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarflow.beams import RETURN, beam_status
 from lidarflow.data.blocks import FrameBlocks
 from lidarflow.data.recording import Recording
-from lidarflow.scan import RETURN, Scan, beam_status
+from lidarflow.scan import Scan
 
 __all__ = [
     "Alignment",

@@ -14,7 +14,7 @@ ROS 2 takes only absolute names: there ``right_scan`` becomes ``/right_scan``. L
 and transient-local durability (ROS 2) stand for each other, so that ``/tf_static`` stays what
 late subscribers get.
 
-The reader is what :func:`lidarflow.data.bags.open_bag` yields: ``connections``,
+The reader is what :func:`lidarflow.data.bagfile.open_bag` yields: ``connections``,
 ``messages(connections=...)`` of ``(connection, log time ns, raw bytes)``, ``deserialize`` and,
 where it has one, ``typestore`` (the input's own types; else the standard ones of its ROS).
 """

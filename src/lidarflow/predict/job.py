@@ -116,7 +116,7 @@ def predict_to_bag(
     with contextlib.ExitStack() as stack:
         reader = None
         if source is not None:
-            from lidarflow.data.bags import open_bag
+            from lidarflow.data.bagfile import open_bag
 
             reader = stack.enter_context(open_bag(source))
         out = stack.enter_context(BagOutput(output, force))

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.scan import RETURN, BeamGeometry, GridSpec, beam_status
+from lidarflow.beams import RETURN, beam_status
+from lidarflow.scan import BeamGeometry, GridSpec
 from lidarflow.sim.lidar import STATIC_ID
 
 __all__ = ["MOVING_THRESHOLD", "ground_truth"]

@@ -1,0 +1,99 @@
+"""Beam validity: what each reading of a scan says, a return, no return, or unknown.
+
+A finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf`` or
+``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
+or ``rho < range_min`` are *unknown*. Exactly ``range_max`` is how clipping drivers and older
+Gazebo plugins write no return (read as a return it draws a ring that stays put in the sensor's
+frame), and where a scan does so, readings just under it are no return too (:func:`ring_band`):
+a departure from the design notes, measured in ``docs/research/range_max/``.
+
+Pure NumPy; every function takes ranges ``(..., beams)``, one row a scan.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "NO_RETURN",
+    "RETURN",
+    "RING_MIN_BEAMS",
+    "RING_SHARE",
+    "UNKNOWN",
+    "at_range_max",
+    "beam_status",
+    "return_masks",
+    "ring_band",
+    "ring_scans",
+]
+
+# Beam status codes (see beam_status).
+UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
+
+
+def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """Classify each beam of ``ranges`` (``(..., beams)``, one row a scan) as ``UNKNOWN`` (0),
+    ``RETURN`` (1) or ``NO_RETURN`` (2).
+
+    >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0, 10.0]), 0.1, 10.0).tolist()
+    [1, 2, 0, 0, 2, 2]
+    >>> beam_status(np.array([0.0, 0.5]), 0.0, 10.0).tolist()  # 0 is unknown whatever range_min
+    [0, 1]
+    """
+    r = np.atleast_1d(np.asarray(ranges))
+    if not np.issubdtype(r.dtype, np.floating):
+        r = r.astype(np.float64)
+    is_return, beyond = return_masks(r, range_min, range_max)
+    status = np.zeros(r.shape, dtype=np.uint8)
+    status[is_return] = RETURN
+    status[beyond] = NO_RETURN
+    return status
+
+
+#: A scan with at least this share of its beams (and :data:`RING_MIN_BEAMS`) reading exactly
+#: ``range_max`` writes "no return" that way; a simulator that adds noise before clipping then
+#: leaves the rest of that ring just under ``range_max``, within :func:`ring_band` of it.
+RING_SHARE = 0.01
+RING_MIN_BEAMS = 3
+
+
+def ring_band(range_max: float) -> float:
+    """How far under ``range_max`` (m) a scan that writes no return as ``range_max`` also reads
+    as no return: 1 % of it, at least 3 cm (3 sigma of the 1 cm noise simulators add)."""
+    return max(0.03, 0.01 * float(range_max))
+
+
+def at_range_max(ranges: np.ndarray, range_max: float) -> np.ndarray:
+    """How many readings of each scan of ``ranges`` (``(..., beams)``, float) are exactly
+    ``range_max`` in the ranges' dtype (none where ``range_max`` is beyond it)."""
+    r = np.asarray(ranges)
+    with np.errstate(over="ignore"):  # a range_max beyond float32 (pointcloud_to_laserscan's)
+        top = r.dtype.type(range_max)
+    return np.count_nonzero(r == top, axis=-1) if np.isfinite(top) else np.zeros(r.shape[:-1])
+
+
+def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
+    """Whether each scan of ``ranges`` (``(..., beams)``, float) writes no return as
+    ``range_max``: :data:`RING_SHARE` of its beams, and :data:`RING_MIN_BEAMS`, read exactly
+    ``range_max`` (:func:`at_range_max`), which a continuous measurement does not."""
+    counts = at_range_max(ranges, range_max)
+    return counts >= max(RING_MIN_BEAMS, RING_SHARE * np.shape(ranges)[-1])
+
+
+def return_masks(
+    r: np.ndarray, range_min: float, range_max: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(is_return, no_return)`` masks of float ranges ``r`` (``(..., beams)``: each row one
+    scan; the module docstring's rule). ``range_max`` is compared in ``r``'s dtype, so a reading
+    stored as the message's ``range_max`` (float32) is no return whatever that value's float64
+    neighbours. In a scan that writes no return as ``range_max`` (:data:`RING_SHARE`), readings
+    within :func:`ring_band` under it are no return too: measured, such a noisy half-ring
+    turned a simulated win into a loss (docs/research/range_max/)."""
+    # a range_max beyond float32 (pointcloud_to_laserscan's default, 1.8e308) casts to inf
+    with np.errstate(invalid="ignore", over="ignore"):
+        top = r.dtype.type(range_max)
+        beyond = r >= top  # +inf included; NaN compares False
+        ring = ring_scans(r, range_max)[..., None]
+        beyond |= ring & (r >= r.dtype.type(range_max - ring_band(range_max)))
+        # 0 is unknown even where range_min is 0 (drivers write invalid beams as 0)
+        return (r >= range_min) & (r > 0) & ~beyond, beyond

@@ -1,0 +1,128 @@
+"""Opening a bag for reading: which inputs are bags, and the reader each kind is read with.
+
+Accepted inputs: a ROS 1 ``.bag``, a zipped ``.bag.zip`` (unpacked to a temporary file,
+:mod:`lidarflow.data.unzip`), a ROS 2 bag folder (sqlite3 or mcap storage; its ``metadata.yaml``
+or ``.db3`` names it too), or a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as
+``mcap convert`` leaves a ROS 1 bag (read by :mod:`lidarflow.data.mcapfile`). A bag cut short
+is read by :mod:`lidarflow.data.cutshort`'s readers. Everything else is a :class:`BagError`
+naming the input and what to do.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lidarflow.data.cutshort import cut_short_reader, not_a_bag
+from lidarflow.data.inputs import check_regular
+from lidarflow.data.mcapfile import McapReader, channel_encoding
+from lidarflow.data.unzip import unzipped_bag
+from lidarflow.errors import BagError
+
+__all__ = ["TopicInfo", "list_topics", "open_bag", "why_failed"]
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """One topic of a bag: its name, message type and message count."""
+
+    topic: str
+    msgtype: str
+    count: int
+
+
+_BAG_SUFFIXES = (".bag", ".bag.zip", ".mcap", ".db3")
+
+
+def _is_bag_like(path: Path) -> bool:
+    """Whether ``path`` may be a bag by its name (or is a folder); its contents decide later."""
+    name = path.name.lower()
+    return path.is_dir() or name == "metadata.yaml" or name.endswith(_BAG_SUFFIXES)
+
+
+@contextlib.contextmanager
+def open_bag(path: str | Path) -> Iterator[Any]:
+    """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``, or where rosbags
+    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way:
+    for an MCAP file of ROS 1 messages, or a bag cut short (its ``recovered`` says how much of
+    the file it reads; ``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
+
+    Raises :class:`BagError` for missing, unsupported or corrupt inputs.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"{path}: no such file or folder")
+    check_regular(path, BagError, folder=True)
+    if not _is_bag_like(path):
+        raise BagError(
+            f"{path}: not a bag; expected a ROS 1 .bag (or .bag.zip), a ROS 2 bag folder, "
+            "or an .mcap file"
+        )
+    with contextlib.ExitStack() as stack:
+        target = path
+        if path.name.lower().endswith(".bag.zip"):
+            target = stack.enter_context(unzipped_bag(path))
+        elif path.suffix.lower() == ".db3" or path.name.lower() == "metadata.yaml":
+            target = path.parent  # a ROS 2 bag is read through its folder
+            check_regular(target, BagError, folder=True)
+        if target.is_dir() and not (target / "metadata.yaml").exists():
+            target = _folder_without_metadata(path, target)
+        encoding = channel_encoding(target) if target.suffix.lower() == ".mcap" else None
+        ros1 = target.suffix.lower() == ".bag" or encoding == "ros1"
+        store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+        try:
+            if encoding == "ros1":  # `mcap convert` of a ROS 1 bag: rosbags reads MCAP as ROS 2
+                reader = McapReader(target, "ros1", store)
+            else:
+                reader = stack.enter_context(AnyReader([target], default_typestore=store))
+        except Exception as err:  # rosbags raises many types for damaged files
+            reader = cut_short_reader(target, store)
+            foreign = not_a_bag(target) if reader is None else None
+            if foreign is not None:
+                raise BagError(f"{path}: {foreign}") from err
+            if reader is None and target.is_file() and target.suffix.lower() == ".mcap":
+                # the library's own words for this (`ord() expected a character`) say nothing
+                raise BagError(
+                    f"{path}: cannot open as a bag: it holds no ROS message that can be read, "
+                    "not a complete MCAP file (it ends after its header, or is damaged before "
+                    "its first message)"
+                ) from err
+            if reader is None:
+                why = why_failed(err)
+                raise BagError(f"{path}: cannot open as a bag ({why}); is it complete?") from err
+        yield reader
+
+
+def _folder_without_metadata(path: Path, folder: Path) -> Path:
+    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (``ros2 bag record``
+    writes it last, so an interrupted recording has none): an MCAP file reads on its own."""
+    mcaps = sorted(folder.glob("*.mcap"))
+    if len(mcaps) == 1:
+        return mcaps[0]
+    raise BagError(
+        f"{path}: cannot open as a bag (a folder with no metadata.yaml"
+        + (f" and {len(mcaps)} .mcap files" if mcaps else "")
+        + " is no ROS 2 bag); if its recording was interrupted, `ros2 bag reindex` rebuilds it"
+    )
+
+
+def why_failed(err: BaseException) -> str:
+    """What ``err`` says, in one line: its type and the first line of its message."""
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
+
+
+def list_topics(path: str | Path) -> list[TopicInfo]:
+    """Every topic of the bag with its message type and count."""
+    with open_bag(path) as reader:
+        counts: dict[tuple[str, str], int] = {}
+        for c in reader.connections:
+            key = (c.topic, c.msgtype)
+            counts[key] = counts.get(key, 0) + c.msgcount
+    return [TopicInfo(t, m, n) for (t, m), n in sorted(counts.items())]

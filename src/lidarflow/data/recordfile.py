@@ -1,0 +1,186 @@
+"""The recording on disk: one ``.npz`` (NumPy, no pickle), written whole or not at all.
+
+The arrays of :class:`~lidarflow.data.recording.Recording` each as a member, the metadata as
+JSON (``meta_json``, with the :data:`FORMAT_VERSION` that wrote it), and each extra as a member
+``extra__NAME``. Reading checks every member before NumPy allocates it: a file that is no
+.npz, one cut short, one whose array headers claim more than the archive holds (a damaged or
+crafted file), one holding Python objects (which unpickling would run as code) or a scan of
+more beams than any scanner gives is a :class:`RecordingError` saying which, in one line.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from lidarflow.atomic import atomic_path
+from lidarflow.data.inputs import check_regular
+from lidarflow.data.recording import Recording
+from lidarflow.errors import RecordingError
+from lidarflow.scan import MAX_BEAMS
+
+__all__ = ["FORMAT_VERSION", "load_recording", "save_recording"]
+
+FORMAT_VERSION = 1
+_EXTRA_PREFIX = "extra__"
+
+
+def save_recording(recording: Recording, path: str | Path) -> Path:
+    """Write ``recording`` to ``path`` (``.npz`` is appended when missing), whole or not at all
+    (:func:`lidarflow.atomic.atomic_path`: an existing file is replaced only once the new one is
+    complete); returns the path written. The arrays as :class:`Recording` holds them (ranges as
+    float32), the metadata as JSON with :data:`FORMAT_VERSION`, each extra as an array of its
+    own, compressed."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
+    arrays: dict[str, np.ndarray] = {
+        "ranges": np.asarray(recording.ranges, np.float32),  # no copy where it is float32
+        "offsets": recording.offsets,
+        "angle_min": recording.angle_min,
+        "angle_increment": recording.angle_increment,
+        "range_min": recording.range_min,
+        "range_max": recording.range_max,
+        "stamps_ns": recording.stamps_ns,
+        "meta_json": np.frombuffer(
+            json.dumps({**recording.meta, "format_version": FORMAT_VERSION}).encode(), np.uint8
+        ),
+    }
+    if recording.poses is not None:
+        arrays["poses"] = recording.poses
+    for key, value in recording.extras.items():
+        arrays[_EXTRA_PREFIX + key] = value
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
+    return path
+
+
+#: How every zip archive (an .npz is one) begins: a member, or for an empty one its directory.
+_ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")
+
+#: Deflate cannot expand data more than 1032-fold; a member claiming more (plus a header's
+#: worth) than this many times its compressed size lies about its size.
+_DEFLATE_MOST = 1100
+
+
+def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
+    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it: one whose
+    header declares more (or fewer) values than its member holds (a damaged or crafted file:
+    NumPy allocates the declared shape first, 14.6 TiB for a header claiming 4e12 floats), and
+    one of values that are no real numbers (complex, text, records). Python objects are left
+    to :func:`_read_arrays`, which says so."""
+    if f"{key}.npy" not in archive.namelist():
+        raise RecordingError(f"{path}: not a lidarflow recording (its member {key!r} is no array)")
+    info = archive.getinfo(f"{key}.npy")
+    stored = info.compress_size * _DEFLATE_MOST + 4096
+    if info.compress_type == zipfile.ZIP_STORED:
+        stored = info.compress_size
+    if info.file_size > stored:
+        raise RecordingError(
+            f"{path}: a damaged recording (its array {key!r} claims {info.file_size:,} bytes "
+            f"in {info.compress_size:,} compressed); convert its source again"
+        )
+    with archive.open(info) as member:
+        version = np.lib.format.read_magic(member)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+        else:  # 3.0 is for record field names beyond latin-1: no array of a recording
+            raise RecordingError(
+                f"{path}: not a lidarflow recording (its array {key!r} is in .npy format "
+                f"{version[0]}.{version[1]}, which lidarflow does not write)"
+            )
+        header = member.tell()
+    if dtype.hasobject:
+        return
+    if dtype.kind not in "biuf":
+        raise RecordingError(
+            f"{path}: not a lidarflow recording (its array {key!r} holds {dtype} values, not "
+            "real numbers)"
+        )
+    declared = math.prod(shape) * dtype.itemsize
+    if declared != info.file_size - header:
+        raise RecordingError(
+            f"{path}: a damaged recording (its array {key!r} declares shape {shape} of {dtype}, "
+            f"{declared:,} bytes, and holds {info.file_size - header:,}); convert its source "
+            "again"
+        )
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
+    instead, in lidarflow's words: not an .npz at all, one cut short, or one holding Python
+    objects (which a recording never does, and which unpickling would run as code)."""
+    with path.open("rb") as f:
+        start = f.read(4)
+    if not start:
+        raise RecordingError(f"{path}: not a lidarflow recording (the file is empty)")
+    if start not in _ZIP_STARTS:
+        raise RecordingError(
+            f"{path}: not a lidarflow recording (not an .npz archive, as `lidarflow convert` "
+            "writes)"
+        )
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {}
+            for key in z.files:
+                _check_member(path, z.zip, key)
+                try:
+                    data[key] = z[key]
+                except ValueError as err:
+                    raise RecordingError(
+                        f"{path}: not a lidarflow recording (its array {key!r} is not plain "
+                        "numbers: Python objects, which lidarflow does not load)"
+                    ) from err
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError) as err:
+        raise RecordingError(
+            f"{path}: a damaged recording (cut short, or its archive broken); convert its "
+            "source again"
+        ) from err
+    return data
+
+
+def load_recording(path: str | Path) -> Recording:
+    """Read a recording written by :meth:`Recording.save`."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    check_regular(path, RecordingError)
+    data = _read_arrays(path)
+    required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
+    missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]
+    if missing:
+        raise RecordingError(f"{path}: not a lidarflow recording (missing {', '.join(missing)})")
+    try:
+        meta = json.loads(bytes(data["meta_json"]).decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RecordingError(f"{path}: corrupt metadata ({err})") from err
+    if meta.get("format_version", 0) > FORMAT_VERSION:
+        raise RecordingError(
+            f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
+        )
+    extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
+    beams = np.diff(data["offsets"].astype(np.int64))
+    if beams.size and beams.max() > MAX_BEAMS:
+        frame = int(np.argmax(beams))
+        raise RecordingError(
+            f"{path}: scan {frame} has {int(beams[frame]):,} beams; real scanners give at most "
+            f"a few thousand (lidarflow takes up to {MAX_BEAMS:,}): the recording is damaged"
+        )
+    return Recording(
+        ranges=data["ranges"],
+        offsets=data["offsets"].astype(np.int64),
+        angle_min=data["angle_min"],
+        angle_increment=data["angle_increment"],
+        range_min=data["range_min"],
+        range_max=data["range_max"],
+        stamps_ns=data["stamps_ns"].astype(np.int64),
+        poses=data.get("poses"),
+        meta=meta,
+        extras=extras,
+    )
