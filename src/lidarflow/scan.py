@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from lidarflow.beams import at_range_max, beam_status, return_masks, ring_band, ring_scans
+from lidarflow.beams import return_masks
 from lidarflow.errors import ScanError
 from lidarflow.geometry import cell_to_metric
 
@@ -34,13 +34,9 @@ __all__ = [
     "BeamGeometry",
     "GridSpec",
     "Scan",
-    "at_range_max",
-    "beam_status",
     "cell_centres",
     "rasterize",
     "rasterize_batch",
-    "ring_band",
-    "ring_scans",
     "subcell_batch",
     "takes_subcell",
 ]

@@ -71,8 +71,8 @@ def info(
     """List topics (bags), scan counts, frame rate, field of view, range limits, invalid beams
     and time gaps."""
     from lidarflow.data import describe_recording, list_topics
-    from lidarflow.data.bags import SCAN_TYPES
     from lidarflow.data.sources import is_recording_file
+    from lidarflow.data.topics import SCAN_TYPES
 
     report: dict[str, Any] = {"path": str(input)}
     if not is_recording_file(input):

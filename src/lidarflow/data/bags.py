@@ -12,10 +12,6 @@ A bag cut short (a robot that lost power, a writer stopped early: a ROS 1 bag wi
 an MCAP file without its summary or footer) is read up to its last intact message
 (:mod:`lidarflow.data.ros1bag`, :mod:`lidarflow.data.mcapfile`), and the recording says how
 much in ``meta["recovered"]``.
-
-The names this module gave before its steps had modules of their own (``open_bag``,
-``list_topics``, ``nearest_echoes``, ``declared_beams``, ``pose_of``, ``unzipped_bag``, the topic
-types, ...) are still importable from it.
 """
 
 from __future__ import annotations
@@ -25,42 +21,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lidarflow.data.bagfile import TopicInfo, list_topics, open_bag, why_failed
+from lidarflow.data.bagfile import open_bag, why_failed
 from lidarflow.data.cleaning import Cleaned, clean_scans
-from lidarflow.data.messages import check_beams, declared_beams, nearest_echoes, scan_of
-from lidarflow.data.poses import PoseLog, on_the_scanner, pose_of
+from lidarflow.data.messages import check_beams, scan_of
+from lidarflow.data.poses import PoseLog, on_the_scanner
 from lidarflow.data.readers import CutShort
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import in_sessions
 from lidarflow.data.tf import TF_TYPE, TransformTree
 from lidarflow.data.topics import (
-    LASERSCAN,
     MULTI_ECHO,
-    POSE_TYPES,
-    SCAN_TYPES,
     choose_pose_topic,
     choose_scan_topic,
 )
-from lidarflow.data.unzip import unzip_folder, unzipped_bag
 from lidarflow.errors import BagError, ScanError
-from lidarflow.scan import MAX_BEAMS, Scan
+from lidarflow.scan import Scan
 
-__all__ = [
-    "LASERSCAN",
-    "MAX_BEAMS",
-    "MULTI_ECHO",
-    "POSE_TYPES",
-    "SCAN_TYPES",
-    "TopicInfo",
-    "declared_beams",
-    "list_topics",
-    "nearest_echoes",
-    "open_bag",
-    "pose_of",
-    "read_bag",
-    "unzip_folder",
-    "unzipped_bag",
-]
+__all__ = ["read_bag"]
 
 
 def read_bag(
