@@ -127,6 +127,37 @@ def test_resume_continues_exactly(blob_files, tmp_path):
         train(tiny_config(blob_files, **{**flags, "optim.lr": 0.5}), tmp_path / "b", resume=True)
 
 
+@pytest.mark.slow
+def test_a_spent_time_budget_ends_the_run_after_an_epoch_and_resume_goes_on(blob_files, tmp_path):
+    cfg = tiny_config(blob_files, **{"runtime.max_minutes": 1e-9, "optim.epochs": 3})
+    said: list[str] = []
+    result = train(cfg, tmp_path / "run", echo=said.append)
+    assert [r["epoch"] for r in result.rows] == [0, 1]  # the untrained row, then epoch 1
+    assert latest_epoch(tmp_path / "run") == 1
+    assert (tmp_path / "run" / "model.safetensors").is_file()  # ended, not failed: usable
+    assert any("time budget" in m and "after epoch 1 of 3 (--resume" in m for m in said)
+    result = train(cfg, tmp_path / "run", resume=True)
+    assert [r["epoch"] for r in result.rows] == [0, 1, 2]
+    said.clear()
+    result = train(cfg, tmp_path / "run", resume=True, echo=said.append)
+    assert [r["epoch"] for r in result.rows] == [0, 1, 2, 3]
+    assert not any("time budget" in m for m in said)  # the last epoch ends the run anyway
+
+
+@pytest.mark.slow
+def test_final_weights_best_writes_the_best_epoch_as_the_model(blob_files, tmp_path):
+    cfg = tiny_config(blob_files, **{"runtime.final_weights": "best", "optim.epochs": 3})
+    result = train(cfg, tmp_path / "run")
+    model = load_file(tmp_path / "run" / "model.safetensors")
+    best = load_file(tmp_path / "run" / "best.safetensors")
+    last = load_file(tmp_path / "run" / "last.safetensors")
+    assert result.extra["best"]["epoch"] < 3  # here the best is not the last: they differ
+    assert all(torch.equal(model[k], best[k]) for k in best)
+    assert any(not torch.equal(model[k], last[k]) for k in last)
+    record = json.loads((tmp_path / "run" / "model.json").read_text())
+    assert record["training"]["best"] == result.extra["best"]
+
+
 def test_non_finite_loss_stops_and_saves_nothing_corrupt(blob_files, tmp_path, monkeypatch):
     from lidarflow.train import objective
 
