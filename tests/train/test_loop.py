@@ -8,8 +8,9 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-import lidarflow.train.loop as loop
 import lidarflow.train.model_setup as model_setup
+import lidarflow.train.objective as objective
+import lidarflow.train.precision as precision
 from lidarflow.errors import EvaluateError, TrainError
 from lidarflow.models import ModelSpec, build_model
 from lidarflow.scan import GridSpec
@@ -199,21 +200,21 @@ def test_bf16_autocast_and_channels_last_train_in_fp32_weights(blob_files, tmp_p
 
 @pytest.mark.parametrize("native", [True, False])
 def test_amp_auto_takes_bf16_only_where_the_device_has_it(monkeypatch, native):
-    monkeypatch.setattr(loop, "native_bf16", lambda device: native)
+    monkeypatch.setattr(precision, "native_bf16", lambda device: native)
     cpu = torch.device("cpu")
-    bf16, note = loop.resolve_amp("auto", cpu)
+    bf16, note = precision.resolve_amp("auto", cpu)
     assert bf16 is native
     assert note is not None and ("bf16 autocast" if native else "fp32") in note
-    assert loop.resolve_amp("none", cpu) == (False, None)
+    assert precision.resolve_amp("none", cpu) == (False, None)
     # bf16 asked for by name is kept, but where it is emulated the log says what it costs.
-    bf16, note = loop.resolve_amp("bf16", cpu)
+    bf16, note = precision.resolve_amp("bf16", cpu)
     assert bf16 and (note is None) is native
     if not native:
         assert "emulated" in note and "--amp auto" in note
 
 
 def test_amp_auto_says_its_choice_in_the_training_log(blob_files, tmp_path, monkeypatch):
-    monkeypatch.setattr(loop, "native_bf16", lambda device: False)
+    monkeypatch.setattr(precision, "native_bf16", lambda device: False)
     cfg = tiny_config(blob_files[:1], **{"optim.epochs": 1, "runtime.amp": "auto"})
     said: list[str] = []
     train(cfg, tmp_path / "auto", echo=said.append)
@@ -238,7 +239,7 @@ def test_a_head_trains_by_cross_entropy_and_needs_one(blob_files, tmp_path):
     assert record["decision"] == {"offset": 0.0, "online": False, "movers": False}
     without_head = build_config("blurred", None, {"loss.occupancy_bce": 1.0})
     with pytest.raises(TrainError, match="occupancy head"):
-        loop.make_loss(without_head, 1, build_model("flownet"))
+        objective.make_loss(without_head, 1, build_model("flownet"))
 
 
 def test_init_starts_from_given_weights(blob_files, tmp_path):

@@ -23,11 +23,11 @@ PAUSED = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from lidarflow.train import loop
+    from lidarflow.train import logbook
     from lidarflow.cli import main
 
     go, epochs = Path(sys.argv[1]), int(sys.argv[2])
-    log = loop.Logbook.log
+    log = logbook.Logbook.log
 
     def pausing(self, row):
         log(self, row)
@@ -36,7 +36,7 @@ PAUSED = textwrap.dedent(
             while not go.exists():
                 time.sleep(0.05)
 
-    loop.Logbook.log = pausing
+    logbook.Logbook.log = pausing
     main(sys.argv[3:])
     """
 )
