@@ -140,6 +140,7 @@ def evaluate(
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
     from lidarflow.cli.useless import warn_nothing_scored, warn_unknown_beams
+    from lidarflow.evaluate.horizon import horizon_note
     from lidarflow.evaluate.report import (
         format_comparison,
         format_peer_table,
@@ -219,6 +220,7 @@ def evaluate(
         comparison = format_comparison(entry["against_baselines"])
         typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:
+            typer.echo(horizon_note(entry) + "\n")
             for key, what in _HORIZON_TABLES:
                 if key in entry:
                     typer.echo(_format_horizon(entry[key], what) + "\n")

@@ -152,7 +152,7 @@ def score_one(
     drawn = [] if drawing is None else drawing.finish(scores.next_map)
     keys = None
     if scores.horizon is not None:
-        keys = horizon_entry(scores.horizon)
+        keys = horizon_entry(scores.horizon, scores.horizon_frames)
     return Scored(scores.next_map, drawn, recording_notes(recording, grid), keys)
 
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -56,6 +56,7 @@ __all__ = [
     "add_horizon_entry",
     "check_horizon",
     "horizon_entry",
+    "horizon_note",
     "rolled_forward",
     "scored_frames",
 ]
@@ -182,16 +183,32 @@ def rolled_forward(
     return np.stack(ahead)
 
 
-def horizon_entry(scores: dict[str, dict[str, list[Any]]]) -> dict[str, Any]:
+def horizon_entry(scores: dict[str, dict[str, list[Any]]], frames: int) -> dict[str, Any]:
     """A recording's ``horizon_*`` report keys from its horizon ``scores`` (the runner's, with
-    ``mover_true_cells``); ``horizon_undefined: ["mover_f1"]`` where no true cell lay in the
-    region ``K`` ahead."""
+    ``mover_true_cells``), and ``horizon_frames_evaluated``, the ``frames`` scored at every
+    ``k``; ``horizon_undefined: ["mover_f1"]`` where no true cell lay in the region ``K``
+    ahead."""
     scores = dict(scores)
     true_cells = scores.pop("mover_true_cells", None)
     keys: dict[str, Any] = {f"horizon_{key}": scored for key, scored in scores.items()}
+    keys["horizon_frames_evaluated"] = frames
     if true_cells is not None and not true_cells["copy_last"][-1]:
         keys["horizon_undefined"] = ["mover_f1"]
     return keys
+
+
+def horizon_note(entry: Mapping[str, Any]) -> str:
+    """One line over a recording's horizon tables: the frames they score (every ``k`` the
+    same ones, those with ``K`` frames after them and no gap in between) beside the main
+    table's, so that its ``k = 1`` column and the main table are not read as one number."""
+    k = len(entry["horizon_f1"]["copy_last"])
+    frames, main = entry.get("horizon_frames_evaluated"), entry["frames_evaluated"]
+    if frames is None or frames == main:
+        return f"horizon tables: the same {main} frames as the table above, at every k"
+    return (
+        f"horizon tables: {frames} frames at every k (those with {k} frames after them, no gap "
+        f"in between); the table above scores {main}, so its k=1 column differs from it"
+    )
 
 
 def add_horizon_entry(entry: dict[str, Any], scored: dict[str, Any]) -> None:
