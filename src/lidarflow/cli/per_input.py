@@ -4,6 +4,8 @@ picklable task and returns a picklable result; the command prints and writes the
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,7 +20,7 @@ __all__ = [
     "PredictSettings",
     "PredictTask",
     "Predicted",
-    "keep_methods",
+    "methods_kept",
     "predict_input",
     "score_input",
 ]
@@ -68,10 +70,15 @@ def _methods(settings: EvaluateSettings) -> list[Any]:
     return _METHODS[settings]
 
 
-def keep_methods(settings: EvaluateSettings, methods: list[Any]) -> None:
-    """Use ``methods``, built for ``settings`` already, in this process: a run of one worker
-    scores in the command's own process, with the methods the command built."""
+@contextlib.contextmanager
+def methods_kept(settings: EvaluateSettings, methods: list[Any]) -> Iterator[None]:
+    """Within it, use ``methods``, built for ``settings`` already, in this process: a run of
+    one worker scores in the command's own process, with the methods the command built."""
     _METHODS[settings] = methods
+    try:
+        yield
+    finally:
+        _METHODS.pop(settings, None)
 
 
 def score_input(task: tuple[str, Any, str, EvaluateSettings]) -> Scored:

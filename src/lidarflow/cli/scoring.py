@@ -198,7 +198,7 @@ def evaluate(
                 err=True,
             )
     from lidarflow.cli.jobs import resolve_jobs
-    from lidarflow.cli.per_input import keep_methods
+    from lidarflow.cli.per_input import methods_kept
 
     workers = resolve_jobs(jobs, len(named))
     with contextlib.ExitStack() as stack:  # the report folder appears once complete
@@ -208,8 +208,8 @@ def evaluate(
             online_decision, spec, resolve_device(device), threads, warmup, horizon, staged,
             gif_frames,
         )  # fmt: skip
-        keep_methods(settings, methods)  # one worker scores here, with these
-        report = _evaluate_in_jobs(named, settings, config, workers)
+        with methods_kept(settings, methods):  # one worker scores here, with these
+            report = _evaluate_in_jobs(named, settings, config, workers)
     for entry in report["recordings"]:
         warn_nothing_scored(entry)
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
