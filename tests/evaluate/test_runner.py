@@ -64,7 +64,7 @@ def test_evaluate_horizon_streams_each_recording_once(tmp_path, capsys, monkeypa
     assert resets == {"copy_last": 1, "temporal_average": 1, "constant_velocity": 1}
     # The tables say which frames they score: the horizon's k = 1 is not the main table.
     assert entry["horizon_frames_evaluated"] == 30 - 5 - 4
-    assert "horizon tables: 21 frames at every k" in text and "scores 24" in text
+    assert "horizon tables: 21 frames at every k" in text and "main table scores 24" in text
 
 
 def test_the_horizon_k1_column_is_the_main_table_on_the_frames_it_scores():

@@ -204,10 +204,10 @@ def horizon_note(entry: Mapping[str, Any]) -> str:
     k = len(entry["horizon_f1"]["copy_last"])
     frames, main = entry.get("horizon_frames_evaluated"), entry["frames_evaluated"]
     if frames is None or frames == main:
-        return f"horizon tables: the same {main} frames as the table above, at every k"
+        return f"horizon tables: the {main} frames of the main table, at every k"
     return (
         f"horizon tables: {frames} frames at every k (those with {k} frames after them, no gap "
-        f"in between); the table above scores {main}, so its k=1 column differs from it"
+        f"in between); the main table scores {main}, so the k=1 columns are not its numbers"
     )
 
 
