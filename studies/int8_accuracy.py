@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data import load_any
-from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.export import export_onnx
@@ -44,7 +44,9 @@ class OnnxMethod:
         self.predictor.reset()
         self.probabilities = []
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: object = None
+    ) -> np.ndarray:
         prediction = self.predictor.update(self.scans[len(self.probabilities)])
         assert (prediction.occupancy == occupancy).all()  # the frame evaluate scores
         self.probabilities.append(prediction.probability)

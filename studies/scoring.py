@@ -14,16 +14,16 @@ import numpy as np
 
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.ego import CopyLastEgo
-from lidarflow.evaluate.horizon import add_horizon_scores
+from lidarflow.evaluate.evaluation import evaluate_and_report
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
-from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.evaluate.runner import evaluate_recording
 from lidarflow.predict.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
 )
 from lidarflow.scan import GridSpec
-from lidarflow.viz.evaluation import evaluate_and_report
+from lidarflow.viz.evaluation import ReportFigures
 
 #: frames per recording that only warm the methods' state up (`lidarflow evaluate`'s default)
 WARMUP = 10
@@ -64,7 +64,7 @@ def evaluate(
     "against_baselines"}``; with ``report_dir`` its figures and HTML report too; with
     ``horizon`` K > 1 every method rolled 1..K frames ahead too (``horizon_f1`` etc., as
     ``--horizon``); ``device``: where PyTorch models run; ``on_ahead``: each scored prediction
-    1..K ahead (:func:`lidarflow.evaluate.horizon.add_horizon_scores`)."""
+    1..K ahead (:func:`lidarflow.evaluate.evaluation.score_one`'s)."""
     grid = grid or GridSpec()
     methods = methods_for(models, online, res=grid.res, device=device)
     config = {
@@ -74,12 +74,10 @@ def evaluate(
         "online_decision_both_ways": online,
         "no_verdict": [m.name for m in methods if isinstance(m, CopyLastEgo)],
     }
-    report = evaluate_and_report(recordings, methods, grid, warmup, config, report_dir)
-    if horizon > 1:
-        add_horizon_scores(
-            report, recordings, methods, grid, warmup, horizon, on_ahead=on_ahead
-        )
-    return report
+    figures = None if report_dir is None else ReportFigures(report_dir)
+    return evaluate_and_report(
+        recordings, methods, grid, warmup, config, figures, horizon=horizon, on_ahead=on_ahead
+    )
 
 
 def evaluate_one(

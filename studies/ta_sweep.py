@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lidarflow.data import frames_after_gaps, load_any
-from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.predict.baselines import CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, stem, write_summary

@@ -11,13 +11,13 @@ import pytest
 from lidarflow.errors import EvaluateError, PredictError
 from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.evaluate.runner import evaluate_recording
 from lidarflow.models import build_model
 from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.predict import Predictor
-from lidarflow.predict.baselines import CopyLast
+from lidarflow.predict.baselines import CopyLast, FrameInputs
 from lidarflow.predict.export import copy_marks, export_onnx
 from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec
@@ -37,8 +37,7 @@ def driving():
 @pytest.mark.slow
 def test_compensation_beats_copy_last_and_the_untrained_ego_model_is_exactly_it(driving):
     untrained = ModelMethod("ego", build_model("flownet", ego_motion=True))
-    oracle = ModelMethod("ego_oracle", build_model("flownet", ego_motion=True), oracle=True
-    )
+    oracle = ModelMethod("ego_oracle", build_model("flownet", ego_motion=True), oracle=True)
     scores = evaluate_recording(
         driving, [CopyLast(), CopyLastEgo(), CopyLastEgo(oracle=True), untrained, oracle], GRID
     )
@@ -187,9 +186,7 @@ def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driv
     optional = Predictor(folder, GRID)
     assert optional.uses_motion and optional.poses_optional
     model = optional.backend.model
-    scores = evaluate_recording(
-        blind, [CopyLast(), CopyLastEgo(), ModelMethod("opt", model)], GRID
-    )
+    scores = evaluate_recording(blind, [CopyLast(), CopyLastEgo(), ModelMethod("opt", model)], GRID)
     s = {k: v.summary() for k, v in scores.items()}
     # The drive's motion matched from the scans: moving the last map by it beats copying it.
     assert s["copy_last_ego"]["f1"] > s["copy_last"]["f1"] + 0.03
@@ -266,7 +263,7 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
     optional.reset()
     for t in range(60):
         p = optional.update((occ[t], vis[t]), mirrored[t])
-        q = method.update(occ[t], vis[t], motions[t] if t else None)
+        q = method.update(occ[t], vis[t], FrameInputs(motions[t] if t else None))
         np.testing.assert_allclose(p.probability, q, atol=1e-6)
     kept = [needing.update((occ[t], vis[t]), mirrored[t]).ego_compensated for t in range(60)]
     assert all(kept[1:])
@@ -276,7 +273,7 @@ def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_th
     true = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
     errors = []
     for t in range(60):
-        method.update(occ[t], vis[t], motions[t] if t else None, returns=returns[t])
+        method.update(occ[t], vis[t], FrameInputs(motions[t] if t else None, returns=returns[t]))
         if not method.engine.odometry.trusted and method.motion is not None:
             errors.append(np.abs(method.motion - true[t]))
     assert len(errors) >= 15
@@ -321,9 +318,8 @@ def test_a_pose_jump_is_not_compensated_in_the_predictor_or_the_evaluation(drivi
     returns = recording_points(cut)
     for t in range(len(kept)):
         p = predictor.update(cut.scan(t), cut.poses[t])
-        q = method.update(
-            occ[t], vis[t], jumped[t] if t else None, returns=returns[t], pace=paces.get(t)
-        )
+        given = FrameInputs(jumped[t] if t else None, pace=paces.get(t), returns=returns[t])
+        q = method.update(occ[t], vis[t], given)
         np.testing.assert_allclose(p.probability, q, atol=1e-6)  # the same decisions
         if t in jumps:  # a motion close to the true one, not the jump
             assert p.ego_compensated and method.engine.odometry.jumped
@@ -352,7 +348,7 @@ def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving
 
 
 def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
-    from lidarflow.evaluate.horizon import horizon_scores
+    from lidarflow.evaluate.runner import horizon_scores
 
     occ, vis = driving.maps(GRID)
     motions = metres_to_cells(relative_motions(driving.poses)[0], GRID.res)
@@ -371,9 +367,9 @@ def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     returns = recording_points(driving)
     kwargs = {"horizon": 2, "warmup": 5, "motions": mirrored}
     dropped = horizon_scores(occ, vis, models, **kwargs)["f1"]
-    replaced = horizon_scores(
-        occ, vis, models, **kwargs, returns=returns, motions_from_poses=True
-    )["f1"]
+    replaced = horizon_scores(occ, vis, models, **kwargs, returns=returns, motions_from_poses=True)[
+        "f1"
+    ]
     assert replaced["ego"][0] > dropped["ego"][0] + 0.02
 
 

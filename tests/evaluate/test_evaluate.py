@@ -9,8 +9,8 @@ import pytest
 
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.report import build_report, format_table
+from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.evaluate.scoring import Scorer
-from lidarflow.evaluate.stream import evaluate_maps
 from lidarflow.predict.baselines import (
     ConstantVelocity,
     CopyLast,
@@ -44,7 +44,7 @@ class Oracle:
     def reset(self) -> None:
         self.t = 0
 
-    def update(self, occupancy, visibility):
+    def update(self, occupancy, visibility, given=None):
         self.t += 1
         return self.maps[min(self.t, len(self.maps) - 1)].astype(np.float32)
 
@@ -148,14 +148,15 @@ class FlowOracle:
     def reset(self):
         self.t = -1
 
-    def update(self, occupancy, visibility):
+    def update(self, occupancy, visibility, given=None):
         self.t += 1
         self.backward_flow = self.flow_of(self.t)
         return occupancy.astype(np.float32)
 
 
 def test_flow_end_point_error_on_simulated_data():
-    from lidarflow.evaluate.stream import evaluate_recording, ground_truth_backward_flow
+    from lidarflow.evaluate.runner import evaluate_recording
+    from lidarflow.evaluate.stream import ground_truth_backward_flow
     from lidarflow.sim import SimConfig, simulate
 
     rec = simulate(16, seed=3, config=SimConfig(scenario="dynamic"))
@@ -190,7 +191,9 @@ class Counting(CopyLast):
     def reset(self) -> None:
         self.seen = 0
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: object = None
+    ) -> np.ndarray:
         self.seen += 1
         return super().update(occupancy, visibility)
 
@@ -215,7 +218,7 @@ def test_evaluate_recording_finds_the_gaps_in_its_stamps():
     import dataclasses
 
     from lidarflow.data.recording import Recording
-    from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.evaluate.runner import evaluate_recording
     from tests.conftest import make_recording
 
     steady = make_recording(n=30)
@@ -232,8 +235,8 @@ def test_evaluate_recording_finds_the_gaps_in_its_stamps():
 def test_horizon_scores_no_roll_out_across_a_gap():
     import torch
 
-    from lidarflow.evaluate.horizon import horizon_scores
     from lidarflow.evaluate.model_method import ModelMethod
+    from lidarflow.evaluate.runner import horizon_scores
     from lidarflow.models import build_model
 
     maps = two_scenes()
@@ -316,7 +319,7 @@ def test_evaluate_recording_streamed_in_blocks_scores_as_on_whole_arrays(
     from lidarflow.evaluate.dynamic import recording_region
     from lidarflow.evaluate.ego import recording_motions
     from lidarflow.evaluate.methods import methods_and_config
-    from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.evaluate.runner import evaluate_recording
 
     rec, grid = sample_recording.slice(0, 40), GridSpec()
     methods, _ = methods_and_config([None])
@@ -369,7 +372,8 @@ def test_a_run_folder_named_like_an_oracle_is_still_judged(sample_recording, tmp
 
 
 def test_flow_error_split_into_moving_and_static_cells():
-    from lidarflow.evaluate.stream import evaluate_recording, ground_truth_backward_flow
+    from lidarflow.evaluate.runner import evaluate_recording
+    from lidarflow.evaluate.stream import ground_truth_backward_flow
     from lidarflow.sim import SimConfig, simulate
 
     rec = simulate(16, seed=2, config=SimConfig(scenario="dynamic"))  # people in view
@@ -383,9 +387,7 @@ def test_flow_error_split_into_moving_and_static_cells():
     z = scores["zero_flow"]
     # the split covers every scored cell once: the two means pool back to the overall one
     assert z.epe_moving_cells + z.epe_static_cells == z.epe_cells > 0
-    assert (z.epe_moving_sum + z.epe_static_sum) / z.epe_cells == pytest.approx(
-        z.summary()["epe"]
-    )
+    assert (z.epe_moving_sum + z.epe_static_sum) / z.epe_cells == pytest.approx(z.summary()["epe"])
     # walls move with the driving robot: zero flow errs there too, but people move more
     assert z.epe_moving_cells > 0 and z.summary()["epe_static"] > 0.05
     # a robot standing still: zero flow is exact on every static cell

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.horizon import horizon_scores
 from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.runner import horizon_scores
 from lidarflow.models import build_model
 
 
@@ -77,7 +77,7 @@ def test_horizon_on_frame_blocks_is_the_same_as_on_arrays():
 
 
 def test_the_baselines_roll_forward_as_the_models_do():
-    from lidarflow.evaluate.horizon import horizon_scores
+    from lidarflow.evaluate.runner import horizon_scores
     from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 
     # the whole scene drifts one column a frame (as under a platform moving sideways)
@@ -103,7 +103,7 @@ def test_the_baselines_roll_forward_as_the_models_do():
 
 def test_the_last_map_moved_by_the_ego_motion_moves_on_each_step_ahead():
     from lidarflow.evaluate.ego import CopyLastEgo
-    from lidarflow.evaluate.horizon import horizon_scores
+    from lidarflow.evaluate.runner import horizon_scores
 
     # a still wall seen from a platform driving one row a frame towards it
     n, h, w = 12, 20, 8

@@ -204,12 +204,8 @@ def test_a_frame_of_unknown_pose_has_an_empty_region():
 
 
 def test_a_simulated_recording_scores_its_true_movers():
-    from lidarflow.evaluate.stream import (
-        evaluate_recording,
-        ground_truth_moving,
-        mover_region,
-        recording_inputs,
-    )
+    from lidarflow.evaluate.runner import evaluate_recording
+    from lidarflow.evaluate.stream import ground_truth_moving, mover_region, recording_inputs
     from lidarflow.predict.baselines import CopyLast
     from lidarflow.sim import SimConfig, simulate
 
@@ -263,7 +259,7 @@ def test_the_horizon_verdict_needs_the_movers_k_steps_ahead_too():
 
 
 def test_horizon_scores_the_movers_k_steps_ahead():
-    from lidarflow.evaluate.horizon import horizon_scores
+    from lidarflow.evaluate.runner import horizon_scores
 
     n = 25
     occupancy = np.zeros((n, 20, 30), np.float32)
@@ -284,7 +280,7 @@ def test_horizon_scores_the_movers_k_steps_ahead():
 
 def test_the_table_and_the_html_report_show_the_mover_metric(tmp_path):
     from lidarflow.evaluate.report import build_report, format_table
-    from lidarflow.evaluate.stream import evaluate_maps
+    from lidarflow.evaluate.runner import evaluate_maps
     from lidarflow.predict.baselines import CopyLast, TemporalAverage
     from lidarflow.viz.html import write_html_report
 

@@ -7,10 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarflow.evaluate.horizon import horizon_scores
 from lidarflow.evaluate.peer_metrics import ssim, wmse
 from lidarflow.evaluate.report import build_report, format_peer_table
-from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.evaluate.runner import evaluate_maps, horizon_scores
 from lidarflow.predict.baselines import CopyLast
 
 
@@ -31,7 +30,9 @@ class Blurred:
     def reset(self) -> None:
         pass
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: object = None
+    ) -> np.ndarray:
         return np.where(occupancy, 0.7, 0.2).astype(np.float32)
 
 

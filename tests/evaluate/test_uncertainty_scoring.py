@@ -9,7 +9,8 @@ import pytest
 
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import build_report, format_table, format_uncertainty_table
-from lidarflow.evaluate.stream import evaluate_maps, evaluate_recording, ground_truth_moving
+from lidarflow.evaluate.runner import evaluate_maps, evaluate_recording
+from lidarflow.evaluate.stream import ground_truth_moving
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict.baselines import CopyLast, Takes
 from lidarflow.predict.moving import moving_mask
@@ -32,7 +33,7 @@ class MovingFromTruth:
     def reset(self):
         self.t = -1
 
-    def update(self, occupancy, visibility):
+    def update(self, occupancy, visibility, given=None):
         self.t += 1
         self.moving = self.moving_of(self.t) & occupancy.astype(bool)
         return occupancy.astype(np.float32)

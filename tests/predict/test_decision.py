@@ -226,7 +226,7 @@ def test_bad_configurations_are_refused():
 @pytest.mark.slow
 def test_a_model_scored_online_equals_its_own_offsets_until_it_chooses(tmp_path, sample_recording):
     from lidarflow.evaluate.model_method import ModelMethod
-    from lidarflow.evaluate.stream import evaluate_maps
+    from lidarflow.evaluate.runner import evaluate_maps
     from lidarflow.models.presets import resolve_model
     from lidarflow.scan import GridSpec
     from tests.conftest import make_model_dir

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.stream import evaluate_recording
+from lidarflow.evaluate.runner import evaluate_recording
 from lidarflow.models.presets import resolve_model
 from lidarflow.predict import Predictor
 from lidarflow.predict.backends import FLOW_KEY

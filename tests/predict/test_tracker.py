@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from lidarflow.predict.baselines import FrameInputs
 from lidarflow.predict.tracker import (
     Tracker,
     TrackerConfig,
@@ -121,7 +122,8 @@ def test_a_moving_platform_in_a_static_world_gives_no_movers():
     tracker = Tracker(res=0.1)
     motion = np.array([1.0, 0.0, 0.0], np.float32)
     for t in range(25):
-        prediction = tracker.update(seen_from(t), SEEN, motion=None if t == 0 else motion)
+        moved = FrameInputs(motion=None if t == 0 else motion)
+        prediction = tracker.update(seen_from(t), SEEN, moved)
         if t >= 2:
             assert all(np.hypot(*state[2:]) < 0.3 for state, _ in tracker.tracks)
             # everything the next frame shows that was in view already is predicted
@@ -211,7 +213,7 @@ def test_bad_config_and_ahead_before_update_are_refused():
 
 
 def test_the_horizon_scores_the_trackers_own_k_ahead():
-    from lidarflow.evaluate.horizon import horizon_scores
+    from lidarflow.evaluate.runner import horizon_scores
 
     occupancy = np.stack([_walker(t, 0, 1) for t in range(24)])
     scores = horizon_scores(occupancy, np.ones_like(occupancy), [Tracker()], horizon=3, warmup=12)

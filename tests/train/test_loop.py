@@ -322,7 +322,7 @@ def test_ego_motion_models_start_from_plain_ones_and_back(tmp_path):
 def test_a_subcell_model_trains_validates_and_evaluates(blob_files, tmp_path):
     from lidarflow.data import load_any
     from lidarflow.evaluate.model_method import ModelMethod
-    from lidarflow.evaluate.stream import evaluate_recording
+    from lidarflow.evaluate.runner import evaluate_recording
 
     kwargs = {"occupancy_head": True, "subcell_input": True}
     flags = {**HEAD, "optim.epochs": 1, "model.kwargs": kwargs}

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lidarflow.evaluate.report import build_report
-from lidarflow.evaluate.stream import evaluate_maps
+from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.predict.baselines import CopyLast
 from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import overlay_rgb, write_gif

@@ -4,18 +4,23 @@ picklable task and returns a picklable result; the command prints and writes the
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lidarflow.cli.jobs import job_bar
+
+if TYPE_CHECKING:
+    from lidarflow.evaluate.evaluation import Scored
 
 __all__ = [
     "EvaluateSettings",
     "PredictSettings",
     "PredictTask",
     "Predicted",
-    "Scored",
+    "methods_kept",
     "predict_input",
     "score_input",
 ]
@@ -42,18 +47,6 @@ class EvaluateSettings:
     gif_frames: int
 
 
-@dataclass(frozen=True)
-class Scored:
-    """One recording scored: its scorers, the pictures drawn of it, the notes of its report
-    entry (:func:`lidarflow.viz.evaluation.recording_notes`) and, for ``horizon`` > 1, its
-    ``horizon_*`` keys."""
-
-    scorers: dict[str, Any]
-    figures: list[tuple[str, Path]]
-    notes: dict[str, Any]
-    horizon: dict[str, Any] | None
-
-
 #: The methods a worker built, by the settings they were built for: made once per process, as
 #: the one-process run makes them once, and reset between recordings alike.
 _METHODS: dict[EvaluateSettings, list[Any]] = {}
@@ -77,29 +70,33 @@ def _methods(settings: EvaluateSettings) -> list[Any]:
     return _METHODS[settings]
 
 
+@contextlib.contextmanager
+def methods_kept(settings: EvaluateSettings, methods: list[Any]) -> Iterator[None]:
+    """Within it, use ``methods``, built for ``settings`` already, in this process: a run of
+    one worker scores in the command's own process, with the methods the command built."""
+    _METHODS[settings] = methods
+    try:
+        yield
+    finally:
+        _METHODS.pop(settings, None)
+
+
 def score_input(task: tuple[str, Any, str, EvaluateSettings]) -> Scored:
     """Score the recording of ``task`` (name, recording, picture stem, settings) as ``evaluate``
-    scores each of its recordings, its horizon too."""
-    from lidarflow.viz.evaluation import recording_notes, score_and_draw
+    scores each of its recordings (:func:`lidarflow.evaluate.evaluation.score_one`): one pass
+    for the main table and the horizon tables."""
+    from lidarflow.evaluate.evaluation import score_one
+    from lidarflow.viz.evaluation import ReportFigures
 
     name, recording, stem, settings = task
-    methods = _methods(settings)
-    spec, warmup = settings.spec, settings.warmup
+    figures = None
+    if settings.report_dir is not None:
+        figures = ReportFigures(settings.report_dir, settings.gif_frames)
     with job_bar(len(recording) - 1, f"evaluating {Path(name).name}") as bar:
-        scorers, figures = score_and_draw(
-            name, recording, methods, spec, warmup, settings.report_dir, stem,
-            settings.gif_frames, bar.update,
+        return score_one(
+            name, recording, _methods(settings), settings.spec, settings.warmup,
+            settings.horizon, stem, figures, bar.update,
         )  # fmt: skip
-    horizon = None
-    if settings.horizon > 1:
-        from lidarflow.evaluate.horizon import recording_horizon
-
-        desc = f"horizon {settings.horizon}, {Path(name).name}"
-        horizon = recording_horizon(
-            name, recording, methods, spec, warmup, settings.horizon,
-            lambda total: job_bar(total, desc),
-        )  # fmt: skip
-    return Scored(scorers, figures, recording_notes(recording, spec), horizon)
 
 
 @dataclass(frozen=True)

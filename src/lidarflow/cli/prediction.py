@@ -57,9 +57,10 @@ def demo(
 def _demo(folder: Path, output: Path) -> None:
     """``demo``'s work: writes into ``folder``, which becomes ``output`` once complete."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
+    from lidarflow.evaluate.evaluation import evaluate_and_report
     from lidarflow.evaluate.report import format_comparison, format_table
     from lidarflow.scan import GridSpec
-    from lidarflow.viz.evaluation import evaluate_and_report
+    from lidarflow.viz.evaluation import ReportFigures
     from lidarflow.viz.maps import draw_maps
 
     bag = sample_bag_path()
@@ -80,8 +81,9 @@ def _demo(folder: Path, output: Path) -> None:
         typer.echo("no bundled model in this installation: scoring the baselines only")
     methods, config = methods_and_config([None] if has_model else [])
     config.update({"warmup": 10, "grid": spec.to_dict()})
+    figures = ReportFigures(folder / "report", 60)
     report = evaluate_and_report(
-        [(str(bag), recording)], methods, spec, 10, config, folder / "report", 60, eval_progress
+        [(str(bag), recording)], methods, spec, 10, config, figures, eval_progress
     )
     write_text(folder / "results.json", json.dumps(report, indent=2))
     entry = report["recordings"][0]
@@ -216,8 +218,8 @@ def _outputs(inputs: list[Path], output: Path) -> list[Path]:
     stem, as the report's pictures are)."""
     if len(inputs) == 1:
         return [output]
+    from lidarflow.evaluate.evaluation import unique_stems
     from lidarflow.predict.rosout import output_kind
-    from lidarflow.viz.evaluation import unique_stems
 
     if output_kind(output) != "ros2" or output.is_file():
         raise typer.BadParameter(

@@ -22,9 +22,7 @@ from lidarflow.cli.app import (
     TopicOpt,
     app,
     bundled_model_available,
-    eval_progress,
     load_input,
-    progress_bar,
     refuse_existing,
     use_threads,
 )
@@ -148,6 +146,7 @@ def evaluate(
         warn_unknown_beams,
     )
     from lidarflow.errors import RecordingError
+    from lidarflow.evaluate.horizon import horizon_note
     from lidarflow.evaluate.report import (
         format_comparison,
         format_peer_table,
@@ -159,7 +158,6 @@ def evaluate(
     )
     from lidarflow.predict.backends import recorded_grid, resolve_device
     from lidarflow.scan import GridSpec
-    from lidarflow.viz.evaluation import evaluate_and_report
 
     if baselines_only and model:
         raise typer.BadParameter("--baselines-only scores no model; drop --model or it")
@@ -212,35 +210,18 @@ def evaluate(
                 err=True,
             )
     from lidarflow.cli.jobs import resolve_jobs
+    from lidarflow.cli.per_input import methods_kept
 
     workers = resolve_jobs(jobs, len(named))
     with contextlib.ExitStack() as stack:  # the report folder appears once complete
         staged = None if report_dir is None else stack.enter_context(atomic_path(report_dir))
-        if workers > 1:
-            settings = EvaluateSettings(
-                tuple(sources), ta_window, ta_threshold, moving_threshold, ego_oracle,
-                online_decision, spec, resolve_device(device), threads, warmup, horizon, staged,
-                gif_frames,
-            )  # fmt: skip
-            report, horizons = _evaluate_in_jobs(named, settings, config, workers)
-        else:
-            report = evaluate_and_report(
-                named, methods, spec, warmup, config, staged, gif_frames, eval_progress
-            )
-    if horizon > 1 and workers > 1:
-        from lidarflow.evaluate.horizon import add_horizon_entry
-        from lidarflow.evaluate.report import count_recordings_won
-
-        for entry, scored in zip(report["recordings"], horizons, strict=True):
-            add_horizon_entry(entry, scored)
-        count_recordings_won(report)
-    elif horizon > 1:
-        from lidarflow.evaluate.horizon import add_horizon_scores
-
-        add_horizon_scores(
-            report, named, methods, spec, warmup, horizon,
-            lambda total, name: progress_bar(total, f"horizon {horizon}, {Path(name).name}"),
+        settings = EvaluateSettings(
+            tuple(sources), ta_window, ta_threshold, moving_threshold, ego_oracle,
+            online_decision, spec, resolve_device(device), threads, warmup, horizon, staged,
+            gif_frames,
         )  # fmt: skip
+        with methods_kept(settings, methods):  # one worker scores here, with these
+            report = _evaluate_in_jobs(named, settings, config, workers)
     for entry in report["recordings"]:
         warn_nothing_scored(entry)
         title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
@@ -251,6 +232,7 @@ def evaluate(
         comparison = format_comparison(entry["against_baselines"])
         typer.echo((comparison + "\n") if comparison else "")
         if "horizon_f1" in entry:
+            typer.echo(horizon_note(entry) + "\n")
             for key, what in _HORIZON_TABLES:
                 if key in entry:
                     typer.echo(_format_horizon(entry[key], what) + "\n")
@@ -296,15 +278,15 @@ _HORIZON_TABLES = (
 
 def _evaluate_in_jobs(
     named: list[tuple[str, Any]], settings: EvaluateSettings, config: dict[str, Any], workers: int
-) -> tuple[dict[str, Any], list[Any]]:
-    """``evaluate``'s scoring, one worker process per recording (:mod:`lidarflow.cli.jobs`):
-    the report as one process makes it, and the recordings' horizon scores. The first
-    recording that fails stops the others: the report needs every one, and nothing is written
-    without it."""
+) -> dict[str, Any]:
+    """``evaluate``'s scoring, one worker per recording (:mod:`lidarflow.cli.jobs`; one worker
+    runs in this process): the report. The first recording that fails stops the others: the
+    report needs every one, and nothing is written without it."""
     from lidarflow.cli.jobs import Outcome, run_jobs
     from lidarflow.cli.per_input import score_input
     from lidarflow.errors import EvaluateError
-    from lidarflow.viz.evaluation import finish_report, unique_stems
+    from lidarflow.evaluate.evaluation import report_of, unique_stems
+    from lidarflow.viz.evaluation import ReportFigures
 
     names = [name for name, _ in named]
     stems = unique_stems(names)
@@ -318,17 +300,13 @@ def _evaluate_in_jobs(
     outcomes = run_jobs(score_input, tasks, names, workers, settings.threads, desc, show, True)
     for outcome in outcomes:
         if outcome.error is not None:
-            raise EvaluateError(f"{outcome.error} (the other recordings were stopped: nothing "
-                                "is written without every one)")  # fmt: skip
-    scored = [outcome.value for outcome in outcomes]
-    figures = None if settings.report_dir is None else {
-        name: s.figures for name, s in zip(names, scored, strict=True)
-    }  # fmt: skip
-    report = finish_report(
-        [(name, s.scorers) for name, s in zip(names, scored, strict=True)],
-        [s.notes for s in scored], config, settings.report_dir, figures,
-    )  # fmt: skip
-    return report, [s.horizon for s in scored]
+            others = " (the other recordings were stopped: nothing is written without every one)"
+            raise EvaluateError(outcome.error + (others if len(named) > 1 else ""))
+    figures = None
+    if settings.report_dir is not None:
+        figures = ReportFigures(settings.report_dir, settings.gif_frames)
+    scored = [(name, outcome.value) for name, outcome in zip(names, outcomes, strict=True)]
+    return report_of(scored, config, figures)
 
 
 def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:

@@ -81,13 +81,13 @@ def choose_offset(
         warn_unknown_beams,
     )
     from lidarflow.errors import EvaluateError, ModelError
+    from lidarflow.evaluate.evaluation import evaluate_and_report
     from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.offsets import choose_offset as choose
     from lidarflow.evaluate.offsets import decided_online, with_offset
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.weights import check_decision_offset
     from lidarflow.scan import GridSpec
-    from lidarflow.viz.evaluation import evaluate_and_report
 
     refuse_existing(output, force=force, folder=True, inputs=[*inputs, model])
     use_threads(threads)
@@ -118,7 +118,7 @@ def choose_offset(
             folders[candidate] = folder
         methods, config = methods_and_config(list(folders.values()), res=spec.res)
         config.update({"warmup": warmup, "grid": spec.to_dict()})
-        report = evaluate_and_report(named, methods, spec, warmup, config, None, 1, eval_progress)
+        report = evaluate_and_report(named, methods, spec, warmup, config, None, eval_progress)
     for entry in report["recordings"]:
         warn_nothing_scored(entry)
     if all(nothing_scored(entry) for entry in report["recordings"]):

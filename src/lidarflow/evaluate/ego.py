@@ -1,13 +1,12 @@
 """Ego-motion inputs of the streaming evaluation: per-frame motions of a recording, and the
 baseline that only compensates the platform's own motion.
 
-A method that takes the motion (``takes.motion``) is called ``update(occupancy, visibility,
-motion=m_t, next_motion=m_{t+1})`` with ``m_t`` the motion of frame ``t`` in frame ``t - 1`` in
-cells (:mod:`lidarflow.motion.odometry`; identity where a pose is unknown); ``next_motion`` is the
-future
-and only an oracle may use it. After a long step in time (a gap, scans dropped) it also gets
-``pace`` (typical step / this step, :func:`lidarflow.motion.pacing.paces_after_long_steps`) to scale
-its guess of the next motion.
+A method that takes the motion (``takes.motion``) is given, with each frame ``t``
+(:class:`~lidarflow.predict.baselines.FrameInputs`), ``motion`` ``m_t``, the motion of frame ``t``
+in frame ``t - 1`` in cells (:mod:`lidarflow.motion.odometry`; identity where a pose is unknown),
+and ``next_motion`` ``m_{t+1}``, which is the future: only an oracle may use it. After a long step
+in time (a gap, scans dropped) it also gets ``pace`` (typical step / this step,
+:func:`lidarflow.motion.pacing.paces_after_long_steps`) to scale its guess of the next motion.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from lidarflow.motion.icp import streamed_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import scan_motions
-from lidarflow.predict.baselines import Method, Takes
+from lidarflow.predict.baselines import NOTHING_MORE, FrameInputs, Method, Takes
 from lidarflow.scan import GridSpec
 
 __all__ = ["CopyLastEgo", "recording_motions", "wants_motion"]
@@ -89,15 +88,11 @@ class CopyLastEgo:
         pass
 
     def update(
-        self,
-        occupancy: np.ndarray,
-        visibility: np.ndarray,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-        pace: float | None = None,
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
     ) -> np.ndarray:
+        motion, next_motion = given.motion, given.next_motion
         # after a long step the last motion spans it: the guess is scaled to one, as the models'
-        guessed = paced_motion(motion, pace)
+        guessed = paced_motion(motion, given.pace)
         m = next_motion if self.oracle else (motion if guessed is None else guessed)
         if m is None:
             return occupancy.astype(np.float32)

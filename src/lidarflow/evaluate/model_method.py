@@ -9,7 +9,7 @@ import numpy as np
 
 from lidarflow.errors import EvaluateError
 from lidarflow.predict.backends import TorchBackend
-from lidarflow.predict.baselines import Takes
+from lidarflow.predict.baselines import NOTHING_MORE, FrameInputs, Takes
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
@@ -103,23 +103,13 @@ class ModelMethod:
         self.last = self._occupancy = self._moving = None
 
     def update(
-        self,
-        occupancy: np.ndarray,
-        visibility: np.ndarray,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-        returns: np.ndarray | None = None,
-        from_pose: bool = True,
-        subcell: np.ndarray | None = None,
-        pace: float | None = None,
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
     ) -> np.ndarray:
-        """One frame; ``returns``: its scan's returns (:func:`~lidarflow.motion.icp.
-        scan_points`) where known; ``from_pose``: ``motion`` came from poses (else from the
-        scans, and is only checked); ``subcell``: where its returns lie inside their cells
-        ``(2, H, W)``, which a model with ``takes.subcell`` needs; ``pace``: after a long step in
-        time, the typical step over this one (the guess of the next motion is scaled by it,
-        :func:`lidarflow.motion.pacing.paced_motion`)."""
-        if self.takes.subcell and subcell is None:
+        """One frame, and what it is ``given`` beside its maps: the ``returns`` refine scan
+        matching where ``motion`` is odometry that disagrees with the scans; ``subcell``, which
+        a model with ``takes.subcell`` needs; ``pace`` scales the guess of the next motion after a
+        long step in time (:func:`lidarflow.motion.pacing.paced_motion`)."""
+        if self.takes.subcell and given.subcell is None:
             raise EvaluateError(
                 f"{self.name} needs where the returns lie inside their cells (subcell_input): "
                 "evaluate it on a recording, not on maps alone"
@@ -127,12 +117,12 @@ class ModelMethod:
         frame = Frame(
             occupancy,
             visibility,
-            subcell=subcell,
-            returns=returns,
-            motion=motion,
-            source="pose" if from_pose else "scans",
-            pace=pace,
-            next_motion=next_motion,
+            subcell=given.subcell,
+            returns=given.returns,
+            motion=given.motion,
+            source="pose" if given.from_pose else "scans",
+            pace=given.pace,
+            next_motion=given.next_motion,
         )
         self.last = self.engine.step(frame)
         self._occupancy, self._moving = occupancy, None

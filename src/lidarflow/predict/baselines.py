@@ -1,6 +1,6 @@
 """Flow-free baselines that every model is reported beside (design notes §5, issue 11).
 
-Each is a streaming predictor: ``reset()`` at the start of a recording, then
+Each is a streaming predictor, a :class:`Method`: ``reset()`` at the start of a recording, then
 ``update(occupancy, visibility)`` once per frame returns the probability map of the *next*
 frame's occupancy, ``(H, W)`` float32 in [0, 1].
 """
@@ -14,10 +14,12 @@ from typing import Protocol
 import numpy as np
 
 __all__ = [
+    "NOTHING_MORE",
     "TA_THRESHOLD",
     "TA_WINDOW",
     "ConstantVelocity",
     "CopyLast",
+    "FrameInputs",
     "Method",
     "Takes",
     "TemporalAverage",
@@ -53,15 +55,43 @@ class Takes:
     subcell: bool = False
 
 
+@dataclass(frozen=True)
+class FrameInputs:
+    """What a :class:`Method` is given for one frame beside its maps, each ``None`` where
+    unknown or not asked for (:class:`Takes`): ``motion``, the sensor's motion from the previous
+    frame to this one (cells and radians, this frame's pose in the previous one's frame);
+    ``next_motion``, the true motion to the next frame (only a method that knows the future
+    uses it); ``pace``, after a long step in time, the typical step over this one; ``returns``,
+    the scan's returns ``(N, 2)`` in metres and ``from_pose``, whether ``motion`` is odometry
+    (else matched from the scans, and only checked); ``subcell``, where the returns lie inside
+    their cells ``(2, H, W)``."""
+
+    motion: np.ndarray | None = None
+    next_motion: np.ndarray | None = None
+    pace: float | None = None
+    returns: np.ndarray | None = None
+    from_pose: bool = True
+    subcell: np.ndarray | None = None
+
+
+#: A frame given with its maps only.
+NOTHING_MORE = FrameInputs()
+
+
 class Method(Protocol):
-    """A next-map predictor run one frame at a time; ``takes`` says what else ``update`` takes."""
+    """A next-map predictor run one frame at a time: ``update`` takes frame ``t``'s maps
+    ``(H, W)`` and what else it is given (``takes`` says what it asks for; what it does not ask
+    for it is not given, and ignores) and returns the probability of the map of frame ``t + 1``
+    ``(H, W)`` in [0, 1]. ``reset`` starts a new recording."""
 
     name: str
     takes: Takes
 
     def reset(self) -> None: ...
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray: ...
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
+    ) -> np.ndarray: ...
 
 
 class CopyLast:
@@ -73,7 +103,9 @@ class CopyLast:
     def reset(self) -> None:
         pass
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
+    ) -> np.ndarray:
         return occupancy.astype(np.float32)
 
 
@@ -99,7 +131,9 @@ class TemporalAverage:
     def reset(self) -> None:
         self._maps.clear()
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
+    ) -> np.ndarray:
         self._maps.append(occupancy.astype(np.float32))
         mean = np.mean(self._maps, axis=0)
         # Piecewise-linear rescale: [0, threshold] -> [0, 0.4], [threshold, 1] -> [0.4, 1].
@@ -175,7 +209,9 @@ class ConstantVelocity:
     def reset(self) -> None:
         self._previous = None
 
-    def update(self, occupancy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    def update(
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
+    ) -> np.ndarray:
         shift = (0, 0)
         if self._previous is not None:
             shift = best_rigid_shift(self._previous, occupancy, self.radius)

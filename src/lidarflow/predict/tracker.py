@@ -35,7 +35,7 @@ import numpy as np
 
 from lidarflow.geometry import cell_to_metric, rigid_moved
 from lidarflow.motion.pacing import paced_motion
-from lidarflow.predict.baselines import Takes
+from lidarflow.predict.baselines import NOTHING_MORE, FrameInputs, Takes
 from lidarflow.predict.carry import Movers, composed_motion
 
 __all__ = [
@@ -258,16 +258,11 @@ class Tracker:
         return [(t.state.copy(), t.cells.copy()) for t in self._tracks if t.missed == 0]
 
     def update(
-        self,
-        occupancy: np.ndarray,
-        visibility: np.ndarray,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-        pace: float | None = None,
+        self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
     ) -> np.ndarray:
-        """Take frame ``t`` (``motion``: its pose in frame ``t - 1``, cells and radians; the
-        future ``next_motion`` is not used) and return the map predicted for ``t + 1``."""
-        self.observe(occupancy, visibility, motion, pace)
+        """Take frame ``t`` (``given.motion``: its pose in frame ``t - 1``, cells and radians;
+        ``given.pace`` as :meth:`observe`'s) and return the map predicted for ``t + 1``."""
+        self.observe(occupancy, visibility, given.motion, given.pace)
         return self.ahead(1)[0]
 
     def observe(
