@@ -531,3 +531,15 @@ def test_info_says_what_its_beam_counts_mean(capsys):
     # the sample: 186624 beams, 33236 unknown (22046 zero, 11034 under range_min, 156 -inf)
     assert "186624: 153283 (82.1%) returns" in line
     assert "33236 (17.8%) unknown (the maps leave them unseen: 22046 zero, 11034 below" in line
+
+
+def test_a_horizon_table_keeps_its_columns_in_line_under_a_long_title():
+    from lidarflow.cli.scoring import _format_horizon
+
+    table = _format_horizon(
+        {"copy_last": [0.9, 0.8, 0.7], "a_model_with_a_long_name": [0.5, None, 0.4]},
+        "tolerant mover F1 (within 0.2 m)",
+    ).splitlines()
+    assert len({len(line) for line in table}) == 1  # every row as wide as the header
+    ends = [table[0].index("k=1") + 3] * 2
+    assert [line.index("0.9000") + 6 for line in table[1:2]] == ends[:1]

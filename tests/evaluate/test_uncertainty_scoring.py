@@ -108,7 +108,7 @@ def test_best_calibration_is_the_lowest():
         "a": {"calibration": {"ece": 0.2, "brier": 0.1}},
         "b": {"calibration": {"ece": 0.1, "brier": 0.3}},
     }
-    lines = format_uncertainty_table(methods).splitlines()
+    lines = format_uncertainty_table(methods).splitlines()[1:]  # below its title
     assert "0.1000*" in lines[1] and "0.2000 " in lines[1]  # a: brier best
     assert lines[2].split()[1] == "0.1000*"  # b: ece best
 
@@ -155,3 +155,11 @@ def test_moving_cells_are_scored_on_every_frame_even_before_a_gap():
     assert seen == list(range(3, len(maps) - 1))
     oracle = scorers["oracle"]
     assert oracle.moving_frames == len(maps) - 1 - 3 and oracle.frames == len(maps) - 1 - 3 - 1
+
+
+def test_the_table_is_titled_by_what_it_holds():
+    calibration = {"a": {"calibration": {"ece": 0.2, "brier": 0.1}}}
+    assert format_uncertainty_table(calibration).splitlines()[0] == "calibration"
+    moving = {"a": {"segmentation": {"iou": 0.5, "precision": 0.5, "recall": 0.5, "frames": 1}}}
+    header = format_uncertainty_table({**calibration, **moving}, "overall ").splitlines()[0]
+    assert header.startswith("overall calibration and moving segmentation")

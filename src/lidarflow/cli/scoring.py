@@ -236,7 +236,7 @@ def evaluate(
             for key, what in _HORIZON_TABLES:
                 if key in entry:
                     typer.echo(_format_horizon(entry[key], what) + "\n")
-        extra = format_uncertainty_table(entry["methods"], "calibration and moving segmentation")
+        extra = format_uncertainty_table(entry["methods"])
         if extra:
             typer.echo(extra + "\n")
         peers = format_peer_table(entry["methods"], _PEER_TITLE)
@@ -249,7 +249,7 @@ def evaluate(
             typer.echo(note)
         if report["against_baselines"]:
             typer.echo(format_comparison(report["against_baselines"]))
-        extra = format_uncertainty_table(report["overall"], "overall calibration and segmentation")
+        extra = format_uncertainty_table(report["overall"], "overall ")
         if extra:
             typer.echo(extra)
         peers = format_peer_table(report["overall"], f"overall {_PEER_TITLE}")
@@ -312,10 +312,10 @@ def _evaluate_in_jobs(
 def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:
     k = len(next(iter(scores.values())))
     title = f"{what} per horizon step"
-    lines = [f"{title:<24}" + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
+    width = max(24, len(title) + 2, *(len(name) + 2 for name in scores))  # k= columns in line
+    lines = [f"{title:<{width}}" + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
     for name, values in scores.items():
         # an AUC is None where a region held one class only
-        lines.append(
-            f"{name:<24}" + "".join(f"{'-':>10}" if v is None else f"{v:>10.4f}" for v in values)
-        )
+        cells = "".join(f"{'-':>10}" if v is None else f"{v:>10.4f}" for v in values)
+        lines.append(f"{name:<{width}}{cells}")
     return "\n".join(lines)

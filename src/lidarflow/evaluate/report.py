@@ -366,13 +366,15 @@ def uncertainty_rows(
     return present, rows, best
 
 
-def format_uncertainty_table(methods: dict[str, dict[str, Any]], title: str = "") -> str:
+def format_uncertainty_table(methods: dict[str, dict[str, Any]], whose: str = "") -> str:
     """Calibration (ECE, active ECE, Brier: lower is better, best marked *) and moving-object
-    segmentation (IoU, precision, recall of the moving class: higher is better); "" when no
-    method has any of them."""
+    segmentation (IoU, precision, recall of the moving class: higher is better), titled by
+    what it holds after ``whose`` ("overall "); "" when no method has any of them."""
     present, rows, best = uncertainty_rows(methods)
     if not present:
         return ""
+    moving = any(c.startswith("moving_") for c in present)
+    title = whose + ("calibration and moving segmentation" if moving else "calibration")
     widths = {c: max(len(c), 9) + 1 for c in present}
     return _text_table(rows, present, best, widths, title)
 
