@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -24,8 +25,10 @@ __all__ = ["write_html_report"]
 
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
-table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
-th, td { padding: 0.3em 0.8em; border-bottom: 1px solid #ddd; text-align: right; }
+.table { overflow-x: auto; margin: 0.5em 0 1.5em; }
+table { border-collapse: collapse; }
+th, td { padding: 0.3em 0.6em; border-bottom: 1px solid #ddd; text-align: right; }
+th { vertical-align: bottom; }
 th:first-child, td:first-child { text-align: left; }
 td.best { font-weight: bold; background: #eef7ee; }
 figure { display: inline-block; margin: 0.5em; text-align: center; }
@@ -52,11 +55,17 @@ def _data_uri(path: Path) -> str:
     return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode()
 
 
+def _breakable(name: str) -> str:
+    """``name`` escaped, free to break after its underscores and slashes: long column and
+    method names (``mover_f1_tolerant``, ``runs/my_robot/run``) then let a table fit the page."""
+    return re.sub(r"([_/])", r"\1<wbr>", html.escape(name))
+
+
 def _html_table(
     rows: Mapping[str, Mapping[str, float]], columns: Sequence[str], best: Mapping[str, float]
 ) -> str:
     """One row per method; a value equal to its column's ``best`` is bold."""
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    head = "".join(f"<th>{_breakable(c)}</th>" for c in columns)
     body = []
     for name, row in rows.items():
         cells = []
@@ -66,8 +75,9 @@ def _html_table(
                 continue
             cls = ' class="best"' if c in best and row[c] == best[c] else ""
             cells.append(f"<td{cls}>{row[c]:.4f}</td>")
-        body.append(f"<tr><td>{html.escape(name)}</td>{''.join(cells)}</tr>")
-    return f"<table><tr><th>method</th>{head}</tr>{''.join(body)}</table>"
+        body.append(f"<tr><td>{_breakable(name)}</td>{''.join(cells)}</tr>")
+    table = f"<table><tr><th>method</th>{head}</tr>{''.join(body)}</table>"
+    return f"<div class='table'>{table}</div>"  # scrolls on its own where it cannot fit
 
 
 def _table(methods: Mapping[str, Mapping[str, Any]]) -> str:
