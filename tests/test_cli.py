@@ -205,7 +205,7 @@ def test_evaluate_report_is_one_self_contained_page(tmp_path, capsys):
         capsys,
     )
     assert code == 0, err
-    page = (out / "index.html").read_text()
+    page = (out / "index.html").read_text().replace("<wbr>", "")  # names may break there
     assert page.count("data:image/gif;base64,") == 4 and "data:image/png;base64," in page
     assert "copy_last" in page and "changed_f1" in page and "src='/" not in page
     entry = json.loads((out / "report.json").read_text())["recordings"][0]

@@ -55,7 +55,7 @@ def test_evaluate_on_simulated_data_reports_calibration_and_moving(
     assert result["config"]["moving_segmentation"]["threshold_cells"] == 0.3
     assert (out / "sim_reliability.png").exists()
     assert (out / "sim_random_flownet_moving.gif").exists()
-    page = (out / "index.html").read_text()
+    page = (out / "index.html").read_text().replace("<wbr>", "")
     assert "moving_iou" in page and "reliability diagram" in page and "moving cells" in page
 
 
