@@ -534,9 +534,9 @@ def test_info_says_what_its_beam_counts_mean(capsys):
 
 
 def test_a_horizon_table_keeps_its_columns_in_line_under_a_long_title():
-    from lidarflow.cli.scoring import _format_horizon
+    from lidarflow.evaluate.summary import format_horizon
 
-    table = _format_horizon(
+    table = format_horizon(
         {"copy_last": [0.9, 0.8, 0.7], "a_model_with_a_long_name": [0.5, None, 0.4]},
         "tolerant mover F1 (within 0.2 m)",
     ).splitlines()

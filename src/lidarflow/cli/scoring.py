@@ -146,16 +146,7 @@ def evaluate(
         warn_unknown_beams,
     )
     from lidarflow.errors import RecordingError
-    from lidarflow.evaluate.horizon import horizon_note
-    from lidarflow.evaluate.report import (
-        format_comparison,
-        format_peer_table,
-        format_table,
-        format_uncertainty_table,
-        gaps_note,
-        grid_note,
-        undefined_note,
-    )
+    from lidarflow.evaluate.summary import format_overall, format_recording
     from lidarflow.predict.backends import recorded_grid, resolve_device
     from lidarflow.scan import GridSpec
 
@@ -224,56 +215,14 @@ def evaluate(
             report = _evaluate_in_jobs(named, settings, config, workers)
     for entry in report["recordings"]:
         warn_nothing_scored(entry)
-        title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
-        typer.echo(format_table(entry["methods"], title))
-        for note in (undefined_note(entry.get("undefined", [])), grid_note(entry, config["grid"])):
-            if note:
-                typer.echo(note)
-        comparison = format_comparison(entry["against_baselines"])
-        typer.echo((comparison + "\n") if comparison else "")
-        if "horizon_f1" in entry:
-            typer.echo(horizon_note(entry) + "\n")
-            for key, what in _HORIZON_TABLES:
-                if key in entry:
-                    typer.echo(_format_horizon(entry[key], what) + "\n")
-        extra = format_uncertainty_table(entry["methods"])
-        if extra:
-            typer.echo(extra + "\n")
-        peers = format_peer_table(entry["methods"], _PEER_TITLE)
-        if peers:
-            typer.echo(peers + "\n")
+        typer.echo(format_recording(entry, config["grid"]))
     if len(report["recordings"]) > 1:
-        typer.echo(format_table(report["overall"], "overall (micro-averaged)"))
-        note = undefined_note(report.get("undefined", []))
-        if note:
-            typer.echo(note)
-        if report["against_baselines"]:
-            typer.echo(format_comparison(report["against_baselines"]))
-        extra = format_uncertainty_table(report["overall"], "overall ")
-        if extra:
-            typer.echo(extra)
-        peers = format_peer_table(report["overall"], f"overall {_PEER_TITLE}")
-        if peers:
-            typer.echo(peers)
+        typer.echo(format_overall(report))
     if output is not None:
         write_text(output, json.dumps(report, indent=2))
         typer.echo(f"wrote {output}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
-
-
-_PEER_TITLE = "peers' metrics (mean per frame; WMSE lower is better, SSIM higher)"
-#: The horizon tables, report key and title, in the order printed.
-_HORIZON_TABLES = (
-    ("horizon_f1", "F1"),
-    ("horizon_changed_f1", "changed F1"),
-    ("horizon_wmse", "WMSE"),
-    ("horizon_ssim", "SSIM"),
-    ("horizon_mover_f1", "mover F1"),
-    ("horizon_mover_f1_tolerant", "tolerant mover F1"),
-    ("horizon_mover_auc", "mover AUC"),
-    ("horizon_mover_soft_iou", "mover soft IoU"),
-)
 
 
 def _evaluate_in_jobs(
@@ -307,15 +256,3 @@ def _evaluate_in_jobs(
         figures = ReportFigures(settings.report_dir, settings.gif_frames)
     scored = [(name, outcome.value) for name, outcome in zip(names, outcomes, strict=True)]
     return report_of(scored, config, figures)
-
-
-def _format_horizon(scores: dict[str, list[float]], what: str = "F1") -> str:
-    k = len(next(iter(scores.values())))
-    title = f"{what} per horizon step"
-    width = max(24, len(title) + 2, *(len(name) + 2 for name in scores))  # k= columns in line
-    lines = [f"{title:<{width}}" + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
-    for name, values in scores.items():
-        # an AUC is None where a region held one class only
-        cells = "".join(f"{'-':>10}" if v is None else f"{v:>10.4f}" for v in values)
-        lines.append(f"{name:<{width}}{cells}")
-    return "\n".join(lines)

@@ -1,0 +1,86 @@
+"""The text ``evaluate`` prints: per recording its tables and notes, then the overall ones.
+
+Each function returns the text (no trailing newline) a caller prints as it is; a section a
+report does not hold (no horizon, no calibration, no peers' metrics) is left out.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lidarflow.evaluate.horizon import horizon_note
+from lidarflow.evaluate.report import (
+    format_comparison,
+    format_peer_table,
+    format_table,
+    format_uncertainty_table,
+    gaps_note,
+    grid_note,
+    undefined_note,
+)
+
+__all__ = ["HORIZON_TABLES", "format_horizon", "format_overall", "format_recording"]
+
+_PEER_TITLE = "peers' metrics (mean per frame; WMSE lower is better, SSIM higher)"
+#: The horizon tables, report key and title, in the order printed.
+HORIZON_TABLES = (
+    ("horizon_f1", "F1"),
+    ("horizon_changed_f1", "changed F1"),
+    ("horizon_wmse", "WMSE"),
+    ("horizon_ssim", "SSIM"),
+    ("horizon_mover_f1", "mover F1"),
+    ("horizon_mover_f1_tolerant", "tolerant mover F1"),
+    ("horizon_mover_auc", "mover AUC"),
+    ("horizon_mover_soft_iou", "mover soft IoU"),
+)
+
+
+def format_horizon(scores: dict[str, list[float | None]], what: str = "F1") -> str:
+    """A table of ``scores`` per method at k = 1..K, its ``k=`` columns in line under a title
+    or method name of any length (``-`` where a score is undefined: an AUC over one class)."""
+    k = len(next(iter(scores.values())))
+    title = f"{what} per horizon step"
+    width = max(24, len(title) + 2, *(len(name) + 2 for name in scores))
+    lines = [f"{title:<{width}}" + "".join(f"{f'k={i + 1}':>10}" for i in range(k))]
+    for name, values in scores.items():
+        cells = "".join(f"{'-':>10}" if v is None else f"{v:>10.4f}" for v in values)
+        lines.append(f"{name:<{width}}{cells}")
+    return "\n".join(lines)
+
+
+def format_recording(entry: dict[str, Any], grid: dict[str, Any]) -> str:
+    """A recording's report ``entry`` as printed: its table, the notes (undefined scores, a
+    grid other than ``grid``), the verdict against the baselines, the horizon tables, the
+    calibration and the peers' metrics."""
+    title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
+    parts = [format_table(entry["methods"], title)]
+    parts += [n for n in (undefined_note(entry.get("undefined", [])), grid_note(entry, grid)) if n]
+    comparison = format_comparison(entry["against_baselines"])
+    parts.append(comparison + "\n" if comparison else "")
+    if "horizon_f1" in entry:
+        parts.append(horizon_note(entry) + "\n")
+        parts += [format_horizon(entry[k], what) + "\n" for k, what in HORIZON_TABLES if k in entry]
+    for extra in (
+        format_uncertainty_table(entry["methods"]),
+        format_peer_table(entry["methods"], _PEER_TITLE),
+    ):
+        if extra:
+            parts.append(extra + "\n")
+    return "\n".join(parts)
+
+
+def format_overall(report: dict[str, Any]) -> str:
+    """The overall (micro-averaged) tables of a report of several recordings."""
+    parts = [format_table(report["overall"], "overall (micro-averaged)")]
+    note = undefined_note(report.get("undefined", []))
+    if note:
+        parts.append(note)
+    if report["against_baselines"]:
+        parts.append(format_comparison(report["against_baselines"]))
+    for extra in (
+        format_uncertainty_table(report["overall"], "overall "),
+        format_peer_table(report["overall"], f"overall {_PEER_TITLE}"),
+    ):
+        if extra:
+            parts.append(extra)
+    return "\n".join(parts)
