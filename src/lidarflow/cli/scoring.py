@@ -40,98 +40,112 @@ def _above_zero(value: float) -> float:
     return value
 
 
+InputsArg = Annotated[
+    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
+]
+ModelsOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--model",
+        "-m",
+        help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
+        ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
+    ),
+]
+BaselinesOnlyOpt = Annotated[
+    bool,
+    typer.Option(
+        "--baselines-only", help="Score the baselines alone (no model; not with --model)."
+    ),
+]
+OutputOpt = Annotated[
+    Path | None,
+    typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
+]
+ReportDirOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--report",
+        help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
+        "report.json).",
+    ),
+]
+GifFramesOpt = Annotated[int, typer.Option(help="Frames per overlay GIF in the report.", min=1)]
+WarmupOpt = Annotated[
+    int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+]
+TaWindowOpt = Annotated[
+    int,
+    typer.Option(
+        help="Temporal-average baseline: frames averaged.",
+        min=1,
+    ),
+]
+TaThresholdOpt = Annotated[
+    float,
+    typer.Option(
+        help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
+        min=0.0,
+        max=1.0,
+        callback=_above_zero,
+    ),
+]
+EgoOracleOpt = Annotated[
+    bool,
+    typer.Option(
+        "--ego-oracle",
+        help="Also score ego-motion models told the true next pose (an upper bound).",
+    ),
+]
+HorizonOpt = Annotated[
+    int,
+    typer.Option(
+        min=1,
+        help="Also score F1 1..K frames ahead (models fed their own predictions).",
+    ),
+]
+OnlineDecisionOpt = Annotated[
+    bool,
+    typer.Option(
+        "--online-decision",
+        help="Score each occupancy-head model with both decision rules, fixed and online "
+        "offsets (the other one as NAME_fixed or NAME_online).",
+    ),
+]
+DeviceOpt = Annotated[
+    str,
+    typer.Option(
+        help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
+        "and the baselines run on the CPU."
+    ),
+]
+JsonOutOpt = Annotated[Path | None, typer.Option("--json", hidden=True)]
+
+
 @app.command()
 def evaluate(
-    inputs: Annotated[
-        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
-    ],
+    inputs: InputsArg,
     topic: TopicOpt = None,
     odom_topic: OdomOpt = None,
-    model: Annotated[
-        list[Path] | None,
-        typer.Option(
-            "--model",
-            "-m",
-            help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
-            ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
-        ),
-    ] = None,
-    baselines_only: Annotated[
-        bool,
-        typer.Option(
-            "--baselines-only", help="Score the baselines alone (no model; not with --model)."
-        ),
-    ] = False,
-    output: Annotated[
-        Path | None,
-        typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
-    ] = None,
-    report_dir: Annotated[
-        Path | None,
-        typer.Option(
-            "--report",
-            help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
-            "report.json).",
-        ),
-    ] = None,
-    gif_frames: Annotated[
-        int, typer.Option(help="Frames per overlay GIF in the report.", min=1)
-    ] = 100,
-    warmup: Annotated[
-        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
-    ] = 10,
-    ta_window: Annotated[
-        int,
-        typer.Option(
-            help="Temporal-average baseline: frames averaged.",
-            min=1,
-        ),
-    ] = TA_WINDOW,
-    ta_threshold: Annotated[
-        float,
-        typer.Option(
-            help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
-            min=0.0,
-            max=1.0,
-            callback=_above_zero,
-        ),
-    ] = TA_THRESHOLD,
-    ego_oracle: Annotated[
-        bool,
-        typer.Option(
-            "--ego-oracle",
-            help="Also score ego-motion models told the true next pose (an upper bound).",
-        ),
-    ] = False,
-    horizon: Annotated[
-        int,
-        typer.Option(
-            min=1,
-            help="Also score F1 1..K frames ahead (models fed their own predictions).",
-        ),
-    ] = 1,
-    online_decision: Annotated[
-        bool,
-        typer.Option(
-            "--online-decision",
-            help="Score each occupancy-head model with both decision rules, fixed and online "
-            "offsets (the other one as NAME_fixed or NAME_online).",
-        ),
-    ] = False,
+    model: ModelsOpt = None,
+    baselines_only: BaselinesOnlyOpt = False,
+    output: OutputOpt = None,
+    report_dir: ReportDirOpt = None,
+    gif_frames: GifFramesOpt = 100,
+    warmup: WarmupOpt = 10,
+    ta_window: TaWindowOpt = TA_WINDOW,
+    ta_threshold: TaThresholdOpt = TA_THRESHOLD,
+    ego_oracle: EgoOracleOpt = False,
+    horizon: HorizonOpt = 1,
+    online_decision: OnlineDecisionOpt = False,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     moving_threshold: MovingOpt = None,
     force: ForceOpt = False,
     threads: ThreadsOpt = DEFAULT_THREADS,
     jobs: JobsOpt = 1,
-    device: Annotated[
-        str,
-        typer.Option(
-            help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
-            "and the baselines run on the CPU."
-        ),
-    ] = "cpu",
-    json_out: Annotated[Path | None, typer.Option("--json", hidden=True)] = None,
+    device: DeviceOpt = "cpu",
+    json_out: JsonOutOpt = None,
 ) -> None:
     """Score next-map prediction on each recording, streaming, for the baselines (copy-last,
     temporal average, constant velocity, tracker) and each --model (default: the bundled one):
@@ -139,15 +153,9 @@ def evaluate(
     something moved through). A model wins when its F1 beats the best baseline's, its
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
-    from lidarflow.cli.useless import (
-        refuse_too_short,
-        warn_nothing_scored,
-        warn_pose_jumps,
-        warn_unknown_beams,
-    )
-    from lidarflow.errors import RecordingError
+    from lidarflow.cli.useless import warn_nothing_scored
     from lidarflow.evaluate.summary import format_overall, format_recording
-    from lidarflow.predict.backends import recorded_grid, resolve_device
+    from lidarflow.predict.backends import resolve_device
     from lidarflow.scan import GridSpec
 
     if baselines_only and model:
@@ -167,18 +175,10 @@ def evaluate(
         else:
             typer.echo("no bundled model in this installation: scoring the baselines only")
     spec = GridSpec(grid, grid, res)
-    named = []
-    for path in inputs:
-        recording = load_input(path, topic, odom_topic)
-        refuse_too_short(str(path), recording, warmup, horizon)
-        if ego_oracle and not recording.has_poses:  # the oracle's true poses are the recording's
-            raise RecordingError(
-                f"{path}: --ego-oracle tells models the true next pose, and this recording has "
-                "no poses (no odometry; --odom-topic names its topic); drop --ego-oracle"
-            )
-        warn_unknown_beams(path, recording)
-        warn_pose_jumps(path, recording)
-        named.append((str(path), recording))
+    named = [
+        (str(path), _scorable(path, topic, odom_topic, warmup, horizon, ego_oracle))
+        for path in inputs
+    ]
     methods, config = methods_and_config(
         sources,
         ta_window,
@@ -191,15 +191,7 @@ def evaluate(
         threads=threads or None,
     )
     config.update({"warmup": warmup, "grid": spec.to_dict()})
-    for name, used in config["models"].items():
-        trained = recorded_grid(used)
-        if trained is not None and trained != spec:
-            typer.echo(
-                f"note: {name} was trained on a {trained.height}x{trained.width} grid of "
-                f"{trained.res:g} m and is scored on {spec.height}x{spec.width} of {spec.res:g} m "
-                f"(--grid {trained.height} --res {trained.res:g} scores it on its own)",
-                err=True,
-            )
+    _note_other_grids(config["models"], spec)
     from lidarflow.cli.jobs import resolve_jobs
     from lidarflow.cli.per_input import methods_kept
 
@@ -223,6 +215,48 @@ def evaluate(
         typer.echo(f"wrote {output}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
+
+
+def _scorable(
+    path: Path,
+    topic: str | None,
+    odom_topic: str | None,
+    warmup: int,
+    horizon: int,
+    ego_oracle: bool,
+) -> Any:
+    """The recording at ``path``, read and refused at once where it cannot be scored (too
+    short; ``--ego-oracle`` without poses), with a warning where its beams or poses are
+    suspect: before the long scoring of the recordings named before it."""
+    from lidarflow.cli.useless import refuse_too_short, warn_pose_jumps, warn_unknown_beams
+    from lidarflow.errors import RecordingError
+
+    recording = load_input(path, topic, odom_topic)
+    refuse_too_short(str(path), recording, warmup, horizon)
+    if ego_oracle and not recording.has_poses:  # the oracle's true poses are the recording's
+        raise RecordingError(
+            f"{path}: --ego-oracle tells models the true next pose, and this recording has "
+            "no poses (no odometry; --odom-topic names its topic); drop --ego-oracle"
+        )
+    warn_unknown_beams(path, recording)
+    warn_pose_jumps(path, recording)
+    return recording
+
+
+def _note_other_grids(models: dict[str, Any], spec: Any) -> None:
+    """Say on stderr which of the ``models`` (their records) are scored on a grid other than
+    the one they trained on."""
+    from lidarflow.predict.backends import recorded_grid
+
+    for name, used in models.items():
+        trained = recorded_grid(used)
+        if trained is not None and trained != spec:
+            typer.echo(
+                f"note: {name} was trained on a {trained.height}x{trained.width} grid of "
+                f"{trained.res:g} m and is scored on {spec.height}x{spec.width} of {spec.res:g} m "
+                f"(--grid {trained.height} --res {trained.res:g} scores it on its own)",
+                err=True,
+            )
 
 
 def _evaluate_in_jobs(
