@@ -22,7 +22,6 @@ from lidarflow.cli.app import (
     TopicOpt,
     app,
     bundled_model_available,
-    load_input,
     refuse_existing,
     use_threads,
 )
@@ -153,7 +152,7 @@ def evaluate(
     something moved through). A model wins when its F1 beats the best baseline's, its
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
-    from lidarflow.cli.useless import warn_nothing_scored
+    from lidarflow.cli.useless import read_scorable, warn_nothing_scored
     from lidarflow.evaluate.summary import format_overall, format_recording
     from lidarflow.predict.backends import resolve_device
     from lidarflow.scan import GridSpec
@@ -176,7 +175,7 @@ def evaluate(
             typer.echo("no bundled model in this installation: scoring the baselines only")
     spec = GridSpec(grid, grid, res)
     named = [
-        (str(path), _scorable(path, topic, odom_topic, warmup, horizon, ego_oracle))
+        (str(path), read_scorable(path, topic, odom_topic, warmup, horizon, ego_oracle))
         for path in inputs
     ]
     methods, config = methods_and_config(
@@ -215,32 +214,6 @@ def evaluate(
         typer.echo(f"wrote {output}")
     if report_dir is not None:
         typer.echo(f"wrote {report_dir / 'index.html'}")
-
-
-def _scorable(
-    path: Path,
-    topic: str | None,
-    odom_topic: str | None,
-    warmup: int,
-    horizon: int,
-    ego_oracle: bool,
-) -> Any:
-    """The recording at ``path``, read and refused at once where it cannot be scored (too
-    short; ``--ego-oracle`` without poses), with a warning where its beams or poses are
-    suspect: before the long scoring of the recordings named before it."""
-    from lidarflow.cli.useless import refuse_too_short, warn_pose_jumps, warn_unknown_beams
-    from lidarflow.errors import RecordingError
-
-    recording = load_input(path, topic, odom_topic)
-    refuse_too_short(str(path), recording, warmup, horizon)
-    if ego_oracle and not recording.has_poses:  # the oracle's true poses are the recording's
-        raise RecordingError(
-            f"{path}: --ego-oracle tells models the true next pose, and this recording has "
-            "no poses (no odometry; --odom-topic names its topic); drop --ego-oracle"
-        )
-    warn_unknown_beams(path, recording)
-    warn_pose_jumps(path, recording)
-    return recording
 
 
 def _note_other_grids(models: dict[str, Any], spec: Any) -> None:

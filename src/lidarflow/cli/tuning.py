@@ -6,7 +6,7 @@ import json
 import shutil
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -21,44 +21,49 @@ from lidarflow.cli.app import (
     TopicOpt,
     app,
     eval_progress,
-    load_input,
     refuse_existing,
     use_threads,
 )
 from lidarflow.evaluate.offsets import DEFAULT_OFFSETS
 
+InputsArg = Annotated[
+    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to choose on.")
+]
+OutputOpt = Annotated[
+    Path,
+    typer.Option("--output", "-o", help="Model folder to write: the model with the offset."),
+]
+HeadModelOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--model",
+        "-m",
+        help=f"Model with an occupancy head: {TORCH_MODEL_SOURCES} or `bundled` (the default).",
+    ),
+]
+OffsetOpt = Annotated[
+    list[float] | None,
+    typer.Option(
+        "--offset",
+        help="Candidate offset (repeatable; default "
+        + ", ".join(f"{o:g}" for o in DEFAULT_OFFSETS)
+        + ").",
+    ),
+]
+WarmupOpt = Annotated[
+    int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+]
+
 
 @app.command("choose-offset")
 def choose_offset(
-    inputs: Annotated[
-        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to choose on.")
-    ],
-    output: Annotated[
-        Path,
-        typer.Option("--output", "-o", help="Model folder to write: the model with the offset."),
-    ],
-    model: Annotated[
-        Path | None,
-        typer.Option(
-            "--model",
-            "-m",
-            help=f"Model with an occupancy head: {TORCH_MODEL_SOURCES} or `bundled` (the default).",
-        ),
-    ] = None,
-    offset: Annotated[
-        list[float] | None,
-        typer.Option(
-            "--offset",
-            help="Candidate offset (repeatable; default "
-            + ", ".join(f"{o:g}" for o in DEFAULT_OFFSETS)
-            + ").",
-        ),
-    ] = None,
+    inputs: InputsArg,
+    output: OutputOpt,
+    model: HeadModelOpt = None,
+    offset: OffsetOpt = None,
     topic: TopicOpt = None,
     odom_topic: OdomOpt = None,
-    warmup: Annotated[
-        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
-    ] = 10,
+    warmup: WarmupOpt = 10,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     force: ForceOpt = False,
@@ -70,21 +75,10 @@ def choose_offset(
 
     A larger offset predicts more changed cells at some cost in calibration; a model that
     chooses offsets online uses the fixed one for its first frames."""
-    import tempfile
-
-    from lidarflow.atomic import atomic_path, write_text
-    from lidarflow.cli.useless import (
-        nothing_scored,
-        refuse_too_short,
-        warn_nothing_scored,
-        warn_pose_jumps,
-        warn_unknown_beams,
-    )
+    from lidarflow.cli.useless import nothing_scored, read_scorable, warn_nothing_scored
     from lidarflow.errors import EvaluateError, ModelError
-    from lidarflow.evaluate.evaluation import evaluate_and_report
-    from lidarflow.evaluate.methods import methods_and_config
     from lidarflow.evaluate.offsets import choose_offset as choose
-    from lidarflow.evaluate.offsets import decided_online, with_offset
+    from lidarflow.evaluate.offsets import decided_online, score_offsets, with_offset
     from lidarflow.models.presets import resolve_model
     from lidarflow.models.weights import check_decision_offset
     from lidarflow.scan import GridSpec
@@ -101,24 +95,8 @@ def choose_offset(
         )
     weights = Path(card["weights_path"])
     spec = GridSpec(grid, grid, res)
-    named = []
-    for path in inputs:
-        recording = load_input(path, topic, odom_topic)
-        refuse_too_short(str(path), recording, warmup, 1)
-        warn_unknown_beams(path, recording)
-        warn_pose_jumps(path, recording)
-        named.append((str(path), recording))
-    with tempfile.TemporaryDirectory() as tmp:
-        folders: dict[float, Path] = {}
-        for candidate in offsets:
-            folder = Path(tmp) / f"offset_{candidate:g}"
-            folder.mkdir()
-            (folder / "model.json").write_text(json.dumps(with_offset(card, candidate)))
-            (folder / "model.safetensors").symlink_to(weights.resolve())
-            folders[candidate] = folder
-        methods, config = methods_and_config(list(folders.values()), res=spec.res)
-        config.update({"warmup": warmup, "grid": spec.to_dict()})
-        report = evaluate_and_report(named, methods, spec, warmup, config, None, eval_progress)
+    named = [(str(p), read_scorable(p, topic, odom_topic, warmup, 1, False)) for p in inputs]
+    report, names = score_offsets(named, card, weights, offsets, spec, warmup, eval_progress)
     for entry in report["recordings"]:
         warn_nothing_scored(entry)
     if all(nothing_scored(entry) for entry in report["recordings"]):
@@ -126,15 +104,8 @@ def choose_offset(
             "nothing was scored on any recording (no occupied cell in a scored frame): no "
             "offset to choose; choose on recordings whose scans see something"
         )
-    names = {o: f.name for o, f in folders.items()}
     best, totals = choose(report["recordings"], names)
-    for entry in report["recordings"]:
-        scores = ", ".join(
-            f"{o:g}: {entry['methods'][n]['f1']:.3f}/{entry['methods'][n]['changed_f1']:.3f}"
-            for o, n in names.items()
-        )
-        typer.echo(f"{Path(entry['path']).name} (F1/changed F1 by offset): {scores}")
-    typer.echo("summed win margin: " + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items()))
+    _say_scores(report["recordings"], names, totals)
     chosen = with_offset(card, best, online=decided_online(card))  # the model's own rule kept
     record = {
         "command": "lidarflow " + " ".join(sys.argv[1:]),
@@ -149,9 +120,32 @@ def choose_offset(
         },
     }
     chosen["decision_offset_chosen_on"] = record["recordings"]
+    _write_model(output, weights, chosen, record)
+    typer.echo(f"wrote {output}: decision offset {best:g} (use it with -m {output})")
+
+
+def _say_scores(
+    recordings: list[dict[str, Any]], names: dict[float, str], totals: dict[float, float]
+) -> None:
+    """Each recording's F1 / changed F1 by offset, then the summed win margins."""
+    for entry in recordings:
+        scores = ", ".join(
+            f"{o:g}: {entry['methods'][n]['f1']:.3f}/{entry['methods'][n]['changed_f1']:.3f}"
+            for o, n in names.items()
+        )
+        typer.echo(f"{Path(entry['path']).name} (F1/changed F1 by offset): {scores}")
+    typer.echo("summed win margin: " + ", ".join(f"{o:g}: {t:+.4f}" for o, t in totals.items()))
+
+
+def _write_model(
+    output: Path, weights: Path, chosen: dict[str, Any], record: dict[str, Any]
+) -> None:
+    """The model folder ``output``, whole or not at all: the weights, the model.json deciding
+    with the chosen offset, and offsets.json with every score."""
+    from lidarflow.atomic import atomic_path, write_text
+
     with atomic_path(output) as folder:
         folder.mkdir()
         shutil.copyfile(weights, folder / "model.safetensors")
         write_text(folder / "model.json", json.dumps(chosen, indent=2) + "\n")
         write_text(folder / "offsets.json", json.dumps(record, indent=2) + "\n")
-    typer.echo(f"wrote {output}: decision offset {best:g} (use it with -m {output})")

@@ -12,9 +12,11 @@ import typer
 __all__ = [
     "MOST_BEAMS_UNKNOWN",
     "nothing_scored",
+    "read_scorable",
     "refuse_too_short",
     "refuse_without_returns",
     "warn_nothing_scored",
+    "warn_pose_jumps",
     "warn_unknown_beams",
 ]
 
@@ -98,3 +100,29 @@ def warn_nothing_scored(entry: dict[str, Any]) -> None:
             f"of its {entry.get('frames_evaluated', 0)} scored frames): its scores say nothing",
             err=True,
         )
+
+
+def read_scorable(
+    path: Path,
+    topic: str | None,
+    odom_topic: str | None,
+    warmup: int,
+    horizon: int,
+    ego_oracle: bool,
+) -> Any:
+    """The recording at ``path``, read and refused at once where it cannot be scored (too
+    short; ``--ego-oracle`` without poses), with a warning where its beams or poses are
+    suspect: before the long scoring of the recordings named before it."""
+    from lidarflow.cli.app import load_input
+    from lidarflow.errors import RecordingError
+
+    recording = load_input(path, topic, odom_topic)
+    refuse_too_short(str(path), recording, warmup, horizon)
+    if ego_oracle and not recording.has_poses:  # the oracle's true poses are the recording's
+        raise RecordingError(
+            f"{path}: --ego-oracle tells models the true next pose, and this recording has "
+            "no poses (no odometry; --odom-topic names its topic); drop --ego-oracle"
+        )
+    warn_unknown_beams(path, recording)
+    warn_pose_jumps(path, recording)
+    return recording

@@ -14,9 +14,13 @@ off.)
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import json
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
+from lidarflow.data.recording import Recording
 from lidarflow.models.config import DECISION_KEYS
 from lidarflow.models.weights import decision_record
 
@@ -25,6 +29,7 @@ __all__ = [
     "DEFAULT_OFFSETS",
     "choose_offset",
     "decided_online",
+    "score_offsets",
     "win_margin",
     "with_offset",
 ]
@@ -74,3 +79,32 @@ def choose_offset(
         for offset, name in names.items()
     }
     return max(totals, key=lambda o: totals[o]), totals
+
+
+def score_offsets(
+    named: Sequence[tuple[str, Recording]],
+    card: Mapping[str, Any],
+    weights: Path,
+    offsets: Sequence[float],
+    grid: Any,
+    warmup: int,
+    progress: Callable[[str, int], Any] | None = None,
+) -> tuple[dict[str, Any], dict[float, str]]:
+    """Score the model (``card``, its model.json, with ``weights``) deciding with each of the
+    ``offsets`` beside the baselines on the ``named`` recordings: the `evaluate` report, and
+    each offset's method name in it."""
+    from lidarflow.evaluate.evaluation import evaluate_and_report
+    from lidarflow.evaluate.methods import methods_and_config
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folders: dict[float, Path] = {}
+        for offset in offsets:
+            folder = Path(tmp) / f"offset_{offset:g}"
+            folder.mkdir()
+            (folder / "model.json").write_text(json.dumps(with_offset(card, offset)))
+            (folder / "model.safetensors").symlink_to(weights.resolve())
+            folders[offset] = folder
+        methods, config = methods_and_config(list(folders.values()), res=grid.res)
+        config.update({"warmup": warmup, "grid": grid.to_dict()})
+        report = evaluate_and_report(named, methods, grid, warmup, config, None, progress)
+    return report, {o: f.name for o, f in folders.items()}
