@@ -63,41 +63,80 @@ def methods_and_config(
     ]
     # An online decision measures itself against the temporal average reported here.
     online_config = OnlineDecisionConfig(ta_window=ta_window, ta_threshold=ta_threshold)
-    models_used = {}
+    models_used: dict[str, Any] = {}
     for i, source in enumerate(sources):
-        bundled = source is None or str(source) == "bundled"
-        net, card = load_backend(None if bundled else source, threads=threads, device=device)
-        name = names[i] if names else "bundled" if bundled else describe_source(source)
-        while name in {m.name for m in methods}:
-            name += "_"
-        own = card["decision"]  # the decision policy the model ships with
-        method = ModelMethod(
-            name, net, moving_threshold, online_config=online_config, res=res, decision=own
-        )
-        methods.append(method)
-        keys = ("model", "weights_path", "weights_sha256", "grid")
-        models_used[name] = {k: card.get(k) for k in keys}
-        if method.takes.motion and ego_oracle:
-            oracle = ModelMethod(name + ORACLE_SUFFIX, net, oracle=True, res=res, decision=own)
-            methods.append(oracle)
-        if online:  # the other decision rule beside the model's own
-            wants_online = method.online is not None
-            methods.append(
-                ModelMethod(
-                    name + ("_fixed" if wants_online else "_online"),
-                    net,
-                    moving_threshold,
-                    online=not wants_online,
-                    online_config=online_config,
-                    res=res,
-                    decision=own,
-                )
-            )
+        name = names[i] if names else None
+        methods += _model_methods(
+            source, name, {m.name for m in methods}, moving_threshold, online_config, res,
+            ego_oracle, online, models_used, device, threads,
+        )  # fmt: skip
     # the tracker takes the motion too, but copy_last_ego stands beside ego-motion models only
     ego_models = any(isinstance(m, ModelMethod) and m.takes.motion for m in methods)
     if ego_models:
         methods[4:4] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
-    config = {
+    config = _report_config(
+        methods, ta_window, ta_threshold, moving_threshold, models_used, online_config, online
+    )
+    return methods, config
+
+
+def _model_methods(
+    source: str | Path | None,
+    name: str | None,
+    taken: set[str],
+    moving_threshold: float,
+    online_config: OnlineDecisionConfig,
+    res: float,
+    ego_oracle: bool,
+    online: bool,
+    models_used: dict[str, Any],
+    device: str,
+    threads: int | None,
+) -> list[Any]:
+    """The methods of one model ``source`` (see :func:`methods_and_config`), named ``name`` or
+    after it (a name ``taken`` already gets underscores), and its record in ``models_used``."""
+    bundled = source is None or str(source) == "bundled"
+    net, card = load_backend(None if bundled else source, threads=threads, device=device)
+    name = name or ("bundled" if bundled else describe_source(source))
+    while name in taken:
+        name += "_"
+    own = card["decision"]  # the decision policy the model ships with
+    method = ModelMethod(
+        name, net, moving_threshold, online_config=online_config, res=res, decision=own
+    )
+    keys = ("model", "weights_path", "weights_sha256", "grid")
+    models_used[name] = {k: card.get(k) for k in keys}
+    methods = [method]
+    if method.takes.motion and ego_oracle:
+        methods.append(ModelMethod(name + ORACLE_SUFFIX, net, oracle=True, res=res, decision=own))
+    if online:  # the other decision rule beside the model's own
+        wants_online = method.online is not None
+        methods.append(
+            ModelMethod(
+                name + ("_fixed" if wants_online else "_online"),
+                net,
+                moving_threshold,
+                online=not wants_online,
+                online_config=online_config,
+                res=res,
+                decision=own,
+            )
+        )
+    return methods
+
+
+def _report_config(
+    methods: Sequence[Any],
+    ta_window: int,
+    ta_threshold: float,
+    moving_threshold: float,
+    models_used: dict[str, Any],
+    online_config: OnlineDecisionConfig,
+    online: bool,
+) -> dict[str, Any]:
+    """What the report says of its ``methods``: the rules each follows, for a reader of the
+    numbers (see :func:`methods_and_config`)."""
+    config: dict[str, Any] = {
         "threshold": 0.4,
         # what knows the future or only moves the last map is reported, never judged
         "no_verdict": [
@@ -143,7 +182,7 @@ def methods_and_config(
             "baselines largest if the next `lookahead` frames went as its recent (decayed) ones; "
             "the decisions made and the baselines' counts decay by `history_decay`",
         }
-    if ego_models:
+    if any(isinstance(m, CopyLastEgo) for m in methods):
         config["ego_motion"] = (
             "models built with ego_motion get the recordings' poses (odometry); the motion to "
             "the next frame is the last one again (constant velocity, causal); *_oracle* "
@@ -153,4 +192,4 @@ def methods_and_config(
             "the bundled one) and copy_last_ego get the motion matched from the scans "
             "(lidarflow.motion.scanmatch; uncompensated where no match counts)"
         )
-    return methods, config
+    return config
