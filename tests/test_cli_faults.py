@@ -118,6 +118,7 @@ def nan_bag(tmp_path):
     return write_bag(tmp_path / "nan.bag", scans={"/scan": [np.full(200, np.nan)] * 30})
 
 
+@pytest.mark.slow
 def test_evaluate_warns_of_invalid_beams_and_nothing_scored(nan_bag, capsys):
     code, _, err = run(["evaluate", str(nan_bag), "--baselines-only"], capsys)
     assert code == 0
@@ -126,6 +127,7 @@ def test_evaluate_warns_of_invalid_beams_and_nothing_scored(nan_bag, capsys):
     assert any("nan.bag" in w and "nothing was scored" in w for w in warnings), err
 
 
+@pytest.mark.slow
 def test_choose_offset_writes_no_offset_from_nothing(nan_bag, tmp_path, capsys):
     out = tmp_path / "chosen"
     code, _, err = run(["choose-offset", str(nan_bag), "-o", str(out)], capsys)

@@ -250,6 +250,7 @@ def torch_in_worker(recording: str) -> tuple[bool, bool]:
     return sys.modules.get("torch") is not None, torch_available()
 
 
+@pytest.mark.slow
 def test_workers_of_the_core_install_run_without_pytorch(short):
     body = (
         "from lidarflow.cli.jobs import run_jobs\nfrom tests.test_cli_jobs import torch_in_worker\n"

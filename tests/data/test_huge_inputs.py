@@ -82,6 +82,7 @@ def _long_recording(n: int, beams: int = 19):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_convert_checks_a_long_recording_a_batch_at_a_time_under_a_memory_limit(tmp_path):
     """40,000 scans: their maps at once take 800 MB (200,000 took 4 GB; on --grid 200, 16)."""
     from lidarflow.data.recordfile import load_recording
@@ -110,6 +111,7 @@ def _with_member(source, target, key, header: dict, data: bytes):
     return target
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["info", "evaluate"])
 def test_a_recording_whose_header_claims_4e12_floats_is_one_line(tmp_path, command):
     source = _long_recording(20).save(tmp_path / "ok.npz")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.dynamic import (
@@ -115,6 +116,7 @@ def _recording_with_a_glitch(n: int, at: int, where: float) -> Recording:
     return Recording.from_scans(scans, poses=poses, meta={"source": "glitch"})
 
 
+@pytest.mark.slow
 def test_evaluate_a_recording_whose_odometry_glitches_3_km_under_a_memory_limit(tmp_path):
     path = _recording_with_a_glitch(16, 9, 3000.0).save(tmp_path / "glitch.npz")
     done = run_limited(

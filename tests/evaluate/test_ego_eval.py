@@ -178,6 +178,7 @@ def test_cli_train_ego_then_evaluate_scores_the_compensation(driving, tmp_path, 
     assert code == 1 and "no sensor poses" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_poses_optional_models_take_the_motion_from_the_scans_without_poses(driving, tmp_path):
     blind = driving.slice(0, 30)
     blind.poses = None
@@ -242,6 +243,7 @@ def test_a_predictor_given_scans_steps_the_model_with_the_motion_refined_on_thei
         assert a.ego_compensated == (known is not None)
 
 
+@pytest.mark.slow
 def test_poses_optional_models_stop_compensating_odometry_that_disagrees_with_the_scans(
     driving, tmp_path
 ):
@@ -347,6 +349,7 @@ def test_copy_last_ego_is_scored_beside_ego_models_with_or_without_poses(driving
         assert methods["copy_last_ego"]["f1"] > methods["copy_last"]["f1"] + 0.02
 
 
+@pytest.mark.slow
 def test_horizon_scores_roll_ego_models_forward_with_the_motion(driving):
     from lidarflow.evaluate.runner import horizon_scores
 

@@ -26,6 +26,7 @@ def _walker(n: int = 24) -> np.ndarray:
     return maps
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("report", [False, True])
 def test_evaluate_horizon_streams_each_recording_once(tmp_path, capsys, monkeypatch, report):
     rec = tmp_path / "drive.npz"

@@ -266,6 +266,7 @@ def test_a_subcell_model_takes_its_scans_subcell_maps_and_refuses_bare_maps(
     assert np.abs(without.probability - p.probability).max() > 1e-3
 
 
+@pytest.mark.slow
 def test_a_model_runs_on_the_grid_it_was_trained_for_unless_told(
     tmp_path, sample_recording, capsys
 ):

@@ -17,6 +17,9 @@ from lidarflow.predict.quantize import head_convs, quantize_onnx
 from tests.conftest import FLOW_MODEL
 from tests.test_cli import run
 
+#: every test here quantizes an exported model (a module fixture of seconds): slow as a whole
+pytestmark = pytest.mark.slow
+
 
 def stacked_maps(recording, start, stop, subcell=True):
     """A recording's maps as v8 and the bundled model take them (they have ``subcell_input``)."""
