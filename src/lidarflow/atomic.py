@@ -17,8 +17,8 @@ What may be replaced, the rule every command keeps, is decided here and nowhere 
 
 - a file is replaced only by a file, a folder only by a folder;
 - a folder is replaced only where lidarflow wrote it: every folder :func:`commit` moves into
-  place carries a :data:`STAMP` file, and a folder without one (or with anything else in it
-  that is not lidarflow's) is never replaced or emptied, ``--force`` or not;
+  place carries a :data:`STAMP` file, and a folder without one is never replaced or emptied,
+  ``--force`` or not (an empty one may be);
 - an output the user named (:func:`check_writable`) that exists is replaced only with
   ``force``; one that did not exist when the command started and appeared while it ran
   (another run writing the same output) is not replaced either: the later run is refused;
