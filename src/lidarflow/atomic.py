@@ -152,7 +152,7 @@ def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> 
                 "another output"
             )
         if source.is_dir() and (
-            any(_same_file(out, f) for f in source.rglob("*"))
+            (out.exists() and any(_same_file(out, f) for f in source.rglob("*")))
             or ((source / "metadata.yaml").is_file() and source in out.parents)
         ):
             raise OutputError(
@@ -178,10 +178,14 @@ def temporary(target: str | Path) -> Path:
     target = Path(target)
     if not target.name:
         raise OutputError(f"{target}: not a file name; name the output to write in it")
-    for folder in (target.parent, *target.parent.parents):
-        if folder.exists() and not folder.is_dir():
-            raise OutputError(f"{target}: {folder} is a file, not a folder; name another output")
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError) as err:  # a file where a folder should be
+        folders = (target.parent, *target.parent.parents)
+        file = next((f for f in folders if f.exists() and not f.is_dir()), None)
+        if file is None:
+            raise
+        raise OutputError(f"{target}: {file} is a file, not a folder; name another output") from err
     clear_stale(target.parent)
     stem = f".{target.name}.{os.getpid()}"
     for n in range(1000):
@@ -352,20 +356,17 @@ def atomic_paths(targets: Sequence[str | Path]) -> Iterator[list[Path]]:
     any exception none is, and every temporary is removed."""
     temps = [temporary(t) for t in targets]
     try:
-        yield temps
-    except OSError as err:
-        for tmp in temps:
-            discard(tmp)
-        raise _named_for(err, temps, targets) from err
-    except BaseException:
-        for tmp in temps:
-            discard(tmp)
-        raise
-    try:
+        try:
+            yield temps
+        except OSError as err:
+            named = _named_for(err, temps, targets)
+            if named is err:
+                raise
+            raise named from err
         for tmp, target in zip(temps, targets, strict=True):
             commit(tmp, target)
     except BaseException:
-        for tmp in temps:
+        for tmp in temps:  # those committed are gone already
             discard(tmp)
         raise
 

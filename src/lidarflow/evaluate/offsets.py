@@ -18,11 +18,13 @@ import json
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from lidarflow.data.recording import Recording
 from lidarflow.models.config import DECISION_KEYS
 from lidarflow.models.weights import decision_record
+
+if TYPE_CHECKING:
+    from lidarflow.data.recording import Recording
 
 __all__ = [
     "BASELINES",
