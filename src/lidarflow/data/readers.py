@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["CutShort", "typestore_from"]
+__all__ = ["CutShort", "size_text", "typestore_from"]
 
 _MB = 1 << 20
 
@@ -47,11 +47,12 @@ class CutShort:
         if self.whole and self.whole > self.read_to > 0:
             text += f", of ~{round(scans * self.whole / self.read_to)} in the whole recording"
         if self.unreadable:
-            text += f" (the last {_size(self.unreadable)} unreadable)"
+            text += f" (the last {size_text(self.unreadable)} unreadable)"
         return text
 
 
-def _size(n: int) -> str:
+def size_text(n: int) -> str:
+    """``n`` bytes for a message: ``12.3 MB``, or ``4 kB`` under a tenth of a megabyte."""
     return f"{n / _MB:.1f} MB" if n >= _MB // 10 else f"{max(round(n / 1024), 1)} kB"
 
 

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from lidarflow.atomic import discard, temporary
-from lidarflow.data.readers import _size
+from lidarflow.data.readers import size_text
 from lidarflow.errors import BagError
 
 __all__ = ["UNZIP_FLOOR", "UNZIP_RATIO", "UNZIP_RESERVE", "unzip_folder", "unzipped_bag"]
@@ -83,25 +83,30 @@ def _unzip_limit(path: Path, declared: int, folder: Path) -> int:
     """The most bytes the bag of ``path`` may unpack to in ``folder`` (see
     :func:`unzipped_bag`); refuses one whose ``declared`` size is more."""
     room = shutil.disk_usage(folder).free - UNZIP_RESERVE
-    limit = min(max(UNZIP_RATIO * path.stat().st_size, UNZIP_FLOOR), room)
+    limit = min(_ratio_cap(path), room)
     if declared > limit:
         _refuse_unzip(path, declared, folder)
     return limit
+
+
+def _ratio_cap(path: Path) -> int:
+    """What the bag of the archive ``path`` may unpack to, by the archive's size alone."""
+    return max(UNZIP_RATIO * path.stat().st_size, UNZIP_FLOOR)
 
 
 def _refuse_unzip(path: Path, size: int, folder: Path) -> None:
     """Raise the :class:`BagError` for a bag of ``path`` that unpacks to ``size`` bytes or more:
     a zip bomb where that is over the ratio cap, else a disk too full for it."""
     zipped = path.stat().st_size
-    if size > max(UNZIP_RATIO * zipped, UNZIP_FLOOR):
+    if size > _ratio_cap(path):
         raise BagError(
-            f"{path}: its bag unpacks to {_size(size)} or more, over {UNZIP_RATIO} times the "
-            f"archive's {_size(zipped)}: a zip bomb or a damaged archive; if it is a bag, "
+            f"{path}: its bag unpacks to {size_text(size)} or more, over {UNZIP_RATIO} times the "
+            f"archive's {size_text(zipped)}: a zip bomb or a damaged archive; if it is a bag, "
             "unzip it yourself and give the .bag"
         )
     free = shutil.disk_usage(folder).free
     raise BagError(
-        f"{path}: its bag unpacks to {_size(size)} or more, and {folder} has {_size(free)} "
-        f"free (lidarflow leaves {_size(UNZIP_RESERVE)}); free some space, or unzip it "
+        f"{path}: its bag unpacks to {size_text(size)} or more, and {folder} has {size_text(free)} "
+        f"free (lidarflow leaves {size_text(UNZIP_RESERVE)}); free some space, or unzip it "
         "yourself and give the .bag"
     )
