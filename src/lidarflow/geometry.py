@@ -33,10 +33,12 @@ from collections import OrderedDict
 import numpy as np
 
 __all__ = [
+    "TOLERANCE",
     "FlowWarp",
     "Sampler",
     "cell_to_metric",
     "metric_to_cell",
+    "near",
     "rigid_moved",
     "rigid_positions",
     "rigid_sampler",
@@ -355,3 +357,41 @@ def rigid_moved(image: np.ndarray, motion: np.ndarray, res: float = 1.0) -> np.n
     if sampler is None:
         return _sparse_moved(image, key)
     return sampler(image)
+
+
+#: Cells within which a prediction counts as near a true cell (Euclidean), as the mover
+#: metric and the online combination count: 0.2 m on the default grid.
+TOLERANCE = 2
+
+
+def _disc(radius: int) -> list[tuple[int, int]]:
+    return [
+        (dr, dc)
+        for dr in range(-radius, radius + 1)
+        for dc in range(-radius, radius + 1)
+        if dr * dr + dc * dc <= radius * radius
+    ]
+
+
+def near(mask: np.ndarray, radius: int = TOLERANCE) -> np.ndarray:
+    """The cells of ``(..., H, W)`` bool ``mask`` dilated by a Euclidean disc of ``radius``
+    cells: ``True`` where a ``True`` cell of ``mask`` lies within ``radius`` cells.
+
+    >>> near(np.eye(1, 5, 2, dtype=bool), 1).astype(int)
+    array([[0, 1, 1, 1, 0]])
+    """
+    mask = np.asarray(mask, bool)
+    if mask.ndim < 2:
+        raise ValueError(f"mask must be (..., H, W), got {mask.shape}")
+    if radius < 0:
+        raise ValueError(f"radius must be >= 0, got {radius}")
+    h, w = mask.shape[-2:]
+    out = mask.copy()
+    for dr, dc in _disc(radius):
+        if (dr, dc) == (0, 0) or abs(dr) >= h or abs(dc) >= w:
+            continue
+        # out[r, c] |= mask[r + dr, c + dc] where that cell exists
+        out[..., max(0, -dr) : h - max(0, dr), max(0, -dc) : w - max(0, dc)] |= mask[
+            ..., max(0, dr) : h - max(0, -dr), max(0, dc) : w - max(0, -dc)
+        ]
+    return out

@@ -29,45 +29,12 @@ from typing import Any
 import numpy as np
 
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.geometry import TOLERANCE, near
 
 __all__ = ["BINS", "TOLERANCE", "MoverScore", "TolerantCounts", "near", "roc_auc"]
 
-#: Cells of tolerance (Euclidean) of the tolerant F1: 0.2 m on the default grid.
-TOLERANCE = 2
+#: Bins of the probability for the AUC.
 BINS = 200
-
-
-def _disc(radius: int) -> list[tuple[int, int]]:
-    return [
-        (dr, dc)
-        for dr in range(-radius, radius + 1)
-        for dc in range(-radius, radius + 1)
-        if dr * dr + dc * dc <= radius * radius
-    ]
-
-
-def near(mask: np.ndarray, radius: int = TOLERANCE) -> np.ndarray:
-    """The cells of ``(..., H, W)`` bool ``mask`` dilated by a Euclidean disc of ``radius``
-    cells: ``True`` where a ``True`` cell of ``mask`` lies within ``radius`` cells.
-
-    >>> near(np.eye(1, 5, 2, dtype=bool), 1).astype(int)
-    array([[0, 1, 1, 1, 0]])
-    """
-    mask = np.asarray(mask, bool)
-    if mask.ndim < 2:
-        raise ValueError(f"mask must be (..., H, W), got {mask.shape}")
-    if radius < 0:
-        raise ValueError(f"radius must be >= 0, got {radius}")
-    h, w = mask.shape[-2:]
-    out = mask.copy()
-    for dr, dc in _disc(radius):
-        if (dr, dc) == (0, 0) or abs(dr) >= h or abs(dc) >= w:
-            continue
-        # out[r, c] |= mask[r + dr, c + dc] where that cell exists
-        out[..., max(0, -dr) : h - max(0, dr), max(0, -dc) : w - max(0, dc)] |= mask[
-            ..., max(0, dr) : h - max(0, -dr), max(0, dc) : w - max(0, -dc)
-        ]
-    return out
 
 
 @dataclass

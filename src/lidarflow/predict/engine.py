@@ -98,10 +98,12 @@ class Frame:
 
 @dataclass(frozen=True)
 class Rollout:
-    """The probabilities ``1 .. K`` frames ahead ``(K, H, W)``, as :class:`Step` has them."""
+    """The probabilities ``1 .. K`` frames ahead ``(K, H, W)``, as :class:`Step` has them, and
+    ``model_only``, the model's own decided maps without the tracked objects."""
 
     probability: np.ndarray
     decided: np.ndarray
+    model_only: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -257,6 +259,7 @@ class Engine:
         sub-cell maps), on a copy of the state, and decided with the current choice."""
         probabilities, decided = [step.probability], [step.decided]
         alone = step.decided if step.alone is None else step.alone  # what is fed back
+        model_only = [alone]
         movers, state = step.movers, step.state
         for k in range(2, horizon + 1):
             fed = np.zeros_like(step.maps)
@@ -264,5 +267,6 @@ class Engine:
             probability, out, state = self.backend.run(fed, state, step.ahead)
             probabilities.append(probability[0, 0])
             alone = self._decide(probability[0, 0], alone, self._backward(out))
+            model_only.append(alone)
             decided.append(alone if movers is None else np.maximum(alone, movers.at(k)))
-        return Rollout(np.stack(probabilities), np.stack(decided))
+        return Rollout(np.stack(probabilities), np.stack(decided), np.stack(model_only))

@@ -28,6 +28,8 @@ its ``update`` scans, not maps.
 
 from __future__ import annotations
 
+import dataclasses
+import io
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -35,10 +37,13 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.atomic import write_bytes
 from lidarflow.errors import PredictError
 from lidarflow.motion.icp import scan_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import StepClock
+from lidarflow.online.combination import Combination
+from lidarflow.online.stacking import StackingConfig
 from lidarflow.predict.backends import load_backend, recorded_grid
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
@@ -136,6 +141,12 @@ class Predictor:
             stream's own past frames (:mod:`lidarflow.predict.decision`; a roll-out feeds back
             the decided map and re-decides every step with the same choice): ``None`` as the
             policy says, ``True`` / ``False`` on / off, a config on with it.
+        combine: predict with the online combination (:mod:`lidarflow.online`): the model,
+            its tracked objects, the tracker, the ego-moved last map and the temporal average
+            weighed per horizon ``1 .. horizon`` by the scans that arrive (a
+            :class:`~lidarflow.online.stacking.StackingConfig` to configure it). Then
+            ``Prediction.probability`` and ``horizon`` are the combination's, and what it
+            learnt can be saved and loaded (:meth:`save_learned`, :meth:`load_learned`).
     """
 
     def __init__(
@@ -150,6 +161,7 @@ class Predictor:
         scan_odometry: bool = True,
         online_decision: bool | OnlineDecisionConfig | None = None,
         decision: DecisionPolicy | None = None,
+        combine: bool | StackingConfig = False,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
@@ -170,6 +182,12 @@ class Predictor:
             decision = DecisionPolicy.from_record(self.card.get("decision"))
         #: How the next map is decided (``Prediction.occupied``).
         self.decision = decision.with_online(online_decision)
+        #: The online combination (``None`` without ``combine``), for a look inside.
+        self.combination: Combination | None = None
+        if combine is not False:
+            config = combine if isinstance(combine, StackingConfig) else None
+            self.combination = Combination(horizon, config)
+            self.decision = dataclasses.replace(self.decision, movers=True)  # an expert
         try:
             self.engine = Engine(
                 self.backend, self.grid.res, self.decision, check_odometry, scan_odometry
@@ -202,6 +220,27 @@ class Predictor:
         self._pose = None
         self._clock.reset()
         self.engine.reset()
+        if self.combination is not None:
+            self.combination.reset()
+
+    def save_learned(self, path: str | Path) -> Path:
+        """Write what the online combination learnt on this stream to ``path`` (``.npz``,
+        replaced whole): :meth:`load_learned` continues from it, on this robot later."""
+        if self.combination is None:
+            raise PredictError("nothing learnt to save: this Predictor does not combine")
+        buffer = io.BytesIO()
+        np.savez(buffer, **self.combination.state())
+        return write_bytes(path, buffer.getvalue())
+
+    def load_learned(self, path: str | Path) -> None:
+        """Continue the online combination from what :meth:`save_learned` wrote."""
+        if self.combination is None:
+            raise PredictError("nothing to load into: this Predictor does not combine")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                self.combination.load_state({key: data[key] for key in data.files})
+        except (OSError, ValueError, KeyError) as err:
+            raise PredictError(f"{path}: not what save_learned wrote ({err})") from err
 
     def _motion(self, pose: Any) -> np.ndarray | None:
         """Motion since the previous update in cells, ``None`` when either pose is unknown."""
@@ -252,14 +291,19 @@ class Predictor:
             )
         )
         ahead = self.engine.roll(step, self.horizon)
+        probability, decided = ahead.probability, ahead.decided
+        if self.combination is not None:
+            assert self.engine.tracker is not None  # the policy carries tracked objects
+            combined = self.combination.step(self.engine.tracker, step, ahead, occupancy)
+            probability, decided = combined.probability, combined.decided
         flow = step.flow
         return Prediction(
-            probability=step.probability,
-            occupied=step.decided >= THRESHOLD,
+            probability=probability[0],
+            occupied=decided[0] >= THRESHOLD,
             backward_flow=None if flow is None else flow[:2],
             forward_flow=None if flow is None else flow[2:],
-            horizon=ahead.probability,
-            horizon_occupied=ahead.decided >= THRESHOLD,
+            horizon=probability,
+            horizon_occupied=decided >= THRESHOLD,
             occupancy=np.asarray(occupancy, bool),
             visibility=np.asarray(visibility, bool),
             ego_compensated=step.motion is not None,

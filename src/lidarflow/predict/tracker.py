@@ -252,6 +252,12 @@ class Tracker:
         self._motion: np.ndarray | None = None
 
     @property
+    def background(self) -> np.ndarray | None:
+        """``(H, W)`` the running occupancy rate of each cell in the last frame (``None``
+        before the first): low where movers pass, high on walls."""
+        return self._background
+
+    @property
     def tracks(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """``(state, cells)`` of each track seen in the last frame: ``(x, y, vx, vy)`` in cells
         and cells per frame (x forward, y left), and its cells ``(N, 2)`` ``(row, col)``."""

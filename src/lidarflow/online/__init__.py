@@ -1,0 +1,1 @@
+"""Learning on the stream: the online combination of the predictors (:mod:`.combination`)."""

@@ -1,0 +1,155 @@
+"""The online combination: the predictors a robot already runs, weighed per horizon by what
+the scans that arrive say about them.
+
+Each frame ``t`` the experts (:mod:`lidarflow.online.experts`: the model, its tracked objects,
+the tracker, the ego-moved last map, the temporal average) predict the frames ``t + 1 .. t + K``.
+Frame ``t``'s own map is the label of what was predicted for it ``k`` frames before: per
+horizon, the stacked combination (:class:`~lidarflow.online.stacking.HorizonStacking`) learns
+from that pair and every candidate (each expert alone, and the stacked one) is scored on it
+(:class:`~lidarflow.online.leader.Leader`); the best lately decides, the common cells and the
+rare ones apart. The experts' maps wait for their label in a queue per horizon, one byte per
+cell and expert (``K (K + 1) / 2`` frames of them: 0.3 MB for ``K = 10`` on 100 x 100 cells).
+
+Causal: what is predicted at ``t`` depends on frames up to ``t`` only.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lidarflow.online.experts import EXPERTS, ExpertMaps
+from lidarflow.online.leader import Leader
+from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
+
+if TYPE_CHECKING:
+    from lidarflow.predict.engine import Rollout, Step
+    from lidarflow.predict.tracker import Tracker
+
+__all__ = ["CANDIDATES", "Combination", "Combined"]
+
+#: The candidates that may decide a kind of cell: each expert alone, then the stacked one.
+CANDIDATES = (*EXPERTS, "stacked")
+
+
+@dataclass(frozen=True)
+class Combined:
+    """The combination's output for frames ``t + 1 .. t + K``: ``probability`` ``(K, H, W)``
+    and ``decided`` ``(K, H, W)``, the probability rescaled so that 0.4 decides it as the
+    chosen candidate decides (:func:`lidarflow.online.stacking.rescaled`)."""
+
+    probability: np.ndarray
+    decided: np.ndarray
+
+
+class Combination:
+    """The online combination for the frames ``1 .. horizon`` ahead (see the module
+    docstring), starting as the model alone."""
+
+    def __init__(self, horizon: int, config: StackingConfig | None = None) -> None:
+        if horizon < 1:
+            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        self.names, self.horizon = EXPERTS, horizon
+        self.experts = ExpertMaps(horizon)
+        config = config or StackingConfig()
+        first = EXPERTS.index("model")
+        self.stacks = [HorizonStacking(len(EXPERTS), config, first) for _ in range(horizon)]
+        self.leaders = [Leader(len(CANDIDATES), first, config.decay) for _ in range(horizon)]
+        self._waiting: list[deque[tuple[np.ndarray, ...]]] = [
+            deque(maxlen=k) for k in range(1, horizon + 1)
+        ]
+
+    def reset(self) -> None:
+        """Forget the stream and what was learnt: back to the model alone."""
+        self.experts.reset()
+        for stack, leader, waiting in zip(self.stacks, self.leaders, self._waiting, strict=True):
+            stack.reset()
+            leader.reset()
+            waiting.clear()
+
+    def forget_pending(self) -> None:
+        """Drop the predictions still waiting for their label (the next frame does not follow
+        the last: a new stream, or a gap), keeping what was learnt."""
+        for waiting in self._waiting:
+            waiting.clear()
+
+    def step(
+        self, tracker: Tracker, step: Step, rollout: Rollout, occupancy: np.ndarray
+    ) -> Combined:
+        """Combine after one engine ``step`` and its ``rollout`` (an engine that runs
+        ``tracker``) on the frame whose map is ``occupancy``."""
+        maps, rare, held = self.experts.of(tracker, step, rollout, occupancy)
+        return self.combine(occupancy, maps, rare, held)
+
+    def combine(
+        self, occupancy: np.ndarray, experts: np.ndarray, rare: np.ndarray, held: np.ndarray
+    ) -> Combined:
+        """Learn from frame ``t``'s ``occupancy`` ``(H, W)`` as the label of the predictions
+        made for it, then combine the ``experts`` ``(E, K, H, W)`` maps (probabilities in
+        [0, 1] for ``t + 1 .. t + K``) with the ``rare`` cells ``(K, H, W)`` bool of each and
+        those of them that ever ``held`` something (:class:`~lidarflow.online.leader.Leader`)."""
+        if experts.shape[:2] != (len(self.names), self.horizon):
+            raise ValueError(
+                f"expected ({len(self.names)}, {self.horizon}, H, W) experts' maps, "
+                f"got {experts.shape}"
+            )
+        occupied = np.asarray(occupancy) > 0.5
+        probability, decided = [], []
+        for k in range(self.horizon):
+            stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
+            if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
+                stored, stored_rare, stored_held, before = waiting[0]
+                maps = stored.astype(np.float64) / 255.0
+                candidates = self._candidates(stack, maps, stored_rare)[1] >= DECIDED
+                leader.score(candidates, stored_rare, stored_held, occupied, before)
+                stack.learn(maps, stored_rare, occupied)
+            p, d = self._candidates(stack, experts[:, k], rare[k])
+            a, b = leader.choice
+            probability.append(np.where(rare[k], p[b], p[a]))
+            decided.append(np.where(rare[k], d[b], d[a]))
+            quantised = np.rint(np.clip(experts[:, k], 0.0, 1.0) * 255).astype(np.uint8)
+            waiting.append((quantised, rare[k].copy(), held[k].copy(), occupied))
+        return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
+
+    @staticmethod
+    def _candidates(
+        stack: HorizonStacking, experts: np.ndarray, rare: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The candidates' probabilities and decided probabilities ``(E + 1, H, W)``: each
+        expert's own (decided at 0.4), then the stacked combination's."""
+        p, d = stack.decided(experts, rare)
+        return np.concatenate([experts, p[None]]), np.concatenate([experts, d[None]])
+
+    def chosen(self) -> list[tuple[str, str]]:
+        """Per horizon, the candidates deciding the common and the rare cells now."""
+        return [(CANDIDATES[a], CANDIDATES[b]) for a, b in (x.choice for x in self.leaders)]
+
+    def weights(self) -> dict[str, list[float]]:
+        """Per horizon, the stacked combination's weight of each feature by name."""
+        names = ["bias", "rare", *EXPERTS, *(f"{n}_if_rare" for n in EXPERTS)]
+        return {
+            name: [float(stack.weights[i]) for stack in self.stacks] for i, name in enumerate(names)
+        }
+
+    def state(self) -> dict[str, np.ndarray]:
+        """What was learnt, as arrays (the predictions waiting for their label are not
+        kept): :meth:`load_state` takes it back."""
+        out: dict[str, np.ndarray] = {"horizon": np.array(self.horizon)}
+        for k, (stack, leader) in enumerate(zip(self.stacks, self.leaders, strict=True)):
+            for key, value in {**stack.state(), **leader.state()}.items():
+                out[f"{k + 1}/{key}"] = value
+        return out
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from what :meth:`state` kept (a ``ValueError`` where it does not fit)."""
+        if int(state.get("horizon", -1)) < self.horizon:
+            raise ValueError(f"learnt for fewer than {self.horizon} frames ahead")
+        for k, (stack, leader) in enumerate(zip(self.stacks, self.leaders, strict=True)):
+            prefix = f"{k + 1}/"
+            mine = {key[len(prefix) :]: v for key, v in state.items() if key.startswith(prefix)}
+            stack.load_state(mine)
+            leader.load_state(mine)
+        self.forget_pending()

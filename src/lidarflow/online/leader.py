@@ -1,0 +1,132 @@
+"""Which candidate decides: per horizon and kind of cell, the one that scored best lately.
+
+Candidates are decided maps of the frame ``t + k`` made at ``t`` (the experts' own and the
+stacked combination's). When ``t + k`` arrives each candidate is scored on it, the counts
+decaying by ``decay`` per frame, by three F1s: of all cells, of the *changed* cells (those of
+``t + k`` that differ from frame ``t``'s map) and the tolerant F1 of the *rare* cells (cells
+within ``tolerance`` count as found, as the mover metric counts them; rare cells as the experts
+say, :mod:`lidarflow.online.experts`). The pair ``(a, b)`` chosen, ``a`` deciding the common
+cells and ``b`` the rare ones, maximises the sum of the three F1s of the map they make
+together: what a model must beat the simple predictors on, scored on the stream itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidarflow.geometry import TOLERANCE, near
+
+__all__ = ["Leader"]
+
+# the counts kept per candidate: (kind, [tp, fp, fn]) for all cells and for changed cells, and
+# the rare cells' tolerant [right, wrong, found, missed]
+_ALL, _CHANGED = 0, 1
+
+
+class Leader:
+    """The choice for one horizon among ``candidates`` decided maps, starting on ``first``."""
+
+    def __init__(
+        self, candidates: int, first: int = 0, decay: float = 0.99, tolerance: int = TOLERANCE
+    ) -> None:
+        self.candidates, self.first, self.decay, self.tolerance = (
+            candidates,
+            first,
+            decay,
+            tolerance,
+        )
+        self.reset()
+
+    def reset(self) -> None:
+        self._f1 = np.zeros((self.candidates, 2, 2, 3))  # candidate, metric, kind, tp/fp/fn
+        self._tolerant = np.zeros((self.candidates, 4))
+        self.choice = (self.first, self.first)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The decayed counts and the choice (:meth:`load_state` takes them back)."""
+        return {
+            "f1_counts": self._f1.copy(),
+            "tolerant_counts": self._tolerant.copy(),
+            "choice": np.array(self.choice),
+        }
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state`'s arrays (a ``ValueError`` where they do not fit)."""
+        for key, shape in (
+            ("f1_counts", self._f1.shape),
+            ("tolerant_counts", self._tolerant.shape),
+        ):
+            if key not in state or np.shape(state[key]) != shape:
+                raise ValueError(f"leader state: {key} missing or not of shape {shape}")
+        choice = tuple(int(c) for c in np.asarray(state["choice"]).reshape(2))
+        if not all(0 <= c < self.candidates for c in choice):
+            raise ValueError(f"leader state: choice {choice} out of range")
+        self._f1 = np.array(state["f1_counts"], np.float64)
+        self._tolerant = np.array(state["tolerant_counts"], np.float64)
+        self.choice = (choice[0], choice[1])
+
+    def score(
+        self,
+        decided: np.ndarray,
+        rare: np.ndarray,
+        held: np.ndarray,
+        occupied: np.ndarray,
+        before: np.ndarray,
+    ) -> None:
+        """Count the candidates' ``decided`` maps ``(C, H, W)`` bool against the map that came
+        (``occupied`` ``(H, W)`` bool), with the ``rare`` cells ``(H, W)`` bool, those of them
+        that ever ``held`` something before, and the map they were predicted from
+        (``before``), then choose anew. The tolerant F1 scores the rare cells that held
+        something before or now: where movers went (free space that nothing ever entered is no
+        one's region, as in the mover metric)."""
+        self._f1 *= self.decay
+        self._tolerant *= self.decay
+        changed = occupied != before
+        kinds = (~rare, rare)
+        region = rare & (held | occupied)
+        truth_rare = occupied & region
+        near_truth = near(truth_rare, self.tolerance)
+        for c, predicted in enumerate(decided):
+            for kind, cells in enumerate(kinds):
+                for metric, where in ((_ALL, cells), (_CHANGED, cells & changed)):
+                    p, y = predicted[where], occupied[where]
+                    tp = np.count_nonzero(p & y)
+                    self._f1[c, metric, kind] += (
+                        tp,
+                        np.count_nonzero(p) - tp,
+                        np.count_nonzero(y) - tp,
+                    )
+            guess = predicted & region
+            right = np.count_nonzero(guess & near_truth)
+            found = np.count_nonzero(truth_rare & near(guess, self.tolerance))
+            self._tolerant[c] += (
+                right,
+                np.count_nonzero(guess) - right,
+                found,
+                np.count_nonzero(truth_rare) - found,
+            )
+        self.choice = self._best()
+
+    def _best(self) -> tuple[int, int]:
+        # F1 of all / changed cells for the pair (a common, b rare): counts of a's common
+        # cells plus b's rare ones
+        total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)
+        tp, fp, fn = total[..., 0], total[..., 1], total[..., 2]
+        f1 = _f1(tp, fp + fn).sum(axis=-1)
+        right, wrong, found, missed = self._tolerant.T
+        precision = _ratio(right, right + wrong)
+        recall = _ratio(found, found + missed)
+        tolerant = _ratio(2 * precision * recall, precision + recall)
+        score = f1 + tolerant[None, :]
+        if not score.any():
+            return (self.first, self.first)
+        a, b = np.unravel_index(int(np.argmax(score)), score.shape)
+        return int(a), int(b)
+
+
+def _f1(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
+    return _ratio(2 * tp, 2 * tp + wrong)
+
+
+def _ratio(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.where(b > 0, a / np.where(b > 0, b, 1.0), 0.0)

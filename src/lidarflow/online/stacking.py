@@ -1,0 +1,245 @@
+"""Experts' maps combined per cell by a logistic regression learned on the stream.
+
+For one horizon ``k``, each frame ``t`` brings ``E`` experts' probabilities of every cell of
+frame ``t + k`` (``(E, H, W)``, in [0, 1]) and a mask of the cells that are *rare*: seldom
+occupied before (a running occupancy rate under a bound, where movers go). The combined
+probability of a cell is
+
+    p = sigmoid(w . f),   f = [1, rare, l_1 .. l_E, rare * l_1 .. rare * l_E]
+
+with ``l_e`` the expert's logit (its probability clipped to ``[clip, 1 - clip]``, over the
+clip's logit, so in [-1, 1]): rare cells get weights of their own, so the combination can trust
+an expert on walls and not on movers, or the other way round.
+
+When frame ``t + k`` arrives, its occupancy is the label of what was predicted for it: the
+experts' maps kept since ``t`` are scored and ``w`` takes one AdaGrad step on the mean log-loss
+over all cells (:meth:`HorizonStacking.learn`). Nothing predicted for ``t + k`` depends on a
+frame after ``t``: the weights used at ``t`` learned from labels that had arrived by ``t``.
+
+The decision: the combined probability is decided at the thresholds (one for rare cells, one
+for the rest) that maximise, on the pairs already learnt from (counted with a decay), the F1 of
+all cells plus the F1 of the rare cells; the decided map is the combined probability rescaled
+so that those thresholds fall on the metric's 0.4 (:func:`rescaled`).
+
+Cells where every expert says below ``clip`` have the same features (one vector per rare flag),
+so they are counted, not computed: the cost grows with the cells some expert finds possibly
+occupied, not with the grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["HorizonStacking", "StackingConfig", "rescaled"]
+
+#: The metric's threshold: a decided probability counts as occupied at or above it.
+DECIDED = 0.4
+
+
+@dataclass(frozen=True)
+class StackingConfig:
+    """``learning_rate``: AdaGrad's step; ``clip``: experts' probabilities are clipped to
+    ``[clip, 1 - clip]`` (a binary expert's logit is then +-1 after scaling); ``decay``: the
+    weight each frame's decision statistics keep per frame (0.99: about the last 100 frames);
+    ``bins``: the thresholds tried, evenly in (0, 1); ``rare_weight``: the weight of the rare
+    cells' F1 beside all cells' in choosing the thresholds."""
+
+    learning_rate: float = 0.3
+    clip: float = 0.02
+    decay: float = 0.99
+    bins: int = 40
+    rare_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.clip < 0.5 or not 0 < self.decay <= 1 or self.bins < 2:
+            raise ValueError(f"invalid stacking configuration: {self}")
+        if self.learning_rate <= 0 or self.rare_weight < 0:
+            raise ValueError(f"invalid stacking configuration: {self}")
+
+
+def rescaled(probability: np.ndarray, threshold: np.ndarray | float) -> np.ndarray:
+    """``probability`` mapped piecewise-linearly so that ``threshold`` (per cell or one) falls
+    on :data:`DECIDED`, 0 and 1 staying put: deciding the result at 0.4 is deciding
+    ``probability`` at ``threshold``. float32."""
+    p = np.asarray(probability, np.float64)
+    t = np.clip(np.asarray(threshold, np.float64), 1e-6, 1 - 1e-6)
+    low = p * (DECIDED / t)
+    high = DECIDED + (p - t) * ((1 - DECIDED) / (1 - t))
+    return np.where(p < t, low, high).astype(np.float32)
+
+
+class HorizonStacking:
+    """The combination for one horizon (see the module docstring): ``experts`` maps per frame;
+    ``prior``: the expert whose logit the weights start on (the combination starts as that
+    expert alone)."""
+
+    def __init__(self, experts: int, config: StackingConfig | None = None, prior: int = 0) -> None:
+        if not 0 <= prior < experts:
+            raise ValueError(f"prior expert {prior} is not one of {experts}")
+        self.experts, self.config, self.prior = experts, config or StackingConfig(), prior
+        self._limit = float(np.log((1 - self.config.clip) / self.config.clip))
+        self.reset()
+
+    @property
+    def features(self) -> int:
+        return 2 + 2 * self.experts
+
+    def reset(self) -> None:
+        """Back to the start: the prior expert's logit alone, nothing counted."""
+        self.weights = np.zeros(self.features)
+        self.weights[2 + self.prior] = self._limit  # sigmoid(limit * l) is the expert's own p
+        self.weights[0] = 0.0
+        self._squares = np.zeros(self.features)
+        bins = self.config.bins
+        # decayed counts per (rare, bin of the combined probability) of occupied and free cells
+        self._occupied = np.zeros((2, bins))
+        self._free = np.zeros((2, bins))
+        self.thresholds = np.array([DECIDED, DECIDED])
+        self.learned = 0
+
+    def state(self) -> dict[str, np.ndarray]:
+        """What was learnt (:meth:`load_state` takes it back)."""
+        return {
+            "weights": self.weights.copy(),
+            "squares": self._squares.copy(),
+            "occupied": self._occupied.copy(),
+            "free": self._free.copy(),
+            "thresholds": self.thresholds.copy(),
+            "learned": np.array(self.learned),
+        }
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state`'s arrays (a ``ValueError`` where they do not fit)."""
+        shapes = {"weights": self.weights.shape, "occupied": self._occupied.shape}
+        for key, shape in shapes.items():
+            if key not in state or np.shape(state[key]) != shape:
+                raise ValueError(f"stacking state: {key} missing or not of shape {shape}")
+        self.weights = np.array(state["weights"], np.float64)
+        self._squares = np.array(state["squares"], np.float64).reshape(self.weights.shape)
+        self._occupied = np.array(state["occupied"], np.float64)
+        self._free = np.array(state["free"], np.float64).reshape(self._occupied.shape)
+        self.thresholds = np.array(state["thresholds"], np.float64).reshape(2)
+        self.learned = int(state["learned"])
+
+    def _logits(self, probabilities: np.ndarray) -> np.ndarray:
+        clip = self.config.clip
+        p = np.clip(np.asarray(probabilities, np.float64), clip, 1 - clip)
+        return np.log(p / (1 - p)) / self._limit
+
+    def _design(self, probabilities: np.ndarray, rare: np.ndarray) -> np.ndarray:
+        """The features ``(F, N)`` of ``N`` cells: ``probabilities`` ``(E, N)``, ``rare``
+        ``(N,)`` bool."""
+        logits = self._logits(probabilities)
+        r = rare.astype(np.float64)
+        ones = np.ones_like(r)
+        return np.concatenate([ones[None], r[None], logits, logits * r[None]])
+
+    def _split(
+        self, probabilities: np.ndarray, rare: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The flat cells some expert finds possibly occupied (``active``), the design of those,
+        and the design of the two cells that stand for all others (not rare, rare)."""
+        flat = probabilities.reshape(self.experts, -1)
+        active = np.flatnonzero((flat > self.config.clip).any(axis=0))
+        design = self._design(flat[:, active], rare.ravel()[active])
+        floor = np.zeros((self.experts, 2))
+        quiet = self._design(floor, np.array([False, True]))
+        return active, design, quiet
+
+    def probability(self, probabilities: np.ndarray, rare: np.ndarray) -> np.ndarray:
+        """The combined probability ``(H, W)`` float64 of the experts' ``probabilities``
+        ``(E, H, W)`` with ``rare`` ``(H, W)`` bool."""
+        active, design, quiet = self._split(probabilities, rare)
+        base = _sigmoid(self.weights @ quiet)
+        out = np.where(rare.ravel(), base[1], base[0])
+        out[active] = _sigmoid(self.weights @ design)
+        return out.reshape(rare.shape)
+
+    def decided(self, probabilities: np.ndarray, rare: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The combined probability and the decided one (:func:`rescaled` at the thresholds of
+        the cell's kind), each ``(H, W)``."""
+        p = self.probability(probabilities, rare)
+        return p, rescaled(p, np.where(rare, self.thresholds[1], self.thresholds[0]))
+
+    def learn(self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray) -> None:
+        """One step on a pair whose label has arrived: the experts' ``probabilities``
+        ``(E, H, W)`` and ``rare`` mask as they were predicted, and the map that came
+        (``occupied`` ``(H, W)``, nonzero where occupied)."""
+        target = np.asarray(occupied).ravel() > 0.5
+        flat_rare = rare.ravel()
+        active, design, quiet = self._split(probabilities, rare)
+        quiet_p = _sigmoid(self.weights @ quiet)
+        p = _sigmoid(self.weights @ design)
+        # every cell not active: its features are quiet[:, rare], its label free or occupied
+        rest = np.ones(target.size, bool)
+        rest[active] = False
+        counts = np.zeros((2, 2))  # [rare, occupied]
+        np.add.at(counts, (flat_rare[rest].astype(int), target[rest].astype(int)), 1)
+        y = target[active].astype(np.float64)
+        gradient = design @ (p - y)
+        for kind in (0, 1):
+            gradient += quiet[:, kind] * (
+                counts[kind, 0] * quiet_p[kind] + counts[kind, 1] * (quiet_p[kind] - 1)
+            )
+        gradient /= target.size
+        self._squares += gradient**2
+        self.weights -= self.config.learning_rate * gradient / (np.sqrt(self._squares) + 1e-12)
+        self._count(p, y > 0.5, flat_rare[active], quiet_p, counts)
+        self.learned += 1
+
+    def _count(
+        self,
+        p: np.ndarray,
+        occupied: np.ndarray,
+        rare: np.ndarray,
+        quiet_p: np.ndarray,
+        quiet_counts: np.ndarray,
+    ) -> None:
+        """Add one pair's cells to the decision statistics and choose the thresholds anew."""
+        bins = self.config.bins
+        self._occupied *= self.config.decay
+        self._free *= self.config.decay
+        index = np.minimum((p * bins).astype(int), bins - 1)
+        kind = rare.astype(int)
+        np.add.at(self._occupied, (kind[occupied], index[occupied]), 1)
+        np.add.at(self._free, (kind[~occupied], index[~occupied]), 1)
+        quiet_index = np.minimum((quiet_p * bins).astype(int), bins - 1)
+        for k in (0, 1):
+            self._free[k, quiet_index[k]] += quiet_counts[k, 0]
+            self._occupied[k, quiet_index[k]] += quiet_counts[k, 1]
+        self.thresholds = best_thresholds(self._occupied, self._free, self.config.rare_weight)
+
+
+def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) -> np.ndarray:
+    """The thresholds ``(common, rare)`` (bin edges in (0, 1)) that maximise F1 over all
+    cells plus ``rare_weight`` times the rare cells' F1, from counts ``(2, bins)`` of occupied
+    and free cells per kind (0 common, 1 rare) and bin of the probability. A cell at or above
+    the threshold's bin counts as predicted occupied."""
+    bins = occupied.shape[1]
+    if not occupied.any():  # nothing occupied yet: no threshold beats the metric's own
+        return np.array([DECIDED, DECIDED])
+    # predicted occupied at threshold index i: the bins i .. bins - 1
+    tp = np.cumsum(occupied[:, ::-1], axis=1)[:, ::-1]  # (2, bins)
+    fp = np.cumsum(free[:, ::-1], axis=1)[:, ::-1]
+    positives = occupied.sum(axis=1)  # (2,)
+    fn = positives[:, None] - tp
+    # all cells: every pair (i common, j rare)
+    all_tp = tp[0][:, None] + tp[1][None, :]
+    all_wrong = (fp[0] + fn[0])[:, None] + (fp[1] + fn[1])[None, :]
+    f1_all = _f1(all_tp, all_wrong)
+    f1_rare = _f1(tp[1], fp[1] + fn[1])[None, :]
+    score = f1_all + rare_weight * f1_rare
+    i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+    edges = np.arange(bins) / bins
+    return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])
+
+
+def _f1(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
+    denominator = 2 * tp + wrong
+    return np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1e-12), 0.0)
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-np.clip(x, -30, 30)))

@@ -1,0 +1,77 @@
+"""The online combination in the Predictor: causal, reset, saved and loaded; and what it is
+given checked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarflow.errors import PredictError
+from lidarflow.online.combination import Combination
+from lidarflow.predict import Predictor
+
+FRAMES = 24
+
+
+def maps(recording, n=FRAMES):
+    return [recording.scan(i) for i in range(n)]
+
+
+def run(predictor, frames):
+    return [predictor.update(f) for f in frames]
+
+
+def test_nothing_predicted_depends_on_a_later_frame(sample_recording):
+    """Causal: frames after t changed, every prediction made up to t stays bit for bit."""
+    frames = maps(sample_recording)
+    first = run(Predictor(horizon=3, combine=True), frames)
+    cut = 15
+    changed = frames[:cut] + frames[cut:][::-1]
+    second = run(Predictor(horizon=3, combine=True), changed)
+    for a, b in zip(first[:cut], second[:cut], strict=True):
+        np.testing.assert_array_equal(a.horizon, b.horizon)
+        np.testing.assert_array_equal(a.horizon_occupied, b.horizon_occupied)
+    assert any(
+        not np.array_equal(a.horizon, b.horizon)
+        for a, b in zip(first[cut:], second[cut:], strict=True)
+    )
+
+
+def test_it_learns_reset_starts_over_and_what_it_learnt_saves_and_loads(sample_recording, tmp_path):
+    frames = maps(sample_recording)
+    predictor = Predictor(horizon=2, combine=True)
+    first = run(predictor, frames)
+    learnt = predictor.combination.state()
+    start = Combination(2).state()
+    assert any(not np.array_equal(learnt[k], start[k]) for k in start)
+    path = predictor.save_learned(tmp_path / "learnt.npz")
+    predictor.reset()
+    assert all(np.array_equal(predictor.combination.state()[k], start[k]) for k in start)
+    again = run(predictor, frames)
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a.horizon, b.horizon)
+    other = Predictor(horizon=2, combine=True)
+    other.load_learned(path)
+    assert all(np.array_equal(other.combination.state()[k], learnt[k]) for k in learnt)
+
+
+def test_the_combination_starts_as_the_model_and_its_horizon_is_the_predictors(sample_recording):
+    frames = maps(sample_recording, 3)
+    plain = Predictor(horizon=2)
+    combined = Predictor(horizon=2, combine=True)
+    a, b = plain.update(frames[0]), combined.update(frames[0])
+    # before any label has come, the model decides (its own map, without the tracked objects)
+    assert b.horizon.shape == a.horizon.shape == (2, 100, 100)
+    assert np.mean(a.horizon_occupied != b.horizon_occupied) < 0.01
+
+
+def test_saving_or_loading_without_the_combination_and_a_wrong_file_are_refused(tmp_path):
+    with pytest.raises(PredictError, match="does not combine"):
+        Predictor().save_learned(tmp_path / "x.npz")
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not an npz")
+    with pytest.raises(PredictError, match="not what save_learned wrote"):
+        Predictor(combine=True).load_learned(bad)
+    saved = Predictor(horizon=1, combine=True).save_learned(tmp_path / "one.npz")
+    with pytest.raises(PredictError, match="fewer than 3"):
+        Predictor(horizon=3, combine=True).load_learned(saved)
