@@ -21,6 +21,7 @@ def run(predictor, frames):
     return [predictor.update(f) for f in frames]
 
 
+@pytest.mark.slow
 def test_nothing_predicted_depends_on_a_later_frame(sample_recording):
     """Causal: frames after t changed, every prediction made up to t stays bit for bit."""
     frames = maps(sample_recording)
