@@ -34,7 +34,7 @@ import numpy as np
 
 from lidarflow.errors import PredictError
 from lidarflow.live.rosnode import RosNode
-from lidarflow.live.step import LiveStep, clock_ns
+from lidarflow.live.step import clock_ns
 
 __all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "import_ros"]
 
@@ -113,17 +113,8 @@ class Ros1Node(RosNode):
     """The ROS 1 side of the node: rospy's scans and odometry in, grids out (the arguments:
     :class:`lidarflow.live.rosnode.RosNode`'s)."""
 
-    def __init__(
-        self,
-        step: LiveStep,
-        topic: str = "/scan",
-        odom_topic: str | None = None,
-        moving: bool = False,
-        name: str = "lidarflow",
-        queue: int = 10,
-    ) -> None:
-        self.ros = import_ros()
-        super().__init__(step, topic, odom_topic, moving, name, queue)
+    ros: Ros
+    _import_ros = staticmethod(import_ros)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -202,4 +193,3 @@ class Ros1Node(RosNode):
         # a list: genpy packs a list of ints 3x faster than a NumPy array's elements
         msg.data = data.tolist()
         return msg
-

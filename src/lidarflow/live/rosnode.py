@@ -3,8 +3,8 @@ from odometry and TF, and the step's grids out as ``nav_msgs/OccupancyGrid`` mes
 
 The two ROS generations give the same message fields (``ranges``, ``header.frame_id``,
 ``pose.pose``, ``transforms``, ``info.origin``...); what differs, and what a subclass supplies,
-is how a stamp is read and written, how a grid message is filled and how the node meets its
-peers (:mod:`lidarflow.live.ros1`, :mod:`lidarflow.live.ros2`).
+is where the client library comes from, how a stamp is read and written, how a grid message
+is filled and how the node meets its peers (:mod:`lidarflow.live.ros1`, :mod:`lidarflow.live.ros2`).
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ class RosNode(ABC):
     ) -> None:
         from lidarflow.data.tf import TransformTree
 
+        self.ros = self._import_ros()  # first: a missing ROS is said before anything is set up
         self.step, self.topic, self.odom_topic = step, topic, odom_topic
         self.moving, self.name, self.queue = moving, name, queue
         self.layout = GridLayout.of(step.predictor.grid)
@@ -62,6 +63,12 @@ class RosNode(ABC):
         self._failure: LidarflowError | None = None
         self._warned: set[str] = set()
         step.sinks.append(self.publish)
+
+    @staticmethod
+    @abstractmethod
+    def _import_ros() -> Any:
+        """This ROS's client library and the message classes the node uses; a
+        :class:`PredictError` naming how to install them where they are missing."""
 
     # ------------------------------------------------------------------ in
     def _scan_in(self, msg: Any, stamp_ns: int, received: int) -> None:
