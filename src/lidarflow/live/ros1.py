@@ -25,7 +25,6 @@ import importlib
 import logging
 import socket
 import sys
-import time
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -139,24 +138,13 @@ class Ros1Node(RosNode):
         log.info("%s at %s: scans from %s%s; publishing %s", rospy.get_name(), uri, self.topic,
                  odom, ", ".join(self.topics))  # fmt: skip
 
-    def spin(self, check_every_s: float = 2.0) -> None:
-        """Run until Ctrl-C or SIGTERM (returns), ROS shuts the node down (returns), or a scan
-        fails (raises its error); every ``check_every_s`` the master is asked whether the
-        topics carry the types the node expects."""
-        rospy = self.ros.rospy
-        next_check = 0.0
-        try:
-            while not rospy.is_shutdown() and self._failure is None:
-                if time.monotonic() >= next_check:
-                    self._check_types()
-                    next_check = time.monotonic() + check_every_s
-                time.sleep(0.05)
-        except KeyboardInterrupt:
-            log.info("stopping")
-        finally:
-            rospy.signal_shutdown("lidarflow stopped")
-        if self._failure is not None:
-            raise self._failure
+    def _running(self) -> bool:
+        return not self.ros.rospy.is_shutdown()
+
+    def close(self) -> None:
+        """Leave the ROS graph (rospy's node shut down; in this process it does not start
+        again)."""
+        self.ros.rospy.signal_shutdown("lidarflow stopped")
 
     def _check_types(self) -> None:
         wanted = {self.topic: SCAN_TYPE}

@@ -26,7 +26,6 @@ import array
 import contextlib
 import logging
 import threading
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import ModuleType
@@ -208,23 +207,8 @@ class Ros2Node(RosNode):
         with contextlib.suppress(ExternalShutdownException):
             self._executor.spin()
 
-    def spin(self, check_every_s: float = 2.0) -> None:
-        """Run until Ctrl-C or SIGTERM (returns) or a scan fails (raises its error); every
-        ``check_every_s`` the graph is asked whether the topics' publishers carry the types the
-        node expects."""
-        next_check = 0.0
-        try:
-            while self._failure is None and self._context.ok():
-                if time.monotonic() >= next_check:
-                    self._check_types()
-                    next_check = time.monotonic() + check_every_s
-                time.sleep(0.05)
-        except KeyboardInterrupt:
-            log.info("stopping")
-        finally:
-            self.close()
-        if self._failure is not None:
-            raise self._failure
+    def _running(self) -> bool:
+        return self._context.ok()
 
     def close(self) -> None:
         """Leave the domain: the executor stopped, the node destroyed, the context shut down."""
