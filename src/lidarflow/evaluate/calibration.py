@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CALIBRATION_BINS", "Calibration", "brier_score", "expected_calibration_error"]
+__all__ = ["CALIBRATION_BINS", "Calibration"]
 
 CALIBRATION_BINS = 10
 
@@ -129,28 +129,3 @@ class Calibration:
             "cells": self.cells,
             "bins": bins,
         }
-
-
-def expected_calibration_error(
-    probability: np.ndarray, target: np.ndarray, bins: int = CALIBRATION_BINS
-) -> float:
-    """ECE of probabilities against boolean truth, ``bins`` equal bins, weighted by count.
-
-    >>> p, y = np.array([0.2, 0.2, 0.9, 0.9]), np.array([0, 1, 1, 1])
-    >>> round(expected_calibration_error(p, y), 9)  # (2/4)|0.2 - 1/2| + (2/4)|0.9 - 1|
-    0.2
-    """
-    calibration = Calibration(bins)
-    calibration.add(probability, target)
-    return calibration.ece()
-
-
-def brier_score(probability: np.ndarray, target: np.ndarray) -> float:
-    """``mean (p - y)^2``.
-
-    >>> brier_score(np.array([1.0, 0.5]), np.array([1, 0]))
-    0.125
-    """
-    calibration = Calibration()
-    calibration.add(probability, target)
-    return calibration.brier()
