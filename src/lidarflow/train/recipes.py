@@ -23,21 +23,12 @@ def _blurred() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """An occupancy head of each cell's own past (five occupancy memories
-    that follow the constant-velocity shift, the constant-velocity map, the current map and its
-    visibility, and where the current returns lie inside their cells, ``subcell_input``; one
-    hidden layer; 1 x 1, no GRU features) trained by cross-entropy on top of a trained flow
-    network that stays (nearly) frozen, each window starting from the memories that streaming
-    its recording leaves there (``memories_from_stream``), compensating the platform's own
-    motion where a recording has poses (``ego_motion``, ``poses_optional``: uncompensated where
-    it has none; half the training windows without their poses, so it learns both ways), its
-    decision offsets chosen online as it streams (``decision.online``, applied by evaluate and
-    the Predictor; training is unchanged by it), a tracker's moved objects laid over its decided
-    map (``decision.movers``, as unchanged): ``model.init``, a trained flow network (``--init
-    RUN``; its head too where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains
-    one). Left at ``bundled`` it is refused: the bundled model has no flow network to start from.
-    About 8 CPU-minutes on the seven development recordings; its validation is
-    ``docs/research/leave_one_out/`` and ``docs/research/online_decision/``."""
+    """An occupancy head (:mod:`lidarflow.models.head`) trained by cross-entropy on top of a
+    trained, (nearly) frozen flow network given as ``model.init`` (``--init RUN``; left at
+    ``bundled`` it is refused: the bundled model has no flow network). Windows start from the
+    memories streaming leaves (``memories_from_stream``); half of them lose their poses
+    (``pose_dropout``), so the ego-motion model learns both ways. Validation:
+    ``docs/research/leave_one_out/``, ``docs/research/online_decision/``."""
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
@@ -70,21 +61,17 @@ def _head() -> TrainConfig:
     config.data.pose_dropout = 0.5
     config.data.memories_from_stream = True
     config.schedule.gaussian_start = 1
-    # bf16 where the machine computes it natively (the bundled model and the documented folds
-    # were trained under bf16); fp32 on a CPU without it, where emulated bf16 trained ~10x slower
-    # (benchmarks/results/train_loop_amp_avx2.json).
+    # bf16 where the machine computes it natively (the bundled model was trained under it);
+    # emulated bf16 is far slower than fp32 (docs/guide/training.md).
     config.runtime.amp = "auto"
     config.runtime.channels_last = True
     return config
 
 
 def _head_only() -> TrainConfig:
-    """The ``head`` recipe without the flow network, which bought nothing leave-one-recording-out
-    at most of a step's arithmetic (``docs/research/flow_share/``). The model is the same head
-    (``model.flow`` ``None``; the platform's own motion still compensated), started from the
-    bundled model's head (``model.init``: its head's weights, the flow's left out), taught by
-    the cross-entropy alone (no flow to warp: the warp loss and its filter are off) at the rate
-    the ``head`` recipe gives its head, 0.03, now the only parameter group."""
+    """The ``head`` recipe without the flow network (``docs/research/flow_share/``): the same
+    head, started from the bundled model's, taught by the cross-entropy alone at the ``head``
+    recipe's head rate."""
     config = _head()
     config.recipe = "head_only"
     config.model.flow = None
