@@ -125,8 +125,8 @@ def _supervised_flow() -> TrainConfig:
     config.data.warmup = 4
     config.data.stride = 6
     config.data.epoch_windows = 120
-    # Adam at the paper's 0.01: at 0.002 the zero-initialised flow head had not moved after 150
-    # steps; clipped, as a dense loss on a moving platform gives large early gradients.
+    # Adam at the paper's 0.01 (a zero-initialised flow head barely moves at lower rates);
+    # clipped, as a dense loss on a moving platform gives large early gradients.
     config.optim.lr = 0.01
     config.optim.batch_size = 4
     config.optim.epochs = 40  # about 35 minutes on one CPU thread (docs/research/flow_supervised)
