@@ -83,18 +83,12 @@ def _head_only() -> TrainConfig:
 
 
 def _sogmp() -> TrainConfig:
-    """SOGMP's own recipe (Xie & Dames 2023; :mod:`lidarflow.models.sogmp`), as its public
-    training code sets it: the loss is the cross-entropy of the next map summed over the map
-    plus 0.01 x the latent's KL (:func:`lidarflow.losses.sogmp_loss`); Adam at a constant
-    learning rate of 1e-4 (the code sets 1e-3, then its schedule function overrides it with
-    1e-4 every epoch of the 50 it runs) with weight decay 1e-3; batches of 128 predictions;
-    50 epochs. Windows of 20 frames, the first 9 filling the ten-map window, 10 pairs counted
-    each (the loss averages over pairs), windows every 10 frames so that every frame is a
-    target once: a batch of 13 windows is 130 predictions, the peer's 128. Ego motion
-    compensated by the recordings' poses (the peer's always is); a training recording without
-    poses is served uncompensated (its steps are noted), while `evaluate` and `predict` match
-    the motion from its scans. The batch and epochs are a GPU's: on a CPU give
-    ``--batch-size`` and ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
+    """SOGMP's own recipe (:mod:`lidarflow.models.sogmp`), as its public training code sets it
+    (``docs/research/peer_comparison/``): :func:`lidarflow.losses.sogmp_loss`, Adam at 1e-4 with
+    weight decay 1e-3, 50 epochs, batches of 13 windows of 20 frames (130 predictions, the peer's
+    128), ego motion from the recordings' poses (a training recording without poses is served
+    uncompensated). The batch and epochs are a GPU's: on a CPU give ``--batch-size`` and
+    ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
     config = TrainConfig(recipe="sogmp", loss=LossConfig(kl_weight=0.01))
     config.model.name = "sogmp"
     config.model.ego_motion = config.model.poses_optional = True
