@@ -9,7 +9,7 @@ with its fold models beside the baselines and the in-sample references (the flow
 a test fixture, v8's recipe, and the bundled v9; both trained on every recording), with
 `lidarflow evaluate --horizon K`, K the recording's scans in about one second. On a recording
 with annotated people (``/ground_truth_people_tracks``) also the share of people covered at
-``t + k`` (:mod:`lidarflow.evaluate.people`); and the fold models on simulated recordings
+``t + k`` (:mod:`studies.people`); and the fold models on simulated recordings
 (``--sim SCENARIO:SEED``, 15 Hz: K = 15), where the true movers' cells are the region::
 
     python -m studies.movers -o runs/movers --seeds 0 1 --sim static:11 static:12
@@ -97,7 +97,7 @@ def read_people(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def people_by_frame(path: Path, recording: Any, lag_scans: float) -> dict[int, np.ndarray]:
     """The annotated people per frame, each annotation given to the scan nearest its stamp
     less ``lag_scans`` scan periods."""
-    from lidarflow.evaluate.people import frames_of
+    from studies.people import frames_of
 
     stamps, xy = read_people(path)
     if not len(stamps):
@@ -110,7 +110,7 @@ def people_by_frame(path: Path, recording: Any, lag_scans: float) -> dict[int, n
 def stamp_check(path: Path, recording: Any, grid: Any) -> dict[str, float | None]:
     """The share of annotated people within the radius of an occupied cell of the scan they are
     given to, for lags of -1 .. 2 scan periods: how the annotations' stamp was placed."""
-    from lidarflow.evaluate.people import PeopleCounts, people_found
+    from studies.people import PeopleCounts, people_found
 
     occupancy, _ = recording.maps(grid)
     out = {}
@@ -138,7 +138,7 @@ def evaluate_held(
     now trained; ``None`` where no fold model is."""
     from lidarflow.data import load_any
     from lidarflow.evaluate.metrics import THRESHOLD
-    from lidarflow.evaluate.people import PeopleCounts, people_found
+    from studies.people import PeopleCounts, people_found
     from studies.scoring import evaluate
 
     path = out / "evaluation" / f"{stem(held)}.json"

@@ -33,9 +33,9 @@ from collections.abc import Callable, Sequence
 
 from lidarflow.data.recording import Recording
 from lidarflow.data.sources import load_any
-from lidarflow.data.views import SensorView
 from studies.harness import fold, judged, parse, parser, read_json, stem, write_json, write_summary
 from studies.scoring import evaluate_one
+from studies.sensor_views import SensorView
 
 # name -> the sensor view it scores; "cheap" is the three milder at once (a hobby scanner)
 SPECS = {

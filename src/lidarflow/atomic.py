@@ -13,16 +13,9 @@ its process runs: one whose PID another live process has since taken stays until
 ends too; one whose PID is this process's own (a container's PIDs repeat from run to run) goes
 unless this process made it.
 
-What may be replaced, the rule every command keeps, is decided here and nowhere else:
-
-- a file is replaced only by a file, a folder only by a folder;
-- a folder is replaced only where lidarflow wrote it: every folder :func:`commit` moves into
-  place carries a :data:`STAMP` file, and a folder without one is never replaced or emptied,
-  ``--force`` or not (an empty one may be);
-- an output the user named (:func:`check_writable`) that exists is replaced only with
-  ``force``; one that did not exist when the command started and appeared while it ran
-  (another run writing the same output) is not replaced either: the later run is refused;
-- inputs are never outputs (:func:`check_not_input`).
+What may be replaced is :mod:`lidarflow.overwrite`'s rule (its names are importable from
+here too); :func:`commit` keeps it at the last step: a folder gets its :data:`STAMP`, and what
+appeared at the target meanwhile is refused.
 
 A folder replaces a folder in one step (``renameat2(RENAME_EXCHANGE)`` on Linux), so an
 interrupt leaves either the old folder or the new one at the target, never neither.
@@ -40,15 +33,23 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import errno
-import json
 import os
 import re
 import shutil
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from lidarflow.errors import OutputError
+from lidarflow.overwrite import (
+    STAMP,
+    check_kind,
+    check_not_input,
+    check_writable,
+    is_ours,
+    may_replace,
+    stamp,
+)
 
 __all__ = [
     "STAMP",
@@ -69,105 +70,6 @@ __all__ = [
 _SUFFIX = ".partial"
 #: The temporaries this process has handed out: the only ones named with its PID that are its.
 _MINE: set[Path] = set()
-#: The file in every folder lidarflow wrote: what makes the folder one it may replace.
-STAMP = ".lidarflow"
-#: The outputs the user named, checked by :func:`check_writable`: whether each may replace what
-#: is there (``--force``). A target not named here (a checkpoint in a run folder) may replace a
-#: file of its kind.
-_NAMED: dict[Path, bool] = {}
-
-
-def _key(path: str | Path) -> Path:
-    return Path(os.path.abspath(path))
-
-
-def check_writable(path: str | Path, force: bool = False, folder: bool = False) -> None:
-    """Claim ``path`` as an output (a ``folder`` or a file), or refuse it in one line saying
-    what to do: where it exists, unless ``force``; where it is the other kind (a folder where a
-    file is written), or a folder lidarflow did not write (:func:`is_ours`), even with
-    ``force``. :func:`commit` keeps to the claim at the end (the output appearing meanwhile is
-    refused then)."""
-    path = Path(path)
-    _NAMED[_key(path)] = force
-    if not (path.exists() or path.is_symlink()):
-        return
-    _check_kind(path, folder)
-    if not force:
-        raise OutputError(f"{path} already exists; use --force to overwrite it")
-
-
-def _check_kind(path: Path, folder: bool) -> None:
-    """Refuse replacing ``path`` (which exists) by a ``folder`` or a file, whatever ``--force``
-    says, where that would lose what lidarflow did not write."""
-    is_dir = path.is_dir() and not path.is_symlink()
-    if is_dir and not folder:
-        raise OutputError(
-            f"{path} is a folder; name a file to write (not even --force replaces a folder "
-            "with a file)"
-        )
-    if folder and not is_dir:
-        raise OutputError(f"{path} exists and is not a folder; name a new folder")
-    if is_dir and not is_ours(path):
-        raise OutputError(
-            f"{path} exists and is not a folder lidarflow wrote (no {STAMP} in it); name a new "
-            "folder, or remove it yourself (not even --force replaces it)"
-        )
-
-
-def is_ours(folder: str | Path, ignoring: Callable[[str], bool] | None = None) -> bool:
-    """Whether ``folder`` may be replaced or emptied: it holds lidarflow's :data:`STAMP`, or
-    nothing at all (but entries whose names ``ignoring`` accepts)."""
-    folder = Path(folder)
-    if (folder / STAMP).is_file():
-        return True
-    return all(ignoring is not None and ignoring(e.name) for e in folder.iterdir())
-
-
-def stamp(folder: str | Path) -> None:
-    """Mark ``folder`` as written by lidarflow (:data:`STAMP`: the command that wrote it)."""
-    (Path(folder) / STAMP).write_text(
-        json.dumps({"written_by": "lidarflow", "command": sys.argv}) + "\n"
-    )
-
-
-def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
-    """Refuse an ``output`` that would replace one of ``inputs``, whatever ``--force`` says:
-    the same file (by its resolved path, through symbolic links, or by inode: a hard link), a
-    folder that holds an input, a file inside an input folder (a model's run folder), or any
-    path inside an input ROS 2 bag (a new file changes the bag). Inputs that are not there
-    (``bundled``, a glob pattern) are skipped: there is nothing to destroy."""
-    out = Path(os.path.abspath(output)).resolve()
-    for given in inputs:
-        if given is None or not Path(given).exists():
-            continue
-        source = Path(os.path.abspath(given)).resolve()
-        if out == source or _same_file(out, source):
-            raise OutputError(
-                f"{output} is the input {given}: name another output (not even --force "
-                "overwrites an input)"
-            )
-        if out in source.parents:
-            raise OutputError(
-                f"{output} holds the input {given}: writing it would remove that; name "
-                "another output"
-            )
-        if source.is_dir() and (
-            (out.exists() and any(_same_file(out, f) for f in source.rglob("*")))
-            or ((source / "metadata.yaml").is_file() and source in out.parents)
-        ):
-            raise OutputError(
-                f"{output} is inside the input {given}: writing it would change that input; "
-                "name an output outside it"
-            )
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    """Whether ``a`` and ``b`` are one file on disk (hard links too); ``False`` where one is
-    not there."""
-    try:
-        return a.samefile(b)
-    except OSError:
-        return False
 
 
 def temporary(target: str | Path) -> Path:
@@ -222,10 +124,10 @@ def commit(written: str | Path, target: str | Path) -> None:
         else:  # on disk before it carries the target's name
             with written.open("rb") as f:
                 os.fsync(f.fileno())
-        force = _NAMED.get(_key(target), True)
+        force = may_replace(target)
         if _rename(written, target, _NOREPLACE):
             return
-        _check_kind(target, folder)
+        check_kind(target, folder)
         if not force:
             raise OutputError(
                 f"{target} appeared while this run wrote it (another run writing the same "

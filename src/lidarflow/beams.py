@@ -3,9 +3,8 @@
 A finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf`` or
 ``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
 or ``rho < range_min`` are *unknown*. Exactly ``range_max`` is how clipping drivers and older
-Gazebo plugins write no return (read as a return it draws a ring that stays put in the sensor's
-frame), and where a scan does so, readings just under it are no return too (:func:`ring_band`):
-a departure from the design notes, measured in ``docs/research/range_max/``.
+Gazebo plugins write no return, and where a scan does so, readings just under it are no return
+too (:func:`ring_band`): a departure from the design notes (``docs/research/range_max/``).
 
 Pure NumPy; every function takes ranges ``(..., beams)``, one row a scan.
 """
@@ -87,8 +86,7 @@ def return_masks(
     scan; the module docstring's rule). ``range_max`` is compared in ``r``'s dtype, so a reading
     stored as the message's ``range_max`` (float32) is no return whatever that value's float64
     neighbours. In a scan that writes no return as ``range_max`` (:data:`RING_SHARE`), readings
-    within :func:`ring_band` under it are no return too: measured, such a noisy half-ring
-    turned a simulated win into a loss (docs/research/range_max/)."""
+    within :func:`ring_band` under it are no return too."""
     # a range_max beyond float32 (pointcloud_to_laserscan's default, 1.8e308) casts to inf
     with np.errstate(invalid="ignore", over="ignore"):
         top = r.dtype.type(range_max)

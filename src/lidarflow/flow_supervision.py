@@ -1,18 +1,15 @@
 """Supervised flow loss: end-point error against exact flow (the simulator's).
 
-The self-supervised warp loss (:mod:`lidarflow.losses`) left the flow network's output at noise
-(worse than zero flow on simulated held-out seeds). The simulator knows the exact flow, so the
-flow can be taught directly first and fine-tuned self-supervised afterwards.
+The simulator knows the exact flow, so the flow can be taught directly first and fine-tuned
+self-supervised (:mod:`lidarflow.losses`) afterwards (``docs/research/flow_supervised/``).
 
 Where the exact flow is defined (design notes section 3, :mod:`lidarflow.sim.groundtruth`):
 ``B^t`` on the cells occupied in ``O^{t+1}`` (the frame it moves from, backwards), ``F^t`` on the
 cells occupied in ``O^t``. Elsewhere the truth is zero by convention, not by fact, so those
 cells are not counted.
 
-Moving cells are weighted up. Under a few percent of the occupied cells are on people; with
-plain averaging the static majority (walls, whose flow is the platform's own motion) decides the
-loss and the cheapest fit is "everything moves with the platform", which is zero flow after
-ego-motion compensation: the failure this loss exists to fix. A cell is *moving* when its exact
+Moving cells are weighted up: with plain averaging the static majority decides the loss and
+the cheapest fit is "everything moves with the platform". A cell is *moving* when its exact
 flow differs from the platform's flow there (:func:`platform_flows`; zero for a platform that
 stands still) by more than ``threshold`` cells, and it weighs ``moving_weight`` times a static
 one in the weighted mean.

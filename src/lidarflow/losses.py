@@ -14,9 +14,8 @@ Flow loss variants are configuration (:class:`LossConfig`), not forks; the liter
 
     L = MSE(O^t, W(G(O^{t+1}, k), F^t)) + MSE(O^{t+1}, W(G(O^t, k), B^t))
 
-This literal form collapses on real recordings (a blurred source against a
-binary target rewards flow that samples from empty space); ``LossConfig.blurred_both()`` blurs
-the target too, so that zero flow is the minimum at every filter size when nothing moves.
+``LossConfig.blurred_both()`` blurs the target too, so that zero flow is the minimum at every
+filter size when nothing moves (the literal form rewards flow that samples from empty space).
 """
 
 from __future__ import annotations

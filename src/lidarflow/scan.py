@@ -308,9 +308,8 @@ def subcell_batch(
     ``res / SUBCELL`` of its border. Channel 1 (``near``): a return in one of the cell's four
     neighbours lies within ``res / SUBCELL`` of the edge they share.
 
-    Why: most cells that change on a static scene are a return jittering along its beam across
-    a cell edge, which the binary map cannot see coming (docs/research/subcell/). Both channels
-    are zero for a return at a cell's centre: the neutral input where no scan is known. Cells
+    Both channels (``docs/research/subcell/``) are zero for a return at a cell's centre: the
+    neutral input where no scan is known. Cells
     are :func:`rasterize_batch`'s, so an ``edge`` cell is always one it marks occupied.
 
     Straight ahead on a grid 101 cells wide (the beam runs down the middle of column 50), a

@@ -7,11 +7,26 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarflow.evaluate.calibration import (
-    Calibration,
-    brier_score,
-    expected_calibration_error,
-)
+from lidarflow.evaluate.calibration import Calibration
+
+
+def expected_calibration_error(probability: np.ndarray, target: np.ndarray) -> float:
+    calibration = Calibration()
+    calibration.add(probability, target)
+    return calibration.ece()
+
+
+def brier_score(probability: np.ndarray, target: np.ndarray) -> float:
+    calibration = Calibration()
+    calibration.add(probability, target)
+    return calibration.brier()
+
+
+def test_ece_and_brier_known_values():
+    p, y = np.array([0.2, 0.2, 0.9, 0.9]), np.array([0, 1, 1, 1])
+    # (2/4)|0.2 - 1/2| + (2/4)|0.9 - 1|
+    assert expected_calibration_error(p, y) == pytest.approx(0.2)
+    assert brier_score(np.array([1.0, 0.5]), np.array([1, 0])) == 0.125
 
 
 def test_perfectly_calibrated_predictor_has_ece_near_zero():

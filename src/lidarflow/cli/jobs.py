@@ -39,23 +39,17 @@ removes that temporary (:func:`lidarflow.atomic.clear_stale`).
 
 from __future__ import annotations
 
-import atexit
 import contextlib
-import io
 import os
 import select
 import signal
-import sys
-import threading
 import time
-import traceback
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from lidarflow.errors import LidarflowError
+from lidarflow.cli.worker import Outcome, error_line, job_bar, pidfd, run_task, start_worker
 
 if TYPE_CHECKING:
     from concurrent.futures import Future
@@ -79,157 +73,12 @@ _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 STOP_GRACE_S = 30.0
 
 
-@dataclass(frozen=True)
-class Outcome:
-    """One input's result: ``value`` or the one-line ``error`` naming the input, and what its
-    task wrote on stderr (``notes``)."""
-
-    index: int
-    value: Any = None
-    error: str | None = None
-    notes: str = ""
-
-
 def resolve_jobs(jobs: int, inputs: int) -> int:
     """The worker processes for ``inputs`` inputs: ``jobs``, 0 meaning one per core this
     process may run on, never more than the inputs."""
     if jobs == 0:
         jobs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(jobs or 1, inputs))
-
-
-def error_line(name: str, err: BaseException) -> str:
-    """``err`` as one line naming the input ``name``, as the CLI would print it."""
-    from lidarflow.extras import missing_extra
-
-    if isinstance(err, LidarflowError):
-        text = str(err)
-    elif isinstance(err, OSError):
-        text = (f"{err.filename}: " if err.filename else "") + (err.strerror or str(err))
-    elif isinstance(err, ImportError) and (missing := missing_extra(err)) is not None:
-        text = str(missing)
-    else:
-        text = (
-            f"internal error: {type(err).__name__}: {err} (rerun it with --jobs 1 and "
-            "LIDARFLOW_DEBUG=1 for the traceback, and please report it)"
-        )
-    return text if name in text else f"{name}: {text}"
-
-
-# What a worker process holds (set by _start_worker); None in the parent.
-_PROGRESS: Any = None
-_STOP: Any = None
-_BUSY = False
-_SIGNALLED = 0  # the stop signal a worker took (0: none yet)
-
-
-class _QueueBar:
-    """A worker's progress bar: its total and its steps go to the parent's one bar."""
-
-    def __init__(self, total: int | None) -> None:
-        self.total = total
-
-    def __enter__(self) -> _QueueBar:
-        if self.total:
-            _PROGRESS.put(("total", self.total))
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        pass
-
-    def update(self, n: int = 1) -> None:
-        _PROGRESS.put(("done", n))
-
-
-def job_bar(total: int | None, desc: str) -> Any:
-    """A progress bar for one input's work (a context manager with ``update``): its own bar in
-    the parent process, a share of the parent's one bar in a worker."""
-    if _PROGRESS is not None:
-        return _QueueBar(total)
-    from lidarflow.cli.app import progress_bar
-
-    return progress_bar(total, desc)
-
-
-def _on_signal(signum: int, frame: object) -> None:
-    global _SIGNALLED
-    first = not _SIGNALLED
-    _SIGNALLED = _SIGNALLED or signum
-    if not _BUSY:  # idle: nothing to clean up
-        _exit(128 + _SIGNALLED)
-    if first:  # stop the task, whose outputs go through lidarflow.atomic; _run_task then exits
-        raise KeyboardInterrupt(f"stopped by signal {signal.Signals(signum).name}")
-    # a later one (the parent's SIGTERM after a terminal's SIGINT): the clean-up goes on
-
-
-def _exit(code: int) -> None:
-    """End this worker now, as the interpreter ends (its exit handlers run: multiprocessing's
-    releases the named semaphores made here, such as tqdm's lock), but without going back to
-    the pool's loop, which would wait for another task (and no traceback from it)."""
-    for signum in (signal.SIGINT, signal.SIGTERM):  # one raised in the exit handlers would
-        signal.signal(signum, signal.SIG_IGN)  # print a traceback
-    atexit._run_exitfuncs()
-    os._exit(code)
-
-
-def _watch_parent(parent: int) -> None:
-    """Signal this worker (SIGTERM, every second until it ends) once the process ``parent`` has
-    ended: from a thread that waits on a pidfd (Linux), or elsewhere checks every half
-    second."""
-
-    def watch() -> None:
-        fd = _pidfd(parent)
-        if fd is not None:
-            select.select([fd], [], [])  # readable once the process ends
-        else:  # no pidfds here, or the parent is gone already
-            with contextlib.suppress(ProcessLookupError):
-                while True:
-                    os.kill(parent, 0)
-                    time.sleep(0.5)
-        while True:  # again: one taken as a task ends stops that task, not the worker
-            os.kill(os.getpid(), signal.SIGTERM)
-            time.sleep(1.0)
-
-    threading.Thread(target=watch, name="lidarflow-parent-watch", daemon=True).start()
-
-
-def _start_worker(progress: Any, stop: Any, threads: int, block_torch: bool, parent: int) -> None:
-    """A worker's set-up, before its first task (see the module)."""
-    global _PROGRESS, _STOP
-    _PROGRESS, _STOP = progress, stop
-    progress.cancel_join_thread()  # exit without waiting for the parent to read the progress
-    if block_torch:
-        from lidarflow.extras import TORCH_EXTRA_MODULES
-
-        for name in TORCH_EXTRA_MODULES:
-            sys.modules[name] = None  # type: ignore[assignment]
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
-    _watch_parent(parent)
-    from lidarflow.cli.app import use_threads
-
-    use_threads(threads)
-
-
-def _run_task(work: Callable[[Any], Any], index: int, name: str, task: Any) -> Outcome:
-    """Run ``work(task)`` in a worker: its result, or its error as one line."""
-    global _BUSY
-    notes = io.StringIO()
-    _BUSY = True
-    try:
-        if _SIGNALLED or (_STOP is not None and _STOP.is_set()):  # handed out as it stopped
-            raise KeyboardInterrupt("stopped")
-        with contextlib.redirect_stderr(notes):
-            value = work(task)
-        return Outcome(index, value, None, notes.getvalue())
-    except Exception as err:
-        if os.environ.get("LIDARFLOW_DEBUG") == "1":
-            notes.write(traceback.format_exc())
-        return Outcome(index, None, error_line(name, err), notes.getvalue())
-    finally:
-        if _SIGNALLED:  # the task's clean-up is done: this worker stops with it
-            _exit(128 + _SIGNALLED)
-        _BUSY = False
 
 
 @contextlib.contextmanager
@@ -310,14 +159,14 @@ def _run_pool(
     context.set_forkserver_preload(preload + (["torch"] if torch_available() else []))
     progress, stop = context.Queue(), context.Event()
     args = (progress, stop, threads, not torch_available(), os.getpid())
-    executor = ProcessPoolExecutor(jobs, context, initializer=_start_worker, initargs=args)
+    executor = ProcessPoolExecutor(jobs, context, initializer=start_worker, initargs=args)
     bar = tqdm(total=0, desc=desc, unit="scan", disable=None, leave=False)
     ready: dict[int, Outcome] = {}
     finished = False
     try:
         with _one_thread_libraries():  # the workers start as the tasks are handed out
             pending: dict[Future[Outcome], int] = {
-                executor.submit(_run_task, work, i, names[i], task): i
+                executor.submit(run_task, work, i, names[i], task): i
                 for i, task in enumerate(tasks)
             }
         following = 0
@@ -344,10 +193,11 @@ def _run_pool(
 
 
 def _stop_workers(processes: list[Any], progress: Any) -> None:
-    """SIGTERM each of ``processes`` (the one signal a worker handles, :func:`_on_signal`; the
-    pool has no public way to stop its workers before Python 3.14's ``terminate_workers()``),
-    wait up to :data:`STOP_GRACE_S` for them to end, reading what they report meanwhile (a
-    worker does not wait on it, but a full pipe would stall its report), then kill the rest.
+    """SIGTERM each of ``processes`` (the one signal a worker handles,
+    :func:`lidarflow.cli.worker.on_signal`; the pool has no public way to stop its workers
+    before Python 3.14's ``terminate_workers()``), wait up to :data:`STOP_GRACE_S` for them to
+    end, reading what they report meanwhile (a worker does not wait on it, but a full pipe would
+    stall its report), then kill the rest.
 
     A worker's end is read from its pidfd where the system has them: the pool's own account
     comes through the fork server, which says a worker ended when the fork server itself was
@@ -356,7 +206,7 @@ def _stop_workers(processes: list[Any], progress: Any) -> None:
     for process in processes:
         with contextlib.suppress(ProcessLookupError):  # not there: ended, and reaped
             os.kill(process.pid, signal.SIGTERM)
-            pidfds[process] = _pidfd(process.pid)
+            pidfds[process] = pidfd(process.pid)
 
     def ended(process: Any) -> bool:
         fd = pidfds[process]
@@ -378,14 +228,6 @@ def _stop_workers(processes: list[Any], progress: Any) -> None:
         for fd in pidfds.values():
             if fd is not None:
                 os.close(fd)
-
-
-def _pidfd(pid: int) -> int | None:
-    """A pidfd of the process ``pid`` (Linux), ``None`` where there is none."""
-    try:
-        return os.pidfd_open(pid)
-    except (AttributeError, OSError):
-        return None
 
 
 def _outcome_of(future: Future[Outcome], index: int, name: str) -> Outcome:

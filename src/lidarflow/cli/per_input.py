@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lidarflow.cli.jobs import job_bar
+from lidarflow.cli.worker import job_bar
 
 if TYPE_CHECKING:
     from lidarflow.evaluate.evaluation import Scored

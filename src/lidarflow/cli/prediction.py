@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -31,6 +32,7 @@ from lidarflow.cli.app import (
     use_threads,
 )
 from lidarflow.cli.jobs import JobsOpt
+from lidarflow.cli.options import command_options
 from lidarflow.evaluate.methods import methods_and_config
 
 
@@ -142,23 +144,29 @@ TopicsOpt = Annotated[
 ]
 
 
+@dataclass(frozen=True)
+class PredictOptions:
+    """``predict``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+
+    inputs: InputsArg
+    output: OutputOpt
+    topic: TopicOpt = None
+    odom_topic: OdomOpt = None
+    model: ModelOpt = None
+    horizon: HorizonOpt = 1
+    fixed_decision: FixedDecisionOpt = False
+    grid: ModelGridOpt = None
+    res: ModelResOpt = None
+    moving_threshold: MovingOpt = None
+    topics: TopicsOpt = "default"
+    force: ForceOpt = False
+    threads: ThreadsOpt = DEFAULT_THREADS
+    jobs: JobsOpt = 1
+
+
 @app.command()
-def predict(
-    inputs: InputsArg,
-    output: OutputOpt,
-    topic: TopicOpt = None,
-    odom_topic: OdomOpt = None,
-    model: ModelOpt = None,
-    horizon: HorizonOpt = 1,
-    fixed_decision: FixedDecisionOpt = False,
-    grid: ModelGridOpt = None,
-    res: ModelResOpt = None,
-    moving_threshold: MovingOpt = None,
-    topics: TopicsOpt = "default",
-    force: ForceOpt = False,
-    threads: ThreadsOpt = DEFAULT_THREADS,
-    jobs: JobsOpt = 1,
-) -> None:
+@command_options(PredictOptions)
+def predict(options: PredictOptions) -> None:
     """Write the input bag's messages, unchanged, plus per scan the predicted next map
     (OccupancyGrid in the scan's frame, stamped with the time it predicts, for RViz/Foxglove),
     the current map and, from a flow model (not the bundled one), the moving cells to a new bag
@@ -167,49 +175,57 @@ def predict(
 
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
-    from lidarflow.cli.jobs import Outcome, resolve_jobs, run_jobs
-    from lidarflow.cli.per_input import PredictSettings, PredictTask, predict_input
+    from lidarflow.cli.per_input import PredictSettings, PredictTask
     from lidarflow.predict.moving import MOVING_THRESHOLD
     from lidarflow.predict.rosout import output_kind
 
-    groups = _topic_groups(topics)
-    outputs = _outputs(inputs, output)
+    o = options
+    groups = _topic_groups(o.topics)
+    outputs = _outputs(o.inputs, o.output)
     for out in outputs:
         folder = output_kind(out) == "ros2"  # a ROS 2 bag is a folder
-        refuse_existing(out, force=force, folder=folder, inputs=[*inputs, model])
-    threshold = MOVING_THRESHOLD if moving_threshold is None else moving_threshold
+        refuse_existing(out, force=o.force, folder=folder, inputs=[*o.inputs, o.model])
+    threshold = MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold
     settings = PredictSettings(
-        topic, odom_topic, model, model_grid(model, grid, res), horizon, threads, threshold,
-        False if fixed_decision else None, groups, force,
+        o.topic, o.odom_topic, o.model, model_grid(o.model, o.grid, o.res), o.horizon,
+        o.threads, threshold, False if o.fixed_decision else None, groups, o.force,
     )  # fmt: skip
-    tasks = [PredictTask(i, o, settings) for i, o in zip(inputs, outputs, strict=True)]
-    if len(tasks) > 1:
-        output.mkdir(exist_ok=True)  # each output in it is written whole or not at all
-    if len(tasks) == 1:  # one input: its errors are the command's
-        done = [Outcome(0, predict_input(tasks[0]))]
-        _say_written(tasks[0], done[0])
-    else:
-
-        def said(outcome: Outcome) -> None:  # in input order, as each is in
-            if outcome.notes:
-                typer.echo(outcome.notes, err=True, nl=False)
-            if outcome.error is not None:
-                typer.echo(f"lidarflow: error: {outcome.error}", err=True)
-            else:
-                _say_written(tasks[outcome.index], outcome)
-
-        workers = resolve_jobs(jobs, len(tasks))
-        desc = f"predicting {len(tasks)} inputs, {workers} at once"
-        names = [str(i) for i in inputs]
-        done = run_jobs(predict_input, tasks, names, workers, threads, desc, said)
-    if "flow" in groups and any(o.value is not None and not o.value.has_flow for o in done):
+    tasks = [PredictTask(i, out, settings) for i, out in zip(o.inputs, outputs, strict=True)]
+    done = _predict_all(tasks, o)
+    if "flow" in groups and any(d.value is not None and not d.value.has_flow for d in done):
         # A head-only model (the bundled one) has no flow to write: say why it is absent.
         typer.echo(
             "note: this model has no flow network, so no flow or moving cells were written; "
             "pass --model of a flow model (e.g. one trained with --recipe blurred) for them"
         )
-    if any(o.error is not None for o in done):  # each said in its one line above
+    if any(d.error is not None for d in done):  # each said in its one line above
         raise typer.Exit(1)
+
+
+def _predict_all(tasks: list[Any], options: PredictOptions) -> list[Any]:
+    """Each task's outcome, each said as it is in: one input in this process, its errors the
+    command's; several in ``--jobs`` workers, into the folder ``-o``."""
+    from lidarflow.cli.jobs import Outcome, resolve_jobs, run_jobs
+    from lidarflow.cli.per_input import predict_input
+
+    if len(tasks) == 1:  # one input: its errors are the command's
+        done = Outcome(0, predict_input(tasks[0]))
+        _say_written(tasks[0], done)
+        return [done]
+    options.output.mkdir(exist_ok=True)  # each output in it is written whole or not at all
+
+    def said(outcome: Outcome) -> None:  # in input order, as each is in
+        if outcome.notes:
+            typer.echo(outcome.notes, err=True, nl=False)
+        if outcome.error is not None:
+            typer.echo(f"lidarflow: error: {outcome.error}", err=True)
+        else:
+            _say_written(tasks[outcome.index], outcome)
+
+    workers = resolve_jobs(options.jobs, len(tasks))
+    desc = f"predicting {len(tasks)} inputs, {workers} at once"
+    names = [str(i) for i in options.inputs]
+    return run_jobs(predict_input, tasks, names, workers, options.threads, desc, said)
 
 
 def _outputs(inputs: list[Path], output: Path) -> list[Path]:
@@ -252,83 +268,107 @@ def _topic_groups(text: str) -> frozenset[str]:
     return frozenset(groups)
 
 
+OnnxOutputOpt = Annotated[
+    Path | None, typer.Option("--output", "-o", help="ONNX file to write (required).")
+]
+Int8Opt = Annotated[
+    bool,
+    typer.Option(
+        "--int8",
+        help="Quantize the convolutions to int8 (static, per-channel; ~1.4x faster on CPU, "
+        "F1 within ~0.001), ranges calibrated by streaming --calibration through the model.",
+    ),
+]
+CalibrationOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--calibration",
+        help="Recording or bag whose maps calibrate --int8 (default: the bundled sample "
+        "bag; use one from your own sensor).",
+    ),
+]
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """``export``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+
+    output: OnnxOutputOpt = None
+    model: ExportModelOpt = None
+    grid: ModelGridOpt = None
+    res: ModelResOpt = None
+    int8: Int8Opt = False
+    calibration: CalibrationOpt = None
+    topic: TopicOpt = None
+    force: ForceOpt = False
+    threads: ThreadsOpt = DEFAULT_THREADS
+    onnx: Annotated[Path | None, typer.Option("--onnx", hidden=True)] = None
+
+
 @app.command()
-def export(
-    output: Annotated[
-        Path | None, typer.Option("--output", "-o", help="ONNX file to write (required).")
-    ] = None,
-    model: ExportModelOpt = None,
-    grid: ModelGridOpt = None,
-    res: ModelResOpt = None,
-    int8: Annotated[
-        bool,
-        typer.Option(
-            "--int8",
-            help="Quantize the convolutions to int8 (static, per-channel; ~1.4x faster on CPU, "
-            "F1 within ~0.001), ranges calibrated by streaming --calibration through the model.",
-        ),
-    ] = False,
-    calibration: Annotated[
-        Path | None,
-        typer.Option(
-            "--calibration",
-            help="Recording or bag whose maps calibrate --int8 (default: the bundled sample "
-            "bag; use one from your own sensor).",
-        ),
-    ] = None,
-    topic: TopicOpt = None,
-    force: ForceOpt = False,
-    threads: ThreadsOpt = DEFAULT_THREADS,
-    onnx: Annotated[Path | None, typer.Option("--onnx", hidden=True)] = None,
-) -> None:
+@command_options(ExportOptions)
+def export(options: ExportOptions) -> None:
     """Export one streaming step (hidden state as explicit inputs/outputs) to ONNX, for
     onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
-    import tempfile
-
     from lidarflow.atomic import atomic_path
     from lidarflow.models.presets import resolve_model
     from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.decision import DecisionPolicy
     from lidarflow.predict.export import export_onnx
-    from lidarflow.scan import takes_subcell
 
-    if calibration is not None and not int8:
+    o = options
+    output = _onnx_output(o)
+    refuse_existing(output, force=o.force, inputs=[o.model, o.calibration])
+    use_threads(o.threads)
+    net, card = resolve_model(o.model)
+    policy = DecisionPolicy.from_record(card.get("decision"))  # travels with the file
+    spec = completed_grid(recorded_grid(card), o.grid, o.res)
+    size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
+    if o.int8:
+        calibrated = _export_int8(net, policy, spec, output, o)
+        typer.echo(f"wrote {output} ({card.get('model')}, {size}, {calibrated})")
+        return
+    with atomic_path(output) as tmp:  # whole or not at all
+        export_onnx(net, tmp, spec.height, spec.width, spec.res, policy)
+    typer.echo(f"wrote {output} ({card.get('model')}, {size})")
+
+
+def _onnx_output(options: ExportOptions) -> Path:
+    """The file ``-o`` (or ``--onnx``, its old name) names; a usage error where the flags
+    contradict or name none."""
+    if options.calibration is not None and not options.int8:
         # else a float model is written and the user believes it calibrated and quantized
         raise typer.BadParameter(
             "--calibration calibrates --int8; add --int8 or drop --calibration",
             param_hint="--calibration",
         )
-    if onnx is not None:  # the spelling before -o/--output, kept working
+    output = options.output
+    if options.onnx is not None:  # the spelling before -o/--output, kept working
         if output is not None:
             raise typer.BadParameter("give -o/--output once (--onnx is its old name)")
         typer.echo("note: --onnx is now -o/--output", err=True)
-        output = onnx
+        output = options.onnx
     if output is None:
         raise typer.BadParameter("name the ONNX file to write: -o FILE.onnx", param_hint="-o")
-    refuse_existing(output, force=force, inputs=[model, calibration])
-    use_threads(threads)
-    net, card = resolve_model(model)
-    policy = DecisionPolicy.from_record(card.get("decision"))  # travels with the file
-    spec = completed_grid(recorded_grid(card), grid, res)
-    size = f"{spec.height}x{spec.width} grid of {spec.res:g} m"
-    if not int8:
-        with atomic_path(output) as tmp:  # whole or not at all
-            export_onnx(net, tmp, spec.height, spec.width, spec.res, policy)
-        typer.echo(f"wrote {output} ({card.get('model')}, {size})")
-        return
+    return output
+
+
+def _export_int8(net: Any, policy: Any, spec: Any, output: Path, options: ExportOptions) -> str:
+    """Write ``net`` to ``output`` with int8 convolutions, calibrated on the maps of
+    ``--calibration`` (the bundled sample bag by default); what it was calibrated on."""
+    import tempfile
 
     from lidarflow.data import sample_bag_path
+    from lidarflow.predict.export import export_onnx
     from lidarflow.predict.quantize import quantize_onnx
+    from lidarflow.scan import takes_subcell
 
-    source = calibration or sample_bag_path()
-    recording = load_input(source, topic)
+    source = options.calibration or sample_bag_path()
+    recording = load_input(source, options.topic)
     maps = recording.stacked_maps(spec, subcell=takes_subcell(net.capabilities.input_channels))
     with tempfile.TemporaryDirectory() as tmp:
         float_path = export_onnx(
             net, Path(tmp) / "float.onnx", spec.height, spec.width, spec.res, policy
         )
         quantize_onnx(float_path, output, maps)
-    typer.echo(
-        f"wrote {output} ({card.get('model')}, {size}, int8 convolutions calibrated on "
-        f"{len(maps)} frames of {source.name})"
-    )
+    return f"int8 convolutions calibrated on {len(maps)} frames of {source.name}"

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -21,8 +23,10 @@ from lidarflow.cli.app import (
     app,
     model_grid,
 )
+from lidarflow.cli.options import command_options
 
 if TYPE_CHECKING:
+    from lidarflow.live.rosnode import RosNode
     from lidarflow.live.step import LiveStep
 
 
@@ -68,78 +72,81 @@ VerboseOpt = Annotated[
 ]
 
 
+ScanQosOpt = Annotated[
+    str,
+    typer.Option(help="QoS of the scan subscription: sensor (sensor data, best effort; "
+                 "matches any driver) or reliable."),
+]  # fmt: skip
+GridQosOpt = Annotated[
+    str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
+]
+#: The options only ``ros2`` has: ``ros1`` leaves them at their defaults.
+ROS2_ONLY = ("scan_qos", "grid_qos")
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """The command line of ``ros1`` and ``ros2`` (:func:`lidarflow.cli.options.command_options`):
+    one node, either transport; the QoS fields are ``ros2``'s alone (:data:`ROS2_ONLY`)."""
+
+    model: ModelOpt = None
+    topic: TopicOpt = "/scan"
+    odom_topic: OdomTopicOpt = None
+    horizon: HorizonOpt = 1
+    moving: PublishMovingOpt = False
+    grid: ModelGridOpt = None
+    res: ModelResOpt = None
+    moving_threshold: MovingOpt = None
+    queue: QueueOpt = 10
+    scan_qos: ScanQosOpt = "sensor"
+    grid_qos: GridQosOpt = "reliable"
+    summary_every: SummaryOpt = 100
+    foxglove: FoxgloveOpt = None
+    host: HostOpt = "127.0.0.1"
+    verbose: VerboseOpt = False
+    threads: ThreadsOpt = DEFAULT_THREADS
+
+
 @app.command()
-def ros1(
-    model: ModelOpt = None,
-    topic: TopicOpt = "/scan",
-    odom_topic: OdomTopicOpt = None,
-    horizon: HorizonOpt = 1,
-    moving: PublishMovingOpt = False,
-    grid: ModelGridOpt = None,
-    res: ModelResOpt = None,
-    moving_threshold: MovingOpt = None,
-    queue: QueueOpt = 10,
-    summary_every: SummaryOpt = 100,
-    foxglove: FoxgloveOpt = None,
-    host: HostOpt = "127.0.0.1",
-    verbose: VerboseOpt = False,
-    threads: ThreadsOpt = DEFAULT_THREADS,
-) -> None:
+@command_options(NodeOptions, omit=ROS2_ONLY)
+def ros1(options: NodeOptions) -> None:
     """Run a ROS 1 node: per scan on --topic, publish the predicted next map (OccupancyGrid in
     the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
     predicts. Needs a roscore (ROS_MASTER_URI); stop it with Ctrl-C."""
     from lidarflow.live.ros1 import Ros1Node, check_master, import_ros
 
-    _log_to_stderr("ros1", logging.DEBUG if verbose else logging.INFO)
+    _log_to_stderr("ros1", options.verbose)
     check_master(import_ros())  # before loading a model: say at once what is missing
-    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads,
-                      moving)  # fmt: skip
-    _run("ros1", step, lambda: Ros1Node(step, topic, odom_topic, moving, queue=queue),
-         foxglove, host, topic)  # fmt: skip
+    _serve("ros1", options, Ros1Node)
 
 
 @app.command()
-def ros2(
-    model: ModelOpt = None,
-    topic: TopicOpt = "/scan",
-    odom_topic: OdomTopicOpt = None,
-    horizon: HorizonOpt = 1,
-    moving: PublishMovingOpt = False,
-    grid: ModelGridOpt = None,
-    res: ModelResOpt = None,
-    moving_threshold: MovingOpt = None,
-    queue: QueueOpt = 10,
-    scan_qos: Annotated[
-        str,
-        typer.Option(help="QoS of the scan subscription: sensor (sensor data, best effort; "
-                     "matches any driver) or reliable."),
-    ] = "sensor",
-    grid_qos: Annotated[
-        str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
-    ] = "reliable",
-    summary_every: SummaryOpt = 100,
-    foxglove: FoxgloveOpt = None,
-    host: HostOpt = "127.0.0.1",
-    verbose: VerboseOpt = False,
-    threads: ThreadsOpt = DEFAULT_THREADS,
-) -> None:
+@command_options(NodeOptions)
+def ros2(options: NodeOptions) -> None:
     """Run a ROS 2 node: per scan on --topic, publish the predicted next map (OccupancyGrid in
     the scan's frame) on /lidarflow/predicted and /lidarflow/decided, stamped with the time it
     predicts. Joins ROS_DOMAIN_ID's domain; stop it with Ctrl-C."""
     from lidarflow.live.ros2 import GRID_QOS, SCAN_QOS, Ros2Node, domain_id, import_ros2
 
-    for name, value, choices in (("--scan-qos", scan_qos, SCAN_QOS),
-                                 ("--grid-qos", grid_qos, GRID_QOS)):  # fmt: skip
+    for name, value, choices in (("--scan-qos", options.scan_qos, SCAN_QOS),
+                                 ("--grid-qos", options.grid_qos, GRID_QOS)):  # fmt: skip
         if value not in choices:
             raise typer.BadParameter(f"{value!r}: one of {', '.join(choices)}", param_hint=name)
     domain_id(os.environ)  # rclpy fails on a bad one without a word
-    _log_to_stderr("ros2", logging.DEBUG if verbose else logging.INFO)
+    _log_to_stderr("ros2", options.verbose)
     import_ros2()  # before loading a model: say at once what is missing
-    step = _live_step(model, grid, res, horizon, moving_threshold, summary_every, threads,
-                      moving)  # fmt: skip
-    _run("ros2", step, lambda: Ros2Node(step, topic, odom_topic, moving, queue=queue,
-                                        scan_qos=scan_qos, grid_qos=grid_qos),
-         foxglove, host, topic)  # fmt: skip
+    qos = {"scan_qos": options.scan_qos, "grid_qos": options.grid_qos}
+    _serve("ros2", options, functools.partial(Ros2Node, **qos))
+
+
+def _serve(kind: str, options: NodeOptions, node_type: Callable[..., RosNode]) -> None:
+    """The node of ``node_type`` (the transport: called as :class:`RosNode` is) on the live
+    step the options ask for, until it stops."""
+    o = options
+    step = _live_step(o.model, o.grid, o.res, o.horizon, o.moving_threshold, o.summary_every,
+                      o.threads, o.moving)  # fmt: skip
+    _run(kind, step, lambda: node_type(step, o.topic, o.odom_topic, o.moving, queue=o.queue),
+         o.foxglove, o.host, o.topic)  # fmt: skip
 
 
 def _live_step(
@@ -202,9 +209,11 @@ def _run(
                 typer.echo(f"lidarflow {kind}: no scan arrived on {topic}", err=True)
 
 
-def _log_to_stderr(kind: str, level: int) -> None:
-    """The node's log on stderr, one line a message (rospy configures logging its own way when
-    the node starts; this logger does not pass through it)."""
+def _log_to_stderr(kind: str, verbose: bool) -> None:
+    """The node's log on stderr, one line a message, every scan's with ``verbose`` (rospy
+    configures logging its own way when the node starts; this logger does not pass through
+    it)."""
+    level = logging.DEBUG if verbose else logging.INFO
     logger = logging.getLogger("lidarflow.live")
     handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter(f"lidarflow {kind}: %(message)s"))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -26,6 +28,7 @@ from lidarflow.cli.app import (
     use_threads,
 )
 from lidarflow.cli.jobs import JobsOpt
+from lidarflow.cli.options import command_options
 from lidarflow.cli.per_input import EvaluateSettings
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
@@ -121,89 +124,126 @@ DeviceOpt = Annotated[
 JsonOutOpt = Annotated[Path | None, typer.Option("--json", hidden=True)]
 
 
+@dataclass(frozen=True)
+class EvaluateOptions:
+    """``evaluate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+
+    inputs: InputsArg
+    topic: TopicOpt = None
+    odom_topic: OdomOpt = None
+    model: ModelsOpt = None
+    baselines_only: BaselinesOnlyOpt = False
+    output: OutputOpt = None
+    report_dir: ReportDirOpt = None
+    gif_frames: GifFramesOpt = 100
+    warmup: WarmupOpt = 10
+    ta_window: TaWindowOpt = TA_WINDOW
+    ta_threshold: TaThresholdOpt = TA_THRESHOLD
+    ego_oracle: EgoOracleOpt = False
+    horizon: HorizonOpt = 1
+    online_decision: OnlineDecisionOpt = False
+    grid: GridOpt = 100
+    res: ResOpt = 0.1
+    moving_threshold: MovingOpt = None
+    force: ForceOpt = False
+    threads: ThreadsOpt = DEFAULT_THREADS
+    jobs: JobsOpt = 1
+    device: DeviceOpt = "cpu"
+    json_out: JsonOutOpt = None
+
+
 @app.command()
-def evaluate(
-    inputs: InputsArg,
-    topic: TopicOpt = None,
-    odom_topic: OdomOpt = None,
-    model: ModelsOpt = None,
-    baselines_only: BaselinesOnlyOpt = False,
-    output: OutputOpt = None,
-    report_dir: ReportDirOpt = None,
-    gif_frames: GifFramesOpt = 100,
-    warmup: WarmupOpt = 10,
-    ta_window: TaWindowOpt = TA_WINDOW,
-    ta_threshold: TaThresholdOpt = TA_THRESHOLD,
-    ego_oracle: EgoOracleOpt = False,
-    horizon: HorizonOpt = 1,
-    online_decision: OnlineDecisionOpt = False,
-    grid: GridOpt = 100,
-    res: ResOpt = 0.1,
-    moving_threshold: MovingOpt = None,
-    force: ForceOpt = False,
-    threads: ThreadsOpt = DEFAULT_THREADS,
-    jobs: JobsOpt = 1,
-    device: DeviceOpt = "cpu",
-    json_out: JsonOutOpt = None,
-) -> None:
+@command_options(EvaluateOptions)
+def evaluate(options: EvaluateOptions) -> None:
     """Score next-map prediction on each recording, streaming, for the baselines (copy-last,
     temporal average, constant velocity, tracker) and each --model (default: the bundled one):
     F1, AP, changed-cell F1, calibration, and mover F1 (exact and within 0.2 m, in the cells
     something moved through). A model wins when its F1 beats the best baseline's, its
     changed-cell F1 every baseline's and its tolerant mover F1 copy-last's (at k=1 and at
     --horizon). -o writes every number as JSON."""
-    from lidarflow.cli.useless import read_scorable, warn_nothing_scored
-    from lidarflow.evaluate.summary import format_overall, format_recording
-    from lidarflow.predict.backends import resolve_device
-    from lidarflow.scan import GridSpec
+    from lidarflow.cli.jobs import resolve_jobs
+    from lidarflow.cli.per_input import methods_kept
+    from lidarflow.cli.useless import read_scorable
 
-    if baselines_only and model:
+    o = options
+    output = _checked_output(o)
+    read = [*o.inputs, *(o.model or [])]
+    refuse_existing(output, force=o.force, inputs=read)
+    refuse_existing(o.report_dir, force=o.force, folder=True, inputs=read)
+    use_threads(o.threads)
+    sources = _sources(o)
+    named = [
+        (str(path), read_scorable(path, o.topic, o.odom_topic, o.warmup, o.horizon, o.ego_oracle))
+        for path in o.inputs
+    ]
+    settings = _settings(o, sources, None)
+    methods, config = _methods_and_config(settings)
+    workers = resolve_jobs(o.jobs, len(named))
+    with contextlib.ExitStack() as stack:  # the report folder appears once complete
+        if o.report_dir is not None:
+            staged = stack.enter_context(atomic_path(o.report_dir))
+            settings = dataclasses.replace(settings, report_dir=staged)
+        with methods_kept(settings, methods):  # one worker scores here, with these
+            report = _evaluate_in_jobs(named, settings, config, workers)
+    _say_report(report, config, output, o.report_dir)
+
+
+def _checked_output(options: EvaluateOptions) -> Path | None:
+    """``-o``, or the ``--json`` it replaced; a usage error where the flags contradict."""
+    if options.baselines_only and options.model:
         raise typer.BadParameter("--baselines-only scores no model; drop --model or it")
-    if json_out is not None:  # the spelling before -o/--output, kept working
-        if output is not None:
-            raise typer.BadParameter("give -o/--output once (--json is its old name)")
-        output = json_out
-    read = [*inputs, *(model or [])]
-    refuse_existing(output, force=force, inputs=read)
-    refuse_existing(report_dir, force=force, folder=True, inputs=read)
-    use_threads(threads)
-    sources: list[Path | None] = list(model or [])
-    if not sources and not baselines_only:
+    if options.json_out is None:
+        return options.output
+    if options.output is not None:  # the spelling before -o/--output, kept working
+        raise typer.BadParameter("give -o/--output once (--json is its old name)")
+    return options.json_out
+
+
+def _sources(options: EvaluateOptions) -> list[Path | None]:
+    """The models to score (``None``: the bundled one), none with ``--baselines-only`` or
+    where this installation has no bundled model (said)."""
+    sources: list[Path | None] = list(options.model or [])
+    if not sources and not options.baselines_only:
         if bundled_model_available():
             sources = [None]
         else:
             typer.echo("no bundled model in this installation: scoring the baselines only")
-    spec = GridSpec(grid, grid, res)
-    named = [
-        (str(path), read_scorable(path, topic, odom_topic, warmup, horizon, ego_oracle))
-        for path in inputs
-    ]
-    methods, config = methods_and_config(
-        sources,
-        ta_window,
-        ta_threshold,
-        moving_threshold,
-        ego_oracle,
-        online_decision,
-        spec.res,
-        device=resolve_device(device),
-        threads=threads or None,
-    )
-    config.update({"warmup": warmup, "grid": spec.to_dict()})
-    _note_other_grids(config["models"], spec)
-    from lidarflow.cli.jobs import resolve_jobs
-    from lidarflow.cli.per_input import methods_kept
+    return sources
 
-    workers = resolve_jobs(jobs, len(named))
-    with contextlib.ExitStack() as stack:  # the report folder appears once complete
-        staged = None if report_dir is None else stack.enter_context(atomic_path(report_dir))
-        settings = EvaluateSettings(
-            tuple(sources), ta_window, ta_threshold, moving_threshold, ego_oracle,
-            online_decision, spec, resolve_device(device), threads, warmup, horizon, staged,
-            gif_frames,
-        )  # fmt: skip
-        with methods_kept(settings, methods):  # one worker scores here, with these
-            report = _evaluate_in_jobs(named, settings, config, workers)
+
+def _settings(
+    o: EvaluateOptions, sources: list[Path | None], report_dir: Path | None
+) -> EvaluateSettings:
+    from lidarflow.predict.backends import resolve_device
+    from lidarflow.scan import GridSpec
+
+    return EvaluateSettings(
+        tuple(sources), o.ta_window, o.ta_threshold, o.moving_threshold, o.ego_oracle,
+        o.online_decision, GridSpec(o.grid, o.grid, o.res), resolve_device(o.device), o.threads,
+        o.warmup, o.horizon, report_dir, o.gif_frames,
+    )  # fmt: skip
+
+
+def _methods_and_config(settings: EvaluateSettings) -> tuple[Any, dict[str, Any]]:
+    """The methods to score and the report's config, with a note for each model scored on
+    a grid other than its own."""
+    s = settings
+    methods, config = methods_and_config(
+        list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
+        s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
+    )  # fmt: skip
+    config.update({"warmup": s.warmup, "grid": s.spec.to_dict()})
+    _note_other_grids(config["models"], s.spec)
+    return methods, config
+
+
+def _say_report(
+    report: dict[str, Any], config: dict[str, Any], output: Path | None, report_dir: Path | None
+) -> None:
+    """Each recording's scores, the overall ones, and what was written."""
+    from lidarflow.cli.useless import warn_nothing_scored
+    from lidarflow.evaluate.summary import format_overall, format_recording
+
     for entry in report["recordings"]:
         warn_nothing_scored(entry)
         typer.echo(format_recording(entry, config["grid"]))

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from lidarflow.atomic import discard, write_text
 from lidarflow.cli.app import ForceOpt, GridOpt, ResOpt, app, progress_bar, refuse_existing
+from lidarflow.cli.options import command_options
 
 _SENSOR_HELP = (
     "LiDAR preset: tim561 (the paper's: 15 Hz, 270 deg, 811 beams, 10 m), hokuyo-urg, "
@@ -62,23 +64,29 @@ FlowStorageOpt = Annotated[
 ]
 
 
+@dataclass(frozen=True)
+class SimulateOptions:
+    """``simulate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+
+    output: OutputOpt
+    scenario: ScenarioOpt = "dynamic"
+    frames: FramesOpt = 1000
+    seed: SeedOpt = 0
+    sensor: SensorOpt = "tim561"
+    people: PeopleOpt = 8
+    grid: GridOpt = 100
+    res: ResOpt = 0.1
+    odom_drift: OdomDriftOpt = 0.0
+    episode_frames: EpisodeFramesOpt = 1500
+    chunk_frames: ChunkFramesOpt = 6000
+    workers: WorkersOpt = 1
+    flow_storage: FlowStorageOpt = "dense"
+    force: ForceOpt = False
+
+
 @app.command()
-def simulate(
-    output: OutputOpt,
-    scenario: ScenarioOpt = "dynamic",
-    frames: FramesOpt = 1000,
-    seed: SeedOpt = 0,
-    sensor: SensorOpt = "tim561",
-    people: PeopleOpt = 8,
-    grid: GridOpt = 100,
-    res: ResOpt = 0.1,
-    odom_drift: OdomDriftOpt = 0.0,
-    episode_frames: EpisodeFramesOpt = 1500,
-    chunk_frames: ChunkFramesOpt = 6000,
-    workers: WorkersOpt = 1,
-    flow_storage: FlowStorageOpt = "dense",
-    force: ForceOpt = False,
-) -> None:
+@command_options(SimulateOptions)
+def simulate(options: SimulateOptions) -> None:
     """Simulate 2-D LiDAR scans of people walking in offices, with exact ground-truth flow.
 
     Writes recordings like `convert` with the ground truth in extras (flow_backward,
@@ -87,65 +95,75 @@ def simulate(
     """
     import time
 
-    from lidarflow.scan import GridSpec
-    from lidarflow.sim import (
-        PRESETS,
-        PeopleConfig,
-        PlatformConfig,
-        SimConfig,
-        lidar_preset,
-        write_simulation,
-    )
+    from lidarflow.sim import write_simulation
 
-    if scenario not in ("static", "dynamic"):
-        raise typer.BadParameter(f"static or dynamic, not {scenario!r}", param_hint="--scenario")
-    if sensor not in PRESETS:
-        choices = ", ".join(PRESETS)
-        raise typer.BadParameter(f"one of {choices}, not {sensor!r}", param_hint="--sensor")
-    if flow_storage not in ("dense", "sparse"):
-        hint = "--flow-storage"
-        raise typer.BadParameter(f"dense or sparse, not {flow_storage!r}", param_hint=hint)
+    o = options
+    config = _sim_config(o)
+    output = o.output
     if output.suffix != ".npz" and output.name:  # as Recording.save names it
         output = output.with_name(output.name + ".npz")
     stem = output.name.removesuffix(".npz")
     record = output.with_name(stem + ".json")
     chunks = sorted(output.parent.glob(f"{stem}-[0-9][0-9][0-9].npz"))
-    refuse_existing(output, record, *chunks, force=force)
-    config = SimConfig(
-        scenario=scenario,
-        flow_storage=flow_storage,
-        sensor=lidar_preset(sensor),
-        people=PeopleConfig(count=people),
-        platform=PlatformConfig(odom_drift=odom_drift),
-        grid=GridSpec(grid, grid, res),
-        episode_frames=episode_frames,
-    )
+    refuse_existing(output, record, *chunks, force=o.force)
     start = time.perf_counter()
-    with progress_bar(frames, f"simulating {scenario}") as bar:
+    with progress_bar(o.frames, f"simulating {o.scenario}") as bar:
         paths = write_simulation(
-            output, frames, seed, config, chunk_frames, workers, progress=bar.update
+            output, o.frames, o.seed, config, o.chunk_frames, o.workers, progress=bar.update
         )
     seconds = time.perf_counter() - start
     for old in {output, *chunks} - set(paths):  # --force: the last run's files not rewritten
         discard(old)
-    # The run's record beside its outputs: what was asked, what came out, how fast.
+    _write_record(record, o, paths, seconds, config)
+    n = o.frames
+    shown = str(paths[0]) if len(paths) == 1 else f"{len(paths)} files {paths[0]}..{paths[-1].name}"
+    typer.echo(
+        f"wrote {shown} (+ {record.name}): {n} {o.sensor} scans ({o.scenario}, seed {o.seed}) "
+        f"with ground-truth flow in {seconds:.1f} s ({n / seconds:.0f} scans/s)"
+    )
+
+
+def _sim_config(options: SimulateOptions) -> Any:
+    """The simulator's config the options ask for; a usage error for a name it does not know."""
+    from lidarflow.scan import GridSpec
+    from lidarflow.sim import PRESETS, PeopleConfig, PlatformConfig, SimConfig, lidar_preset
+
+    o = options
+    if o.scenario not in ("static", "dynamic"):
+        raise typer.BadParameter(f"static or dynamic, not {o.scenario!r}", param_hint="--scenario")
+    if o.sensor not in PRESETS:
+        choices = ", ".join(PRESETS)
+        raise typer.BadParameter(f"one of {choices}, not {o.sensor!r}", param_hint="--sensor")
+    if o.flow_storage not in ("dense", "sparse"):
+        hint = "--flow-storage"
+        raise typer.BadParameter(f"dense or sparse, not {o.flow_storage!r}", param_hint=hint)
+    return SimConfig(
+        scenario=o.scenario,
+        flow_storage=o.flow_storage,
+        sensor=lidar_preset(o.sensor),
+        people=PeopleConfig(count=o.people),
+        platform=PlatformConfig(odom_drift=o.odom_drift),
+        grid=GridSpec(o.grid, o.grid, o.res),
+        episode_frames=o.episode_frames,
+    )
+
+
+def _write_record(
+    record: Path, options: SimulateOptions, paths: list[Path], seconds: float, config: Any
+) -> None:
+    """The run's record beside its outputs: what was asked, what came out, how fast."""
     write_text(
         record,
         json.dumps(
             {
                 "command": "lidarflow " + " ".join(sys.argv[1:]),
-                "frames": frames,
-                "seed": seed,
+                "frames": options.frames,
+                "seed": options.seed,
                 "files": [str(p) for p in paths],
                 "seconds": round(seconds, 2),
-                "scans_per_s": round(frames / seconds, 1),
+                "scans_per_s": round(options.frames / seconds, 1),
                 "config": config.to_dict(),
             },
             indent=2,
         ),
-    )
-    shown = str(paths[0]) if len(paths) == 1 else f"{len(paths)} files {paths[0]}..{paths[-1].name}"
-    typer.echo(
-        f"wrote {shown} (+ {record.name}): {frames} {sensor} scans ({scenario}, seed {seed}) "
-        f"with ground-truth flow in {seconds:.1f} s ({frames / seconds:.0f} scans/s)"
     )

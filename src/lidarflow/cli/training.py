@@ -4,12 +4,14 @@
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from lidarflow.cli.app import TopicOpt, app
+from lidarflow.cli.options import command_options
 
 DataArg = Annotated[
     list[str] | None,
@@ -156,6 +158,74 @@ StartOverOpt = Annotated[
 ]
 
 
+@dataclass(frozen=True)
+class TrainOptions:
+    """``train``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+
+    data: DataArg = None
+    output: OutputOpt = None
+    arch: ArchOpt = None
+    ego_motion: EgoMotionOpt = False
+    recipe: RecipeOpt = None
+    config: ConfigOpt = None
+    init: InitOpt = None
+    resume: ResumeOpt = None
+    epochs: EpochsOpt = None
+    batch_size: BatchSizeOpt = None
+    lr: LrOpt = None
+    optimizer: OptimizerOpt = None
+    grad_clip: GradClipOpt = None
+    seq_len: SeqLenOpt = None
+    warmup: WarmupOpt = None
+    no_gaussian: NoGaussianOpt = False
+    mix: MixOpt = None
+    val: ValOpt = None
+    val_fraction: ValFractionOpt = None
+    val_split: ValSplitOpt = None
+    topic: TopicOpt = None
+    grid: TrainGridOpt = None
+    res: TrainResOpt = None
+    device: DeviceOpt = None
+    amp: AmpOpt = None
+    compile: CompileOpt = False
+    channels_last: ChannelsLastOpt = False
+    threads: TrainThreadsOpt = None
+    seed: SeedOpt = None
+    max_minutes: MaxMinutesOpt = None
+    set_: SetOpt = None
+    force: StartOverOpt = False
+
+    def flags(self) -> dict[str, Any]:
+        """The settings these flags give (``section.field``), ``None`` where not given."""
+        init = self.init if self.init in (None, "bundled") else os.path.abspath(self.init)
+        return {
+            "model.name": self.arch,
+            "model.init": init,
+            "optim.epochs": self.epochs,
+            "optim.batch_size": self.batch_size,
+            "optim.lr": self.lr,
+            "optim.name": self.optimizer,
+            "optim.grad_clip": self.grad_clip,
+            "data.seq_len": self.seq_len,
+            "data.warmup": self.warmup,
+            "schedule.gaussian": False if self.no_gaussian else None,
+            "data.mix": self.mix or None,
+            "data.val_sources": [os.path.abspath(v) for v in self.val] if self.val else None,
+            "data.val_fraction": self.val_fraction,
+            "data.val_split": self.val_split,
+            "data.topic": self.topic,
+            "data.grid": self.grid,
+            "data.res": self.res,
+            "runtime.device": self.device,
+            "runtime.amp": self.amp,
+            "runtime.compile": "cells" if self.compile else None,
+            "runtime.channels_last": True if self.channels_last else None,
+            "runtime.threads": self.threads,
+            "runtime.seed": self.seed,
+            "runtime.max_minutes": self.max_minutes,
+        }
+
+
 @app.command(
     help="Train LiDAR-FlowNet or a peer (DeepTracking, SOGMP), self-supervised, on recordings "
     "and bags.\n\n"
@@ -177,102 +247,56 @@ StartOverOpt = Annotated[
     "lidarflow train --resume runs/a --epochs 300  (continue exactly, then extend)\n\n"
     "torchrun --nproc_per_node 2 -m lidarflow.cli train DATA... -o runs/c",
 )
-def train(
-    data: DataArg = None,
-    output: OutputOpt = None,
-    arch: ArchOpt = None,
-    ego_motion: EgoMotionOpt = False,
-    recipe: RecipeOpt = None,
-    config: ConfigOpt = None,
-    init: InitOpt = None,
-    resume: ResumeOpt = None,
-    epochs: EpochsOpt = None,
-    batch_size: BatchSizeOpt = None,
-    lr: LrOpt = None,
-    optimizer: OptimizerOpt = None,
-    grad_clip: GradClipOpt = None,
-    seq_len: SeqLenOpt = None,
-    warmup: WarmupOpt = None,
-    no_gaussian: NoGaussianOpt = False,
-    mix: MixOpt = None,
-    val: ValOpt = None,
-    val_fraction: ValFractionOpt = None,
-    val_split: ValSplitOpt = None,
-    topic: TopicOpt = None,
-    grid: TrainGridOpt = None,
-    res: TrainResOpt = None,
-    device: DeviceOpt = None,
-    amp: AmpOpt = None,
-    compile: CompileOpt = False,
-    channels_last: ChannelsLastOpt = False,
-    threads: TrainThreadsOpt = None,
-    seed: SeedOpt = None,
-    max_minutes: MaxMinutesOpt = None,
-    set_: SetOpt = None,
-    force: StartOverOpt = False,
-) -> None:
+@command_options(TrainOptions)
+def train(options: TrainOptions) -> None:
     """``lidarflow train``: the help text above says it all (kept there for --help)."""
-    from lidarflow.train.invocation import (
-        ResumeConflictError,
-        TrainRequest,
-        new_run_config,
-        refuse_inputs_in,
-        resumed_run_config,
-    )
+    from lidarflow.train.invocation import TrainRequest
 
-    flags = {
-        "model.name": arch,
-        "model.init": init if init in (None, "bundled") else os.path.abspath(init),
-        "optim.epochs": epochs,
-        "optim.batch_size": batch_size,
-        "optim.lr": lr,
-        "optim.name": optimizer,
-        "optim.grad_clip": grad_clip,
-        "data.seq_len": seq_len,
-        "data.warmup": warmup,
-        "schedule.gaussian": False if no_gaussian else None,
-        "data.mix": mix or None,
-        "data.val_sources": [os.path.abspath(v) for v in val] if val else None,
-        "data.val_fraction": val_fraction,
-        "data.val_split": val_split,
-        "data.topic": topic,
-        "data.grid": grid,
-        "data.res": res,
-        "runtime.device": device,
-        "runtime.amp": amp,
-        "runtime.compile": "cells" if compile else None,
-        "runtime.channels_last": True if channels_last else None,
-        "runtime.threads": threads,
-        "runtime.seed": seed,
-        "runtime.max_minutes": max_minutes,
-    }
-    request = TrainRequest(data or [], flags, recipe, config, set_ or [], ego_motion, val or [])
-    if resume is not None:
-        if force:
-            raise typer.BadParameter(
-                "--resume continues a run, --force starts one over; give one", param_hint="--force"
-            )
-        if output is not None and output.resolve() != resume.resolve():
-            raise typer.BadParameter(
-                f"--resume {resume} and -o {output} name different runs; give one",
-                param_hint="--resume",
-            )
-        try:
-            cfg = resumed_run_config(resume, request)
-        except ResumeConflictError as err:  # a usage error: the command line asked for it
-            raise typer.BadParameter(str(err), param_hint="--resume") from err
-        run_dir = resume
+    o = options
+    request = TrainRequest(
+        o.data or [], o.flags(), o.recipe, o.config, o.set_ or [], o.ego_motion, o.val or []
+    )
+    if o.resume is not None:
+        cfg, run_dir = _resumed(o, o.resume, request), o.resume
     else:
-        if output is None:
-            raise typer.BadParameter(
-                "name the run directory with -o RUN_DIR (or --resume RUN_DIR)", param_hint="-o"
-            )
-        if not data and config is None:
-            raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
-        cfg = new_run_config(request)
-        refuse_inputs_in(output, cfg)
-        run_dir = output
-    _run(cfg, run_dir, resume is not None, force)
+        cfg, run_dir = _new_run(o, request)
+    _run(cfg, run_dir, o.resume is not None, o.force)
+
+
+def _resumed(options: TrainOptions, resume: Path, request: Any) -> Any:
+    """The config of the run ``--resume`` continues; a usage error where the command line
+    contradicts it."""
+    from lidarflow.train.invocation import ResumeConflictError, resumed_run_config
+
+    if options.force:
+        raise typer.BadParameter(
+            "--resume continues a run, --force starts one over; give one", param_hint="--force"
+        )
+    output = options.output
+    if output is not None and output.resolve() != resume.resolve():
+        raise typer.BadParameter(
+            f"--resume {resume} and -o {output} name different runs; give one",
+            param_hint="--resume",
+        )
+    try:
+        return resumed_run_config(resume, request)
+    except ResumeConflictError as err:  # a usage error: the command line asked for it
+        raise typer.BadParameter(str(err), param_hint="--resume") from err
+
+
+def _new_run(options: TrainOptions, request: Any) -> tuple[Any, Path]:
+    """The config of a new run and its folder (``-o``), checked before any work."""
+    from lidarflow.train.invocation import new_run_config, refuse_inputs_in
+
+    if options.output is None:
+        raise typer.BadParameter(
+            "name the run directory with -o RUN_DIR (or --resume RUN_DIR)", param_hint="-o"
+        )
+    if not options.data and options.config is None:
+        raise typer.BadParameter("give training data: recordings or bags", param_hint="DATA")
+    cfg = new_run_config(request)
+    refuse_inputs_in(options.output, cfg)
+    return cfg, options.output
 
 
 def _run(cfg: Any, run_dir: Path, resume: bool, start_over: bool) -> None:

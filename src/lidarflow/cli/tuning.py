@@ -75,11 +75,9 @@ def choose_offset(
 
     A larger offset predicts more changed cells at some cost in calibration; a model that
     chooses offsets online uses the fixed one for its first frames."""
-    from lidarflow.cli.useless import nothing_scored, read_scorable, warn_nothing_scored
-    from lidarflow.errors import EvaluateError, ModelError
+    from lidarflow.cli.useless import read_scorable
     from lidarflow.evaluate.offsets import choose_offset as choose
     from lidarflow.evaluate.offsets import decided_online, score_offsets, with_offset
-    from lidarflow.models.presets import resolve_model
     from lidarflow.models.weights import check_decision_offset
     from lidarflow.scan import GridSpec
 
@@ -87,23 +85,12 @@ def choose_offset(
     use_threads(threads)
     offsets = [check_decision_offset(o, "--offset") for o in dict.fromkeys(offset or ())]
     offsets = offsets or list(DEFAULT_OFFSETS)
-    net, card = resolve_model(model)
-    if not net.capabilities.occupancy_head:
-        raise ModelError(
-            f"{card.get('weights_path')}: this model has no occupancy head, so no decision "
-            "offset to choose (train one with the default recipe)"
-        )
+    card = _head_model_card(model)
     weights = Path(card["weights_path"])
     spec = GridSpec(grid, grid, res)
     named = [(str(p), read_scorable(p, topic, odom_topic, warmup, 1, False)) for p in inputs]
     report, names = score_offsets(named, card, weights, offsets, spec, warmup, eval_progress)
-    for entry in report["recordings"]:
-        warn_nothing_scored(entry)
-    if all(nothing_scored(entry) for entry in report["recordings"]):
-        raise EvaluateError(
-            "nothing was scored on any recording (no occupied cell in a scored frame): no "
-            "offset to choose; choose on recordings whose scans see something"
-        )
+    _refuse_nothing_scored(report["recordings"])
     best, totals = choose(report["recordings"], names)
     _say_scores(report["recordings"], names, totals)
     chosen = with_offset(card, best, online=decided_online(card))  # the model's own rule kept
@@ -122,6 +109,35 @@ def choose_offset(
     chosen["decision_offset_chosen_on"] = record["recordings"]
     _write_model(output, weights, chosen, record)
     typer.echo(f"wrote {output}: decision offset {best:g} (use it with -m {output})")
+
+
+def _head_model_card(model: Path | None) -> dict[str, Any]:
+    """The card of ``model``; a :class:`ModelError` where it has no occupancy head."""
+    from lidarflow.errors import ModelError
+    from lidarflow.models.presets import resolve_model
+
+    net, card = resolve_model(model)
+    if not net.capabilities.occupancy_head:
+        raise ModelError(
+            f"{card.get('weights_path')}: this model has no occupancy head, so no decision "
+            "offset to choose (train one with the default recipe)"
+        )
+    return card
+
+
+def _refuse_nothing_scored(recordings: list[dict[str, Any]]) -> None:
+    """Warn of each recording on which nothing was scored; an :class:`EvaluateError` where
+    that is every one (no offset can be chosen)."""
+    from lidarflow.cli.useless import nothing_scored, warn_nothing_scored
+    from lidarflow.errors import EvaluateError
+
+    for entry in recordings:
+        warn_nothing_scored(entry)
+    if all(nothing_scored(entry) for entry in recordings):
+        raise EvaluateError(
+            "nothing was scored on any recording (no occupied cell in a scored frame): no "
+            "offset to choose; choose on recordings whose scans see something"
+        )
 
 
 def _say_scores(

@@ -6,15 +6,10 @@ predicts: training cuts its windows there (:mod:`lidarflow.data.sequences`), the
 evaluation does not score the step into it (:mod:`lidarflow.evaluate.stream`), and ``lidarflow
 info`` lists them, all by this one rule.
 
-The rule is relative to the stream's own rate (scanners run at 5-40 Hz): a step longer than
-``max_gap_periods`` times the typical step, forwards or backwards (a clock that jumps back). The
-typical step (:mod:`lidarflow.stamps`, which also paces the guess of the sensor's next motion
-after a long step) is the median of the last forward steps, long ones
-included: one gap does not move a median, and a driver that changes its rate (20 Hz -> 5 Hz) is
-learnt once a few steps at the new rate agree (its first slower steps are gaps). Until a few
-steps are known, the median of all the stream's forward steps stands in, so a gap in the first
-steps is found too. A stamp equal to the one before (a driver that does not advance its stamps)
-or a little before it (two scans handed over out of order) is no gap.
+The rule: a step longer than ``max_gap_periods`` times the stream's typical step
+(:mod:`lidarflow.stamps`), forwards or backwards (a clock that jumps back); after a driver changes
+its rate, its first slower steps are gaps. A stamp equal to the one before or a little before it
+(two scans handed over out of order) is no gap.
 """
 
 from __future__ import annotations

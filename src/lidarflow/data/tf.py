@@ -1,8 +1,8 @@
 """The sensor's mount on the robot from a bag's TF, so odometry poses become sensor poses.
 
 Odometry reports the pose of its child frame (the robot base, e.g. ``base_link``); the scans are
-in their own frame (e.g. ``left_laser``), which may sit far from the base and turned against it
-(``general_tracking_moving_1``: 0.88 m ahead, 42 degrees to the left). Ego motion needs the
+in their own frame (e.g. ``left_laser``), which may sit far from the base and turned against
+it. Ego motion needs the
 *sensor's* motion: ``sensor_pose = base_pose o mount`` with ``mount`` the pose of the scan frame
 in the base frame, read from ``/tf`` and ``/tf_static`` (planar part only: x, y, yaw).
 

@@ -1,7 +1,7 @@
 """Calibration of predicted occupancy probabilities (what a planner weighing uncertainty needs).
 
 A predictor is calibrated when, of all cells given probability ``p`` of being occupied in the
-next frame, a share ``p`` really is. Measured, over every cell of every scored frame:
+next frame, a share ``p`` really is. Over every cell of every scored frame:
 
 * the *reliability diagram*: predicted probabilities in ``bins`` equal bins ``[k/bins,
   (k+1)/bins)`` (the last one closed at 1); per bin the cell count, the mean predicted
@@ -9,11 +9,9 @@ next frame, a share ``p`` really is. Measured, over every cell of every scored f
 * the *expected calibration error* (ECE): ``sum_k (n_k / N) |mean_p_k - freq_k|`` (Guo et al.
   2017), bins of 0.1 by default;
 * the *active ECE*: the same over the cells predicted at least ``1 / bins`` (every bin but the
-  lowest), i.e. how far to trust the probability wherever the predictor says a cell may be
-  occupied. Most cells are free and predicted free, which makes the plain ECE small for every
-  method; the active ECE is what separates them (copy-last's is ``1 - precision``);
-* the *Brier score*: ``mean (p - y)^2`` (lower is better; a proper score, so it also rewards
-  sharpness, which ECE alone does not).
+  lowest): most cells are free and predicted free, which makes the plain ECE small for every
+  method (copy-last's active ECE is ``1 - precision``);
+* the *Brier score*: ``mean (p - y)^2`` (lower is better).
 """
 
 from __future__ import annotations
@@ -23,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CALIBRATION_BINS", "Calibration", "brier_score", "expected_calibration_error"]
+__all__ = ["CALIBRATION_BINS", "Calibration"]
 
 CALIBRATION_BINS = 10
 
@@ -129,28 +127,3 @@ class Calibration:
             "cells": self.cells,
             "bins": bins,
         }
-
-
-def expected_calibration_error(
-    probability: np.ndarray, target: np.ndarray, bins: int = CALIBRATION_BINS
-) -> float:
-    """ECE of probabilities against boolean truth, ``bins`` equal bins, weighted by count.
-
-    >>> p, y = np.array([0.2, 0.2, 0.9, 0.9]), np.array([0, 1, 1, 1])
-    >>> round(expected_calibration_error(p, y), 9)  # (2/4)|0.2 - 1/2| + (2/4)|0.9 - 1|
-    0.2
-    """
-    calibration = Calibration(bins)
-    calibration.add(probability, target)
-    return calibration.ece()
-
-
-def brier_score(probability: np.ndarray, target: np.ndarray) -> float:
-    """``mean (p - y)^2``.
-
-    >>> brier_score(np.array([1.0, 0.5]), np.array([1, 0]))
-    0.125
-    """
-    calibration = Calibration()
-    calibration.add(probability, target)
-    return calibration.brier()

@@ -12,11 +12,9 @@ Counts are taken in the world frame where the recording has poses (the true ones
 simulated recording, else its odometry): every map cell's centre is moved by its frame's pose
 into a fixed world grid of the same resolution, counted there, and each frame's region is read
 back at its own cells' centres. The world grid is held in tiles of :data:`TILE` x :data:`TILE`
-cells, each allocated where a frame first falls: a drive of kilometres, or one odometry glitch
-to a kilometre away, costs the tiles its scans cover, not its bounding box. A platform standing
-still has constant poses, so this is the sensor frame; a recording without poses is counted in
-the sensor frame as if it stood still (a limitation: a moving recording without odometry gets no
-registration; its walls smear and some of them read as dynamic). A frame whose pose is unknown
+cells, each allocated where a frame first falls, so memory follows the cells the scans cover,
+not their bounding box. A recording without poses is counted in the sensor frame as if it stood
+still (a moving one's walls then smear and some read as dynamic). A frame whose pose is unknown
 is not counted and has an empty region (one further than :data:`FARTHEST` from the origin
 alike). Where two map cells of a frame fall into one world cell (a turned frame, nearest cell)
 the world cell counts once for that frame.

@@ -129,9 +129,8 @@ class HorizonScore:
         truths = np.stack([occupancy[t + 1 + k] for k in range(len(predicted))])
         for k, (decided, truth) in enumerate(zip(predicted, truths, strict=True)):
             self.counts[k] = self.counts[k] + confusion(decided >= THRESHOLD, truth)
-            self.changed[k] = self.changed[k] + confusion(
-                decided >= THRESHOLD, truth, _changed(occupancy[t], truth)
-            )
+            changed = np.asarray(occupancy[t], bool) != np.asarray(truth, bool)
+            self.changed[k] = self.changed[k] + confusion(decided >= THRESHOLD, truth, changed)
             if self.region is not None:
                 self.movers[k].add(decided, truth, self.region(t + 1 + k))
         self.wmse += wmse(predicted, truths)
@@ -217,10 +216,6 @@ def add_horizon_entry(entry: dict[str, Any], scored: dict[str, Any]) -> None:
     the report's counts of recordings won follow from :func:`count_recordings_won` after."""
     entry.update(scored)
     add_horizon_verdict(entry)
-
-
-def _changed(last: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    return np.asarray(last, bool) != np.asarray(truth, bool)
 
 
 def _counts(horizon: int) -> list[Counts]:

@@ -30,8 +30,8 @@ class ModelMethod:
 
     Ego-motion models (``takes.motion``) take the frame's ``motion`` (cells, this frame in the
     previous one, see :mod:`lidarflow.motion.odometry`) in ``update``; ``oracle=True`` also takes
-    the true ``next_motion`` instead of the causal guess (an upper bound that needs the future
-    pose, for evaluation only). A model that may run without poses (``takes.poses_optional``) checks
+    the true ``next_motion`` instead of the causal guess (evaluation only). A model that may run
+    without poses (``takes.poses_optional``) checks
     the odometry against the scans and, where they disagree, takes the scans' own motion, refined
     on the scans' returns when ``update`` is given them (``res``: the grid's cell size in
     metres).

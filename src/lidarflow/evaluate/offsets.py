@@ -7,9 +7,8 @@ logit when deciding (the ``decision`` record of its ``model.json``, the Predicto
 trades calibration for cells that change. Each candidate offset is scored with fixed decisions
 beside the three baselines, and the one with the largest summed *win margin* is chosen: per
 recording ``min(F1 - best baseline F1, changed F1 - best baseline changed F1)``, positive
-exactly where the model wins there. (A model that chooses its offsets online, as the bundled one
-does, still uses the fixed offset for its first frames and wherever online decisions are turned
-off.)
+exactly where the model wins there. A model that chooses its offsets online still uses the
+fixed offset for its first frames and wherever online decisions are turned off.
 """
 
 from __future__ import annotations

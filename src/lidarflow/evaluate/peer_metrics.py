@@ -28,16 +28,8 @@ use_sample_covariance=False, data_range=1)`` (the tests check it).
 
 What is scored is what each method outputs: the probability its decision thresholds at 0.4 (a
 model's decided probability; copy-last's last map, 0 or 1) against the observed next map, 0 or
-1, as SOGMP scores its mean prediction against the observed scan's map.
-
-Against SOGMP's own numbers: our grid is 100 x 100 cells of 0.1 m in front of the sensor (10 m
-ahead, 5 m to each side, design notes section 2); theirs is 64 x 64 cells of 0.1 m, also in
-front (``MAP_X_LIMIT = [0, 6.4]``, ``MAP_Y_LIMIT = [-3.2, 3.2]`` in their ``decode_demo.py``),
-of a 270-degree scan, its target the binary map of the scan's returns as ours. The share of
-occupied cells, and with it both metrics, differ by grid alone: compare methods on one grid, not
-numbers across papers. Their public repository (``TempleRAIL/SOGMP``: training and demonstration
-scripts) holds no evaluation code, so the weighting and the SSIM window above are the standard
-definitions named, not read off their code.
+1. Both metrics depend on the grid: compare methods on one grid, not numbers across papers
+(``docs/research/peer_comparison/``).
 """
 
 from __future__ import annotations

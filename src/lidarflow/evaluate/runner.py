@@ -9,8 +9,8 @@ first ``warmup`` frames only warm the state up.
 
 Where a recording's scans stop for a while (a gap, :func:`lidarflow.data.gaps.frames_after_gaps`)
 the step across the gap is not scored: the frame after it is not the next scan. Every method's
-state carries across, as the :class:`~lidarflow.predict.Predictor`'s does (measured:
-``docs/research/gaps/``).
+state carries across, as the :class:`~lidarflow.predict.Predictor`'s does
+(``docs/research/gaps/``).
 
 The main table (one :class:`~lidarflow.evaluate.scoring.Scorer` per method) scores every step
 ``t -> t + 1`` after the warm-up and not across a gap: F1, AP and the rest against ``O^{t+1}``;
@@ -63,7 +63,6 @@ __all__ = [
     "evaluate_recording",
     "horizon_scores",
     "recording_truth",
-    "score_recording",
     "score_stream",
 ]
 
@@ -112,23 +111,6 @@ class Scores:
     horizon_frames: int = 0
 
 
-def score_recording(
-    recording: Recording,
-    methods: Sequence[Method],
-    grid: GridSpec | None = None,
-    warmup: int = WARMUP,
-    horizon: int = 1,
-    hooks: Hooks = Hooks(),
-) -> Scores:
-    """Rasterize ``recording`` on ``grid`` (streamed in blocks) and score every method on it in
-    one pass (:func:`score_stream`) with its :func:`recording_truth`; ``horizon`` > 1 adds the
-    horizon tables 1..``horizon`` ahead."""
-    grid = grid or GridSpec()
-    inputs = recording_inputs(recording, grid, methods)
-    truth = recording_truth(recording, grid, inputs)
-    return score_stream(inputs, methods, warmup, horizon if horizon > 1 else None, truth, hooks)
-
-
 def recording_truth(recording: Recording, grid: GridSpec, inputs: RecordingInputs) -> Truth:
     """The simulator's ground truth of ``recording`` where it has it on ``grid``, and its
     dynamic region (:func:`~lidarflow.evaluate.stream.mover_region`, from its ``inputs``)."""
@@ -154,7 +136,7 @@ def score_stream(
     n = len(inputs.occupancy)
     check_length(n, warmup, inputs.gaps)
     if truth.region is not None:  # asked for frames t + 1 .. t + K in turn
-        region = _cached(truth.region, horizon or 1)
+        region = functools.lru_cache(maxsize=(horizon or 1) + 1)(truth.region)
         truth = Truth(truth.flow, truth.platform, truth.moving, region)
     one = _NextMap(inputs, methods, truth, hooks)
     ahead = None if horizon is None else _Ahead(inputs, methods, horizon, warmup, truth, hooks)
@@ -177,10 +159,6 @@ def score_stream(
     if ahead is None:
         return Scores(one.scorers)
     return Scores(one.scorers, ahead.means(), len(ahead.frames))
-
-
-def _cached(region: Callable[[int], np.ndarray], horizon: int) -> Callable[[int], np.ndarray]:
-    return functools.lru_cache(maxsize=horizon + 1)(region)
 
 
 class _NextMap:
@@ -307,9 +285,14 @@ def evaluate_recording(
     on_prediction: OnPrediction | None = None,
     on_moving: OnMoving | None = None,
 ) -> dict[str, Scorer]:
-    """The main table of :func:`score_recording`: a :class:`Scorer` per method."""
+    """Rasterize ``recording`` on ``grid`` (streamed in blocks) and score every method on it in
+    one pass (:func:`score_stream`) with its :func:`recording_truth`: a :class:`Scorer` per
+    method."""
+    grid = grid or GridSpec()
+    inputs = recording_inputs(recording, grid, methods)
+    truth = recording_truth(recording, grid, inputs)
     hooks = Hooks(progress, on_prediction, on_moving)
-    return score_recording(recording, methods, grid, warmup, 1, hooks).next_map
+    return score_stream(inputs, methods, warmup, None, truth, hooks).next_map
 
 
 def _maps_inputs(

@@ -10,10 +10,7 @@ the curve exact for binary predictors and within 1/BINS in threshold otherwise.
 Each also averages the peers' metrics over the frames it scored (:mod:`lidarflow.evaluate.
 peer_metrics`): the class-balanced WMSE and the SSIM of the probability against the next map, one
 value per frame, then the mean (as SOGMP averages over its test frames; summed over recordings
-for "overall", so every frame counts once). Measured on a busy 2-core CPU (100 x 100 grid) they add
-0.25-0.36 ms to a frame's :meth:`Scorer.add` per method (SSIM most of it): on the sample bag with
-the bundled model and four baselines, 41 against 39 ms a frame in the quietest runs (noise between
-runs was larger). Cheap enough to be always on. A grid under 11 x 11 cells (tests) has no SSIM.
+for "overall", so every frame counts once). A grid under 11 x 11 cells has no SSIM.
 """
 
 from __future__ import annotations

@@ -25,7 +25,6 @@ import importlib
 import logging
 import socket
 import sys
-import time
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -34,7 +33,7 @@ import numpy as np
 
 from lidarflow.errors import PredictError
 from lidarflow.live.rosnode import RosNode
-from lidarflow.live.step import LiveStep, clock_ns
+from lidarflow.live.step import clock_ns
 
 __all__ = ["DEBIAN_PACKAGES", "Ros", "Ros1Node", "check_master", "import_ros"]
 
@@ -113,17 +112,8 @@ class Ros1Node(RosNode):
     """The ROS 1 side of the node: rospy's scans and odometry in, grids out (the arguments:
     :class:`lidarflow.live.rosnode.RosNode`'s)."""
 
-    def __init__(
-        self,
-        step: LiveStep,
-        topic: str = "/scan",
-        odom_topic: str | None = None,
-        moving: bool = False,
-        name: str = "lidarflow",
-        queue: int = 10,
-    ) -> None:
-        self.ros = import_ros()
-        super().__init__(step, topic, odom_topic, moving, name, queue)
+    ros: Ros
+    _import_ros = staticmethod(import_ros)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -148,24 +138,13 @@ class Ros1Node(RosNode):
         log.info("%s at %s: scans from %s%s; publishing %s", rospy.get_name(), uri, self.topic,
                  odom, ", ".join(self.topics))  # fmt: skip
 
-    def spin(self, check_every_s: float = 2.0) -> None:
-        """Run until Ctrl-C or SIGTERM (returns), ROS shuts the node down (returns), or a scan
-        fails (raises its error); every ``check_every_s`` the master is asked whether the
-        topics carry the types the node expects."""
-        rospy = self.ros.rospy
-        next_check = 0.0
-        try:
-            while not rospy.is_shutdown() and self._failure is None:
-                if time.monotonic() >= next_check:
-                    self._check_types()
-                    next_check = time.monotonic() + check_every_s
-                time.sleep(0.05)
-        except KeyboardInterrupt:
-            log.info("stopping")
-        finally:
-            rospy.signal_shutdown("lidarflow stopped")
-        if self._failure is not None:
-            raise self._failure
+    def _running(self) -> bool:
+        return not self.ros.rospy.is_shutdown()
+
+    def close(self) -> None:
+        """Leave the ROS graph (rospy's node shut down; in this process it does not start
+        again)."""
+        self.ros.rospy.signal_shutdown("lidarflow stopped")
 
     def _check_types(self) -> None:
         wanted = {self.topic: SCAN_TYPE}
@@ -202,4 +181,3 @@ class Ros1Node(RosNode):
         # a list: genpy packs a list of ints 3x faster than a NumPy array's elements
         msg.data = data.tolist()
         return msg
-

@@ -26,7 +26,6 @@ import array
 import contextlib
 import logging
 import threading
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import ModuleType
@@ -125,30 +124,26 @@ def import_ros2() -> Ros2:
 class Ros2Node(RosNode):
     """The ROS 2 side of the node: scans and odometry in, grids out.
 
-    Args (besides :class:`lidarflow.live.rosnode.RosNode`'s, ``queue`` being the depth of the
-    scan subscription's and the grid publishers' history):
+    Args (besides :class:`lidarflow.live.rosnode.RosNode`'s, passed on to it, ``queue`` being
+    the depth of the scan subscription's and the grid publishers' history; these two by
+    keyword):
         scan_qos: one of :data:`SCAN_QOS`.
         grid_qos: one of :data:`GRID_QOS`.
     """
 
+    ros: Ros2
+    _import_ros = staticmethod(import_ros2)
+
     def __init__(
-        self,
-        step: LiveStep,
-        topic: str = "/scan",
-        odom_topic: str | None = None,
-        moving: bool = False,
-        name: str = "lidarflow",
-        queue: int = 10,
-        scan_qos: str = "sensor",
-        grid_qos: str = "reliable",
-    ) -> None:
+        self, step: LiveStep, *args: Any, scan_qos: str = "sensor", grid_qos: str = "reliable",
+        **kwargs: Any,
+    ) -> None:  # fmt: skip
         if scan_qos not in SCAN_QOS or grid_qos not in GRID_QOS:
             raise PredictError(
                 f"scan QoS {scan_qos!r} or grid QoS {grid_qos!r} unknown: "
                 f"scans {'/'.join(SCAN_QOS)}, grids {'/'.join(GRID_QOS)}"
             )
-        self.ros = import_ros2()
-        super().__init__(step, topic, odom_topic, moving, name, queue)
+        super().__init__(step, *args, **kwargs)
         self.scan_qos, self.grid_qos = scan_qos, grid_qos
         self._context: Any = None
         self._node: Any = None
@@ -212,23 +207,8 @@ class Ros2Node(RosNode):
         with contextlib.suppress(ExternalShutdownException):
             self._executor.spin()
 
-    def spin(self, check_every_s: float = 2.0) -> None:
-        """Run until Ctrl-C or SIGTERM (returns) or a scan fails (raises its error); every
-        ``check_every_s`` the graph is asked whether the topics' publishers carry the types the
-        node expects."""
-        next_check = 0.0
-        try:
-            while self._failure is None and self._context.ok():
-                if time.monotonic() >= next_check:
-                    self._check_types()
-                    next_check = time.monotonic() + check_every_s
-                time.sleep(0.05)
-        except KeyboardInterrupt:
-            log.info("stopping")
-        finally:
-            self.close()
-        if self._failure is not None:
-            raise self._failure
+    def _running(self) -> bool:
+        return self._context.ok()
 
     def close(self) -> None:
         """Leave the domain: the executor stopped, the node destroyed, the context shut down."""

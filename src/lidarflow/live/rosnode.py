@@ -3,14 +3,15 @@ from odometry and TF, and the step's grids out as ``nav_msgs/OccupancyGrid`` mes
 
 The two ROS generations give the same message fields (``ranges``, ``header.frame_id``,
 ``pose.pose``, ``transforms``, ``info.origin``...); what differs, and what a subclass supplies,
-is how a stamp is read and written, how a grid message is filled and how the node meets its
-peers (:mod:`lidarflow.live.ros1`, :mod:`lidarflow.live.ros2`).
+is where the client library comes from, how a stamp is read and written, how a grid message
+is filled and how the node meets its peers (:mod:`lidarflow.live.ros1`, :mod:`lidarflow.live.ros2`).
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from abc import ABC, abstractmethod
 from typing import Any
 
@@ -50,6 +51,7 @@ class RosNode(ABC):
     ) -> None:
         from lidarflow.data.tf import TransformTree
 
+        self.ros = self._import_ros()  # first: a missing ROS is said before anything is set up
         self.step, self.topic, self.odom_topic = step, topic, odom_topic
         self.moving, self.name, self.queue = moving, name, queue
         self.layout = GridLayout.of(step.predictor.grid)
@@ -62,6 +64,49 @@ class RosNode(ABC):
         self._failure: LidarflowError | None = None
         self._warned: set[str] = set()
         step.sinks.append(self.publish)
+
+    @staticmethod
+    @abstractmethod
+    def _import_ros() -> Any:
+        """This ROS's client library and the message classes the node uses; a
+        :class:`PredictError` naming how to install them where they are missing."""
+
+    # ------------------------------------------------------------------ lifecycle
+    @abstractmethod
+    def start(self) -> None:
+        """Meet the peers: the publishers first, so that no grid goes out unadvertised, then
+        the subscriptions."""
+
+    def spin(self, check_every_s: float = 2.0) -> None:
+        """Run until Ctrl-C or SIGTERM (returns), ROS shuts the node down (returns), or a scan
+        fails (raises its error); every ``check_every_s`` the graph is asked whether the topics
+        carry the types the node expects. The node is closed on the way out."""
+        next_check = 0.0
+        try:
+            while self._failure is None and self._running():
+                if time.monotonic() >= next_check:
+                    self._check_types()
+                    next_check = time.monotonic() + check_every_s
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            log.info("stopping")
+        finally:
+            self.close()
+        if self._failure is not None:
+            raise self._failure
+
+    @abstractmethod
+    def _running(self) -> bool:
+        """Whether ROS still runs the node (not shut down from outside)."""
+
+    @abstractmethod
+    def _check_types(self) -> None:
+        """A :class:`PredictError` naming the option to fix where the scan or odometry topic
+        carries another message type."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Leave the ROS graph."""
 
     # ------------------------------------------------------------------ in
     def _scan_in(self, msg: Any, stamp_ns: int, received: int) -> None:

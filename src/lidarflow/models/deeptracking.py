@@ -10,20 +10,15 @@ needs:
     decoder          3x3 conv over the concatenated states of all three GRUs (48 -> 1 ch)
     output           one logit per cell; ``sigmoid`` gives P(occupied at t + 1)
 
-Why this variant:
-- Dequaire et al. replaced the 2016 model's plain recurrent layers by stacked dilated ConvGRUs
-  with skip connections from every layer into the output; that is the published form the
-  LiDAR-FlowNet paper compares against, and the one that fits a 100 x 100 grid.
-- It has the same encoder, cells and receptive field as LiDAR-FlowNet and a near-equal budget
-  (42,353 parameters against 42,500), so the comparison isolates "predict occupancy directly"
-  against "predict flow and warp".
-- Left out: the spatial transformer for ego-motion (neither model gets odometry here) and the
-  learned static-memory bias map (it would tie the model to one grid size).
+The architecture is the published one that fits a 100 x 100 grid, with the same encoder,
+cells and receptive field as LiDAR-FlowNet and a near-equal budget (42,353 parameters against
+42,500), so the comparison isolates "predict occupancy directly" against "predict flow and warp".
+Left out: the spatial transformer for ego-motion and the learned static-memory bias map (it
+would tie the model to one grid size).
 
-The decoder's bias starts at ``logit(0.02)`` (an occupancy rate typical of 2-D LiDAR maps), so
-the untrained net predicts "mostly free" rather than 0.5 everywhere; this only shortens the
-start of training. The loss is :func:`lidarflow.losses.deeptracking_loss`: the published
-cross-entropy of the predicted next occupancy, counted on the cells visible in the next frame.
+The decoder's bias starts at ``logit(0.02)``, so the untrained net predicts "mostly free". The
+loss is :func:`lidarflow.losses.deeptracking_loss`: the cross-entropy of the predicted next
+occupancy on the cells visible in the next frame.
 """
 
 from __future__ import annotations

@@ -8,13 +8,11 @@
 42,500 parameters with the bias choice documented in :mod:`lidarflow.models.convgru`.
 
 Activations: the paper names none outside the GRUs. conv_flow is linear (flow is unbounded,
-signed). After conv0 a ReLU: the paper calls conv0 a feature extractor, and without a
-non-linearity conv0 would merely compose with each gate's ``W_x*`` into one larger linear filter
-(the linear variant was measured no better and removed). It adds no parameters.
+signed). After conv0 a ReLU (no parameters): without it conv0 would merely compose with each
+gate's ``W_x*`` into one larger linear filter.
 
 The flow head starts at zero (``FlowConfig.zero_init``): the untrained net outputs zero flow, so
-its prediction ``W(O^t, 0) = O^t`` is copy-last, the baseline it has to beat (a start that
-trained better than a random head). Every layer is a 'same' convolution, so the grid
+its prediction ``W(O^t, 0) = O^t`` is copy-last. Every layer is a 'same' convolution, so the grid
 size is free.
 """
 

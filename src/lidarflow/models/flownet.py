@@ -5,12 +5,11 @@ or ``None``, :class:`~lidarflow.models.head.OccupancyHead` or ``None``, not both
 :func:`lidarflow.models.build` assembles them from a
 :class:`~lidarflow.models.config.ModelSpec`.
 
-Without the flow network (``flow=None``: the flow bought nothing leave-one-recording-out, at
-most of a step's arithmetic; ``docs/research/flow_share/``) the step is the head alone: the flow
-is zero, ``W(O^t, 0) = O^t``, so the head weighs the map itself. The output keeps the same five
-channels (the four flow channels zero) so that the ego-motion wrapper, which adds the
-platform's own flow to them, the streaming engine and the exported graph are those of any head
-model; ``capabilities.flow`` is ``False``: those channels say nothing of what moves.
+Without the flow network (``flow=None``; ``docs/research/flow_share/``) the step is the head
+alone: the flow is zero, ``W(O^t, 0) = O^t``, so the head weighs the map itself. The output
+keeps the same five channels (the four flow channels zero) so that the ego-motion wrapper, which
+adds the platform's own flow to them, the streaming engine and the exported graph are those of
+any head model; ``capabilities.flow`` is ``False``: those channels say nothing of what moves.
 
 Output per step, in cells: ``B_col, B_row, F_col, F_row`` with ``O^{t+1}(p) = O^t(p + B(p))``
 and ``O^t(p) = O^{t+1}(p + F(p))`` (design notes section 3); with the head a fifth channel, its

@@ -1,41 +1,29 @@
 """The occupancy head: a per-cell probability of the next map on top of the flow's warp.
 
-Not in the paper. Warping can only move cells that were seen, and a thresholded warp
-of a binary map cannot say "this cell flickers" or "this cell will likely be free". The head
-keeps, as recurrent state, exponential moving averages ``m`` of the occupancy (decays
-``HeadConfig.memory_decays``; what the temporal-average baseline knows), and from each cell's own
-past (``O^t``, its memories and, as configured, the inputs below; no neighbours, no GRU features:
-a 3x3 head with them did worse on the recording it had not seen and was removed) gives a
-residual logit ``r``. The model predicts ``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with a learnt
-gain ``g`` (:class:`~lidarflow.models.flownet.LidarFlowNet`). Trained with a cross-entropy against
-``O^{t+1}`` the output is a calibrated probability; the decision (offsets chosen on the training
-recordings or online) is the Predictor's (:mod:`lidarflow.predict.decision`).
+Not in the paper. The head keeps, as recurrent state, exponential moving averages ``m`` of the
+occupancy (decays ``HeadConfig.memory_decays``) and from each cell's own past (``O^t``, its
+memories and the configured inputs below; no neighbours, no GRU features) gives a residual logit
+``r``. The model predicts ``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with a learnt gain ``g``
+(:class:`~lidarflow.models.flownet.LidarFlowNet`); trained with a cross-entropy against
+``O^{t+1}`` it is a calibrated probability. The decision is the Predictor's
+(:mod:`lidarflow.predict.decision`).
 
-At initialisation ``r`` is the constant logit of :data:`FREE_PROBABILITY_INIT` and ``g`` lifts an
-occupied cell to :data:`OCCUPIED_PROBABILITY_INIT`, so the untrained model is exactly copy-last at
-the 0.4 threshold (a symmetric start at 0.05 / 0.95 made the first epoch predict nothing
-occupied).
+At initialisation ``r`` is the constant logit of :data:`FREE_PROBABILITY_INIT`, ``g`` lifts an
+occupied cell to :data:`OCCUPIED_PROBABILITY_INIT` and the output layer is zero, so the untrained
+model is exactly copy-last at the 0.4 threshold.
 
-Inputs (each one's leave-one-out measurement is in ``docs/research/leave_one_out/``):
+Inputs (measurements: ``docs/research/leave_one_out/``):
 
 - ``constant_velocity_input``: the constant-velocity baseline's prediction (the current map moved
   once more by the integer shift that best maps the previous map onto it,
-  :mod:`lidarflow.ops.shift`), with the previous map kept as one more state channel. On a moving
-  platform the flow network trained on simulation lost to that baseline; as an input the head
-  weighs it per cell.
+  :mod:`lidarflow.ops.shift`), with the previous map kept as one more state channel.
 - ``shift_memories``: each memory is first moved by that shift, then updated, so it averages the
   world rather than the sensor's frame; the head sees the memories moved once more (into the next
   frame). Where nothing moves the shift is zero and the head is the one without the option.
-- ``hidden_channels``: one hidden 1x1 layer and a ReLU (a cell's next value is not linear in its
-  past: the causal per-cell history table beat the linear head on both static held-out
-  recordings).
-- ``visibility_input``: ``V^t`` (a cell occupied in a memory but not visible now is hidden behind
-  something and likely still there; one seen free now has likely gone).
+- ``hidden_channels``: one hidden 1x1 layer and a ReLU.
+- ``visibility_input``: ``V^t``.
 - ``subcell_input``: where the returns lie inside their cells, ``(edge, near)``
-  (:func:`lidarflow.scan.subcell_batch`): most cells that change on a static scene are a return
-  crossing a cell edge along its beam, which the binary map cannot see coming.
-
-The output layer starts at zero, so whatever the inputs the untrained model is copy-last.
+  (:func:`lidarflow.scan.subcell_batch`).
 """
 
 from __future__ import annotations

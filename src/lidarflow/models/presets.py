@@ -86,14 +86,9 @@ BUNDLED = WeightsRecord(
             "../shared/data/general_tracking_moving_1.bag.zip --recipe head_only --threads 1 "
             "-o runs/bundled_v9"
         ),
-        # Started from v8's head (--init bundled when v8 was the bundled model).
         "init": "v8",
-        # Leave one recording out, v9's recipe: per fold the `head` recipe on the simulation-only
-        # flow network (1.2 GPU-minutes), then `head_only` from that head on the six other
-        # recordings; one step ahead, online decision, against the three baselines
-        # (docs/research/peer_comparison). positive_4 is lost by 0.0027 F1. The same folds with
-        # the flow network (v8's recipe) scored F1 +0.0006 / changed-cell F1 +0.011 one step
-        # ahead and -0.0069 / -0.0022 one second ahead: the flow bought nothing (flow_share).
+        # Leave one recording out, one step ahead, online decision, against the three
+        # baselines (docs/model/README.md, docs/research/peer_comparison).
         "heldout": {
             "positive_1": (0.9427, 0.2973, 0.0098),
             "positive_2": (0.9533, 0.3598, 0.0047),
@@ -102,17 +97,6 @@ BUNDLED = WeightsRecord(
             "demo_stationary_simple_environment": (0.8269, 0.2268, 0.0142),
             "datmo_overtakes": (0.6668, 0.6653, 0.2161),
             "general_tracking_moving_1": (0.7571, 0.7014, 0.0489),
-        },
-        # F1 / changed-cell F1 in-sample (online decision): v8 with its flow, and v9
-        # (docs/model: v8's head in a flow-free model scored lower on five of seven).
-        "insample_v8_v9": {
-            "positive_1": ((0.9438, 0.3694), (0.9432, 0.3011)),
-            "positive_2": ((0.9535, 0.3821), (0.9531, 0.3661)),
-            "positive_3": ((0.9269, 0.3052), (0.9261, 0.2840)),
-            "positive_4": ((0.9219, 0.1777), (0.9190, 0.1701)),
-            "demo_stationary_simple_environment": ((0.8263, 0.2258), (0.8289, 0.2303)),
-            "datmo_overtakes": ((0.6708, 0.6751), (0.6683, 0.6569)),
-            "general_tracking_moving_1": ((0.7659, 0.7112), (0.7587, 0.6966)),
         },
     },
 )

@@ -17,47 +17,26 @@ The published model, per prediction::
                      + 0.01 x KL(q(z | past) || N(0, I)) (:func:`lidarflow.losses.sogmp_loss`)
     roll-out         the prediction fed back as the newest map, up to 10 steps (1 s at 10 Hz)
 
-What is adapted to lidarflow, and why:
+Adapted to lidarflow (the differences: ``docs/research/peer_comparison/``):
 
-- **Grid**: lidarflow's 100 x 100 cells of 0.1 m (the same layout, sensor at the middle of the
-  bottom edge; 10 m x 10 m instead of 6.4 m x 6.4 m). Every block is convolutional, so the
-  structure is unchanged; the latent is 2 x 25 x 25. A grid whose sides are not multiples
-  of 4 is padded with zeros at the far and right edges inside the model (the sensor's
-  edge stays as it is), and the prediction
-  cropped back.
-- **Input channels**: the peer sees occupancy only; so does this model by default. With
-  ``visibility_input`` each frame of the window is ``(O, V)`` (lidarflow's visibility map), an
-  extension, off unless asked for.
-- **The ten-scan window is the recurrent state**: one tensor ``(B, window x c, H, W)`` holding
-  the last ``window`` maps, oldest first. A step slides the new map in and runs the ConvLSTM
-  over the window from a zero state, as the peer does per prediction; so the model streams one
-  step per scan like every lidarflow model, and the first ``window - 1`` steps of a stream see
-  empty maps where no scan came yet (warm-up).
-- **Ego motion** comes from lidarflow's motion (odometry, or matched from the scans) through
-  :class:`~lidarflow.models.egomotion.EgoCompensated` (``ego_motion=True``, the ``sogmp``
-  recipe's default): before each step the window is moved rigidly into the current frame, and
-  the prediction into the frame of ``t + 1`` by the constant-velocity guess of the next motion;
-  the peer likewise places its past scans in the frame predicted for ``t + 1`` from the last
-  velocity. Difference: the peer re-projects the raw scan points, this model resamples the
-  window's maps (bilinear) once per step, so a map 9 steps old has been resampled 9 times.
-- **Output**: a logit instead of a sigmoid (the loss takes logits; the same maths, stabler),
-  its bias starting at ``logit(0.02)`` (as DeepTracking's) so that the untrained net predicts
-  "mostly free"; and a second channel, the KL divergence of this step's latent from the prior
-  divided evenly over the cells (so the channel sums to the step's KL): the loss reads it from
-  the output, which keeps the model a plain step function for training, validation and
-  export. It is a statistic of the step, not a map of the world: the ego-motion wrapper does
-  not move it.
-- **KL**: the analytic KL of two Gaussians, where the peer's code uses a one-sample Monte
-  Carlo estimate of it (same expectation, no sampling noise in the loss).
-- **Mean and samples**: ``step`` in eval mode decodes ``z = mu`` (the posterior mean: one
-  decode, deterministic; what :meth:`predict_next`, ``evaluate`` and the ONNX export use).
-  :meth:`sample` decodes ``n`` draws ``z ~ q(z | past)`` from a state, the peer's stochastic
-  predictions (it averages 32 of them for its mean map). Decoding the prior's mean (``z = 0``)
-  would ignore the past altogether: the decoder sees nothing but ``z``.
-- Left out: SOGMP++'s extra input (a Bayesian local occupancy map of the past scans).
+- **Grid**: lidarflow's (100 x 100 cells of 0.1 m; latent 2 x 25 x 25). A grid whose sides are
+  not multiples of 4 is padded with zeros at the far and right edges inside the model and the
+  prediction cropped back.
+- **Input channels**: occupancy only; with ``visibility_input`` each frame is ``(O, V)``.
+- **The window is the recurrent state**: ``(B, window x c, H, W)``, the last ``window`` maps,
+  oldest first. A step slides the new map in and runs the ConvLSTM over the window from a zero
+  state; the first ``window - 1`` steps of a stream see empty maps (warm-up).
+- **Ego motion** through :class:`~lidarflow.models.egomotion.EgoCompensated` (``ego_motion``):
+  the window's maps are resampled (bilinear) into the current frame once per step.
+- **Output**: channel 0 a logit (bias starting at ``logit(0.02)``); channel 1 the step's KL
+  divergence (analytic) of the latent from the prior divided evenly over the cells (it sums to
+  the step's KL; a statistic of the step, not moved by the ego-motion wrapper).
+- **Mean and samples**: ``step`` in eval mode decodes ``z = mu`` (deterministic; what
+  :meth:`predict_next`, ``evaluate`` and the ONNX export use); :meth:`sample` decodes ``n`` draws
+  ``z ~ q(z | past)``.
 
-Parameters (defaults, occupancy only): 730,245, as the published SOGMP (every block is
-convolutional, so the count does not depend on the grid); with ``visibility_input`` 731,397.
+Parameters (defaults, occupancy only): 730,245, whatever the grid; with ``visibility_input``
+731,397.
 """
 
 from __future__ import annotations

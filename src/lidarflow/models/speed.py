@@ -1,14 +1,7 @@
-"""Speed options for the recurrent models, kept out of the models themselves so the plain eager
-fp32 path stays the reference.
-
-Measured on the 2-core CPU (benchmarks/bench_train_step.py): channels-last memory format makes
-oneDNN's convolutions faster, bf16 autocast (AVX512-BF16) faster still, and ``torch.compile``
-fuses the ConvGRU's gate arithmetic (sigmoid, tanh, products, and their backward) into a few
-kernels where eager PyTorch makes a pass over memory per operation.
-
-bf16 pays only where the hardware computes it: on a CPU without native bf16 (AVX2 only, no
-AVX512 / AMX) oneDNN emulates it, and bf16 autocast is then many times slower than fp32
-(benchmarks/results/train_loop_amp_avx2.json). :func:`native_bf16` tells which.
+"""Speed options for the recurrent models (channels-last, bf16 autocast, ``torch.compile`` of the
+ConvGRU cells or the whole step), kept out of the models so the eager fp32 path stays the
+reference. bf16 pays only where the hardware computes it (:func:`native_bf16`); timings:
+``benchmarks/bench_train_step.py`` and ``docs/guide/training.md``.
 """
 
 from __future__ import annotations

@@ -3,9 +3,7 @@
 A placement is a candidate turn (:data:`YAWS`) and an index shift ``(a, b)`` (up to
 :data:`MAX_SHIFT` cells each way); its score is how many of the previous map's occupied cells,
 turned about the sensor into the current frame (each cell once) and shifted, land on an occupied
-cell of the current map. The best of the 17 x 25 x 25 placements is wanted. Scoring them all
-(an FFT per turn) would be most of scan matching's cost, and most placements are nowhere near
-the best.
+cell of the current map. The best of the 17 x 25 x 25 placements is wanted.
 
 Branch and bound (Olson 2009, "Real-time correlative scan matching", section IV) finds the same
 best placement while scoring few: the shifts are cut into blocks of :data:`BLOCK` x
@@ -14,8 +12,7 @@ cell the largest of the ``BLOCK x BLOCK`` cells the block's shifts reach from it
 every shift inside from above. Only the blocks whose bound reaches the best score found so far
 are scored shift by shift: first the :data:`FIRST_BLOCKS` best-bounded, then every other block
 that can still reach their best. Scores are whole counts; ties go to the first placement in the
-order turn, row shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SHIFT ... -1``),
-the order the FFT search read them in (its rounding noise broke the ties it met instead).
+order turn, row shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SHIFT ... -1``).
 
 Units: maps ``(H, W)`` bool; shifts in index cells; turns in radians (positive turns the world
 counter-clockwise in the sensor frame of :mod:`lidarflow.geometry`).

@@ -1,13 +1,8 @@
 """The sensor's motion between two scans to a fraction of a cell: point-to-line ICP on returns.
 
 Why beside :mod:`lidarflow.motion.scanmatch`'s map matching: a motion shows in the rasterized
-maps only once it moves cells, which a platform turning slowly under a fast scanner does not
-do between two frames (simulated 360° 3.5 m 15 Hz driving: 0.2° and 0.05 cells a frame; the
-maps show a motion on 5 % of the steps). The scans' own returns resolve millimetres: on that
-simulation :func:`align` of consecutive scans is within 0.03 cells and 0.07° of the true motion
-(median), and on the driving development recording within 0.07 cells and 0.14° of its odometry,
-where the maps give 0.15 cells and 0.32° on the 70 % of steps they resolve
-(``docs/research/scan_odometry/``).
+maps only once it moves cells, while the scans' own returns resolve millimetres (accuracy:
+``docs/research/scan_odometry/``).
 
 Method (Censi's PL-ICP, simplified): the current scan's returns, moved by the motion guessed so
 far, are paired with the nearest of the previous scan's returns around the same bearing (the
@@ -17,10 +12,9 @@ scan's surface normal. Pairs farther apart than a shrinking distance are left ou
 people walking by and the unseen parts of the scene out of the fit; the damping keeps what the
 scene cannot tell (the motion along a bare corridor) at the guess.
 
-Cost: the arrays are a few hundred returns, so numpy's overhead per call, not arithmetic, sets
-the time; the previous scan is made ready once (:class:`Reference`, reused by a stream for the
-next frame, the stillness test and the far end of its window) and an iteration is a few dozen
-calls (``docs/research/scan_speed/``).
+Cost: numpy's overhead per call, not arithmetic, sets the time, so the previous scan is made
+ready once (:class:`Reference`, reused by a stream for the next frame, the stillness test and the
+far end of its window) (``docs/research/scan_speed/``).
 
 Motion convention: :mod:`lidarflow.motion.odometry`'s, ``(dx, dy, dyaw)`` in metres and radians,
 the current sensor pose in the previous one's frame: a current return ``p`` lies at ``R p + d``

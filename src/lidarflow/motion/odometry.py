@@ -120,10 +120,7 @@ class OdometryCheck:
     (nearest cell) and counted where they land on an occupied cell of the current map; beside
     that, the same cells not moved. Cells moved out of the grid count in neither.
     Over the last ``window`` such steps the odometry is trusted while the moved cells hit at
-    least as often as the unmoved ones, and until ``min_steps`` steps have been seen. Right
-    odometry on a moving platform lines the static world up, so its count is far above (the
-    development recording with poses: every window); a base's odometry read as a scanner's that
-    is turned on the base moves the world the wrong way.
+    least as often as the unmoved ones, and until ``min_steps`` steps have been seen.
 
     A pose source can also jump (odometry reset to the origin, a localiser snapping to a new
     estimate): one step's motion is then off by the jump. The window does not notice one step,
@@ -133,8 +130,8 @@ class OdometryCheck:
     and the previous map moved by :meth:`stand_in` (the last accepted motion, per typical step,
     times ``span``: the robot went on as it was going) explains the current one clearly better
     than moved by the step's own motion (at least twice its hits, and ``jump_evidence`` more),
-    that step is not compensated (``update`` says no) and is left out of the window. A real
-    fast step lines the world up and passes, and a scene too sparse to tell gives no verdict.
+    that step is not compensated (``update`` says no) and is left out of the window. A scene
+    too sparse to tell gives no verdict.
 
     Units: maps ``(H, W)`` bool, motion ``(dx, dy, dyaw)`` in cells and radians (this frame's
     pose in the previous one's, :mod:`lidarflow.ops.rigid`'s convention).

@@ -10,21 +10,14 @@ is no motion to report (``None``), so a platform that stands still is left uncom
 without odometry.
 
 Motion convention: :mod:`lidarflow.ops.rigid`'s, ``(dx, dy, dyaw)`` in cells and radians, this
-frame's pose in the previous one's (what the odometry increment gives, in cells). On the driving
-development recording the matches are within 0.09 cells and 0.3 degrees of the odometry
-(median), and the last map moved by them scores F1 / changed-cell F1 0.741 / 0.623 against 0.743
-/ 0.694 with the odometry (constant velocity, the best integer shift: 0.710 / 0.572); on the car
-recording, which has no odometry, 0.572 / 0.533 (constant velocity 0.460 / 0.371). Moving
-objects can pull a match (a scene that is mostly other cars); ego-motion models check every
-motion against the scans anyway (:class:`lidarflow.motion.odometry.OdometryCheck`).
+frame's pose in the previous one's (what the odometry increment gives, in cells). Moving
+objects can pull a match; ego-motion models check every motion against the scans anyway
+(:class:`lidarflow.motion.odometry.OdometryCheck`).
 
 Where the scans' returns are at hand (recordings, a Predictor fed scans), :class:`ScanOdometry`
 refines the match on them (:mod:`lidarflow.motion.icp`) and so also finds motions too slow
-to move cells between two frames. That is what ``evaluate``, training and the Predictor use: on
-the driving recording the motion is then found on 89 % of steps (the maps: 70 %), within 0.07
-cells and 0.14 degrees of the odometry (median), and the car recording's fold model scores
-0.649 / 0.653 against 0.591 / 0.582 with the maps' matches alone
-(``docs/research/scan_odometry/``).
+to move cells between two frames; ``evaluate``, training and the Predictor use it. Accuracy
+against odometry: ``docs/research/scan_odometry/``.
 """
 
 from __future__ import annotations

@@ -15,8 +15,7 @@ in the new frame: ``out(p) = old(T(p))`` with ``T`` that change of frame in cell
 bilinear, ``fill`` where ``T(p)`` falls outside the old grid. It is :func:`lidarflow.ops.warp`
 with the flow ``T(p) - p`` (:func:`rigid_flow`), so it shares its sampling convention
 (``grid_sample`` with ``align_corners=True``) and is differentiable in the maps and the motion.
-Without PyTorch the same moves are :mod:`lidarflow.geometry`'s (tests/test_geometry.py holds
-:func:`transform_cells` to :func:`lidarflow.geometry.transform_cells`).
+Without PyTorch the same moves are :mod:`lidarflow.geometry`'s.
 """
 
 from __future__ import annotations

@@ -3,15 +3,14 @@
 :class:`lidarflow.predict.baselines.ConstantVelocity` finds the integer shift that best maps
 the previous occupancy map onto the current one and applies it once more. A model that sees
 this extrapolation as an input starts from the baseline it is judged against on a moving
-platform instead of having to rediscover it (a flow network trained on simulation alone lost to
-it on both moving recordings). Same answer as the NumPy baseline, including its tie rule
-(most overlapping occupied cells, then the smallest ``|d_col| + |d_row|``, then the first in
-row-major order), so the model's input and the baseline's prediction are the same map.
+platform instead of having to rediscover it. Same answer as the NumPy baseline, including its
+tie rule (most overlapping occupied cells, then the smallest ``|d_col| + |d_row|``, then the first
+in row-major order), so the model's input and the baseline's prediction are the same map.
 
 Both steps are grouped convolutions: a map's correlation with the other at every shift, then
 the maps convolved with one-hot kernels at the chosen shift. A shift is separable, so it is
-applied as a column and a row kernel (2k taps a cell instead of k^2). Both are faster than
-slicing out every shift, in PyTorch and in onnxruntime (``docs/research/speed/``).
+applied as a column and a row kernel (2k taps a cell instead of k^2); speed:
+``docs/research/speed/``.
 :func:`apply_shift` moves any number of channels by the chosen shift (the occupancy memories
 that follow the scene, ``HeadConfig(shift_memories=True)``).
 The batch becomes the convolution's groups, so an exported graph is fixed to its export batch

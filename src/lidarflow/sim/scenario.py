@@ -15,11 +15,10 @@ channel 0 column, channel 1 row):
 * ``true_poses`` float64 ``(N, 3)``: the true sensor pose; ``Recording.poses`` is the odometry,
 * ``episode`` int32 ``(N,)``: the episode (world) of each frame.
 
-Flow is stored dense by default: 2 x 100 x 100 float16 = 40 kB per frame and array, mostly zeros,
-which the compressed ``.npz`` shrinks well; ``flow_storage="sparse"`` keeps only the non-zero
-cells instead (see :mod:`lidarflow.sim.storage`; :func:`lidarflow.sim.dense_flow` reads either).
-Long runs are written as several files of whole episodes (``write_simulation``) so that no
-process ever holds more than one file's worth of dense flow.
+Flow is stored dense by default; ``flow_storage="sparse"`` keeps only the non-zero cells
+(:mod:`lidarflow.sim.storage`; :func:`lidarflow.sim.dense_flow` reads either). Long runs are
+written as several files of whole episodes (``write_simulation``), so no process holds more than
+one file's worth of dense flow.
 """
 
 from __future__ import annotations

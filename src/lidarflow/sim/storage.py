@@ -4,13 +4,12 @@ Two layouts, both with the frame as the first axis so that ``Recording.slice`` a
 unchanged (``meta["flow_storage"]`` says which):
 
 * ``dense`` (default): ``flow_backward`` and ``flow_forward``, float16 ``(N, 2, H, W)``; index ``t``
-  holds ``B^t`` / ``F^t`` in cells (channel 0 column, 1 row). 80 kB per frame for both on the
-  paper's grid, mostly zeros.
+  holds ``B^t`` / ``F^t`` in cells (channel 0 column, 1 row).
 * ``sparse``: only the cells where the flow is not zero (flow is zero off the occupied cells, and
   on static structure seen from a standing robot), padded per frame to the largest count ``K``:
   ``flow_backward_cells`` / ``flow_forward_cells`` int32 ``(N, K)`` flat cell index
   ``r * W + c`` or -1, and ``flow_backward_values`` / ``flow_forward_values`` float16
-  ``(N, K, 2)``. Typically 10-50 times smaller, and much faster to write.
+  ``(N, K, 2)``.
 
 :func:`dense_flow` returns ``(B^t, F^t)`` as ``(2, H, W)`` float32 from either layout.
 """

@@ -21,14 +21,14 @@ How the windows are drawn into batches, epoch by epoch and rank by rank, is
 :mod:`lidarflow.train.loaders`.
 
 Windows are served as ``uint8`` ``(T, 2, H, W)`` (channel 0 occupancy, 1 visibility; for
-models with ``subcell_input`` also 2 and 3, :meth:`~lidarflow.data.Recording.subcell_maps`): 4x
-less to copy than float32; the loop converts on the device.
+models with ``subcell_input`` also 2 and 3, :meth:`~lidarflow.data.Recording.subcell_maps`);
+the loop converts on the device.
 
 Ego motion (``load_train_data(..., with_motion=True)``, for models built with ``ego_motion``):
 every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx, dy, dyaw)`` with
 ``dx, dy`` in cells (:mod:`lidarflow.motion.odometry`; index ``t`` is frame ``t`` in frame
-``t - 1``, identity where a pose is unknown), appended as the item's last element. Without it
-the items are exactly what they were. ``DataConfig.pose_dropout`` of the training windows carry
+``t - 1``, identity where a pose is unknown), appended as the item's last element.
+``DataConfig.pose_dropout`` of the training windows carry
 identity motions instead (chosen by a hash of the window, the same every epoch).
 """
 

@@ -47,7 +47,7 @@ def load_init(model: torch.nn.Module, source: str) -> bool:
         if any(n.startswith("flow.") for n in own) and not any(
             n.startswith("flow.") for n in weights
         ):
-            # The bundled model is the head alone since v9: a flow model cannot start from it.
+            # The bundled model is the head alone: a flow model cannot start from it.
             raise TrainError(
                 f"model.init {source}: it has no flow network to start this model's from; pass "
                 "--init RUN of a flow model (--recipe blurred or supervised_flow), or train "

@@ -23,21 +23,12 @@ def _blurred() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """An occupancy head of each cell's own past (five occupancy memories
-    that follow the constant-velocity shift, the constant-velocity map, the current map and its
-    visibility, and where the current returns lie inside their cells, ``subcell_input``; one
-    hidden layer; 1 x 1, no GRU features) trained by cross-entropy on top of a trained flow
-    network that stays (nearly) frozen, each window starting from the memories that streaming
-    its recording leaves there (``memories_from_stream``), compensating the platform's own
-    motion where a recording has poses (``ego_motion``, ``poses_optional``: uncompensated where
-    it has none; half the training windows without their poses, so it learns both ways), its
-    decision offsets chosen online as it streams (``decision.online``, applied by evaluate and
-    the Predictor; training is unchanged by it), a tracker's moved objects laid over its decided
-    map (``decision.movers``, as unchanged): ``model.init``, a trained flow network (``--init
-    RUN``; its head too where the shapes fit; ``--recipe blurred`` or ``supervised_flow`` trains
-    one). Left at ``bundled`` it is refused: the bundled model has no flow network to start from.
-    About 8 CPU-minutes on the seven development recordings; its validation is
-    ``docs/research/leave_one_out/`` and ``docs/research/online_decision/``."""
+    """An occupancy head (:mod:`lidarflow.models.head`) trained by cross-entropy on top of a
+    trained, (nearly) frozen flow network given as ``model.init`` (``--init RUN``; left at
+    ``bundled`` it is refused: the bundled model has no flow network). Windows start from the
+    memories streaming leaves (``memories_from_stream``); half of them lose their poses
+    (``pose_dropout``), so the ego-motion model learns both ways. Validation:
+    ``docs/research/leave_one_out/``, ``docs/research/online_decision/``."""
     # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
     # (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
@@ -70,21 +61,17 @@ def _head() -> TrainConfig:
     config.data.pose_dropout = 0.5
     config.data.memories_from_stream = True
     config.schedule.gaussian_start = 1
-    # bf16 where the machine computes it natively (the bundled model and the documented folds
-    # were trained under bf16); fp32 on a CPU without it, where emulated bf16 trained ~10x slower
-    # (benchmarks/results/train_loop_amp_avx2.json).
+    # bf16 where the machine computes it natively (the bundled model was trained under it);
+    # emulated bf16 is far slower than fp32 (docs/guide/training.md).
     config.runtime.amp = "auto"
     config.runtime.channels_last = True
     return config
 
 
 def _head_only() -> TrainConfig:
-    """The ``head`` recipe without the flow network, which bought nothing leave-one-recording-out
-    at most of a step's arithmetic (``docs/research/flow_share/``). The model is the same head
-    (``model.flow`` ``None``; the platform's own motion still compensated), started from the
-    bundled model's head (``model.init``: its head's weights, the flow's left out), taught by
-    the cross-entropy alone (no flow to warp: the warp loss and its filter are off) at the rate
-    the ``head`` recipe gives its head, 0.03, now the only parameter group."""
+    """The ``head`` recipe without the flow network (``docs/research/flow_share/``): the same
+    head, started from the bundled model's, taught by the cross-entropy alone at the ``head``
+    recipe's head rate."""
     config = _head()
     config.recipe = "head_only"
     config.model.flow = None
@@ -96,18 +83,12 @@ def _head_only() -> TrainConfig:
 
 
 def _sogmp() -> TrainConfig:
-    """SOGMP's own recipe (Xie & Dames 2023; :mod:`lidarflow.models.sogmp`), as its public
-    training code sets it: the loss is the cross-entropy of the next map summed over the map
-    plus 0.01 x the latent's KL (:func:`lidarflow.losses.sogmp_loss`); Adam at a constant
-    learning rate of 1e-4 (the code sets 1e-3, then its schedule function overrides it with
-    1e-4 every epoch of the 50 it runs) with weight decay 1e-3; batches of 128 predictions;
-    50 epochs. Windows of 20 frames, the first 9 filling the ten-map window, 10 pairs counted
-    each (the loss averages over pairs), windows every 10 frames so that every frame is a
-    target once: a batch of 13 windows is 130 predictions, the peer's 128. Ego motion
-    compensated by the recordings' poses (the peer's always is); a training recording without
-    poses is served uncompensated (its steps are noted), while `evaluate` and `predict` match
-    the motion from its scans. The batch and epochs are a GPU's: on a CPU give
-    ``--batch-size`` and ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
+    """SOGMP's own recipe (:mod:`lidarflow.models.sogmp`), as its public training code sets it
+    (``docs/research/peer_comparison/``): :func:`lidarflow.losses.sogmp_loss`, Adam at 1e-4 with
+    weight decay 1e-3, 50 epochs, batches of 13 windows of 20 frames (130 predictions, the peer's
+    128), ego motion from the recordings' poses (a training recording without poses is served
+    uncompensated). The batch and epochs are a GPU's: on a CPU give ``--batch-size`` and
+    ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
     config = TrainConfig(recipe="sogmp", loss=LossConfig(kl_weight=0.01))
     config.model.name = "sogmp"
     config.model.ego_motion = config.model.poses_optional = True
@@ -138,8 +119,8 @@ def _supervised_flow() -> TrainConfig:
     config.data.warmup = 4
     config.data.stride = 6
     config.data.epoch_windows = 120
-    # Adam at the paper's 0.01: at 0.002 the zero-initialised flow head had not moved after 150
-    # steps; clipped, as a dense loss on a moving platform gives large early gradients.
+    # Adam at the paper's 0.01 (a zero-initialised flow head barely moves at lower rates);
+    # clipped, as a dense loss on a moving platform gives large early gradients.
     config.optim.lr = 0.01
     config.optim.batch_size = 4
     config.optim.epochs = 40  # about 35 minutes on one CPU thread (docs/research/flow_supervised)

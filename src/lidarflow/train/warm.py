@@ -1,13 +1,12 @@
 """Training windows that start where streaming leaves the occupancy head's memories.
 
-The head's memories are exponential averages of past maps, the slowest over hundreds of frames
-(decay 0.995). A training window is a few dozen frames and used to start from a zero state, so
-in training the slow memories stayed near zero, while in every streamed frame after the first
-minute they hold the scene's long-run average: the head met those values first at test time.
-The memories (and the constant-velocity input's previous map) are functions of the maps and the
-motions alone, not of any weight, so they are streamed here once per recording, and each window
-starts from the state streaming leaves at its first frame (``data.memories_from_stream``). The
-GRUs' states still start at zero: they depend on the weights being trained.
+The head's memories are exponential averages of past maps, the slowest over hundreds of frames,
+longer than a training window; from a zero state they would stay near zero in training while
+streaming fills them. They (and the constant-velocity input's previous map) are functions of the
+maps and the motions alone, not of any weight, so they are streamed here once per recording, and
+each window starts from the state streaming leaves at its first frame
+(``data.memories_from_stream``). The GRUs' states still start at zero: they depend on the weights
+being trained.
 
 A window served without its poses (``data.pose_dropout``) starts from the memories streamed
 without poses, as a recording without odometry would have left them.

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from lidarflow.evaluate.people import RADIUS, PeopleCounts, frames_of, people_found
 from lidarflow.scan import GridSpec, cell_centres
+from studies.people import RADIUS, PeopleCounts, frames_of, people_found
 
 GRID = GridSpec(20, 20, 0.1)
 

@@ -12,8 +12,9 @@ and a number:
 - ``rate2``: every second scan (:meth:`~lidarflow.data.Recording.every`).
 
 ``range3.5+beams2+rate2`` is a hobby scanner. Scans are dropped first, then each kept scan is
-narrowed, shortened and thinned, in that order. Used to train on such copies
-(``data.sensor_copies``) and to score on them (``python -m studies.other_sensors``).
+narrowed, shortened and thinned, in that order. Scored by ``python -m studies.other_sensors``;
+training on such copies (``data.sensor_copies``, ``docs/research/sensor_copies/``) was removed
+without gain.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A recording as another sensor would have seen it (lidarflow.data.views)."""
+"""A recording as another sensor would have seen it (studies.sensor_views)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarflow.data.views import SensorView, coarser, narrower, shorter
 from lidarflow.errors import RecordingError
 from lidarflow.scan import BeamGeometry, Scan
+from studies.sensor_views import SensorView, coarser, narrower, shorter
 from tests.train.blobs import blob_recording
 
 
