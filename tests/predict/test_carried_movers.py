@@ -14,8 +14,8 @@ from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import decision_record
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.engine import HELD_FRAMES, Engine, Frame
-from lidarflow.predict.tracker import Tracker
-from tests.predict.test_tracker import SEEN, _blob, _walker, _wall
+from lidarflow.tracking import Tracker
+from tests.tracking.test_tracker import SEEN, _blob, _walker, _wall
 
 
 def _people_only(frame: np.ndarray) -> np.ndarray:

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lidarflow.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
-from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.offsets import (
     counts,

@@ -1,6 +1,6 @@
 """The constant-velocity extrapolation of a map, in torch (batched, ONNX-exportable).
 
-:class:`lidarflow.predict.baselines.ConstantVelocity` finds the integer shift that best maps
+:class:`lidarflow.baselines.ConstantVelocity` finds the integer shift that best maps
 the previous occupancy map onto the current one and applies it once more. A model that sees
 this extrapolation as an input starts from the baseline it is judged against on a moving
 platform instead of having to rediscover it (a flow network trained on simulation alone lost to

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.predict.baselines import (
+from lidarflow.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
     ConstantVelocity,
@@ -283,7 +283,7 @@ class DecisionPolicy:
     with ``online`` a config the offsets chosen on the stream (:class:`OnlineDecision`,
     starting from ``offset``). The default decides the calibrated probability at 0.4 as it is.
     ``movers``: the objects a tracker follows on the stream join the decided map where they
-    will be (:class:`lidarflow.predict.tracker.Tracker`, run beside the model by the engine),
+    will be (:class:`lidarflow.tracking.Tracker`, run beside the model by the engine),
     so that a head that keeps walls but lets a passer-by fade still carries people forward."""
 
     offset: float = 0.0

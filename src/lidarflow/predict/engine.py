@@ -18,7 +18,7 @@ Every user of a trained model streams it through :class:`Engine`: the robot's
 3. **Decision** (:mod:`lidarflow.predict.decision`): an occupancy-head model's calibrated
    probability is decided with the policy's offset, or online with the offsets that have done
    best on this stream so far. With the policy's ``movers`` a tracker runs beside the model on
-   the same frames and motion (:class:`lidarflow.predict.tracker.Tracker`), and the objects it
+   the same frames and motion (:class:`lidarflow.tracking.Tracker`), and the objects it
    follows join the decided map where their velocity takes them.
 4. **Roll-out** (:meth:`Engine.roll`, on request): the decided prediction fed back as the next
    input, ``k`` steps ahead, on a copy of the state (the fed-back maps must not leak into the
@@ -40,11 +40,11 @@ from lidarflow.models.config import Capabilities
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
-from lidarflow.predict.carry import Movers
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
-from lidarflow.predict.tracker import Tracker
 from lidarflow.scan import takes_subcell
+from lidarflow.tracking import Tracker
+from lidarflow.tracking.carry import Movers
 
 __all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
 

@@ -7,7 +7,7 @@ layer or two, move the logit into the next frame. In eager PyTorch those are doz
 operators whose overhead outweighs the arithmetic (``docs/research/step_speed/``); here it is
 a few fused NumPy operations on the same weights, the gathers of the rigid warps kept from step
 to step (:func:`lidarflow.geometry.rigid_sampler`), and the shift counted on the occupied cells only
-(:func:`lidarflow.predict.baselines.best_rigid_shift`).
+(:func:`lidarflow.baselines.best_rigid_shift`).
 
 Generic over :class:`~lidarflow.models.config.HeadConfig` as it stands (memories, the
 constant-velocity input and moved memories, the hidden layer, the visibility and sub-cell
@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import best_rigid_shift
 from lidarflow.geometry import rigid_positions, rigid_sampler
 from lidarflow.models.config import Capabilities
-from lidarflow.predict.baselines import best_rigid_shift
 
 __all__ = ["HeadStepBackend", "supports"]
 

@@ -1,6 +1,6 @@
 """What a tracker hands the engine to carry: the objects it follows in one frame,
 frozen, moved ``k`` frames on by their velocity and the sensor's guessed motion
-(:meth:`lidarflow.predict.tracker.Tracker.movers`, laid over a model's decided map by
+(:meth:`lidarflow.tracking.Tracker.movers`, laid over a model's decided map by
 :class:`lidarflow.predict.engine.Engine` where its policy says ``movers``)."""
 
 from __future__ import annotations

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from lidarflow.predict.baselines import FrameInputs
-from lidarflow.predict.tracker import (
+from lidarflow.baselines import FrameInputs
+from lidarflow.tracking import (
     Tracker,
     TrackerConfig,
     associate,
@@ -232,7 +232,7 @@ def test_evaluate_scores_the_tracker_among_the_baselines():
 
 def test_cluster_labels_all_against_all_is_the_offset_search(monkeypatch) -> None:
     """The two ways of finding the pairs within ``link`` (few cells / many) label alike."""
-    import lidarflow.predict.tracker as tracker
+    import lidarflow.tracking.clusters as tracker
 
     rng = np.random.default_rng(0)
     for _ in range(100):
