@@ -26,8 +26,8 @@ from _output import machine, write_json
 from lidarflow.data import load_any, sample_bag_path
 from lidarflow.models import count_parameters
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
-from lidarflow.predict.export import export_onnx
 from lidarflow.scan import GridSpec, takes_subcell
 
 MOTION = np.array([0.5, 0.0, 0.0087], np.float32)

@@ -16,9 +16,9 @@ from lidarflow.models import build_model
 from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
+from lidarflow.outputs.export import copy_marks, export_onnx
+from lidarflow.outputs.job import predict_to_bag
 from lidarflow.predict import Predictor
-from lidarflow.predict.export import copy_marks, export_onnx
-from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
 from tests.conftest import make_model_dir

@@ -170,8 +170,8 @@ def test_model_json_round_trip(tmp_path):
 
 def test_export_matches_pytorch_in_onnxruntime(tmp_path):
     pytest.importorskip("onnxruntime")
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict.backends import OnnxBackend, TorchBackend
-    from lidarflow.predict.export import export_onnx
 
     torch.manual_seed(0)
     model = build_model("sogmp", ego_motion=True, window=4).eval()

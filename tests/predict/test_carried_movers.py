@@ -116,8 +116,8 @@ def test_the_policy_record_carries_movers_and_older_records_have_none():
 
 def test_movers_travel_through_the_onnx_export(tmp_path, sample_recording):
     from lidarflow.models.presets import resolve_model
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict import Predictor
-    from lidarflow.predict.export import export_onnx
     from tests.head_only_pair import head_only, save_model_dir
 
     folder = save_model_dir(

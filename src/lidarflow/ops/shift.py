@@ -16,7 +16,7 @@ slicing out every shift, in PyTorch and in onnxruntime (``docs/research/speed/``
 that follow the scene, ``HeadConfig(shift_memories=True)``).
 The batch becomes the convolution's groups, so an exported graph is fixed to its export batch
 (the step graphs are exported for batch 1), and the data-dependent kernels must stay float32:
-``lidarflow.predict.quantize`` leaves them alone and bf16 autocast is switched off here (it
+``lidarflow.outputs.quantize`` leaves them alone and bf16 autocast is switched off here (it
 would round overlap counts above 256).
 """
 

@@ -24,7 +24,7 @@ from lidarflow.predict.offsets import calibrated_logit
 from lidarflow.scan import GridSpec
 
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
-#: (written by :func:`lidarflow.predict.export.export_onnx`).
+#: (written by :func:`lidarflow.outputs.export.export_onnx`).
 POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
 #: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "online": bool,
 #: "gain": g, "calibrated": true}``, the policy it ships with and what the Predictor needs to
@@ -66,7 +66,7 @@ def recorded_grid(card: dict[str, Any]) -> GridSpec | None:
 def split_step_inputs(inputs: list[Any]) -> tuple[list[str], list[Any]]:
     """``(motion input names, state inputs)`` of a step graph's inputs: ``maps``, then for
     ego-motion graphs ``motion`` and (files exported since it exists) ``next_motion``, then the
-    states (see :mod:`lidarflow.predict.export`)."""
+    states (see :mod:`lidarflow.outputs.export`)."""
     motions: list[str] = []
     for name in ("motion", "next_motion"):
         if len(inputs) > 1 + len(motions) and inputs[1 + len(motions)].name == name:
@@ -121,7 +121,7 @@ class TorchBackend:
 
 
 class OnnxBackend:
-    """Runs an ONNX file written by :func:`~lidarflow.predict.export.export_onnx` with
+    """Runs an ONNX file written by :func:`~lidarflow.outputs.export.export_onnx` with
     onnxruntime (no PyTorch needed)."""
 
     def __init__(self, path: str | Path, threads: int | None = None) -> None:

@@ -10,7 +10,7 @@ import pytest
 from lidarflow.atomic import STAMP
 from lidarflow.data import read_bag
 from lidarflow.errors import OutputError, PredictError
-from lidarflow.predict.rosout import BagOutput, grid_data, map_from_grid_data
+from lidarflow.outputs.rosout import BagOutput, grid_data, map_from_grid_data
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, cell_centres
 
 GRID = GridSpec(6, 4, 0.5)  # deliberately not square

@@ -13,12 +13,12 @@ flow's colour wheel) as ``rgb8`` images laid out the same way.
 Stamps: ``header.stamp`` is the time a map is *for*, ``info.map_load_time`` the stamp of the scan
 it was made from (``write_grid(..., made_ns=)``; the two are equal for a map of the present). A
 message's log time is its own argument (default: the header stamp), so that a writer can keep
-predictions in the order of the scans they came from (:mod:`lidarflow.predict.job`).
+predictions in the order of the scans they came from (:mod:`lidarflow.outputs.job`).
 
 Chunks are compressed: zstd in MCAP files and ROS 2 bags (MCAP storage; Foxglove and ``ros2 bag``
 read them), lz4 in ROS 1 bags (``rosbag`` reads it; bz2 compresses a little more, several
 times slower). Messages of the input bag are copied in as they are with :meth:`add_copy` and
-:meth:`write_raw` (:mod:`lidarflow.predict.inputcopy`).
+:meth:`write_raw` (:mod:`lidarflow.outputs.inputcopy`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 
 from lidarflow.atomic import check_writable, commit, discard, temporary
 from lidarflow.errors import OutputError, PredictError
-from lidarflow.predict.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
+from lidarflow.outputs.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
 from lidarflow.scan import GridSpec, Scan
 
 __all__ = ["BagOutput", "grid_data", "map_from_grid_data", "output_kind"]
@@ -253,7 +253,7 @@ class BagOutput:
     def write_grid_data(
         self, out: OutGrid, grid: GridSpec, frame_id: str, log_time_ns: int | None = None
     ) -> None:
-        """One grid of :func:`lidarflow.predict.grids.prediction_grids` as an OccupancyGrid,
+        """One grid of :func:`lidarflow.outputs.grids.prediction_grids` as an OccupancyGrid,
         laid out in the scan's frame as the live nodes lay theirs (:class:`GridLayout`)."""
         types = self._types()
         if out.data.size != grid.height * grid.width:
