@@ -4,14 +4,15 @@ A room of its own, neither ``predict`` nor ``baselines``: the engine runs it at 
 beside the model and ``evaluate`` scores it as a baseline, and it is built from neither.
 """
 
-from lidarflow.tracking.carry import Movers, composed_motion
 from lidarflow.tracking.clusters import associate, cluster_labels, foreground
 from lidarflow.tracking.tracker import Tracker, TrackerConfig
+from lidarflow.tracking.tracks import Track, Tracks, composed_motion
 
 __all__ = [
-    "Movers",
+    "Track",
     "Tracker",
     "TrackerConfig",
+    "Tracks",
     "associate",
     "cluster_labels",
     "composed_motion",

@@ -39,8 +39,8 @@ import numpy as np
 from lidarflow.baselines.method import NOTHING_MORE, FrameInputs, Takes
 from lidarflow.geometry import cell_to_metric, rigid_moved
 from lidarflow.motion.pacing import paced_motion
-from lidarflow.tracking.carry import Movers
 from lidarflow.tracking.clusters import associate, cluster_labels, foreground
+from lidarflow.tracking.tracks import Tracks
 
 __all__ = ["Tracker", "TrackerConfig"]
 
@@ -129,14 +129,8 @@ class Tracker:
         self._seen: np.ndarray | None = None
         self._tracks: list[_Track] = []
         self._static: np.ndarray | None = None
-        self._transient: np.ndarray | None = None
+        self._held: np.ndarray | None = None
         self._motion: np.ndarray | None = None
-
-    @property
-    def tracks(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """``(state, cells)`` of each track seen in the last frame: ``(x, y, vx, vy)`` in cells
-        and cells per frame (x forward, y left), and its cells ``(N, 2)`` ``(row, col)``."""
-        return [(t.state.copy(), t.cells.copy()) for t in self._tracks if t.missed == 0]
 
     def update(
         self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
@@ -154,7 +148,7 @@ class Tracker:
         pace: float | None = None,
     ) -> None:
         """Take frame ``t`` as :meth:`update` does, predicting nothing (a caller that wants
-        only :meth:`movers`, the engine, does not pay for the map)."""
+        only :meth:`tracks`, the engine, does not pay for the map)."""
         occupied = np.asarray(occupancy) > 0.5
         visible = (np.asarray(visibility) > 0.5) | occupied
         moved = motion is not None and bool(np.any(np.asarray(motion) != 0))
@@ -172,7 +166,7 @@ class Tracker:
         threshold = self.config.background_threshold
         moving = foreground(occupied, self._background, threshold)
         # rare here but beside a wall (the 3 x 3 neighbourhood above): held, not tracked
-        self._transient = occupied & ~moving & (self._background < threshold)
+        self._held = occupied & ~moving & (self._background < threshold)
         a = self.config.alpha
         rate = (1 - a) * self._background + a * occupied
         self._background = np.where(visible, rate, self._background)
@@ -184,21 +178,21 @@ class Tracker:
         float32 in [0, 1] (see the module docstring)."""
         if self._static is None:
             raise RuntimeError("ahead() before any update()")
-        movers = self.movers()
+        tracks = self.tracks()
         out = []
         for k in range(1, horizon + 1):
-            image = (self._static | movers.cells_at(k)).astype(np.float32)
-            out.append(movers.moved_to_sensor(image, k))
+            image = (self._static | tracks.cells_at(k)).astype(np.float32)
+            out.append(tracks.moved_to_sensor(image, k))
         return out
 
-    def movers(self, hold: int = 0) -> Movers:
-        """The objects tracked in the last frame, frozen: what :class:`Movers` moves ``k``
-        frames on, without the background (later updates do not change it); ``hold``: the
-        transient cells no track took are kept that many frames."""
-        if self._static is None or self._transient is None:
-            raise RuntimeError("movers() before any update()")
-        tracks = [(t.state[2:].copy(), t.cells.copy()) for t in self._tracks if not t.missed]
-        return Movers(self._static.shape, tracks, self._motion, self._transient.copy(), hold)
+    def tracks(self, hold: int = 0) -> Tracks:
+        """The objects tracked and seen in the last frame, frozen: what :class:`Tracks` moves
+        ``k`` frames on, without the background (later updates do not change it); ``hold``: the
+        held cells (:class:`Tracks`) are kept that many frames."""
+        if self._static is None or self._held is None:
+            raise RuntimeError("tracks() before any update()")
+        seen = [(t.state.copy(), t.cells.copy()) for t in self._tracks if not t.missed]
+        return Tracks(self._static.shape, seen, self._motion, self._held.copy(), hold, self.res)
 
     def _carry(self, motion: np.ndarray) -> None:
         """Re-express the background and the tracks in the new sensor frame."""
