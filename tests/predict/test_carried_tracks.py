@@ -14,6 +14,7 @@ from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import decision_record
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.engine import HELD_FRAMES, Engine, Frame
+from lidarflow.predict.step import StepInputs, StepOutput
 from lidarflow.tracking import Tracker
 from tests.tracking.test_tracker import SEEN, _blob, _walker, _wall
 
@@ -67,10 +68,11 @@ class _Eraser:
     def init_state(self, height: int, width: int) -> Any:
         return None
 
-    def run(self, maps: np.ndarray, state: Any, motion: Any = None, next_motion: Any = None):
-        self.fed.append(maps[0, 0].copy())
-        shape = maps.shape[-2:]
-        return np.zeros((1, 1, *shape), np.float32), np.zeros((1, 4, *shape), np.float32), state
+    def run(self, inputs: StepInputs, state: Any) -> StepOutput:
+        self.fed.append(inputs.maps[0, 0].copy())
+        shape = inputs.maps.shape[-2:]
+        zeros = np.zeros((1, 1, *shape), np.float32), np.zeros((1, 4, *shape), np.float32)
+        return StepOutput(*zeros, state)
 
 
 @pytest.mark.parametrize("tracks", [False, True])

@@ -31,17 +31,17 @@ Every user of a trained model streams it through :class:`Engine`: the robot's
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import Any, Literal
 
 import numpy as np
 
 from lidarflow.geometry import FlowWarp
-from lidarflow.models.config import Capabilities
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
+from lidarflow.predict.step import Backend, StepInputs
 from lidarflow.scan import takes_subcell
 from lidarflow.tracking import Tracker, Tracks
 
@@ -54,25 +54,6 @@ HELD_FRAMES = 1
 
 #: Where a frame's motion came from (see the module's docstring).
 MotionSource = Literal["pose", "scans", "none"]
-
-
-class Backend(Protocol):
-    """One model step on NumPy arrays (:class:`~lidarflow.predict.backends.TorchBackend`,
-    :class:`~lidarflow.predict.backends.OnnxBackend`)."""
-
-    capabilities: Capabilities
-    gain: float | None  # an occupancy head's warp gain (the online decision's unmoved map)
-    decision: dict[str, Any] | None  # the policy a file ships with ({"offset", "online"})
-
-    def init_state(self, height: int, width: int) -> Any: ...
-
-    def run(
-        self,
-        maps: np.ndarray,
-        state: Any,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, Any]: ...
 
 
 @dataclass(frozen=True)
@@ -213,7 +194,9 @@ class Engine:
             guess = frame.next_motion if trusted else None
         else:
             guess = paced_motion(motion, frame.pace)  # None: the last motion again
-        probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
+        probability, out, self._state = self.backend.run(
+            StepInputs(maps, motion, guess), self._state
+        )
         flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
         decided = self._decide(own, frame.occupancy, self._backward(out), frame.visibility)
@@ -260,7 +243,7 @@ class Engine:
         for k in range(2, horizon + 1):
             fed = np.zeros_like(step.maps)
             fed[0, 0], fed[0, 1] = model_only, step.maps[0, 1]
-            probability, out, state = self.backend.run(fed, state, step.ahead)
+            probability, out, state = self.backend.run(StepInputs(fed, step.ahead), state)
             probabilities.append(probability[0, 0])
             model_only = self._decide(probability[0, 0], model_only, self._backward(out))
             decided.append(model_only if tracks is None else np.maximum(model_only, tracks.at(k)))
