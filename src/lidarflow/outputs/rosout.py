@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.atomic import check_writable, commit, discard, temporary
-from lidarflow.errors import OutputError, PredictError
+from lidarflow.atomic import check_writable, commit, discard, named_for, temporary
+from lidarflow.errors import PredictError
 from lidarflow.outputs.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
 from lidarflow.scan import GridSpec, Scan
 
@@ -108,12 +108,13 @@ class BagOutput:
         return self
 
     def _named(self, err: BaseException) -> BaseException:
-        """``err`` naming the target the user asked for, not the temporary it was staged in."""
+        """``err`` naming the target the user asked for, not the temporary it was staged in
+        (the file system's refusal, under what rosbags wraps it in: :func:`named_for`)."""
         cause = err
         while not isinstance(cause, OSError) and cause.__cause__ is not None:
             cause = cause.__cause__
-        if isinstance(cause, OSError):
-            return OutputError(f"{self.path}: cannot be written there ({cause.strerror or cause})")
+        if isinstance(cause, OSError) and self._staged is not None:
+            return named_for(cause, [self._staged], [self.path])
         if isinstance(err, Exception):
             return PredictError(f"{self.path}: cannot open for writing ({err})")
         return err
@@ -130,7 +131,10 @@ class BagOutput:
                 self._writer.close()
             except OSError as err:
                 if exc is None:
-                    raise self._named(err) from err
+                    named = self._named(err)
+                    if named is err:  # another file's refusal: as it came
+                        raise
+                    raise named from err
             # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed):
             # it never takes the target's name.
             if exc is None:
@@ -138,7 +142,9 @@ class BagOutput:
         finally:
             discard(self._staged)
         if isinstance(exc, OSError):  # a full disk while writing: the target, not the temporary
-            raise self._named(exc) from exc
+            named = self._named(exc)
+            if named is not exc:  # else it goes on as it came
+                raise named from exc
 
     # ------------------------------------------------------------------ messages
     def _types(self) -> dict[str, Any]:
