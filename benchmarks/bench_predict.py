@@ -30,10 +30,10 @@ from _output import machine, write_json
 
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
+from lidarflow.outputs.quantize import quantize_onnx
 from lidarflow.predict import Predictor
 from lidarflow.predict.decision import DecisionPolicy
-from lidarflow.predict.export import export_onnx
-from lidarflow.predict.quantize import quantize_onnx
 from lidarflow.scan import GridSpec, takes_subcell
 
 

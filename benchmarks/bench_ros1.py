@@ -38,8 +38,8 @@ import numpy as np
 from _output import machine, write_json
 
 from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.outputs.grids import grid_topics
 from lidarflow.predict import Predictor
-from lidarflow.predict.grids import grid_topics
 
 ROOT = Path(__file__).resolve().parents[1]
 PEER = ROOT / "tests" / "live" / "ros1_peer.py"
@@ -142,8 +142,8 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=Path("benchmarks/results/ros1.json"))
     args = parser.parse_args()
     from lidarflow.models.presets import resolve_model
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict.decision import DecisionPolicy
-    from lidarflow.predict.export import export_onnx
 
     recording = read_bag(sample_bag_path())
     scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]

@@ -46,8 +46,8 @@ from bench_ros1 import start, stats, stop, wait_for
 
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.models.presets import bundled_onnx
+from lidarflow.outputs.grids import grid_topics
 from lidarflow.predict import Predictor
-from lidarflow.predict.grids import grid_topics
 
 ROOT = Path(__file__).resolve().parents[1]
 PEER = ROOT / "tests" / "live" / "ros2_peer.py"

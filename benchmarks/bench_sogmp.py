@@ -26,8 +26,9 @@ from _output import machine, write_json
 from lidarflow.data import load_any, sample_bag_path
 from lidarflow.models import count_parameters
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
 from lidarflow.predict.backends import OnnxBackend, TorchBackend
-from lidarflow.predict.export import export_onnx
+from lidarflow.predict.step import StepInputs
 from lidarflow.scan import GridSpec, takes_subcell
 
 MOTION = np.array([0.5, 0.0, 0.0087], np.float32)
@@ -39,7 +40,7 @@ def step_ms(backend: TorchBackend | OnnxBackend, maps: np.ndarray, warm: int = 3
     times = []
     for i, frame in enumerate(maps):
         start = time.perf_counter()
-        _, _, state = backend.run(frame[None], state, MOTION)
+        _, _, state = backend.run(StepInputs(frame[None], MOTION), state)
         if i >= warm:
             times.append(time.perf_counter() - start)
     return float(np.median(times) * 1e3)

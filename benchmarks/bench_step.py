@@ -50,6 +50,7 @@ import torch
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.models.presets import bundled_model_dir, resolve_model
 from lidarflow.predict import Predictor
+from lidarflow.predict.step import StepInputs
 
 threads, rollout = int(sys.argv[1]), int(sys.argv[2])
 torch.set_num_threads(threads)
@@ -96,7 +97,7 @@ def batched(batch, steps):
     t0 = time.perf_counter()
     for _ in range(steps):
         for j, b in enumerate(backends):
-            _, _, states[j] = b.run(maps[j], states[j], m)
+            _, _, states[j] = b.run(StepInputs(maps[j], m), states[j])
     out["numpy_streams"] = batch * steps / (time.perf_counter() - t0)
     return out
 

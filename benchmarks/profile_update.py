@@ -82,10 +82,10 @@ def profile(path: str, recording: str, frames: int = 150) -> None:
         "model step (NumPy head step)": ct("headstep.py:run", "engine.py:step"),
         "decision (online: score, choose, decide)": ct("engine.py:_decide", "engine.py:step"),
         "tracker (observe)": ct("tracker.py:observe"),
-        "movers one step on (Movers.at)": ct("carry.py:at", "engine.py:step"),
+        "tracks one step on (Tracks.at)": ct("tracks.py:at", "engine.py:step"),
         "roll-out: model steps": ct("headstep.py:run", "engine.py:roll"),
         "roll-out: re-decision": ct("engine.py:_decide", "engine.py:roll"),
-        "roll-out: movers k steps on": ct("carry.py:at", "engine.py:roll"),
+        "roll-out: tracks k steps on": ct("tracks.py:at", "engine.py:roll"),
         "rasterise + sub-cell maps": ct("predictor.py:_maps") + ct("scan.py:subcell_batch"),
         "returns (scan_points)": ct("icp.py:scan_points", "predictor.py:update"),
     }

@@ -24,9 +24,9 @@ import numpy as np
 from lidarflow.data import load_any
 from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
+from lidarflow.outputs.quantize import quantize_onnx
 from lidarflow.predict import Predictor
-from lidarflow.predict.export import export_onnx
-from lidarflow.predict.quantize import quantize_onnx
 from lidarflow.scan import GridSpec, Scan, takes_subcell
 from studies.harness import parse, parser, write_summary
 

@@ -39,13 +39,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from lidarflow.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.data import Recording, load_any
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.models.presets import resolve_model
-from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.predict.offsets import (
     f1_from_counts,
     lookahead_terms,

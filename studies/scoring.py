@@ -12,16 +12,16 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import (
+    TA_THRESHOLD,
+    TA_WINDOW,
+    CopyLastEgo,
+)
 from lidarflow.data.recording import Recording
-from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.evaluation import evaluate_and_report
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.runner import evaluate_recording
-from lidarflow.predict.baselines import (
-    TA_THRESHOLD,
-    TA_WINDOW,
-)
 from lidarflow.scan import GridSpec
 from lidarflow.viz.evaluation import ReportFigures
 

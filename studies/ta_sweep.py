@@ -19,9 +19,9 @@ import itertools
 from collections.abc import Sequence
 from pathlib import Path
 
+from lidarflow.baselines import CopyLast, TemporalAverage
 from lidarflow.data import frames_after_gaps, load_any
 from lidarflow.evaluate.runner import evaluate_maps
-from lidarflow.predict.baselines import CopyLast, TemporalAverage
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, stem, write_summary
 

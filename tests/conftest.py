@@ -113,8 +113,8 @@ def flow_onnx(tmp_path_factory) -> Path:
     """:data:`FLOW_MODEL` as ONNX with its decision policy, as `lidarflow export` writes it:
     what the live tests of moving cells and the flow image serve."""
     from lidarflow.models.presets import resolve_model
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict.decision import DecisionPolicy
-    from lidarflow.predict.export import export_onnx
 
     net, card = resolve_model(FLOW_MODEL)
     path = tmp_path_factory.mktemp("flow_onnx") / "flownet_v8.onnx"

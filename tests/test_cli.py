@@ -304,7 +304,7 @@ def test_evaluate_with_a_missing_or_broken_model(tmp_path, capsys):
 
 @pytest.mark.parametrize("suffix", ["out.mcap", "out.bag"])
 def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_dir, suffix):
-    from tests.predict.test_rosout import read_all
+    from tests.outputs.test_rosout import read_all
 
     rec = tmp_path / "short.npz"
     from lidarflow.data import read_bag
@@ -329,8 +329,8 @@ def test_predict_writes_a_bag_of_predictions(tmp_path, capsys, random_flownet_di
 
 
 def test_predict_on_a_bag_copies_it_and_leaves_the_flow_out(tmp_path, capsys, random_flownet_dir):
-    from tests.predict.test_inputcopy import read_messages, write_robot_bag
-    from tests.predict.test_rosout import read_all
+    from tests.outputs.test_inputcopy import read_messages, write_robot_bag
+    from tests.outputs.test_rosout import read_all
 
     bag = write_robot_bag(tmp_path / "robot.bag", "ros1")
     out = tmp_path / "o.bag"
@@ -351,7 +351,7 @@ def test_predict_on_a_bag_copies_it_and_leaves_the_flow_out(tmp_path, capsys, ra
 
 
 def test_predict_says_the_bundled_model_has_no_flow_to_write(tmp_path, capsys):
-    from tests.predict.test_rosout import read_all
+    from tests.outputs.test_rosout import read_all
 
     rec = tmp_path / "short.npz"
     from lidarflow.data import read_bag

@@ -61,6 +61,7 @@ __all__ = [
     "commit",
     "discard",
     "is_ours",
+    "named_for",
     "stamp",
     "temporary",
     "write_bytes",
@@ -261,7 +262,7 @@ def atomic_paths(targets: Sequence[str | Path]) -> Iterator[list[Path]]:
         try:
             yield temps
         except OSError as err:
-            named = _named_for(err, temps, targets)
+            named = named_for(err, temps, targets)
             if named is err:
                 raise
             raise named from err
@@ -273,12 +274,12 @@ def atomic_paths(targets: Sequence[str | Path]) -> Iterator[list[Path]]:
         raise
 
 
-def _named_for(
+def named_for(
     err: OSError, temps: Sequence[Path], targets: Sequence[str | Path]
 ) -> OSError | OutputError:
-    """``err`` as the user should read it: where it names a temporary (or a file inside a
-    temporary folder), or is a disk's refusal naming no file (a full disk), a refusal naming
-    the target, which the user asked for."""
+    """``err`` as the user should read it: where it names one of ``temps`` (or a file in one),
+    or is a disk's refusal naming no file (a full disk), an OutputError naming its target (of
+    ``targets``, in order), which the user asked for; else ``err`` itself."""
     named = Path(err.filename) if isinstance(err.filename, str | os.PathLike) else None
     if named is None and err.errno not in _DISK_ERRORS:
         return err

@@ -1,6 +1,6 @@
 """The standard optical-flow colour wheel (Baker et al., as in Middlebury and RAFT's
 ``flow_to_image``): a flow as an RGB picture, for the reports (:mod:`lidarflow.viz`) and for what
-the predictions are written and served as (:mod:`lidarflow.predict.job`, :mod:`lidarflow.live`);
+the predictions are written and served as (:mod:`lidarflow.outputs.job`, :mod:`lidarflow.live`);
 NumPy alone."""
 
 from __future__ import annotations

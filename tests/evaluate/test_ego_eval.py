@@ -8,18 +8,17 @@ import json
 import numpy as np
 import pytest
 
+from lidarflow.baselines import CopyLast, CopyLastEgo, FrameInputs
 from lidarflow.errors import EvaluateError, PredictError
-from lidarflow.evaluate.ego import CopyLastEgo
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.runner import evaluate_recording
 from lidarflow.models import build_model
 from lidarflow.motion.icp import recording_points
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
+from lidarflow.outputs.export import copy_marks, export_onnx
+from lidarflow.outputs.job import predict_to_bag
 from lidarflow.predict import Predictor
-from lidarflow.predict.baselines import CopyLast, FrameInputs
-from lidarflow.predict.export import copy_marks, export_onnx
-from lidarflow.predict.job import predict_to_bag
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
 from tests.conftest import make_model_dir

@@ -7,11 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from lidarflow.errors import EvaluateError
-from lidarflow.evaluate.report import build_report, format_table
-from lidarflow.evaluate.runner import evaluate_maps
-from lidarflow.evaluate.scoring import Scorer
-from lidarflow.predict.baselines import (
+from lidarflow.baselines import (
     ConstantVelocity,
     CopyLast,
     Takes,
@@ -19,6 +15,10 @@ from lidarflow.predict.baselines import (
     best_rigid_shift,
     shift_map,
 )
+from lidarflow.errors import EvaluateError
+from lidarflow.evaluate.report import build_report, format_table
+from lidarflow.evaluate.runner import evaluate_maps
+from lidarflow.evaluate.scoring import Scorer
 from lidarflow.scan import GridSpec
 
 

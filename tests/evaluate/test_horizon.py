@@ -77,8 +77,8 @@ def test_horizon_on_frame_blocks_is_the_same_as_on_arrays():
 
 
 def test_the_baselines_roll_forward_as_the_models_do():
+    from lidarflow.baselines import ConstantVelocity, CopyLast, TemporalAverage
     from lidarflow.evaluate.runner import horizon_scores
-    from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 
     # the whole scene drifts one column a frame (as under a platform moving sideways)
     occupancy = np.zeros((10, 6, 16), bool)
@@ -102,7 +102,7 @@ def test_the_baselines_roll_forward_as_the_models_do():
 
 
 def test_the_last_map_moved_by_the_ego_motion_moves_on_each_step_ahead():
-    from lidarflow.evaluate.ego import CopyLastEgo
+    from lidarflow.baselines import CopyLastEgo
     from lidarflow.evaluate.runner import horizon_scores
 
     # a still wall seen from a platform driving one row a frame towards it
@@ -119,7 +119,7 @@ def test_the_last_map_moved_by_the_ego_motion_moves_on_each_step_ahead():
 
 
 def test_on_ahead_sees_every_scored_prediction_1_to_k_ahead():
-    from lidarflow.predict.baselines import ConstantVelocity
+    from lidarflow.baselines import ConstantVelocity
 
     occupancy = np.zeros((10, 6, 16), bool)
     for t in range(10):

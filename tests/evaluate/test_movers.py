@@ -204,9 +204,9 @@ def test_a_frame_of_unknown_pose_has_an_empty_region():
 
 
 def test_a_simulated_recording_scores_its_true_movers():
+    from lidarflow.baselines import CopyLast
     from lidarflow.evaluate.runner import evaluate_recording
     from lidarflow.evaluate.stream import ground_truth_moving, mover_region, recording_inputs
-    from lidarflow.predict.baselines import CopyLast
     from lidarflow.sim import SimConfig, simulate
 
     rec = simulate(24, seed=3, config=SimConfig(scenario="dynamic"))
@@ -279,9 +279,9 @@ def test_horizon_scores_the_movers_k_steps_ahead():
 
 
 def test_the_table_and_the_html_report_show_the_mover_metric(tmp_path):
+    from lidarflow.baselines import CopyLast, TemporalAverage
     from lidarflow.evaluate.report import build_report, format_table
     from lidarflow.evaluate.runner import evaluate_maps
-    from lidarflow.predict.baselines import CopyLast, TemporalAverage
     from lidarflow.viz.html import write_html_report
 
     n = 25

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lidarflow.baselines import CopyLast
 from lidarflow.evaluate.peer_metrics import ssim, wmse
 from lidarflow.evaluate.report import build_report, format_peer_table
 from lidarflow.evaluate.runner import evaluate_maps, horizon_scores
-from lidarflow.predict.baselines import CopyLast
 
 
 def _walker(n: int = 14, size: int = 16) -> np.ndarray:

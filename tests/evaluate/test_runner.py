@@ -10,9 +10,9 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from lidarflow.baselines import ConstantVelocity, CopyLast, Method, TemporalAverage
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.runner import evaluate_maps, horizon_scores
-from lidarflow.predict.baselines import ConstantVelocity, CopyLast, Method, TemporalAverage
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, write_simulation
 from tests.test_cli import run

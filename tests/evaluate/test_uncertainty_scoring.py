@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
+from lidarflow.baselines import CopyLast, Takes
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import build_report, format_table, format_uncertainty_table
 from lidarflow.evaluate.runner import evaluate_maps, evaluate_recording
 from lidarflow.evaluate.stream import ground_truth_moving
 from lidarflow.models.presets import resolve_model
-from lidarflow.predict.baselines import CopyLast, Takes
 from lidarflow.predict.moving import moving_mask
 from lidarflow.scan import GridSpec
 from tests.conftest import make_model_dir

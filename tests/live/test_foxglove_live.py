@@ -33,9 +33,9 @@ from lidarflow.errors import PredictError
 from lidarflow.flowcolor import flow_to_rgb
 from lidarflow.live.foxglove import LiveServer
 from lidarflow.live.replay import loop_shift_ns
+from lidarflow.outputs.grids import FLOW_RGB_FULL_CELLS
+from lidarflow.outputs.rosout import map_from_grid_data
 from lidarflow.predict import Predictor
-from lidarflow.predict.grids import FLOW_RGB_FULL_CELLS
-from lidarflow.predict.rosout import map_from_grid_data
 from tests.test_cli import run
 from tests.without_torch import MAIN
 

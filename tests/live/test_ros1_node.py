@@ -2,7 +2,7 @@
 bundled sample, the node as its own process (an ONNX model, the machine loaded by a busy
 process beside it) and a rospy peer run with Debian's python3 (tests/live/ros1_peer.py).
 
-Checked as the bag output's tests check it (tests/predict/test_rosout.py): one grid per scan on
+Checked as the bag output's tests check it (tests/outputs/test_rosout.py): one grid per scan on
 every topic, stamps (a grid k frames ahead: the scan's stamp plus k steps, ``map_load_time`` the
 scan's), the scan's frame, the layout the bag output writes, values in -1..100 and the same
 values the Predictor gives offline; and the node's latency under load, within a generous bound
@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.outputs.grids import GridLayout, grid_topics, prediction_grids
 from lidarflow.predict import Predictor
-from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
 from tests.live.rosmaster import SYSTEM_PYTHON, stop
 from tests.without_torch import MAIN
 
@@ -148,9 +148,9 @@ def test_the_node_publishes_one_grid_per_scan_stamped_laid_out_and_valued_as_off
 def bag_output_layout(tmp_path: Path) -> tuple:
     """What the bag output writes for the bundled model's grid: width, height, resolution and
     origin (position, orientation), read back from a bag it wrote."""
-    from lidarflow.predict.rosout import BagOutput
+    from lidarflow.outputs.rosout import BagOutput
     from lidarflow.scan import GridSpec
-    from tests.predict.test_rosout import read_all
+    from tests.outputs.test_rosout import read_all
 
     grid = GridSpec()
     assert GridLayout.of(grid) == GridLayout(100, 100, 0.1, 0.0, -5.0)

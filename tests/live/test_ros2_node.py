@@ -31,8 +31,8 @@ import numpy as np
 import pytest
 
 from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.outputs.grids import grid_topics, prediction_grids
 from lidarflow.predict import Predictor
-from lidarflow.predict.grids import grid_topics, prediction_grids
 from tests.live.rosmaster import stop
 from tests.live.test_ros1_node import bag_output_layout
 from tests.without_torch import MAIN, PRELUDE

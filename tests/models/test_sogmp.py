@@ -15,6 +15,7 @@ from lidarflow.cli import main
 from lidarflow.losses import sogmp_loss
 from lidarflow.models import SOGMP, build_model, count_parameters
 from lidarflow.models.sogmp import kl_to_standard_normal
+from lidarflow.predict.step import StepInputs
 from tests.conftest import make_model_dir
 
 H = W = 16
@@ -170,8 +171,8 @@ def test_model_json_round_trip(tmp_path):
 
 def test_export_matches_pytorch_in_onnxruntime(tmp_path):
     pytest.importorskip("onnxruntime")
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict.backends import OnnxBackend, TorchBackend
-    from lidarflow.predict.export import export_onnx
 
     torch.manual_seed(0)
     model = build_model("sogmp", ego_motion=True, window=4).eval()
@@ -182,8 +183,8 @@ def test_export_matches_pytorch_in_onnxruntime(tmp_path):
     seq = _seq(1, 6, seed=3).numpy()
     for t in range(6):
         motion = np.array([0.4, 0.2 * t, 0.03], np.float32)
-        p1, o1, s_onnx = onnx.run(seq[:, t], s_onnx, motion)
-        p2, o2, s_torch = torch_.run(seq[:, t], s_torch, motion)
+        p1, o1, s_onnx = onnx.run(StepInputs(seq[:, t], motion), s_onnx)
+        p2, o2, s_torch = torch_.run(StepInputs(seq[:, t], motion), s_torch)
         np.testing.assert_allclose(p1, p2, atol=2e-5)
         np.testing.assert_allclose(o1, o2, atol=2e-4)
     assert float(np.abs(p1 - p1.mean()).max()) > 0  # not a constant map

@@ -8,8 +8,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lidarflow.baselines import ConstantVelocity, best_rigid_shift, shift_map
 from lidarflow.ops.shift import apply_shift, best_shift_kernel, shift_scores
-from lidarflow.predict.baselines import ConstantVelocity, best_rigid_shift, shift_map
 
 
 def constant_velocity_map(previous: torch.Tensor, current: torch.Tensor) -> torch.Tensor:

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lidarflow.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.evaluate.metrics import THRESHOLD, confusion
-from lidarflow.predict.baselines import ConstantVelocity, CopyLast, TemporalAverage
 from lidarflow.predict.decision import OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.offsets import (
     counts,
@@ -308,7 +308,7 @@ def test_the_numpy_moved_map_equals_the_models_warp(seed):
 def test_predict_chooses_online_unless_told_fixed(tmp_path, capsys):
     from lidarflow.data import read_bag, sample_bag_path
     from tests.conftest import make_model_dir
-    from tests.predict.test_rosout import read_all
+    from tests.outputs.test_rosout import read_all
     from tests.test_cli import run
 
     kwargs = {"occupancy_head": True, "decision_offset": -3.0, "online_decision": True}

@@ -13,6 +13,7 @@ import pytest
 from lidarflow.models.config import Capabilities
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.engine import Engine, Frame
+from lidarflow.predict.step import StepInputs, StepOutput
 
 SHAPE = (6, 8)
 
@@ -32,12 +33,13 @@ class Recorder:
         self.inits += 1
         return 0
 
-    def run(self, maps: np.ndarray, state: Any, motion: Any = None, next_motion: Any = None):
+    def run(self, inputs: StepInputs, state: Any) -> StepOutput:
+        maps, motion, next_motion = inputs.maps, inputs.motion, inputs.next_motion
         self.calls.append(
             {"maps": maps.copy(), "state": state, "motion": motion, "next": next_motion}
         )
         out = np.zeros((1, self.capabilities.out_channels, *maps.shape[-2:]), np.float32)
-        return maps[:, :1].astype(np.float32), out, state + 1
+        return StepOutput(maps[:, :1].astype(np.float32), out, state + 1)
 
 
 def frame(seed: int, **kwargs: Any) -> Frame:

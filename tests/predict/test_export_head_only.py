@@ -9,10 +9,10 @@ import pytest
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.runner import evaluate_recording
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
 from lidarflow.predict import Predictor
 from lidarflow.predict.backends import FLOW_KEY
 from lidarflow.predict.decision import DecisionPolicy
-from lidarflow.predict.export import export_onnx
 from lidarflow.scan import GridSpec
 from lidarflow.sim import SimConfig, simulate
 from tests.head_only_pair import head_only, save_model_dir, zeroed_twin

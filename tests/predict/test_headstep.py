@@ -12,6 +12,7 @@ from lidarflow.models import ModelSpec, build
 from lidarflow.models.config import HeadConfig
 from lidarflow.predict.backends import TorchBackend, load_backend
 from lidarflow.predict.headstep import HeadStepBackend, supports
+from lidarflow.predict.step import StepInputs
 
 HEADS = {
     "memories": {"memory_decays": [0.5, 0.9]},
@@ -67,8 +68,8 @@ def test_the_numpy_step_is_pytorchs(kwargs, ego) -> None:
     for t, maps in enumerate(frames(rng, net.input_channels)):
         motion = motions[t % 3]
         guess = None if t % 4 else np.array([0.25, 0.1, 0.01], np.float32)
-        pa, oa, a = fast.run(maps, a, motion, guess)
-        pb, ob, b = reference.run(maps, b, motion, guess)
+        pa, oa, a = fast.run(StepInputs(maps, motion, guess), a)
+        pb, ob, b = reference.run(StepInputs(maps, motion, guess), b)
         np.testing.assert_allclose(pa, pb, atol=1e-5)
         np.testing.assert_allclose(oa, ob, atol=1e-4)  # flow and logit, cells and logits
         np.testing.assert_allclose(a[0], b[0].numpy(), atol=1e-5)

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from lidarflow.errors import PredictError
+from lidarflow.outputs.job import predict_to_bag
+from lidarflow.outputs.rosout import map_from_grid_data
 from lidarflow.predict import Predictor
-from lidarflow.predict.job import predict_to_bag
 from lidarflow.predict.moving import moving_mask
-from lidarflow.predict.rosout import map_from_grid_data
 from tests.conftest import FLOW_MODEL, make_model_dir
-from tests.predict.test_rosout import read_all
+from tests.outputs.test_rosout import read_all
 
 # A trained flow model (v8, the bundled one until v9 dropped the flow network): a random flow
 # head's flow is too small and smooth to move anything.

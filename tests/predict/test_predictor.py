@@ -9,10 +9,10 @@ import pytest
 
 from lidarflow.errors import PredictError
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
 from lidarflow.predict import Predictor
 from lidarflow.predict.backends import DECISION_KEY
 from lidarflow.predict.decision import DecisionPolicy
-from lidarflow.predict.export import export_onnx
 from tests.conftest import make_model_dir
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.predict.baselines import best_rigid_shift, shift_map
+from lidarflow.baselines import best_rigid_shift, shift_map
 from lidarflow.predict.offsets import pair_counts
 
 

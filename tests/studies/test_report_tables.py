@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
+from lidarflow.baselines import TA_THRESHOLD, TA_WINDOW
 from studies import heldout_table, seed_table, ta_sweep, ta_verdicts
 from studies.harness import VERDICTS
 

@@ -12,9 +12,9 @@ import subprocess
 import numpy as np
 import pytest
 
+from lidarflow.baselines import CopyLast
 from lidarflow.evaluate.report import build_report
 from lidarflow.evaluate.runner import evaluate_maps
-from lidarflow.predict.baselines import CopyLast
 from lidarflow.viz.html import write_html_report
 from lidarflow.viz.overlay import overlay_rgb, write_gif
 

@@ -138,8 +138,8 @@ def predict_input(task: PredictTask) -> Predicted:
     from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
     from lidarflow.data.sources import is_recording_file
     from lidarflow.evaluate.horizon import check_horizon
+    from lidarflow.outputs.job import predict_to_bag
     from lidarflow.predict import Predictor
-    from lidarflow.predict.job import predict_to_bag
 
     s = task.settings
     recording = load_input(task.input, s.topic, s.odom_topic)

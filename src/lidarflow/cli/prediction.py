@@ -100,8 +100,8 @@ def _demo(folder: Path, output: Path) -> None:
         )
     typer.echo(f"results: {output / 'results.json'}; report: {output / 'report' / 'index.html'}")
     if has_model:
+        from lidarflow.outputs.job import predict_to_bag
         from lidarflow.predict import Predictor
-        from lidarflow.predict.job import predict_to_bag
 
         predictor = Predictor(None, spec, threads=None)  # the demo's --threads set already
         with progress_bar(len(recording), "writing predictions") as bar:
@@ -176,8 +176,8 @@ def predict(options: PredictOptions) -> None:
     An ego-motion model gets the recording's poses; without poses the bundled model matches
     the motion from the scans."""
     from lidarflow.cli.per_input import PredictSettings, PredictTask
+    from lidarflow.outputs.rosout import output_kind
     from lidarflow.predict.moving import MOVING_THRESHOLD
-    from lidarflow.predict.rosout import output_kind
 
     o = options
     groups = _topic_groups(o.topics)
@@ -235,7 +235,7 @@ def _outputs(inputs: list[Path], output: Path) -> list[Path]:
     if len(inputs) == 1:
         return [output]
     from lidarflow.evaluate.evaluation import unique_stems
-    from lidarflow.predict.rosout import output_kind
+    from lidarflow.outputs.rosout import output_kind
 
     if output_kind(output) != "ros2" or output.is_file():
         raise typer.BadParameter(
@@ -252,7 +252,7 @@ def _say_written(task: Any, outcome: Any) -> None:
 
 def _topic_groups(text: str) -> frozenset[str]:
     """``--topics``: the groups named, ``default`` and ``all`` spelled out."""
-    from lidarflow.predict.job import DEFAULT_TOPICS, TOPIC_GROUPS
+    from lidarflow.outputs.job import DEFAULT_TOPICS, TOPIC_GROUPS
 
     groups: set[str] = set()
     for name in (n.strip().lower() for n in text.split(",")):
@@ -312,9 +312,9 @@ def export(options: ExportOptions) -> None:
     onnxruntime inference without PyTorch (`lidarflow predict --model X.onnx`)."""
     from lidarflow.atomic import atomic_path
     from lidarflow.models.presets import resolve_model
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict.backends import recorded_grid
     from lidarflow.predict.decision import DecisionPolicy
-    from lidarflow.predict.export import export_onnx
 
     o = options
     output = _onnx_output(o)
@@ -359,8 +359,8 @@ def _export_int8(net: Any, policy: Any, spec: Any, output: Path, options: Export
     import tempfile
 
     from lidarflow.data import sample_bag_path
-    from lidarflow.predict.export import export_onnx
-    from lidarflow.predict.quantize import quantize_onnx
+    from lidarflow.outputs.export import export_onnx
+    from lidarflow.outputs.quantize import quantize_onnx
     from lidarflow.scan import takes_subcell
 
     source = options.calibration or sample_bag_path()

@@ -12,6 +12,7 @@ from typing import Annotated, Any
 import typer
 
 from lidarflow.atomic import atomic_path, write_text
+from lidarflow.baselines import TA_THRESHOLD, TA_WINDOW
 from lidarflow.cli.app import (
     DEFAULT_THREADS,
     TORCH_MODEL_SOURCES,
@@ -31,7 +32,6 @@ from lidarflow.cli.jobs import JobsOpt
 from lidarflow.cli.options import command_options
 from lidarflow.cli.per_input import EvaluateSettings
 from lidarflow.evaluate.methods import methods_and_config
-from lidarflow.predict.baselines import TA_THRESHOLD, TA_WINDOW
 
 
 def _above_zero(value: float) -> float:

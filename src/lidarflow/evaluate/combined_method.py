@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarflow.baselines import NOTHING_MORE, FrameInputs
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.online.combination import Combination, Combined
 from lidarflow.online.stacking import StackingConfig
-from lidarflow.predict.baselines import NOTHING_MORE, FrameInputs
 from lidarflow.predict.engine import Backend
 
 __all__ = ["CombinedMethod"]

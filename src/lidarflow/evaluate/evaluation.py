@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from lidarflow.baselines import Method
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.horizon import add_horizon_entry, horizon_entry
@@ -40,7 +41,6 @@ from lidarflow.evaluate.stream import (
     recording_inputs,
 )
 from lidarflow.motion.odometry import pose_jumps
-from lidarflow.predict.baselines import Method
 from lidarflow.scan import GridSpec
 
 __all__ = [

@@ -13,7 +13,7 @@ prediction fed back to a copy of their state: constant velocity shifts the last 
 times, the last map moved by the ego motion (``copy_last_ego``) moves on by the same motion each
 step, the temporal average takes its own prediction into its window. A method with
 ``ahead(K)`` predicts 1..K ahead itself, nothing fed back: the tracker
-(:mod:`lidarflow.predict.tracker`) moves each object by ``k`` times its velocity and leaves the
+(:mod:`lidarflow.tracking`) moves each object by ``k`` times its velocity and leaves the
 background where it is. What knows the future (``oracle``) has no roll-out.
 
 Beside F1 the peers' metrics (:mod:`lidarflow.evaluate.peer_metrics`) are averaged per ``k``
@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import FrameInputs, Method
 from lidarflow.data.blocks import Frames
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
@@ -49,7 +50,6 @@ from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
 from lidarflow.evaluate.report import add_horizon_verdict
-from lidarflow.predict.baselines import FrameInputs, Method
 
 __all__ = [
     "HorizonScore",

@@ -10,21 +10,21 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from lidarflow.evaluate.ego import CopyLastEgo
-from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.evaluate.report import ORACLE_SUFFIX
-from lidarflow.models.weights import describe_source
-from lidarflow.predict.backends import load_backend
-from lidarflow.predict.baselines import (
+from lidarflow.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
     ConstantVelocity,
     CopyLast,
+    CopyLastEgo,
     TemporalAverage,
 )
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.evaluate.report import ORACLE_SUFFIX
+from lidarflow.models.weights import describe_source
+from lidarflow.predict.backends import load_backend
 from lidarflow.predict.decision import OnlineDecisionConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD
-from lidarflow.predict.tracker import Tracker, TrackerConfig
+from lidarflow.tracking import Tracker, TrackerConfig
 
 __all__ = ["methods_and_config"]
 
@@ -159,7 +159,7 @@ def _report_config(
             "rule": "running background rate in the world frame; foreground cells clustered "
             "(link metres), matched to the tracks' predicted centroids (gate metres), a "
             "constant-velocity Kalman filter per track; k ahead: the background stays, each "
-            "track's cells move k times its velocity (lidarflow.predict.tracker); the ego "
+            "track's cells move k times its velocity (lidarflow.tracking); the ego "
             "motion from the poses, on a recording without them matched from its scans",
         },
         # how a reading became a map (lidarflow.scan), since it changed: numbers made under

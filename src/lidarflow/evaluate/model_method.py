@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import NOTHING_MORE, FrameInputs, Takes
 from lidarflow.errors import EvaluateError
 from lidarflow.predict.backends import TorchBackend
-from lidarflow.predict.baselines import NOTHING_MORE, FrameInputs, Takes
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
@@ -21,7 +21,7 @@ __all__ = ["ModelMethod"]
 class ModelMethod:
     """A model (a :class:`~lidarflow.models.recurrent.RecurrentMapModel`, run by PyTorch on
     ``device``, or any :class:`~lidarflow.predict.engine.Backend`) as a
-    :class:`~lidarflow.predict.baselines.Method`. After each update a flow model exposes
+    :class:`~lidarflow.baselines.Method`. After each update a flow model exposes
     ``backward_flow`` and ``forward_flow`` ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool,
     the occupied cells of the frame just given that move on their own
     (:func:`lidarflow.predict.moving.moving_mask` of the forward flow at ``moving_threshold``

@@ -1,7 +1,7 @@
 """One pass over a recording scores every method: the next map (the main table) and, with a
 horizon ``K > 1``, the maps ``1 .. K`` ahead (the horizon tables), from the same stream.
 
-Each method (:class:`~lidarflow.predict.baselines.Method`) is reset at the start of the
+Each method (:class:`~lidarflow.baselines.Method`) is reset at the start of the
 recording and then sees the frames one at a time, its state carried from frame to frame: frame
 ``t``'s maps and what it takes beside them (:func:`~lidarflow.evaluate.stream.frame_inputs`).
 The prediction made after frame ``t`` is scored against frame ``t + 1`` for ``t >= warmup``: the
@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import FrameInputs, Method
 from lidarflow.data.blocks import Frames
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.horizon import HorizonScore, rolled_forward, scored_frames
@@ -52,7 +53,6 @@ from lidarflow.evaluate.stream import (
     mover_region,
     recording_inputs,
 )
-from lidarflow.predict.baselines import FrameInputs, Method
 from lidarflow.scan import GridSpec
 
 __all__ = [

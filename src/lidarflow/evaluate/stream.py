@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import FrameInputs, Method
 from lidarflow.data.blocks import Frames, streamed_maps, streamed_subcell
 from lidarflow.data.gaps import frames_after_gaps
 from lidarflow.data.recording import Recording
@@ -35,7 +36,6 @@ from lidarflow.evaluate.dynamic import recording_region
 from lidarflow.evaluate.ego import recording_motions
 from lidarflow.motion.icp import streamed_points
 from lidarflow.motion.pacing import paces_after_long_steps
-from lidarflow.predict.baselines import FrameInputs, Method
 from lidarflow.scan import GridSpec
 from lidarflow.sim.storage import dense_flow
 

@@ -6,14 +6,14 @@
 in Foxglove's own schemas (protobuf, which the Foxglove app decodes without any ROS install):
 
 - the scan (``foxglove.LaserScan``) under the scan's topic;
-- the grids of :func:`lidarflow.predict.grids.prediction_grids` (``foxglove.Grid``: one
+- the grids of :func:`lidarflow.outputs.grids.prediction_grids` (``foxglove.Grid``: one
   ``int8`` field ``occupancy``, probability x 100 in 0..100 and -1 where unknown, laid out as
   ``nav_msgs/OccupancyGrid`` is in the scan's frame, design notes §8: columns along x from the
   sensor forward, rows along y, the grid's pose the corner of cell (0, 0) at
   ``(0, -W/2 * res)``), stamped by the team's convention (a grid k frames ahead carries
   ``Prediction.stamp_ahead_ns(k)``);
 - the forward flow as an ``rgb8`` colour-wheel image (``foxglove.RawImage``, row 0 the map's
-  far edge, so forward is up) under :data:`~lidarflow.predict.grids.FLOW_RGB_TOPIC`.
+  far edge, so forward is up) under :data:`~lidarflow.outputs.grids.FLOW_RGB_TOPIC`.
 
 A message goes out only on channels a client subscribes to (``has_sinks``): with nobody
 watching, publishing costs building the grid list and nothing more. Every message of one
@@ -50,7 +50,7 @@ from foxglove.messages import (
 from lidarflow.errors import PredictError
 from lidarflow.flowcolor import flow_to_rgb
 from lidarflow.live.front import Front
-from lidarflow.predict.grids import (
+from lidarflow.outputs.grids import (
     FLOW_RGB_FULL_CELLS,
     FLOW_RGB_TOPIC,
     OutGrid,

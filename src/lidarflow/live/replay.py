@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.predict.job import check_poses
+from lidarflow.outputs.job import check_poses
 
 if TYPE_CHECKING:
     from lidarflow.data.recording import Recording

@@ -4,7 +4,7 @@ Per scan on ``topic`` (``sensor_msgs/LaserScan``) it runs the Predictor once and
 the scan's frame, one ``nav_msgs/OccupancyGrid`` on each of ``/lidarflow/predicted`` and
 ``/lidarflow/decided`` (``_kK`` for every further step of the horizon) and, where asked,
 ``/lidarflow/moving``: the grids, layout and stamps of the bag output
-(:mod:`lidarflow.predict.grids`). With an odometry topic (``nav_msgs/Odometry``) an ego-motion
+(:mod:`lidarflow.outputs.grids`). With an odometry topic (``nav_msgs/Odometry``) an ego-motion
 model gets the sensor's pose: the latest odometry pose moved to the scanner by its mount on the
 robot, read from ``/tf`` and ``/tf_static`` (:class:`lidarflow.data.tf.TransformTree`, as
 ``predict`` reads a bag's); without one the bundled model matches the motion from the scans.

@@ -19,7 +19,7 @@ import numpy as np
 
 from lidarflow.errors import LidarflowError, PredictError, ScanError
 from lidarflow.live.step import LiveFrame, LiveStep
-from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
+from lidarflow.outputs.grids import GridLayout, grid_topics, prediction_grids
 from lidarflow.scan import BeamGeometry, Scan
 
 __all__ = ["RosNode"]

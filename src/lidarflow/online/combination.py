@@ -27,7 +27,7 @@ from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
 if TYPE_CHECKING:
     from lidarflow.predict.engine import Rollout, Step
-    from lidarflow.predict.tracker import Tracker
+    from lidarflow.tracking import Tracker
 
 __all__ = ["CANDIDATES", "Combination", "Combined"]
 

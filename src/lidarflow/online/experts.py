@@ -19,11 +19,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lidarflow.baselines import TA_WINDOW
+
 if TYPE_CHECKING:
     from lidarflow.predict.engine import Rollout, Step
-    from lidarflow.predict.tracker import Tracker
-
-TA_WINDOW = 3  # MERGE: lidarflow.baselines.TA_WINDOW
+    from lidarflow.tracking import Tracker
 
 __all__ = ["EXPERTS", "ExpertMaps"]
 
@@ -52,7 +52,7 @@ class ExpertMaps:
         """The experts' maps ``(E, K, H, W)`` for the frame just stepped (its ``step`` and
         ``rollout`` ``K`` ahead by an engine that runs ``tracker``; ``occupancy``: its map),
         the rare cells ``(K, H, W)`` and those of them that ever held something."""
-        tracks, horizon = step.movers, self.horizon
+        tracks, horizon = step.tracks, self.horizon
         if tracks is None or len(rollout.model_only) < horizon:
             raise ValueError(f"need a step with tracked objects and a roll-out {horizon} ahead")
         self._recent.append(np.asarray(occupancy, np.float32))

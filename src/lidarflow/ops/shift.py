@@ -1,6 +1,6 @@
 """The constant-velocity extrapolation of a map, in torch (batched, ONNX-exportable).
 
-:class:`lidarflow.predict.baselines.ConstantVelocity` finds the integer shift that best maps
+:class:`lidarflow.baselines.ConstantVelocity` finds the integer shift that best maps
 the previous occupancy map onto the current one and applies it once more. A model that sees
 this extrapolation as an input starts from the baseline it is judged against on a moving
 platform instead of having to rediscover it. Same answer as the NumPy baseline, including its
@@ -15,7 +15,7 @@ applied as a column and a row kernel (2k taps a cell instead of k^2); speed:
 that follow the scene, ``HeadConfig(shift_memories=True)``).
 The batch becomes the convolution's groups, so an exported graph is fixed to its export batch
 (the step graphs are exported for batch 1), and the data-dependent kernels must stay float32:
-``lidarflow.predict.quantize`` leaves them alone and bf16 autocast is switched off here (it
+``lidarflow.outputs.quantize`` leaves them alone and bf16 autocast is switched off here (it
 would round overlap counts above 256).
 """
 

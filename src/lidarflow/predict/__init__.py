@@ -1,4 +1,5 @@
-"""Deployment: the streaming Predictor, bag/MCAP output, ONNX export."""
+"""The runtime a robot imports: the streaming Predictor and the per-frame engine behind it
+(files it writes are :mod:`lidarflow.outputs`'s)."""
 
 from lidarflow.predict.predictor import Prediction, Predictor
 

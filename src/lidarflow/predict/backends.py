@@ -1,10 +1,8 @@
 """Inference backends for :class:`~lidarflow.predict.predictor.Predictor`: PyTorch or ONNX Runtime.
 
-Both run one step ``(maps (1, C, H, W), state) -> (probability, out, state)`` on NumPy in and
-out (``C``: the model's ``input_channels``, 2 or 4), the probability the model's own (calibrated,
-for an occupancy head: no decision offset); the state is opaque to the caller (tensors for
-torch, arrays for onnxruntime). Each says what the model takes and gives
-(:class:`~lidarflow.models.config.Capabilities`) and an occupancy head's warp gain.
+Both run one step on NumPy in and out as :mod:`lidarflow.predict.step` defines it. Each says
+what the model takes and gives (:class:`~lidarflow.models.config.Capabilities`) and an
+occupancy head's warp gain.
 """
 
 from __future__ import annotations
@@ -21,10 +19,11 @@ from lidarflow.errors import ModelError, PredictError, ScanError
 from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import check_decision_offset
 from lidarflow.predict.offsets import calibrated_logit
+from lidarflow.predict.step import StepInputs, StepOutput
 from lidarflow.scan import GridSpec
 
 #: ONNX metadata key (value ``"true"``) of an ego-motion model that may run without poses
-#: (written by :func:`lidarflow.predict.export.export_onnx`).
+#: (written by :func:`lidarflow.outputs.export.export_onnx`).
 POSES_OPTIONAL_KEY = "lidarflow.poses_optional"
 #: ONNX metadata key of an occupancy-head model's decision: JSON ``{"offset": a, "online": bool,
 #: "gain": g, "calibrated": true}``, the policy it ships with and what the Predictor needs to
@@ -66,7 +65,7 @@ def recorded_grid(card: dict[str, Any]) -> GridSpec | None:
 def split_step_inputs(inputs: list[Any]) -> tuple[list[str], list[Any]]:
     """``(motion input names, state inputs)`` of a step graph's inputs: ``maps``, then for
     ego-motion graphs ``motion`` and (files exported since it exists) ``next_motion``, then the
-    states (see :mod:`lidarflow.predict.export`)."""
+    states (see :mod:`lidarflow.outputs.export`)."""
     motions: list[str] = []
     for name in ("motion", "next_motion"):
         if len(inputs) > 1 + len(motions) and inputs[1 + len(motions)].name == name:
@@ -93,17 +92,11 @@ class TorchBackend:
     def init_state(self, height: int, width: int) -> Any:
         return self.model.init_state(1, height, width, device=self.device)
 
-    def run(
-        self,
-        maps: np.ndarray,
-        state: Any,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, Any]:
-        """One step; ``motion`` ``(3,)`` (cells, radians) only for ego-motion models, and
-        ``next_motion`` the guess of the motion to the next frame (``None``: ``motion`` again)."""
+    def run(self, inputs: StepInputs, state: Any) -> StepOutput:
+        """One step (:class:`~lidarflow.predict.step.StepInputs`)."""
+        motion, next_motion = inputs.motion, inputs.next_motion
         with self.torch.inference_mode():
-            x = self.torch.from_numpy(maps).to(self.device)
+            x = self.torch.from_numpy(inputs.maps).to(self.device)
             if self.capabilities.ego_motion:
                 m, n = (
                     None
@@ -117,11 +110,11 @@ class TorchBackend:
             else:
                 out, state = self.model.step(x, state)
             probability = self.model.predict_next(x, out)
-        return probability.float().cpu().numpy(), out.float().cpu().numpy(), state
+        return StepOutput(probability.float().cpu().numpy(), out.float().cpu().numpy(), state)
 
 
 class OnnxBackend:
-    """Runs an ONNX file written by :func:`~lidarflow.predict.export.export_onnx` with
+    """Runs an ONNX file written by :func:`~lidarflow.outputs.export.export_onnx` with
     onnxruntime (no PyTorch needed)."""
 
     def __init__(self, path: str | Path, threads: int | None = None) -> None:
@@ -196,7 +189,7 @@ class OnnxBackend:
         h, w = self.grid_shape
         state = self.init_state(int(h), int(w))
         maps = np.zeros((1, self.capabilities.input_channels, int(h), int(w)), np.float32)
-        outputs = self.run(maps, state)
+        outputs = self.run(StepInputs(maps), state)
         if all(np.isfinite(np.asarray(a)).all() for a in (outputs[0], outputs[1], *outputs[2])):
             return
         from lidarflow.models.finite import check_finite_onnx
@@ -217,16 +210,11 @@ class OnnxBackend:
             )
         return [np.zeros(s, np.float32) for s in self.state_shapes]
 
-    def run(
-        self,
-        maps: np.ndarray,
-        state: Any,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, Any]:
-        """As :meth:`TorchBackend.run`; a file exported before graphs took ``next_motion``
-        guesses the last motion again whatever ``next_motion`` says."""
-        feeds = {"maps": maps, **{f"state{i}": s for i, s in enumerate(state)}}
+    def run(self, inputs: StepInputs, state: Any) -> StepOutput:
+        """One step (:class:`~lidarflow.predict.step.StepInputs`); a file exported before graphs
+        took ``next_motion`` guesses the last motion again whatever ``next_motion`` says."""
+        motion, next_motion = inputs.motion, inputs.next_motion
+        feeds = {"maps": inputs.maps, **{f"state{i}": s for i, s in enumerate(state)}}
         if self.capabilities.ego_motion:  # zeros: no motion known, the same as no compensation
             m = np.zeros(3, np.float32) if motion is None else np.asarray(motion, np.float32)
             feeds["motion"] = m.reshape(1, 3)
@@ -237,7 +225,7 @@ class OnnxBackend:
         if self._baked_offset:
             logit = calibrated_logit(probability) - self._baked_offset
             probability = (1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
-        return probability, out, next_state
+        return StepOutput(probability, out, next_state)
 
 
 def resolve_device(name: str) -> str:

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.predict.baselines import (
+from lidarflow.baselines import (
     TA_THRESHOLD,
     TA_WINDOW,
     ConstantVelocity,
@@ -282,26 +282,27 @@ class DecisionPolicy:
     """How an occupancy-head model's next map is decided: ``offset`` added to its logit, and
     with ``online`` a config the offsets chosen on the stream (:class:`OnlineDecision`,
     starting from ``offset``). The default decides the calibrated probability at 0.4 as it is.
-    ``movers``: the objects a tracker follows on the stream join the decided map where they
-    will be (:class:`lidarflow.predict.tracker.Tracker`, run beside the model by the engine),
+    ``tracks``: the objects a tracker follows on the stream join the decided map where they
+    will be (:class:`lidarflow.tracking.Tracker`, run beside the model by the engine),
     so that a head that keeps walls but lets a passer-by fade still carries people forward."""
 
     offset: float = 0.0
     online: OnlineDecisionConfig | None = None
-    movers: bool = False
+    tracks: bool = False
 
     @classmethod
     def from_record(
         cls, record: dict[str, Any] | None, config: OnlineDecisionConfig | None = None
     ) -> DecisionPolicy:
         """The policy a model ships with (``model.json``'s ``decision``: ``{"offset",
-        "online", "movers"}``), its online decision configured by ``config``."""
+        "online", "movers"}``; ``movers`` is the file's key for :attr:`tracks`), its online
+        decision configured by ``config``."""
         record = record or {}
         online = (config or OnlineDecisionConfig()) if record.get("online") else None
         return cls(float(record.get("offset", 0.0)), online, bool(record.get("movers")))
 
     def to_record(self) -> dict[str, Any]:
-        return {"offset": self.offset, "online": self.online is not None, "movers": self.movers}
+        return {"offset": self.offset, "online": self.online is not None, "movers": self.tracks}
 
     def with_online(
         self,
@@ -314,10 +315,10 @@ class DecisionPolicy:
         if online is None:
             return self
         if online is False:
-            return DecisionPolicy(self.offset, None, self.movers)
+            return DecisionPolicy(self.offset, None, self.tracks)
         chosen = online if isinstance(online, OnlineDecisionConfig) else config
         online_config = chosen or self.online or OnlineDecisionConfig()
-        return DecisionPolicy(self.offset, online_config, self.movers)
+        return DecisionPolicy(self.offset, online_config, self.tracks)
 
     def decision(self, gain: float | None) -> OnlineDecision | None:
         """A fresh :class:`OnlineDecision` where the policy is online, else ``None``."""

@@ -17,8 +17,8 @@ Every user of a trained model streams it through :class:`Engine`: the robot's
    its recurrent state carried from frame to frame.
 3. **Decision** (:mod:`lidarflow.predict.decision`): an occupancy-head model's calibrated
    probability is decided with the policy's offset, or online with the offsets that have done
-   best on this stream so far. With the policy's ``movers`` a tracker runs beside the model on
-   the same frames and motion (:class:`lidarflow.predict.tracker.Tracker`), and the objects it
+   best on this stream so far. With the policy's ``tracks`` a tracker runs beside the model on
+   the same frames and motion (:class:`lidarflow.tracking.Tracker`), and the objects it
    follows join the decided map where their velocity takes them.
 4. **Roll-out** (:meth:`Engine.roll`, on request): the decided prediction fed back as the next
    input, ``k`` steps ahead, on a copy of the state (the fed-back maps must not leak into the
@@ -31,50 +31,29 @@ Every user of a trained model streams it through :class:`Engine`: the robot's
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import Any, Literal
 
 import numpy as np
 
 from lidarflow.geometry import FlowWarp
-from lidarflow.models.config import Capabilities
 from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
-from lidarflow.predict.carry import Movers
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.offsets import decided_probability, moved_last_map
-from lidarflow.predict.tracker import Tracker
+from lidarflow.predict.step import Backend, StepInputs
 from lidarflow.scan import takes_subcell
+from lidarflow.tracking import Tracker, Tracks
 
 __all__ = ["Backend", "Engine", "Frame", "MotionSource", "Rollout", "Step"]
 
-#: Frames a carried map keeps the tracker's held cells (rare cells no track took, mostly a
-#: person beside a wall): one, where the head alone would let them fade; leave one out this
-#: lifted the tolerant mover F1 one step ahead without moving it one second ahead
-#: (docs/research/carry_movers/).
+#: Frames a carried map keeps the tracker's held cells (occupied cells that are not background
+#: yet no track took, mostly a person beside a wall; :class:`~lidarflow.tracking.Tracks`): one,
+#: where the head alone would let them fade (docs/research/carry_movers/).
 HELD_FRAMES = 1
 
 #: Where a frame's motion came from (see the module's docstring).
 MotionSource = Literal["pose", "scans", "none"]
-
-
-class Backend(Protocol):
-    """One model step on NumPy arrays (:class:`~lidarflow.predict.backends.TorchBackend`,
-    :class:`~lidarflow.predict.backends.OnnxBackend`)."""
-
-    capabilities: Capabilities
-    gain: float | None  # an occupancy head's warp gain (the online decision's unmoved map)
-    decision: dict[str, Any] | None  # the policy a file ships with ({"offset", "online"})
-
-    def init_state(self, height: int, width: int) -> Any: ...
-
-    def run(
-        self,
-        maps: np.ndarray,
-        state: Any,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, Any]: ...
 
 
 @dataclass(frozen=True)
@@ -113,8 +92,8 @@ class Step:
     decision policy thresholds at 0.4 (the same for a model without a head); ``flow``
     ``(4, H, W)`` in cells (``B_col, B_row, F_col, F_row``; ``None`` for models without flow);
     ``motion`` the motion the step was compensated by (``None``: not compensated). The rest is
-    what :meth:`Engine.roll` continues from (``movers``: the tracked objects, where the policy
-    carries them, and ``alone``: the model's own decided map, without them)."""
+    what :meth:`Engine.roll` continues from (``tracks``: the tracked objects, where the policy
+    carries them, and ``model_only``: the model's own decided map, without them)."""
 
     probability: np.ndarray
     decided: np.ndarray
@@ -123,8 +102,8 @@ class Step:
     maps: np.ndarray
     state: Any
     ahead: np.ndarray | None
-    movers: Movers | None = None
-    alone: np.ndarray | None = None
+    tracks: Tracks | None = None
+    model_only: np.ndarray | None = None
 
 
 class Engine:
@@ -166,7 +145,7 @@ class Engine:
         self.odometry = OdometryCheck() if optional and check_odometry else None
         self._scans = ScanOdometry(res) if optional and scan_odometry else None
         #: The tracker whose objects join the decided map (None where the policy has none).
-        self.tracker = Tracker(res=res) if self.policy.movers else None
+        self.tracker = Tracker(res=res) if self.policy.tracks else None
         self._state: Any = None
         self._warp = FlowWarp()  # the online decision's moved map; a roll-out's flow repeats
 
@@ -217,18 +196,20 @@ class Engine:
             guess = frame.next_motion if trusted else None
         else:
             guess = paced_motion(motion, frame.pace)  # None: the last motion again
-        probability, out, self._state = self.backend.run(maps, self._state, motion, guess)
+        probability, out, self._state = self.backend.run(
+            StepInputs(maps, motion, guess), self._state
+        )
         flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
         decided = self._decide(own, frame.occupancy, self._backward(out), frame.visibility)
-        movers, alone = None, decided
+        tracks, model_only = None, decided
         if self.tracker is not None:
             self.tracker.observe(frame.occupancy, frame.visibility, motion, frame.pace)
-            movers = self.tracker.movers(HELD_FRAMES)
-            decided = np.maximum(decided, movers.at(1))
+            tracks = self.tracker.tracks(HELD_FRAMES)
+            decided = np.maximum(decided, tracks.at(1))
         # Each step of a roll-out is one typical step of the same motion.
         ahead = motion if guess is None else guess
-        return Step(own, decided, flow, motion, maps, self._state, ahead, movers, alone)
+        return Step(own, decided, flow, motion, maps, self._state, ahead, tracks, model_only)
 
     def _backward(self, out: np.ndarray) -> np.ndarray | None:
         """The step's backward flow ``(2, H, W)``, which moves the last map for the online
@@ -258,15 +239,15 @@ class Engine:
         own): each decided prediction fed back with the frame's visibility (and no returns: zero
         sub-cell maps), on a copy of the state, and decided with the current choice."""
         probabilities, decided = [step.probability], [step.decided]
-        alone = step.decided if step.alone is None else step.alone  # what is fed back
-        model_only = [alone]
-        movers, state = step.movers, step.state
+        # what is fed back: the model's own map, without the tracked objects
+        model_only = step.decided if step.model_only is None else step.model_only
+        own, tracks, state = [model_only], step.tracks, step.state
         for k in range(2, horizon + 1):
             fed = np.zeros_like(step.maps)
-            fed[0, 0], fed[0, 1] = alone, step.maps[0, 1]
-            probability, out, state = self.backend.run(fed, state, step.ahead)
+            fed[0, 0], fed[0, 1] = model_only, step.maps[0, 1]
+            probability, out, state = self.backend.run(StepInputs(fed, step.ahead), state)
             probabilities.append(probability[0, 0])
-            alone = self._decide(probability[0, 0], alone, self._backward(out))
-            model_only.append(alone)
-            decided.append(alone if movers is None else np.maximum(alone, movers.at(k)))
-        return Rollout(np.stack(probabilities), np.stack(decided), np.stack(model_only))
+            model_only = self._decide(probability[0, 0], model_only, self._backward(out))
+            own.append(model_only)
+            decided.append(model_only if tracks is None else np.maximum(model_only, tracks.at(k)))
+        return Rollout(np.stack(probabilities), np.stack(decided), np.stack(own))

@@ -7,7 +7,7 @@ layer or two, move the logit into the next frame. In eager PyTorch those are doz
 operators whose overhead outweighs the arithmetic (``docs/research/step_speed/``); here it is
 a few fused NumPy operations on the same weights, the gathers of the rigid warps kept from step
 to step (:func:`lidarflow.geometry.rigid_sampler`), and the shift counted on the occupied cells only
-(:func:`lidarflow.predict.baselines.best_rigid_shift`).
+(:func:`lidarflow.baselines.best_rigid_shift`).
 
 Generic over :class:`~lidarflow.models.config.HeadConfig` as it stands (memories, the
 constant-velocity input and moved memories, the hidden layer, the visibility and sub-cell
@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from lidarflow.baselines import best_rigid_shift
 from lidarflow.geometry import rigid_positions, rigid_sampler
 from lidarflow.models.config import Capabilities
-from lidarflow.predict.baselines import best_rigid_shift
+from lidarflow.predict.step import StepInputs, StepOutput
 
 __all__ = ["HeadStepBackend", "supports"]
 
@@ -115,9 +116,9 @@ def _shifted(maps: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
 
 class HeadStepBackend:
     """Runs a head-only model's step in NumPy (:func:`supports` says which), as
-    :class:`~lidarflow.predict.backends.TorchBackend` does on PyTorch: one step ``(maps (1, C,
-    H, W), state, motion, next_motion) -> (probability (1, 1, H, W), out (1, 5, H, W), state)``
-    on float32 arrays; the state is a list of one ``(1, S, H, W)`` array."""
+    :class:`~lidarflow.predict.backends.TorchBackend` does on PyTorch (one step as
+    :mod:`lidarflow.predict.step` defines it, ``out`` ``(1, 5, H, W)``) on float32 arrays; the
+    state is a list of one ``(1, S, H, W)`` array."""
 
     def __init__(self, model: Any, threads: int | None = None) -> None:
         parts = _parts(model)
@@ -143,15 +144,10 @@ class HeadStepBackend:
     def init_state(self, height: int, width: int) -> Any:
         return [np.zeros((1, self._state_channels, height, width), np.float32)]
 
-    def run(
-        self,
-        maps: np.ndarray,
-        state: Any,
-        motion: np.ndarray | None = None,
-        next_motion: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, Any]:
-        """One step (``motion``, ``next_motion`` as :meth:`TorchBackend.run`'s)."""
-        maps = np.asarray(maps, np.float32)
+    def run(self, inputs: StepInputs, state: Any) -> StepOutput:
+        """One step (:class:`~lidarflow.predict.step.StepInputs`)."""
+        maps = np.asarray(inputs.maps, np.float32)
+        motion, next_motion = inputs.motion, inputs.next_motion
         if maps.ndim != 4 or maps.shape[0] != 1:
             raise ValueError(f"maps must be (1, C, H, W), got {maps.shape}")
         h, w = maps.shape[-2:]
@@ -177,7 +173,7 @@ class HeadStepBackend:
             out[0, :4] = self._ego_flow(nxt, h, w)
         logit = np.float32(self.gain) * moved + out[0, 4:5]
         probability = (1.0 / (1.0 + np.exp(-logit)))[None].astype(np.float32)
-        return probability, out, [kept[None]]
+        return StepOutput(probability, out, [kept[None]])
 
     def _ego_flow(self, motion: np.ndarray, h: int, w: int) -> np.ndarray:
         """``(4, H, W)``: the platform's own backward and forward flow (the inner flow zero),

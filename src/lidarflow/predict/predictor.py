@@ -50,6 +50,7 @@ from lidarflow.predict.engine import Engine, Frame
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
 from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
+from lidarflow.tracking import Track
 
 __all__ = ["Prediction", "Predictor"]
 
@@ -79,6 +80,11 @@ class Prediction:
         step_ns: the stream's step between scans so far (the typical one once known;
             :attr:`lidarflow.motion.pacing.StepClock.step_ns`), ``None`` until two stamped
             scans came: what :meth:`stamp_ahead_ns` counts ahead by.
+        tracks: the objects the tracker follows and saw in this scan, each a
+            :class:`~lidarflow.tracking.Track` (position in metres in the sensor frame of this
+            scan, velocity in m/s once ``step_ns`` is known, its cells); ``None`` where the
+            decision policy runs no tracker (:attr:`DecisionPolicy.tracks
+            <lidarflow.predict.decision.DecisionPolicy.tracks>`).
     """
 
     probability: np.ndarray
@@ -93,6 +99,7 @@ class Prediction:
     moving_threshold: float = MOVING_THRESHOLD
     stamp_ns: int = 0
     step_ns: int | None = None
+    tracks: tuple[Track, ...] | None = None
 
     def stamp_ahead_ns(self, k: int = 1) -> int:
         """The time the prediction ``k`` frames ahead is for: the scan's stamp plus ``k``
@@ -187,7 +194,7 @@ class Predictor:
         if combine is not False:
             config = combine if isinstance(combine, StackingConfig) else None
             self.combination = Combination(horizon, config)
-            self.decision = dataclasses.replace(self.decision, movers=True)  # an expert
+            self.decision = dataclasses.replace(self.decision, tracks=True)  # an expert
         try:
             self.engine = Engine(
                 self.backend, self.grid.res, self.decision, check_odometry, scan_odometry
@@ -310,4 +317,5 @@ class Predictor:
             moving_threshold=self.moving_threshold,
             stamp_ns=0 if scan is None else int(scan.stamp_ns),
             step_ns=self._clock.step_ns,
+            tracks=None if step.tracks is None else step.tracks.metric(self._clock.step_ns),
         )

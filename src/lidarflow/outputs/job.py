@@ -4,7 +4,7 @@ Topics, by the group ``topics`` names them (:data:`TOPIC_GROUPS`; every one but 
 default, :data:`DEFAULT_TOPICS`), all in the scan's frame:
 
 - ``input``: from a bag (``source``), every connection of it copied unchanged, names as recorded
-  (made absolute in ROS 2 outputs; :mod:`lidarflow.predict.inputcopy`), except topics under
+  (made absolute in ROS 2 outputs; :mod:`lidarflow.outputs.inputcopy`), except topics under
   ``/lidarflow/`` (an earlier prediction's, which the new ones would clash with); from a
   recording file, its scans (ranges and geometry, stamped as the bag had them);
 - ``occupancy``: ``/lidarflow/occupancy``, the current occupancy map (``nav_msgs/OccupancyGrid``);
@@ -48,15 +48,15 @@ import numpy as np
 from lidarflow.data.recording import Recording
 from lidarflow.data.sessions import recorded_stamps
 from lidarflow.errors import PredictError
-from lidarflow.predict.grids import (
+from lidarflow.outputs.grids import (
     FLOW_RGB_FULL_CELLS,
     TOPIC_PREFIX,
     OutGrid,
     grid_topics,
     prediction_grids,
 )
+from lidarflow.outputs.rosout import BagOutput
 from lidarflow.predict.predictor import Prediction, Predictor
-from lidarflow.predict.rosout import BagOutput
 
 __all__ = [
     "DEFAULT_TOPICS",
@@ -123,7 +123,7 @@ def predict_to_bag(
         log_times = np.asarray(recording.stamps_ns, dtype=np.int64)
         copies: Iterator[tuple[int, Any, Any]] = iter(())
         if reader is not None:
-            from lidarflow.predict.inputcopy import copied_messages, scan_log_times
+            from lidarflow.outputs.inputcopy import copied_messages, scan_log_times
 
             topic = recording.meta.get("topic") or ""
             by_header = str(recording.meta.get("stamps", "header")) == "header"
@@ -169,7 +169,7 @@ def _frames(
 ) -> Iterator[tuple[int, Write]]:
     """``(log time, write)`` per scan: its prediction, made when asked for, in scan order;
     with the scan itself where ``write_scans`` (a recording file's, not copied from a bag)."""
-    from lidarflow.predict.inputcopy import output_topic
+    from lidarflow.outputs.inputcopy import output_topic
 
     poses = recording.poses
     scan_topic = output_topic(recording.meta.get("topic") or "/scan", out.ros1)

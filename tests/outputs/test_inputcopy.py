@@ -11,8 +11,8 @@ import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from lidarflow.data import read_bag
+from lidarflow.outputs.job import predict_to_bag
 from lidarflow.predict import Predictor
-from lidarflow.predict.job import predict_to_bag
 from tests.conftest import FLOW_MODEL
 
 T0, PERIOD, LAG = 1_700_000_000 * 10**9, 100_000_000, 7_000_000  # log times lag the stamps

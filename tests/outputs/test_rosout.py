@@ -10,7 +10,7 @@ import pytest
 from lidarflow.atomic import STAMP
 from lidarflow.data import read_bag
 from lidarflow.errors import OutputError, PredictError
-from lidarflow.predict.rosout import BagOutput, grid_data, map_from_grid_data
+from lidarflow.outputs.rosout import BagOutput, grid_data, map_from_grid_data
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, cell_centres
 
 GRID = GridSpec(6, 4, 0.5)  # deliberately not square
@@ -215,3 +215,18 @@ def test_rgb_image_reads_back(tmp_path, name):
     (image,) = read_all(tmp_path / name)["/picture"]
     assert (image.encoding, image.height, image.width, image.step) == ("rgb8", 6, 4, 12)
     np.testing.assert_array_equal(np.asarray(image.data).reshape(6, 4, 3), pixels)
+
+
+@pytest.mark.parametrize("name", ["out.bag", "out.mcap"])
+def test_a_full_disk_names_the_target_and_another_files_refusal_stays_as_it_came(tmp_path, name):
+    import errno
+
+    path = tmp_path / name
+    full = rf"{name}: cannot be written there \(No space left"
+    with pytest.raises(OutputError, match=full), BagOutput(path):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    elsewhere = tmp_path / "input.bag"
+    with pytest.raises(PermissionError) as caught, BagOutput(path):
+        raise PermissionError(errno.EACCES, "Permission denied", str(elsewhere))
+    assert caught.value.filename == str(elsewhere) and caught.value.__cause__ is None
+    assert not path.exists() and list(tmp_path.iterdir()) == []

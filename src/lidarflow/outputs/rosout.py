@@ -13,12 +13,12 @@ flow's colour wheel) as ``rgb8`` images laid out the same way.
 Stamps: ``header.stamp`` is the time a map is *for*, ``info.map_load_time`` the stamp of the scan
 it was made from (``write_grid(..., made_ns=)``; the two are equal for a map of the present). A
 message's log time is its own argument (default: the header stamp), so that a writer can keep
-predictions in the order of the scans they came from (:mod:`lidarflow.predict.job`).
+predictions in the order of the scans they came from (:mod:`lidarflow.outputs.job`).
 
 Chunks are compressed: zstd in MCAP files and ROS 2 bags (MCAP storage; Foxglove and ``ros2 bag``
 read them), lz4 in ROS 1 bags (``rosbag`` reads it; bz2 compresses a little more, several
 times slower). Messages of the input bag are copied in as they are with :meth:`add_copy` and
-:meth:`write_raw` (:mod:`lidarflow.predict.inputcopy`).
+:meth:`write_raw` (:mod:`lidarflow.outputs.inputcopy`).
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.atomic import check_writable, commit, discard, temporary
-from lidarflow.errors import OutputError, PredictError
-from lidarflow.predict.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
+from lidarflow.atomic import check_writable, commit, discard, named_for, temporary
+from lidarflow.errors import PredictError
+from lidarflow.outputs.grids import GridLayout, OutGrid, grid_data, map_from_grid_data
 from lidarflow.scan import GridSpec, Scan
 
 __all__ = ["BagOutput", "grid_data", "map_from_grid_data", "output_kind"]
@@ -108,12 +108,13 @@ class BagOutput:
         return self
 
     def _named(self, err: BaseException) -> BaseException:
-        """``err`` naming the target the user asked for, not the temporary it was staged in."""
+        """``err`` naming the target the user asked for, not the temporary it was staged in
+        (the file system's refusal, under what rosbags wraps it in: :func:`named_for`)."""
         cause = err
         while not isinstance(cause, OSError) and cause.__cause__ is not None:
             cause = cause.__cause__
-        if isinstance(cause, OSError):
-            return OutputError(f"{self.path}: cannot be written there ({cause.strerror or cause})")
+        if isinstance(cause, OSError) and self._staged is not None:
+            return named_for(cause, [self._staged], [self.path])
         if isinstance(err, Exception):
             return PredictError(f"{self.path}: cannot open for writing ({err})")
         return err
@@ -130,7 +131,10 @@ class BagOutput:
                 self._writer.close()
             except OSError as err:
                 if exc is None:
-                    raise self._named(err) from err
+                    named = self._named(err)
+                    if named is err:  # another file's refusal: as it came
+                        raise
+                    raise named from err
             # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed):
             # it never takes the target's name.
             if exc is None:
@@ -138,7 +142,9 @@ class BagOutput:
         finally:
             discard(self._staged)
         if isinstance(exc, OSError):  # a full disk while writing: the target, not the temporary
-            raise self._named(exc) from exc
+            named = self._named(exc)
+            if named is not exc:  # else it goes on as it came
+                raise named from exc
 
     # ------------------------------------------------------------------ messages
     def _types(self) -> dict[str, Any]:
@@ -253,7 +259,7 @@ class BagOutput:
     def write_grid_data(
         self, out: OutGrid, grid: GridSpec, frame_id: str, log_time_ns: int | None = None
     ) -> None:
-        """One grid of :func:`lidarflow.predict.grids.prediction_grids` as an OccupancyGrid,
+        """One grid of :func:`lidarflow.outputs.grids.prediction_grids` as an OccupancyGrid,
         laid out in the scan's frame as the live nodes lay theirs (:class:`GridLayout`)."""
         types = self._types()
         if out.data.size != grid.height * grid.width:

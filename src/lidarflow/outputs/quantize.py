@@ -21,8 +21,8 @@ import numpy as np
 
 from lidarflow.atomic import atomic_path
 from lidarflow.errors import PredictError
+from lidarflow.outputs.export import copy_marks
 from lidarflow.predict.backends import split_step_inputs
-from lidarflow.predict.export import copy_marks
 
 __all__ = ["CALIBRATION_FEEDS", "data_dependent_convs", "head_convs", "quantize_onnx"]
 

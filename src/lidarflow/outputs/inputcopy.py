@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.errors import BagError, LidarflowError
-from lidarflow.predict.rosout import BagOutput
+from lidarflow.outputs.rosout import BagOutput
 
 __all__ = ["copied_messages", "output_topic", "scan_log_times", "serialization"]
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.predict.grids import GridLayout, grid_topics, prediction_grids
+from lidarflow.outputs.grids import GridLayout, grid_topics, prediction_grids
+from lidarflow.outputs.rosout import map_from_grid_data
 from lidarflow.predict.predictor import Prediction
-from lidarflow.predict.rosout import map_from_grid_data
 from lidarflow.scan import GridSpec
 
 GRID = GridSpec(6, 4, 0.5)  # not square: rows along x, columns along y

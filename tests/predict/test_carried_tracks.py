@@ -1,4 +1,4 @@
-"""The tracked movers a decision policy carries (issue 44): the tracker's frozen objects, the
+"""The tracked objects a decision policy carries: the tracker's frozen objects, the
 engine laying them over the model's map one frame and ``k`` frames on, and the policy's record
 travelling with a model (model.json, ONNX marks)."""
 
@@ -14,27 +14,28 @@ from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import decision_record
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.engine import HELD_FRAMES, Engine, Frame
-from lidarflow.predict.tracker import Tracker
-from tests.predict.test_tracker import SEEN, _blob, _walker, _wall
+from lidarflow.predict.step import StepInputs, StepOutput
+from lidarflow.tracking import Tracker
+from tests.tracking.test_tracker import SEEN, _blob, _walker, _wall
 
 
 def _people_only(frame: np.ndarray) -> np.ndarray:
     return (frame > 0) & ~(_wall() > 0)
 
 
-def test_movers_are_the_tracked_objects_k_ahead_without_the_background():
+def test_tracks_are_the_tracked_objects_k_ahead_without_the_background():
     tracker = Tracker(res=0.1)
     frames = [_walker(t, 0, 1) for t in range(20)]
     for f in frames[:16]:
         tracker.update(f, SEEN)
-    movers = tracker.movers()
+    tracks = tracker.tracks()
     for k in range(1, 5):
-        assert np.array_equal(movers.at(k) >= 0.4, _people_only(frames[15 + k])), k
+        assert np.array_equal(tracks.at(k) >= 0.4, _people_only(frames[15 + k])), k
     # frozen: the next frames move the tracker on, not what it handed out
-    before = [movers.at(k).copy() for k in (1, 2)]
+    before = [tracks.at(k).copy() for k in (1, 2)]
     for f in frames[16:]:
         tracker.update(f, SEEN)
-    assert all(np.array_equal(a, movers.at(k)) for a, k in zip(before, (1, 2), strict=True))
+    assert all(np.array_equal(a, tracks.at(k)) for a, k in zip(before, (1, 2), strict=True))
 
 
 def test_a_newcomer_beside_a_wall_is_held_for_hold_frames_not_tracked():
@@ -44,11 +45,11 @@ def test_a_newcomer_beside_a_wall_is_held_for_hold_frames_not_tracked():
     beside = _wall()
     beside[4, 20] = 1  # one cell under the wall's row: its neighbourhood is background
     tracker.update(beside, SEEN)
-    assert tracker.tracks == []
-    movers = tracker.movers(hold=1)
-    assert np.argwhere(movers.at(1) >= 0.4).tolist() == [[4, 20]]
-    assert not movers.at(2).any()
-    assert not tracker.movers(hold=0).at(1).any()
+    assert tracker.tracks().objects == []
+    tracks = tracker.tracks(hold=1)
+    assert np.argwhere(tracks.at(1) >= 0.4).tolist() == [[4, 20]]
+    assert not tracks.at(2).any()
+    assert not tracker.tracks(hold=0).at(1).any()
     # the tracker's own map keeps it in the background part, every step ahead
     assert all(a[4, 20] == 1 for a in tracker.ahead(3))
 
@@ -67,32 +68,35 @@ class _Eraser:
     def init_state(self, height: int, width: int) -> Any:
         return None
 
-    def run(self, maps: np.ndarray, state: Any, motion: Any = None, next_motion: Any = None):
-        self.fed.append(maps[0, 0].copy())
-        shape = maps.shape[-2:]
-        return np.zeros((1, 1, *shape), np.float32), np.zeros((1, 4, *shape), np.float32), state
+    def run(self, inputs: StepInputs, state: Any) -> StepOutput:
+        self.fed.append(inputs.maps[0, 0].copy())
+        shape = inputs.maps.shape[-2:]
+        zeros = np.zeros((1, 1, *shape), np.float32), np.zeros((1, 4, *shape), np.float32)
+        return StepOutput(*zeros, state)
 
 
-@pytest.mark.parametrize("movers", [False, True])
-def test_the_engine_lays_the_movers_over_the_model_and_does_not_feed_them_back(movers):
+@pytest.mark.parametrize("tracks", [False, True])
+def test_the_engine_lays_the_tracks_over_the_model_and_does_not_feed_them_back(tracks):
     backend = _Eraser()
-    engine = Engine(backend, 0.1, DecisionPolicy(movers=movers))
+    engine = Engine(backend, 0.1, DecisionPolicy(tracks=tracks))
     frames = [_walker(t, 0, 1) for t in range(20)]
     for f in frames[:16]:
         step = engine.step(Frame(f, SEEN))
     rolled = engine.roll(step, 4)
     for k, decided in enumerate(rolled.decided, start=1):
-        assert np.array_equal(decided >= 0.4, _people_only(frames[15 + k]) & movers), k
+        assert np.array_equal(decided >= 0.4, _people_only(frames[15 + k]) & tracks), k
     assert np.array_equal(rolled.decided[0], step.decided)
     # the roll-out fed the model its own (empty) maps, never the tracker's
     assert not any(f.any() for f in backend.fed[16:])
-    assert (engine.tracker is not None) == movers
+    assert (engine.tracker is not None) == tracks
     engine.reset()
-    assert engine.tracker is None or engine.tracker.tracks == []
+    if engine.tracker is not None:  # reset forgets every track: none until the next frame
+        with pytest.raises(RuntimeError, match="before any update"):
+            engine.tracker.tracks()
 
 
 def test_the_engine_holds_a_newcomer_beside_a_wall_one_frame():
-    engine = Engine(_Eraser(), 0.1, DecisionPolicy(movers=True))
+    engine = Engine(_Eraser(), 0.1, DecisionPolicy(tracks=True))
     for _ in range(10):
         engine.step(Frame(_wall(), SEEN))
     beside = _wall()
@@ -103,21 +107,21 @@ def test_the_engine_holds_a_newcomer_beside_a_wall_one_frame():
     assert rolled.decided[0][4, 20] == 1 and not rolled.decided[1:].any()
 
 
-def test_the_policy_record_carries_movers_and_older_records_have_none():
+def test_the_policy_record_carries_tracks_and_older_records_have_none():
     policy = DecisionPolicy.from_record({"offset": 0.5, "online": True, "movers": True})
-    assert policy.movers and policy.to_record()["movers"] is True
-    assert policy.with_online(False).movers and policy.with_online(True).movers
-    assert not DecisionPolicy.from_record({"offset": 0.5, "online": True}).movers
+    assert policy.tracks and policy.to_record()["movers"] is True
+    assert policy.with_online(False).tracks and policy.with_online(True).tracks
+    assert not DecisionPolicy.from_record({"offset": 0.5, "online": True}).tracks
     assert decision_record({"decision": {"offset": 0.0, "online": False, "movers": True}})[
         "movers"
     ]
     assert decision_record({"model_kwargs": {}})["movers"] is False
 
 
-def test_movers_travel_through_the_onnx_export(tmp_path, sample_recording):
+def test_tracks_travel_through_the_onnx_export(tmp_path, sample_recording):
     from lidarflow.models.presets import resolve_model
+    from lidarflow.outputs.export import export_onnx
     from lidarflow.predict import Predictor
-    from lidarflow.predict.export import export_onnx
     from tests.head_only_pair import head_only, save_model_dir
 
     folder = save_model_dir(
@@ -125,9 +129,9 @@ def test_movers_travel_through_the_onnx_export(tmp_path, sample_recording):
     )
     net, card = resolve_model(folder)
     assert card["decision"]["movers"] is True
-    onnx_path = export_onnx(net, tmp_path / "m.onnx", decision=DecisionPolicy(movers=True))
+    onnx_path = export_onnx(net, tmp_path / "m.onnx", decision=DecisionPolicy(tracks=True))
     torch_p, onnx_p = Predictor(folder), Predictor(onnx_path)
-    assert torch_p.decision.movers and onnx_p.decision.movers
+    assert torch_p.decision.tracks and onnx_p.decision.tracks
     assert torch_p.engine.tracker is not None and onnx_p.engine.tracker is not None
     for scan in [sample_recording.scan(i) for i in range(15)]:
         a, b = torch_p.update(scan), onnx_p.update(scan)

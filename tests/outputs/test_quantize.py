@@ -10,10 +10,10 @@ import pytest
 from lidarflow.errors import PredictError
 from lidarflow.evaluate.metrics import confusion
 from lidarflow.models.presets import resolve_model
+from lidarflow.outputs.export import export_onnx
+from lidarflow.outputs.quantize import head_convs, quantize_onnx
 from lidarflow.predict import Predictor
 from lidarflow.predict.decision import DecisionPolicy
-from lidarflow.predict.export import export_onnx
-from lidarflow.predict.quantize import head_convs, quantize_onnx
 from tests.conftest import FLOW_MODEL
 from tests.test_cli import run
 
@@ -120,7 +120,7 @@ def test_cli_export_int8(tmp_path, capsys, sample_recording):
 
 @pytest.mark.slow
 def test_computed_kernels_of_the_constant_velocity_input_stay_float(tmp_path, sample_recording):
-    from lidarflow.predict.quantize import data_dependent_convs
+    from lidarflow.outputs.quantize import data_dependent_convs
     from tests.conftest import make_model_dir
 
     folder = make_model_dir(tmp_path / "cv", occupancy_head=True, constant_velocity_input=True)

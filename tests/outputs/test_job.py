@@ -8,16 +8,16 @@ import pytest
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.errors import PredictError
 from lidarflow.flowcolor import flow_to_rgb
-from lidarflow.predict import Predictor
-from lidarflow.predict.job import (
+from lidarflow.outputs.job import (
     DEFAULT_TOPICS,
     FLOW_QUANTUM_CELLS,
     FLOW_RGB_FULL_CELLS,
     TOPIC_GROUPS,
     predict_to_bag,
 )
+from lidarflow.predict import Predictor
 from tests.conftest import FLOW_MODEL, make_model_dir
-from tests.predict.test_rosout import read_all
+from tests.outputs.test_rosout import read_all
 
 PREDICTIONS = {"occupancy", "predicted", "decided", "moving"}
 

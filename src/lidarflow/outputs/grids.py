@@ -5,7 +5,7 @@ Written once for every writer of predictions (the bag output, the live nodes), s
 a robot's topic and the same grid in a bag are the same message. Layout (design notes §8): the
 map of ``(H, W)`` cells of ``res`` metres is laid in the scan's own frame with
 ``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x (forward), ``height = W`` along
-y; values are :func:`lidarflow.predict.rosout.grid_data`'s (probability x 100, -1 unknown).
+y; values are :func:`lidarflow.outputs.rosout.grid_data`'s (probability x 100, -1 unknown).
 
 Stamps (the team's convention): a grid predicted ``k`` frames ahead is stamped
 ``prediction.stamp_ahead_ns(k)`` (the scan's stamp plus ``k`` typical scan periods), with

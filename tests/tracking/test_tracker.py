@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from lidarflow.predict.baselines import FrameInputs
-from lidarflow.predict.tracker import (
+from lidarflow.baselines import FrameInputs
+from lidarflow.tracking import (
     Tracker,
     TrackerConfig,
     associate,
@@ -50,7 +50,7 @@ def test_a_static_wall_stays_and_gets_no_velocity():
     tracker = Tracker(res=0.1)
     predictions = _run(tracker, [_wall()] * 20)
     assert all(np.array_equal(p >= 0.4, _wall() > 0) for p in predictions)
-    assert tracker.tracks == []
+    assert tracker.tracks().objects == []
     assert all(np.array_equal(a >= 0.4, _wall() > 0) for a in tracker.ahead(5))
 
 
@@ -63,7 +63,7 @@ def test_a_constant_velocity_blob_is_predicted_exactly_k_ahead(d_row, d_col):
     _run(tracker, frames[:16])  # entering at rest, then converged
     for k, ahead in enumerate(tracker.ahead(4), start=1):
         assert np.array_equal(ahead >= 0.4, frames[15 + k] > 0), k
-    ((state, cells),) = tracker.tracks
+    ((state, cells),) = tracker.tracks().objects
     assert state[2:] == pytest.approx([-d_row, -d_col], abs=0.1)  # x forward = up the rows
     assert len(cells) == 2
 
@@ -75,7 +75,7 @@ def test_two_legs_03_m_apart_are_one_track_and_one_metre_apart_two():
     _blob(m, 20, 10)  # legs 3 cells apart
     m[20, 30] = m[21, 30] = 1  # another object 1.7 m away
     tracker.update(m, SEEN)
-    assert sorted(len(cells) for _, cells in tracker.tracks) == [2, 2]
+    assert sorted(len(cells) for _, cells in tracker.tracks().objects) == [2, 2]
 
 
 def test_two_people_crossing_keep_their_own_velocities():
@@ -88,7 +88,7 @@ def test_two_people_crossing_keep_their_own_velocities():
     tracker = Tracker(res=0.1)
     frames = [frame(t) for t in range(30)]
     _run(tracker, frames[:26])  # they passed each other around t = 16
-    velocities = sorted(float(state[3]) for state, _ in tracker.tracks)
+    velocities = sorted(float(state[3]) for state, _ in tracker.tracks().objects)
     assert velocities == pytest.approx([-1.0, 1.0], abs=0.1)  # y left: rightwards is -1
     for k, ahead in enumerate(tracker.ahead(3), start=1):
         assert np.array_equal(ahead >= 0.4, frames[25 + k] > 0)
@@ -102,10 +102,10 @@ def test_a_person_appearing_starts_at_rest_and_leaving_ends_the_track():
     _blob(with_person, 20, 15)
     _run(tracker, [empty] * 5)
     tracker.update(with_person, SEEN)
-    ((state, _),) = tracker.tracks
+    ((state, _),) = tracker.tracks().objects
     assert state[2:] == pytest.approx([0.0, 0.0])
     _run(tracker, [with_person] * 3 + [empty])
-    assert tracker.tracks == []  # unseen this frame: not predicted
+    assert tracker.tracks().objects == []  # unseen this frame: not predicted
     assert np.array_equal(tracker.ahead(1)[0] >= 0.4, empty > 0)
     _run(tracker, [empty] * config.max_missed)
     assert tracker._tracks == []  # missed more than max_missed frames: ended
@@ -125,7 +125,7 @@ def test_a_moving_platform_in_a_static_world_gives_no_movers():
         moved = FrameInputs(motion=None if t == 0 else motion)
         prediction = tracker.update(seen_from(t), SEEN, moved)
         if t >= 2:
-            assert all(np.hypot(*state[2:]) < 0.3 for state, _ in tracker.tracks)
+            assert all(np.hypot(*state[2:]) < 0.3 for state, _ in tracker.tracks().objects)
             # everything the next frame shows that was in view already is predicted
             truth = seen_from(t + 1) > 0
             assert np.array_equal((prediction >= 0.4)[1:], truth[1:])
@@ -232,7 +232,7 @@ def test_evaluate_scores_the_tracker_among_the_baselines():
 
 def test_cluster_labels_all_against_all_is_the_offset_search(monkeypatch) -> None:
     """The two ways of finding the pairs within ``link`` (few cells / many) label alike."""
-    import lidarflow.predict.tracker as tracker
+    import lidarflow.tracking.clusters as tracker
 
     rng = np.random.default_rng(0)
     for _ in range(100):

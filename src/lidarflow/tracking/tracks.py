@@ -1,0 +1,113 @@
+"""What the tracker hands on each frame: the objects it follows, frozen.
+
+:class:`Tracks` (:meth:`lidarflow.tracking.Tracker.tracks`) is what the engine lays over a
+model's decided map where its policy carries tracks (:class:`lidarflow.predict.engine.Engine`),
+moved ``k`` frames on by each object's velocity and the sensor's guessed motion;
+:class:`Track` is one object in metres and seconds, for the robot's own code
+(``Prediction.tracks``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidarflow.geometry import rigid_moved
+
+__all__ = ["Track", "Tracks", "composed_motion"]
+
+
+def composed_motion(motion: np.ndarray, steps: int) -> np.ndarray:
+    """The pose after ``steps`` repeats of ``motion`` ``(dx, dy, dyaw)`` (each in the frame the
+    last one reached), in the first frame: ``(3,)`` float64.
+
+    >>> composed_motion(np.array([1.0, 0.0, np.pi / 2]), 2).round(6).tolist()
+    [1.0, 1.0, 3.141593]
+    """
+    dx, dy, yaw = (float(v) for v in np.asarray(motion, np.float64).reshape(3))
+    x = y = heading = 0.0
+    for _ in range(steps):
+        c, s = np.cos(heading), np.sin(heading)
+        x, y, heading = x + c * dx - s * dy, y + s * dx + c * dy, heading + yaw
+    return np.array([x, y, heading])
+
+
+@dataclass(frozen=True)
+class Track:
+    """One object the tracker follows, in the sensor frame of the scan just given (x forward,
+    y left, metres; the sensor at the origin).
+
+    Attributes:
+        position: ``(2,)`` its centroid ``(x, y)``, metres.
+        velocity: ``(2,)`` ``(vx, vy)`` in metres per second; ``None`` while the stream's step
+            between scans is unknown (maps, or scans without stamps). Over the ground where the
+            sensor's motion is known (the tracker takes it out), else relative to the sensor.
+        frame_velocity: ``(2,)`` the same velocity in metres per frame (always known).
+        cells: ``(N, 2)`` int, the ``(row, col)`` of its occupied cells in the grid.
+    """
+
+    position: np.ndarray
+    velocity: np.ndarray | None
+    frame_velocity: np.ndarray
+    cells: np.ndarray
+
+
+@dataclass(frozen=True)
+class Tracks:
+    """The objects tracked in one frame, frozen (:meth:`Tracker.tracks`): ``shape`` ``(H, W)``
+    of the grid and ``res`` its cell size (metres); ``objects``, per object seen this frame its
+    state ``(x, y, vx, vy)`` (cells and cells per frame, sensor frame, x forward, y left) and
+    its cells ``(N, 2)`` ``(row, col)``; ``motion`` the ego motion guessed per frame (``None``:
+    the sensor stands still). ``held`` ``(H, W)`` bool: the *held* cells, occupied cells that
+    are not background yet no track took (mostly a person beside a wall, whose cells the wall's
+    background hides from the foreground); they stay where they are for ``hold`` frames."""
+
+    shape: tuple[int, int]
+    objects: list[tuple[np.ndarray, np.ndarray]]
+    motion: np.ndarray | None
+    held: np.ndarray | None = None
+    hold: int = 0
+    res: float = 0.1
+
+    def metric(self, step_ns: int | None = None) -> tuple[Track, ...]:
+        """Each object as a :class:`Track` (metres; metres per second given the stream's step
+        ``step_ns``, nanoseconds)."""
+        per_second = None if not step_ns else 1e9 / step_ns
+        out = []
+        for state, cells in self.objects:
+            frame_velocity = np.asarray(state[2:4], np.float64) * self.res
+            velocity = None if per_second is None else frame_velocity * per_second
+            position = np.asarray(state[:2], np.float64) * self.res
+            out.append(Track(position, velocity, frame_velocity, cells.copy()))
+        return tuple(out)
+
+    def cells_at(self, k: int) -> np.ndarray:
+        """``(H, W)`` bool: every object's cells shifted by ``k`` times its velocity (rounded
+        to whole cells), in the sensor frame of the last frame."""
+        h, w = self.shape
+        out = np.zeros(self.shape, bool)
+        for state, cells in self.objects:
+            velocity = state[2:]
+            d_row = int(np.rint(-k * velocity[0]))
+            d_col = int(np.rint(-k * velocity[1]))
+            r, c = cells[:, 0] + d_row, cells[:, 1] + d_col
+            inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            out[r[inside], c[inside]] = True
+        return out
+
+    def moved_to_sensor(self, image: np.ndarray, k: int) -> np.ndarray:
+        """``image`` ``(H, W)`` of the last frame moved into the sensor frame ``k`` guessed
+        steps on (unchanged on a still sensor): float32 in [0, 1]."""
+        image = np.asarray(image, np.float32)
+        if self.motion is not None:
+            image = np.clip(rigid_moved(image, composed_motion(self.motion, k)), 0.0, 1.0)
+        return image.astype(np.float32)
+
+    def at(self, k: int) -> np.ndarray:
+        """``(H, W)`` float32: the objects ``k`` frames on (and the held cells up to ``hold``),
+        in the sensor frame then."""
+        cells = self.cells_at(k)
+        if self.held is not None and k <= self.hold:
+            cells |= self.held
+        return self.moved_to_sensor(cells, k)
