@@ -95,6 +95,15 @@ MovingOpt = Annotated[
         min=0.0,
     ),
 ]
+CombineOpt = Annotated[
+    bool,
+    typer.Option(
+        "--combine",
+        help="Predict with the online combination: the model, its tracked objects, the "
+        "tracker, the last map and the temporal average weighed per horizon by the scans "
+        "that arrive.",
+    ),
+]
 
 
 ForceOpt = Annotated[

@@ -9,6 +9,7 @@ import typer
 
 from lidarflow.cli.app import (
     DEFAULT_THREADS,
+    CombineOpt,
     ModelOpt,
     ThreadsOpt,
     TopicOpt,
@@ -48,6 +49,7 @@ def live(
         int, typer.Option(help="Port to serve on (0: any free one).", min=0, max=65535)
     ] = DEFAULT_PORT,
     threads: ThreadsOpt = DEFAULT_THREADS,
+    combine: CombineOpt = False,
 ) -> None:
     """Play SOURCE scan by scan at its recorded pace, predict each with the model and serve
     the scans, predicted grids, moving cells and the flow (a colour-wheel image) over
@@ -59,7 +61,7 @@ def live(
 
     recording = load_input(source, topic)
     check_horizon(len(recording), horizon, 0, str(source))
-    predictor = Predictor(model, horizon=horizon, threads=threads or None)
+    predictor = Predictor(model, horizon=horizon, threads=threads or None, combine=combine)
     scan_topic = "/" + (recording.meta.get("topic") or "scan").lstrip("/")
     frame_id = recording.meta.get("frame_id") or "laser"
     flow = predictor.backend.capabilities.flow

@@ -45,6 +45,7 @@ class EvaluateSettings:
     horizon: int
     report_dir: Path | None
     gif_frames: int
+    combine: bool = False
 
 
 #: The methods a worker built, by the settings they were built for: made once per process, as
@@ -113,6 +114,7 @@ class PredictSettings:
     online_decision: bool | None
     groups: frozenset[str]
     force: bool
+    combine: bool = False
 
 
 @dataclass(frozen=True)
@@ -153,6 +155,7 @@ def predict_input(task: PredictTask) -> Predicted:
         threads=s.threads or None,
         moving_threshold=s.moving_threshold,
         online_decision=s.online_decision,
+        combine=s.combine,
     )
     source = None if is_recording_file(task.input) else task.input
     with job_bar(len(recording), f"predicting {task.input.name}") as bar:

@@ -12,6 +12,7 @@ import typer
 from lidarflow.atomic import write_text
 from lidarflow.cli.app import (
     DEFAULT_THREADS,
+    CombineOpt,
     ExportModelOpt,
     ForceOpt,
     ModelGridOpt,
@@ -155,6 +156,7 @@ class PredictOptions:
     model: ModelOpt = None
     horizon: HorizonOpt = 1
     fixed_decision: FixedDecisionOpt = False
+    combine: CombineOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
@@ -188,7 +190,7 @@ def predict(options: PredictOptions) -> None:
     threshold = MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold
     settings = PredictSettings(
         o.topic, o.odom_topic, o.model, model_grid(o.model, o.grid, o.res), o.horizon,
-        o.threads, threshold, False if o.fixed_decision else None, groups, o.force,
+        o.threads, threshold, False if o.fixed_decision else None, groups, o.force, o.combine,
     )  # fmt: skip
     tasks = [PredictTask(i, out, settings) for i, out in zip(o.inputs, outputs, strict=True)]
     done = _predict_all(tasks, o)

@@ -15,6 +15,7 @@ import typer
 
 from lidarflow.cli.app import (
     DEFAULT_THREADS,
+    CombineOpt,
     ModelGridOpt,
     ModelOpt,
     ModelResOpt,
@@ -94,6 +95,7 @@ class NodeOptions:
     odom_topic: OdomTopicOpt = None
     horizon: HorizonOpt = 1
     moving: PublishMovingOpt = False
+    combine: CombineOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
@@ -144,7 +146,7 @@ def _serve(kind: str, options: NodeOptions, node_type: Callable[..., RosNode]) -
     step the options ask for, until it stops."""
     o = options
     step = _live_step(o.model, o.grid, o.res, o.horizon, o.moving_threshold, o.summary_every,
-                      o.threads, o.moving)  # fmt: skip
+                      o.threads, o.moving, o.combine)  # fmt: skip
     _run(kind, step, lambda: node_type(step, o.topic, o.odom_topic, o.moving, queue=o.queue),
          o.foxglove, o.host, o.topic)  # fmt: skip
 
@@ -158,6 +160,7 @@ def _live_step(
     summary_every: int,
     threads: int,
     moving: bool = False,
+    combine: bool = False,
 ) -> LiveStep:
     """The node's step: the Predictor for ``model``; a :class:`ModelError` where ``moving``
     asks for the moving cells of a model that estimates no flow (the topic would stay empty)."""
@@ -172,6 +175,7 @@ def _live_step(
         horizon=horizon,
         threads=threads or None,
         moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
+        combine=combine,
     )
     if moving and not predictor.backend.capabilities.flow:
         raise ModelError(

@@ -114,6 +114,14 @@ OnlineDecisionOpt = Annotated[
         "offsets (the other one as NAME_fixed or NAME_online).",
     ),
 ]
+EvaluateCombineOpt = Annotated[
+    bool,
+    typer.Option(
+        "--combine",
+        help="Also score each model combined online with the simple predictors, learning "
+        "from the scans that arrive (NAME_combined).",
+    ),
+]
 DeviceOpt = Annotated[
     str,
     typer.Option(
@@ -142,6 +150,7 @@ class EvaluateOptions:
     ego_oracle: EgoOracleOpt = False
     horizon: HorizonOpt = 1
     online_decision: OnlineDecisionOpt = False
+    combine: EvaluateCombineOpt = False
     grid: GridOpt = 100
     res: ResOpt = 0.1
     moving_threshold: MovingOpt = None
@@ -220,7 +229,7 @@ def _settings(
     return EvaluateSettings(
         tuple(sources), o.ta_window, o.ta_threshold, o.moving_threshold, o.ego_oracle,
         o.online_decision, GridSpec(o.grid, o.grid, o.res), resolve_device(o.device), o.threads,
-        o.warmup, o.horizon, report_dir, o.gif_frames,
+        o.warmup, o.horizon, report_dir, o.gif_frames, o.combine,
     )  # fmt: skip
 
 
@@ -231,6 +240,7 @@ def _methods_and_config(settings: EvaluateSettings) -> tuple[Any, dict[str, Any]
     methods, config = methods_and_config(
         list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
         s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
+        combine=s.horizon if s.combine else None,
     )  # fmt: skip
     config.update({"warmup": s.warmup, "grid": s.spec.to_dict()})
     _note_other_grids(config["models"], s.spec)

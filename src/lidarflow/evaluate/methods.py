@@ -18,9 +18,11 @@ from lidarflow.baselines import (
     CopyLastEgo,
     TemporalAverage,
 )
+from lidarflow.evaluate.combined_method import CombinedMethod
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import ORACLE_SUFFIX
 from lidarflow.models.weights import describe_source
+from lidarflow.online.experts import EXPERTS
 from lidarflow.predict.backends import load_backend
 from lidarflow.predict.decision import OnlineDecisionConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD
@@ -40,6 +42,7 @@ def methods_and_config(
     names: Sequence[str] | None = None,
     device: str = "cpu",
     threads: int | None = None,
+    combine: int | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus one method per model source (``None``: the bundled model), and the
     configuration that describes them for the report. With an ego-motion model among them the
@@ -52,7 +55,8 @@ def methods_and_config(
     bundled one ``bundled``, others by their folder or file); ``device``: where PyTorch models
     run (``cpu``, ``cuda``, ``cuda:N``; ONNX files run on the CPU); ``threads``: the CPU threads
     each model runs on (``None``: the backend's default; ONNX Runtime takes them when its session
-    is made, PyTorch process-wide)."""
+    is made, PyTorch process-wide); ``combine``: each model also combined online with the simple
+    predictors for that many frames ahead (``NAME_combined``, :mod:`lidarflow.online`)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [
@@ -74,9 +78,19 @@ def methods_and_config(
     ego_models = any(isinstance(m, ModelMethod) and m.takes.motion for m in methods)
     if ego_models:
         methods[4:4] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
+    if combine is not None:
+        methods += [
+            CombinedMethod(
+                f"{m.name}_combined", m.backend, combine, res, m.engine.policy.to_record()
+            )
+            for m in methods
+            if isinstance(m, ModelMethod) and m.name in models_used
+        ]
     config = _report_config(
         methods, ta_window, ta_threshold, moving_threshold, models_used, online_config, online
     )
+    if combine is not None:
+        config["combined"] = {"horizon": combine, "experts": list(EXPERTS)}
     return methods, config
 
 
