@@ -76,3 +76,10 @@ def test_saving_or_loading_without_the_combination_and_a_wrong_file_are_refused(
     saved = Predictor(horizon=1, combine=True).save_learned(tmp_path / "one.npz")
     with pytest.raises(PredictError, match="fewer than 3"):
         Predictor(horizon=3, combine=True).load_learned(saved)
+
+
+def test_seldom_is_the_mover_metrics_share():
+    from lidarflow.evaluate.dynamic import SHARE
+    from lidarflow.online.experts import SELDOM
+
+    assert SELDOM == SHARE

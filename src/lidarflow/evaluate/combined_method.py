@@ -49,7 +49,7 @@ class CombinedMethod:
         engine, step = self.model.engine, self.model.last
         assert step is not None and engine.tracker is not None
         rollout = engine.roll(step, self.combination.horizon)
-        self._last = self.combination.step(engine.tracker, step, rollout, occupancy)
+        self._last = self.combination.step(engine.tracker, step, rollout, occupancy, visibility)
         return self._last.decided[0]
 
     def ahead(self, horizon: int) -> list[np.ndarray]:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.online.experts import EXPERTS, ExpertMaps
+from lidarflow.online.experts import EXPERTS, ExpertMaps, Experts
 from lidarflow.online.leader import Leader
 from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
@@ -77,41 +77,48 @@ class Combination:
             waiting.clear()
 
     def step(
-        self, tracker: Tracker, step: Step, rollout: Rollout, occupancy: np.ndarray
+        self,
+        tracker: Tracker,
+        step: Step,
+        rollout: Rollout,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
     ) -> Combined:
         """Combine after one engine ``step`` and its ``rollout`` (an engine that runs
-        ``tracker``) on the frame whose map is ``occupancy``."""
-        maps, rare, held = self.experts.of(tracker, step, rollout, occupancy)
-        return self.combine(occupancy, maps, rare, held)
+        ``tracker``) on the frame whose maps are ``occupancy`` and ``visibility``."""
+        return self.combine(
+            occupancy, self.experts.of(tracker, step, rollout, occupancy, visibility)
+        )
 
-    def combine(
-        self, occupancy: np.ndarray, experts: np.ndarray, rare: np.ndarray, held: np.ndarray
-    ) -> Combined:
+    def combine(self, occupancy: np.ndarray, experts: Experts) -> Combined:
         """Learn from frame ``t``'s ``occupancy`` ``(H, W)`` as the label of the predictions
-        made for it, then combine the ``experts`` ``(E, K, H, W)`` maps (probabilities in
-        [0, 1] for ``t + 1 .. t + K``) with the ``rare`` cells ``(K, H, W)`` bool of each and
-        those of them that ever ``held`` something (:class:`~lidarflow.online.leader.Leader`)."""
-        if experts.shape[:2] != (len(self.names), self.horizon):
+        made for it, then combine the ``experts`` for ``t + 1 .. t + K``."""
+        maps = experts.maps
+        if maps.shape[:2] != (len(self.names), self.horizon):
             raise ValueError(
                 f"expected ({len(self.names)}, {self.horizon}, H, W) experts' maps, "
-                f"got {experts.shape}"
+                f"got {maps.shape}"
             )
         occupied = np.asarray(occupancy) > 0.5
         probability, decided = [], []
         for k in range(self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
-                stored, stored_rare, stored_held, before = waiting[0]
-                maps = stored.astype(np.float64) / 255.0
-                candidates = self._candidates(stack, maps, stored_rare)[1] >= DECIDED
-                leader.score(candidates, stored_rare, stored_held, occupied, before)
-                stack.learn(maps, stored_rare, occupied)
-            p, d = self._candidates(stack, experts[:, k], rare[k])
+                stored, rare, seldom, held, before = waiting[0]
+                past = stored.astype(np.float64) / 255.0
+                candidates = self._candidates(stack, past, rare)[1] >= DECIDED
+                # where movers went: seldom occupied, and occupied before or now
+                region = seldom & (held | occupied)
+                leader.score(candidates, rare, region, occupied, before)
+                stack.learn(past, rare, occupied)
+            rare = experts.rare[k]
+            p, d = self._candidates(stack, maps[:, k], rare)
             a, b = leader.choice
-            probability.append(np.where(rare[k], p[b], p[a]))
-            decided.append(np.where(rare[k], d[b], d[a]))
-            quantised = np.rint(np.clip(experts[:, k], 0.0, 1.0) * 255).astype(np.uint8)
-            waiting.append((quantised, rare[k].copy(), held[k].copy(), occupied))
+            probability.append(np.where(rare, p[b], p[a]))
+            decided.append(np.where(rare, d[b], d[a]))
+            quantised = np.rint(np.clip(maps[:, k], 0.0, 1.0) * 255).astype(np.uint8)
+            kinds = (rare.copy(), experts.seldom[k].copy(), experts.held[k].copy())
+            waiting.append((quantised, *kinds, occupied))
         return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
 
     @staticmethod

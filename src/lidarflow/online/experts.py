@@ -8,67 +8,104 @@ simple predictors beside it say about the frames ``t + 1 .. t + K``.
   sensor moves (the ego-moved map), as it is where it stands still;
 - ``temporal_average``: the mean of the last :data:`TA_WINDOW` maps, the same for every ``k``.
 
-The *rare* cells (:func:`rare_cells`) are those whose running occupancy rate, the tracker's
-background, is under its threshold: where movers go.
+Beside the maps, what kind each cell is (:class:`Experts`): rare, seldom occupied, and
+whether it ever held something.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lidarflow.baselines import TA_WINDOW
+from lidarflow.geometry import rigid_moved
 
 if TYPE_CHECKING:
     from lidarflow.predict.engine import Rollout, Step
     from lidarflow.tracking import Tracker
 
-__all__ = ["EXPERTS", "ExpertMaps"]
+__all__ = ["EXPERTS", "SELDOM", "ExpertMaps", "Experts"]
 
-#: A running rate above this: the cell held something once (a rate never returns to 0).
-HELD = 1e-6
+#: A cell is *seldom* occupied while occupied in under this share of the frames that saw it:
+#: the mover metric's dynamic region (:data:`lidarflow.evaluate.dynamic.SHARE`), counted so far.
+SELDOM = 0.05
 
 #: The experts' names, in the order of their maps.
 EXPERTS = ("model", "tracks", "tracker", "copy_last", "temporal_average")
 
 
+@dataclass(frozen=True)
+class Experts:
+    """The experts' maps for ``t + 1 .. t + K`` ``(E, K, H, W)`` and, per ``k`` ``(K, H, W)``
+    bool, in the sensor frame then: the ``rare`` cells (the tracker's background under its
+    threshold), the ``seldom`` ones (occupied in under :data:`SELDOM` of the frames that saw
+    them so far, never-occupied ones too) and those that ``held`` something before."""
+
+    maps: np.ndarray
+    rare: np.ndarray
+    seldom: np.ndarray
+    held: np.ndarray
+
+
 class ExpertMaps:
-    """The experts' maps ``(E, K, H, W)`` and rare cells ``(K, H, W)`` after each engine step;
-    the engine must run a tracker (its policy carries the tracked objects) and roll out
-    ``horizon`` frames."""
+    """The experts' maps after each engine step (:class:`Experts`); the engine must run a
+    tracker (its policy carries the tracked objects) and roll out ``horizon`` frames. The
+    counts of occupied and seen frames per cell follow the scene (moved by the ego motion)."""
 
     def __init__(self, horizon: int) -> None:
         self.horizon = horizon
         self._recent: deque[np.ndarray] = deque(maxlen=TA_WINDOW)
+        self._counts: np.ndarray | None = None  # (2, H, W): frames occupied, frames seen
 
     def reset(self) -> None:
         self._recent.clear()
+        self._counts = None
 
     def of(
-        self, tracker: Tracker, step: Step, rollout: Rollout, occupancy: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The experts' maps ``(E, K, H, W)`` for the frame just stepped (its ``step`` and
-        ``rollout`` ``K`` ahead by an engine that runs ``tracker``; ``occupancy``: its map),
-        the rare cells ``(K, H, W)`` and those of them that ever held something."""
+        self,
+        tracker: Tracker,
+        step: Step,
+        rollout: Rollout,
+        occupancy: np.ndarray,
+        visibility: np.ndarray,
+    ) -> Experts:
+        """The experts for the frame just stepped: its ``step`` and ``rollout`` ``K`` ahead
+        by an engine that runs ``tracker``, its ``occupancy`` and ``visibility``."""
         tracks, horizon = step.tracks, self.horizon
         if tracks is None or len(rollout.model_only) < horizon:
             raise ValueError(f"need a step with tracked objects and a roll-out {horizon} ahead")
-        self._recent.append(np.asarray(occupancy, np.float32))
+        occupied = np.asarray(occupancy) > 0.5
+        self._recent.append(occupied.astype(np.float32))
         average = np.mean(self._recent, axis=0)
+        self._count(occupied, np.asarray(visibility) > 0.5, step.motion)
+        assert self._counts is not None and tracker.background is not None
+        occupied_count, seen = self._counts
+        kinds = np.stack(
+            [
+                tracker.background < tracker.config.background_threshold,
+                occupied_count < SELDOM * seen,
+                occupied_count > 0,
+            ]
+        ).astype(np.float32)
         maps = np.empty((len(EXPERTS), horizon, *average.shape), np.float32)
         maps[0] = rollout.model_only[:horizon]
-        background = tracker.background
-        assert background is not None
-        rare_now = background < tracker.config.background_threshold
-        kinds = np.stack([rare_now, rare_now & (background > HELD)]).astype(np.float32)
-        rare = np.empty((2, horizon, *average.shape), bool)
+        masks = np.empty((3, horizon, *average.shape), bool)
         ahead = tracker.ahead(horizon)
         for k in range(1, horizon + 1):
             maps[1, k - 1] = tracks.at(k)
             maps[2, k - 1] = ahead[k - 1]
-            maps[3, k - 1] = tracks.moved_to_sensor(occupancy, k)
+            maps[3, k - 1] = tracks.moved_to_sensor(occupied, k)
             maps[4, k - 1] = average
-            rare[:, k - 1] = tracks.moved_to_sensor(kinds, k) > 0.5
-        return maps, rare[0], rare[1]
+            masks[:, k - 1] = tracks.moved_to_sensor(kinds, k) > 0.5
+        return Experts(maps, masks[0], masks[1], masks[2])
+
+    def _count(self, occupied: np.ndarray, visible: np.ndarray, motion: np.ndarray | None) -> None:
+        if self._counts is None:
+            self._counts = np.zeros((2, *occupied.shape))
+        elif motion is not None and np.any(motion):
+            self._counts = rigid_moved(self._counts, motion)
+        self._counts[0] += occupied
+        self._counts[1] += visible | occupied

@@ -3,11 +3,11 @@
 Candidates are decided maps of the frame ``t + k`` made at ``t`` (the experts' own and the
 stacked combination's). When ``t + k`` arrives each candidate is scored on it, the counts
 decaying by ``decay`` per frame, by three F1s: of all cells, of the *changed* cells (those of
-``t + k`` that differ from frame ``t``'s map) and the tolerant F1 of the *rare* cells (cells
-within ``tolerance`` count as found, as the mover metric counts them; rare cells as the experts
-say, :mod:`lidarflow.online.experts`). The pair ``(a, b)`` chosen, ``a`` deciding the common
-cells and ``b`` the rare ones, maximises the sum of the three F1s of the map they make
-together: what a model must beat the simple predictors on, scored on the stream itself.
+``t + k`` that differ from frame ``t``'s map) and the tolerant F1 in the region where movers
+went (cells within ``tolerance`` count as found, as the mover metric counts them; the region as
+the caller finds it). The pair ``(a, b)`` chosen, ``a`` deciding the common cells and ``b`` the
+rare ones (:mod:`lidarflow.online.experts`), maximises the sum of the three F1s of the map they
+make together: what a model must beat the simple predictors on, scored on the stream itself.
 """
 
 from __future__ import annotations
@@ -69,21 +69,18 @@ class Leader:
         self,
         decided: np.ndarray,
         rare: np.ndarray,
-        held: np.ndarray,
+        region: np.ndarray,
         occupied: np.ndarray,
         before: np.ndarray,
     ) -> None:
         """Count the candidates' ``decided`` maps ``(C, H, W)`` bool against the map that came
-        (``occupied`` ``(H, W)`` bool), with the ``rare`` cells ``(H, W)`` bool, those of them
-        that ever ``held`` something before, and the map they were predicted from
-        (``before``), then choose anew. The tolerant F1 scores the rare cells that held
-        something before or now: where movers went (free space that nothing ever entered is no
-        one's region, as in the mover metric)."""
+        (``occupied`` ``(H, W)`` bool): F1 on the common and the ``rare`` cells apart, of all
+        cells and of those changed since the map they were predicted from (``before``), and
+        the tolerant F1 inside ``region`` (where movers went); then choose anew."""
         self._f1 *= self.decay
         self._tolerant *= self.decay
         changed = occupied != before
         kinds = (~rare, rare)
-        region = rare & (held | occupied)
         truth_rare = occupied & region
         near_truth = near(truth_rare, self.tolerance)
         for c, predicted in enumerate(decided):

@@ -301,7 +301,9 @@ class Predictor:
         probability, decided = ahead.probability, ahead.decided
         if self.combination is not None:
             assert self.engine.tracker is not None  # the policy carries tracked objects
-            combined = self.combination.step(self.engine.tracker, step, ahead, occupancy)
+            combined = self.combination.step(
+                self.engine.tracker, step, ahead, occupancy, visibility
+            )
             probability, decided = combined.probability, combined.decided
         flow = step.flow
         return Prediction(
