@@ -57,7 +57,11 @@ class Combination:
         config = config or StackingConfig()
         first = EXPERTS.index("model")
         self.stacks = [HorizonStacking(len(EXPERTS), config, first) for _ in range(horizon)]
-        self.leaders = [Leader(len(CANDIDATES), first, config.decay) for _ in range(horizon)]
+        # the simple predictors among the candidates, copy-last first (the tolerant F1's judge)
+        simple = tuple(CANDIDATES.index(n) for n in ("copy_last", "temporal_average", "tracker"))
+        self.leaders = [
+            Leader(len(CANDIDATES), first, config.decay, baselines=simple) for _ in range(horizon)
+        ]
         self._waiting: list[deque[tuple[np.ndarray, ...]]] = [
             deque(maxlen=k) for k in range(1, horizon + 1)
         ]

@@ -6,8 +6,9 @@ decaying by ``decay`` per frame, by three F1s: of all cells, of the *changed* ce
 ``t + k`` that differ from frame ``t``'s map) and the tolerant F1 in the region where movers
 went (cells within ``tolerance`` count as found, as the mover metric counts them; the region as
 the caller finds it). The pair ``(a, b)`` chosen, ``a`` deciding the common cells and ``b`` the
-rare ones (:mod:`lidarflow.online.experts`), maximises the sum of the three F1s of the map they
-make together: what a model must beat the simple predictors on, scored on the stream itself.
+rare ones (:mod:`lidarflow.online.experts`), maximises the margins of the map they make together
+over the simple predictors among the candidates: what a model must beat them on, scored on the
+stream itself.
 """
 
 from __future__ import annotations
@@ -23,18 +24,27 @@ __all__ = ["Leader"]
 _ALL, _CHANGED = 0, 1
 
 
+#: How much more a loss against the simple predictors weighs than a win of the same size.
+LOSS_WEIGHT = 10.0
+
+
 class Leader:
-    """The choice for one horizon among ``candidates`` decided maps, starting on ``first``."""
+    """The choice for one horizon among ``candidates`` decided maps, starting on ``first``.
+    With ``baselines`` (the candidates that are simple predictors, the one the tolerant F1 is
+    judged against first) the pair chosen maximises its margins over them, as a model is
+    judged (all-cell F1 over the best, changed-cell F1 over the best, tolerant F1 over the
+    first), each loss weighing :data:`LOSS_WEIGHT` times a win; without, the sum of the F1s."""
 
     def __init__(
-        self, candidates: int, first: int = 0, decay: float = 0.99, tolerance: int = TOLERANCE
+        self,
+        candidates: int,
+        first: int = 0,
+        decay: float = 0.99,
+        tolerance: int = TOLERANCE,
+        baselines: tuple[int, ...] = (),
     ) -> None:
-        self.candidates, self.first, self.decay, self.tolerance = (
-            candidates,
-            first,
-            decay,
-            tolerance,
-        )
+        self.candidates, self.first, self.decay = candidates, first, decay
+        self.tolerance, self.baselines = tolerance, baselines
         self.reset()
 
     def reset(self) -> None:
@@ -109,14 +119,22 @@ class Leader:
         # cells plus b's rare ones
         total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)
         tp, fp, fn = total[..., 0], total[..., 1], total[..., 2]
-        f1 = _f1(tp, fp + fn).sum(axis=-1)
+        f1 = _f1(tp, fp + fn)  # (a, b, metric)
         right, wrong, found, missed = self._tolerant.T
         precision = _ratio(right, right + wrong)
         recall = _ratio(found, found + missed)
-        tolerant = _ratio(2 * precision * recall, precision + recall)
-        score = f1 + tolerant[None, :]
-        if not score.any():
+        tolerant = _ratio(2 * precision * recall, precision + recall)  # (b,)
+        if not f1.any() and not tolerant.any():
             return (self.first, self.first)
+        if not self.baselines:
+            score = f1.sum(axis=-1) + tolerant[None, :]
+        else:  # margins over the simple predictors, as a model is judged, losses weighed more
+            alone = np.arange(self.candidates)
+            best = f1[alone, alone][list(self.baselines)].max(axis=0)  # (metric,)
+            margins = [f1[..., 0] - best[0], f1[..., 1] - best[1]]
+            reference = self.baselines[0]  # the tolerant F1 is judged against the first
+            margins.append(np.broadcast_to(tolerant[None, :] - tolerant[reference], f1.shape[:2]))
+            score = sum(m + LOSS_WEIGHT * np.minimum(m, 0.0) for m in margins)
         a, b = np.unravel_index(int(np.argmax(score)), score.shape)
         return int(a), int(b)
 
