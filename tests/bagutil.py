@@ -307,3 +307,74 @@ def write_ros1_mcap(
     footer = _mcap_record(0x02, struct.pack("<QQI", summary_start, 0, 0))
     path.write_bytes(MCAP_MAGIC + header + data + data_end + section + footer + MCAP_MAGIC)
     return path
+
+
+def write_legs_bag(
+    path: Path,
+    scans: Sequence[np.ndarray],
+    legs: Sequence[Sequence[tuple[float, float]]],
+    legs_first: bool = True,
+) -> Path:
+    """A ROS 1 bag as leg_tracker's extracted bags are: per labelled scan a ``/training_scan``
+    of ``scans[i]``'s ranges (stamps unlike any recording's) and a ``/leg_cluster_positions``
+    PoseArray of ``legs[i]`` (x, y; no stamp), the PoseArray logged just before its scan
+    (``legs_first``) or just after; ``len(legs)`` may differ from ``len(scans)``."""
+    from rosbags.rosbag1 import Writer
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    t = ts.types
+    PoseArray, Pose = t["geometry_msgs/msg/PoseArray"], t["geometry_msgs/msg/Pose"]
+    Point, Quat = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"]
+    t0 = 1_400_000_000 * 10**9
+    with Writer(path) as writer:
+        c_scan = writer.add_connection("/training_scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        c_legs = writer.add_connection(
+            "/leg_cluster_positions", "geometry_msgs/msg/PoseArray", typestore=ts
+        )
+        for i in range(max(len(scans), len(legs))):
+            stamp = t0 + i * 10**8
+            if i < len(legs):
+                poses = [
+                    Pose(
+                        position=Point(x=float(x), y=float(y), z=0.0),
+                        orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                    )
+                    for x, y in legs[i]
+                ]
+                msg = PoseArray(header=_header(ts, 0, "laser"), poses=poses)
+                writer.write(
+                    c_legs,
+                    stamp + (0 if legs_first else 2000),
+                    ts.serialize_ros1(msg, "geometry_msgs/msg/PoseArray"),
+                )
+            if i < len(scans):
+                raw = ts.serialize_ros1(
+                    _scan_msg(ts, scans[i], 5 * 10**9 + i), "sensor_msgs/msg/LaserScan"
+                )
+                writer.write(c_scan, stamp + 1000, raw)
+    return path
+
+
+#: leg_tracker's ``Person`` message, as ``/ground_truth_people_tracks`` carries it.
+PERSON = "leg_tracker/msg/Person"
+
+
+def write_people_bag(path: Path, people: Sequence[tuple[int, float, float]]) -> Path:
+    """A ROS 1 bag of ``/ground_truth_people_tracks``: one ``leg_tracker/Person`` per
+    ``(log time ns, x, y)``."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import get_types_from_msg
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    ts.register(get_types_from_msg("geometry_msgs/Pose pose\nuint32 id", PERSON))
+    t = ts.types
+    Person, Pose = t[PERSON], t["geometry_msgs/msg/Pose"]
+    Point, Quat = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"]
+    with Writer(path) as writer:
+        c = writer.add_connection("/ground_truth_people_tracks", PERSON, typestore=ts)
+        for i, (stamp, x, y) in enumerate(people):
+            pose = Pose(
+                position=Point(x=x, y=y, z=0.0), orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0)
+            )
+            writer.write(c, stamp, ts.serialize_ros1(Person(pose=pose, id=i), PERSON))
+    return path

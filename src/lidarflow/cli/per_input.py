@@ -82,21 +82,22 @@ def methods_kept(settings: EvaluateSettings, methods: list[Any]) -> Iterator[Non
         _METHODS.pop(settings, None)
 
 
-def score_input(task: tuple[str, Any, str, EvaluateSettings]) -> Scored:
-    """Score the recording of ``task`` (name, recording, picture stem, settings) as ``evaluate``
-    scores each of its recordings (:func:`lidarflow.evaluate.evaluation.score_one`): one pass
-    for the main table and the horizon tables."""
+def score_input(task: tuple[str, Any, str, EvaluateSettings, Any]) -> Scored:
+    """Score the recording of ``task`` (name, recording, picture stem, settings, its labels or
+    ``None``) as ``evaluate`` scores each of its recordings
+    (:func:`lidarflow.evaluate.evaluation.score_one`): one pass for the main table, the horizon
+    tables and the labels."""
     from lidarflow.evaluate.evaluation import score_one
     from lidarflow.viz.evaluation import ReportFigures
 
-    name, recording, stem, settings = task
+    name, recording, stem, settings, labels = task
     figures = None
     if settings.report_dir is not None:
         figures = ReportFigures(settings.report_dir, settings.gif_frames)
     with job_bar(len(recording) - 1, f"evaluating {Path(name).name}") as bar:
         return score_one(
             name, recording, _methods(settings), settings.spec, settings.warmup,
-            settings.horizon, stem, figures, bar.update,
+            settings.horizon, stem, figures, bar.update, labels=labels,
         )  # fmt: skip
 
 

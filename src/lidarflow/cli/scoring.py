@@ -106,6 +106,15 @@ HorizonOpt = Annotated[
         help="Also score F1 1..K frames ahead (models fed their own predictions).",
     ),
 ]
+LegsOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--legs",
+        help="Labelled movers to score 1..K ahead (recall and precision within 0.3 m): "
+        "leg_tracker's extracted bag, or a bag with /ground_truth_people_tracks. One per "
+        "recording, in their order.",
+    ),
+]
 OnlineDecisionOpt = Annotated[
     bool,
     typer.Option(
@@ -149,6 +158,7 @@ class EvaluateOptions:
     ta_threshold: TaThresholdOpt = TA_THRESHOLD
     ego_oracle: EgoOracleOpt = False
     horizon: HorizonOpt = 1
+    legs: LegsOpt = None
     online_decision: OnlineDecisionOpt = False
     combine: EvaluateCombineOpt = False
     grid: GridOpt = 100
@@ -176,7 +186,7 @@ def evaluate(options: EvaluateOptions) -> None:
 
     o = options
     output = _checked_output(o)
-    read = [*o.inputs, *(o.model or [])]
+    read = [*o.inputs, *(o.model or []), *(o.legs or [])]
     refuse_existing(output, force=o.force, inputs=read)
     refuse_existing(o.report_dir, force=o.force, folder=True, inputs=read)
     use_threads(o.threads)
@@ -185,6 +195,7 @@ def evaluate(options: EvaluateOptions) -> None:
         (str(path), read_scorable(path, o.topic, o.odom_topic, o.warmup, o.horizon, o.ego_oracle))
         for path in o.inputs
     ]
+    labels = _labels(o.legs, named)
     settings = _settings(o, sources, None)
     methods, config = _methods_and_config(settings)
     workers = resolve_jobs(o.jobs, len(named))
@@ -193,7 +204,7 @@ def evaluate(options: EvaluateOptions) -> None:
             staged = stack.enter_context(atomic_path(o.report_dir))
             settings = dataclasses.replace(settings, report_dir=staged)
         with methods_kept(settings, methods):  # one worker scores here, with these
-            report = _evaluate_in_jobs(named, settings, config, workers)
+            report = _evaluate_in_jobs(named, labels, settings, config, workers)
     _say_report(report, config, output, o.report_dir)
 
 
@@ -201,11 +212,26 @@ def _checked_output(options: EvaluateOptions) -> Path | None:
     """``-o``, or the ``--json`` it replaced; a usage error where the flags contradict."""
     if options.baselines_only and options.model:
         raise typer.BadParameter("--baselines-only scores no model; drop --model or it")
+    if options.legs and len(options.legs) != len(options.inputs):
+        raise typer.BadParameter(
+            f"give one --legs per recording, in their order: {len(options.inputs)} "
+            f"recording{'s' * (len(options.inputs) != 1)}, {len(options.legs)} --legs"
+        )
     if options.json_out is None:
         return options.output
     if options.output is not None:  # the spelling before -o/--output, kept working
         raise typer.BadParameter("give -o/--output once (--json is its old name)")
     return options.json_out
+
+
+def _labels(legs: list[Path] | None, named: list[tuple[str, Any]]) -> list[Any]:
+    """Each recording's labels (:func:`lidarflow.evaluate.labels.read_labels`; ``None``
+    without ``--legs``), read before any recording is scored: a bad file fails at once."""
+    from lidarflow.evaluate.labels import read_labels
+
+    if not legs:
+        return [None] * len(named)
+    return [read_labels(path, recording) for path, (_, recording) in zip(legs, named, strict=True)]
 
 
 def _sources(options: EvaluateOptions) -> list[Path | None]:
@@ -283,7 +309,11 @@ def _note_other_grids(models: dict[str, Any], spec: Any) -> None:
 
 
 def _evaluate_in_jobs(
-    named: list[tuple[str, Any]], settings: EvaluateSettings, config: dict[str, Any], workers: int
+    named: list[tuple[str, Any]],
+    labels: list[Any],
+    settings: EvaluateSettings,
+    config: dict[str, Any],
+    workers: int,
 ) -> dict[str, Any]:
     """``evaluate``'s scoring, one worker per recording (:mod:`lidarflow.cli.jobs`; one worker
     runs in this process): the report. The first recording that fails stops the others: the
@@ -296,7 +326,10 @@ def _evaluate_in_jobs(
 
     names = [name for name, _ in named]
     stems = unique_stems(names)
-    tasks = [(n, rec, stem, settings) for (n, rec), stem in zip(named, stems, strict=True)]
+    tasks = [
+        (n, rec, stem, settings, legs)
+        for (n, rec), stem, legs in zip(named, stems, labels, strict=True)
+    ]
 
     def show(outcome: Outcome) -> None:  # a recording's notes, in input order
         if outcome.notes:

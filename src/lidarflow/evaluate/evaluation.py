@@ -24,6 +24,7 @@ from lidarflow.baselines import Method
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.horizon import add_horizon_entry, horizon_entry
+from lidarflow.evaluate.labels import Labels, LabelScore, labels_entry, with_labels
 from lidarflow.evaluate.report import build_report, count_recordings_won
 from lidarflow.evaluate.runner import (
     Hooks,
@@ -132,11 +133,14 @@ def score_one(
     figures: Figures | None = None,
     progress: Callable[[int], None] | None = None,
     on_ahead: Callable[[str, str, int, Any], None] | None = None,
+    labels: Labels | None = None,
 ) -> Scored:
     """Score ``methods`` on the recording ``name`` in one pass: the main table and, for
     ``horizon`` > 1, the horizon tables; with ``figures``, draw its pictures (files named by
     ``stem``, default :func:`safe_stem`). ``progress(1)`` after each frame; ``on_ahead(name,
-    method, t, predicted)`` with each prediction the horizon tables score."""
+    method, t, predicted)`` with each prediction the horizon tables score. With ``labels``
+    (:func:`~lidarflow.evaluate.labels.read_labels` of this recording), also score them
+    1..``horizon`` ahead over the horizon tables' frames (the main table's for ``horizon`` 1)."""
     inputs = recording_inputs(recording, grid, methods)
     drawing = None
     if figures is not None:
@@ -149,12 +153,20 @@ def score_one(
         ahead,
     )
     truth = recording_truth(recording, grid, inputs)
+    scoring = None
+    if labels is not None:
+        assert truth.region is not None  # every recording has its dynamic region
+        scoring = LabelScore(labels.positions, grid, horizon, truth.region)
+        hooks = with_labels(hooks, scoring, methods, inputs.occupancy)
     scores = score_stream(inputs, methods, warmup, horizon if horizon > 1 else None, truth, hooks)
     drawn = [] if drawing is None else drawing.finish(scores.next_map)
     keys = None
     if scores.horizon is not None:
         keys = horizon_entry(scores.horizon, scores.horizon_frames)
-    return Scored(scores.next_map, drawn, recording_notes(recording, grid), keys)
+    notes = recording_notes(recording, grid)
+    if labels is not None and scoring is not None:
+        notes.update(labels_entry(labels, scoring))
+    return Scored(scores.next_map, drawn, notes, keys)
 
 
 def recording_notes(recording: Recording, grid: GridSpec) -> dict[str, Any]:

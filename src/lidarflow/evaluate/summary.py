@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from lidarflow.evaluate.horizon import horizon_note
+from lidarflow.evaluate.labels import CEILING, RADIUS
 from lidarflow.evaluate.report import (
     format_comparison,
     format_peer_table,
@@ -19,7 +20,13 @@ from lidarflow.evaluate.report import (
     undefined_note,
 )
 
-__all__ = ["HORIZON_TABLES", "format_horizon", "format_overall", "format_recording"]
+__all__ = [
+    "HORIZON_TABLES",
+    "format_horizon",
+    "format_labels",
+    "format_overall",
+    "format_recording",
+]
 
 _PEER_TITLE = "peers' metrics (mean per frame; WMSE lower is better, SSIM higher)"
 #: The horizon tables, report key and title, in the order printed.
@@ -48,10 +55,37 @@ def format_horizon(scores: dict[str, list[float | None]], what: str = "F1") -> s
     return "\n".join(lines)
 
 
+def format_labels(legs: dict[str, dict[str, list[Any]]], kind: str = "legs") -> str:
+    """The labelled movers' table (:mod:`lidarflow.evaluate.labels`): recall and precision per
+    method at ``k = 1`` and at the last ``k`` (``-`` where undefined), the best of each column
+    among the methods marked *; the scan's own row, recall's ceiling, last."""
+    k = len(next(iter(legs.values()))["recall"])
+    columns = [(key, i) for key in ("recall", "precision") for i in ([0] if k == 1 else [0, k - 1])]
+    rows = {name: [one[key][i] for key, i in columns] for name, one in legs.items()}
+    best = [max((r[j] for n, r in rows.items() if n != CEILING and r[j] is not None), default=None)
+            for j in range(len(columns))]  # fmt: skip
+    counts = legs.get(CEILING, next(iter(legs.values())))
+    title = (
+        f"labelled {kind} within {RADIUS:g} m ({counts['labelled'][0]} {kind} on "
+        f"{counts['frames'][0]} frames at k=1; precision in the dynamic region)"
+    )
+    width = max(24, *(len(name) + 12 for name in rows))
+    header = "".join(f"{f'{key} k={i + 1}':>15}" for key, i in columns)
+    lines = [title, f"{'method':<{width}}{header}"]
+    for name in [*(n for n in rows if n != CEILING), *([CEILING] if CEILING in rows else [])]:
+        cells = ""
+        for j, v in enumerate(rows[name]):
+            mark = "*" if name != CEILING and v == best[j] else " "
+            cells += f"{'-':>15}" if v is None else f"{v:>14.4f}{mark}"
+        label = f"{name} (ceiling)" if name == CEILING else name
+        lines.append(f"{label:<{width}}{cells}")
+    return "\n".join(lines)
+
+
 def format_recording(entry: dict[str, Any], grid: dict[str, Any]) -> str:
     """A recording's report ``entry`` as printed: its table, the notes (undefined scores, a
     grid other than ``grid``), the verdict against the baselines, the horizon tables, the
-    calibration and the peers' metrics."""
+    labelled movers, the calibration and the peers' metrics."""
     title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
     parts = [format_table(entry["methods"], title)]
     parts += [n for n in (undefined_note(entry.get("undefined", [])), grid_note(entry, grid)) if n]
@@ -60,6 +94,8 @@ def format_recording(entry: dict[str, Any], grid: dict[str, Any]) -> str:
     if "horizon_f1" in entry:
         parts.append(horizon_note(entry) + "\n")
         parts += [format_horizon(entry[k], what) + "\n" for k, what in HORIZON_TABLES if k in entry]
+    if "legs" in entry:
+        parts.append(format_labels(entry["legs"], entry.get("legs_kind", "legs")) + "\n")
     for extra in (
         format_uncertainty_table(entry["methods"]),
         format_peer_table(entry["methods"], _PEER_TITLE),
