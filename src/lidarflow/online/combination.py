@@ -31,8 +31,14 @@ if TYPE_CHECKING:
 
 __all__ = ["CANDIDATES", "Combination", "Combined"]
 
-#: The candidates that may decide a kind of cell: each expert alone, then the stacked one.
-CANDIDATES = (*EXPERTS, "stacked")
+#: The experts laid over each other (the larger probability): the model with its tracked
+#: objects (what the model's own decision policy carries) and the last map with them.
+UNIONS = (("model", "tracks"), ("copy_last", "tracks"))
+
+#: The candidates that may decide a kind of cell: each expert alone, the unions, then the
+#: stacked combination.
+CANDIDATES = (*EXPERTS, *(f"{a}+{b}" for a, b in UNIONS), "stacked")
+_UNIONS = [(EXPERTS.index(a), EXPERTS.index(b)) for a, b in UNIONS]
 
 
 @dataclass(frozen=True)
@@ -129,10 +135,13 @@ class Combination:
     def _candidates(
         stack: HorizonStacking, experts: np.ndarray, rare: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The candidates' probabilities and decided probabilities ``(E + 1, H, W)``: each
-        expert's own (decided at 0.4), then the stacked combination's."""
+        """The candidates' probabilities and decided probabilities ``(C, H, W)`` in the order
+        of :data:`CANDIDATES`: each expert's own and the unions (decided at 0.4), then the
+        stacked combination's."""
         p, d = stack.decided(experts, rare)
-        return np.concatenate([experts, p[None]]), np.concatenate([experts, d[None]])
+        unions = [np.maximum(experts[i], experts[j]) for i, j in _UNIONS]
+        own = np.concatenate([experts, np.stack(unions)])
+        return np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
 
     def chosen(self) -> list[tuple[str, str]]:
         """Per horizon, the candidates deciding the common and the rare cells now."""
