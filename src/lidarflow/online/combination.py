@@ -143,6 +143,14 @@ class Combination:
         own = np.concatenate([experts, np.stack(unions)])
         return np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
 
+    @property
+    def nbytes(self) -> int:
+        """The bytes of the arrays it holds: the maps waiting for their label, what it
+        learnt, the experts' counts (a bound: the queues hold ``K (K + 1) / 2`` frames)."""
+        waiting = sum(a.nbytes for queue in self._waiting for item in queue for a in item)
+        learnt = sum(np.asarray(v).nbytes for v in self.state().values())
+        return int(waiting + learnt + self.experts.nbytes)
+
     def chosen(self) -> list[tuple[str, str]]:
         """Per horizon, the candidates deciding the common and the rare cells now."""
         return [(CANDIDATES[a], CANDIDATES[b]) for a, b in (x.choice for x in self.leaders)]

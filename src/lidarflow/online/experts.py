@@ -64,6 +64,12 @@ class ExpertMaps:
         self._recent.clear()
         self._counts = None
 
+    @property
+    def nbytes(self) -> int:
+        """The bytes of the maps it keeps (the last few, the counts)."""
+        counts = 0 if self._counts is None else self._counts.nbytes
+        return counts + sum(m.nbytes for m in self._recent)
+
     def of(
         self,
         tracker: Tracker,

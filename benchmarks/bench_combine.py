@@ -1,0 +1,69 @@
+"""What the online combination costs: `Predictor.update` per scan with ``combine=True`` as a
+ratio to the same Predictor without it, measured in the same run (one thread, the bundled
+model, the sample recording's scans, no poses: the motion matched from the scans), at
+``--horizon`` 1 and K. Runs alternate between the two in rounds so that load on a shared
+machine falls on both alike; the medians and the ratio of medians are written to JSON
+(default ``benchmarks/results/combine.json``), beside the memory the combination holds.
+
+    python benchmarks/bench_combine.py [--scans 150] [--rounds 3] [--horizons 1 8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from _output import machine, write_json
+
+from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.predict import Predictor
+
+
+def per_scan_ms(predictor: Predictor, scans: list, warm: int = 10) -> list[float]:
+    predictor.reset()
+    for scan in scans[:warm]:
+        predictor.update(scan)
+    times = []
+    for scan in scans[warm:]:
+        start = time.perf_counter()
+        predictor.update(scan)
+        times.append((time.perf_counter() - start) * 1e3)
+    return times
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--scans", type=int, default=150)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--horizons", type=int, nargs="+", default=[1, 8])
+    parser.add_argument(
+        "-o", "--output", type=Path, default=Path("benchmarks/results/combine.json")
+    )
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    recording = read_bag(sample_bag_path())
+    scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]
+    result: dict = {"machine": machine(), "scans": len(scans), "threads": 1, "horizons": {}}
+    for horizon in args.horizons:
+        plain = Predictor(horizon=horizon, threads=1)
+        combined = Predictor(horizon=horizon, threads=1, combine=True)
+        times: dict[str, list[float]] = {"plain": [], "combined": []}
+        for _ in range(args.rounds):
+            times["plain"] += per_scan_ms(plain, scans)
+            times["combined"] += per_scan_ms(combined, scans)
+        medians = {k: float(np.median(v)) for k, v in times.items()}
+        result["horizons"][str(horizon)] = {
+            "median_ms": medians,
+            "p99_ms": {k: float(np.percentile(v, 99)) for k, v in times.items()},
+            "ratio": medians["combined"] / medians["plain"],
+            "combination_bytes": combined.combination.nbytes,
+        }
+        print(horizon, result["horizons"][str(horizon)])
+    write_json(args.output, result)
+
+
+if __name__ == "__main__":
+    main()
