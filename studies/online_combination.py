@@ -14,9 +14,12 @@ same frames)::
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from lidarflow.data.sources import load_any
 from lidarflow.evaluate.combined_method import CombinedMethod
@@ -88,5 +91,68 @@ def show(name: str, result: dict[str, Any]) -> None:
         print(f"{method:20s} {cells}")
 
 
+BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker", "copy_last_ego")
+KEYS_SHOWN = {"f1": "F1", "changed_f1": "changed F1", "mover_f1_tolerant": "tolerant mover F1"}
+
+
+def margins(result: dict[str, Any], method: str, at: int) -> dict[str, float]:
+    """``method``'s margins at step index ``at`` (0: k = 1, 1: K), as `evaluate` judges: F1
+    and changed-cell F1 over the best baseline, tolerant mover F1 over copy-last."""
+    present = [b for b in BASELINES if b in result["f1"]]
+    out = {}
+    for key in KEYS:
+        if key == "mover_f1_tolerant":
+            best = result[key]["copy_last"][at]
+        else:
+            best = max(result[key][b][at] for b in present)
+        out[key] = result[key][method][at] - best
+    return out
+
+
+def table(folders: list[Path], methods: tuple[str, ...] = ("model", "model_combined")) -> str:
+    """Markdown: per recording and method, the mean over ``folders`` (one per training seed)
+    of each metric at k = 1 and K, its margin as `evaluate` judges, and the verdict."""
+    runs = [read_json(folder / "summary.json") for folder in folders]
+    lines = [
+        "| recording (K) | method | at | F1 | changed F1 | tolerant mover F1 | margins "
+        "(F1 / changed / mover) | wins |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    totals: dict[tuple[str, int], list[dict[str, float]]] = {}
+    for name in runs[0]:
+        per_seed = [run[name] for run in runs if name in run]
+        for method in (*methods, "copy_last", "temporal_average", "tracker"):
+            for at, label in ((0, "k=1"), (1, "~1 s")):
+                values = [np.mean([r[k][method][at] for r in per_seed]) for k in KEYS]
+                row = f"| {name} ({per_seed[0]['horizon']}) | {method} | {label} | "
+                row += " | ".join(f"{v:.4f}" for v in values)
+                if method in methods:
+                    m = [margins(r, method, at) for r in per_seed]
+                    mean = {k: float(np.mean([x[k] for x in m])) for k in KEYS}
+                    totals.setdefault((method, at), []).append(mean)
+                    wins = sum(all(x[k] > 0 for k in KEYS) for x in m)
+                    row += " | " + " / ".join(f"{mean[k]:+.4f}" for k in KEYS)
+                    row += f" | {wins}/{len(m)} |"
+                else:
+                    row += " | | |"
+                lines.append(row)
+    lines += [
+        "",
+        "| method | at | mean margins (F1 / changed / mover) | worst fold | folds won |",
+        "|---|---|---|---|---|",
+    ]
+    for (method, at), folds in totals.items():
+        mean = " / ".join(f"{np.mean([f[k] for f in folds]):+.4f}" for k in KEYS)
+        worst = " / ".join(f"{min(f[k] for f in folds):+.4f}" for k in KEYS)
+        won = sum(all(f[k] > 0 for k in KEYS) for f in folds)
+        lines.append(
+            f"| {method} | {('k=1', '~1 s')[at]} | {mean} | {worst} | {won}/{len(folds)} |"
+        )
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:2] == ["table"]:
+        print(table([Path(f) for f in sys.argv[2:]]))
+    else:
+        main()
