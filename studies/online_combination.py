@@ -24,6 +24,7 @@ import numpy as np
 from lidarflow.data.sources import load_any
 from lidarflow.evaluate.combined_method import CombinedMethod
 from lidarflow.evaluate.evaluation import score_one
+from lidarflow.evaluate.labels import read_labels
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.online.stacking import StackingConfig
 from lidarflow.predict.backends import load_backend
@@ -34,6 +35,15 @@ from studies.movers import horizon_of
 KEYS = ("f1", "changed_f1", "mover_f1_tolerant")
 
 
+def labels_of(path: Path) -> Path | None:
+    """The hand labels of a development recording: leg_tracker's labelled legs beside
+    ``positive_N.bag``, the annotated people inside ``general_tracking_moving_1``."""
+    extracted = path.with_name(stem(path) + "_extracted.bag")
+    if extracted.exists():
+        return extracted
+    return path if stem(path) == "general_tracking_moving_1" else None
+
+
 def score(path: Path, model: str | Path | None, config: StackingConfig) -> dict[str, Any]:
     recording = load_any(path)
     horizon = horizon_of(recording)
@@ -42,13 +52,20 @@ def score(path: Path, model: str | Path | None, config: StackingConfig) -> dict[
     methods.append(
         CombinedMethod("model_combined", net, horizon, decision=card["decision"], config=config)
     )
+    labels = None
+    label_file = labels_of(path)
+    if label_file is not None:
+        labels = read_labels(label_file, recording)
     start = time.perf_counter()
-    scored = score_one(path.name, recording, methods, GridSpec(), 10, horizon)
+    scored = score_one(path.name, recording, methods, GridSpec(), 10, horizon, labels=labels)
     keys = scored.horizon or {}
     out: dict[str, Any] = {"horizon": horizon, "seconds": time.perf_counter() - start}
     for key in KEYS:
         table = keys.get(f"horizon_{key}", {})
         out[key] = {m: [float(v[0]), float(v[-1])] for m, v in table.items()}
+    if "legs" in scored.notes:
+        legs = scored.notes["legs"]
+        out["legs"] = {m: {k: [v[0], v[-1]] for k, v in legs[m].items()} for m in legs}
     out["weights"] = methods[-1].combination.weights()
     out["chosen"] = methods[-1].combination.chosen()
     return out
