@@ -114,12 +114,10 @@ class Combination:
         for k in range(self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
-                stored, rare, seldom, held, before = waiting[0]
+                stored, rare, before = waiting[0]
                 past = stored.astype(np.float64) / 255.0
                 candidates = self._candidates(stack, past, rare)[1] >= DECIDED
-                # where movers went: seldom occupied, and occupied before or now
-                region = seldom & (held | occupied)
-                leader.score(candidates, rare, region, occupied, before)
+                leader.score(candidates, rare, experts.region, occupied, before)
                 stack.learn(past, rare, occupied)
             rare = experts.rare[k]
             p, d = self._candidates(stack, maps[:, k], rare)
@@ -127,8 +125,7 @@ class Combination:
             probability.append(np.where(rare, p[b], p[a]))
             decided.append(np.where(rare, d[b], d[a]))
             quantised = np.rint(np.clip(maps[:, k], 0.0, 1.0) * 255).astype(np.uint8)
-            kinds = (rare.copy(), experts.seldom[k].copy(), experts.held[k].copy())
-            waiting.append((quantised, *kinds, occupied))
+            waiting.append((quantised, rare.copy(), occupied))
         return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
 
     @staticmethod

@@ -8,8 +8,8 @@ simple predictors beside it say about the frames ``t + 1 .. t + K``.
   sensor moves (the ego-moved map), as it is where it stands still;
 - ``temporal_average``: the mean of the last :data:`TA_WINDOW` maps, the same for every ``k``.
 
-Beside the maps, what kind each cell is (:class:`Experts`): rare, seldom occupied, and
-whether it ever held something.
+Beside the maps, which cells are rare (where movers go) for each ``k``, and the region of the
+frame just given where movers went (:class:`Experts`).
 """
 
 from __future__ import annotations
@@ -39,15 +39,15 @@ EXPERTS = ("model", "tracks", "tracker", "copy_last", "temporal_average")
 
 @dataclass(frozen=True)
 class Experts:
-    """The experts' maps for ``t + 1 .. t + K`` ``(E, K, H, W)`` and, per ``k`` ``(K, H, W)``
-    bool, in the sensor frame then: the ``rare`` cells (the tracker's background under its
-    threshold), the ``seldom`` ones (occupied in under :data:`SELDOM` of the frames that saw
-    them so far, never-occupied ones too) and those that ``held`` something before."""
+    """The experts' maps for ``t + 1 .. t + K`` ``(E, K, H, W)``, their ``rare`` cells
+    ``(K, H, W)`` bool in the sensor frame then (the tracker's background under its threshold),
+    and the ``region`` ``(H, W)`` bool of frame ``t`` where movers went, as the mover metric
+    finds it but counted up to ``t``: occupied at least once, and in under :data:`SELDOM` of
+    the frames that saw it."""
 
     maps: np.ndarray
     rare: np.ndarray
-    seldom: np.ndarray
-    held: np.ndarray
+    region: np.ndarray
 
 
 class ExpertMaps:
@@ -89,24 +89,19 @@ class ExpertMaps:
         self._count(occupied, np.asarray(visibility) > 0.5, step.motion)
         assert self._counts is not None and tracker.background is not None
         occupied_count, seen = self._counts
-        kinds = np.stack(
-            [
-                tracker.background < tracker.config.background_threshold,
-                occupied_count < SELDOM * seen,
-                occupied_count > 0,
-            ]
-        ).astype(np.float32)
+        region = (occupied_count > 0) & (occupied_count < SELDOM * seen)
+        rare_now = (tracker.background < tracker.config.background_threshold).astype(np.float32)
         maps = np.empty((len(EXPERTS), horizon, *average.shape), np.float32)
         maps[0] = rollout.model_only[:horizon]
-        masks = np.empty((3, horizon, *average.shape), bool)
+        rare = np.empty((horizon, *average.shape), bool)
         ahead = tracker.ahead(horizon)
         for k in range(1, horizon + 1):
             maps[1, k - 1] = tracks.at(k)
             maps[2, k - 1] = ahead[k - 1]
             maps[3, k - 1] = tracks.moved_to_sensor(occupied, k)
             maps[4, k - 1] = average
-            masks[:, k - 1] = tracks.moved_to_sensor(kinds, k) > 0.5
-        return Experts(maps, masks[0], masks[1], masks[2])
+            rare[k - 1] = tracks.moved_to_sensor(rare_now, k) > 0.5
+        return Experts(maps, rare, region)
 
     def _count(self, occupied: np.ndarray, visible: np.ndarray, motion: np.ndarray | None) -> None:
         if self._counts is None:
