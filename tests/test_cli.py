@@ -368,6 +368,36 @@ def test_predict_says_the_bundled_model_has_no_flow_to_write(tmp_path, capsys):
     assert code == 0 and "note:" not in stdout  # the default topics do not ask for the flow
 
 
+def test_predict_planner_grid_writes_the_largest_probability_at_the_scan_stamp(tmp_path, capsys):
+    from lidarflow.data import read_bag
+    from lidarflow.outputs.grids import GridLayout
+    from lidarflow.outputs.planner import planner_grid
+    from lidarflow.outputs.rosout import map_from_grid_data
+    from lidarflow.predict import Predictor
+    from tests.outputs.test_rosout import read_all
+
+    recording = read_bag(sample_bag_path()).slice(0, 4)
+    rec, out = tmp_path / "short.npz", tmp_path / "o.mcap"
+    recording.save(rec)
+    argv = ["predict", str(rec), "-o", str(out), "--horizon", "3", "--planner-grid"]
+    code, stdout, err = run([*argv, "--topics", "occupancy"], capsys)
+    assert code == 0, err
+    assert "/lidarflow/planner_grid x4" in stdout
+    written = read_all(out)
+    assert set(written) == {"/lidarflow/occupancy", "/lidarflow/planner_grid"}
+    predictor = Predictor(horizon=3)
+    for i, (grid, current) in enumerate(
+        zip(written["/lidarflow/planner_grid"], written["/lidarflow/occupancy"], strict=True)
+    ):
+        assert grid.header == current.header  # the scan's frame and stamp
+        assert grid.info.map_load_time == grid.header.stamp
+        layout = GridLayout.of(predictor.grid)
+        assert (grid.info.width, grid.info.height) == (layout.width, layout.height)
+        expected = planner_grid(predictor.update(recording.scan(i)))
+        got = map_from_grid_data(grid.data, *predictor.grid.shape)
+        np.testing.assert_array_equal(got, expected)
+
+
 def test_predict_topics_usage_error(tmp_path, capsys):
     code, _, err = run(
         ["predict", str(sample_bag_path()), "-o", str(tmp_path / "o.mcap"), "--topics", "flwo"],

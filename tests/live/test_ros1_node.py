@@ -3,9 +3,10 @@ bundled sample, the node as its own process (an ONNX model, the machine loaded b
 process beside it) and a rospy peer run with Debian's python3 (tests/live/ros1_peer.py).
 
 Checked as the bag output's tests check it (tests/outputs/test_rosout.py): one grid per scan on
-every topic, stamps (a grid k frames ahead: the scan's stamp plus k steps, ``map_load_time`` the
-scan's), the scan's frame, the layout the bag output writes, values in -1..100 and the same
-values the Predictor gives offline; and the node's latency under load, within a generous bound
+every topic (the planner grid's too, at the scan's stamp), stamps (a grid k frames ahead: the
+scan's stamp plus k steps, ``map_load_time`` the scan's), the scan's frame, the layout the bag
+output writes, values in -1..100 and the same values the Predictor gives offline; and the
+node's latency under load, within a generous bound
 (benchmarks/bench_ros1.py measures it).
 """
 
@@ -32,7 +33,7 @@ from tests.without_torch import MAIN
 PEER = Path(__file__).with_name("ros1_peer.py")
 SCAN_TOPIC = "/right_scan"  # the sample bag's topic, `right_scan`, as rosbag play names it
 HORIZON = 2
-GRIDS = grid_topics(HORIZON, moving=True, occupancy=False)
+GRIDS = grid_topics(HORIZON, moving=True, occupancy=False, planner=True)
 SECONDS = "10"  # of the sample played, at its recorded pace: 75 scans at 7.5 Hz
 KEEP = 12  # grids per topic compared with the Predictor's own
 
@@ -72,8 +73,8 @@ def test_the_node_publishes_one_grid_per_scan_stamped_laid_out_and_valued_as_off
         node_log = tmp_path / "node.log"
         # a queue that drops nothing, should the loaded machine fall behind the scans
         node = start_node(ros_env, node_log, "-m", str(onnx_model), "--topic", SCAN_TOPIC,
-                          "--horizon", str(HORIZON), "--moving", "-v", "--queue", "1000",
-                          )  # fmt: skip
+                          "--horizon", str(HORIZON), "--moving", "--planner-grid", "-v",
+                          "--queue", "1000")  # fmt: skip
         assert node.poll() is None, node_log.read_text()
         out, peer_log = tmp_path / "peer.json", tmp_path / "peer.log"
         peer = subprocess.Popen(
@@ -114,7 +115,7 @@ def test_the_node_publishes_one_grid_per_scan_stamped_laid_out_and_valued_as_off
             ahead = g["stamp_ns"] - g["scan_stamp_ns"]
             if topic.endswith("/moving"):  # the current map: the scan's own stamp
                 assert ahead == 0 and set(g["values"]) <= {-1, 0, 100}
-            elif i == 0:  # no step known yet
+            elif topic.endswith("/planner_grid") or i == 0:  # the scan's frame; no step yet
                 assert ahead == 0, topic
             elif i >= 5:  # k typical steps ahead
                 assert ahead == pytest.approx(k * step, rel=0.05), (topic, i)
@@ -126,7 +127,8 @@ def test_the_node_publishes_one_grid_per_scan_stamped_laid_out_and_valued_as_off
     # the same grids as the Predictor gives offline, cell for cell
     predictor = Predictor(onnx_model, horizon=HORIZON)
     for i in range(KEEP):
-        offline = {g.topic: g.data for g in prediction_grids(predictor.update(recording.scan(i)))}
+        p = predictor.update(recording.scan(i))
+        offline = {g.topic: g.data for g in prediction_grids(p, GRIDS)}
         for topic in GRIDS:
             np.testing.assert_array_equal(got["kept"][topic][i], offline[topic], err_msg=topic)
 

@@ -29,7 +29,9 @@ def test_by_default_everything_but_the_flow(tmp_path, sample_recording):
     assert {"input"} | PREDICTIONS == DEFAULT_TOPICS
     # The bundled model, the occupancy head alone since v9: no moving cells, no flow, even asked
     counts = predict_to_bag(recording, Predictor(), tmp_path / "b.mcap", topics=set(TOPIC_GROUPS))
-    assert set(counts) == {"/right_scan"} | {f"/lidarflow/{t}" for t in PREDICTIONS - {"moving"}}
+    assert set(counts) == {"/right_scan"} | {
+        f"/lidarflow/{t}" for t in PREDICTIONS - {"moving"} | {"planner_grid"}
+    }
 
 
 def test_flow_comes_with_its_colour_wheel_picture(tmp_path, sample_recording):

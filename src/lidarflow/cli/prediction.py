@@ -140,7 +140,16 @@ TopicsOpt = Annotated[
     typer.Option(
         "--topics",
         help="What to write, comma-separated: input, occupancy, predicted, decided, moving, "
-        "flow; 'default' is all but flow, 'all' everything (e.g. default,flow).",
+        "flow, planner_grid; 'default' is all but flow and planner_grid, 'all' everything "
+        "(e.g. default,flow).",
+    ),
+]
+PlannerGridOpt = Annotated[
+    bool,
+    typer.Option(
+        "--planner-grid",
+        help="Also write /lidarflow/planner_grid: per cell the largest predicted probability "
+        "over the --horizon frames, in the scan's frame, for a local planner.",
     ),
 ]
 
@@ -161,6 +170,7 @@ class PredictOptions:
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
     topics: TopicsOpt = "default"
+    planner_grid: PlannerGridOpt = False
     force: ForceOpt = False
     threads: ThreadsOpt = DEFAULT_THREADS
     jobs: JobsOpt = 1
@@ -182,7 +192,7 @@ def predict(options: PredictOptions) -> None:
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
     o = options
-    groups = _topic_groups(o.topics)
+    groups = _topic_groups(o.topics) | ({"planner_grid"} if o.planner_grid else set())
     outputs = _outputs(o.inputs, o.output)
     for out in outputs:
         folder = output_kind(out) == "ros2"  # a ROS 2 bag is a folder

@@ -46,6 +46,14 @@ HorizonOpt = Annotated[
 PublishMovingOpt = Annotated[
     bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
 ]
+PlannerGridOpt = Annotated[
+    bool,
+    typer.Option(
+        "--planner-grid",
+        help="Also publish /lidarflow/planner_grid: per cell the largest predicted probability "
+        "over the --horizon frames, in the scan's frame, for a local planner.",
+    ),
+]
 QueueOpt = Annotated[
     int,
     typer.Option(help="Scans kept while the model is busy; beyond them the oldest are dropped.",
@@ -95,6 +103,7 @@ class NodeOptions:
     odom_topic: OdomTopicOpt = None
     horizon: HorizonOpt = 1
     moving: PublishMovingOpt = False
+    planner_grid: PlannerGridOpt = False
     combine: CombineOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
@@ -147,8 +156,12 @@ def _serve(kind: str, options: NodeOptions, node_type: Callable[..., RosNode]) -
     o = options
     step = _live_step(o.model, o.grid, o.res, o.horizon, o.moving_threshold, o.summary_every,
                       o.threads, o.moving, o.combine)  # fmt: skip
-    _run(kind, step, lambda: node_type(step, o.topic, o.odom_topic, o.moving, queue=o.queue),
-         o.foxglove, o.host, o.topic)  # fmt: skip
+
+    def make_node() -> RosNode:
+        return node_type(step, o.topic, o.odom_topic, o.moving, queue=o.queue,
+                         planner=o.planner_grid)  # fmt: skip
+
+    _run(kind, step, make_node, o.foxglove, o.host, o.topic)
 
 
 def _live_step(

@@ -38,6 +38,8 @@ class RosNode(ABC):
         name: the node's name.
         queue: scans kept while the node is busy; beyond it the oldest are dropped
             (a node slower than its scanner falls behind by at most this many).
+        planner: also publish the planner grid (:func:`lidarflow.outputs.grids.planner_topic`;
+            :mod:`lidarflow.outputs.planner`).
     """
 
     def __init__(
@@ -48,6 +50,7 @@ class RosNode(ABC):
         moving: bool = False,
         name: str = "lidarflow",
         queue: int = 10,
+        planner: bool = False,
     ) -> None:
         from lidarflow.data.tf import TransformTree
 
@@ -55,7 +58,7 @@ class RosNode(ABC):
         self.step, self.topic, self.odom_topic = step, topic, odom_topic
         self.moving, self.name, self.queue = moving, name, queue
         self.layout = GridLayout.of(step.predictor.grid)
-        self.topics = grid_topics(step.predictor.horizon, moving, occupancy=False)
+        self.topics = grid_topics(step.predictor.horizon, moving, occupancy=False, planner=planner)
         self._publishers: dict[str, Any] = {}
         self._geometry: dict[tuple[float, ...], BeamGeometry] = {}
         self._tree = TransformTree()

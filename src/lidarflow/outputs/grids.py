@@ -34,7 +34,10 @@ __all__ = [
     "OutGrid",
     "grid_data",
     "grid_topics",
+    "grid_values",
+    "laid_out",
     "map_from_grid_data",
+    "planner_topic",
     "prediction_grids",
 ]
 
@@ -79,18 +82,35 @@ class OutGrid:
     scan_stamp_ns: int
 
 
-def grid_data(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
-    """OccupancyGrid ``data`` (int8, ``H * W``) of a probability map ``(H, W)`` in [0, 1].
+def grid_values(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
+    """The ``(H, W)`` int8 map of a probability map ``(H, W)`` in [0, 1]: probability x 100,
+    rounded, ``-1`` where ``unknown``; still in the map's own layout (design notes §2).
 
-    >>> m = np.zeros((2, 3)); m[0, 0] = 1.0  # far-left cell
-    >>> grid_data(m).reshape(3, 2).tolist()  # rows j (along y), columns i (along x)
-    [[0, 0], [0, 0], [0, 100]]
+    >>> grid_values(np.array([[0.004, 0.5, 1.2]]), np.array([[False, False, True]])).tolist()
+    [[0, 50, -1]]
     """
     p = np.clip(np.nan_to_num(np.asarray(probability, np.float64)), 0.0, 1.0)
     values = np.rint(p * 100).astype(np.int8)
     if unknown is not None:
         values[np.asarray(unknown, bool)] = -1
-    return np.ascontiguousarray(values[::-1, ::-1].T).ravel()
+    return values
+
+
+def laid_out(values: np.ndarray) -> np.ndarray:
+    """OccupancyGrid ``data`` (int8, ``H * W``) of an ``(H, W)`` int8 map, in the layout of
+    :class:`GridLayout` (the inverse: :func:`map_from_grid_data`)."""
+    return np.ascontiguousarray(np.asarray(values, np.int8)[::-1, ::-1].T).ravel()
+
+
+def grid_data(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
+    """OccupancyGrid ``data`` (int8, ``H * W``) of a probability map ``(H, W)`` in [0, 1]:
+    :func:`laid_out` of :func:`grid_values`.
+
+    >>> m = np.zeros((2, 3)); m[0, 0] = 1.0  # far-left cell
+    >>> grid_data(m).reshape(3, 2).tolist()  # rows j (along y), columns i (along x)
+    [[0, 0], [0, 0], [0, 100]]
+    """
+    return laid_out(grid_values(probability, unknown))
 
 
 def map_from_grid_data(data: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -102,16 +122,28 @@ def _suffix(k: int) -> str:
     return f"_k{k}" if k > 1 else ""
 
 
+def planner_topic(prefix: str = TOPIC_PREFIX) -> str:
+    """The planner grid's topic (:func:`lidarflow.outputs.planner.planner_grid`)."""
+    return f"{prefix}/planner_grid"
+
+
 def grid_topics(
-    horizon: int = 1, moving: bool = True, occupancy: bool = True, prefix: str = TOPIC_PREFIX
+    horizon: int = 1,
+    moving: bool = True,
+    occupancy: bool = True,
+    prefix: str = TOPIC_PREFIX,
+    planner: bool = False,
 ) -> list[str]:
     """The topics of :func:`prediction_grids` for a Predictor ``horizon`` frames ahead, in its
     order: ``/occupancy`` (where ``occupancy``), ``/predicted`` and ``/decided`` (``_kK`` for
-    ``K > 1``), ``/moving`` (where ``moving``: a flow model's)."""
+    ``K > 1``), ``/moving`` (where ``moving``: a flow model's), ``/planner_grid`` (where
+    ``planner``)."""
     topics = [f"{prefix}/occupancy"] if occupancy else []
     for k in range(1, horizon + 1):
         topics += [f"{prefix}/predicted{_suffix(k)}", f"{prefix}/decided{_suffix(k)}"]
-    return [*topics, f"{prefix}/moving"] if moving else topics
+    if moving:
+        topics.append(f"{prefix}/moving")
+    return [*topics, planner_topic(prefix)] if planner else topics
 
 
 def prediction_grids(
@@ -119,7 +151,9 @@ def prediction_grids(
 ) -> list[OutGrid]:
     """The grids of one prediction (:func:`grid_topics`' topics, in its order; ``/moving`` only
     for a model with flow), only those ``wanted`` where given: what nobody asked for is not
-    computed (the moving cells cost about as much as the rest together).
+    computed (the moving cells cost about as much as the rest together). The planner grid
+    (:func:`lidarflow.outputs.planner.planner_grid`, on :func:`planner_topic`) only where
+    ``wanted`` names it, stamped with the scan's stamp: the frame it lies in.
 
     Unknown (-1): a predicted cell the current scan did not see and that is not decided
     occupied; a current-map cell the scan did not see.
@@ -146,4 +180,9 @@ def prediction_grids(
     if want(topic := f"{prefix}/moving") and p.forward_flow is not None:
         assert p.moving is not None
         out.append(OutGrid(topic, grid_data(p.moving, unseen), scan_ns, scan_ns))
+    if wanted is not None and (topic := planner_topic(prefix)) in wanted:
+        # imported here: the planner module builds on this one's values
+        from lidarflow.outputs.planner import planner_grid
+
+        out.append(OutGrid(topic, laid_out(planner_grid(p)), scan_ns, scan_ns))
     return out

@@ -20,7 +20,10 @@ default, :data:`DEFAULT_TOPICS`), all in the scan's frame:
   ``32FC2``, per map cell the (column, row) displacement in cells, rounded to
   :data:`FLOW_QUANTUM_CELLS`; beside each, ``..._rgb``: the same as an ``rgb8`` colour wheel
   (hue the direction, white no motion, full colour at :data:`FLOW_RGB_FULL_CELLS` cells or
-  more) that Foxglove and RViz show (flow models only).
+  more) that Foxglove and RViz show (flow models only);
+- ``planner_grid`` (not by default): ``/lidarflow/planner_grid``, per cell the largest
+  predicted probability over the horizon's ``k = 1 .. K``, in the scan's frame at the scan's
+  stamp (:mod:`lidarflow.outputs.planner`): one grid a local planner consumes.
 
 Stamps (the team's convention): a map predicted k frames ahead has ``header.stamp`` = the time
 it is for, the scan's stamp plus k typical scan periods (``Prediction.stamp_ahead_ns(k)``), and
@@ -68,10 +71,10 @@ __all__ = [
 ]
 
 #: What ``topics`` may name (see the module).
-TOPIC_GROUPS = ("input", "occupancy", "predicted", "decided", "moving", "flow")
-#: Every group but the flow: two float images per scan were 83 % of an output, and the maps
-#: show what the flow does.
-DEFAULT_TOPICS = frozenset(TOPIC_GROUPS) - {"flow"}
+TOPIC_GROUPS = ("input", "occupancy", "predicted", "decided", "moving", "flow", "planner_grid")
+#: Every group but the flow and the planner grid: two float images per scan were 83 % of an
+#: output, and the maps show what the flow does; the planner grid is for robots that ask.
+DEFAULT_TOPICS = frozenset(TOPIC_GROUPS) - {"flow", "planner_grid"}
 #: The flow images' values are rounded to this (cells): 0.1 mm on the bundled model's 0.1 m
 #: cells, far below what the flow is good for. Their float noise bits compressed by 1.2x;
 #: rounded, by 4x (the sample's forward flow: 19.4 MB raw, 16.1 MB zstd, 4.3 MB rounded).
@@ -210,7 +213,7 @@ def _write_prediction(
     """Write one scan's prediction ``p`` (the scan stamped ``stamp`` in the bag, logged at
     ``at``); returns the topics written."""
     ahead = stamp - p.stamp_ns  # the bag's stamp minus the re-stamped one the predictor saw
-    wanted = {t for t in grid_topics(len(p.horizon)) if _group(t) in groups}
+    wanted = {t for t in grid_topics(len(p.horizon), planner=True) if _group(t) in groups}
     grids = prediction_grids(p, wanted)
     for g in grids:  # on the bag's clock
         g = OutGrid(g.topic, g.data, g.stamp_ns + ahead, g.scan_stamp_ns + ahead)

@@ -85,6 +85,11 @@ class Prediction:
             scan, velocity in m/s once ``step_ns`` is known, its cells); ``None`` where the
             decision policy runs no tracker (:attr:`DecisionPolicy.tracks
             <lidarflow.predict.decision.DecisionPolicy.tracks>`).
+        ahead_motion: ``(3,)`` the motion each step ahead assumes (cells and radians, the pose
+            of the frame ``k + 1`` in frame ``k``'s; :mod:`lidarflow.geometry`'s convention):
+            the map ``k`` frames ahead lies in the sensor frame ``k`` such steps on. ``None``
+            where the maps are not moved (a model without ego motion, or no motion known):
+            they all lie in the frame of the scan just given.
     """
 
     probability: np.ndarray
@@ -100,6 +105,7 @@ class Prediction:
     stamp_ns: int = 0
     step_ns: int | None = None
     tracks: tuple[Track, ...] | None = None
+    ahead_motion: np.ndarray | None = None
 
     def stamp_ahead_ns(self, k: int = 1) -> int:
         """The time the prediction ``k`` frames ahead is for: the scan's stamp plus ``k``
@@ -320,4 +326,5 @@ class Predictor:
             stamp_ns=0 if scan is None else int(scan.stamp_ns),
             step_ns=self._clock.step_ns,
             tracks=None if step.tracks is None else step.tracks.metric(self._clock.step_ns),
+            ahead_motion=None if step.ahead is None else np.array(step.ahead, np.float64),
         )

@@ -1,0 +1,72 @@
+"""The planner grid: the occupancy a local planner should keep away from over the whole horizon,
+as one map in the frame of the scan it was made from.
+
+Per cell, the largest predicted probability over ``k = 1 .. K`` (``Prediction.horizon``),
+x 100 and rounded (0..100); -1 where the cell is unknown: the scan did not see it and no step
+decides it occupied (``Prediction.horizon_occupied``, as the ``/lidarflow/predicted`` grids say
+unknown), or no step's map covers it. One map, laid and published as every other grid
+(:mod:`lidarflow.outputs.grids`), so a planner needs one subscription, not one per ``k``.
+
+Frames: the map ``k`` frames ahead lies in the sensor frame ``k`` frames ahead, which an
+ego-motion model reaches by repeating the motion it assumes (``Prediction.ahead_motion``). Each
+step's map is moved back into the scan's own frame before the maximum, so that a cell of the
+planner grid is one place on the ground (a step's cells beyond its own grid are not covered
+and say nothing). Where the maps are not moved (a model without ego motion, or no motion
+known), they all lie in the scan's frame already.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lidarflow.geometry import Sampler, rigid_positions
+from lidarflow.outputs.grids import grid_values
+from lidarflow.tracking import composed_motion
+
+if TYPE_CHECKING:
+    from lidarflow.predict.predictor import Prediction
+
+__all__ = ["planner_grid", "steps_in_scan_frame"]
+
+
+def steps_in_scan_frame(
+    prediction: Prediction,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(probability, occupied, covered)``, each ``(K, H, W)``: the horizon's maps moved from
+    the sensor frame ``k`` frames ahead into the scan's (bilinear; a decided map stays decided
+    where it moves to at least half a cell), and where each step's grid covers the scan's.
+    Unmoved where ``prediction.ahead_motion`` is ``None`` or zero."""
+    probability = np.asarray(prediction.horizon, np.float64)
+    occupied = np.asarray(prediction.horizon_occupied, bool)
+    motion = prediction.ahead_motion
+    if motion is None or not np.any(np.asarray(motion)):
+        return probability, occupied, np.ones(probability.shape, bool)
+    h, w = probability.shape[-2:]
+    moved = np.empty((len(probability), 3, h, w))
+    for k in range(1, len(probability) + 1):
+        # where each cell of the scan's frame lies in the frame k steps ahead
+        reads = Sampler(*rigid_positions(composed_motion(motion, k), h, w, inverse=True))
+        step = [probability[k - 1], occupied[k - 1], np.ones((h, w))]
+        moved[k - 1] = reads(np.stack(step).astype(np.float64))
+    return moved[:, 0], moved[:, 1] >= 0.5, moved[:, 2] > 0.5
+
+
+def planner_grid(prediction: Prediction) -> np.ndarray:
+    """``(H, W)`` int8 in the map's layout (design notes §2; lay it out with
+    :func:`lidarflow.outputs.grids.laid_out`): per cell the largest probability over the
+    horizon's steps that cover it, x 100 (0..100), -1 unknown (see the module).
+
+    >>> from types import SimpleNamespace
+    >>> p = SimpleNamespace(horizon=np.array([[[0.2, 0.0]], [[0.7, 0.1]]]), ahead_motion=None,
+    ...     horizon_occupied=np.array([[[False, False]], [[True, False]]]),
+    ...     visibility=np.array([[False, False]]))
+    >>> planner_grid(p).tolist()  # seen nowhere: unknown but where a step decides occupied
+    [[70, -1]]
+    """
+    probability, occupied, covered = steps_in_scan_frame(prediction)
+    largest = np.where(covered, probability, 0.0).max(axis=0)
+    unseen = ~np.asarray(prediction.visibility, bool)
+    unknown = (unseen & ~(occupied & covered).any(axis=0)) | ~covered.any(axis=0)
+    return grid_values(largest, unknown)
