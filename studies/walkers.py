@@ -162,11 +162,17 @@ def simulated(walkers: str, seed: int, frames: int) -> tuple[list, float]:
 
 
 def ks(a: Sequence[float], b: Sequence[float]) -> dict[str, float | None]:
-    """Two-sample Kolmogorov-Smirnov D and p-value (None where a sample is empty)."""
+    """Two-sample Kolmogorov-Smirnov D and p-value (None where a sample is empty; the p-value
+    also where scipy, no dependency of lidarflow, is missing)."""
     if not len(a) or not len(b):
         return {"D": None, "p": None}
-    from scipy.stats import ks_2samp
-
+    try:
+        from scipy.stats import ks_2samp
+    except ImportError:
+        x, y = np.sort(a), np.sort(b)
+        at = np.concatenate([x, y])
+        gap = np.searchsorted(x, at, "right") / len(x) - np.searchsorted(y, at, "right") / len(y)
+        return {"D": float(np.abs(gap).max()), "p": None}
     result = ks_2samp(a, b)
     return {"D": float(result.statistic), "p": float(result.pvalue)}
 
@@ -191,8 +197,10 @@ def table(sources: dict[str, dict[str, list]], tests: dict[str, dict[str, dict]]
                 cells.append("-")
                 continue
             cell = f"{s['median']:.2f} [{s['q25']:.2f}, {s['q75']:.2f}] ({s['n']})"
-            if name in tests and tests[name][q]["D"] is not None:
-                cell += f", D {tests[name][q]['D']:.2f} (p {tests[name][q]['p']:.1g})"
+            test = tests.get(name, {}).get(q, {})
+            if test.get("D") is not None:
+                p = "" if test["p"] is None else f" (p {test['p']:.1g})"
+                cell += f", D {test['D']:.2f}{p}"
             cells.append(cell)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

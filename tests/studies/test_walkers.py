@@ -24,3 +24,9 @@ def test_tiny_run_writes_the_table(tmp_path):
     results = walkers.main([*args, "--frames", "60", "--walkers", "social"])
     assert "tracker: simulated social" in results["summary"]
     assert "| tracker: simulated social |" in (tmp_path / "walkers.md").read_text()
+
+
+def test_ks_d_of_two_samples():
+    assert walkers.ks([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])["D"] == 0.0
+    assert walkers.ks([1.0, 2.0], [5.0, 6.0])["D"] == 1.0
+    assert walkers.ks([], [1.0]) == {"D": None, "p": None}
