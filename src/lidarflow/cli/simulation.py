@@ -32,6 +32,10 @@ FramesOpt = Annotated[int, typer.Option("--frames", "-n", help="Number of scans.
 SeedOpt = Annotated[int, typer.Option("--seed", help="Same seed, same data.")]
 SensorOpt = Annotated[str, typer.Option("--sensor", help=_SENSOR_HELP)]
 PeopleOpt = Annotated[int, typer.Option("--people", help="People in the building at once.", min=0)]
+WalkersOpt = Annotated[
+    str,
+    typer.Option("--walkers", help="social (social forces, groups) or legacy (the first model)."),
+]
 OdomDriftOpt = Annotated[
     float,
     typer.Option(
@@ -74,6 +78,7 @@ class SimulateOptions:
     seed: SeedOpt = 0
     sensor: SensorOpt = "tim561"
     people: PeopleOpt = 8
+    walkers: WalkersOpt = "legacy"
     grid: GridOpt = 100
     res: ResOpt = 0.1
     odom_drift: OdomDriftOpt = 0.0
@@ -134,6 +139,8 @@ def _sim_config(options: SimulateOptions) -> Any:
     if o.sensor not in PRESETS:
         choices = ", ".join(PRESETS)
         raise typer.BadParameter(f"one of {choices}, not {o.sensor!r}", param_hint="--sensor")
+    if o.walkers not in ("social", "legacy"):
+        raise typer.BadParameter(f"social or legacy, not {o.walkers!r}", param_hint="--walkers")
     if o.flow_storage not in ("dense", "sparse"):
         hint = "--flow-storage"
         raise typer.BadParameter(f"dense or sparse, not {o.flow_storage!r}", param_hint=hint)
@@ -142,6 +149,7 @@ def _sim_config(options: SimulateOptions) -> Any:
         flow_storage=o.flow_storage,
         sensor=lidar_preset(o.sensor),
         people=PeopleConfig(count=o.people),
+        walkers=o.walkers,
         platform=PlatformConfig(odom_drift=o.odom_drift),
         grid=GridSpec(o.grid, o.grid, o.res),
         episode_frames=o.episode_frames,

@@ -96,6 +96,9 @@ class Crowd:
     ``fov`` (rad) and ``reach`` (m) what it sees, used to choose goals near it and to hide
     appearing and vanishing people from it."""
 
+    #: The longest integration step (s) of the forces.
+    substep = 0.07
+
     def __init__(
         self,
         world: World,
@@ -207,10 +210,14 @@ class Crowd:
         self.timer[i] = self.rng.uniform(*self.cfg.stop_time)
         self.turn[i] = self.rng.uniform(-1.2, 1.2) if self.rng.random() < 0.5 else 0.0
 
+    def _deciders(self) -> range | np.ndarray:
+        """The people who choose their own goals, stops and exits (here everyone)."""
+        return range(len(self.pos))
+
     def _update_states(self, dt: float, sensor: np.ndarray) -> None:
         rng, cfg = self.rng, self.cfg
         self.timer[self.state != WALK] -= dt
-        for i in range(len(self.pos)):
+        for i in self._deciders():
             state = self.state[i]
             if state == OFF:
                 if self.timer[i] <= 0:
@@ -299,7 +306,7 @@ class Crowd:
         idx = np.flatnonzero(self.state != OFF)
         if idx.size == 0:
             return
-        substeps = max(1, math.ceil(dt / 0.07))
+        substeps = max(1, math.ceil(dt / self.substep))
         h = dt / substeps
         for _ in range(substeps):
             force = self._forces(idx, sensor, robot_radius)

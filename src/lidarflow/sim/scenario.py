@@ -40,12 +40,16 @@ from lidarflow.sim.groundtruth import ground_truth
 from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset, measure
 from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
 from lidarflow.sim.platform import Platform, PlatformConfig
+from lidarflow.sim.social import SocialCrowd
 from lidarflow.sim.storage import FLOW_STORAGES, to_sparse
 from lidarflow.sim.world import WorldConfig, build_world
 
 __all__ = ["Episode", "SimConfig", "simulate", "simulate_episode", "write_simulation"]
 
 SCENARIOS = ("static", "dynamic")
+#: The people's models: social forces with groups (:mod:`lidarflow.sim.social`) or the first
+#: walkers (:mod:`lidarflow.sim.people`).
+WALKERS = ("social", "legacy")
 _START_NS = 1_000_000_000
 _EPISODE_GAP_NS = 1_000_000_000
 
@@ -53,8 +57,8 @@ _EPISODE_GAP_NS = 1_000_000_000
 @dataclass(frozen=True)
 class SimConfig:
     """What to simulate. ``scenario`` is ``"static"`` (the robot stands still) or ``"dynamic"``
-    (it drives); the defaults give the paper's setting: a SICK TIM561 at 15 Hz and the
-    100 x 100 x 0.1 m grid."""
+    (it drives); ``walkers`` one of :data:`WALKERS`; the defaults give the paper's setting: a
+    SICK TIM561 at 15 Hz and the 100 x 100 x 0.1 m grid."""
 
     scenario: str = "dynamic"
     sensor: LidarConfig = field(default_factory=lambda: lidar_preset("tim561"))
@@ -65,10 +69,13 @@ class SimConfig:
     episode_frames: int = 1500
     block_frames: int = 32
     flow_storage: str = "dense"
+    walkers: str = "legacy"
 
     def __post_init__(self) -> None:
         if self.scenario not in SCENARIOS:
             raise SimError(f"scenario must be one of {SCENARIOS}, got {self.scenario!r}")
+        if self.walkers not in WALKERS:
+            raise SimError(f"walkers must be one of {WALKERS}, got {self.walkers!r}")
         if self.flow_storage not in FLOW_STORAGES:
             raise SimError(
                 f"flow_storage must be one of {FLOW_STORAGES}, got {self.flow_storage!r}"
@@ -103,7 +110,8 @@ def _dynamics(config: SimConfig, rng: np.random.Generator, frames: int) -> tuple
     platform = Platform(world, config.platform, rng)
     sensor = config.sensor
     reach = sensor.range_max
-    crowd = Crowd(world, config.people, rng, platform.pose, math.radians(sensor.fov_deg), reach)
+    kind = SocialCrowd if config.walkers == "social" else Crowd
+    crowd = kind(world, config.people, rng, platform.pose, math.radians(sensor.fov_deg), reach)
     dt = 1.0 / sensor.rate_hz
     poses = np.empty((frames, 3))
     odom = np.empty((frames, 3))
