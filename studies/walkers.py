@@ -19,6 +19,9 @@ quantity and simulated source, the two-sample Kolmogorov-Smirnov D (and p-value)
 pooled tracker samples of the recordings.
 
     python -m studies.walkers -o runs/walkers [--seeds 3 --frames 900]
+
+Writes OUT/walkers.json (the samples' summaries and the KS statistics) and OUT/walkers.md (the
+table the research page holds).
 """
 
 from __future__ import annotations
