@@ -116,9 +116,9 @@ class Combination:
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
                 stored, rare, before = waiting[0]
                 past = stored.astype(np.float64) / 255.0
-                candidates = self._candidates(stack, past, rare)[1] >= DECIDED
+                stacked = stack.learn(past, rare, occupied)  # as decided before this step
+                candidates = _with_unions(past, stacked) >= DECIDED
                 leader.score(candidates, rare, experts.region, occupied, before)
-                stack.learn(past, rare, occupied)
             rare = experts.rare[k]
             p, d = self._candidates(stack, maps[:, k], rare)
             a, b = leader.choice
@@ -136,9 +136,7 @@ class Combination:
         of :data:`CANDIDATES`: each expert's own and the unions (decided at 0.4), then the
         stacked combination's."""
         p, d = stack.decided(experts, rare)
-        unions = [np.maximum(experts[i], experts[j]) for i, j in _UNIONS]
-        own = np.concatenate([experts, np.stack(unions)])
-        return np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
+        return _with_unions(experts, p), _with_unions(experts, d)
 
     @property
     def nbytes(self) -> int:
@@ -178,3 +176,10 @@ class Combination:
             stack.load_state(mine)
             leader.load_state(mine)
         self.forget_pending()
+
+
+def _with_unions(experts: np.ndarray, stacked: np.ndarray) -> np.ndarray:
+    """The candidates' maps ``(C, H, W)``: the ``experts``' ``(E, H, W)``, their unions
+    (:data:`UNIONS`), then the ``stacked`` combination's ``(H, W)``."""
+    unions = [np.maximum(experts[i], experts[j]) for i, j in _UNIONS]
+    return np.concatenate([experts, np.stack(unions), stacked[None]])

@@ -90,28 +90,23 @@ class Leader:
         self._f1 *= self.decay
         self._tolerant *= self.decay
         changed = occupied != before
-        kinds = (~rare, rare)
+        # the cells each count is over, as rows: (metric, kind) in _f1's order
+        masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).reshape(4, -1)
+        masks = masks.astype(np.float32)
+        flat = decided.reshape(len(decided), -1).astype(np.float32)
+        truth = occupied.reshape(-1).astype(np.float32)
+        tp = (flat * truth) @ masks.T  # (C, 4)
+        predicted = flat @ masks.T
+        true = masks @ truth  # (4,)
+        counts = np.stack([tp, predicted - tp, true - tp], axis=-1)  # (C, 4, 3)
+        self._f1 += counts.reshape(len(decided), 2, 2, 3)
         truth_rare = occupied & region
-        near_truth = near(truth_rare, self.tolerance)
-        for c, predicted in enumerate(decided):
-            for kind, cells in enumerate(kinds):
-                for metric, where in ((_ALL, cells), (_CHANGED, cells & changed)):
-                    p, y = predicted[where], occupied[where]
-                    tp = np.count_nonzero(p & y)
-                    self._f1[c, metric, kind] += (
-                        tp,
-                        np.count_nonzero(p) - tp,
-                        np.count_nonzero(y) - tp,
-                    )
-            guess = predicted & region
-            right = np.count_nonzero(guess & near_truth)
-            found = np.count_nonzero(truth_rare & near(guess, self.tolerance))
-            self._tolerant[c] += (
-                right,
-                np.count_nonzero(guess) - right,
-                found,
-                np.count_nonzero(truth_rare) - found,
-            )
+        guess = decided & region
+        right = np.count_nonzero(guess & near(truth_rare, self.tolerance), axis=(1, 2))
+        found = np.count_nonzero(truth_rare & near(guess, self.tolerance), axis=(1, 2))
+        true_rare = np.count_nonzero(truth_rare)
+        guessed = np.count_nonzero(guess, axis=(1, 2))
+        self._tolerant += np.stack([right, guessed - right, found, true_rare - found], axis=1)
         self.choice = self._best()
 
     def _best(self) -> tuple[int, int]:

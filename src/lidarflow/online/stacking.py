@@ -163,20 +163,27 @@ class HorizonStacking:
         p = self.probability(probabilities, rare)
         return p, rescaled(p, np.where(rare, self.thresholds[1], self.thresholds[0]))
 
-    def learn(self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray) -> None:
+    def learn(
+        self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray
+    ) -> np.ndarray:
         """One step on a pair whose label has arrived: the experts' ``probabilities``
         ``(E, H, W)`` and ``rare`` mask as they were predicted, and the map that came
-        (``occupied`` ``(H, W)``, nonzero where occupied)."""
+        (``occupied`` ``(H, W)``, nonzero where occupied). Returns the decided probability
+        ``(H, W)`` the combination gave that pair before the step, as :meth:`decided`."""
         target = np.asarray(occupied).ravel() > 0.5
         flat_rare = rare.ravel()
         active, design, quiet = self._split(probabilities, rare)
         quiet_p = _sigmoid(self.weights @ quiet)
         p = _sigmoid(self.weights @ design)
+        before = np.where(flat_rare, quiet_p[1], quiet_p[0])
+        before[active] = p
+        before = before.reshape(rare.shape)
+        decided = rescaled(before, np.where(rare, self.thresholds[1], self.thresholds[0]))
         # every cell not active: its features are quiet[:, rare], its label free or occupied
         rest = np.ones(target.size, bool)
         rest[active] = False
-        counts = np.zeros((2, 2))  # [rare, occupied]
-        np.add.at(counts, (flat_rare[rest].astype(int), target[rest].astype(int)), 1)
+        cell = 2 * flat_rare[rest].astype(int) + target[rest]
+        counts = np.bincount(cell, minlength=4).reshape(2, 2).astype(np.float64)  # [rare, occ]
         y = target[active].astype(np.float64)
         gradient = design @ (p - y)
         for kind in (0, 1):
@@ -188,6 +195,7 @@ class HorizonStacking:
         self.weights -= self.config.learning_rate * gradient / (np.sqrt(self._squares) + 1e-12)
         self._count(p, y > 0.5, flat_rare[active], quiet_p, counts)
         self.learned += 1
+        return decided
 
     def _count(
         self,
@@ -203,8 +211,9 @@ class HorizonStacking:
         self._free *= self.config.decay
         index = np.minimum((p * bins).astype(int), bins - 1)
         kind = rare.astype(int)
-        np.add.at(self._occupied, (kind[occupied], index[occupied]), 1)
-        np.add.at(self._free, (kind[~occupied], index[~occupied]), 1)
+        cell = kind * bins + index
+        self._occupied += np.bincount(cell[occupied], minlength=2 * bins).reshape(2, bins)
+        self._free += np.bincount(cell[~occupied], minlength=2 * bins).reshape(2, bins)
         quiet_index = np.minimum((quiet_p * bins).astype(int), bins - 1)
         for k in (0, 1):
             self._free[k, quiet_index[k]] += quiet_counts[k, 0]
