@@ -35,6 +35,39 @@ from studies.movers import horizon_of
 KEYS = ("f1", "changed_f1", "mover_f1_tolerant")
 
 
+class WarmUp:
+    """Each method's all-cell F1 one step ahead, frame by frame (from the horizon tables'
+    predictions): how many frames the combination takes to be at the best baseline."""
+
+    def __init__(self, recording: Any) -> None:
+        self.occupancy = recording.maps()[0]  # (N, H, W) bool on the default grid
+        self.counts: dict[str, list[tuple[int, int, int, int]]] = {}
+
+    def add(self, _name: str, method: str, t: int, predicted: np.ndarray) -> None:
+        if t + 1 >= len(self.occupancy):
+            return
+        truth = self.occupancy[t + 1]
+        guess = np.asarray(predicted[0]) >= 0.4
+        tp = int(np.count_nonzero(guess & truth))
+        fp = int(np.count_nonzero(guess)) - tp
+        fn = int(np.count_nonzero(truth)) - tp
+        self.counts.setdefault(method, []).append((t, tp, fp, fn))
+
+    def frames_until(self, method: str) -> dict[str, Any]:
+        """The frames from the first scored one until ``method``'s F1 over the frames so far
+        is at the best baseline's and stays there (``None``: it never does), and the baseline."""
+
+        def running(name: str) -> np.ndarray:
+            c = np.cumsum(np.array(self.counts[name])[:, 1:], axis=0)
+            return 2 * c[:, 0] / np.maximum(2 * c[:, 0] + c[:, 1] + c[:, 2], 1)
+
+        present = [b for b in BASELINES if b in self.counts]
+        best = np.max([running(b) for b in present], axis=0)
+        below = np.flatnonzero(running(method) < best)
+        until = 0 if not len(below) else int(below[-1]) + 1
+        return {"frames": None if until >= len(best) else until, "scored": len(best)}
+
+
 def labels_of(path: Path) -> Path | None:
     """The hand labels of a development recording: leg_tracker's labelled legs beside
     ``positive_N.bag``, the annotated people inside ``general_tracking_moving_1``."""
@@ -57,9 +90,13 @@ def score(path: Path, model: str | Path | None, config: StackingConfig) -> dict[
     if label_file is not None:
         labels = read_labels(label_file, recording)
     start = time.perf_counter()
-    scored = score_one(path.name, recording, methods, GridSpec(), 10, horizon, labels=labels)
+    curve = WarmUp(recording)
+    scored = score_one(
+        path.name, recording, methods, GridSpec(), 10, horizon, on_ahead=curve.add, labels=labels
+    )
     keys = scored.horizon or {}
     out: dict[str, Any] = {"horizon": horizon, "seconds": time.perf_counter() - start}
+    out["warm_up"] = curve.frames_until("model_combined")
     for key in KEYS:
         table = keys.get(f"horizon_{key}", {})
         out[key] = {m: [float(v[0]), float(v[-1])] for m, v in table.items()}

@@ -20,6 +20,7 @@ def test_the_study_scores_keeps_and_tables_a_recording(tmp_path):
     assert {"model", "model_combined", "copy_last"} <= set(result["f1"])
     assert all(len(v) == 2 for v in result["mover_f1_tolerant"].values())  # k = 1 and K
     assert len(result["chosen"]) == result["horizon"]
+    assert result["warm_up"]["scored"] > 0
     kept = (out / f"{static.stem}.json").stat().st_mtime_ns
     online_combination.main(["-o", str(out), "--recordings", str(static)])  # read back, not rerun
     assert (out / f"{static.stem}.json").stat().st_mtime_ns == kept
