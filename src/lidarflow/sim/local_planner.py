@@ -13,15 +13,14 @@ Cost of a rollout, smallest wins:
 * **collision**: where its disc, grown by ``margin``, reaches an occupied cell (value >= 0.5)
   at some step, ``1000 * (K + 1 - first such step)``: a robot with no way out takes the one
   that hits latest (usually stopping);
-* **proximity**: ``obstacle_weight * sum_k exp(-(clearance_k - radius - margin) / reach)``;
-* **goal**: ``goal_weight`` times the distance from the rollout's end to the goal, plus
-  ``heading_weight`` times the angle between its final heading and the goal;
+* **proximity**: ``obstacle_weight * exp(-(min_k clearance_k - radius - margin) / reach)``;
+* **goal**: ``goal_weight`` times the distance from the rollout's end to the goal (no heading
+  term: one keeps the robot facing a wall between it and the goal);
 * **speed**: ``speed_weight * (max_speed - v)``, so that it does not dawdle.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,9 +54,8 @@ class PlannerConfig:
     turns: int = 11
     margin: float = 0.2
     reach: float = 0.3
-    obstacle_weight: float = 0.5
-    goal_weight: float = 2.0
-    heading_weight: float = 0.3
+    obstacle_weight: float = 1.0
+    goal_weight: float = 1.0
     speed_weight: float = 0.5
 
 
@@ -132,12 +130,10 @@ class LocalPlanner:
         hit = free < 0
         first = np.where(hit.any(1), hit.argmax(1), steps)
         cost = 1000.0 * (steps - first)
-        cost += c.obstacle_weight * np.exp(-np.maximum(free, 0) / c.reach).sum(1)
+        cost += c.obstacle_weight * np.exp(-np.maximum(free.min(1), 0) / c.reach)
         end = paths[:, -1]
         to_goal = goal[None] - end[:, :2]
         cost += c.goal_weight * np.hypot(to_goal[:, 0], to_goal[:, 1])
-        bearing = np.arctan2(to_goal[:, 1], to_goal[:, 0]) - end[:, 2]
-        cost += c.heading_weight * np.abs(np.mod(bearing + math.pi, 2 * math.pi) - math.pi)
         cost += c.speed_weight * (r.max_speed - self.targets[:, 0])
         best = int(np.argmin(cost))
         return float(self.targets[best, 0]), float(self.targets[best, 1])
