@@ -1,0 +1,189 @@
+"""Closed loop: does a robot that plans on lidarflow's predicted maps get through people better?
+
+The same sampling local planner (:mod:`lidarflow.sim.local_planner`) drives a 0.3 m
+differential-drive robot across an open 12 x 12 m hall to a goal 6-10 m away through social
+walkers (:mod:`lidarflow.sim.navigation`), with its obstacles from each of four sources
+(:mod:`lidarflow.sim.obstacles`): ``last_scan``, ``lidarflow`` (the bundled model's maps 1 s
+ahead), ``tracker`` and ``true_future`` (the ceiling). Episode ``seed`` of a crowd size is the
+same scene for every source. Per source and crowd size: success rate and collision rate (95 %
+Wilson intervals), the smallest robot-person centre distance (mean over episodes with people)
+and the time to goal (mean over successes), both with 95 % bootstrap intervals of the mean.
+
+    python benchmarks/bench_navigation.py                  # small: crowds 0 4 8, 10 episodes
+    python benchmarks/bench_navigation.py --episodes 100 --crowds 0 2 4 6 8 10 12   # the full one
+
+The small one takes ~5 minutes on 2 cores; the full one about 25 times that (``--workers``
+spreads episodes over processes). Writes JSON keyed by source, then crowd size (default
+``benchmarks/results/navigation.json``), and a plot beside it (``.png``) where matplotlib is
+installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from _output import machine, write_json
+
+from lidarflow.predict import Predictor
+from lidarflow.sim.navigation import NavConfig, Outcome, run_episode
+from lidarflow.sim.obstacles import SOURCES, make_source
+
+RESULTS = Path(__file__).resolve().parent / "results"
+_PREDICTORS: dict[tuple[Any, int], Predictor] = {}  # one per process, reset every episode
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> list[float] | None:
+    """The 95 % Wilson score interval of a rate ``successes / n`` (``None`` for ``n = 0``)."""
+    if n == 0:
+        return None
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return [max(0.0, centre - half), min(1.0, centre + half)]
+
+
+def bootstrap(values: list[float], rounds: int = 2000) -> list[float] | None:
+    """The 95 % percentile bootstrap interval of the mean of ``values`` (seeded)."""
+    if not values:
+        return None
+    x = np.asarray(values, np.float64)
+    means = x[np.random.default_rng(0).integers(0, len(x), (rounds, len(x)))].mean(1)
+    return [float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))]
+
+
+def episode(job: tuple[str, int, int]) -> tuple[str, int, Outcome]:
+    """Run one ``(source, crowd size, seed)``."""
+    name, walkers, seed = job
+    config = NavConfig(walkers=walkers)
+    predictor = None
+    if name == "lidarflow":
+        key = (config.grid, config.horizon)
+        if key not in _PREDICTORS:
+            _PREDICTORS[key] = Predictor(grid=config.grid, horizon=config.horizon)
+        predictor = _PREDICTORS[key]
+    source = make_source(name, config.grid, config.horizon, predictor)
+    return name, walkers, run_episode(source, seed, config)
+
+
+def summary(outcomes: list[Outcome]) -> dict[str, Any]:
+    """One source and crowd size's rates and means with their intervals."""
+    n = len(outcomes)
+    wins = sum(o.success for o in outcomes)
+    hits = sum(o.collision for o in outcomes)
+    near = [o.min_distance_m for o in outcomes if not math.isnan(o.min_distance_m)]
+    times = [o.time_s for o in outcomes if o.success]
+    return {
+        "episodes": n,
+        "success_rate": wins / n if n else None,
+        "success_rate_ci": wilson(wins, n),
+        "collision_rate": hits / n if n else None,
+        "collision_rate_ci": wilson(hits, n),
+        "timeout_rate": (n - wins - hits) / n if n else None,
+        "min_distance_m": float(np.mean(near)) if near else None,
+        "min_distance_m_ci": bootstrap(near),
+        "time_s": float(np.mean(times)) if times else None,
+        "time_s_ci": bootstrap(times),
+    }
+
+
+def plot(result: dict[str, Any], crowds: list[int], path: Path) -> None:
+    """Four panels against the crowd size, one line per source with its 95 % intervals."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib is not installed: no plot")
+        return
+    panels = [
+        ("success_rate", "success rate"),
+        ("collision_rate", "collision rate"),
+        ("min_distance_m", "min distance to a person (m)"),
+        ("time_s", "time to goal (s)"),
+    ]
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        for i, name in enumerate(SOURCES):
+            rows = [result[name][str(c)] for c in crowds]
+            xs = [
+                c + 0.12 * (i - 1.5)
+                for c, r in zip(crowds, rows, strict=True)
+                if r[key] is not None
+            ]
+            ys = [r[key] for r in rows if r[key] is not None]
+            err = np.array([[r[key] - r[f"{key}_ci"][0], r[f"{key}_ci"][1] - r[key]]
+                            for r in rows if r[key] is not None]).T.reshape(2, -1)  # fmt: skip
+            ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=name)
+        ax.set_xlabel("walkers")
+        ax.set_title(label)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    print(f"wrote {path}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=10, help="seeded episodes per cell")
+    parser.add_argument("--crowds", type=int, nargs="+", default=[0, 4, 8], help="walkers")
+    parser.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES)
+    parser.add_argument("--workers", type=int, default=1, help="processes")
+    parser.add_argument("--json", type=Path, default=RESULTS / "navigation.json")
+    args = parser.parse_args()
+    jobs = [(s, c, e) for c in args.crowds for e in range(args.episodes) for s in args.sources]
+    start = time.perf_counter()
+    done: dict[tuple[str, int], list[Outcome]] = {}
+    if args.workers > 1:
+        with multiprocessing.get_context("fork").Pool(args.workers) as pool:
+            outcomes = list(pool.imap_unordered(episode, jobs))
+    else:
+        outcomes = [episode(job) for job in jobs]
+    for name, walkers, outcome in outcomes:
+        done.setdefault((name, walkers), []).append(outcome)
+    elapsed = time.perf_counter() - start
+    result: dict[str, Any] = {
+        name: {str(c): summary(done.get((name, c), [])) for c in args.crowds}
+        for name in args.sources
+    }
+    config = NavConfig()
+    result["setup"] = {
+        "episodes": args.episodes,
+        "crowds": args.crowds,
+        "hall_m": list(config.hall),
+        "goal_distance_m": list(config.goal_distance),
+        "horizon_frames": config.horizon,
+        "sensor": config.sensor.name,
+        "max_time_s": config.max_time,
+        "walkers": "social",
+        "workers": args.workers,
+        "elapsed_s": round(elapsed, 1),
+        "machine": machine(),
+    }
+    write_json(args.json, result)
+    print(f"{'source':12s} {'crowd':>5s} {'success':>16s} {'collision':>16s} "
+          f"{'min dist m':>18s} {'time s':>18s}")  # fmt: skip
+    for name in args.sources:
+        for c in args.crowds:
+            print(f"{name:12s} {c:5d} " + " ".join(_cell(result[name][str(c)], k) for k in (
+                "success_rate", "collision_rate", "min_distance_m", "time_s")))  # fmt: skip
+    print(f"{len(jobs)} episodes in {elapsed:.0f} s")
+    if set(args.sources) == set(SOURCES):
+        plot(result, args.crowds, args.json.with_suffix(".png"))
+
+
+def _cell(row: dict[str, Any], key: str) -> str:
+    if row[key] is None:
+        return f"{'-':>18s}"
+    lo, hi = row[f"{key}_ci"]
+    return f"{row[key]:6.2f} [{lo:4.2f},{hi:5.2f}]"
+
+
+if __name__ == "__main__":
+    main()
