@@ -8,6 +8,9 @@ ahead), ``tracker`` and ``true_future`` (the ceiling). Episode ``seed`` of a cro
 same scene for every source. Per source and crowd size: success rate and collision rate (95 %
 Wilson intervals), the smallest robot-person centre distance (mean over episodes with people)
 and the time to goal (mean over successes), both with 95 % bootstrap intervals of the mean.
+Beside the last scan, each other source's collisions are compared episode by episode on the
+same scenes (``vs_last_scan``: the scenes where only the last scan collided, where only the
+source did, and the exact two-sided sign test's p-value on those).
 
     python benchmarks/bench_navigation.py                  # small: crowds 0 4 8, 10 episodes
     python benchmarks/bench_navigation.py --episodes 100 --crowds 0 2 4 6 8 10 12   # the full one
@@ -57,7 +60,18 @@ def bootstrap(values: list[float], rounds: int = 2000) -> list[float] | None:
     return [float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))]
 
 
-def episode(job: tuple[str, int, int]) -> tuple[str, int, Outcome]:
+def paired(base: dict[int, Outcome], other: dict[int, Outcome]) -> dict[str, Any]:
+    """Collisions on the same scenes (by seed): where only ``base`` collided (``fewer``),
+    where only ``other`` did (``more``), and the exact two-sided sign test's ``p``."""
+    seeds = base.keys() & other.keys()
+    fewer = sum(base[s].collision and not other[s].collision for s in seeds)
+    more = sum(other[s].collision and not base[s].collision for s in seeds)
+    n = fewer + more
+    tail = sum(math.comb(n, i) for i in range(min(fewer, more) + 1)) / 2**n if n else 1.0
+    return {"fewer_collisions": fewer, "more_collisions": more, "p": min(1.0, 2 * tail)}
+
+
+def episode(job: tuple[str, int, int]) -> tuple[str, int, int, Outcome]:
     """Run one ``(source, crowd size, seed)``."""
     name, walkers, seed = job
     config = NavConfig(walkers=walkers)
@@ -68,7 +82,7 @@ def episode(job: tuple[str, int, int]) -> tuple[str, int, Outcome]:
             _PREDICTORS[key] = Predictor(grid=config.grid, horizon=config.horizon)
         predictor = _PREDICTORS[key]
     source = make_source(name, config.grid, config.horizon, predictor)
-    return name, walkers, run_episode(source, seed, config)
+    return name, walkers, seed, run_episode(source, seed, config)
 
 
 def summary(outcomes: list[Outcome]) -> dict[str, Any]:
@@ -139,19 +153,25 @@ def main() -> None:
     args = parser.parse_args()
     jobs = [(s, c, e) for c in args.crowds for e in range(args.episodes) for s in args.sources]
     start = time.perf_counter()
-    done: dict[tuple[str, int], list[Outcome]] = {}
+    done: dict[tuple[str, int], dict[int, Outcome]] = {}
     if args.workers > 1:
         with multiprocessing.get_context("fork").Pool(args.workers) as pool:
             outcomes = list(pool.imap_unordered(episode, jobs))
     else:
         outcomes = [episode(job) for job in jobs]
-    for name, walkers, outcome in outcomes:
-        done.setdefault((name, walkers), []).append(outcome)
+    for name, walkers, seed, outcome in outcomes:
+        done.setdefault((name, walkers), {})[seed] = outcome
     elapsed = time.perf_counter() - start
     result: dict[str, Any] = {
-        name: {str(c): summary(done.get((name, c), [])) for c in args.crowds}
+        name: {str(c): summary(list(done.get((name, c), {}).values())) for c in args.crowds}
         for name in args.sources
     }
+    if "last_scan" in args.sources:
+        for name in args.sources:
+            for c in args.crowds:
+                if name != "last_scan":
+                    base, other = done.get(("last_scan", c), {}), done.get((name, c), {})
+                    result[name][str(c)]["vs_last_scan"] = paired(base, other)
     config = NavConfig()
     result["setup"] = {
         "episodes": args.episodes,
@@ -173,6 +193,13 @@ def main() -> None:
         for c in args.crowds:
             print(f"{name:12s} {c:5d} " + " ".join(_cell(result[name][str(c)], k) for k in (
                 "success_rate", "collision_rate", "min_distance_m", "time_s")))  # fmt: skip
+    for name in args.sources:
+        for c in args.crowds:
+            if "vs_last_scan" in result[name][str(c)]:
+                v = result[name][str(c)]["vs_last_scan"]
+                print(f"{name:12s} {c:5d} vs last_scan: collides where it does not on "
+                      f"{v['more_collisions']} scenes, avoids where it collides on "
+                      f"{v['fewer_collisions']}; sign test p = {v['p']:.3f}")
     print(f"{len(jobs)} episodes in {elapsed:.0f} s")
     if set(args.sources) == set(SOURCES):
         plot(result, args.crowds, args.json.with_suffix(".png"))
