@@ -117,7 +117,7 @@ class Combination:
                 stored, rare, before = waiting[0]
                 past = stored.astype(np.float64) / 255.0
                 stacked = stack.learn(past, rare, occupied)  # as decided before this step
-                candidates = _with_unions(past, stacked) >= DECIDED
+                candidates = np.concatenate([_with_unions(past), stacked[None]]) >= DECIDED
                 leader.score(candidates, rare, experts.region, occupied, before)
             rare = experts.rare[k]
             p, d = self._candidates(stack, maps[:, k], rare)
@@ -136,7 +136,8 @@ class Combination:
         of :data:`CANDIDATES`: each expert's own and the unions (decided at 0.4), then the
         stacked combination's."""
         p, d = stack.decided(experts, rare)
-        return _with_unions(experts, p), _with_unions(experts, d)
+        own = _with_unions(experts)
+        return np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
 
     @property
     def nbytes(self) -> int:
@@ -178,8 +179,8 @@ class Combination:
         self.forget_pending()
 
 
-def _with_unions(experts: np.ndarray, stacked: np.ndarray) -> np.ndarray:
-    """The candidates' maps ``(C, H, W)``: the ``experts``' ``(E, H, W)``, their unions
-    (:data:`UNIONS`), then the ``stacked`` combination's ``(H, W)``."""
+def _with_unions(experts: np.ndarray) -> np.ndarray:
+    """The candidates' maps but the stacked one's ``(C - 1, H, W)``: the ``experts``'
+    ``(E, H, W)``, then their unions (:data:`UNIONS`)."""
     unions = [np.maximum(experts[i], experts[j]) for i, j in _UNIONS]
-    return np.concatenate([experts, np.stack(unions), stacked[None]])
+    return np.concatenate([experts, np.stack(unions)])

@@ -6,7 +6,8 @@ simple predictors beside it say about the frames ``t + 1 .. t + K``.
 - ``tracker``: the tracking baseline's map (background where it is, the objects moved);
 - ``copy_last``: the last map, moved into the sensor frame ``k`` guessed steps on where the
   sensor moves (the ego-moved map), as it is where it stands still;
-- ``temporal_average``: the mean of the last :data:`TA_WINDOW` maps, the same for every ``k``.
+- ``temporal_average``: the temporal-average baseline (the mean of the last
+  :data:`~lidarflow.baselines.TA_WINDOW` maps), the same for every ``k``.
 
 Beside the maps, which cells are rare (where movers go) for each ``k``, and the region of the
 frame just given where movers went (:class:`Experts`).
@@ -14,13 +15,12 @@ frame just given where movers went (:class:`Experts`).
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.baselines import TA_WINDOW
+from lidarflow.baselines import TA_WINDOW, TemporalAverage
 from lidarflow.geometry import rigid_moved
 
 if TYPE_CHECKING:
@@ -57,18 +57,21 @@ class ExpertMaps:
 
     def __init__(self, horizon: int) -> None:
         self.horizon = horizon
-        self._recent: deque[np.ndarray] = deque(maxlen=TA_WINDOW)
+        self._average = TemporalAverage()  # its defaults decide at 0.4: the mean as it is
         self._counts: np.ndarray | None = None  # (2, H, W): frames occupied, frames seen
 
     def reset(self) -> None:
-        self._recent.clear()
+        self._average.reset()
         self._counts = None
 
     @property
     def nbytes(self) -> int:
-        """The bytes of the maps it keeps (the last few, the counts)."""
-        counts = 0 if self._counts is None else self._counts.nbytes
-        return counts + sum(m.nbytes for m in self._recent)
+        """The bytes of the maps it keeps: the counts and, at most, the temporal average's
+        last :data:`TA_WINDOW` maps (float32)."""
+        if self._counts is None:
+            return 0
+        height, width = self._counts.shape[1:]
+        return self._counts.nbytes + TA_WINDOW * height * width * 4
 
     def of(
         self,
@@ -84,13 +87,13 @@ class ExpertMaps:
         if tracks is None or len(rollout.model_only) < horizon:
             raise ValueError(f"need a step with tracked objects and a roll-out {horizon} ahead")
         occupied = np.asarray(occupancy) > 0.5
-        self._recent.append(occupied.astype(np.float32))
-        average = np.mean(self._recent, axis=0)
+        average = self._average.update(occupied.astype(np.float32), visibility)
         self._count(occupied, np.asarray(visibility) > 0.5, step.motion)
         assert self._counts is not None and tracker.background is not None
         occupied_count, seen = self._counts
         region = (occupied_count > 0) & (occupied_count < SELDOM * seen)
-        rare_now = (tracker.background < tracker.config.background_threshold).astype(np.float32)
+        rare_now = tracker.background < tracker.config.background_threshold
+        now = np.stack([occupied, rare_now])  # moved alike, k steps on
         maps = np.empty((len(EXPERTS), horizon, *average.shape), np.float32)
         maps[0] = rollout.model_only[:horizon]
         rare = np.empty((horizon, *average.shape), bool)
@@ -98,9 +101,10 @@ class ExpertMaps:
         for k in range(1, horizon + 1):
             maps[1, k - 1] = tracks.at(k)
             maps[2, k - 1] = ahead[k - 1]
-            maps[3, k - 1] = tracks.moved_to_sensor(occupied, k)
+            moved = tracks.moved_to_sensor(now, k)
+            maps[3, k - 1] = moved[0]
             maps[4, k - 1] = average
-            rare[k - 1] = tracks.moved_to_sensor(rare_now, k) > 0.5
+            rare[k - 1] = moved[1] > 0.5
         return Experts(maps, rare, region)
 
     def _count(self, occupied: np.ndarray, visible: np.ndarray, motion: np.ndarray | None) -> None:

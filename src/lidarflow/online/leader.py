@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidarflow.geometry import TOLERANCE, near
+from lidarflow.online.stacking import f1_of
 
 __all__ = ["Leader"]
 
@@ -114,7 +115,7 @@ class Leader:
         # cells plus b's rare ones
         total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)
         tp, fp, fn = total[..., 0], total[..., 1], total[..., 2]
-        f1 = _f1(tp, fp + fn)  # (a, b, metric)
+        f1 = f1_of(tp, fp + fn)  # (a, b, metric)
         right, wrong, found, missed = self._tolerant.T
         precision = _ratio(right, right + wrong)
         recall = _ratio(found, found + missed)
@@ -132,10 +133,6 @@ class Leader:
             score = sum(m + LOSS_WEIGHT * np.minimum(m, 0.0) for m in margins)
         a, b = np.unravel_index(int(np.argmax(score)), score.shape)
         return int(a), int(b)
-
-
-def _f1(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
-    return _ratio(2 * tp, 2 * tp + wrong)
 
 
 def _ratio(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HorizonStacking", "StackingConfig", "rescaled"]
+__all__ = ["HorizonStacking", "StackingConfig", "f1_of", "rescaled"]
 
 #: The metric's threshold: a decided probability counts as occupied at or above it.
 DECIDED = 0.4
@@ -90,7 +90,6 @@ class HorizonStacking:
         """Back to the start: the prior expert's logit alone, nothing counted."""
         self.weights = np.zeros(self.features)
         self.weights[2 + self.prior] = self._limit  # sigmoid(limit * l) is the expert's own p
-        self.weights[0] = 0.0
         self._squares = np.zeros(self.features)
         bins = self.config.bins
         # decayed counts per (rare, bin of the combined probability) of occupied and free cells
@@ -148,20 +147,32 @@ class HorizonStacking:
         quiet = self._design(floor, np.array([False, True]))
         return active, design, quiet
 
+    @staticmethod
+    def _laid_out(
+        active: np.ndarray, p: np.ndarray, quiet_p: np.ndarray, rare: np.ndarray
+    ) -> np.ndarray:
+        """The grid ``(H, W)`` of the ``active`` cells' ``p`` and the quiet cells' of their
+        kind (``quiet_p``: not rare, rare)."""
+        out = np.where(rare.ravel(), quiet_p[1], quiet_p[0])
+        out[active] = p
+        return out.reshape(rare.shape)
+
+    def _decide(self, p: np.ndarray, rare: np.ndarray) -> np.ndarray:
+        """``p`` rescaled at the thresholds of each cell's kind (:func:`rescaled`)."""
+        return rescaled(p, np.where(rare, self.thresholds[1], self.thresholds[0]))
+
     def probability(self, probabilities: np.ndarray, rare: np.ndarray) -> np.ndarray:
         """The combined probability ``(H, W)`` float64 of the experts' ``probabilities``
         ``(E, H, W)`` with ``rare`` ``(H, W)`` bool."""
         active, design, quiet = self._split(probabilities, rare)
-        base = _sigmoid(self.weights @ quiet)
-        out = np.where(rare.ravel(), base[1], base[0])
-        out[active] = _sigmoid(self.weights @ design)
-        return out.reshape(rare.shape)
+        quiet_p = _sigmoid(self.weights @ quiet)
+        return self._laid_out(active, _sigmoid(self.weights @ design), quiet_p, rare)
 
     def decided(self, probabilities: np.ndarray, rare: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The combined probability and the decided one (:func:`rescaled` at the thresholds of
         the cell's kind), each ``(H, W)``."""
         p = self.probability(probabilities, rare)
-        return p, rescaled(p, np.where(rare, self.thresholds[1], self.thresholds[0]))
+        return p, self._decide(p, rare)
 
     def learn(
         self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray
@@ -175,10 +186,7 @@ class HorizonStacking:
         active, design, quiet = self._split(probabilities, rare)
         quiet_p = _sigmoid(self.weights @ quiet)
         p = _sigmoid(self.weights @ design)
-        before = np.where(flat_rare, quiet_p[1], quiet_p[0])
-        before[active] = p
-        before = before.reshape(rare.shape)
-        decided = rescaled(before, np.where(rare, self.thresholds[1], self.thresholds[0]))
+        decided = self._decide(self._laid_out(active, p, quiet_p, rare), rare)
         # every cell not active: its features are quiet[:, rare], its label free or occupied
         rest = np.ones(target.size, bool)
         rest[active] = False
@@ -237,17 +245,19 @@ def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) 
     # all cells: every pair (i common, j rare)
     all_tp = tp[0][:, None] + tp[1][None, :]
     all_wrong = (fp[0] + fn[0])[:, None] + (fp[1] + fn[1])[None, :]
-    f1_all = _f1(all_tp, all_wrong)
-    f1_rare = _f1(tp[1], fp[1] + fn[1])[None, :]
+    f1_all = f1_of(all_tp, all_wrong)
+    f1_rare = f1_of(tp[1], fp[1] + fn[1])[None, :]
     score = f1_all + rare_weight * f1_rare
     i, j = np.unravel_index(int(np.argmax(score)), score.shape)
     edges = np.arange(bins) / bins
     return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])
 
 
-def _f1(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
+def f1_of(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
+    """F1 from true positives and wrong cells (false positives plus false negatives),
+    elementwise; 0 where there is nothing either way."""
     denominator = 2 * tp + wrong
-    return np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1e-12), 0.0)
+    return np.where(denominator > 0, 2 * tp / np.where(denominator > 0, denominator, 1.0), 0.0)
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
