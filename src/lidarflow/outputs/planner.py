@@ -32,15 +32,15 @@ __all__ = ["planner_grid", "steps_in_scan_frame"]
 
 
 def steps_in_scan_frame(
-    prediction: Prediction,
+    horizon: np.ndarray, horizon_occupied: np.ndarray, motion: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(probability, occupied, covered)``, each ``(K, H, W)``: the horizon's maps moved from
-    the sensor frame ``k`` frames ahead into the scan's (bilinear; a decided map stays decided
-    where it moves to at least half a cell), and where each step's grid covers the scan's.
-    Unmoved where ``prediction.ahead_motion`` is ``None`` or zero."""
-    probability = np.asarray(prediction.horizon, np.float64)
-    occupied = np.asarray(prediction.horizon_occupied, bool)
-    motion = prediction.ahead_motion
+    """``(probability, occupied, covered)``, each ``(K, H, W)``: the maps ``1..K`` ahead
+    (``horizon`` and the decided ``horizon_occupied``, as a :class:`Prediction` holds them),
+    each in the sensor frame ``k`` steps of ``motion`` on, moved into the scan's (bilinear; a
+    decided map stays decided where it moves to at least half a cell), and where each step's
+    grid covers the scan's. Unmoved where ``motion`` is ``None`` or zero."""
+    probability = np.asarray(horizon, np.float64)
+    occupied = np.asarray(horizon_occupied, bool)
     if motion is None or not np.any(np.asarray(motion)):
         return probability, occupied, np.ones(probability.shape, bool)
     h, w = probability.shape[-2:]
@@ -65,7 +65,9 @@ def planner_grid(prediction: Prediction) -> np.ndarray:
     >>> planner_grid(p).tolist()  # seen nowhere: unknown but where a step decides occupied
     [[70, -1]]
     """
-    probability, occupied, covered = steps_in_scan_frame(prediction)
+    probability, occupied, covered = steps_in_scan_frame(
+        prediction.horizon, prediction.horizon_occupied, prediction.ahead_motion
+    )
     largest = np.where(covered, probability, 0.0).max(axis=0)
     unseen = ~np.asarray(prediction.visibility, bool)
     unknown = (unseen & ~(occupied & covered).any(axis=0)) | ~covered.any(axis=0)

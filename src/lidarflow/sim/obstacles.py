@@ -20,7 +20,6 @@ LocalPlanner` checks its rollouts against:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import Any, Protocol
 
 import numpy as np
@@ -76,8 +75,7 @@ class _LastScan:
 def _in_scan_frame(horizon: np.ndarray, motion: np.ndarray | None) -> np.ndarray:
     """Maps ``1..K`` ahead, each in the sensor frame ``k`` steps of ``motion`` on, moved back
     into the frame they were predicted from (decided where >= 0.5, not covered: free)."""
-    ahead = SimpleNamespace(horizon=horizon, horizon_occupied=horizon >= 0.5, ahead_motion=motion)
-    _, occupied, covered = steps_in_scan_frame(ahead)  # type: ignore[arg-type]
+    _, occupied, covered = steps_in_scan_frame(horizon, horizon >= 0.5, motion)
     return (occupied & covered).astype(np.float32)
 
 
