@@ -25,6 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from lidarflow.errors import SimError
+from lidarflow.geometry import metric_to_cell
 from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.outputs.planner import steps_in_scan_frame
 from lidarflow.scan import GridSpec, Scan
@@ -130,7 +131,7 @@ class _TrueFuture:
         the discs at ``local (N, 2)`` metres in the sensor frame."""
         g = self.grid
         h, w = g.shape
-        centre = np.column_stack([h - 0.5 - local[:, 0] / g.res, w / 2 - 0.5 - local[:, 1] / g.res])
+        centre = np.column_stack(metric_to_cell(local[:, 0], local[:, 1], h, w, g.res))
         cells = np.round(centre)[:, None, :].astype(np.int64) + self._near[None]
         gap = np.hypot(*(cells - centre[:, None, :]).transpose(2, 0, 1)) * g.res
         inside = (cells[..., 0] >= 0) & (cells[..., 0] < h) & (cells[..., 1] >= 0)
