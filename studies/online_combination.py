@@ -22,12 +22,9 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.sources import load_any
-from lidarflow.evaluate.combined_method import CombinedMethod
 from lidarflow.evaluate.evaluation import score_one
 from lidarflow.evaluate.labels import read_labels
 from lidarflow.evaluate.methods import methods_and_config
-from lidarflow.online.stacking import StackingConfig
-from lidarflow.predict.backends import load_backend
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, read_json, stem, write_json
 from studies.movers import horizon_of
@@ -77,14 +74,11 @@ def labels_of(path: Path) -> Path | None:
     return path if stem(path) == "general_tracking_moving_1" else None
 
 
-def score(path: Path, model: str | Path | None, config: StackingConfig) -> dict[str, Any]:
+def score(path: Path, model: str | Path | None) -> dict[str, Any]:
     recording = load_any(path)
     horizon = horizon_of(recording)
-    methods, _ = methods_and_config([model], names=["model"])
-    net, card = load_backend(model)
-    methods.append(
-        CombinedMethod("model_combined", net, horizon, decision=card["decision"], config=config)
-    )
+    # the model, and the model combined online last (model_combined), as evaluate --combine
+    methods, _ = methods_and_config([model], names=["model"], combine=horizon)
     labels = None
     label_file = labels_of(path)
     if label_file is not None:
@@ -113,13 +107,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--recordings", nargs="*", type=Path, default=None)
     p.add_argument("--fold-runs", type=Path, default=None, help="FOLDER/<recording>/run models")
     p.add_argument("--model", default=None, help="one model for every recording (default bundled)")
-    p.add_argument("--learning-rate", type=float, default=StackingConfig.learning_rate)
-    p.add_argument("--rare-weight", type=float, default=StackingConfig.rare_weight)
-    p.add_argument("--decay", type=float, default=StackingConfig.decay)
     args = parse(p, argv)
-    config = StackingConfig(
-        learning_rate=args.learning_rate, rare_weight=args.rare_weight, decay=args.decay
-    )
     out: Path = args.output
     results = {}
     for path in args.recordings or development():
@@ -130,9 +118,7 @@ def main(argv: list[str] | None = None) -> None:
             model = args.model
             if args.fold_runs is not None:
                 model = args.fold_runs / stem(path) / "run"
-            results[stem(path)] = write_json(target, score(path, model, config)) and read_json(
-                target
-            )
+            results[stem(path)] = write_json(target, score(path, model)) and read_json(target)
         show(stem(path), results[stem(path)])
     write_json(out / "summary.json", results)
 
