@@ -16,14 +16,16 @@ source did, and the exact two-sided sign test's p-value on those).
     python benchmarks/bench_navigation.py --episodes 100 --crowds 0 2 4 6 8 10 12   # the full one
 
 The small one takes ~5 minutes on 2 cores; the full one about 25 times that (``--workers``
-spreads episodes over processes). Writes JSON keyed by source, then crowd size (default
-``benchmarks/results/navigation.json``), and a plot beside it (``.png``) where matplotlib is
-installed.
+spreads episodes over processes; ``--log FILE`` keeps every finished episode, one JSON line
+each, and a rerun with the same log skips them, so a long run can stop and resume). Writes JSON
+keyed by source, then crowd size (default ``benchmarks/results/navigation.json``), and a plot
+beside it (``.png``) where matplotlib is installed.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing
 import time
@@ -83,6 +85,31 @@ def episode(job: tuple[str, int, int]) -> tuple[str, int, int, Outcome]:
         predictor = _PREDICTORS[key]
     source = make_source(name, config.grid, config.horizon, predictor)
     return name, walkers, seed, run_episode(source, seed, config)
+
+
+def read_log(path: Path | None) -> dict[tuple[str, int, int], Outcome]:
+    """The episodes a previous run finished, by ``(source, crowd size, seed)``; a torn last
+    line (the run killed while writing it) is skipped."""
+    if path is None or not path.exists():
+        return {}
+    done = {}
+    for line in path.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        outcome = Outcome(row["success"], row["collision"], row["time_s"],
+                          row["min_distance_m"], np.zeros((0, 3)))  # fmt: skip
+        done[(row["source"], row["walkers"], row["seed"])] = outcome
+    return done
+
+
+def log_line(name: str, walkers: int, seed: int, outcome: Outcome) -> str:
+    """One finished episode as a JSON line (the path is not kept)."""
+    row = {"source": name, "walkers": walkers, "seed": seed, "success": outcome.success,
+           "collision": outcome.collision, "time_s": outcome.time_s,
+           "min_distance_m": outcome.min_distance_m}  # fmt: skip
+    return json.dumps(row) + "\n"
 
 
 def summary(outcomes: list[Outcome]) -> dict[str, Any]:
@@ -150,15 +177,30 @@ def main() -> None:
     parser.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES)
     parser.add_argument("--workers", type=int, default=1, help="processes")
     parser.add_argument("--json", type=Path, default=RESULTS / "navigation.json")
+    parser.add_argument("--log", type=Path, help="JSON lines of finished episodes (resumable)")
     args = parser.parse_args()
     jobs = [(s, c, e) for c in args.crowds for e in range(args.episodes) for s in args.sources]
+    logged = read_log(args.log)
+    todo = [job for job in jobs if job not in logged]
+    if logged:
+        print(f"{len(jobs) - len(todo)} of {len(jobs)} episodes already in {args.log}")
     start = time.perf_counter()
+    outcomes = [(*job, logged[job]) for job in jobs if job in logged]
+    log = None
+    if args.log:
+        torn = args.log.exists() and not args.log.read_bytes().endswith(b"\n")
+        log = args.log.open("a")
+        log.write("\n" if torn and args.log.stat().st_size else "")
+    pool = multiprocessing.get_context("fork").Pool(args.workers) if args.workers > 1 else _Serial()
+    with pool:
+        for finished in pool.imap_unordered(episode, todo):
+            outcomes.append(finished)
+            if log:
+                log.write(log_line(*finished))
+                log.flush()
+    if log:
+        log.close()
     done: dict[tuple[str, int], dict[int, Outcome]] = {}
-    if args.workers > 1:
-        with multiprocessing.get_context("fork").Pool(args.workers) as pool:
-            outcomes = list(pool.imap_unordered(episode, jobs))
-    else:
-        outcomes = [episode(job) for job in jobs]
     for name, walkers, seed, outcome in outcomes:
         done.setdefault((name, walkers), {})[seed] = outcome
     elapsed = time.perf_counter() - start
@@ -203,6 +245,19 @@ def main() -> None:
     print(f"{len(jobs)} episodes in {elapsed:.0f} s")
     if set(args.sources) == set(SOURCES):
         plot(result, args.crowds, args.json.with_suffix(".png"))
+
+
+class _Serial:
+    """A pool of one: the episodes in this process, in order."""
+
+    def __enter__(self) -> _Serial:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def imap_unordered(self, fn: Any, jobs: list[Any]) -> Any:
+        return map(fn, jobs)
 
 
 def _cell(row: dict[str, Any], key: str) -> str:

@@ -34,3 +34,32 @@ def test_bench_navigation_writes_every_source_and_crowd(tmp_path):
                 assert key in row and f"{key}_ci" in row
         assert result[source]["0"]["min_distance_m"] is None  # nobody to keep away from
     assert result["setup"]["crowds"] == [0, 2]
+
+
+@pytest.mark.slow
+def test_bench_navigation_resumes_from_its_log(tmp_path):
+    """A rerun with the same log runs nothing again and reports the same numbers; a torn last
+    line (a run killed while writing it) is run again, not misread."""
+    log = tmp_path / "episodes.jsonl"
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
+
+    def run(out: Path) -> subprocess.CompletedProcess:
+        args = ["--episodes", "2", "--crowds", "2", "--sources", "last_scan", "tracker",
+                "--json", str(out), "--log", str(log)]  # fmt: skip
+        return subprocess.run(
+            [sys.executable, str(ROOT / "benchmarks" / "bench_navigation.py"), *args],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+
+    first = run(tmp_path / "a.json")
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert len(log.read_text().splitlines()) == 4
+    log.write_text(log.read_text()[:-20])  # the last episode torn
+    second = run(tmp_path / "b.json")
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert "3 of 4 episodes already in" in second.stdout
+    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+    for source in ("last_scan", "tracker"):
+        assert a[source] == b[source]
+    rows = [json.loads(line) for line in log.read_text().splitlines()[-1:]]
+    assert rows[0]["source"] in ("last_scan", "tracker")  # the rerun's line stands on its own
