@@ -14,6 +14,7 @@ same frames)::
 
 from __future__ import annotations
 
+import copy
 import sys
 import time
 from pathlib import Path
@@ -25,6 +26,9 @@ from lidarflow.data.sources import load_any
 from lidarflow.evaluate.evaluation import score_one
 from lidarflow.evaluate.labels import read_labels
 from lidarflow.evaluate.methods import methods_and_config
+from lidarflow.evaluate.model_method import ModelMethod
+from lidarflow.predict.engine import Engine
+from lidarflow.predict.learning import HeadLearning, LearningConfig
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, read_json, stem, write_json
 from studies.movers import horizon_of
@@ -74,11 +78,30 @@ def labels_of(path: Path) -> Path | None:
     return path if stem(path) == "general_tracking_moving_1" else None
 
 
-def score(path: Path, model: str | Path | None) -> dict[str, Any]:
+def learning_methods(model: ModelMethod, rates: list[float]) -> list[ModelMethod]:
+    """The model again, its head learning on the stream at each Adam step size in ``rates``
+    (``model_learning_RATE``), each on its own copy of the weights."""
+    out = []
+    for rate in rates:
+        backend = copy.deepcopy(model.backend)
+        method = ModelMethod(f"model_learning_{rate:g}", backend, decision=backend.decision)
+        learning = HeadLearning(backend, LearningConfig(rate=rate))
+        method.engine = Engine(backend, 0.1, model.engine.policy, learning=learning)
+        method.online = method.engine.decision
+        out.append(method)
+    return out
+
+
+def score(
+    path: Path, model: str | Path | None, combine: bool = True, rates: list[float] | None = None
+) -> dict[str, Any]:
     recording = load_any(path)
     horizon = horizon_of(recording)
     # the model, and the model combined online last (model_combined), as evaluate --combine
-    methods, _ = methods_and_config([model], names=["model"], combine=horizon)
+    methods, _ = methods_and_config([model], names=["model"], combine=horizon if combine else None)
+    combination = methods[-1] if combine else None
+    model_method = next(m for m in methods if getattr(m, "name", "") == "model")
+    methods += learning_methods(model_method, rates or [])
     labels = None
     label_file = labels_of(path)
     if label_file is not None:
@@ -90,15 +113,22 @@ def score(path: Path, model: str | Path | None) -> dict[str, Any]:
     )
     keys = scored.horizon or {}
     out: dict[str, Any] = {"horizon": horizon, "seconds": time.perf_counter() - start}
-    out["warm_up"] = curve.frames_until("model_combined")
+    out["warm_up"] = {m.name: curve.frames_until(m.name) for m in methods[-len(rates or []) - 1 :]}
     for key in KEYS:
         table = keys.get(f"horizon_{key}", {})
         out[key] = {m: [float(v[0]), float(v[-1])] for m, v in table.items()}
     if "legs" in scored.notes:
         legs = scored.notes["legs"]
         out["legs"] = {m: {k: [v[0], v[-1]] for k, v in legs[m].items()} for m in legs}
-    out["weights"] = methods[-1].combination.weights()
-    out["chosen"] = methods[-1].combination.chosen()
+    if combination is not None:
+        out["weights"] = combination.combination.weights()
+        out["chosen"] = combination.combination.chosen()
+    learnt = [m.engine.learning for m in methods if m.name.startswith("model_learning")]
+    out["learning"] = {
+        f"{learning.config.rate:g}": {"frames": learning.frames, "fallbacks": learning.fallbacks,
+                                      "loss": learning.loss, "shipped_loss": learning.shipped_loss}
+        for learning in learnt
+    }  # fmt: skip
     return out
 
 
@@ -107,6 +137,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--recordings", nargs="*", type=Path, default=None)
     p.add_argument("--fold-runs", type=Path, default=None, help="FOLDER/<recording>/run models")
     p.add_argument("--model", default=None, help="one model for every recording (default bundled)")
+    p.add_argument("--no-combine", action="store_true", help="leave the combination out")
+    p.add_argument("--learn-rates", nargs="*", type=float, default=[],
+                   help="also the model learning on the stream at these step sizes")  # fmt: skip
     args = parse(p, argv)
     out: Path = args.output
     results = {}
@@ -118,7 +151,8 @@ def main(argv: list[str] | None = None) -> None:
             model = args.model
             if args.fold_runs is not None:
                 model = args.fold_runs / stem(path) / "run"
-            results[stem(path)] = write_json(target, score(path, model)) and read_json(target)
+            result = score(path, model, not args.no_combine, args.learn_rates)
+            results[stem(path)] = write_json(target, result) and read_json(target)
         show(stem(path), results[stem(path)])
     write_json(out / "summary.json", results)
 
@@ -192,7 +226,10 @@ def table(folders: list[Path], methods: tuple[str, ...] = ("model", "model_combi
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["table"]:
-        print(table([Path(f) for f in sys.argv[2:]]))
+    if sys.argv[1:2] == ["table"]:  # table FOLDER... [--methods NAME...]
+        args = sys.argv[2:]
+        shown = args[args.index("--methods") + 1 :] if "--methods" in args else []
+        folders = args[: args.index("--methods")] if shown else args
+        print(table([Path(f) for f in folders], *([tuple(shown)] if shown else [])))
     else:
         main()

@@ -229,3 +229,13 @@ def test_a_sparse_map_moved_around_its_cells_is_the_dense_move_to_the_bit() -> N
         second = rigid_moved(image, motion, res)  # the sampler built and kept
         dense = Sampler(*rigid_positions(motion, h, w, res))(image)
         assert np.array_equal(first, dense) and np.array_equal(second, dense)
+
+
+def test_a_samplers_adjoint_is_its_transpose() -> None:
+    """<S x, g> = <x, S^T g> for a rigid move, cells leaving the map included."""
+    from lidarflow.geometry import Sampler, rigid_positions
+
+    rng = np.random.default_rng(4)
+    sampler = Sampler(*rigid_positions(np.array([2.3, -1.6, 0.2]), 13, 11))
+    x, g = rng.random((13, 11)), rng.random((13, 11))
+    assert np.sum(sampler(x) * g) == pytest.approx(np.sum(x * sampler.adjoint(g)), rel=1e-12)

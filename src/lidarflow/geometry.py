@@ -228,6 +228,17 @@ class Sampler:
         flat = maps.reshape(-1, maps.shape[-2] * maps.shape[-1])
         return _gathered(flat, self._index, weight).reshape(maps.shape)
 
+    def adjoint(self, grads: np.ndarray) -> np.ndarray:
+        """The transpose of this sampling, float64: ``grads`` ``(H, W)`` on a sampled map ->
+        the gradient on the map it was sampled from (each cell gets the weighted sum of the
+        grads of the positions that read it)."""
+        grads = np.asarray(grads, np.float64)
+        if grads.shape != self.shape:
+            raise ValueError(f"grads must be {self.shape}, got {grads.shape}")
+        spread = self._weight * grads.reshape(1, -1)
+        total = np.bincount(self._index.ravel(), spread.ravel(), grads.size)
+        return total.reshape(self.shape)
+
 
 def warp_map(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
     """``out(p) = image(p + flow(p))`` ``(H, W)`` float64, bilinear, zero where ``p + flow(p)``

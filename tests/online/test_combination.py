@@ -67,7 +67,7 @@ def test_the_combination_starts_as_the_model_and_its_horizon_is_the_predictors(s
 
 
 def test_saving_or_loading_without_the_combination_and_a_wrong_file_are_refused(tmp_path):
-    with pytest.raises(PredictError, match="does not combine"):
+    with pytest.raises(PredictError, match="neither combines nor learns"):
         Predictor().save_learned(tmp_path / "x.npz")
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not an npz")

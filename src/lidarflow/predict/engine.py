@@ -40,6 +40,7 @@ from lidarflow.motion.odometry import OdometryCheck
 from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
+from lidarflow.predict.learning import HeadLearning
 from lidarflow.predict.offsets import decided_probability, moved_last_map
 from lidarflow.predict.step import Backend, StepInputs
 from lidarflow.scan import takes_subcell
@@ -119,6 +120,9 @@ class Engine:
             or disagrees (off: those steps run uncompensated).
         oracle: an ego-motion model takes the frame's true ``next_motion`` instead of the
             causal guess (an upper bound that needs the future; evaluation only).
+        learning: the head learns on the stream (:mod:`lidarflow.predict.learning`): each
+            frame's occupancy is the label of the step before it, unless the frame comes after
+            a long step in time (``pace``: its label would be of another moment).
     """
 
     def __init__(
@@ -129,8 +133,13 @@ class Engine:
         check_odometry: bool = True,
         scan_odometry: bool = True,
         oracle: bool = False,
+        learning: HeadLearning | None = None,
     ) -> None:
         self.backend = backend
+        if learning is not None and learning.backend is not backend:
+            raise ValueError("the head that learns must be the backend the engine runs")
+        self.learning = learning
+        self._trace: Any = None  # the last real frame's step, for its label
         caps = self.capabilities = backend.capabilities
         self.policy = policy or DecisionPolicy()
         if self.policy != DecisionPolicy() and not caps.occupancy_head:
@@ -156,7 +165,7 @@ class Engine:
 
     def reset(self) -> None:
         """Forget the past: the next step starts a new stream from a zero state."""
-        self._state = None
+        self._state = self._trace = None
         for part in (self.odometry, self._scans, self.decision, self.tracker):
             if part is not None:
                 part.reset()
@@ -196,9 +205,13 @@ class Engine:
             guess = frame.next_motion if trusted else None
         else:
             guess = paced_motion(motion, frame.pace)  # None: the last motion again
+        if self.learning is not None and self._trace is not None and frame.pace is None:
+            self.learning.learn(self._trace, frame.occupancy)
         probability, out, self._state = self.backend.run(
             StepInputs(maps, motion, guess), self._state
         )
+        if self.learning is not None:
+            self._trace = self.learning.backend.trace
         flow = out[0, :4] if self.capabilities.flow else None
         own = probability[0, 0]
         decided = self._decide(own, frame.occupancy, self._backward(out), frame.visibility)

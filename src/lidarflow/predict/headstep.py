@@ -20,16 +20,17 @@ PyTorch as before. tests/predict/test_headstep.py holds it to the PyTorch step w
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from lidarflow.baselines import best_rigid_shift
-from lidarflow.geometry import rigid_positions, rigid_sampler
+from lidarflow.geometry import Sampler, rigid_positions, rigid_sampler
 from lidarflow.models.config import Capabilities
 from lidarflow.predict.step import StepInputs, StepOutput
 
-__all__ = ["HeadStepBackend", "supports"]
+__all__ = ["HeadStepBackend", "HeadTrace", "supports"]
 
 #: The HeadConfig fields this step computes; a head with any other is left to PyTorch.
 KNOWN_FIELDS = frozenset(
@@ -114,11 +115,28 @@ def _shifted(maps: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True, slots=True)
+class HeadTrace:
+    """What one step computed that the gradient of its prediction needs: ``inputs``, each
+    layer's input ``(C, H*W)`` (the features, then the hidden activations after the ReLU);
+    ``weighed`` ``(H, W)``, the map the gain weighs; ``sampler``, the move of the logit into the
+    next frame (``None``: not moved); ``probability`` ``(H, W)``, the prediction made."""
+
+    inputs: tuple[np.ndarray, ...]
+    weighed: np.ndarray
+    sampler: Sampler | None
+    probability: np.ndarray
+
+
 class HeadStepBackend:
     """Runs a head-only model's step in NumPy (:func:`supports` says which), as
     :class:`~lidarflow.predict.backends.TorchBackend` does on PyTorch (one step as
     :mod:`lidarflow.predict.step` defines it, ``out`` ``(1, 5, H, W)``) on float32 arrays; the
-    state is a list of one ``(1, S, H, W)`` array."""
+    state is a list of one ``(1, S, H, W)`` array.
+
+    ``layers`` are the head's 1x1 layers as ``(weight (out, in), bias (out, 1))`` float32
+    arrays, which :class:`lidarflow.predict.learning.HeadLearning` changes in place; ``trace``
+    is what the last step computed (:class:`HeadTrace`)."""
 
     def __init__(self, model: Any, threads: int | None = None) -> None:
         parts = _parts(model)
@@ -135,7 +153,8 @@ class HeadStepBackend:
 
             torch.set_num_threads(threads)
         layers = [head.hidden] if c.hidden_channels else []
-        self._layers = [_weights(m) for m in [*layers, head.out]]
+        self.layers = [_weights(m) for m in [*layers, head.out]]
+        self.trace: HeadTrace | None = None
         self._state_channels = head.state_channels
         self._fill = float(_fill_logit())
         self._flow_key: tuple[float, ...] | None = None
@@ -156,24 +175,33 @@ class HeadStepBackend:
             motion = next_motion = None
         if motion is not None:
             past = rigid_sampler(motion, h, w)(past)
-        residual, kept = self._head(maps[0], past)
+        residual, kept, inputs = self._head(maps[0], past)
         nxt = motion if next_motion is None else next_motion
         occupancy = maps[0, 0:1]
         out = np.zeros((1, 5, h, w), np.float32)
-        if nxt is None:  # no motion: the flow channels stay zero, nothing moves
-            out[0, 4:5] = residual
-            moved = occupancy
-        else:
-            # The logit and the map it weighs, moved into the next frame by one sampler: the
-            # residual's cells coming into view at the fill logit (EgoCompensated.to_next_frame).
-            sampler = rigid_sampler(nxt, h, w)
-            both = sampler(np.concatenate([residual - self._fill, occupancy]))
-            out[0, 4] = both[0] + self._fill
-            moved = np.clip(both[1:2], 0.0, 1.0)
+        sampler = None if nxt is None else rigid_sampler(nxt, h, w)
+        out[0, 4:5], moved = self.moved_logit(residual, occupancy, sampler)
+        if nxt is not None:
             out[0, :4] = self._ego_flow(nxt, h, w)
         logit = np.float32(self.gain) * moved + out[0, 4:5]
         probability = (1.0 / (1.0 + np.exp(-logit)))[None].astype(np.float32)
+        self.trace = HeadTrace(inputs, moved[0], sampler, probability[0, 0])
         return StepOutput(probability, out, [kept[None]])
+
+    def moved_logit(
+        self, residual: np.ndarray, occupancy: np.ndarray, sampler: Sampler | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The residual logit and the map the gain weighs ``(1, H, W)``, moved into the next
+        frame by ``sampler`` (``None``: as they are): the residual's cells coming into view at
+        the fill logit (EgoCompensated.to_next_frame)."""
+        if sampler is None:
+            return residual, occupancy
+        both = sampler(np.concatenate([residual - self._fill, occupancy]))
+        return both[0:1] + self._fill, np.clip(both[1:2], 0.0, 1.0)
+
+    def residual(self, layers: list[tuple[np.ndarray, np.ndarray]], x: np.ndarray) -> np.ndarray:
+        """``(1, H*W)``: the residual logit of ``layers`` on the features ``x`` ``(C, H*W)``."""
+        return _forward(layers, x)[0]
 
     def _ego_flow(self, motion: np.ndarray, h: int, w: int) -> np.ndarray:
         """``(4, H, W)``: the platform's own backward and forward flow (the inner flow zero),
@@ -187,9 +215,12 @@ class HeadStepBackend:
             self._flow_key, self._flow = key, flow
         return self._flow
 
-    def _head(self, maps: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _head(
+        self, maps: np.ndarray, state: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
         """:meth:`lidarflow.models.head.OccupancyHead.forward` on one frame: ``maps`` ``(C, H,
-        W)``, ``state`` ``(S, H, W)`` -> the residual logit ``(1, H, W)`` and the new state."""
+        W)``, ``state`` ``(S, H, W)`` -> the residual logit ``(1, H, W)``, the new state and
+        each layer's input (:class:`HeadTrace`)."""
         c = self.config
         occupancy = maps[0:1]
         k = len(c.memory_decays)
@@ -214,12 +245,21 @@ class HeadStepBackend:
         if c.subcell_input:
             features.append(maps[2:4])
         x = np.concatenate(features).reshape(-1, occupancy[0].size)
-        *hidden, last = self._layers
-        for weight, bias in hidden:
-            x = _layer(weight, bias, x)
-            np.maximum(x, 0.0, out=x)
-        residual = _layer(*last, x).reshape(occupancy.shape)
-        return residual, np.concatenate(kept)
+        residual, inputs = _forward(self.layers, x)
+        return residual.reshape(occupancy.shape), np.concatenate(kept), inputs
+
+
+def _forward(
+    layers: list[tuple[np.ndarray, np.ndarray]], x: np.ndarray
+) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """The 1x1 layers on the features ``x`` ``(C, N)``, a ReLU between them: the output ``(1,
+    N)`` and each layer's input."""
+    inputs = [x]
+    for weight, bias in layers[:-1]:
+        x = _layer(weight, bias, x)
+        np.maximum(x, 0.0, out=x)
+        inputs.append(x)
+    return _layer(*layers[-1], x), tuple(inputs)
 
 
 def _fill_logit() -> float:

@@ -47,12 +47,16 @@ from lidarflow.online.stacking import StackingConfig
 from lidarflow.predict.backends import load_backend, recorded_grid
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
+from lidarflow.predict.headstep import HeadStepBackend
+from lidarflow.predict.learning import HeadLearning, LearningConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
 from lidarflow.predict.offsets import THRESHOLD
 from lidarflow.scan import GridSpec, Scan, rasterize, subcell_batch, takes_subcell
 from lidarflow.tracking import Track
 
 __all__ = ["Prediction", "Predictor"]
+
+_HEAD = "head/"  # what the head learnt, in a file of save_learned
 
 
 @dataclass(frozen=True)
@@ -158,8 +162,14 @@ class Predictor:
             its tracked objects, the tracker, the ego-moved last map and the temporal average
             weighed per horizon ``1 .. horizon`` by the scans that arrive (a
             :class:`~lidarflow.online.stacking.StackingConfig` to configure it). Then
-            ``Prediction.probability`` and ``horizon`` are the combination's, and what it
-            learnt can be saved and loaded (:meth:`save_learned`, :meth:`load_learned`).
+            ``Prediction.probability`` and ``horizon`` are the combination's.
+        learn: the model's head keeps learning on the stream, each scan the label of the
+            prediction made for it (:mod:`lidarflow.predict.learning`; a
+            :class:`~lidarflow.predict.learning.LearningConfig` to configure it). Needs a
+            head-only model run in NumPy (the bundled one where PyTorch is installed).
+
+    What the combination and the head learnt can be saved and loaded (:meth:`save_learned`,
+    :meth:`load_learned`); :meth:`reset` forgets it.
     """
 
     def __init__(
@@ -175,6 +185,7 @@ class Predictor:
         online_decision: bool | OnlineDecisionConfig | None = None,
         decision: DecisionPolicy | None = None,
         combine: bool | StackingConfig = False,
+        learn: bool | LearningConfig = False,
     ) -> None:
         if horizon < 1:
             raise PredictError(f"horizon must be >= 1, got {horizon}")
@@ -201,9 +212,24 @@ class Predictor:
             config = combine if isinstance(combine, StackingConfig) else None
             self.combination = Combination(horizon, config)
             self.decision = dataclasses.replace(self.decision, tracks=True)  # an expert
+        #: The head learning on the stream (``None`` without ``learn``), for a look inside.
+        self.learning: HeadLearning | None = None
+        if learn is not False:
+            if not isinstance(self.backend, HeadStepBackend):
+                raise PredictError(
+                    "learn needs a head-only model run in NumPy on the CPU (the bundled model "
+                    "with PyTorch installed), not this one"
+                )
+            config = learn if isinstance(learn, LearningConfig) else None
+            self.learning = HeadLearning(self.backend, config)
         try:
             self.engine = Engine(
-                self.backend, self.grid.res, self.decision, check_odometry, scan_odometry
+                self.backend,
+                self.grid.res,
+                self.decision,
+                check_odometry,
+                scan_odometry,
+                learning=self.learning,
             )
         except ValueError as err:
             raise PredictError(
@@ -229,29 +255,41 @@ class Predictor:
         return self.backend.capabilities.poses_optional
 
     def reset(self) -> None:
-        """Forget the past: the next update starts from a zero state."""
+        """Forget the past and what was learnt on it: the next update starts from a zero state,
+        the model as shipped."""
         self._pose = None
         self._clock.reset()
         self.engine.reset()
-        if self.combination is not None:
-            self.combination.reset()
+        for learnt in (self.combination, self.learning):
+            if learnt is not None:
+                learnt.reset()
 
     def save_learned(self, path: str | Path) -> Path:
-        """Write what the online combination learnt on this stream to ``path`` (``.npz``,
-        replaced whole): :meth:`load_learned` continues from it, on this robot later."""
-        if self.combination is None:
-            raise PredictError("nothing learnt to save: this Predictor does not combine")
+        """Write what the online combination and the head learnt on this stream to ``path``
+        (``.npz``, replaced whole): :meth:`load_learned` continues from it, on this robot
+        later."""
+        if self.combination is None and self.learning is None:
+            raise PredictError("nothing learnt to save: this Predictor neither combines nor learns")
+        state = {} if self.combination is None else self.combination.state()
+        if self.learning is not None:
+            state.update({_HEAD + k: v for k, v in self.learning.state().items()})
         buffer = io.BytesIO()
-        np.savez(buffer, **self.combination.state())
+        np.savez(buffer, **state)
         return write_bytes(path, buffer.getvalue())
 
     def load_learned(self, path: str | Path) -> None:
-        """Continue the online combination from what :meth:`save_learned` wrote."""
-        if self.combination is None:
-            raise PredictError("nothing to load into: this Predictor does not combine")
+        """Continue the online combination and the head from what :meth:`save_learned`
+        wrote."""
+        if self.combination is None and self.learning is None:
+            raise PredictError("nothing to load into: this Predictor neither combines nor learns")
         try:
             with np.load(path, allow_pickle=False) as data:
-                self.combination.load_state({key: data[key] for key in data.files})
+                state = {key: data[key] for key in data.files}
+            if self.combination is not None:
+                self.combination.load_state(state)
+            if self.learning is not None:
+                head = {k[len(_HEAD) :]: v for k, v in state.items() if k.startswith(_HEAD)}
+                self.learning.load_state(head)
         except (OSError, ValueError, KeyError) as err:
             raise PredictError(f"{path}: not what save_learned wrote ({err})") from err
 
