@@ -26,7 +26,7 @@ from lidarflow.data.bagfile import open_bag
 from lidarflow.data.blocks import Frames
 from lidarflow.data.recording import Recording
 from lidarflow.errors import BagError, EvaluateError
-from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.metrics import THRESHOLD, summed
 from lidarflow.evaluate.runner import Hooks
 from lidarflow.scan import GridSpec, cell_centres
 
@@ -197,10 +197,7 @@ class LabelCounts:
     frames: int = 0
 
     def __add__(self, other: LabelCounts) -> LabelCounts:
-        return LabelCounts(
-            self.found + other.found, self.labelled + other.labelled, self.near + other.near,
-            self.predicted + other.predicted, self.frames + other.frames,
-        )  # fmt: skip
+        return summed(self, other)
 
     @property
     def recall(self) -> float | None:
