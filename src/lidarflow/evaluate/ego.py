@@ -21,12 +21,7 @@ from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
 
-__all__ = ["recording_motions", "wants_motion"]
-
-
-def wants_motion(methods: Sequence[Method]) -> list[str]:
-    """Names of the methods that take the ego motion."""
-    return [m.name for m in methods if m.takes.motion]
+__all__ = ["recording_motions"]
 
 
 def recording_motions(
@@ -39,8 +34,7 @@ def recording_motions(
     recording without poses, when every such method is ``poses_optional``, the motions matched
     between its maps ``occupancy`` on ``grid`` (NaN where none was found); otherwise raises
     :class:`EvaluateError` rather than evaluate an ego-motion model uncompensated."""
-    users = wants_motion(methods)
-    if not users:
+    if not any(m.takes.motion for m in methods):
         return None
     if not recording.has_poses:
         needing = [m for m in methods if m.takes.motion and not m.takes.poses_optional]

@@ -19,9 +19,9 @@ from typing import Any, Protocol
 from lidarflow.baselines import Method
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.evaluate.horizon import add_horizon_entry, horizon_entry
+from lidarflow.evaluate.horizon import horizon_entry
 from lidarflow.evaluate.labels import Labels, LabelScore, labels_entry, with_labels
-from lidarflow.evaluate.report import build_report, count_recordings_won
+from lidarflow.evaluate.report import add_horizon_verdict, build_report, count_recordings_won
 from lidarflow.evaluate.runner import (
     Hooks,
     OnAhead,
@@ -190,7 +190,8 @@ def report_of(
     for entry, (_, one) in zip(report["recordings"], scored, strict=True):
         entry.update(one.notes)
         if one.horizon is not None:
-            add_horizon_entry(entry, one.horizon)
+            entry.update(one.horizon)
+            add_horizon_verdict(entry)
     if any(one.horizon is not None for _, one in scored):
         count_recordings_won(report)
     if figures is not None:

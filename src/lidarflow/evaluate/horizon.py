@@ -24,11 +24,9 @@ from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
-from lidarflow.evaluate.report import add_horizon_verdict
 
 __all__ = [
     "HorizonScore",
-    "add_horizon_entry",
     "check_horizon",
     "horizon_entry",
     "horizon_note",
@@ -178,13 +176,6 @@ def horizon_note(entry: Mapping[str, Any]) -> str:
         f"horizon tables: {frames} frames at every k (those with {k} frames after them, no gap "
         f"in between); the main table scores {main}, so the k=1 columns are not its numbers"
     )
-
-
-def add_horizon_entry(entry: dict[str, Any], scored: dict[str, Any]) -> None:
-    """Put a recording's :func:`horizon_entry` into its report ``entry`` and extend its
-    verdicts by the movers at ``K`` (:func:`~lidarflow.evaluate.report.add_horizon_verdict`)."""
-    entry.update(scored)
-    add_horizon_verdict(entry)
 
 
 def _f1(counts: list[Counts]) -> list[float]:
