@@ -1,11 +1,8 @@
-"""Calibration of predicted occupancy probabilities: of all cells given probability ``p``, a
-share ``p`` should be occupied in the next frame.
-
-Over every cell of every scored frame, in ``bins`` equal bins (the last closed at 1): the
-reliability diagram (per bin the cells, mean probability and observed frequency), the expected
-calibration error ``sum_k (n_k / N) |mean_p_k - freq_k|`` (Guo et al. 2017), the *active* ECE
-over the cells predicted at least ``1 / bins`` (most cells are free and predicted free, which
-makes the plain ECE small for every method), and the Brier score ``mean (p - y)^2``.
+"""Calibration of predicted occupancy probabilities: of the cells given probability ``p``, a
+share ``p`` should be occupied. Over every cell of every scored frame in ``bins`` equal bins:
+the reliability diagram, the ECE (Guo et al. 2017), the *active* ECE over the cells predicted
+at least ``1 / bins`` (most cells are free and predicted free, which makes the plain ECE small
+for every method) and the Brier score.
 """
 
 from __future__ import annotations

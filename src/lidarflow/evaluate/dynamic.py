@@ -1,12 +1,8 @@
-"""The dynamic region of a recording, where the mover metric (:mod:`lidarflow.evaluate.movers`)
-scores, found in hindsight over the whole recording (for scoring only, never for predicting).
-
-A cell is dynamic when occupied at least once but in under :data:`SHARE` of the frames that saw
-it; on a simulated recording, when it held a true moving object. Counts are taken in a world
-grid by the recording's poses (``docs/guide/conventions.md``), held in tiles of :data:`TILE`
-cells allocated where frames fall, so memory follows the ground the scans cover; without poses,
-in the sensor frame. A frame of unknown pose (or one further than :data:`FARTHEST` away) is not
-counted and has an empty region; two map cells of a frame in one world cell count once.
+"""The dynamic region of a recording, where the mover metric scores, found in hindsight over the
+whole recording (for scoring only): the cells occupied at least once but in under :data:`SHARE`
+of the frames that saw them, or on a simulated recording those that held a true moving object.
+Counted in a world grid by the recording's poses, held in tiles of :data:`TILE` cells where
+frames fall (``docs/guide/conventions.md``); a frame of unknown pose has an empty region.
 """
 
 from __future__ import annotations

@@ -150,9 +150,7 @@ def score_one(
         hooks = with_labels(hooks, scoring, methods, inputs.occupancy)
     scores = score_stream(inputs, methods, warmup, horizon if horizon > 1 else None, truth, hooks)
     drawn = [] if drawing is None else drawing.finish(scores.next_map)
-    keys = None
-    if scores.horizon is not None:
-        keys = horizon_entry(scores.horizon, scores.horizon_frames)
+    keys = None if scores.horizon is None else horizon_entry(scores.horizon, scores.horizon_frames)
     notes = recording_notes(recording, grid)
     if labels is not None and scoring is not None:
         notes.update(labels_entry(labels, scoring))

@@ -1,12 +1,8 @@
 """Labelled movers: positions people labelled in a recording's scans, and how much of them a
-prediction covers (design notes §5; definitions in ``docs/guide/conventions.md``).
-
-Two kinds of label file, both bags: leg_tracker's extracted bags (a ``/training_scan`` and a
-``/leg_cluster_positions`` PoseArray per labelled scan, logged in pairs; the PoseArray has no
-stamp), each labelled scan given to the frame with exactly its ranges; and bags with
-``/ground_truth_people_tracks`` (no header), each annotation given to the frame whose stamp is
-nearest its log time less one scan period (``docs/research/movers``). Positions are metres in
-the scan's frame, the grid's; labels outside the grid are not counted.
+prediction covers. Label files are bags: leg_tracker's extracted bags, each labelled scan given
+to the frame with exactly its ranges, or bags of ``/ground_truth_people_tracks``, each
+annotation given to the frame nearest its log time less one scan period
+(``docs/research/movers``). Definitions: ``docs/guide/conventions.md``.
 """
 
 from __future__ import annotations

@@ -44,14 +44,12 @@ def methods_and_config(
     combine: int | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus the methods of each model source (``None`` or ``"bundled"``: the
-    bundled model), and the configuration that describes them for the report. With an
-    ego-motion model comes ``copy_last_ego``, the last map moved by the same motion;
-    ``ego_oracle`` adds the variants that know the true next pose; ``online`` adds each model's
-    other decision rule (``NAME_online`` or ``NAME_fixed``); ``combine`` adds each model
-    combined online with the simple predictors that many frames ahead (``NAME_combined``).
-    ``names`` name the models (default: ``bundled``, others by their folder or file);
-    ``device``: where PyTorch models run (ONNX files run on the CPU); ``threads``: the CPU
-    threads each model runs on (``None``: the backend's default)."""
+    bundled model, else named by ``names`` or its folder or file), and the report's
+    configuration of them. An ego-motion model brings ``copy_last_ego``; ``ego_oracle`` adds
+    the variants that know the true next pose, ``online`` each model's other decision rule
+    (``NAME_online`` or ``NAME_fixed``), ``combine`` each model combined online with the simple
+    predictors that many frames ahead (``NAME_combined``). PyTorch models run on ``device``,
+    each on ``threads`` CPU threads (``None``: the backend's default)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [

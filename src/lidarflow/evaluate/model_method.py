@@ -19,19 +19,14 @@ __all__ = ["ModelMethod"]
 
 
 class ModelMethod:
-    """A model (a :class:`~lidarflow.models.recurrent.RecurrentMapModel` run by PyTorch on
-    ``device``, or any :class:`~lidarflow.predict.engine.Backend`) as a
-    :class:`~lidarflow.baselines.Method`. After each update a flow model exposes
-    ``backward_flow`` and ``forward_flow`` ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool
-    (:func:`~lidarflow.predict.moving.moving_mask` at ``moving_threshold`` cells), ``None`` for
-    other models; :attr:`last` is the engine's last step, which a roll-out continues from.
-
-    ``oracle=True`` takes the true ``next_motion`` instead of the causal guess (evaluation
-    only); ``res`` is the grid's cell size in metres. ``update`` returns the probability the
-    decision policy thresholds: ``decision`` is the policy the model ships with (its
-    ``model.json`` record by default), ``online`` re-decides with the offsets that did best on
-    the recording so far: ``None`` as the policy says, ``True`` / ``False`` always / never, a
-    config always with that configuration (default ``online_config``)."""
+    """A model (run by PyTorch on ``device``, or any :class:`~lidarflow.predict.engine.Backend`)
+    as a :class:`~lidarflow.baselines.Method`. After each update a flow model exposes
+    ``backward_flow``, ``forward_flow`` ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool
+    (at ``moving_threshold`` cells), ``None`` for other models; :attr:`last` is the engine's
+    last step. ``oracle=True`` takes the true ``next_motion``; ``res``: metres per cell.
+    ``decision`` is the policy the model ships with (by default its own); ``online``
+    re-decides with the offsets that did best so far: ``None`` as the policy says,
+    ``True`` / ``False`` always / never, a config always with it (default ``online_config``)."""
 
     def __init__(
         self,

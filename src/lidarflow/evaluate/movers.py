@@ -1,12 +1,7 @@
-"""The mover metric (design notes §5): how well a prediction foresees what moves.
-
-All-cell F1 is dominated by walls and changed-cell F1 by edge flicker; the cells that hold a
-moving person are about 1 % of the occupied ones. So a prediction is scored inside the
-*dynamic region* of its target frame only (:mod:`lidarflow.evaluate.dynamic`): exact F1 at the
-decision threshold, tolerant F1 within :data:`TOLERANCE` cells (both sides kept to the region,
-so that a wall copied next to a person does not "find" the person), the AUC of the probability
-from :data:`BINS` bins (ties count half) and its soft IoU ``sum(p y) / sum(p + y - p y)``; all
-micro-averaged. Definitions: ``docs/guide/conventions.md``.
+"""The mover metric (design notes §5): how well a prediction foresees what moves, scored inside
+the *dynamic region* of its target frame only (:mod:`lidarflow.evaluate.dynamic`), where walls
+and edge flicker do not drown it: exact and tolerant F1, AUC and soft IoU, micro-averaged
+(definitions: ``docs/guide/conventions.md``).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
-"""The metrics the peers (SOGMP, SCOPE) report beside F1: weighted MSE and SSIM of a predicted
-map, pure NumPy on maps ``(..., H, W)``, one value per map. Definitions and how they differ from
-the peers' tables: ``docs/guide/conventions.md``; both depend on the grid.
-
-**WMSE** weighs occupied and free cells equally (median-frequency balancing, the classes counted
-in each target map, so that it streams frame by frame): the mean of the MSE over the occupied
-cells and the MSE over the free ones. **SSIM** is Wang et al. 2004's with an 11 x 11 Gaussian
-window of sigma 1.5 and data range 1, over the window positions wholly inside the map; it equals
+"""The metrics the peers (SOGMP, SCOPE) report beside F1: the class-weighted MSE and SSIM of a
+predicted map, pure NumPy on maps ``(..., H, W)``, one value per map. Their definitions, and
+why numbers differ across grids and papers: ``docs/guide/conventions.md``. SSIM equals
 scikit-image's ``structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
 use_sample_covariance=False, data_range=1)``.
 """

@@ -136,15 +136,12 @@ def against_baselines(
     no_verdict: Collection[str] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Each model among ``methods`` against the baselines: it wins when its F1 is above the
-    best baseline's, its changed-cell F1 above every baseline's, and its :data:`MOVER_KEY`
-    above copy-last's (a model that loses on what moves is no better than copying the last
-    map). ``{name: {"wins", "f1_margin", "f1_baseline", "changed_f1_margin",
-    "changed_f1_baseline", "mover_f1_margin"}}``, margins against the named best baseline, the
-    mover margin against copy-last (``None``: not scored or nothing to find, then it does not
-    decide); ``"wins"`` is ``None`` where F1 or changed-cell F1 is ``undefined``; ``{}``
-    without baselines. ``no_verdict`` names the methods that get none (``evaluate``'s config,
-    so that a run folder called ``..._oracle`` is still judged); ``None``: the copy-last moved
-    by the ego motion and the ``_oracle`` variants, by their names."""
+    best baseline's, its changed-cell F1 above every baseline's and its :data:`MOVER_KEY`
+    above copy-last's. ``{name: {"wins", "f1_margin", "f1_baseline", "changed_f1_margin",
+    "changed_f1_baseline", "mover_f1_margin"}}`` (the mover margin ``None`` where it cannot
+    decide; ``"wins"`` ``None`` where F1 or changed-cell F1 is ``undefined``); ``{}`` without
+    baselines. ``no_verdict``: the methods that get none, ``None`` to tell them by name
+    (``copy_last_ego*``, ``*_oracle``)."""
     present = [b for b in BASELINES if b in methods]
     if not present:
         return {}

@@ -1,13 +1,10 @@
 """One pass over a recording scores every method: the next map (the main table) and, with a
-horizon ``K > 1``, the maps 1..K ahead (the horizon tables, :mod:`lidarflow.evaluate.horizon`).
+horizon ``K > 1``, the maps 1..K ahead (:mod:`lidarflow.evaluate.horizon`).
 
-Each method is reset at the start and then sees the frames one at a time with what it takes
-beside them (:func:`~lidarflow.evaluate.stream.frame_inputs`). Its prediction after frame ``t``
-is scored against ``O^{t+1}`` for ``t >= warmup``, except across a gap in time (the frame after
-it is not the next scan; states carry across, as the Predictor's do). A method with
-``backward_flow`` (``(2, H, W)`` cells) gets its end-point error against the true ``B^t``; one
-with ``moving`` (``(H, W)`` bool) its moving cells scored against the simulator's of frame
-``t``, every frame after the warm-up, gap or not.
+Each method is reset, then sees the frames in turn with what it takes beside them. Its
+prediction after frame ``t >= warmup`` is scored against ``O^{t+1}``, its ``backward_flow``
+against the true ``B^t``, except across a gap in time (states carry across, as the Predictor's
+do); its ``moving`` cells against the simulator's of frame ``t``, gap or not.
 """
 
 from __future__ import annotations

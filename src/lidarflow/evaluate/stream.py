@@ -1,12 +1,8 @@
 """What a streamed evaluation feeds its methods from a recording and scores them against: the
 maps in blocks of frames (:class:`RecordingInputs`), what each method takes beside them per
-frame (:func:`frame_inputs`), and the simulator's ground truth where there is one.
-
-Methods with ``takes.motion`` get the ego motion from the recording's poses; without poses,
-models built with ``poses_optional`` get it matched from the scans and any other is refused
-(:mod:`lidarflow.evaluate.ego`). A cell of ``O^{t+1}`` moves on its own when its true ``B^t``
-differs from the platform's own flow by more than
-:data:`lidarflow.flow_supervision.MOVING_FLOW_THRESHOLD` cells, the rule the flow loss uses.
+frame (:func:`frame_inputs`), and the simulator's ground truth where there is one (a cell moves
+on its own where its true flow differs from the platform's by more than
+:data:`~lidarflow.flow_supervision.MOVING_FLOW_THRESHOLD` cells, as in the flow loss).
 """
 
 from __future__ import annotations

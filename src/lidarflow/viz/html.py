@@ -11,6 +11,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from lidarflow.atomic import write_text
 from lidarflow.evaluate.report import (
     format_comparison,
     gaps_note,
@@ -154,6 +155,4 @@ def write_html_report(
         parts.append(html.escape(json.dumps(report["config"], indent=2)))
         parts.append("</pre>")
     parts.append("</body></html>")
-    from lidarflow.atomic import write_text
-
     return write_text(Path(path), "\n".join(parts))
