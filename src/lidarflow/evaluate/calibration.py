@@ -1,17 +1,8 @@
-"""Calibration of predicted occupancy probabilities (what a planner weighing uncertainty needs).
-
-A predictor is calibrated when, of all cells given probability ``p`` of being occupied in the
-next frame, a share ``p`` really is. Over every cell of every scored frame:
-
-* the *reliability diagram*: predicted probabilities in ``bins`` equal bins ``[k/bins,
-  (k+1)/bins)`` (the last one closed at 1); per bin the cell count, the mean predicted
-  probability and the observed frequency of occupancy;
-* the *expected calibration error* (ECE): ``sum_k (n_k / N) |mean_p_k - freq_k|`` (Guo et al.
-  2017), bins of 0.1 by default;
-* the *active ECE*: the same over the cells predicted at least ``1 / bins`` (every bin but the
-  lowest): most cells are free and predicted free, which makes the plain ECE small for every
-  method (copy-last's active ECE is ``1 - precision``);
-* the *Brier score*: ``mean (p - y)^2`` (lower is better).
+"""Calibration of predicted occupancy probabilities: of the cells given probability ``p``, a
+share ``p`` should be occupied. Over every cell of every scored frame in ``bins`` equal bins:
+the reliability diagram, the ECE (Guo et al. 2017), the *active* ECE over the cells predicted
+at least ``1 / bins`` (most cells are free and predicted free, which makes the plain ECE small
+for every method) and the Brier score.
 """
 
 from __future__ import annotations
@@ -28,8 +19,7 @@ CALIBRATION_BINS = 10
 
 @dataclass
 class Calibration:
-    """Sums that make a reliability diagram, accumulated frame by frame; they add up
-    (micro-averaging over frames and recordings)."""
+    """Sums that make a reliability diagram, accumulated frame by frame; they add up."""
 
     bins: int = CALIBRATION_BINS
     count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -46,8 +36,7 @@ class Calibration:
             self.occupied = np.zeros(self.bins, np.int64)
 
     def add(self, probability: np.ndarray, target: np.ndarray) -> None:
-        """Add predicted probabilities (any shape, values clipped to [0, 1]) and the boolean
-        truth of the same shape."""
+        """Add probabilities (any shape, clipped to [0, 1]) and the truth of the same shape."""
         p = np.clip(np.asarray(probability, np.float64), 0.0, 1.0).ravel()
         y = np.asarray(target).astype(bool).ravel()
         if p.shape != y.shape:
@@ -94,8 +83,7 @@ class Calibration:
         return float(gap.sum() / self.cells)
 
     def ece_active(self) -> float:
-        """ECE over the cells predicted ``>= 1 / bins`` (all bins but the lowest); 0.0 when
-        there are none."""
+        """ECE over the cells predicted ``>= 1 / bins``; 0.0 when there are none."""
         cells = int(self.count[1:].sum())
         if not cells:
             return 0.0
@@ -103,7 +91,7 @@ class Calibration:
         return float(gap.sum() / cells)
 
     def brier(self) -> float:
-        """Mean squared difference between probability and truth; 0.0 with no cells."""
+        """Mean squared error of the probabilities; 0.0 with no cells."""
         return self.squared_error / self.cells if self.cells else 0.0
 
     def summary(self) -> dict[str, Any]:

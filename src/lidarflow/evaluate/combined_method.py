@@ -1,5 +1,5 @@
-"""A model with the online combination (:mod:`lidarflow.online`) as an evaluation method: the
-model and the simple predictors beside it, weighed on the recording as it streams."""
+"""A model combined online with the simple predictors (:mod:`lidarflow.online`) as an
+evaluation method."""
 
 from __future__ import annotations
 

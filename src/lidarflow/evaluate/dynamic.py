@@ -1,23 +1,8 @@
-"""The dynamic region of a recording: where the mover metric (:mod:`lidarflow.evaluate.movers`)
-scores, found in hindsight over the whole recording (for scoring only, never for predicting).
-
-On a real recording a cell is dynamic when it was occupied at least once but in under
-:data:`SHARE` (5 %) of the frames that saw it (visible, design notes §2): a person walked
-through; a wall, seen occupied nearly every time, is not; free space never occupied is not
-either (the region says where movers went, so that scoring there does not drown in free space).
-On a simulated recording the simulator's true moving cells stand in: a cell is dynamic when it
-held a moving object in some frame.
-
-Counts are taken in the world frame where the recording has poses (the true ones of a
-simulated recording, else its odometry): every map cell's centre is moved by its frame's pose
-into a fixed world grid of the same resolution, counted there, and each frame's region is read
-back at its own cells' centres. The world grid is held in tiles of :data:`TILE` x :data:`TILE`
-cells, each allocated where a frame first falls, so memory follows the cells the scans cover,
-not their bounding box. A recording without poses is counted in the sensor frame as if it stood
-still (a moving one's walls then smear and some read as dynamic). A frame whose pose is unknown
-is not counted and has an empty region (one further than :data:`FARTHEST` from the origin
-alike). Where two map cells of a frame fall into one world cell (a turned frame, nearest cell)
-the world cell counts once for that frame.
+"""The dynamic region of a recording, where the mover metric scores, found in hindsight over the
+whole recording (for scoring only): the cells occupied at least once but in under :data:`SHARE`
+of the frames that saw them, or on a simulated recording those that held a true moving object.
+Counted in a world grid by the recording's poses, held in tiles of :data:`TILE` cells where
+frames fall (``docs/guide/conventions.md``); a frame of unknown pose has an empty region.
 """
 
 from __future__ import annotations
@@ -28,7 +13,7 @@ import numpy as np
 
 from lidarflow.data.blocks import Frames
 from lidarflow.data.recording import Recording
-from lidarflow.scan import GridSpec
+from lidarflow.scan import GridSpec, cell_centres
 
 __all__ = [
     "SHARE",
@@ -54,8 +39,8 @@ FARTHEST = 1e9
 
 
 def dynamic_cells(occupied: np.ndarray, seen: np.ndarray, share: float = SHARE) -> np.ndarray:
-    """Where ``occupied`` (counts of frames occupied) is positive and under ``share`` of
-    ``seen`` (counts of frames visible; a cell is visible whenever it is occupied).
+    """Where ``occupied`` (frames occupied) is positive and under ``share`` of ``seen``
+    (frames visible, occupied ones among them).
 
     >>> dynamic_cells(np.array([0, 1, 1, 20]), np.array([50, 50, 10, 20])).tolist()
     [False, True, False, False]
@@ -71,19 +56,15 @@ class WorldCells:
     """Where each cell of a frame's map falls in a fixed world grid: flat indices ``(H, W)``
     into :attr:`size` cells, ``-1`` for a frame of unknown pose.
 
-    ``poses`` ``(N, 3)`` ``(x, y, yaw)`` of the sensor in a fixed frame (metres, radians; NaN
-    unknown) or ``None``: the sensor frame, each cell its own. With poses, the world grid is
-    tiled (see the module): a frame's first call allocates the tiles its cells fall in, and
-    :attr:`size` grows by them; later calls give the same indices.
+    ``poses`` ``(N, 3)`` ``(x, y, yaw)`` of the sensor (metres, radians; NaN unknown) or
+    ``None``: the sensor frame, each cell its own. A frame's first call allocates the tiles its
+    cells fall in; later calls give the same indices.
     """
 
     def __init__(self, grid: GridSpec, poses: np.ndarray | None, frames: int) -> None:
         self.grid, self.frames = grid, frames
         h, w, res = grid.height, grid.width, grid.res
-        rows, cols = np.mgrid[0:h, 0:w]
-        # cell centres in the sensor frame (design notes §2)
-        self._x = (h - rows - 0.5) * res
-        self._y = (w / 2 - cols - 0.5) * res
+        self._x, self._y = cell_centres(grid)
         self.poses = None if poses is None else np.asarray(poses, np.float64)
         if self.poses is not None and self.poses.shape != (frames, 3):
             raise ValueError(f"poses must be ({frames}, 3), got {self.poses.shape}")

@@ -1,12 +1,9 @@
-"""Ego-motion inputs of the streaming evaluation: per-frame motions of a recording (the
-baseline that only compensates them is :class:`lidarflow.baselines.CopyLastEgo`).
+"""Ego-motion inputs of the streaming evaluation: per-frame motions of a recording.
 
-A method that takes the motion (``takes.motion``) is given, with each frame ``t``
-(:class:`~lidarflow.baselines.FrameInputs`), ``motion`` ``m_t``, the motion of frame ``t``
-in frame ``t - 1`` in cells (:mod:`lidarflow.motion.odometry`; identity where a pose is unknown),
-and ``next_motion`` ``m_{t+1}``, which is the future: only an oracle may use it. After a long step
-in time (a gap, scans dropped) it also gets ``pace`` (typical step / this step,
-:func:`lidarflow.motion.pacing.paces_after_long_steps`) to scale its guess of the next motion.
+A method with ``takes.motion`` gets with frame ``t`` (:class:`~lidarflow.baselines.FrameInputs`)
+``motion``, frame ``t`` in frame ``t - 1`` in cells (:mod:`lidarflow.motion.odometry`), and
+``next_motion``, the future that only an oracle may use; after a long step in time also
+``pace`` (:func:`lidarflow.motion.pacing.paces_after_long_steps`).
 """
 
 from __future__ import annotations
@@ -24,12 +21,7 @@ from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.scanmatch import scan_motions
 from lidarflow.scan import GridSpec
 
-__all__ = ["recording_motions", "wants_motion"]
-
-
-def wants_motion(methods: Sequence[Method]) -> list[str]:
-    """Names of the methods that take the ego motion."""
-    return [m.name for m in methods if m.takes.motion]
+__all__ = ["recording_motions"]
 
 
 def recording_motions(
@@ -38,20 +30,11 @@ def recording_motions(
     methods: Sequence[Method],
     occupancy: Frames | None = None,
 ) -> np.ndarray | None:
-    """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``.
-
-    For a recording with no pose at all, when every method that wants them may run without
-    (``poses_optional``), the motions found by matching consecutive maps (``occupancy``, the
-    recording's maps on ``grid``; :mod:`lidarflow.motion.scanmatch`), NaN where none was found
-    (those steps are not compensated).
-
-    Raises:
-        EvaluateError: a method that needs them (no ``poses_optional``) and a recording with no
-            pose at all (we fail rather than silently evaluate an ego-motion model without
-            odometry).
-    """
-    users = wants_motion(methods)
-    if not users:
+    """``(N, 3)`` float32 motions in cells when some method wants them, else ``None``. On a
+    recording without poses, when every such method is ``poses_optional``, the motions matched
+    between its maps ``occupancy`` on ``grid`` (NaN where none was found); otherwise raises
+    :class:`EvaluateError` rather than evaluate an ego-motion model uncompensated."""
+    if not any(m.takes.motion for m in methods):
         return None
     if not recording.has_poses:
         needing = [m for m in methods if m.takes.motion and not m.takes.poses_optional]

@@ -1,13 +1,9 @@
 """``lidarflow evaluate``'s work: score methods on recordings and assemble the report.
 
-One recording is scored by :func:`score_one`, one pass over it (:mod:`lidarflow.evaluate.runner`)
-for the main table and the horizon tables alike; ``evaluate --jobs N`` runs it in N worker
-processes, and one process runs it for each recording in turn (:func:`evaluate_and_report`): a
-pool of one worker. :func:`report_of` assembles the report from the recordings scored, in
-order, the same way for both.
-
-Pictures are drawn by a :class:`Figures` (``lidarflow.viz.evaluation.ReportFigures``) handed in:
-scoring does not draw.
+:func:`score_one` scores one recording in one pass (``evaluate --jobs N`` runs it in N worker
+processes, :func:`evaluate_and_report` in turn); :func:`report_of` assembles the report from
+the recordings scored, in order. Pictures are drawn by the :class:`Figures` handed in
+(``lidarflow.viz.evaluation.ReportFigures``): scoring does not draw.
 """
 
 from __future__ import annotations
@@ -23,9 +19,9 @@ from typing import Any, Protocol
 from lidarflow.baselines import Method
 from lidarflow.data.info import find_gaps
 from lidarflow.data.recording import Recording
-from lidarflow.evaluate.horizon import add_horizon_entry, horizon_entry
+from lidarflow.evaluate.horizon import horizon_entry
 from lidarflow.evaluate.labels import Labels, LabelScore, labels_entry, with_labels
-from lidarflow.evaluate.report import build_report, count_recordings_won
+from lidarflow.evaluate.report import add_horizon_verdict, build_report, count_recordings_won
 from lidarflow.evaluate.runner import (
     Hooks,
     OnAhead,
@@ -61,9 +57,8 @@ Figure = tuple[str, Path]
 
 
 class RecordingFigures(Protocol):
-    """Draws one recording's pictures while it is scored: ``on_prediction`` and ``on_moving``
-    take the runner's predictions and moving masks (:class:`~lidarflow.evaluate.runner.Hooks`),
-    ``finish`` draws the rest from the recording's scorers and returns every figure."""
+    """Draws one recording's pictures while it is scored (the runner's hooks); ``finish``
+    draws the rest from its scorers and returns every figure."""
 
     on_prediction: OnPrediction
     on_moving: OnMoving
@@ -77,8 +72,7 @@ class Figures(Protocol):
     def recording(
         self, name: str, stem: str, recording: Recording, inputs: RecordingInputs
     ) -> RecordingFigures:
-        """The drawing of the recording ``name`` (files named by ``stem``), whose maps the
-        runner streams (``inputs``)."""
+        """The drawing of the recording ``name`` (files named by ``stem``)."""
         ...
 
     def write(self, report: dict[str, Any], figures: Mapping[str, list[Figure]]) -> None:
@@ -88,9 +82,8 @@ class Figures(Protocol):
 
 @dataclass(frozen=True)
 class Scored:
-    """One recording scored: its scorers, the figures drawn of it, the notes of its report
-    entry (:func:`recording_notes`) and, for ``horizon`` > 1, its ``horizon_*`` keys
-    (:func:`~lidarflow.evaluate.horizon.horizon_entry`)."""
+    """One recording scored: its scorers, figures, report notes (:func:`recording_notes`)
+    and, for ``horizon`` > 1, its ``horizon_*`` keys."""
 
     scorers: dict[str, Scorer]
     figures: list[Figure]
@@ -110,8 +103,7 @@ def safe_stem(path: str | Path) -> str:
 
 def unique_stems(names: Sequence[str]) -> list[str]:
     """A file-name stem per recording name (:func:`safe_stem`), numbered where two share one
-    (``a/run.bag``, ``b/run.bag`` -> ``run``, ``run_2``): the pictures of two recordings must
-    not share a file."""
+    (``a/run.bag``, ``b/run.bag`` -> ``run``, ``run_2``)."""
     stems: list[str] = []
     for name in names:
         stem, n = safe_stem(name), 1
@@ -135,12 +127,10 @@ def score_one(
     on_ahead: Callable[[str, str, int, Any], None] | None = None,
     labels: Labels | None = None,
 ) -> Scored:
-    """Score ``methods`` on the recording ``name`` in one pass: the main table and, for
-    ``horizon`` > 1, the horizon tables; with ``figures``, draw its pictures (files named by
-    ``stem``, default :func:`safe_stem`). ``progress(1)`` after each frame; ``on_ahead(name,
-    method, t, predicted)`` with each prediction the horizon tables score. With ``labels``
-    (:func:`~lidarflow.evaluate.labels.read_labels` of this recording), also score them
-    1..``horizon`` ahead over the horizon tables' frames (the main table's for ``horizon`` 1)."""
+    """Score ``methods`` on the recording ``name`` in one pass, for ``horizon`` > 1 also
+    ahead; with ``figures``, draw its pictures (files named by ``stem``, default
+    :func:`safe_stem`); with ``labels`` (this recording's), score them too. ``progress(1)``
+    after each frame; ``on_ahead(name, method, t, predicted)`` with each prediction ahead."""
     inputs = recording_inputs(recording, grid, methods)
     drawing = None
     if figures is not None:
@@ -160,9 +150,7 @@ def score_one(
         hooks = with_labels(hooks, scoring, methods, inputs.occupancy)
     scores = score_stream(inputs, methods, warmup, horizon if horizon > 1 else None, truth, hooks)
     drawn = [] if drawing is None else drawing.finish(scores.next_map)
-    keys = None
-    if scores.horizon is not None:
-        keys = horizon_entry(scores.horizon, scores.horizon_frames)
+    keys = None if scores.horizon is None else horizon_entry(scores.horizon, scores.horizon_frames)
     notes = recording_notes(recording, grid)
     if labels is not None and scoring is not None:
         notes.update(labels_entry(labels, scoring))
@@ -171,7 +159,7 @@ def score_one(
 
 def recording_notes(recording: Recording, grid: GridSpec) -> dict[str, Any]:
     """What a recording's report entry says beside its scores: the gaps not scored across, the
-    poses' jumps (odometry glitches), and a grid it was recorded on other than ``grid``."""
+    poses' jumps, and a grid it was recorded on other than ``grid``."""
     notes: dict[str, Any] = {}
     gaps = find_gaps(recording)
     if gaps:  # steps not scored: the frame after a gap is not the next scan
@@ -194,15 +182,14 @@ def report_of(
     config: dict[str, Any],
     figures: Figures | None = None,
 ) -> dict[str, Any]:
-    """The report of the recordings ``scored`` (name, :class:`Scored`), in order: the main
-    table's (:func:`~lidarflow.evaluate.report.build_report`), each entry with its notes and
-    horizon keys (and its verdicts extended by the movers at the horizon); with ``figures``,
-    written with the figures drawn."""
+    """The report of the recordings ``scored`` (name, :class:`Scored`), in order, each entry
+    with its notes and horizon keys; with ``figures``, written with the figures drawn."""
     report = build_report([(name, s.scorers) for name, s in scored], config)
     for entry, (_, one) in zip(report["recordings"], scored, strict=True):
         entry.update(one.notes)
         if one.horizon is not None:
-            add_horizon_entry(entry, one.horizon)
+            entry.update(one.horizon)
+            add_horizon_verdict(entry)
     if any(one.horizon is not None for _, one in scored):
         count_recordings_won(report)
     if figures is not None:
@@ -221,8 +208,8 @@ def evaluate_and_report(
     horizon: int = 1,
     on_ahead: Callable[[str, str, int, Any], None] | None = None,
 ) -> dict[str, Any]:
-    """:func:`score_one` of each recording in turn, and their :func:`report_of`. ``progress(name,
-    total)`` may return a context manager with ``update(n)`` (a tqdm bar)."""
+    """:func:`score_one` of each recording in turn, and their :func:`report_of`.
+    ``progress(name, total)`` may return a context manager with ``update(n)`` (a tqdm bar)."""
     names = [name for name, _ in named_recordings]
     scored = []
     for (name, recording), stem in zip(named_recordings, unique_stems(names), strict=True):

@@ -1,36 +1,11 @@
-"""F1 per prediction horizon: how well a method predicts 1..K frames ahead.
+"""Scores per prediction horizon: how well a method predicts 1..K frames ahead.
 
-The runner (:mod:`lidarflow.evaluate.runner`) streams each recording once; after frame ``t``
-(``t`` one of :func:`scored_frames`) each method is also rolled forward ``K - 1`` more steps
-from a copy of its state (:func:`rolled_forward`), and the prediction ``k`` steps ahead is scored
-(:class:`HorizonScore`: F1 at 0.4, and changed-cell F1: the cells of ``O^{t+k}`` that differ
-from ``O^t``) against ``O^{t+k}``. A model rolls forward as :class:`lidarflow.predict.Predictor`
-does for ``horizon=K`` (:meth:`lidarflow.predict.engine.Engine.roll`): its decided map fed back,
-each step re-decided with the same choice of an online decision (offsets and map), an
-ego-motion model assuming one more typical step of the same motion. Copy-last's ``k``-step
-prediction is ``O^t``; the other baselines roll forward as the models do, their decided
-prediction fed back to a copy of their state: constant velocity shifts the last map ``k``
-times, the last map moved by the ego motion (``copy_last_ego``) moves on by the same motion each
-step, the temporal average takes its own prediction into its window. A method with
-``ahead(K)`` predicts 1..K ahead itself, nothing fed back: the tracker
-(:mod:`lidarflow.tracking`) moves each object by ``k`` times its velocity and leaves the
-background where it is. What knows the future (``oracle``) has no roll-out.
-
-Beside F1 the peers' metrics (:mod:`lidarflow.evaluate.peer_metrics`) are averaged per ``k``
-over the same frames: the WMSE and SSIM of what each method outputs ``k`` ahead (the decided
-probability a model's roll-out thresholds, a baseline's own output, copy-last's ``O^t``) against
-``O^{t+k}``. The mover metric (:mod:`lidarflow.evaluate.movers`) is scored per ``k`` too, inside
-the dynamic region of the target frame ``t + k``
-(:func:`lidarflow.evaluate.stream.mover_region`): exact and tolerant F1 of the decided map, AUC
-and soft IoU of the output.
-
-The frames scored: every ``k`` scores the same frames ``t``, those after the warm-up with a
-frame ``t + K`` and no gap in time before any of ``t + 1 .. t + K``
-(:func:`lidarflow.data.gaps.frames_after_gaps`). The main table (one step ahead) scores every
-``t`` after the warm-up whose next frame is not across a gap, so the ``k = 1`` column leaves out
-the last ``K - 1`` steps of the recording (and those within ``K`` before a gap) that the main
-table scores: the report says how many frames each scores (``frames_evaluated``,
-``horizon_frames_evaluated``).
+After each frame :func:`scored_frames` names, every method is rolled forward from a copy of
+its state (:func:`rolled_forward`) and its output ``k`` steps ahead is scored against
+``O^{t+k}`` (:class:`HorizonScore`): F1 and changed-cell F1 at 0.4, WMSE and SSIM, and the mover
+metric inside the dynamic region of frame ``t + k``. Every ``k`` scores the same frames: those
+after the warm-up with ``K`` frames after them and no gap in time in between, so the ``k = 1``
+column is not the main table's (:func:`horizon_note` says so).
 """
 
 from __future__ import annotations
@@ -49,11 +24,9 @@ from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
-from lidarflow.evaluate.report import add_horizon_verdict
 
 __all__ = [
     "HorizonScore",
-    "add_horizon_entry",
     "check_horizon",
     "horizon_entry",
     "horizon_note",
@@ -63,11 +36,10 @@ __all__ = [
 
 
 def check_horizon(frames: int, horizon: int, warmup: int = 10, name: str = "the recording") -> None:
-    """Refuse, before any work, a ``horizon`` that a recording of ``frames`` frames cannot use:
-    no frame after the ``warmup`` has a frame ``horizon`` ahead of it. ``evaluate`` checks its
-    recordings with it (:func:`scored_frames`), ``predict`` and ``live`` theirs with no
-    warm-up (they predict from the first scan): a roll-out of a huge horizon per scan would
-    otherwise run for hours, to predict frames that are not there."""
+    """Raise :class:`EvaluateError` for a ``horizon`` below 1 or one that a recording of
+    ``frames`` frames cannot use: no frame after the ``warmup`` has a frame ``horizon`` ahead.
+    ``predict`` and ``live`` check with no warm-up, before a roll-out per scan runs for hours
+    to predict frames that are not there."""
     if horizon < 1:
         raise EvaluateError(f"horizon must be >= 1, got {horizon}")
     if frames < warmup + horizon + 1:
@@ -88,10 +60,9 @@ def scored_frames(
     gaps: Sequence[int] = (),
     name: str = "the recording",
 ) -> list[int]:
-    """The frames ``t`` (in order) whose predictions 1..``horizon`` ahead are scored on a
+    """The frames ``t``, in order, whose predictions 1..``horizon`` ahead are scored on a
     recording of ``frames`` frames with ``gaps`` (the frames after a gap in time). Raises
-    :class:`EvaluateError` naming ``name`` when there are none; the command line checks every
-    recording with it before the long work on any of them."""
+    :class:`EvaluateError` naming ``name`` when there are none."""
     check_horizon(frames, horizon, warmup, name)
     after_gap = np.zeros(frames + 1, bool)
     after_gap[[g for g in gaps if 0 < g < frames]] = True
@@ -106,9 +77,9 @@ def scored_frames(
 
 
 class HorizonScore:
-    """One method's sums per step ``k`` over the frames scored ahead: F1 and changed-cell F1
-    counts, WMSE, SSIM (none on a grid under 11 x 11 cells), and the mover metric where there is
-    a ``region`` (``t ->`` frame ``t``'s dynamic region)."""
+    """One method's sums per step ``k``: F1 and changed-cell F1 counts, WMSE, SSIM (none on
+    a grid under 11 x 11 cells) and, with a ``region`` (``t ->`` frame ``t``'s dynamic
+    region), the mover metric."""
 
     def __init__(
         self,
@@ -116,7 +87,8 @@ class HorizonScore:
         shape: tuple[int, ...],
         region: Callable[[int], np.ndarray] | None = None,
     ) -> None:
-        self.counts, self.changed = _counts(horizon), _counts(horizon)
+        self.counts = [Counts() for _ in range(horizon)]
+        self.changed = [Counts() for _ in range(horizon)]
         self.region = region
         self.movers = [MoverScore() for _ in range(horizon)]
         self.wmse = np.zeros(horizon)
@@ -160,14 +132,12 @@ def rolled_forward(
     given: FrameInputs,
     horizon: int,
 ) -> np.ndarray:
-    """``method``'s predictions 1..``horizon`` frames ahead ``(K, H, W)`` of the frame it was
-    just given (with its ``visibility`` and ``given``; ``prediction``: what ``update``
-    returned), leaving ``method`` as it was: a model's roll-out
-    (:meth:`lidarflow.predict.engine.Engine.roll`), a method's own ``ahead(horizon)`` where it has
-    one (the tracker), another baseline's by feeding its decided prediction back to a copy of it,
-    with the frame's visibility and the same motion (constant velocity so shifts ``k`` times, the
-    last map moved by the ego motion moves ``k`` steps, the temporal average takes its own
-    prediction into its window)."""
+    """``method``'s predictions ``(K, H, W)`` 1..``horizon`` frames ahead of the frame it was
+    just given (with ``visibility`` and ``given``; ``prediction``: what ``update`` returned),
+    leaving ``method`` as it was: a model's roll-out
+    (:meth:`lidarflow.predict.engine.Engine.roll`), a method's own ``ahead(horizon)`` (the
+    tracker), else its decided prediction fed back to a copy of it with the same visibility
+    and motion."""
     if isinstance(method, ModelMethod):
         assert method.last is not None
         return np.stack(method.engine.roll(method.last, horizon).decided)
@@ -183,10 +153,9 @@ def rolled_forward(
 
 
 def horizon_entry(scores: dict[str, dict[str, list[Any]]], frames: int) -> dict[str, Any]:
-    """A recording's ``horizon_*`` report keys from its horizon ``scores`` (the runner's, with
-    ``mover_true_cells``), and ``horizon_frames_evaluated``, the ``frames`` scored at every
-    ``k``; ``horizon_undefined: ["mover_f1"]`` where no true cell lay in the region ``K``
-    ahead."""
+    """A recording's ``horizon_*`` report keys from its horizon ``scores``, with the
+    ``frames`` scored at every ``k``; ``horizon_undefined: ["mover_f1"]`` where no true cell
+    lay in the region ``K`` ahead."""
     scores = dict(scores)
     true_cells = scores.pop("mover_true_cells", None)
     keys: dict[str, Any] = {f"horizon_{key}": scored for key, scored in scores.items()}
@@ -197,9 +166,8 @@ def horizon_entry(scores: dict[str, dict[str, list[Any]]], frames: int) -> dict[
 
 
 def horizon_note(entry: Mapping[str, Any]) -> str:
-    """One line over a recording's horizon tables: the frames they score (every ``k`` the
-    same ones, those with ``K`` frames after them and no gap in between) beside the main
-    table's, so that its ``k = 1`` column and the main table are not read as one number."""
+    """The line over a recording's horizon tables: the frames they score beside the main
+    table's, so that the ``k = 1`` column and the main table are not read as one number."""
     k = len(entry["horizon_f1"]["copy_last"])
     frames, main = entry.get("horizon_frames_evaluated"), entry["frames_evaluated"]
     if frames is None or frames == main:
@@ -208,18 +176,6 @@ def horizon_note(entry: Mapping[str, Any]) -> str:
         f"horizon tables: {frames} frames at every k (those with {k} frames after them, no gap "
         f"in between); the main table scores {main}, so the k=1 columns are not its numbers"
     )
-
-
-def add_horizon_entry(entry: dict[str, Any], scored: dict[str, Any]) -> None:
-    """Put a recording's :func:`horizon_entry` into its report ``entry`` and extend its
-    verdicts by the movers at ``K`` (:func:`~lidarflow.evaluate.report.add_horizon_verdict`);
-    the report's counts of recordings won follow from :func:`count_recordings_won` after."""
-    entry.update(scored)
-    add_horizon_verdict(entry)
-
-
-def _counts(horizon: int) -> list[Counts]:
-    return [Counts() for _ in range(horizon)]
 
 
 def _f1(counts: list[Counts]) -> list[float]:

@@ -1,28 +1,8 @@
 """Labelled movers: positions people labelled in a recording's scans, and how much of them a
-prediction covers (design notes §5, "labelled movers"). Labels nobody here chose, scored beside
-the mover metric's hindsight region.
-
-Two kinds of label file, both bags read by :func:`~lidarflow.data.bagfile.open_bag`:
-
-- leg_tracker's extracted bags (``positive_N_extracted.bag``): a ``/training_scan`` (LaserScan)
-  and a ``/leg_cluster_positions`` (PoseArray, the laser frame) per labelled scan, written in
-  pairs one after the other (the PoseArray's header carries no stamp, so the pair is told by
-  the order the two were logged in). A labelled scan has exactly the ranges of one scan of the
-  recording (its stamp differs): it is given to that frame.
-- a bag with ``/ground_truth_people_tracks`` (leg_tracker's Person, one message per person and
-  scan, no header): each annotation is given to the frame whose stamp is nearest its log time
-  less one scan period (the annotation is logged a period after its scan; measured in
-  ``docs/research/movers``), none further than a period from any frame.
-
-Positions are metres in the scan's own frame (REP 103, x forward, y left): the frame
-:mod:`lidarflow.scan`'s grid is laid in. Labels outside the grid cannot be covered and are not
-counted.
-
-Scoring (:class:`LabelScore`, pure NumPy): a prediction of frame ``t + k`` decided at 0.4, on a
-frame that carries labels. **Recall**: the share of labels with an occupied cell whose centre
-lies within :data:`RADIUS` of it. **Precision**: the share of the occupied cells inside the
-frame's dynamic region (the mover metric's, :mod:`lidarflow.evaluate.dynamic`) whose centre
-lies within :data:`RADIUS` of a label. Both counted over all labelled frames (micro-averaged).
+prediction covers. Label files are bags: leg_tracker's extracted bags, each labelled scan given
+to the frame with exactly its ranges, or bags of ``/ground_truth_people_tracks``, each
+annotation given to the frame nearest its log time less one scan period
+(``docs/research/movers``). Definitions: ``docs/guide/conventions.md``.
 """
 
 from __future__ import annotations
@@ -31,6 +11,7 @@ import dataclasses
 import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +22,7 @@ from lidarflow.data.bagfile import open_bag
 from lidarflow.data.blocks import Frames
 from lidarflow.data.recording import Recording
 from lidarflow.errors import BagError, EvaluateError
-from lidarflow.evaluate.metrics import THRESHOLD
+from lidarflow.evaluate.metrics import THRESHOLD, summed
 from lidarflow.evaluate.runner import Hooks
 from lidarflow.scan import GridSpec, cell_centres
 
@@ -84,10 +65,9 @@ class Labels:
 
 
 def read_labels(path: str | Path, recording: Recording) -> Labels:
-    """The labels of the bag at ``path`` given to the frames of ``recording`` (the module
-    docstring says how). Raises :class:`~lidarflow.errors.EvaluateError` for a file holding
-    neither kind of label, or whose labels fit no frame of ``recording``;
-    :class:`~lidarflow.errors.BagError` for one that is no readable bag."""
+    """The labels of the bag at ``path`` given to the frames of ``recording``. Raises
+    :class:`~lidarflow.errors.EvaluateError` for a file holding neither kind of label or
+    fitting no frame, :class:`~lidarflow.errors.BagError` for one that is no readable bag."""
     path = Path(path)
     with open_bag(path) as reader:
         topics = {c.topic for c in reader.connections}
@@ -114,7 +94,6 @@ def read_labels(path: str | Path, recording: Recording) -> Labels:
 
 
 def _read_legs(reader: Any, path: Path, recording: Recording) -> Labels:
-    """The extracted bag's labelled scans, each paired with the PoseArray logged beside it."""
     wanted = [c for c in reader.connections if c.topic in (LEGS_TOPIC, SCANS_TOPIC)]
     scans: list[tuple[int, np.ndarray]] = []
     legs: list[tuple[int, np.ndarray]] = []
@@ -126,19 +105,15 @@ def _read_legs(reader: Any, path: Path, recording: Recording) -> Labels:
             xy = [(p.position.x, p.position.y) for p in msg.poses]
             legs.append((int(log_time), np.array(xy, np.float64).reshape(-1, 2)))
     _check_pairs(path, [t for t, _ in scans], [t for t, _ in legs])
-    frames = frames_by_ranges([r for _, r in sorted(scans, key=_first)], recording)
-    ordered = [xy for _, xy in sorted(legs, key=_first)]
+    frames = frames_by_ranges([r for _, r in sorted(scans, key=itemgetter(0))], recording)
+    ordered = [xy for _, xy in sorted(legs, key=itemgetter(0))]
     positions = {f: xy for f, xy in zip(frames, ordered, strict=True) if f is not None}
     return Labels(positions, "legs", sum(f is None for f in frames))
 
 
-def _first(item: tuple[int, Any]) -> int:
-    return item[0]
-
-
 def _check_pairs(path: Path, scan_times: list[int], leg_times: list[int]) -> None:
-    """Refuse an extracted bag whose scans and leg arrays do not come in pairs: as many of
-    each, and the ``i``-th of each logged before the ``i + 1``-th of either."""
+    """Refuse scans and leg arrays that are not logged in pairs: as many of each, the
+    ``i``-th of each before the ``i + 1``-th of either."""
     if len(scan_times) != len(leg_times):
         raise EvaluateError(
             f"{path}: {len(scan_times)} messages on {SCANS_TOPIC} but {len(leg_times)} on "
@@ -154,8 +129,8 @@ def _check_pairs(path: Path, scan_times: list[int], leg_times: list[int]) -> Non
 
 def frames_by_ranges(scans: list[np.ndarray], recording: Recording) -> list[int | None]:
     """The frame of ``recording`` whose ranges equal each of ``scans`` bit for bit (float32),
-    ``None`` where none does; of several equal frames, the first after the frame the scan
-    before was given (labelled scans in time order), else the first."""
+    ``None`` where none does; of several, the first after the previous scan's, else the
+    first."""
     frames: dict[bytes, list[int]] = {}
     ranges, offsets = recording.ranges.astype(np.float32, copy=False), recording.offsets
     for i in range(len(recording)):
@@ -174,7 +149,6 @@ def frames_by_ranges(scans: list[np.ndarray], recording: Recording) -> list[int 
 
 
 def _read_people(reader: Any, recording: Recording) -> Labels:
-    """The annotated people, each given to its frame by :func:`frames_by_stamps`."""
     connections = [c for c in reader.connections if c.topic == PEOPLE_TOPIC]
     stamps: list[int] = []
     xy: list[tuple[float, float]] = []
@@ -190,9 +164,8 @@ def _read_people(reader: Any, recording: Recording) -> Labels:
 
 
 def frames_by_stamps(stamps_ns: np.ndarray, scan_stamps_ns: np.ndarray, lag_ns: int) -> np.ndarray:
-    """The frame each annotation belongs to: the scan whose stamp is nearest the annotation's
-    stamp less ``lag_ns``; -1 where that scan is further than ``lag_ns`` away (outside the
-    recording). ``scan_stamps_ns`` ascending.
+    """The frame of each annotation: the scan (``scan_stamps_ns`` ascending) whose stamp is
+    nearest the annotation's less ``lag_ns``; -1 where that scan is further than ``lag_ns``.
 
     >>> frames_by_stamps(np.array([100, 210, 260, 900]), np.array([0, 100, 200]), 100).tolist()
     [0, 1, 2, -1]
@@ -211,7 +184,7 @@ def frames_by_stamps(stamps_ns: np.ndarray, scan_stamps_ns: np.ndarray, lag_ns: 
 @dataclass
 class LabelCounts:
     """Labels ``found`` of those ``labelled`` (recall), occupied cells of the region ``near`` a
-    label of those ``predicted`` there (precision), over ``frames`` labelled frames."""
+    label of those ``predicted`` there (precision), over ``frames`` frames."""
 
     found: int = 0
     labelled: int = 0
@@ -220,19 +193,14 @@ class LabelCounts:
     frames: int = 0
 
     def __add__(self, other: LabelCounts) -> LabelCounts:
-        return LabelCounts(
-            self.found + other.found, self.labelled + other.labelled, self.near + other.near,
-            self.predicted + other.predicted, self.frames + other.frames,
-        )  # fmt: skip
+        return summed(self, other)
 
     @property
     def recall(self) -> float | None:
-        """``found / labelled``; ``None`` when nothing was labelled."""
         return self.found / self.labelled if self.labelled else None
 
     @property
     def precision(self) -> float | None:
-        """``near / predicted``; ``None`` when nothing was predicted in the region."""
         return self.near / self.predicted if self.predicted else None
 
 
@@ -244,9 +212,8 @@ def label_counts(
     radius: float = RADIUS,
 ) -> LabelCounts:
     """One labelled frame: of the labels ``labels_xy`` (``(N, 2)`` metres, sensor frame) inside
-    ``grid``, those with an occupied cell of the bool map ``decided`` ``(H, W)`` within
-    ``radius`` (centre to label); of ``decided``'s cells inside ``region`` ``(H, W)`` bool,
-    those within ``radius`` of a label (any label, inside the grid or not).
+    ``grid``, those within ``radius`` of a cell of ``decided`` ``(H, W)`` bool; of
+    ``decided``'s cells inside ``region``, those within ``radius`` of any label.
 
     >>> grid = GridSpec(4, 4, 1.0)
     >>> decided = np.zeros((4, 4), bool); decided[0, 0] = decided[3, 3] = True
@@ -291,9 +258,8 @@ def _inside(xy: np.ndarray, grid: GridSpec) -> np.ndarray:
 
 @dataclass
 class LabelScore:
-    """Every method's :class:`LabelCounts` per step ``k`` (1..``horizon``) on a recording's
-    labelled frames (``positions``, :attr:`Labels.positions`), precision inside ``region``
-    (``t ->`` frame ``t``'s dynamic region ``(H, W)``)."""
+    """Every method's :class:`LabelCounts` per step ``k`` (1..``horizon``) on the labelled
+    frames ``positions``, precision inside ``region`` (``t ->`` frame ``t``'s region)."""
 
     positions: Mapping[int, np.ndarray]
     grid: GridSpec
@@ -305,9 +271,8 @@ class LabelScore:
         self.region = functools.lru_cache(maxsize=self.horizon + 1)(self.region)
 
     def add(self, method: str, t: int, predicted: np.ndarray) -> None:
-        """``method``'s outputs ``(K, H, W)`` (or one ``(H, W)``, ``k = 1``) made after frame
-        ``t``, decided at 0.4, each scored against frame ``t + k``'s labels where it has
-        some."""
+        """Score ``method``'s outputs ``(K, H, W)`` (or one ``(H, W)``) made after frame ``t``
+        against frame ``t + k``'s labels, where it has some."""
         predicted = np.asarray(predicted).reshape(-1, *self.grid.shape)
         counts = self.counts.setdefault(method, [LabelCounts() for _ in range(self.horizon)])
         for k, output in enumerate(predicted[: self.horizon]):
@@ -317,8 +282,7 @@ class LabelScore:
                 counts[k] = counts[k] + one
 
     def summary(self) -> dict[str, dict[str, list[Any]]]:
-        """``{method: {"recall": [k = 1..K], "precision", "labelled", "frames"}}``, in the
-        order the methods were first added (``None`` where undefined)."""
+        """``{method: {"recall": [k = 1..K], "precision", "labelled", "frames"}}``."""
         return {
             method: {
                 "recall": [c.recall for c in counts],
@@ -333,9 +297,9 @@ class LabelScore:
 def with_labels(
     hooks: Hooks, score: LabelScore, methods: Sequence[Method], occupancy: Frames
 ) -> Hooks:
-    """``hooks`` that also hand ``score`` every prediction the horizon tables score (with
-    ``score.horizon`` 1, the main table's, what knows the future left out as there) and, beside
-    copy-last's, the scan itself ``occupancy[t + k]`` as :data:`CEILING`."""
+    """``hooks`` that also hand ``score`` every prediction scored ahead (the main table's for
+    ``score.horizon`` 1), oracles left out, and with copy-last's the scan itself as
+    :data:`CEILING`."""
     oracles = {m.name for m in methods if getattr(m, "oracle", False)}
     horizon = score.horizon
 
@@ -356,7 +320,6 @@ def with_labels(
 
 
 def _then(first: Callable[..., None] | None, second: Callable[..., None]) -> Callable[..., None]:
-    """Call ``first`` (where there is one), then ``second``, with the same arguments."""
     if first is None:
         return second
 
@@ -368,8 +331,7 @@ def _then(first: Callable[..., None] | None, second: Callable[..., None]) -> Cal
 
 
 def labels_entry(labels: Labels, score: LabelScore) -> dict[str, Any]:
-    """A recording's report keys: ``legs`` (:meth:`LabelScore.summary`), ``legs_kind`` (what
-    was labelled) and, where some were, ``legs_unmatched``."""
+    """A recording's report keys: ``legs``, ``legs_kind`` and any ``legs_unmatched``."""
     entry: dict[str, Any] = {"legs": score.summary(), "legs_kind": labels.kind}
     if labels.unmatched:
         entry["legs_unmatched"] = labels.unmatched

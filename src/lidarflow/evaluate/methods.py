@@ -1,7 +1,6 @@
-"""The methods `lidarflow evaluate` scores, built once for the command line and the studies: the
-four baselines (copy-last, temporal average, constant velocity, the tracker), each model as
-streamed by the engine (with the decision policy it ships with),
-the variants asked for, and the configuration a report states them by."""
+"""The methods ``lidarflow evaluate`` scores, built once for the command line and the studies:
+the baselines, each model as the engine streams it, the variants asked for, and the
+configuration a report states them by."""
 
 from __future__ import annotations
 
@@ -44,19 +43,13 @@ def methods_and_config(
     threads: int | None = None,
     combine: int | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
-    """The baselines plus one method per model source (``None``: the bundled model), and the
-    configuration that describes them for the report. With an ego-motion model among them the
-    last map moved by the same motion comes too (``copy_last_ego``: odometry, or on a recording
-    without poses the motion matched from its scans), to show what the model adds to ego-motion
-    compensation alone; ``ego_oracle`` adds the variants that know the
-    true next pose; ``online`` adds, for each model, the decision rule it was not built with:
-    ``NAME_online`` (offsets chosen on the recording as it streams) or ``NAME_fixed``. A source
-    ``None`` or ``"bundled"`` is the bundled model; ``names`` name the models (default: the
-    bundled one ``bundled``, others by their folder or file); ``device``: where PyTorch models
-    run (``cpu``, ``cuda``, ``cuda:N``; ONNX files run on the CPU); ``threads``: the CPU threads
-    each model runs on (``None``: the backend's default; ONNX Runtime takes them when its session
-    is made, PyTorch process-wide); ``combine``: each model also combined online with the simple
-    predictors for that many frames ahead (``NAME_combined``, :mod:`lidarflow.online`)."""
+    """The baselines plus the methods of each model source (``None`` or ``"bundled"``: the
+    bundled model, else named by ``names`` or its folder or file), and the report's
+    configuration of them. An ego-motion model brings ``copy_last_ego``; ``ego_oracle`` adds
+    the variants that know the true next pose, ``online`` each model's other decision rule
+    (``NAME_online`` or ``NAME_fixed``), ``combine`` each model combined online with the simple
+    predictors that many frames ahead (``NAME_combined``). PyTorch models run on ``device``,
+    each on ``threads`` CPU threads (``None``: the backend's default)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [
@@ -108,7 +101,7 @@ def _model_methods(
     threads: int | None,
 ) -> list[Any]:
     """The methods of one model ``source`` (see :func:`methods_and_config`), named ``name`` or
-    after it (a name ``taken`` already gets underscores), and its record in ``models_used``."""
+    after it (a name ``taken`` gets underscores), its record put in ``models_used``."""
     bundled = source is None or str(source) == "bundled"
     net, card = load_backend(None if bundled else source, threads=threads, device=device)
     name = name or ("bundled" if bundled else describe_source(source))

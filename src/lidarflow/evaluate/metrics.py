@@ -7,13 +7,16 @@ whose value differs between ``O^t`` and ``O^{t+1}``; copying the last map scores
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import TypeVar
 
 import numpy as np
 
 from lidarflow.predict.offsets import THRESHOLD
 
-__all__ = ["THRESHOLD", "Counts", "confusion"]
+__all__ = ["THRESHOLD", "Counts", "confusion", "summed"]
+
+_Sums = TypeVar("_Sums")
 
 
 @dataclass
@@ -25,7 +28,7 @@ class Counts:
     fn: int = 0
 
     def __add__(self, other: Counts) -> Counts:
-        return Counts(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn)
+        return summed(self, other)
 
     @property
     def precision(self) -> float:
@@ -57,6 +60,12 @@ class Counts:
             "fp": self.fp,
             "fn": self.fn,
         }
+
+
+def summed(a: _Sums, b: _Sums) -> _Sums:
+    """A dataclass of sums (counts over frames) whose every field is ``a``'s plus ``b``'s:
+    how scores add up over recordings (micro-averaging)."""
+    return type(a)(*(getattr(a, f.name) + getattr(b, f.name) for f in fields(a)))
 
 
 def confusion(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> Counts:

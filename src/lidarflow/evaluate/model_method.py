@@ -19,30 +19,14 @@ __all__ = ["ModelMethod"]
 
 
 class ModelMethod:
-    """A model (a :class:`~lidarflow.models.recurrent.RecurrentMapModel`, run by PyTorch on
-    ``device``, or any :class:`~lidarflow.predict.engine.Backend`) as a
-    :class:`~lidarflow.baselines.Method`. After each update a flow model exposes
-    ``backward_flow`` and ``forward_flow`` ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool,
-    the occupied cells of the frame just given that move on their own
-    (:func:`lidarflow.predict.moving.moving_mask` of the forward flow at ``moving_threshold``
-    cells); all three are ``None`` for other models. :attr:`last` is the engine's last
-    :class:`~lidarflow.predict.engine.Step`, which a roll-out continues from.
-
-    Ego-motion models (``takes.motion``) take the frame's ``motion`` (cells, this frame in the
-    previous one, see :mod:`lidarflow.motion.odometry`) in ``update``; ``oracle=True`` also takes
-    the true ``next_motion`` instead of the causal guess (evaluation only). A model that may run
-    without poses (``takes.poses_optional``) checks
-    the odometry against the scans and, where they disagree, takes the scans' own motion, refined
-    on the scans' returns when ``update`` is given them (``res``: the grid's cell size in
-    metres).
-
-    ``update`` returns the probability the model's decision policy thresholds (what F1 at 0.4
-    scores): ``decision`` is the policy the model ships with (``model.json``'s ``decision``
-    record; an ONNX backend's own by default), and ``online`` re-decides an occupancy-head
-    model's probability with the decision offsets that have done best on the recording so far
-    (:mod:`lidarflow.predict.decision`): ``None`` where the policy says so, ``True`` / ``False``
-    always / never, with ``online_config`` (default: :class:`OnlineDecisionConfig`'s); a config
-    always, with that configuration."""
+    """A model (run by PyTorch on ``device``, or any :class:`~lidarflow.predict.engine.Backend`)
+    as a :class:`~lidarflow.baselines.Method`. After each update a flow model exposes
+    ``backward_flow``, ``forward_flow`` ``(2, H, W)`` (cells) and ``moving`` ``(H, W)`` bool
+    (at ``moving_threshold`` cells), ``None`` for other models; :attr:`last` is the engine's
+    last step. ``oracle=True`` takes the true ``next_motion``; ``res``: metres per cell.
+    ``decision`` is the policy the model ships with (by default its own); ``online``
+    re-decides with the offsets that did best so far: ``None`` as the policy says,
+    ``True`` / ``False`` always / never, a config always with it (default ``online_config``)."""
 
     def __init__(
         self,
@@ -61,8 +45,7 @@ class ModelMethod:
         self.moving_threshold = moving_threshold
         caps = self.backend.capabilities
         optional = caps.ego_motion and caps.poses_optional
-        #: What ``update`` takes beside the maps; a model that may run without poses checks
-        #: odometry against the scans' returns.
+        # a model that may run without poses checks odometry against the scans' returns
         self.takes = Takes(caps.ego_motion, optional, optional, takes_subcell(caps.input_channels))
         record = decision if decision is not None else self.backend.decision
         policy = DecisionPolicy.from_record(record, online_config)
@@ -105,10 +88,7 @@ class ModelMethod:
     def update(
         self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
     ) -> np.ndarray:
-        """One frame, and what it is ``given`` beside its maps: the ``returns`` refine scan
-        matching where ``motion`` is odometry that disagrees with the scans; ``subcell``, which
-        a model with ``takes.subcell`` needs; ``pace`` scales the guess of the next motion after a
-        long step in time (:func:`lidarflow.motion.pacing.paced_motion`)."""
+        """One frame, and what it is ``given`` beside its maps; the decided probability."""
         if self.takes.subcell and given.subcell is None:
             raise EvaluateError(
                 f"{self.name} needs where the returns lie inside their cells (subcell_input): "

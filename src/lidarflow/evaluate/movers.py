@@ -1,24 +1,7 @@
-"""The mover metric (design notes §5): how well a prediction foresees what moves.
-
-All-cell F1 is dominated by walls and changed-cell F1 by edge flicker; the cells that hold a
-moving person are about 1 % of the occupied ones. This module scores a prediction inside the
-*dynamic region* of its target frame only (:mod:`lidarflow.evaluate.dynamic` finds it):
-
-- **exact F1** at the decision threshold, on the region's cells (TP/FP/FN as
-  :func:`~lidarflow.evaluate.metrics.confusion`);
-- **tolerant F1** with a tolerance of :data:`TOLERANCE` cells (0.2 m on the default 0.1 m grid),
-  Euclidean: a predicted cell of the region is right when a true occupied cell of the region lies
-  within the tolerance, a true cell of the region is found when a predicted one of the region
-  does. Precision counts predicted cells, recall true cells, F1 their harmonic mean. Both sides
-  are kept to the region so that a wall copied next to a person does not "find" the person;
-  a prediction off by up to two cells (a person predicted a step short) still counts;
-- **AUC** (area under the ROC curve) of the probability on the region's cells, from
-  :data:`BINS` equal bins (ties in a bin count half, so it is exact for binary predictors);
-- **soft IoU** of the probability, the Waymo occupancy-flow definition
-  ``sum(p * y) / sum(p + y - p * y)``.
-
-Every sum is micro-averaged over the frames of a recording (and over recordings for
-"overall"), as the other F1s are.
+"""The mover metric (design notes §5): how well a prediction foresees what moves, scored inside
+the *dynamic region* of its target frame only (:mod:`lidarflow.evaluate.dynamic`), where walls
+and edge flicker do not drown it: exact and tolerant F1, AUC and soft IoU, micro-averaged
+(definitions: ``docs/guide/conventions.md``).
 """
 
 from __future__ import annotations
@@ -28,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion, summed
 from lidarflow.geometry import TOLERANCE, near
 
 __all__ = ["BINS", "TOLERANCE", "MoverScore", "TolerantCounts", "near", "roc_auc"]
@@ -47,12 +30,7 @@ class TolerantCounts:
     missed: int = 0
 
     def __add__(self, other: TolerantCounts) -> TolerantCounts:
-        return TolerantCounts(
-            self.right + other.right,
-            self.wrong + other.wrong,
-            self.found + other.found,
-            self.missed + other.missed,
-        )
+        return summed(self, other)
 
     @property
     def precision(self) -> float:
@@ -66,8 +44,7 @@ class TolerantCounts:
 
     @property
     def f1(self) -> float:
-        """Harmonic mean of precision and recall; 1.0 when there is nothing to find and
-        nothing predicted (as :attr:`Counts.f1 <lidarflow.evaluate.metrics.Counts.f1>`)."""
+        """Harmonic mean of precision and recall; 1.0 with nothing to find nor predicted."""
         if not (self.right + self.wrong + self.found + self.missed):
             return 1.0
         p, r = self.precision, self.recall
@@ -77,8 +54,8 @@ class TolerantCounts:
     def of(
         cls, predicted: np.ndarray, target: np.ndarray, region: np.ndarray, radius: int = TOLERANCE
     ) -> TolerantCounts:
-        """Counts of bool ``predicted`` against bool ``target`` inside ``region`` (same shape,
-        ``(..., H, W)``), with a tolerance of ``radius`` cells."""
+        """Counts of bool ``predicted`` against ``target`` inside ``region`` (one shape), with
+        a tolerance of ``radius`` cells."""
         p = np.asarray(predicted, bool) & region
         t = np.asarray(target, bool) & region
         right = int(np.count_nonzero(p & near(t, radius)))
@@ -87,9 +64,9 @@ class TolerantCounts:
 
 
 def roc_auc(positives: np.ndarray, negatives: np.ndarray) -> float:
-    """Area under the ROC curve from histograms of the probabilities of the positive and the
-    negative cells over the same equal bins (low to high); two cells in one bin count as tied
-    (half). NaN when either class is empty.
+    """Area under the ROC curve from histograms of the positive and the negative cells'
+    probabilities over the same bins (low to high), ties in a bin half; NaN when either class
+    is empty.
 
     >>> roc_auc(np.array([0, 1]), np.array([1, 0]))
     1.0
@@ -146,16 +123,7 @@ class MoverScore:
         self.frames += 1
 
     def __add__(self, other: MoverScore) -> MoverScore:
-        return MoverScore(
-            self.exact + other.exact,
-            self.tolerant + other.tolerant,
-            self.positives + other.positives,
-            self.negatives + other.negatives,
-            self.soft_intersection + other.soft_intersection,
-            self.soft_union + other.soft_union,
-            self.cells + other.cells,
-            self.frames + other.frames,
-        )
+        return summed(self, other)
 
     @property
     def defined(self) -> bool:
@@ -168,7 +136,7 @@ class MoverScore:
 
     def summary(self) -> dict[str, Any]:
         """``f1`` (exact), ``f1_tolerant``, their precision and recall, ``auc`` (``None``
-        without both classes in the region), ``soft_iou``, region ``cells`` and ``frames``."""
+        without both classes), ``soft_iou``, ``true_cells``, region ``cells`` and ``frames``."""
         auc = roc_auc(self.positives, self.negatives)
         return {
             "f1": self.exact.f1,

@@ -1,14 +1,10 @@
-"""Choosing an occupancy-head model's fixed decision offset on recordings (`lidarflow
-choose-offset`).
+"""Choosing an occupancy-head model's fixed decision offset on recordings
+(``lidarflow choose-offset``).
 
-The head is trained by cross-entropy, so its probabilities are calibrated and it predicts that
-a cell changes only when the change is likelier than the 0.4 threshold. An offset added to its
-logit when deciding (the ``decision`` record of its ``model.json``, the Predictor's policy)
-trades calibration for cells that change. Each candidate offset is scored with fixed decisions
-beside the three baselines, and the one with the largest summed *win margin* is chosen: per
-recording ``min(F1 - best baseline F1, changed F1 - best baseline changed F1)``, positive
-exactly where the model wins there. A model that chooses its offsets online still uses the
-fixed offset for its first frames and wherever online decisions are turned off.
+An offset added to the head's logit when deciding trades calibration for cells that change.
+Each candidate is scored with fixed decisions beside the baselines, and the one with the largest
+summed win margin (:func:`win_margin`, positive exactly where the model wins) is chosen. A model
+that chooses its offsets online still decides with it for its first frames.
 """
 
 from __future__ import annotations
@@ -43,8 +39,7 @@ DEFAULT_OFFSETS = (0.0, 0.3, 0.6, 0.9, 1.2)
 
 def win_margin(methods: Mapping[str, Mapping[str, Any]], name: str) -> float:
     """``min(F1 - best baseline F1, changed F1 - best baseline changed F1)`` of method ``name``
-    in one recording's ``methods`` (an `evaluate` report's); a metric with nothing to find
-    (``None``) counts as 0."""
+    in one recording's report ``methods``; a metric with nothing to find counts as 0."""
 
     def value(method: str, metric: str) -> float:
         return float(methods[method].get(metric) or 0.0)
@@ -60,9 +55,8 @@ def decided_online(card: Mapping[str, Any]) -> bool:
 
 
 def with_offset(card: Mapping[str, Any], offset: float, online: bool = False) -> dict[str, Any]:
-    """A copy of the model description ``card`` (a model.json) deciding with the fixed
-    ``offset``, and online where ``online`` (off for the candidates, so that each is scored on
-    its own offset); the decision keys older files kept among the model's kwargs are dropped."""
+    """A copy of the model.json ``card`` deciding with the fixed ``offset`` (online where
+    ``online``), without the decision keys older files kept among the model's kwargs."""
     kwargs = {k: v for k, v in (card.get("model_kwargs") or {}).items() if k not in DECISION_KEYS}
     kept = {k: v for k, v in card.items() if k not in ("weights_path", "weights_sha256")}
     decision = {"offset": float(offset), "online": bool(online)}
@@ -72,9 +66,8 @@ def with_offset(card: Mapping[str, Any], offset: float, online: bool = False) ->
 def choose_offset(
     recordings: Sequence[Mapping[str, Any]], names: Mapping[float, str]
 ) -> tuple[float, dict[float, float]]:
-    """The offset (of ``names``: offset -> method name in the report) whose summed win margin
-    over the report's ``recordings`` is largest (the first such of equals), and every offset's
-    sum."""
+    """The offset (``names``: offset -> method name) whose summed win margin over the report's
+    ``recordings`` is largest (the first of equals), and every offset's sum."""
     totals = {
         offset: sum(win_margin(entry["methods"], name) for entry in recordings)
         for offset, name in names.items()
@@ -91,9 +84,8 @@ def score_offsets(
     warmup: int,
     progress: Callable[[str, int], Any] | None = None,
 ) -> tuple[dict[str, Any], dict[float, str]]:
-    """Score the model (``card``, its model.json, with ``weights``) deciding with each of the
-    ``offsets`` beside the baselines on the ``named`` recordings: the `evaluate` report, and
-    each offset's method name in it."""
+    """The `evaluate` report of the model (``card`` with ``weights``) deciding with each of
+    the ``offsets`` on the ``named`` recordings, and each offset's method name in it."""
     from lidarflow.evaluate.evaluation import evaluate_and_report
     from lidarflow.evaluate.methods import methods_and_config
 

@@ -1,35 +1,8 @@
-"""The metrics the peers report beside F1: weighted MSE and SSIM of a predicted map.
-
-SOGMP (Xie and Dames, "Stochastic Occupancy Grid Map Prediction in Dynamic Scenes", CoRL 2023)
-and its successor SCOPE report a weighted mean squared error (WMSE) and the structural
-similarity index (SSIM) of the predicted occupancy map against the observed one, per prediction
-step, and no F1. These functions let a lidarflow report be read in that convention too (design
-notes section 5: beside F1, never instead of it). Both are pure NumPy on maps ``(..., H, W)`` and
-return one value per map (shape ``(...)``).
-
-**WMSE.** Most cells are free, so a plain MSE rewards predicting nothing. The squared error is
-weighted by class so that occupied and free cells count equally (median-frequency balancing,
-Eigen and Fergus 2015: weight ``median_c f_c / f_c`` for class frequency ``f_c``; with two
-classes that is ``1 / (2 f_c)``):
-
-    WMSE = sum_i w_i (p_i - y_i)^2 / sum_i w_i,   w_i = 1 / n_{y_i}
-
-with ``n_1`` the target's occupied cells and ``n_0`` its free cells, i.e. the mean of the MSE
-over the occupied cells and the MSE over the free cells. The frequencies are each target map's
-own, so that the metric streams frame by frame; a map with one class only is its plain MSE.
-``weights=(w_free, w_occupied)`` gives fixed class weights instead (``(1, 1)``: the plain MSE).
-
-**SSIM** (Wang et al. 2004, the reference definition): an 11 x 11 Gaussian window of sigma 1.5,
-``C1 = (0.01 L)^2``, ``C2 = (0.03 L)^2`` with data range ``L = 1`` (probabilities against a 0/1
-map), local means, variances and covariance weighted by the window, averaged over the window
-positions wholly inside the map (no padding: ``(H - 10) x (W - 10)`` of them). It equals
-``skimage.metrics.structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
-use_sample_covariance=False, data_range=1)`` (the tests check it).
-
-What is scored is what each method outputs: the probability its decision thresholds at 0.4 (a
-model's decided probability; copy-last's last map, 0 or 1) against the observed next map, 0 or
-1. Both metrics depend on the grid: compare methods on one grid, not numbers across papers
-(``docs/research/peer_comparison/``).
+"""The metrics the peers (SOGMP, SCOPE) report beside F1: the class-weighted MSE and SSIM of a
+predicted map, pure NumPy on maps ``(..., H, W)``, one value per map. Their definitions, and
+why numbers differ across grids and papers: ``docs/guide/conventions.md``. SSIM equals
+scikit-image's ``structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
+use_sample_covariance=False, data_range=1)``.
 """
 
 from __future__ import annotations
@@ -65,9 +38,8 @@ def wmse(
     weights: tuple[float, float] | None = None,
 ) -> np.ndarray:
     """Class-weighted mean squared error of ``predicted`` probabilities against the 0/1
-    ``target`` (cells ``>= 0.5`` occupied), one value per map ``(..., H, W) -> (...)``; lower is
-    better, 0 for a perfect prediction, at most 1 for probabilities in [0, 1]. ``weights=None``
-    balances the classes per map (see the module); ``(w_free, w_occupied)`` fixes them.
+    ``target`` (cells ``>= 0.5`` occupied), ``(..., H, W) -> (...)``, in [0, 1], lower is
+    better. ``weights=None`` balances the classes per map; ``(w_free, w_occupied)`` fixes them.
 
     >>> target = np.array([[1.0, 0.0, 0.0, 0.0]])
     >>> float(wmse(np.zeros((1, 4)), target))  # misses the one occupied cell: half the weight
@@ -105,10 +77,8 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.nd
 
 @functools.lru_cache(maxsize=8)
 def _band(size: int, n: int = SSIM_WINDOW) -> np.ndarray:
-    """``(size, size - n + 1)``: column ``j`` holds the window over cells ``j .. j + n - 1``, so
-    that a product with it filters one axis (a BLAS product: ~20 times faster on a 100 x 100
-    map than a product over strided windows). float32: the statistics of values in [0, 1] lose
-    ~1e-9 of SSIM to it, and it takes ~40 % less time than float64."""
+    """``(size, size - n + 1)`` float32: column ``j`` holds the window over cells
+    ``j .. j + n - 1``, so that a product with it filters one axis (a BLAS product)."""
     g = gaussian_window(n)
     band = np.zeros((size, size - n + 1), np.float32)
     for j in range(size - n + 1):
@@ -118,15 +88,13 @@ def _band(size: int, n: int = SSIM_WINDOW) -> np.ndarray:
 
 
 def _filter(maps: np.ndarray) -> np.ndarray:
-    """``maps (..., H, W)`` filtered by the Gaussian window, valid positions only:
-    ``(..., H - 10, W - 10)``."""
+    """``maps (..., H, W)`` filtered at the valid positions: ``(..., H - 10, W - 10)``."""
     return _band(maps.shape[-2]).T @ (maps @ _band(maps.shape[-1]))
 
 
 def ssim(predicted: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Mean structural similarity of two maps with values in [0, 1], one value per map
-    ``(..., H, W) -> (...)`` (see the module for the definition); higher is better, 1 for
-    identical maps, symmetric, within [-1, 1]. Maps must be at least 11 x 11 cells.
+    """Mean structural similarity of two maps with values in [0, 1], ``(..., H, W) -> (...)``,
+    in [-1, 1], 1 for identical maps. Maps must be at least 11 x 11 cells.
 
     >>> x = np.zeros((12, 12)); x[3:8, 4:6] = 1.0
     >>> float(ssim(x, x))

@@ -35,29 +35,14 @@ __all__ = [
 BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker")
 #: Names ending so are variants that know the true next pose: no deployable method, no verdict.
 ORACLE_SUFFIX = "_oracle"
-_COLUMNS = (
-    "f1",
-    "precision",
-    "recall",
-    "ap",
-    "changed_f1",
-    "mover_f1",
-    "mover_f1_tolerant",
-    "epe",
-)
 #: The verdict's mover metric (:mod:`lidarflow.evaluate.movers`), against copy-last's.
 MOVER_KEY = "mover_f1_tolerant"
+_COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", "mover_f1", MOVER_KEY, "epe")
 #: Columns of the second table: calibration of the probabilities (lower is better) and
 #: moving-object segmentation of the moving class (flow models on simulated data).
-UNCERTAINTY_COLUMNS = (
-    "ece",
-    "ece_active",
-    "brier",
-    "moving_iou",
-    "moving_precision",
-    "moving_recall",
-)
-_LOWER_IS_BETTER = ("ece", "ece_active", "brier")
+_CALIBRATION = ("ece", "ece_active", "brier")
+UNCERTAINTY_COLUMNS = (*_CALIBRATION, "moving_iou", "moving_precision", "moving_recall")
+_LOWER_IS_BETTER = (*_CALIBRATION, "wmse")
 #: The peers' metrics (:mod:`lidarflow.evaluate.peer_metrics`): WMSE lower is better, SSIM higher.
 PEER_COLUMNS = ("wmse", "ssim")
 
@@ -66,11 +51,9 @@ def build_report(
     per_recording: list[tuple[str, dict[str, Scorer]]], config: dict[str, Any] | None = None
 ) -> dict[str, Any]:
     """``{"recordings": [{"path", "frames_evaluated", "methods": {name: metrics},
-    "against_baselines"}], "overall": {name: metrics}, "against_baselines"}``; overall
-    micro-averages (sums counts) over recordings. ``against_baselines``: each model against
-    the baselines (:func:`against_baselines`); overall also counts the recordings it won.
-    A recording whose scored frames leave a metric nothing to find gets ``"undefined"``
-    (:func:`undefined_metrics`), and so does the report when every recording does."""
+    "against_baselines"}], "overall": {name: metrics}, "against_baselines"}``, overall summed
+    over recordings (micro-averaged); ``"undefined"`` (:func:`undefined_metrics`) where a
+    recording, or all of them, left a metric nothing to find."""
     recordings = []
     names: list[str] = []
     no_verdict = (config or {}).get("no_verdict")
@@ -108,12 +91,10 @@ def build_report(
 
 
 def undefined_metrics(scorers: Mapping[str, Scorer]) -> list[str]:
-    """The metrics that had nothing to find in the frames ``scorers`` scored (the targets are
-    the same for every method): ``f1``, ``recall`` and ``ap`` where no target cell was
-    occupied, ``changed_f1`` where no changed cell became occupied. Their values follow the 0/0
-    conventions of :class:`~lidarflow.evaluate.metrics.Counts` (F1 1.0 where nothing was
-    predicted either, recall and AP 0) and say nothing about a method, so the report flags them
-    rather than let a blind recording read as a perfect score."""
+    """The metrics that had nothing to find in the frames ``scorers`` scored: ``f1``,
+    ``recall`` and ``ap`` where no target cell was occupied, ``changed_f1`` where no changed
+    cell became occupied, ``mover_f1`` where nothing moved. Their 0/0 values say nothing about
+    a method, so the report flags them rather than let a blind recording read as perfect."""
     if not scorers:
         return []
     out = []
@@ -128,8 +109,7 @@ def undefined_metrics(scorers: Mapping[str, Scorer]) -> list[str]:
 
 
 def undefined_note(undefined: Sequence[str]) -> str:
-    """One line under a table whose ``undefined`` metrics (:func:`undefined_metrics`) had
-    nothing to find, ``""`` when there are none."""
+    """The note under a table with ``undefined`` metrics, ``""`` without any."""
     if "f1" in undefined:
         return (
             "note: no occupied cell in any scored target frame (`lidarflow info` counts invalid "
@@ -155,21 +135,13 @@ def against_baselines(
     undefined: Collection[str] = (),
     no_verdict: Collection[str] | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """Each model among ``methods`` (every one that is not one of :data:`BASELINES`, the
-    copy-last moved by the ego motion, or a variant that knows the next pose) against the
-    baselines, by the rule that decides whether a model is worth using: it wins when its F1 is
-    above the best baseline's, its changed-cell F1 above every baseline's, and its tolerant
-    mover F1 (:data:`MOVER_KEY`) above copy-last's (a model that loses on what moves is no
-    better than copying the last map, whatever its walls score). ``{name: {"wins",
-    "f1_margin", "f1_baseline", "changed_f1_margin", "changed_f1_baseline",
-    "mover_f1_margin"}}`` (margins against the best baseline, which is named; the mover margin
-    against copy-last, ``None`` where the mover metric had nothing to find or was not scored:
-    then it does not decide); ``{}`` without baselines. Where F1 or changed-cell F1 is among
-    ``undefined`` (nothing to find, :func:`undefined_metrics`) the rule cannot decide:
-    ``"wins"`` is ``None``. :func:`add_horizon_verdict` adds the mover condition at the
-    report's horizon. ``no_verdict``: the methods that get none
-    (``evaluate`` names them in its config, so that a run folder called ``..._oracle`` is still
-    judged); ``None``: told apart by their names."""
+    """Each model among ``methods`` against the baselines: it wins when its F1 is above the
+    best baseline's, its changed-cell F1 above every baseline's and its :data:`MOVER_KEY`
+    above copy-last's. ``{name: {"wins", "f1_margin", "f1_baseline", "changed_f1_margin",
+    "changed_f1_baseline", "mover_f1_margin"}}`` (the mover margin ``None`` where it cannot
+    decide; ``"wins"`` ``None`` where F1 or changed-cell F1 is ``undefined``); ``{}`` without
+    baselines. ``no_verdict``: the methods that get none, ``None`` to tell them by name
+    (``copy_last_ego*``, ``*_oracle``)."""
     present = [b for b in BASELINES if b in methods]
     if not present:
         return {}
@@ -211,11 +183,9 @@ def _mover_margin(
 
 
 def add_horizon_verdict(entry: dict[str, Any]) -> None:
-    """Extend a recording's verdicts (``entry["against_baselines"]``) by the mover condition
-    at its horizon: the tolerant mover F1 ``K`` steps ahead (``entry["horizon_mover_f1_
-    tolerant"]``, :mod:`lidarflow.evaluate.horizon`) must be above copy-last's too. Adds
-    ``mover_f1_horizon_margin`` (``None`` where nothing moved into the region); a no-op
-    without horizon mover scores."""
+    """Extend a recording's verdicts by the mover condition at its horizon: the tolerant
+    mover F1 ``K`` ahead must be above copy-last's too. Adds ``mover_f1_horizon_margin``
+    (``None`` where nothing moved); a no-op without horizon mover scores."""
     scores = entry.get("horizon_mover_f1_tolerant")
     if not scores or "copy_last" not in scores:
         return
@@ -230,8 +200,8 @@ def add_horizon_verdict(entry: dict[str, Any]) -> None:
 
 
 def count_recordings_won(report: dict[str, Any]) -> None:
-    """Set the overall verdicts' ``recordings_won`` (and ``recordings``, ``recordings_
-    undecided``) from the recordings' verdicts."""
+    """Set the overall verdicts' ``recordings_won``, ``recordings`` and
+    ``recordings_undecided`` from the recordings' verdicts."""
     for name, verdict in report.get("against_baselines", {}).items():
         verdicts = [
             e["against_baselines"][name]
@@ -247,8 +217,7 @@ def count_recordings_won(report: dict[str, Any]) -> None:
 
 
 def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
-    """One line per model of :func:`against_baselines` (with ``recordings_won`` where given):
-    its margins over the best baselines, and whether it wins."""
+    """One line per model of :func:`against_baselines`: its margins and whether it wins."""
     lines = []
     for name, v in compared.items():
         won = ""
@@ -272,16 +241,14 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
 
 
 def gaps_note(entry: Mapping[str, Any]) -> str:
-    """``"; N gaps in time, not scored across"`` for a recording's report entry with gaps
-    (``gaps_not_scored``), else ``""``: what its frame count leaves out."""
+    """``"; N gaps in time, not scored across"`` for an entry with gaps, else ``""``."""
     gaps = len(entry.get("gaps_not_scored", []))
     return f"; {gaps} gap{'s' * (gaps > 1)} in time, not scored across" if gaps else ""
 
 
 def grid_note(entry: Mapping[str, Any], scored: Mapping[str, Any]) -> str:
-    """One line for a recording's report entry recorded on another grid (``recorded_grid``)
-    than the one it was ``scored`` on, ``""`` otherwise: its numbers are not on the grid it was
-    made for, and a simulated one's ground truth is not scored."""
+    """The note for an entry recorded on another grid than the one it was ``scored`` on,
+    ``""`` otherwise."""
     recorded = entry.get("recorded_grid")
     if not recorded:
         return ""
@@ -322,8 +289,7 @@ def _text_table(
 
 
 def format_table(methods: dict[str, dict[str, float]], title: str = "") -> str:
-    """A plain-text table, one row per method; the best F1 / changed-cell F1 / mover F1s
-    marked with *."""
+    """A plain-text table, one row per method; the best F1s marked with *."""
     present = [c for c in _COLUMNS if any(c in m for m in methods.values())]
     best = {
         c: max((m[c] for m in methods.values() if c in m), default=None)
@@ -334,42 +300,28 @@ def format_table(methods: dict[str, dict[str, float]], title: str = "") -> str:
 
 
 def uncertainty_row(metrics: dict[str, Any]) -> dict[str, float]:
-    """The :data:`UNCERTAINTY_COLUMNS` present in one method's metrics (from the nested
-    ``calibration`` and ``segmentation`` entries of the report)."""
-    row: dict[str, float] = {}
-    calibration = metrics.get("calibration")
-    if calibration:
-        for key in ("ece", "ece_active", "brier"):
-            if key in calibration:
-                row[key] = calibration[key]
+    """The :data:`UNCERTAINTY_COLUMNS` present in one method's report metrics."""
+    calibration = metrics.get("calibration") or {}
+    row = {key: calibration[key] for key in _CALIBRATION if key in calibration}
     segmentation = metrics.get("segmentation")
     if segmentation:
-        row["moving_iou"] = segmentation["iou"]
-        row["moving_precision"] = segmentation["precision"]
-        row["moving_recall"] = segmentation["recall"]
+        row.update({f"moving_{key}": segmentation[key] for key in ("iou", "precision", "recall")})
     return row
 
 
 def uncertainty_rows(
     methods: dict[str, dict[str, Any]],
 ) -> tuple[list[str], dict[str, dict[str, float]], dict[str, float]]:
-    """``(columns present, {method: row}, {column: best value})`` of the uncertainty table:
-    the best ECE and Brier are the lowest, the best segmentation scores the highest; a column
-    that only one method has gets no best."""
+    """``(columns present, {method: row}, {column: best value})`` of the uncertainty table;
+    a column that only one method has gets no best."""
     rows = {name: uncertainty_row(m) for name, m in methods.items()}
     present = [c for c in UNCERTAINTY_COLUMNS if any(c in r for r in rows.values())]
-    best = {}
-    for c in present:
-        values = [r[c] for r in rows.values() if c in r]
-        if len(values) > 1:
-            best[c] = min(values) if c in _LOWER_IS_BETTER else max(values)
-    return present, rows, best
+    return present, rows, _best(rows, present, least=2)
 
 
 def format_uncertainty_table(methods: dict[str, dict[str, Any]], whose: str = "") -> str:
-    """Calibration (ECE, active ECE, Brier: lower is better, best marked *) and moving-object
-    segmentation (IoU, precision, recall of the moving class: higher is better), titled by
-    what it holds after ``whose`` ("overall "); "" when no method has any of them."""
+    """The calibration and moving segmentation table, best marked *, its title after
+    ``whose`` ("overall "); "" when no method has any of them."""
     present, rows, best = uncertainty_rows(methods)
     if not present:
         return ""
@@ -380,14 +332,20 @@ def format_uncertainty_table(methods: dict[str, dict[str, Any]], whose: str = ""
 
 
 def format_peer_table(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> str:
-    """The peers' metrics, one row per method: WMSE (lower is better) and SSIM (higher), the
-    best of each marked *; "" when no method has them."""
+    """The peers' WMSE and SSIM, one row per method, best marked *; "" without them."""
     rows = {n: {c: m[c] for c in PEER_COLUMNS if c in m} for n, m in methods.items()}
     present = [c for c in PEER_COLUMNS if any(c in r for r in rows.values())]
     if not present:
         return ""
+    return _text_table(rows, present, _best(rows, present), dict.fromkeys(present, 10), title)
+
+
+def _best(rows: Mapping[str, Mapping[str, float]], columns: list[str], least: int = 1) -> dict:
+    """Each column's best value (the lowest where lower is better), where ``least`` rows
+    have one."""
     best = {}
-    for c in present:
+    for c in columns:
         values = [r[c] for r in rows.values() if c in r]
-        best[c] = min(values) if c == "wmse" else max(values)
-    return _text_table(rows, present, best, dict.fromkeys(present, 10), title)
+        if len(values) >= least:
+            best[c] = min(values) if c in _LOWER_IS_BETTER else max(values)
+    return best

@@ -1,31 +1,10 @@
 """One pass over a recording scores every method: the next map (the main table) and, with a
-horizon ``K > 1``, the maps ``1 .. K`` ahead (the horizon tables), from the same stream.
+horizon ``K > 1``, the maps 1..K ahead (:mod:`lidarflow.evaluate.horizon`).
 
-Each method (:class:`~lidarflow.baselines.Method`) is reset at the start of the
-recording and then sees the frames one at a time, its state carried from frame to frame: frame
-``t``'s maps and what it takes beside them (:func:`~lidarflow.evaluate.stream.frame_inputs`).
-The prediction made after frame ``t`` is scored against frame ``t + 1`` for ``t >= warmup``: the
-first ``warmup`` frames only warm the state up.
-
-Where a recording's scans stop for a while (a gap, :func:`lidarflow.data.gaps.frames_after_gaps`)
-the step across the gap is not scored: the frame after it is not the next scan. Every method's
-state carries across, as the :class:`~lidarflow.predict.Predictor`'s does
-(``docs/research/gaps/``).
-
-The main table (one :class:`~lidarflow.evaluate.scoring.Scorer` per method) scores every step
-``t -> t + 1`` after the warm-up and not across a gap: F1, AP and the rest against ``O^{t+1}``;
-the mover metric inside the dynamic region of frame ``t + 1`` (:class:`Truth`); for a method
-that exposes ``backward_flow`` (``(2, H, W)`` cells, after ``update``) the end-point error
-against the true ``B^t`` on the cells occupied in ``O^{t+1}`` (and on the moving and the static
-ones of those apart, :mod:`lidarflow.evaluate.stream`). A method that exposes ``moving``
-(``(H, W)`` bool after ``update``: the cells of the frame just given that move on their own) is
-scored against the simulator's moving cells of that frame, every frame after the warm-up, gap or
-not.
-
-With ``horizon`` ``K > 1`` each method is also rolled forward after the frames
-:func:`~lidarflow.evaluate.horizon.scored_frames` names and scored 1..K ahead
-(:mod:`lidarflow.evaluate.horizon`, which also says which frames the ``k = 1`` column scores
-beside the main table's); copy-last's row comes first, by its definition.
+Each method is reset, then sees the frames in turn with what it takes beside them. Its
+prediction after frame ``t >= warmup`` is scored against ``O^{t+1}``, its ``backward_flow``
+against the true ``B^t``, except across a gap in time (states carry across, as the Predictor's
+do); its ``moving`` cells against the simulator's of frame ``t``, gap or not.
 """
 
 from __future__ import annotations
@@ -77,9 +56,8 @@ OnAhead = Callable[[str, int, np.ndarray], None]
 @dataclass(frozen=True)
 class Truth:
     """What a recording knows beyond its maps, each ``t -> array`` or ``None`` where unknown:
-    ``flow``, the true ``B^t`` ``(2, H, W)``; ``platform``, the platform's own ``B^t``;
-    ``moving``, the true moving cells of ``O^t`` ``(H, W)`` bool; ``region``, frame ``t``'s
-    dynamic region, where the mover metric scores (:mod:`lidarflow.evaluate.dynamic`)."""
+    the true ``B^t`` ``(2, H, W)`` (``flow``) and the platform's own (``platform``), the true
+    moving cells of ``O^t`` (``moving``), frame ``t``'s dynamic region (``region``)."""
 
     flow: Callable[[int], np.ndarray] | None = None
     platform: Callable[[int], np.ndarray] | None = None
@@ -90,9 +68,8 @@ class Truth:
 @dataclass(frozen=True)
 class Hooks:
     """What a caller is told during the pass: ``progress(1)`` after every frame;
-    ``on_prediction`` with every prediction the main table scores (e.g. to draw overlays);
-    ``on_moving`` with every moving mask asked for (there is truth to score it or this hook);
-    ``on_ahead`` with every prediction the horizon tables score (copy-last's too)."""
+    ``on_prediction``, ``on_moving`` and ``on_ahead`` with every prediction, moving mask and
+    prediction ahead that is scored (copy-last's ahead too)."""
 
     progress: Callable[[int], None] | None = None
     on_prediction: OnPrediction | None = None
@@ -102,9 +79,8 @@ class Hooks:
 
 @dataclass(frozen=True)
 class Scores:
-    """One recording scored: the main table's :class:`Scorer` per method (``next_map``) and,
-    with a horizon ``K > 1``, ``horizon``: ``{metric: {method: [k = 1..K]}}``
-    (:meth:`HorizonScore.means`' metrics) over the ``horizon_frames`` frames scored ahead."""
+    """One recording scored: a :class:`Scorer` per method (``next_map``) and, with a horizon,
+    ``{metric: {method: [k = 1..K]}}`` over the ``horizon_frames`` frames scored ahead."""
 
     next_map: dict[str, Scorer]
     horizon: dict[str, dict[str, list[Any]]] | None = None
@@ -112,8 +88,7 @@ class Scores:
 
 
 def recording_truth(recording: Recording, grid: GridSpec, inputs: RecordingInputs) -> Truth:
-    """The simulator's ground truth of ``recording`` where it has it on ``grid``, and its
-    dynamic region (:func:`~lidarflow.evaluate.stream.mover_region`, from its ``inputs``)."""
+    """The simulator's ground truth of ``recording`` on ``grid`` and its dynamic region."""
     return Truth(
         ground_truth_backward_flow(recording, grid),
         ground_truth_platform_flow(recording, grid),
@@ -130,9 +105,9 @@ def score_stream(
     truth: Truth = Truth(),
     hooks: Hooks = Hooks(),
 ) -> Scores:
-    """Score ``methods`` on one recording's ``inputs`` in one pass (see the module docstring):
-    the main table and, with a ``horizon`` ``K``, the horizon tables 1..K ahead. Raises
-    :class:`~lidarflow.errors.EvaluateError` when the recording leaves nothing to score."""
+    """Score ``methods`` on one recording's ``inputs`` in one pass, with a ``horizon`` also
+    1..K ahead. Raises :class:`~lidarflow.errors.EvaluateError` when nothing is left to
+    score."""
     n = len(inputs.occupancy)
     check_length(n, warmup, inputs.gaps)
     if truth.region is not None:  # asked for frames t + 1 .. t + K in turn
@@ -225,9 +200,8 @@ def _moving_flow_threshold() -> float:
 
 
 class _Ahead:
-    """The horizon tables' share of the pass: copy-last, and each method that rolls forward
-    (what knows the future, ``oracle``, has no roll-out), scored 1..K ahead of the frames
-    :func:`scored_frames` names."""
+    """The horizon tables' share of the pass: copy-last and each method that rolls forward
+    (not an ``oracle``), scored 1..K ahead of the frames :func:`scored_frames` names."""
 
     def __init__(
         self,
@@ -285,9 +259,8 @@ def evaluate_recording(
     on_prediction: OnPrediction | None = None,
     on_moving: OnMoving | None = None,
 ) -> dict[str, Scorer]:
-    """Rasterize ``recording`` on ``grid`` (streamed in blocks) and score every method on it in
-    one pass (:func:`score_stream`) with its :func:`recording_truth`: a :class:`Scorer` per
-    method."""
+    """The main table of :func:`score_stream` on ``recording`` rasterized on ``grid``, with its
+    :func:`recording_truth`."""
     grid = grid or GridSpec()
     inputs = recording_inputs(recording, grid, methods)
     truth = recording_truth(recording, grid, inputs)
@@ -330,10 +303,9 @@ def evaluate_maps(
     gt_platform: Callable[[int], np.ndarray] | None = None,
     region: Callable[[int], np.ndarray] | None = None,
 ) -> dict[str, Scorer]:
-    """The main table of :func:`score_stream` on maps ``(N, H, W)`` and what else a
-    :class:`~lidarflow.evaluate.stream.RecordingInputs` holds (``motions`` ``(N, 3)``, cells,
-    frame ``t`` in frame ``t - 1``; ``returns``; ``subcell``; ``gaps``; ``paces``), with the
-    :class:`Truth` ``gt_flow``, ``gt_platform``, ``gt_moving`` and ``region``."""
+    """The main table of :func:`score_stream` on maps ``(N, H, W)`` and the rest of a
+    :class:`~lidarflow.evaluate.stream.RecordingInputs`, with the :class:`Truth` ``gt_flow``,
+    ``gt_platform``, ``gt_moving`` and ``region``."""
     inputs = _maps_inputs(
         occupancy, visibility, motions, returns, motions_from_poses, subcell, gaps, paces
     )
@@ -359,10 +331,9 @@ def horizon_scores(
     on_ahead: OnAhead | None = None,
 ) -> dict[str, dict[str, list[Any]]]:
     """The horizon tables of :func:`score_stream` on maps ``(N, H, W)`` (the other inputs as
-    :func:`evaluate_maps`'): ``{"f1": {method: [k = 1..K]}, "changed_f1", "wmse", "ssim"}``,
-    copy-last first, and with a ``region`` the mover metric's (``mover_f1``, ...,
-    ``mover_true_cells``). Raises :class:`~lidarflow.errors.EvaluateError` where no frame has
-    ``horizon`` frames after it without a gap."""
+    :func:`evaluate_maps`'): ``{metric: {method: [k = 1..K]}}``, copy-last first. Raises
+    :class:`~lidarflow.errors.EvaluateError` where no frame has ``horizon`` frames after it
+    without a gap."""
     scored_frames(len(occupancy), horizon, warmup, gaps)  # the horizon's refusal first
     inputs = _maps_inputs(
         occupancy, visibility, motions, returns, motions_from_poses, subcell, gaps, paces

@@ -1,16 +1,9 @@
-"""Accumulate predictions against truth: counts at the 0.4 threshold, changed cells, PR/AP.
+"""Accumulate predictions against truth: one :class:`Scorer` per method and recording; scorers
+add up (micro-averaging) for "overall".
 
-One :class:`Scorer` per method and recording; scorers add up (micro-averaging) for "overall".
-Each also accumulates the calibration of the probabilities (reliability diagram, ECE, Brier;
-:mod:`lidarflow.evaluate.calibration`) and, for flow models on simulated data, the moving-object
-segmentation counts of the moving class against the simulator's ``moving`` ground truth.
-Probabilities are binned into ``BINS`` equal bins for the precision-recall curve, which makes
-the curve exact for binary predictors and within 1/BINS in threshold otherwise.
-
-Each also averages the peers' metrics over the frames it scored (:mod:`lidarflow.evaluate.
-peer_metrics`): the class-balanced WMSE and the SSIM of the probability against the next map, one
-value per frame, then the mean (as SOGMP averages over its test frames; summed over recordings
-for "overall", so every frame counts once). A grid under 11 x 11 cells has no SSIM.
+Probabilities are binned into :data:`BINS` equal bins for the precision-recall curve, exact for
+binary predictors and within 1/BINS in threshold otherwise. The peers' WMSE and SSIM are
+averaged over the frames scored (as SOGMP averages over its test frames).
 """
 
 from __future__ import annotations
@@ -21,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.evaluate.calibration import Calibration
-from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
+from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion, summed
 from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
 
@@ -32,6 +25,9 @@ BINS = 200
 
 @dataclass
 class Scorer:
+    """One method's scores on one recording: counts at 0.4, changed cells, PR bins,
+    calibration, end-point errors, moving segmentation, the peers' metrics and the movers."""
+
     counts: Counts = field(default_factory=Counts)
     changed: Counts = field(default_factory=Counts)
     frames: int = 0
@@ -72,8 +68,7 @@ class Scorer:
         self.frames += 1
 
     def add_movers(self, probability: np.ndarray, target: np.ndarray, region: np.ndarray) -> None:
-        """Score one predicted map inside the target frame's dynamic ``region`` (the mover
-        metric, :mod:`lidarflow.evaluate.movers`)."""
+        """Score one predicted map inside the target frame's dynamic ``region``."""
         self.movers.add(probability, target, region)
 
     def add_moving(self, predicted: np.ndarray, truth: np.ndarray) -> None:
@@ -87,8 +82,8 @@ class Scorer:
         self.epe_per_frame.append(error_sum / cells if cells else float("nan"))
 
     def add_epe_split(self, error: np.ndarray, cells: np.ndarray, moving: np.ndarray) -> None:
-        """Add one frame's end-point errors ``(H, W)`` on ``cells`` split by the truly
-        ``moving`` ones (flow unlike the platform's) and the rest (static)."""
+        """Add one frame's end-point errors ``(H, W)`` on ``cells``, the truly ``moving`` ones
+        and the rest (static) apart."""
         moving = cells & moving
         static = cells & ~moving
         self.epe_moving_sum += float(error[moving].sum())
@@ -97,27 +92,7 @@ class Scorer:
         self.epe_static_cells += int(static.sum())
 
     def __add__(self, other: Scorer) -> Scorer:
-        return Scorer(
-            counts=self.counts + other.counts,
-            changed=self.changed + other.changed,
-            frames=self.frames + other.frames,
-            epe_sum=self.epe_sum + other.epe_sum,
-            epe_cells=self.epe_cells + other.epe_cells,
-            epe_per_frame=self.epe_per_frame + other.epe_per_frame,
-            epe_moving_sum=self.epe_moving_sum + other.epe_moving_sum,
-            epe_moving_cells=self.epe_moving_cells + other.epe_moving_cells,
-            epe_static_sum=self.epe_static_sum + other.epe_static_sum,
-            epe_static_cells=self.epe_static_cells + other.epe_static_cells,
-            positives=self.positives + other.positives,
-            negatives=self.negatives + other.negatives,
-            calibration=self.calibration + other.calibration,
-            moving=self.moving + other.moving,
-            moving_frames=self.moving_frames + other.moving_frames,
-            wmse_sum=self.wmse_sum + other.wmse_sum,
-            ssim_sum=self.ssim_sum + other.ssim_sum,
-            ssim_frames=self.ssim_frames + other.ssim_frames,
-            movers=self.movers + other.movers,
-        )
+        return summed(self, other)
 
     def pr_curve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(thresholds, precision, recall)`` for thresholds ``k / BINS``, high to low."""
@@ -136,13 +111,9 @@ class Scorer:
         return float(np.sum(gained * precision))
 
     def summary(self) -> dict[str, Any]:
-        """The metrics as JSON: flat numbers (``f1`` ... ``epe``) as before, the peers'
-        ``wmse`` and ``ssim`` (means over the frames; no ``ssim`` on a grid under 11 x 11), plus
-        ``calibration`` (:meth:`Calibration.summary`) and, when moving cells were scored,
-        ``segmentation`` (``iou``, ``precision``, ``recall``, ``f1`` of the moving class,
-        counts and frames) and, when the mover metric was scored, ``movers``
-        (:meth:`MoverScore.summary <lidarflow.evaluate.movers.MoverScore.summary>`) with the
-        flat ``mover_f1`` and ``mover_f1_tolerant`` beside the others."""
+        """The metrics as JSON: flat numbers (``f1`` ... ``epe``, ``wmse``, ``ssim``),
+        ``calibration`` and, where scored, ``segmentation`` of the moving class and ``movers``
+        (with the flat ``mover_f1`` and ``mover_f1_tolerant``)."""
         out: dict[str, Any] = {
             "f1": self.counts.f1,
             "precision": self.counts.precision,

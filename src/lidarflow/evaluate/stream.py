@@ -1,22 +1,8 @@
-"""What a streamed evaluation feeds its methods from a recording, and what it scores them
-against: the maps, streamed in blocks of frames (:class:`RecordingInputs`); per frame what each
-method takes beside them (:func:`frame_inputs`: the ego motion, the scan's returns, the sub-cell
-maps); the gaps in time and the paces after long steps; and the ground truth where there is
-one (the simulator's flow and moving cells, the dynamic region of the mover metric). The one
-pass that scores them is :mod:`lidarflow.evaluate.runner`.
-
-Ego motion: methods with ``takes.motion`` (ego-motion models, :class:`~lidarflow.evaluate.ego.
-CopyLastEgo`, the tracker) get the sensor's motion per frame from the recording's poses (see
-:mod:`lidarflow.evaluate.ego`). On a recording without poses, models built with
-``poses_optional`` get the motion matched from its scans (NaN steps: none counted, not
-compensated); any other is refused with :class:`EvaluateError` rather than evaluated
-uncompensated.
-
-The flow's end-point error is split into the cells that truly move on their own and the rest:
-a cell of ``O^{t+1}`` moves when its true ``B^t`` differs from the platform's own backward flow
-(:func:`ground_truth_platform_flow`, from the simulator's true poses; zero without poses) by more
-than :data:`lidarflow.flow_supervision.MOVING_FLOW_THRESHOLD` cells, the rule the supervised flow
-loss weights by.
+"""What a streamed evaluation feeds its methods from a recording and scores them against: the
+maps in blocks of frames (:class:`RecordingInputs`), what each method takes beside them per
+frame (:func:`frame_inputs`), and the simulator's ground truth where there is one (a cell moves
+on its own where its true flow differs from the platform's by more than
+:data:`~lidarflow.flow_supervision.MOVING_FLOW_THRESHOLD` cells, as in the flow loss).
 """
 
 from __future__ import annotations
@@ -58,17 +44,13 @@ WARMUP = 10
 
 def _made_on(recording: Recording, grid: GridSpec) -> bool:
     stored = recording.meta.get("grid") or {}
-    return (stored.get("height"), stored.get("width"), stored.get("res")) == (
-        grid.height,
-        grid.width,
-        grid.res,
-    )
+    made = (stored.get("height"), stored.get("width"), stored.get("res"))
+    return made == (grid.height, grid.width, grid.res)
 
 
 def other_recorded_grid(recording: Recording, grid: GridSpec) -> dict[str, Any] | None:
-    """The grid recorded with ``recording`` (``convert``/``simulate``'s ``meta["grid"]``) where
-    it is not ``grid``, else ``None``: scored on ``grid``, such a recording's ground truth
-    (made on its own grid) is not scored, which the report should say."""
+    """The grid recorded with ``recording`` (``meta["grid"]``) where it is not ``grid``, else
+    ``None``."""
     recorded = recording.meta.get("grid")
     return None if not recorded or _made_on(recording, grid) else dict(recorded)
 
@@ -87,16 +69,14 @@ def ground_truth_backward_flow(
 ) -> Callable[[int], np.ndarray] | None:
     """``t -> B^t`` ``(2, H, W)`` from the simulator's ground truth, or ``None`` when the
     recording has none or it was made on another grid than ``grid``."""
-    if not any(k in recording.extras for k in _FLOW_EXTRAS):
-        return None
-    if not _made_on(recording, grid):
+    if not any(k in recording.extras for k in _FLOW_EXTRAS) or not _made_on(recording, grid):
         return None
     return lambda t: dense_flow(recording, t)[0]
 
 
 def ground_truth_moving(recording: Recording, grid: GridSpec) -> Callable[[int], np.ndarray] | None:
-    """``t -> `` the simulator's moving cells of ``O^t`` ``(H, W)`` bool, or ``None`` when the
-    recording has none or it was made on another grid than ``grid``."""
+    """``t -> `` the simulator's moving cells of ``O^t`` ``(H, W)`` bool, or ``None`` as
+    :func:`ground_truth_backward_flow`."""
     moving = recording.extras.get("moving")
     if moving is None or not _made_on(recording, grid) or moving.shape[1:] != grid.shape:
         return None
@@ -107,8 +87,7 @@ def check_length(
     frames: int, warmup: int = WARMUP, gaps: Sequence[int] = (), name: str = "the recording"
 ) -> None:
     """Raise :class:`EvaluateError` naming ``name`` when a recording of ``frames`` frames (with
-    ``gaps``, the frames after a gap in time) leaves no step to score after ``warmup``; the
-    command line checks every recording with it before the long work on any of them."""
+    ``gaps``, the frames after a gap in time) leaves no step to score after ``warmup``."""
     unscored = {int(g) - 1 for g in gaps}  # the steps t -> t + 1 across a gap
     if frames < warmup + 2 or all(t in unscored for t in range(warmup, frames - 1)):
         has = f"{frames} frame{'s' * (frames != 1)}"
@@ -140,8 +119,8 @@ def ground_truth_platform_flow(
     recording: Recording, grid: GridSpec
 ) -> Callable[[int], np.ndarray] | None:
     """``t -> `` the backward flow ``(2, H, W)`` a static world would have from frame ``t + 1``
-    to ``t``, from the true poses (``extras["true_poses"]``, else the poses; zero without
-    any), where the recording has ground-truth flow on ``grid``; else ``None``."""
+    to ``t``, by the true poses (else the poses; zero without any), where the recording has
+    ground-truth flow on ``grid``; else ``None``."""
     if ground_truth_backward_flow(recording, grid) is None:
         return None
     import torch
@@ -164,8 +143,7 @@ def ground_truth_platform_flow(
 
 @dataclass(frozen=True)
 class RecordingInputs:
-    """What a streamed evaluation feeds its methods from one recording, in blocks of frames
-    (:mod:`lidarflow.data.blocks`): maps, ego motions, returns, sub-cell maps and gaps."""
+    """What a streamed evaluation feeds its methods from one recording, in blocks of frames."""
 
     occupancy: Frames
     visibility: Frames
@@ -180,8 +158,8 @@ class RecordingInputs:
 def recording_inputs(
     recording: Recording, grid: GridSpec, methods: Sequence[Method]
 ) -> RecordingInputs:
-    """The inputs ``methods`` (baselines, :class:`~lidarflow.evaluate.model_method.ModelMethod`
-    ...) need from ``recording`` on ``grid``; what none of them asks for is ``None``."""
+    """The inputs ``methods`` need from ``recording`` on ``grid``; what none asks for is
+    ``None``."""
     # a block of frames at a time: a long recording's maps held whole take gigabytes
     occupancy, visibility = streamed_maps(recording, grid)
     motions = recording_motions(recording, grid, methods, occupancy)
@@ -206,13 +184,7 @@ def recording_inputs(
 def mover_region(
     recording: Recording, grid: GridSpec, inputs: RecordingInputs
 ) -> Callable[[int], np.ndarray]:
-    """``t -> `` the dynamic region of frame ``t`` where the mover metric scores
-    (:func:`lidarflow.evaluate.dynamic.recording_region`): the simulator's true moving cells
-    where the recording has them on ``grid``, else the cells rarely occupied."""
-    return recording_region(
-        recording,
-        grid,
-        inputs.occupancy,
-        inputs.visibility,
-        ground_truth_moving(recording, grid),
-    )
+    """``t -> `` frame ``t``'s dynamic region (:func:`~lidarflow.evaluate.dynamic.
+    recording_region`), from the simulator's moving cells where it has them on ``grid``."""
+    moving = ground_truth_moving(recording, grid)
+    return recording_region(recording, grid, inputs.occupancy, inputs.visibility, moving)

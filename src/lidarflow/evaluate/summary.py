@@ -1,7 +1,5 @@
 """The text ``evaluate`` prints: per recording its tables and notes, then the overall ones.
-
-Each function returns the text (no trailing newline) a caller prints as it is; a section a
-report does not hold (no horizon, no calibration, no peers' metrics) is left out.
+Each function returns the text without a trailing newline; a section a report lacks is left out.
 """
 
 from __future__ import annotations
@@ -43,8 +41,7 @@ HORIZON_TABLES = (
 
 
 def format_horizon(scores: dict[str, list[float | None]], what: str = "F1") -> str:
-    """A table of ``scores`` per method at k = 1..K, its ``k=`` columns in line under a title
-    or method name of any length (``-`` where a score is undefined: an AUC over one class)."""
+    """A table of ``scores`` per method at k = 1..K (``-`` where a score is undefined)."""
     k = len(next(iter(scores.values())))
     title = f"{what} per horizon step"
     width = max(24, len(title) + 2, *(len(name) + 2 for name in scores))
@@ -56,9 +53,8 @@ def format_horizon(scores: dict[str, list[float | None]], what: str = "F1") -> s
 
 
 def format_labels(legs: dict[str, dict[str, list[Any]]], kind: str = "legs") -> str:
-    """The labelled movers' table (:mod:`lidarflow.evaluate.labels`): recall and precision per
-    method at ``k = 1`` and at the last ``k`` (``-`` where undefined), the best of each column
-    among the methods marked *; the scan's own row, recall's ceiling, last."""
+    """The labelled movers' table: recall and precision per method at ``k = 1`` and the last
+    ``k``, the best of each column marked *; the scan's own row, recall's ceiling, last."""
     k = len(next(iter(legs.values()))["recall"])
     columns = [(key, i) for key in ("recall", "precision") for i in ([0] if k == 1 else [0, k - 1])]
     rows = {name: [one[key][i] for key, i in columns] for name, one in legs.items()}
@@ -83,9 +79,8 @@ def format_labels(legs: dict[str, dict[str, list[Any]]], kind: str = "legs") -> 
 
 
 def format_recording(entry: dict[str, Any], grid: dict[str, Any]) -> str:
-    """A recording's report ``entry`` as printed: its table, the notes (undefined scores, a
-    grid other than ``grid``), the verdict against the baselines, the horizon tables, the
-    labelled movers, the calibration and the peers' metrics."""
+    """A recording's report ``entry`` as printed: its tables, notes (a grid other than
+    ``grid`` among them) and verdicts."""
     title = f"{entry['path']} ({entry['frames_evaluated']} frames{gaps_note(entry)})"
     parts = [format_table(entry["methods"], title)]
     parts += [n for n in (undefined_note(entry.get("undefined", [])), grid_note(entry, grid)) if n]

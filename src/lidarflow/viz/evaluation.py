@@ -1,6 +1,5 @@
-"""Figures of an evaluation run: overlay animations per method (predictions, flow, moving
-cells), PR curves and reliability diagrams per recording, and the HTML report showing them
-(:class:`ReportFigures`, what ``lidarflow.evaluate.evaluation`` is handed to draw)."""
+"""Figures of an evaluation run (:class:`ReportFigures`, what ``lidarflow.evaluate.evaluation``
+is handed to draw): overlay GIFs, PR curves, reliability diagrams and the HTML report."""
 
 from __future__ import annotations
 
@@ -28,8 +27,7 @@ __all__ = ["OverlayCollector", "RecordingDrawing", "ReportFigures", "pr_figure"]
 
 class OverlayCollector:
     """Collects the first ``max_frames`` scored predictions of each method as overlay frames
-    (the runner's ``on_prediction``, :class:`lidarflow.evaluate.runner.Hooks`) and writes them
-    as GIFs."""
+    (the runner's ``on_prediction``) and writes them as GIFs."""
 
     def __init__(
         self, occupancy: Frames, visibility: Frames, max_frames: int = 100, scale: int = 3
@@ -78,24 +76,22 @@ class OverlayCollector:
             )
 
     def write(self, folder: Path, stem: str, fps: float) -> list[tuple[str, Path]]:
+        """Write the GIFs as ``folder/{stem}_{method}[_flow|_moving].gif``; (caption, path)."""
+        if self.moving_has_truth:
+            legend = "found red, missed green, both yellow"
+        else:
+            legend = "moving red, static grey"
+        kinds = (
+            (self.frames, "", "prediction vs next map"),
+            (self.flow_frames, "_flow", "backward flow (colour wheel, 3 cells = full colour)"),
+            (self.moving_frames, "_moving", f"moving cells ({legend})"),
+        )
         out = []
-        for method, frames in self.frames.items():
-            if frames:
-                path = write_gif(frames, folder / f"{stem}_{method}.gif", fps=fps)
-                out.append((f"{method}: prediction vs next map", path))
-        for method, frames in self.flow_frames.items():
-            if frames:
-                path = write_gif(frames, folder / f"{stem}_{method}_flow.gif", fps=fps)
-                out.append((f"{method}: backward flow (colour wheel, 3 cells = full colour)", path))
-        for method, frames in self.moving_frames.items():
-            if frames:
-                path = write_gif(frames, folder / f"{stem}_{method}_moving.gif", fps=fps)
-                legend = (
-                    "found red, missed green, both yellow"
-                    if self.moving_has_truth
-                    else "moving red, static grey"
-                )
-                out.append((f"{method}: moving cells ({legend})", path))
+        for kept, suffix, caption in kinds:
+            for method, frames in kept.items():
+                if frames:
+                    path = write_gif(frames, folder / f"{stem}_{method}{suffix}.gif", fps=fps)
+                    out.append((f"{method}: {caption}", path))
         return out
 
 
@@ -109,11 +105,9 @@ def pr_figure(scorers: Mapping[str, Scorer], path: Path, title: str) -> Path:
 
 @dataclass(frozen=True)
 class ReportFigures:
-    """Draws an evaluation's pictures into ``folder`` (a
-    :class:`~lidarflow.evaluate.evaluation.Figures`): per recording its PR curves, reliability
-    diagram, end-point error per frame where there is flow truth, and overlay GIFs of the first
-    ``gif_frames`` scored predictions; then the report as ``report.json`` and a self-contained
-    ``index.html`` showing them. Picklable: ``evaluate --jobs`` hands it to its workers."""
+    """Draws an evaluation's pictures into ``folder`` (overlay GIFs of the first ``gif_frames``
+    scored predictions), then writes ``report.json`` and a self-contained ``index.html``.
+    Picklable: ``evaluate --jobs`` hands it to its workers."""
 
     folder: Path
     gif_frames: int = 100
@@ -131,8 +125,8 @@ class ReportFigures:
 
 
 class RecordingDrawing:
-    """One recording's share of :class:`ReportFigures`: the overlays collected from the maps the
-    runner streams (``inputs``), the rest drawn by :meth:`finish`."""
+    """One recording's share of :class:`ReportFigures`: overlays collected while it streams,
+    the rest drawn by :meth:`finish`."""
 
     def __init__(
         self,
@@ -149,8 +143,8 @@ class RecordingDrawing:
         self.on_moving = self.collector.add_moving
 
     def finish(self, scorers: Mapping[str, Scorer]) -> list[tuple[str, Path]]:
-        """Draw the PR curves, the reliability diagram, the overlays and the end-point error per
-        frame; returns them (caption, path)."""
+        """Draw the PR curves, reliability diagram, overlays and any end-point error per frame;
+        returns them (caption, path)."""
         folder, stem, title = self.folder, self.stem, Path(self.name).name
         pr = pr_figure(scorers, folder / f"{stem}_pr.png", f"{title}: PR curves")
         gifs = self.collector.write(folder, stem, fps=self.frame_rate)

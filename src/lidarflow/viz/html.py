@@ -1,7 +1,5 @@
-"""A self-contained HTML page of an evaluation: tables, PR curves, overlay animations.
-
-Images are embedded as base64 data URIs so the one file can be mailed or attached to an issue.
-"""
+"""A self-contained HTML page of an evaluation: tables, PR curves, overlay animations, the
+images embedded as data URIs so that the one file can be mailed or attached to an issue."""
 
 from __future__ import annotations
 
@@ -13,6 +11,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from lidarflow.atomic import write_text
 from lidarflow.evaluate.report import (
     format_comparison,
     gaps_note,
@@ -35,19 +34,9 @@ figure { display: inline-block; margin: 0.5em; text-align: center; }
 figcaption { font-size: 0.85em; color: #555; }
 .legend span { padding: 0 0.5em; margin-right: 0.5em; }
 """
-_COLUMNS = (
-    "f1",
-    "precision",
-    "recall",
-    "ap",
-    "changed_f1",
-    "mover_f1",
-    "mover_f1_tolerant",
-    "mover_auc",
-    "mover_soft_iou",
-    "epe",
-)
-_BEST = ("f1", "changed_f1", "mover_f1", "mover_f1_tolerant", "mover_auc", "mover_soft_iou")
+_MOVER = ("mover_f1", "mover_f1_tolerant", "mover_auc", "mover_soft_iou")
+_COLUMNS = ("f1", "precision", "recall", "ap", "changed_f1", *_MOVER, "epe")
+_BEST = ("f1", "changed_f1", *_MOVER)
 
 
 def _data_uri(path: Path) -> str:
@@ -56,8 +45,8 @@ def _data_uri(path: Path) -> str:
 
 
 def _breakable(name: str) -> str:
-    """``name`` escaped, free to break after its underscores and slashes: long column and
-    method names (``mover_f1_tolerant``, ``runs/my_robot/run``) then let a table fit the page."""
+    """``name`` escaped, free to break after its underscores and slashes so that long names
+    let a table fit the page."""
     return re.sub(r"([_/])", r"\1<wbr>", html.escape(name))
 
 
@@ -94,19 +83,16 @@ def _mover_cells(metrics: Mapping[str, Any]) -> dict[str, float]:
 
 
 def _uncertainty_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
-    """Calibration (lower is better) and moving segmentation (higher is better); best bold."""
     present, rows, best = uncertainty_rows({name: dict(m) for name, m in methods.items()})
     return _html_table(rows, present, best) if present else ""
 
 
 def _comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
-    """Each model against the best baselines, one line each (empty without models)."""
     lines = format_comparison(compared).splitlines()
     return "".join(f"<p><b>{html.escape(line)}</b></p>" for line in lines)
 
 
 def _note(text: str) -> str:
-    """A one-line note under a table (empty without one)."""
     return f"<p>{html.escape(text)}</p>" if text else ""
 
 
@@ -116,11 +102,8 @@ def write_html_report(
     figures: Mapping[str, Sequence[tuple[str, Path]]] | None = None,
     title: str = "lidarflow evaluation",
 ) -> Path:
-    """Write ``report`` (the evaluate JSON) as one HTML page.
-
-    ``figures`` maps a recording's path to ``(caption, image file)`` pairs shown under its
-    table (PNG or GIF).
-    """
+    """Write ``report`` (the evaluate JSON) as one HTML page, under each recording's table
+    its ``figures`` (path -> ``(caption, PNG or GIF file)`` pairs)."""
     figures = figures or {}
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
@@ -172,6 +155,4 @@ def write_html_report(
         parts.append(html.escape(json.dumps(report["config"], indent=2)))
         parts.append("</pre>")
     parts.append("</body></html>")
-    from lidarflow.atomic import write_text
-
     return write_text(Path(path), "\n".join(parts))

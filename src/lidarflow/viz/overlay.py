@@ -29,15 +29,7 @@ def overlay_rgb(
     >>> overlay_rgb(np.array([[1, 0]], bool), np.array([[1, 1]], bool), scale=1)[0].tolist()
     [[240, 200, 0], [40, 180, 40]]
     """
-    p = np.asarray(predicted, bool)
-    t = np.asarray(truth, bool)
-    image = np.full((*p.shape, 3), 255, np.uint8)
-    if visibility is not None:
-        image[~np.asarray(visibility, bool)] = _UNSEEN
-    image[t & ~p] = _GREEN
-    image[p & ~t] = _RED
-    image[p & t] = _YELLOW
-    return np.repeat(np.repeat(image, scale, axis=0), scale, axis=1)
+    return _coloured(predicted, truth, visibility, None, scale)
 
 
 def moving_rgb(
@@ -56,16 +48,28 @@ def moving_rgb(
     ...            scale=1)[0].tolist()
     [[240, 200, 0], [40, 180, 40], [90, 90, 90], [255, 255, 255]]
     """
-    occ = np.asarray(occupancy, bool)
-    m = np.asarray(moving, bool)
-    t = np.zeros_like(m) if truth is None else np.asarray(truth, bool)
-    image = np.full((*occ.shape, 3), 255, np.uint8)
+    truth = np.zeros(np.shape(moving), bool) if truth is None else truth
+    return _coloured(moving, truth, visibility, occupancy, scale)
+
+
+def _coloured(
+    found: np.ndarray,
+    truth: np.ndarray,
+    visibility: np.ndarray | None,
+    occupied: np.ndarray | None,
+    scale: int,
+) -> np.ndarray:
+    """Only ``truth`` green, only ``found`` red, both yellow, on white, grey where ``occupied``
+    and light grey where not visible; each cell ``scale`` x ``scale`` pixels."""
+    p, t = np.asarray(found, bool), np.asarray(truth, bool)
+    image = np.full((*p.shape, 3), 255, np.uint8)
     if visibility is not None:
         image[~np.asarray(visibility, bool)] = _UNSEEN
-    image[occ] = _STATIC
-    image[t & ~m] = _GREEN
-    image[m & ~t] = _RED
-    image[m & t] = _YELLOW
+    if occupied is not None:
+        image[np.asarray(occupied, bool)] = _STATIC
+    image[t & ~p] = _GREEN
+    image[p & ~t] = _RED
+    image[p & t] = _YELLOW
     return np.repeat(np.repeat(image, scale, axis=0), scale, axis=1)
 
 
