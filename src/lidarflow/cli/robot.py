@@ -31,64 +31,6 @@ if TYPE_CHECKING:
     from lidarflow.live.step import LiveStep
 
 
-TopicOpt = Annotated[str, typer.Option("--topic", "-t", help="LaserScan topic to predict on.")]
-OdomTopicOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--odom-topic",
-        help="nav_msgs/Odometry topic for the sensor's poses (moved to the scanner by /tf); "
-        "default: none (the bundled model then matches the motion from the scans).",
-    ),
-]
-HorizonOpt = Annotated[
-    int, typer.Option(help="Frames ahead to predict: also publishes the _kK grids.", min=1)
-]
-PublishMovingOpt = Annotated[
-    bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
-]
-PlannerGridOpt = Annotated[
-    bool,
-    typer.Option(
-        "--planner-grid",
-        help="Also publish /lidarflow/planner_grid: per cell the largest predicted probability "
-        "over the --horizon frames, in the scan's frame, for a local planner.",
-    ),
-]
-QueueOpt = Annotated[
-    int,
-    typer.Option(help="Scans kept while the model is busy; beyond them the oldest are dropped.",
-                 min=1),
-]
-SummaryOpt = Annotated[
-    int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
-]
-FoxgloveOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--foxglove",
-        metavar="PORT",
-        help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, as "
-        "`lidarflow live`; 0: any free port).",
-        min=0,
-        max=65535,
-    ),
-]
-HostOpt = Annotated[
-    str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
-]
-VerboseOpt = Annotated[
-    bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
-]
-
-
-ScanQosOpt = Annotated[
-    str,
-    typer.Option(help="QoS of the scan subscription: sensor (sensor data, best effort; "
-                 "matches any driver) or reliable."),
-]  # fmt: skip
-GridQosOpt = Annotated[
-    str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
-]
 #: The options only ``ros2`` has: ``ros1`` leaves them at their defaults.
 ROS2_ONLY = ("scan_qos", "grid_qos")
 
@@ -99,22 +41,71 @@ class NodeOptions:
     one node, either transport; the QoS fields are ``ros2``'s alone (:data:`ROS2_ONLY`)."""
 
     model: ModelOpt = None
-    topic: TopicOpt = "/scan"
-    odom_topic: OdomTopicOpt = None
-    horizon: HorizonOpt = 1
-    moving: PublishMovingOpt = False
-    planner_grid: PlannerGridOpt = False
+    topic: Annotated[
+        str, typer.Option("--topic", "-t", help="LaserScan topic to predict on.")
+    ] = "/scan"
+    odom_topic: Annotated[
+        str | None,
+        typer.Option(
+            "--odom-topic",
+            help="nav_msgs/Odometry topic for the sensor's poses (moved to the scanner by /tf); "
+            "default: none (the bundled model then matches the motion from the scans).",
+        ),
+    ] = None
+    horizon: Annotated[
+        int, typer.Option(help="Frames ahead to predict: also publishes the _kK grids.", min=1)
+    ] = 1
+    moving: Annotated[
+        bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
+    ] = False
+    planner_grid: Annotated[
+        bool,
+        typer.Option(
+            "--planner-grid",
+            help="Also publish /lidarflow/planner_grid: per cell the largest predicted probability "
+            "over the --horizon frames, in the scan's frame, for a local planner.",
+        ),
+    ] = False
     combine: CombineOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
-    queue: QueueOpt = 10
-    scan_qos: ScanQosOpt = "sensor"
-    grid_qos: GridQosOpt = "reliable"
-    summary_every: SummaryOpt = 100
-    foxglove: FoxgloveOpt = None
-    host: HostOpt = "127.0.0.1"
-    verbose: VerboseOpt = False
+    queue: Annotated[
+        int,
+        typer.Option(
+            help="Scans kept while the model is busy; beyond them the oldest are dropped.", min=1
+        ),
+    ] = 10
+    scan_qos: Annotated[
+        str,
+        typer.Option(
+            help="QoS of the scan subscription: sensor (sensor data, best effort; matches any "
+            "driver) or reliable."
+        ),
+    ] = "sensor"
+    grid_qos: Annotated[
+        str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
+    ] = "reliable"
+    summary_every: Annotated[
+        int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
+    ] = 100
+    foxglove: Annotated[
+        int | None,
+        typer.Option(
+            "--foxglove",
+            metavar="PORT",
+            help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, as "
+            "`lidarflow live`; 0: any free port).",
+            min=0,
+            max=65535,
+        ),
+    ] = None
+    host: Annotated[
+        str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
+    ] = "127.0.0.1"
+    verbose: Annotated[
+        bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
+    ] = False
     threads: ThreadsOpt = DEFAULT_THREADS
 
 

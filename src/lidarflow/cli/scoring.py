@@ -42,133 +42,117 @@ def _above_zero(value: float) -> float:
     return value
 
 
-InputsArg = Annotated[
-    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
-]
-ModelsOpt = Annotated[
-    list[Path] | None,
-    typer.Option(
-        "--model",
-        "-m",
-        help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
-        ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
-    ),
-]
-BaselinesOnlyOpt = Annotated[
-    bool,
-    typer.Option(
-        "--baselines-only", help="Score the baselines alone (no model; not with --model)."
-    ),
-]
-OutputOpt = Annotated[
-    Path | None,
-    typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
-]
-ReportDirOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--report",
-        help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
-        "report.json).",
-    ),
-]
-GifFramesOpt = Annotated[int, typer.Option(help="Frames per overlay GIF in the report.", min=1)]
-WarmupOpt = Annotated[
-    int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
-]
-TaWindowOpt = Annotated[
-    int,
-    typer.Option(
-        help="Temporal-average baseline: frames averaged.",
-        min=1,
-    ),
-]
-TaThresholdOpt = Annotated[
-    float,
-    typer.Option(
-        help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
-        min=0.0,
-        max=1.0,
-        callback=_above_zero,
-    ),
-]
-EgoOracleOpt = Annotated[
-    bool,
-    typer.Option(
-        "--ego-oracle",
-        help="Also score ego-motion models told the true next pose (an upper bound).",
-    ),
-]
-HorizonOpt = Annotated[
-    int,
-    typer.Option(
-        min=1,
-        help="Also score F1 1..K frames ahead (models fed their own predictions).",
-    ),
-]
-LegsOpt = Annotated[
-    list[Path] | None,
-    typer.Option(
-        "--legs",
-        help="Labelled movers to score 1..K ahead (recall and precision within 0.3 m): "
-        "leg_tracker's extracted bag, or a bag with /ground_truth_people_tracks. One per "
-        "recording, in their order.",
-    ),
-]
-OnlineDecisionOpt = Annotated[
-    bool,
-    typer.Option(
-        "--online-decision",
-        help="Score each occupancy-head model with both decision rules, fixed and online "
-        "offsets (the other one as NAME_fixed or NAME_online).",
-    ),
-]
-EvaluateCombineOpt = Annotated[
-    bool,
-    typer.Option(
-        "--combine",
-        help="Also score each model combined online with the simple predictors, learning "
-        "from the scans that arrive (NAME_combined).",
-    ),
-]
-DeviceOpt = Annotated[
-    str,
-    typer.Option(
-        help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
-        "and the baselines run on the CPU."
-    ),
-]
-JsonOutOpt = Annotated[Path | None, typer.Option("--json", hidden=True)]
-
-
 @dataclass(frozen=True)
 class EvaluateOptions:
     """``evaluate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
 
-    inputs: InputsArg
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
+    ]
     topic: TopicOpt = None
     odom_topic: OdomOpt = None
-    model: ModelsOpt = None
-    baselines_only: BaselinesOnlyOpt = False
-    output: OutputOpt = None
-    report_dir: ReportDirOpt = None
-    gif_frames: GifFramesOpt = 100
-    warmup: WarmupOpt = 10
-    ta_window: TaWindowOpt = TA_WINDOW
-    ta_threshold: TaThresholdOpt = TA_THRESHOLD
-    ego_oracle: EgoOracleOpt = False
-    horizon: HorizonOpt = 1
-    legs: LegsOpt = None
-    online_decision: OnlineDecisionOpt = False
-    combine: EvaluateCombineOpt = False
+    model: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--model",
+            "-m",
+            help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
+            ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
+        ),
+    ] = None
+    baselines_only: Annotated[
+        bool,
+        typer.Option(
+            "--baselines-only", help="Score the baselines alone (no model; not with --model)."
+        ),
+    ] = False
+    output: Annotated[
+        Path | None,
+        typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
+    ] = None
+    report_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--report",
+            help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
+            "report.json).",
+        ),
+    ] = None
+    gif_frames: Annotated[
+        int, typer.Option(help="Frames per overlay GIF in the report.", min=1)
+    ] = 100
+    warmup: Annotated[
+        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+    ] = 10
+    ta_window: Annotated[
+        int,
+        typer.Option(
+            help="Temporal-average baseline: frames averaged.",
+            min=1,
+        ),
+    ] = TA_WINDOW
+    ta_threshold: Annotated[
+        float,
+        typer.Option(
+            help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
+            min=0.0,
+            max=1.0,
+            callback=_above_zero,
+        ),
+    ] = TA_THRESHOLD
+    ego_oracle: Annotated[
+        bool,
+        typer.Option(
+            "--ego-oracle",
+            help="Also score ego-motion models told the true next pose (an upper bound).",
+        ),
+    ] = False
+    horizon: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Also score F1 1..K frames ahead (models fed their own predictions).",
+        ),
+    ] = 1
+    legs: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--legs",
+            help="Labelled movers to score 1..K ahead (recall and precision within 0.3 m): "
+            "leg_tracker's extracted bag, or a bag with /ground_truth_people_tracks. One per "
+            "recording, in their order.",
+        ),
+    ] = None
+    online_decision: Annotated[
+        bool,
+        typer.Option(
+            "--online-decision",
+            help="Score each occupancy-head model with both decision rules, fixed and online "
+            "offsets (the other one as NAME_fixed or NAME_online).",
+        ),
+    ] = False
+    combine: Annotated[
+        bool,
+        typer.Option(
+            "--combine",
+            help="Also score each model combined online with the simple predictors, learning "
+            "from the scans that arrive (NAME_combined).",
+        ),
+    ] = False
     grid: GridOpt = 100
     res: ResOpt = 0.1
     moving_threshold: MovingOpt = None
     force: ForceOpt = False
     threads: ThreadsOpt = DEFAULT_THREADS
     jobs: JobsOpt = 1
-    device: DeviceOpt = "cpu"
-    json_out: JsonOutOpt = None
+    device: Annotated[
+        str,
+        typer.Option(
+            help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
+            "and the baselines run on the CPU."
+        ),
+    ] = "cpu"
+    json_out: Annotated[Path | None, typer.Option("--json", hidden=True)] = None
 
 
 @app.command()
