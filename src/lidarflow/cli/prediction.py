@@ -58,7 +58,7 @@ def demo(
 
 
 def _demo(folder: Path, output: Path) -> None:
-    """``demo``'s work: writes into ``folder``, which becomes ``output`` once complete."""
+    """``demo``'s work, written into ``folder``, which becomes ``output`` once complete."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
     from lidarflow.evaluate.evaluation import evaluate_and_report
     from lidarflow.evaluate.report import format_comparison, format_table
@@ -114,7 +114,7 @@ def _demo(folder: Path, output: Path) -> None:
 
 @dataclass(frozen=True)
 class PredictOptions:
-    """``predict``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``predict``'s command line."""
 
     inputs: Annotated[
         list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to predict on.")
@@ -207,12 +207,12 @@ def predict(options: PredictOptions) -> None:
 
 
 def _predict_all(tasks: list[Any], options: PredictOptions) -> list[Any]:
-    """Each task's outcome, each said as it is in: one input in this process, its errors the
-    command's; several in ``--jobs`` workers, into the folder ``-o``."""
+    """Each task's outcome, said as it is in: one input in this process (its errors the
+    command's), several in ``--jobs`` workers into the folder ``-o``."""
     from lidarflow.cli.jobs import Outcome, resolve_jobs, run_jobs
     from lidarflow.cli.per_input import predict_input
 
-    if len(tasks) == 1:  # one input: its errors are the command's
+    if len(tasks) == 1:
         done = Outcome(0, predict_input(tasks[0]))
         _say_written(tasks[0], done)
         return [done]
@@ -233,9 +233,8 @@ def _predict_all(tasks: list[Any], options: PredictOptions) -> list[Any]:
 
 
 def _outputs(inputs: list[Path], output: Path) -> list[Path]:
-    """Where ``predict`` writes each input's predictions: ``output`` for one input; for several,
-    the folder ``output``, holding ``STEM.mcap`` per input (numbered where two inputs share a
-    stem, as the report's pictures are)."""
+    """Where ``predict`` writes each input: ``output`` for one; for several, ``STEM.mcap`` per
+    input in the folder ``output`` (numbered where two share a stem)."""
     if len(inputs) == 1:
         return [output]
     from lidarflow.evaluate.evaluation import unique_stems
@@ -274,7 +273,7 @@ def _topic_groups(text: str) -> frozenset[str]:
 
 @dataclass(frozen=True)
 class ExportOptions:
-    """``export``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``export``'s command line."""
 
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="ONNX file to write (required).")
@@ -353,8 +352,8 @@ def _onnx_output(options: ExportOptions) -> Path:
 
 
 def _export_int8(net: Any, policy: Any, spec: Any, output: Path, options: ExportOptions) -> str:
-    """Write ``net`` to ``output`` with int8 convolutions, calibrated on the maps of
-    ``--calibration`` (the bundled sample bag by default); what it was calibrated on."""
+    """Write ``net`` to ``output`` with int8 convolutions calibrated on ``--calibration``'s
+    maps (default: the bundled sample bag); returns what it was calibrated on."""
     import tempfile
 
     from lidarflow.data import sample_bag_path

@@ -142,8 +142,7 @@ def ros2(options: NodeOptions) -> None:
 
 
 def _serve(kind: str, options: NodeOptions, node_type: Callable[..., RosNode]) -> None:
-    """The node of ``node_type`` (the transport: called as :class:`RosNode` is) on the live
-    step the options ask for, until it stops."""
+    """Run the node of ``node_type`` (the transport) on the live step the options ask for."""
     o = options
     step = _live_step(o.model, o.grid, o.res, o.horizon, o.moving_threshold, o.summary_every,
                       o.threads, o.moving, o.combine)  # fmt: skip
@@ -166,8 +165,8 @@ def _live_step(
     moving: bool = False,
     combine: bool = False,
 ) -> LiveStep:
-    """The node's step: the Predictor for ``model``; a :class:`ModelError` where ``moving``
-    asks for the moving cells of a model that estimates no flow (the topic would stay empty)."""
+    """The node's step for ``model``; a :class:`ModelError` where ``moving`` asks for the
+    moving cells of a model that estimates no flow."""
     from lidarflow.errors import ModelError
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
@@ -193,8 +192,8 @@ def _run(
     kind: str, step: LiveStep, make_node: Callable[[], Any], foxglove: int | None, host: str,
     topic: str,
 ) -> None:
-    """The node ``make_node`` builds, with the Foxglove server beside it where asked, until it
-    stops; the latency over all scans said last."""
+    """Spin the node ``make_node`` builds, with the Foxglove server beside it where asked; the
+    latency over all scans said last."""
     with contextlib.ExitStack() as stack:
         if foxglove is not None:
             from lidarflow.live.foxglove import LiveServer
@@ -218,9 +217,8 @@ def _run(
 
 
 def _log_to_stderr(kind: str, verbose: bool) -> None:
-    """The node's log on stderr, one line a message, every scan's with ``verbose`` (rospy
-    configures logging its own way when the node starts; this logger does not pass through
-    it)."""
+    """The node's log on stderr, one line a message, every scan's with ``verbose`` (not
+    through rospy's logging, which it configures its own way)."""
     level = logging.DEBUG if verbose else logging.INFO
     logger = logging.getLogger("lidarflow.live")
     handler = logging.StreamHandler()

@@ -30,13 +30,12 @@ from lidarflow.cli.app import (
 )
 from lidarflow.cli.jobs import JobsOpt
 from lidarflow.cli.options import command_options
-from lidarflow.cli.per_input import EvaluateSettings
-from lidarflow.evaluate.methods import methods_and_config
+from lidarflow.cli.per_input import EvaluateSettings, build_methods
 
 
 def _above_zero(value: float) -> float:
-    """A usage error for 0: typer's ``min`` is inclusive, and a temporal-average threshold of 0
-    would call every cell occupied (the baseline refuses it, which was a crash here)."""
+    """A usage error for 0 (typer's ``min`` is inclusive): a temporal-average threshold of 0
+    would call every cell occupied."""
     if value <= 0.0:
         raise typer.BadParameter(f"must be above 0, not {value}")
     return value
@@ -44,7 +43,7 @@ def _above_zero(value: float) -> float:
 
 @dataclass(frozen=True)
 class EvaluateOptions:
-    """``evaluate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``evaluate``'s command line."""
 
     inputs: Annotated[
         list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
@@ -180,8 +179,10 @@ def evaluate(options: EvaluateOptions) -> None:
         for path in o.inputs
     ]
     labels = _labels(o.legs, named)
-    settings = _settings(o, sources, None)
-    methods, config = _methods_and_config(settings)
+    settings = _settings(o, sources)
+    methods, config = build_methods(settings)
+    config.update({"warmup": o.warmup, "grid": settings.spec.to_dict()})
+    _note_other_grids(config["models"], settings.spec)
     workers = resolve_jobs(o.jobs, len(named))
     with contextlib.ExitStack() as stack:  # the report folder appears once complete
         if o.report_dir is not None:
@@ -230,31 +231,15 @@ def _sources(options: EvaluateOptions) -> list[Path | None]:
     return sources
 
 
-def _settings(
-    o: EvaluateOptions, sources: list[Path | None], report_dir: Path | None
-) -> EvaluateSettings:
+def _settings(o: EvaluateOptions, sources: list[Path | None]) -> EvaluateSettings:
     from lidarflow.predict.backends import resolve_device
     from lidarflow.scan import GridSpec
 
     return EvaluateSettings(
         tuple(sources), o.ta_window, o.ta_threshold, o.moving_threshold, o.ego_oracle,
         o.online_decision, GridSpec(o.grid, o.grid, o.res), resolve_device(o.device), o.threads,
-        o.warmup, o.horizon, report_dir, o.gif_frames, o.combine,
+        o.warmup, o.horizon, None, o.gif_frames, o.combine,
     )  # fmt: skip
-
-
-def _methods_and_config(settings: EvaluateSettings) -> tuple[Any, dict[str, Any]]:
-    """The methods to score and the report's config, with a note for each model scored on
-    a grid other than its own."""
-    s = settings
-    methods, config = methods_and_config(
-        list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
-        s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
-        combine=s.horizon if s.combine else None,
-    )  # fmt: skip
-    config.update({"warmup": s.warmup, "grid": s.spec.to_dict()})
-    _note_other_grids(config["models"], s.spec)
-    return methods, config
 
 
 def _say_report(
@@ -278,7 +263,7 @@ def _say_report(
 
 def _note_other_grids(models: dict[str, Any], spec: Any) -> None:
     """Say on stderr which of the ``models`` (their records) are scored on a grid other than
-    the one they trained on."""
+    their own."""
     from lidarflow.predict.backends import recorded_grid
 
     for name, used in models.items():
@@ -299,9 +284,8 @@ def _evaluate_in_jobs(
     config: dict[str, Any],
     workers: int,
 ) -> dict[str, Any]:
-    """``evaluate``'s scoring, one worker per recording (:mod:`lidarflow.cli.jobs`; one worker
-    runs in this process): the report. The first recording that fails stops the others: the
-    report needs every one, and nothing is written without it."""
+    """``evaluate``'s report, one worker per recording (:mod:`lidarflow.cli.jobs`). The first
+    recording that fails stops the others: the report needs every one."""
     from lidarflow.cli.jobs import Outcome, run_jobs
     from lidarflow.cli.per_input import score_input
     from lidarflow.errors import EvaluateError

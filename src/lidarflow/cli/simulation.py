@@ -22,7 +22,7 @@ _SENSOR_HELP = (
 
 @dataclass(frozen=True)
 class SimulateOptions:
-    """``simulate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``simulate``'s command line."""
 
     output: Annotated[
         Path,
@@ -121,7 +121,7 @@ def simulate(options: SimulateOptions) -> None:
 
 
 def _sim_config(options: SimulateOptions) -> Any:
-    """The simulator's config the options ask for; a usage error for a name it does not know."""
+    """The simulator's config; a usage error for a name it does not know."""
     from lidarflow.scan import GridSpec
     from lidarflow.sim import PRESETS, PeopleConfig, PlatformConfig, SimConfig, lidar_preset
 

@@ -16,7 +16,7 @@ from lidarflow.cli.options import command_options
 
 @dataclass(frozen=True)
 class TrainOptions:
-    """``train``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``train``'s command line."""
 
     data: Annotated[
         list[str] | None,
