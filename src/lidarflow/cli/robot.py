@@ -8,7 +8,6 @@ import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -144,63 +143,52 @@ def ros2(options: NodeOptions) -> None:
 def _serve(kind: str, options: NodeOptions, node_type: Callable[..., RosNode]) -> None:
     """Run the node of ``node_type`` (the transport) on the live step the options ask for."""
     o = options
-    step = _live_step(o.model, o.grid, o.res, o.horizon, o.moving_threshold, o.summary_every,
-                      o.threads, o.moving, o.combine)  # fmt: skip
+    step = _live_step(o)
 
     def make_node() -> RosNode:
         return node_type(step, o.topic, o.odom_topic, o.moving, queue=o.queue,
                          planner=o.planner_grid)  # fmt: skip
 
-    _run(kind, step, make_node, o.foxglove, o.host, o.topic)
+    _run(kind, step, make_node, o)
 
 
-def _live_step(
-    model: Path | None,
-    grid: int | None,
-    res: float | None,
-    horizon: int,
-    moving_threshold: float | None,
-    summary_every: int,
-    threads: int,
-    moving: bool = False,
-    combine: bool = False,
-) -> LiveStep:
-    """The node's step for ``model``; a :class:`ModelError` where ``moving`` asks for the
-    moving cells of a model that estimates no flow."""
+def _live_step(options: NodeOptions) -> LiveStep:
+    """The node's step; a :class:`ModelError` where ``--moving`` asks for the moving cells of a
+    model that estimates no flow."""
     from lidarflow.errors import ModelError
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
+    o = options
     predictor = Predictor(
-        model,
-        model_grid(model, grid, res),
-        horizon=horizon,
-        threads=threads or None,
-        moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
-        combine=combine,
+        o.model,
+        model_grid(o.model, o.grid, o.res),
+        horizon=o.horizon,
+        threads=o.threads or None,
+        moving_threshold=MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold,
+        combine=o.combine,
     )
-    if moving and not predictor.backend.capabilities.flow:
+    if o.moving and not predictor.backend.capabilities.flow:
         raise ModelError(
-            f"--moving publishes a flow model's moving cells, and {model or 'the bundled model'} "
-            "estimates no flow; name a flow model with --model, or drop --moving"
+            f"--moving publishes a flow model's moving cells, and "
+            f"{o.model or 'the bundled model'} estimates no flow; name a flow model with "
+            "--model, or drop --moving"
         )
-    return LiveStep(predictor, summary_every=summary_every)
+    return LiveStep(predictor, summary_every=o.summary_every)
 
 
-def _run(
-    kind: str, step: LiveStep, make_node: Callable[[], Any], foxglove: int | None, host: str,
-    topic: str,
-) -> None:
+def _run(kind: str, step: LiveStep, make_node: Callable[[], Any], options: NodeOptions) -> None:
     """Spin the node ``make_node`` builds, with the Foxglove server beside it where asked; the
     latency over all scans said last."""
+    foxglove, topic = options.foxglove, options.topic
     with contextlib.ExitStack() as stack:
         if foxglove is not None:
             from lidarflow.live.foxglove import LiveServer
 
             predictor = step.predictor
             server = stack.enter_context(LiveServer(
-                predictor.grid, host=host, port=foxglove, horizon=predictor.horizon,
+                predictor.grid, host=options.host, port=foxglove, horizon=predictor.horizon,
                 flow=predictor.backend.capabilities.flow, scan_topic=topic,
             ))  # fmt: skip
             step.sinks.append(server.publish_frame)
