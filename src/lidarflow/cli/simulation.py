@@ -152,18 +152,13 @@ def _write_record(
     record: Path, options: SimulateOptions, paths: list[Path], seconds: float, config: Any
 ) -> None:
     """The run's record beside its outputs: what was asked, what came out, how fast."""
-    write_text(
-        record,
-        json.dumps(
-            {
-                "command": "lidarflow " + " ".join(sys.argv[1:]),
-                "frames": options.frames,
-                "seed": options.seed,
-                "files": [str(p) for p in paths],
-                "seconds": round(seconds, 2),
-                "scans_per_s": round(options.frames / seconds, 1),
-                "config": config.to_dict(),
-            },
-            indent=2,
-        ),
-    )
+    done = {
+        "command": "lidarflow " + " ".join(sys.argv[1:]),
+        "frames": options.frames,
+        "seed": options.seed,
+        "files": [str(p) for p in paths],
+        "seconds": round(seconds, 2),
+        "scans_per_s": round(options.frames / seconds, 1),
+        "config": config.to_dict(),
+    }
+    write_text(record, json.dumps(done, indent=2))
