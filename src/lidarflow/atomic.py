@@ -1,24 +1,12 @@
 """Writing outputs whole or not at all, and never over what lidarflow did not write.
 
-Every file or folder lidarflow writes goes through :func:`atomic_path` (or
-:func:`atomic_paths` for a set): the writer gets a fresh path in the target's folder that does
-not exist yet (bag writers insist on that), with the target's suffix (writers that pick the
-format by it keep working), and only a writer that finished sees its output moved onto the
-target (:func:`commit`). A writer that fails, or is interrupted (``KeyboardInterrupt``; the CLI
-turns SIGTERM into one too), leaves the target as it was, and its temporary is removed. A run
-killed outright (SIGKILL, power loss) can leave a temporary, never a half-written target: the
-temporaries are named ``.NAME.PID.partial`` (+ the suffix), and the next write into that
-folder, of any target, removes those whose process is gone. A temporary is never removed while
-its process runs: one whose PID another live process has since taken stays until that process
-ends too; one whose PID is this process's own (a container's PIDs repeat from run to run) goes
-unless this process made it.
-
-What may be replaced is :mod:`lidarflow.overwrite`'s rule (its names are importable from
-here too); :func:`commit` keeps it at the last step: a folder gets its :data:`STAMP`, and what
-appeared at the target meanwhile is refused.
-
-A folder replaces a folder in one step (``renameat2(RENAME_EXCHANGE)`` on Linux), so an
-interrupt leaves either the old folder or the new one at the target, never neither.
+A writer gets a fresh temporary beside the target (:func:`atomic_path`, :func:`atomic_paths`),
+named ``.NAME.PID[.N].partial`` + the target's suffix; only a finished writer's output is
+moved onto the target (:func:`commit`), in one step (a folder by ``renameat2`` exchange on
+Linux). A writer that fails or is interrupted leaves the target as it was; a temporary left by
+a process killed outright is removed by the next write into its folder, never while its
+process may still write it (:func:`clear_stale`). What may be replaced is
+:mod:`lidarflow.overwrite`'s rule, kept by :func:`commit` at the last step.
 
 >>> import tempfile
 >>> folder = Path(tempfile.mkdtemp())
@@ -74,10 +62,8 @@ _MINE: set[Path] = set()
 
 
 def temporary(target: str | Path) -> Path:
-    """A path beside ``target`` that does not exist: ``.NAME.PID[.N].partial`` + its suffix
-    (``.x.npz.123.partial.npz``), so that format-by-suffix writers still see ``.npz``. The
-    temporaries in its folder that processes killed outright left are removed first
-    (:func:`clear_stale`); the parent is created."""
+    """A path beside ``target`` that does not exist, ending in ``target``'s suffix so that
+    format-by-suffix writers still work; creates the parent and clears stale temporaries."""
     target = Path(target)
     if not target.name:
         raise OutputError(f"{target}: not a file name; name the output to write in it")
@@ -110,11 +96,10 @@ def discard(path: str | Path) -> None:
 
 
 def commit(written: str | Path, target: str | Path) -> None:
-    """Move the finished ``written`` (a file or a folder, beside ``target``) onto ``target`` in
-    one step, keeping the module's rule: a folder gets its :data:`STAMP` first; what is at
-    ``target`` is replaced only where it is of the same kind, lidarflow's (a folder), and
-    allowed (a named output that existed needs ``force``; one that appeared while this run
-    wrote is never replaced). ``written`` is removed if the move fails or is refused."""
+    """Move the finished ``written`` (a file or a folder beside ``target``) onto ``target`` in
+    one step, stamping a folder first; an :class:`OutputError` where the rule of
+    :mod:`lidarflow.overwrite` refuses what is at ``target``. ``written`` is removed if the
+    move fails or is refused."""
     written, target = Path(written), Path(target)
     try:
         if not (written.exists() or written.is_symlink()):
@@ -156,10 +141,9 @@ _renameat2 = getattr(_libc, "renameat2", None)
 
 def _rename(src: Path, dst: Path, flag: int) -> bool:
     """Linux's ``renameat2(src, dst, flag)``: ``True`` where done; ``False`` where ``dst`` is
-    there (``_NOREPLACE``) or is not (``_EXCHANGE``). Elsewhere, or on a file system without
-    it, the same contract from portable calls: a hard link (a file) or a rename checked just
-    before (a folder) for ``_NOREPLACE``; ``False`` for ``_EXCHANGE`` (the caller moves the
-    old folder aside)."""
+    there (``_NOREPLACE``) or is not (``_EXCHANGE``). Without it, portable calls do
+    ``_NOREPLACE`` (a hard link, or a checked rename of a folder) and ``_EXCHANGE`` is
+    ``False``."""
     if _renameat2 is not None:
         done = _renameat2(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), flag)
         if done == 0:
@@ -186,20 +170,10 @@ def _rename(src: Path, dst: Path, flag: int) -> bool:
     return True
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
-
-
 def clear_stale(folder: str | Path) -> list[Path]:
-    """Remove the temporaries in ``folder`` (files, or folders with what was staged in them)
-    that processes killed outright left: those whose process is gone (see the module's
-    docstring for PIDs taken again); returns them."""
+    """Remove the temporaries in ``folder`` whose process is gone; returns them. One whose PID
+    another live process has taken stays until that ends; one with this process's PID (PIDs
+    repeat across container runs) goes unless this process made it."""
     folder = Path(folder)
     if not folder.is_dir():
         return []
@@ -216,9 +190,8 @@ _NUMBER = re.compile(r"[0-9]+")
 
 
 def _owners(name: str) -> list[int]:
-    """The PIDs a temporary named ``name`` (``.NAME.PID[.N].partial`` + NAME's suffix) may have
-    been made by: none for a name :func:`temporary` does not make, two where it reads both
-    ways (``.x.5.5.7.partial.5``)."""
+    """The PIDs a temporary named ``name`` may have been made by: none for a name
+    :func:`temporary` does not make, two where it reads both ways (``.x.5.5.7.partial.5``)."""
     owners = []
     for found in re.finditer(re.escape(_SUFFIX), name):
         head, tail = name[: found.start()], name[found.end() :]
@@ -237,26 +210,29 @@ def _owners(name: str) -> list[int]:
 
 
 def _running(pid: int, entry: Path) -> bool:
-    """Whether the temporary ``entry`` named with ``pid`` may still be written."""
     if pid == os.getpid():
         return Path(os.path.abspath(entry)) in _MINE
-    return _alive(pid)
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
 
 
 @contextlib.contextmanager
 def atomic_path(target: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``target`` for the caller to write (a file or a folder);
-    on a clean exit it replaces ``target`` (:func:`commit`), on any exception
-    (``KeyboardInterrupt`` too) it is removed and ``target`` stays as it was."""
+    """Yield a temporary path for the caller to write ``target`` to (a file or a folder),
+    committed on a clean exit and removed on any exception (``KeyboardInterrupt`` too)."""
     with atomic_paths([target]) as (tmp,):
         yield tmp
 
 
 @contextlib.contextmanager
 def atomic_paths(targets: Sequence[str | Path]) -> Iterator[list[Path]]:
-    """:func:`atomic_path` for a set of outputs written together (a recording's chunks): a
-    temporary for each, all moved onto their targets, in order, once the caller finished; on
-    any exception none is, and every temporary is removed."""
+    """:func:`atomic_path` for outputs written together (a recording's chunks): committed in
+    order once the caller finished; on any exception none is."""
     temps = [temporary(t) for t in targets]
     try:
         try:
@@ -277,9 +253,8 @@ def atomic_paths(targets: Sequence[str | Path]) -> Iterator[list[Path]]:
 def named_for(
     err: OSError, temps: Sequence[Path], targets: Sequence[str | Path]
 ) -> OSError | OutputError:
-    """``err`` as the user should read it: where it names one of ``temps`` (or a file in one),
-    or is a disk's refusal naming no file (a full disk), an OutputError naming its target (of
-    ``targets``, in order), which the user asked for; else ``err`` itself."""
+    """``err`` as an :class:`OutputError` naming the target (of ``targets``) where it names
+    one of ``temps`` (or a file in one) or is a disk's refusal naming no file; else ``err``."""
     named = Path(err.filename) if isinstance(err.filename, str | os.PathLike) else None
     if named is None and err.errno not in _DISK_ERRORS:
         return err

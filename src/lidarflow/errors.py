@@ -1,9 +1,5 @@
-"""One exception type per layer, all under :class:`LidarflowError`.
-
-Each layer raises its own type and chains the cause (``raise XError(...) from err``) so a
-developer keeps the full story while the CLI prints a single line: what failed, which file or
-topic, and what to do about it.
-"""
+"""One exception type per layer, all under :class:`LidarflowError`, raised ``from`` the cause;
+the CLI prints one line: what failed, which file or topic, and what to do."""
 
 from __future__ import annotations
 

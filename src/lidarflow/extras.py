@@ -1,10 +1,5 @@
-"""What the core install leaves out: PyTorch and what comes with it, the ``torch`` extra.
-
-The core install (``pip install lidarflow``: NumPy, rosbags, ONNX Runtime, the CLI) reads bags,
-runs exported models (the bundled one ships as ONNX too) and scores them; training, export and
-models given as PyTorch weights need ``pip install 'lidarflow[torch]'``. Where one of those is
-asked for without it, the user reads one line naming the extra, not a traceback.
-"""
+"""The ``torch`` extra (PyTorch and what comes with it), which the core install leaves out:
+where something needing it is asked for without it, one line names the extra."""
 
 from __future__ import annotations
 
@@ -32,8 +27,8 @@ def torch_available() -> bool:
 
 
 def missing_extra(err: ImportError, what: str = "this") -> MissingExtraError | None:
-    """The one-line error for ``err`` where it is a package of the ``torch`` extra missing
-    (``what``: what needed it), else ``None`` (a bug, to be reported as one)."""
+    """The error for ``err`` where it is a package of the ``torch`` extra missing (``what``:
+    what needed it), else ``None``."""
     name = (getattr(err, "name", None) or "").split(".")[0]
     if name not in TORCH_EXTRA_MODULES:
         return None

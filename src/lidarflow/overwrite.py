@@ -1,18 +1,9 @@
 """What an output may replace: the rule every command keeps, decided here and nowhere else.
 
-- a file is replaced only by a file, a folder only by a folder (:func:`check_kind`);
-- a folder is replaced only where lidarflow wrote it: every folder
-  :func:`lidarflow.atomic.commit` moves into place carries a :data:`STAMP` file
-  (:func:`stamp`), and a folder without one is never replaced or emptied, ``--force`` or not
-  (an empty one may be; :func:`is_ours`);
-- an output the user named (:func:`check_writable`) that exists is replaced only with
-  ``force``; one that did not exist when the command started and appeared while it ran
-  (another run writing the same output) is not replaced either: the later run is refused
-  (:func:`may_replace`);
-- inputs are never outputs (:func:`check_not_input`).
-
-How an output is written so that the rule holds to the end (whole or not at all, replaced in
-one step) is :mod:`lidarflow.atomic`'s.
+A file is replaced only by a file, a folder only by a folder that lidarflow wrote (it holds
+:data:`STAMP`); a named output that exists only with ``force``, and never one that appeared
+while the command ran; inputs are never outputs. How an output is written so that the rule
+holds to the end is :mod:`lidarflow.atomic`'s.
 """
 
 from __future__ import annotations
@@ -37,9 +28,8 @@ __all__ = [
 
 #: The file in every folder lidarflow wrote: what makes the folder one it may replace.
 STAMP = ".lidarflow"
-#: The outputs the user named, checked by :func:`check_writable`: whether each may replace what
-#: is there (``--force``). A target not named here (a checkpoint in a run folder) may replace a
-#: file of its kind.
+#: The outputs the user named (:func:`check_writable`), each with its ``force``. A target not
+#: named here (a checkpoint in a run folder) may replace a file of its kind.
 _NAMED: dict[Path, bool] = {}
 
 
@@ -48,11 +38,8 @@ def _key(path: str | Path) -> Path:
 
 
 def check_writable(path: str | Path, force: bool = False, folder: bool = False) -> None:
-    """Claim ``path`` as an output (a ``folder`` or a file), or refuse it in one line saying
-    what to do: where it exists, unless ``force``; where it is the other kind (a folder where a
-    file is written), or a folder lidarflow did not write (:func:`is_ours`), even with
-    ``force``. :func:`lidarflow.atomic.commit` keeps to the claim at the end (the output appearing
-    meanwhile is refused then)."""
+    """Claim ``path`` as an output (a ``folder`` or a file); an :class:`OutputError` where it
+    exists, unless ``force``, or where :func:`check_kind` refuses it even with ``force``."""
     path = Path(path)
     _NAMED[_key(path)] = force
     if not (path.exists() or path.is_symlink()):
@@ -63,8 +50,8 @@ def check_writable(path: str | Path, force: bool = False, folder: bool = False) 
 
 
 def check_kind(path: Path, folder: bool) -> None:
-    """Refuse replacing ``path`` (which exists) by a ``folder`` or a file, whatever ``--force``
-    says, where that would lose what lidarflow did not write."""
+    """An :class:`OutputError` where the existing ``path`` may not be replaced by a ``folder``
+    (or a file), whatever ``--force`` says: it is the other kind, or a folder not ours."""
     is_dir = path.is_dir() and not path.is_symlink()
     if is_dir and not folder:
         raise OutputError(
@@ -81,15 +68,14 @@ def check_kind(path: Path, folder: bool) -> None:
 
 
 def may_replace(target: str | Path) -> bool:
-    """Whether ``target``, which exists, may be replaced as far as the user said: a named
-    output only where it was named with ``force``; a target not named (a checkpoint in a run
-    folder) always (:func:`check_kind` still applies)."""
+    """Whether the existing ``target`` may be replaced: a named output only where named with
+    ``force``; a target not named always."""
     return _NAMED.get(_key(target), True)
 
 
 def is_ours(folder: str | Path, ignoring: Callable[[str], bool] | None = None) -> bool:
-    """Whether ``folder`` may be replaced or emptied: it holds lidarflow's :data:`STAMP`, or
-    nothing at all (but entries whose names ``ignoring`` accepts)."""
+    """Whether ``folder`` may be replaced or emptied: it holds :data:`STAMP`, or nothing but
+    entries whose names ``ignoring`` accepts."""
     folder = Path(folder)
     if (folder / STAMP).is_file():
         return True
@@ -104,11 +90,10 @@ def stamp(folder: str | Path) -> None:
 
 
 def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
-    """Refuse an ``output`` that would replace one of ``inputs``, whatever ``--force`` says:
-    the same file (by its resolved path, through symbolic links, or by inode: a hard link), a
-    folder that holds an input, a file inside an input folder (a model's run folder), or any
-    path inside an input ROS 2 bag (a new file changes the bag). Inputs that are not there
-    (``bundled``, a glob pattern) are skipped: there is nothing to destroy."""
+    """An :class:`OutputError` where ``output`` would replace one of ``inputs``, whatever
+    ``--force`` says: the same file (through symbolic or hard links), a folder holding an
+    input, a file inside an input folder, or any path inside an input ROS 2 bag. Inputs not on
+    disk (``bundled``, a glob pattern) are skipped."""
     out = Path(os.path.abspath(output)).resolve()
     for given in inputs:
         if given is None or not Path(given).exists():
@@ -135,9 +120,7 @@ def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> 
 
 
 def _same_file(a: Path, b: Path) -> bool:
-    """Whether ``a`` and ``b`` are one file on disk (hard links too); ``False`` where one is
-    not there."""
     try:
         return a.samefile(b)
-    except OSError:
+    except OSError:  # one of them is not there
         return False

@@ -11,11 +11,11 @@ from lidarflow.errors import ModelError
 
 def test_moving_with_a_model_without_flow_is_refused():
     with pytest.raises(ModelError, match="estimates no flow; name a flow model"):
-        robot._live_step(None, None, None, 1, None, 100, 1, moving=True)
+        robot._live_step(robot.NodeOptions(moving=True))
 
 
 def test_moving_with_a_flow_model_is_served(random_flownet_dir):
-    step = robot._live_step(random_flownet_dir, None, None, 1, None, 100, 1, moving=True)
+    step = robot._live_step(robot.NodeOptions(model=random_flownet_dir, moving=True))
     assert step.predictor.backend.capabilities.flow
 
 
@@ -29,9 +29,9 @@ class _Idle:
 
 @pytest.mark.parametrize("scans", [0, 2])
 def test_the_last_line_says_whether_any_scan_arrived(scans, capsys):
-    step = robot._live_step(None, None, None, 1, None, 100, 1)
+    step = robot._live_step(robot.NodeOptions())
     step.latency.all_ms.extend([1.0] * scans)
-    robot._run("ros2", step, _Idle, None, "127.0.0.1", "/front_scan")
+    robot._run("ros2", step, _Idle, robot.NodeOptions(topic="/front_scan"))
     err = capsys.readouterr().err.strip().splitlines()[-1]
     if scans:
         assert err.startswith("lidarflow ros2: latency over 2 scans: median")

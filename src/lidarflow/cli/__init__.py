@@ -1,14 +1,9 @@
 """The ``lidarflow`` command: argument parsing only.
 
-Every sub-command turns lidarflow errors into one line on stderr and exit status 1; usage errors
-exit with 2 (typer/click's convention). Set ``LIDARFLOW_DEBUG=1`` to see tracebacks.
-
-Conventions every sub-command keeps (tests/test_cli_conventions.py walks them all, and a new
-sub-command must be declared there): what it writes is named by ``-o/--output``, refused where
-it exists unless ``--force``, and written whole or not at all (:mod:`lidarflow.atomic`; SIGTERM
-stops a run as Ctrl-C does, so nothing half-written stays); ``-m/--model`` is a trained model;
-a command that runs a model takes ``--threads`` (default 1, :data:`app.DEFAULT_THREADS`); a
-command's help is a few lines, an option's a line or two.
+Errors are one line on stderr and exit status 1 (usage errors 2, typer's convention);
+``LIDARFLOW_DEBUG=1`` shows tracebacks. The conventions every sub-command keeps (``-o``,
+``--force``, ``-m``, ``--threads``) are checked by tests/test_cli_conventions.py, where a new
+sub-command must be declared.
 """
 
 from __future__ import annotations
@@ -22,9 +17,7 @@ from typing import Any
 
 import typer
 
-from lidarflow.cli.app import app
-from lidarflow.errors import LidarflowError
-from lidarflow.extras import missing_extra
+from lidarflow.cli.app import app, error_text
 
 # Importing the command modules registers their commands on ``app``; --help lists them in this
 # order.
@@ -36,8 +29,7 @@ __all__ = ["app", "main", "stop_on_sigterm"]
 
 
 def _reflow(text: str) -> str:
-    """``text`` with the line breaks inside each paragraph joined: typer's rich help keeps them,
-    so a docstring's own wrapping and the terminal's would break lines twice."""
+    """``text`` with each paragraph on one line: typer's rich help keeps a docstring's breaks."""
     return "\n\n".join(" ".join(p.split()) for p in inspect.cleandoc(text).split("\n\n"))
 
 
@@ -46,9 +38,8 @@ for _command in app.registered_commands:
 
 
 def _bare_flags() -> None:
-    """Show flags bare in ``--help``: typer's rich help (0.29) labels every flag ``<bool>``, as
-    if it took a value, which ``--verbose true`` is then refused for. Nothing where this typer
-    renders help otherwise."""
+    """Show flags bare in ``--help``, where typer's rich help (0.29) labels each ``<bool>`` as
+    if it took a value."""
     from typer import core
 
     option = getattr(core, "TyperOption", None)
@@ -82,11 +73,6 @@ def main(argv: list[str] | None = None) -> None:
     stop_on_sigterm()
     try:
         app(args=argv, prog_name="lidarflow", standalone_mode=True)
-    except LidarflowError as err:
-        if debug:
-            raise
-        typer.echo(f"lidarflow: error: {err}", err=True)
-        sys.exit(1)
     except KeyboardInterrupt:
         typer.echo("lidarflow: interrupted", err=True)
         sys.exit(130)
@@ -98,25 +84,17 @@ def main(argv: list[str] | None = None) -> None:
             detail = f": {interrupt}" if str(interrupt) else ""
             typer.echo(f"lidarflow: interrupted{detail}", err=True)
         raise
-    except OSError as err:  # the file system said no (permissions, a file where a folder
-        if debug:  # should be, a full disk): the user's to fix, not a bug to report
-            raise
-        where = f"{err.filename}: " if err.filename else ""
-        typer.echo(f"lidarflow: error: {where}{err.strerror or err}", err=True)
-        sys.exit(1)
-    except Exception as err:  # a bug: still one line, with the way to the traceback
+    except Exception as err:
         if debug:
             raise
-        # unless it is a package of an extra this install lacks: then say which extra
         words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
-        what = f"`lidarflow {words[0]}`" if words else "this"
-        missing = missing_extra(err, what) if isinstance(err, ImportError) else None
-        if missing is not None:
-            typer.echo(f"lidarflow: error: {missing}", err=True)
-            sys.exit(1)
-        typer.echo(
-            f"lidarflow: internal error: {type(err).__name__}: {err} "
-            "(rerun with LIDARFLOW_DEBUG=1 for the traceback, and please report it)",
-            err=True,
-        )
+        text = error_text(err, f"`lidarflow {words[0]}`" if words else "this")
+        if text is not None:  # the user's to fix, not a bug to report
+            typer.echo(f"lidarflow: error: {text}", err=True)
+        else:  # a bug: still one line, with the way to the traceback
+            typer.echo(
+                f"lidarflow: internal error: {type(err).__name__}: {err} "
+                "(rerun with LIDARFLOW_DEBUG=1 for the traceback, and please report it)",
+                err=True,
+            )
         sys.exit(1)

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from lidarflow.errors import LidarflowError
+
 if TYPE_CHECKING:
     from lidarflow.scan import GridSpec
 
@@ -124,9 +126,21 @@ ThreadsOpt = Annotated[
 ]
 
 
+def error_text(err: BaseException, what: str = "this") -> str | None:
+    """``err`` in one line where it is the user's to fix: a lidarflow error, the file system's
+    refusal, or a package of an extra that ``what`` needs missing; ``None`` for a bug."""
+    from lidarflow.extras import missing_extra
+
+    if isinstance(err, LidarflowError):
+        return str(err)
+    if isinstance(err, OSError):
+        return (f"{err.filename}: " if err.filename else "") + (err.strerror or str(err))
+    missing = missing_extra(err, what) if isinstance(err, ImportError) else None
+    return None if missing is None else str(missing)
+
+
 def use_threads(threads: int) -> None:
-    """Run PyTorch on ``threads`` CPU threads (0: leave its default); nothing where PyTorch is
-    not installed (ONNX Runtime sessions take their threads when made)."""
+    """Run PyTorch on ``threads`` CPU threads (0: its default), where PyTorch is installed."""
     from lidarflow.extras import torch_available
 
     if threads > 0 and torch_available():
@@ -141,10 +155,8 @@ def refuse_existing(
     folder: bool = False,
     inputs: Sequence[Path | str | None] = (),
 ) -> None:
-    """Stop before any work where an output (a ``folder`` or a file) is there already, unless
-    ``--force``, or where even ``--force`` may not replace it: see
-    :func:`lidarflow.atomic.check_writable`. An output that would replace one of the command's
-    ``inputs`` is refused too (:func:`lidarflow.atomic.check_not_input`)."""
+    """Refuse, before any work, each output (a ``folder`` or a file) that may not be written:
+    :func:`lidarflow.atomic.check_not_input` against ``inputs``, then ``check_writable``."""
     from lidarflow.atomic import check_not_input, check_writable
 
     for path in paths:
@@ -166,10 +178,8 @@ def eval_progress(name: str, total: int) -> Any:
 def load_input(
     path: Path, topic: str | None = None, odom_topic: str | None = None, notes: bool = True
 ) -> Any:
-    """Read a recording or bag for a command; where the bag offered several scan or odometry
-    topics, say on stderr which was read (``notes``; `info` lists them itself; a recording
-    converted from such a bag keeps the note but no longer has the topics to pick from); and
-    always, where the bag was cut short, how much of it was read."""
+    """Read a recording or bag for a command, saying on stderr how much of a cut-short bag was
+    read and, with ``notes``, which of several scan or odometry topics was read."""
     from lidarflow.data import load_any
     from lidarflow.data.sources import recovered_notes, topic_notes
 
@@ -180,9 +190,8 @@ def load_input(
     return recording
 
 
-#: What every --model that loads PyTorch weights takes (models.weights.load_trained); an .onnx
-#: file runs (predict, evaluate) but does not train or export, so each command's help says
-#: whether it takes one.
+#: What every --model that loads PyTorch weights takes; each command's help says whether it
+#: also takes an .onnx file (which runs, but does not train or export).
 TORCH_MODEL_SOURCES = "a run folder, .safetensors or model.json from `lidarflow train`"
 ModelOpt = Annotated[
     Path | None,
@@ -205,8 +214,8 @@ ExportModelOpt = Annotated[
 
 
 def bundled_model_available() -> bool:
-    """Whether this installation has the bundled model it can run (a source checkout without
-    it runs the baselines alone): its weights, or without PyTorch its ONNX export."""
+    """Whether this installation has the bundled model it can run: its weights, or without
+    PyTorch its ONNX export."""
     from lidarflow.extras import torch_available
     from lidarflow.models.presets import bundled_model_dir
 
@@ -215,8 +224,8 @@ def bundled_model_available() -> bool:
 
 
 def completed_grid(recorded: GridSpec | None, grid: int | None, res: float | None) -> GridSpec:
-    """The grid ``--grid/--res`` ask for, what they leave out the model's own (``recorded``),
-    else the bundled model's (100 cells of 0.1 m)."""
+    """The grid ``--grid/--res`` ask for, completed from ``recorded`` (a model's own), else
+    the bundled model's."""
     from lidarflow.scan import GridSpec
 
     base = recorded or GridSpec()
@@ -225,8 +234,7 @@ def completed_grid(recorded: GridSpec | None, grid: int | None, res: float | Non
 
 def model_grid(model: Path | None, grid: int | None, res: float | None) -> GridSpec | None:
     """The grid a command runs ``model`` on: ``None`` (the model's own) unless ``--grid`` or
-    ``--res`` is given, else :func:`completed_grid` from the grid the model was made for (its
-    card or ONNX marks, read through the backend any install can load)."""
+    ``--res`` is given, else :func:`completed_grid` from the model's own."""
     if grid is None and res is None:
         return None
     from lidarflow.predict.backends import load_backend, recorded_grid

@@ -1,40 +1,11 @@
 """``--jobs N``: the inputs of ``evaluate`` and ``predict`` run N at once, one worker process
-per input, each on one thread (``--threads``).
+per input, each on ``--threads`` threads and NumPy's BLAS and OpenMP on one.
 
-The workers fork from a fork server (``forkserver``), not from the command's process: a fork
-of a process holding threads (ONNX Runtime's, PyTorch's, tqdm's monitor) can deadlock in the
-child, and the fork server holds none. It imports lidarflow and, where installed, PyTorch once
-for all the workers: imported in each (``spawn``), PyTorch alone took seconds per worker, and
-``evaluate --jobs 2`` of two short recordings 25 s against 14 s on a busy 2-core machine.
-
-What a worker runs is what the same command runs in one process, so the outputs are the same
-(tests/test_cli_jobs.py compares them). Each worker
-
-- runs the model on ``threads`` threads, and NumPy's BLAS and OpenMP on one: N workers on N
-  cores, not N times as many threads as cores (a busy core makes a step many times slower,
-  benchmarks/results/threads.json);
-- runs the backends its parent runs: where the parent cannot import PyTorch (the core install,
-  or a test that blocks it), the worker blocks it too, so that it loads the ONNX model the parent
-  chose rather than import PyTorch beside it;
-- sends its progress to the parent, which draws one bar for all inputs, and keeps what it
-  writes on stderr (notes on its input) for the parent to print with its result.
-
-Results come back in input order, whatever order the workers finish in. A task that fails comes
-back as one line naming its input (:func:`error_line`); the caller says what happens to the
-others (``predict`` finishes them, ``evaluate`` stops: its one report needs every input).
-
-Stopping: Ctrl-C or SIGTERM in the parent (the CLI turns SIGTERM into a ``KeyboardInterrupt``),
-or a terminal's Ctrl-C, which signals every process of the group at once, stops every worker: a
-worker in a task raises ``KeyboardInterrupt`` there, so the output it was writing is removed
-(:mod:`lidarflow.atomic`), and then exits; an idle one exits at once. A worker takes the first
-stop signal only: the parent's SIGTERM that follows the terminal's SIGINT does not cut its
-clean-up short. A worker whose parent ends without stopping it (SIGKILL, the OOM killer) stops
-as if signalled: it watches the parent's process, since its own parent is the fork server,
-which outlives the command as long as any worker runs. The parent waits for the workers to end
-before it goes on, so that nothing is written into what it removes next (a staged report
-folder); one still running :data:`STOP_GRACE_S` later is killed. A worker killed outright
-leaves at most a temporary, never a half-written output, and the next write into its folder
-removes that temporary (:func:`lidarflow.atomic.clear_stale`).
+Workers fork from a fork server, which holds no threads (a fork of a process that does can
+deadlock) and imports lidarflow and PyTorch once for all of them. Outcomes come back in input
+order; a failed task as one line naming its input. Ctrl-C or SIGTERM stops every worker, each
+removing what it was writing (:mod:`lidarflow.atomic`); the parent waits for them, killing any
+still running :data:`STOP_GRACE_S` later. What a worker does is :mod:`lidarflow.cli.worker`'s.
 """
 
 from __future__ import annotations
@@ -74,8 +45,8 @@ STOP_GRACE_S = 30.0
 
 
 def resolve_jobs(jobs: int, inputs: int) -> int:
-    """The worker processes for ``inputs`` inputs: ``jobs``, 0 meaning one per core this
-    process may run on, never more than the inputs."""
+    """The worker processes for ``inputs`` inputs: ``jobs`` (0: one per usable core), never
+    more than the inputs."""
     if jobs == 0:
         jobs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(jobs or 1, inputs))
@@ -107,10 +78,9 @@ def run_jobs(
     stop_on_error: bool = False,
 ) -> list[Outcome]:
     """Run ``work(task)`` for each of ``tasks`` (inputs named ``names``), ``jobs`` at once in
-    worker processes (1: one after another in this process), and hand each :class:`Outcome`
-    to ``on_outcome`` in input order as soon as those before it are in. ``work`` must be a
-    module-level function and ``tasks`` picklable. ``stop_on_error``: the first failure stops
-    the other tasks. Returns the outcomes handed on."""
+    worker processes (1: in this process), handing each :class:`Outcome` to ``on_outcome`` in
+    input order; returns those handed on. ``work`` must be module-level and ``tasks``
+    picklable; ``stop_on_error``: the first failure stops the others."""
     done: list[Outcome] = []
 
     def hand_on(outcome: Outcome) -> bool:
@@ -193,15 +163,12 @@ def _run_pool(
 
 
 def _stop_workers(processes: list[Any], progress: Any) -> None:
-    """SIGTERM each of ``processes`` (the one signal a worker handles,
-    :func:`lidarflow.cli.worker.on_signal`; the pool has no public way to stop its workers
-    before Python 3.14's ``terminate_workers()``), wait up to :data:`STOP_GRACE_S` for them to
-    end, reading what they report meanwhile (a worker does not wait on it, but a full pipe would
-    stall its report), then kill the rest.
+    """SIGTERM each of ``processes``, wait up to :data:`STOP_GRACE_S` for them to end while
+    draining their reports (a full pipe would stall them), then kill the rest.
 
-    A worker's end is read from its pidfd where the system has them: the pool's own account
-    comes through the fork server, which says a worker ended when the fork server itself was
-    killed (a terminal's SIGTERM to the group), as the worker still removes what it wrote."""
+    A worker's end is read from its pidfd where there are pidfds: the pool learns of it through
+    the fork server, which a terminal's SIGTERM to the group kills while the worker still runs.
+    """
     pidfds: dict[Any, int | None] = {}
     for process in processes:
         with contextlib.suppress(ProcessLookupError):  # not there: ended, and reaped

@@ -1,9 +1,5 @@
-"""A command's options as one record: a typer callback built from a dataclass's fields.
-
-A command with many options spells each as a parameter, so its function is mostly signature.
-Written as a frozen dataclass instead (each field annotated with its ``typer.Option`` or
-``typer.Argument``, defaulted as the parameter was), the options are one typed value that
-helpers take whole, and the command's function holds only its own logic:
+"""A command's options as one record: a typer callback built from a frozen dataclass whose
+fields are annotated with their ``typer.Option`` or ``typer.Argument``:
 
     @dataclass(frozen=True)
     class GreetOptions:
@@ -14,9 +10,6 @@ helpers take whole, and the command's function holds only its own logic:
     @command_options(GreetOptions)
     def greet(options: GreetOptions) -> None:
         '''Say hello.'''
-
-typer reads the callback's signature, so ``--help`` and parsing are what the same parameters
-written out would give.
 """
 
 from __future__ import annotations
@@ -37,10 +30,8 @@ def command_options(
     record: type[R], omit: Collection[str] = ()
 ) -> Callable[[Callable[[R], None]], Callable[..., None]]:
     """Decorate ``run(options: R)`` into a typer callback whose parameters are the fields of
-    the dataclass ``record``, in their order, with their annotations and defaults; the callback
-    calls ``run`` with the ``record`` they make. Fields named in ``omit`` are no options of
-    this command and keep their defaults (a record two commands share, one with fewer
-    options)."""
+    the dataclass ``record`` (but those in ``omit``, which keep their defaults), calling
+    ``run`` with the ``record`` they make."""
     hints = typing.get_type_hints(record, include_extras=True)
     fields = [f for f in dataclasses.fields(record) if f.name not in omit]  # type: ignore[arg-type]
     unknown = set(omit) - {f.name for f in dataclasses.fields(record)}  # type: ignore[arg-type]

@@ -1,6 +1,5 @@
-"""What ``evaluate`` and ``predict`` do to one input: the work ``--jobs`` hands a worker process
-(:mod:`lidarflow.cli.jobs`), and ``predict`` runs in its own process too. Each takes one
-picklable task and returns a picklable result; the command prints and writes the rest."""
+"""What ``evaluate`` and ``predict`` do to one input, the work ``--jobs`` hands a worker
+(:mod:`lidarflow.cli.jobs`): each takes a picklable task and returns a picklable result."""
 
 from __future__ import annotations
 
@@ -20,6 +19,7 @@ __all__ = [
     "PredictSettings",
     "PredictTask",
     "Predicted",
+    "build_methods",
     "methods_kept",
     "predict_input",
     "score_input",
@@ -28,9 +28,8 @@ __all__ = [
 
 @dataclass(frozen=True)
 class EvaluateSettings:
-    """What every recording of one ``evaluate`` run is scored with: the methods'
-    (:func:`lidarflow.evaluate.methods.methods_and_config`), the grid, the warm-up, the horizon
-    and the report folder the pictures go to (the staged one)."""
+    """What every recording of one ``evaluate`` run is scored with: the methods' settings, the
+    grid, the warm-up, the horizon and the (staged) report folder for the pictures."""
 
     sources: tuple[Path | None, ...]
     ta_window: int
@@ -48,33 +47,37 @@ class EvaluateSettings:
     combine: bool = False
 
 
+def build_methods(
+    settings: EvaluateSettings, combine: bool = True
+) -> tuple[list[Any], dict[str, Any]]:
+    """The methods ``settings`` ask for and the report's config
+    (:func:`lidarflow.evaluate.methods.methods_and_config`); with ``combine`` False, not the
+    combined ones (a worker's, as it has always built them)."""
+    from lidarflow.evaluate.methods import methods_and_config
+
+    s = settings
+    return methods_and_config(
+        list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
+        s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
+        combine=s.horizon if s.combine and combine else None,
+    )  # fmt: skip
+
+
 #: The methods a worker built, by the settings they were built for: made once per process, as
 #: the one-process run makes them once, and reset between recordings alike.
 _METHODS: dict[EvaluateSettings, list[Any]] = {}
 
 
 def _methods(settings: EvaluateSettings) -> list[Any]:
-    from lidarflow.evaluate.methods import methods_and_config
-
     if settings not in _METHODS:
-        _METHODS[settings] = methods_and_config(
-            settings.sources,
-            settings.ta_window,
-            settings.ta_threshold,
-            settings.moving_threshold,
-            settings.ego_oracle,
-            settings.online_decision,
-            settings.spec.res,
-            device=settings.device,
-            threads=settings.threads or None,
-        )[0]
+        _METHODS[settings] = build_methods(settings, combine=False)[0]
     return _METHODS[settings]
 
 
 @contextlib.contextmanager
 def methods_kept(settings: EvaluateSettings, methods: list[Any]) -> Iterator[None]:
-    """Within it, use ``methods``, built for ``settings`` already, in this process: a run of
-    one worker scores in the command's own process, with the methods the command built."""
+    """Within it, score ``settings`` with ``methods`` in this process: a run of one worker
+    scores here, with the methods the command built."""
     _METHODS[settings] = methods
     try:
         yield
@@ -84,9 +87,7 @@ def methods_kept(settings: EvaluateSettings, methods: list[Any]) -> Iterator[Non
 
 def score_input(task: tuple[str, Any, str, EvaluateSettings, Any]) -> Scored:
     """Score the recording of ``task`` (name, recording, picture stem, settings, its labels or
-    ``None``) as ``evaluate`` scores each of its recordings
-    (:func:`lidarflow.evaluate.evaluation.score_one`): one pass for the main table, the horizon
-    tables and the labels."""
+    ``None``) with :func:`lidarflow.evaluate.evaluation.score_one`."""
     from lidarflow.evaluate.evaluation import score_one
     from lidarflow.viz.evaluation import ReportFigures
 
@@ -135,8 +136,7 @@ class Predicted:
 
 
 def predict_input(task: PredictTask) -> Predicted:
-    """Read ``task.input``, predict every scan of it and write ``task.output``, as ``predict``
-    does for each input."""
+    """Read ``task.input``, predict every scan of it and write ``task.output``."""
     from lidarflow.cli.app import load_input
     from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
     from lidarflow.data.sources import is_recording_file

@@ -58,7 +58,7 @@ def demo(
 
 
 def _demo(folder: Path, output: Path) -> None:
-    """``demo``'s work: writes into ``folder``, which becomes ``output`` once complete."""
+    """``demo``'s work, written into ``folder``, which becomes ``output`` once complete."""
     from lidarflow.data import SAMPLE_TOPIC, describe_recording, sample_bag_path
     from lidarflow.evaluate.evaluation import evaluate_and_report
     from lidarflow.evaluate.report import format_comparison, format_table
@@ -112,65 +112,57 @@ def _demo(folder: Path, output: Path) -> None:
         typer.echo(f"predictions for Foxglove: {output / 'predictions.mcap'}")
 
 
-InputsArg = Annotated[
-    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to predict on.")
-]
-OutputOpt = Annotated[
-    Path,
-    typer.Option(
-        "--output",
-        "-o",
-        help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag); for "
-        "several inputs a folder, one NAME.mcap in it per input.",
-    ),
-]
-HorizonOpt = Annotated[
-    int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
-]
-FixedDecisionOpt = Annotated[
-    bool,
-    typer.Option(
-        "--fixed-decision",
-        help="Decide with the model's fixed decision offsets even where it chooses them "
-        "online as it streams (the bundled model does).",
-    ),
-]
-TopicsOpt = Annotated[
-    str,
-    typer.Option(
-        "--topics",
-        help="What to write, comma-separated: input, occupancy, predicted, decided, moving, "
-        "flow, planner_grid; 'default' is all but flow and planner_grid, 'all' everything "
-        "(e.g. default,flow).",
-    ),
-]
-PlannerGridOpt = Annotated[
-    bool,
-    typer.Option(
-        "--planner-grid",
-        help="Also write /lidarflow/planner_grid: per cell the largest predicted probability "
-        "over the --horizon frames, in the scan's frame, for a local planner.",
-    ),
-]
-
-
 @dataclass(frozen=True)
 class PredictOptions:
-    """``predict``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``predict``'s command line."""
 
-    inputs: InputsArg
-    output: OutputOpt
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to predict on.")
+    ]
+    output: Annotated[
+        Path,
+        typer.Option(
+            "--output",
+            "-o",
+            help="Bag to write: .bag (ROS 1), .mcap (MCAP file) or a new folder (ROS 2 bag); for "
+            "several inputs a folder, one NAME.mcap in it per input.",
+        ),
+    ]
     topic: TopicOpt = None
     odom_topic: OdomOpt = None
     model: ModelOpt = None
-    horizon: HorizonOpt = 1
-    fixed_decision: FixedDecisionOpt = False
+    horizon: Annotated[
+        int, typer.Option(help="Frames ahead to predict (predictions fed back).", min=1)
+    ] = 1
+    fixed_decision: Annotated[
+        bool,
+        typer.Option(
+            "--fixed-decision",
+            help="Decide with the model's fixed decision offsets even where it chooses them "
+            "online as it streams (the bundled model does).",
+        ),
+    ] = False
     combine: CombineOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
-    topics: TopicsOpt = "default"
-    planner_grid: PlannerGridOpt = False
+    topics: Annotated[
+        str,
+        typer.Option(
+            "--topics",
+            help="What to write, comma-separated: input, occupancy, predicted, decided, moving, "
+            "flow, planner_grid; 'default' is all but flow and planner_grid, 'all' everything "
+            "(e.g. default,flow).",
+        ),
+    ] = "default"
+    planner_grid: Annotated[
+        bool,
+        typer.Option(
+            "--planner-grid",
+            help="Also write /lidarflow/planner_grid: per cell the largest predicted probability "
+            "over the --horizon frames, in the scan's frame, for a local planner.",
+        ),
+    ] = False
     force: ForceOpt = False
     threads: ThreadsOpt = DEFAULT_THREADS
     jobs: JobsOpt = 1
@@ -215,12 +207,12 @@ def predict(options: PredictOptions) -> None:
 
 
 def _predict_all(tasks: list[Any], options: PredictOptions) -> list[Any]:
-    """Each task's outcome, each said as it is in: one input in this process, its errors the
-    command's; several in ``--jobs`` workers, into the folder ``-o``."""
+    """Each task's outcome, said as it is in: one input in this process (its errors the
+    command's), several in ``--jobs`` workers into the folder ``-o``."""
     from lidarflow.cli.jobs import Outcome, resolve_jobs, run_jobs
     from lidarflow.cli.per_input import predict_input
 
-    if len(tasks) == 1:  # one input: its errors are the command's
+    if len(tasks) == 1:
         done = Outcome(0, predict_input(tasks[0]))
         _say_written(tasks[0], done)
         return [done]
@@ -241,9 +233,8 @@ def _predict_all(tasks: list[Any], options: PredictOptions) -> list[Any]:
 
 
 def _outputs(inputs: list[Path], output: Path) -> list[Path]:
-    """Where ``predict`` writes each input's predictions: ``output`` for one input; for several,
-    the folder ``output``, holding ``STEM.mcap`` per input (numbered where two inputs share a
-    stem, as the report's pictures are)."""
+    """Where ``predict`` writes each input: ``output`` for one; for several, ``STEM.mcap`` per
+    input in the folder ``output`` (numbered where two share a stem)."""
     if len(inputs) == 1:
         return [output]
     from lidarflow.evaluate.evaluation import unique_stems
@@ -280,37 +271,32 @@ def _topic_groups(text: str) -> frozenset[str]:
     return frozenset(groups)
 
 
-OnnxOutputOpt = Annotated[
-    Path | None, typer.Option("--output", "-o", help="ONNX file to write (required).")
-]
-Int8Opt = Annotated[
-    bool,
-    typer.Option(
-        "--int8",
-        help="Quantize the convolutions to int8 (static, per-channel; ~1.4x faster on CPU, "
-        "F1 within ~0.001), ranges calibrated by streaming --calibration through the model.",
-    ),
-]
-CalibrationOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--calibration",
-        help="Recording or bag whose maps calibrate --int8 (default: the bundled sample "
-        "bag; use one from your own sensor).",
-    ),
-]
-
-
 @dataclass(frozen=True)
 class ExportOptions:
-    """``export``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``export``'s command line."""
 
-    output: OnnxOutputOpt = None
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="ONNX file to write (required).")
+    ] = None
     model: ExportModelOpt = None
     grid: ModelGridOpt = None
     res: ModelResOpt = None
-    int8: Int8Opt = False
-    calibration: CalibrationOpt = None
+    int8: Annotated[
+        bool,
+        typer.Option(
+            "--int8",
+            help="Quantize the convolutions to int8 (static, per-channel; ~1.4x faster on CPU, "
+            "F1 within ~0.001), ranges calibrated by streaming --calibration through the model.",
+        ),
+    ] = False
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            "--calibration",
+            help="Recording or bag whose maps calibrate --int8 (default: the bundled sample "
+            "bag; use one from your own sensor).",
+        ),
+    ] = None
     topic: TopicOpt = None
     force: ForceOpt = False
     threads: ThreadsOpt = DEFAULT_THREADS
@@ -366,8 +352,8 @@ def _onnx_output(options: ExportOptions) -> Path:
 
 
 def _export_int8(net: Any, policy: Any, spec: Any, output: Path, options: ExportOptions) -> str:
-    """Write ``net`` to ``output`` with int8 convolutions, calibrated on the maps of
-    ``--calibration`` (the bundled sample bag by default); what it was calibrated on."""
+    """Write ``net`` to ``output`` with int8 convolutions calibrated on ``--calibration``'s
+    maps (default: the bundled sample bag); returns what it was calibrated on."""
     import tempfile
 
     from lidarflow.data import sample_bag_path

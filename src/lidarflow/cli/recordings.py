@@ -123,8 +123,7 @@ def _print_info(report: dict[str, Any], as_json: bool) -> None:
 
 
 def _beams_text(beams: dict[str, int]) -> str:
-    """``info``'s beam counts in words: what share returned, what share the maps cannot use
-    (unknown) and why."""
+    """``info``'s beam counts in words."""
     total = beams["total"]
 
     def share(n: int) -> str:

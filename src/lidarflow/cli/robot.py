@@ -8,7 +8,6 @@ import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -31,64 +30,6 @@ if TYPE_CHECKING:
     from lidarflow.live.step import LiveStep
 
 
-TopicOpt = Annotated[str, typer.Option("--topic", "-t", help="LaserScan topic to predict on.")]
-OdomTopicOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--odom-topic",
-        help="nav_msgs/Odometry topic for the sensor's poses (moved to the scanner by /tf); "
-        "default: none (the bundled model then matches the motion from the scans).",
-    ),
-]
-HorizonOpt = Annotated[
-    int, typer.Option(help="Frames ahead to predict: also publishes the _kK grids.", min=1)
-]
-PublishMovingOpt = Annotated[
-    bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
-]
-PlannerGridOpt = Annotated[
-    bool,
-    typer.Option(
-        "--planner-grid",
-        help="Also publish /lidarflow/planner_grid: per cell the largest predicted probability "
-        "over the --horizon frames, in the scan's frame, for a local planner.",
-    ),
-]
-QueueOpt = Annotated[
-    int,
-    typer.Option(help="Scans kept while the model is busy; beyond them the oldest are dropped.",
-                 min=1),
-]
-SummaryOpt = Annotated[
-    int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
-]
-FoxgloveOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--foxglove",
-        metavar="PORT",
-        help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, as "
-        "`lidarflow live`; 0: any free port).",
-        min=0,
-        max=65535,
-    ),
-]
-HostOpt = Annotated[
-    str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
-]
-VerboseOpt = Annotated[
-    bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
-]
-
-
-ScanQosOpt = Annotated[
-    str,
-    typer.Option(help="QoS of the scan subscription: sensor (sensor data, best effort; "
-                 "matches any driver) or reliable."),
-]  # fmt: skip
-GridQosOpt = Annotated[
-    str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
-]
 #: The options only ``ros2`` has: ``ros1`` leaves them at their defaults.
 ROS2_ONLY = ("scan_qos", "grid_qos")
 
@@ -99,22 +40,71 @@ class NodeOptions:
     one node, either transport; the QoS fields are ``ros2``'s alone (:data:`ROS2_ONLY`)."""
 
     model: ModelOpt = None
-    topic: TopicOpt = "/scan"
-    odom_topic: OdomTopicOpt = None
-    horizon: HorizonOpt = 1
-    moving: PublishMovingOpt = False
-    planner_grid: PlannerGridOpt = False
+    topic: Annotated[
+        str, typer.Option("--topic", "-t", help="LaserScan topic to predict on.")
+    ] = "/scan"
+    odom_topic: Annotated[
+        str | None,
+        typer.Option(
+            "--odom-topic",
+            help="nav_msgs/Odometry topic for the sensor's poses (moved to the scanner by /tf); "
+            "default: none (the bundled model then matches the motion from the scans).",
+        ),
+    ] = None
+    horizon: Annotated[
+        int, typer.Option(help="Frames ahead to predict: also publishes the _kK grids.", min=1)
+    ] = 1
+    moving: Annotated[
+        bool, typer.Option("--moving", help="Also publish the moving cells (/lidarflow/moving).")
+    ] = False
+    planner_grid: Annotated[
+        bool,
+        typer.Option(
+            "--planner-grid",
+            help="Also publish /lidarflow/planner_grid: per cell the largest predicted probability "
+            "over the --horizon frames, in the scan's frame, for a local planner.",
+        ),
+    ] = False
     combine: CombineOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
-    queue: QueueOpt = 10
-    scan_qos: ScanQosOpt = "sensor"
-    grid_qos: GridQosOpt = "reliable"
-    summary_every: SummaryOpt = 100
-    foxglove: FoxgloveOpt = None
-    host: HostOpt = "127.0.0.1"
-    verbose: VerboseOpt = False
+    queue: Annotated[
+        int,
+        typer.Option(
+            help="Scans kept while the model is busy; beyond them the oldest are dropped.", min=1
+        ),
+    ] = 10
+    scan_qos: Annotated[
+        str,
+        typer.Option(
+            help="QoS of the scan subscription: sensor (sensor data, best effort; matches any "
+            "driver) or reliable."
+        ),
+    ] = "sensor"
+    grid_qos: Annotated[
+        str, typer.Option(help="QoS of the grid publishers: reliable or best-effort.")
+    ] = "reliable"
+    summary_every: Annotated[
+        int, typer.Option(help="Scans between the latency summaries it logs.", min=1)
+    ] = 100
+    foxglove: Annotated[
+        int | None,
+        typer.Option(
+            "--foxglove",
+            metavar="PORT",
+            help="Also serve scans and predictions to Foxglove on this port (ws://HOST:PORT, as "
+            "`lidarflow live`; 0: any free port).",
+            min=0,
+            max=65535,
+        ),
+    ] = None
+    host: Annotated[
+        str, typer.Option(help="Address the Foxglove server listens on (with --foxglove).")
+    ] = "127.0.0.1"
+    verbose: Annotated[
+        bool, typer.Option("--verbose", "-v", help="Also log every scan's latency.")
+    ] = False
     threads: ThreadsOpt = DEFAULT_THREADS
 
 
@@ -151,66 +141,54 @@ def ros2(options: NodeOptions) -> None:
 
 
 def _serve(kind: str, options: NodeOptions, node_type: Callable[..., RosNode]) -> None:
-    """The node of ``node_type`` (the transport: called as :class:`RosNode` is) on the live
-    step the options ask for, until it stops."""
+    """Run the node of ``node_type`` (the transport) on the live step the options ask for."""
     o = options
-    step = _live_step(o.model, o.grid, o.res, o.horizon, o.moving_threshold, o.summary_every,
-                      o.threads, o.moving, o.combine)  # fmt: skip
+    step = _live_step(o)
 
     def make_node() -> RosNode:
         return node_type(step, o.topic, o.odom_topic, o.moving, queue=o.queue,
                          planner=o.planner_grid)  # fmt: skip
 
-    _run(kind, step, make_node, o.foxglove, o.host, o.topic)
+    _run(kind, step, make_node, o)
 
 
-def _live_step(
-    model: Path | None,
-    grid: int | None,
-    res: float | None,
-    horizon: int,
-    moving_threshold: float | None,
-    summary_every: int,
-    threads: int,
-    moving: bool = False,
-    combine: bool = False,
-) -> LiveStep:
-    """The node's step: the Predictor for ``model``; a :class:`ModelError` where ``moving``
-    asks for the moving cells of a model that estimates no flow (the topic would stay empty)."""
+def _live_step(options: NodeOptions) -> LiveStep:
+    """The node's step; a :class:`ModelError` where ``--moving`` asks for the moving cells of a
+    model that estimates no flow."""
     from lidarflow.errors import ModelError
     from lidarflow.live.step import LiveStep
     from lidarflow.predict import Predictor
     from lidarflow.predict.moving import MOVING_THRESHOLD
 
+    o = options
     predictor = Predictor(
-        model,
-        model_grid(model, grid, res),
-        horizon=horizon,
-        threads=threads or None,
-        moving_threshold=MOVING_THRESHOLD if moving_threshold is None else moving_threshold,
-        combine=combine,
+        o.model,
+        model_grid(o.model, o.grid, o.res),
+        horizon=o.horizon,
+        threads=o.threads or None,
+        moving_threshold=MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold,
+        combine=o.combine,
     )
-    if moving and not predictor.backend.capabilities.flow:
+    if o.moving and not predictor.backend.capabilities.flow:
         raise ModelError(
-            f"--moving publishes a flow model's moving cells, and {model or 'the bundled model'} "
-            "estimates no flow; name a flow model with --model, or drop --moving"
+            f"--moving publishes a flow model's moving cells, and "
+            f"{o.model or 'the bundled model'} estimates no flow; name a flow model with "
+            "--model, or drop --moving"
         )
-    return LiveStep(predictor, summary_every=summary_every)
+    return LiveStep(predictor, summary_every=o.summary_every)
 
 
-def _run(
-    kind: str, step: LiveStep, make_node: Callable[[], Any], foxglove: int | None, host: str,
-    topic: str,
-) -> None:
-    """The node ``make_node`` builds, with the Foxglove server beside it where asked, until it
-    stops; the latency over all scans said last."""
+def _run(kind: str, step: LiveStep, make_node: Callable[[], Any], options: NodeOptions) -> None:
+    """Spin the node ``make_node`` builds, with the Foxglove server beside it where asked; the
+    latency over all scans said last."""
+    foxglove, topic = options.foxglove, options.topic
     with contextlib.ExitStack() as stack:
         if foxglove is not None:
             from lidarflow.live.foxglove import LiveServer
 
             predictor = step.predictor
             server = stack.enter_context(LiveServer(
-                predictor.grid, host=host, port=foxglove, horizon=predictor.horizon,
+                predictor.grid, host=options.host, port=foxglove, horizon=predictor.horizon,
                 flow=predictor.backend.capabilities.flow, scan_topic=topic,
             ))  # fmt: skip
             step.sinks.append(server.publish_frame)
@@ -227,9 +205,8 @@ def _run(
 
 
 def _log_to_stderr(kind: str, verbose: bool) -> None:
-    """The node's log on stderr, one line a message, every scan's with ``verbose`` (rospy
-    configures logging its own way when the node starts; this logger does not pass through
-    it)."""
+    """The node's log on stderr, one line a message, every scan's with ``verbose`` (not
+    through rospy's logging, which it configures its own way)."""
     level = logging.DEBUG if verbose else logging.INFO
     logger = logging.getLogger("lidarflow.live")
     handler = logging.StreamHandler()

@@ -30,145 +30,128 @@ from lidarflow.cli.app import (
 )
 from lidarflow.cli.jobs import JobsOpt
 from lidarflow.cli.options import command_options
-from lidarflow.cli.per_input import EvaluateSettings
-from lidarflow.evaluate.methods import methods_and_config
+from lidarflow.cli.per_input import EvaluateSettings, build_methods
 
 
 def _above_zero(value: float) -> float:
-    """A usage error for 0: typer's ``min`` is inclusive, and a temporal-average threshold of 0
-    would call every cell occupied (the baseline refuses it, which was a crash here)."""
+    """A usage error for 0 (typer's ``min`` is inclusive): a temporal-average threshold of 0
+    would call every cell occupied."""
     if value <= 0.0:
         raise typer.BadParameter(f"must be above 0, not {value}")
     return value
 
 
-InputsArg = Annotated[
-    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
-]
-ModelsOpt = Annotated[
-    list[Path] | None,
-    typer.Option(
-        "--model",
-        "-m",
-        help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
-        ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
-    ),
-]
-BaselinesOnlyOpt = Annotated[
-    bool,
-    typer.Option(
-        "--baselines-only", help="Score the baselines alone (no model; not with --model)."
-    ),
-]
-OutputOpt = Annotated[
-    Path | None,
-    typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
-]
-ReportDirOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--report",
-        help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
-        "report.json).",
-    ),
-]
-GifFramesOpt = Annotated[int, typer.Option(help="Frames per overlay GIF in the report.", min=1)]
-WarmupOpt = Annotated[
-    int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
-]
-TaWindowOpt = Annotated[
-    int,
-    typer.Option(
-        help="Temporal-average baseline: frames averaged.",
-        min=1,
-    ),
-]
-TaThresholdOpt = Annotated[
-    float,
-    typer.Option(
-        help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
-        min=0.0,
-        max=1.0,
-        callback=_above_zero,
-    ),
-]
-EgoOracleOpt = Annotated[
-    bool,
-    typer.Option(
-        "--ego-oracle",
-        help="Also score ego-motion models told the true next pose (an upper bound).",
-    ),
-]
-HorizonOpt = Annotated[
-    int,
-    typer.Option(
-        min=1,
-        help="Also score F1 1..K frames ahead (models fed their own predictions).",
-    ),
-]
-LegsOpt = Annotated[
-    list[Path] | None,
-    typer.Option(
-        "--legs",
-        help="Labelled movers to score 1..K ahead (recall and precision within 0.3 m): "
-        "leg_tracker's extracted bag, or a bag with /ground_truth_people_tracks. One per "
-        "recording, in their order.",
-    ),
-]
-OnlineDecisionOpt = Annotated[
-    bool,
-    typer.Option(
-        "--online-decision",
-        help="Score each occupancy-head model with both decision rules, fixed and online "
-        "offsets (the other one as NAME_fixed or NAME_online).",
-    ),
-]
-EvaluateCombineOpt = Annotated[
-    bool,
-    typer.Option(
-        "--combine",
-        help="Also score each model combined online with the simple predictors, learning "
-        "from the scans that arrive (NAME_combined).",
-    ),
-]
-DeviceOpt = Annotated[
-    str,
-    typer.Option(
-        help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
-        "and the baselines run on the CPU."
-    ),
-]
-JsonOutOpt = Annotated[Path | None, typer.Option("--json", hidden=True)]
-
-
 @dataclass(frozen=True)
 class EvaluateOptions:
-    """``evaluate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``evaluate``'s command line."""
 
-    inputs: InputsArg
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to evaluate on.")
+    ]
     topic: TopicOpt = None
     odom_topic: OdomOpt = None
-    model: ModelsOpt = None
-    baselines_only: BaselinesOnlyOpt = False
-    output: OutputOpt = None
-    report_dir: ReportDirOpt = None
-    gif_frames: GifFramesOpt = 100
-    warmup: WarmupOpt = 10
-    ta_window: TaWindowOpt = TA_WINDOW
-    ta_threshold: TaThresholdOpt = TA_THRESHOLD
-    ego_oracle: EgoOracleOpt = False
-    horizon: HorizonOpt = 1
-    legs: LegsOpt = None
-    online_decision: OnlineDecisionOpt = False
-    combine: EvaluateCombineOpt = False
+    model: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--model",
+            "-m",
+            help=f"Trained model to score beside the baselines: {TORCH_MODEL_SOURCES}, an "
+            ".onnx file from `lidarflow export`, or `bundled` (the default). Repeatable.",
+        ),
+    ] = None
+    baselines_only: Annotated[
+        bool,
+        typer.Option(
+            "--baselines-only", help="Score the baselines alone (no model; not with --model)."
+        ),
+    ] = False
+    output: Annotated[
+        Path | None,
+        typer.Option("--output", "-o", help="Write the full report (JSON) to this file."),
+    ] = None
+    report_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--report",
+            help="Folder to write an HTML report to (index.html: PR curves, overlay GIFs, "
+            "report.json).",
+        ),
+    ] = None
+    gif_frames: Annotated[
+        int, typer.Option(help="Frames per overlay GIF in the report.", min=1)
+    ] = 100
+    warmup: Annotated[
+        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+    ] = 10
+    ta_window: Annotated[
+        int,
+        typer.Option(
+            help="Temporal-average baseline: frames averaged.",
+            min=1,
+        ),
+    ] = TA_WINDOW
+    ta_threshold: Annotated[
+        float,
+        typer.Option(
+            help="Temporal-average baseline: occupied when mean >= this (above 0, at most 1).",
+            min=0.0,
+            max=1.0,
+            callback=_above_zero,
+        ),
+    ] = TA_THRESHOLD
+    ego_oracle: Annotated[
+        bool,
+        typer.Option(
+            "--ego-oracle",
+            help="Also score ego-motion models told the true next pose (an upper bound).",
+        ),
+    ] = False
+    horizon: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Also score F1 1..K frames ahead (models fed their own predictions).",
+        ),
+    ] = 1
+    legs: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--legs",
+            help="Labelled movers to score 1..K ahead (recall and precision within 0.3 m): "
+            "leg_tracker's extracted bag, or a bag with /ground_truth_people_tracks. One per "
+            "recording, in their order.",
+        ),
+    ] = None
+    online_decision: Annotated[
+        bool,
+        typer.Option(
+            "--online-decision",
+            help="Score each occupancy-head model with both decision rules, fixed and online "
+            "offsets (the other one as NAME_fixed or NAME_online).",
+        ),
+    ] = False
+    combine: Annotated[
+        bool,
+        typer.Option(
+            "--combine",
+            help="Also score each model combined online with the simple predictors, learning "
+            "from the scans that arrive (NAME_combined).",
+        ),
+    ] = False
     grid: GridOpt = 100
     res: ResOpt = 0.1
     moving_threshold: MovingOpt = None
     force: ForceOpt = False
     threads: ThreadsOpt = DEFAULT_THREADS
     jobs: JobsOpt = 1
-    device: DeviceOpt = "cpu"
-    json_out: JsonOutOpt = None
+    device: Annotated[
+        str,
+        typer.Option(
+            help="Where PyTorch models run: cpu, cuda, or auto (CUDA if available). ONNX files "
+            "and the baselines run on the CPU."
+        ),
+    ] = "cpu"
+    json_out: Annotated[Path | None, typer.Option("--json", hidden=True)] = None
 
 
 @app.command()
@@ -196,8 +179,10 @@ def evaluate(options: EvaluateOptions) -> None:
         for path in o.inputs
     ]
     labels = _labels(o.legs, named)
-    settings = _settings(o, sources, None)
-    methods, config = _methods_and_config(settings)
+    settings = _settings(o, sources)
+    methods, config = build_methods(settings)
+    config.update({"warmup": o.warmup, "grid": settings.spec.to_dict()})
+    _note_other_grids(config["models"], settings.spec)
     workers = resolve_jobs(o.jobs, len(named))
     with contextlib.ExitStack() as stack:  # the report folder appears once complete
         if o.report_dir is not None:
@@ -246,31 +231,15 @@ def _sources(options: EvaluateOptions) -> list[Path | None]:
     return sources
 
 
-def _settings(
-    o: EvaluateOptions, sources: list[Path | None], report_dir: Path | None
-) -> EvaluateSettings:
+def _settings(o: EvaluateOptions, sources: list[Path | None]) -> EvaluateSettings:
     from lidarflow.predict.backends import resolve_device
     from lidarflow.scan import GridSpec
 
     return EvaluateSettings(
         tuple(sources), o.ta_window, o.ta_threshold, o.moving_threshold, o.ego_oracle,
         o.online_decision, GridSpec(o.grid, o.grid, o.res), resolve_device(o.device), o.threads,
-        o.warmup, o.horizon, report_dir, o.gif_frames, o.combine,
+        o.warmup, o.horizon, None, o.gif_frames, o.combine,
     )  # fmt: skip
-
-
-def _methods_and_config(settings: EvaluateSettings) -> tuple[Any, dict[str, Any]]:
-    """The methods to score and the report's config, with a note for each model scored on
-    a grid other than its own."""
-    s = settings
-    methods, config = methods_and_config(
-        list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
-        s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
-        combine=s.horizon if s.combine else None,
-    )  # fmt: skip
-    config.update({"warmup": s.warmup, "grid": s.spec.to_dict()})
-    _note_other_grids(config["models"], s.spec)
-    return methods, config
 
 
 def _say_report(
@@ -294,7 +263,7 @@ def _say_report(
 
 def _note_other_grids(models: dict[str, Any], spec: Any) -> None:
     """Say on stderr which of the ``models`` (their records) are scored on a grid other than
-    the one they trained on."""
+    their own."""
     from lidarflow.predict.backends import recorded_grid
 
     for name, used in models.items():
@@ -315,9 +284,8 @@ def _evaluate_in_jobs(
     config: dict[str, Any],
     workers: int,
 ) -> dict[str, Any]:
-    """``evaluate``'s scoring, one worker per recording (:mod:`lidarflow.cli.jobs`; one worker
-    runs in this process): the report. The first recording that fails stops the others: the
-    report needs every one, and nothing is written without it."""
+    """``evaluate``'s report, one worker per recording (:mod:`lidarflow.cli.jobs`). The first
+    recording that fails stops the others: the report needs every one."""
     from lidarflow.cli.jobs import Outcome, run_jobs
     from lidarflow.cli.per_input import score_input
     from lidarflow.errors import EvaluateError

@@ -20,72 +20,64 @@ _SENSOR_HELP = (
 )
 
 
-OutputOpt = Annotated[
-    Path,
-    typer.Option("--output", "-o", help="Recording to write (.npz); long runs: STEM-000.npz, ..."),
-]
-ScenarioOpt = Annotated[
-    str,
-    typer.Option("--scenario", "-s", help="static (robot stands still) or dynamic (drives)."),
-]
-FramesOpt = Annotated[int, typer.Option("--frames", "-n", help="Number of scans.", min=1)]
-SeedOpt = Annotated[int, typer.Option("--seed", help="Same seed, same data.")]
-SensorOpt = Annotated[str, typer.Option("--sensor", help=_SENSOR_HELP)]
-PeopleOpt = Annotated[int, typer.Option("--people", help="People in the building at once.", min=0)]
-WalkersOpt = Annotated[
-    str,
-    typer.Option("--walkers", help="social (social forces, groups) or legacy (the first model)."),
-]
-OdomDriftOpt = Annotated[
-    float,
-    typer.Option(
-        "--odom-drift", help="Odometry error per metre driven (0: poses are exact).", min=0.0
-    ),
-]
-EpisodeFramesOpt = Annotated[
-    int,
-    typer.Option("--episode-frames", help="Frames per world before a new one is built.", min=2),
-]
-ChunkFramesOpt = Annotated[
-    int,
-    typer.Option(
-        "--chunk-frames",
-        help="Write runs longer than this as several files of whole episodes (0: one file); "
-        "dense ground-truth flow takes 80 kB per frame in memory.",
-        min=0,
-    ),
-]
-WorkersOpt = Annotated[
-    int, typer.Option("--workers", "-j", help="Processes to simulate with.", min=1)
-]
-FlowStorageOpt = Annotated[
-    str,
-    typer.Option(
-        "--flow-storage",
-        help="dense: flow_backward/flow_forward (N, 2, H, W); sparse: only non-zero cells "
-        "(flow_*_cells, flow_*_values; read with lidarflow.sim.dense_flow), far smaller.",
-    ),
-]
-
-
 @dataclass(frozen=True)
 class SimulateOptions:
-    """``simulate``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``simulate``'s command line."""
 
-    output: OutputOpt
-    scenario: ScenarioOpt = "dynamic"
-    frames: FramesOpt = 1000
-    seed: SeedOpt = 0
-    sensor: SensorOpt = "tim561"
-    people: PeopleOpt = 8
-    walkers: WalkersOpt = "legacy"
+    output: Annotated[
+        Path,
+        typer.Option(
+            "--output", "-o", help="Recording to write (.npz); long runs: STEM-000.npz, ..."
+        ),
+    ]
+    scenario: Annotated[
+        str,
+        typer.Option("--scenario", "-s", help="static (robot stands still) or dynamic (drives)."),
+    ] = "dynamic"
+    frames: Annotated[int, typer.Option("--frames", "-n", help="Number of scans.", min=1)] = 1000
+    seed: Annotated[int, typer.Option("--seed", help="Same seed, same data.")] = 0
+    sensor: Annotated[str, typer.Option("--sensor", help=_SENSOR_HELP)] = "tim561"
+    people: Annotated[
+        int, typer.Option("--people", help="People in the building at once.", min=0)
+    ] = 8
+    walkers: Annotated[
+        str,
+        typer.Option(
+            "--walkers", help="social (social forces, groups) or legacy (the first model)."
+        ),
+    ] = "legacy"
     grid: GridOpt = 100
     res: ResOpt = 0.1
-    odom_drift: OdomDriftOpt = 0.0
-    episode_frames: EpisodeFramesOpt = 1500
-    chunk_frames: ChunkFramesOpt = 6000
-    workers: WorkersOpt = 1
-    flow_storage: FlowStorageOpt = "dense"
+    odom_drift: Annotated[
+        float,
+        typer.Option(
+            "--odom-drift", help="Odometry error per metre driven (0: poses are exact).", min=0.0
+        ),
+    ] = 0.0
+    episode_frames: Annotated[
+        int,
+        typer.Option("--episode-frames", help="Frames per world before a new one is built.", min=2),
+    ] = 1500
+    chunk_frames: Annotated[
+        int,
+        typer.Option(
+            "--chunk-frames",
+            help="Write runs longer than this as several files of whole episodes (0: one file); "
+            "dense ground-truth flow takes 80 kB per frame in memory.",
+            min=0,
+        ),
+    ] = 6000
+    workers: Annotated[
+        int, typer.Option("--workers", "-j", help="Processes to simulate with.", min=1)
+    ] = 1
+    flow_storage: Annotated[
+        str,
+        typer.Option(
+            "--flow-storage",
+            help="dense: flow_backward/flow_forward (N, 2, H, W); sparse: only non-zero cells "
+            "(flow_*_cells, flow_*_values; read with lidarflow.sim.dense_flow), far smaller.",
+        ),
+    ] = "dense"
     force: ForceOpt = False
 
 
@@ -129,7 +121,7 @@ def simulate(options: SimulateOptions) -> None:
 
 
 def _sim_config(options: SimulateOptions) -> Any:
-    """The simulator's config the options ask for; a usage error for a name it does not know."""
+    """The simulator's config; a usage error for a name it does not know."""
     from lidarflow.scan import GridSpec
     from lidarflow.sim import PRESETS, PeopleConfig, PlatformConfig, SimConfig, lidar_preset
 
@@ -160,18 +152,13 @@ def _write_record(
     record: Path, options: SimulateOptions, paths: list[Path], seconds: float, config: Any
 ) -> None:
     """The run's record beside its outputs: what was asked, what came out, how fast."""
-    write_text(
-        record,
-        json.dumps(
-            {
-                "command": "lidarflow " + " ".join(sys.argv[1:]),
-                "frames": options.frames,
-                "seed": options.seed,
-                "files": [str(p) for p in paths],
-                "seconds": round(seconds, 2),
-                "scans_per_s": round(options.frames / seconds, 1),
-                "config": config.to_dict(),
-            },
-            indent=2,
-        ),
-    )
+    done = {
+        "command": "lidarflow " + " ".join(sys.argv[1:]),
+        "frames": options.frames,
+        "seed": options.seed,
+        "files": [str(p) for p in paths],
+        "seconds": round(seconds, 2),
+        "scans_per_s": round(options.frames / seconds, 1),
+        "config": config.to_dict(),
+    }
+    write_text(record, json.dumps(done, indent=2))

@@ -13,187 +13,161 @@ import typer
 from lidarflow.cli.app import TopicOpt, app
 from lidarflow.cli.options import command_options
 
-DataArg = Annotated[
-    list[str] | None,
-    typer.Argument(
-        help="Training data sources: recordings (.npz), bags / ROS 2 bag folders / .mcap "
-        "(converted on the fly), folders of .npz, or quoted glob patterns. Each argument is "
-        "one source for --mix.",
-        show_default=False,
-    ),
-]
-OutputOpt = Annotated[Path | None, typer.Option("--output", "-o", help="Run directory to create.")]
-ArchOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--arch",
-        help="Architecture: flownet (LiDAR-FlowNet), deeptracking or sogmp (each with its "
-        "own recipe unless --recipe names one).",
-    ),
-]
-EgoMotionOpt = Annotated[
-    bool,
-    typer.Option(
-        "--ego-motion",
-        help="Compensate the sensor's own motion by the recordings' poses (odometry), so "
-        "the net only explains the world's motion.",
-    ),
-]
-RecipeOpt = Annotated[
-    str | None,
-    typer.Option(
-        help="Preset: head_only (default: the occupancy head alone), head (a head on a "
-        "flow network: --init RUN), paper, blurred, supervised_flow (flow from simulated "
-        "truth) or sogmp (the peer's)."
-    ),
-]
-ConfigOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--config",
-        help="JSON or TOML file of settings (partial is fine); a run's config.json works.",
-    ),
-]
-InitOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--init",
-        help="Start from these weights (run folder, weights file, or "
-        "'bundled') instead of from scratch: fine-tuning. A flow-only "
-        "model can start one with an occupancy head (the head starts fresh).",
-    ),
-]
-ResumeOpt = Annotated[
-    Path | None,
-    typer.Option(
-        help="Continue the run in this directory exactly (weights, optimizer, "
-        "schedules, RNG, data order); --epochs may extend it."
-    ),
-]
-EpochsOpt = Annotated[int | None, typer.Option(help="Epochs (paper: 200).", min=1)]
-BatchSizeOpt = Annotated[int | None, typer.Option(help="Sequences per batch (default 32).", min=1)]
-LrOpt = Annotated[float | None, typer.Option(help="Initial learning rate (default 0.01).")]
-OptimizerOpt = Annotated[str | None, typer.Option(help="adam (default), adamw or sgd.")]
-GradClipOpt = Annotated[
-    float | None, typer.Option(help="Clip the global gradient norm to this (0: off, default).")
-]
-SeqLenOpt = Annotated[int | None, typer.Option(help="Frames per sequence (default 20).", min=2)]
-WarmupOpt = Annotated[
-    int | None, typer.Option(help="Frames that only warm up the state (default 10).", min=0)
-]
-NoGaussianOpt = Annotated[
-    bool, typer.Option("--no-gaussian", help="Ablation: no Gaussian filter in the loss.")
-]
-MixOpt = Annotated[
-    list[float] | None,
-    typer.Option(
-        help="Sampling weight per source, repeated (--mix 3 --mix 1); with two "
-        "sources one value is the first's fraction."
-    ),
-]
-ValOpt = Annotated[
-    list[str] | None,
-    typer.Option("--val", help="Validation recordings (repeatable); then nothing is held out."),
-]
-ValFractionOpt = Annotated[
-    float | None, typer.Option(help="Share held out for validation (default 0.1).")
-]
-ValSplitOpt = Annotated[
-    str | None,
-    typer.Option(
-        help="tail: the last frames of each recording (default); recordings: whole recordings."
-    ),
-]
-TrainGridOpt = Annotated[
-    int | None, typer.Option("--grid", help="Map size in cells (default 100).")
-]
-TrainResOpt = Annotated[
-    float | None, typer.Option("--res", help="Cell size in metres (default 0.1).")
-]
-DeviceOpt = Annotated[str | None, typer.Option(help="auto (CUDA if available), cpu, cuda.")]
-AmpOpt = Annotated[
-    str | None,
-    typer.Option(
-        help="none (fp32 reference), bf16 autocast, or auto: bf16 where the device computes "
-        "it natively, fp32 elsewhere (the head recipe's default)."
-    ),
-]
-CompileOpt = Annotated[
-    bool,
-    typer.Option(
-        "--compile",
-        help="torch.compile each ConvGRU cell (pays on long runs; "
-        "--set runtime.compile=step compiles the whole step).",
-    ),
-]
-ChannelsLastOpt = Annotated[
-    bool, typer.Option("--channels-last", help="Channels-last memory format.")
-]
-TrainThreadsOpt = Annotated[
-    int | None,
-    typer.Option(
-        help="CPU threads (0: one per core, the default: training steps big batches).", min=0
-    ),
-]
-SeedOpt = Annotated[int | None, typer.Option(help="Random seed (default 0).")]
-MaxMinutesOpt = Annotated[
-    float | None,
-    typer.Option(
-        help="Wall-clock budget: stop after the first epoch that ends past this many "
-        "minutes, finished as if --epochs were that epoch (--resume continues).",
-        min=0,
-    ),
-]
-SetOpt = Annotated[
-    list[str] | None,
-    typer.Option(
-        "--set",
-        help="Any setting as section.field=value, e.g. optim.lr=0.003, "
-        "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
-    ),
-]
-StartOverOpt = Annotated[
-    bool,
-    typer.Option("--force", help="Start the run in -o over (its old files are removed)."),
-]
-
 
 @dataclass(frozen=True)
 class TrainOptions:
-    """``train``'s command line (:func:`lidarflow.cli.options.command_options`)."""
+    """``train``'s command line."""
 
-    data: DataArg = None
-    output: OutputOpt = None
-    arch: ArchOpt = None
-    ego_motion: EgoMotionOpt = False
-    recipe: RecipeOpt = None
-    config: ConfigOpt = None
-    init: InitOpt = None
-    resume: ResumeOpt = None
-    epochs: EpochsOpt = None
-    batch_size: BatchSizeOpt = None
-    lr: LrOpt = None
-    optimizer: OptimizerOpt = None
-    grad_clip: GradClipOpt = None
-    seq_len: SeqLenOpt = None
-    warmup: WarmupOpt = None
-    no_gaussian: NoGaussianOpt = False
-    mix: MixOpt = None
-    val: ValOpt = None
-    val_fraction: ValFractionOpt = None
-    val_split: ValSplitOpt = None
+    data: Annotated[
+        list[str] | None,
+        typer.Argument(
+            help="Training data sources: recordings (.npz), bags / ROS 2 bag folders / .mcap "
+            "(converted on the fly), folders of .npz, or quoted glob patterns. Each argument is "
+            "one source for --mix.",
+            show_default=False,
+        ),
+    ] = None
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Run directory to create.")
+    ] = None
+    arch: Annotated[
+        str | None,
+        typer.Option(
+            "--arch",
+            help="Architecture: flownet (LiDAR-FlowNet), deeptracking or sogmp (each with its "
+            "own recipe unless --recipe names one).",
+        ),
+    ] = None
+    ego_motion: Annotated[
+        bool,
+        typer.Option(
+            "--ego-motion",
+            help="Compensate the sensor's own motion by the recordings' poses (odometry), so "
+            "the net only explains the world's motion.",
+        ),
+    ] = False
+    recipe: Annotated[
+        str | None,
+        typer.Option(
+            help="Preset: head_only (default: the occupancy head alone), head (a head on a "
+            "flow network: --init RUN), paper, blurred, supervised_flow (flow from simulated "
+            "truth) or sogmp (the peer's)."
+        ),
+    ] = None
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            "--config",
+            help="JSON or TOML file of settings (partial is fine); a run's config.json works.",
+        ),
+    ] = None
+    init: Annotated[
+        str | None,
+        typer.Option(
+            "--init",
+            help="Start from these weights (run folder, weights file, or "
+            "'bundled') instead of from scratch: fine-tuning. A flow-only "
+            "model can start one with an occupancy head (the head starts fresh).",
+        ),
+    ] = None
+    resume: Annotated[
+        Path | None,
+        typer.Option(
+            help="Continue the run in this directory exactly (weights, optimizer, "
+            "schedules, RNG, data order); --epochs may extend it."
+        ),
+    ] = None
+    epochs: Annotated[int | None, typer.Option(help="Epochs (paper: 200).", min=1)] = None
+    batch_size: Annotated[
+        int | None, typer.Option(help="Sequences per batch (default 32).", min=1)
+    ] = None
+    lr: Annotated[float | None, typer.Option(help="Initial learning rate (default 0.01).")] = None
+    optimizer: Annotated[str | None, typer.Option(help="adam (default), adamw or sgd.")] = None
+    grad_clip: Annotated[
+        float | None, typer.Option(help="Clip the global gradient norm to this (0: off, default).")
+    ] = None
+    seq_len: Annotated[
+        int | None, typer.Option(help="Frames per sequence (default 20).", min=2)
+    ] = None
+    warmup: Annotated[
+        int | None, typer.Option(help="Frames that only warm up the state (default 10).", min=0)
+    ] = None
+    no_gaussian: Annotated[
+        bool, typer.Option("--no-gaussian", help="Ablation: no Gaussian filter in the loss.")
+    ] = False
+    mix: Annotated[
+        list[float] | None,
+        typer.Option(
+            help="Sampling weight per source, repeated (--mix 3 --mix 1); with two "
+            "sources one value is the first's fraction."
+        ),
+    ] = None
+    val: Annotated[
+        list[str] | None,
+        typer.Option("--val", help="Validation recordings (repeatable); then nothing is held out."),
+    ] = None
+    val_fraction: Annotated[
+        float | None, typer.Option(help="Share held out for validation (default 0.1).")
+    ] = None
+    val_split: Annotated[
+        str | None,
+        typer.Option(
+            help="tail: the last frames of each recording (default); recordings: whole recordings."
+        ),
+    ] = None
     topic: TopicOpt = None
-    grid: TrainGridOpt = None
-    res: TrainResOpt = None
-    device: DeviceOpt = None
-    amp: AmpOpt = None
-    compile: CompileOpt = False
-    channels_last: ChannelsLastOpt = False
-    threads: TrainThreadsOpt = None
-    seed: SeedOpt = None
-    max_minutes: MaxMinutesOpt = None
-    set_: SetOpt = None
-    force: StartOverOpt = False
+    grid: Annotated[
+        int | None, typer.Option("--grid", help="Map size in cells (default 100).")
+    ] = None
+    res: Annotated[
+        float | None, typer.Option("--res", help="Cell size in metres (default 0.1).")
+    ] = None
+    device: Annotated[str | None, typer.Option(help="auto (CUDA if available), cpu, cuda.")] = None
+    amp: Annotated[
+        str | None,
+        typer.Option(
+            help="none (fp32 reference), bf16 autocast, or auto: bf16 where the device computes "
+            "it natively, fp32 elsewhere (the head recipe's default)."
+        ),
+    ] = None
+    compile: Annotated[
+        bool,
+        typer.Option(
+            "--compile",
+            help="torch.compile each ConvGRU cell (pays on long runs; "
+            "--set runtime.compile=step compiles the whole step).",
+        ),
+    ] = False
+    channels_last: Annotated[
+        bool, typer.Option("--channels-last", help="Channels-last memory format.")
+    ] = False
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            help="CPU threads (0: one per core, the default: training steps big batches).", min=0
+        ),
+    ] = None
+    seed: Annotated[int | None, typer.Option(help="Random seed (default 0).")] = None
+    max_minutes: Annotated[
+        float | None,
+        typer.Option(
+            help="Wall-clock budget: stop after the first epoch that ends past this many "
+            "minutes, finished as if --epochs were that epoch (--resume continues).",
+            min=0,
+        ),
+    ] = None
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Any setting as section.field=value, e.g. optim.lr=0.003, "
+            "loss.smoothness=0.1, data.stride=5 (repeatable; applied last).",
+        ),
+    ] = None
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Start the run in -o over (its old files are removed)."),
+    ] = False
 
     def flags(self) -> dict[str, Any]:
         """The settings these flags give (``section.field``), ``None`` where not given."""

@@ -26,44 +26,36 @@ from lidarflow.cli.app import (
 )
 from lidarflow.evaluate.offsets import DEFAULT_OFFSETS
 
-InputsArg = Annotated[
-    list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to choose on.")
-]
-OutputOpt = Annotated[
-    Path,
-    typer.Option("--output", "-o", help="Model folder to write: the model with the offset."),
-]
-HeadModelOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--model",
-        "-m",
-        help=f"Model with an occupancy head: {TORCH_MODEL_SOURCES} or `bundled` (the default).",
-    ),
-]
-OffsetOpt = Annotated[
-    list[float] | None,
-    typer.Option(
-        "--offset",
-        help="Candidate offset (repeatable; default "
-        + ", ".join(f"{o:g}" for o in DEFAULT_OFFSETS)
-        + ").",
-    ),
-]
-WarmupOpt = Annotated[
-    int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
-]
+_OFFSETS = ", ".join(f"{o:g}" for o in DEFAULT_OFFSETS)
 
 
 @app.command("choose-offset")
 def choose_offset(
-    inputs: InputsArg,
-    output: OutputOpt,
-    model: HeadModelOpt = None,
-    offset: OffsetOpt = None,
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recordings (.npz) or bags/MCAP to choose on.")
+    ],
+    output: Annotated[
+        Path,
+        typer.Option("--output", "-o", help="Model folder to write: the model with the offset."),
+    ],
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            "--model",
+            "-m",
+            help=f"Model with an occupancy head: {TORCH_MODEL_SOURCES} or `bundled` (the "
+            "default).",
+        ),
+    ] = None,
+    offset: Annotated[
+        list[float] | None,
+        typer.Option("--offset", help=f"Candidate offset (repeatable; default {_OFFSETS})."),
+    ] = None,
     topic: TopicOpt = None,
     odom_topic: OdomOpt = None,
-    warmup: WarmupOpt = 10,
+    warmup: Annotated[
+        int, typer.Option(help="Frames per recording that only warm the state up.", min=0)
+    ] = 10,
     grid: GridOpt = 100,
     res: ResOpt = 0.1,
     force: ForceOpt = False,
@@ -127,7 +119,7 @@ def _head_model_card(model: Path | None) -> dict[str, Any]:
 
 def _refuse_nothing_scored(recordings: list[dict[str, Any]]) -> None:
     """Warn of each recording on which nothing was scored; an :class:`EvaluateError` where
-    that is every one (no offset can be chosen)."""
+    that is every one."""
     from lidarflow.cli.useless import nothing_scored, warn_nothing_scored
     from lidarflow.errors import EvaluateError
 
@@ -156,8 +148,8 @@ def _say_scores(
 def _write_model(
     output: Path, weights: Path, chosen: dict[str, Any], record: dict[str, Any]
 ) -> None:
-    """The model folder ``output``, whole or not at all: the weights, the model.json deciding
-    with the chosen offset, and offsets.json with every score."""
+    """Write the model folder ``output``: the weights, the model.json deciding with the chosen
+    offset, and offsets.json with every score."""
     from lidarflow.atomic import atomic_path, write_text
 
     with atomic_path(output) as folder:

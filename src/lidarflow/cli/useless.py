@@ -1,6 +1,5 @@
 """Saying so where a command's input leaves nothing worth scoring, rather than scoring it in
-silence: a recording whose beams are mostly unknown, one too short to score, a recording where
-nothing was scored."""
+silence."""
 
 from __future__ import annotations
 
@@ -20,9 +19,8 @@ __all__ = [
     "warn_unknown_beams",
 ]
 
-#: Over this share of a recording's beams unknown (NaN, -inf, 0, under range_min), its maps are
-#: mostly blank and its scores say little: warned of. A real scanner loses a few percent
-#: (glass, sky, its own frame); half is a broken driver or a wrong topic.
+#: Over this share of a recording's beams unknown, its maps are mostly blank: warned of. A real
+#: scanner loses a few percent (glass, sky, its own frame); half is a broken driver or topic.
 MOST_BEAMS_UNKNOWN = 0.5
 
 
@@ -42,7 +40,7 @@ def warn_unknown_beams(path: str | Path, recording: Any) -> None:
 
 def warn_pose_jumps(path: str | Path, recording: Any) -> None:
     """One line on stderr where ``recording``'s poses jump further between two scans than a
-    robot drives (:func:`lidarflow.motion.odometry.pose_jumps`)."""
+    robot drives."""
     from lidarflow.motion.odometry import MAX_SPEED, pose_jumps
 
     jumps = pose_jumps(recording.poses, recording.stamps_ns)
@@ -58,9 +56,8 @@ def warn_pose_jumps(path: str | Path, recording: Any) -> None:
 
 
 def refuse_too_short(name: str, recording: Any, warmup: int, horizon: int) -> None:
-    """Refuse a recording too short to score, naming it, as soon as it is read: not after the
-    long scoring of the ones before it. ``horizon`` above 1 also needs frames ``horizon`` steps
-    ahead of the warm-up."""
+    """Refuse a recording too short to score ``horizon`` frames ahead after ``warmup``,
+    naming it."""
     from lidarflow.data.gaps import frames_after_gaps
     from lidarflow.evaluate.horizon import scored_frames
     from lidarflow.evaluate.stream import check_length
@@ -73,8 +70,7 @@ def refuse_too_short(name: str, recording: Any, warmup: int, horizon: int) -> No
 
 def refuse_without_returns(path: str | Path, recording: Any, what: str) -> None:
     """A :class:`~lidarflow.errors.RecordingError` where not one beam of ``recording`` is a
-    return (every range NaN, inf, 0 or outside its limits): its maps are all blank, so there is
-    nothing to ``what`` (a verb: "predict on", "convert")."""
+    return, so there is nothing to ``what`` (a verb: "predict on", "convert")."""
     from lidarflow.data.info import return_share
     from lidarflow.errors import RecordingError
 
@@ -88,7 +84,7 @@ def refuse_without_returns(path: str | Path, recording: Any, what: str) -> None:
 
 def nothing_scored(entry: dict[str, Any]) -> bool:
     """Whether a recording's report ``entry`` scored nothing: no frame, or no occupied cell in
-    any scored target frame (every F1 then 0/0)."""
+    any scored target frame."""
     return not entry.get("frames_evaluated") or "f1" in entry.get("undefined", [])
 
 
@@ -103,16 +99,11 @@ def warn_nothing_scored(entry: dict[str, Any]) -> None:
 
 
 def read_scorable(
-    path: Path,
-    topic: str | None,
-    odom_topic: str | None,
-    warmup: int,
-    horizon: int,
+    path: Path, topic: str | None, odom_topic: str | None, warmup: int, horizon: int,
     ego_oracle: bool,
 ) -> Any:
-    """The recording at ``path``, read and refused at once where it cannot be scored (too
-    short; ``--ego-oracle`` without poses), with a warning where its beams or poses are
-    suspect: before the long scoring of the recordings named before it."""
+    """The recording at ``path``, refused at once where it cannot be scored (too short;
+    ``--ego-oracle`` without poses) and warned of where its beams or poses are suspect."""
     from lidarflow.cli.app import load_input
     from lidarflow.errors import RecordingError
 

@@ -1,9 +1,6 @@
-"""What runs in a ``--jobs`` worker process (:mod:`lidarflow.cli.jobs` says why and how they
-run): its set-up, how it takes a stop signal (the first one only; a task's outputs are then
-removed as :mod:`lidarflow.atomic` removes them, and the worker exits), how it watches that
-its parent lives, how it runs one task and reports its progress; and the :class:`Outcome` a
-task comes back as, wherever it ran.
-"""
+"""What runs in a ``--jobs`` worker process (:mod:`lidarflow.cli.jobs`): its set-up, its stop
+signal (the first only: the task's outputs are removed, then the worker exits), its watch on
+the parent, one task with its progress; and the :class:`Outcome` a task comes back as."""
 
 from __future__ import annotations
 
@@ -21,8 +18,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from lidarflow.errors import LidarflowError
-
 __all__ = ["Outcome", "error_line", "job_bar", "on_signal", "pidfd", "run_task", "start_worker"]
 
 
@@ -39,15 +34,10 @@ class Outcome:
 
 def error_line(name: str, err: BaseException) -> str:
     """``err`` as one line naming the input ``name``, as the CLI would print it."""
-    from lidarflow.extras import missing_extra
+    from lidarflow.cli.app import error_text
 
-    if isinstance(err, LidarflowError):
-        text = str(err)
-    elif isinstance(err, OSError):
-        text = (f"{err.filename}: " if err.filename else "") + (err.strerror or str(err))
-    elif isinstance(err, ImportError) and (missing := missing_extra(err)) is not None:
-        text = str(missing)
-    else:
+    text = error_text(err)
+    if text is None:
         text = (
             f"internal error: {type(err).__name__}: {err} (rerun it with --jobs 1 and "
             "LIDARFLOW_DEBUG=1 for the traceback, and please report it)"
@@ -81,8 +71,8 @@ class _QueueBar:
 
 
 def job_bar(total: int | None, desc: str) -> Any:
-    """A progress bar for one input's work (a context manager with ``update``): its own bar in
-    the parent process, a share of the parent's one bar in a worker."""
+    """A progress bar for one input (a context manager with ``update``): its own in the
+    parent process, a share of the parent's one bar in a worker."""
     if _PROGRESS is not None:
         return _QueueBar(total)
     from lidarflow.cli.app import progress_bar
@@ -102,9 +92,8 @@ def on_signal(signum: int, frame: object) -> None:
 
 
 def _exit(code: int) -> None:
-    """End this worker now, as the interpreter ends (its exit handlers run: multiprocessing's
-    releases the named semaphores made here, such as tqdm's lock), but without going back to
-    the pool's loop, which would wait for another task (and no traceback from it)."""
+    """End this worker now, its exit handlers run (they release the semaphores made here),
+    without going back to the pool's loop, which would wait for another task."""
     for signum in (signal.SIGINT, signal.SIGTERM):  # one raised in the exit handlers would
         signal.signal(signum, signal.SIG_IGN)  # print a traceback
     atexit._run_exitfuncs()
@@ -112,9 +101,8 @@ def _exit(code: int) -> None:
 
 
 def _watch_parent(parent: int) -> None:
-    """Signal this worker (SIGTERM, every second until it ends) once the process ``parent`` has
-    ended: from a thread that waits on a pidfd (Linux), or elsewhere checks every half
-    second."""
+    """SIGTERM this worker every second once the process ``parent`` has ended, watched from a
+    thread (a pidfd on Linux, else a check every half second)."""
 
     def watch() -> None:
         fd = pidfd(parent)
