@@ -28,9 +28,8 @@ __all__ = [
 DEFAULT_RADIUS = 3
 
 
-# A map moved by exactly half a cell (poses stepping 0.05 m on a 0.1 m grid) holds cells of
-# exactly 0.5, which PyTorch's and ONNX's warps leave 1e-5 either side of it: at 0.5 itself the
-# two backends counted different cells and chose different shifts (predictions 0.5 apart).
+# Not 0.5 itself: a map moved by exactly half a cell holds cells of 0.5, which PyTorch's and
+# ONNX's warps leave 1e-5 either side, so the two backends would choose different shifts.
 _OCCUPIED_ABOVE = 0.5 - 1e-3
 
 
