@@ -1,7 +1,5 @@
 """The standard optical-flow colour wheel (Baker et al., as in Middlebury and RAFT's
-``flow_to_image``): a flow as an RGB picture, for the reports (:mod:`lidarflow.viz`) and for what
-the predictions are written and served as (:mod:`lidarflow.outputs.job`, :mod:`lidarflow.live`);
-NumPy alone."""
+``flow_to_image``): a flow as an RGB picture, in NumPy alone."""
 
 from __future__ import annotations
 
@@ -11,27 +9,23 @@ __all__ = ["flow_to_rgb"]
 
 
 def _colour_wheel() -> np.ndarray:
-    # Segment lengths of the Middlebury wheel: red-yellow-green-cyan-blue-magenta.
-    ry, yg, gc, cb, bm, mr = 15, 6, 4, 11, 13, 6
-    wheel = np.zeros((ry + yg + gc + cb + bm + mr, 3))
-    col = 0
-    for length, start, ramp_up in (
-        (ry, (255, 0, 0), (0, 1, 0)),
-        (yg, (255, 255, 0), (-1, 0, 0)),
-        (gc, (0, 255, 0), (0, 0, 1)),
-        (cb, (0, 255, 255), (0, -1, 0)),
-        (bm, (0, 0, 255), (1, 0, 0)),
-        (mr, (255, 0, 255), (0, 0, -1)),
-    ):
+    # The Middlebury wheel's segments, red-yellow-green-cyan-blue-magenta: length, start
+    # colour, and the channel that ramps up (+1) or down (-1) along it.
+    segments = (
+        (15, (255, 0, 0), 1, 1),
+        (6, (255, 255, 0), 0, -1),
+        (4, (0, 255, 0), 2, 1),
+        (11, (0, 255, 255), 1, -1),
+        (13, (0, 0, 255), 0, 1),
+        (6, (255, 0, 255), 2, -1),
+    )
+    parts = []
+    for length, start, channel, direction in segments:
         ramp = np.floor(255 * np.arange(length) / length)
-        wheel[col : col + length] = np.array(start, float)
-        for ch in range(3):
-            if ramp_up[ch] == 1:
-                wheel[col : col + length, ch] = ramp
-            elif ramp_up[ch] == -1:
-                wheel[col : col + length, ch] = 255 - ramp
-        col += length
-    return wheel
+        part = np.tile(np.array(start, float), (length, 1))
+        part[:, channel] = ramp if direction == 1 else 255 - ramp
+        parts.append(part)
+    return np.concatenate(parts)
 
 
 _WHEEL = _colour_wheel()

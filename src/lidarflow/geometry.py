@@ -1,24 +1,16 @@
 """The grid's geometry in NumPy: cells and the sensor frame, rigid moves, bilinear sampling.
 
-Grid convention (design notes section 2; sensor frame, REP 103): cell ``(r, c)`` of an ``H x W``
-grid of cell size ``res`` has its centre at ``x = (H - 0.5 - r) * res`` forward and
-``y = (W / 2 - 0.5 - c) * res`` to the left; row 0 is the far edge, column 0 the left edge, the
-sensor sits at the middle of the bottom edge. Cell coordinates are continuous: integers are
-cell centres.
+Grid (design notes section 2, REP 103): cell ``(r, c)`` of an ``H x W`` grid of cell size
+``res`` has its centre at ``x = (H - 0.5 - r) * res`` forward, ``y = (W / 2 - 0.5 - c) * res``
+left; cell coordinates are continuous, integers are cell centres.
 
-Motion convention: ``motion = (dx, dy, dyaw)`` is the pose of the *new* sensor frame in the
-*old* one (the odometry increment): the sensor moved ``dx`` forward and ``dy`` left (in the unit
-of ``res``: cells with ``res = 1``) and turned ``dyaw`` radians counter-clockwise. A point ``q``
-of the new frame is ``R(dyaw) q + (dx, dy)`` in the old one; a point ``p`` of the old frame is
-``R(dyaw)^T (p - (dx, dy))`` in the new one. :func:`lidarflow.ops.rigid.transform_cells` is the
-same in torch (tests/test_geometry.py holds the two to the same numbers).
+Motion: ``motion = (dx, dy, dyaw)`` is the pose of the *new* sensor frame in the *old* one
+(``dx, dy`` in the unit of ``res``, ``dyaw`` radians counter-clockwise): a point ``q`` of the new
+frame is ``R(dyaw) q + (dx, dy)`` in the old one. :mod:`lidarflow.ops.rigid` is the same in torch.
 
-Sampling convention (:func:`lidarflow.ops.warp.warp`'s): bilinear between the four cells around
-a position, zero where one of them lies outside the grid. A :class:`Sampler` keeps, for every
-cell, the four cells it reads and their weights, so sampling ``C`` maps is four gathers. The
-samplers of rigid moves are kept by motion, process-wide (:func:`rigid_sampler`): a stream moves
-its state, its next map, its background and its tracked objects by one motion, and a roll-out
-assumes the same motion at every step.
+Sampling (:func:`lidarflow.ops.warp.warp`'s): bilinear between the four cells around a position,
+zero where one lies outside the grid. Rigid samplers are kept process-wide by motion
+(:func:`rigid_sampler`): a stream moves several maps by one motion.
 
 >>> x, y = cell_to_metric(np.array([9]), np.array([5]), 10, 10, res=0.1)  # nearest the sensor
 >>> x.round(6).tolist(), y.round(6).tolist()
@@ -58,10 +50,7 @@ def cell_to_metric(
     >>> cell_to_metric(np.array([0, 3]), np.array([0, 1]), 4, 2)
     (array([3.5, 0.5]), array([ 0.5, -0.5]))
     """
-    x, y = height - 0.5 - rows, width / 2 - 0.5 - cols
-    if res == 1.0:  # the same numbers: multiplying by 1 is exact
-        return x, y
-    return x * res, y * res
+    return (height - 0.5 - rows) * res, (width / 2 - 0.5 - cols) * res
 
 
 def metric_to_cell(
@@ -73,14 +62,11 @@ def metric_to_cell(
     >>> metric_to_cell(np.array([3.5]), np.array([-0.5]), 4, 2)
     (array([0.]), array([1.]))
     """
-    if res != 1.0:  # dividing by 1 is exact
-        x, y = x / res, y / res
-    return height - 0.5 - x, width / 2 - 0.5 - y
+    return height - 0.5 - x / res, width / 2 - 0.5 - y / res
 
 
 def _motion_parts(motion: np.ndarray) -> tuple[_Scalars, _Scalars, _Scalars]:
-    """``(dx, dy, dyaw)``: Python floats for one motion (3 values), arrays ``(...)`` for
-    motions ``(..., 3)``."""
+    """``(dx, dy, dyaw)``: floats for one motion, arrays ``(...)`` for motions ``(..., 3)``."""
     m = np.asarray(motion, np.float64)
     if m.ndim <= 1:
         if m.size != 3:
@@ -93,8 +79,8 @@ def _motion_parts(motion: np.ndarray) -> tuple[_Scalars, _Scalars, _Scalars]:
 
 
 def _cos_sin(yaw: _Scalars) -> tuple[_Scalars, _Scalars]:
-    """``cos`` and ``sin`` of each turn, each taken alone: motions given together move cells
-    to the bit as each given alone does."""
+    """``cos`` and ``sin`` of each turn taken alone: motions given together then move cells to
+    the bit as each given alone does."""
     if isinstance(yaw, float):
         return np.cos(yaw), np.sin(yaw)
     turns = yaw.ravel().tolist()
@@ -112,12 +98,9 @@ def transform_cells(
     res: float = 1.0,
     inverse: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Move cell coordinates ``(cols, rows)`` of a ``height x width`` grid from the new frame to
-    the old one (``R q + d``) after the sensor moved by ``motion`` (``dx, dy`` in the unit of
-    ``res``); ``inverse``: from the old frame to the new one (``R^T (p - d)``). Returns the
-    ``(cols, rows)`` of the same points in the other frame, continuous, float64.
-
-    ``motion`` is one ``(dx, dy, dyaw)`` or motions ``(..., 3)`` broadcast against the cells.
+    """Cell coordinates ``(cols, rows)`` moved from the new frame to the old one (``R q + d``);
+    ``inverse``: from the old frame to the new one (``R^T (p - d)``). ``motion`` is one
+    ``(dx, dy, dyaw)`` or motions ``(..., 3)`` broadcast against the cells. float64.
 
     >>> c, r = transform_cells(np.array([1.0]), np.array([3.0]), np.array([2.0, 0, 0]), 4, 2)
     >>> c.tolist(), r.tolist()  # 2 cells forward: the old frame saw it 2 rows further away
@@ -138,9 +121,7 @@ def transform_cells(
 def rigid_positions(
     motion: np.ndarray, height: int, width: int, res: float = 1.0, inverse: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(cols, rows)`` ``(H, W)``: where each cell of the new frame lies in the old one after
-    the sensor moved by ``motion`` (:func:`transform_cells` of every cell); ``inverse``: where
-    each cell of the old frame lies in the new one.
+    """``(cols, rows)`` ``(H, W)``: :func:`transform_cells` of every cell.
 
     >>> c, r = rigid_positions(np.array([1.0, 0.0, 0.0]), 3, 2)
     >>> r[:, 0].tolist()  # one cell forward: each row reads one row further away
@@ -156,10 +137,9 @@ _CORNER_ROWS = np.array([0.0, 0.0, 1.0, 1.0])[:, None]
 
 
 def _corners(x: np.ndarray, y: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(index (4, N), weight (4, N))``: for positions ``(x, y)`` ``(N,)`` (column, row) on an
-    ``(h, w)`` map, the flat index of the four cells each reads (clipped into the map) and their
-    bilinear weights, zero where a corner lies outside the map. Elementwise: the same numbers
-    for a position whichever others come with it."""
+    """``(index (4, N), weight (4, N))``: the flat index of the four cells each position
+    ``(x, y)`` ``(N,)`` reads on an ``(h, w)`` map (clipped into it) and their bilinear weights,
+    zero outside the map. Elementwise: a position's numbers do not depend on the others."""
     xi, yi = np.floor(x) + _CORNER_COLS, np.floor(y) + _CORNER_ROWS
     weight = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
     inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
@@ -169,8 +149,8 @@ def _corners(x: np.ndarray, y: np.ndarray, h: int, w: int) -> tuple[np.ndarray, 
 
 def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """``flat`` ``(C, H*W)`` read at the corners ``index, weight`` ``(4, N)``: ``(C, N)``, the
-    four weighted corners summed in their order, in ``flat``'s precision."""
-    # np.take, in place: twice as fast as fancy indexing along the second axis.
+    weighted corners summed in their order, in ``flat``'s precision."""
+    # np.take, in place: faster than fancy indexing along the second axis.
     out = np.take(flat, index[0], axis=1)
     out *= weight[0]
     for k in range(1, 4):
@@ -181,10 +161,9 @@ def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.nda
 
 
 class Sampler:
-    """Samples maps ``(..., H, W)`` at fixed positions ``cols, rows`` ``(H, W)`` (in cells),
-    bilinear, zero where a position's corner lies outside the map; float32 maps in float32
-    (``grid_sample``'s arithmetic), any other in float64. Read-only once built: one sampler
-    may serve several threads.
+    """Samples maps ``(..., H, W)`` at fixed positions ``cols, rows`` ``(H, W)`` (cells),
+    bilinear, zero outside the map; float32 maps in float32 (``grid_sample``'s arithmetic),
+    any other in float64. Read-only once built, so threads may share one.
 
     >>> s = Sampler(np.full((2, 3), 0.5), np.zeros((2, 3)))  # half a cell right of each column 0
     >>> s(np.arange(6.0).reshape(2, 3))[0].tolist()
@@ -203,8 +182,7 @@ class Sampler:
 
     @classmethod
     def from_flow(cls, flow: np.ndarray) -> Sampler:
-        """The sampler of :func:`lidarflow.ops.warp.warp`'s ``flow`` ``(2, H, W)`` (cells,
-        column then row): each cell reads at itself plus its flow."""
+        """Each cell reads at itself plus ``flow`` ``(2, H, W)`` (cells, column then row)."""
         flow = np.asarray(flow, np.float64)
         if flow.ndim != 3 or flow.shape[0] != 2:
             raise ValueError(f"flow must be (2, H, W), got {flow.shape}")
@@ -212,7 +190,6 @@ class Sampler:
         return cls(cols + flow[0], rows + flow[1])
 
     def __call__(self, maps: np.ndarray) -> np.ndarray:
-        """``maps`` ``(..., H, W)`` sampled, float32 for float32 maps, else float64."""
         maps = np.asarray(maps)
         if maps.ndim < 2 or maps.shape[-2:] != self.shape:
             h, w = self.shape
@@ -241,9 +218,8 @@ class Sampler:
 
 
 def warp_map(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """``out(p) = image(p + flow(p))`` ``(H, W)`` float64, bilinear, zero where ``p + flow(p)``
-    falls outside the map; ``flow`` ``(2, H, W)`` in cells (column, row): the NumPy
-    :func:`lidarflow.ops.warp.warp`.
+    """The NumPy :func:`lidarflow.ops.warp.warp`: ``out(p) = image(p + flow(p))`` ``(H, W)``,
+    float64; ``flow`` ``(2, H, W)`` in cells (column, row).
 
     >>> warp_map(np.arange(4.0).reshape(2, 2), np.full((2, 2, 2), 0.5))[0, 0].item()
     1.5
@@ -252,24 +228,22 @@ def warp_map(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
 
 
 class FlowWarp:
-    """:func:`warp_map` with the sampler of the last flow kept: a roll-out moves every fed-back
-    map by the same flow where the model's flow is the platform's motion alone (comparing the
-    flow costs a tenth of building the sampler). One per stream (not shared between threads)."""
+    """:func:`warp_map` keeping the sampler of the last flow (a roll-out moves every fed-back
+    map by the same flow where it is the platform's motion alone). One per stream, not shared
+    between threads."""
 
     def __init__(self) -> None:
         self._flow: np.ndarray | None = None
         self._sampler: Sampler | None = None
 
     def __call__(self, image: np.ndarray, flow: np.ndarray) -> np.ndarray:
-        """``image`` ``(H, W)`` sampled at each cell plus ``flow`` ``(2, H, W)``, float64."""
         if self._sampler is None or self._flow is None or not np.array_equal(flow, self._flow):
             self._flow = np.array(flow, copy=True)
             self._sampler = Sampler.from_flow(self._flow)
         return self._sampler(np.asarray(image, np.float64))
 
 
-# Kept rigid samplers (640 KB each on a 100 x 100 map, 800 KB once used on float32): a stream's
-# motion and next motion, and the composed motions of a roll-out of 8 steps.
+# Kept rigid samplers: a stream's motion and next motion, and the composed motions of a roll-out.
 _KEPT_MOTIONS = 16
 _Key = tuple[float, float, float, int, int, float]  # (dx, dy, dyaw, height, width, res)
 _kept: OrderedDict[_Key, Sampler] = OrderedDict()
@@ -280,8 +254,8 @@ _lock = threading.Lock()  # Predictors in threads share the samplers
 def _kept_sampler(key: _Key, sparse: bool = False) -> Sampler | None:
     """The sampler of a rigid motion, kept (the last :data:`_KEPT_MOTIONS`). For a ``sparse``
     map it is built on the motion's second use only (``None`` the first time: move it cell by
-    cell): a stream whose motion changes every scan moves its carried objects by new composed
-    motions every scan, and building a sampler costs ~15 sparse moves."""
+    cell), since a stream's carried objects meet new composed motions every scan and building
+    a sampler costs many sparse moves."""
     with _lock:
         sampler = _kept.get(key)
         if sampler is not None:
@@ -307,10 +281,9 @@ def _key(motion: np.ndarray, height: int, width: int, res: float) -> _Key:
 
 
 def rigid_sampler(motion: np.ndarray, height: int, width: int, res: float = 1.0) -> Sampler:
-    """The sampler that re-expresses ``height x width`` maps made in the old sensor frame in the
-    new one after the sensor moved by ``motion`` (``out(p)`` = the old map at
-    :func:`transform_cells` of ``p``), kept process-wide by motion: the NumPy
-    :func:`lidarflow.ops.rigid.rigid_warp`."""
+    """The NumPy :func:`lidarflow.ops.rigid.rigid_warp`: re-expresses ``height x width`` maps of
+    the old sensor frame in the new one (``out(p)`` = the old map at :func:`transform_cells` of
+    ``p``); kept process-wide by motion."""
     sampler = _kept_sampler(_key(motion, height, width, res))
     if sampler is None:  # only a sparse map's first ask goes without
         raise RuntimeError("a rigid sampler asked for a dense use was not built")
@@ -325,11 +298,9 @@ _SPARSE_SHARE = 0.02
 
 
 def _sparse_moved(image: np.ndarray, key: _Key) -> np.ndarray:
-    """:func:`rigid_moved` of a map ``(H, W)`` float64 with few nonzero cells, computed only
-    where it can be nonzero: a cell reads the four cells around where it lies in the old frame,
-    so it reads a nonzero cell only within sqrt(2) of where that cell lies in the new frame
-    (the move is rigid). Those cells (a 5 x 5 window around each) get the sampler's own
-    arithmetic, elementwise: the numbers of the whole map's sampler to the bit."""
+    """:func:`rigid_moved` of a map ``(H, W)`` with few nonzero cells, computed only where it
+    can be nonzero: within sqrt(2) of where a nonzero cell lies in the new frame (the 5 x 5
+    window around it), by the sampler's own elementwise arithmetic, so to the bit."""
     h, w = image.shape
     motion, res = np.array(key[:3]), key[5]
     r, c = np.nonzero(image)
@@ -346,11 +317,8 @@ def _sparse_moved(image: np.ndarray, key: _Key) -> np.ndarray:
 
 
 def rigid_moved(image: np.ndarray, motion: np.ndarray, res: float = 1.0) -> np.ndarray:
-    """``image`` ``(H, W)`` (or a stack ``(..., H, W)``, each moved alike), made in the old
-    sensor frame, re-expressed in the new frame after the sensor moved by ``motion``
-    (:func:`rigid_sampler`'s numbers); zero where the new frame sees beyond the old grid.
-    float64. A map with few nonzero cells is moved around them alone the first time its
-    motion comes (the same numbers).
+    """``image`` ``(..., H, W)`` of the old sensor frame re-expressed in the new one
+    (:func:`rigid_sampler`'s numbers), zero beyond the old grid; float64.
 
     >>> image = np.zeros((5, 4))
     >>> image[1, 1] = 1.0
@@ -370,18 +338,8 @@ def rigid_moved(image: np.ndarray, motion: np.ndarray, res: float = 1.0) -> np.n
     return sampler(image)
 
 
-#: Cells within which a prediction counts as near a true cell (Euclidean), as the mover
-#: metric and the online combination count: 0.2 m on the default grid.
+#: Cells within which a prediction counts as near a true cell (Euclidean): 0.2 m by default.
 TOLERANCE = 2
-
-
-def _disc(radius: int) -> list[tuple[int, int]]:
-    return [
-        (dr, dc)
-        for dr in range(-radius, radius + 1)
-        for dc in range(-radius, radius + 1)
-        if dr * dr + dc * dc <= radius * radius
-    ]
 
 
 def near(mask: np.ndarray, radius: int = TOLERANCE) -> np.ndarray:
@@ -398,8 +356,11 @@ def near(mask: np.ndarray, radius: int = TOLERANCE) -> np.ndarray:
         raise ValueError(f"radius must be >= 0, got {radius}")
     h, w = mask.shape[-2:]
     out = mask.copy()
-    for dr, dc in _disc(radius):
-        if (dr, dc) == (0, 0) or abs(dr) >= h or abs(dc) >= w:
+    offsets = range(-radius, radius + 1)
+    for dr, dc in ((dr, dc) for dr in offsets for dc in offsets):
+        if dr * dr + dc * dc > radius * radius or (dr, dc) == (0, 0):
+            continue
+        if abs(dr) >= h or abs(dc) >= w:
             continue
         # out[r, c] |= mask[r + dr, c + dc] where that cell exists
         out[..., max(0, -dr) : h - max(0, dr), max(0, -dc) : w - max(0, dc)] |= mask[

@@ -1,16 +1,12 @@
 """Models: LiDAR-FlowNet (the flow network of Table I, an occupancy head, the ego-motion
 wrapper), the DeepTracking and SOGMP peers, their recurrent cells, and the builder.
 
-Interface (train, evaluate and predict depend on it; details in
-:mod:`lidarflow.models.recurrent`): every model has ``capabilities``, ``init_state``, ``step``,
-``forward`` and ``predict_next``. :func:`build` assembles one from a typed
-:class:`~lidarflow.models.config.ModelSpec`; :func:`build_model` from the flat keyword form
-that ``model.json`` and training configs store. Pretrained weights: :mod:`lidarflow.models.presets`
-(``lidar_flownet(weights=...)``).
+Every model offers the interface of :mod:`lidarflow.models.recurrent`. :func:`build` assembles
+one from a :class:`~lidarflow.models.config.ModelSpec`, :func:`build_model` from the flat form
+``model.json`` stores; pretrained weights: :mod:`lidarflow.models.presets`.
 
 Importing this package needs no PyTorch (the core install runs exported models on ONNX
-Runtime, :mod:`lidarflow.predict.backends`): the configuration types load at once, the blocks
-and the builder, which need PyTorch, on first use.
+Runtime): the configuration types load at once, the blocks and the builder on first use.
 """
 
 from __future__ import annotations
@@ -54,20 +50,9 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "DECISION_KEYS",
     "MODEL_NAMES",
-    "SOGMP",
     "Capabilities",
-    "ConvGRUCell",
-    "DeepTracking",
-    "EgoCompensated",
     "FlowConfig",
-    "FlowNetwork",
     "HeadConfig",
-    "LidarFlowNet",
     "ModelSpec",
-    "OccupancyHead",
-    "RecurrentMapModel",
-    "build",
-    "build_model",
-    "count_parameters",
-    "uses_ego_motion",
+    *_TORCH_NAMES,
 ]

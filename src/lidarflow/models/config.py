@@ -1,13 +1,9 @@
 """Typed configuration of the models, and the capability record every model carries.
 
-A model is described by a :class:`ModelSpec`: the architecture's name, Table I's flow network
-(:class:`FlowConfig`; ``None``: none, the occupancy head alone), the occupancy head if any
-(:class:`HeadConfig`) and the ego-motion wrapper's two switches. ``model.json`` files store it
-flat, as ``model_kwargs`` (what ``build_model(name, **kwargs)`` has always taken);
-:meth:`ModelSpec.from_kwargs` reads every file ``lidarflow train`` ever wrote, says which
-measured-useless option a model needs where one is set (the option is gone; its evidence is in
-``docs/research/``), and hands back the decision keys older files kept among the model's (the
-decision is the Predictor's configuration now).
+A :class:`ModelSpec` describes a model: its name, Table I's flow network (:class:`FlowConfig`),
+the occupancy head (:class:`HeadConfig`) and the ego-motion wrapper's switches. ``model.json``
+stores it flat (``model_kwargs``); :meth:`ModelSpec.from_kwargs` reads every such file, refusing
+a removed option a model needs and handing back the decision keys older files kept.
 """
 
 from __future__ import annotations
@@ -30,8 +26,7 @@ __all__ = [
 MODEL_NAMES: tuple[str, ...] = ("flownet", "deeptracking", "sogmp")
 #: Keys older ``model_kwargs`` held that belong to the decision policy, not the model.
 DECISION_KEYS = ("decision_offset", "online_decision")
-#: Options measured without gain and removed, with the value a model built without
-#: them had: a file that sets one otherwise names a model this version cannot build.
+#: Options measured without gain and removed, with the value a model built without them had.
 REMOVED_OPTIONS: dict[str, Any] = {
     "memory_bias_correction": False,
     "decision_offset_free": None,
@@ -41,13 +36,12 @@ REMOVED_OPTIONS: dict[str, Any] = {
     "conv0_activation": "relu",
     "in_channels": 2,
 }
-#: The most channels any layer of a model may have: the largest preset's (SOGMP's 128 hidden
-#: channels) times 8. A file asking for more is damaged, not a model: a head of a billion
-#: hidden channels asked PyTorch for 40 GB.
+#: The most channels any layer may have (SOGMP's 128 hidden channels times 8): a file asking
+#: for more is damaged, not a model.
 MAX_CHANNELS = 1024
 _MAX_COUNT = 32  # dilations, memory decays, residual layers, frames of SOGMP's window
-#: The sizes a flat description may give, each a whole number in ``[low, high]`` (a list's
-#: every entry, for ``dilations``), so that no file builds a model that cannot fit.
+#: The sizes a flat description may give, each a whole number in ``[low, high]`` (every entry
+#: of ``dilations``).
 _SIZES: dict[str, tuple[int, int]] = {
     "hidden_channels": (1, MAX_CHANNELS),
     "head_hidden_channels": (0, MAX_CHANNELS),
@@ -63,9 +57,8 @@ _LISTS = ("dilations", "memory_decays")
 
 
 def _check_numbers(kwargs: dict[str, Any]) -> None:
-    """Raise ``ValueError`` naming the first argument of a flat description (its keys as
-    ``model.json`` stores them) that is not a finite number where it is one, a size out of
-    :data:`_SIZES`' bounds, or a list too long; the typed configs check theirs by it too."""
+    """Raise ``ValueError`` naming the first argument of a flat description that is a number
+    but not finite, a size out of :data:`_SIZES`' bounds, or a list too long."""
     for key, value in kwargs.items():
         items = list(value) if isinstance(value, (list, tuple)) else [value]
         numbers = [v for v in items if isinstance(v, (int, float)) and not isinstance(v, bool)]
@@ -83,21 +76,20 @@ def _check_numbers(kwargs: dict[str, Any]) -> None:
 
 # The head of each cell's own past is the only head left: a 1x1 kernel, no GRU features.
 _HEAD_SHAPE = {"head_kernel_size": 1, "head_flow_features": False}
-# The flat keys of the flow network (``flow_network: false`` stores a model without one).
+# The flat keys of the flow network (``flow_network: false`` stores a model without one), and
+# the FlowConfig fields they hold.
 _FLOW_KEYS = ("hidden_channels", "dilations", "kernel_size", "zero_init_flow")
+_FLOW_FIELDS = ("hidden_channels", "dilations", "kernel_size", "zero_init")
 
 
 @dataclass(frozen=True)
 class Capabilities:
     """What a model takes and gives, read by the streaming engine instead of probing:
     ``input_channels`` per frame (2: ``(O, V)``; 4 with the sub-cell maps), ``out_channels``
-    per step, ``flow`` (it estimates the flow: its output starts with ``B_col, B_row, F_col,
-    F_row``, which the Predictor reports with the moving cells; a model without a flow network
-    keeps those channels, zero or the platform's own motion, but says ``False``: it tells
-    nothing of what moves),
-    ``occupancy_head`` (its probability is a calibrated ``sigmoid`` of a logit, which a decision
-    policy may offset), ``ego_motion`` (``step`` takes the sensor's motion) and
-    ``poses_optional`` (it may run where a recording has no poses)."""
+    per step, ``flow`` (its output's ``B_col, B_row, F_col, F_row`` estimate what moves; a
+    model without a flow network keeps those channels but says ``False``), ``occupancy_head``
+    (its probability is a calibrated ``sigmoid`` of a logit), ``ego_motion`` (``step`` takes
+    the sensor's motion) and ``poses_optional`` (it may run without poses)."""
 
     input_channels: int = 2
     out_channels: int = 4
@@ -135,11 +127,7 @@ class FlowConfig:
 
 @dataclass(frozen=True)
 class HeadConfig:
-    """The occupancy head of each cell's own past (:mod:`lidarflow.models.head`): memories of
-    the occupancy at ``memory_decays``; with ``constant_velocity_input`` the constant-velocity
-    map (and ``shift_memories``: memories moved with the scene by its shift); one hidden layer
-    of ``hidden_channels`` (0: none); ``visibility_input`` (``V^t``) and ``subcell_input``
-    (where the returns lie inside their cells, two more map channels)."""
+    """The occupancy head (:mod:`lidarflow.models.head`, which describes each option)."""
 
     memory_decays: tuple[float, ...] = (0.5, 0.8)
     constant_velocity_input: bool = False
@@ -163,11 +151,9 @@ class HeadConfig:
 
 @dataclass(frozen=True)
 class ModelSpec:
-    """A whole model: ``name`` (one of :data:`MODEL_NAMES`); for ``flownet`` its ``flow`` and
-    ``head`` (``flow`` ``None``: no flow network, the head alone, which it then needs); for
-    ``deeptracking`` and ``sogmp`` their own ``options`` (the arguments of
-    :class:`~lidarflow.models.deeptracking.DeepTracking`, :class:`~lidarflow.models.sogmp.SOGMP`);
-    ``ego_motion`` wraps it in
+    """A whole model: ``name`` (one of :data:`MODEL_NAMES`); for ``flownet`` its ``flow``
+    (``None``: the head alone) and ``head``; for ``deeptracking`` and ``sogmp`` the arguments of
+    their class as ``options``; ``ego_motion`` wraps it in
     :class:`~lidarflow.models.egomotion.EgoCompensated`, ``poses_optional`` lets that run
     without poses."""
 
@@ -193,12 +179,11 @@ class ModelSpec:
     def from_kwargs(
         cls, name: str, kwargs: dict[str, Any], stored: bool = False
     ) -> tuple[ModelSpec, dict[str, Any]]:
-        """The spec of a model described flat (``model.json``'s ``model_kwargs``, or a training
-        config's ``model.kwargs``), and the decision keys found among them
-        (:data:`DECISION_KEYS`). ``stored``: the kwargs come from a file, where a head without
-        ``head_kernel_size`` 1 and ``head_flow_features`` false is the removed 3x3 head. Raises
-        ``ValueError`` naming an unknown argument, a removed option the model needs, or a number
-        that is not finite or a size beyond reason (:data:`MAX_CHANNELS`)."""
+        """The spec of a model described flat (``model.json``'s ``model_kwargs``, a training
+        config's ``model.kwargs``), and the :data:`DECISION_KEYS` found among them. ``stored``:
+        from a file, where a head without ``head_kernel_size`` 1 and ``head_flow_features``
+        false is the removed 3x3 head. Raises ``ValueError`` naming an unknown argument, a
+        removed option the model needs, or a number not finite or beyond its bounds."""
         kwargs = dict(kwargs)
         _check_numbers(kwargs)
         decision = {k: kwargs.pop(k) for k in DECISION_KEYS if k in kwargs}
@@ -251,16 +236,10 @@ class ModelSpec:
             out["flow_network"] = False
         elif self.name == "flownet":
             default = FlowConfig()
-            flow = {
-                "hidden_channels": self.flow.hidden_channels,
-                "dilations": list(self.flow.dilations),
-                "kernel_size": self.flow.kernel_size,
-                "zero_init_flow": self.flow.zero_init,
-            }
-            keys = ("hidden_channels", "dilations", "kernel_size", "zero_init")
-            for (name, value), key in zip(flow.items(), keys, strict=True):
-                if getattr(default, key) != getattr(self.flow, key):
-                    out[name] = value
+            for key, name in zip(_FLOW_KEYS, _FLOW_FIELDS, strict=True):
+                value = getattr(self.flow, name)
+                if value != getattr(default, name):
+                    out[key] = list(value) if isinstance(value, tuple) else value
         if self.head is not None:
             head = asdict(self.head)
             head["memory_decays"] = list(self.head.memory_decays)

@@ -1,17 +1,13 @@
 """Convolutional LSTM cell (Shi et al. 2015), the recurrent block of SOGMP's encoder.
 
 Equations (``*`` a 'same'-padded convolution over the concatenation ``[x, h]``, ``.`` the
-element-wise product):
+element-wise product), without peephole terms:
 
     i = sig(W_i * [x, h])    f = sig(W_f * [x, h])    o = sig(W_o * [x, h])
     g = tanh(W_g * [x, h])
     c' = f . c + i . g       h' = o . tanh(c')
 
-The four gates come from one convolution to ``4 * hidden`` channels (one kernel launch instead
-of four; the split is free), as in the ConvLSTM SOGMP's encoder uses. Without peephole terms.
-
-Parameters: ``(in + hidden) * 4 * hidden * k * k + 4 * hidden``; SOGMP's cell (1 input map,
-32 hidden, 3x3) has ``33 * 128 * 9 + 128 = 38,144``.
+The four gates come from one convolution to ``4 * hidden`` channels.
 """
 
 from __future__ import annotations

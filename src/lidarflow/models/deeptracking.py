@@ -1,8 +1,5 @@
-"""DeepTracking baseline: a recurrent net that predicts the next occupancy directly.
-
-Variant built: the architecture of Dequaire et al. 2018 ("Deep tracking in the wild", IJRR),
-the successor of Ondruska & Posner 2016, reduced to what the comparison with LiDAR-FlowNet
-needs:
+"""DeepTracking baseline (Dequaire et al. 2018, "Deep tracking in the wild", after Ondruska &
+Posner 2016): a recurrent net that predicts the next occupancy directly.
 
     input (O, V)     2 x H x W
     encoder          3x3 conv, 16 ch, ReLU
@@ -10,15 +7,10 @@ needs:
     decoder          3x3 conv over the concatenated states of all three GRUs (48 -> 1 ch)
     output           one logit per cell; ``sigmoid`` gives P(occupied at t + 1)
 
-The architecture is the published one that fits a 100 x 100 grid, with the same encoder,
-cells and receptive field as LiDAR-FlowNet and a near-equal budget (42,353 parameters against
-42,500), so the comparison isolates "predict occupancy directly" against "predict flow and warp".
-Left out: the spatial transformer for ego-motion and the learned static-memory bias map (it
-would tie the model to one grid size).
-
-The decoder's bias starts at ``logit(0.02)``, so the untrained net predicts "mostly free". The
-loss is :func:`lidarflow.losses.deeptracking_loss`: the cross-entropy of the predicted next
-occupancy on the cells visible in the next frame.
+The same encoder, cells and receptive field as LiDAR-FlowNet and a near-equal budget, so the
+comparison isolates "predict occupancy directly" against "predict flow and warp". Left out: the
+spatial transformer for ego-motion and the learned static-memory bias map (it would tie the
+model to one grid size). The decoder's bias starts at ``logit(0.02)`` ("mostly free").
 """
 
 from __future__ import annotations
@@ -73,7 +65,6 @@ class DeepTracking(RecurrentMapModel):
         return tuple(cell.hidden_channels for cell in self.grus)
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
-        """One frame: ``maps`` (O, V) and the GRU states -> next-occupancy logit and new states."""
         x = self.act(self.encoder(maps))
         new_state = []
         for cell, y_prev in zip(self.grus, state, strict=True):

@@ -21,21 +21,12 @@ own motion, so that the inner network only has to explain the motion of the worl
      rigidly, cells coming into view at the prior logit ``logit(0.02)``; SOGMP's second
      channel (its latent's KL, a statistic of the step) is not moved.
 
-Causality: at run time only poses up to ``t`` are known, so ``next_motion`` defaults to the
-constant-velocity guess ``motion`` (the same increment again); training does the same, so the
-inner net learns to absorb what that guess gets wrong. Passing the true ``next_motion`` gives the
-"oracle" variant (evaluation only).
+``next_motion`` defaults to the constant-velocity guess ``motion`` (causal: at run time only
+poses up to ``t`` are known; training does the same). ``motion=None`` runs the step
+uncompensated; ``poses_optional=True`` marks a model trained to run so (docs/guide/ego_motion.md).
 
-Recordings without poses: ``motion=None`` runs the step uncompensated, which is right for a
-platform that stands still and wrong for one that drives. A model built with
-``poses_optional=True`` says it was meant to run so (its training mixed recordings with and
-without poses, as the ``head`` recipe's does): on a recording with no pose at all, where they
-refuse any other ego-motion model, ``evaluate`` and ``predict`` run it on the motion matched from
-the scans (:mod:`lidarflow.motion.scanmatch`), uncompensated where no match counts.
-
-Units: motions are ``(dx, dy, dyaw)`` with ``dx, dy`` in *cells* (metres / cell size, see
-:func:`lidarflow.motion.odometry.metres_to_cells`) and ``dyaw`` in radians: the model, like its
-flow, works in cells and knows no cell size. ``motion=None`` is the identity (no compensation).
+Motions are ``(dx, dy, dyaw)`` with ``dx, dy`` in *cells*
+(:func:`lidarflow.motion.odometry.metres_to_cells`) and ``dyaw`` in radians.
 """
 
 from __future__ import annotations
@@ -105,14 +96,12 @@ class EgoCompensated(RecurrentMapModel):
         next_motion: Tensor | None = None,
     ) -> tuple[Tensor, tuple[Tensor, ...]]:
         if motion is not None and state:
-            # One warp for all state tensors (one sampling grid, one grid_sample call), in at
-            # least fp32: under bf16 autocast the states are bf16, whose 8-bit mantissa would
-            # put cell coordinates near 100 off by up to half a cell.
+            # One warp for all state tensors, in at least fp32: bf16's 8-bit mantissa would put
+            # cell coordinates near 100 off by up to half a cell.
             sizes = [s.shape[1] for s in state]
             dtype = state[0].dtype
             work = torch.promote_types(dtype, torch.float32)
-            # Exported to ONNX the state is sampled by gathers: onnxruntime's GridSample goes
-            # channel by channel, several times slower.
+            # Exported to ONNX the state is sampled by gathers (see warp_gather).
             tracing = torch.jit.is_tracing()
             moved = rigid_warp(
                 torch.cat(state, dim=1).to(work), motion.to(work), gather=tracing
@@ -146,10 +135,9 @@ class EgoCompensated(RecurrentMapModel):
         return torch.cat(moved, dim=1)
 
     def _inner_maps(self, maps: Tensor, out: Tensor) -> Tensor:
-        """``maps`` as the inner model's prediction takes them: a flow model warps ``O^t`` by
-        the output's backward flow itself; a model without a flow network (its flow channels
-        the platform's motion alone, ``capabilities.flow`` false) weighs the map as given, so
-        here it is moved by that motion first (the same ``clamp(W(O^t, B^t), 0, 1)``)."""
+        """``maps`` as the inner model's prediction takes them: a head without a flow network
+        weighs the map as given, so here it is moved first by the output's flow channels (the
+        platform's motion alone)."""
         if self.out_channels != 5 or self.inner.capabilities.flow:
             return maps
         moved = warp(maps[:, 0:1], out[:, 0:2]).clamp(0.0, 1.0)
@@ -173,16 +161,6 @@ class EgoCompensated(RecurrentMapModel):
         in frame ``t - 1``, cells) and optionally ``next_motions`` (default: constant velocity)."""
         if motions is None:
             return super().forward(seq, state)
-        if seq.dim() != 5:
-            raise ValueError(f"seq must be (B, T, C, H, W), got {tuple(seq.shape)}")
-        b, t, _, h, w = seq.shape
-        if motions.shape != (b, t, 3):
-            raise ValueError(f"motions must be {(b, t, 3)}, got {tuple(motions.shape)}")
-        if state is None:
-            state = self.init_state(b, h, w, device=seq.device, dtype=seq.dtype)
-        outs = []
-        for i in range(t):
-            nxt = None if next_motions is None else next_motions[:, i]
-            out, state = self.step(seq[:, i], state, motions[:, i], nxt)
-            outs.append(out)
-        return torch.stack(outs, dim=1), state
+        if seq.dim() == 5 and motions.shape != (*seq.shape[:2], 3):
+            raise ValueError(f"motions must be {(*seq.shape[:2], 3)}, got {tuple(motions.shape)}")
+        return self._run(seq, state, motion=motions, next_motion=next_motions)

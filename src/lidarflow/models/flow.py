@@ -5,15 +5,10 @@
     gru0 / gru1 / gru2 ConvGRU 16 ch, 3x3, dilation 1 / 2 / 4, 'same' padding
     conv_flow          3x3, 4 ch, d 1, p 1   -> B_col, B_row, F_col, F_row (cells), linear
 
-42,500 parameters with the bias choice documented in :mod:`lidarflow.models.convgru`.
-
-Activations: the paper names none outside the GRUs. conv_flow is linear (flow is unbounded,
-signed). After conv0 a ReLU (no parameters): without it conv0 would merely compose with each
-gate's ``W_x*`` into one larger linear filter.
-
-The flow head starts at zero (``FlowConfig.zero_init``): the untrained net outputs zero flow, so
-its prediction ``W(O^t, 0) = O^t`` is copy-last. Every layer is a 'same' convolution, so the grid
-size is free.
+The paper names no activation outside the GRUs: conv_flow is linear (flow is unbounded, signed);
+after conv0 a ReLU, without which conv0 would merely compose with each gate's ``W_x*`` into one
+linear filter. ``FlowConfig.zero_init`` starts the flow head at zero, so the untrained net is
+copy-last. Every layer is a 'same' convolution: the grid size is free.
 """
 
 from __future__ import annotations

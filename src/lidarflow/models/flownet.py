@@ -1,21 +1,13 @@
 """LiDAR-FlowNet: the flow network of Table I, and optionally an occupancy head on its warp.
 
-``LidarFlowNet(flow, head)`` receives its blocks (:class:`~lidarflow.models.flow.FlowNetwork`
-or ``None``, :class:`~lidarflow.models.head.OccupancyHead` or ``None``, not both ``None``);
-:func:`lidarflow.models.build` assembles them from a
-:class:`~lidarflow.models.config.ModelSpec`.
-
-Without the flow network (``flow=None``; ``docs/research/flow_share/``) the step is the head
-alone: the flow is zero, ``W(O^t, 0) = O^t``, so the head weighs the map itself. The output
-keeps the same five channels (the four flow channels zero) so that the ego-motion wrapper, which
-adds the platform's own flow to them, the streaming engine and the exported graph are those of
-any head model; ``capabilities.flow`` is ``False``: those channels say nothing of what moves.
-
 Output per step, in cells: ``B_col, B_row, F_col, F_row`` with ``O^{t+1}(p) = O^t(p + B(p))``
 and ``O^t(p) = O^{t+1}(p + F(p))`` (design notes section 3); with the head a fifth channel, its
-residual logit ``r``. The next map's probability is the warp ``clamp(W(O^t, B^t), 0, 1)``, or with
-the head the calibrated ``sigmoid(g * W(O^t, B^t) + r)``. ``step`` has no data-dependent Python
-branching, so it exports to ONNX unchanged.
+residual logit ``r``. The next map's probability is ``clamp(W(O^t, B^t), 0, 1)``, or with the
+head ``sigmoid(g * W(O^t, B^t) + r)``.
+
+Without the flow network (``flow=None``; ``docs/research/flow_share/``) the step is the head
+alone: the four flow channels are zero (``W(O^t, 0) = O^t``) but kept, so that the ego-motion
+wrapper, the streaming engine and the exported graph are those of any head model.
 """
 
 from __future__ import annotations
@@ -33,10 +25,8 @@ __all__ = ["LidarFlowNet"]
 
 
 class LidarFlowNet(RecurrentMapModel):
-    """``step((O, V) (B, C, H, W), state) -> (out (B, 4 or 5, H, W), state)``.
-
-    State: one ``(B, hidden, H, W)`` tensor per GRU, then (head) the head's memories; without
-    the flow network the head's memories alone.
+    """``step((O, V) (B, C, H, W), state) -> (out (B, 4 or 5, H, W), state)``. State: one
+    ``(B, hidden, H, W)`` tensor per GRU, then the head's memories, if any.
 
     >>> import torch
     >>> from lidarflow.models.config import FlowConfig
@@ -70,7 +60,6 @@ class LidarFlowNet(RecurrentMapModel):
         return grus if self.head is None else (*grus, self.head.state_channels)
 
     def step(self, maps: Tensor, state: tuple[Tensor, ...]) -> tuple[Tensor, tuple[Tensor, ...]]:
-        """One frame: ``maps`` ``(B, input_channels, H, W)`` and the state -> output, state."""
         if self.flow is None:
             assert self.head is not None  # __init__ refuses neither
             residual, memory = self.head(maps, state[0])

@@ -1,29 +1,20 @@
 """The occupancy head: a per-cell probability of the next map on top of the flow's warp.
 
-Not in the paper. The head keeps, as recurrent state, exponential moving averages ``m`` of the
-occupancy (decays ``HeadConfig.memory_decays``) and from each cell's own past (``O^t``, its
-memories and the configured inputs below; no neighbours, no GRU features) gives a residual logit
-``r``. The model predicts ``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with a learnt gain ``g``
-(:class:`~lidarflow.models.flownet.LidarFlowNet`); trained with a cross-entropy against
-``O^{t+1}`` it is a calibrated probability. The decision is the Predictor's
-(:mod:`lidarflow.predict.decision`).
+Not in the paper. The head keeps exponential moving averages of the occupancy (decays
+``HeadConfig.memory_decays``) as recurrent state and from each cell's own past (no neighbours)
+gives a residual logit ``r``; the model predicts ``P^{t+1} = sigmoid(g * W(O^t, B^t) + r)`` with
+a learnt gain ``g`` (:class:`~lidarflow.models.flownet.LidarFlowNet`). Initialised so that the
+untrained model is exactly copy-last at the 0.4 threshold.
 
-At initialisation ``r`` is the constant logit of :data:`FREE_PROBABILITY_INIT`, ``g`` lifts an
-occupied cell to :data:`OCCUPIED_PROBABILITY_INIT` and the output layer is zero, so the untrained
-model is exactly copy-last at the 0.4 threshold.
+Options (measurements: ``docs/research/leave_one_out/``):
 
-Inputs (measurements: ``docs/research/leave_one_out/``):
-
-- ``constant_velocity_input``: the constant-velocity baseline's prediction (the current map moved
-  once more by the integer shift that best maps the previous map onto it,
-  :mod:`lidarflow.ops.shift`), with the previous map kept as one more state channel.
-- ``shift_memories``: each memory is first moved by that shift, then updated, so it averages the
-  world rather than the sensor's frame; the head sees the memories moved once more (into the next
-  frame). Where nothing moves the shift is zero and the head is the one without the option.
-- ``hidden_channels``: one hidden 1x1 layer and a ReLU.
-- ``visibility_input``: ``V^t``.
-- ``subcell_input``: where the returns lie inside their cells, ``(edge, near)``
-  (:func:`lidarflow.scan.subcell_batch`).
+- ``constant_velocity_input``: the constant-velocity baseline's prediction
+  (:mod:`lidarflow.ops.shift`), with the previous map kept as one more state channel.
+- ``shift_memories``: each memory is moved by that shift before its update, so it averages the
+  world rather than the sensor's frame; the head sees the memories moved into the next frame.
+- ``hidden_channels``: one hidden 1x1 layer and a ReLU (0: none).
+- ``visibility_input``: ``V^t``; ``subcell_input``: where the returns lie inside their cells,
+  ``(edge, near)`` (:func:`lidarflow.scan.subcell_batch`).
 """
 
 from __future__ import annotations
@@ -38,17 +29,15 @@ from lidarflow.ops.shift import apply_shift, best_shift_kernel
 
 __all__ = ["FREE_PROBABILITY_INIT", "OCCUPIED_PROBABILITY_INIT", "OccupancyHead"]
 
-# Roughly what copy-last's cells do on the development recordings: a free cell stays free,
-# an occupied one stays occupied nine times in ten.
+# Roughly copy-last's: a free cell stays free, an occupied one stays occupied nine times in ten.
 FREE_PROBABILITY_INIT = 0.01
 OCCUPIED_PROBABILITY_INIT = 0.9
 
 
 class OccupancyHead(nn.Module):
-    """``(maps (B, C, H, W), memory state) -> (residual logit (B, 1, H, W), new memory state)``;
-    :attr:`gain` is ``g``. ``maps`` are ``(O, V)``, with ``subcell_input`` ``(O, V, edge,
-    near)``. State: one tensor of the memories, then (with the constant-velocity input) the
-    previous occupancy.
+    """``(maps (B, C, H, W), state) -> (residual logit (B, 1, H, W), new state)``; :attr:`gain`
+    is ``g``. ``maps`` are ``(O, V)``, with ``subcell_input`` ``(O, V, edge, near)``. State: the
+    memories, then (constant-velocity input) the previous occupancy, in one tensor.
 
     >>> head = OccupancyHead(HeadConfig(memory_decays=(0.5,), hidden_channels=4))
     >>> r, m = head(torch.zeros(1, 2, 6, 5), torch.zeros(1, head.state_channels, 6, 5))

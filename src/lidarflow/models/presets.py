@@ -1,10 +1,8 @@
 """Pretrained weights described in code (as torchvision does), and the presets that load them.
 
 A :class:`WeightsRecord` names the files shipped in ``lidarflow/assets/``, their SHA-256, and
-carries their meta: what they were trained on and by which command, their size, and how the
-recipe did on real recordings it never saw (leave-one-recording-out), beside the best baseline
-(``MODEL_CARD.md`` beside the weights is the short card; the whole history is in the source
-repository's ``docs/model/``).
+their meta: training data and command, size, and held-out results beside the best baseline
+(``MODEL_CARD.md`` beside the weights is the short card; the history is in ``docs/model/``).
 
 >>> from lidarflow.models.presets import BUNDLED, lidar_flownet   # doctest: +SKIP
 >>> model = lidar_flownet(weights=BUNDLED)       # the bundled model, ready to stream

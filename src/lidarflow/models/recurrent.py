@@ -1,12 +1,9 @@
 """The interface every map-prediction model of lidarflow offers (train, evaluate and predict code
 depends on it; see :mod:`lidarflow.models`).
 
-- ``out_channels``: channels of one step's output (4 flow channels, or 1 occupancy logit).
-- ``init_state(batch, height, width, device=None, dtype=None) -> tuple[Tensor, ...]``: zeros.
-- ``step(maps (B, 2, H, W), state) -> (out (B, C, H, W), state)``: one frame, for streaming.
-- ``forward(seq (B, T, 2, H, W), state=None) -> (out (B, T, C, H, W), state)``: ``step`` over T.
-- ``predict_next(maps (B, 2, H, W), out (B, C, H, W)) -> (B, 1, H, W)``: probability that each
-  cell is occupied in the next frame.
+- ``step(maps (B, 2, H, W), state) -> (out (B, C, H, W), state)``: one frame, for streaming;
+  ``forward`` runs it over ``(B, T, 2, H, W)``.
+- ``predict_next(maps, out) -> (B, 1, H, W)``: the probability of each cell in the next frame.
 
 Maps are ``(O, V)``: channel 0 occupancy, channel 1 visibility, values in {0, 1}.
 """
@@ -77,6 +74,13 @@ class RecurrentMapModel(nn.Module):
     ) -> tuple[Tensor, tuple[Tensor, ...]]:
         """Run ``step`` over ``seq`` ``(B, T, 2, H, W)``; returns ``(B, T, C, H, W)`` and the state
         after the last frame. ``state=None`` starts from zeros."""
+        return self._run(seq, state)
+
+    def _run(
+        self, seq: Tensor, state: tuple[Tensor, ...] | None, **per_frame: Tensor | None
+    ) -> tuple[Tensor, tuple[Tensor, ...]]:
+        """:meth:`forward`, each step also given ``per_frame``'s ``(B, T, ...)`` tensors at its
+        frame (``None`` as ``None``)."""
         if seq.dim() != 5:
             raise ValueError(f"seq must be (B, T, C, H, W), got {tuple(seq.shape)}")
         b, t, _, h, w = seq.shape
@@ -84,6 +88,7 @@ class RecurrentMapModel(nn.Module):
             state = self.init_state(b, h, w, device=seq.device, dtype=seq.dtype)
         outs = []
         for i in range(t):
-            out, state = self.step(seq[:, i], state)
+            extra = {k: None if v is None else v[:, i] for k, v in per_frame.items()}
+            out, state = self.step(seq[:, i], state, **extra)
             outs.append(out)
         return torch.stack(outs, dim=1), state

@@ -1,42 +1,22 @@
-"""SOGMP (Xie & Dames, "Stochastic Occupancy Grid Map Prediction in Dynamic Scenes", CoRL 2023):
-the strongest public peer, rebuilt on lidarflow's grid and inputs from the paper and the public
-description of its architecture (``TempleRAIL/SOGMP``, MIT; facts only, the code is our own).
+"""SOGMP (Xie & Dames, "Stochastic Occupancy Grid Map Prediction in Dynamic Scenes", CoRL 2023),
+rebuilt on lidarflow's grid and inputs from the paper and the public description of its
+architecture (``TempleRAIL/SOGMP``, MIT; facts only, the code is our own; summary in
+``docs/guide/training.md``): a ConvLSTM over the last maps, a convolutional encoder to a
+Gaussian latent ``2 x H/4 x W/4``, a deconvolution decoder to the next map's logit.
 
-The published model, per prediction::
+Adapted to lidarflow (differences: ``docs/research/peer_comparison/``):
 
-    10 past scans -> 10 binary occupancy maps (64 x 64 cells of 0.1 m, in front of the robot),
-                     each placed in the robot's (predicted) frame: ego-motion compensation
-    ConvLSTM         1 -> 32 ch, 3x3, run over the 10 maps from a zero state; its last h
-    encoder          4x4/2 conv -> 64, BN, ReLU; 4x4/2 conv -> 128, BN; 2 residual layers
-                     (3x3 -> 64, BN, ReLU, 1x1 -> 128, BN), ReLU
-    latent           1x1 convs -> mu, log sd: 2 x (H/4) x (W/4) (512 values at 64 x 64);
-                     z = mu + sd * eps in training; the prior is N(0, I)
-    decoder          1x1 -> 128; 2 residual layers, ReLU; 4x4/2 deconv -> 64, BN, ReLU;
-                     4x4/2 deconv -> 64, BN, ReLU; 3x3 conv -> 1; sigmoid: P(occupied at t+1)
-    loss             binary cross-entropy summed over the map (mean over the batch)
-                     + 0.01 x KL(q(z | past) || N(0, I)) (:func:`lidarflow.losses.sogmp_loss`)
-    roll-out         the prediction fed back as the newest map, up to 10 steps (1 s at 10 Hz)
-
-Adapted to lidarflow (the differences: ``docs/research/peer_comparison/``):
-
-- **Grid**: lidarflow's (100 x 100 cells of 0.1 m; latent 2 x 25 x 25). A grid whose sides are
-  not multiples of 4 is padded with zeros at the far and right edges inside the model and the
-  prediction cropped back.
+- **Grid**: any; sides not multiples of 4 are padded with zeros at the far and right edges
+  inside the model and the prediction cropped back.
 - **Input channels**: occupancy only; with ``visibility_input`` each frame is ``(O, V)``.
 - **The window is the recurrent state**: ``(B, window x c, H, W)``, the last ``window`` maps,
-  oldest first. A step slides the new map in and runs the ConvLSTM over the window from a zero
-  state; the first ``window - 1`` steps of a stream see empty maps (warm-up).
-- **Ego motion** through :class:`~lidarflow.models.egomotion.EgoCompensated` (``ego_motion``):
-  the window's maps are resampled (bilinear) into the current frame once per step.
-- **Output**: channel 0 a logit (bias starting at ``logit(0.02)``); channel 1 the step's KL
-  divergence (analytic) of the latent from the prior divided evenly over the cells (it sums to
-  the step's KL; a statistic of the step, not moved by the ego-motion wrapper).
-- **Mean and samples**: ``step`` in eval mode decodes ``z = mu`` (deterministic; what
-  :meth:`predict_next`, ``evaluate`` and the ONNX export use); :meth:`sample` decodes ``n`` draws
-  ``z ~ q(z | past)``.
-
-Parameters (defaults, occupancy only): 730,245, whatever the grid; with ``visibility_input``
-731,397.
+  oldest first; the first ``window - 1`` steps of a stream see empty maps.
+- **Ego motion** through :class:`~lidarflow.models.egomotion.EgoCompensated`.
+- **Output**: channel 0 a logit (bias starting at ``logit(0.02)``); channel 1 the step's
+  analytic KL of the latent from the prior divided evenly over the cells (a statistic of the
+  step, not moved by the ego-motion wrapper).
+- **Mean and samples**: ``step`` in eval mode decodes ``z = mu``; :meth:`sample` decodes ``n``
+  draws ``z ~ q(z | past)``.
 """
 
 from __future__ import annotations
@@ -69,8 +49,7 @@ def kl_to_standard_normal(mu: Tensor, log_sd: Tensor) -> Tensor:
 
 class ResidualStack(nn.Module):
     """``layers`` residual layers ``r + BN(1x1(ReLU(BN(3x3(r)))))`` with ``r = ReLU(x)``, then
-    a ReLU. The skip carries ``ReLU(x)``: the published layer starts with an in-place ReLU that
-    also rewrites the tensor the skip adds, so that is what it computes."""
+    a ReLU. The skip carries ``ReLU(x)``, as the published layer's in-place ReLU makes it."""
 
     def __init__(self, channels: int, hidden: int, layers: int) -> None:
         super().__init__()
@@ -237,10 +216,9 @@ class SOGMP(RecurrentMapModel):
         generator: torch.Generator | None = None,
     ) -> Tensor:
         """``n`` stochastic predictions ``(n, B, 1, H, W)`` (probabilities) of the map after the
-        window in ``state`` (the state a step returned), each decoded from ``z ~ q(z | past)``.
-        They are in the frame of the window's newest map; ``next_motion`` ``(B, 3)`` (cells,
-        radians: an ego-motion model's guess of the next motion) moves them into the frame of
-        ``t + 1`` as the wrapper moves the mean. Call it in eval mode (batch-norm statistics);
+        window in ``state``, each decoded from ``z ~ q(z | past)``, in the frame of the newest
+        map; ``next_motion`` ``(B, 3)`` (cells, radians) moves them into the frame of ``t + 1``
+        as the ego-motion wrapper moves the mean. Call it in eval mode (batch-norm statistics);
         for a model built with ``ego_motion`` it is ``model.inner.sample``."""
         from lidarflow.models.egomotion import OCCUPANCY_FILL_LOGIT
         from lidarflow.ops.rigid import rigid_warp
@@ -248,9 +226,7 @@ class SOGMP(RecurrentMapModel):
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
         mu, log_sd = self.encode(state[0])
-        eps = torch.randn(
-            (n, *mu.shape), generator=generator, device=mu.device, dtype=mu.dtype
-        )
+        eps = torch.randn((n, *mu.shape), generator=generator, device=mu.device, dtype=mu.dtype)
         z = (mu + torch.exp(log_sd) * eps).flatten(0, 1)
         logit = self.decode(z, *state[0].shape[-2:])
         if next_motion is not None:

@@ -1,7 +1,6 @@
 """Speed options for the recurrent models (channels-last, bf16 autocast, ``torch.compile`` of the
 ConvGRU cells or the whole step), kept out of the models so the eager fp32 path stays the
-reference. bf16 pays only where the hardware computes it (:func:`native_bf16`); timings:
-``benchmarks/bench_train_step.py`` and ``docs/guide/training.md``.
+reference; timings: ``docs/guide/training.md``.
 """
 
 from __future__ import annotations
@@ -40,10 +39,8 @@ def accelerate(
             channels-last states, so the whole recurrence runs in that layout.
         compile: ``"cells"`` compiles each ConvGRU cell (small graphs, quick to compile),
             ``"step"`` compiles the whole ``step`` (one graph per model); ``"none"`` stays eager.
-            The first call of a compiled model takes tens of seconds on a small CPU.
 
-    bf16 is not set here: wrap the forward pass and loss in
-    ``torch.autocast(device_type, dtype=torch.bfloat16)``; the losses compute in fp32 anyway.
+    bf16 is not set here: wrap the forward pass and loss in ``torch.autocast``.
     """
     if compile not in COMPILE_MODES:
         raise ValueError(f"compile must be one of {COMPILE_MODES}, got {compile!r}")

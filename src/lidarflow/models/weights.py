@@ -1,13 +1,10 @@
 """Loading trained models: a run directory, or a ``.safetensors`` file with its JSON beside it.
 
-A trained model is two files written by ``lidarflow train``: ``model.safetensors`` (weights)
-and ``model.json`` (``{"model": name, "model_kwargs": {...}, "decision": {...}, "grid": {...},
-...}``: enough to rebuild the net, how to decide its next map, and where it came from). A
-weights file ``X.safetensors`` looks for ``X.json`` first, then ``model.json`` in its folder.
-
-Files written before the model was built from blocks keep loading: their parameter
-names are moved to the blocks' (:func:`upgrade_state`) and the decision keys among their
-``model_kwargs`` become the ``decision`` record.
+A trained model is ``model.safetensors`` (weights) and ``model.json`` (``{"model": name,
+"model_kwargs": {...}, "decision": {...}, "grid": {...}, ...}``), as ``lidarflow train`` writes
+them. A weights file ``X.safetensors`` looks for ``X.json`` first, then ``model.json`` beside it.
+Older files keep loading: parameter names from before the blocks are moved to theirs
+(:func:`upgrade_state`), decision keys among the ``model_kwargs`` become the ``decision`` record.
 """
 
 from __future__ import annotations
@@ -69,14 +66,14 @@ def upgrade_state(state: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-#: The largest decision offset, added to the occupancy head's logit: at 20 the decided
-#: probability is within 2e-9 of 0 or 1 whatever the model says, so more decides nothing more.
+#: The largest decision offset (added to the occupancy head's logit): beyond it the decided
+#: probability is within 2e-9 of 0 or 1 whatever the model says.
 MAX_DECISION_OFFSET = 20.0
 
 
 def check_decision_offset(offset: Any, where: str) -> float:
-    """``offset`` as a float, where it is a finite number within :data:`MAX_DECISION_OFFSET`
-    of 0; else a :class:`ModelError` saying so of ``where`` (the file and key it came from)."""
+    """``offset`` as a float within :data:`MAX_DECISION_OFFSET` of 0; else a :class:`ModelError`
+    naming ``where`` (the file and key it came from)."""
     try:
         value = float(offset)
     except (TypeError, ValueError, OverflowError):  # not a number, or an int beyond a float
@@ -90,10 +87,9 @@ def check_decision_offset(offset: Any, where: str) -> float:
 
 
 def decision_record(card: dict[str, Any], source: str | Path = "model.json") -> dict[str, Any]:
-    """The decision a model was shipped with (``{"offset": float, "online": bool, "movers":
-    bool}``): its ``decision`` record, or the decision keys older files kept among the
-    ``model_kwargs``; an offset that is no usable number is a :class:`ModelError` naming
-    ``source`` (the file ``card`` was read from) and the key."""
+    """The decision a model was shipped with, ``{"offset": float, "online": bool, "movers":
+    bool}``, from its ``decision`` record or older files' ``model_kwargs``; a bad offset is a
+    :class:`ModelError` naming ``source`` (the file ``card`` came from) and the key."""
     if isinstance(card.get("decision"), dict):
         record, key = card["decision"], "decision.offset"
     else:

@@ -1,15 +1,11 @@
 """Separable Gaussian filter ``G(maps, k)`` of the paper's loss (section IV-C).
 
-Conventions:
-- ``kernel_size`` is the paper's filter size ``f``: odd, ``1`` means no filter (the identity).
-- ``sigma`` defaults to OpenCV's rule for a given size, ``0.3 * ((k - 1) * 0.5 - 1) + 0.8``
-  (``cv2.getGaussianKernel`` with ``sigma <= 0``): 0.8 at k = 3, 1.1 at 5, 1.4 at 7, 1.7 at 9.
-  The paper names only the size; this is the rule its likely implementation used, and it keeps
-  most of the kernel's mass inside the window at every size.
-- Zero padding: cells beyond the map are empty space, the same assumption the warp makes
-  (``padding_mode="zeros"``). Reflect padding would invent mirrored obstacles at the border.
-  So mass is preserved exactly away from the border and leaks out at the edge.
-- The kernel is normalised to sum 1 and applied per channel (depthwise), rows then columns.
+- ``kernel_size`` is the paper's filter size: odd, ``1`` means no filter (the identity).
+- ``sigma`` defaults to OpenCV's rule for the size (``cv2.getGaussianKernel`` with
+  ``sigma <= 0``): the paper names only the size.
+- Zero padding: cells beyond the map are empty space, as for the warp (reflect padding would
+  invent mirrored obstacles), so mass leaks out at the edge only.
+- The kernel sums to 1 and is applied per channel (depthwise), rows then columns.
 """
 
 from __future__ import annotations
@@ -48,11 +44,8 @@ def gaussian_kernel1d(
 
 
 def gaussian_blur(maps: Tensor, kernel_size: int, sigma: float | None = None) -> Tensor:
-    """Blur every channel of ``maps`` ``(B, C, H, W)`` with a ``kernel_size`` Gaussian.
-
-    ``kernel_size == 1`` returns ``maps`` itself (no filter, as in the paper's last stage).
-    Output shape equals input shape (zero 'same' padding); see the module docstring for the
-    sigma rule. Differentiable in ``maps``.
+    """Blur every channel of ``maps`` ``(B, C, H, W)`` with a ``kernel_size`` Gaussian, zero
+    'same' padding; ``kernel_size == 1`` returns ``maps`` itself. Differentiable in ``maps``.
 
     >>> m = torch.zeros(1, 1, 5, 5); m[0, 0, 2, 2] = 1.0
     >>> out = gaussian_blur(m, 3)
@@ -69,19 +62,11 @@ def gaussian_blur(maps: Tensor, kernel_size: int, sigma: float | None = None) ->
     channels = maps.shape[1]
     k = _kernel(kernel_size, sigma, maps.device, maps.dtype)
     pad = kernel_size // 2
-    # Depthwise, separable: k*k -> 2k multiply-adds per cell.
-    out = F.conv2d(
-        maps,
-        k.view(1, 1, kernel_size, 1).expand(channels, 1, kernel_size, 1),
-        padding=(pad, 0),
-        groups=channels,
-    )
-    return F.conv2d(
-        out,
-        k.view(1, 1, 1, kernel_size).expand(channels, 1, 1, kernel_size),
-        padding=(0, pad),
-        groups=channels,
-    )
+    # Depthwise, separable: 2k multiply-adds per cell instead of k^2.
+    rows = k.view(1, 1, kernel_size, 1).expand(channels, 1, kernel_size, 1)
+    cols = k.view(1, 1, 1, kernel_size).expand(channels, 1, 1, kernel_size)
+    out = F.conv2d(maps, rows, padding=(pad, 0), groups=channels)
+    return F.conv2d(out, cols, padding=(0, pad), groups=channels)
 
 
 def _kernel(

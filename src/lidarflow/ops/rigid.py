@@ -1,21 +1,10 @@
 """Differentiable rigid (planar) warp of sensor-frame grids by the sensor's own motion.
 
-Grid convention (design notes section 2): cell ``(r, c)`` has its centre at
-``x = (H - r - 0.5) * res`` (forward), ``y = (W / 2 - c - 0.5) * res`` (left); the sensor sits at
-the middle of the bottom edge.
-
-Motion convention: ``motion = (dx, dy, dyaw)`` is the pose of the *new* sensor frame expressed
-in the *old* one (what odometry calls the increment, ``relative(old_pose, new_pose)``): the
-sensor moved ``dx`` forward and ``dy`` left (metres, or cells with ``res = 1``) and turned
-``dyaw`` (radians, counter-clockwise) between the two frames. A point ``q`` of the new frame is
-``R(dyaw) q + (dx, dy)`` in the old one.
-
-``rigid_warp(old_map, motion)`` re-expresses a map (or any feature grid) made in the old frame
-in the new frame: ``out(p) = old(T(p))`` with ``T`` that change of frame in cell coordinates,
-bilinear, ``fill`` where ``T(p)`` falls outside the old grid. It is :func:`lidarflow.ops.warp`
-with the flow ``T(p) - p`` (:func:`rigid_flow`), so it shares its sampling convention
-(``grid_sample`` with ``align_corners=True``) and is differentiable in the maps and the motion.
-Without PyTorch the same moves are :mod:`lidarflow.geometry`'s.
+The grid and motion conventions are :mod:`lidarflow.geometry`'s (its NumPy twin): ``motion =
+(dx, dy, dyaw)`` is the pose of the *new* sensor frame in the *old* one. ``rigid_warp(old_map,
+motion)`` re-expresses a map made in the old frame in the new one: ``out(p) = old(T(p))``,
+bilinear, ``fill`` beyond the old grid. It is :func:`lidarflow.ops.warp.warp` with the flow
+``T(p) - p`` (:func:`rigid_flow`), differentiable in the maps and the motion.
 """
 
 from __future__ import annotations
@@ -57,18 +46,10 @@ def transform_cells(
     res: float = 1.0,
     inverse: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """Move continuous cell coordinates from the new frame to the old one (``inverse``: from the
-    old frame to the new one).
-
-    Args:
-        cols, rows: ``(B, H', W')`` or broadcastable to it, cell indices (centres at integers).
-        motion: ``(B, 3)`` pose of the new frame in the old one; ``dx, dy`` in the unit of
-            ``res`` (metres with the grid's cell size, or cells with ``res = 1``).
-        height, width: the grid the indices refer to (it fixes where the sensor is).
-
-    Returns:
-        ``(cols, rows)`` of the same points in the other frame, ``(B, H', W')``.
-    """
+    """Continuous cell coordinates ``cols, rows`` (broadcastable to ``(B, H', W')``) of a
+    ``height x width`` grid moved from the new frame to the old one (``inverse``: old to new)
+    by ``motion`` ``(B, 3)`` (``dx, dy`` in the unit of ``res``); ``(cols, rows)``
+    ``(B, H', W')``."""
     _check_motion(motion)
     dx, dy, yaw = (motion[:, i].reshape(-1, 1, 1) for i in range(3))
     x = (height - 0.5 - rows) * res
@@ -107,10 +88,10 @@ def rigid_flow(
 def rigid_warp(
     maps: Tensor, motion: Tensor, res: float = 1.0, fill: float = 0.0, gather: bool = False
 ) -> Tensor:
-    """Re-express ``maps`` ``(B, C, H, W)``, made in the old sensor frame, in the new frame after
-    the sensor moved by ``motion`` ``(B, 3)`` (see the module docstring); ``fill`` where the new
-    frame sees beyond the old grid. ``gather``: sample with :func:`~lidarflow.ops.warp.
-    warp_gather` (the same values; faster for many channels in onnxruntime, slower in PyTorch).
+    """``maps`` ``(B, C, H, W)`` of the old sensor frame re-expressed in the new one after the
+    motion ``(B, 3)``; ``fill`` beyond the old grid. ``gather``: sample with
+    :func:`~lidarflow.ops.warp.warp_gather` (the same values; faster for many channels in
+    onnxruntime, slower in PyTorch).
 
     >>> m = torch.zeros(1, 1, 5, 4)
     >>> m[0, 0, 1, 1] = 1.0

@@ -1,22 +1,11 @@
-"""The constant-velocity extrapolation of a map, in torch (batched, ONNX-exportable).
+"""The constant-velocity extrapolation of a map in torch (batched, ONNX-exportable): the same
+answer as :class:`lidarflow.baselines.ConstantVelocity`, tie rule included (most overlapping
+occupied cells, then the smallest ``|d_col| + |d_row|``, then the first in row-major order).
 
-:class:`lidarflow.baselines.ConstantVelocity` finds the integer shift that best maps
-the previous occupancy map onto the current one and applies it once more. A model that sees
-this extrapolation as an input starts from the baseline it is judged against on a moving
-platform instead of having to rediscover it. Same answer as the NumPy baseline, including its
-tie rule (most overlapping occupied cells, then the smallest ``|d_col| + |d_row|``, then the first
-in row-major order), so the model's input and the baseline's prediction are the same map.
-
-Both steps are grouped convolutions: a map's correlation with the other at every shift, then
-the maps convolved with one-hot kernels at the chosen shift. A shift is separable, so it is
-applied as a column and a row kernel (2k taps a cell instead of k^2); speed:
-``docs/research/speed/``.
-:func:`apply_shift` moves any number of channels by the chosen shift (the occupancy memories
-that follow the scene, ``HeadConfig(shift_memories=True)``).
-The batch becomes the convolution's groups, so an exported graph is fixed to its export batch
-(the step graphs are exported for batch 1), and the data-dependent kernels must stay float32:
-``lidarflow.outputs.quantize`` leaves them alone and bf16 autocast is switched off here (it
-would round overlap counts above 256).
+Both steps are grouped convolutions over the batch (so an exported graph is fixed to its export
+batch): the maps' correlation at every shift, then separable one-hot kernels at the chosen
+shift. The data-dependent kernels stay float32 (bf16 autocast is switched off here: it would
+round overlap counts above 256).
 """
 
 from __future__ import annotations
@@ -39,17 +28,15 @@ __all__ = [
 DEFAULT_RADIUS = 3
 
 
-# A map moved by exactly half a cell (poses stepping 0.05 m on a 0.1 m grid) holds cells of
-# exactly 0.5, which PyTorch's and ONNX's warps leave 1e-5 either side of it: at 0.5 itself the
-# two backends counted different cells and chose different shifts (predictions 0.5 apart).
+# Not 0.5 itself: a map moved by exactly half a cell holds cells of 0.5, which PyTorch's and
+# ONNX's warps leave 1e-5 either side, so the two backends would choose different shifts.
 _OCCUPIED_ABOVE = 0.5 - 1e-3
 
 
 def shift_scores(previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS) -> Tensor:
     """``(B, (2 radius + 1)^2)`` scores, row-major over ``(d_row, d_col)`` in
-    ``[-radius, radius]^2``, whose first maximum is the baseline's shift: the number of occupied
-    cells ``previous`` moved by ``(d_col, d_row)`` has in common with ``current``, ordered by
-    the shift's size where counts tie."""
+    ``[-radius, radius]^2``, whose first maximum is the baseline's shift: the overlap of
+    ``previous`` moved by the shift with ``current``, then the shift's size."""
     b, _, h, w = current.shape
     prev = (previous > _OCCUPIED_ABOVE).float()
     cur = F.pad((current > _OCCUPIED_ABOVE).float(), (radius, radius, radius, radius))
@@ -65,8 +52,7 @@ def shift_scores(previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
 
 class ShiftKernels(NamedTuple):
     """One map's shift as two one-hot kernels, ``rows`` ``(B, 1, k, 1)`` and ``cols``
-    ``(B, 1, 1, k)``: the one-hot ``k x k`` kernel of the shift is their outer product, so two
-    1-D convolutions (2k taps a cell) apply it instead of one 2-D one (k^2 taps)."""
+    ``(B, 1, 1, k)``, whose outer product is the shift's ``k x k`` kernel."""
 
     rows: Tensor
     cols: Tensor
@@ -76,8 +62,7 @@ def best_shift_kernel(
     previous: Tensor, current: Tensor, radius: int = DEFAULT_RADIUS
 ) -> ShiftKernels:
     """For each map, the baseline's best shift from ``previous`` to ``current``
-    ``(B, 1, H, W)``, as :func:`apply_shift` applies it (``2 radius + 1`` taps per axis). A zero
-    ``previous`` (the first frame) gives shift 0."""
+    ``(B, 1, H, W)``, for :func:`apply_shift`; a zero ``previous`` gives shift 0."""
     if current.dim() != 4 or current.shape[1] != 1:
         raise ValueError(f"maps must be (B, 1, H, W), got {tuple(current.shape)}")
     if previous.shape != current.shape:

@@ -13,9 +13,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-# Base grids keyed by (H, W, device, dtype). They never require grad and are never written to,
-# so one tensor per grid size serves every call (a training step warps the same size thousands
-# of times; building the meshgrid each time was a measurable share of the warp's cost).
+# Base grids keyed by (H, W, device, dtype): never written to and without grad, so one per grid
+# size serves every call (a training step warps the same size thousands of times).
 _BASE_GRIDS: dict[tuple[int, int, str, torch.dtype], tuple[Tensor, Tensor]] = {}
 _MAX_CACHED = 16
 
@@ -51,19 +50,10 @@ def _base_grid(
 
 
 def warp(maps: Tensor, flow: Tensor) -> Tensor:
-    """Bilinearly sample ``maps`` at ``p + flow(p)``; zero outside the map.
-
-    Args:
-        maps: ``(B, C, H, W)`` floating-point maps (e.g. occupancy in [0, 1]).
-        flow: ``(B, 2, H, W)`` displacement in cells, channel 0 = column (x), channel 1 = row (y).
-
-    Returns:
-        ``(B, C, H, W)``:
-        ``out[b, :, r, c] = maps[b, :, r + flow[b, 1, r, c], c + flow[b, 0, r, c]]``, with
-        bilinear interpolation between cells and zeros beyond the border. Differentiable in
-        both ``maps`` and ``flow``. Implemented with ``grid_sample(align_corners=True)`` and the
-        normalisation ``2 * (index + flow) / (size - 1) - 1``, so cell centres sit exactly on the
-        sampling lattice. ``H`` and ``W`` must be at least 2.
+    """``maps`` ``(B, C, H, W)`` sampled bilinearly at ``p + flow(p)``, zero outside the map:
+    ``out[b, :, r, c] = maps[b, :, r + flow[b, 1, r, c], c + flow[b, 0, r, c]]``, with ``flow``
+    ``(B, 2, H, W)`` in cells (column, row). Differentiable in both; ``grid_sample`` with
+    ``align_corners=True``, so cell centres sit on the sampling lattice; ``H, W >= 2``.
 
     Example:
         >>> maps = torch.zeros(1, 1, 3, 4)
@@ -87,12 +77,9 @@ def warp(maps: Tensor, flow: Tensor) -> Tensor:
 
 
 def warp_gather(maps: Tensor, flow: Tensor) -> Tensor:
-    """:func:`warp` computed as four gathers of whole cells (all channels at once) and their
-    bilinear weights: the same function (zero outside the map, differentiable in both inputs),
-    for many channels. onnxruntime's ``GridSample`` samples channel by channel, about 11 ns a
-    sample on this project's CPU, so the ego-motion wrapper's recurrent state (55 channels) took
-    6 ms a step there; gathering rows of a ``(cells, channels)`` table is a copy per cell.
-    """
+    """:func:`warp` computed as four gathers of whole cells (all channels at once): the same
+    function, faster for many channels in onnxruntime, whose ``GridSample`` samples channel by
+    channel."""
     h, w = _check(maps, flow)
     flow = flow.to(maps.dtype)
     b, c = maps.shape[0], maps.shape[1]
@@ -128,8 +115,8 @@ def _cell_indices(
 
 
 def _check(maps: Tensor, flow: Tensor) -> tuple[int, int]:
-    """Validate a warp's inputs; the grid size as ints (under tracing the sizes may arrive as
-    tensors or symbols; the grid size is a constant of an exported graph)."""
+    """Validate a warp's inputs; the grid size as ints (a constant of an exported graph, though
+    a tracer may hand the sizes as tensors or symbols)."""
     if maps.dim() != 4:
         raise ValueError(f"maps must be (B, C, H, W), got {tuple(maps.shape)}")
     if flow.dim() != 4 or flow.shape[1] != 2:
