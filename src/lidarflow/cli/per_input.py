@@ -47,19 +47,17 @@ class EvaluateSettings:
     combine: bool = False
 
 
-def build_methods(
-    settings: EvaluateSettings, combine: bool = True
-) -> tuple[list[Any], dict[str, Any]]:
+def build_methods(settings: EvaluateSettings) -> tuple[list[Any], dict[str, Any]]:
     """The methods ``settings`` ask for and the report's config
-    (:func:`lidarflow.evaluate.methods.methods_and_config`); with ``combine`` False, not the
-    combined ones (a worker's, as it has always built them)."""
+    (:func:`lidarflow.evaluate.methods.methods_and_config`), the same in the command and in
+    every worker."""
     from lidarflow.evaluate.methods import methods_and_config
 
     s = settings
     return methods_and_config(
         list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
         s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
-        combine=s.horizon if s.combine and combine else None,
+        combine=s.horizon if s.combine else None,
     )  # fmt: skip
 
 
@@ -70,7 +68,7 @@ _METHODS: dict[EvaluateSettings, list[Any]] = {}
 
 def _methods(settings: EvaluateSettings) -> list[Any]:
     if settings not in _METHODS:
-        _METHODS[settings] = build_methods(settings, combine=False)[0]
+        _METHODS[settings] = build_methods(settings)[0]
     return _METHODS[settings]
 
 
