@@ -1,9 +1,11 @@
-"""What the online combination costs: `Predictor.update` per scan with ``combine=True`` as a
-ratio to the same Predictor without it, measured in the same run (one thread, the bundled
+"""What learning on the stream costs: `Predictor.update` per scan with ``combine=True`` (the
+online combination) and with ``learn=True`` (the head learning), each as a ratio to the same
+Predictor without either, measured in the same run (one thread, the bundled
 model, the sample recording's scans, no poses: the motion matched from the scans), at
 ``--horizon`` 1 and K. Runs alternate between the two in rounds so that load on a shared
 machine falls on both alike; the medians and the ratio of medians are written to JSON
 (default ``benchmarks/results/combine.json``), beside the memory the combination holds.
+Variants alternate in rounds; ``ratio`` is the combination's, ``learn_ratio`` the head's.
 
     python benchmarks/bench_combine.py [--scans 150] [--rounds 3] [--horizons 1 8]
 """
@@ -48,18 +50,22 @@ def main() -> None:
     scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]
     result: dict = {"machine": machine(), "scans": len(scans), "threads": 1, "horizons": {}}
     for horizon in args.horizons:
-        plain = Predictor(horizon=horizon, threads=1)
-        combined = Predictor(horizon=horizon, threads=1, combine=True)
-        times: dict[str, list[float]] = {"plain": [], "combined": []}
+        predictors = {
+            "plain": Predictor(horizon=horizon, threads=1),
+            "combined": Predictor(horizon=horizon, threads=1, combine=True),
+            "learning": Predictor(horizon=horizon, threads=1, learn=True),
+        }
+        times: dict[str, list[float]] = {name: [] for name in predictors}
         for _ in range(args.rounds):
-            times["plain"] += per_scan_ms(plain, scans)
-            times["combined"] += per_scan_ms(combined, scans)
+            for name, predictor in predictors.items():
+                times[name] += per_scan_ms(predictor, scans)
         medians = {k: float(np.median(v)) for k, v in times.items()}
         result["horizons"][str(horizon)] = {
             "median_ms": medians,
             "p99_ms": {k: float(np.percentile(v, 99)) for k, v in times.items()},
             "ratio": medians["combined"] / medians["plain"],
-            "combination_bytes": combined.combination.nbytes,
+            "learn_ratio": medians["learning"] / medians["plain"],
+            "combination_bytes": predictors["combined"].combination.nbytes,
         }
         print(horizon, result["horizons"][str(horizon)])
     write_json(args.output, result)

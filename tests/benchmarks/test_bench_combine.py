@@ -12,7 +12,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_bench_combine_runs_and_reports_both_predictors(tmp_path):
+def test_bench_combine_runs_and_reports_every_predictor(tmp_path):
     out = tmp_path / "combine.json"
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
     args = ["--scans", "14", "--rounds", "1", "--horizons", "1", "3", "-o", str(out)]
@@ -24,6 +24,6 @@ def test_bench_combine_runs_and_reports_both_predictors(tmp_path):
     horizons = json.loads(out.read_text())["horizons"]
     assert set(horizons) == {"1", "3"}
     for entry in horizons.values():
-        assert entry["median_ms"]["plain"] > 0 and entry["ratio"] > 0
+        assert entry["median_ms"]["plain"] > 0 and entry["ratio"] > 0 and entry["learn_ratio"] > 0
     # K = 3 keeps 1 + 2 + 3 frames of five experts' maps waiting: more than K = 1's one
     assert horizons["3"]["combination_bytes"] > horizons["1"]["combination_bytes"] > 0
