@@ -3,16 +3,13 @@
 A placement is a candidate turn (:data:`YAWS`) and an index shift ``(a, b)`` (up to
 :data:`MAX_SHIFT` cells each way); its score is how many of the previous map's occupied cells,
 turned about the sensor into the current frame (each cell once) and shifted, land on an occupied
-cell of the current map. The best of the 17 x 25 x 25 placements is wanted.
+cell of the current map.
 
-Branch and bound (Olson 2009, "Real-time correlative scan matching", section IV) finds the same
-best placement while scoring few: the shifts are cut into blocks of :data:`BLOCK` x
-:data:`BLOCK`, and a block is first scored against the current map dilated over the block (each
-cell the largest of the ``BLOCK x BLOCK`` cells the block's shifts reach from it), which bounds
-every shift inside from above. Only the blocks whose bound reaches the best score found so far
-are scored shift by shift: first the :data:`FIRST_BLOCKS` best-bounded, then every other block
-that can still reach their best. Scores are whole counts; ties go to the first placement in the
-order turn, row shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SHIFT ... -1``).
+Branch and bound (Olson 2009, section IV): blocks of :data:`BLOCK` x :data:`BLOCK` shifts are
+first scored against the current map dilated over the block, an upper bound of every shift
+inside; only blocks whose bound reaches the best score so far are scored shift by shift (the
+:data:`FIRST_BLOCKS` best-bounded first). Ties go to the first placement in the order turn, row
+shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SHIFT ... -1``).
 
 Units: maps ``(H, W)`` bool; shifts in index cells; turns in radians (positive turns the world
 counter-clockwise in the sensor frame of :mod:`lidarflow.geometry`).
