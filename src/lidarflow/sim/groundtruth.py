@@ -6,13 +6,10 @@ Flow is in cells: channel 0 the column displacement, channel 1 the row displacem
 * Backward flow ``B^t`` lives on the occupied cells of ``O^{t+1}``:
   ``O^{t+1}(p) = O^t(p + B^t(p))``.
 
-Both come from the points the scans really measured, so they agree with the occupancy that
-:func:`lidarflow.scan.rasterize_batch` makes of the same ranges: every return is placed exactly as
-the rasterizer places it (same float64 arithmetic, same cell rule), moved in the world frame with
-the motion of the object its beam hit (a leg, or static structure that does not move), brought into
-the other frame's sensor pose (this is where the platform's own motion enters), and turned into a
-displacement in cells. A cell hit by several points gets the mean of their displacements. Cells
-that are not occupied carry zero flow.
+Every return is placed exactly as :func:`lidarflow.scan.rasterize_batch` places it (so the flow
+agrees with the occupancy), moved in the world with the object its beam hit (a leg; static
+structure does not move), seen from the other frame's sensor pose, and turned into a displacement
+in cells. A cell gets the mean of its points' displacements; cells not occupied carry zero flow.
 """
 
 from __future__ import annotations

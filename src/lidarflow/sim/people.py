@@ -31,8 +31,7 @@ WALK, STOP, OFF = 0, 1, 2
 
 
 #: The most people in the building at once: a crowd fills the offices long before this, and
-#: the pairwise forces between them take memory as the square of the count (100,000 people
-#: asked for 85 GiB).
+#: the pairwise forces between them take memory as the square of the count.
 MAX_PEOPLE = 500
 
 
@@ -148,21 +147,26 @@ class Crowd:
     def _spawn_point(self, sensor: np.ndarray) -> np.ndarray | None:
         """A free place the sensor cannot see, preferably close to it (behind it, or behind a
         wall or a door), so that people walk into view from where real people would."""
-        rng, world = self.rng, self.world
-        k = 12
+        rng, k = self.rng, 12
         dist = rng.uniform(1.5, 7.0, k)
-        bearing = rng.uniform(-math.pi, math.pi, k)
-        pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
-        rooms = world.room_of(pts)
-        ok = (rooms >= 0) & world.reachable[np.maximum(rooms, 0)]
-        ok &= world.clearance(pts) >= 0.45
+        pts, ok = self._open_around(sensor, dist, rng.uniform(-math.pi, math.pi, k))
         ok[ok] = self._hidden(sensor, pts[ok])
         if ok.any():
             return pts[np.argmax(ok)]
-        p = world.sample_free(rng, tries=8)
+        p = self.world.sample_free(rng, tries=8)
         if p is not None and math.dist(p, sensor[:2]) > 1.5 and self._hidden(sensor, p)[0]:
             return p
         return None
+
+    def _open_around(
+        self, sensor: np.ndarray, dist: np.ndarray, bearing: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The points at ``dist`` and world ``bearing`` from the sensor, and which of them lie in
+        a reachable room, clear of obstacles."""
+        pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
+        rooms = self.world.room_of(pts)
+        ok = (rooms >= 0) & self.world.reachable[np.maximum(rooms, 0)]
+        return pts, ok & (self.world.clearance(pts) >= 0.45)
 
     def _activate(self, i: int, p: np.ndarray, sensor: np.ndarray) -> None:
         self.pos[i] = p
@@ -185,10 +189,7 @@ class Crowd:
             k = 16
             dist = rng.uniform(*cfg.near_range, k)
             bearing = sensor[2] + rng.uniform(-0.45, 0.45, k) * min(self.fov, math.pi)
-            pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
-            rooms = world.room_of(pts)
-            ok = (rooms >= 0) & world.reachable[np.maximum(rooms, 0)]
-            ok &= world.clearance(pts) >= 0.45
+            pts, ok = self._open_around(sensor, dist, bearing)
             if ok.any():
                 return pts[np.argmax(ok)]
         return world.sample_free(rng)
@@ -261,23 +262,28 @@ class Crowd:
             self.final[i] = len(route) == 1
 
     # ------------------------------------------------------------- dynamics
-    def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
-        cfg = self.cfg
+    def _drive(self, idx: np.ndarray, relax_time: float) -> tuple[np.ndarray, np.ndarray]:
+        """The drive of people ``idx`` towards their targets at their preferred speeds (slowing
+        on the last metre before a goal) and their unit walking directions (the heading when
+        nearly still), each ``(len(idx), 2)``."""
         pos, vel = self.pos[idx], self.vel[idx]
         d = self.target[idx] - pos
         n = np.hypot(d[:, 0], d[:, 1])
-        # Walk at the preferred speed, slowing down on the last metre before a goal.
         v0 = self.speed0[idx] * np.where(self.final[idx], np.minimum(1.0, n), 1.0)
         v0 *= self.state[idx] == WALK
-        desired = d * (v0 / np.maximum(n, 1e-6))[:, None]
-        force = (desired - vel) / cfg.relax_time
+        force = (d * (v0 / np.maximum(n, 1e-6))[:, None] - vel) / relax_time
         speed = np.hypot(vel[:, 0], vel[:, 1])
         facing = np.where(
             speed[:, None] > 0.1,
             vel / np.maximum(speed, 1e-9)[:, None],
             np.column_stack([np.cos(self.heading[idx]), np.sin(self.heading[idx])]),
         )
+        return force, facing
 
+    def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
+        cfg = self.cfg
+        pos = self.pos[idx]
+        force, facing = self._drive(idx, cfg.relax_time)
         others = np.concatenate([pos, robot[None, :2]])
         radii = np.concatenate([np.full(len(pos), cfg.body_radius), [robot_radius]])
         diff = pos[:, None, :] - others[None, :, :]

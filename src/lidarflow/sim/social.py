@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lidarflow.errors import SimError
-from lidarflow.sim.people import OFF, STOP, WALK, Crowd, PeopleConfig
+from lidarflow.sim.people import OFF, STOP, Crowd, PeopleConfig
 from lidarflow.sim.world import World
 
 __all__ = ["SocialConfig", "SocialCrowd", "pair_forces", "wall_forces"]
@@ -200,17 +200,7 @@ class SocialCrowd(Crowd):
     def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
         s = self.social
         pos, vel = self.pos[idx], self.vel[idx]
-        d = self.target[idx] - pos
-        n = np.hypot(d[:, 0], d[:, 1])
-        v0 = self.speed0[idx] * np.where(self.final[idx], np.minimum(1.0, n), 1.0)
-        v0 *= self.state[idx] == WALK
-        force = (d * (v0 / np.maximum(n, 1e-6))[:, None] - vel) / s.relax_time
-        speed = np.hypot(vel[:, 0], vel[:, 1])
-        facing = np.where(
-            speed[:, None] > 0.1,
-            vel / np.maximum(speed, 1e-9)[:, None],
-            np.column_stack([np.cos(self.heading[idx]), np.sin(self.heading[idx])]),
-        )
+        force, facing = self._drive(idx, s.relax_time)
         others = np.concatenate([pos, robot[None, :2]])
         others_vel = np.concatenate([vel, np.zeros((1, 2))])
         radii = np.concatenate([np.full(len(pos), s.radius), [robot_radius]])
