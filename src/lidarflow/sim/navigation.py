@@ -37,7 +37,7 @@ from lidarflow.sim.local_planner import LocalPlanner, PlannerConfig, RobotConfig
 from lidarflow.sim.obstacles import ObstacleSource, Sensed
 from lidarflow.sim.people import PeopleConfig
 from lidarflow.sim.social import SocialCrowd
-from lidarflow.sim.world import World
+from lidarflow.sim.world import World, outline
 
 __all__ = ["NavConfig", "Outcome", "open_hall", "run_episode", "scene"]
 
@@ -84,10 +84,8 @@ class Outcome:
 def open_hall(width: float, height: float, walls: np.ndarray | None = None) -> World:
     """A single empty room ``width x height`` m (corner at the origin), with extra ``walls``
     ``(N, 4)`` segments ``(x0, y0, x1, y1)`` that the LiDAR sees and everyone avoids."""
-    outline = [[0, 0, width, 0], [width, 0, width, height], [width, height, 0, height]]
-    outline.append([0, height, 0, 0])
     extra = np.zeros((0, 4)) if walls is None else np.asarray(walls, np.float64).reshape(-1, 4)
-    segments = np.concatenate([np.array(outline, np.float64), extra])
+    segments = np.concatenate([np.array(outline(width, height), np.float64), extra])
     return World(
         segments=segments,
         circles=np.zeros((0, 3)),

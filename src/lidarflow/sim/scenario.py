@@ -1,24 +1,12 @@
 """Scenario assembly: episodes of a world, a robot and people, turned into a recording.
 
-A simulation is a run of *episodes*: each builds a new world from ``(seed, episode index)``, so
-the result is the same for a seed however it is cut into files or spread over processes. Between
-episodes the stamps jump by one second, so :func:`lidarflow.data.split_segments` never lets a
-training window cross from one world into the next, and the last frame of every episode has zero
-flow (it has no next frame).
+Each episode builds a new world from ``(seed, episode index)``, so a seed gives the same run
+however it is cut into files or spread over processes. Between episodes the stamps jump by one
+second (no training window crosses worlds); an episode's last frame has zero flow.
 
-The recording carries the ground truth in ``extras`` (design notes, section 3; flow in cells,
-channel 0 column, channel 1 row):
-
-* ``flow_backward`` float16 ``(N, 2, H, W)``: index ``t`` holds ``B^t`` (on ``O^{t+1}``'s cells),
-* ``flow_forward`` float16 ``(N, 2, H, W)``: index ``t`` holds ``F^t`` (on ``O^t``'s cells),
-* ``moving`` bool ``(N, H, W)``: cells of ``O^t`` hit on a moving object,
-* ``true_poses`` float64 ``(N, 3)``: the true sensor pose; ``Recording.poses`` is the odometry,
-* ``episode`` int32 ``(N,)``: the episode (world) of each frame.
-
-Flow is stored dense by default; ``flow_storage="sparse"`` keeps only the non-zero cells
-(:mod:`lidarflow.sim.storage`; :func:`lidarflow.sim.dense_flow` reads either). Long runs are
-written as several files of whole episodes (``write_simulation``), so no process holds more than
-one file's worth of dense flow.
+The recording's ``extras`` hold the ground-truth flow (:mod:`lidarflow.sim.storage`) and
+``moving`` bool ``(N, H, W)`` (cells of ``O^t`` hit on a moving object), ``true_poses`` float64
+``(N, 3)`` (``Recording.poses`` is the odometry) and ``episode`` int32 ``(N,)``.
 """
 
 from __future__ import annotations
@@ -41,7 +29,7 @@ from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset,
 from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
 from lidarflow.sim.platform import Platform, PlatformConfig
 from lidarflow.sim.social import SocialCrowd
-from lidarflow.sim.storage import FLOW_STORAGES, to_sparse
+from lidarflow.sim.storage import FLOW_STORAGES, fill_dense, to_sparse
 from lidarflow.sim.world import WorldConfig, build_world
 
 __all__ = ["Episode", "SimConfig", "simulate", "simulate_episode", "write_simulation"]
@@ -187,6 +175,8 @@ def _zeros(config: SimConfig, frames: int) -> tuple[np.ndarray, np.ndarray, np.n
 
 def _episode_plan(frames: int, episode_frames: int) -> list[tuple[int, int, int]]:
     """``(episode, first frame, frame count)`` of every episode of a run."""
+    if frames < 1:
+        raise SimError(f"frames must be >= 1, got {frames}")
     return [
         (e, a, min(episode_frames, frames - a))
         for e, a in enumerate(range(0, frames, episode_frames))
@@ -230,10 +220,8 @@ class _Source:
         if self.pool is None:
             return simulate_episode(self.config, self.seed, episode, frames, out)
         ep, (bw_cells, bw_values, fw_cells, fw_values) = next(self.results)
-        for dst, cells, values in ((out[0], bw_cells, bw_values), (out[1], fw_cells, fw_values)):
-            flat = dst.reshape(len(dst), 2, -1)
-            f, k = np.nonzero(cells >= 0)
-            flat[f, :, cells[f, k]] = values[f, k]
+        fill_dense(out[0], bw_cells, bw_values)
+        fill_dense(out[1], fw_cells, fw_values)
         out[2][...] = ep.moving
         return Episode(ep.ranges, ep.odom, ep.true_poses, *out)
 
@@ -278,18 +266,13 @@ def _assemble(
     def cat(name: str) -> np.ndarray:
         return np.concatenate([getattr(ep, name) for ep in episodes])
 
-    if config.flow_storage == "sparse":
-        (bw_cells, bw_values), (fw_cells, fw_values) = to_sparse(flows[0]), to_sparse(flows[1])
-        stored = {
-            "flow_backward_cells": bw_cells,
-            "flow_backward_values": bw_values,
-            "flow_forward_cells": fw_cells,
-            "flow_forward_values": fw_values,
-        }
-    else:
-        stored = {"flow_backward": flows[0], "flow_forward": flows[1]}
-    extras = {
-        **stored,
+    extras: dict[str, np.ndarray] = {}
+    for name, flow in (("flow_backward", flows[0]), ("flow_forward", flows[1])):
+        if config.flow_storage == "sparse":
+            extras[f"{name}_cells"], extras[f"{name}_values"] = to_sparse(flow)
+        else:
+            extras[name] = flow
+    extras |= {
         "moving": flows[2],
         "true_poses": cat("true_poses"),
         "episode": np.concatenate([np.full(k, e, np.int32) for e, _, k in plan]),
@@ -331,8 +314,6 @@ def simulate(
     """Simulate ``frames`` frames into one in-memory recording (with ground truth in
     ``extras``); ``progress`` is called with the number of frames finished after each episode."""
     config = config or SimConfig()
-    if frames < 1:
-        raise SimError(f"frames must be >= 1, got {frames}")
     plan = _episode_plan(frames, config.episode_frames)
     source = _Source(config, seed, plan, workers)
     try:
@@ -354,8 +335,6 @@ def write_simulation(
     that, the run is written as ``STEM-000.npz``, ``STEM-001.npz``... each holding whole
     episodes (at most ``max(chunk_frames, episode_frames)`` frames); otherwise as one file."""
     config = config or SimConfig()
-    if frames < 1:
-        raise SimError(f"frames must be >= 1, got {frames}")
     output = Path(output)
     plan = _episode_plan(frames, config.episode_frames)
     groups: list[list[tuple[int, int, int]]] = [[]]
