@@ -44,10 +44,8 @@ _ORDER = np.arange(-MAX_SHIFT, MAX_SHIFT + 1) % _SPAN
 # the blocks' first shifts, and every shift of each block with its reading order
 _CORNERS_A, _CORNERS_B = (g.ravel() for g in np.meshgrid(_STARTS, _STARTS, indexing="ij"))
 _BLOCKS = len(_CORNERS_A)
-_FINE_A = (_CORNERS_A[:, None, None] + np.arange(BLOCK)[:, None]).repeat(BLOCK, 2)
-_FINE_A = _FINE_A.reshape(_BLOCKS, -1)
-_FINE_B = (_CORNERS_B[:, None, None] + np.arange(BLOCK)[None, :]).repeat(BLOCK, 1)
-_FINE_B = _FINE_B.reshape(_BLOCKS, -1)
+_IN_A, _IN_B = (g.ravel() for g in np.meshgrid(np.arange(BLOCK), np.arange(BLOCK), indexing="ij"))
+_FINE_A, _FINE_B = _CORNERS_A[:, None] + _IN_A, _CORNERS_B[:, None] + _IN_B
 _RANK = _ORDER[_FINE_A + MAX_SHIFT] * _SPAN + _ORDER[_FINE_B + MAX_SHIFT]
 
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -83,22 +85,16 @@ def match_maps(previous: np.ndarray, current: np.ndarray) -> np.ndarray | None:
     return np.array([c * ux - s * uy, s * ux + c * uy, yaw])
 
 
+@dataclass
 class _Returns:
-    """A frame's returns, and the :class:`~lidarflow.motion.icp.Reference` they are aligned
-    to by, made the first time it is needed (a frame kept after a pose is often never
-    aligned to, and one that is is aligned to two or three times)."""
+    """A frame's returns, and their :class:`~lidarflow.motion.icp.Reference`, made the first
+    time it is needed (a frame kept after a pose is often never aligned to)."""
 
-    __slots__ = ("_reference", "points")
+    points: np.ndarray
 
-    def __init__(self, points: np.ndarray) -> None:
-        self.points = points
-        self._reference: Reference | None = None
-
-    @property
+    @cached_property
     def reference(self) -> Reference:
-        if self._reference is None:
-            self._reference = Reference(self.points)
-        return self._reference
+        return Reference(self.points)
 
 
 class ScanOdometry:

@@ -1,25 +1,15 @@
 """Closed-loop navigation episodes: a robot that plans on its obstacle maps crosses a crowd.
 
-An episode puts a differential-drive robot (:class:`~lidarflow.sim.local_planner.RobotConfig`)
-in an open hall (:func:`open_hall`) with ``walkers`` social-force people
-(:class:`~lidarflow.sim.social.SocialCrowd`, who avoid the robot as one more agent) and sends
-it to a goal ``goal_distance`` m away. Every frame, at the sensor's rate:
+A differential-drive robot in an open hall (:func:`open_hall`) with ``walkers`` social-force
+people (who avoid it as one more agent) is sent to a goal. Every frame the LiDAR scans, the
+obstacle source (:mod:`lidarflow.sim.obstacles`) makes maps ``1..K`` ahead, the
+:class:`~lidarflow.sim.local_planner.LocalPlanner` picks a command, the people step, and the
+robot drives under its acceleration limits (a move into an obstacle is refused).
 
-1. the simulated LiDAR on the robot scans walls, furniture and legs (:mod:`lidarflow.sim.lidar`)
-   and the scan is rasterized onto the grid;
-2. the obstacle source (:mod:`lidarflow.sim.obstacles`) turns it into maps ``1..K`` ahead
-   (``K`` = ``horizon_s`` of frames) and the :class:`~lidarflow.sim.local_planner.LocalPlanner`
-   picks a command;
-3. the people step (as :mod:`lidarflow.sim.scenario` steps them), then the robot drives
-   towards the command under its acceleration limits; a move into a wall or a piece of
-   furniture is refused (a bumper: it stays and stops).
-
-It ends on reaching the goal (within ``goal_tolerance``), on a **collision** (the robot's disc
-overlaps a present person's body disc, radius ``PeopleConfig.body_radius``) or after
-``max_time`` s. The scene (hall, start, goal, the people's first state) depends only on
-``(seed, walkers)``, so every source meets the same scenes; from there the people react to
-what the robot does. ``min_distance_m`` is the smallest distance between the robot's centre and
-a present person's over the episode (NaN where nobody was there).
+It ends at the goal (within ``goal_tolerance``), on a **collision** (the robot's disc overlaps a
+present person's body disc) or after ``max_time`` s. The scene depends only on
+``(seed, walkers)``, so every source meets the same scenes. ``min_distance_m`` is the smallest
+distance between the robot's centre and a present person's (NaN where nobody was there).
 """
 
 from __future__ import annotations

@@ -1,18 +1,15 @@
 """Walking people, seen by the LiDAR as two legs.
 
-Each person is a point body steered by a social-force model (Helbing & Molnár 1995, in the form
-popularised by pysocialforce; this is our own code): a drive towards the next waypoint of a route
-through the doors of the floor plan, exponential repulsion from other people (weighted towards
-those in front), from walls and furniture, and from the robot. People walk at 0.3-1.8 m/s (mean
-1.2 m/s), stop for a while and turn on the spot, pick new goals (often within a few metres of the
-sensor, so that many pass close by), and leave: they walk to a place the sensor cannot see, vanish,
-and later reappear somewhere else unseen.
+Each person is a point body steered by a social-force model (Helbing & Molnár 1995): a drive
+towards the next waypoint of a route through the doors, exponential repulsion from other people
+(mostly those in front), walls, furniture and the robot. People stop and turn on the spot, pick
+new goals (often near the sensor), and leave: they vanish where the sensor cannot see and later
+reappear elsewhere unseen.
 
-Legs: two circles of radius 0.06-0.08 m beside the body's centre line (hip half-width
-0.08-0.12 m) that swing along the walking direction with the gait phase. With the swing
-amplitude ``A = L / (2 pi)`` for a gait cycle of length ``L``, each leg's speed is
-``v (1 +/- cos(phase))``: one leg rests on the ground while the other swings forward at twice the
-body speed, as in real walking. Standing people have both legs side by side.
+Legs: two circles beside the body's centre line that swing along the walking direction with the
+gait phase; with the swing amplitude ``A = L / (2 pi)`` for a gait cycle of length ``L``, each
+leg's speed is ``v (1 +/- cos(phase))``: one leg rests while the other swings at twice the body
+speed. Standing people have both legs side by side.
 """
 
 from __future__ import annotations

@@ -1,14 +1,10 @@
 """The robot carrying the LiDAR: standing still, or driving smoothly through the floor plan.
 
-A driving robot is a unicycle (forward speed ``v``, turn rate ``w``) with acceleration limits,
-up to ~1 m/s and ~1 rad/s. It drives to random goals along routes through doors, steering towards
-the next waypoint while pushed away from walls, furniture and people; it slows down to turn and
-near people, pauses now and then, and sometimes turns on the spot. The sensor sits at the robot's
-origin, so the robot's pose is the sensor's pose ``(x, y, yaw)``.
-
-Odometry: the true pose, or (``odom_drift > 0``) the pose integrated from the true motion
-increments with a per-episode scale error and random-walk noise, so that it drifts the way wheel
-odometry does: ``odom_drift`` is roughly the relative error per metre driven.
+A driving robot is a unicycle with acceleration limits that drives to random goals through doors,
+pushed away from walls, furniture and people, slowing to turn and near people, pausing now and
+then. Its pose is the sensor's ``(x, y, yaw)``. Odometry is the true pose, or with
+``odom_drift > 0`` (roughly the relative error per metre driven) the true increments with a
+per-episode scale error and random-walk noise integrated, drifting as wheel odometry does.
 """
 
 from __future__ import annotations

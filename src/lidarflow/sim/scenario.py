@@ -30,7 +30,7 @@ from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
 from lidarflow.sim.platform import Platform, PlatformConfig
 from lidarflow.sim.social import SocialCrowd
 from lidarflow.sim.storage import FLOW_STORAGES, fill_dense, to_sparse
-from lidarflow.sim.world import WorldConfig, build_world
+from lidarflow.sim.world import World, WorldConfig, build_world
 
 __all__ = ["Episode", "SimConfig", "simulate", "simulate_episode", "write_simulation"]
 
@@ -127,41 +127,44 @@ def simulate_episode(
     total = frames + 1  # one more state, so the last frame's motion is known for `moving`
     world, poses, odom, legs = _dynamics(config, rng, total)
     geom = config.sensor.geometry()
+    true, ids = _cast(config, world, poses, legs)
+    ranges = measure(true, config.sensor, rng)
+    backward, forward, moving = out or _zeros(config, frames)
+    for a in range(0, frames, config.block_frames):
+        b = min(a + config.block_frames, frames)
+        s = slice(a, b + 1)  # the block's frames and the one after
+        moved = (backward[a:b], forward[a:b], moving[a:b])
+        ground_truth(ranges[s], ids[s], poses[s], legs[s, :, :2], geom, config.grid, out=moved)
+    backward[-1] = 0.0  # the episode's last frame has no next frame
+    forward[-1] = 0.0
+    return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
+
+
+def _cast(
+    config: SimConfig, world: World, poses: np.ndarray, legs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cast_rays` of the episode, a block of frames at a time; a robot standing still
+    casts on the walls and furniture once."""
+    geom = config.sensor.geometry()
     leg_ids = np.arange(legs.shape[1], dtype=np.int32)
     static_scene = None
     if not config.platform.moving:
         static_scene = cast_rays(poses[:1], geom, world.segments, world.circles)
-    true = np.empty((total, geom.count))
-    ids = np.empty((total, geom.count), dtype=np.int32)
-    for a in range(0, total, config.block_frames):
-        b = min(a + config.block_frames, total)
+    cid = np.concatenate([np.full(len(world.circles), STATIC_ID, np.int32), leg_ids])
+    true = np.empty((len(poses), geom.count))
+    ids = np.empty((len(poses), geom.count), dtype=np.int32)
+    for a in range(0, len(poses), config.block_frames):
+        b = min(a + config.block_frames, len(poses))
         if static_scene is None:
-            circles = np.concatenate(
-                [np.broadcast_to(world.circles, (b - a, *world.circles.shape)), legs[a:b]], 1
-            )
-            cid = np.concatenate([np.full(len(world.circles), STATIC_ID, np.int32), leg_ids])
+            walls = np.broadcast_to(world.circles, (b - a, *world.circles.shape))
+            circles = np.concatenate([walls, legs[a:b]], 1)
             true[a:b], ids[a:b] = cast_rays(poses[a:b], geom, world.segments, circles, cid)
         else:
             lr, lid = cast_rays(poses[a:b], geom, np.zeros((0, 4)), legs[a:b], leg_ids)
             closer = lr < static_scene[0]
             true[a:b] = np.where(closer, lr, static_scene[0])
             ids[a:b] = np.where(closer, lid, static_scene[1])
-    ranges = measure(true, config.sensor, rng)
-    backward, forward, moving = out or _zeros(config, frames)
-    for a in range(0, frames, config.block_frames):
-        b = min(a + config.block_frames, frames)
-        ground_truth(
-            ranges[a : b + 1],
-            ids[a : b + 1],
-            poses[a : b + 1],
-            legs[a : b + 1, :, :2],
-            geom,
-            config.grid,
-            out=(backward[a:b], forward[a:b], moving[a:b]),
-        )
-    backward[-1] = 0.0  # the episode's last frame has no next frame
-    forward[-1] = 0.0
-    return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
+    return true, ids
 
 
 def _zeros(config: SimConfig, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

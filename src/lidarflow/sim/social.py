@@ -17,13 +17,11 @@ waypoint along the unit vector ``e_i``) accelerates by
 * walls and furniture: the same exponential and body terms from the nearest obstacle
   (:attr:`lidarflow.sim.world.World.field`), strength ``A_w``, range ``B_w``;
 * groups: each member is pulled towards the centre of its group's members by ``cohesion``
-  (m/s^2) once further than ``(n - 1) / 2`` m from it. A group's first member (its leader) picks
-  the goals, stops and exits of :class:`~lidarflow.sim.people.Crowd`; the others share them and
-  appear beside the leader when it appears.
+  (m/s^2) once further than ``(n - 1) / 2`` m from it. A group's leader picks the goals, stops
+  and exits; the others share them and appear beside the leader when it appears.
 
-Speeds, stops and group sizes are :class:`SocialConfig`'s (how they compare with the
-recordings' people: ``docs/research/walkers``); stop durations are log-normal. Same generator
-state, same walk.
+Speeds, stops (log-normal durations) and group sizes are :class:`SocialConfig`'s
+(``docs/research/walkers``).
 """
 
 from __future__ import annotations
