@@ -11,7 +11,7 @@ furniture), ``k >= 0`` for dynamic circle ``k`` (a person's leg), ``NO_HIT`` (-2
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -38,11 +38,9 @@ class LidarConfig:
     """A 2-D LiDAR. The defaults are the paper's SICK TIM561-2050101: 15 Hz, 270°, 0.33°, 10 m.
 
     ``noise_std`` is the Gaussian range noise (m); ``dropout_prob`` the chance that a beam reports
-    nothing (written ``NaN`` or ``0`` per ``dropout_value``: ``"nan"``, ``"zero"`` or ``"mixed"``);
-    returns beyond ``range_max`` are written ``+inf`` (no return). ``mixed_pixel_prob`` is the
-    chance that a beam at a depth edge (a jump of more than ``mixed_pixel_jump`` m to its
-    neighbour) reports a range in between, as real sensors do where the spot covers both
-    surfaces.
+    nothing (written ``NaN`` or ``0`` per ``dropout_value``: ``"nan"``, ``"zero"`` or ``"mixed"``).
+    ``mixed_pixel_prob`` is the chance that a beam at a depth edge (a jump of more than
+    ``mixed_pixel_jump`` m to its neighbour) reports a range in between.
     """
 
     name: str = "tim561"
@@ -87,9 +85,6 @@ class LidarConfig:
         return BeamGeometry(
             self.beams, -fov / 2, fov / (self.beams - 1), self.range_min, self.range_max
         )
-
-    def to_dict(self) -> dict[str, object]:
-        return asdict(self)
 
 
 PRESETS: dict[str, LidarConfig] = {

@@ -55,13 +55,8 @@ class PlatformConfig:
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose ``a`` followed by the relative pose ``b`` (both ``(x, y, yaw)``)."""
     c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array(
-        [
-            a[0] + c * b[0] - s * b[1],
-            a[1] + s * b[0] + c * b[1],
-            math.remainder(a[2] + b[2], 2 * math.pi),
-        ]
-    )
+    yaw = math.remainder(a[2] + b[2], 2 * math.pi)
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], yaw])
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -96,20 +91,16 @@ class Platform:
                 break
         if start is None:
             raise SimError("no free spot for the robot in this world; use another seed")
-        yaw = (
-            _open_heading(world, start) + rng.normal(0, 0.3)
-            if rng.random() < 0.7
-            else (rng.uniform(-math.pi, math.pi))
-        )
+        if rng.random() < 0.7:
+            yaw = _open_heading(world, start) + rng.normal(0, 0.3)
+        else:
+            yaw = rng.uniform(-math.pi, math.pi)
         self.pose = np.array([start[0], start[1], math.remainder(yaw, 2 * math.pi)])
         self.odom = self.pose.copy()
-        self.v = 0.0
-        self.w = 0.0
+        self.v = self.w = 0.0
         self.direction = np.array([math.cos(yaw), math.sin(yaw)])
         self.route: list[np.ndarray] = []
-        self.cruise = 0.0
-        self.pause = 0.0
-        self.pause_turn = 0.0
+        self.cruise = self.pause = self.pause_turn = 0.0
         self.check_pos = self.pose[:2].copy()
         self.check_timer = 0.0
         # Odometry errors come from their own generator, so the true motion is the same with
@@ -178,9 +169,8 @@ class Platform:
             close = dist < 1.2
             if close.any():
                 push = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
-                direction = direction + (
-                    0.5 * np.exp((0.7 - dist[close]) / 0.3)[:, None] * push
-                ).sum(0)
+                weight = 0.5 * np.exp((0.7 - dist[close]) / 0.3)
+                direction = direction + (weight[:, None] * push).sum(0)
         # Low-pass the steering direction: a driver does not twitch at every push.
         self.direction = 0.75 * self.direction + 0.25 * direction
         err = math.remainder(math.atan2(self.direction[1], self.direction[0]) - yaw, 2 * math.pi)
@@ -201,15 +191,10 @@ class Platform:
         v_cmd, w_cmd = self._command(dt, people)
         self.v += _clamp(v_cmd - self.v, -cfg.accel * dt, cfg.accel * dt)
         self.w += _clamp(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt)
-        yaw = self.pose[2]
-        mid = yaw + self.w * dt / 2
-        new = np.array(
-            [
-                self.pose[0] + self.v * dt * math.cos(mid),
-                self.pose[1] + self.v * dt * math.sin(mid),
-                math.remainder(yaw + self.w * dt, 2 * math.pi),
-            ]
-        )
+        x, y, yaw = self.pose
+        mid, step = yaw + self.w * dt / 2, self.v * dt
+        turned = math.remainder(yaw + self.w * dt, 2 * math.pi)
+        new = np.array([x + step * math.cos(mid), y + step * math.sin(mid), turned])
         field = self.world.field
         clear_new = field.at(new[0], new[1])[0]
         if clear_new < cfg.radius and clear_new < field.at(self.pose[0], self.pose[1])[0]:
@@ -218,14 +203,10 @@ class Platform:
         if cfg.odom_drift > 0:
             inc = relative(self.pose, new)
             dist = math.hypot(inc[0], inc[1])
-            noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * np.array(
-                [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist]
-            )
-            measured = (
-                np.array([inc[0] * self.scale[0], inc[1] * self.scale[0], inc[2] * self.scale[1]])
-                + noise
-            )
-            self.odom = compose(self.odom, measured)
+            spread = np.array([dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist])
+            noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * spread
+            # one scale error for the distance driven, one for the turn
+            self.odom = compose(self.odom, inc * self.scale[[0, 0, 1]] + noise)
         else:
             self.odom = new.copy()
         self.pose = new
