@@ -111,20 +111,14 @@ class Crowd:
         self.speed0 = np.clip(rng.normal(config.speed_mean, config.speed_std, n), lo, hi)
         self.leg_r = rng.uniform(*config.leg_radius, n)
         self.hip = rng.uniform(*config.hip_half_width, n)
-        self.pos = np.zeros((n, 2))
-        self.vel = np.zeros((n, 2))
         self.heading = rng.uniform(-math.pi, math.pi, n)
         self.phase = rng.uniform(0, 2 * math.pi, n)
         self.state = np.full(n, OFF)
-        self.timer = np.zeros(n)
-        self.turn = np.zeros(n)
-        self.leaving = np.zeros(n, dtype=bool)
         self.routes: list[list[np.ndarray]] = [[] for _ in range(n)]
-        self._speed = np.zeros(n)
-        self.target = np.zeros((n, 2))
-        self.final = np.zeros(n, dtype=bool)
-        self.check_pos = np.zeros((n, 2))
-        self.check_timer = np.zeros(n)
+        # per person: positions and velocities (m, m/s), then times (s), speeds, turn rates
+        self.pos, self.vel, self.target, self.check_pos = (np.zeros((n, 2)) for _ in range(4))
+        self.timer, self.check_timer, self._speed, self.turn = (np.zeros(n) for _ in range(4))
+        self.leaving, self.final = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         for i in range(n):
             if rng.random() < 0.75:
                 p = world.sample_free(rng)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
+from contextlib import closing
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -60,14 +61,10 @@ class SimConfig:
     walkers: str = "legacy"
 
     def __post_init__(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise SimError(f"scenario must be one of {SCENARIOS}, got {self.scenario!r}")
-        if self.walkers not in WALKERS:
-            raise SimError(f"walkers must be one of {WALKERS}, got {self.walkers!r}")
-        if self.flow_storage not in FLOW_STORAGES:
-            raise SimError(
-                f"flow_storage must be one of {FLOW_STORAGES}, got {self.flow_storage!r}"
-            )
+        choices = {"scenario": SCENARIOS, "walkers": WALKERS, "flow_storage": FLOW_STORAGES}
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise SimError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.episode_frames < 2 or self.block_frames < 1:
             raise SimError("episode_frames must be >= 2 and block_frames >= 1")
         if self.platform.moving != (self.scenario == "dynamic"):
@@ -234,30 +231,21 @@ class _Source:
             self.pool.join()
 
 
-def _group(
+def _recording(
     config: SimConfig,
     seed: int,
-    group: list[tuple[int, int, int]],
+    plan: list[tuple[int, int, int]],
     source: _Source,
     progress: Callable[[int], object] | None,
 ) -> Recording:
-    flows = _zeros(config, sum(k for _, _, k in group))
+    """The episodes of ``plan`` from ``source`` as one recording (module docstring)."""
+    flows = _zeros(config, sum(k for _, _, k in plan))
     episodes, at = [], 0
-    for e, _, k in group:
+    for e, _, k in plan:
         episodes.append(source.next(e, k, tuple(f[at : at + k] for f in flows)))
         at += k
         if progress:
             progress(k)
-    return _assemble(config, seed, group, episodes, flows)
-
-
-def _assemble(
-    config: SimConfig,
-    seed: int,
-    plan: list[tuple[int, int, int]],
-    episodes: list[Episode],
-    flows: tuple[np.ndarray, np.ndarray, np.ndarray],
-) -> Recording:
     geom = config.sensor.geometry()
     n = sum(p[2] for p in plan)
     period = round(1e9 / config.sensor.rate_hz)
@@ -318,11 +306,8 @@ def simulate(
     ``extras``); ``progress`` is called with the number of frames finished after each episode."""
     config = config or SimConfig()
     plan = _episode_plan(frames, config.episode_frames)
-    source = _Source(config, seed, plan, workers)
-    try:
-        return _group(config, seed, plan, source, progress)
-    finally:
-        source.close()
+    with closing(_Source(config, seed, plan, workers)) as source:
+        return _recording(config, seed, plan, source, progress)
 
 
 def write_simulation(
@@ -347,20 +332,14 @@ def write_simulation(
             groups.append([])
         groups[-1].append(item)
     stem = output.name[:-4] if output.name.endswith(".npz") else output.name
-    paths = (
-        [output.with_name(f"{stem}-{i:03d}.npz") for i in range(len(groups))]
-        if len(groups) > 1
-        else [output]
-    )
-    source = _Source(config, seed, plan, workers)
+    paths = [output]
+    if len(groups) > 1:
+        paths = [output.with_name(f"{stem}-{i:03d}.npz") for i in range(len(groups))]
     # every file appears at the end, or none: a run stopped midway leaves no chunk behind
-    with atomic_paths(paths) as temps:
-        try:
-            for i, (group, tmp) in enumerate(zip(groups, temps, strict=True)):
-                recording = _group(config, seed, group, source, progress)
-                if len(groups) > 1:
-                    recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
-                recording.save(tmp)
-        finally:
-            source.close()
+    with closing(_Source(config, seed, plan, workers)) as source, atomic_paths(paths) as temps:
+        for i, (group, tmp) in enumerate(zip(groups, temps, strict=True)):
+            recording = _recording(config, seed, group, source, progress)
+            if len(groups) > 1:
+                recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
+            recording.save(tmp)
     return paths
