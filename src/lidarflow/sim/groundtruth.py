@@ -90,7 +90,6 @@ def ground_truth(
     objects: np.ndarray,
     geometry: BeamGeometry,
     grid: GridSpec,
-    has_next: np.ndarray | None = None,
     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ground truth for frames ``0..n-1`` of a block of ``n + 1`` consecutive frames.
@@ -101,8 +100,6 @@ def ground_truth(
         poses: ``(n + 1, 3)`` true sensor poses ``(x, y, yaw)``, world frame.
         objects: ``(n + 1, L, 2)`` world positions of the dynamic objects (NaN when absent).
         geometry, grid: the beams and the map grid.
-        has_next: ``(n,)`` False where frame ``t + 1`` is not the continuation of frame ``t``
-            (a new episode): flow is zero there. Default: all True.
         out: optional zero-filled ``(backward, forward, moving)`` arrays to fill in place (any
             float dtype for the flows, float16 in recordings); only occupied cells are written.
 
@@ -121,9 +118,6 @@ def ground_truth(
             np.zeros((n, grid.height, grid.width), bool),
         )
     backward, forward, moving = out
-    if has_next is None:
-        has_next = np.ones(n, dtype=bool)
-    keep = np.asarray(has_next, dtype=bool)
     # Every return of the n + 1 scans, once: sensor frame, world frame, object hit.
     f, b, px, py, cell = _points(ranges, geometry, grid)
     c, s = np.cos(poses[:, 2])[f], np.sin(poses[:, 2])[f]
@@ -135,7 +129,7 @@ def ground_truth(
     dynamic = obj > STATIC_ID
 
     # Forward: points of scan t < n, moved t -> t + 1, seen from t + 1.
-    sel = (f < n) & keep[np.minimum(f, n - 1)]
+    sel = f < n
     step = np.zeros((int(sel.sum()), 2))
     dyn = dynamic[sel]
     step[dyn] = motion[f[sel][dyn], obj[sel][dyn]]
@@ -145,7 +139,7 @@ def ground_truth(
     moving[f[sel][on], *np.divmod(cell[sel][on], grid.width)] = True
 
     # Backward: points of scan t + 1, moved back t + 1 -> t, seen from t; stored at index t.
-    sel = (f > 0) & keep[np.maximum(f - 1, 0)]
+    sel = f > 0
     step = np.zeros((int(sel.sum()), 2))
     dyn = dynamic[sel]
     step[dyn] = -motion[f[sel][dyn] - 1, obj[sel][dyn]]

@@ -26,6 +26,7 @@ from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset,
 from lidarflow.sim.local_planner import LocalPlanner, PlannerConfig, RobotConfig
 from lidarflow.sim.obstacles import ObstacleSource, Sensed
 from lidarflow.sim.people import PeopleConfig
+from lidarflow.sim.platform import drive
 from lidarflow.sim.social import SocialCrowd
 from lidarflow.sim.world import World, outline
 
@@ -154,24 +155,6 @@ def _sense(
     return scan, occupancy, visibility, rasterize(walls, config.grid)[0]
 
 
-def _drive(
-    world: World, pose: np.ndarray, vw: np.ndarray, target: tuple[float, float],
-    robot: RobotConfig, dt: float,
-) -> np.ndarray:  # fmt: skip
-    """The pose after ``dt`` s, ``vw`` (now ``(v, w)``, updated in place) moved towards
-    ``target`` under the limits; a move into an obstacle is refused and stops the robot."""
-    vw[0] += np.clip(target[0] - vw[0], -robot.accel * dt, robot.accel * dt)
-    vw[1] += np.clip(target[1] - vw[1], -robot.turn_accel * dt, robot.turn_accel * dt)
-    mid = pose[2] + vw[1] * dt / 2
-    new = pose + np.array([vw[0] * dt * math.cos(mid), vw[0] * dt * math.sin(mid), vw[1] * dt])
-    new[2] = math.remainder(new[2], 2 * math.pi)
-    clear_new, clear_now = world.clearance(np.stack([new[:2], pose[:2]]))
-    if clear_new < robot.radius and clear_new < clear_now:
-        new[:2] = pose[:2]
-        vw[0] = 0.0
-    return new
-
-
 def run_episode(
     source: ObstacleSource,
     seed: int,
@@ -206,7 +189,7 @@ def run_episode(
             source.maps(sensed), np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]]), *vw
         )
         crowd.step(dt, pose, config.robot.radius)
-        pose = _drive(world, pose, vw, target, config.robot, dt)
+        pose = drive(world, pose, vw, target, config.robot, dt)
         path.append(pose.copy())
         people = crowd.pos[crowd.walking()]
         if len(people):

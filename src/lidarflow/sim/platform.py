@@ -17,9 +17,10 @@ import numpy as np
 from lidarflow.errors import SimError
 from lidarflow.scan import BeamGeometry
 from lidarflow.sim.lidar import cast_rays
+from lidarflow.sim.local_planner import RobotConfig
 from lidarflow.sim.world import World
 
-__all__ = ["Platform", "PlatformConfig", "compose", "relative"]
+__all__ = ["Platform", "PlatformConfig", "compose", "drive", "relative"]
 
 
 #: The most odometry error per metre driven: at 1 the poses are off by as much as the robot
@@ -66,6 +67,31 @@ def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], 2 * math.pi)])
 
 
+def drive(
+    world: World,
+    pose: np.ndarray,
+    vw: np.ndarray,
+    target: tuple[float, float],
+    limits: PlatformConfig | RobotConfig,
+    dt: float,
+) -> np.ndarray:
+    """The pose ``(x, y, yaw)`` after ``dt`` s of a unicycle (midpoint rule) whose speeds ``vw``
+    ``(v, w)`` (updated in place) move towards ``target`` under ``limits``' accelerations. A
+    move that takes the disc of ``limits.radius`` closer into an obstacle is refused: it turns
+    on the spot and stops (a bumper)."""
+    vw[0] += np.clip(target[0] - vw[0], -limits.accel * dt, limits.accel * dt)
+    vw[1] += np.clip(target[1] - vw[1], -limits.turn_accel * dt, limits.turn_accel * dt)
+    x, y, yaw = pose
+    mid, step = yaw + vw[1] * dt / 2, vw[0] * dt
+    turned = math.remainder(yaw + vw[1] * dt, 2 * math.pi)
+    new = np.array([x + step * math.cos(mid), y + step * math.sin(mid), turned])
+    clear_new, clear_now = world.clearance(np.stack([new[:2], pose[:2]]))
+    if clear_new < limits.radius and clear_new < clear_now:
+        new[:2] = pose[:2]
+        vw[0] = 0.0
+    return new
+
+
 def _clamp(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else hi if x > hi else x
 
@@ -97,7 +123,7 @@ class Platform:
             yaw = rng.uniform(-math.pi, math.pi)
         self.pose = np.array([start[0], start[1], math.remainder(yaw, 2 * math.pi)])
         self.odom = self.pose.copy()
-        self.v = self.w = 0.0
+        self.vw = np.zeros(2)  # forward speed (m/s), turn rate (rad/s)
         self.direction = np.array([math.cos(yaw), math.sin(yaw)])
         self.route: list[np.ndarray] = []
         self.cruise = self.pause = self.pause_turn = 0.0
@@ -188,18 +214,7 @@ class Platform:
         if not self.cfg.moving:
             return
         cfg = self.cfg
-        v_cmd, w_cmd = self._command(dt, people)
-        self.v += _clamp(v_cmd - self.v, -cfg.accel * dt, cfg.accel * dt)
-        self.w += _clamp(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt)
-        x, y, yaw = self.pose
-        mid, step = yaw + self.w * dt / 2, self.v * dt
-        turned = math.remainder(yaw + self.w * dt, 2 * math.pi)
-        new = np.array([x + step * math.cos(mid), y + step * math.sin(mid), turned])
-        field = self.world.field
-        clear_new = field.at(new[0], new[1])[0]
-        if clear_new < cfg.radius and clear_new < field.at(self.pose[0], self.pose[1])[0]:
-            new[:2] = self.pose[:2]  # bumper: turn on the spot instead of hitting anything
-            self.v = 0.0
+        new = drive(self.world, self.pose, self.vw, self._command(dt, people), cfg, dt)
         if cfg.odom_drift > 0:
             inc = relative(self.pose, new)
             dist = math.hypot(inc[0], inc[1])
