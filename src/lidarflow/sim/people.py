@@ -284,11 +284,8 @@ class Crowd:
         # Anisotropy: people react mostly to what is in front of them.
         cos_phi = -(n_ij * facing[:, None, :]).sum(-1)
         weight = 0.35 + 0.65 * (1 + cos_phi) / 2
-        mag = (
-            cfg.people_strength
-            * np.exp((cfg.body_radius + radii[None, :] - dist) / cfg.people_range)
-            * weight
-        )
+        overlap = (cfg.body_radius + radii[None, :] - dist) / cfg.people_range
+        mag = cfg.people_strength * np.exp(overlap) * weight
         force += (mag[..., None] * n_ij).sum(1)
 
         # Walls and furniture: the nearest one, from the world's distance table.

@@ -244,6 +244,38 @@ def _shared_edge(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray] 
     return None
 
 
+def _gap(
+    rng: np.random.Generator, cfg: WorldConfig, length: float, door: float, corridor: bool
+) -> tuple[float, float]:
+    """Where a passage opens along a shared wall of ``length`` m, from its start: no wall at
+    all (not beside corridors), a wide opening, or a door ``door`` m wide."""
+    roll = rng.random()
+    if roll < cfg.no_wall_prob and not corridor:
+        return 0.0, length
+    if roll < cfg.no_wall_prob + cfg.wide_opening_prob and length > 3.0:
+        door = rng.uniform(2.0, min(4.0, length - 0.6))
+    start = rng.uniform(0.3, length - 0.3 - door)
+    return start, start + door
+
+
+def _door_leaf(
+    rng: np.random.Generator,
+    p: np.ndarray,
+    along: np.ndarray,
+    normal: np.ndarray,
+    gap: tuple[float, float],
+) -> list[float]:
+    """An open door leaf in the ``gap`` of the wall from ``p`` along ``along``: hinged at one
+    jamb, swung 75-100 degrees into one of the rooms."""
+    hinge_at_start = rng.random() < 0.5
+    hinge = p + along * (gap[0] if hinge_at_start else gap[1])
+    towards = along if hinge_at_start else -along
+    side = normal if rng.random() < 0.5 else -normal
+    ang = math.radians(rng.uniform(75, 100))
+    leaf = (math.cos(ang) * towards + math.sin(ang) * side) * (gap[1] - gap[0] - 0.05)
+    return [*hinge, *(hinge + leaf)]
+
+
 def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> World:
     """Build a random floor plan with furniture (deterministic for the generator's state)."""
     cfg = config or WorldConfig()
@@ -288,16 +320,7 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
         centre_i = (rooms[i, :2] + rooms[i, 2:]) / 2
         if normal @ (p - centre_i) < 0:
             normal = -normal  # from room i towards room j
-        roll = rng.random()
-        if roll < cfg.no_wall_prob and not corr:
-            gap = (0.0, length)
-        elif roll < cfg.no_wall_prob + cfg.wide_opening_prob and length > 3.0:
-            w = rng.uniform(2.0, min(4.0, length - 0.6))
-            s = rng.uniform(0.3, length - 0.3 - w)
-            gap = (s, s + w)
-        else:
-            s = rng.uniform(0.3, length - 0.3 - dw)
-            gap = (s, s + dw)
+        gap = _gap(rng, cfg, length, dw, corr)
         if gap[0] > 1e-6:
             segments.append([*p, *(p + along * gap[0])])
         if gap[1] < length - 1e-6:
@@ -305,14 +328,7 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
         (cx, cy), (nx, ny) = (p + along * (gap[0] + gap[1]) / 2).tolist(), normal.tolist()
         doors.append(Door(int(i), int(j), (cx, cy), (nx, ny), gap[1] - gap[0]))
         if gap[1] - gap[0] < 1.5 and rng.random() < cfg.door_leaf_prob:
-            # An open door leaf, hinged at one jamb, swung 75-100 degrees into one room.
-            hinge_at_start = rng.random() < 0.5
-            hinge = p + along * (gap[0] if hinge_at_start else gap[1])
-            towards = along if hinge_at_start else -along
-            side = normal if rng.random() < 0.5 else -normal
-            ang = math.radians(rng.uniform(75, 100))
-            leaf = (math.cos(ang) * towards + math.sin(ang) * side) * (gap[1] - gap[0] - 0.05)
-            segments.append([*hinge, *(hinge + leaf)])
+            segments.append(_door_leaf(rng, p, along, normal, gap))
 
     # The largest group of rooms joined by passages is where people and the robot go.
     roots = [find(i) for i in range(len(rooms))]
