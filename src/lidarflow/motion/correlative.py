@@ -39,7 +39,7 @@ _PAD = MAX_SHIFT + 1  # the shifts searched, and one more each way for the peak'
 # each candidate turn as a motion (0, 0, yaw), one row per turn, for the cells in the last axis
 _TURNS = np.stack([np.zeros_like(YAWS), np.zeros_like(YAWS), YAWS], axis=1)[:, None, :]
 _STARTS = np.arange(-MAX_SHIFT, MAX_SHIFT + 1, BLOCK)  # each block's first shift, a side
-# position of each shift in the FFT search's reading order (0 ... MAX_SHIFT, then -MAX_SHIFT ...)
+# position of each shift in the reading order of ties (0 ... MAX_SHIFT, then -MAX_SHIFT ...)
 _ORDER = np.arange(-MAX_SHIFT, MAX_SHIFT + 1) % _SPAN
 # the blocks' first shifts, and every shift of each block with its reading order
 _CORNERS_A, _CORNERS_B = (g.ravel() for g in np.meshgrid(_STARTS, _STARTS, indexing="ij"))
@@ -91,7 +91,7 @@ class _Placements:
         inside = (rows_k >= 0) & (rows_k < h) & (cols_k >= 0) & (cols_k < w)
         flat = (rows_k + _PAD) * self.width + cols_k + _PAD
         size = grid.size
-        # each turned cell once per turn, as on the raster the FFT search correlated
+        # each turned cell once per turn (a raster of the turned map)
         key = np.sort((np.arange(len(YAWS))[:, None] * size + flat)[inside])
         key = key[np.r_[True, key[1:] != key[:-1]]]
         turn, flat = np.divmod(key, size)
