@@ -3,16 +3,13 @@
 A placement is a candidate turn (:data:`YAWS`) and an index shift ``(a, b)`` (up to
 :data:`MAX_SHIFT` cells each way); its score is how many of the previous map's occupied cells,
 turned about the sensor into the current frame (each cell once) and shifted, land on an occupied
-cell of the current map. The best of the 17 x 25 x 25 placements is wanted.
+cell of the current map.
 
-Branch and bound (Olson 2009, "Real-time correlative scan matching", section IV) finds the same
-best placement while scoring few: the shifts are cut into blocks of :data:`BLOCK` x
-:data:`BLOCK`, and a block is first scored against the current map dilated over the block (each
-cell the largest of the ``BLOCK x BLOCK`` cells the block's shifts reach from it), which bounds
-every shift inside from above. Only the blocks whose bound reaches the best score found so far
-are scored shift by shift: first the :data:`FIRST_BLOCKS` best-bounded, then every other block
-that can still reach their best. Scores are whole counts; ties go to the first placement in the
-order turn, row shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SHIFT ... -1``).
+Branch and bound (Olson 2009, section IV): blocks of :data:`BLOCK` x :data:`BLOCK` shifts are
+first scored against the current map dilated over the block, an upper bound of every shift
+inside; only blocks whose bound reaches the best score so far are scored shift by shift (the
+:data:`FIRST_BLOCKS` best-bounded first). Ties go to the first placement in the order turn, row
+shift, column shift (shifts ``0 ... MAX_SHIFT`` before ``-MAX_SHIFT ... -1``).
 
 Units: maps ``(H, W)`` bool; shifts in index cells; turns in radians (positive turns the world
 counter-clockwise in the sensor frame of :mod:`lidarflow.geometry`).
@@ -42,15 +39,13 @@ _PAD = MAX_SHIFT + 1  # the shifts searched, and one more each way for the peak'
 # each candidate turn as a motion (0, 0, yaw), one row per turn, for the cells in the last axis
 _TURNS = np.stack([np.zeros_like(YAWS), np.zeros_like(YAWS), YAWS], axis=1)[:, None, :]
 _STARTS = np.arange(-MAX_SHIFT, MAX_SHIFT + 1, BLOCK)  # each block's first shift, a side
-# position of each shift in the FFT search's reading order (0 ... MAX_SHIFT, then -MAX_SHIFT ...)
+# position of each shift in the reading order of ties (0 ... MAX_SHIFT, then -MAX_SHIFT ...)
 _ORDER = np.arange(-MAX_SHIFT, MAX_SHIFT + 1) % _SPAN
 # the blocks' first shifts, and every shift of each block with its reading order
 _CORNERS_A, _CORNERS_B = (g.ravel() for g in np.meshgrid(_STARTS, _STARTS, indexing="ij"))
 _BLOCKS = len(_CORNERS_A)
-_FINE_A = (_CORNERS_A[:, None, None] + np.arange(BLOCK)[:, None]).repeat(BLOCK, 2)
-_FINE_A = _FINE_A.reshape(_BLOCKS, -1)
-_FINE_B = (_CORNERS_B[:, None, None] + np.arange(BLOCK)[None, :]).repeat(BLOCK, 1)
-_FINE_B = _FINE_B.reshape(_BLOCKS, -1)
+_IN_A, _IN_B = (g.ravel() for g in np.meshgrid(np.arange(BLOCK), np.arange(BLOCK), indexing="ij"))
+_FINE_A, _FINE_B = _CORNERS_A[:, None] + _IN_A, _CORNERS_B[:, None] + _IN_B
 _RANK = _ORDER[_FINE_A + MAX_SHIFT] * _SPAN + _ORDER[_FINE_B + MAX_SHIFT]
 
 
@@ -96,7 +91,7 @@ class _Placements:
         inside = (rows_k >= 0) & (rows_k < h) & (cols_k >= 0) & (cols_k < w)
         flat = (rows_k + _PAD) * self.width + cols_k + _PAD
         size = grid.size
-        # each turned cell once per turn, as on the raster the FFT search correlated
+        # each turned cell once per turn (a raster of the turned map)
         key = np.sort((np.arange(len(YAWS))[:, None] * size + flat)[inside])
         key = key[np.r_[True, key[1:] != key[:-1]]]
         turn, flat = np.divmod(key, size)

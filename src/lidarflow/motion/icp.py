@@ -1,24 +1,15 @@
 """The sensor's motion between two scans to a fraction of a cell: point-to-line ICP on returns.
 
-Why beside :mod:`lidarflow.motion.scanmatch`'s map matching: a motion shows in the rasterized
-maps only once it moves cells, while the scans' own returns resolve millimetres (accuracy:
-``docs/research/scan_odometry/``).
+The maps show a motion only once it moves cells; the returns resolve millimetres
+(``docs/research/scan_odometry/``). Method (Censi's PL-ICP, simplified): the current returns,
+moved by the motion so far, are paired with the nearest previous return around the same bearing,
+and the motion is corrected by one damped Gauss-Newton step on their distances along the
+previous scan's surface normal. Pairs farther apart than a shrinking gate are left out (people
+walking by, unseen parts); the damping keeps what the scene cannot tell at the guess. The
+previous scan is made ready once (:class:`Reference`; ``docs/research/scan_speed/``).
 
-Method (Censi's PL-ICP, simplified): the current scan's returns, moved by the motion guessed so
-far, are paired with the nearest of the previous scan's returns around the same bearing (the
-returns are ordered by bearing, so a pair costs a binary search and a few distances), and the
-motion is corrected by one damped Gauss-Newton step on their distances along the previous
-scan's surface normal. Pairs farther apart than a shrinking distance are left out, which keeps
-people walking by and the unseen parts of the scene out of the fit; the damping keeps what the
-scene cannot tell (the motion along a bare corridor) at the guess.
-
-Cost: numpy's overhead per call, not arithmetic, sets the time, so the previous scan is made
-ready once (:class:`Reference`, reused by a stream for the next frame, the stillness test and the
-far end of its window) (``docs/research/scan_speed/``).
-
-Motion convention: :mod:`lidarflow.motion.odometry`'s, ``(dx, dy, dyaw)`` in metres and radians,
-the current sensor pose in the previous one's frame: a current return ``p`` lies at ``R p + d``
-in the previous frame.
+Motion convention: ``(dx, dy, dyaw)`` in metres and radians, the current sensor pose in the
+previous one's frame: a current return ``p`` lies at ``R p + d`` in the previous frame.
 """
 
 from __future__ import annotations
@@ -114,14 +105,11 @@ def _rotation(yaw: float) -> np.ndarray:
 
 class Reference:
     """A scan's returns ready to be paired with (the previous scan of an alignment): ordered
-    by bearing, with their surface normals and each one's window of bearing neighbours. Built
-    once per scan: a stream aligns to the same scan several times (the next frame, the
-    stillness test, the window's far end), and building it was a third of an alignment."""
+    by bearing, with their surface normals and each one's window of bearing neighbours; built
+    once, as a stream aligns to the same scan several times."""
 
     def __init__(self, points: np.ndarray) -> None:
-        points = np.asarray(points, np.float64)
-        if points.ndim != 2 or points.shape[-1] != 2:
-            raise ValueError(f"points must be (N, 2), got {points.shape}")
+        points = _checked(points)
         bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         order = np.argsort(bearings, kind="stable")  # scan_points' order, whatever was given
         self.points, self.bearings = points[order], bearings[order]
@@ -167,11 +155,16 @@ class Reference:
         return ((moved - self.points[best]) * self.normal[best]).sum(axis=1)
 
 
+def _checked(points: np.ndarray) -> np.ndarray:
+    points = np.asarray(points, np.float64)
+    if points.ndim != 2 or points.shape[-1] != 2:
+        raise ValueError(f"points must be (N, 2), got {points.shape}")
+    return points
+
+
 def _source(current: np.ndarray) -> np.ndarray:
     """``current``'s returns, checked, evenly thinned to :data:`MAX_POINTS` at most."""
-    current = np.asarray(current, np.float64)
-    if current.ndim != 2 or current.shape[-1] != 2:
-        raise ValueError(f"points must be (N, 2), got {current.shape}")
+    current = _checked(current)
     return current[:: int(np.ceil(len(current) / MAX_POINTS)) or 1]
 
 
@@ -183,9 +176,8 @@ def align(
     current: np.ndarray, previous: np.ndarray | Reference, initial: np.ndarray | None = None
 ) -> Alignment | None:
     """The motion that lays ``current``'s returns onto ``previous``'s (both from
-    :func:`scan_points`; ``previous`` also as a :class:`Reference` made once), starting from
-    ``initial`` (``(dx, dy, dyaw)``, default none), or ``None`` where too few returns pair up
-    (:data:`MIN_INLIERS`)."""
+    :func:`scan_points`, ``previous`` also as a :class:`Reference`), starting from ``initial``
+    (default none), or ``None`` where too few returns pair up (:data:`MIN_INLIERS`)."""
     source, target = _source(current), _reference(previous)
     if len(source) < _MIN_PAIRS or len(target) < 3:
         return None
@@ -237,8 +229,8 @@ def fit(
     current: np.ndarray, previous: np.ndarray | Reference, motion: np.ndarray
 ) -> tuple[float, float]:
     """How well ``motion`` lays ``current``'s returns onto ``previous``'s (as for
-    :func:`align`), without fitting: the share of the returns paired within the last gate and
-    their RMS distance (metres) from the surface (``(0, inf)`` where none pair)."""
+    :func:`align`), without fitting: :class:`Alignment`'s ``(inliers, rms)``, ``(0, inf)``
+    where none pair."""
     source, target = _source(current), _reference(previous)
     if len(source) == 0 or len(target) < 3:
         return 0.0, float("inf")

@@ -1,16 +1,11 @@
 """The sensor's own motion between consecutive frames, from a recording's poses.
 
-``Recording.poses`` is ``(N, 3)`` ``(x, y, yaw)`` in a fixed frame (odometry), NaN where unknown.
-The ego motion of frame ``t`` is the pose of frame ``t`` in the frame of ``t - 1``
-(``relative(poses[t-1], poses[t])``: ``dx`` forward, ``dy`` left in metres, ``dyaw`` radians),
-the convention of :mod:`lidarflow.ops.rigid`. Frame 0, and every frame whose own pose or whose
-predecessor's pose is unknown, gets the identity motion and ``known = False``: a model then
-simply does not compensate that step (what it does without odometry).
-
-Poses are taken to be the sensor's (a bag's odometry is moved to the scanner by its TF where the
-bag has it, :mod:`lidarflow.data.tf`). Where it has not, they are the base's, and with a scanner
-mounted off the base's centre, or turned on it, compensating by them can be worse than not
-compensating at all: :class:`OdometryCheck` tells, from the scans alone, whether they agree.
+``Recording.poses`` is ``(N, 3)`` ``(x, y, yaw)`` in a fixed frame, NaN where unknown. The ego
+motion of frame ``t`` is its pose in the frame of ``t - 1`` (``dx`` forward, ``dy`` left in
+metres, ``dyaw`` radians; :mod:`lidarflow.ops.rigid`'s convention); where either pose is unknown
+it is the identity and not ``known``. Poses taken from the base rather than the scanner can make
+compensating worse than none: :class:`OdometryCheck` tells, from the scans alone, whether they
+agree.
 """
 
 from __future__ import annotations
@@ -30,9 +25,8 @@ __all__ = [
     "relative_motions",
 ]
 
-#: Faster than this (m/s) from one scan's pose to the next, the pose jumped: no platform that
-#: carries a 2-D scanner drives so fast (a car on a motorway, ~40 m/s). An odometry glitch, or
-#: a localisation that relocated itself.
+#: Faster than this (m/s) from one scan's pose to the next, the pose jumped (an odometry glitch,
+#: a relocalisation): no platform carrying a 2-D scanner drives so fast.
 MAX_SPEED = 50.0
 #: A pose may move this far (m) however close the stamps (two scans at one stamp, jitter).
 _JUMP_SLACK = 1.0
@@ -112,29 +106,22 @@ def cells_in_new_frame(
 
 
 class OdometryCheck:
-    """Does the odometry agree with the scans? Causal and label-free, for models that may run
-    without poses (``poses_optional``): they stop compensating while it says no.
+    """Does the odometry agree with the scans? Causal and label-free: models that may run
+    without poses stop compensating while it says no.
 
     At every step whose motion moves the previous map's occupied cells by at least
-    ``min_shift`` cells (median), those cells are moved into the current frame by the motion
-    (nearest cell) and counted where they land on an occupied cell of the current map; beside
-    that, the same cells not moved. Cells moved out of the grid count in neither.
-    Over the last ``window`` such steps the odometry is trusted while the moved cells hit at
-    least as often as the unmoved ones, and until ``min_steps`` steps have been seen.
+    ``min_shift`` cells (median), the cells moved by the motion (nearest cell) and the same
+    cells not moved are counted where they land on the current map's occupied cells (cells
+    moved off the grid count in neither). The odometry is trusted until ``min_steps`` steps
+    are seen, then while, over the last ``window`` steps, the moved cells hit at least as often.
 
-    A pose source can also jump (odometry reset to the origin, a localiser snapping to a new
-    estimate): one step's motion is then off by the jump. The window does not notice one step,
-    so each step is also judged alone when it is an outlier: when it moves the cells more than
-    ``jump_factor`` times the median of the last ``window`` steps (each per typical step of
-    time, ``span``: a gap's motion is long), plus ``jump_margin`` cells (median over the cells),
-    and the previous map moved by :meth:`stand_in` (the last accepted motion, per typical step,
-    times ``span``: the robot went on as it was going) explains the current one clearly better
-    than moved by the step's own motion (at least twice its hits, and ``jump_evidence`` more),
-    that step is not compensated (``update`` says no) and is left out of the window. A scene
-    too sparse to tell gives no verdict.
+    A pose jump (an odometry reset, a relocalisation) is judged alone: a step that moves the
+    cells more than ``jump_factor`` times the recent median plus ``jump_margin`` cells (each per
+    typical step of time, ``span``), and whose :meth:`stand_in` explains the current map at
+    least twice as well plus ``jump_evidence`` cells, is not compensated and left out of the
+    window.
 
-    Units: maps ``(H, W)`` bool, motion ``(dx, dy, dyaw)`` in cells and radians (this frame's
-    pose in the previous one's, :mod:`lidarflow.ops.rigid`'s convention).
+    Units: maps ``(H, W)`` bool, motion ``(dx, dy, dyaw)`` in cells and radians.
     """
 
     def __init__(
@@ -151,25 +138,22 @@ class OdometryCheck:
         self.jump_factor = jump_factor
         self.jump_margin = jump_margin
         self.jump_evidence = jump_evidence
+        self._moved: deque[int] = deque(maxlen=window)
+        self._still: deque[int] = deque(maxlen=window)
+        self._shifts: deque[float] = deque(maxlen=window)
+        self.reset()
+
+    def reset(self) -> None:
+        self._moved.clear()
+        self._still.clear()
+        self._shifts.clear()
+        self._previous: np.ndarray | None = None
         #: Steps judged to be a jump of the poses since the last reset.
         self.jumps = 0
         #: Whether the last step given was judged a jump.
         self.jumped = False
         # the last motion not judged a jump, per typical step of time
         self._per_step: np.ndarray | None = None
-        self._moved: deque[int] = deque(maxlen=window)
-        self._still: deque[int] = deque(maxlen=window)
-        self._shifts: deque[float] = deque(maxlen=window)
-        self._previous: np.ndarray | None = None
-
-    def reset(self) -> None:
-        self._moved.clear()
-        self._still.clear()
-        self._shifts.clear()
-        self._previous = None
-        self.jumps = 0
-        self.jumped = False
-        self._per_step = None
 
     @property
     def trusted(self) -> bool:
@@ -183,20 +167,19 @@ class OdometryCheck:
         self.jumped = False
         if previous is None or motion is None or previous.shape != current.shape:
             return self.trusted
-        h, w = current.shape
         rows, cols = np.nonzero(previous)
         span = max(1.0, span)
         if rows.size == 0:  # nothing to judge the step by
             self._per_step = np.asarray(motion, dtype=np.float32) / np.float32(span)
             return self.trusted
-        r2, c2 = cells_in_new_frame(rows, cols, motion, h, w)
-        inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        r2, c2, inside = _moved(rows, cols, motion, current.shape)
         shift = float(np.median(np.hypot(r2 - rows, c2 - cols)))
         moved = int(current[r2[inside], c2[inside]].sum())
         still = int(current[rows[inside], cols[inside]].sum())
         # An outlier has recent steps to be one against, so a stand-in to weigh it by.
         stand_in = self.stand_in(span) if self._is_outlier(shift / span) else None
-        if stand_in is not None and self._explains_better(rows, cols, current, stand_in, moved):
+        evidence = 2 * moved + self.jump_evidence
+        if stand_in is not None and _hits(rows, cols, current, stand_in) >= evidence:
             self.jumps += 1
             self.jumped = True
             return False
@@ -218,18 +201,17 @@ class OdometryCheck:
             return False
         return per_step > self.jump_factor * float(np.median(self._shifts)) + self.jump_margin
 
-    def _explains_better(
-        self,
-        rows: np.ndarray,
-        cols: np.ndarray,
-        current: np.ndarray,
-        motion: np.ndarray,
-        hits: int,
-    ) -> bool:
-        """Whether the previous map's occupied cells ``rows, cols`` moved by ``motion`` land on
-        ``current``'s occupied cells at least twice as often as the ``hits`` of the step's own
-        motion, and ``jump_evidence`` cells more."""
-        h, w = current.shape
-        rows, cols = cells_in_new_frame(rows, cols, motion, h, w)
-        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        return int(current[rows[inside], cols[inside]].sum()) >= 2 * hits + self.jump_evidence
+
+def _moved(
+    rows: np.ndarray, cols: np.ndarray, motion: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`cells_in_new_frame` of the cells, and which of them land on the grid."""
+    h, w = shape
+    r2, c2 = cells_in_new_frame(rows, cols, motion, h, w)
+    return r2, c2, (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+
+
+def _hits(rows: np.ndarray, cols: np.ndarray, current: np.ndarray, motion: np.ndarray) -> int:
+    """How many of the cells, moved by ``motion``, land on ``current``'s occupied cells."""
+    r2, c2, inside = _moved(rows, cols, motion, current.shape)
+    return int(current[r2[inside], c2[inside]].sum())

@@ -1,29 +1,22 @@
 """The sensor's own motion from its scans, for recordings and robots without odometry.
 
-Correlative scan matching of two consecutive occupancy maps: for each candidate turn
-(:data:`YAWS`) the previous map's occupied cells are turned about the sensor into the current
-frame, and the translation that lands most of them on occupied cells of the current map is found
-(shifts up to :data:`MAX_SHIFT` cells each way; branch and bound, :mod:`.correlative`), refined to
-a fraction of a cell and of a turn step by a parabola through the peak. A match counts only when it
-explains the current map clearly better than standing still (:data:`MIN_GAIN`); otherwise there
-is no motion to report (``None``), so a platform that stands still is left uncompensated, as
-without odometry.
+Correlative matching of two consecutive occupancy maps (:mod:`.correlative`), refined to a
+fraction of a cell and of a turn step by a parabola through the peak. A match counts only when
+it explains the current map clearly better than standing still (:data:`MIN_GAIN`); otherwise
+there is no motion to report (``None``). Where the returns are at hand, :class:`ScanOdometry`
+refines the match on them (:mod:`lidarflow.motion.icp`) and so also finds motions too slow to
+move cells (``docs/research/scan_odometry/``).
 
 Motion convention: :mod:`lidarflow.ops.rigid`'s, ``(dx, dy, dyaw)`` in cells and radians, this
-frame's pose in the previous one's (what the odometry increment gives, in cells). Moving
-objects can pull a match; ego-motion models check every motion against the scans anyway
-(:class:`lidarflow.motion.odometry.OdometryCheck`).
-
-Where the scans' returns are at hand (recordings, a Predictor fed scans), :class:`ScanOdometry`
-refines the match on them (:mod:`lidarflow.motion.icp`) and so also finds motions too slow
-to move cells between two frames; ``evaluate``, training and the Predictor use it. Accuracy
-against odometry: ``docs/research/scan_odometry/``.
+frame's pose in the previous one's.
 """
 
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -55,12 +48,9 @@ STILL_WINDOW = 10
 MIN_TRAVEL = 0.5
 TURN_REACH = 50.0
 #: ... and standing still must pair this share of the returns fewer, or leave them this many
-#: times further from the surface, than the travel found. Where the scene cannot tell (one wall
-#: in a narrow field of view, people walking through it) the travel is the steps' noise, and
-#: standing still fits as well: simulated 86° and 180° sensors standing still "travelled" on
-#: 49-82 % of frames without this test and on 0-7 % with it. A motion the maps show must pass
-#: the same test against the previous frame's returns (people crossing a narrow view can pull
-#: the maps' match).
+#: times further from the surface, than the travel found: where the scene cannot tell, the
+#: travel is the steps' noise. A motion the maps show must pass the same test against the
+#: previous frame's returns (people crossing a narrow view can pull the maps' match).
 STILL_FIT = (0.05, 1.2)
 
 
@@ -95,39 +85,28 @@ def match_maps(previous: np.ndarray, current: np.ndarray) -> np.ndarray | None:
     return np.array([c * ux - s * uy, s * ux + c * uy, yaw])
 
 
+@dataclass
 class _Returns:
-    """A frame's returns, and the :class:`~lidarflow.motion.icp.Reference` they are aligned
-    to by, made the first time it is needed (a frame kept after a pose is often never
-    aligned to, and one that is is aligned to two or three times)."""
+    """A frame's returns, and their :class:`~lidarflow.motion.icp.Reference`, made the first
+    time it is needed (a frame kept after a pose is often never aligned to)."""
 
-    __slots__ = ("_reference", "points")
+    points: np.ndarray
 
-    def __init__(self, points: np.ndarray) -> None:
-        self.points = points
-        self._reference: Reference | None = None
-
-    @property
+    @cached_property
     def reference(self) -> Reference:
-        if self._reference is None:
-            self._reference = Reference(self.points)
-        return self._reference
+        return Reference(self.points)
 
 
 class ScanOdometry:
     """The motion since the previous frame on a stream: ``update(occupancy, points)`` gives it
     in cells and radians (``None`` for the first frame, or where none was found).
 
-    With the maps alone it is :func:`match_maps`. Given each frame's returns too
-    (:func:`~lidarflow.motion.icp.scan_points`), the match is refined to a fraction of a cell
-    on them (:func:`~lidarflow.motion.icp.align`, from the maps' match or else the last
-    motion), which also finds the slow motions the maps cannot show. The returns never stand
-    still to the millimetre (noise, people walking by), so a refined motion is reported only
-    where it lays the returns clearly better than standing still (:data:`STILL_FIT`): onto the
-    previous frame's where the maps show a motion; where they show none, onto those
-    :data:`STILL_WINDOW` frames back, aligned directly, and only once they have moved by
-    :data:`MIN_TRAVEL` cells (a turn counted at :data:`TURN_REACH` cells from the sensor).
-    Otherwise, and until the window has filled, there is no motion
-    to report: a platform standing still is left uncompensated.
+    With the maps alone it is :func:`match_maps`. Given each frame's returns
+    (:func:`~lidarflow.motion.icp.scan_points`), the match is refined on them
+    (:func:`~lidarflow.motion.icp.align`, from the maps' match or else the last motion) and
+    reported only where it lays the returns clearly better than standing still
+    (:data:`STILL_FIT`): onto the previous frame's where the maps show a motion; else onto
+    those :data:`STILL_WINDOW` frames back, once they have moved :data:`MIN_TRAVEL` cells.
     """
 
     def __init__(self, res: float = 0.1) -> None:
@@ -212,21 +191,14 @@ def checked_motion(
     pace: float | None = None,
 ) -> tuple[np.ndarray | None, bool]:
     """The motion a model that may run without poses compensates this frame by, and whether
-    ``check`` trusts ``motion``. A motion from poses is used while ``check`` agrees with the
-    scans; where it does not, the scans' own (``scans``, fed this frame's map and ``points``),
-    so a bag whose odometry is the base's, not the scanner's, is still compensated; a frame
-    whose pose is used is only kept by ``scans`` (:meth:`ScanOdometry.observe`, no matching,
-    so good odometry costs nothing). A motion from the scans (``from_pose`` false, found by the
-    caller) is only checked: ``None`` where ``check`` distrusts it, the stand-in below where it
-    judges it a jump (a scan match pulled off by the scene). ``pace``: after a long step
-    in time, the typical step over this one
-    (:func:`lidarflow.motion.pacing.paces_after_long_steps`).
+    ``check`` trusts ``motion``.
 
-    A step that ``check`` judges a jump of the poses (an odometry reset, a relocalisation) is
-    replaced by the scans' motion too, or, where they find none (a slow step, which they only
-    report once they have seen a few), by the last motion ``check`` accepted (per typical step,
-    times this step's): the odometry was trusted one step ago, and a robot's motion changes
-    little in one step."""
+    A motion from poses is used while ``check`` trusts it (``scans`` only keeps the frame,
+    :meth:`ScanOdometry.observe`); where it does not, or judges the step a jump, the scans' own
+    (``scans`` fed this map and ``points``), else, for a jump, ``check``'s stand-in. A motion
+    from the scans (``from_pose`` false) is only checked: ``None`` where distrusted, the
+    stand-in where judged a jump. ``pace``: the typical step over this one after a long step
+    (:func:`lidarflow.motion.pacing.paces_after_long_steps`)."""
     span = 1.0 if not pace else 1.0 / pace
     trusted = check.update(occupancy, motion, span)
     stand_in = check.stand_in(span) if check.jumped and check.trusted else None

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
@@ -33,19 +33,14 @@ class DistanceField:
         self._ox, self._oy = float(self.origin[0]), float(self.origin[1])
         self._nx, self._ny = nx - 1, ny - 1
         for x0, y0, x1, y1 in segments:
-            self._stamp(
-                min(x0, x1),
-                min(y0, y1),
-                max(x0, x1),
-                max(y0, y1),
-                lambda px, py, a=(x0, y0, x1, y1): _to_segment(px, py, *a),
-            )
+            box = (min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
+            self._stamp(box, _to_segment, (x0, y0, x1, y1))
         for cx, cy, r in circles:
-            self._stamp(
-                cx - r, cy - r, cx + r, cy + r, lambda px, py, c=(cx, cy, r): _to_circle(px, py, *c)
-            )
+            self._stamp((cx - r, cy - r, cx + r, cy + r), _to_circle, (cx, cy, r))
 
-    def _stamp(self, x0: float, y0: float, x1: float, y1: float, nearest: Any) -> None:
+    def _stamp(self, box: tuple[float, ...], nearest: Callable, shape: tuple[float, ...]) -> None:
+        """Keep ``nearest(px, py, *shape)`` where it is nearer, over ``box`` grown by ``cap``."""
+        x0, y0, x1, y1 = box
         res, cap = self.res, self.cap
         i0 = max(int((x0 - cap - self.origin[0]) / res), 0)
         i1 = min(int((x1 + cap - self.origin[0]) / res) + 1, self.dist.shape[1])
@@ -54,7 +49,7 @@ class DistanceField:
         px = self.origin[0] + (np.arange(i0, i1) + 0.5) * res
         py = self.origin[1] + (np.arange(j0, j1) + 0.5) * res
         px, py = np.meshgrid(px, py)
-        d, ax, ay = nearest(px, py)
+        d, ax, ay = nearest(px, py, *shape)
         view = self.dist[j0:j1, i0:i1]
         better = d < view
         view[better] = d[better]

@@ -97,11 +97,10 @@ class Furniture:
         if spot is None:
             return
         cx, cy = spot
-        angle = (
-            rng.choice([0.0, math.pi / 2]) + rng.normal(0, 0.1)
-            if rng.random() < 0.7
-            else (rng.uniform(0, math.pi))
-        )
+        if rng.random() < 0.7:  # mostly square to the walls
+            angle = rng.choice([0.0, math.pi / 2]) + rng.normal(0, 0.1)
+        else:
+            angle = rng.uniform(0, math.pi)
         outline = _box(cx, cy, length, depth, angle)
         self.taken.append((cx, cy, radius))
         if kind == "box":

@@ -6,13 +6,10 @@ Flow is in cells: channel 0 the column displacement, channel 1 the row displacem
 * Backward flow ``B^t`` lives on the occupied cells of ``O^{t+1}``:
   ``O^{t+1}(p) = O^t(p + B^t(p))``.
 
-Both come from the points the scans really measured, so they agree with the occupancy that
-:func:`lidarflow.scan.rasterize_batch` makes of the same ranges: every return is placed exactly as
-the rasterizer places it (same float64 arithmetic, same cell rule), moved in the world frame with
-the motion of the object its beam hit (a leg, or static structure that does not move), brought into
-the other frame's sensor pose (this is where the platform's own motion enters), and turned into a
-displacement in cells. A cell hit by several points gets the mean of their displacements. Cells
-that are not occupied carry zero flow.
+Every return is placed exactly as :func:`lidarflow.scan.rasterize_batch` places it (so the flow
+agrees with the occupancy), moved in the world with the object its beam hit (a leg; static
+structure does not move), seen from the other frame's sensor pose, and turned into a displacement
+in cells. A cell gets the mean of its points' displacements; cells not occupied carry zero flow.
 """
 
 from __future__ import annotations
@@ -93,7 +90,6 @@ def ground_truth(
     objects: np.ndarray,
     geometry: BeamGeometry,
     grid: GridSpec,
-    has_next: np.ndarray | None = None,
     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ground truth for frames ``0..n-1`` of a block of ``n + 1`` consecutive frames.
@@ -104,8 +100,6 @@ def ground_truth(
         poses: ``(n + 1, 3)`` true sensor poses ``(x, y, yaw)``, world frame.
         objects: ``(n + 1, L, 2)`` world positions of the dynamic objects (NaN when absent).
         geometry, grid: the beams and the map grid.
-        has_next: ``(n,)`` False where frame ``t + 1`` is not the continuation of frame ``t``
-            (a new episode): flow is zero there. Default: all True.
         out: optional zero-filled ``(backward, forward, moving)`` arrays to fill in place (any
             float dtype for the flows, float16 in recordings); only occupied cells are written.
 
@@ -124,9 +118,6 @@ def ground_truth(
             np.zeros((n, grid.height, grid.width), bool),
         )
     backward, forward, moving = out
-    if has_next is None:
-        has_next = np.ones(n, dtype=bool)
-    keep = np.asarray(has_next, dtype=bool)
     # Every return of the n + 1 scans, once: sensor frame, world frame, object hit.
     f, b, px, py, cell = _points(ranges, geometry, grid)
     c, s = np.cos(poses[:, 2])[f], np.sin(poses[:, 2])[f]
@@ -138,7 +129,7 @@ def ground_truth(
     dynamic = obj > STATIC_ID
 
     # Forward: points of scan t < n, moved t -> t + 1, seen from t + 1.
-    sel = (f < n) & keep[np.minimum(f, n - 1)]
+    sel = f < n
     step = np.zeros((int(sel.sum()), 2))
     dyn = dynamic[sel]
     step[dyn] = motion[f[sel][dyn], obj[sel][dyn]]
@@ -148,7 +139,7 @@ def ground_truth(
     moving[f[sel][on], *np.divmod(cell[sel][on], grid.width)] = True
 
     # Backward: points of scan t + 1, moved back t + 1 -> t, seen from t; stored at index t.
-    sel = (f > 0) & keep[np.maximum(f - 1, 0)]
+    sel = f > 0
     step = np.zeros((int(sel.sum()), 2))
     dyn = dynamic[sel]
     step[dyn] = -motion[f[sel][dyn] - 1, obj[sel][dyn]]

@@ -1,12 +1,8 @@
 """The simulated 2-D LiDAR: sensor presets and vectorised ray casting.
 
-Angles follow REP 103 (counter-clockwise from the sensor's x axis, which points forward). The ray
-caster works in the *sensor* frame: it receives the pose of the sensor for every frame and turns
-the world geometry into that frame once per frame, so all beams of all frames of a block are cast
-together. Instead of testing every beam against every object, each object is first turned into
-the (small) range of beam indices its angular extent covers, and only those (object, beam) pairs
-are intersected exactly; the nearest hit per beam wins. This keeps the cost proportional to the
-number of beams times the depth complexity of the scene rather than beams times objects.
+Angles follow REP 103. The ray caster turns the world into each frame's sensor frame and casts
+all beams of all frames of a block together; each object is intersected only with the beams its
+angular extent covers, so the cost follows beams times the scene's depth, not beams times objects.
 
 A hit reports its range and the id of the object hit: ``-1`` for static structure (walls,
 furniture), ``k >= 0`` for dynamic circle ``k`` (a person's leg), ``NO_HIT`` (-2) for no hit.
@@ -15,7 +11,7 @@ furniture), ``k >= 0`` for dynamic circle ``k`` (a person's leg), ``NO_HIT`` (-2
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,11 +38,9 @@ class LidarConfig:
     """A 2-D LiDAR. The defaults are the paper's SICK TIM561-2050101: 15 Hz, 270°, 0.33°, 10 m.
 
     ``noise_std`` is the Gaussian range noise (m); ``dropout_prob`` the chance that a beam reports
-    nothing (written ``NaN`` or ``0`` per ``dropout_value``: ``"nan"``, ``"zero"`` or ``"mixed"``);
-    returns beyond ``range_max`` are written ``+inf`` (no return). ``mixed_pixel_prob`` is the
-    chance that a beam at a depth edge (a jump of more than ``mixed_pixel_jump`` m to its
-    neighbour) reports a range in between, as real sensors do where the spot covers both
-    surfaces.
+    nothing (written ``NaN`` or ``0`` per ``dropout_value``: ``"nan"``, ``"zero"`` or ``"mixed"``).
+    ``mixed_pixel_prob`` is the chance that a beam at a depth edge (a jump of more than
+    ``mixed_pixel_jump`` m to its neighbour) reports a range in between.
     """
 
     name: str = "tim561"
@@ -91,9 +85,6 @@ class LidarConfig:
         return BeamGeometry(
             self.beams, -fov / 2, fov / (self.beams - 1), self.range_min, self.range_max
         )
-
-    def to_dict(self) -> dict[str, object]:
-        return asdict(self)
 
 
 PRESETS: dict[str, LidarConfig] = {
@@ -190,14 +181,19 @@ def _beam_ranges(
     return firsts, lasts
 
 
-def _expand(firsts: np.ndarray, lasts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pair counts ``(2M,)`` and beam index of every (item, beam) pair in the given ranges;
-    ranges are ``(2, M)`` (two candidate ranges per item), pairs ordered by range then item.
-    Per-item values ``v (M,)`` expand to pairs as ``np.repeat(np.tile(v, 2), counts)``."""
-    counts = np.maximum(lasts - firsts + 1, 0).ravel()
-    total = int(counts.sum())
-    starts = np.repeat(np.cumsum(counts) - counts - firsts.ravel(), counts)
-    return counts, np.arange(total) - starts
+class _Pairs:
+    """Every (item, beam) pair of the beam ranges ``(2, M)`` of :func:`_beam_ranges` (two
+    candidate ranges per item), ordered by range then item: ``beam`` their beam index."""
+
+    def __init__(self, lo: np.ndarray, extent: np.ndarray, geometry: BeamGeometry) -> None:
+        firsts, lasts = _beam_ranges(lo, extent, geometry)
+        self.counts = np.maximum(lasts - firsts + 1, 0).ravel()
+        starts = np.repeat(np.cumsum(self.counts) - self.counts - firsts.ravel(), self.counts)
+        self.beam = np.arange(int(self.counts.sum())) - starts
+
+    def each(self, v: np.ndarray) -> np.ndarray:
+        """Per-item values ``v (M,)`` repeated for each of the item's pairs."""
+        return np.repeat(np.tile(v, 2), self.counts)
 
 
 def cast_rays(
@@ -230,87 +226,77 @@ def cast_rays(
     frames, beams = poses.shape[0], geometry.count
     best = np.full(frames * beams, np.inf)
     ids = np.full(frames * beams, NO_HIT, dtype=np.int32)
-    angles = geometry.angles
-    cos_b, sin_b = np.cos(angles), np.sin(angles)
-    reach = geometry.range_max + 0.5
-    cand_t: list[np.ndarray] = []
-    cand_key: list[np.ndarray] = []
-    cand_id: list[np.ndarray] = []
-
+    hits = []
     if len(segments):
-        ends = _to_sensor(poses, np.asarray(segments, np.float64).reshape(-1, 2, 2))  # F,S,2,2
-        p, q = ends[:, :, 0], ends[:, :, 1]
-        e = q - p
-        # Cull segments farther than the sensor reaches (distance from origin to segment).
-        ee = np.maximum((e * e).sum(-1), 1e-12)
-        u = np.clip(-(p * e).sum(-1) / ee, 0.0, 1.0)
-        near = np.hypot(p[..., 0] + u * e[..., 0], p[..., 1] + u * e[..., 1]) <= reach
-        f_idx, s_idx = np.nonzero(near)
-        p, e = p[f_idx, s_idx], e[f_idx, s_idx]
-        a0 = np.arctan2(p[:, 1], p[:, 0])
-        a1 = np.arctan2(p[:, 1] + e[:, 1], p[:, 0] + e[:, 0])
-        d = np.mod(a1 - a0 + math.pi, _TWO_PI) - math.pi
-        lo = np.where(d >= 0, a0, a1)
-        firsts, lasts = _beam_ranges(lo, np.abs(d), geometry)
-        counts, beam = _expand(firsts, lasts)
-
-        def rep(v: np.ndarray) -> np.ndarray:
-            return np.repeat(np.tile(v, 2), counts)
-
-        dx, dy = cos_b[beam], sin_b[beam]
-        px, py, ex, ey = rep(p[:, 0]), rep(p[:, 1]), rep(e[:, 0]), rep(e[:, 1])
-        den = dx * ey - dy * ex
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = rep(p[:, 0] * e[:, 1] - p[:, 1] * e[:, 0]) / den
-            s = (px * dy - py * dx) / den
-        # den == 0 gives inf/NaN, which fail these tests.
-        ok = (t > 0) & (s >= 0) & (s <= 1)
-        cand_t.append(t[ok])
-        cand_key.append(rep(f_idx * beams)[ok] + beam[ok])
-        cand_id.append(np.full(int(ok.sum()), STATIC_ID, dtype=np.int32))
-
+        hits.append(_segment_hits(poses, geometry, np.asarray(segments, np.float64)))
     if circles is not None and np.size(circles):
         circles = np.asarray(circles, np.float64)
         if circles.ndim == 2:
             circles = np.broadcast_to(circles, (frames, *circles.shape))
-        k = circles.shape[1]
-        cid = (
-            np.full(k, STATIC_ID, np.int32)
-            if circle_ids is None
-            else np.asarray(circle_ids, np.int32)
-        )
-        centre = _to_sensor(poses, circles[..., :2], per_frame=True)  # F,K,2
-        radius = circles[..., 2]
-        dist = np.hypot(centre[..., 0], centre[..., 1])
-        with np.errstate(invalid="ignore"):
-            near = (dist - radius <= reach) & (dist > radius)
-        f_idx, c_idx = np.nonzero(near)
-        c, r, dist = centre[f_idx, c_idx], radius[f_idx, c_idx], dist[f_idx, c_idx]
-        half = np.arcsin(np.clip(r / dist, 0.0, 1.0))
-        lo = np.arctan2(c[:, 1], c[:, 0]) - half
-        firsts, lasts = _beam_ranges(lo, 2 * half, geometry)
-        counts, beam = _expand(firsts, lasts)
-
-        def rep_c(v: np.ndarray) -> np.ndarray:
-            return np.repeat(np.tile(v, 2), counts)
-
-        cx, cy, rr = rep_c(c[:, 0]), rep_c(c[:, 1]), rep_c(r)
-        proj = cx * cos_b[beam] + cy * sin_b[beam]
-        disc = rr * rr - (cx * cx + cy * cy - proj * proj)
-        ok = (disc >= 0) & (proj > 0)
-        t = proj[ok] - np.sqrt(disc[ok])
-        cand_t.append(t)
-        cand_key.append(rep_c(f_idx * beams)[ok] + beam[ok])
-        cand_id.append(rep_c(cid[c_idx])[ok])
-
-    if cand_t:
-        t = np.concatenate(cand_t)
-        key = np.concatenate(cand_key)
-        obj = np.concatenate(cand_id)
+        if circle_ids is None:
+            circle_ids = np.full(circles.shape[1], STATIC_ID, np.int32)
+        hits.append(_circle_hits(poses, geometry, circles, np.asarray(circle_ids, np.int32)))
+    if hits:
+        t, key, obj = (np.concatenate(parts) for parts in zip(*hits, strict=True))
         np.minimum.at(best, key, t)
         win = t == best[key]
         ids[key[win]] = obj[win]
     return best.reshape(frames, beams), ids.reshape(frames, beams)
+
+
+def _segment_hits(
+    poses: np.ndarray, geometry: BeamGeometry, segments: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ranges, flat ``frame * beams + beam`` keys and ids of the beams' hits on ``segments``."""
+    ends = _to_sensor(poses, segments.reshape(-1, 2, 2))  # F,S,2,2
+    p, q = ends[:, :, 0], ends[:, :, 1]
+    e = q - p
+    # Cull segments farther than the sensor reaches (distance from origin to segment).
+    ee = np.maximum((e * e).sum(-1), 1e-12)
+    u = np.clip(-(p * e).sum(-1) / ee, 0.0, 1.0)
+    reach = geometry.range_max + 0.5
+    near = np.hypot(p[..., 0] + u * e[..., 0], p[..., 1] + u * e[..., 1]) <= reach
+    f_idx, s_idx = np.nonzero(near)
+    p, e = p[f_idx, s_idx], e[f_idx, s_idx]
+    a0 = np.arctan2(p[:, 1], p[:, 0])
+    a1 = np.arctan2(p[:, 1] + e[:, 1], p[:, 0] + e[:, 0])
+    d = np.mod(a1 - a0 + math.pi, _TWO_PI) - math.pi
+    pairs = _Pairs(np.where(d >= 0, a0, a1), np.abs(d), geometry)
+    beam, rep = pairs.beam, pairs.each
+    angles = geometry.angles
+    dx, dy = np.cos(angles)[beam], np.sin(angles)[beam]
+    px, py, ex, ey = rep(p[:, 0]), rep(p[:, 1]), rep(e[:, 0]), rep(e[:, 1])
+    den = dx * ey - dy * ex
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = rep(p[:, 0] * e[:, 1] - p[:, 1] * e[:, 0]) / den
+        s = (px * dy - py * dx) / den
+    # den == 0 gives inf/NaN, which fail these tests.
+    ok = (t > 0) & (s >= 0) & (s <= 1)
+    key = rep(f_idx * geometry.count)[ok] + beam[ok]
+    return t[ok], key, np.full(int(ok.sum()), STATIC_ID, dtype=np.int32)
+
+
+def _circle_hits(
+    poses: np.ndarray, geometry: BeamGeometry, circles: np.ndarray, circle_ids: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`_segment_hits`, on circles ``(F, K, 3)`` with ids ``(K,)``."""
+    centre = _to_sensor(poses, circles[..., :2], per_frame=True)  # F,K,2
+    radius = circles[..., 2]
+    dist = np.hypot(centre[..., 0], centre[..., 1])
+    with np.errstate(invalid="ignore"):
+        near = (dist - radius <= geometry.range_max + 0.5) & (dist > radius)
+    f_idx, c_idx = np.nonzero(near)
+    c, r, dist = centre[f_idx, c_idx], radius[f_idx, c_idx], dist[f_idx, c_idx]
+    half = np.arcsin(np.clip(r / dist, 0.0, 1.0))
+    pairs = _Pairs(np.arctan2(c[:, 1], c[:, 0]) - half, 2 * half, geometry)
+    beam, rep = pairs.beam, pairs.each
+    angles = geometry.angles
+    cx, cy, rr = rep(c[:, 0]), rep(c[:, 1]), rep(r)
+    proj = cx * np.cos(angles)[beam] + cy * np.sin(angles)[beam]
+    disc = rr * rr - (cx * cx + cy * cy - proj * proj)
+    ok = (disc >= 0) & (proj > 0)
+    key = rep(f_idx * geometry.count)[ok] + beam[ok]
+    return proj[ok] - np.sqrt(disc[ok]), key, rep(circle_ids[c_idx])[ok]
 
 
 def measure(true_ranges: np.ndarray, config: LidarConfig, rng: np.random.Generator) -> np.ndarray:

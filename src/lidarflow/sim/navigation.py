@@ -1,25 +1,15 @@
 """Closed-loop navigation episodes: a robot that plans on its obstacle maps crosses a crowd.
 
-An episode puts a differential-drive robot (:class:`~lidarflow.sim.local_planner.RobotConfig`)
-in an open hall (:func:`open_hall`) with ``walkers`` social-force people
-(:class:`~lidarflow.sim.social.SocialCrowd`, who avoid the robot as one more agent) and sends
-it to a goal ``goal_distance`` m away. Every frame, at the sensor's rate:
+A differential-drive robot in an open hall (:func:`open_hall`) with ``walkers`` social-force
+people (who avoid it as one more agent) is sent to a goal. Every frame the LiDAR scans, the
+obstacle source (:mod:`lidarflow.sim.obstacles`) makes maps ``1..K`` ahead, the
+:class:`~lidarflow.sim.local_planner.LocalPlanner` picks a command, the people step, and the
+robot drives under its acceleration limits (a move into an obstacle is refused).
 
-1. the simulated LiDAR on the robot scans walls, furniture and legs (:mod:`lidarflow.sim.lidar`)
-   and the scan is rasterized onto the grid;
-2. the obstacle source (:mod:`lidarflow.sim.obstacles`) turns it into maps ``1..K`` ahead
-   (``K`` = ``horizon_s`` of frames) and the :class:`~lidarflow.sim.local_planner.LocalPlanner`
-   picks a command;
-3. the people step (as :mod:`lidarflow.sim.scenario` steps them), then the robot drives
-   towards the command under its acceleration limits; a move into a wall or a piece of
-   furniture is refused (a bumper: it stays and stops).
-
-It ends on reaching the goal (within ``goal_tolerance``), on a **collision** (the robot's disc
-overlaps a present person's body disc, radius ``PeopleConfig.body_radius``) or after
-``max_time`` s. The scene (hall, start, goal, the people's first state) depends only on
-``(seed, walkers)``, so every source meets the same scenes; from there the people react to
-what the robot does. ``min_distance_m`` is the smallest distance between the robot's centre and
-a present person's over the episode (NaN where nobody was there).
+It ends at the goal (within ``goal_tolerance``), on a **collision** (the robot's disc overlaps a
+present person's body disc) or after ``max_time`` s. The scene depends only on
+``(seed, walkers)``, so every source meets the same scenes. ``min_distance_m`` is the smallest
+distance between the robot's centre and a present person's (NaN where nobody was there).
 """
 
 from __future__ import annotations
@@ -36,8 +26,9 @@ from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset,
 from lidarflow.sim.local_planner import LocalPlanner, PlannerConfig, RobotConfig
 from lidarflow.sim.obstacles import ObstacleSource, Sensed
 from lidarflow.sim.people import PeopleConfig
+from lidarflow.sim.platform import drive
 from lidarflow.sim.social import SocialCrowd
-from lidarflow.sim.world import World
+from lidarflow.sim.world import World, outline
 
 __all__ = ["NavConfig", "Outcome", "open_hall", "run_episode", "scene"]
 
@@ -84,10 +75,8 @@ class Outcome:
 def open_hall(width: float, height: float, walls: np.ndarray | None = None) -> World:
     """A single empty room ``width x height`` m (corner at the origin), with extra ``walls``
     ``(N, 4)`` segments ``(x0, y0, x1, y1)`` that the LiDAR sees and everyone avoids."""
-    outline = [[0, 0, width, 0], [width, 0, width, height], [width, height, 0, height]]
-    outline.append([0, height, 0, 0])
     extra = np.zeros((0, 4)) if walls is None else np.asarray(walls, np.float64).reshape(-1, 4)
-    segments = np.concatenate([np.array(outline, np.float64), extra])
+    segments = np.concatenate([np.array(outline(width, height), np.float64), extra])
     return World(
         segments=segments,
         circles=np.zeros((0, 3)),
@@ -166,24 +155,6 @@ def _sense(
     return scan, occupancy, visibility, rasterize(walls, config.grid)[0]
 
 
-def _drive(
-    world: World, pose: np.ndarray, vw: np.ndarray, target: tuple[float, float],
-    robot: RobotConfig, dt: float,
-) -> np.ndarray:  # fmt: skip
-    """The pose after ``dt`` s, ``vw`` (now ``(v, w)``, updated in place) moved towards
-    ``target`` under the limits; a move into an obstacle is refused and stops the robot."""
-    vw[0] += np.clip(target[0] - vw[0], -robot.accel * dt, robot.accel * dt)
-    vw[1] += np.clip(target[1] - vw[1], -robot.turn_accel * dt, robot.turn_accel * dt)
-    mid = pose[2] + vw[1] * dt / 2
-    new = pose + np.array([vw[0] * dt * math.cos(mid), vw[0] * dt * math.sin(mid), vw[1] * dt])
-    new[2] = math.remainder(new[2], 2 * math.pi)
-    clear_new, clear_now = world.clearance(np.stack([new[:2], pose[:2]]))
-    if clear_new < robot.radius and clear_new < clear_now:
-        new[:2] = pose[:2]
-        vw[0] = 0.0
-    return new
-
-
 def run_episode(
     source: ObstacleSource,
     seed: int,
@@ -218,7 +189,7 @@ def run_episode(
             source.maps(sensed), np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]]), *vw
         )
         crowd.step(dt, pose, config.robot.radius)
-        pose = _drive(world, pose, vw, target, config.robot, dt)
+        pose = drive(world, pose, vw, target, config.robot, dt)
         path.append(pose.copy())
         people = crowd.pos[crowd.walking()]
         if len(people):

@@ -1,20 +1,16 @@
 """Where a navigating robot's planner takes its obstacles from: four sources of ``(K, H, W)`` maps.
 
 Each source is given what the robot senses at frame ``t`` (a :class:`Sensed`) and returns the
-obstacle maps ``1..K`` frames ahead, float32 in [0, 1] (occupied where >= 0.5), all in the
-sensor frame at ``t`` (:mod:`lidarflow.scan`'s grid), what :class:`~lidarflow.sim.local_planner.
-LocalPlanner` checks its rollouts against:
+obstacle maps ``1..K`` frames ahead, float32 in [0, 1] (occupied where >= 0.5), in the sensor
+frame at ``t``:
 
 * ``last_scan``: the occupancy of the scan at ``t``, the same for every ``k``;
-* ``lidarflow``: a :class:`~lidarflow.predict.Predictor`'s decided maps ``1..K`` ahead (the
-  caller makes it: ``sim`` does not import ``predict``), moved back into the frame at ``t``
-  (:func:`lidarflow.outputs.planner.steps_in_scan_frame`; cells a step's grid does not cover
+* ``lidarflow``: a :class:`~lidarflow.predict.Predictor`'s decided maps (the caller makes it:
+  ``sim`` does not import ``predict``), moved back into the frame at ``t`` (cells not covered
   are free);
-* ``tracker``: :class:`lidarflow.tracking.Tracker`'s maps ``1..K`` ahead, given the true motion
-  and moved back the same way;
-* ``true_future``: the ceiling: the cells of the scan at ``t`` hit on walls and furniture, and
-  the people's legs as they will be ``k`` frames on (:attr:`Sensed.future_legs`, drawn as
-  discs), occluded or not.
+* ``tracker``: :class:`lidarflow.tracking.Tracker`'s maps, given the true motion, moved back;
+* ``true_future``: the ceiling: the scan's cells on walls and furniture, and the people's legs
+  ``k`` frames on (:attr:`Sensed.future_legs`), occluded or not.
 """
 
 from __future__ import annotations

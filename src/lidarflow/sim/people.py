@@ -1,18 +1,15 @@
 """Walking people, seen by the LiDAR as two legs.
 
-Each person is a point body steered by a social-force model (Helbing & Molnár 1995, in the form
-popularised by pysocialforce; this is our own code): a drive towards the next waypoint of a route
-through the doors of the floor plan, exponential repulsion from other people (weighted towards
-those in front), from walls and furniture, and from the robot. People walk at 0.3-1.8 m/s (mean
-1.2 m/s), stop for a while and turn on the spot, pick new goals (often within a few metres of the
-sensor, so that many pass close by), and leave: they walk to a place the sensor cannot see, vanish,
-and later reappear somewhere else unseen.
+Each person is a point body steered by a social-force model (Helbing & Molnár 1995): a drive
+towards the next waypoint of a route through the doors, exponential repulsion from other people
+(mostly those in front), walls, furniture and the robot. People stop and turn on the spot, pick
+new goals (often near the sensor), and leave: they vanish where the sensor cannot see and later
+reappear elsewhere unseen.
 
-Legs: two circles of radius 0.06-0.08 m beside the body's centre line (hip half-width
-0.08-0.12 m) that swing along the walking direction with the gait phase. With the swing
-amplitude ``A = L / (2 pi)`` for a gait cycle of length ``L``, each leg's speed is
-``v (1 +/- cos(phase))``: one leg rests on the ground while the other swings forward at twice the
-body speed, as in real walking. Standing people have both legs side by side.
+Legs: two circles beside the body's centre line that swing along the walking direction with the
+gait phase; with the swing amplitude ``A = L / (2 pi)`` for a gait cycle of length ``L``, each
+leg's speed is ``v (1 +/- cos(phase))``: one leg rests while the other swings at twice the body
+speed. Standing people have both legs side by side.
 """
 
 from __future__ import annotations
@@ -31,8 +28,7 @@ WALK, STOP, OFF = 0, 1, 2
 
 
 #: The most people in the building at once: a crowd fills the offices long before this, and
-#: the pairwise forces between them take memory as the square of the count (100,000 people
-#: asked for 85 GiB).
+#: the pairwise forces between them take memory as the square of the count.
 MAX_PEOPLE = 500
 
 
@@ -115,20 +111,14 @@ class Crowd:
         self.speed0 = np.clip(rng.normal(config.speed_mean, config.speed_std, n), lo, hi)
         self.leg_r = rng.uniform(*config.leg_radius, n)
         self.hip = rng.uniform(*config.hip_half_width, n)
-        self.pos = np.zeros((n, 2))
-        self.vel = np.zeros((n, 2))
         self.heading = rng.uniform(-math.pi, math.pi, n)
         self.phase = rng.uniform(0, 2 * math.pi, n)
         self.state = np.full(n, OFF)
-        self.timer = np.zeros(n)
-        self.turn = np.zeros(n)
-        self.leaving = np.zeros(n, dtype=bool)
         self.routes: list[list[np.ndarray]] = [[] for _ in range(n)]
-        self._speed = np.zeros(n)
-        self.target = np.zeros((n, 2))
-        self.final = np.zeros(n, dtype=bool)
-        self.check_pos = np.zeros((n, 2))
-        self.check_timer = np.zeros(n)
+        # per person: positions and velocities (m, m/s), then times (s), speeds, turn rates
+        self.pos, self.vel, self.target, self.check_pos = (np.zeros((n, 2)) for _ in range(4))
+        self.timer, self.check_timer, self._speed, self.turn = (np.zeros(n) for _ in range(4))
+        self.leaving, self.final = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         for i in range(n):
             if rng.random() < 0.75:
                 p = world.sample_free(rng)
@@ -148,21 +138,26 @@ class Crowd:
     def _spawn_point(self, sensor: np.ndarray) -> np.ndarray | None:
         """A free place the sensor cannot see, preferably close to it (behind it, or behind a
         wall or a door), so that people walk into view from where real people would."""
-        rng, world = self.rng, self.world
-        k = 12
+        rng, k = self.rng, 12
         dist = rng.uniform(1.5, 7.0, k)
-        bearing = rng.uniform(-math.pi, math.pi, k)
-        pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
-        rooms = world.room_of(pts)
-        ok = (rooms >= 0) & world.reachable[np.maximum(rooms, 0)]
-        ok &= world.clearance(pts) >= 0.45
+        pts, ok = self._open_around(sensor, dist, rng.uniform(-math.pi, math.pi, k))
         ok[ok] = self._hidden(sensor, pts[ok])
         if ok.any():
             return pts[np.argmax(ok)]
-        p = world.sample_free(rng, tries=8)
+        p = self.world.sample_free(rng, tries=8)
         if p is not None and math.dist(p, sensor[:2]) > 1.5 and self._hidden(sensor, p)[0]:
             return p
         return None
+
+    def _open_around(
+        self, sensor: np.ndarray, dist: np.ndarray, bearing: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The points at ``dist`` and world ``bearing`` from the sensor, and which of them lie in
+        a reachable room, clear of obstacles."""
+        pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
+        rooms = self.world.room_of(pts)
+        ok = (rooms >= 0) & self.world.reachable[np.maximum(rooms, 0)]
+        return pts, ok & (self.world.clearance(pts) >= 0.45)
 
     def _activate(self, i: int, p: np.ndarray, sensor: np.ndarray) -> None:
         self.pos[i] = p
@@ -185,10 +180,7 @@ class Crowd:
             k = 16
             dist = rng.uniform(*cfg.near_range, k)
             bearing = sensor[2] + rng.uniform(-0.45, 0.45, k) * min(self.fov, math.pi)
-            pts = sensor[:2] + np.column_stack([dist * np.cos(bearing), dist * np.sin(bearing)])
-            rooms = world.room_of(pts)
-            ok = (rooms >= 0) & world.reachable[np.maximum(rooms, 0)]
-            ok &= world.clearance(pts) >= 0.45
+            pts, ok = self._open_around(sensor, dist, bearing)
             if ok.any():
                 return pts[np.argmax(ok)]
         return world.sample_free(rng)
@@ -261,23 +253,28 @@ class Crowd:
             self.final[i] = len(route) == 1
 
     # ------------------------------------------------------------- dynamics
-    def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
-        cfg = self.cfg
+    def _drive(self, idx: np.ndarray, relax_time: float) -> tuple[np.ndarray, np.ndarray]:
+        """The drive of people ``idx`` towards their targets at their preferred speeds (slowing
+        on the last metre before a goal) and their unit walking directions (the heading when
+        nearly still), each ``(len(idx), 2)``."""
         pos, vel = self.pos[idx], self.vel[idx]
         d = self.target[idx] - pos
         n = np.hypot(d[:, 0], d[:, 1])
-        # Walk at the preferred speed, slowing down on the last metre before a goal.
         v0 = self.speed0[idx] * np.where(self.final[idx], np.minimum(1.0, n), 1.0)
         v0 *= self.state[idx] == WALK
-        desired = d * (v0 / np.maximum(n, 1e-6))[:, None]
-        force = (desired - vel) / cfg.relax_time
+        force = (d * (v0 / np.maximum(n, 1e-6))[:, None] - vel) / relax_time
         speed = np.hypot(vel[:, 0], vel[:, 1])
         facing = np.where(
             speed[:, None] > 0.1,
             vel / np.maximum(speed, 1e-9)[:, None],
             np.column_stack([np.cos(self.heading[idx]), np.sin(self.heading[idx])]),
         )
+        return force, facing
 
+    def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
+        cfg = self.cfg
+        pos = self.pos[idx]
+        force, facing = self._drive(idx, cfg.relax_time)
         others = np.concatenate([pos, robot[None, :2]])
         radii = np.concatenate([np.full(len(pos), cfg.body_radius), [robot_radius]])
         diff = pos[:, None, :] - others[None, :, :]
@@ -287,11 +284,8 @@ class Crowd:
         # Anisotropy: people react mostly to what is in front of them.
         cos_phi = -(n_ij * facing[:, None, :]).sum(-1)
         weight = 0.35 + 0.65 * (1 + cos_phi) / 2
-        mag = (
-            cfg.people_strength
-            * np.exp((cfg.body_radius + radii[None, :] - dist) / cfg.people_range)
-            * weight
-        )
+        overlap = (cfg.body_radius + radii[None, :] - dist) / cfg.people_range
+        mag = cfg.people_strength * np.exp(overlap) * weight
         force += (mag[..., None] * n_ij).sum(1)
 
         # Walls and furniture: the nearest one, from the world's distance table.

@@ -1,14 +1,10 @@
 """The robot carrying the LiDAR: standing still, or driving smoothly through the floor plan.
 
-A driving robot is a unicycle (forward speed ``v``, turn rate ``w``) with acceleration limits,
-up to ~1 m/s and ~1 rad/s. It drives to random goals along routes through doors, steering towards
-the next waypoint while pushed away from walls, furniture and people; it slows down to turn and
-near people, pauses now and then, and sometimes turns on the spot. The sensor sits at the robot's
-origin, so the robot's pose is the sensor's pose ``(x, y, yaw)``.
-
-Odometry: the true pose, or (``odom_drift > 0``) the pose integrated from the true motion
-increments with a per-episode scale error and random-walk noise, so that it drifts the way wheel
-odometry does: ``odom_drift`` is roughly the relative error per metre driven.
+A driving robot is a unicycle with acceleration limits that drives to random goals through doors,
+pushed away from walls, furniture and people, slowing to turn and near people, pausing now and
+then. Its pose is the sensor's ``(x, y, yaw)``. Odometry is the true pose, or with
+``odom_drift > 0`` (roughly the relative error per metre driven) the true increments with a
+per-episode scale error and random-walk noise integrated, drifting as wheel odometry does.
 """
 
 from __future__ import annotations
@@ -21,9 +17,10 @@ import numpy as np
 from lidarflow.errors import SimError
 from lidarflow.scan import BeamGeometry
 from lidarflow.sim.lidar import cast_rays
+from lidarflow.sim.local_planner import RobotConfig
 from lidarflow.sim.world import World
 
-__all__ = ["Platform", "PlatformConfig", "compose", "relative"]
+__all__ = ["Platform", "PlatformConfig", "compose", "drive", "relative"]
 
 
 #: The most odometry error per metre driven: at 1 the poses are off by as much as the robot
@@ -59,13 +56,8 @@ class PlatformConfig:
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose ``a`` followed by the relative pose ``b`` (both ``(x, y, yaw)``)."""
     c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array(
-        [
-            a[0] + c * b[0] - s * b[1],
-            a[1] + s * b[0] + c * b[1],
-            math.remainder(a[2] + b[2], 2 * math.pi),
-        ]
-    )
+    yaw = math.remainder(a[2] + b[2], 2 * math.pi)
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], yaw])
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -73,6 +65,31 @@ def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     c, s = math.cos(a[2]), math.sin(a[2])
     dx, dy = b[0] - a[0], b[1] - a[1]
     return np.array([c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], 2 * math.pi)])
+
+
+def drive(
+    world: World,
+    pose: np.ndarray,
+    vw: np.ndarray,
+    target: tuple[float, float],
+    limits: PlatformConfig | RobotConfig,
+    dt: float,
+) -> np.ndarray:
+    """The pose ``(x, y, yaw)`` after ``dt`` s of a unicycle (midpoint rule) whose speeds ``vw``
+    ``(v, w)`` (updated in place) move towards ``target`` under ``limits``' accelerations. A
+    move that takes the disc of ``limits.radius`` closer into an obstacle is refused: it turns
+    on the spot and stops (a bumper)."""
+    vw[0] += np.clip(target[0] - vw[0], -limits.accel * dt, limits.accel * dt)
+    vw[1] += np.clip(target[1] - vw[1], -limits.turn_accel * dt, limits.turn_accel * dt)
+    x, y, yaw = pose
+    mid, step = yaw + vw[1] * dt / 2, vw[0] * dt
+    turned = math.remainder(yaw + vw[1] * dt, 2 * math.pi)
+    new = np.array([x + step * math.cos(mid), y + step * math.sin(mid), turned])
+    clear_new, clear_now = world.clearance(np.stack([new[:2], pose[:2]]))
+    if clear_new < limits.radius and clear_new < clear_now:
+        new[:2] = pose[:2]
+        vw[0] = 0.0
+    return new
 
 
 def _clamp(x: float, lo: float, hi: float) -> float:
@@ -100,20 +117,16 @@ class Platform:
                 break
         if start is None:
             raise SimError("no free spot for the robot in this world; use another seed")
-        yaw = (
-            _open_heading(world, start) + rng.normal(0, 0.3)
-            if rng.random() < 0.7
-            else (rng.uniform(-math.pi, math.pi))
-        )
+        if rng.random() < 0.7:
+            yaw = _open_heading(world, start) + rng.normal(0, 0.3)
+        else:
+            yaw = rng.uniform(-math.pi, math.pi)
         self.pose = np.array([start[0], start[1], math.remainder(yaw, 2 * math.pi)])
         self.odom = self.pose.copy()
-        self.v = 0.0
-        self.w = 0.0
+        self.vw = np.zeros(2)  # forward speed (m/s), turn rate (rad/s)
         self.direction = np.array([math.cos(yaw), math.sin(yaw)])
         self.route: list[np.ndarray] = []
-        self.cruise = 0.0
-        self.pause = 0.0
-        self.pause_turn = 0.0
+        self.cruise = self.pause = self.pause_turn = 0.0
         self.check_pos = self.pose[:2].copy()
         self.check_timer = 0.0
         # Odometry errors come from their own generator, so the true motion is the same with
@@ -182,9 +195,8 @@ class Platform:
             close = dist < 1.2
             if close.any():
                 push = -rel[close] / np.maximum(dist[close], 1e-6)[:, None]
-                direction = direction + (
-                    0.5 * np.exp((0.7 - dist[close]) / 0.3)[:, None] * push
-                ).sum(0)
+                weight = 0.5 * np.exp((0.7 - dist[close]) / 0.3)
+                direction = direction + (weight[:, None] * push).sum(0)
         # Low-pass the steering direction: a driver does not twitch at every push.
         self.direction = 0.75 * self.direction + 0.25 * direction
         err = math.remainder(math.atan2(self.direction[1], self.direction[0]) - yaw, 2 * math.pi)
@@ -202,34 +214,14 @@ class Platform:
         if not self.cfg.moving:
             return
         cfg = self.cfg
-        v_cmd, w_cmd = self._command(dt, people)
-        self.v += _clamp(v_cmd - self.v, -cfg.accel * dt, cfg.accel * dt)
-        self.w += _clamp(w_cmd - self.w, -cfg.turn_accel * dt, cfg.turn_accel * dt)
-        yaw = self.pose[2]
-        mid = yaw + self.w * dt / 2
-        new = np.array(
-            [
-                self.pose[0] + self.v * dt * math.cos(mid),
-                self.pose[1] + self.v * dt * math.sin(mid),
-                math.remainder(yaw + self.w * dt, 2 * math.pi),
-            ]
-        )
-        field = self.world.field
-        clear_new = field.at(new[0], new[1])[0]
-        if clear_new < cfg.radius and clear_new < field.at(self.pose[0], self.pose[1])[0]:
-            new[:2] = self.pose[:2]  # bumper: turn on the spot instead of hitting anything
-            self.v = 0.0
+        new = drive(self.world, self.pose, self.vw, self._command(dt, people), cfg, dt)
         if cfg.odom_drift > 0:
             inc = relative(self.pose, new)
             dist = math.hypot(inc[0], inc[1])
-            noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * np.array(
-                [dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist]
-            )
-            measured = (
-                np.array([inc[0] * self.scale[0], inc[1] * self.scale[0], inc[2] * self.scale[1]])
-                + noise
-            )
-            self.odom = compose(self.odom, measured)
+            spread = np.array([dist, 0.2 * dist, abs(inc[2]) + 0.2 * dist])
+            noise = self.odom_rng.normal(0, cfg.odom_drift, 3) * spread
+            # one scale error for the distance driven, one for the turn
+            self.odom = compose(self.odom, inc * self.scale[[0, 0, 1]] + noise)
         else:
             self.odom = new.copy()
         self.pose = new

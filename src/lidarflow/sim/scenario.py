@@ -1,24 +1,12 @@
 """Scenario assembly: episodes of a world, a robot and people, turned into a recording.
 
-A simulation is a run of *episodes*: each builds a new world from ``(seed, episode index)``, so
-the result is the same for a seed however it is cut into files or spread over processes. Between
-episodes the stamps jump by one second, so :func:`lidarflow.data.split_segments` never lets a
-training window cross from one world into the next, and the last frame of every episode has zero
-flow (it has no next frame).
+Each episode builds a new world from ``(seed, episode index)``, so a seed gives the same run
+however it is cut into files or spread over processes. Between episodes the stamps jump by one
+second (no training window crosses worlds); an episode's last frame has zero flow.
 
-The recording carries the ground truth in ``extras`` (design notes, section 3; flow in cells,
-channel 0 column, channel 1 row):
-
-* ``flow_backward`` float16 ``(N, 2, H, W)``: index ``t`` holds ``B^t`` (on ``O^{t+1}``'s cells),
-* ``flow_forward`` float16 ``(N, 2, H, W)``: index ``t`` holds ``F^t`` (on ``O^t``'s cells),
-* ``moving`` bool ``(N, H, W)``: cells of ``O^t`` hit on a moving object,
-* ``true_poses`` float64 ``(N, 3)``: the true sensor pose; ``Recording.poses`` is the odometry,
-* ``episode`` int32 ``(N,)``: the episode (world) of each frame.
-
-Flow is stored dense by default; ``flow_storage="sparse"`` keeps only the non-zero cells
-(:mod:`lidarflow.sim.storage`; :func:`lidarflow.sim.dense_flow` reads either). Long runs are
-written as several files of whole episodes (``write_simulation``), so no process holds more than
-one file's worth of dense flow.
+The recording's ``extras`` hold the ground-truth flow (:mod:`lidarflow.sim.storage`) and
+``moving`` bool ``(N, H, W)`` (cells of ``O^t`` hit on a moving object), ``true_poses`` float64
+``(N, 3)`` (``Recording.poses`` is the odometry) and ``episode`` int32 ``(N,)``.
 """
 
 from __future__ import annotations
@@ -26,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
+from contextlib import closing
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -41,8 +30,8 @@ from lidarflow.sim.lidar import STATIC_ID, LidarConfig, cast_rays, lidar_preset,
 from lidarflow.sim.people import Crowd, PeopleConfig, legs_from
 from lidarflow.sim.platform import Platform, PlatformConfig
 from lidarflow.sim.social import SocialCrowd
-from lidarflow.sim.storage import FLOW_STORAGES, to_sparse
-from lidarflow.sim.world import WorldConfig, build_world
+from lidarflow.sim.storage import FLOW_STORAGES, fill_dense, to_sparse
+from lidarflow.sim.world import World, WorldConfig, build_world
 
 __all__ = ["Episode", "SimConfig", "simulate", "simulate_episode", "write_simulation"]
 
@@ -72,14 +61,10 @@ class SimConfig:
     walkers: str = "legacy"
 
     def __post_init__(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise SimError(f"scenario must be one of {SCENARIOS}, got {self.scenario!r}")
-        if self.walkers not in WALKERS:
-            raise SimError(f"walkers must be one of {WALKERS}, got {self.walkers!r}")
-        if self.flow_storage not in FLOW_STORAGES:
-            raise SimError(
-                f"flow_storage must be one of {FLOW_STORAGES}, got {self.flow_storage!r}"
-            )
+        choices = {"scenario": SCENARIOS, "walkers": WALKERS, "flow_storage": FLOW_STORAGES}
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise SimError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.episode_frames < 2 or self.block_frames < 1:
             raise SimError("episode_frames must be >= 2 and block_frames >= 1")
         if self.platform.moving != (self.scenario == "dynamic"):
@@ -139,41 +124,44 @@ def simulate_episode(
     total = frames + 1  # one more state, so the last frame's motion is known for `moving`
     world, poses, odom, legs = _dynamics(config, rng, total)
     geom = config.sensor.geometry()
+    true, ids = _cast(config, world, poses, legs)
+    ranges = measure(true, config.sensor, rng)
+    backward, forward, moving = out or _zeros(config, frames)
+    for a in range(0, frames, config.block_frames):
+        b = min(a + config.block_frames, frames)
+        s = slice(a, b + 1)  # the block's frames and the one after
+        moved = (backward[a:b], forward[a:b], moving[a:b])
+        ground_truth(ranges[s], ids[s], poses[s], legs[s, :, :2], geom, config.grid, out=moved)
+    backward[-1] = 0.0  # the episode's last frame has no next frame
+    forward[-1] = 0.0
+    return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
+
+
+def _cast(
+    config: SimConfig, world: World, poses: np.ndarray, legs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cast_rays` of the episode, a block of frames at a time; a robot standing still
+    casts on the walls and furniture once."""
+    geom = config.sensor.geometry()
     leg_ids = np.arange(legs.shape[1], dtype=np.int32)
     static_scene = None
     if not config.platform.moving:
         static_scene = cast_rays(poses[:1], geom, world.segments, world.circles)
-    true = np.empty((total, geom.count))
-    ids = np.empty((total, geom.count), dtype=np.int32)
-    for a in range(0, total, config.block_frames):
-        b = min(a + config.block_frames, total)
+    cid = np.concatenate([np.full(len(world.circles), STATIC_ID, np.int32), leg_ids])
+    true = np.empty((len(poses), geom.count))
+    ids = np.empty((len(poses), geom.count), dtype=np.int32)
+    for a in range(0, len(poses), config.block_frames):
+        b = min(a + config.block_frames, len(poses))
         if static_scene is None:
-            circles = np.concatenate(
-                [np.broadcast_to(world.circles, (b - a, *world.circles.shape)), legs[a:b]], 1
-            )
-            cid = np.concatenate([np.full(len(world.circles), STATIC_ID, np.int32), leg_ids])
+            walls = np.broadcast_to(world.circles, (b - a, *world.circles.shape))
+            circles = np.concatenate([walls, legs[a:b]], 1)
             true[a:b], ids[a:b] = cast_rays(poses[a:b], geom, world.segments, circles, cid)
         else:
             lr, lid = cast_rays(poses[a:b], geom, np.zeros((0, 4)), legs[a:b], leg_ids)
             closer = lr < static_scene[0]
             true[a:b] = np.where(closer, lr, static_scene[0])
             ids[a:b] = np.where(closer, lid, static_scene[1])
-    ranges = measure(true, config.sensor, rng)
-    backward, forward, moving = out or _zeros(config, frames)
-    for a in range(0, frames, config.block_frames):
-        b = min(a + config.block_frames, frames)
-        ground_truth(
-            ranges[a : b + 1],
-            ids[a : b + 1],
-            poses[a : b + 1],
-            legs[a : b + 1, :, :2],
-            geom,
-            config.grid,
-            out=(backward[a:b], forward[a:b], moving[a:b]),
-        )
-    backward[-1] = 0.0  # the episode's last frame has no next frame
-    forward[-1] = 0.0
-    return Episode(ranges[:frames], odom[:frames], poses[:frames], backward, forward, moving)
+    return true, ids
 
 
 def _zeros(config: SimConfig, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -187,6 +175,8 @@ def _zeros(config: SimConfig, frames: int) -> tuple[np.ndarray, np.ndarray, np.n
 
 def _episode_plan(frames: int, episode_frames: int) -> list[tuple[int, int, int]]:
     """``(episode, first frame, frame count)`` of every episode of a run."""
+    if frames < 1:
+        raise SimError(f"frames must be >= 1, got {frames}")
     return [
         (e, a, min(episode_frames, frames - a))
         for e, a in enumerate(range(0, frames, episode_frames))
@@ -230,10 +220,8 @@ class _Source:
         if self.pool is None:
             return simulate_episode(self.config, self.seed, episode, frames, out)
         ep, (bw_cells, bw_values, fw_cells, fw_values) = next(self.results)
-        for dst, cells, values in ((out[0], bw_cells, bw_values), (out[1], fw_cells, fw_values)):
-            flat = dst.reshape(len(dst), 2, -1)
-            f, k = np.nonzero(cells >= 0)
-            flat[f, :, cells[f, k]] = values[f, k]
+        fill_dense(out[0], bw_cells, bw_values)
+        fill_dense(out[1], fw_cells, fw_values)
         out[2][...] = ep.moving
         return Episode(ep.ranges, ep.odom, ep.true_poses, *out)
 
@@ -243,30 +231,21 @@ class _Source:
             self.pool.join()
 
 
-def _group(
+def _recording(
     config: SimConfig,
     seed: int,
-    group: list[tuple[int, int, int]],
+    plan: list[tuple[int, int, int]],
     source: _Source,
     progress: Callable[[int], object] | None,
 ) -> Recording:
-    flows = _zeros(config, sum(k for _, _, k in group))
+    """The episodes of ``plan`` from ``source`` as one recording (module docstring)."""
+    flows = _zeros(config, sum(k for _, _, k in plan))
     episodes, at = [], 0
-    for e, _, k in group:
+    for e, _, k in plan:
         episodes.append(source.next(e, k, tuple(f[at : at + k] for f in flows)))
         at += k
         if progress:
             progress(k)
-    return _assemble(config, seed, group, episodes, flows)
-
-
-def _assemble(
-    config: SimConfig,
-    seed: int,
-    plan: list[tuple[int, int, int]],
-    episodes: list[Episode],
-    flows: tuple[np.ndarray, np.ndarray, np.ndarray],
-) -> Recording:
     geom = config.sensor.geometry()
     n = sum(p[2] for p in plan)
     period = round(1e9 / config.sensor.rate_hz)
@@ -278,18 +257,13 @@ def _assemble(
     def cat(name: str) -> np.ndarray:
         return np.concatenate([getattr(ep, name) for ep in episodes])
 
-    if config.flow_storage == "sparse":
-        (bw_cells, bw_values), (fw_cells, fw_values) = to_sparse(flows[0]), to_sparse(flows[1])
-        stored = {
-            "flow_backward_cells": bw_cells,
-            "flow_backward_values": bw_values,
-            "flow_forward_cells": fw_cells,
-            "flow_forward_values": fw_values,
-        }
-    else:
-        stored = {"flow_backward": flows[0], "flow_forward": flows[1]}
-    extras = {
-        **stored,
+    extras: dict[str, np.ndarray] = {}
+    for name, flow in (("flow_backward", flows[0]), ("flow_forward", flows[1])):
+        if config.flow_storage == "sparse":
+            extras[f"{name}_cells"], extras[f"{name}_values"] = to_sparse(flow)
+        else:
+            extras[name] = flow
+    extras |= {
         "moving": flows[2],
         "true_poses": cat("true_poses"),
         "episode": np.concatenate([np.full(k, e, np.int32) for e, _, k in plan]),
@@ -331,14 +305,9 @@ def simulate(
     """Simulate ``frames`` frames into one in-memory recording (with ground truth in
     ``extras``); ``progress`` is called with the number of frames finished after each episode."""
     config = config or SimConfig()
-    if frames < 1:
-        raise SimError(f"frames must be >= 1, got {frames}")
     plan = _episode_plan(frames, config.episode_frames)
-    source = _Source(config, seed, plan, workers)
-    try:
-        return _group(config, seed, plan, source, progress)
-    finally:
-        source.close()
+    with closing(_Source(config, seed, plan, workers)) as source:
+        return _recording(config, seed, plan, source, progress)
 
 
 def write_simulation(
@@ -354,8 +323,6 @@ def write_simulation(
     that, the run is written as ``STEM-000.npz``, ``STEM-001.npz``... each holding whole
     episodes (at most ``max(chunk_frames, episode_frames)`` frames); otherwise as one file."""
     config = config or SimConfig()
-    if frames < 1:
-        raise SimError(f"frames must be >= 1, got {frames}")
     output = Path(output)
     plan = _episode_plan(frames, config.episode_frames)
     groups: list[list[tuple[int, int, int]]] = [[]]
@@ -365,20 +332,14 @@ def write_simulation(
             groups.append([])
         groups[-1].append(item)
     stem = output.name[:-4] if output.name.endswith(".npz") else output.name
-    paths = (
-        [output.with_name(f"{stem}-{i:03d}.npz") for i in range(len(groups))]
-        if len(groups) > 1
-        else [output]
-    )
-    source = _Source(config, seed, plan, workers)
+    paths = [output]
+    if len(groups) > 1:
+        paths = [output.with_name(f"{stem}-{i:03d}.npz") for i in range(len(groups))]
     # every file appears at the end, or none: a run stopped midway leaves no chunk behind
-    with atomic_paths(paths) as temps:
-        try:
-            for i, (group, tmp) in enumerate(zip(groups, temps, strict=True)):
-                recording = _group(config, seed, group, source, progress)
-                if len(groups) > 1:
-                    recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
-                recording.save(tmp)
-        finally:
-            source.close()
+    with closing(_Source(config, seed, plan, workers)) as source, atomic_paths(paths) as temps:
+        for i, (group, tmp) in enumerate(zip(groups, temps, strict=True)):
+            recording = _recording(config, seed, group, source, progress)
+            if len(groups) > 1:
+                recording.meta.update(chunk=i, chunks=len(groups), first_frame=group[0][1])
+            recording.save(tmp)
     return paths

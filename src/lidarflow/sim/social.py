@@ -17,13 +17,11 @@ waypoint along the unit vector ``e_i``) accelerates by
 * walls and furniture: the same exponential and body terms from the nearest obstacle
   (:attr:`lidarflow.sim.world.World.field`), strength ``A_w``, range ``B_w``;
 * groups: each member is pulled towards the centre of its group's members by ``cohesion``
-  (m/s^2) once further than ``(n - 1) / 2`` m from it. A group's first member (its leader) picks
-  the goals, stops and exits of :class:`~lidarflow.sim.people.Crowd`; the others share them and
-  appear beside the leader when it appears.
+  (m/s^2) once further than ``(n - 1) / 2`` m from it. A group's leader picks the goals, stops
+  and exits; the others share them and appear beside the leader when it appears.
 
-Speeds, stops and group sizes are :class:`SocialConfig`'s (how they compare with the
-recordings' people: ``docs/research/walkers``); stop durations are log-normal. Same generator
-state, same walk.
+Speeds, stops (log-normal durations) and group sizes are :class:`SocialConfig`'s
+(``docs/research/walkers``).
 """
 
 from __future__ import annotations
@@ -34,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lidarflow.errors import SimError
-from lidarflow.sim.people import OFF, STOP, WALK, Crowd, PeopleConfig
+from lidarflow.sim.people import OFF, STOP, Crowd, PeopleConfig
 from lidarflow.sim.world import World
 
 __all__ = ["SocialConfig", "SocialCrowd", "pair_forces", "wall_forces"]
@@ -200,17 +198,7 @@ class SocialCrowd(Crowd):
     def _forces(self, idx: np.ndarray, robot: np.ndarray, robot_radius: float) -> np.ndarray:
         s = self.social
         pos, vel = self.pos[idx], self.vel[idx]
-        d = self.target[idx] - pos
-        n = np.hypot(d[:, 0], d[:, 1])
-        v0 = self.speed0[idx] * np.where(self.final[idx], np.minimum(1.0, n), 1.0)
-        v0 *= self.state[idx] == WALK
-        force = (d * (v0 / np.maximum(n, 1e-6))[:, None] - vel) / s.relax_time
-        speed = np.hypot(vel[:, 0], vel[:, 1])
-        facing = np.where(
-            speed[:, None] > 0.1,
-            vel / np.maximum(speed, 1e-9)[:, None],
-            np.column_stack([np.cos(self.heading[idx]), np.sin(self.heading[idx])]),
-        )
+        force, facing = self._drive(idx, s.relax_time)
         others = np.concatenate([pos, robot[None, :2]])
         others_vel = np.concatenate([vel, np.zeros((1, 2))])
         radii = np.concatenate([np.full(len(pos), s.radius), [robot_radius]])

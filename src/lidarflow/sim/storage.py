@@ -21,7 +21,7 @@ import numpy as np
 from lidarflow.data.recording import Recording
 from lidarflow.errors import RecordingError
 
-__all__ = ["FLOW_STORAGES", "dense_flow", "to_sparse"]
+__all__ = ["FLOW_STORAGES", "dense_flow", "fill_dense", "to_sparse"]
 
 FLOW_STORAGES = ("dense", "sparse")
 
@@ -41,11 +41,17 @@ def to_sparse(flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cells, values
 
 
+def fill_dense(flow: np.ndarray, cells: np.ndarray, values: np.ndarray) -> None:
+    """Write :func:`to_sparse`'s ``cells``/``values`` into zeroed ``flow`` ``(N, 2, H, W)``."""
+    flat = flow.reshape(len(flow), 2, -1)
+    f, k = np.nonzero(cells >= 0)
+    flat[f, :, cells[f, k]] = values[f, k]
+
+
 def _dense(cells: np.ndarray, values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    out = np.zeros((2, shape[0] * shape[1]), dtype=np.float32)
-    used = cells >= 0
-    out[:, cells[used]] = values[used].T
-    return out.reshape(2, *shape)
+    out = np.zeros((1, 2, *shape), dtype=np.float32)
+    fill_dense(out, cells[None], values[None])
+    return out[0]
 
 
 def dense_flow(recording: Recording, t: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,14 +1,10 @@
 """The static world: an indoor floor plan of rooms and corridors with doors and furniture.
 
 Everything is in a fixed world frame, metres. The floor plan is a binary space partition of a
-rectangle into rooms (3-12 m) and corridors; neighbouring rooms share a wall with a door, a wide
-opening or no wall at all, chosen so that every room is reachable. Furniture is what a LiDAR
-mounted at shin height sees: cabinets and desks against walls (boxes), tables and chairs (their
-legs, as small circles), pillars, bins and plants (circles), and open door leaves (segments).
-
-Two geometries are kept: what the LiDAR sees (``segments``, ``circles``) and what people and the
-robot keep clear of (``avoid_segments``, ``avoid_circles``): a table is four thin legs to the
-sensor but a whole rectangle to someone walking.
+rectangle into rooms and corridors; neighbouring rooms share a wall with a door, a wide opening
+or no wall at all. Two geometries are kept: what the LiDAR sees (``segments``, ``circles``) and
+what people and the robot keep clear of (``avoid_segments``, ``avoid_circles``): a table is four
+legs to the sensor but a whole rectangle to someone walking.
 """
 
 from __future__ import annotations
@@ -16,6 +12,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -23,12 +20,7 @@ from lidarflow.errors import SimError
 from lidarflow.sim.field import DistanceField
 from lidarflow.sim.furniture import Furniture
 
-__all__ = [
-    "Door",
-    "World",
-    "WorldConfig",
-    "build_world",
-]
+__all__ = ["Door", "World", "WorldConfig", "build_world", "outline"]
 
 
 @dataclass(frozen=True)
@@ -179,6 +171,12 @@ class World:
         return path
 
 
+def outline(width: float, height: float) -> list[list[float]]:
+    """The four walls ``(x0, y0, x1, y1)`` of a ``width x height`` m rectangle at the origin."""
+    x, y = width, height
+    return [[0, 0, x, 0], [x, 0, x, y], [x, y, 0, y], [0, y, 0, 0]]
+
+
 # ------------------------------------------------------------------ floor plan
 def _partition(
     rng: np.random.Generator,
@@ -200,20 +198,13 @@ def _partition(
     ):
         # A corridor along the long side, rooms on one or both sides of it.
         lo = short_len - cw
-        both = lo >= 2 * cfg.room_min
-        first = (
-            rng.uniform(cfg.room_min, lo - cfg.room_min)
-            if both
-            else (lo if rng.random() < 0.5 else 0.0)
-        )
-        cuts = [first, first + cw]
+        if lo >= 2 * cfg.room_min:
+            first = rng.uniform(cfg.room_min, lo - cfg.room_min)
+        else:
+            first = lo if rng.random() < 0.5 else 0.0
         base = y0 if long_x else x0
-        bands = [
-            (base, base + cuts[0]),
-            (base + cuts[0], base + cuts[1]),
-            (base + cuts[1], base + short_len),
-        ]
-        for k, (a, b) in enumerate(bands):
+        edges = [base, base + first, base + (first + cw), base + short_len]
+        for k, (a, b) in enumerate(pairwise(edges)):
             if b - a < 1e-6:
                 continue
             sub = (x0, a, x1, b) if long_x else (a, y0, b, y1)
@@ -253,6 +244,38 @@ def _shared_edge(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray] 
     return None
 
 
+def _gap(
+    rng: np.random.Generator, cfg: WorldConfig, length: float, door: float, corridor: bool
+) -> tuple[float, float]:
+    """Where a passage opens along a shared wall of ``length`` m, from its start: no wall at
+    all (not beside corridors), a wide opening, or a door ``door`` m wide."""
+    roll = rng.random()
+    if roll < cfg.no_wall_prob and not corridor:
+        return 0.0, length
+    if roll < cfg.no_wall_prob + cfg.wide_opening_prob and length > 3.0:
+        door = rng.uniform(2.0, min(4.0, length - 0.6))
+    start = rng.uniform(0.3, length - 0.3 - door)
+    return start, start + door
+
+
+def _door_leaf(
+    rng: np.random.Generator,
+    p: np.ndarray,
+    along: np.ndarray,
+    normal: np.ndarray,
+    gap: tuple[float, float],
+) -> list[float]:
+    """An open door leaf in the ``gap`` of the wall from ``p`` along ``along``: hinged at one
+    jamb, swung 75-100 degrees into one of the rooms."""
+    hinge_at_start = rng.random() < 0.5
+    hinge = p + along * (gap[0] if hinge_at_start else gap[1])
+    towards = along if hinge_at_start else -along
+    side = normal if rng.random() < 0.5 else -normal
+    ang = math.radians(rng.uniform(75, 100))
+    leaf = (math.cos(ang) * towards + math.sin(ang) * side) * (gap[1] - gap[0] - 0.05)
+    return [*hinge, *(hinge + leaf)]
+
+
 def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> World:
     """Build a random floor plan with furniture (deterministic for the generator's state)."""
     cfg = config or WorldConfig()
@@ -279,12 +302,7 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
             i = parent[i]
         return i
 
-    segments: list[list[float]] = [
-        [0, 0, width, 0],
-        [width, 0, width, height],
-        [width, height, 0, height],
-        [0, height, 0, 0],
-    ]
+    segments = outline(width, height)
     doors: list[Door] = []
     for k in order:
         i, j, p, q = edges[k]
@@ -302,39 +320,15 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
         centre_i = (rooms[i, :2] + rooms[i, 2:]) / 2
         if normal @ (p - centre_i) < 0:
             normal = -normal  # from room i towards room j
-        roll = rng.random()
-        if roll < cfg.no_wall_prob and not corr:
-            gap = (0.0, length)
-        elif roll < cfg.no_wall_prob + cfg.wide_opening_prob and length > 3.0:
-            w = rng.uniform(2.0, min(4.0, length - 0.6))
-            s = rng.uniform(0.3, length - 0.3 - w)
-            gap = (s, s + w)
-        else:
-            s = rng.uniform(0.3, length - 0.3 - dw)
-            gap = (s, s + dw)
+        gap = _gap(rng, cfg, length, dw, corr)
         if gap[0] > 1e-6:
             segments.append([*p, *(p + along * gap[0])])
         if gap[1] < length - 1e-6:
             segments.append([*(p + along * gap[1]), *q])
-        centre = p + along * (gap[0] + gap[1]) / 2
-        doors.append(
-            Door(
-                int(i),
-                int(j),
-                (float(centre[0]), float(centre[1])),
-                (float(normal[0]), float(normal[1])),
-                gap[1] - gap[0],
-            )
-        )
+        (cx, cy), (nx, ny) = (p + along * (gap[0] + gap[1]) / 2).tolist(), normal.tolist()
+        doors.append(Door(int(i), int(j), (cx, cy), (nx, ny), gap[1] - gap[0]))
         if gap[1] - gap[0] < 1.5 and rng.random() < cfg.door_leaf_prob:
-            # An open door leaf, hinged at one jamb, swung 75-100 degrees into one room.
-            hinge_at_start = rng.random() < 0.5
-            hinge = p + along * (gap[0] if hinge_at_start else gap[1])
-            towards = along if hinge_at_start else -along
-            side = normal if rng.random() < 0.5 else -normal
-            ang = math.radians(rng.uniform(75, 100))
-            leaf = (math.cos(ang) * towards + math.sin(ang) * side) * (gap[1] - gap[0] - 0.05)
-            segments.append([*hinge, *(hinge + leaf)])
+            segments.append(_door_leaf(rng, p, along, normal, gap))
 
     # The largest group of rooms joined by passages is where people and the robot go.
     roots = [find(i) for i in range(len(rooms))]
@@ -350,14 +344,5 @@ def build_world(rng: np.random.Generator, config: WorldConfig | None = None) -> 
     ).reshape(-1, 4)
     circles = np.array(furniture.circles, dtype=np.float64).reshape(-1, 3)
     avoid_circles = np.array(furniture.avoid_circles, dtype=np.float64).reshape(-1, 3)
-    return World(
-        seg,
-        circles,
-        avoid,
-        avoid_circles,
-        rooms,
-        corridor,
-        doors,
-        reachable,
-        (0.0, 0.0, width, height),
-    )
+    bounds = (0.0, 0.0, width, height)
+    return World(seg, circles, avoid, avoid_circles, rooms, corridor, doors, reachable, bounds)
