@@ -145,6 +145,10 @@ class Windows(Dataset):
             return dense.reshape(len(cells), 2, *shape)
         return flow[start : start + self.length].astype(np.float32)
 
+    @property
+    def has_flow(self) -> bool:
+        return any(f is not None for f in self.flows)
+
 
 @dataclass
 class TrainData:
