@@ -30,9 +30,8 @@ __all__ = [
     "load_config_file",
 ]
 
-#: Settings measured without gain and removed, with the value that left them off: a config that
-#: gives that value (every run's ``config.json`` written while they existed) still reads; one
-#: that turns a setting on names a training this version cannot repeat, and is refused.
+#: Settings removed (measured without gain), with the value that left them off: a config giving
+#: that value still reads; one turning a setting on is refused.
 REMOVED_SETTINGS: dict[tuple[str, str], Any] = {("data", "slower_copies"): []}
 
 
@@ -122,8 +121,7 @@ def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
 
 
 def _without_removed(data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` without the :data:`REMOVED_SETTINGS` it gives at their off value; a
-    :class:`TrainError` naming one it turns on."""
+    """``data`` without the :data:`REMOVED_SETTINGS` it gives at their off value."""
     out = dict(data)
     for (section, key), off in REMOVED_SETTINGS.items():
         table = out.get(section)

@@ -196,6 +196,12 @@ def _run_facts(ctx: Dist) -> dict[str, Any]:
     }
 
 
+def _started(run_dir: Path) -> dict[str, Any]:
+    """``run.json``: how the run started and was resumed (empty where it is missing)."""
+    path = run_dir / "run.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
     """A resumed run must keep what shaped its weights; only the epoch count (and how it runs:
     device, threads, amp...) may change."""
@@ -269,8 +275,7 @@ def prepare_run_dir(
             _empty(run_dir)
     if resume:
         _check_resumable(run_dir, config)
-        started = run_dir / "run.json"
-        facts = json.loads(started.read_text()) if started.exists() else {}
+        facts = _started(run_dir)
         _check_same_data(run_dir, config, facts)
         done = ckpt.latest_epoch(run_dir)
         if config.optim.epochs < done:
@@ -285,7 +290,7 @@ def prepare_run_dir(
             # the config on disk says how many epochs the run is now meant to have
             ckpt.write_json(run_dir / "config.json", config_to_dict(config))
             facts.setdefault("resumed", []).append({**_run_facts(ctx), "after_epoch": done})
-            ckpt.write_json(started, facts)
+            ckpt.write_json(run_dir / "run.json", facts)
         return created
     # with start_over the main process empties it, maybe after the others look
     judged = ctx.is_main or not start_over
@@ -311,10 +316,7 @@ def write_final(
 ) -> None:
     if config.runtime.final_weights == "best" and (run_dir / "best.safetensors").exists():
         ckpt.load_weights(model, run_dir / "best.safetensors")
-    # The code the run trained with is the checkout it started at (run.json): HEAD may have
-    # moved during a long run.
-    started = run_dir / "run.json"
-    commit = json.loads(started.read_text()).get("commit") if started.exists() else None
-    record = model_record(config, model, data, extra, commit)
+    # The code the run trained with is the checkout it started at: HEAD may have moved since.
+    record = model_record(config, model, data, extra, _started(run_dir).get("commit"))
     ckpt.save_weights(model, run_dir / "model.safetensors", {"model": config.model.name})
     ckpt.write_json(run_dir / "model.json", record)

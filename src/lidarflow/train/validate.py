@@ -77,18 +77,10 @@ def validate(
                 epe[i + 1] += float(zero[cells].sum())
                 epe[i + 2] += float(cells.sum())
     model.train()
-    sums = all_reduce_sum(
-        ctx,
-        [
-            loss_sum,
-            windows,
-            *(float(getattr(c, k)) for c in (net, copy, net_changed) for k in ("tp", "fp", "fn")),
-            *epe,
-        ],
-    )
-    loss_sum, windows = sums[0], sums[1]
-    net, copy, net_changed = (Counts(*map(int, sums[2 + 3 * i : 5 + 3 * i])) for i in range(3))
-    e = sums[11:]
+    counts = [float(getattr(c, k)) for c in (net, copy, net_changed) for k in ("tp", "fp", "fn")]
+    loss_sum, windows, *sums = all_reduce_sum(ctx, [loss_sum, windows, *counts, *epe])
+    net, copy, net_changed = (Counts(*map(int, sums[3 * i : 3 * i + 3])) for i in range(3))
+    e = sums[9:]
     metrics = {
         "val_loss": loss_sum / windows if windows else float("nan"),
         "val_f1": net.f1,
