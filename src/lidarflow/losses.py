@@ -101,11 +101,7 @@ class LossConfig:
 
 
 def flow_loss(
-    seq: Tensor,
-    flows: Tensor,
-    kernel_size: int,
-    config: LossConfig | None = None,
-    warmup: int = 10,
+    seq: Tensor, flows: Tensor, kernel_size: int, config: LossConfig | None = None, warmup: int = 10
 ) -> Tensor:
     """Self-supervised warp loss of LiDAR-FlowNet, a scalar: the backward term, plus the
     forward term (if enabled), plus ``smoothness`` x the smoothness term.

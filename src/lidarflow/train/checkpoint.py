@@ -179,10 +179,7 @@ def latest_epoch(run_dir: Path) -> int:
 
 
 def load_checkpoint(
-    run_dir: Path,
-    model: torch.nn.Module,
-    optimizer: torch.optim.Optimizer,
-    scheduler: Any,
+    run_dir: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, scheduler: Any
 ) -> tuple[int, dict[str, Any]]:
     """Restore weights, optimizer, scheduler and RNG of the newest checkpoint; returns
     ``(epoch, extra)``."""

@@ -269,10 +269,7 @@ def _split_tail(
 
 
 def load_train_data(
-    cfg: DataConfig,
-    with_motion: bool = False,
-    with_subcell: bool = False,
-    train_flow: bool = False,
+    cfg: DataConfig, with_motion: bool = False, with_subcell: bool = False, train_flow: bool = False
 ) -> TrainData:
     """Load every source, split off validation, and cut windows; ``with_motion``: items carry
     the per-frame ego motion; ``with_subcell``: maps carry

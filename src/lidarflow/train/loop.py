@@ -35,12 +35,7 @@ from lidarflow.train.config import TrainConfig
 from lidarflow.train.distributed import Dist, all_reduce_sum, any_flag, barrier, setup, teardown
 from lidarflow.train.health import divergence_message, healthy, step_health
 from lidarflow.train.objective import gaussian_size, make_loss
-from lidarflow.train.rundir import (
-    abandon_run_dir,
-    prepare_run_dir,
-    release_run_dir,
-    write_final,
-)
+from lidarflow.train.rundir import abandon_run_dir, prepare_run_dir, release_run_dir, write_final
 from lidarflow.train.start import Run, load_data, start_run
 from lidarflow.train.supervised import flow_term, supervised, take_flow
 from lidarflow.train.warm import split_batch, start_state

@@ -19,10 +19,7 @@ from lidarflow.train.data import Windows
 
 @torch.no_grad()
 def stream_states(
-    model: RecurrentMapModel,
-    maps: np.ndarray,
-    frames: list[int],
-    motions: np.ndarray | None = None,
+    model: RecurrentMapModel, maps: np.ndarray, frames: list[int], motions: np.ndarray | None = None
 ) -> dict[int, np.ndarray]:
     """The head's state (``model``'s last state tensor) before each of ``frames``, as float16
     ``(C, H, W)``, streaming boolean ``maps`` ``(N, 2, H, W)`` (and ``motions`` ``(N, 3)``)."""
