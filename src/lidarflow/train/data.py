@@ -177,18 +177,16 @@ class TrainData:
 def _ground_truth(rec: Recording, grid: GridSpec, key: str = FLOW_KEY) -> tuple[Flow, str | None]:
     """The recording's ground-truth flow ``key`` (:mod:`lidarflow.sim.storage`) if it is on
     ``grid``; else ``None`` and why."""
-    extras = rec.extras
-    flow: Flow = None
+    extras, stored = rec.extras, rec.meta.get("grid") or {}
+    flow: Flow
     if key in extras:
         flow = extras[key]
         shape = tuple(flow.shape[-2:])
     elif f"{key}_cells" in extras and f"{key}_values" in extras:
         flow = (extras[f"{key}_cells"], extras[f"{key}_values"])
-        spec = rec.meta.get("grid") or {}
-        shape = (spec.get("height"), spec.get("width"))
+        shape = (stored.get("height"), stored.get("width"))
     else:
         return None, None
-    stored = rec.meta.get("grid") or {}
     res = stored.get("res", grid.res)
     if shape != grid.shape or not np.isclose(res, grid.res):
         return (

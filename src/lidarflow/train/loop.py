@@ -3,17 +3,10 @@
 it had never stopped (weights, optimizer moments, learning rate, Gaussian size, RNG state, data
 order). A diverging step stops the run with :class:`TrainError`; nothing of its epoch is written.
 
-A run, in a run folder :func:`train` locks (and removes again where a new run stops before its
-first epoch), goes through these steps, sharing a :class:`~lidarflow.train.start.Run`:
-
-1. **Data** (:func:`~lidarflow.train.start.load_data`): threads, seeds, the windows.
-2. **Start** (:func:`~lidarflow.train.start.start_run`): model, optimizer, schedule, restored on
-   a resume; a new run scores the untrained model as epoch 0 (``runtime.eval_before_training``).
-3. **Epochs** (:func:`_fit_epoch`, :func:`_close_epoch`): one optimizer step per batch, then
-   validation, the row logged, weights and checkpoint saved, until ``runtime.max_minutes``.
-4. **Finish** (:func:`_finish`): the final ``model.safetensors`` and ``model.json``.
-
-The loss per model type is :func:`lidarflow.train.objective.make_loss`.
+In a run folder :func:`train` locks (and removes again where a new run stops before its first
+epoch), a run loads its data and starts (:mod:`lidarflow.train.start`), scores the untrained
+model as epoch 0, trains and closes each epoch (:func:`_fit_epoch`, :func:`_close_epoch`) until
+the epochs or ``runtime.max_minutes`` are spent, and writes the final model (:func:`_finish`).
 """
 
 from __future__ import annotations
