@@ -263,15 +263,6 @@ def _mean_over_ranks(ctx: Dist, total: float, count: int) -> float:
 
 
 def _describe(row: dict[str, Any]) -> str:
-    keys = (
-        "train_loss",
-        "val_loss",
-        "val_f1",
-        "val_copy_last_f1",
-        "val_changed_f1",
-        "val_epe",
-        "val_epe_zero",
-        "val_epe_moving",
-        "val_epe_moving_zero",
-    )
-    return ", ".join(f"{k} {row[k]:.4g}" for k in keys if k in row)
+    """The row's training loss and validation metrics, in the row's order."""
+    shown = [k for k in row if k == "train_loss" or k.startswith("val_")]
+    return ", ".join(f"{k} {row[k]:.4g}" for k in shown)
