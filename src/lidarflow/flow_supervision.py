@@ -1,22 +1,12 @@
-"""Supervised flow loss: end-point error against exact flow (the simulator's).
+"""Supervised flow loss: end-point error against the simulator's exact flow
+(``docs/research/flow_supervised/``).
 
-The simulator knows the exact flow, so the flow can be taught directly first and fine-tuned
-self-supervised (:mod:`lidarflow.losses`) afterwards (``docs/research/flow_supervised/``).
-
-Where the exact flow is defined (design notes section 3, :mod:`lidarflow.sim.groundtruth`):
-``B^t`` on the cells occupied in ``O^{t+1}`` (the frame it moves from, backwards), ``F^t`` on the
-cells occupied in ``O^t``. Elsewhere the truth is zero by convention, not by fact, so those
-cells are not counted.
-
-Moving cells are weighted up: with plain averaging the static majority decides the loss and
-the cheapest fit is "everything moves with the platform". A cell is *moving* when its exact
-flow differs from the platform's flow there (:func:`platform_flows`; zero for a platform that
-stands still) by more than ``threshold`` cells, and it weighs ``moving_weight`` times a static
-one in the weighted mean.
-
-The per-cell error is the Charbonnier form ``sqrt(|e|^2 + eps^2) - eps`` of the end-point error:
-exactly 0 for the exact flow, ``|e|`` up to ``eps`` for large errors, and (unlike ``|e|``)
-differentiable at zero.
+The exact ``B^t`` is defined on the cells occupied in ``O^{t+1}``, ``F^t`` on those occupied in
+``O^t`` (:mod:`lidarflow.sim.groundtruth`); other cells are not counted. A cell is *moving* when
+its exact flow differs from the platform's (:func:`platform_flows`) by more than ``threshold``
+cells; it weighs ``moving_weight`` times a static one, so that the static majority does not
+make "everything moves with the platform" the cheapest fit. The per-cell error is the
+Charbonnier form ``sqrt(|e|^2 + eps^2) - eps``: 0 for the exact flow, differentiable at zero.
 """
 
 from __future__ import annotations
@@ -36,9 +26,7 @@ __all__ = [
 ]
 
 #: Cells per frame by which a cell's exact flow must differ from the platform's to count as
-#: moving (the loss's default, ``loss.flow_epe_moving_threshold``, and evaluate's EPE split).
-#: People walk at 0.3-1.8 m/s, 0.2-1.2 cells a frame at 15 Hz and 0.1 m; a rigid motion's flow
-#: varies by up to ~0.05 cells across one cell (the truth averages the points in it).
+#: moving: above a rigid motion's spread across one cell (~0.05), below a walker's (0.2-1.2).
 MOVING_FLOW_THRESHOLD = 0.15
 
 #: Charbonnier epsilon (cells): the loss is quadratic below it, linear above.
@@ -115,8 +103,7 @@ def window_flow_loss(
     moving_weight: float,
     threshold: float,
 ) -> Tensor:
-    """:func:`flow_epe_loss` of a batch of training windows, pairs ``t = warmup .. T-2`` as the
-    warp loss counts them (:mod:`lidarflow.losses`).
+    """:func:`flow_epe_loss` of a batch of training windows over pairs ``t = warmup .. T-2``.
 
     Args:
         seq: ``(B, T, C, H, W)`` maps, channel 0 occupancy.

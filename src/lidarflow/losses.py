@@ -1,21 +1,12 @@
 """The self-supervised losses: LiDAR-FlowNet's warp loss (paper eq. 3, design notes section 4),
 DeepTracking's cross-entropy and SOGMP's cross-entropy plus KL.
 
-Indexing (every loss). ``seq`` is ``(B, T, 2, H, W)`` with channels ``(O, V)``; the model's
-output at index ``t`` (0-based) has seen frames ``0..t`` and speaks about the pair ``(t, t+1)``.
-The loss counts pairs ``t = warmup .. T-2``: with the paper's ``T = 20`` and ``warmup = 10``,
-frames 0-9 (the first ten) only warm up the hidden state, and the loss starts with the output
-at the 11th frame (index 10), which predicts the 12th; 9 pairs per sequence. Every counted
-cell of every pair and sequence weighs the same (a pooled mean over batch, pairs and cells; with
-masks or weights, the pooled weighted mean), so plain MSE is the mean of the per-pair MSEs.
-
-Flow loss variants are configuration (:class:`LossConfig`), not forks; the literal paper loss is
-``LossConfig.paper()`` (also the default, as every config's defaults are the paper's):
+Indexing (every loss): ``seq`` is ``(B, T, 2, H, W)`` with channels ``(O, V)``; the output at
+index ``t`` has seen frames ``0..t`` and speaks about the pair ``(t, t+1)``. Pairs
+``t = warmup .. T-2`` are counted, and every counted cell of every pair weighs the same (a pooled,
+possibly weighted, mean). The paper's loss is ``LossConfig.paper()``, the default:
 
     L = MSE(O^t, W(G(O^{t+1}, k), F^t)) + MSE(O^{t+1}, W(G(O^t, k), B^t))
-
-``LossConfig.blurred_both()`` blurs the target too, so that zero flow is the minimum at every
-filter size when nothing moves (the literal form rewards flow that samples from empty space).
 """
 
 from __future__ import annotations
@@ -85,20 +76,13 @@ class LossConfig:
     flow_epe_moving_threshold: float = 0.15
 
     def __post_init__(self) -> None:
-        names = ("kl_weight", "warp", "flow_epe", "flow_epe_moving_weight")
-        for name in (*names, "flow_epe_moving_threshold"):
+        non_negative = ("smoothness", "occupancy_bce", "kl_weight", "warp", "flow_epe")
+        for name in (*non_negative, "flow_epe_moving_weight", "flow_epe_moving_threshold"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if not self.smoothness >= 0.0:
-            raise ValueError(f"smoothness must be >= 0, got {self.smoothness}")
-        if not self.occupied_weight > 0.0:
-            raise ValueError(f"occupied_weight must be > 0, got {self.occupied_weight}")
-        if not self.occupancy_bce >= 0.0:
-            raise ValueError(f"occupancy_bce must be >= 0, got {self.occupancy_bce}")
-        if not self.occupancy_changed_weight > 0.0:
-            raise ValueError(
-                f"occupancy_changed_weight must be > 0, got {self.occupancy_changed_weight}"
-            )
+        for name in ("occupied_weight", "occupancy_changed_weight"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
 
     @classmethod
     def paper(cls) -> LossConfig:
@@ -117,26 +101,18 @@ class LossConfig:
 
 
 def flow_loss(
-    seq: Tensor,
-    flows: Tensor,
-    kernel_size: int,
-    config: LossConfig | None = None,
-    warmup: int = 10,
+    seq: Tensor, flows: Tensor, kernel_size: int, config: LossConfig | None = None, warmup: int = 10
 ) -> Tensor:
-    """Self-supervised warp loss of LiDAR-FlowNet, a scalar.
+    """Self-supervised warp loss of LiDAR-FlowNet, a scalar: the backward term, plus the
+    forward term (if enabled), plus ``smoothness`` x the smoothness term.
 
     Args:
         seq: ``(B, T, 2, H, W)`` maps, channels ``(O, V)``.
         flows: ``(B, T, 4, H, W)`` model outputs, channels ``B_col, B_row, F_col, F_row`` (cells);
             ``flows[:, t]`` relates frames ``t`` and ``t + 1``.
-        kernel_size: Gaussian filter size ``k`` (odd; 1 = no filter), see
-            :func:`gaussian_schedule`.
+        kernel_size: Gaussian filter size ``k`` (odd; 1 = no filter).
         config: loss variant; ``None`` = :meth:`LossConfig.paper`.
-        warmup: pairs ``t < warmup`` are not counted (module docstring: indexing).
-
-    Returns:
-        Mean over the pairs ``t = warmup .. T-2`` of the backward term, plus the forward term
-        (if enabled), plus ``smoothness`` x the smoothness term.
+        warmup: pairs ``t < warmup`` are not counted.
     """
     config = LossConfig.paper() if config is None else config
     _check(seq, flows, 4, warmup)
@@ -200,19 +176,13 @@ def deeptracking_loss(
     visible_only: bool = True,
     changed_weight: float = 1.0,
 ) -> Tensor:
-    """DeepTracking's published loss: binary cross-entropy of the predicted next occupancy
-    (also the occupancy-head term of LiDAR-FlowNet, ``next_map_bce``).
+    """DeepTracking's published loss, also LiDAR-FlowNet's occupancy-head term: binary
+    cross-entropy of the logits ``(B, T, 1, H, W)``, ``logits[:, t]`` predicting ``O^{t+1}``.
 
-    ``logits[:, t]`` ``(B, T, 1, H, W)`` predicts ``O^{t+1}``; pairs ``t = warmup .. T-2`` as in
-    :func:`flow_loss`. As Ondruska & Posner (2016) and Dequaire et al. (2018) do, only the cells
-    visible in the target frame (``V^{t+1} = 1``) count: an occluded cell's true state is not
-    observed, so it must not be taught as free. The result is the mean over those cells (over
-    all cells with ``visible_only=False``).
-
-    ``changed_weight`` weighs the cells whose value differs between ``O^t`` and ``O^{t+1}``
-    that many times the others (a weighted mean). Under 1 % of cells change per frame, so the
-    plain mean is dominated by cells that copying already gets right; weighting the changes
-    moves the 0.4 decision towards predicting them (at some cost in calibration).
+    With ``visible_only`` (Ondruska & Posner 2016) only cells visible in the target frame count:
+    an occluded cell's state is not observed, so it must not be taught as free.
+    ``changed_weight`` weighs the cells that differ between ``O^t`` and ``O^{t+1}`` that many
+    times the others (a weighted mean).
     """
     _check(seq, logits, 1, warmup)
     t = seq.shape[1]
@@ -231,17 +201,13 @@ next_map_bce = deeptracking_loss
 
 
 def sogmp_loss(seq: Tensor, out: Tensor, warmup: int = 9, kl_weight: float = 0.01) -> Tensor:
-    """SOGMP's loss (Xie & Dames 2023, as its public training code computes it): the binary
-    cross-entropy of the predicted next map against ``O^{t+1}`` summed over every cell of the
-    map (no visibility mask), plus ``kl_weight`` times the KL divergence of the step's latent
-    from the prior ``N(0, I)`` summed over the latent; both averaged over windows and pairs.
+    """SOGMP's loss (Xie & Dames 2023, as its public training code computes it): per map, the
+    binary cross-entropy against ``O^{t+1}`` summed over every cell, plus ``kl_weight`` x the
+    step's KL divergence from ``N(0, I)``; averaged over windows and pairs.
 
-    ``out[:, t]`` ``(B, T, 2, H, W)`` is :class:`~lidarflow.models.sogmp.SOGMP`'s output:
-    channel 0 the next-occupancy logit, channel 1 the KL spread over the cells (its sum over
-    the map is the step's KL). Pairs ``t = warmup .. T-2`` as in :func:`flow_loss` (the
-    recipe's warm-up of 9 fills the ten-map window before the first counted pair). The sums
-    per map (not means) keep the peer's balance between the two terms: the KL weighs as much
-    against ~10^4 cells here as it did against its 64 x 64.
+    ``out`` ``(B, T, 2, H, W)`` is :class:`~lidarflow.models.sogmp.SOGMP`'s output: channel 0
+    the next-occupancy logit, channel 1 the KL spread over the cells. Sums per map (not means)
+    keep the peer's balance between the two terms.
     """
     _check(seq, out, 2, warmup)
     t = seq.shape[1]
@@ -255,7 +221,7 @@ def sogmp_loss(seq: Tensor, out: Tensor, warmup: int = 9, kl_weight: float = 0.0
 
 def gaussian_schedule(epoch: int, start: int = 9, step_epochs: int = 25, minimum: int = 1) -> int:
     """The paper's filter size at 0-based ``epoch``: ``start``, minus 2 every ``step_epochs``
-    epochs, never below ``minimum``: 9 (epochs 0-24), 7, 5, 3, then 1 from epoch 100 on.
+    epochs, never below ``minimum``.
 
     >>> [gaussian_schedule(e) for e in (0, 24, 25, 50, 75, 99, 100, 199)]
     [9, 9, 7, 5, 3, 3, 1, 1]

@@ -2,7 +2,7 @@
 
 Layout of a run directory::
 
-    config.json                 the TrainConfig (plus run facts)
+    config.json, run.json       the TrainConfig; the command, commit, device and resumes
     metrics.csv, metrics.jsonl  one row per epoch
     checkpoints/epoch_NNNN.safetensors   weights after epoch NNNN
     checkpoints/epoch_NNNN.state.pt      optimizer, scheduler, RNG states, epoch, best score
@@ -10,10 +10,9 @@ Layout of a run directory::
     last.safetensors, best.safetensors   weights of the last / best epoch
     model.safetensors, model.json        the final model other commands load
 
-Every file is written to a temporary name and renamed into place (atomic on POSIX), and
-``latest.json`` moves only after both files of an epoch are on disk, so a run killed at any
-moment resumes from the last complete epoch and loses at most that epoch's work. The state file
-is loaded with ``torch.load(weights_only=True)``: it holds tensors and plain Python values only.
+Every file is written to a temporary name and renamed into place, and ``latest.json`` moves only
+after both files of an epoch are on disk, so a killed run resumes from the last complete epoch.
+The state file holds tensors and plain values only (``torch.load(weights_only=True)``).
 """
 
 from __future__ import annotations
@@ -52,16 +51,15 @@ KEEP = 2  # epochs of checkpoints kept on disk (the newest and the one before)
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``
-    (:func:`lidarflow.atomic.atomic_path`)."""
+    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``."""
     with atomic_path(path) as tmp:
         write(tmp)
     return path
 
 
 def remove_temporaries(run_dir: Path) -> int:
-    """Delete what a killed writer left behind (``.NAME.PID.partial*``, and ``.NAME.*.tmp`` of
-    older versions); returns how many."""
+    """Delete what a killed writer left behind (``.NAME.PID.partial*``, ``.NAME.*.tmp``);
+    returns how many."""
     folders = (run_dir, _ckpt_dir(run_dir))
     stale = [p for d in folders for pattern in (".*.tmp", ".*.partial*") for p in d.glob(pattern)]
     for path in stale:
@@ -95,8 +93,7 @@ def save_weights(model: torch.nn.Module, path: Path, meta: dict[str, Any] | None
     return atomic_write(path, lambda tmp: tmp.write_bytes(save(state, metadata=metadata)))
 
 
-#: What a checkpoint file that cannot be read is, and what to do (the kill it survived was
-#: not atomic: a copy, a disk that filled, a file system that lost its tail).
+#: A checkpoint file that cannot be read: written by something not atomic (a copy, a full disk).
 _DAMAGED = "damaged checkpoint ({what} cannot be read: the file is cut short or overwritten)"
 
 
@@ -182,10 +179,7 @@ def latest_epoch(run_dir: Path) -> int:
 
 
 def load_checkpoint(
-    run_dir: Path,
-    model: torch.nn.Module,
-    optimizer: torch.optim.Optimizer,
-    scheduler: Any,
+    run_dir: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, scheduler: Any
 ) -> tuple[int, dict[str, Any]]:
     """Restore weights, optimizer, scheduler and RNG of the newest checkpoint; returns
     ``(epoch, extra)``."""

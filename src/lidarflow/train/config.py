@@ -1,18 +1,7 @@
-"""Training configuration: typed dataclasses whose defaults are the paper's recipe.
-
-The paper (Section V-A, design notes §4): sequences of 20 frames, the first 10 only warm up the
-hidden state; batch 32; learning rate 0.01 halved every 25 epochs; 200 epochs; Gaussian filter
-size 9 at first, minus 2 every 25 epochs down to 1.
-
-The optimiser is **Adam** (``optim.name = "adam"``): the paper does not name it, but its
-learning rate of 0.01 with step halving is Adam's regime, not SGD's — the loss is a mean squared
-error of order 1e-3 over mostly empty maps, so its raw gradients are tiny and plain SGD at 0.01
-barely moves; Adam's per-parameter scaling is what makes such a loss trainable at that rate, and
-it is what the FlowNet family of flow networks the paper builds on was trained with. ``sgd`` and
-``adamw`` are available as configuration.
-
-A configuration is built in layers from a named *recipe* (:mod:`lidarflow.train.recipes`):
-:mod:`lidarflow.train.config_io`.
+"""Training configuration: typed dataclasses whose defaults are the paper's recipe (Section V-A):
+windows of 20 frames, 10 of warm-up, batch 32, Adam at 0.01 halved every 25 epochs, 200 epochs,
+Gaussian size 9 minus 2 every 25 epochs down to 1. Configurations are built in layers from a
+named recipe by :mod:`lidarflow.train.config_io`.
 """
 
 from __future__ import annotations
@@ -39,18 +28,11 @@ __all__ = [
 @dataclass
 class ModelConfig:
     """Which network to train, typed as the model is built (:class:`lidarflow.models.ModelSpec`):
-    ``name`` (``flownet``, ``deeptracking`` or ``sogmp``), Table I's ``flow`` network (``None``,
-    ``--set model.flow=null``: none, the occupancy head alone; ``--recipe head_only``), the
-    occupancy ``head`` (``None``: none; ``--set model.head.hidden_channels=16`` adds one), the
-    ego-motion wrapper (``ego_motion``, ``poses_optional``) and, for DeepTracking and SOGMP,
-    their own ``options`` (e.g. ``--set model.options.visibility_input=true``).
-    Configs written before the model was built from blocks gave these as one flat
-    ``model.kwargs`` table, which is still
-    read (:func:`lidarflow.train.config_io.build_config`).
-
-    ``init``: weights to start from instead of the initialisation (a run folder or weights file
-    of the same architecture, or ``"bundled"``), e.g. to fine-tune a simulator-pretrained net on
-    real recordings; ``None`` (the paper) starts from scratch.
+    ``name`` (``flownet``, ``deeptracking`` or ``sogmp``), Table I's ``flow`` network (``None``:
+    the occupancy head alone), the occupancy ``head`` (``None``: none), the ego-motion wrapper
+    (``ego_motion``, ``poses_optional``) and DeepTracking's and SOGMP's own ``options``.
+    ``init``: weights to start from (a run folder or weights file of the same architecture, or
+    ``"bundled"``); ``None`` starts from scratch.
     """
 
     name: str = "flownet"
@@ -70,11 +52,10 @@ class ModelConfig:
 
 @dataclass
 class DecisionConfig:
-    """How the trained model's next map is to be decided, written beside it (``model.json``'s
-    ``decision`` record): the Predictor's policy, not the model's (training never uses it).
-    ``offset`` is added to the occupancy head's logit; ``online``: offsets chosen on the stream
-    itself, starting from it (:mod:`lidarflow.predict.decision`); ``movers``: a tracker's moved
-    objects join the decided map (:class:`lidarflow.predict.decision.DecisionPolicy`)."""
+    """How the trained model's next map is decided, ``model.json``'s ``decision`` record (the
+    Predictor's policy; training never uses it): ``offset`` added to the head's logit, ``online``
+    offsets chosen on the stream, ``movers`` (:class:`lidarflow.predict.decision.DecisionPolicy`).
+    """
 
     offset: float = 0.0
     online: bool = False
@@ -83,21 +64,14 @@ class DecisionConfig:
 
 @dataclass
 class DataConfig:
-    """Where the windows come from and how they are split.
+    """Where the windows come from and how they are split (:mod:`lidarflow.train.data`).
 
-    ``sources``: one entry per data *source* (a recording, a bag, a folder of ``.npz``
-    recordings or a glob pattern); ``mix``: relative sampling weight per source (empty: every
-    window equally likely, i.e. the natural proportions). ``val_split``: ``"tail"`` holds out
-    the last ``val_fraction`` of the frames of every recording (a contiguous block, so
-    validation windows never overlap training windows in time); ``"recordings"`` holds out
-    whole recordings (the last ``ceil(val_fraction * n)`` of them, at least one); ``val_sources``
-    names validation recordings explicitly instead. ``pose_dropout`` (ego-motion models only):
-    the fraction of training windows served without their poses (identity motion, as a
-    recording without odometry), so that a model meant to run both ways (``poses_optional``)
-    also learns from a moving platform seen uncompensated; which windows is fixed per window,
-    so ``--resume`` sees the same. ``memories_from_stream`` (occupancy-head models): every
-    window starts with the head's memories as streaming its recording leaves them at the
-    window's first frame, not at zero (:mod:`lidarflow.train.warm`).
+    ``sources``: recordings, bags, folders of ``.npz`` or glob patterns; ``mix``: relative
+    sampling weight per source (empty: natural proportions). ``val_split``: ``"tail"`` or
+    ``"recordings"``; ``val_sources`` names validation recordings instead. ``pose_dropout``:
+    the fraction of training windows served without poses (fixed per window).
+    ``memories_from_stream``: windows start from the head's streamed memories
+    (:mod:`lidarflow.train.warm`).
     """
 
     sources: list[str] = field(default_factory=list)
@@ -121,10 +95,7 @@ class DataConfig:
 @dataclass
 class OptimConfig:
     """Optimiser and batch. ``grad_clip``: max global gradient norm, 0 = no clipping (paper).
-    ``head_lr_scale``: the occupancy head's learning rate is ``lr`` times this. Its few weights
-    start far from where they end (the memory weights and bias move by several logits), and
-    Adam moves a weight by about ``lr`` per step, so at the flow's learning rate a CPU-sized
-    run of a few hundred steps leaves the head near copy-last."""
+    ``head_lr_scale``: the occupancy head's learning rate is ``lr`` times this."""
 
     name: str = "adam"
     lr: float = 0.01
@@ -158,14 +129,10 @@ class RuntimeConfig:
     """How the run executes; none of it changes the maths of the fp32 eager reference path.
 
     ``device``: ``auto`` (CUDA when available), ``cpu``, ``cuda``; ``amp``: ``none``, ``bf16``
-    autocast, or ``auto`` (bf16 where the device computes it natively, fp32 elsewhere, where
-    emulated bf16 is slower: :func:`lidarflow.models.speed.native_bf16`); ``channels_last`` /
-    ``compile``: see :func:`lidarflow.models.speed.accelerate` (compiling costs tens of seconds
-    up front on a small CPU, so it pays on long runs only); ``threads``: torch intra-op threads,
-    0 = torch's default. ``max_minutes``: a wall-clock budget for this process (0: none): the
-    run stops after the first epoch that ends past it, and is finished as if ``optim.epochs``
-    were that epoch (``model.json`` says ``epochs_done``; ``--resume`` continues it), so that
-    models are compared at equal budgets whatever their speed.
+    or ``auto`` (:mod:`lidarflow.train.precision`); ``channels_last`` / ``compile``:
+    :func:`lidarflow.models.speed.accelerate`; ``threads``: 0 = torch's default.
+    ``max_minutes``: a wall-clock budget (0: none): the run stops, resumable, after the first
+    epoch that ends past it (``model.json`` says ``epochs_done``).
     """
 
     device: str = "auto"
@@ -212,10 +179,7 @@ class TrainConfig:
             ),
             (d.grid >= 4 and d.res > 0, "data.grid must be >= 4 and data.res > 0"),
             (d.max_gap_periods > 1, "data.max_gap_periods must be > 1 (frame periods)"),
-            (
-                0 <= d.pose_dropout <= 1,
-                "data.pose_dropout is a fraction of windows, in [0, 1]",
-            ),
+            (0 <= d.pose_dropout <= 1, "data.pose_dropout is a fraction of windows, in [0, 1]"),
             (o.name in ("adam", "adamw", "sgd"), "optim.name must be adam, adamw or sgd"),
             (
                 o.lr > 0 and o.batch_size >= 1 and o.epochs >= 1,

@@ -1,11 +1,9 @@
 """Training configurations in and out: dicts, JSON/TOML files, command-line overrides.
 
-A configuration is built in layers, later ones winning: a named *recipe*
-(:data:`lidarflow.train.recipes.RECIPES`), a config file (JSON, or TOML via :mod:`tomllib`),
-first-class command-line flags, then ``--set section.field=value`` overrides
-(:func:`build_config`). Every value is checked against its field's type on the way in, with the
-field named in the error. The result is saved as ``config.json`` in the run directory and
-reloads to the same object (:func:`config_from_dict`).
+Layers, later ones winning (:func:`build_config`): a named recipe, a config file, command-line
+flags, then ``--set section.field=value``. Every value is checked against its field's type,
+naming the field in the error. ``config.json`` reloads to the same object
+(:func:`config_from_dict`).
 """
 
 from __future__ import annotations
@@ -32,9 +30,8 @@ __all__ = [
     "load_config_file",
 ]
 
-#: Settings measured without gain and removed, with the value that left them off: a config that
-#: gives that value (every run's ``config.json`` written while they existed) still reads; one
-#: that turns a setting on names a training this version cannot repeat, and is refused.
+#: Settings removed (measured without gain), with the value that left them off: a config giving
+#: that value still reads; one turning a setting on is refused.
 REMOVED_SETTINGS: dict[tuple[str, str], Any] = {("data", "slower_copies"): []}
 
 
@@ -55,20 +52,13 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, dict):
             raise TrainError(f"config {where}: expected a table of settings, got {value!r}")
         return _from_dict(hint, value, where)
-    if origin is tuple:  # tuple[X, ...]: a list in JSON, TOML and on the command line
+    if origin in (tuple, list):  # tuple[X, ...] too: a list in JSON, TOML and on the command line
         inner = typing.get_args(hint)[0]
         if isinstance(value, str | int | float) and not isinstance(value, bool):
             value = [value]
         if not isinstance(value, list | tuple):
             raise TrainError(f"config {where}: expected a list, got {value!r}")
-        return tuple(_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value))
-    if origin is list:
-        (inner,) = typing.get_args(hint)
-        if isinstance(value, str | int | float) and not isinstance(value, bool):
-            value = [value]
-        if not isinstance(value, list | tuple):
-            raise TrainError(f"config {where}: expected a list, got {value!r}")
-        return [_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value)]
+        return origin(_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value))
     if origin is dict:
         if not isinstance(value, dict):
             raise TrainError(f"config {where}: expected a table, got {value!r}")
@@ -131,8 +121,7 @@ def _merge(base: Any, data: dict[str, Any], where: str = "") -> Any:
 
 
 def _without_removed(data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` without the :data:`REMOVED_SETTINGS` it gives at their off value; a
-    :class:`TrainError` naming one it turns on."""
+    """``data`` without the :data:`REMOVED_SETTINGS` it gives at their off value."""
     out = dict(data)
     for (section, key), off in REMOVED_SETTINGS.items():
         table = out.get(section)
@@ -148,9 +137,8 @@ def _without_removed(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def _flat_model_read(base: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` with a flat ``model.kwargs`` table (older configs: the whole model in
-    ``build_model``'s keyword form, decision keys included) read as the typed model settings and
-    the ``decision`` section it describes. As then, it describes the whole model."""
+    """``data`` with a flat ``model.kwargs`` table (the whole model in ``build_model``'s keyword
+    form, decision keys included) read as the typed model settings and ``decision`` section."""
     model = data.get("model")
     if not isinstance(model, dict) or "kwargs" not in model:
         return data
@@ -223,14 +211,15 @@ def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfi
         key, sep, text = item.partition("=")
         if not sep or not key.strip():
             raise TrainError(f"--set expects section.field=value, got {item!r}")
-        nested: dict[str, Any] = {}
-        node = nested
-        parts = key.strip().split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = _parse_value(text.strip())
-        config = _merge(config, nested)
+        config = _merge(config, _nested(key.strip(), _parse_value(text.strip())))
     return config
+
+
+def _nested(key: str, value: Any) -> dict[str, Any]:
+    """``"a.b.c", v`` -> ``{"a": {"b": {"c": v}}}``."""
+    for part in reversed(key.split(".")):
+        value = {part: value}
+    return value
 
 
 def build_config(
@@ -245,13 +234,6 @@ def build_config(
     name = recipe_name or str(data.get("recipe", "paper"))
     config = _merge(recipe(name), {**data, "recipe": name})
     for key, value in (flags or {}).items():
-        if value is None:
-            continue
-        nested: dict[str, Any] = {}
-        node = nested
-        parts = key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = value
-        config = _merge(config, nested)
+        if value is not None:
+            config = _merge(config, _nested(key, value))
     return apply_overrides(config, overrides).validate()

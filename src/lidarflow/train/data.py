@@ -1,35 +1,18 @@
-"""Training data: windows of recordings from several sources, mixed, with a validation split.
+"""Training data: windows of recordings from several sources, with a validation split.
 
-A *source* is one ``data.sources`` entry: a recording ``.npz`` (from ``convert`` or
-``simulate``), a bag / ROS 2 bag folder / MCAP (converted on the fly), a folder of ``.npz``
-recordings, or a glob pattern (quote it so the shell leaves it alone). Every source is sampled
-with its ``data.mix`` weight: an epoch draws ``epoch_windows`` windows, ``round(w_s * n)`` of them
-from source ``s`` (without replacement while the source has enough, by whole reshuffled passes
-beyond), then shuffles them together. Without weights every training window is drawn once per
-epoch.
+A *source* is one ``data.sources`` entry: a recording ``.npz``, a bag / ROS 2 bag folder / MCAP
+(converted on the fly), a folder of ``.npz`` recordings, or a glob pattern. How the windows are
+drawn into batches, by each source's ``data.mix`` weight, is :mod:`lidarflow.train.loaders`.
 
 Validation split (``data.val_split``):
 
 - ``tail`` (default): the last ``val_fraction`` of every recording's frames (at least one
-  window) is held out as one contiguous block, so validation windows never share frames with
-  training windows. A recording too short to give both is used for training only.
-- ``recordings``: the last ``ceil(val_fraction * n)`` recordings (in the order given) are held
-  out whole: the honest test of generalisation to recordings the net has not seen.
+  window) as one contiguous block, so validation windows never share frames with training
+  windows. A recording too short to give both is used for training only.
+- ``recordings``: the last ``ceil(val_fraction * n)`` recordings (in the order given), whole.
 - ``data.val_sources``: explicit validation recordings; then no training data is held out.
 
-How the windows are drawn into batches, epoch by epoch and rank by rank, is
-:mod:`lidarflow.train.loaders`.
-
-Windows are served as ``uint8`` ``(T, 2, H, W)`` (channel 0 occupancy, 1 visibility; for
-models with ``subcell_input`` also 2 and 3, :meth:`~lidarflow.data.Recording.subcell_maps`);
-the loop converts on the device.
-
-Ego motion (``load_train_data(..., with_motion=True)``, for models built with ``ego_motion``):
-every item also carries the sensor's motion per frame, float32 ``(T, 3)`` ``(dx, dy, dyaw)`` with
-``dx, dy`` in cells (:mod:`lidarflow.motion.odometry`; index ``t`` is frame ``t`` in frame
-``t - 1``, identity where a pose is unknown), appended as the item's last element.
-``DataConfig.pose_dropout`` of the training windows carry
-identity motions instead (chosen by a hash of the window, the same every epoch).
+Items are described by :class:`Windows`.
 """
 
 from __future__ import annotations
@@ -56,7 +39,7 @@ __all__ = ["TrainData", "Windows", "expand_source", "load_train_data"]
 
 FLOW_KEY = "flow_backward"
 FORWARD_KEY = "flow_forward"
-# ground-truth backward flow of a recording: dense (N, 2, H, W), sparse (cells, values) or none
+# a recording's ground-truth flow: dense (N, 2, H, W), sparse (cells, values) or none
 Flow = np.ndarray | tuple[np.ndarray, np.ndarray] | None
 
 
@@ -78,14 +61,18 @@ def expand_source(spec: str) -> list[Path]:
 
 
 class Windows(Dataset):
-    """Windows ``(rec, start)`` over boolean maps; item: uint8 ``(T, 2, H, W)`` maps, and with
-    ``with_flow`` also float32 ``(T, 2, H, W)`` ground-truth backward flow (zeros where the
-    recording has none) and a bool telling whether it is real; with ``forward`` flows as well
-    (``flows_forward``) the flow is ``(T, 4, H, W)``, ``B^t`` then ``F^t``, and real only where
-    the recording has both. With ``motions`` (one float32
-    ``(N, 3)`` array per recording, cells) the item also ends with the window's ``(T, 3)``
-    motions. With ``start_states`` set (:func:`lidarflow.train.warm.stream_start_states`) it
-    ends with the occupancy head's state where streaming reaches the window's first frame."""
+    """Windows ``(rec, start)`` over boolean maps. An item is, in order:
+
+    - uint8 ``(T, C, H, W)`` maps: occupancy, visibility (and the sub-cell channels);
+    - with ``with_flow``: float32 ``(T, 2, H, W)`` ground-truth ``B^t`` (``(T, 4, H, W)``,
+      ``B^t`` then ``F^t``, with ``flows_forward``), zeros where the recording has none, and a
+      bool saying whether it is real;
+    - with ``motions`` (float32 ``(N, 3)`` per recording): the window's ``(T, 3)`` motions
+      ``(dx, dy, dyaw)`` in cells, frame ``t`` in frame ``t - 1``, identity where a pose is
+      unknown or ``pose_dropout`` serves the window without poses;
+    - with ``start_states`` (:func:`lidarflow.train.warm.stream_start_states`): the head's
+      state where streaming reaches the window's first frame.
+    """
 
     def __init__(
         self,
@@ -187,24 +174,19 @@ class TrainData:
         return f"training: {'; '.join(parts)}; {val}"
 
 
-def _ground_truth(
-    rec: Recording, grid: GridSpec, key: str = FLOW_KEY
-) -> tuple[Flow, str | None]:
-    """The recording's ground-truth ``B^t`` (``key``: or ``F^t``; simulator extras, dense or
-    sparse layout, see :mod:`lidarflow.sim.storage`) if it is on ``grid``; else ``None`` and
-    why."""
-    extras = rec.extras
-    flow: Flow = None
+def _ground_truth(rec: Recording, grid: GridSpec, key: str = FLOW_KEY) -> tuple[Flow, str | None]:
+    """The recording's ground-truth flow ``key`` (:mod:`lidarflow.sim.storage`) if it is on
+    ``grid``; else ``None`` and why."""
+    extras, stored = rec.extras, rec.meta.get("grid") or {}
+    flow: Flow
     if key in extras:
         flow = extras[key]
         shape = tuple(flow.shape[-2:])
     elif f"{key}_cells" in extras and f"{key}_values" in extras:
         flow = (extras[f"{key}_cells"], extras[f"{key}_values"])
-        spec = rec.meta.get("grid") or {}
-        shape = (spec.get("height"), spec.get("width"))
+        shape = (stored.get("height"), stored.get("width"))
     else:
         return None, None
-    stored = rec.meta.get("grid") or {}
     res = stored.get("res", grid.res)
     if shape != grid.shape or not np.isclose(res, grid.res):
         return (
@@ -240,13 +222,13 @@ def _windows(
     if with_motion:
         motions = []
         for rec in recordings:
-            source = rec.meta.get("source", "a recording")
             m, known = relative_motions(rec.poses, len(rec))
             motions.append(metres_to_cells(m, grid.res))
             if len(rec) > 1 and not known[1:].all():
                 notes.append(
-                    f"{source}: no pose for {int((~known[1:]).sum())} of {len(rec) - 1} frame "
-                    "steps; those steps are not ego-motion compensated"
+                    f"{rec.meta.get('source', 'a recording')}: no pose for "
+                    f"{int((~known[1:]).sum())} of {len(rec) - 1} frame steps; those steps are "
+                    "not ego-motion compensated"
                 )
     forwards = [_ground_truth(rec, grid, FORWARD_KEY)[0] for rec in recordings] if forward else None
     windows = Windows(
@@ -285,16 +267,12 @@ def _split_tail(
 
 
 def load_train_data(
-    cfg: DataConfig,
-    with_motion: bool = False,
-    with_subcell: bool = False,
-    train_flow: bool = False,
+    cfg: DataConfig, with_motion: bool = False, with_subcell: bool = False, train_flow: bool = False
 ) -> TrainData:
-    """Load every source, split off validation, and cut windows (see the module docstring);
-    ``with_motion``: items carry the per-frame ego motion too; ``with_subcell``: maps carry
-    :meth:`~lidarflow.data.Recording.subcell_maps` as channels 2 and 3; ``train_flow``: the
-    training windows carry the exact ``B^t, F^t`` too (``(T, 4, H, W)``; supervised flow,
-    :mod:`lidarflow.train.supervised`)."""
+    """Load every source, split off validation, and cut windows; ``with_motion``: items carry
+    the per-frame ego motion; ``with_subcell``: maps carry
+    :meth:`~lidarflow.data.Recording.subcell_maps` as channels 2 and 3; ``train_flow``: training
+    windows carry the exact ``B^t, F^t``. Validation windows carry ``B^t`` and every pose."""
     if not cfg.sources:
         raise TrainError("no training data: give at least one recording or bag")
     if cfg.mix and len(cfg.mix) not in (len(cfg.sources), len(cfg.sources) - 1):

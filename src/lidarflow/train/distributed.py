@@ -1,10 +1,8 @@
 """Running under ``torchrun``: process group, device per rank, and the few collectives used.
 
-``torchrun --nproc_per_node N -m lidarflow.cli train ...`` sets ``RANK``, ``WORLD_SIZE`` and
-``LOCAL_RANK``; :func:`setup` then joins the group (``nccl`` on CUDA, ``gloo`` on CPU) and the
-loop wraps the model in :class:`~torch.nn.parallel.DistributedDataParallel`. Without those
-variables everything is a single process and the collectives below are no-ops. Only rank 0
-writes files or draws a progress bar.
+Under ``torchrun --nproc_per_node N -m lidarflow.cli train ...`` (``RANK``, ``WORLD_SIZE``,
+``LOCAL_RANK`` set), :func:`setup` joins the group (``nccl`` on CUDA, ``gloo`` on CPU); otherwise
+everything is one process and the collectives are no-ops. Only rank 0 writes files.
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """Divergence: a training step's health, and the one line that stops a run that lost it.
 
-A step is healthy where its loss, its gradient norm and its largest model output are finite and
-within ``runtime.divergence_limit``; one rank's unhealthy step stops every rank (the caller's
-``any_flag``), and nothing of the failing epoch is saved.
+A step is healthy where its loss, gradient norm and largest model output are finite and within
+``runtime.divergence_limit``.
 """
 
 from __future__ import annotations
@@ -21,9 +20,8 @@ __all__ = ["divergence_message", "healthy", "step_health"]
 def step_health(
     loss: Tensor, grad_norm: Tensor, out: Tensor, clip: float, limit: float
 ) -> list[float]:
-    """The step's loss, gradient norm and largest output, in one sync. The output is checked
-    too: a flow blown up to 1e30 cells still gives a finite loss (the warp samples zeros far
-    outside the map), so a magnitude beyond runtime.divergence_limit counts as divergence."""
+    """The step's loss, gradient norm and largest output, in one sync. The output counts
+    because a flow blown up to 1e30 cells still gives a finite loss (the warp samples zeros)."""
     health = torch.stack(
         [loss.detach().float(), grad_norm.float(), out.detach().float().abs().amax()]
     ).tolist()

@@ -1,9 +1,6 @@
-"""A ``train`` command line resolved to the config a run trains with.
-
-A new run layers its settings: the recipe, then a config file, then the command's flags, then
-``--set`` (:func:`new_run_config`). A resumed run keeps the config that shaped its weights
-(:func:`resumed_run_config`): only the epochs and how it runs (``runtime.*`` but the seed) may
-change, and a run copied to another machine names its recordings again where they are now.
+"""A ``train`` command line resolved to the config a run trains with: a new run's layered
+(:func:`new_run_config`), or a resumed run's own (:func:`resumed_run_config`), where only the
+epochs and ``runtime.*`` but the seed may change and moved recordings may be named again.
 """
 
 from __future__ import annotations
@@ -36,9 +33,8 @@ class ResumeConflictError(TrainError):
 
 @dataclass(frozen=True)
 class TrainRequest:
-    """What a ``train`` command line asks for: ``data`` and ``val`` as given; ``flags``, its
-    options as config keys (``None``: not given; paths already absolute); the ``recipe`` and
-    ``config`` file it names, its ``--set`` overrides and ``--ego-motion``."""
+    """What a ``train`` command line asks for; ``flags``: its options as config keys (``None``:
+    not given; paths already absolute)."""
 
     data: list[str] = field(default_factory=list)
     flags: dict[str, Any] = field(default_factory=dict)
@@ -49,14 +45,14 @@ class TrainRequest:
     val: list[str] = field(default_factory=list)
 
 
-#: What a resumed run may change: how many epochs, and how it runs (not the seed).
 def _free(key: str) -> bool:
+    """Whether a resumed run may change ``key``: the epochs, and how it runs (not the seed)."""
     return key == "optim.epochs" or (key.startswith("runtime.") and key != "runtime.seed")
 
 
 def new_run_config(request: TrainRequest) -> TrainConfig:
-    """The config of a new run: recipe (the architecture's default unless named, here or in
-    the config file), then the config file, then the flags, then ``--set``."""
+    """The config of a new run: recipe (the architecture's default unless named), config file,
+    flags, then ``--set``."""
     flags = dict(request.flags)
     if request.data:  # absolute, so that --resume works from any folder (globs too)
         flags["data.sources"] = [os.path.abspath(d) for d in request.data]
@@ -112,8 +108,8 @@ def resumed_run_config(run_dir: Path, request: TrainRequest) -> TrainConfig:
 
 def _found_again(run: Path, recorded: list[str], given: list[str], how: str) -> list[str] | None:
     """The recordings a resumed run continues on: ``None`` to keep ``recorded``, or ``given``
-    where the run was copied elsewhere (every recorded path gone, the same names given).
-    Raises :class:`TrainError` for other recordings, or for recorded ones gone and not given."""
+    where the run was copied elsewhere (every recorded path gone, the same names given);
+    :class:`TrainError` otherwise."""
     missing = [r for r in recorded if not os.path.exists(r)]
     if given and given != recorded:
         names = [os.path.basename(r) for r in recorded]

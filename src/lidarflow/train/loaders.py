@@ -1,10 +1,9 @@
 """Batches of training windows: the mixed, resumable, sharded draw of an epoch.
 
-The order of an epoch depends only on ``(seed, epoch)`` (:class:`MixSampler`), which is what
-makes ``--resume`` reproduce the data order exactly, and it is sharded across DDP ranks the way
-:class:`torch.utils.data.DistributedSampler` does (pad to a multiple of the world size, rank
-``r`` takes every ``world``-th index from ``r``). Every source is drawn with its weight
-(:class:`~lidarflow.train.data.TrainData`'s ``weights``).
+An epoch draws ``data.epoch_windows`` windows (0: every training window once), ``round(w_s n)``
+of them from source ``s`` by its ``data.mix`` weight, in whole reshuffled passes, then shuffles
+them together. The order depends only on ``(seed, epoch)``, so ``--resume`` reproduces it, and is
+sharded over DDP ranks as :class:`torch.utils.data.DistributedSampler` shards.
 """
 
 from __future__ import annotations
@@ -52,20 +51,14 @@ class MixSampler(Sampler[int]):
         g = torch.Generator().manual_seed(self.seed * 1_000_003 + self.epoch)
         offsets = np.concatenate([[0], np.cumsum(self.sizes)])
         if not self.weights:
-            total = int(offsets[-1])
-            picks = torch.randperm(total, generator=g)
-            reps = math.ceil(self.num_samples / total)
-            picks = torch.cat(
-                [picks] + [torch.randperm(total, generator=g) for _ in range(reps - 1)]
-            )
-            return picks[: self.num_samples].tolist()
+            return _draw(int(offsets[-1]), self.num_samples, g).tolist()
         counts = [round(w * self.num_samples) for w in self.weights]
         counts[int(np.argmax(self.weights))] += self.num_samples - sum(counts)
-        chosen = []
-        for size, count, offset in zip(self.sizes, counts, offsets, strict=False):
-            passes = [torch.randperm(size, generator=g) for _ in range(math.ceil(count / size))]
-            if passes:
-                chosen.append(torch.cat(passes)[:count] + int(offset))
+        chosen = [
+            _draw(size, count, g) + int(offset)
+            for size, count, offset in zip(self.sizes, counts, offsets, strict=False)
+            if count > 0
+        ]
         everything = torch.cat(chosen)
         return everything[torch.randperm(len(everything), generator=g)].tolist()
 
@@ -77,6 +70,12 @@ class MixSampler(Sampler[int]):
 
     def __len__(self) -> int:
         return math.ceil(self.num_samples / self.world_size)
+
+
+def _draw(size: int, count: int, g: torch.Generator) -> torch.Tensor:
+    """``count`` indices below ``size``: whole reshuffled passes, the last one cut."""
+    passes = [torch.randperm(size, generator=g) for _ in range(math.ceil(count / size))]
+    return torch.cat(passes)[:count]
 
 
 class _Concat(Dataset):

@@ -1,8 +1,6 @@
-"""Per-epoch metrics: ``metrics.jsonl`` (one JSON object a line), ``metrics.csv`` (the same,
-rewritten whole each epoch so new columns can appear), TensorBoard when it is installed.
-
-On resume, rows of epochs after the checkpoint being resumed from are dropped, so the files
-always describe the weights on disk.
+"""Per-epoch metrics: ``metrics.jsonl``, ``metrics.csv`` (rewritten whole each epoch so new
+columns can appear) and TensorBoard when installed. A resume drops the rows of epochs after its
+checkpoint, so the files always describe the weights on disk.
 """
 
 from __future__ import annotations
@@ -36,8 +34,8 @@ class Logbook:
             try:
                 from torch.utils.tensorboard import SummaryWriter
             except ImportError:  # tensorboard is optional
-                SummaryWriter = None
-            if SummaryWriter is not None:
+                pass
+            else:
                 self.writer = SummaryWriter(str(run_dir / "tensorboard"))
 
     def log(self, row: dict[str, Any]) -> None:

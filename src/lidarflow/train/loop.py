@@ -1,31 +1,12 @@
-"""The training loop: model and loss per model type, schedules, metrics, checkpoints, DDP.
+"""The training loop: ``train(config, run_dir)`` runs the whole recipe and returns a
+:class:`TrainResult`; ``resume=True`` continues the run from its newest checkpoint exactly as if
+it had never stopped (weights, optimizer moments, learning rate, Gaussian size, RNG state, data
+order). A diverging step stops the run with :class:`TrainError`; nothing of its epoch is written.
 
-``train(config, run_dir)`` runs the whole recipe and returns a :class:`TrainResult`;
-``train(..., resume=True)`` continues the run in ``run_dir`` from its newest checkpoint, exactly
-as if it had never stopped (same weights, optimizer moments, learning rate, Gaussian size, RNG
-state and data order). Non-finite losses or gradients stop the run with :class:`TrainError`
-naming the epoch and step; nothing of the failing epoch is written.
-
-A run, in a run folder that :func:`train` locks, and removes again where a new run stops before
-its first epoch, goes through these steps in order (:mod:`lidarflow.train.start` makes the
-:class:`~lidarflow.train.start.Run` they share):
-
-1. **Data** (:func:`~lidarflow.train.start.load_data`): threads and seeds, then the training and
-   validation windows.
-2. **Start** (:func:`~lidarflow.train.start.start_run`): the model (from ``model.init`` on a new
-   run), its optimizer and learning-rate schedule, all restored from the newest checkpoint on a
-   resume; the DDP wrapper, autocast, the loaders and the logbook. A new run scores the
-   untrained model as epoch 0 where it has validation data (``runtime.eval_before_training``).
-3. **Epochs**, each (:func:`_fit_epoch`, :func:`_close_epoch`): the batches, one optimizer step
-   each; then validation, the row logged, the weights and the checkpoint saved, the checkpoint
-   last. The run ends early, resumable, once ``runtime.max_minutes`` is spent.
-4. **Finish** (:func:`_finish`): the final weights as ``model.safetensors`` and ``model.json``.
-
-Loss per model: ``flownet`` -> :func:`lidarflow.losses.flow_loss` with the epoch's Gaussian size
-(``config.loss`` says which variant), plus ``loss.occupancy_bce`` x the cross-entropy of the
-occupancy head's next map when the model has one; ``deeptracking`` -> :func:`deeptracking_loss`;
-``sogmp`` -> :func:`sogmp_loss` with ``loss.kl_weight``.
-All count only steps after ``data.warmup`` frames.
+In a run folder :func:`train` locks (and removes again where a new run stops before its first
+epoch), a run loads its data and starts (:mod:`lidarflow.train.start`), scores the untrained
+model as epoch 0, trains and closes each epoch (:func:`_fit_epoch`, :func:`_close_epoch`) until
+the epochs or ``runtime.max_minutes`` are spent, and writes the final model (:func:`_finish`).
 """
 
 from __future__ import annotations
@@ -44,15 +25,10 @@ from lidarflow.errors import TrainError
 from lidarflow.models import uses_ego_motion
 from lidarflow.train import checkpoint as ckpt
 from lidarflow.train.config import TrainConfig
-from lidarflow.train.distributed import Dist, any_flag, barrier, setup
+from lidarflow.train.distributed import Dist, all_reduce_sum, any_flag, barrier, setup, teardown
 from lidarflow.train.health import divergence_message, healthy, step_health
 from lidarflow.train.objective import gaussian_size, make_loss
-from lidarflow.train.rundir import (
-    abandon_run_dir,
-    prepare_run_dir,
-    release_run_dir,
-    write_final,
-)
+from lidarflow.train.rundir import abandon_run_dir, prepare_run_dir, release_run_dir, write_final
 from lidarflow.train.start import Run, load_data, start_run
 from lidarflow.train.supervised import flow_term, supervised, take_flow
 from lidarflow.train.warm import split_batch, start_state
@@ -83,8 +59,6 @@ def train(
     """Train ``config`` into ``run_dir`` (see the module docstring). ``echo`` receives one-line
     progress messages (rank 0 only); ``on_epoch_end(epoch, row)`` runs after each checkpoint;
     ``start_over``: replace a run already in ``run_dir`` (``--force``), once it is locked."""
-    from lidarflow.train.distributed import teardown
-
     config.validate()
     run_dir = Path(run_dir)
     ctx = setup(config.runtime.device)
@@ -142,8 +116,7 @@ def _train(
 
 
 def _score_untrained(run: Run) -> None:
-    """Validate the untrained model as epoch 0 (a new run's first row, in the logbook unless
-    it already holds rows)."""
+    """Validate the untrained model as epoch 0 (logged unless the logbook holds rows)."""
     row = {"epoch": 0, **run.val_metrics(gaussian_size(run.config, 0))}
     run.rows.append(row)
     if run.book is not None and not run.book.rows:
@@ -152,11 +125,9 @@ def _score_untrained(run: Run) -> None:
 
 
 def _fit_epoch(run: Run, epoch: int) -> _Fit:
-    """Train the 0-based ``epoch``: one optimizer step per batch of the epoch's draw (which
-    depends only on the seed and the epoch), gradients clipped to ``optim.grad_clip``, then one
-    step of the learning-rate schedule. A step whose loss, gradient norm or output is non-finite
-    or beyond ``runtime.divergence_limit`` on any rank raises :class:`TrainError` on every rank
-    before the optimizer takes it."""
+    """Train the 0-based ``epoch``: one clipped optimizer step per batch, then one step of the
+    learning-rate schedule. An unhealthy step (:mod:`lidarflow.train.health`) on any rank raises
+    :class:`TrainError` on every rank before the optimizer takes it."""
     from tqdm import tqdm
 
     config, ctx, model, optimizer = run.config, run.ctx, run.model, run.optimizer
@@ -206,9 +177,8 @@ def _fit_epoch(run: Run, epoch: int) -> _Fit:
 def _batch_loss(
     run: Run, batch: Any, loss_fn: Callable[[Tensor, Tensor], Tensor]
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """A training batch through the model (under autocast, each window from its start state):
-    its maps ``(B, T, 2, H, W)`` as float on the device, the model's output ``(B, T, C, H, W)``
-    and the loss, plus the supervised flow term where the recipe has one."""
+    """A training batch through the model under autocast: its maps ``(B, T, C, H, W)`` as float
+    on the device, the model's output and the loss (with the supervised flow term, if any)."""
     config, ctx, model = run.config, run.ctx, run.model
     truth = None
     if supervised(config):
@@ -227,10 +197,9 @@ def _batch_loss(
 
 
 def _close_epoch(run: Run, epoch: int, fit: _Fit) -> dict[str, Any]:
-    """Validate the 0-based ``epoch`` just trained, keep its row and the best score so far,
-    and on rank 0 log the row and save the last (and best) weights and the checkpoint, the
-    checkpoint last: until it is complete, a resume starts from the epoch before, dropping this
-    row and overwriting these weights. Returns the row, once every rank has got here."""
+    """Validate the 0-based ``epoch`` just trained, keep its row and the best score so far; on
+    rank 0 log the row and save the last (and best) weights, then the checkpoint: until it is
+    complete, a resume starts from the epoch before. Returns the row once every rank has it."""
     metrics = run.val_metrics(fit.kernel)
     row = {
         "epoch": epoch + 1,
@@ -264,8 +233,8 @@ def _close_epoch(run: Run, epoch: int, fit: _Fit) -> dict[str, Any]:
 
 
 def _out_of_time(run: Run, epoch: int) -> bool:
-    """Whether the run ends after the 0-based ``epoch``, before its last, because the time
-    budget ``runtime.max_minutes`` is spent on any rank (all ranks agree; a resume goes on)."""
+    """Whether the run ends after the 0-based ``epoch``, before its last, because
+    ``runtime.max_minutes`` is spent on any rank (all ranks agree)."""
     rt, epochs = run.config.runtime, run.config.optim.epochs
     spent = rt.max_minutes > 0 and time.perf_counter() - run.began > 60 * rt.max_minutes
     if any_flag(run.ctx, spent) and epoch + 1 < epochs:
@@ -278,9 +247,8 @@ def _out_of_time(run: Run, epoch: int) -> bool:
 
 
 def _finish(run: Run) -> TrainResult:
-    """On rank 0, write the final weights (``runtime.final_weights``: the last epoch's or the
-    best's) as ``model.safetensors`` with ``model.json``; then, on every rank, the result: the
-    logbook's rows on rank 0 (a resume's include those before it), this process's elsewhere."""
+    """On rank 0, write the final model (``runtime.final_weights``); on every rank, the result
+    (rank 0's rows include those before a resume)."""
     if run.book is not None:
         write_final(run.run_dir, run.config, run.model, run.data, run.extra)
         run.book.close()
@@ -290,22 +258,11 @@ def _finish(run: Run) -> TrainResult:
 
 
 def _mean_over_ranks(ctx: Dist, total: float, count: int) -> float:
-    from lidarflow.train.distributed import all_reduce_sum
-
     s, n = all_reduce_sum(ctx, [total, float(count)])
     return s / n if n else float("nan")
 
 
 def _describe(row: dict[str, Any]) -> str:
-    keys = (
-        "train_loss",
-        "val_loss",
-        "val_f1",
-        "val_copy_last_f1",
-        "val_changed_f1",
-        "val_epe",
-        "val_epe_zero",
-        "val_epe_moving",
-        "val_epe_moving_zero",
-    )
-    return ", ".join(f"{k} {row[k]:.4g}" for k in keys if k in row)
+    """The row's training loss and validation metrics, in the row's order."""
+    shown = [k for k in row if k == "train_loss" or k.startswith("val_")]
+    return ", ".join(f"{k} {row[k]:.4g}" for k in shown)

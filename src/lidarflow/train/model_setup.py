@@ -1,8 +1,6 @@
-"""What a run starts from: the model's initial weights (``model.init``) and its optimizer.
-
-The occupancy head is the part a run may add to trained weights, so it is the part with its
-own learning rate (``optim.head_lr_scale``) and the part allowed to be missing or of another
-shape in ``model.init``'s weights.
+"""What a run starts from: the model's initial weights (``model.init``) and its optimizer. The
+occupancy head, the part a run may add to trained weights, has its own learning rate
+(``optim.head_lr_scale``) and may be missing or of another shape in ``model.init``'s weights.
 """
 
 from __future__ import annotations
@@ -29,13 +27,12 @@ def _unwrapped(model: torch.nn.Module) -> torch.nn.Module:
 
 
 def load_init(model: torch.nn.Module, source: str) -> bool:
-    """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``.
+    """Copy the weights of ``source`` (run folder, weights file or ``bundled``) into ``model``;
+    returns whether the head was left new.
 
-    A flow model without an occupancy head, or with a head of other inputs (other memories, no
-    constant-velocity input), may start a model with one: the flow part is copied and the head
-    keeps its copy-last initialisation (fine-tuning a head onto trained flow). A model without
-    a flow network takes the head alone (the flow's weights are left out).
-    Returns whether the head was left new."""
+    Weights without a head, or with a head of other inputs, start a model with one: the flow
+    is copied and the head keeps its copy-last initialisation. A model without a flow network
+    takes the head alone."""
     from lidarflow.models.presets import resolve_model
 
     try:
@@ -68,12 +65,11 @@ def load_init(model: torch.nn.Module, source: str) -> bool:
 
 
 def parameter_groups(model: torch.nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
-    """The optimizer's groups: the network (if any besides the head), then (if any) the head
-    at its scaled rate."""
+    """The optimizer's groups: the network besides the head, then the head at its scaled rate
+    (each where there is one)."""
     head, rest = [], []
     for name, p in model.named_parameters():
         (head if is_head(name) else rest).append(p)
-    # A model of the head alone (no flow network) has no other group.
     groups: list[dict[str, Any]] = [{"params": rest}] if rest else []
     if head:
         groups.append({"params": head, "lr": config.optim.lr * config.optim.head_lr_scale})

@@ -1,6 +1,10 @@
-"""The loss a run minimises, per model type (the module docstring of
-:mod:`lidarflow.train.loop` lists them), and the Gaussian filter's schedule the warp loss
-follows."""
+"""The loss a run minimises, per model type, and the Gaussian size the warp loss follows.
+
+``flownet``: ``loss.warp`` x :func:`lidarflow.losses.flow_loss` with the epoch's Gaussian size,
+plus ``loss.occupancy_bce`` x the occupancy head's cross-entropy; ``deeptracking``:
+:func:`~lidarflow.losses.deeptracking_loss`; ``sogmp``: :func:`~lidarflow.losses.sogmp_loss`.
+All count only pairs after ``data.warmup`` frames.
+"""
 
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
-"""Training precision: whether a run trains under bf16 autocast, and the autocast to train in.
-
-``runtime.amp`` is ``none`` (fp32, the reference), ``bf16`` (autocast, said to cost time where the
-device only emulates bf16) or ``auto`` (bf16 where the device computes it natively, fp32
-elsewhere). Weights and optimizer state stay fp32 either way.
+"""Training precision: ``runtime.amp`` is ``none`` (fp32, the reference), ``bf16`` (autocast) or
+``auto`` (bf16 where the device computes it natively, fp32 where it would be emulated, slower).
+Weights and optimizer state stay fp32 either way.
 """
 
 from __future__ import annotations
@@ -20,8 +18,7 @@ __all__ = ["autocast", "resolve_amp"]
 
 def resolve_amp(amp: str, device: torch.device) -> tuple[bool, str | None]:
     """Whether to train under bf16 autocast for ``runtime.amp`` on ``device``, and a line for
-    the log where the choice is not what the setting alone says (``auto``), or costs time
-    (``bf16`` where the device has no native bf16: a ``note:``)."""
+    the log where ``auto`` chose, or ``bf16`` costs time."""
     if amp == "none":
         return False, None
     native = native_bf16(device)
@@ -38,8 +35,7 @@ def resolve_amp(amp: str, device: torch.device) -> tuple[bool, str | None]:
 
 
 def autocast(bf16: bool, device: torch.device) -> Callable[[], Any]:
-    """A factory of the context a training step runs in: bf16 autocast on ``device``, or
-    nothing."""
+    """A factory of the context a training step runs in: bf16 autocast, or nothing."""
     if bf16:
         return lambda: torch.autocast(device.type, dtype=torch.bfloat16)
     return contextlib.nullcontext

@@ -1,6 +1,5 @@
 """The named training recipes (`lidarflow train --recipe NAME`): each a function returning a
-fresh :class:`~lidarflow.train.config.TrainConfig`, whose dataclass defaults stay the paper's.
-A configuration is built in layers from one (:mod:`lidarflow.train.config_io`)."""
+fresh :class:`~lidarflow.train.config.TrainConfig`, whose dataclass defaults stay the paper's."""
 
 from __future__ import annotations
 
@@ -23,14 +22,11 @@ def _blurred() -> TrainConfig:
 
 
 def _head() -> TrainConfig:
-    """An occupancy head (:mod:`lidarflow.models.head`) trained by cross-entropy on top of a
-    trained, (nearly) frozen flow network given as ``model.init`` (``--init RUN``; left at
-    ``bundled`` it is refused: the bundled model has no flow network). Windows start from the
-    memories streaming leaves (``memories_from_stream``); half of them lose their poses
-    (``pose_dropout``), so the ego-motion model learns both ways. Validation:
-    ``docs/research/leave_one_out/``, ``docs/research/online_decision/``."""
-    # Fitted by cross-entropy on the next map; the warp loss blurred on both sides keeps the
-    # (nearly frozen) flow where it was.
+    """An occupancy head trained by cross-entropy on top of a trained, nearly frozen flow
+    network given as ``model.init`` (``--init RUN``; the bundled model has no flow network).
+    Half the windows lose their poses, so the ego-motion model learns both ways
+    (``docs/research/leave_one_out/``, ``docs/research/online_decision/``)."""
+    # The warp loss blurred on both sides keeps the (nearly frozen) flow where it was.
     config = TrainConfig(recipe="head", loss=LossConfig.blurred_both().replace(occupancy_bce=1.0))
     config.model.head = HeadConfig(
         memory_decays=(0.5, 0.8, 0.95, 0.98, 0.995),
@@ -69,9 +65,8 @@ def _head() -> TrainConfig:
 
 
 def _head_only() -> TrainConfig:
-    """The ``head`` recipe without the flow network (``docs/research/flow_share/``): the same
-    head, started from the bundled model's, taught by the cross-entropy alone at the ``head``
-    recipe's head rate."""
+    """The ``head`` recipe without the flow network (``docs/research/flow_share/``), at the
+    ``head`` recipe's head rate."""
     config = _head()
     config.recipe = "head_only"
     config.model.flow = None
@@ -83,12 +78,9 @@ def _head_only() -> TrainConfig:
 
 
 def _sogmp() -> TrainConfig:
-    """SOGMP's own recipe (:mod:`lidarflow.models.sogmp`), as its public training code sets it
-    (``docs/research/peer_comparison/``): :func:`lidarflow.losses.sogmp_loss`, Adam at 1e-4 with
-    weight decay 1e-3, 50 epochs, batches of 13 windows of 20 frames (130 predictions, the peer's
-    128), ego motion from the recordings' poses (a training recording without poses is served
-    uncompensated). The batch and epochs are a GPU's: on a CPU give ``--batch-size`` and
-    ``--epochs`` (and ``--lr``), or ``--max-minutes``, that fit."""
+    """SOGMP's own recipe, as its public training code sets it
+    (``docs/research/peer_comparison/``). The batch and epochs are a GPU's: on a CPU give
+    ``--batch-size`` and ``--epochs``, or ``--max-minutes``, that fit."""
     config = TrainConfig(recipe="sogmp", loss=LossConfig(kl_weight=0.01))
     config.model.name = "sogmp"
     config.model.ego_motion = config.model.poses_optional = True
@@ -106,12 +98,9 @@ def _sogmp() -> TrainConfig:
 
 
 def _supervised_flow() -> TrainConfig:
-    """The flow network alone, taught by the simulator's exact flow: end-point error
-    of ``B^t`` and ``F^t`` on the cells where the truth is defined, moving cells weighted 10x
-    (``loss.flow_epe*``, :mod:`lidarflow.flow_supervision`), no warp loss; compensating the
-    platform's own motion (``ego_motion``), so the net learns only what moves in the world. No
-    occupancy head: fit one on top with ``--recipe head --init RUN``. Starts from zero flow.
-    Needs recordings from ``lidarflow simulate`` (any scenario and sensor preset)."""
+    """The flow network alone, with ego motion, taught by the simulator's exact flow
+    (:mod:`lidarflow.flow_supervision`), no warp loss; needs ``lidarflow simulate`` recordings.
+    Fit a head on top with ``--recipe head --init RUN``."""
     config = TrainConfig(recipe="supervised_flow", loss=LossConfig(warp=0.0, flow_epe=1.0))
     config.model.ego_motion = config.model.poses_optional = True
     # Short windows: a dense loss needs little warm-up, and every frame after it is taught.
@@ -123,7 +112,7 @@ def _supervised_flow() -> TrainConfig:
     # clipped, as a dense loss on a moving platform gives large early gradients.
     config.optim.lr = 0.01
     config.optim.batch_size = 4
-    config.optim.epochs = 40  # about 35 minutes on one CPU thread (docs/research/flow_supervised)
+    config.optim.epochs = 40
     config.optim.grad_clip = 10.0
     config.schedule.lr_step_epochs = 12
     config.schedule.gaussian = False  # no warp loss to filter
@@ -148,10 +137,8 @@ DEFAULT_FLOWNET_RECIPE = "head_only"
 
 
 def default_recipe(model: str | None = None, ego_motion: bool = False) -> str:
-    """The recipe `lidarflow train` uses when none is named: for LiDAR-FlowNet ``head_only`` (the
-    ``head`` recipe without the flow network); SOGMP's own for
-    SOGMP; the paper's for DeepTracking and for ego-motion models, which the head recipes do not
-    apply to. The dataclasses' own defaults stay the paper's."""
+    """The recipe `lidarflow train` uses when none is named: :data:`DEFAULT_FLOWNET_RECIPE` for
+    LiDAR-FlowNet, SOGMP's own for SOGMP, the paper's for DeepTracking and ego-motion models."""
     if model == "sogmp":
         return "sogmp"
     return DEFAULT_FLOWNET_RECIPE if model in (None, "flownet") and not ego_motion else "paper"

@@ -1,11 +1,7 @@
-"""The run directory: creating it, checking a resume, and the final model files.
-
-What a run directory holds is listed in :mod:`lidarflow.train.checkpoint`. Here: ``config.json``
-and ``run.json`` at the start (the command, commit, device; every resume appended), the check
-that a resumed run keeps the config that shaped its weights, and at the end ``model.safetensors``
-+ ``model.json`` — the pair :func:`lidarflow.models.weights.load_trained` reads: ``model`` and
-``model_kwargs`` rebuild the net, ``decision`` / ``grid`` / ``warmup`` say how to run it, and
-``training`` / ``config`` where it came from.
+"""The run directory (its layout: :mod:`lidarflow.train.checkpoint`): creating and locking it,
+``config.json`` and ``run.json`` at the start, the checks of a resume, and at the end
+``model.safetensors`` + ``model.json``, the pair :func:`lidarflow.models.weights.load_trained`
+reads.
 """
 
 from __future__ import annotations
@@ -60,7 +56,7 @@ def model_record(
     commit: str | None = None,
 ) -> dict[str, Any]:
     """What ``model.json`` says: enough to rebuild the net and to know where it came from
-    (``commit``: the code it trained with, by default the checkout's HEAD now)."""
+    (``commit``: by default the checkout's HEAD now)."""
     return {
         "model": config.model.name,
         "model_kwargs": config.model.spec().to_kwargs(),
@@ -87,8 +83,7 @@ def model_record(
 
 
 def _source_sizes(config: TrainConfig) -> dict[str, int]:
-    """Each data source's size in bytes (a folder's, summed): what a resume checks the data
-    by, cheaply (a recording replaced by another at the same path is another size)."""
+    """Each data source's size in bytes (a folder's, summed), which a resume checks."""
     sizes = {}
     for source in config.data.sources:
         path = Path(source)
@@ -104,10 +99,9 @@ def _names(sources: list[str]) -> list[str]:
 
 
 def _lock(run_dir: Path) -> None:
-    """Refuse a run folder that another live process on this machine trains into (whatever
-    the command: ``--force`` and ``--resume`` too); take over a lock whose process is gone, or
-    one left on another machine (a run copied here, a job requeued on another node: its
-    liveness cannot be known from here). A lock this process holds is kept."""
+    """Refuse a run folder that another live process on this machine trains into (even with
+    ``--force`` or ``--resume``); take over a lock whose process is gone, or one left on another
+    machine (whose liveness cannot be known from here)."""
     path = run_dir / LOCK
     host = socket.gethostname()
     mine = json.dumps({"pid": os.getpid(), "host": host})
@@ -148,23 +142,20 @@ def _create(path: Path, content: str) -> bool:
 
 
 def _is_lock(name: str) -> bool:
-    """Whether ``name`` is a run folder's lock, or one being made (:func:`_create`): a folder
-    holding only those is empty to a new run (the lock says whether another one trains)."""
+    """Whether ``name`` is a run folder's lock, or one being made (:func:`_create`)."""
     return name == LOCK or name.startswith(f".{LOCK}.")
 
 
 def _empty(run_dir: Path) -> None:
-    """Remove what a run folder holds but its stamp and the lock this process took on it (a
-    folder lidarflow wrote: :func:`prepare_run_dir` checked)."""
+    """Remove what a run folder holds but its stamp and lock."""
     for entry in run_dir.iterdir():
         if entry.name not in (LOCK, STAMP):
             discard(entry)
 
 
 def abandon_run_dir(run_dir: Path, created: bool) -> None:
-    """Undo a new run stopped before its first epoch finished (nothing to resume): remove the
-    folder if this run ``created`` it, else what the run wrote in it. A run with a finished
-    epoch is kept for ``--resume``."""
+    """Undo a new run stopped before its first epoch finished: remove the folder if this run
+    ``created`` it, else what the run wrote in it."""
     if not run_dir.is_dir() or ckpt.latest_epoch(run_dir) > 0:
         return
     _empty(run_dir)
@@ -205,6 +196,12 @@ def _run_facts(ctx: Dist) -> dict[str, Any]:
     }
 
 
+def _started(run_dir: Path) -> dict[str, Any]:
+    """``run.json``: how the run started and was resumed (empty where it is missing)."""
+    path = run_dir / "run.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
     """A resumed run must keep what shaped its weights; only the epoch count (and how it runs:
     device, threads, amp...) may change."""
@@ -237,8 +234,7 @@ def _check_resumable(run_dir: Path, config: TrainConfig) -> None:
 
 
 def _check_same_data(run_dir: Path, config: TrainConfig, facts: dict[str, Any]) -> None:
-    """Refuse a resume whose recordings changed size since the run started (``run.json``'s
-    ``source_bytes``, in the order of the sources, which may have moved since)."""
+    """Refuse a resume whose recordings changed size since the run started (``run.json``)."""
     recorded = list((facts.get("source_bytes") or {}).values())
     now = _source_sizes(config)
     for source, then in zip(config.data.sources, recorded, strict=False):
@@ -250,8 +246,7 @@ def _check_same_data(run_dir: Path, config: TrainConfig, facts: dict[str, Any]) 
 
 
 def _check_ours(run_dir: Path) -> None:
-    """Refuse, even with ``--force``, a new run into a folder that is not one lidarflow wrote
-    (:func:`lidarflow.atomic.is_ours`): its files would be overwritten or removed."""
+    """Refuse, even with ``--force``, a new run into a folder lidarflow did not write."""
     if run_dir.exists() and not run_dir.is_dir():
         raise TrainError(f"{run_dir} is a file; name a folder for the run with -o")
     if run_dir.is_dir() and not is_ours(run_dir, ignoring=_is_lock):
@@ -264,11 +259,8 @@ def _check_ours(run_dir: Path) -> None:
 def prepare_run_dir(
     run_dir: Path, config: TrainConfig, resume: bool, ctx: Dist, start_over: bool = False
 ) -> bool:
-    """Check and start ``run_dir`` (a new run, or a resume of it; ``start_over``: a new run
-    that replaces the one there, ``--force``), and lock it for this process
-    (:func:`release_run_dir` unlocks it); whether this call created the folder. A new run goes
-    only into a new or empty folder or one lidarflow wrote (its stamp), and a folder another
-    live process trains into is refused before anything in it is touched."""
+    """Check, start and lock ``run_dir`` for a new run or a resume (``start_over``: ``--force``);
+    returns whether this call created the folder. :func:`release_run_dir` unlocks it."""
     created = False
     if ctx.is_main:
         if not resume:
@@ -283,8 +275,7 @@ def prepare_run_dir(
             _empty(run_dir)
     if resume:
         _check_resumable(run_dir, config)
-        started = run_dir / "run.json"
-        facts = json.loads(started.read_text()) if started.exists() else {}
+        facts = _started(run_dir)
         _check_same_data(run_dir, config, facts)
         done = ckpt.latest_epoch(run_dir)
         if config.optim.epochs < done:
@@ -299,7 +290,7 @@ def prepare_run_dir(
             # the config on disk says how many epochs the run is now meant to have
             ckpt.write_json(run_dir / "config.json", config_to_dict(config))
             facts.setdefault("resumed", []).append({**_run_facts(ctx), "after_epoch": done})
-            ckpt.write_json(started, facts)
+            ckpt.write_json(run_dir / "run.json", facts)
         return created
     # with start_over the main process empties it, maybe after the others look
     judged = ctx.is_main or not start_over
@@ -325,10 +316,7 @@ def write_final(
 ) -> None:
     if config.runtime.final_weights == "best" and (run_dir / "best.safetensors").exists():
         ckpt.load_weights(model, run_dir / "best.safetensors")
-    # The code the run trained with is the checkout it started at (run.json): HEAD may have
-    # moved during a long run.
-    started = run_dir / "run.json"
-    commit = json.loads(started.read_text()).get("commit") if started.exists() else None
-    record = model_record(config, model, data, extra, commit)
+    # The code the run trained with is the checkout it started at: HEAD may have moved since.
+    record = model_record(config, model, data, extra, _started(run_dir).get("commit"))
     ckpt.save_weights(model, run_dir / "model.safetensors", {"model": config.model.name})
     ckpt.write_json(run_dir / "model.json", record)

@@ -1,9 +1,6 @@
-"""Starting a run: its data, its model and everything the epochs need, shared as a :class:`Run`.
-
-:func:`load_data` sets threads and seeds and loads the windows; :func:`start_run` builds the
-model (from ``model.init`` on a new run), its optimizer and schedule, restores all three from the
-newest checkpoint on a resume, and makes the DDP wrapper, the autocast, the loaders and the
-logbook. The steps of :mod:`lidarflow.train.loop` then share the :class:`Run`.
+"""Starting a run: its data (:func:`load_data`), its model, optimizer, schedule, loaders and
+logbook (:func:`start_run`), shared with the steps of :mod:`lidarflow.train.loop` as a
+:class:`Run`.
 """
 
 from __future__ import annotations
@@ -49,10 +46,9 @@ def _seed_everything(seed: int) -> None:
 class Run:
     """A run under way: what its steps share, and the state it carries from epoch to epoch.
 
-    ``extra`` (the best score so far and the epochs done) goes into every checkpoint and comes
-    back on a resume; ``rows`` are this process's rows (every rank computes the same ones);
-    ``book`` writes them on rank 0 and is ``None`` elsewhere. ``start`` is the epochs done before
-    this process began: 0, or those of the checkpoint resumed from.
+    ``extra`` (best score, epochs done) goes into every checkpoint; ``rows`` are this process's
+    rows; ``book`` writes them on rank 0 (``None`` elsewhere); ``start``: the epochs done before
+    this process began.
     """
 
     config: TrainConfig
@@ -92,10 +88,9 @@ class Run:
 
 
 def load_data(config: TrainConfig, say: Say) -> TrainData:
-    """Set the threads (``runtime.threads``) and seed every generator with ``runtime.seed``,
-    then load the training and validation windows in the form the model takes (motions for an
-    ego-motion model, sub-cell input for a head that reads it, flow for a supervised recipe,
-    which must find it: :class:`TrainError` otherwise). Says the data's summary and notes."""
+    """Set the threads and seed every generator, then load the windows in the form the model
+    takes (motions, sub-cell input, exact flow for a supervised recipe: :class:`TrainError`
+    where it is missing). Says the data's summary and notes."""
     rt = config.runtime
     if rt.threads > 0:
         torch.set_num_threads(rt.threads)
@@ -118,10 +113,9 @@ def load_data(config: TrainConfig, say: Say) -> TrainData:
 def _make_model(
     config: TrainConfig, resume: bool, data: TrainData, ctx: Dist, say: Say
 ) -> torch.nn.Module:
-    """The model of ``config.model`` on ``ctx.device``, accelerated as ``runtime`` asks: from the
-    weights of ``model.init`` on a new run (a resume's come from its checkpoint), and with
-    every window's start memories streamed into ``data`` where ``data.memories_from_stream``.
-    A model that cannot be built or streamed is a :class:`TrainError`."""
+    """The model of ``config.model`` on ``ctx.device``, accelerated, from ``model.init`` on a
+    new run; streams the windows' start memories into ``data`` (``data.memories_from_stream``).
+    :class:`TrainError` where the model cannot be built or streamed."""
     try:
         model = build(config.model.spec())
     except (ModelError, ValueError) as err:
@@ -152,11 +146,9 @@ def start_run(
     say: Say,
     began: float,
 ) -> Run:
-    """Everything the epochs need, on every rank: the model (:func:`_make_model`), its
-    optimizer and learning-rate schedule, all three restored from the newest checkpoint on a resume
-    (with the RNG states, so that the run goes on as if it had never stopped); the DDP wrapper,
-    bf16 autocast (``runtime.amp``), the loaders and, on rank 0, the logbook (a resume's keeps
-    the rows up to its checkpoint)."""
+    """Everything the epochs need, on every rank: model, optimizer and schedule (restored with
+    the RNG states on a resume), the DDP wrapper, autocast, the loaders and, on rank 0, the
+    logbook."""
     model = _make_model(config, resume, data, ctx, say)
     optimizer = make_optimizer(config, model)
     scheduler = torch.optim.lr_scheduler.StepLR(

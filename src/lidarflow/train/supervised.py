@@ -1,11 +1,9 @@
 """Supervised flow in the training loop (``loss.flow_epe > 0``, the ``supervised_flow`` recipe).
 
-The loop stays one loop: with supervision on, its training windows carry the exact ``B^t, F^t``
-(:func:`lidarflow.train.data.load_train_data` with ``train_flow``), :func:`take_flow` lifts that
-flow off each batch before the batch is split as usual, and :func:`flow_term` adds
-``loss.flow_epe`` x :func:`lidarflow.flow_supervision.window_flow_loss` to the step's loss. The
-platform's own motion (what a moving cell is measured against) comes from the windows' motions,
-which ego-motion models are served anyway; without them the platform is taken to stand still.
+With supervision on, training windows carry the exact ``B^t, F^t``; :func:`take_flow` lifts it
+off each batch and :func:`flow_term` adds ``loss.flow_epe`` x
+:func:`lidarflow.flow_supervision.window_flow_loss`, measuring moving cells against the windows'
+motions (a platform standing still without them).
 """
 
 from __future__ import annotations

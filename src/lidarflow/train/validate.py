@@ -1,14 +1,10 @@
 """Validation metrics of one epoch (design notes §5), summed over DDP ranks.
 
-For every validation window and every step ``t`` from ``warmup`` to ``T - 2`` (the frames after
-the warm-up, as everywhere in the project), the net's predicted next map ``P^{t+1}`` thresholded
-at 0.4 is compared with ``O^{t+1}`` (micro-averaged counts, :func:`confusion`), beside the
-copy-last prediction ``O^t``. ``changed_f1`` counts only cells where ``O^t != O^{t+1}``.
-
-With ground-truth flow (simulated recordings, extras ``flow_backward``), the flow end-point error
-of ``B^t`` against the truth is averaged over the occupied cells of ``O^{t+1}`` (where ``B^t``
-is defined) — ``epe`` — and over the cells that truly move (``|B| > 0``) — ``epe_moving``;
-``epe_zero`` / ``epe_moving_zero`` are the same for zero flow (what the untrained net outputs).
+For every counted pair, the predicted next map thresholded at 0.4 against ``O^{t+1}``
+(micro-averaged, :func:`confusion`), beside copy-last ``O^t``; ``changed_f1`` only where
+``O^t != O^{t+1}``. With ground-truth flow, the end-point error of ``B^t`` over the occupied
+cells of ``O^{t+1}`` (``epe``) and over those that truly move (``epe_moving``); ``*_zero``: the
+same for zero flow.
 """
 
 from __future__ import annotations
@@ -60,7 +56,6 @@ def validate(
         out = out.float()
         loss_sum += float(loss_fn(seq, out)) * len(seq)
         windows += len(seq)
-        t_idx = range(warmup, seq.shape[1] - 1)
         now = seq[:, warmup:-1]  # (B, n, C, H, W)
         b, n, _, h, w = now.shape
         step_out = out[:, warmup:-1].reshape(b * n, -1, h, w)
@@ -74,31 +69,18 @@ def validate(
         net_changed += _counts(predicted, occ_next, changed)
         if is_flow and bool(has_flow.any()):
             keep = has_flow.to(ctx.device)
-            gt = flow_gt.to(ctx.device)[keep][:, list(t_idx)]  # B^t for t in t_idx
-            est = out[keep][:, list(t_idx), 0:2]
-            occupied = occ_next[keep]
-            moving = gt.norm(dim=2) > 0
-            err = (est - gt).norm(dim=2)
+            gt = flow_gt.to(ctx.device)[keep][:, warmup:-1]  # B^t of the counted pairs
             zero = gt.norm(dim=2)
-            epe[0] += float(err[occupied].sum())
-            epe[1] += float(zero[occupied].sum())
-            epe[2] += float(occupied.sum())
-            epe[3] += float(err[moving].sum())
-            epe[4] += float(zero[moving].sum())
-            epe[5] += float(moving.sum())
+            err = (out[keep][:, warmup:-1, 0:2] - gt).norm(dim=2)
+            for i, cells in ((0, occ_next[keep]), (3, zero > 0)):  # occupied, moving
+                epe[i] += float(err[cells].sum())
+                epe[i + 1] += float(zero[cells].sum())
+                epe[i + 2] += float(cells.sum())
     model.train()
-    sums = all_reduce_sum(
-        ctx,
-        [
-            loss_sum,
-            windows,
-            *(float(getattr(c, k)) for c in (net, copy, net_changed) for k in ("tp", "fp", "fn")),
-            *epe,
-        ],
-    )
-    loss_sum, windows = sums[0], sums[1]
-    net, copy, net_changed = (Counts(*map(int, sums[2 + 3 * i : 5 + 3 * i])) for i in range(3))
-    e = sums[11:]
+    counts = [float(getattr(c, k)) for c in (net, copy, net_changed) for k in ("tp", "fp", "fn")]
+    loss_sum, windows, *sums = all_reduce_sum(ctx, [loss_sum, windows, *counts, *epe])
+    net, copy, net_changed = (Counts(*map(int, sums[3 * i : 3 * i + 3])) for i in range(3))
+    e = sums[9:]
     metrics = {
         "val_loss": loss_sum / windows if windows else float("nan"),
         "val_f1": net.f1,

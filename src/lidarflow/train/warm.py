@@ -1,15 +1,10 @@
-"""Training windows that start where streaming leaves the occupancy head's memories.
+"""Training windows that start where streaming leaves the occupancy head's memories
+(``data.memories_from_stream``).
 
-The head's memories are exponential averages of past maps, the slowest over hundreds of frames,
-longer than a training window; from a zero state they would stay near zero in training while
-streaming fills them. They (and the constant-velocity input's previous map) are functions of the
-maps and the motions alone, not of any weight, so they are streamed here once per recording, and
-each window starts from the state streaming leaves at its first frame
-(``data.memories_from_stream``). The GRUs' states still start at zero: they depend on the weights
-being trained.
-
-A window served without its poses (``data.pose_dropout``) starts from the memories streamed
-without poses, as a recording without odometry would have left them.
+The memories average past maps over hundreds of frames, longer than a window, and depend on the
+maps and motions alone, not on any weight: so they are streamed once per recording, and each
+window starts from the state streaming leaves at its first frame (without poses where
+``data.pose_dropout`` serves it so). The GRUs' states still start at zero.
 """
 
 from __future__ import annotations
@@ -24,14 +19,10 @@ from lidarflow.train.data import Windows
 
 @torch.no_grad()
 def stream_states(
-    model: RecurrentMapModel,
-    maps: np.ndarray,
-    frames: list[int],
-    motions: np.ndarray | None = None,
+    model: RecurrentMapModel, maps: np.ndarray, frames: list[int], motions: np.ndarray | None = None
 ) -> dict[int, np.ndarray]:
-    """The last state tensor of ``model`` (the occupancy head's) before each of ``frames``,
-    streaming boolean ``maps`` ``(N, 2, H, W)`` from a zero state (with ``motions`` ``(N, 3)``
-    for an ego-motion model), as float16 ``(C, H, W)``."""
+    """The head's state (``model``'s last state tensor) before each of ``frames``, as float16
+    ``(C, H, W)``, streaming boolean ``maps`` ``(N, 2, H, W)`` (and ``motions`` ``(N, 3)``)."""
     wanted = set(frames)
     out: dict[int, np.ndarray] = {}
     state = model.init_state(1, *maps.shape[-2:], device="cpu", dtype=torch.float32)
@@ -49,10 +40,9 @@ def stream_states(
 
 
 def stream_start_states(model: RecurrentMapModel, windows: Windows) -> None:
-    """Set ``windows.start_states``: per window, the head's state where streaming its
-    recording reaches the window's first frame (with poses, and without them where windows are
-    served without). ``model`` must have an occupancy head (the state is its memories); it is
-    left on the CPU in eval mode."""
+    """Set ``windows.start_states``: per window, the head's state where streaming its recording
+    reaches the window's first frame, with poses and without. ``ValueError`` for a model
+    without an occupancy head; ``model`` is left on the CPU in eval mode."""
     if not model.capabilities.occupancy_head:
         raise ValueError("memories_from_stream needs a model with an occupancy head")
     model = model.cpu().eval()
