@@ -1,11 +1,8 @@
 """Opening a bag for reading: which inputs are bags, and the reader each kind is read with.
 
-Accepted inputs: a ROS 1 ``.bag``, a zipped ``.bag.zip`` (unpacked to a temporary file,
-:mod:`lidarflow.data.unzip`), a ROS 2 bag folder (sqlite3 or mcap storage; its ``metadata.yaml``
-or ``.db3`` names it too), or a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as
-``mcap convert`` leaves a ROS 1 bag (read by :mod:`lidarflow.data.mcapfile`). A bag cut short
-is read by :mod:`lidarflow.data.cutshort`'s readers. Everything else is a :class:`BagError`
-naming the input and what to do.
+A ROS 1 ``.bag`` (or ``.bag.zip``, :mod:`lidarflow.data.unzip`), a ROS 2 bag folder, or an
+``.mcap`` file of ROS 2 or ROS 1 messages (:mod:`lidarflow.data.mcapfile`); a bag cut short is
+read by :mod:`lidarflow.data.cutshort`'s readers. Anything else is a :class:`BagError`.
 """
 
 from __future__ import annotations
@@ -38,7 +35,6 @@ _BAG_SUFFIXES = (".bag", ".bag.zip", ".mcap", ".db3")
 
 
 def _is_bag_like(path: Path) -> bool:
-    """Whether ``path`` may be a bag by its name (or is a folder); its contents decide later."""
     name = path.name.lower()
     return path.is_dir() or name == "metadata.yaml" or name.endswith(_BAG_SUFFIXES)
 
@@ -46,9 +42,8 @@ def _is_bag_like(path: Path) -> bool:
 @contextlib.contextmanager
 def open_bag(path: str | Path) -> Iterator[Any]:
     """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``, or where rosbags
-    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way:
-    for an MCAP file of ROS 1 messages, or a bag cut short (its ``recovered`` says how much of
-    the file it reads; ``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
+    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way
+    (``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
 
     Raises :class:`BagError` for missing, unsupported or corrupt inputs.
     """
@@ -100,8 +95,8 @@ def open_bag(path: str | Path) -> Iterator[Any]:
 
 
 def _folder_without_metadata(path: Path, folder: Path) -> Path:
-    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (``ros2 bag record``
-    writes it last, so an interrupted recording has none): an MCAP file reads on its own."""
+    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (which ``ros2 bag
+    record`` writes last, so an interrupted recording has none)."""
     mcaps = sorted(folder.glob("*.mcap"))
     if len(mcaps) == 1:
         return mcaps[0]

@@ -13,14 +13,12 @@ from lidarflow.data.ros1bag import Ros1BagSequentialReader
 
 __all__ = ["cut_short_reader", "not_a_bag"]
 
-#: What a file of each suffix is, and the bytes it must begin with.
 _KINDS = {".bag": ("a ROS 1 bag", ROS1_MAGIC), ".mcap": ("an MCAP file", MCAP_MAGIC)}
 
 
 def not_a_bag(target: Path) -> str | None:
     """Why ``target``, a file rosbags could not open, is no bag at all, judged by its first
-    bytes (an empty file; a ROS 1 bag or MCAP file without the header every one begins with);
-    ``None`` where it begins as its kind does (a damaged bag, not a foreign file)."""
+    bytes; ``None`` where it begins as its kind does (a damaged bag, not a foreign file)."""
     kind = _KINDS.get(target.suffix.lower()) if target.is_file() else None
     if kind is None:
         return None
@@ -35,10 +33,8 @@ def not_a_bag(target: Path) -> str | None:
 
 
 def cut_short_reader(target: Path, store: Any) -> Any:
-    """A reader of what a bag cut short holds up to its last intact message, where rosbags
-    could not open it (a ROS 1 bag without its index, an MCAP file without its summary or
-    footer, a ROS 2 folder around one); ``None`` where that finds no message either (a file
-    that is no bag, or damaged from its start)."""
+    """A reader of a bag cut short (a ROS 1 bag or MCAP file, or a ROS 2 folder around one) up
+    to its last intact message; ``None`` where that finds no message either."""
     if target.is_dir():
         mcaps = sorted(target.glob("*.mcap"))
         target = mcaps[0] if len(mcaps) == 1 else target
@@ -50,4 +46,3 @@ def cut_short_reader(target: Path, store: Any) -> Any:
     except Exception:  # what rosbags said of the file is the better message
         return None
     return None
-
