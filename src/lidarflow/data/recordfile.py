@@ -1,11 +1,9 @@
 """The recording on disk: one ``.npz`` (NumPy, no pickle), written whole or not at all.
 
 The arrays of :class:`~lidarflow.data.recording.Recording` each as a member, the metadata as
-JSON (``meta_json``, with the :data:`FORMAT_VERSION` that wrote it), and each extra as a member
-``extra__NAME``. Reading checks every member before NumPy allocates it: a file that is no
-.npz, one cut short, one whose array headers claim more than the archive holds (a damaged or
-crafted file), one holding Python objects (which unpickling would run as code) or a scan of
-more beams than any scanner gives is a :class:`RecordingError` saying which, in one line.
+JSON (``meta_json``, with :data:`FORMAT_VERSION`), each extra as ``extra__NAME``. Reading checks
+every member before NumPy allocates it: a damaged, crafted or foreign file is a
+:class:`RecordingError` saying which, in one line.
 """
 
 from __future__ import annotations
@@ -30,11 +28,8 @@ _EXTRA_PREFIX = "extra__"
 
 
 def save_recording(recording: Recording, path: str | Path) -> Path:
-    """Write ``recording`` to ``path`` (``.npz`` is appended when missing), whole or not at all
-    (:func:`lidarflow.atomic.atomic_path`: an existing file is replaced only once the new one is
-    complete); returns the path written. The arrays as :class:`Recording` holds them (ranges as
-    float32), the metadata as JSON with :data:`FORMAT_VERSION`, each extra as an array of its
-    own, compressed."""
+    """Write ``recording`` to ``path`` (``.npz`` appended when missing), whole or not at all
+    (:func:`lidarflow.atomic.atomic_path`); returns the path written."""
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
@@ -68,11 +63,9 @@ _DEFLATE_MOST = 1100
 
 
 def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
-    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it: one whose
-    header declares more (or fewer) values than its member holds (a damaged or crafted file:
-    NumPy allocates the declared shape first, 14.6 TiB for a header claiming 4e12 floats), and
-    one of values that are no real numbers (complex, text, records). Python objects are left
-    to :func:`_read_arrays`, which says so."""
+    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it (its declared
+    shape first): one whose header declares other than its member holds, and one of values
+    that are no real numbers. Python objects are left to :func:`_read_arrays`."""
     if f"{key}.npy" not in archive.namelist():
         raise RecordingError(f"{path}: not a lidarflow recording (its member {key!r} is no array)")
     info = archive.getinfo(f"{key}.npy")
@@ -114,8 +107,7 @@ def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
 
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
-    instead, in lidarflow's words: not an .npz at all, one cut short, or one holding Python
-    objects (which a recording never does, and which unpickling would run as code)."""
+    instead: not an .npz, one cut short, or one holding Python objects."""
     with path.open("rb") as f:
         start = f.read(4)
     if not start:
