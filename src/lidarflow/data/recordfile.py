@@ -17,7 +17,7 @@ import numpy as np
 
 from lidarflow.atomic import atomic_path
 from lidarflow.data.inputs import check_regular
-from lidarflow.data.recording import Recording
+from lidarflow.data.recording import GEOMETRY_FIELDS, Recording
 from lidarflow.errors import RecordingError
 from lidarflow.scan import MAX_BEAMS
 
@@ -25,6 +25,8 @@ __all__ = ["FORMAT_VERSION", "load_recording", "save_recording"]
 
 FORMAT_VERSION = 1
 _EXTRA_PREFIX = "extra__"
+#: The arrays every recording file holds, one member each, as :class:`Recording` names them.
+_ARRAYS = ("ranges", "offsets", *GEOMETRY_FIELDS, "stamps_ns")
 
 
 def save_recording(recording: Recording, path: str | Path) -> Path:
@@ -33,18 +35,10 @@ def save_recording(recording: Recording, path: str | Path) -> Path:
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
-    arrays: dict[str, np.ndarray] = {
-        "ranges": np.asarray(recording.ranges, np.float32),  # no copy where it is float32
-        "offsets": recording.offsets,
-        "angle_min": recording.angle_min,
-        "angle_increment": recording.angle_increment,
-        "range_min": recording.range_min,
-        "range_max": recording.range_max,
-        "stamps_ns": recording.stamps_ns,
-        "meta_json": np.frombuffer(
-            json.dumps({**recording.meta, "format_version": FORMAT_VERSION}).encode(), np.uint8
-        ),
-    }
+    arrays = {name: getattr(recording, name) for name in _ARRAYS}
+    arrays["ranges"] = np.asarray(recording.ranges, np.float32)  # no copy where it is float32
+    meta = json.dumps({**recording.meta, "format_version": FORMAT_VERSION})
+    arrays["meta_json"] = np.frombuffer(meta.encode(), np.uint8)
     if recording.poses is not None:
         arrays["poses"] = recording.poses
     for key, value in recording.extras.items():
@@ -144,8 +138,7 @@ def load_recording(path: str | Path) -> Recording:
         raise RecordingError(f"{path}: no such file")
     check_regular(path, RecordingError)
     data = _read_arrays(path)
-    required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
-    missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]
+    missing = [k for k in (*_ARRAYS, "meta_json") if k not in data]
     if missing:
         raise RecordingError(f"{path}: not a lidarflow recording (missing {', '.join(missing)})")
     try:
@@ -157,22 +150,14 @@ def load_recording(path: str | Path) -> Recording:
             f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
         )
     extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
-    beams = np.diff(data["offsets"].astype(np.int64))
+    arrays = {name: data[name] for name in _ARRAYS}
+    arrays["offsets"] = arrays["offsets"].astype(np.int64)
+    arrays["stamps_ns"] = arrays["stamps_ns"].astype(np.int64)
+    beams = np.diff(arrays["offsets"])
     if beams.size and beams.max() > MAX_BEAMS:
         frame = int(np.argmax(beams))
         raise RecordingError(
             f"{path}: scan {frame} has {int(beams[frame]):,} beams; real scanners give at most "
             f"a few thousand (lidarflow takes up to {MAX_BEAMS:,}): the recording is damaged"
         )
-    return Recording(
-        ranges=data["ranges"],
-        offsets=data["offsets"].astype(np.int64),
-        angle_min=data["angle_min"],
-        angle_increment=data["angle_increment"],
-        range_min=data["range_min"],
-        range_max=data["range_max"],
-        stamps_ns=data["stamps_ns"].astype(np.int64),
-        poses=data.get("poses"),
-        meta=meta,
-        extras=extras,
-    )
+    return Recording(**arrays, poses=data.get("poses"), meta=meta, extras=extras)

@@ -20,7 +20,10 @@ from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcel
 
 T = TypeVar("T")
 
-__all__ = ["Recording"]
+__all__ = ["GEOMETRY_FIELDS", "Recording"]
+
+#: The per-scan beam geometry arrays of a :class:`Recording`, as :class:`BeamGeometry` names them.
+GEOMETRY_FIELDS = ("angle_min", "angle_increment", "range_min", "range_max")
 
 _BATCH_FRAMES = 256  # frames rasterized at once
 
@@ -55,7 +58,7 @@ class Recording:
         n = len(self.stamps_ns)
         if self.offsets.shape != (n + 1,):
             raise RecordingError(f"offsets must be ({n + 1},), got {self.offsets.shape}")
-        for name in ("angle_min", "angle_increment", "range_min", "range_max"):
+        for name in GEOMETRY_FIELDS:
             if getattr(self, name).shape != (n,):
                 raise RecordingError(f"{name} must be ({n},), got {getattr(self, name).shape}")
         if self.poses is not None and self.poses.shape != (n, 3):
@@ -82,16 +85,14 @@ class Recording:
             else np.zeros(0, np.float32)
         )
 
-        def column(attr: str) -> np.ndarray:
-            return np.array([getattr(s.geometry, attr) for s in scans], dtype=np.float64)
-
+        geometry = {
+            name: np.array([getattr(s.geometry, name) for s in scans], dtype=np.float64)
+            for name in GEOMETRY_FIELDS
+        }
         return cls(
             ranges=ranges,
             offsets=offsets,
-            angle_min=column("angle_min"),
-            angle_increment=column("angle_increment"),
-            range_min=column("range_min"),
-            range_max=column("range_max"),
+            **geometry,
             stamps_ns=np.array([s.stamp_ns for s in scans], dtype=np.int64),
             poses=None if poses is None else np.asarray(poses, dtype=np.float64),
             meta=dict(meta or {}),
@@ -229,10 +230,7 @@ class Recording:
         return Recording(
             ranges=self.ranges[a:b],
             offsets=self.offsets[start : stop + 1] - a,
-            angle_min=self.angle_min[start:stop],
-            angle_increment=self.angle_increment[start:stop],
-            range_min=self.range_min[start:stop],
-            range_max=self.range_max[start:stop],
+            **{name: getattr(self, name)[start:stop] for name in GEOMETRY_FIELDS},
             stamps_ns=self.stamps_ns[start:stop],
             poses=None if self.poses is None else self.poses[start:stop],
             meta=self._sliced_meta(start, stop),
