@@ -4,7 +4,6 @@ by its mount in the bag's TF (:mod:`lidarflow.data.tf`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,7 +11,7 @@ import numpy as np
 
 from lidarflow.data.cleaning import zero_stamps_filled
 from lidarflow.data.messages import stamp_ns
-from lidarflow.data.tf import TransformTree, compose_poses, mirrored
+from lidarflow.data.tf import TransformTree, compose_poses, mirrored, yaw_of
 
 __all__ = ["PoseLog", "on_the_scanner", "pose_of"]
 
@@ -21,9 +20,7 @@ def pose_of(msg: Any) -> tuple[float, float, float]:
     """The planar pose ``(x, y, yaw)`` (metres, radians) of an Odometry or PoseStamped message
     (anything with ``pose.pose`` or ``pose`` holding ``position`` and ``orientation``)."""
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    q = pose.orientation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    return float(pose.position.x), float(pose.position.y), yaw
+    return float(pose.position.x), float(pose.position.y), yaw_of(pose.orientation)
 
 
 @dataclass

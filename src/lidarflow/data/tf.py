@@ -15,13 +15,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TF_TYPE", "TransformTree", "compose_poses", "mirrored"]
+__all__ = ["TF_TYPE", "TransformTree", "compose_poses", "mirrored", "yaw_of"]
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 def _frame(name: str) -> str:
     return str(name).lstrip("/")
+
+
+def yaw_of(q: Any) -> float:
+    """The rotation about z (radians) of a quaternion with ``x, y, z, w``: for a frame flipped
+    upside down too, the bearing of its x axis in the plane."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 class TransformTree:
@@ -37,12 +43,11 @@ class TransformTree:
             if child in self.parent:
                 continue
             t, q = tr.transform.translation, tr.transform.rotation
-            # the rotation matrix's first column in the plane gives the yaw of an upright or a
-            # flipped frame alike (R = Rz(yaw) or Rz(yaw) diag(1, -1, -1) there); R22 the z axis
-            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            # yaw_of reads the rotation matrix's first column, which gives the yaw of an upright
+            # or a flipped frame alike (R = Rz(yaw) or Rz(yaw) diag(1, -1, -1)); R22 the z axis
             flipped = 1.0 - 2.0 * (q.x * q.x + q.y * q.y) < 0.0
             parent = _frame(tr.header.frame_id)
-            self.parent[child] = (parent, float(t.x), float(t.y), yaw, flipped)
+            self.parent[child] = (parent, float(t.x), float(t.y), yaw_of(q), flipped)
 
     def mount(self, base: str, frame: str) -> tuple[tuple[float, float, float], bool] | None:
         """``((x, y, yaw), flipped)`` of ``frame`` in ``base`` (flipped: ``frame`` is that pose
