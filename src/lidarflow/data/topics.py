@@ -7,7 +7,7 @@ said (``read_bag``'s ``meta["topic_choice"]``, ``meta["pose_topic_choice"]``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -84,15 +84,22 @@ def choose_scan_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, 
         raise BagError(
             f"{path}: no sensor_msgs/LaserScan (or MultiEchoLaserScan) topic in this bag"
         )
-    # A ROS 2 bag lists every topic it subscribed to, published on or not: an unused scan topic
+    return _choose(counts, _scan_rank, "--topic")
+
+
+def _choose(
+    counts: dict[str, int], rank: Callable[[str, int], tuple[Any, ...]], option: str
+) -> tuple[str, str | None]:
+    """The topic ``rank`` puts first of ``counts``' (at least one), and a note on the others."""
+    # A ROS 2 bag lists every topic it subscribed to, published on or not: an unused topic
     # beside the sensor's is no real choice. (Without counts, as in an MCAP file with no
     # summary, every topic counts 0 and all stay candidates.)
-    live = [t for t in scan_topics if counts[t] > 0] or scan_topics
+    live = [t for t in sorted(counts) if counts[t] > 0] or sorted(counts)
     if len(live) == 1:
         return live[0], None
-    chosen = min(live, key=lambda t: _scan_rank(t, counts[t]))
+    chosen = min(live, key=lambda t: rank(t, counts[t]))
     others = ", ".join(t for t in live if t != chosen)
-    return chosen, f"{chosen} chosen over {others}; --topic to pick another"
+    return chosen, f"{chosen} chosen over {others}; {option} to pick another"
 
 
 #: Where a bag has several odometry topics and none is named: robot_localization's fused
@@ -113,13 +120,7 @@ def choose_pose_topic(
     pose_topics = {c.topic: c.msgtype for c in reader.connections if c.msgtype in POSE_TYPES}
     if odom_topic is None:
         counts = _message_counts(reader, POSE_TYPES[:1])
-        # as for scans: a topic subscribed to and never published on is no real choice
-        live = [t for t in counts if counts[t] > 0] or list(counts)
-        if len(live) <= 1:
-            return (live[0] if live else None), None
-        chosen = min(live, key=lambda t: _odometry_rank(t, counts[t]))
-        others = ", ".join(sorted(t for t in live if t != chosen))
-        return chosen, f"{chosen} chosen over {others}; --odom-topic to pick another"
+        return _choose(counts, _odometry_rank, "--odom-topic") if counts else (None, None)
     found = _match_name(odom_topic, pose_topics)
     if found is None:
         hint = ", ".join(sorted(pose_topics)) or "none"
