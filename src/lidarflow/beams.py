@@ -2,9 +2,8 @@
 
 A finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf`` or
 ``rho >= range_max`` is *no return* (free space out to ``range_max``); ``NaN``, ``-inf``, ``0``
-or ``rho < range_min`` are *unknown*. Exactly ``range_max`` is how clipping drivers and older
-Gazebo plugins write no return, and where a scan does so, readings just under it are no return
-too (:func:`ring_band`): a departure from the design notes (``docs/research/range_max/``).
+or ``rho < range_min`` are *unknown*. In a scan that writes no return as ``range_max``, readings
+just under it are no return too (``docs/guide/conventions.md#beams``).
 
 Pure NumPy; every function takes ranges ``(..., beams)``, one row a scan.
 """
@@ -26,13 +25,11 @@ __all__ = [
     "ring_scans",
 ]
 
-# Beam status codes (see beam_status).
 UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
 
 
 def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
-    """Classify each beam of ``ranges`` (``(..., beams)``, one row a scan) as ``UNKNOWN`` (0),
-    ``RETURN`` (1) or ``NO_RETURN`` (2).
+    """Each beam's status: ``UNKNOWN`` (0), ``RETURN`` (1) or ``NO_RETURN`` (2).
 
     >>> beam_status(np.array([1.0, np.inf, np.nan, 0.0, 20.0, 10.0]), 0.1, 10.0).tolist()
     [1, 2, 0, 0, 2, 2]
@@ -50,8 +47,7 @@ def beam_status(ranges: np.ndarray, range_min: float, range_max: float) -> np.nd
 
 
 #: A scan with at least this share of its beams (and :data:`RING_MIN_BEAMS`) reading exactly
-#: ``range_max`` writes "no return" that way; a simulator that adds noise before clipping then
-#: leaves the rest of that ring just under ``range_max``, within :func:`ring_band` of it.
+#: ``range_max`` writes "no return" that way.
 RING_SHARE = 0.01
 RING_MIN_BEAMS = 3
 
@@ -63,8 +59,8 @@ def ring_band(range_max: float) -> float:
 
 
 def at_range_max(ranges: np.ndarray, range_max: float) -> np.ndarray:
-    """How many readings of each scan of ``ranges`` (``(..., beams)``, float) are exactly
-    ``range_max`` in the ranges' dtype (none where ``range_max`` is beyond it)."""
+    """How many readings of each scan are exactly ``range_max`` in the ranges' (float) dtype
+    (none where ``range_max`` is beyond it)."""
     r = np.asarray(ranges)
     with np.errstate(over="ignore"):  # a range_max beyond float32 (pointcloud_to_laserscan's)
         top = r.dtype.type(range_max)
@@ -72,9 +68,8 @@ def at_range_max(ranges: np.ndarray, range_max: float) -> np.ndarray:
 
 
 def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
-    """Whether each scan of ``ranges`` (``(..., beams)``, float) writes no return as
-    ``range_max``: :data:`RING_SHARE` of its beams, and :data:`RING_MIN_BEAMS`, read exactly
-    ``range_max`` (:func:`at_range_max`), which a continuous measurement does not."""
+    """Whether each scan writes no return as ``range_max``: :data:`RING_SHARE` of its beams,
+    and :data:`RING_MIN_BEAMS`, read exactly that, which a continuous measurement does not."""
     counts = at_range_max(ranges, range_max)
     return counts >= max(RING_MIN_BEAMS, RING_SHARE * np.shape(ranges)[-1])
 
@@ -82,11 +77,9 @@ def ring_scans(ranges: np.ndarray, range_max: float) -> np.ndarray:
 def return_masks(
     r: np.ndarray, range_min: float, range_max: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(is_return, no_return)`` masks of float ranges ``r`` (``(..., beams)``: each row one
-    scan; the module docstring's rule). ``range_max`` is compared in ``r``'s dtype, so a reading
-    stored as the message's ``range_max`` (float32) is no return whatever that value's float64
-    neighbours. In a scan that writes no return as ``range_max`` (:data:`RING_SHARE`), readings
-    within :func:`ring_band` under it are no return too."""
+    """``(is_return, no_return)`` masks of float ranges ``r`` by the module's rule.
+    ``range_max`` is compared in ``r``'s dtype, so a reading stored as the message's float32
+    ``range_max`` is no return whatever that value's float64 neighbours."""
     # a range_max beyond float32 (pointcloud_to_laserscan's default, 1.8e308) casts to inf
     with np.errstate(invalid="ignore", over="ignore"):
         top = r.dtype.type(range_max)

@@ -1,15 +1,5 @@
-"""LaserScan -> occupancy and visibility maps (design notes, section 2).
-
-Grid convention (sensor frame, REP 103: x forward, y left): cell ``(r, c)`` has its centre at
-``x = (H - r - 0.5) * res``, ``y = (W / 2 - c - 0.5) * res``; row 0 is the far edge, column 0
-the left edge, and the sensor sits at the middle of the bottom edge.
-
-Beam validity (what each reading says: a return, no return out to ``range_max``, or unknown)
-is :mod:`lidarflow.beams`'s; its functions are importable from here too.
-
-Visibility: a cell is visible when the beam nearest to the bearing of its centre exists and
-either returned beyond the centre's distance, or had no return and the centre lies within
-``range_max``. Occupied cells are always visible.
+"""LaserScan -> occupancy and visibility maps (design notes, section 2; grid and visibility
+rules in ``docs/guide/conventions.md``; beam validity in :mod:`lidarflow.beams`).
 
 Pure NumPy. The per-cell beam lookup depends only on the grid and the beam geometry, so it is
 cached per geometry: a scan then costs one gather and one comparison per cell.
@@ -42,20 +32,15 @@ __all__ = [
 ]
 
 
-#: The most cells a grid may have: 2048 x 2048. A model step takes about 1.1 kB a cell (peak
-#: memory of `lidarflow predict`, 280 MB at 100 x 100 cells and 980 MB at 800 x 800), so this
-#: many take ~4.6 GB, what a laptop has to spare; a larger grid is refused before anything is
-#: allocated rather than failing deep inside with a MemoryError (or the kernel's OOM killer).
+#: The most cells a grid may have: what a laptop's memory holds for a model step
+#: (``docs/guide/conventions.md#grid``); a larger grid is refused before anything is allocated.
 MAX_GRID_CELLS = 2048 * 2048
-
-#: The most beams a scan read from a file may have. Real 2-D scanners give at most a few
-#: thousand per scan (a SICK LMS 5xx at 0.0833 deg: 3241; a Hokuyo UST-30LX: 1081); a scan
-#: claiming more is damaged or crafted, and 10 million beams, a few kB compressed, take
-#: gigabytes to rasterize: bags and recordings holding one are refused before it is decoded.
+#: The most beams a scan read from a file may have: real scanners give a few thousand, so a
+#: scan claiming more is damaged or crafted, and is refused before it is decoded.
 MAX_BEAMS = 100_000
 _MAX_SIDE = math.isqrt(MAX_GRID_CELLS)
-#: The coarsest cell, in metres: a 2-D LiDAR sees tens of metres, so a coarser cell maps the
-#: whole scan into a few cells (and a cell of 1e300 m overflows the arithmetic of rasterizing).
+#: The coarsest cell, in metres: coarser maps a whole scan into a few cells (and 1e300 m
+#: overflows the arithmetic of rasterizing).
 MAX_RES = 10.0
 
 
@@ -190,11 +175,25 @@ def _cell_lookup(grid: GridSpec, geometry: BeamGeometry) -> tuple[np.ndarray, np
 
 @lru_cache(maxsize=64)
 def _beam_directions(geometry: BeamGeometry) -> tuple[np.ndarray, np.ndarray]:
-    angles = geometry.angles
-    cos, sin = np.cos(angles), np.sin(angles)
+    cos, sin = np.cos(geometry.angles), np.sin(geometry.angles)
     cos.setflags(write=False)
     sin.setflags(write=False)
     return cos, sin
+
+
+def _return_cells(
+    r: np.ndarray, is_return: np.ndarray, geometry: BeamGeometry, grid: GridSpec
+) -> tuple[np.ndarray, ...]:
+    """Each beam's point as fractional grid coordinates ``(u, v)`` (float64 whatever ``r``'s
+    dtype, so a point lands in the cell that contains it), its cell ``(row, col)`` and whether
+    it is a return inside the grid."""
+    cos, sin = _beam_directions(geometry)
+    rho = np.where(is_return, r, 0.0).astype(np.float64)
+    u = grid.height - rho * cos / grid.res
+    v = grid.width / 2 - rho * sin / grid.res
+    row, col = np.floor(u), np.floor(v)
+    inside = is_return & (row >= 0) & (row < grid.height) & (col >= 0) & (col < grid.width)
+    return u, v, row, col, inside
 
 
 def _check_ranges(ranges: np.ndarray, geometry: BeamGeometry) -> np.ndarray:
@@ -211,16 +210,9 @@ def _check_ranges(ranges: np.ndarray, geometry: BeamGeometry) -> np.ndarray:
 def rasterize_batch(
     ranges: np.ndarray, geometry: BeamGeometry, grid: GridSpec | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Rasterize ``N`` scans that share one beam geometry.
-
-    Args:
-        ranges: ``(N, geometry.count)`` ranges in metres (float32 or float64; NaN/inf allowed).
-            Comparisons run in this dtype.
-        geometry: the beams' angles and range limits.
-        grid: the map grid (default: the paper's 100 x 100 at 0.1 m).
-
-    Returns:
-        ``(occupancy, visibility)``, each a boolean array ``(N, H, W)``.
+    """Rasterize ``N`` scans that share one beam geometry into ``(occupancy, visibility)``,
+    each boolean ``(N, H, W)``. ``ranges`` is ``(N, geometry.count)`` metres, NaN/inf allowed;
+    comparisons run in its dtype. ``grid`` defaults to the paper's.
 
     >>> g = BeamGeometry(3, -0.1, 0.1, 0.05, 10.0)
     >>> occ, vis = rasterize_batch(np.array([[5.0, 5.0, 5.0]]), g, GridSpec(100, 100, 0.1))
@@ -259,12 +251,7 @@ def _rasterize_chunk(
     reach[:, :-1] = np.where(is_return, r, np.where(beyond, no_return_reach, dtype.type(-1.0)))
     visibility = dist.astype(dtype, copy=False)[None, :] < reach[:, index]
 
-    # Occupancy in float64 whatever the input, so a point lands in the cell that contains it.
-    cos, sin = _beam_directions(geometry)
-    rho = np.where(is_return, r, 0.0).astype(np.float64)
-    row = np.floor(height - rho * cos / grid.res)
-    col = np.floor(width / 2 - rho * sin / grid.res)
-    inside = is_return & (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    _, _, row, col, inside = _return_cells(r, is_return, geometry, grid)
     flat = (row * width + col)[inside].astype(np.int64)
     flat += np.nonzero(inside)[0] * (height * width)
     occupancy = np.zeros(n * height * width, dtype=bool)
@@ -283,8 +270,6 @@ def rasterize(scan: Scan, grid: GridSpec | None = None) -> tuple[np.ndarray, np.
 #: Sub-cells per cell side of :func:`subcell_batch`: a return within ``res / SUBCELL`` of a cell's
 #: edge is "at the edge".
 SUBCELL = 4
-#: Channels of :func:`subcell_batch`.
-SUBCELL_CHANNELS = ("edge", "near")
 #: Channels of a frame's maps: occupancy and visibility (Table I's input).
 MAP_CHANNELS = 2
 
@@ -308,9 +293,8 @@ def subcell_batch(
     ``res / SUBCELL`` of its border. Channel 1 (``near``): a return in one of the cell's four
     neighbours lies within ``res / SUBCELL`` of the edge they share.
 
-    Both channels (``docs/research/subcell/``) are zero for a return at a cell's centre: the
-    neutral input where no scan is known. Cells
-    are :func:`rasterize_batch`'s, so an ``edge`` cell is always one it marks occupied.
+    Both are zero for a return at a cell's centre, the neutral input where no scan is known
+    (``docs/research/subcell/``); an ``edge`` cell is always one :func:`rasterize_batch` marks.
 
     Straight ahead on a grid 101 cells wide (the beam runs down the middle of column 50), a
     return 1 cm short of cell 49's near edge, then one at its centre:
@@ -324,12 +308,7 @@ def subcell_batch(
     r = _check_ranges(ranges, geometry)
     n, (height, width) = r.shape[0], grid.shape
     is_return, _ = return_masks(r, geometry.range_min, geometry.range_max)
-    cos, sin = _beam_directions(geometry)
-    rho = np.where(is_return, r, 0.0).astype(np.float64)
-    u = height - rho * cos / grid.res  # rasterize_batch's row before its floor
-    v = width / 2 - rho * sin / grid.res
-    row, col = np.floor(u), np.floor(v)
-    inside = is_return & (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    u, v, row, col, inside = _return_cells(r, is_return, geometry, grid)
     frame = np.nonzero(inside)[0]
     u, v = u[inside], v[inside]
     row, col = row[inside].astype(np.int64), col[inside].astype(np.int64)

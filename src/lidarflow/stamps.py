@@ -1,13 +1,10 @@
 """A stream's typical step between scans, and the steps much longer than it.
 
-One rule, used where a recording's scans stop for a while (:mod:`lidarflow.data.gaps`: the frame
-after a gap is not the next frame) and where scans were dropped (:mod:`lidarflow.motion.pacing`:
-the guess of the next motion is scaled to one typical step). The rule is relative to the
-stream's own rate (scanners run at 5-40 Hz): the typical step is the median of the last
-:data:`HISTORY` forward steps, long ones included (one gap does not move a median), and a driver
-that changes its rate (20 Hz -> 5 Hz) is learnt once :data:`RATE_STEPS` steps at the new rate
-agree. Until :data:`MIN_STEPS` steps are known, the median of all the stream's forward steps
-stands in (a recording), or nothing is paced (a live stream).
+One rule for gaps (:mod:`lidarflow.data.gaps`) and for dropped scans
+(:mod:`lidarflow.motion.pacing`), relative to the stream's own rate: the typical step is the
+median of the last :data:`HISTORY` forward steps, and a new rate is learnt once
+:data:`RATE_STEPS` steps agree on it. Until :data:`MIN_STEPS` steps are known, the median of all
+the stream's forward steps stands in (a recording), or nothing is paced (a live stream).
 """
 
 from __future__ import annotations
@@ -31,14 +28,9 @@ __all__ = [
 #: A step longer than this many typical ones paces the next motion guess (a dropped scan is 2).
 PACE_ABOVE = 1.5
 MIN_STEPS = 3
-#: This many steps in a row within a factor :data:`RATE_AGREEMENT` of their median, all longer
-#: (or all shorter) than the typical step by more than :data:`PACE_ABOVE` times, are a new rate
-#: (their median, not their extremes, so that jittery stamps still agree: with Gaussian jitter of
-#: 20 % a halved rate is learnt in a median of 10.5 steps over 20 streams, against 25 comparing
-#: the extremes; tests/data/test_gaps.py). Scans dropped at random make such a run too (five
-#: single drops in a row): of 200 simulated 1000-frame streams, 31 % at 30 % dropped had one
-#: (20 %: 13 %; 10 %: 2 %), each costing about five steps paced wrongly until five typical steps
-#: restore the rate.
+#: This many steps in a row within a factor :data:`RATE_AGREEMENT` of their median (not their
+#: extremes, so that jittery stamps still agree), all longer (or all shorter) than the typical
+#: step by more than :data:`PACE_ABOVE` times, are a new rate.
 RATE_STEPS = 5
 RATE_AGREEMENT = 1.25
 HISTORY = 50  # forward steps the typical step is the median of
@@ -72,13 +64,8 @@ def long_steps(
 
 class RecentSteps:
     """A stream's typical step: the median of its last ``HISTORY`` forward steps, once
-    ``MIN_STEPS`` are known (the one rule of the recording and of the stream).
-
-    A stream that changes its rate (a driver gone from 15 to 5 Hz) would take half a history
-    to move the median, every step until then a gap; so where the last :data:`RATE_STEPS` steps
-    all differ from the median by more than :data:`PACE_ABOVE` times, the same way, and lie
-    within a factor :data:`RATE_AGREEMENT` of their own median, they are the new rate and the
-    history restarts from them."""
+    ``MIN_STEPS`` are known. A new rate (:data:`RATE_STEPS`) restarts the history from its
+    steps, rather than taking half a history to move the median, every step until then a gap."""
 
     def __init__(self) -> None:
         self._steps: deque[int] = deque(maxlen=HISTORY)

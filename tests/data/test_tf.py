@@ -30,16 +30,16 @@ def test_poses_are_moved_to_the_scan_frame_through_the_tf_chain(tmp_path):
     assert known[1:].all()
 
 
-def test_lookup_walks_up_the_tree_and_reports_unconnected_frames():
+def test_mount_walks_up_the_tree_and_reports_unconnected_frames():
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     tree = TransformTree()
     tree.add(_tf_msg(ts, 1, [("/base", "a", (1.0, 0.0, math.pi / 2))]))
     tree.add(_tf_msg(ts, 2, [("a", "b", (1.0, 0.0, 0.0)), ("/base", "a", (9.0, 9.0, 0.0))]))
-    np.testing.assert_allclose(tree.lookup("base", "b"), (1.0, 1.0, math.pi / 2), atol=1e-6)
-    np.testing.assert_allclose(tree.lookup("base", "base"), (0.0, 0.0, 0.0))
-    assert tree.lookup("b", "base") is None and tree.lookup("base", "nowhere") is None
+    np.testing.assert_allclose(tree.mount("base", "b")[0], (1.0, 1.0, math.pi / 2), atol=1e-6)
+    np.testing.assert_allclose(tree.mount("base", "base")[0], (0.0, 0.0, 0.0))
+    assert tree.mount("b", "base") is None and tree.mount("base", "nowhere") is None
     assert np.isnan(compose_poses(np.full((1, 3), np.nan), (1.0, 0.0, 0.0))).all()
 
 

@@ -1,11 +1,9 @@
 """Opening a bag for reading: which inputs are bags, and the reader each kind is read with.
 
-Accepted inputs: a ROS 1 ``.bag``, a zipped ``.bag.zip`` (unpacked to a temporary file,
-:mod:`lidarflow.data.unzip`), a ROS 2 bag folder (sqlite3 or mcap storage; its ``metadata.yaml``
-or ``.db3`` names it too), or a bare ``.mcap`` file: ROS 2 (CDR) messages, or ROS 1 messages as
-``mcap convert`` leaves a ROS 1 bag (read by :mod:`lidarflow.data.mcapfile`). A bag cut short
-is read by :mod:`lidarflow.data.cutshort`'s readers. Everything else is a :class:`BagError`
-naming the input and what to do.
+A ROS 1 ``.bag`` (or ``.bag.zip``, :mod:`lidarflow.data.unzip`), a ROS 2 bag folder, or an
+``.mcap`` file of ROS 2 or ROS 1 messages (:mod:`lidarflow.data.mcapfile`); a bag cut short is
+read by lidarflow's own readers (:mod:`lidarflow.data.readers`). Anything else is a
+:class:`BagError`.
 """
 
 from __future__ import annotations
@@ -16,13 +14,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lidarflow.data.cutshort import cut_short_reader, not_a_bag
 from lidarflow.data.inputs import check_regular
+from lidarflow.data.mcapfile import MAGIC as MCAP_MAGIC
 from lidarflow.data.mcapfile import McapReader, channel_encoding
+from lidarflow.data.ros1bag import MAGIC as ROS1_MAGIC
+from lidarflow.data.ros1bag import Ros1BagSequentialReader
 from lidarflow.data.unzip import unzipped_bag
 from lidarflow.errors import BagError
 
-__all__ = ["TopicInfo", "list_topics", "open_bag", "why_failed"]
+__all__ = ["TopicInfo", "cut_short_reader", "list_topics", "not_a_bag", "open_bag", "why_failed"]
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,6 @@ _BAG_SUFFIXES = (".bag", ".bag.zip", ".mcap", ".db3")
 
 
 def _is_bag_like(path: Path) -> bool:
-    """Whether ``path`` may be a bag by its name (or is a folder); its contents decide later."""
     name = path.name.lower()
     return path.is_dir() or name == "metadata.yaml" or name.endswith(_BAG_SUFFIXES)
 
@@ -46,9 +45,8 @@ def _is_bag_like(path: Path) -> bool:
 @contextlib.contextmanager
 def open_bag(path: str | Path) -> Iterator[Any]:
     """Open a bag for reading; yields a ``rosbags.highlevel.AnyReader``, or where rosbags
-    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way:
-    for an MCAP file of ROS 1 messages, or a bag cut short (its ``recovered`` says how much of
-    the file it reads; ``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
+    cannot read the file, a reader of :mod:`lidarflow.data.readers`' kind, read the same way
+    (``getattr(reader, "recovered", None)`` is ``None`` for a whole bag).
 
     Raises :class:`BagError` for missing, unsupported or corrupt inputs.
     """
@@ -100,8 +98,8 @@ def open_bag(path: str | Path) -> Iterator[Any]:
 
 
 def _folder_without_metadata(path: Path, folder: Path) -> Path:
-    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (``ros2 bag record``
-    writes it last, so an interrupted recording has none): an MCAP file reads on its own."""
+    """The MCAP file of a ROS 2 bag folder that lacks its ``metadata.yaml`` (which ``ros2 bag
+    record`` writes last, so an interrupted recording has none)."""
     mcaps = sorted(folder.glob("*.mcap"))
     if len(mcaps) == 1:
         return mcaps[0]
@@ -110,6 +108,41 @@ def _folder_without_metadata(path: Path, folder: Path) -> Path:
         + (f" and {len(mcaps)} .mcap files" if mcaps else "")
         + " is no ROS 2 bag); if its recording was interrupted, `ros2 bag reindex` rebuilds it"
     )
+
+
+_KINDS = {".bag": ("a ROS 1 bag", ROS1_MAGIC), ".mcap": ("an MCAP file", MCAP_MAGIC)}
+
+
+def not_a_bag(target: Path) -> str | None:
+    """Why ``target``, a file rosbags could not open, is no bag at all, judged by its first
+    bytes; ``None`` where it begins as its kind does (a damaged bag, not a foreign file)."""
+    kind = _KINDS.get(target.suffix.lower()) if target.is_file() else None
+    if kind is None:
+        return None
+    what, magic = kind
+    with target.open("rb") as f:
+        start = f.read(len(magic))
+    if not start:
+        return "the file is empty"
+    if start != magic:
+        return f"not {what}: it does not begin with the header every one begins with"
+    return None
+
+
+def cut_short_reader(target: Path, store: Any) -> Any:
+    """A reader of a bag cut short (a ROS 1 bag or MCAP file, or a ROS 2 folder around one) up
+    to its last intact message; ``None`` where that finds no message either."""
+    if target.is_dir():
+        mcaps = sorted(target.glob("*.mcap"))
+        target = mcaps[0] if len(mcaps) == 1 else target
+    try:
+        if target.is_file() and target.suffix.lower() == ".bag":
+            return Ros1BagSequentialReader(target, store)
+        if target.is_file() and target.suffix.lower() == ".mcap":
+            return McapReader(target, channel_encoding(target) or "cdr", store)
+    except Exception:  # what rosbags said of the file is the better message
+        return None
+    return None
 
 
 def why_failed(err: BaseException) -> str:

@@ -1,17 +1,9 @@
 """Read one scan topic of a bag (and optionally its odometry) as a :class:`Recording`.
 
-:func:`read_bag` in named steps: open the bag (:mod:`lidarflow.data.bagfile`: ROS 1 bags, zipped
-ones, ROS 2 bag folders, MCAP files); choose the topics (:mod:`lidarflow.data.topics`); read the
-scan messages (:mod:`lidarflow.data.messages`), the odometry (:mod:`lidarflow.data.poses`) and
-the TF tree in one pass; clean the scans (:mod:`lidarflow.data.cleaning`); order them in
-sessions where the header clock jumps back (:mod:`lidarflow.data.sessions`); move the poses
-onto the scanner (:func:`lidarflow.data.poses.on_the_scanner`); and say in the recording's
-``meta`` what each step did.
-
-A bag cut short (a robot that lost power, a writer stopped early: a ROS 1 bag without its index,
-an MCAP file without its summary or footer) is read up to its last intact message
-(:mod:`lidarflow.data.ros1bag`, :mod:`lidarflow.data.mcapfile`), and the recording says how
-much in ``meta["recovered"]``.
+:func:`read_bag` in named steps: open the bag (:mod:`lidarflow.data.bagfile`), choose the topics
+(:mod:`lidarflow.data.topics`), read scans, odometry and TF in one pass, clean the scans
+(:mod:`lidarflow.data.cleaning`), order them in sessions (:mod:`lidarflow.data.sessions`), move
+the poses onto the scanner (:mod:`lidarflow.data.poses`), and say in ``meta`` what each step did.
 """
 
 from __future__ import annotations
@@ -49,36 +41,18 @@ def read_bag(
     """Read one LaserScan topic (and optionally the poses of an odometry topic) as a recording.
 
     Args:
-        path: the bag: a ROS 1 bag (zipped or not), a ROS 2 bag folder or an MCAP file
-            (:func:`~lidarflow.data.bagfile.open_bag`).
-        topic: the scan topic; by default the bag's LaserScan topic, and of several the one
-            named ``scan``, else the busiest (``meta["topic_choice"]`` says which, over which).
-        odom_topic: an Odometry/PoseStamped topic; by default the bag's ``nav_msgs/Odometry``
-            topic, and of several the first of
-            :data:`~lidarflow.data.topics.PREFERRED_ODOMETRY` there, else the one with the most
-            messages (``meta["pose_topic_choice"]`` says which, over which).
-            Poses are those of the odometry frame's child (usually the robot base),
-            interpolated at the scan stamps, then moved to the scan's frame by the static TF
-            between the two when the bag has it
-            (``meta["sensor_mount"]`` = that ``(x, y, yaw)``; ``None``: poses stay the base's).
-            A scanner mounted upside down (``meta["sensor_upside_down"]``) sees the world
-            mirrored: its poses are given in the mirrored world, so that their motions are its.
+        path: a ROS 1 bag (zipped or not), a ROS 2 bag folder or an MCAP file.
+        topic: the scan topic; by default the one :func:`~lidarflow.data.topics.choose_scan_topic`
+            chooses (``meta["topic_choice"]`` says which, over which).
+        odom_topic: an Odometry/PoseStamped topic; by default the one
+            :func:`~lidarflow.data.topics.choose_pose_topic` chooses
+            (``meta["pose_topic_choice"]``). Its poses are interpolated at the scan stamps and
+            moved onto the scanner by the bag's TF (:func:`~lidarflow.data.poses.on_the_scanner`).
         progress: called with the number of scans read since the last call.
 
-    A bag cut short is read up to its last intact message; ``meta["recovered"]`` says how much
-    (see :class:`~lidarflow.data.readers.CutShort`).
-
-    Scans that are empty, malformed (impossible geometry) or the same message recorded twice
-    are dropped and counted in ``meta`` (``*_scans_dropped``). Scans are ordered by their
-    header stamps, or by their log times where the header stamps do not advance
-    (``meta["stamps"]``); a zero header stamp is replaced by the log time, except on a
-    simulator's clock (all stamps within a day of 0), which starts at 0 (later zeros there get
-    the stamps around them). Where the header
-    clock goes back (more than 5 median frame periods and 0.5 s behind the latest stamp, in
-    arrival order), a new session begins: sessions stay in arrival order, each in header
-    order, and each later one is shifted to begin twice that tolerance after the one before
-    ends (``meta["clock_jumps"]``); its poses come from the odometry's own session, or are NaN
-    where the odometry's clock did not jump with the scans'.
+    What reading drops or replaces is said in ``meta``: scans dropped (``*_scans_dropped``), the
+    stamps used (``stamps``), sessions where the header clock went back (``clock_jumps``), and
+    how much of a bag cut short was read (``recovered``). Raises :class:`BagError`.
     """
     path = Path(path)
     with open_bag(path) as reader:
@@ -102,9 +76,8 @@ def read_bag(
 
 @dataclass(frozen=True)
 class _Topics:
-    """The topics :func:`read_bag` reads: the scan topic (``multi_echo``: of
-    ``MultiEchoLaserScan``) and the odometry topic (``None``: none), each with the note on the
-    choice made among several (``None``: named, or the only one)."""
+    """The scan and odometry topics to read, each with the note on the choice made among
+    several (``None``: named, or the only one)."""
 
     scan: str
     scan_choice: str | None
@@ -114,8 +87,6 @@ class _Topics:
 
 
 def _topics(path: Path, reader: Any, topic: str | None, odom_topic: str | None) -> _Topics:
-    """The topics of ``reader``'s bag to read: ``topic`` and ``odom_topic`` where named, else
-    those :func:`~lidarflow.data.topics.choose_scan_topic` and ``choose_pose_topic`` choose."""
     scan_topic, topic_choice = choose_scan_topic(path, reader, topic)
     multi_echo = any(c.topic == scan_topic and c.msgtype == MULTI_ECHO for c in reader.connections)
     pose_topic, pose_choice = choose_pose_topic(path, reader, odom_topic)
@@ -124,11 +95,8 @@ def _topics(path: Path, reader: Any, topic: str | None, odom_topic: str | None) 
 
 @dataclass
 class _Read:
-    """What one pass over a bag's messages gathers, before any cleaning: the scans and their
-    log times (ns) in arrival order, the errors of the malformed scans dropped, the scans'
-    frame (the first message's), the odometry (empty without a pose topic), the TF tree (read
-    only with a pose topic), the scan topic's message count, and how much of a bag cut short
-    was read (``None``: the whole bag)."""
+    """What one pass over a bag's messages gathers, in arrival order, before any cleaning
+    (``total``: the scan topic's message count)."""
 
     scans: list[Scan] = field(default_factory=list)
     log_times: list[int] = field(default_factory=list)
@@ -143,14 +111,10 @@ class _Read:
 def _read_messages(
     path: Path, reader: Any, topics: _Topics, progress: Callable[[int], None] | None
 ) -> _Read:
-    """Every message of ``topics``' scan and odometry topics, and with an odometry topic the TF
-    tree, in one pass in the order ``reader`` gives them; ``progress(1)`` after each scan kept.
-
-    Empty scans are skipped and malformed ones (:func:`~lidarflow.data.messages.scan_of`'s
-    :class:`ScanError`) kept apart: one glitched message must not cost the whole recording.
-    Raises :class:`BagError` for a scan of too many beams
-    (:func:`~lidarflow.data.messages.check_beams`) and for messages that cannot be read.
-    """
+    """Every message of the scan and odometry topics (and with odometry, the TF tree) in one
+    pass; ``progress(1)`` after each scan kept. Malformed scans are kept apart, not raised: one
+    glitched message must not cost the whole recording. Raises :class:`BagError` for a scan of
+    too many beams and for messages that cannot be read."""
     read = _Read()
     wanted = [c for c in reader.connections if c.topic in {topics.scan, topics.pose}]
     if topics.pose is not None:  # the TF tree, to find the scanner's mount on the base
@@ -191,9 +155,7 @@ def _read_messages(
 
 
 def _refuse_no_scans(path: Path, topics: _Topics, read: _Read) -> None:
-    """Raise :class:`BagError` where the scan topic gave no scan: every one malformed (chained
-    to the first's error) or empty; where the topic was chosen among several, the error names
-    the others."""
+    """Raise :class:`BagError` where the scan topic gave no scan (every one malformed or empty)."""
     others = f" ({topics.scan_choice})" if topics.scan_choice else ""
     if not read.scans and read.malformed:
         raise BagError(
@@ -212,10 +174,8 @@ def _meta(
     kept: int,
     clock_jumps: list[dict[str, Any]],
 ) -> dict[str, Any]:
-    """The recording's ``meta`` on what was read of ``path``: the topics and how they were
-    chosen, the scans' frame, the scans dropped as empty (the topic's messages that are neither
-    among the ``kept`` scans nor copies nor malformed), as copies and as malformed, the stamps
-    used and the clock jumps."""
+    """The recording's ``meta`` on what was read of ``path`` (empty scans: the topic's messages
+    neither ``kept`` nor copies nor malformed)."""
     meta: dict[str, Any] = {
         "source": str(path),
         "topic": topics.scan,
@@ -229,8 +189,6 @@ def _meta(
     }
     if topics.multi_echo:
         meta["scan_type"] = "MultiEchoLaserScan (each beam's nearest echo)"
-    if topics.scan_choice is not None:
-        meta["topic_choice"] = topics.scan_choice
-    if topics.pose_choice is not None:
-        meta["pose_topic_choice"] = topics.pose_choice
+    choices = {"topic_choice": topics.scan_choice, "pose_topic_choice": topics.pose_choice}
+    meta.update({key: note for key, note in choices.items() if note is not None})
     return meta

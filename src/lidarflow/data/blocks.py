@@ -1,8 +1,5 @@
-"""A recording's per-frame arrays computed a block of frames at a time, as they are read.
-
-An hour of scans at 15 Hz is 54,000 frames: their maps, sub-cell maps and returns held whole
-take about 3 GB (56 KB a frame on the default grid). The streaming evaluation reads them in
-order (frame ``t``, then ``t + 1``), so it holds two blocks of them instead.
+"""A recording's per-frame arrays computed a block of frames at a time, as they are read:
+the streaming evaluation reads frames in order, so it holds two blocks rather than them all.
 """
 
 from __future__ import annotations
@@ -23,14 +20,14 @@ __all__ = [
     "streamed_subcell",
 ]
 
-BLOCK_FRAMES = 256  # as Recording rasterizes: 2 blocks of maps, sub-cell maps, returns ~30 MB
+BLOCK_FRAMES = 256  # as Recording rasterizes
 #: Per-frame arrays: one array ``(N, ...)``, or any sequence of them (a :class:`FrameBlocks`).
 Frames = np.ndarray | Sequence[np.ndarray]
 
 
 class _Frames(Sequence[Any]):
-    """A read-only sequence of frames fetched one at a time (:meth:`_frame`, which takes any
-    index and raises ``IndexError``); a slice is a list of them."""
+    """A read-only sequence of frames fetched one at a time by :meth:`_frame`; a slice is a
+    list of them."""
 
     @overload
     def __getitem__(self, t: int) -> Any: ...
@@ -87,8 +84,7 @@ class _Channel(_Frames):
 
 
 def streamed_maps(recording: Recording, grid: GridSpec) -> tuple[Sequence[Any], Sequence[Any]]:
-    """``recording.maps(grid)`` (occupancy, visibility), a block at a time: one rasterization
-    serves both."""
+    """``recording.maps(grid)`` (occupancy, visibility), a block at a time."""
     both = FrameBlocks(lambda a, b: np.stack(recording.maps(grid, a, b), axis=1), len(recording))
     return _Channel(both, 0), _Channel(both, 1)
 

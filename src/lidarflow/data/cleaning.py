@@ -1,9 +1,5 @@
-"""Cleaning a scan topic as it was read: unset stamps filled, copies dropped, stuck stamps replaced.
-
-Drivers leave header stamps unset (zero), never advance them, or a bag holds one message twice
-(two connections on one topic, merged bags). :func:`clean_scans` undoes each in arrival order,
-before :func:`lidarflow.data.sessions.in_sessions` orders the scans and handles a header
-clock that jumps back.
+"""Cleaning a scan topic as it was read, in arrival order: unset (zero) header stamps filled,
+copies of one message dropped, stamps that never advance replaced by the log times.
 """
 
 from __future__ import annotations
@@ -26,15 +22,8 @@ _COPIES_WITHIN_NS = 1_000_000_000  # log times of one message recorded twice: we
 
 @dataclass(frozen=True)
 class Cleaned:
-    """A scan topic after :func:`clean_scans`.
-
-    Attributes:
-        scans: the scans kept, in arrival order, with the stamps they are read at.
-        arrivals: their log times (int64 nanoseconds).
-        duplicates: how many scans were dropped as another's copy.
-        stamps: what the stamps are (``meta["stamps"]``): ``"header"``, or
-            ``"log time (the header stamps do not advance)"``.
-    """
+    """A scan topic after :func:`clean_scans`: the scans kept (arrival order), their log times
+    (int64 ns), how many were dropped as copies, and what the stamps are (``meta["stamps"]``)."""
 
     scans: list[Scan]
     arrivals: np.ndarray
@@ -43,10 +32,9 @@ class Cleaned:
 
 
 def clean_scans(scans: list[Scan], log_times: Sequence[int]) -> Cleaned:
-    """``scans`` (in arrival order, logged at ``log_times`` ns) with zero header stamps filled
-    (:func:`zero_stamps_filled`), copies of one message dropped (:func:`without_copies`), and
-    where the header stamps do not advance (between fewer than half of the scans) but the log
-    times do, stamped with their log times instead."""
+    """``scans`` (arrival order, logged at ``log_times`` ns) cleaned; where the header stamps
+    do not advance (between fewer than half of the scans) but the log times do, the scans are
+    stamped with their log times."""
     header = np.array([s.stamp_ns for s in scans], dtype=np.int64)
     filled = zero_stamps_filled(header, np.array(log_times, dtype=np.int64))
     if not np.array_equal(filled, header):
@@ -62,10 +50,9 @@ def clean_scans(scans: list[Scan], log_times: Sequence[int]) -> Cleaned:
 
 
 def zero_stamps_filled(header_ns: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
-    """Header stamps with each zero (a driver that left the stamp unset) replaced by its log
-    time. On a simulator's clock, which starts at 0, zeros before its first other stamp are its
-    first instants and stay; a later zero is unset, and the log time (a wall clock) no stand-in
-    there: it gets the stamps around it, interpolated by position."""
+    """Header stamps with each zero (unset) replaced by its log time. On a simulator's clock,
+    which starts at 0, leading zeros stay and a later zero gets the stamps around it,
+    interpolated by position (the log time, a wall clock, is no stand-in there)."""
     zero = header_ns <= 0
     if not zero.any():
         return header_ns
@@ -82,11 +69,9 @@ def zero_stamps_filled(header_ns: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
 def without_copies(scans: list[Scan], log_times: Sequence[int]) -> tuple[list[Scan], np.ndarray]:
     """``scans`` less the copies of one message, and the log times (int64 ns) of those kept.
 
-    A copy is a scan of the same stamp, geometry and ranges logged within 1 s of the one kept:
-    the same message recorded twice (two connections on one topic, merged bags) is one
-    measurement, and kept twice it would make a copy of the last map a perfect prediction. The
-    same scan at the same stamp a session later is a simulator replaying itself after its clock
-    was reset (:mod:`lidarflow.data.sessions`), and is kept.
+    A copy has the same stamp, geometry and ranges and is logged within 1 s of the one kept:
+    kept twice, it would make a copy of the last map a perfect prediction. The same scan a
+    session later (a simulator replaying itself after a clock reset) is kept.
     """
     # a digest of the ranges: their bytes as keys held a second copy of every scan
     seen: dict[tuple[int, BeamGeometry, bytes], int] = {}
@@ -108,5 +93,4 @@ def _stuck(stamps_ns: np.ndarray) -> bool:
 
 
 def _stamped(scans: list[Scan], stamps_ns: np.ndarray) -> list[Scan]:
-    """``scans`` with these stamps instead of their own."""
     return [Scan(s.ranges, s.geometry, int(t)) for s, t in zip(scans, stamps_ns, strict=True)]

@@ -20,17 +20,16 @@ __all__ = [
     "unknown_share",
 ]
 
-#: The fastest a 2-D LiDAR scans (the fastest run at 50 to 100 Hz, with margin): stamps that
-#: step faster are a counter (a script writing 1 ns apart, say), not a clock.
+#: Faster than any 2-D LiDAR scans (50 to 100 Hz at most): stamps that step faster are a
+#: counter, not a clock.
 MAX_FRAME_RATE_HZ = 1000.0
 
 
 def find_gaps(
     recording: Recording, max_gap_periods: float = MAX_GAP_PERIODS
 ) -> list[tuple[int, float]]:
-    """``(frame index after the gap, gap in seconds)`` for every gap by
-    :func:`lidarflow.data.gaps.frames_after_gaps`'s rule (a step longer than
-    ``max_gap_periods`` recent frame periods, forwards or backwards)."""
+    """``(frame index after the gap, gap in seconds)`` for every gap
+    (:func:`lidarflow.data.gaps.frames_after_gaps`)."""
     stamps = recording.stamps_ns
     return [
         (i, float(stamps[i] - stamps[i - 1]) / 1e9)
@@ -39,9 +38,8 @@ def find_gaps(
 
 
 def stamps_problem(recording: Recording) -> str | None:
-    """Why ``recording``'s stamps cannot tell its frame rate: every scan at one instant, or
-    steps faster than :data:`MAX_FRAME_RATE_HZ`; ``None`` where they can (or where it has fewer
-    than two scans, which have no rate to tell)."""
+    """Why ``recording``'s stamps cannot tell its frame rate (every scan at one instant, or
+    steps faster than :data:`MAX_FRAME_RATE_HZ`); ``None`` where they can or it has no rate."""
     stamps = recording.stamps_ns
     if len(stamps) < 2:
         return None
@@ -61,6 +59,8 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
     n = len(recording)
     status, at_max, rings = _beam_census(recording)
     raw = recording.ranges
+    unknown = int(np.sum(status == UNKNOWN))
+    nan, neg_inf, zero = (int(np.sum(m)) for m in (np.isnan(raw), np.isneginf(raw), raw == 0))
     counts = np.diff(recording.offsets)
     fov = np.abs(recording.angle_increment) * np.maximum(counts - 1, 0)
     duration = float(recording.stamps_ns[-1] - recording.stamps_ns[0]) / 1e9 if n > 1 else 0.0
@@ -85,16 +85,11 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
             "no_return": int(np.sum(status == NO_RETURN)),
             "at_range_max": at_max,
             "scans_no_return_as_range_max": rings,
-            "unknown": int(np.sum(status == UNKNOWN)),
-            "nan": int(np.isnan(raw).sum()),
-            "neg_inf": int(np.isneginf(raw).sum()),
-            "zero": int(np.sum(raw == 0)),
-            "below_range_min": int(
-                np.sum(status == UNKNOWN)
-                - np.isnan(raw).sum()
-                - np.isneginf(raw).sum()
-                - np.sum(raw == 0)
-            ),
+            "unknown": unknown,
+            "nan": nan,
+            "neg_inf": neg_inf,
+            "zero": zero,
+            "below_range_min": unknown - nan - neg_inf - zero,
         },
         "gaps": [{"before_frame": i, "seconds": round(s, 3)} for i, s in gaps],
         "geometry_changes": len(recording.geometry_runs()) - 1 if n else 0,
@@ -109,23 +104,23 @@ def describe_recording(recording: Recording) -> dict[str, Any]:
 
 
 def unknown_share(recording: Recording) -> float:
-    """The share of ``recording``'s beams that say nothing (NaN, -inf, 0 or under
-    ``range_min``: unknown, as the rasterizer reads them); 0 for a recording without beams."""
-    status = _beam_census(recording)[0]
-    return float(np.mean(status == UNKNOWN)) if status.size else 0.0
+    """The share of ``recording``'s beams that say nothing, as the rasterizer reads them."""
+    return _share(recording, UNKNOWN)
 
 
 def return_share(recording: Recording) -> float:
-    """The share of ``recording``'s beams that are returns (a surface within ``[range_min,
-    range_max]``, as the rasterizer reads them); 0 for a recording without beams."""
+    """The share of ``recording``'s beams that are returns, as the rasterizer reads them."""
+    return _share(recording, RETURN)
+
+
+def _share(recording: Recording, code: int) -> float:
     status = _beam_census(recording)[0]
-    return float(np.mean(status == RETURN)) if status.size else 0.0
+    return float(np.mean(status == code)) if status.size else 0.0
 
 
 def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:
-    """Every beam's status, classified scan by scan as the rasterizer does (a scan's ring of
-    ``range_max`` readings is its own); how many readings are exactly ``range_max`` (a driver
-    that writes no return that way) and how many scans write no return so."""
+    """Every beam's status as the rasterizer reads it, how many readings are exactly
+    ``range_max`` and how many scans write no return so."""
     statuses, at_max, rings = [np.zeros(0, np.uint8)], 0, 0
     for a, b in recording.geometry_runs() if len(recording) else ():
         rows = recording.ranges[recording.offsets[a] : recording.offsets[b]].reshape(b - a, -1)
@@ -137,10 +132,7 @@ def _beam_census(recording: Recording) -> tuple[np.ndarray, int, int]:
 
 
 def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
-    """What reading the bag left out or replaced (read_bag's meta), so that it is never silent:
-    the scans it dropped, by kind, the stamps it ordered them by where not the headers', the
-    scan and odometry topics it chose among several, where the header clock went back (the
-    sessions it re-stamped to follow one another), and how much of a bag cut short it read."""
+    """What reading the bag left out or replaced (read_bag's meta), so that it is never silent."""
     notes: dict[str, Any] = {}
     dropped = {kind: int(meta.get(f"{kind}_scans_dropped") or 0)
                for kind in ("empty", "duplicate", "malformed")}  # fmt: skip
@@ -148,14 +140,6 @@ def _read_notes(meta: dict[str, Any]) -> dict[str, Any]:
         notes["scans_dropped"] = dropped
     if meta.get("stamps", "header") != "header":
         notes["stamps"] = meta["stamps"]
-    if meta.get("scan_type"):
-        notes["scan_type"] = meta["scan_type"]
-    if meta.get("topic_choice"):
-        notes["topic_choice"] = meta["topic_choice"]
-    if meta.get("pose_topic_choice"):
-        notes["pose_topic_choice"] = meta["pose_topic_choice"]
-    if meta.get("clock_jumps"):
-        notes["clock_jumps"] = meta["clock_jumps"]
-    if meta.get("recovered"):  # a bag cut short: how much of it was read
-        notes["recovered"] = meta["recovered"]
+    keys = ("scan_type", "topic_choice", "pose_topic_choice", "clock_jumps", "recovered")
+    notes.update({key: meta[key] for key in keys if meta.get(key)})
     return notes

@@ -1,10 +1,7 @@
 """What every input file must be before lidarflow opens it: a regular file.
 
-A named pipe blocks its reader until something writes to it, and a character device
-(``/dev/zero``, a symbolic link to one) never ends; neither is a recording. Both readers of
-inputs (:func:`lidarflow.data.bagfile.open_bag`, :func:`lidarflow.data.recordfile.load_recording`)
-refuse them by what ``stat`` says, which opens nothing. A ROS 2 bag is a folder, and stays one;
-the files in it are held to the same rule.
+A named pipe blocks its reader and a character device (``/dev/zero``) never ends; both readers
+of inputs refuse them by what ``stat`` says, which opens nothing.
 """
 
 from __future__ import annotations
@@ -17,7 +14,6 @@ from lidarflow.errors import LidarflowError
 
 __all__ = ["check_regular"]
 
-#: What a file of each non-regular kind is called in a refusal.
 _KINDS = (
     (stat.S_ISFIFO, "a named pipe"),
     (stat.S_ISCHR, "a character device"),
@@ -28,9 +24,8 @@ _KINDS = (
 
 def check_regular(path: str | Path, error: type[LidarflowError], folder: bool = False) -> None:
     """Raise ``error`` (one line naming ``path``) unless ``path`` is a regular file, through
-    symbolic links; or, where ``folder``, a folder whose files (its top level, where a ROS 2
-    bag keeps them) are all regular. A path that is not there passes: the reader says so in
-    its own words."""
+    symbolic links; or, where ``folder``, a folder whose top-level files (a ROS 2 bag's) are.
+    A path that is not there passes: the reader says so in its own words."""
     path = Path(path)
     try:
         mode = os.stat(path).st_mode

@@ -1,15 +1,10 @@
-"""MCAP files that rosbags does not read, through the ``mcap`` library: ROS 1 messages (as
-``mcap convert`` leaves a ROS 1 bag: message encoding ``ros1``, ``ros1msg`` schemas), and any
-MCAP file cut short (a writer that stopped early: no summary, no footer, its last chunk cut).
+"""MCAP files that rosbags does not read: ROS 1 messages (as ``mcap convert`` leaves a ROS 1
+bag), and any MCAP file cut short (no summary, no footer, its last chunk cut).
 
-rosbags reads MCAP only as ROS 2 storage, and only whole: it starts from the footer. Here the
-``mcap`` library reads the records (schemas, channels, chunks and their decompression);
-messages are deserialised by rosbags' typestore, built from the file's schemas. Opening reads
-the summary section (the schemas, channels and per-channel message counts written after the
-data) where there is one with statistics, so that a large file is read once, for the messages;
-without one, opening reads the data section for them, in file order up to the last intact
-record: of a chunk cut in two, the records its first part holds (decompressed as far as it
-goes), which the library's readers give up on as a whole.
+The ``mcap`` library reads the records; rosbags' typestore, built from the file's schemas,
+deserialises the messages. Opening reads the summary where there is one with statistics, else
+the data section in file order up to the last intact record (of a chunk cut in two, the records
+its first part decompresses to).
 """
 
 from __future__ import annotations
@@ -27,8 +22,7 @@ __all__ = ["MAGIC", "McapReader", "channel_encoding"]
 
 MAGIC = b"\x89MCAP0\r\n"
 
-# what the library raises where a file ends inside a record or holds no record: its own errors,
-# short reads (struct), bad lengths and text (ValueError, UnicodeDecodeError), memory
+# what the library raises where a file ends inside a record or holds no record
 _UNREADABLE = (struct.error, ValueError, EOFError, MemoryError, OverflowError, KeyError)
 
 
@@ -54,8 +48,7 @@ def _decompressed(compression: str, data: bytes) -> bytes:
 class _DataSection:
     """The data section's schema, channel and message records in file order, chunks opened,
     up to the last intact one (``cut``: whether the file ended inside a record; ``read_to``:
-    where the last intact record ends; in a compressed chunk read in part, the share of the
-    chunk's data that its records up to there take uncompressed)."""
+    where the last intact record ends, within a chunk read in part by its uncompressed share)."""
 
     def __init__(self, path: Path) -> None:
         self.path, self.read_to, self.cut = path, 0, False
@@ -120,8 +113,8 @@ class _DataSection:
 
 
 def _summary(path: Path) -> tuple[list[Any], list[Any], dict[int, int]] | None:
-    """The summary section's schemas, channels and message count per channel; ``None`` where
-    the file has no summary (or one without statistics), or a damaged one."""
+    """The summary's schemas, channels and message count per channel; ``None`` where the file
+    has no intact summary with statistics."""
     from mcap.reader import make_reader
 
     try:
@@ -161,21 +154,14 @@ def _definition(schema: Any) -> Any:
 
 
 #: The start of a zstd frame: ``ros2 bag record --compression-mode message`` compresses each
-#: message on its own (its metadata.yaml says so, which a recording cut short lacks); CDR data
-#: starts with its encapsulation kind (``00 01``), never with these bytes.
+#: message (its metadata.yaml says so, which a recording cut short lacks); CDR data never
+#: starts so.
 _ZSTD_FRAME = b"\x28\xb5\x2f\xfd"
-
-
-def _zstd_message(data: bytes) -> bytes:
-    import zstandard
-
-    return zstandard.ZstdDecompressor().decompressobj().decompress(data)
 
 
 class McapReader:
     """The messages of one encoding (``ros1`` or ``cdr``) in an MCAP file, read like a rosbags
-    ``AnyReader`` (see :mod:`lidarflow.data.readers`); channels of other encodings (JSON
-    annotations, ...) are left out."""
+    ``AnyReader`` (:mod:`lidarflow.data.readers`); channels of other encodings are left out."""
 
     def __init__(self, path: str | Path, encoding: str, default_typestore: Any) -> None:
         from mcap.records import Channel, Message, Schema
@@ -236,7 +222,7 @@ class McapReader:
 
     def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
         """``(connection, log time ns, raw message)`` of ``connections`` (default all), in the
-        order they were written, up to the last intact one."""
+        order written."""
         from mcap.records import Message
 
         wanted = {c.id: c for c in connections} or {c.id: c for c in self.connections}
@@ -244,7 +230,7 @@ class McapReader:
             if isinstance(record, Message) and record.channel_id in wanted:
                 data = record.data
                 if data[:4] == _ZSTD_FRAME and self.encoding == "cdr":
-                    data = _zstd_message(data)
+                    data = _decompressed("zstd", data)
                 yield wanted[record.channel_id], record.log_time, data
 
     def deserialize(self, raw: bytes, msgtype: str) -> Any:

@@ -1,10 +1,8 @@
 """Decoding a bag's scan messages: ``LaserScan`` and ``MultiEchoLaserScan`` into :class:`Scan`.
 
-A ``MultiEchoLaserScan`` (Cartographer's backpack recordings, scanners that report every echo
-of a beam) gives each beam's nearest valid echo (:func:`nearest_echoes`), the first surface it
-met. A message's beam count is read from its raw bytes before it is deserialised
-(:func:`declared_beams`), so that a damaged or crafted one claiming millions of beams is
-refused (:func:`check_beams`) before anything is allocated for them.
+A ``MultiEchoLaserScan`` gives each beam's nearest valid echo, the first surface it met. A
+message's beam count is read from its raw bytes, so that one claiming millions of beams is
+refused before anything is allocated for them.
 """
 
 from __future__ import annotations
@@ -24,9 +22,9 @@ __all__ = ["check_beams", "declared_beams", "nearest_echoes", "scan_of", "stamp_
 
 
 def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
-    """A ``MultiEchoLaserScan``'s ``ranges`` (one ``LaserEcho`` per beam) as one range per beam
-    (float32): the nearest echo at or beyond ``range_min``, the first surface the beam met; where
-    none, ``+inf`` if an echo said no return, else NaN (unknown)."""
+    """A ``MultiEchoLaserScan``'s ``ranges`` (one ``LaserEcho`` per beam) as one float32 range
+    per beam: the nearest echo at or beyond ``range_min``; where none, ``+inf`` if an echo said
+    no return, else NaN (unknown)."""
     per_beam = [np.asarray(beam.echoes, dtype=np.float32).ravel() for beam in echoes]
     out = np.full(len(per_beam), np.nan, np.float32)
     if not per_beam:
@@ -45,9 +43,8 @@ def nearest_echoes(echoes: Iterable[Any], range_min: float) -> np.ndarray:
 
 
 def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:
-    """The beam count a serialised ``LaserScan`` or ``MultiEchoLaserScan`` declares (the
-    length of its ``ranges``), read from the raw message before it is deserialised; ``None``
-    where the bytes are too short to say (deserialising them fails on its own).
+    """The length of ``ranges`` a serialised ``LaserScan`` or ``MultiEchoLaserScan`` declares;
+    ``None`` where the bytes are too short to say (deserialising them fails on its own).
 
     Both types begin alike: a header (ROS 1: ``seq``, stamp, ``frame_id``; ROS 2's CDR: a
     4-byte encapsulation, stamp, ``frame_id``), seven float32 fields, then ``ranges``' length.
@@ -74,9 +71,8 @@ def declared_beams(raw: bytes | memoryview, ros1: bool) -> int | None:
 
 
 def check_beams(path: Path, topic: str, raw: bytes, conn: Any) -> None:
-    """Refuse (a :class:`BagError` naming ``path`` and ``topic``) a raw scan message of
-    connection ``conn`` that declares more than :data:`MAX_BEAMS` beams, before anything is
-    allocated for them."""
+    """Raise :class:`BagError` for a raw scan message that declares more than
+    :data:`MAX_BEAMS` beams, before anything is allocated for them."""
     from rosbags.interfaces import ConnectionExtRosbag1
 
     count = declared_beams(raw, isinstance(conn.ext, ConnectionExtRosbag1))
@@ -95,13 +91,9 @@ def stamp_ns(msg: Any) -> int:
 
 
 def scan_of(msg: Any, msgtype: str) -> Scan | None:
-    """The :class:`Scan` of a deserialised ``LaserScan`` (or, for ``msgtype``
-    :data:`~lidarflow.data.topics.MULTI_ECHO`, a ``MultiEchoLaserScan``: each beam's nearest
-    echo, :func:`nearest_echoes`) at its header stamp; ``None`` for a scan of no beams.
-
-    The ranges are copied (float32), not a view of the message. Raises :class:`ScanError` for
-    a beam geometry no scanner has (:class:`~lidarflow.scan.BeamGeometry`'s checks).
-    """
+    """The :class:`Scan` of a deserialised ``LaserScan`` or ``MultiEchoLaserScan`` (by
+    ``msgtype``) at its header stamp, ranges copied as float32; ``None`` for a scan of no beams.
+    Raises :class:`ScanError` for a beam geometry no scanner has."""
     if msgtype == MULTI_ECHO:
         ranges = nearest_echoes(msg.ranges, float(msg.range_min))
     else:

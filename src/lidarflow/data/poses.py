@@ -1,13 +1,9 @@
-"""The robot's poses in a bag: odometry (or pose) messages as planar poses, moved onto the scanner.
-
-Odometry reports the pose of its child frame (usually the robot base); the scans' poses are
-those interpolated at the scan stamps (:func:`lidarflow.data.sessions.in_sessions`), then moved
-onto the scanner by its mount in the bag's TF (:func:`on_the_scanner`, :mod:`lidarflow.data.tf`).
+"""The robot's poses in a bag: odometry (or pose) messages as planar poses, moved onto the scanner
+by its mount in the bag's TF (:mod:`lidarflow.data.tf`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -15,26 +11,22 @@ import numpy as np
 
 from lidarflow.data.cleaning import zero_stamps_filled
 from lidarflow.data.messages import stamp_ns
-from lidarflow.data.tf import TransformTree, compose_poses, mirrored
+from lidarflow.data.tf import TransformTree, compose_poses, mirrored, yaw_of
 
 __all__ = ["PoseLog", "on_the_scanner", "pose_of"]
 
 
 def pose_of(msg: Any) -> tuple[float, float, float]:
     """The planar pose ``(x, y, yaw)`` (metres, radians) of an Odometry or PoseStamped message
-    (anything with ``pose.pose`` or ``pose``: ``position`` and an ``orientation`` quaternion);
-    yaw is the rotation about z."""
+    (anything with ``pose.pose`` or ``pose`` holding ``position`` and ``orientation``)."""
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    q = pose.orientation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    return float(pose.position.x), float(pose.position.y), yaw
+    return float(pose.position.x), float(pose.position.y), yaw_of(pose.orientation)
 
 
 @dataclass
 class PoseLog:
-    """A bag's odometry messages as they are read: header stamps and log times (ns), planar
-    poses (:func:`pose_of`), and ``body``, the child frame the first message naming one names
-    (the frame the poses are of; ``""`` where none does)."""
+    """A bag's odometry messages as they are read, and ``body``, the child frame the poses are
+    of (the first one named; ``""`` where none is)."""
 
     stamps: list[int] = field(default_factory=list)
     log_times: list[int] = field(default_factory=list)
@@ -42,7 +34,6 @@ class PoseLog:
     body: str = ""
 
     def add(self, msg: Any, log_time: int) -> None:
-        """Take one deserialised odometry (or pose) message, logged at ``log_time`` ns."""
         self.body = self.body or str(getattr(msg, "child_frame_id", "")).lstrip("/")
         self.stamps.append(stamp_ns(msg))
         self.log_times.append(int(log_time))
@@ -50,8 +41,7 @@ class PoseLog:
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(stamps, log times, poses (M, 3))`` as :func:`~lidarflow.data.sessions.in_sessions`
-        takes them (int64 ns, int64 ns, float64), zero header stamps filled as a scan's are
-        (:func:`~lidarflow.data.cleaning.zero_stamps_filled`)."""
+        takes them, zero header stamps filled as a scan's are."""
         logged = np.array(self.log_times, dtype=np.int64)
         return (
             zero_stamps_filled(np.array(self.stamps, dtype=np.int64), logged),
@@ -64,11 +54,9 @@ def on_the_scanner(
     poses: np.ndarray, tree: TransformTree, body: str, frame_id: str
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """``poses`` ``(N, 3)`` of the frame ``body`` moved onto the scanner's frame ``frame_id`` by
-    its mount in ``tree``, and the metadata that say so: ``sensor_mount``, the mount's
-    ``(x, y, yaw)`` rounded to 1e-6 (``None``, the poses unchanged, where either frame is
-    unknown or ``tree`` does not link them), and ``sensor_upside_down: True`` for a scanner
-    mounted upside down, which sees the world mirrored: its poses are then given in the mirrored
-    world (:func:`~lidarflow.data.tf.mirrored`), so that their motions are its."""
+    its mount in ``tree``, and the metadata that say so: ``sensor_mount`` (``None``, the poses
+    unchanged, where ``tree`` does not link the frames) and for a scanner mounted upside down
+    ``sensor_upside_down``, its poses then mirrored so that their motions are its."""
     found = tree.mount(body, frame_id) if body and frame_id else None
     if found is None:
         return poses, {"sensor_mount": None}

@@ -1,13 +1,8 @@
-"""What lidarflow's own bag readers share, where rosbags' cannot read a file: a ROS 1 bag cut
-short (:mod:`lidarflow.data.ros1bag`), an MCAP file cut short or holding ROS 1 messages
-(:mod:`lidarflow.data.mcapfile`).
-
-Both give the reader :func:`lidarflow.data.bagfile.open_bag` promises, as rosbags' ``AnyReader``
-does: ``connections`` (rosbags' own :class:`~rosbags.interfaces.Connection`), ``messages(
-connections=...)`` yielding ``(connection, log time ns, raw)``, ``deserialize(raw, msgtype)``
-and ``typestore``; and ``recovered``, a :class:`CutShort` where the file ended early (``None``
-where it was whole). :func:`lidarflow.data.cutshort.cut_short_reader` picks the one for a file
-rosbags gave up on.
+"""What lidarflow's own bag readers share (:mod:`lidarflow.data.ros1bag`,
+:mod:`lidarflow.data.mcapfile`). Each reads like rosbags' ``AnyReader``: ``connections``,
+``messages(connections=...)`` yielding ``(connection, log time ns, raw)``, ``deserialize(raw,
+msgtype)`` and ``typestore``; plus ``recovered``, a :class:`CutShort` where the file ended early
+(``None`` where it was whole).
 """
 
 from __future__ import annotations
@@ -23,13 +18,9 @@ _MB = 1 << 20
 
 @dataclass(frozen=True)
 class CutShort:
-    """How much of a file cut short (a robot that lost power, a writer stopped early) was read.
-
-    ``size``: the file's bytes; ``read_to``: where its last intact message ends (in a
-    compressed chunk read in part, the share of the chunk its messages took); ``whole``: the
-    size of the data the file held before it was cut, where the file says (a ROS 1 bag header's
-    index position), else ``None``; ``why``: what is missing.
-    """
+    """How much of a file cut short was read: its ``size`` in bytes, where its last intact
+    message ends (``read_to``), the size of its data before it was cut where the file says
+    (``whole``, a ROS 1 bag header's index position) and what is missing (``why``)."""
 
     size: int
     read_to: int
@@ -41,8 +32,7 @@ class CutShort:
         return max(self.size - self.read_to, 0)
 
     def note(self, scans: int, seconds: float) -> str:
-        """What a command says of a recording of ``scans`` scans over ``seconds`` read from
-        this file: how much was read, and of how much where the file says."""
+        """What a command says of the ``scans`` over ``seconds`` read from this file."""
         text = f"{self.why}; read {scans} scans ({seconds:.1f} s) up to the last intact message"
         if self.whole and self.whole > self.read_to > 0:
             text += f", of ~{round(scans * self.whole / self.read_to)} in the whole recording"
@@ -57,9 +47,8 @@ def size_text(n: int) -> str:
 
 
 def typestore_from(connections: Iterable[Any], default: Any) -> Any:
-    """The typestore that deserialises ``connections``' messages: built from the message
-    definitions the file carries, as rosbags' ``AnyReader`` builds it (a recording made with
-    its own message versions reads as recorded); ``default`` where the file carries none."""
+    """The typestore built from the message definitions ``connections`` carry, as rosbags'
+    ``AnyReader`` builds it; ``default`` where they carry none."""
     from rosbags.interfaces import MessageDefinitionFormat
     from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 

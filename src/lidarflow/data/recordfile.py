@@ -1,11 +1,9 @@
 """The recording on disk: one ``.npz`` (NumPy, no pickle), written whole or not at all.
 
 The arrays of :class:`~lidarflow.data.recording.Recording` each as a member, the metadata as
-JSON (``meta_json``, with the :data:`FORMAT_VERSION` that wrote it), and each extra as a member
-``extra__NAME``. Reading checks every member before NumPy allocates it: a file that is no
-.npz, one cut short, one whose array headers claim more than the archive holds (a damaged or
-crafted file), one holding Python objects (which unpickling would run as code) or a scan of
-more beams than any scanner gives is a :class:`RecordingError` saying which, in one line.
+JSON (``meta_json``, with :data:`FORMAT_VERSION`), each extra as ``extra__NAME``. Reading checks
+every member before NumPy allocates it: a damaged, crafted or foreign file is a
+:class:`RecordingError` saying which, in one line.
 """
 
 from __future__ import annotations
@@ -19,7 +17,7 @@ import numpy as np
 
 from lidarflow.atomic import atomic_path
 from lidarflow.data.inputs import check_regular
-from lidarflow.data.recording import Recording
+from lidarflow.data.recording import GEOMETRY_FIELDS, Recording
 from lidarflow.errors import RecordingError
 from lidarflow.scan import MAX_BEAMS
 
@@ -27,29 +25,20 @@ __all__ = ["FORMAT_VERSION", "load_recording", "save_recording"]
 
 FORMAT_VERSION = 1
 _EXTRA_PREFIX = "extra__"
+#: The arrays every recording file holds, one member each, as :class:`Recording` names them.
+_ARRAYS = ("ranges", "offsets", *GEOMETRY_FIELDS, "stamps_ns")
 
 
 def save_recording(recording: Recording, path: str | Path) -> Path:
-    """Write ``recording`` to ``path`` (``.npz`` is appended when missing), whole or not at all
-    (:func:`lidarflow.atomic.atomic_path`: an existing file is replaced only once the new one is
-    complete); returns the path written. The arrays as :class:`Recording` holds them (ranges as
-    float32), the metadata as JSON with :data:`FORMAT_VERSION`, each extra as an array of its
-    own, compressed."""
+    """Write ``recording`` to ``path`` (``.npz`` appended when missing), whole or not at all
+    (:func:`lidarflow.atomic.atomic_path`); returns the path written."""
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
-    arrays: dict[str, np.ndarray] = {
-        "ranges": np.asarray(recording.ranges, np.float32),  # no copy where it is float32
-        "offsets": recording.offsets,
-        "angle_min": recording.angle_min,
-        "angle_increment": recording.angle_increment,
-        "range_min": recording.range_min,
-        "range_max": recording.range_max,
-        "stamps_ns": recording.stamps_ns,
-        "meta_json": np.frombuffer(
-            json.dumps({**recording.meta, "format_version": FORMAT_VERSION}).encode(), np.uint8
-        ),
-    }
+    arrays = {name: getattr(recording, name) for name in _ARRAYS}
+    arrays["ranges"] = np.asarray(recording.ranges, np.float32)  # no copy where it is float32
+    meta = json.dumps({**recording.meta, "format_version": FORMAT_VERSION})
+    arrays["meta_json"] = np.frombuffer(meta.encode(), np.uint8)
     if recording.poses is not None:
         arrays["poses"] = recording.poses
     for key, value in recording.extras.items():
@@ -68,11 +57,9 @@ _DEFLATE_MOST = 1100
 
 
 def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
-    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it: one whose
-    header declares more (or fewer) values than its member holds (a damaged or crafted file:
-    NumPy allocates the declared shape first, 14.6 TiB for a header claiming 4e12 floats), and
-    one of values that are no real numbers (complex, text, records). Python objects are left
-    to :func:`_read_arrays`, which says so."""
+    """Refuse the array ``key`` of the .npz ``path`` before NumPy allocates it (its declared
+    shape first): one whose header declares other than its member holds, and one of values
+    that are no real numbers. Python objects are left to :func:`_read_arrays`."""
     if f"{key}.npy" not in archive.namelist():
         raise RecordingError(f"{path}: not a lidarflow recording (its member {key!r} is no array)")
     info = archive.getinfo(f"{key}.npy")
@@ -114,8 +101,7 @@ def _check_member(path: Path, archive: zipfile.ZipFile, key: str) -> None:
 
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     """Every array of the .npz ``path``, or a :class:`RecordingError` saying what the file is
-    instead, in lidarflow's words: not an .npz at all, one cut short, or one holding Python
-    objects (which a recording never does, and which unpickling would run as code)."""
+    instead: not an .npz, one cut short, or one holding Python objects."""
     with path.open("rb") as f:
         start = f.read(4)
     if not start:
@@ -152,8 +138,7 @@ def load_recording(path: str | Path) -> Recording:
         raise RecordingError(f"{path}: no such file")
     check_regular(path, RecordingError)
     data = _read_arrays(path)
-    required = ("ranges", "offsets", "angle_min", "angle_increment", "range_min", "range_max")
-    missing = [k for k in (*required, "stamps_ns", "meta_json") if k not in data]
+    missing = [k for k in (*_ARRAYS, "meta_json") if k not in data]
     if missing:
         raise RecordingError(f"{path}: not a lidarflow recording (missing {', '.join(missing)})")
     try:
@@ -165,22 +150,14 @@ def load_recording(path: str | Path) -> Recording:
             f"{path}: written by a newer lidarflow (format {meta['format_version']}); upgrade"
         )
     extras = {k[len(_EXTRA_PREFIX) :]: v for k, v in data.items() if k.startswith(_EXTRA_PREFIX)}
-    beams = np.diff(data["offsets"].astype(np.int64))
+    arrays = {name: data[name] for name in _ARRAYS}
+    arrays["offsets"] = arrays["offsets"].astype(np.int64)
+    arrays["stamps_ns"] = arrays["stamps_ns"].astype(np.int64)
+    beams = np.diff(arrays["offsets"])
     if beams.size and beams.max() > MAX_BEAMS:
         frame = int(np.argmax(beams))
         raise RecordingError(
             f"{path}: scan {frame} has {int(beams[frame]):,} beams; real scanners give at most "
             f"a few thousand (lidarflow takes up to {MAX_BEAMS:,}): the recording is damaged"
         )
-    return Recording(
-        ranges=data["ranges"],
-        offsets=data["offsets"].astype(np.int64),
-        angle_min=data["angle_min"],
-        angle_increment=data["angle_increment"],
-        range_min=data["range_min"],
-        range_max=data["range_max"],
-        stamps_ns=data["stamps_ns"].astype(np.int64),
-        poses=data.get("poses"),
-        meta=meta,
-        extras=extras,
-    )
+    return Recording(**arrays, poses=data.get("poses"), meta=meta, extras=extras)

@@ -1,9 +1,8 @@
 """The recording: raw scans with their beam geometry, stamps, optional poses, and metadata.
 
-A recording keeps the raw ranges rather than maps, so the grid can change later without
-re-reading the bag. Scans may change beam count mid-recording, so ranges are stored ragged (one
-flat array plus offsets). Extra per-frame arrays (the simulator's ground truth, for instance)
-travel in ``extras``. On disk it is a single ``.npz`` (:mod:`lidarflow.data.recordfile`).
+It keeps the raw ranges rather than maps, so the grid can change without re-reading the bag;
+they are stored ragged (one flat array plus offsets), since the beam count may change. On disk:
+:mod:`lidarflow.data.recordfile`.
 """
 
 from __future__ import annotations
@@ -21,7 +20,10 @@ from lidarflow.scan import BeamGeometry, GridSpec, Scan, rasterize_batch, subcel
 
 T = TypeVar("T")
 
-__all__ = ["Recording"]
+__all__ = ["GEOMETRY_FIELDS", "Recording"]
+
+#: The per-scan beam geometry arrays of a :class:`Recording`, as :class:`BeamGeometry` names them.
+GEOMETRY_FIELDS = ("angle_min", "angle_increment", "range_min", "range_max")
 
 _BATCH_FRAMES = 256  # frames rasterized at once
 
@@ -56,7 +58,7 @@ class Recording:
         n = len(self.stamps_ns)
         if self.offsets.shape != (n + 1,):
             raise RecordingError(f"offsets must be ({n + 1},), got {self.offsets.shape}")
-        for name in ("angle_min", "angle_increment", "range_min", "range_max"):
+        for name in GEOMETRY_FIELDS:
             if getattr(self, name).shape != (n,):
                 raise RecordingError(f"{name} must be ({n},), got {getattr(self, name).shape}")
         if self.poses is not None and self.poses.shape != (n, 3):
@@ -66,7 +68,6 @@ class Recording:
         if np.any(np.diff(self.offsets) <= 0):
             raise RecordingError("every scan must have at least one beam")
 
-    # ----------------------------------------------------------------- construction
     @classmethod
     def from_scans(
         cls,
@@ -84,23 +85,20 @@ class Recording:
             else np.zeros(0, np.float32)
         )
 
-        def column(attr: str) -> np.ndarray:
-            return np.array([getattr(s.geometry, attr) for s in scans], dtype=np.float64)
-
+        geometry = {
+            name: np.array([getattr(s.geometry, name) for s in scans], dtype=np.float64)
+            for name in GEOMETRY_FIELDS
+        }
         return cls(
             ranges=ranges,
             offsets=offsets,
-            angle_min=column("angle_min"),
-            angle_increment=column("angle_increment"),
-            range_min=column("range_min"),
-            range_max=column("range_max"),
+            **geometry,
             stamps_ns=np.array([s.stamp_ns for s in scans], dtype=np.int64),
             poses=None if poses is None else np.asarray(poses, dtype=np.float64),
             meta=dict(meta or {}),
             extras=dict(extras or {}),
         )
 
-    # ----------------------------------------------------------------- access
     def __len__(self) -> int:
         return len(self.stamps_ns)
 
@@ -160,8 +158,7 @@ class Recording:
         """Rasterize frames ``[start, stop)`` into boolean ``(occupancy, visibility)``, each
         ``(n, H, W)``; frames sharing a geometry are rasterized as one batch."""
         grid = grid or GridSpec()
-        stop = len(self) if stop is None else min(stop, len(self))
-        n = max(stop - start, 0)
+        n = max(self._stop(stop) - start, 0)
         occ = np.zeros((n, *grid.shape), dtype=bool)
         vis = np.zeros((n, *grid.shape), dtype=bool)
         for at, (o, v) in self._per_geometry(lambda r, g: rasterize_batch(r, g, grid), start, stop):
@@ -170,8 +167,7 @@ class Recording:
 
     def check_maps(self, grid: GridSpec | None = None) -> None:
         """Rasterize every frame on ``grid`` and keep nothing: a scan that cannot be rasterized
-        is a :class:`RecordingError` now, in the memory of one batch of frames, where
-        :meth:`maps` of the whole recording takes ``2 N H W`` bytes (``convert`` checks so)."""
+        is a :class:`RecordingError` now, in the memory of one batch of frames."""
         grid = grid or GridSpec()
         for _ in self._per_geometry(lambda r, g: rasterize_batch(r, g, grid), 0, len(self)):
             pass
@@ -182,8 +178,7 @@ class Recording:
         """Where the returns of frames ``[start, stop)`` lie inside their cells: boolean
         ``(n, 2, H, W)`` (:func:`lidarflow.scan.subcell_batch`)."""
         grid = grid or GridSpec()
-        stop = len(self) if stop is None else min(stop, len(self))
-        out = np.zeros((max(stop - start, 0), 2, *grid.shape), dtype=bool)
+        out = np.zeros((max(self._stop(stop) - start, 0), 2, *grid.shape), dtype=bool)
         for at, features in self._per_geometry(lambda r, g: subcell_batch(r, g, grid), start, stop):
             out[at] = features
         return out
@@ -203,14 +198,16 @@ class Recording:
             maps = np.concatenate([maps, self.subcell_maps(grid, start, stop)], axis=1)
         return maps
 
+    def _stop(self, stop: int | None) -> int:
+        return len(self) if stop is None else min(stop, len(self))
+
     def _per_geometry(
-        self, batch: Callable[[np.ndarray, BeamGeometry], T], start: int, stop: int
+        self, batch: Callable[[np.ndarray, BeamGeometry], T], start: int, stop: int | None
     ) -> Iterator[tuple[slice, T]]:
         """``batch(ranges (b - a, count), geometry)`` for each run of frames ``[a, b)`` of
-        ``[start, stop)`` that share one geometry (at most ``_BATCH_FRAMES`` at a time: a batch's
-        float intermediates are several times its boolean maps), with the frames' place in an
-        output starting at ``start``; a scan it cannot take is a :class:`RecordingError` naming
-        the frames."""
+        ``[start, stop)`` that share one geometry, at most ``_BATCH_FRAMES`` at a time, with the
+        frames' place in an output starting at ``start``. Raises :class:`RecordingError`."""
+        stop = self._stop(stop)
         for run_start, run_stop in self.geometry_runs():
             for a in range(max(run_start, start), min(run_stop, stop), _BATCH_FRAMES):
                 b = min(a + _BATCH_FRAMES, run_stop, stop)
@@ -223,8 +220,7 @@ class Recording:
                 yield slice(a - start, b - start), result
 
     def is_per_frame(self, extra: np.ndarray) -> bool:
-        """Whether ``extra`` holds one entry per frame (its first axis is the frame count), so
-        that a recording made of some of the frames takes the same ones of it."""
+        """Whether ``extra`` holds one entry per frame (its first axis is the frame count)."""
         return bool(extra.ndim) and extra.shape[0] == len(self)
 
     def slice(self, start: int, stop: int) -> Recording:
@@ -234,10 +230,7 @@ class Recording:
         return Recording(
             ranges=self.ranges[a:b],
             offsets=self.offsets[start : stop + 1] - a,
-            angle_min=self.angle_min[start:stop],
-            angle_increment=self.angle_increment[start:stop],
-            range_min=self.range_min[start:stop],
-            range_max=self.range_max[start:stop],
+            **{name: getattr(self, name)[start:stop] for name in GEOMETRY_FIELDS},
             stamps_ns=self.stamps_ns[start:stop],
             poses=None if self.poses is None else self.poses[start:stop],
             meta=self._sliced_meta(start, stop),
@@ -246,10 +239,8 @@ class Recording:
 
     def every(self, step: int) -> Recording:
         """Every ``step``-th frame from the first, with its pose and per-frame extras: what a
-        sensor ``step`` times slower would have given. Ground-truth flow (``flow_*`` extras,
-        between consecutive frames) does not hold between the frames kept and is left out, as
-        are the metadata that number this recording's frames (``clock_jumps``, ``episodes``).
-        """
+        sensor ``step`` times slower would have given. Ground-truth flow (``flow_*``) and the
+        metadata that number frames (``clock_jumps``, ``episodes``) no longer hold: left out."""
         if step < 1:
             raise RecordingError(f"step must be >= 1, got {step}")
         kept = np.arange(0, len(self), step)
@@ -274,10 +265,8 @@ class Recording:
             meta["clock_jumps"] = sliced_clock_jumps(meta["clock_jumps"], start, stop)
         return meta
 
-    # ----------------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:
-        """Write the recording to ``path`` (``.npz`` is appended when missing), whole or not at
-        all; returns the path written (:func:`lidarflow.data.recordfile.save_recording`)."""
+        """:func:`lidarflow.data.recordfile.save_recording` of this recording."""
         from lidarflow.data.recordfile import save_recording  # it imports this module
 
         return save_recording(self, path)

@@ -1,14 +1,10 @@
-"""A ROS 1 bag read record by record, for a bag rosbags cannot open: one cut short (a robot that
-lost power mid-recording) or never closed by its writer (the header's index position 0).
+"""A ROS 1 bag read record by record, for a bag rosbags cannot open: one cut short or never
+closed by its writer (no index, or one that points past the end).
 
-rosbags' reader starts from the index that ``rosbag record`` writes after the data when it
-closes the bag; a bag cut short has none, or one that points past its end. Its data section is
-still there, in order: the bag header record, then chunks (each holding the connection records
-it introduces and its messages; uncompressed, bz2 or lz4), each followed by its index records.
-This reader walks them in file order up to the last intact message, a chunk cut in two
-included (its first part decompressed as far as it goes), noting where each message is (the
-index the bag lacks, so that reading a topic opens only the chunks that hold it), and
-deserialises with rosbags' typestore built from the bag's own message definitions.
+Opening walks the data section in file order up to the last intact message (of a chunk cut in
+two, what its first part decompresses to), noting where each message is: the index the bag
+lacks, so that reading a topic opens only the chunks that hold it. Messages are deserialised by
+rosbags' typestore built from the bag's own message definitions.
 
 Format (ROS bag 2.0): ``#ROSBAG V2.0\\n``, then records of a ``u32`` header length, header
 fields (each a ``u32`` length and ``name=value``; ``op`` the record type), a ``u32`` data length
@@ -32,14 +28,11 @@ __all__ = ["MAGIC", "Ros1BagSequentialReader"]
 
 MAGIC = b"#ROSBAG V2.0\n"
 _MESSAGE, _BAG_HEADER, _CHUNK, _CONNECTION = 0x02, 0x03, 0x05, 0x07
-
-
 _U32 = struct.Struct("<I")
 
 
 def _fields(data: bytes) -> dict[str, bytes] | None:
-    """A record header's ``name=value`` fields; ``None`` where they do not parse (the bytes are
-    no header: a cut or damaged file)."""
+    """A record header's ``name=value`` fields; ``None`` where they do not parse."""
     out: dict[str, bytes] = {}
     at, size = 0, len(data)
     while at < size:
@@ -56,8 +49,7 @@ def _fields(data: bytes) -> dict[str, bytes] | None:
 
 def _record(buf: Any, at: int) -> tuple[dict[str, bytes], int, int] | None:
     """The record at ``at``: its header fields and where its data starts and would end (past
-    the buffer where the record was cut in its data); ``None`` where even its header is cut or
-    is no header."""
+    the buffer where it was cut); ``None`` where even its header is cut or is no header."""
     if at + 4 > len(buf):
         return None
     end_header = at + 4 + _U32.unpack_from(buf, at)[0]
@@ -92,8 +84,7 @@ def _conn(header: dict[str, bytes]) -> int:
 @dataclass
 class _Chunk:
     """Where a chunk's data is in the file (``length`` bytes whole, ``read`` of them there),
-    and its messages: ``(connection, log time ns, start, end)`` in its decompressed records,
-    flat."""
+    and its messages, flat: ``(connection, log time ns, start, end)`` in its records."""
 
     start: int
     length: int
@@ -109,9 +100,8 @@ class _Chunk:
 
 
 class Ros1BagSequentialReader:
-    """A ROS 1 bag read in file order without its index (see the module). Opening reads the
-    whole data section once, for the connections, their messages and where each is;
-    ``recovered`` says how much of the file that was."""
+    """A ROS 1 bag read in file order without its index; ``recovered`` says how much of the
+    file was read."""
 
     def __init__(self, path: str | Path, default_typestore: Any) -> None:
         self.path = Path(path)
@@ -140,10 +130,9 @@ class Ros1BagSequentialReader:
         self.recovered = CutShort(self.size, read_to, index_pos or None, why)
 
     def _walk(self, buf: Any) -> tuple[dict[int, dict[str, bytes]], int, int]:
-        """Every record in file order up to the first one cut or damaged, those in chunks in
-        their place: the connections' fields, the header's index position and where the last
-        intact record ends (in a compressed chunk read in part, the share of the chunk's data
-        its records up to there take uncompressed); the chunks in ``_chunks``."""
+        """Walk the records up to the first one cut or damaged, filling ``_chunks``; returns the
+        connections' fields, the header's index position and where the last intact record
+        ends (within a chunk read in part, by its uncompressed share)."""
         found: dict[int, dict[str, bytes]] = {}
         self._chunks: list[_Chunk] = []
         index_pos, at = 0, len(MAGIC)
@@ -175,8 +164,7 @@ class Ros1BagSequentialReader:
     def _chunk_records(
         self, chunk: _Chunk, content: bytes, found: dict[int, dict[str, bytes]]
     ) -> int:
-        """Note a chunk's connections and where its messages are in its ``content``; returns
-        where its last intact record ends there."""
+        """Note a chunk's connections and messages; returns where its last intact record ends."""
         place = 0
         while (inner := _record(content, place)) is not None and inner[2] <= len(content):
             header, start, place = inner
@@ -193,14 +181,13 @@ class Ros1BagSequentialReader:
     def _connection_record(
         found: dict[int, dict[str, bytes]], header: dict[str, bytes], data: bytes
     ) -> None:
-        """Note a connection record's fields (its data is a header of them: type, md5sum,
-        message_definition, callerid, latching; the topic is in its own header)."""
+        """Note a connection record's fields (its data is a header of them; the topic is in its
+        own header)."""
         fields = _fields(data)
         if _conn(header) not in found and fields is not None and "type" in fields:
             found[_conn(header)] = {**fields, "topic": header.get("topic", b"")}
 
     def _connection(self, conn: int, fields: dict[str, bytes], count: int) -> Any:
-        """A connection record's fields as rosbags' connection."""
         from rosbags.interfaces import (
             Connection,
             ConnectionExtRosbag1,
@@ -229,7 +216,7 @@ class Ros1BagSequentialReader:
 
     def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
         """``(connection, log time ns, raw message)`` of ``connections`` (default all), in file
-        order, up to the last intact message; only the chunks that hold them are read."""
+        order; only the chunks that hold them are read."""
         wanted = {c.id: c for c in connections} or {c.id: c for c in self.connections}
         with self.path.open("rb") as stream:
             for chunk in self._chunks:

@@ -1,11 +1,8 @@
 """Training sequences: fixed-length windows of consecutive, evenly spaced frames.
 
-A recording is first cut into *segments* at time gaps longer than ``max_gap_periods`` frame
-periods and wherever the sensor changes (what it covers: its range limits, its first or last
-beam's angle); windows never cross a segment border. A beam count that varies from scan to scan
-over the same field of view (LD06-style drivers publish 440-470 beams a turn) is one sensor:
-cut at every geometry change, such a recording had no window at all.
-Frames that fit in no window are reported as dropped, never silently lost.
+A recording is cut into *segments* at gaps and wherever the sensor changes what it covers (a
+beam count alone, as LD06-style drivers vary it, is no change); windows never cross a segment
+border. Frames that fit in no window are reported as dropped, never silently lost.
 """
 
 from __future__ import annotations
@@ -26,7 +23,6 @@ __all__ = [
     "SequenceSet",
     "sensor_changes",
     "split_segments",
-    "window_starts",
 ]
 
 
@@ -40,9 +36,8 @@ def split_segments(recording: Recording, max_gap_periods: float = 2.5) -> list[t
 
 
 def sensor_changes(recording: Recording, beams: float = 2.0) -> list[int]:
-    """Frames at which what the sensor covers changes from the frame before: its range limits,
-    or its first or last beam's angle by more than ``beams`` beams (of the wider spacing); a
-    beam count alone is no change."""
+    """Frames at which the sensor's range limits change, or its first or last beam's angle by
+    more than ``beams`` beams (of the wider spacing); a beam count alone is no change."""
     n = len(recording)
     if n < 2:
         return []
@@ -55,11 +50,6 @@ def sensor_changes(recording: Recording, beams: float = 2.0) -> list[int]:
     for limit in (recording.range_min, recording.range_max):
         changed |= np.diff(np.asarray(limit, np.float64)) != 0
     return [int(i) + 1 for i in np.nonzero(changed)[0]]
-
-
-def window_starts(start: int, stop: int, length: int, stride: int) -> list[int]:
-    """Start frames of the windows of ``length`` frames inside ``[start, stop)``."""
-    return list(range(start, stop - length + 1, stride))
 
 
 @dataclass
@@ -113,7 +103,7 @@ class SequenceSet:
             used = np.zeros(len(recording), dtype=bool)
             for a, b in split_segments(recording, max_gap_periods):
                 report.segments += 1
-                starts = window_starts(a, b, length, self.stride)
+                starts = range(a, b - length + 1, self.stride)
                 if not starts:
                     name = recording.meta.get("source", f"recording {rec_id}")
                     report.notes.append(

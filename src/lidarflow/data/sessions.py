@@ -1,12 +1,9 @@
 """Where a bag's header clock goes back: the sessions one after the other, not interleaved.
 
-Scans are read in header-stamp order, which undoes the few frames of jitter that
-multi-connection bags have between arrival and header order. Where the header clock goes back
-mid-recording (a driver restart, a simulator's ``/clock`` reset, two sessions in one bag),
-header order would interleave two sessions; here the sessions keep their arrival order, each in
-header order, each later one re-stamped to follow the one before after a gap (which
-:func:`lidarflow.data.gaps.frames_after_gaps` finds), and each gets the poses of the odometry's
-own session.
+Scans are read in header-stamp order, which undoes arrival jitter. Where the header clock goes
+back (a driver restart, a simulator's ``/clock`` reset), the sessions keep their arrival order,
+each in header order and re-stamped to follow the one before after a gap, and each gets the
+poses of the odometry's own session.
 """
 
 from __future__ import annotations
@@ -21,18 +18,15 @@ from lidarflow.scan import Scan
 
 __all__ = ["in_sessions", "interpolate_poses", "recorded_stamps", "sliced_clock_jumps"]
 
-# A header stamp this far behind the latest one of its session is a clock that went back (a
-# driver restart, a simulator's /clock reset, two sessions in one bag), not transport jitter:
-# multi-connection bags reorder a frame or a few (latency-driven, so in time: some tens of ms),
-# and a clock that restarts goes back seconds. The floor keeps a fast scanner's jitter jitter.
+# A header stamp this far behind the latest one of its session is a clock that went back, not
+# transport jitter: multi-connection bags reorder a frame or a few (some tens of ms), a clock
+# that restarts goes back seconds. The floor keeps a fast scanner's jitter jitter.
 _JUMP_PERIODS = 5
 _JUMP_MIN_NS = 500_000_000
 
 
 def _jump_tolerance_ns(stamps_ns: np.ndarray) -> int:
-    """How far a stamp may fall behind the latest before it and still be jitter:
-    ``_JUMP_PERIODS`` median steps between advancing stamps (in arrival order), at least
-    ``_JUMP_MIN_NS``."""
+    """How far a stamp may fall behind the latest before it and still be jitter."""
     steps = np.diff(stamps_ns)
     steps = steps[steps > 0]
     period = int(np.median(steps)) if steps.size else 0
@@ -40,9 +34,8 @@ def _jump_tolerance_ns(stamps_ns: np.ndarray) -> int:
 
 
 def _session_starts(stamps_ns: np.ndarray, tolerance_ns: int) -> list[int]:
-    """Where, in arrival order, the stamps' clock went back: the index of each stamp more than
-    ``tolerance_ns`` behind the latest of its session so far, which starts the next session
-    (the first always starts at 0)."""
+    """The index of each stamp (arrival order) that starts a session: 0, and each one more than
+    ``tolerance_ns`` behind the latest of its session so far."""
     starts, latest = [0], None
     for i, stamp in enumerate(stamps_ns.tolist()):
         if latest is not None and stamp < latest - tolerance_ns:
@@ -56,9 +49,9 @@ def _session_starts(stamps_ns: np.ndarray, tolerance_ns: int) -> list[int]:
 def _order_sessions(
     stamps_ns: np.ndarray, starts: list[int], seam_ns: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The reading order of stamps in arrival order, split into sessions at ``starts``: the
-    sessions one after the other, each in stamp order (its own jitter undone), and the shift
-    (ns) for each stamp so that each session begins ``seam_ns`` after the one before ends.
+    """The reading order of the stamps, split into sessions at ``starts``: the sessions one
+    after the other, each in stamp order, and the shift (ns) for each stamp so that each
+    session begins ``seam_ns`` after the one before ends.
 
     >>> _order_sessions(np.array([10, 12, 11, 2, 3]), [0, 3], 5)
     (array([0, 2, 1, 3, 4]), array([ 0,  0,  0, 15, 15]))
@@ -102,15 +95,10 @@ def _session_poses(
     odometry: tuple[np.ndarray, np.ndarray, np.ndarray],
     window_ns: int,
 ) -> tuple[np.ndarray, int]:
-    """Poses at the stamps of each scan session, each from the odometry of its own session, and
-    how many of the scans' clock jumps the odometry made too.
-
-    ``scan_jumps_ns``: the log time at which each scan session after the first begins;
-    ``odometry``: pose stamps, log times and ``(x, y, yaw)`` in arrival order. The odometry is
-    split where its own clock goes back; its jumps pair with the scans' in order while each
-    falls within ``window_ns`` of the other. A scan session after the first unpaired jump gets
-    NaN: its stamps are on a clock the odometry's do not follow, so any pose would be a guess.
-    """
+    """Poses at the stamps of each scan session from the odometry's own session, and how many
+    of the scans' clock jumps (at log times ``scan_jumps_ns``) the odometry made too, within
+    ``window_ns``. A scan session after the first unpaired jump gets NaN: its clock is one the
+    odometry's does not follow."""
     stamps, log_times, values = odometry
     if len(scan_stamps) == 1:  # no jump in the scans: all the odometry, as it always was
         return interpolate_poses(scan_stamps[0], stamps, values), 0
@@ -133,10 +121,9 @@ def _session_poses(
 def _clock_jumps(
     stamps_ns: np.ndarray, starts: list[int], shifts: np.ndarray, poses_paired: int | None
 ) -> list[dict[str, Any]]:
-    """``meta["clock_jumps"]``: for each session after the first, the frame it begins at (in
-    reading order, as in arrival order), how far its clock went back and the shift added to its
-    stamps, in seconds (and the shift exactly, in ns, for :func:`recorded_stamps`), and, with
-    odometry, whether the odometry's clock jumped with it."""
+    """``meta["clock_jumps"]``: for each session after the first, the frame it begins at, how
+    far its clock went back and the shift added to its stamps, and with odometry whether the
+    odometry's clock jumped with it."""
     jumps = []
     for k, (a, b) in enumerate(itertools.pairwise(starts), start=1):
         jump: dict[str, Any] = {
@@ -157,13 +144,9 @@ def in_sessions(
     odometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
 ) -> tuple[list[Scan], np.ndarray | None, list[dict[str, Any]]]:
     """``scans`` (in arrival order, log times ``arrivals``) in reading order, their poses from
-    ``odometry`` (see :func:`_session_poses`; None without), and ``meta["clock_jumps"]``.
-
-    Header order undoes jitter; where the header clock went back, header order would
-    interleave two sessions, so the sessions keep their arrival order and each later one is
-    re-stamped to follow the one before after a gap of twice the tolerance (at least 10 frame
-    periods and 1 s, as between the simulator's episodes), which find_gaps and training cut at.
-    """
+    ``odometry`` (stamps, log times, ``(x, y, yaw)``; None without), and ``meta["clock_jumps"]``.
+    Each later session is re-stamped to follow the one before after twice the jitter tolerance
+    (at least 1 s), a gap that find_gaps and training cut at."""
     stamps_ns = np.array([s.stamp_ns for s in scans], dtype=np.int64)
     tolerance = _jump_tolerance_ns(stamps_ns)
     starts = _session_starts(stamps_ns, tolerance)
@@ -179,8 +162,7 @@ def in_sessions(
 
 def recorded_stamps(stamps_ns: np.ndarray, clock_jumps: list[dict[str, Any]]) -> np.ndarray:
     """The stamps as the bag had them: each session after a clock jump (``meta["clock_jumps"]``)
-    un-shifted, so that what is written from a recording lines up with the bag it was read from.
-    """
+    un-shifted."""
     out = np.array(stamps_ns, dtype=np.int64)
     for jump in sorted(clock_jumps, key=lambda j: j["before_frame"]):
         # each session's shift is its own (not added to the one before's): later ones override

@@ -23,11 +23,8 @@ def load_any(
     odom_topic: str | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> Recording:
-    """Load a recording, converting a bag/MCAP on the fly.
-
-    ``topic`` and ``odom_topic`` only apply to bags; naming them for a recording is an error
-    rather than being silently ignored.
-    """
+    """Load a recording, or read a bag/MCAP (:func:`read_bag`); ``topic`` and ``odom_topic``
+    apply to bags only, and naming them for a recording is an error."""
     path = Path(path)
     if is_recording_file(path):
         if topic is not None or odom_topic is not None:
@@ -40,8 +37,7 @@ def load_any(
 
 def _checked_recording(path: Path) -> Recording:
     """:func:`load_recording`, with what is wrong inside the file (arrays of mismatched
-    lengths, a scan's beam geometry that no scanner has) said of the file, now rather than
-    when the scan is rasterized."""
+    lengths, an impossible beam geometry) said of the file now, not when it is rasterized."""
     try:
         recording = load_recording(path)
         for start, _ in recording.geometry_runs():
@@ -57,10 +53,9 @@ def _checked_recording(path: Path) -> Recording:
 
 
 def topic_notes(path: str | Path, recording: Recording) -> list[str]:
-    """What a command says of how ``recording`` was read from the bag ``path``: the scan and
-    odometry topics chosen among several (none for a recording file, which keeps the bag's
-    notes but no longer has the topics to pick from), and how much of a bag cut short was
-    read (:func:`recovered_notes`)."""
+    """What a command says of how ``recording`` was read from the bag ``path``: the topics
+    chosen among several (none for a recording file, which has no topics to pick from) and
+    :func:`recovered_notes`."""
     if is_recording_file(path):
         return recovered_notes(path, recording)
     name = Path(path).name
@@ -70,9 +65,8 @@ def topic_notes(path: str | Path, recording: Recording) -> list[str]:
 
 
 def recovered_notes(path: str | Path, recording: Recording) -> list[str]:
-    """Where ``recording`` was read from a bag cut short, the note that says how much of it
-    (named for the bag; a recording converted from one keeps the note: it still holds only
-    that much)."""
+    """Where ``recording`` was read from a bag cut short, the note that says how much of it,
+    named for the bag (a recording converted from one keeps it)."""
     if not recording.meta.get("recovered"):
         return []
     source = recording.meta.get("source") if is_recording_file(path) else None

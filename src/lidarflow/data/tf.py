@@ -1,18 +1,11 @@
 """The sensor's mount on the robot from a bag's TF, so odometry poses become sensor poses.
 
-Odometry reports the pose of its child frame (the robot base, e.g. ``base_link``); the scans are
-in their own frame (e.g. ``left_laser``), which may sit far from the base and turned against
-it. Ego motion needs the
-*sensor's* motion: ``sensor_pose = base_pose o mount`` with ``mount`` the pose of the scan frame
-in the base frame, read from ``/tf`` and ``/tf_static`` (planar part only: x, y, yaw).
-
-A scanner mounted upside down (its z axis pointing down: rolled or pitched by 180 degrees, as
-under a platform) sees the world mirrored: its y axis is the base's turned and flipped. No
-``(x, y, yaw)`` says that, so a mount is ``(x, y, yaw)`` and whether it is flipped (the frame
-then ``(x, y, yaw)`` followed by the reflection ``y -> -y``); the sensor's motions are then the
-upright frame's mirrored, ``(dx, -dy, -dyaw)`` (:func:`mirrored`).
-
-Mounts are static: the first transform seen for every (parent, child) pair is kept.
+``sensor_pose = base_pose o mount``, with ``mount`` the planar pose ``(x, y, yaw)`` of the scan
+frame in the odometry's child frame, read from ``/tf`` and ``/tf_static``; the first transform
+seen for every (parent, child) pair is kept. A scanner mounted upside down sees the world
+mirrored, which no ``(x, y, yaw)`` says: a mount also says whether it is flipped (the frame is
+then the pose followed by ``y -> -y``), and the sensor's motions are the upright frame's
+mirrored (:func:`mirrored`).
 """
 
 from __future__ import annotations
@@ -22,13 +15,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TF_TYPE", "TransformTree", "compose_poses", "mirrored"]
+__all__ = ["TF_TYPE", "TransformTree", "compose_poses", "mirrored", "yaw_of"]
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 def _frame(name: str) -> str:
     return str(name).lstrip("/")
+
+
+def yaw_of(q: Any) -> float:
+    """The rotation about z (radians) of a quaternion with ``x, y, z, w``: for a frame flipped
+    upside down too, the bearing of its x axis in the plane."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 class TransformTree:
@@ -44,19 +43,11 @@ class TransformTree:
             if child in self.parent:
                 continue
             t, q = tr.transform.translation, tr.transform.rotation
-            # the rotation matrix's first column in the plane gives the yaw of an upright or a
-            # flipped frame alike (R = Rz(yaw) or Rz(yaw) diag(1, -1, -1) there); R22 the z axis
-            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            # yaw_of reads the rotation matrix's first column, which gives the yaw of an upright
+            # or a flipped frame alike (R = Rz(yaw) or Rz(yaw) diag(1, -1, -1)); R22 the z axis
             flipped = 1.0 - 2.0 * (q.x * q.x + q.y * q.y) < 0.0
             parent = _frame(tr.header.frame_id)
-            self.parent[child] = (parent, float(t.x), float(t.y), yaw, flipped)
-
-    def lookup(self, base: str, frame: str) -> tuple[float, float, float] | None:
-        """Pose ``(x, y, yaw)`` of ``frame`` in ``base`` when ``frame`` descends from ``base``,
-        else ``None`` (for a flipped frame, that of the upright frame it mirrors: see
-        :meth:`mount`)."""
-        found = self.mount(base, frame)
-        return None if found is None else found[0]
+            self.parent[child] = (parent, float(t.x), float(t.y), yaw_of(q), flipped)
 
     def mount(self, base: str, frame: str) -> tuple[tuple[float, float, float], bool] | None:
         """``((x, y, yaw), flipped)`` of ``frame`` in ``base`` (flipped: ``frame`` is that pose

@@ -1,13 +1,13 @@
 """Which topics of a bag to read: the scan topic and the odometry topic, named or chosen.
 
-``lidarflow evaluate SOME.bag`` works on any bag as it is (design notes, section 9): where a bag
-offers several scan (or odometry) topics and none is named, one is chosen by a fixed preference
-and the choice is said (``read_bag``'s ``meta["topic_choice"]``, ``meta["pose_topic_choice"]``).
+``lidarflow evaluate SOME.bag`` works on any bag as it is (design notes, section 9): of several
+scan (or odometry) topics and none named, one is chosen by a fixed preference and the choice is
+said (``read_bag``'s ``meta["topic_choice"]``, ``meta["pose_topic_choice"]``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -35,13 +35,21 @@ POSE_TYPES = (
 
 def _match_name(name: str, topics: Iterable[str]) -> str | None:
     """The topic among ``topics`` that ``name`` names: itself, or else the only one equal to it
-    up to leading and trailing slashes (ROS 1 bags may hold ``scan`` where a user types
-    ``/scan``, and ROS 2 ones ``/scan`` where a user types ``scan``)."""
+    up to leading and trailing slashes (``scan`` in a ROS 1 bag, ``/scan`` in a ROS 2 one)."""
     topics = set(topics)
     if name in topics:
         return name
     loose = [t for t in topics if t.strip("/") == name.strip("/")]
     return loose[0] if len(loose) == 1 else None
+
+
+def _message_counts(reader: Any, msgtypes: tuple[str, ...]) -> dict[str, int]:
+    """Messages per topic of the types ``msgtypes``, over all of its connections."""
+    counts: dict[str, int] = {}
+    for c in reader.connections:
+        if c.msgtype in msgtypes:
+            counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+    return counts
 
 
 def _scan_rank(topic: str, count: int) -> tuple[int, int, int, str]:
@@ -53,12 +61,8 @@ def _scan_rank(topic: str, count: int) -> tuple[int, int, int, str]:
 
 def choose_scan_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, str | None]:
     """The scan topic to read, and a note on the choice where the bag offered several."""
-    counts: dict[str, int] = {}
-    kinds: dict[str, str] = {}
-    for c in reader.connections:
-        if c.msgtype in SCAN_TYPES:
-            counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
-            kinds[c.topic] = c.msgtype
+    counts = _message_counts(reader, SCAN_TYPES)
+    kinds = {c.topic: c.msgtype for c in reader.connections if c.msgtype in SCAN_TYPES}
     if topic is None:  # multi-echo topics only where no LaserScan one holds messages
         published = [t for t, n in counts.items() if n > 0] or list(counts)
         if any(kinds[t] == LASERSCAN for t in published):
@@ -80,17 +84,22 @@ def choose_scan_topic(path: Path, reader: Any, topic: str | None) -> tuple[str, 
         raise BagError(
             f"{path}: no sensor_msgs/LaserScan (or MultiEchoLaserScan) topic in this bag"
         )
-    # A ROS 2 bag lists every topic it subscribed to, published on or not: an unused scan topic
+    return _choose(counts, _scan_rank, "--topic")
+
+
+def _choose(
+    counts: dict[str, int], rank: Callable[[str, int], tuple[Any, ...]], option: str
+) -> tuple[str, str | None]:
+    """The topic ``rank`` puts first of ``counts``' (at least one), and a note on the others."""
+    # A ROS 2 bag lists every topic it subscribed to, published on or not: an unused topic
     # beside the sensor's is no real choice. (Without counts, as in an MCAP file with no
     # summary, every topic counts 0 and all stay candidates.)
-    live = [t for t in scan_topics if counts[t] > 0] or scan_topics
+    live = [t for t in sorted(counts) if counts[t] > 0] or sorted(counts)
     if len(live) == 1:
         return live[0], None
-    # `lidarflow evaluate SOME.bag` works on any bag as it is (design notes, section 9): of
-    # several scanners one is read, and every command says which
-    chosen = min(live, key=lambda t: _scan_rank(t, counts[t]))
+    chosen = min(live, key=lambda t: rank(t, counts[t]))
     others = ", ".join(t for t in live if t != chosen)
-    return chosen, f"{chosen} chosen over {others}; --topic to pick another"
+    return chosen, f"{chosen} chosen over {others}; {option} to pick another"
 
 
 #: Where a bag has several odometry topics and none is named: robot_localization's fused
@@ -110,17 +119,8 @@ def choose_pose_topic(
     """The pose topic to read, and a note on the choice where the bag offered several."""
     pose_topics = {c.topic: c.msgtype for c in reader.connections if c.msgtype in POSE_TYPES}
     if odom_topic is None:
-        counts: dict[str, int] = {}
-        for c in reader.connections:
-            if c.msgtype == POSE_TYPES[0]:
-                counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
-        # as for scans: a topic subscribed to and never published on is no real choice
-        live = [t for t in counts if counts[t] > 0] or list(counts)
-        if len(live) <= 1:
-            return (live[0] if live else None), None
-        chosen = min(live, key=lambda t: _odometry_rank(t, counts[t]))
-        others = ", ".join(sorted(t for t in live if t != chosen))
-        return chosen, f"{chosen} chosen over {others}; --odom-topic to pick another"
+        counts = _message_counts(reader, POSE_TYPES[:1])
+        return _choose(counts, _odometry_rank, "--odom-topic") if counts else (None, None)
     found = _match_name(odom_topic, pose_topics)
     if found is None:
         hint = ", ".join(sorted(pose_topics)) or "none"

@@ -1,8 +1,7 @@
 """A zipped ROS 1 bag (``.bag.zip``) unpacked to a temporary file for as long as it is read.
 
-What an archive may unpack to is capped before and while it is unpacked: a zip bomb or a
-full disk is refused in one line before it fills anything. What a process killed outright
-leaves behind is removed by the next unpacking.
+What an archive may unpack to is capped, so a zip bomb or a full disk is refused in one line;
+what a process killed outright leaves behind is removed by the next unpacking.
 """
 
 from __future__ import annotations
@@ -21,9 +20,8 @@ from lidarflow.errors import BagError
 
 __all__ = ["UNZIP_FLOOR", "UNZIP_RATIO", "UNZIP_RESERVE", "unzip_folder", "unzipped_bag"]
 
-#: What a zipped bag may unpack to: this many times the archive's size (a bag of scans
-#: unzips to about ten times its zip; deflate reaches a thousand on a zip bomb's zeros), and at
-#: least :data:`UNZIP_FLOOR` bytes.
+#: What a zipped bag may unpack to: this many times the archive's size (a bag of scans unzips
+#: to about ten, a zip bomb's zeros to a thousand), and at least :data:`UNZIP_FLOOR` bytes.
 UNZIP_RATIO = 50
 UNZIP_FLOOR = 64 << 20
 #: The free space an unpacked bag leaves on the file system it is unpacked to.
@@ -32,24 +30,19 @@ _MB = 1 << 20
 
 
 def unzip_folder() -> Path:
-    """Where zipped bags are unpacked: a folder of this user's under the system's temporary
-    folder (``tempfile.gettempdir()``)."""
+    """Where zipped bags are unpacked: a folder of this user's under ``tempfile.gettempdir()``."""
     user = os.getuid() if hasattr(os, "getuid") else "user"
     return Path(tempfile.gettempdir()) / f"lidarflow-unzipped-{user}"
 
 
 @contextlib.contextmanager
 def unzipped_bag(path: Path) -> Iterator[Path]:
-    """The one ``.bag`` of the zip archive ``path``, unpacked for as long as the context lasts.
+    """The one ``.bag`` of the zip archive ``path``, unpacked to a temporary of
+    :func:`lidarflow.atomic.temporary` in :func:`unzip_folder` for as long as the context lasts.
 
-    It is unpacked to a temporary of :func:`lidarflow.atomic.temporary` in
-    :func:`unzip_folder`, named with this process's PID, so that what a process killed outright
-    leaves there is removed by the next unpacking (:func:`lidarflow.atomic.clear_stale`), and
-    is removed on leaving. Raises :class:`BagError`, naming ``path``, for a damaged archive,
-    one with no or several bags, and one whose bag would unpack to more than
-    :data:`UNZIP_RATIO` times the archive (:data:`UNZIP_FLOOR` at least: a zip bomb) or to
-    more than the free space less :data:`UNZIP_RESERVE`: by the size the archive declares,
-    and while unpacking, should the archive's headers lie.
+    Raises :class:`BagError`, naming ``path``, for a damaged archive, one with no or several
+    bags, and one whose bag would unpack to more than the ratio cap or the free space less
+    :data:`UNZIP_RESERVE` (checked before unpacking and while, should its headers lie).
     """
     try:
         with zipfile.ZipFile(path) as zf:
@@ -80,8 +73,8 @@ def unzipped_bag(path: Path) -> Iterator[Path]:
 
 
 def _unzip_limit(path: Path, declared: int, folder: Path) -> int:
-    """The most bytes the bag of ``path`` may unpack to in ``folder`` (see
-    :func:`unzipped_bag`); refuses one whose ``declared`` size is more."""
+    """The most bytes the bag of ``path`` may unpack to in ``folder``; refuses one whose
+    ``declared`` size is more."""
     room = shutil.disk_usage(folder).free - UNZIP_RESERVE
     limit = min(_ratio_cap(path), room)
     if declared > limit:
@@ -95,8 +88,7 @@ def _ratio_cap(path: Path) -> int:
 
 
 def _refuse_unzip(path: Path, size: int, folder: Path) -> None:
-    """Raise the :class:`BagError` for a bag of ``path`` that unpacks to ``size`` bytes or more:
-    a zip bomb where that is over the ratio cap, else a disk too full for it."""
+    """Raise the :class:`BagError` for a bag of ``path`` that unpacks to ``size`` bytes or more."""
     zipped = path.stat().st_size
     if size > _ratio_cap(path):
         raise BagError(
