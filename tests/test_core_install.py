@@ -71,6 +71,7 @@ def test_what_needs_the_torch_extra_says_so_in_one_line(short, random_flownet_di
             ["predict", str(short), "-m", str(random_flownet_dir), "-o", "q.mcap"],
             f"the model {random_flownet_dir} needs PyTorch",
         ),
+        (["predict", str(short), "--learn", "-o", "q.mcap"], "learning on the stream needs"),
     ):
         done = without_torch(CLI, *argv, cwd=folder)
         assert done.returncode == 1, (argv, done.stderr)

@@ -182,5 +182,26 @@ def test_learning_on_a_model_it_cannot_learn_is_refused() -> None:
     from lidarflow.models.presets import bundled_onnx
     from lidarflow.predict import Predictor
 
-    with pytest.raises(PredictError, match="learn needs a head-only model"):
+    with pytest.raises(PredictError, match="needs a head-only model"):
         Predictor(bundled_onnx()[0], learn=True)
+
+
+def test_evaluate_and_predict_learn_on_the_command_line(sample_recording, tmp_path, capsys):
+    import json
+
+    from lidarflow.data import sample_bag_path
+    from tests.test_cli import run
+
+    short = sample_recording.slice(0, 30).save(tmp_path / "short.npz")
+    code, out, err = run(
+        ["evaluate", str(short), "--learn", "--horizon", "2", "--warmup", "5",
+         "-o", str(tmp_path / "r.json")], capsys,
+    )  # fmt: skip
+    assert code == 0, err
+    scored = json.loads((tmp_path / "r.json").read_text())["recordings"][0]
+    assert {"bundled", "bundled_learning"} <= set(scored["horizon_f1"])
+    assert "bundled_learning" in out
+    bag = tmp_path / "out.bag"
+    code, _, err = run(["predict", str(sample_bag_path()), "-o", str(bag), "--learn"], capsys)
+    assert code == 0, err
+    assert bag.exists()

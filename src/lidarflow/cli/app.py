@@ -106,6 +106,14 @@ CombineOpt = Annotated[
         "that arrive.",
     ),
 ]
+LearnOpt = Annotated[
+    bool,
+    typer.Option(
+        "--learn",
+        help="The model's head keeps learning on the stream, each scan the label of the "
+        "prediction made for it (a head-only model such as the bundled one, with PyTorch).",
+    ),
+]
 
 
 ForceOpt = Annotated[

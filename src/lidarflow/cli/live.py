@@ -10,6 +10,7 @@ import typer
 from lidarflow.cli.app import (
     DEFAULT_THREADS,
     CombineOpt,
+    LearnOpt,
     ModelOpt,
     ThreadsOpt,
     TopicOpt,
@@ -50,6 +51,7 @@ def live(
     ] = DEFAULT_PORT,
     threads: ThreadsOpt = DEFAULT_THREADS,
     combine: CombineOpt = False,
+    learn: LearnOpt = False,
 ) -> None:
     """Play SOURCE scan by scan at its recorded pace, predict each with the model and serve
     the scans, predicted grids, moving cells and the flow (a colour-wheel image) over
@@ -61,7 +63,9 @@ def live(
 
     recording = load_input(source, topic)
     check_horizon(len(recording), horizon, 0, str(source))
-    predictor = Predictor(model, horizon=horizon, threads=threads or None, combine=combine)
+    predictor = Predictor(
+        model, horizon=horizon, threads=threads or None, combine=combine, learn=learn
+    )
     scan_topic = "/" + (recording.meta.get("topic") or "scan").lstrip("/")
     frame_id = recording.meta.get("frame_id") or "laser"
     flow = predictor.backend.capabilities.flow

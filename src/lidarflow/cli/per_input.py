@@ -45,6 +45,7 @@ class EvaluateSettings:
     report_dir: Path | None
     gif_frames: int
     combine: bool = False
+    learn: bool = False
 
 
 def build_methods(settings: EvaluateSettings) -> tuple[list[Any], dict[str, Any]]:
@@ -57,7 +58,7 @@ def build_methods(settings: EvaluateSettings) -> tuple[list[Any], dict[str, Any]
     return methods_and_config(
         list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
         s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
-        combine=s.horizon if s.combine else None,
+        combine=s.horizon if s.combine else None, learn=s.learn,
     )  # fmt: skip
 
 
@@ -115,6 +116,7 @@ class PredictSettings:
     groups: frozenset[str]
     force: bool
     combine: bool = False
+    learn: bool = False
 
 
 @dataclass(frozen=True)
@@ -155,6 +157,7 @@ def predict_input(task: PredictTask) -> Predicted:
         moving_threshold=s.moving_threshold,
         online_decision=s.online_decision,
         combine=s.combine,
+        learn=s.learn,
     )
     source = None if is_recording_file(task.input) else task.input
     with job_bar(len(recording), f"predicting {task.input.name}") as bar:

@@ -15,6 +15,7 @@ from lidarflow.cli.app import (
     CombineOpt,
     ExportModelOpt,
     ForceOpt,
+    LearnOpt,
     ModelGridOpt,
     ModelOpt,
     ModelResOpt,
@@ -143,6 +144,7 @@ class PredictOptions:
         ),
     ] = False
     combine: CombineOpt = False
+    learn: LearnOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
@@ -193,6 +195,7 @@ def predict(options: PredictOptions) -> None:
     settings = PredictSettings(
         o.topic, o.odom_topic, o.model, model_grid(o.model, o.grid, o.res), o.horizon,
         o.threads, threshold, False if o.fixed_decision else None, groups, o.force, o.combine,
+        o.learn,
     )  # fmt: skip
     tasks = [PredictTask(i, out, settings) for i, out in zip(o.inputs, outputs, strict=True)]
     done = _predict_all(tasks, o)

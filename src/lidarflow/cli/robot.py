@@ -15,6 +15,7 @@ import typer
 from lidarflow.cli.app import (
     DEFAULT_THREADS,
     CombineOpt,
+    LearnOpt,
     ModelGridOpt,
     ModelOpt,
     ModelResOpt,
@@ -66,6 +67,7 @@ class NodeOptions:
         ),
     ] = False
     combine: CombineOpt = False
+    learn: LearnOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
     moving_threshold: MovingOpt = None
@@ -168,6 +170,7 @@ def _live_step(options: NodeOptions) -> LiveStep:
         threads=o.threads or None,
         moving_threshold=MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold,
         combine=o.combine,
+        learn=o.learn,
     )
     if o.moving and not predictor.backend.capabilities.flow:
         raise ModelError(

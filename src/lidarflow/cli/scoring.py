@@ -138,6 +138,14 @@ class EvaluateOptions:
             "from the scans that arrive (NAME_combined).",
         ),
     ] = False
+    learn: Annotated[
+        bool,
+        typer.Option(
+            "--learn",
+            help="Also score each head-only model with its head learning on the stream, from "
+            "the shipped weights at every recording (NAME_learning).",
+        ),
+    ] = False
     grid: GridOpt = 100
     res: ResOpt = 0.1
     moving_threshold: MovingOpt = None
@@ -238,7 +246,7 @@ def _settings(o: EvaluateOptions, sources: list[Path | None]) -> EvaluateSetting
     return EvaluateSettings(
         tuple(sources), o.ta_window, o.ta_threshold, o.moving_threshold, o.ego_oracle,
         o.online_decision, GridSpec(o.grid, o.grid, o.res), resolve_device(o.device), o.threads,
-        o.warmup, o.horizon, None, o.gif_frames, o.combine,
+        o.warmup, o.horizon, None, o.gif_frames, o.combine, o.learn,
     )  # fmt: skip
 
 

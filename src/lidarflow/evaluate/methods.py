@@ -4,6 +4,7 @@ configuration a report states them by."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
@@ -24,6 +25,8 @@ from lidarflow.models.weights import describe_source
 from lidarflow.online.experts import EXPERTS
 from lidarflow.predict.backends import load_backend
 from lidarflow.predict.decision import OnlineDecisionConfig
+from lidarflow.predict.headstep import HeadStepBackend
+from lidarflow.predict.learning import LearningConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD
 from lidarflow.tracking import Tracker, TrackerConfig
 
@@ -42,14 +45,17 @@ def methods_and_config(
     device: str = "cpu",
     threads: int | None = None,
     combine: int | None = None,
+    learn: bool = False,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The baselines plus the methods of each model source (``None`` or ``"bundled"``: the
     bundled model, else named by ``names`` or its folder or file), and the report's
     configuration of them. An ego-motion model brings ``copy_last_ego``; ``ego_oracle`` adds
     the variants that know the true next pose, ``online`` each model's other decision rule
     (``NAME_online`` or ``NAME_fixed``), ``combine`` each model combined online with the simple
-    predictors that many frames ahead (``NAME_combined``). PyTorch models run on ``device``,
-    each on ``threads`` CPU threads (``None``: the backend's default)."""
+    predictors that many frames ahead (``NAME_combined``), ``learn`` each head-only model run
+    in NumPy with its head learning on the stream (``NAME_learning``, on a copy of its
+    weights). PyTorch models run on ``device``, each on ``threads`` CPU threads (``None``: the
+    backend's default)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [
@@ -79,12 +85,33 @@ def methods_and_config(
             for m in methods
             if isinstance(m, ModelMethod) and m.name in models_used
         ]
+    if learn:
+        methods += [
+            _learning(m, moving_threshold, online_config, res)
+            for m in methods
+            if isinstance(m, ModelMethod) and m.name in models_used
+            and isinstance(m.backend, HeadStepBackend)
+        ]  # fmt: skip
     config = _report_config(
         methods, ta_window, ta_threshold, moving_threshold, models_used, online_config, online
     )
     if combine is not None:
         config["combined"] = {"horizon": combine, "experts": list(EXPERTS)}
+    if learn:
+        config["learning"] = dataclasses.asdict(LearningConfig())
     return methods, config
+
+
+def _learning(
+    model: ModelMethod, moving_threshold: float, online_config: OnlineDecisionConfig, res: float
+) -> ModelMethod:
+    """``model`` again as ``NAME_learning``: its head learning on the stream, on a copy of its
+    weights (the model itself stays as shipped)."""
+    return ModelMethod(
+        f"{model.name}_learning", copy.deepcopy(model.backend), moving_threshold,
+        online_config=online_config, res=res, decision=model.engine.policy.to_record(),
+        learning=LearningConfig(),
+    )  # fmt: skip
 
 
 def _model_methods(

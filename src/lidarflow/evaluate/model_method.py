@@ -12,6 +12,8 @@ from lidarflow.errors import EvaluateError
 from lidarflow.predict.backends import TorchBackend
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
+from lidarflow.predict.headstep import HeadStepBackend
+from lidarflow.predict.learning import HeadLearning, LearningConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
 from lidarflow.scan import takes_subcell
 
@@ -26,7 +28,9 @@ class ModelMethod:
     last step. ``oracle=True`` takes the true ``next_motion``; ``res``: metres per cell.
     ``decision`` is the policy the model ships with (by default its own); ``online``
     re-decides with the offsets that did best so far: ``None`` as the policy says,
-    ``True`` / ``False`` always / never, a config always with it (default ``online_config``)."""
+    ``True`` / ``False`` always / never, a config always with it (default ``online_config``).
+    With ``learning`` the head learns on the stream (:mod:`lidarflow.predict.learning`; a
+    head-only model run in NumPy), from its shipped weights again at every recording."""
 
     def __init__(
         self,
@@ -39,6 +43,7 @@ class ModelMethod:
         res: float = 0.1,
         device: str = "cpu",
         decision: dict[str, Any] | None = None,
+        learning: LearningConfig | None = None,
     ) -> None:
         self.name = name
         self.backend: Backend = model if hasattr(model, "run") else TorchBackend(model, device)
@@ -50,8 +55,13 @@ class ModelMethod:
         record = decision if decision is not None else self.backend.decision
         policy = DecisionPolicy.from_record(record, online_config)
         policy = policy.with_online(online, online_config)
+        learner = None
+        if learning is not None:
+            if not isinstance(self.backend, HeadStepBackend):
+                raise EvaluateError(f"{name}: only a head-only model run in NumPy learns online")
+            learner = HeadLearning(self.backend, learning)
         try:
-            self.engine = Engine(self.backend, res, policy, oracle=oracle)
+            self.engine = Engine(self.backend, res, policy, oracle=oracle, learning=learner)
         except ValueError as err:
             raise EvaluateError(f"{name}: {err}") from err
         #: The online decision, ``None`` where the model decides with a fixed offset.
@@ -82,7 +92,10 @@ class ModelMethod:
         return self._moving
 
     def reset(self) -> None:
+        """A new recording: a zero state, and the head as shipped where it learns."""
         self.engine.reset()
+        if self.engine.learning is not None:
+            self.engine.learning.reset()
         self.last = self._occupancy = self._moving = None
 
     def update(

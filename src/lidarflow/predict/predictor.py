@@ -130,6 +130,21 @@ class Prediction:
         return moving_mask(self.occupancy, self.forward_flow, self.moving_threshold)
 
 
+def _cannot_learn(model: str | Path | None) -> Exception:
+    """Why ``model`` cannot learn here: the core install runs the bundled model on ONNX."""
+    from lidarflow.extras import INSTALL_TORCH, MissingExtraError, torch_available
+    from lidarflow.models.presets import is_bundled
+
+    if is_bundled(model) and not torch_available():
+        return MissingExtraError(
+            f"learning on the stream needs PyTorch to read the weights; add it with {INSTALL_TORCH}"
+        )
+    return PredictError(
+        "learning on the stream needs a head-only model run in NumPy on the CPU (as the bundled "
+        "one is where PyTorch is installed), not this one"
+    )
+
+
 class Predictor:
     """Stateful next-map predictor.
 
@@ -216,10 +231,7 @@ class Predictor:
         self.learning: HeadLearning | None = None
         if learn is not False:
             if not isinstance(self.backend, HeadStepBackend):
-                raise PredictError(
-                    "learn needs a head-only model run in NumPy on the CPU (the bundled model "
-                    "with PyTorch installed), not this one"
-                )
+                raise _cannot_learn(model)
             config = learn if isinstance(learn, LearningConfig) else None
             self.learning = HeadLearning(self.backend, config)
         try:
