@@ -1,16 +1,12 @@
-"""The OccupancyGrids one prediction becomes: topics, data, stamps, and how a grid lies in the
-scan's frame.
+"""The OccupancyGrids one prediction becomes: topics, data, stamps and layout, written once for
+every writer (the bag output, the live nodes) so that a grid on a robot's topic and in a bag are
+the same message.
 
-Written once for every writer of predictions (the bag output, the live nodes), so that a grid on
-a robot's topic and the same grid in a bag are the same message. Layout (design notes §8): the
-map of ``(H, W)`` cells of ``res`` metres is laid in the scan's own frame with
-``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x (forward), ``height = W`` along
-y; values are :func:`lidarflow.outputs.rosout.grid_data`'s (probability x 100, -1 unknown).
-
-Stamps (the team's convention): a grid predicted ``k`` frames ahead is stamped
-``prediction.stamp_ahead_ns(k)`` (the scan's stamp plus ``k`` typical scan periods), with
-``info.map_load_time`` the stamp of the scan it was made from; a grid of the current map
-(``/lidarflow/occupancy``, ``/lidarflow/moving``) keeps the scan's stamp in both.
+Layout (design notes §8): the ``(H, W)`` map of ``res`` metre cells lies in the scan's frame
+with ``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x (forward), ``height = W``
+along y; values probability x 100, -1 unknown. Stamps: a grid ``k`` frames ahead is stamped
+``prediction.stamp_ahead_ns(k)``, ``info.map_load_time`` the scan's stamp; a grid of the
+current map carries the scan's stamp in both.
 """
 
 from __future__ import annotations

@@ -1,22 +1,10 @@
-"""The input bag's messages copied into a prediction output, so that it stands on its own.
+"""The input bag's messages copied into a prediction output, so that it stands on its own
+(docs/guide/outputs.md: what is copied, names, latching).
 
-Every connection of the input (the scans with every field, ``/tf``, ``/tf_static``, odometry,
-anything else) goes to the output with its log times. Where the output serialises as the input
-does (ROS 1 into a ``.bag``; CDR into an MCAP file or a ROS 2 bag) the bytes are copied as they
-are, with the message definition recorded for them; across the two, each message is converted
-as ``rosbags-convert`` converts it: on the bytes where the wire formats differ only in the
-header (ROS 1's ``seq``, which ROS 2 has not, is dropped; ROS 1 gets ``seq`` 0 back), else
-through the message objects, field by field. Types the output's type store lacks
-(``tf2_msgs/TFMessage`` in a ROS 1 bag, a robot's own messages) are taken from the input's.
-
-Names stay as recorded (a ROS 1 ``right_scan`` stays ``right_scan`` in a ``.bag``), except that
-ROS 2 takes only absolute names: there ``right_scan`` becomes ``/right_scan``. Latching (ROS 1)
-and transient-local durability (ROS 2) stand for each other, so that ``/tf_static`` stays what
-late subscribers get.
-
-The reader is what :func:`lidarflow.data.bagfile.open_bag` yields: ``connections``,
-``messages(connections=...)`` of ``(connection, log time ns, raw bytes)``, ``deserialize`` and,
-where it has one, ``typestore`` (the input's own types; else the standard ones of its ROS).
+Where the output serialises as the input does, the bytes are copied as they are; across ROS 1
+and CDR each message is converted as ``rosbags-convert`` does, on the bytes where only the
+header differs, else field by field. Types the output's type store lacks are taken from the
+input's. The reader is what :func:`lidarflow.data.bagfile.open_bag` yields.
 """
 
 from __future__ import annotations
@@ -93,40 +81,23 @@ def _take_types(source: Any, target: Any, msgtypes: Iterable[str]) -> None:
         target.register(wanted)
 
 
-class _Converter:
-    """The converter of each message type from the input's serialisation to the output's."""
+def _converter(
+    source: Any, target: Any, msgtype: str, from_ros1: bool, to_ros1: bool, cache: dict[str, Any]
+) -> Callable[[bytes], Any]:
+    """The converter of ``msgtype``'s messages from the input's serialisation to the output's
+    (``cache``: rosbags' migration functions, one per direction)."""
+    from rosbags.convert.converter import is_same_wireformat, migrate_bytes
 
-    def __init__(self, source: Any, target: Any, from_ros1: bool, to_ros1: bool) -> None:
-        self.source, self.target = source, target
-        self.from_ros1, self.to_ros1 = from_ros1, to_ros1
-        self._cache: dict[str, Any] = {}
-        self._converters: dict[str, Callable[[bytes], Any]] = {}
-
-    def __call__(self, msgtype: str) -> Callable[[bytes], Any]:
-        found = self._converters.get(msgtype)
-        if found is None:
-            found = self._converters[msgtype] = self._make(msgtype)
-        return found
-
-    def _make(self, msgtype: str) -> Callable[[bytes], Any]:
-        from rosbags.convert.converter import is_same_wireformat, migrate_bytes
-
-        if self.from_ros1 == self.to_ros1:
-            return bytes  # the input's bytes are the output's
-        if is_same_wireformat(self.source, self.target, msgtype, msgtype):  # but the header
-            if self.from_ros1:
-                return partial(self.target.ros1_to_cdr, typename=msgtype)
-            return partial(self.source.cdr_to_ros1, typename=msgtype)
-        return partial(
-            migrate_bytes,
-            self.source,
-            self.target,
-            msgtype,
-            msgtype,
-            self._cache,
-            src_is2=not self.from_ros1,
-            dst_is2=not self.to_ros1,
-        )
+    if from_ros1 == to_ros1:
+        return bytes  # the input's bytes are the output's
+    if is_same_wireformat(source, target, msgtype, msgtype):  # but the header
+        if from_ros1:
+            return partial(target.ros1_to_cdr, typename=msgtype)
+        return partial(source.cdr_to_ros1, typename=msgtype)
+    return partial(
+        migrate_bytes, source, target, msgtype, msgtype, cache,
+        src_is2=not from_ros1, dst_is2=not to_ros1,
+    )  # fmt: skip
 
 
 def _definition(store: Any, connection: Any, msgtype: str, ros1: bool) -> tuple[str, str]:
@@ -143,8 +114,7 @@ def _definition(store: Any, connection: Any, msgtype: str, ros1: bool) -> tuple[
     ):
         return str(recorded.data), str(digest)
     if ros1:
-        msgdef, md5sum = store.generate_msgdef(msgtype)
-        return msgdef, md5sum
+        return store.generate_msgdef(msgtype)
     return store.generate_msgdef(msgtype, ros_version=2)[0], store.hash_rihs01(msgtype)
 
 
@@ -181,15 +151,15 @@ def _copied(
     # by identity: the reader yields its own connection objects, which may not hash (ROS 2
     # connections hold lists of QoS profiles)
     routes: dict[int, tuple[Any, Callable[[bytes], Any]]] = {}
-    converters: dict[bool, _Converter] = {}
+    caches: dict[bool, dict[str, Any]] = {True: {}, False: {}}
     for conn in connections:
         from_ros1 = serialization(reader, conn) == "ros1"
         same = from_ros1 == out.ros1
         if not same:
             _take_types(source, out.typestore, [conn.msgtype])
-        if from_ros1 not in converters:
-            converters[from_ros1] = _Converter(source, out.typestore, from_ros1, out.ros1)
-        convert = converters[from_ros1](conn.msgtype)
+        convert = _converter(
+            source, out.typestore, conn.msgtype, from_ros1, out.ros1, caches[from_ros1]
+        )
         msgdef, digest = _definition(
             source if same else out.typestore, conn if same else None, conn.msgtype, out.ros1
         )
