@@ -10,7 +10,7 @@ input's. The reader is what :func:`lidarflow.data.bagfile.open_bag` yields.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from functools import partial
 from typing import Any
 
@@ -69,14 +69,14 @@ def _needed(store: Any, msgtype: str) -> set[str]:
     return out
 
 
-def _take_types(source: Any, target: Any, msgtypes: Iterable[str]) -> None:
-    """Register in ``target`` the types of ``msgtypes`` it lacks, as ``source`` defines them;
-    never a header (each ROS has its own) or a type ``target`` has already."""
-    wanted: dict[str, Any] = {}
-    for msgtype in msgtypes:
-        for name in _needed(source, msgtype):
-            if name not in target.fielddefs and name != "std_msgs/msg/Header":
-                wanted[name] = source.fielddefs[name]
+def _take_types(source: Any, target: Any, msgtype: str) -> None:
+    """Register in ``target`` the types ``msgtype`` needs that it lacks, as ``source`` defines
+    them; never a header (each ROS has its own)."""
+    wanted = {
+        name: source.fielddefs[name]
+        for name in _needed(source, msgtype)
+        if name not in target.fielddefs and name != "std_msgs/msg/Header"
+    }
     if wanted:
         target.register(wanted)
 
@@ -122,9 +122,8 @@ def copied_messages(
     reader: Any, out: BagOutput, keep: Callable[[str], bool] = lambda topic: True
 ) -> Iterator[tuple[int, Any, Any]]:
     """``(log time ns, output connection, bytes)`` of every message of ``reader`` on a topic
-    ``keep`` keeps, in the reader's order, converted for ``out`` (see the module). A message
-    that cannot be read or converted stops it with a :class:`BagError` saying how to leave
-    the input out."""
+    ``keep`` keeps, in order, converted for ``out``. A message that cannot be read or converted
+    raises :class:`BagError`."""
     try:
         yield from _copied(reader, out, keep)
     except LidarflowError:
@@ -156,7 +155,7 @@ def _copied(
         from_ros1 = serialization(reader, conn) == "ros1"
         same = from_ros1 == out.ros1
         if not same:
-            _take_types(source, out.typestore, [conn.msgtype])
+            _take_types(source, out.typestore, conn.msgtype)
         convert = _converter(
             source, out.typestore, conn.msgtype, from_ros1, out.ros1, caches[from_ros1]
         )
@@ -184,12 +183,10 @@ def _copied(
 def scan_log_times(
     reader: Any, topic: str, header_stamps: np.ndarray, fallback_ns: np.ndarray
 ) -> np.ndarray:
-    """The log time in the input of each scan of a recording read from it: the scan message of
-    ``topic`` whose header stamp is the scan's (``header_stamps``, as the bag has them), taken
-    in order (a stamp that comes back after a clock jump is the later message's; copies of
-    one message recorded together count once). Where none has that stamp (a stamp the reading
-    filled in), ``fallback_ns``, the recording's stamp. Made non-decreasing, so that
-    predictions logged at them come in the order of their scans."""
+    """Each scan's log time in the input: that of the next message on ``topic`` whose header
+    stamp is the scan's (``header_stamps``, as the bag has them; copies recorded together count
+    once), else ``fallback_ns``; made non-decreasing, so that predictions logged at them keep
+    their scans' order."""
     by_stamp: dict[int, deque[int]] = {}
     connections = [c for c in reader.connections if c.topic == topic]
     for conn, log_time, raw in reader.messages(connections=connections):

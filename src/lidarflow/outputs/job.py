@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import heapq
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -43,12 +44,11 @@ __all__ = [
 
 #: What ``topics`` may name (see the module).
 TOPIC_GROUPS = ("input", "occupancy", "predicted", "decided", "moving", "flow", "planner_grid")
-#: Every group but the flow and the planner grid: two float images per scan were 83 % of an
-#: output, and the maps show what the flow does; the planner grid is for robots that ask.
+#: Every group but the flow (two float images per scan: most of an output, docs/guide/outputs.md)
+#: and the planner grid, which is for robots that ask.
 DEFAULT_TOPICS = frozenset(TOPIC_GROUPS) - {"flow", "planner_grid"}
-#: The flow images' values are rounded to this (cells): 0.1 mm on the bundled model's 0.1 m
-#: cells, far below what the flow is good for. Their float noise bits compressed by 1.2x;
-#: rounded, by 4x (the sample's forward flow: 19.4 MB raw, 16.1 MB zstd, 4.3 MB rounded).
+#: The flow images' values are rounded to this (cells), far below what the flow is good for,
+#: so that they compress (their float noise bits do not).
 FLOW_QUANTUM_CELLS = 1 / 1024
 
 
@@ -75,18 +75,16 @@ def predict_to_bag(
 ) -> dict[str, int]:
     """Run ``predictor`` over ``recording`` and write the ``topics`` groups to ``output``;
     returns the number of messages per topic. ``source``: the bag ``recording`` was read from,
-    whose messages the ``input`` group copies (``None``: a recording file; its scans are
-    written instead). An ego-motion model gets the recording's poses; a recording without any
-    is refused (:class:`PredictError`) unless the model may run without (``poses_optional``:
-    the Predictor then matches the motion from the scans). An existing ``output`` is refused
-    unless ``force`` (:class:`BagOutput`)."""
+    whose messages the ``input`` group copies (``None``: a recording file, whose scans are
+    written instead). Raises :class:`PredictError` as :func:`check_poses` does, and where
+    ``output`` exists unless ``force``."""
     groups = frozenset(topics)
     if unknown := sorted(groups - set(TOPIC_GROUPS)):
         raise PredictError(f"unknown topic group {unknown[0]!r}; choose from {TOPIC_GROUPS}")
     check_poses(recording, predictor)
     # headers: the bag's own stamps (see the module); log times: the scans' in the input
     stamps = recorded_stamps(recording.stamps_ns, recording.meta.get("clock_jumps") or [])
-    counts: dict[str, int] = {}
+    counts: Counter[str] = Counter()
     with contextlib.ExitStack() as stack:
         reader = None
         if source is not None:
@@ -113,9 +111,8 @@ def predict_to_bag(
         )
         items = heapq.merge(_copy_writes(out, copies), frames, key=lambda item: item[0])
         for _, write in items:
-            for topic in write():
-                counts[topic] = counts.get(topic, 0) + 1
-    return counts
+            counts.update(write())
+    return dict(counts)
 
 
 Write = Callable[[], list[str]]  # writes a message or a frame's; returns the topics written

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -30,14 +30,13 @@ def output_kind(path: Path) -> str:
 
 
 class BagOutput:
-    """A bag being written: LaserScans, OccupancyGrids and flow images, by topic.
+    """A bag being written: LaserScans, OccupancyGrids and images, by topic.
 
-    ``with BagOutput(path) as out: out.write_scan("/scan", scan, "laser")`` ... The target
-    must not exist yet unless ``force``. The bag is written under a temporary name beside the
-    target and renamed onto it when closed (:mod:`lidarflow.atomic`), so the target is never
-    a bag cut short; an error or interrupt removes what was written. A ``.mcap`` target is
-    written as a ROS 2 bag in a temporary folder and its single MCAP file moved into place
-    (Foxglove opens it directly).
+    ``with BagOutput(path) as out: out.write_scan("/scan", scan, "laser")``. The target must
+    not exist unless ``force``. The bag is written under a temporary name and renamed onto the
+    target when closed (:mod:`lidarflow.atomic`), so the target is never a bag cut short; an
+    error or interrupt removes what was written. A ``.mcap`` target is a ROS 2 bag's single
+    MCAP file.
     """
 
     def __init__(self, path: str | Path, force: bool = False) -> None:
@@ -86,10 +85,7 @@ class BagOutput:
             self._writer.open()
         except BaseException as err:
             discard(self._staged)
-            named = self._named(err)
-            if named is err:  # an interrupt: as it came
-                raise
-            raise named from err
+            self._raise_named(err)  # an interrupt as it came
         return self
 
     def _named(self, err: BaseException) -> BaseException:
@@ -104,6 +100,12 @@ class BagOutput:
             return PredictError(f"{self.path}: cannot open for writing ({err})")
         return err
 
+    def _raise_named(self, err: BaseException) -> NoReturn:
+        named = self._named(err)
+        if named is err:
+            raise err
+        raise named from err
+
     def __exit__(
         self,
         exc_type: type[BaseException] | None,
@@ -116,10 +118,7 @@ class BagOutput:
                 self._writer.close()
             except OSError as err:
                 if exc is None:
-                    named = self._named(err)
-                    if named is err:  # another file's refusal: as it came
-                        raise
-                    raise named from err
+                    self._raise_named(err)  # another file's refusal as it came
             # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed):
             # it never takes the target's name.
             if exc is None:
@@ -143,12 +142,16 @@ class BagOutput:
             return header(seq=seq, stamp=self._time(stamp_ns), frame_id=frame_id)
         return header(stamp=self._time(stamp_ns), frame_id=frame_id)
 
-    def _write(self, topic: str, msgtype: str, log_time_ns: int, msg: Any) -> None:
+    def _write(
+        self, topic: str, msgtype: str, msg: Any, stamp_ns: int, log_time_ns: int | None
+    ) -> None:
+        """``msg`` logged at ``log_time_ns``, by default its header stamp ``stamp_ns``."""
         conn = self._connections.get(topic)
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
             self._connections[topic] = conn
-        self._writer.write(conn, int(log_time_ns), self._serialize(msg, msgtype))
+        at = stamp_ns if log_time_ns is None else log_time_ns
+        self._writer.write(conn, int(at), self._serialize(msg, msgtype))
 
     def add_copy(
         self,
@@ -216,7 +219,7 @@ class BagOutput:
             ranges=np.asarray(scan.ranges, np.float32),
             intensities=np.zeros(0, np.float32),
         )
-        self._write(topic, "sensor_msgs/msg/LaserScan", _logged(scan.stamp_ns, log_time_ns), msg)
+        self._write(topic, "sensor_msgs/msg/LaserScan", msg, scan.stamp_ns, log_time_ns)
 
     def write_grid_data(
         self, out: OutGrid, grid: GridSpec, frame_id: str, log_time_ns: int | None = None
@@ -241,8 +244,7 @@ class BagOutput:
         msg = types["nav_msgs/msg/OccupancyGrid"](
             header=self._header(out.stamp_ns, frame_id), info=info, data=out.data
         )
-        at = _logged(out.stamp_ns, log_time_ns)
-        self._write(out.topic, "nav_msgs/msg/OccupancyGrid", at, msg)
+        self._write(out.topic, "nav_msgs/msg/OccupancyGrid", msg, out.stamp_ns, log_time_ns)
 
     def write_flow(
         self,
@@ -292,9 +294,4 @@ class BagOutput:
             step=data.shape[1],
             data=data.ravel(),
         )
-        self._write(topic, "sensor_msgs/msg/Image", _logged(stamp_ns, log_time_ns), msg)
-
-
-def _logged(stamp_ns: int, log_time_ns: int | None) -> int:
-    """A message's log time: its header stamp unless given (readers order by log time)."""
-    return stamp_ns if log_time_ns is None else log_time_ns
+        self._write(topic, "sensor_msgs/msg/Image", msg, stamp_ns, log_time_ns)
