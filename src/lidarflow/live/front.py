@@ -37,17 +37,13 @@ GOING_AWAY = struct.pack("!H", 1001) + b"server stopped"
 _PROTOCOL_HEADER = b"sec-websocket-protocol:"
 
 
-def _offered(line: bytes) -> list[bytes]:
-    return [p.strip() for p in line[len(_PROTOCOL_HEADER) :].split(b",")]
-
-
 def ask_sdk_subprotocol(request: bytes) -> tuple[bytes, bool]:
     """The upgrade request as the SDK accepts it, and whether the client offered only the old
     name (so its answer must name that). Any other request goes on as it came."""
     lines = request.split(b"\r\n")
     for i, line in enumerate(lines):
         if line.lower().startswith(_PROTOCOL_HEADER):
-            offered = _offered(line)
+            offered = [p.strip() for p in line[len(_PROTOCOL_HEADER) :].split(b",")]
             sdk, legacy = SDK_SUBPROTOCOL.encode(), LEGACY_SUBPROTOCOL.encode()
             if legacy in offered and sdk not in offered:
                 lines[i] = b"Sec-WebSocket-Protocol: " + sdk
