@@ -152,12 +152,12 @@ def bag_output_layout(tmp_path: Path) -> tuple:
     origin (position, orientation), read back from a bag it wrote."""
     from lidarflow.outputs.rosout import BagOutput
     from lidarflow.scan import GridSpec
-    from tests.outputs.test_rosout import read_all
+    from tests.outputs.test_rosout import read_all, write_grid
 
     grid = GridSpec()
     assert GridLayout.of(grid) == GridLayout(100, 100, 0.1, 0.0, -5.0)
     with BagOutput(tmp_path / "layout.bag") as out:
-        out.write_grid("/g", np.zeros(grid.shape), grid, 1, "laser")
+        write_grid(out, "/g", np.zeros(grid.shape), grid, 1, "laser")
     info = read_all(tmp_path / "layout.bag")["/g"][0].info
     p, q = info.origin.position, info.origin.orientation
     return (info.width, info.height, info.resolution, p.x, p.y, p.z, q.x, q.y, q.z, q.w)

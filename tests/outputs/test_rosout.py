@@ -10,10 +10,19 @@ import pytest
 from lidarflow.atomic import STAMP
 from lidarflow.data import read_bag
 from lidarflow.errors import OutputError, PredictError
+from lidarflow.outputs.grids import OutGrid
 from lidarflow.outputs.rosout import BagOutput, grid_data, map_from_grid_data
 from lidarflow.scan import BeamGeometry, GridSpec, Scan, cell_centres
 
 GRID = GridSpec(6, 4, 0.5)  # deliberately not square
+
+
+def write_grid(out, topic, probability, grid, stamp_ns, frame_id, log_time_ns=None, made_ns=None):
+    """``probability`` as an OccupancyGrid for ``stamp_ns``, made from the scan of ``made_ns``
+    (default ``stamp_ns``: a map of the present)."""
+    made = stamp_ns if made_ns is None else made_ns
+    grid_out = OutGrid(topic, grid_data(probability), stamp_ns, made)
+    out.write_grid_data(grid_out, grid, frame_id, log_time_ns)
 
 
 def asymmetric_map() -> np.ndarray:
@@ -68,7 +77,7 @@ def test_every_output_kind_reads_back(tmp_path, name):
         for k in range(3):
             scan = Scan(np.full(5, 2.0 + k, np.float32), geom, 1_000_000_000 + k * 100_000_000)
             out.write_scan("/scan", scan, "laser")
-            out.write_grid("/pred", asymmetric_map(), GRID, scan.stamp_ns, "laser")
+            write_grid(out, "/pred", asymmetric_map(), GRID, scan.stamp_ns, "laser")
             out.write_flow("/flow", flow, scan.stamp_ns, "laser")
     msgs = read_all(path)
     assert len(msgs["/scan"]) == 3 and len(msgs["/pred"]) == 3
@@ -169,7 +178,7 @@ def test_chunks_are_compressed(tmp_path, name):
     maps = np.random.default_rng(0).random((40, *GRID.shape)).round(1)
     with BagOutput(path) as out:
         for k, m in enumerate(maps):
-            out.write_grid("/pred", m, GRID, 1_000_000_000 + k, "laser")
+            write_grid(out, "/pred", m, GRID, 1_000_000_000 + k, "laser")
     if name == "out.bag":
         assert set(ros1_chunk_compressions(path)) == {"lz4"}
     else:
@@ -189,9 +198,9 @@ def test_chunks_are_compressed(tmp_path, name):
 def test_a_grid_says_when_it_is_for_and_when_it_was_made(tmp_path, name):
     path = tmp_path / name
     with BagOutput(path) as out:
-        out.write_grid("/now", asymmetric_map(), GRID, 5_000_000_000, "laser")
-        out.write_grid(
-            "/ahead", asymmetric_map(), GRID, 5_100_000_000, "laser",
+        write_grid(out, "/now", asymmetric_map(), GRID, 5_000_000_000, "laser")
+        write_grid(
+            out, "/ahead", asymmetric_map(), GRID, 5_100_000_000, "laser",
             log_time_ns=5_000_000_000, made_ns=5_000_000_000,
         )  # fmt: skip
     msgs = read_all(path)

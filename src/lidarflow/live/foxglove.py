@@ -1,34 +1,18 @@
 """Predictions served live to Foxglove over its WebSocket protocol (the ``foxglove-sdk``).
 
-:class:`LiveServer` knows nothing of where scans come from: any loop that holds a scan and the
-:class:`~lidarflow.predict.Predictor`'s prediction for it calls :meth:`LiveServer.publish`
-(``lidarflow live`` replays a bag; a ROS node feeds it from its callback). Per scan it sends,
-in Foxglove's own schemas (protobuf, which the Foxglove app decodes without any ROS install):
-
-- the scan (``foxglove.LaserScan``) under the scan's topic;
-- the grids of :func:`lidarflow.outputs.grids.prediction_grids` (``foxglove.Grid``: one
-  ``int8`` field ``occupancy``, probability x 100 in 0..100 and -1 where unknown, laid out as
-  ``nav_msgs/OccupancyGrid`` is in the scan's frame, design notes §8: columns along x from the
-  sensor forward, rows along y, the grid's pose the corner of cell (0, 0) at
-  ``(0, -W/2 * res)``), stamped by the team's convention (a grid k frames ahead carries
-  ``Prediction.stamp_ahead_ns(k)``);
-- the forward flow as an ``rgb8`` colour-wheel image (``foxglove.RawImage``, row 0 the map's
-  far edge, so forward is up) under :data:`~lidarflow.outputs.grids.FLOW_RGB_TOPIC`.
-
-A message goes out only on channels a client subscribes to (``has_sinks``): with nobody
-watching, publishing costs building the grid list and nothing more. Every message of one
-scan is logged at the scan's stamp, so Foxglove's timeline reads the recording's clock.
-
-The SDK's server listens on localhost only, behind :class:`~lidarflow.live.front.Front` on the
-served port: clients offering either name of the protocol connect (``foxglove.sdk.v1``,
-``foxglove.websocket.v1``), and :meth:`LiveServer.close` lets what was published reach them
-before it closes each with code 1001.
+:meth:`LiveServer.publish` takes a scan and the :class:`~lidarflow.predict.Predictor`'s
+prediction for it, from any loop (``lidarflow live`` replays a bag; a ROS node feeds it), and
+sends in Foxglove's own protobuf schemas: the scan (``foxglove.LaserScan``), the grids of
+:func:`lidarflow.outputs.grids.prediction_grids` (``foxglove.Grid``, laid out and stamped as the
+OccupancyGrids are) and the forward flow as an ``rgb8`` colour wheel (``foxglove.RawImage``,
+forward up). Only channels a client subscribes to are built and sent; every message of one scan
+is logged at the scan's stamp. The SDK listens on localhost behind
+:class:`~lidarflow.live.front.Front`. Topics and schemas: docs/guide/live.md.
 """
 
 from __future__ import annotations
 
 import time
-from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 import foxglove
@@ -82,13 +66,11 @@ def _stamp(ns: int) -> Timestamp:
 class LiveServer:
     """A Foxglove WebSocket server for one scan stream's predictions.
 
-    ``with LiveServer(grid, "laser", port=8765, horizon=2) as server: ...
-    server.publish(scan, predictor.update(scan))``. ``grid`` is the Predictor's
-    (``predictor.grid``), ``frame_id`` the scans' frame; ``horizon`` and ``flow`` say which
-    grids will come (``predictor.horizon``; ``flow``: a model with flow, hence moving cells
-    and the flow image) so that a client sees every topic advertised as it connects. ``port``
-    0 takes a free one (:attr:`port` says which). Refused in one line
-    (:class:`~lidarflow.errors.PredictError`) where the port is taken.
+    ``with LiveServer(predictor.grid, "laser", horizon=predictor.horizon) as server:
+    server.publish(scan, predictor.update(scan))``. ``horizon`` and ``flow`` (a model with flow:
+    moving cells and the flow image) fix the topics advertised to a client as it connects.
+    ``port`` 0 takes a free one (:attr:`port`). A taken port raises
+    :class:`~lidarflow.errors.PredictError`.
     """
 
     def __init__(
@@ -181,12 +163,7 @@ class LiveServer:
     def __enter__(self) -> LiveServer:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     # ------------------------------------------------------------------ messages

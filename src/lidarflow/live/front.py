@@ -1,23 +1,16 @@
-"""The port a :class:`~lidarflow.live.foxglove.LiveServer` serves on: a small TCP front before
-foxglove-sdk's WebSocket server, which listens on localhost only, for three things the SDK
-(0.30) does not do itself:
+"""A small TCP front on the port a :class:`~lidarflow.live.foxglove.LiveServer` serves, relaying
+to foxglove-sdk's WebSocket server on localhost, for three things the SDK (0.30) does not do:
 
-- **The first name of the protocol.** The SDK's server accepts the subprotocol
-  ``foxglove.sdk.v1`` alone (it has no option for more), and answers HTTP 400 to a client that
-  offers only ``foxglove.websocket.v1``: ``@foxglove/ws-protocol``'s ``FoxgloveClient``, the
-  Foxglove app before it learnt the new name, Lichtblick before 1.22. The two are one protocol
-  under two names (ws-protocol's spec is the SDK's). The front reads the client's upgrade
-  request, asks the SDK for ``foxglove.sdk.v1`` where the client offered only the old name, and
-  answers the client with the name it offered.
-- **Nothing queued is lost at close.** The SDK's ``stop()`` returns at once, while what it
-  queued for a client is still on its way (a process that then exits loses the last scan).
-  :meth:`Front.close` waits until the SDK has sent each client all it had and closed it, and
-  the front has handed that to the system, ``drain_s`` at most.
-- **A close code.** The SDK closes without one (clients see 1005, "no status"); the front sends
-  1001, "going away", as a server that stops should.
+- accept the protocol's first name, ``foxglove.websocket.v1``: the SDK takes only
+  ``foxglove.sdk.v1`` (HTTP 400 otherwise), so the front asks for that and answers the client
+  with the name it offered;
+- lose nothing queued at close: the SDK's ``stop()`` returns while its last messages are on
+  their way; :meth:`Front.close` waits until each client got them (``drain_s`` at most);
+- close with 1001, "going away", where the SDK sends no code (clients would see 1005).
 
-Everything else passes through untouched: the front reads only the upgrade request and answer
-and the headers of the server's frames (unmasked, RFC 6455 §5.2).
+Everything else passes through: the front reads only the upgrade request and answer and the
+headers of the server's frames (unmasked, RFC 6455 §5.2). Which clients need it:
+docs/guide/live.md.
 """
 
 from __future__ import annotations
@@ -44,17 +37,13 @@ GOING_AWAY = struct.pack("!H", 1001) + b"server stopped"
 _PROTOCOL_HEADER = b"sec-websocket-protocol:"
 
 
-def _offered(line: bytes) -> list[bytes]:
-    return [p.strip() for p in line[len(_PROTOCOL_HEADER) :].split(b",")]
-
-
 def ask_sdk_subprotocol(request: bytes) -> tuple[bytes, bool]:
     """The upgrade request as the SDK accepts it, and whether the client offered only the old
     name (so its answer must name that). Any other request goes on as it came."""
     lines = request.split(b"\r\n")
     for i, line in enumerate(lines):
         if line.lower().startswith(_PROTOCOL_HEADER):
-            offered = _offered(line)
+            offered = [p.strip() for p in line[len(_PROTOCOL_HEADER) :].split(b",")]
             sdk, legacy = SDK_SUBPROTOCOL.encode(), LEGACY_SUBPROTOCOL.encode()
             if legacy in offered and sdk not in offered:
                 lines[i] = b"Sec-WebSocket-Protocol: " + sdk
@@ -93,9 +82,8 @@ async def _pipe(src: asyncio.StreamReader, dst: asyncio.StreamWriter) -> None:
 
 
 class Front:
-    """Listens on ``host:port`` (bound here: ``OSError`` where it cannot be) and, once
-    :meth:`start` named the SDK server's port, relays every connection to it (module
-    docstring). The relaying runs on an event loop of its own, in a daemon thread."""
+    """Listens on ``host:port`` (``OSError`` where it cannot bind) and, once :meth:`start` named
+    the SDK server's port, relays every connection to it on an event loop in a daemon thread."""
 
     def __init__(self, host: str, port: int) -> None:
         self._sock = listen(host, port)
@@ -143,9 +131,7 @@ class Front:
                 task.cancel()
             await asyncio.gather(*late, return_exceptions=True)
 
-    async def _server_frames(
-        self, src: asyncio.StreamReader, dst: asyncio.StreamWriter
-    ) -> None:
+    async def _server_frames(self, src: asyncio.StreamReader, dst: asyncio.StreamWriter) -> None:
         """The server's frames to the client, one by one, until the server closes the
         connection; a close frame without a code gets :data:`GOING_AWAY`."""
         with contextlib.suppress(asyncio.IncompleteReadError):  # the server's end of the stream

@@ -1,12 +1,10 @@
-"""A recording played as if it came live: one scan at a time, at its recorded pace, predicted
-and handed to a :class:`~lidarflow.live.foxglove.LiveServer` (``lidarflow live``).
+"""A recording played as if it came live into a :class:`~lidarflow.live.foxglove.LiveServer`
+(``lidarflow live``): each scan predicted when the recording's clock says (``speed`` times
+faster; 0: as fast as the Predictor goes).
 
-Scans go out when the recording's clock says (``speed`` times faster; ``speed`` 0: as fast as
-the Predictor goes), each predicted on arrival as a robot's loop would. Played over again
-(``loop``), each pass starts the Predictor afresh (the jump from the last scan back to the first
-is no motion to predict) and moves the stamps on by :func:`loop_shift_ns`, so that the stamps a
-client sees keep running forward: Foxglove's timeline does not go back, and a prediction's
-``stamp_ahead_ns`` stays the time it predicts.
+Played over again (``loop``), each pass restarts the Predictor (the jump back to the first scan
+is no motion) and moves the stamps on by :func:`loop_shift_ns`, so that they keep running
+forward: Foxglove's timeline does not go back.
 """
 
 from __future__ import annotations
@@ -32,8 +30,6 @@ __all__ = ["Served", "loop_shift_ns", "replay"]
 
 #: The pace of a recording without stamps (all zero): a common scanner's 10 Hz.
 UNSTAMPED_STEP_NS = 100_000_000
-
-
 #: Scans whose timings :class:`Served` keeps (the latest): enough for a median and a p99, and
 #: bounded, as a looped replay may run for days.
 KEPT_TIMINGS = 10_000
@@ -56,11 +52,6 @@ class Served:
     worst_lag_s: float = 0.0
 
 
-def _step_ns(recording: Recording) -> int:
-    rate = recording.frame_rate
-    return round(1e9 / rate) if rate > 0 else UNSTAMPED_STEP_NS
-
-
 def _offsets_ns(recording: Recording) -> np.ndarray:
     """Each scan's time after the first, on the recording's clock."""
     stamps = np.asarray(recording.stamps_ns, np.int64)
@@ -72,7 +63,9 @@ def _offsets_ns(recording: Recording) -> np.ndarray:
 def loop_shift_ns(recording: Recording) -> int:
     """How far each pass of a looped replay moves the stamps on: the recording's span plus one
     typical step, as if it were recorded again right after it ended."""
-    return int(_offsets_ns(recording)[-1]) + _step_ns(recording)
+    rate = recording.frame_rate
+    step_ns = round(1e9 / rate) if rate > 0 else UNSTAMPED_STEP_NS
+    return int(_offsets_ns(recording)[-1]) + step_ns
 
 
 def replay(
@@ -84,10 +77,9 @@ def replay(
     progress: Callable[[int], None] | None = None,
     served: Served | None = None,
 ) -> Served:
-    """Play ``recording`` through ``predictor`` into ``server`` (see the module docstring),
-    counting into ``served`` (a new one by default) and returning it. Ends with the recording,
-    or never with ``loop``: stopped by Ctrl-C (or SIGTERM made one), the caller's ``served``
-    still says what went out."""
+    """Play ``recording`` through ``predictor`` into ``server``, counting into ``served`` (a new
+    one by default) and returning it. With ``loop`` it ends only on Ctrl-C (or SIGTERM made
+    one); the caller's ``served`` still says what went out."""
     if speed < 0:
         raise ValueError(f"speed must be >= 0, got {speed}")
     check_poses(recording, predictor)

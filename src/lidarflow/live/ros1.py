@@ -1,22 +1,11 @@
 """``lidarflow ros1``: a live ROS 1 node predicting the next maps of a LaserScan topic.
 
-Per scan on ``topic`` (``sensor_msgs/LaserScan``) it runs the Predictor once and publishes, in
-the scan's frame, one ``nav_msgs/OccupancyGrid`` on each of ``/lidarflow/predicted`` and
-``/lidarflow/decided`` (``_kK`` for every further step of the horizon) and, where asked,
-``/lidarflow/moving``: the grids, layout and stamps of the bag output
-(:mod:`lidarflow.outputs.grids`). With an odometry topic (``nav_msgs/Odometry``) an ego-motion
-model gets the sensor's pose: the latest odometry pose moved to the scanner by its mount on the
-robot, read from ``/tf`` and ``/tf_static`` (:class:`lidarflow.data.tf.TransformTree`, as
-``predict`` reads a bag's); without one the bundled model matches the motion from the scans.
-
-ROS 1 comes from Debian's packages (:data:`DEBIAN_PACKAGES`), installed for the system's
-Python 3 in ``/usr/lib/python3/dist-packages``; a virtual environment of the same Python
-version finds them there (:func:`import_ros`: the folder is appended to ``sys.path``, so the
-environment's own packages, NumPy among them, still come first).
-
-The per-scan work is a :class:`lidarflow.live.step.LiveStep`; this node is one of its sources
-and one of its sinks (:meth:`Ros1Node.publish`), so other sinks attach beside it. What it shares
-with the ROS 2 node (scans in, poses, grids out) is :class:`lidarflow.live.rosnode.RosNode`.
+Per scan it publishes, in the scan's frame, the OccupancyGrids of
+:mod:`lidarflow.outputs.grids`; with an odometry topic an ego-motion model gets the sensor's
+pose (:class:`lidarflow.live.rosnode.RosNode`, shared with ROS 2). ROS 1 comes from Debian's
+packages (:data:`DEBIAN_PACKAGES`) for the system's Python 3; :func:`import_ros` appends their
+folder to ``sys.path``, so this environment's own packages, NumPy among them, still come first.
+Topics and setup: docs/guide/robot.md.
 """
 
 from __future__ import annotations
@@ -44,9 +33,6 @@ log = logging.getLogger("lidarflow.live")
 DEBIAN_PACKAGES = "ros-core python3-rospy python3-sensor-msgs python3-nav-msgs python3-tf2-msgs"
 #: Where Debian's Python packages (rospy, genpy, the messages) live.
 DIST_PACKAGES = "/usr/lib/python3/dist-packages"
-
-SCAN_TYPE = "sensor_msgs/LaserScan"
-ODOM_TYPE = "nav_msgs/Odometry"
 
 
 @dataclass(frozen=True)
@@ -113,12 +99,13 @@ class Ros1Node(RosNode):
     :class:`lidarflow.live.rosnode.RosNode`'s)."""
 
     ros: Ros
+    SCAN_TYPE = "sensor_msgs/LaserScan"
+    ODOM_TYPE = "nav_msgs/Odometry"
     _import_ros = staticmethod(import_ros)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Register with the master: publishers first, so that a grid never goes out before
-        its topic is advertised, then the subscribers."""
+        """Register with the master: publishers first, then the subscribers."""
         rospy = self.ros.rospy
         check_master(self.ros)
         # signals stay the CLI's (Ctrl-C and SIGTERM stop spin); remappings are not read from
@@ -142,42 +129,25 @@ class Ros1Node(RosNode):
         return not self.ros.rospy.is_shutdown()
 
     def close(self) -> None:
-        """Leave the ROS graph (rospy's node shut down; in this process it does not start
-        again)."""
+        """Leave the ROS graph; rospy's node does not start again in this process."""
         self.ros.rospy.signal_shutdown("lidarflow stopped")
 
-    def _check_types(self) -> None:
-        wanted = {self.topic: SCAN_TYPE}
-        if self.odom_topic:
-            wanted[self.odom_topic] = ODOM_TYPE
+    def _types_on(self, topic: str) -> tuple[str, list[str]]:
+        resolved = self.ros.rospy.resolve_name(topic)
         try:
             published = dict(self.ros.rospy.get_published_topics())
         except Exception:  # the master gone for a moment: rospy retries, and so do we
-            return
-        for topic, msgtype in wanted.items():
-            resolved = self.ros.rospy.resolve_name(topic)
-            if resolved in published and published[resolved] != msgtype:
-                raise PredictError(
-                    f"{resolved} carries {published[resolved]}, not {msgtype}: name the right "
-                    f"topic with {'--topic' if msgtype == SCAN_TYPE else '--odom-topic'}"
-                )
+            return resolved, []
+        return resolved, [published[resolved]] if resolved in published else []
 
     # ------------------------------------------------------------------ in
     def _on_scan(self, msg: Any) -> None:
         self._scan_in(msg, int(msg.header.stamp.to_nsec()), clock_ns())
 
     # ------------------------------------------------------------------ out
-    def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
-        Time = self.ros.rospy.Time
-        msg = self.ros.OccupancyGrid()
-        msg.header.stamp = Time(*divmod(int(stamp_ns), 1_000_000_000))
-        msg.header.frame_id = frame_id
-        info = msg.info
-        info.map_load_time = Time(*divmod(int(scan_ns), 1_000_000_000))
-        info.resolution = self.layout.resolution
-        info.width, info.height = self.layout.width, self.layout.height
-        info.origin.position.x, info.origin.position.y = self.layout.origin_x, self.layout.origin_y
-        info.origin.orientation.w = 1.0
+    def _time(self, ns: int) -> Any:
+        return self.ros.rospy.Time(*divmod(int(ns), 1_000_000_000))
+
+    def _cells(self, data: np.ndarray) -> Any:
         # a list: genpy packs a list of ints 3x faster than a NumPy array's elements
-        msg.data = data.tolist()
-        return msg
+        return data.tolist()

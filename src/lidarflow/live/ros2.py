@@ -1,23 +1,11 @@
-"""``lidarflow ros2``: a live ROS 2 node predicting the next maps of a LaserScan topic.
+"""``lidarflow ros2``: the ROS 1 node's counterpart over ROS 2 (:mod:`lidarflow.live.ros1`;
+shared: :class:`lidarflow.live.rosnode.RosNode`).
 
-The ROS 1 node's counterpart (:mod:`lidarflow.live.ros1`; what they share is
-:class:`lidarflow.live.rosnode.RosNode`): per scan on ``topic`` it runs the live step once and
-publishes, in the scan's frame, one ``nav_msgs/OccupancyGrid`` on each of
-``/lidarflow/predicted`` and ``/lidarflow/decided`` (``_kK`` for every further step of the
-horizon) and, where asked, ``/lidarflow/moving``: the grids, layout and stamps of the bag output.
-Poses: the latest ``nav_msgs/Odometry`` moved to the scanner by its mount from ``/tf`` and
-``/tf_static``.
-
-QoS as ROS 2 drivers and consumers expect: scans with the sensor-data profile (best effort, so
-that it matches a best-effort driver as well as a reliable one), grids reliable (a planner must
-not miss one), both configurable; ``/tf_static`` transient local, as its publishers latch it.
-The domain is ``ROS_DOMAIN_ID``'s (rclpy reads it; :func:`domain_id` checks it first).
-
-rclpy comes from wherever this Python finds it: the ``ros2`` extra (``pip install
-"lidarflow[ros2]"``: ROS 2 Jazzy's wheels), or a sourced ROS 2 installation of the same Python
-version (``source /opt/ros/jazzy/setup.bash`` puts its packages on ``PYTHONPATH``). The wheels
-carry no ``tf2_msgs``: there the node subscribes to no TF and says so once, taking the odometry
-as the scanner's pose; a sourced installation has it.
+QoS: scans with the sensor-data profile (best effort, which matches best-effort and reliable
+drivers alike), grids reliable (a planner must not miss one), both configurable;
+``/tf_static`` transient local, as its publishers latch it. rclpy comes from the ``ros2`` extra
+(ROS 2 Jazzy's wheels, which lack ``tf2_msgs``: then no TF, the odometry taken as the
+scanner's pose) or a sourced ROS 2 installation for this Python. Setup: docs/guide/robot.md.
 """
 
 from __future__ import annotations
@@ -52,8 +40,6 @@ log = logging.getLogger("lidarflow.live")
 
 #: How a user gets rclpy for this Python (named in the error where it is missing).
 ROS2_EXTRA = 'pip install "lidarflow[ros2]"'
-SCAN_TYPE = "sensor_msgs/msg/LaserScan"
-ODOM_TYPE = "nav_msgs/msg/Odometry"
 #: ``--scan-qos`` choices: sensor data (best effort) or reliable.
 SCAN_QOS = ("sensor", "reliable")
 #: ``--grid-qos`` choices.
@@ -122,16 +108,13 @@ def import_ros2() -> Ros2:
 
 
 class Ros2Node(RosNode):
-    """The ROS 2 side of the node: scans and odometry in, grids out.
-
-    Args (besides :class:`lidarflow.live.rosnode.RosNode`'s, passed on to it, ``queue`` being
-    the depth of the scan subscription's and the grid publishers' history; these two by
-    keyword):
-        scan_qos: one of :data:`SCAN_QOS`.
-        grid_qos: one of :data:`GRID_QOS`.
-    """
+    """The ROS 2 side of the node: :class:`lidarflow.live.rosnode.RosNode`'s arguments
+    (``queue`` the history depth of the scan subscription and the grid publishers), and by
+    keyword ``scan_qos``, one of :data:`SCAN_QOS`, and ``grid_qos``, one of :data:`GRID_QOS`."""
 
     ros: Ros2
+    SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+    ODOM_TYPE = "nav_msgs/msg/Odometry"
     _import_ros = staticmethod(import_ros2)
 
     def __init__(
@@ -152,8 +135,8 @@ class Ros2Node(RosNode):
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Join the domain: publishers first, so that no grid goes out unadvertised, then the
-        subscriptions; callbacks run on an executor thread of their own."""
+        """Join the domain (publishers first, then the subscriptions); callbacks run on an
+        executor thread of their own."""
         rclpy, qos = self.ros.rclpy, self.ros.qos
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
@@ -222,16 +205,10 @@ class Ros2Node(RosNode):
             self._thread.join(5)
         self._context = None
 
-    def _check_types(self) -> None:
-        wanted = {self.topic: (SCAN_TYPE, "--topic")}
-        if self.odom_topic:
-            wanted[self.odom_topic] = (ODOM_TYPE, "--odom-topic")
-        for topic, (msgtype, option) in wanted.items():
-            resolved = self._node.resolve_topic_name(topic)
-            for info in self._node.get_publishers_info_by_topic(resolved):
-                if info.topic_type != msgtype:
-                    raise PredictError(f"{resolved} carries {info.topic_type}, not {msgtype}: "
-                                       f"name the right topic with {option}")  # fmt: skip
+    def _types_on(self, topic: str) -> tuple[str, list[str]]:
+        resolved = self._node.resolve_topic_name(topic)
+        infos = self._node.get_publishers_info_by_topic(resolved)
+        return resolved, [info.topic_type for info in infos]
 
     # ------------------------------------------------------------------ in
     def _on_scan(self, msg: Any) -> None:
@@ -240,21 +217,10 @@ class Ros2Node(RosNode):
         self._scan_in(msg, int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec), received)
 
     # ------------------------------------------------------------------ out
-    def _stamp(self, ns: int) -> Any:
+    def _time(self, ns: int) -> Any:
         sec, nanosec = divmod(int(ns), 1_000_000_000)
         return self.ros.Time(sec=sec, nanosec=nanosec)
 
-    def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
-        msg = self.ros.OccupancyGrid()
-        msg.header.stamp = self._stamp(stamp_ns)
-        msg.header.frame_id = frame_id
-        info = msg.info
-        info.map_load_time = self._stamp(scan_ns)
-        info.resolution = float(self.layout.resolution)
-        info.width, info.height = int(self.layout.width), int(self.layout.height)
-        info.origin.position.x = float(self.layout.origin_x)
-        info.origin.position.y = float(self.layout.origin_y)
-        info.origin.orientation.w = 1.0
+    def _cells(self, data: np.ndarray) -> Any:
         # an int8 array.array: rclpy takes it as it is, where a list has every element checked
-        msg.data = array.array("b", np.ascontiguousarray(data, dtype=np.int8).tobytes())
-        return msg
+        return array.array("b", np.ascontiguousarray(data, dtype=np.int8).tobytes())

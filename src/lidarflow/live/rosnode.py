@@ -1,10 +1,8 @@
-"""What the ROS 1 and the ROS 2 node share: a scan message into the live step, the sensor's pose
+"""What the ROS 1 and ROS 2 nodes share: a scan message into the live step, the sensor's pose
 from odometry and TF, and the step's grids out as ``nav_msgs/OccupancyGrid`` messages.
 
-The two ROS generations give the same message fields (``ranges``, ``header.frame_id``,
-``pose.pose``, ``transforms``, ``info.origin``...); what differs, and what a subclass supplies,
-is where the client library comes from, how a stamp is read and written, how a grid message
-is filled and how the node meets its peers (:mod:`lidarflow.live.ros1`, :mod:`lidarflow.live.ros2`).
+Both ROS generations give the same message fields; a subclass supplies where the client library
+comes from, how stamps are read and written and how the node meets its peers.
 """
 
 from __future__ import annotations
@@ -41,6 +39,9 @@ class RosNode(ABC):
         planner: also publish the planner grid (:func:`lidarflow.outputs.grids.planner_topic`;
             :mod:`lidarflow.outputs.planner`).
     """
+
+    SCAN_TYPE: str
+    ODOM_TYPE: str
 
     def __init__(
         self,
@@ -102,10 +103,24 @@ class RosNode(ABC):
     def _running(self) -> bool:
         """Whether ROS still runs the node (not shut down from outside)."""
 
-    @abstractmethod
     def _check_types(self) -> None:
         """A :class:`PredictError` naming the option to fix where the scan or odometry topic
         carries another message type."""
+        wanted = {self.topic: (self.SCAN_TYPE, "--topic")}
+        if self.odom_topic:
+            wanted[self.odom_topic] = (self.ODOM_TYPE, "--odom-topic")
+        for topic, (msgtype, option) in wanted.items():
+            resolved, carried = self._types_on(topic)
+            for other in carried:
+                if other != msgtype:
+                    raise PredictError(
+                        f"{resolved} carries {other}, not {msgtype}: name the right topic with "
+                        f"{option}"
+                    )
+
+    @abstractmethod
+    def _types_on(self, topic: str) -> tuple[str, list[str]]:
+        """``topic``'s resolved name and the message types published on it."""
 
     @abstractmethod
     def close(self) -> None:
@@ -188,7 +203,27 @@ class RosNode(ABC):
             msg = self._message(grid.data, grid.stamp_ns, grid.scan_stamp_ns, frame.frame_id)
             self._publishers[grid.topic].publish(msg)
 
-    @abstractmethod
     def _message(self, data: np.ndarray, stamp_ns: int, scan_ns: int, frame_id: str) -> Any:
         """An ``OccupancyGrid`` of this ROS: ``data`` in the node's layout, stamped ``stamp_ns``,
         ``map_load_time`` the scan's stamp ``scan_ns``."""
+        msg = self.ros.OccupancyGrid()
+        msg.header.stamp = self._time(stamp_ns)
+        msg.header.frame_id = frame_id
+        info = msg.info
+        info.map_load_time = self._time(scan_ns)
+        # plain Python numbers: rclpy checks each field's type
+        info.resolution = float(self.layout.resolution)
+        info.width, info.height = int(self.layout.width), int(self.layout.height)
+        info.origin.position.x = float(self.layout.origin_x)
+        info.origin.position.y = float(self.layout.origin_y)
+        info.origin.orientation.w = 1.0
+        msg.data = self._cells(data)
+        return msg
+
+    @abstractmethod
+    def _time(self, ns: int) -> Any:
+        """This ROS's ``Time`` message of a stamp in nanoseconds."""
+
+    @abstractmethod
+    def _cells(self, data: np.ndarray) -> Any:
+        """An ``OccupancyGrid``'s ``data`` field of int8 cells, as this ROS packs it fastest."""

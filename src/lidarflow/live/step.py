@@ -1,11 +1,9 @@
-"""One scan through the Predictor and out to every sink, timed: the per-scan step of a live node.
+"""The per-scan step of a live node: one scan through the Predictor and out to every sink, timed.
 
-A source (the ROS 1 node's scan callback, or any other) calls :class:`LiveStep` with each scan
-as it arrives; the step predicts and hands a :class:`LiveFrame` to each sink in turn (the ROS 1
-publishers, and whatever else is attached: ``step.sinks.append(server.publish)``). The latency
-of a scan is from its arrival (the time the source took when the scan came in) to the last sink
-returning: what a robot waits for its grids. It is logged per scan at debug level, and as a
-median and 99th percentile every ``summary_every`` scans at info level.
+A source (a ROS node's scan callback, or any other) calls :class:`LiveStep` with each scan; the
+step predicts and hands a :class:`LiveFrame` to each sink in turn. A scan's latency runs from
+its arrival to the last sink returning; it is logged per scan at debug level and summarised
+(median, p99) every ``summary_every`` scans at info level.
 """
 
 from __future__ import annotations
@@ -86,12 +84,8 @@ class LatencyLog:
 
 
 class LiveStep:
-    """Predict each arriving scan and pass the result to every sink, one scan at a time.
-
-    Args:
-        predictor: the :class:`~lidarflow.predict.Predictor` the scans stream through.
-        sinks: callables taking a :class:`LiveFrame`, in order (more may be appended later).
-        summary_every: scans between the latency summaries logged at info level.
+    """Predict each arriving scan and pass the result to every sink, in order (``sinks`` may
+    be appended to later).
 
     Thread-safe: a source may call it from several threads (rospy runs a callback per
     publisher connection); scans then go through the recurrent model one after another.
@@ -105,9 +99,7 @@ class LiveStep:
         self.latency = LatencyLog(summary_every)
         self._lock = threading.Lock()
 
-    def __call__(
-        self, scan: Scan, frame_id: str, received_ns: int, pose: Any = None
-    ) -> LiveFrame:
+    def __call__(self, scan: Scan, frame_id: str, received_ns: int, pose: Any = None) -> LiveFrame:
         """Predict ``scan`` (arrived at ``received_ns`` on :data:`clock_ns`; ``pose``
         ``(x, y, yaw)`` of the sensor or ``None``), hand it to the sinks, log its latency."""
         with self._lock:

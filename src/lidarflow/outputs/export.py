@@ -1,25 +1,17 @@
 """ONNX export of one streaming step, the recurrent state as explicit inputs and outputs.
 
-Graph: inputs ``maps (1, C, H, W)`` (``C`` the model's ``input_channels``: 2, ``(O, V)``, or
-4 with ``subcell_input``), ``state0..stateN-1``; outputs ``probability (1, 1, H, W)``
-(next-map occupancy), ``out (1, C, H, W)`` (flow channels for LiDAR-FlowNet, the logit for
-DeepTracking, the logit and its step's KL for SOGMP) and ``next_state0..``. The grid size is
-fixed at export time (the warp's sampling grid is a constant of the graph). A stochastic model
-is exported in eval mode, so the graph holds its mean path: SOGMP decodes its latent's mean,
-no noise input (its samples are PyTorch's, :meth:`lidarflow.models.sogmp.SOGMP.sample`).
+Inputs ``maps (1, C, H, W)`` (``C`` the model's ``input_channels``), then for ego-motion models
+(:class:`~lidarflow.models.EgoCompensated`) ``motion (1, 3)`` (this frame's pose in the previous
+one's: ``dx, dy`` in cells, ``dyaw`` in radians; zeros: unknown) and ``next_motion (1, 3)``
+(the guess of the next frame's, :func:`lidarflow.motion.pacing.paced_motion`), then
+``state0..``. Outputs ``probability (1, 1, H, W)`` (next-map occupancy), ``out (1, C, H, W)``
+(LiDAR-FlowNet's flow channels, DeepTracking's logit, SOGMP's logit and KL) and
+``next_state0..``. The grid size is fixed at export (the warp's
+sampling grid is a constant of the graph); a stochastic model exports its mean path.
 
-Ego-motion models (:class:`~lidarflow.models.EgoCompensated`) take one more input after
-``maps``: ``motion (1, 3)``, this frame's pose in the previous frame's, ``dx, dy`` in cells and
-``dyaw`` in radians (zeros: no motion / unknown), then ``next_motion (1, 3)``, the guess of the
-motion to the next frame: ``motion`` again (constant velocity, as in PyTorch), scaled down after
-a long step in time (:func:`lidarflow.motion.pacing.paced_motion`; files exported before this input
-existed take ``motion`` again). One built with ``poses_optional`` (it may run without
-poses: the Predictor then matches the motion from the scans) says so in the file's metadata, key
-:data:`POSES_OPTIONAL_KEY`. An occupancy-head model's ``probability`` is calibrated (no
-offset); the decision policy it ships with (offset, online or not) and its warp gain are in
-:data:`DECISION_KEY`, so that the Predictor decides as PyTorch does. A model without a flow
-network keeps the four flow channels (zero, or the platform's motion) and is marked
-:data:`~lidarflow.predict.backends.FLOW_KEY` ``"false"``: the Predictor reports no flow for it.
+Metadata (:mod:`lidarflow.predict.backends` keys) tells the Predictor the grid, whether poses
+are optional, the decision policy and warp gain of an occupancy head (whose ``probability`` is
+calibrated), and that a model without a flow network reports no flow.
 """
 
 from __future__ import annotations

@@ -1,16 +1,12 @@
-"""The OccupancyGrids one prediction becomes: topics, data, stamps, and how a grid lies in the
-scan's frame.
+"""The OccupancyGrids one prediction becomes: topics, data, stamps and layout, written once for
+every writer (the bag output, the live nodes) so that a grid on a robot's topic and in a bag are
+the same message.
 
-Written once for every writer of predictions (the bag output, the live nodes), so that a grid on
-a robot's topic and the same grid in a bag are the same message. Layout (design notes §8): the
-map of ``(H, W)`` cells of ``res`` metres is laid in the scan's own frame with
-``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x (forward), ``height = W`` along
-y; values are :func:`lidarflow.outputs.rosout.grid_data`'s (probability x 100, -1 unknown).
-
-Stamps (the team's convention): a grid predicted ``k`` frames ahead is stamped
-``prediction.stamp_ahead_ns(k)`` (the scan's stamp plus ``k`` typical scan periods), with
-``info.map_load_time`` the stamp of the scan it was made from; a grid of the current map
-(``/lidarflow/occupancy``, ``/lidarflow/moving``) keeps the scan's stamp in both.
+Layout (design notes §8): the ``(H, W)`` map of ``res`` metre cells lies in the scan's frame
+with ``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x (forward), ``height = W``
+along y; values probability x 100, -1 unknown. Stamps: a grid ``k`` frames ahead is stamped
+``prediction.stamp_ahead_ns(k)``, ``info.map_load_time`` the scan's stamp; a grid of the
+current map carries the scan's stamp in both.
 """
 
 from __future__ import annotations
@@ -42,13 +38,11 @@ __all__ = [
 ]
 
 TOPIC_PREFIX = "/lidarflow"
-#: The forward flow as an ``rgb8`` colour-wheel image (:func:`lidarflow.flowcolor.flow_to_rgb`):
-#: where each occupied cell of the current map goes next, hue the direction, saturation the
-#: length; the flow viewers can show, as neither RViz nor Foxglove shows a 32FC2 image.
+#: The forward flow as an ``rgb8`` colour wheel (:func:`lidarflow.flowcolor.flow_to_rgb`): the
+#: flow as viewers can show it, as neither RViz nor Foxglove shows a 32FC2 image.
 FLOW_RGB_TOPIC = f"{TOPIC_PREFIX}/flow_forward_rgb"
 #: Flow (cells per frame) drawn in full colour on the colour wheels: a fixed scale, so that
-#: colours compare across frames (v8's flow, the bundled model until v9: median 0.4, 99th
-#: percentile ~1.2).
+#: colours compare across frames.
 FLOW_RGB_FULL_CELLS = 2.0
 
 
@@ -83,8 +77,8 @@ class OutGrid:
 
 
 def grid_values(probability: np.ndarray, unknown: np.ndarray | None = None) -> np.ndarray:
-    """The ``(H, W)`` int8 map of a probability map ``(H, W)`` in [0, 1]: probability x 100,
-    rounded, ``-1`` where ``unknown``; still in the map's own layout (design notes §2).
+    """The ``(H, W)`` int8 map (design notes §2 layout) of a probability map in [0, 1]:
+    probability x 100, rounded, ``-1`` where ``unknown``.
 
     >>> grid_values(np.array([[0.004, 0.5, 1.2]]), np.array([[False, False, True]])).tolist()
     [[0, 50, -1]]
@@ -134,10 +128,9 @@ def grid_topics(
     prefix: str = TOPIC_PREFIX,
     planner: bool = False,
 ) -> list[str]:
-    """The topics of :func:`prediction_grids` for a Predictor ``horizon`` frames ahead, in its
-    order: ``/occupancy`` (where ``occupancy``), ``/predicted`` and ``/decided`` (``_kK`` for
-    ``K > 1``), ``/moving`` (where ``moving``: a flow model's), ``/planner_grid`` (where
-    ``planner``)."""
+    """The topics of :func:`prediction_grids` for a Predictor ``horizon`` frames ahead, in order:
+    ``/occupancy``, ``/predicted`` and ``/decided`` (``_kK`` for ``K > 1``), ``/moving``,
+    ``/planner_grid``, each optional one where its flag says."""
     topics = [f"{prefix}/occupancy"] if occupancy else []
     for k in range(1, horizon + 1):
         topics += [f"{prefix}/predicted{_suffix(k)}", f"{prefix}/decided{_suffix(k)}"]
@@ -149,14 +142,10 @@ def grid_topics(
 def prediction_grids(
     prediction: Prediction, wanted: Container[str] | None = None, prefix: str = TOPIC_PREFIX
 ) -> list[OutGrid]:
-    """The grids of one prediction (:func:`grid_topics`' topics, in its order; ``/moving`` only
-    for a model with flow), only those ``wanted`` where given: what nobody asked for is not
-    computed (the moving cells cost about as much as the rest together). The planner grid
-    (:func:`lidarflow.outputs.planner.planner_grid`, on :func:`planner_topic`) only where
-    ``wanted`` names it, stamped with the scan's stamp: the frame it lies in.
-
-    Unknown (-1): a predicted cell the current scan did not see and that is not decided
-    occupied; a current-map cell the scan did not see.
+    """The grids of one prediction on :func:`grid_topics`' topics, in order, only those
+    ``wanted`` where given (the rest is not computed); ``/moving`` only for a model with flow,
+    the planner grid (:mod:`lidarflow.outputs.planner`) only where ``wanted`` names it.
+    Unknown (-1): a cell the scan did not see, unless a predicted one is decided occupied.
     """
     p = prediction
     scan_ns = int(p.stamp_ns)

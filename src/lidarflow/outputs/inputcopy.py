@@ -1,28 +1,16 @@
-"""The input bag's messages copied into a prediction output, so that it stands on its own.
+"""The input bag's messages copied into a prediction output, so that it stands on its own
+(docs/guide/outputs.md: what is copied, names, latching).
 
-Every connection of the input (the scans with every field, ``/tf``, ``/tf_static``, odometry,
-anything else) goes to the output with its log times. Where the output serialises as the input
-does (ROS 1 into a ``.bag``; CDR into an MCAP file or a ROS 2 bag) the bytes are copied as they
-are, with the message definition recorded for them; across the two, each message is converted
-as ``rosbags-convert`` converts it: on the bytes where the wire formats differ only in the
-header (ROS 1's ``seq``, which ROS 2 has not, is dropped; ROS 1 gets ``seq`` 0 back), else
-through the message objects, field by field. Types the output's type store lacks
-(``tf2_msgs/TFMessage`` in a ROS 1 bag, a robot's own messages) are taken from the input's.
-
-Names stay as recorded (a ROS 1 ``right_scan`` stays ``right_scan`` in a ``.bag``), except that
-ROS 2 takes only absolute names: there ``right_scan`` becomes ``/right_scan``. Latching (ROS 1)
-and transient-local durability (ROS 2) stand for each other, so that ``/tf_static`` stays what
-late subscribers get.
-
-The reader is what :func:`lidarflow.data.bagfile.open_bag` yields: ``connections``,
-``messages(connections=...)`` of ``(connection, log time ns, raw bytes)``, ``deserialize`` and,
-where it has one, ``typestore`` (the input's own types; else the standard ones of its ROS).
+Where the output serialises as the input does, the bytes are copied as they are; across ROS 1
+and CDR each message is converted as ``rosbags-convert`` does, on the bytes where only the
+header differs, else field by field. Types the output's type store lacks are taken from the
+input's. The reader is what :func:`lidarflow.data.bagfile.open_bag` yields.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from functools import partial
 from typing import Any
 
@@ -81,52 +69,35 @@ def _needed(store: Any, msgtype: str) -> set[str]:
     return out
 
 
-def _take_types(source: Any, target: Any, msgtypes: Iterable[str]) -> None:
-    """Register in ``target`` the types of ``msgtypes`` it lacks, as ``source`` defines them;
-    never a header (each ROS has its own) or a type ``target`` has already."""
-    wanted: dict[str, Any] = {}
-    for msgtype in msgtypes:
-        for name in _needed(source, msgtype):
-            if name not in target.fielddefs and name != "std_msgs/msg/Header":
-                wanted[name] = source.fielddefs[name]
+def _take_types(source: Any, target: Any, msgtype: str) -> None:
+    """Register in ``target`` the types ``msgtype`` needs that it lacks, as ``source`` defines
+    them; never a header (each ROS has its own)."""
+    wanted = {
+        name: source.fielddefs[name]
+        for name in _needed(source, msgtype)
+        if name not in target.fielddefs and name != "std_msgs/msg/Header"
+    }
     if wanted:
         target.register(wanted)
 
 
-class _Converter:
-    """The converter of each message type from the input's serialisation to the output's."""
+def _converter(
+    source: Any, target: Any, msgtype: str, from_ros1: bool, to_ros1: bool, cache: dict[str, Any]
+) -> Callable[[bytes], Any]:
+    """The converter of ``msgtype``'s messages from the input's serialisation to the output's
+    (``cache``: rosbags' migration functions, one per direction)."""
+    from rosbags.convert.converter import is_same_wireformat, migrate_bytes
 
-    def __init__(self, source: Any, target: Any, from_ros1: bool, to_ros1: bool) -> None:
-        self.source, self.target = source, target
-        self.from_ros1, self.to_ros1 = from_ros1, to_ros1
-        self._cache: dict[str, Any] = {}
-        self._converters: dict[str, Callable[[bytes], Any]] = {}
-
-    def __call__(self, msgtype: str) -> Callable[[bytes], Any]:
-        found = self._converters.get(msgtype)
-        if found is None:
-            found = self._converters[msgtype] = self._make(msgtype)
-        return found
-
-    def _make(self, msgtype: str) -> Callable[[bytes], Any]:
-        from rosbags.convert.converter import is_same_wireformat, migrate_bytes
-
-        if self.from_ros1 == self.to_ros1:
-            return bytes  # the input's bytes are the output's
-        if is_same_wireformat(self.source, self.target, msgtype, msgtype):  # but the header
-            if self.from_ros1:
-                return partial(self.target.ros1_to_cdr, typename=msgtype)
-            return partial(self.source.cdr_to_ros1, typename=msgtype)
-        return partial(
-            migrate_bytes,
-            self.source,
-            self.target,
-            msgtype,
-            msgtype,
-            self._cache,
-            src_is2=not self.from_ros1,
-            dst_is2=not self.to_ros1,
-        )
+    if from_ros1 == to_ros1:
+        return bytes  # the input's bytes are the output's
+    if is_same_wireformat(source, target, msgtype, msgtype):  # but the header
+        if from_ros1:
+            return partial(target.ros1_to_cdr, typename=msgtype)
+        return partial(source.cdr_to_ros1, typename=msgtype)
+    return partial(
+        migrate_bytes, source, target, msgtype, msgtype, cache,
+        src_is2=not from_ros1, dst_is2=not to_ros1,
+    )  # fmt: skip
 
 
 def _definition(store: Any, connection: Any, msgtype: str, ros1: bool) -> tuple[str, str]:
@@ -143,8 +114,7 @@ def _definition(store: Any, connection: Any, msgtype: str, ros1: bool) -> tuple[
     ):
         return str(recorded.data), str(digest)
     if ros1:
-        msgdef, md5sum = store.generate_msgdef(msgtype)
-        return msgdef, md5sum
+        return store.generate_msgdef(msgtype)
     return store.generate_msgdef(msgtype, ros_version=2)[0], store.hash_rihs01(msgtype)
 
 
@@ -152,9 +122,8 @@ def copied_messages(
     reader: Any, out: BagOutput, keep: Callable[[str], bool] = lambda topic: True
 ) -> Iterator[tuple[int, Any, Any]]:
     """``(log time ns, output connection, bytes)`` of every message of ``reader`` on a topic
-    ``keep`` keeps, in the reader's order, converted for ``out`` (see the module). A message
-    that cannot be read or converted stops it with a :class:`BagError` saying how to leave
-    the input out."""
+    ``keep`` keeps, in order, converted for ``out``. A message that cannot be read or converted
+    raises :class:`BagError`."""
     try:
         yield from _copied(reader, out, keep)
     except LidarflowError:
@@ -181,15 +150,15 @@ def _copied(
     # by identity: the reader yields its own connection objects, which may not hash (ROS 2
     # connections hold lists of QoS profiles)
     routes: dict[int, tuple[Any, Callable[[bytes], Any]]] = {}
-    converters: dict[bool, _Converter] = {}
+    caches: dict[bool, dict[str, Any]] = {True: {}, False: {}}
     for conn in connections:
         from_ros1 = serialization(reader, conn) == "ros1"
         same = from_ros1 == out.ros1
         if not same:
-            _take_types(source, out.typestore, [conn.msgtype])
-        if from_ros1 not in converters:
-            converters[from_ros1] = _Converter(source, out.typestore, from_ros1, out.ros1)
-        convert = converters[from_ros1](conn.msgtype)
+            _take_types(source, out.typestore, conn.msgtype)
+        convert = _converter(
+            source, out.typestore, conn.msgtype, from_ros1, out.ros1, caches[from_ros1]
+        )
         msgdef, digest = _definition(
             source if same else out.typestore, conn if same else None, conn.msgtype, out.ros1
         )
@@ -214,12 +183,10 @@ def _copied(
 def scan_log_times(
     reader: Any, topic: str, header_stamps: np.ndarray, fallback_ns: np.ndarray
 ) -> np.ndarray:
-    """The log time in the input of each scan of a recording read from it: the scan message of
-    ``topic`` whose header stamp is the scan's (``header_stamps``, as the bag has them), taken
-    in order (a stamp that comes back after a clock jump is the later message's; copies of
-    one message recorded together count once). Where none has that stamp (a stamp the reading
-    filled in), ``fallback_ns``, the recording's stamp. Made non-decreasing, so that
-    predictions logged at them come in the order of their scans."""
+    """Each scan's log time in the input: that of the next message on ``topic`` whose header
+    stamp is the scan's (``header_stamps``, as the bag has them; copies recorded together count
+    once), else ``fallback_ns``; made non-decreasing, so that predictions logged at them keep
+    their scans' order."""
     by_stamp: dict[int, deque[int]] = {}
     connections = [c for c in reader.connections if c.topic == topic]
     for conn, log_time, raw in reader.messages(connections=connections):

@@ -1,40 +1,11 @@
 """``lidarflow predict``: a recording in, a bag out with the input and the predictions.
 
-Topics, by the group ``topics`` names them (:data:`TOPIC_GROUPS`; every one but ``flow`` by
-default, :data:`DEFAULT_TOPICS`), all in the scan's frame:
-
-- ``input``: from a bag (``source``), every connection of it copied unchanged, names as recorded
-  (made absolute in ROS 2 outputs; :mod:`lidarflow.outputs.inputcopy`), except topics under
-  ``/lidarflow/`` (an earlier prediction's, which the new ones would clash with); from a
-  recording file, its scans (ranges and geometry, stamped as the bag had them);
-- ``occupancy``: ``/lidarflow/occupancy``, the current occupancy map (``nav_msgs/OccupancyGrid``);
-- ``predicted``: ``/lidarflow/predicted``, the predicted next map, probability x 100 (calibrated,
-  for an occupancy-head model; ``-1`` where the current scan saw nothing and nothing is
-  predicted), and ``/lidarflow/predicted_k{K}`` K frames ahead, for ``--horizon`` K > 1;
-- ``decided``: ``/lidarflow/decided`` (and ``_k{K}``), the next map as the model's decision
-  policy decides it (100 occupied, 0 free, ``-1`` as above): ``Prediction.occupied``;
-- ``moving``: ``/lidarflow/moving``, the moving-object segmentation of the current map (100 on
-  occupied cells that move on their own, 0 on other visible cells, -1 where not visible; flow
-  models only; see :mod:`lidarflow.predict.moving`);
-- ``flow``: ``/lidarflow/flow_backward``, ``/lidarflow/flow_forward``: ``sensor_msgs/Image``
-  ``32FC2``, per map cell the (column, row) displacement in cells, rounded to
-  :data:`FLOW_QUANTUM_CELLS`; beside each, ``..._rgb``: the same as an ``rgb8`` colour wheel
-  (hue the direction, white no motion, full colour at :data:`FLOW_RGB_FULL_CELLS` cells or
-  more) that Foxglove and RViz show (flow models only);
-- ``planner_grid`` (not by default): ``/lidarflow/planner_grid``, per cell the largest
-  predicted probability over the horizon's ``k = 1 .. K``, in the scan's frame at the scan's
-  stamp (:mod:`lidarflow.outputs.planner`): one grid a local planner consumes.
-
-Stamps (the team's convention): a map predicted k frames ahead has ``header.stamp`` = the time
-it is for, the scan's stamp plus k typical scan periods (``Prediction.stamp_ahead_ns(k)``), and
-``info.map_load_time`` = the stamp of the scan it was made from; the maps of the present
-(occupancy, moving) and the flow images have the scan's stamp. Every prediction is *logged* at
-its scan's log time (in the input bag; the scan's stamp for a recording file), so that a reader
-meets it right after its scan, in scan order, never ahead of the scans it was made from.
-
-Where the bag's header clock went back, reading re-stamped its later sessions to follow the
-first (:mod:`lidarflow.data.sessions`): headers get the bag's own stamps back, to line up with
-it, and log times stay in the order recorded.
+The ``topics`` groups (:data:`TOPIC_GROUPS`, :data:`DEFAULT_TOPICS`) and what each writes are in
+docs/guide/outputs.md. Grids are :func:`lidarflow.outputs.grids.prediction_grids`'; the flow is
+``32FC2`` images rounded to :data:`FLOW_QUANTUM_CELLS` beside their ``rgb8`` colour wheels.
+Every prediction is logged at its scan's log time (in the input bag; the scan's stamp for a
+recording file), so that a reader meets it right after its scan. Where the bag's header clock
+went back (:mod:`lidarflow.data.sessions`), headers get the bag's own stamps back.
 """
 
 from __future__ import annotations
@@ -42,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import heapq
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -72,12 +44,11 @@ __all__ = [
 
 #: What ``topics`` may name (see the module).
 TOPIC_GROUPS = ("input", "occupancy", "predicted", "decided", "moving", "flow", "planner_grid")
-#: Every group but the flow and the planner grid: two float images per scan were 83 % of an
-#: output, and the maps show what the flow does; the planner grid is for robots that ask.
+#: Every group but the flow (two float images per scan: most of an output, docs/guide/outputs.md)
+#: and the planner grid, which is for robots that ask.
 DEFAULT_TOPICS = frozenset(TOPIC_GROUPS) - {"flow", "planner_grid"}
-#: The flow images' values are rounded to this (cells): 0.1 mm on the bundled model's 0.1 m
-#: cells, far below what the flow is good for. Their float noise bits compressed by 1.2x;
-#: rounded, by 4x (the sample's forward flow: 19.4 MB raw, 16.1 MB zstd, 4.3 MB rounded).
+#: The flow images' values are rounded to this (cells), far below what the flow is good for,
+#: so that they compress (their float noise bits do not).
 FLOW_QUANTUM_CELLS = 1 / 1024
 
 
@@ -104,18 +75,16 @@ def predict_to_bag(
 ) -> dict[str, int]:
     """Run ``predictor`` over ``recording`` and write the ``topics`` groups to ``output``;
     returns the number of messages per topic. ``source``: the bag ``recording`` was read from,
-    whose messages the ``input`` group copies (``None``: a recording file; its scans are
-    written instead). An ego-motion model gets the recording's poses; a recording without any
-    is refused (:class:`PredictError`) unless the model may run without (``poses_optional``:
-    the Predictor then matches the motion from the scans). An existing ``output`` is refused
-    unless ``force`` (:class:`BagOutput`)."""
+    whose messages the ``input`` group copies (``None``: a recording file, whose scans are
+    written instead). Raises :class:`PredictError` as :func:`check_poses` does, and where
+    ``output`` exists unless ``force``."""
     groups = frozenset(topics)
     if unknown := sorted(groups - set(TOPIC_GROUPS)):
         raise PredictError(f"unknown topic group {unknown[0]!r}; choose from {TOPIC_GROUPS}")
     check_poses(recording, predictor)
     # headers: the bag's own stamps (see the module); log times: the scans' in the input
     stamps = recorded_stamps(recording.stamps_ns, recording.meta.get("clock_jumps") or [])
-    counts: dict[str, int] = {}
+    counts: Counter[str] = Counter()
     with contextlib.ExitStack() as stack:
         reader = None
         if source is not None:
@@ -142,9 +111,8 @@ def predict_to_bag(
         )
         items = heapq.merge(_copy_writes(out, copies), frames, key=lambda item: item[0])
         for _, write in items:
-            for topic in write():
-                counts[topic] = counts.get(topic, 0) + 1
-    return counts
+            counts.update(write())
+    return dict(counts)
 
 
 Write = Callable[[], list[str]]  # writes a message or a frame's; returns the topics written

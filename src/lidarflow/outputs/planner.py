@@ -1,18 +1,11 @@
 """The planner grid: the occupancy a local planner should keep away from over the whole horizon,
-as one map in the frame of the scan it was made from.
+as one map in the frame of the scan it was made from (docs/guide/planners.md).
 
-Per cell, the largest predicted probability over ``k = 1 .. K`` (``Prediction.horizon``),
-x 100 and rounded (0..100); -1 where the cell is unknown: the scan did not see it and no step
-decides it occupied (``Prediction.horizon_occupied``, as the ``/lidarflow/predicted`` grids say
-unknown), or no step's map covers it. One map, laid and published as every other grid
-(:mod:`lidarflow.outputs.grids`), so a planner needs one subscription, not one per ``k``.
-
-Frames: the map ``k`` frames ahead lies in the sensor frame ``k`` frames ahead, which an
-ego-motion model reaches by repeating the motion it assumes (``Prediction.ahead_motion``). Each
-step's map is moved back into the scan's own frame before the maximum, so that a cell of the
-planner grid is one place on the ground (a step's cells beyond its own grid are not covered
-and say nothing). Where the maps are not moved (a model without ego motion, or no motion
-known), they all lie in the scan's frame already.
+Per cell, the largest predicted probability over ``k = 1 .. K`` x 100 (0..100); -1 where the
+scan did not see the cell and no step decides it occupied, or no step's map covers it. Each
+step's map lies in the sensor frame ``k`` frames ahead (``Prediction.ahead_motion`` repeated)
+and is moved back into the scan's frame before the maximum, so that a cell is one place on the
+ground.
 """
 
 from __future__ import annotations

@@ -1,13 +1,9 @@
 """Int8 quantization of an exported step graph, for the CPU latency budget.
 
-The convolutions are ~75 % of a streaming step and already run near the CPU's fp32 peak, so
-the remaining speed has to come from lower precision. Static QDQ quantization (onnxruntime)
-turns every Conv into an int8 convolution (VNNI on x86: about 1.4x faster per step on the
-2-core development machine) while the GRU gates, the warp and the occupancy head's blend stay in
-float32. Activation ranges are calibrated by streaming real maps through the float graph, so the
-recurrent state seen at calibration is the one seen when deployed; quantization changes each
-probability a little (up to ~0.2 on single cells) and F1 by about 0.001 (numbers in the
-README's speed section, measured on recordings the calibration did not see).
+Static QDQ quantization (onnxruntime) turns the convolutions, most of a step, into int8 ones,
+while the GRU gates, the warp and the occupancy head stay float32. Activation ranges are
+calibrated by streaming real maps through the float graph, so that the recurrent state seen at
+calibration is the one deployed. Speed and accuracy: docs/research/speed/.
 """
 
 from __future__ import annotations
@@ -74,10 +70,7 @@ def data_dependent_convs(path: str | Path) -> list[str]:
     """Names of the Conv nodes whose kernel is computed, not stored: the constant-velocity
     input's correlation and shift (:mod:`lidarflow.ops.shift`). They count cells and pick one
     shift; in int8 the counts would round and the wrong shift win, so they stay float."""
-    return _data_dependent(_graph(path))
-
-
-def _data_dependent(graph: Any) -> list[str]:
+    graph = _graph(path)
     stored = {t.name for t in graph.initializer}
     stored |= {out for node in graph.node if node.op_type == "Constant" for out in node.output}
     return [
@@ -91,18 +84,12 @@ HEAD_MODULES = ("/head/hidden/", "/head/out/")
 
 
 def head_convs(path: str | Path) -> list[str]:
-    """Names of the occupancy head's Conv nodes. They stay float: the head is a per-cell
-    1 x 1 layer (a few hundred weights, well under 1 % of a step's multiply-adds) whose output
-    is the logit the decision thresholds, and its inputs are memories and sub-cell bits that
-    int8 would round; kept float, int8 moves changed-cell F1 and AP about half as much
-    (docs/research/speed/)."""
-    return _head(_graph(path))
-
-
-def _head(graph: Any) -> list[str]:
+    """Names of the occupancy head's Conv nodes. They stay float: the head is a per-cell 1 x 1
+    layer, a tiny share of a step, whose output is the logit the decision thresholds, from
+    inputs int8 would round (docs/research/speed/)."""
     return [
         node.name
-        for node in graph.node
+        for node in _graph(path).node
         if node.op_type == "Conv" and any(m in node.name for m in HEAD_MODULES)
     ]
 
@@ -110,8 +97,7 @@ def _head(graph: Any) -> list[str]:
 def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[np.ndarray]) -> Path:
     """Write an int8 (QDQ, per-channel weights) copy of the step graph at ``float_path`` to
     ``out_path`` (every Conv but :func:`data_dependent_convs` and :func:`head_convs`), its
-    activation ranges calibrated on ``maps`` (a recording's ``(C, H, W)``
-    maps in order: occupancy, visibility and, for a ``subcell_input`` model, its two channels)."""
+    activation ranges calibrated on ``maps``, a recording's ``(C, H, W)`` input maps in order."""
     import onnxruntime as ort
     from onnxruntime.quantization import (
         CalibrationDataReader,
@@ -138,7 +124,6 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
         prepared = Path(tmp) / "prepared.onnx"
         try:
             quant_pre_process(str(float_path), str(prepared))
-            graph = _graph(prepared)  # loaded once for both kinds of float convs
             quantize_static(
                 str(prepared),
                 str(written),
@@ -148,7 +133,7 @@ def quantize_onnx(float_path: str | Path, out_path: str | Path, maps: Sequence[n
                 activation_type=QuantType.QUInt8,
                 weight_type=QuantType.QInt8,
                 op_types_to_quantize=["Conv"],
-                nodes_to_exclude=_data_dependent(graph) + _head(graph),
+                nodes_to_exclude=data_dependent_convs(prepared) + head_convs(prepared),
             )
         except Exception as err:  # onnxruntime's tools raise many types
             raise PredictError(f"int8 quantization failed: {type(err).__name__}: {err}") from err

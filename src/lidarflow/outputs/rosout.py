@@ -1,31 +1,16 @@
 """Write scans and predicted maps into ROS 1 bags, ROS 2 bags and MCAP files (design notes §8).
 
-Maps become ``nav_msgs/OccupancyGrid`` laid in the scan's own frame so that they line up with the
-scan in RViz and Foxglove: ``origin = (0, -W/2 * res, yaw 0)``, ``width = H`` cells along x
-(forward), ``height = W`` cells along y, grid cell ``(i, j)`` (``data[j * width + i]``) is map
-cell ``r = H - 1 - i``, ``c = W - 1 - j``. Values are occupancy probability x 100 (int8 0..100),
--1 where unknown.
-
-Flow goes out as ``sensor_msgs/Image`` with encoding ``32FC2``: per map cell (row 0 the far edge,
-as in the map arrays), the two channels ``(column, row)`` displacement in cells; pictures (the
-flow's colour wheel) as ``rgb8`` images laid out the same way.
-
-Stamps: ``header.stamp`` is the time a map is *for*, ``info.map_load_time`` the stamp of the scan
-it was made from (``write_grid(..., made_ns=)``; the two are equal for a map of the present). A
-message's log time is its own argument (default: the header stamp), so that a writer can keep
-predictions in the order of the scans they came from (:mod:`lidarflow.outputs.job`).
-
-Chunks are compressed: zstd in MCAP files and ROS 2 bags (MCAP storage; Foxglove and ``ros2 bag``
-read them), lz4 in ROS 1 bags (``rosbag`` reads it; bz2 compresses a little more, several
-times slower). Messages of the input bag are copied in as they are with :meth:`add_copy` and
-:meth:`write_raw` (:mod:`lidarflow.outputs.inputcopy`).
+Maps are ``nav_msgs/OccupancyGrid`` laid out as :mod:`lidarflow.outputs.grids` says; flow is a
+``sensor_msgs/Image`` ``32FC2`` of ``(column, row)`` displacements in cells and pictures ``rgb8``,
+both with row 0 the map's far edge. A message's log time is its own argument (default: the
+header stamp). Chunks are compressed: zstd in MCAP storage, lz4 in ROS 1 bags.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -45,14 +30,13 @@ def output_kind(path: Path) -> str:
 
 
 class BagOutput:
-    """A bag being written: LaserScans, OccupancyGrids and flow images, by topic.
+    """A bag being written: LaserScans, OccupancyGrids and images, by topic.
 
-    ``with BagOutput(path) as out: out.write_scan("/scan", scan, "laser")`` ... The target
-    must not exist yet unless ``force``. The bag is written under a temporary name beside the
-    target and renamed onto it when closed (:mod:`lidarflow.atomic`), so the target is never
-    a bag cut short; an error or interrupt removes what was written. A ``.mcap`` target is
-    written as a ROS 2 bag in a temporary folder and its single MCAP file moved into place
-    (Foxglove opens it directly).
+    ``with BagOutput(path) as out: out.write_scan("/scan", scan, "laser")``. The target must
+    not exist unless ``force``. The bag is written under a temporary name and renamed onto the
+    target when closed (:mod:`lidarflow.atomic`), so the target is never a bag cut short; an
+    error or interrupt removes what was written. A ``.mcap`` target is a ROS 2 bag's single
+    MCAP file.
     """
 
     def __init__(self, path: str | Path, force: bool = False) -> None:
@@ -101,10 +85,7 @@ class BagOutput:
             self._writer.open()
         except BaseException as err:
             discard(self._staged)
-            named = self._named(err)
-            if named is err:  # an interrupt: as it came
-                raise
-            raise named from err
+            self._raise_named(err)  # an interrupt as it came
         return self
 
     def _named(self, err: BaseException) -> BaseException:
@@ -119,6 +100,12 @@ class BagOutput:
             return PredictError(f"{self.path}: cannot open for writing ({err})")
         return err
 
+    def _raise_named(self, err: BaseException) -> NoReturn:
+        named = self._named(err)
+        if named is err:
+            raise err
+        raise named from err
+
     def __exit__(
         self,
         exc_type: type[BaseException] | None,
@@ -131,10 +118,7 @@ class BagOutput:
                 self._writer.close()
             except OSError as err:
                 if exc is None:
-                    named = self._named(err)
-                    if named is err:  # another file's refusal: as it came
-                        raise
-                    raise named from err
+                    self._raise_named(err)  # another file's refusal as it came
             # A bag cut short by an error or Ctrl-C reads back as a whole one (closed, indexed):
             # it never takes the target's name.
             if exc is None:
@@ -147,26 +131,27 @@ class BagOutput:
                 raise named from exc
 
     # ------------------------------------------------------------------ messages
-    def _types(self) -> dict[str, Any]:
-        return self.typestore.types
-
     def _time(self, stamp_ns: int) -> Any:
-        return self._types()["builtin_interfaces/msg/Time"](
+        return self.typestore.types["builtin_interfaces/msg/Time"](
             sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)
         )
 
     def _header(self, stamp_ns: int, frame_id: str, seq: int = 0) -> Any:
-        header = self._types()["std_msgs/msg/Header"]
+        header = self.typestore.types["std_msgs/msg/Header"]
         if self.ros1:
             return header(seq=seq, stamp=self._time(stamp_ns), frame_id=frame_id)
         return header(stamp=self._time(stamp_ns), frame_id=frame_id)
 
-    def _write(self, topic: str, msgtype: str, log_time_ns: int, msg: Any) -> None:
+    def _write(
+        self, topic: str, msgtype: str, msg: Any, stamp_ns: int, log_time_ns: int | None
+    ) -> None:
+        """``msg`` logged at ``log_time_ns``, by default its header stamp ``stamp_ns``."""
         conn = self._connections.get(topic)
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
             self._connections[topic] = conn
-        self._writer.write(conn, int(log_time_ns), self._serialize(msg, msgtype))
+        at = stamp_ns if log_time_ns is None else log_time_ns
+        self._writer.write(conn, int(at), self._serialize(msg, msgtype))
 
     def add_copy(
         self,
@@ -222,7 +207,7 @@ class BagOutput:
         """``scan`` stamped with its stamp; logged at ``log_time_ns`` (default: the stamp);
         ``seq``: its header's sequence number (ROS 1 only)."""
         g = scan.geometry
-        msg = self._types()["sensor_msgs/msg/LaserScan"](
+        msg = self.typestore.types["sensor_msgs/msg/LaserScan"](
             header=self._header(scan.stamp_ns, frame_id, seq),
             angle_min=g.angle_min,
             angle_max=g.angle_min + g.angle_increment * (g.count - 1),
@@ -234,41 +219,19 @@ class BagOutput:
             ranges=np.asarray(scan.ranges, np.float32),
             intensities=np.zeros(0, np.float32),
         )
-        self._write(topic, "sensor_msgs/msg/LaserScan", _logged(scan.stamp_ns, log_time_ns), msg)
-
-    def write_grid(
-        self,
-        topic: str,
-        probability: np.ndarray,
-        grid: GridSpec,
-        stamp_ns: int,
-        frame_id: str,
-        unknown: np.ndarray | None = None,
-        log_time_ns: int | None = None,
-        made_ns: int | None = None,
-    ) -> None:
-        """``probability`` as an OccupancyGrid for ``stamp_ns`` (``header.stamp``), made from
-        the scan of ``made_ns`` (``info.map_load_time``; default ``stamp_ns``: a map of the
-        present)."""
-        if probability.shape != grid.shape:
-            raise PredictError(f"map {probability.shape} does not match the grid {grid.shape}")
-        data = grid_data(probability, unknown)
-        made = stamp_ns if made_ns is None else made_ns
-        self.write_grid_data(OutGrid(topic, data, stamp_ns, made), grid, frame_id, log_time_ns)
+        self._write(topic, "sensor_msgs/msg/LaserScan", msg, scan.stamp_ns, log_time_ns)
 
     def write_grid_data(
         self, out: OutGrid, grid: GridSpec, frame_id: str, log_time_ns: int | None = None
     ) -> None:
         """One grid of :func:`lidarflow.outputs.grids.prediction_grids` as an OccupancyGrid,
         laid out in the scan's frame as the live nodes lay theirs (:class:`GridLayout`)."""
-        types = self._types()
+        types = self.typestore.types
         if out.data.size != grid.height * grid.width:
             raise PredictError(f"a map of {out.data.size} cells does not fit the grid {grid}")
         layout = GridLayout.of(grid)
         origin = types["geometry_msgs/msg/Pose"](
-            position=types["geometry_msgs/msg/Point"](
-                x=layout.origin_x, y=layout.origin_y, z=0.0
-            ),
+            position=types["geometry_msgs/msg/Point"](x=layout.origin_x, y=layout.origin_y, z=0.0),
             orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
         )
         info = types["nav_msgs/msg/MapMetaData"](
@@ -281,8 +244,7 @@ class BagOutput:
         msg = types["nav_msgs/msg/OccupancyGrid"](
             header=self._header(out.stamp_ns, frame_id), info=info, data=out.data
         )
-        at = _logged(out.stamp_ns, log_time_ns)
-        self._write(out.topic, "nav_msgs/msg/OccupancyGrid", at, msg)
+        self._write(out.topic, "nav_msgs/msg/OccupancyGrid", msg, out.stamp_ns, log_time_ns)
 
     def write_flow(
         self,
@@ -323,7 +285,7 @@ class BagOutput:
         """``pixels`` ``(H, W, channels)`` (little-endian) as a ``sensor_msgs/Image``."""
         h, w, _ = pixels.shape
         data = np.ascontiguousarray(pixels).view(np.uint8).reshape(h, -1)
-        msg = self._types()["sensor_msgs/msg/Image"](
+        msg = self.typestore.types["sensor_msgs/msg/Image"](
             header=self._header(stamp_ns, frame_id),
             height=h,
             width=w,
@@ -332,9 +294,4 @@ class BagOutput:
             step=data.shape[1],
             data=data.ravel(),
         )
-        self._write(topic, "sensor_msgs/msg/Image", _logged(stamp_ns, log_time_ns), msg)
-
-
-def _logged(stamp_ns: int, log_time_ns: int | None) -> int:
-    """A message's log time: its header stamp unless given (readers order by log time)."""
-    return stamp_ns if log_time_ns is None else log_time_ns
+        self._write(topic, "sensor_msgs/msg/Image", msg, stamp_ns, log_time_ns)
