@@ -10,6 +10,7 @@ from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.online.combination import Combination, Combined
 from lidarflow.online.stacking import StackingConfig
 from lidarflow.predict.engine import Backend
+from lidarflow.predict.learning import LearningConfig
 
 __all__ = ["CombinedMethod"]
 
@@ -18,7 +19,8 @@ class CombinedMethod:
     """``model`` (a :class:`~lidarflow.predict.engine.Backend`) streamed with its decision
     policy and the tracker, its experts' maps combined for ``1 .. horizon`` frames ahead:
     ``update`` returns the decided combination one frame ahead, ``ahead(k)`` those ``1 .. k``
-    ahead (``k`` up to ``horizon``)."""
+    ahead (``k`` up to ``horizon``). With ``learning`` the model's head learns on the stream
+    (:class:`~lidarflow.evaluate.model_method.ModelMethod`)."""
 
     def __init__(
         self,
@@ -28,10 +30,11 @@ class CombinedMethod:
         res: float = 0.1,
         decision: dict | None = None,
         config: StackingConfig | None = None,
+        learning: LearningConfig | None = None,
     ) -> None:
         record = dict(decision if decision is not None else model.decision or {})
         record["movers"] = True  # the tracker is one of the experts
-        self.model = ModelMethod(name, model, res=res, decision=record)
+        self.model = ModelMethod(name, model, res=res, decision=record, learning=learning)
         self.name = name
         self.takes = self.model.takes
         self.combination = Combination(horizon, config)

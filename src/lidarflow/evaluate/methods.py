@@ -77,21 +77,12 @@ def methods_and_config(
     ego_models = any(isinstance(m, ModelMethod) and m.takes.motion for m in methods)
     if ego_models:
         methods[4:4] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
+    models = [m for m in methods if isinstance(m, ModelMethod) and m.name in models_used]
+    learners = [m for m in models if learn and isinstance(m.backend, HeadStepBackend)]
     if combine is not None:
-        methods += [
-            CombinedMethod(
-                f"{m.name}_combined", m.backend, combine, res, m.engine.policy.to_record()
-            )
-            for m in methods
-            if isinstance(m, ModelMethod) and m.name in models_used
-        ]
-    if learn:
-        methods += [
-            _learning(m, moving_threshold, online_config, res)
-            for m in methods
-            if isinstance(m, ModelMethod) and m.name in models_used
-            and isinstance(m.backend, HeadStepBackend)
-        ]  # fmt: skip
+        methods += [_combined(m, combine, res) for m in models]
+        methods += [_combined(m, combine, res, learning=True) for m in learners]
+    methods += [_learning(m, moving_threshold, online_config, res) for m in learners]
     config = _report_config(
         methods, ta_window, ta_threshold, moving_threshold, models_used, online_config, online
     )
@@ -100,6 +91,18 @@ def methods_and_config(
     if learn:
         config["learning"] = dataclasses.asdict(LearningConfig())
     return methods, config
+
+
+def _combined(model: ModelMethod, horizon: int, res: float, learning: bool = False) -> Any:
+    """``model`` combined online with the simple predictors ``horizon`` frames ahead
+    (``NAME_combined``); with ``learning`` its head learning too, on a copy of its weights
+    (``NAME_learning_combined``)."""
+    policy = model.engine.policy.to_record()
+    if not learning:
+        return CombinedMethod(f"{model.name}_combined", model.backend, horizon, res, policy)
+    backend = copy.deepcopy(model.backend)
+    name = f"{model.name}_learning_combined"
+    return CombinedMethod(name, backend, horizon, res, policy, learning=LearningConfig())
 
 
 def _learning(
