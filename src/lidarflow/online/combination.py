@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.online.experts import EXPERTS, ExpertMaps, Experts
+from lidarflow.online.experts import EXPERTS, ExpertMaps
 from lidarflow.online.leader import Leader
 from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
@@ -88,20 +88,11 @@ class Combination:
         occupancy: np.ndarray,
         visibility: np.ndarray,
     ) -> Combined:
-        """Combine after one engine ``step`` and its ``rollout`` (an engine that runs
-        ``tracker``) on the frame whose maps are ``occupancy`` and ``visibility``."""
-        return self.combine(
-            occupancy, self.experts.of(tracker, step, rollout, occupancy, visibility)
-        )
-
-    def combine(self, occupancy: np.ndarray, experts: Experts) -> Combined:
-        """Learn from frame ``t``'s ``occupancy`` ``(H, W)`` as the label of the predictions
-        made for it, then combine the ``experts`` for ``t + 1 .. t + K``."""
+        """Learn from the frame whose maps are ``occupancy`` and ``visibility`` ``(H, W)`` as the
+        label of the predictions made for it, then combine the experts after the engine's
+        ``step`` and its ``rollout`` (an engine that runs ``tracker``) for ``t + 1 .. t + K``."""
+        experts = self.experts.of(tracker, step, rollout, occupancy, visibility)
         maps = experts.maps
-        if maps.shape[:2] != (len(EXPERTS), self.horizon):
-            raise ValueError(
-                f"expected ({len(EXPERTS)}, {self.horizon}, H, W) experts' maps, got {maps.shape}"
-            )
         occupied = np.asarray(occupancy) > 0.5
         probability, decided = [], []
         for k in range(self.horizon):

@@ -141,9 +141,8 @@ class Tracker:
         visible = (np.asarray(visibility) > 0.5) | occupied
         if motion is not None and np.any(np.asarray(motion) != 0):
             self._carry(np.asarray(motion, np.float64))
-        guessed = paced_motion(motion, pace)
-        self._motion = motion if guessed is None else guessed
-        self._motion = None if self._motion is None or not np.any(self._motion) else self._motion
+        guess = motion if pace is None else paced_motion(motion, pace)  # None without motion
+        self._motion = guess if guess is not None and np.any(guess) else None
         if self._background is None or self._seen is None:
             self._background = occupied.astype(np.float64)
             self._seen = visible.copy()
@@ -205,11 +204,12 @@ class Tracker:
         # each cluster's cells (row, col) in the sensor frame (x, y), in cells
         xy = [np.stack(cell_to_metric(g[:, 0], g[:, 1], h, w), axis=-1) for g in groups]
         centroids = np.array([p.mean(axis=0) for p in xy]).reshape(-1, 2)
-        for track in self._tracks:  # one frame on
+        for track in self._tracks:  # one frame on, unseen until a cluster continues it
             track.state = self._transition @ track.state
             track.covariance = (
                 self._transition @ track.covariance @ self._transition.T + self._process
             )
+            track.missed += 1
         predicted = np.array([t.state[:2] for t in self._tracks]).reshape(-1, 2)
         pairs = associate(predicted, centroids, cfg.gate / self.res)
         matched = {c for _, c in pairs}
@@ -217,10 +217,6 @@ class Tracker:
             self._correct(self._tracks[t], centroids[c])
             self._tracks[t].cells = groups[c]
             self._tracks[t].missed = 0
-        paired = {t for t, _ in pairs}
-        for i, track in enumerate(self._tracks):
-            if i not in paired:
-                track.missed += 1
         self._tracks = [t for t in self._tracks if t.missed <= cfg.max_missed]
         # a new object: at rest, its speed unknown up to a brisk walk (2 m/s at 10 Hz)
         speed = 0.2 / self.res
