@@ -81,8 +81,8 @@ class Leader:
         self._tolerant *= self.decay
         changed = occupied != before
         # the cells each count is over, as rows: (metric, kind) in _f1's order
-        masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).reshape(4, -1)
-        masks = masks.astype(np.float32)
+        masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).astype(np.float32)
+        masks = masks.reshape(4, -1)
         flat = decided.reshape(len(decided), -1).astype(np.float32)
         truth = occupied.reshape(-1).astype(np.float32)
         tp = (flat * truth) @ masks.T  # (C, 4)
@@ -103,8 +103,7 @@ class Leader:
         # F1 of all / changed cells for the pair (a common, b rare): counts of a's common
         # cells plus b's rare ones
         total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)
-        tp, fp, fn = total[..., 0], total[..., 1], total[..., 2]
-        f1 = f1_of(tp, fp + fn)  # (a, b, metric)
+        f1 = f1_of(total[..., 0], total[..., 1] + total[..., 2])  # (a, b, metric)
         right, wrong, found, missed = self._tolerant.T
         precision = _ratio(right, right + wrong)
         recall = _ratio(found, found + missed)

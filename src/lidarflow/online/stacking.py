@@ -216,14 +216,10 @@ def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) 
     # predicted occupied at threshold index i: the bins i .. bins - 1
     tp = np.cumsum(occupied[:, ::-1], axis=1)[:, ::-1]  # (2, bins)
     fp = np.cumsum(free[:, ::-1], axis=1)[:, ::-1]
-    positives = occupied.sum(axis=1)  # (2,)
-    fn = positives[:, None] - tp
+    wrong = fp + (occupied.sum(axis=1)[:, None] - tp)  # false positives and negatives
     # all cells: every pair (i common, j rare)
-    all_tp = tp[0][:, None] + tp[1][None, :]
-    all_wrong = (fp[0] + fn[0])[:, None] + (fp[1] + fn[1])[None, :]
-    f1_all = f1_of(all_tp, all_wrong)
-    f1_rare = f1_of(tp[1], fp[1] + fn[1])[None, :]
-    score = f1_all + rare_weight * f1_rare
+    f1_all = f1_of(tp[0][:, None] + tp[1][None, :], wrong[0][:, None] + wrong[1][None, :])
+    score = f1_all + rare_weight * f1_of(tp[1], wrong[1])[None, :]
     i, j = np.unravel_index(int(np.argmax(score)), score.shape)
     edges = np.arange(bins) / bins
     return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])
