@@ -1,8 +1,5 @@
-"""The baselines every model is reported beside, and the streaming protocol they share.
-
-Used by both :mod:`lidarflow.predict` (the online decision weighs itself against them) and
-:mod:`lidarflow.evaluate` (they are scored beside every model), so they live in neither.
-"""
+"""The baselines every model is reported beside, and the streaming protocol they share: used
+by both :mod:`lidarflow.predict` and :mod:`lidarflow.evaluate`, so they live in neither."""
 
 from lidarflow.baselines.ego import CopyLastEgo
 from lidarflow.baselines.method import NOTHING_MORE, FrameInputs, Method, Takes

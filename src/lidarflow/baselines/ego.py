@@ -30,10 +30,9 @@ class CopyLastEgo:
     def update(
         self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
     ) -> np.ndarray:
-        motion, next_motion = given.motion, given.next_motion
         # after a long step the last motion spans it: the guess is scaled to one, as the models'
-        guessed = paced_motion(motion, given.pace)
-        m = next_motion if self.oracle else (motion if guessed is None else guessed)
+        guessed = paced_motion(given.motion, given.pace)
+        m = given.next_motion if self.oracle else (given.motion if guessed is None else guessed)
         if m is None:
             return occupancy.astype(np.float32)
         return np.clip(rigid_moved(occupancy, m), 0.0, 1.0).astype(np.float32)

@@ -1,11 +1,5 @@
-"""What every streaming next-map predictor is, and what it is given each frame.
-
-A :class:`Method` is ``reset()`` at the start of a recording, then ``update(occupancy,
-visibility, given)`` once per frame returns the probability map of the *next* frame's
-occupancy, ``(H, W)`` float32 in [0, 1]. The baselines (:mod:`lidarflow.baselines.simple`,
-:mod:`lidarflow.baselines.ego`), the tracker (:mod:`lidarflow.tracking`) and evaluate's model
-method follow it, so the streaming evaluation scores them all alike.
-"""
+"""What every streaming next-map predictor is (:class:`Method`: the baselines, the tracker and
+evaluate's model method alike), and what it is given each frame."""
 
 from __future__ import annotations
 
@@ -19,12 +13,10 @@ __all__ = ["NOTHING_MORE", "FrameInputs", "Method", "Takes"]
 
 @dataclass(frozen=True)
 class Takes:
-    """What a :class:`Method` takes in ``update`` beside the maps (what the streaming
-    evaluation reads instead of probing): ``motion`` (the sensor's motion, ``motion=`` /
-    ``next_motion=`` / ``pace=``), ``poses_optional`` (it may run where a recording has no poses,
-    on the motion matched from the scans), ``returns`` (the scan's returns and ``from_pose``, to
-    check odometry against the scans) and ``subcell`` (where the returns lie inside their
-    cells)."""
+    """What a :class:`Method` takes in ``update`` beside the maps (:class:`FrameInputs`):
+    ``motion`` (``motion``, ``next_motion``, ``pace``), ``returns`` (``returns``,
+    ``from_pose``), ``subcell``; ``poses_optional``: it may run where a recording has no poses,
+    on the motion matched from the scans."""
 
     motion: bool = False
     poses_optional: bool = False
@@ -57,9 +49,8 @@ NOTHING_MORE = FrameInputs()
 
 class Method(Protocol):
     """A next-map predictor run one frame at a time: ``update`` takes frame ``t``'s maps
-    ``(H, W)`` and what else it is given (``takes`` says what it asks for; what it does not ask
-    for it is not given, and ignores) and returns the probability of the map of frame ``t + 1``
-    ``(H, W)`` in [0, 1]. ``reset`` starts a new recording."""
+    ``(H, W)`` and what else ``takes`` asks for, and returns the probability map of frame
+    ``t + 1``, ``(H, W)`` float32 in [0, 1]. ``reset`` starts a new recording."""
 
     name: str
     takes: Takes

@@ -21,14 +21,9 @@ __all__ = [
 ]
 
 
-# The temporal average's default, chosen on the development recordings by one rule: of the grid
-# in studies/ta_sweep.py (windows 2-20, thresholds 0.2-0.7), the setting with the highest
-# mean F1 over the seven development recordings among those that predict changes at all (the
-# intersection of the last two or three maps never predicts a cell to appear, so its changed-cell
-# F1 is 0: copy-last thinned, not an average). That is three frames: any threshold in (1/3, 2/3]
-# is the same majority of three, and 0.4, the metric's own, leaves the mean unrescaled. The
-# former default, 5 / 0.4, was chosen by no rule; the verdicts against it and against the
-# settings other rules would choose are in docs/research/temporal_average/.
+# The temporal average's default: the majority of the last three maps, the setting of highest
+# mean F1 on the development recordings among those that predict changes at all; 0.4, the
+# metric's own threshold, leaves the mean unrescaled (docs/research/temporal_average/).
 TA_WINDOW = 3
 TA_THRESHOLD = 0.4
 
@@ -49,16 +44,12 @@ class CopyLast:
 
 
 class TemporalAverage:
-    """Mean of the last ``window`` occupancy maps; occupied where the mean >= ``threshold`` at
-    the shared decision threshold, so the mean is rescaled so that ``threshold`` maps to 0.4
-    (the metric's threshold) while keeping the ranking of cells for the PR curve.
-
-    Defaults: :data:`TA_WINDOW`, :data:`TA_THRESHOLD` (the majority of the last three maps).
-    """
-
-    takes = Takes()
+    """Mean of the last ``window`` occupancy maps, occupied where it is >= ``threshold``: the
+    mean rescaled piecewise-linearly so that ``threshold`` falls on the metric's 0.4, keeping
+    the ranking of cells for the PR curve."""
 
     name = "temporal_average"
+    takes = Takes()
 
     def __init__(self, window: int = TA_WINDOW, threshold: float = TA_THRESHOLD) -> None:
         if window < 1 or not 0.0 < threshold <= 1.0:
@@ -75,7 +66,6 @@ class TemporalAverage:
     ) -> np.ndarray:
         self._maps.append(occupancy.astype(np.float32))
         mean = np.mean(self._maps, axis=0)
-        # Piecewise-linear rescale: [0, threshold] -> [0, 0.4], [threshold, 1] -> [0.4, 1].
         low = mean * (0.4 / self.threshold)
         high = 0.4 + (mean - self.threshold) * (0.6 / max(1.0 - self.threshold, 1e-9))
         return np.where(mean < self.threshold, low, high).astype(np.float32)
@@ -103,10 +93,6 @@ def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3)
     ``current`` (most overlapping occupied cells; ties prefer the smallest ``|d_col| + |d_row|``,
     then the first in row-major ``(d_row, d_col)`` order).
 
-    Counted from the occupied cells of ``previous`` alone (one gather of ``current`` at each of
-    them moved by every shift): occupied cells are a few hundred of ten thousand, so this costs
-    a tenth of sliding the whole map through every shift (issue 46).
-
     >>> best_rigid_shift(np.tri(4), shift_map(np.tri(4), 1, 0))
     (1, 0)
     """
@@ -119,7 +105,8 @@ def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3)
     padded = np.zeros((h + 2 * radius, w + 2 * radius), bool)  # np.pad: 4x the time here
     padded[radius : radius + h, radius : radius + w] = cur
     width = padded.shape[1]
-    # overlap[i, j]: cells occupied in previous and, moved by (steps[i], steps[j]), in current.
+    # overlap[i, j]: cells occupied in previous and, moved by (steps[i], steps[j]), in current,
+    # gathered at previous's few occupied cells rather than sliding the whole map
     at = (rows + radius) * width + (cols + radius)
     offsets = (steps[:, None] * width + steps[None, :]).ravel()
     overlap = np.count_nonzero(padded.ravel()[at[:, None] + offsets[None, :]], axis=0)
@@ -137,9 +124,8 @@ class ConstantVelocity:
     nothing moves), not individual people. Rotation is not modelled.
     """
 
-    takes = Takes()
-
     name = "constant_velocity"
+    takes = Takes()
 
     def __init__(self, radius: int = 3) -> None:
         self.radius = radius

@@ -1,16 +1,12 @@
 """The online combination: the predictors a robot already runs, weighed per horizon by what
-the scans that arrive say about them.
+the scans that arrive say about them (docs/guide/online.md).
 
-Each frame ``t`` the experts (:mod:`lidarflow.online.experts`: the model, its tracked objects,
-the tracker, the ego-moved last map, the temporal average) predict the frames ``t + 1 .. t + K``.
-Frame ``t``'s own map is the label of what was predicted for it ``k`` frames before: per
-horizon, the stacked combination (:class:`~lidarflow.online.stacking.HorizonStacking`) learns
-from that pair and every candidate (each expert alone, and the stacked one) is scored on it
-(:class:`~lidarflow.online.leader.Leader`); the best lately decides, the common cells and the
-rare ones apart. The experts' maps wait for their label in a queue per horizon, one byte per
-cell and expert (``K (K + 1) / 2`` frames of them: 0.3 MB for ``K = 10`` on 100 x 100 cells).
-
-Causal: what is predicted at ``t`` depends on frames up to ``t`` only.
+Each frame ``t`` the experts (:mod:`lidarflow.online.experts`) predict ``t + 1 .. t + K``; frame
+``t``'s map labels what was predicted for it ``k`` frames before. Per horizon, the stacked
+combination (:class:`~lidarflow.online.stacking.HorizonStacking`) learns from that pair, every
+candidate is scored on it (:class:`~lidarflow.online.leader.Leader`) and the best lately decides,
+the common cells and the rare ones apart. Causal: what is predicted at ``t`` depends on frames
+up to ``t`` only.
 """
 
 from __future__ import annotations
@@ -21,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidarflow.online.experts import EXPERTS, ExpertMaps, Experts
+from lidarflow.online.experts import EXPERTS, ExpertMaps
 from lidarflow.online.leader import Leader
 from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
@@ -31,8 +27,7 @@ if TYPE_CHECKING:
 
 __all__ = ["CANDIDATES", "Combination", "Combined"]
 
-#: The experts laid over each other (the larger probability): the model with its tracked
-#: objects (what the model's own decision policy carries) and the last map with them.
+#: The experts laid over each other (the larger probability).
 UNIONS = (("model", "tracks"), ("copy_last", "tracks"))
 
 #: The candidates that may decide a kind of cell: each expert alone, the unions, then the
@@ -44,21 +39,20 @@ _UNIONS = [(EXPERTS.index(a), EXPERTS.index(b)) for a, b in UNIONS]
 @dataclass(frozen=True)
 class Combined:
     """The combination's output for frames ``t + 1 .. t + K``: ``probability`` ``(K, H, W)``
-    and ``decided`` ``(K, H, W)``, the probability rescaled so that 0.4 decides it as the
-    chosen candidate decides (:func:`lidarflow.online.stacking.rescaled`)."""
+    and ``decided`` ``(K, H, W)``, rescaled so that 0.4 decides as the chosen candidate does."""
 
     probability: np.ndarray
     decided: np.ndarray
 
 
 class Combination:
-    """The online combination for the frames ``1 .. horizon`` ahead (see the module
-    docstring), starting as the model alone."""
+    """The online combination for the frames ``1 .. horizon`` ahead, starting as the model
+    alone."""
 
     def __init__(self, horizon: int, config: StackingConfig | None = None) -> None:
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
-        self.names, self.horizon = EXPERTS, horizon
+        self.horizon = horizon
         self.experts = ExpertMaps(horizon)
         config = config or StackingConfig()
         first = EXPERTS.index("model")
@@ -94,21 +88,11 @@ class Combination:
         occupancy: np.ndarray,
         visibility: np.ndarray,
     ) -> Combined:
-        """Combine after one engine ``step`` and its ``rollout`` (an engine that runs
-        ``tracker``) on the frame whose maps are ``occupancy`` and ``visibility``."""
-        return self.combine(
-            occupancy, self.experts.of(tracker, step, rollout, occupancy, visibility)
-        )
-
-    def combine(self, occupancy: np.ndarray, experts: Experts) -> Combined:
-        """Learn from frame ``t``'s ``occupancy`` ``(H, W)`` as the label of the predictions
-        made for it, then combine the ``experts`` for ``t + 1 .. t + K``."""
+        """Learn from the frame whose maps are ``occupancy`` and ``visibility`` ``(H, W)`` as the
+        label of the predictions made for it, then combine the experts after the engine's
+        ``step`` and its ``rollout`` (an engine that runs ``tracker``) for ``t + 1 .. t + K``."""
+        experts = self.experts.of(tracker, step, rollout, occupancy, visibility)
         maps = experts.maps
-        if maps.shape[:2] != (len(self.names), self.horizon):
-            raise ValueError(
-                f"expected ({len(self.names)}, {self.horizon}, H, W) experts' maps, "
-                f"got {maps.shape}"
-            )
         occupied = np.asarray(occupancy) > 0.5
         probability, decided = [], []
         for k in range(self.horizon):
@@ -120,24 +104,17 @@ class Combination:
                 candidates = np.concatenate([_with_unions(past), stacked[None]]) >= DECIDED
                 leader.score(candidates, rare, experts.region, occupied, before)
             rare = experts.rare[k]
-            p, d = self._candidates(stack, maps[:, k], rare)
+            # the candidates in the order of CANDIDATES: each expert's own and the unions
+            # (decided at 0.4), then the stacked combination's
+            p, d = stack.decided(maps[:, k], rare)
+            own = _with_unions(maps[:, k])
+            p, d = np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
             a, b = leader.choice
             probability.append(np.where(rare, p[b], p[a]))
             decided.append(np.where(rare, d[b], d[a]))
             quantised = np.rint(np.clip(maps[:, k], 0.0, 1.0) * 255).astype(np.uint8)
             waiting.append((quantised, rare.copy(), occupied))
         return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
-
-    @staticmethod
-    def _candidates(
-        stack: HorizonStacking, experts: np.ndarray, rare: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The candidates' probabilities and decided probabilities ``(C, H, W)`` in the order
-        of :data:`CANDIDATES`: each expert's own and the unions (decided at 0.4), then the
-        stacked combination's."""
-        p, d = stack.decided(experts, rare)
-        own = _with_unions(experts)
-        return np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
 
     @property
     def nbytes(self) -> int:

@@ -1,16 +1,6 @@
 """The experts the online combination weighs: what a model streamed by the engine and the
-simple predictors beside it say about the frames ``t + 1 .. t + K``.
-
-- ``model``: the model's own decided maps (its roll-out, without the tracked objects);
-- ``tracks``: the tracked objects alone, each moved ``k`` times its velocity;
-- ``tracker``: the tracking baseline's map (background where it is, the objects moved);
-- ``copy_last``: the last map, moved into the sensor frame ``k`` guessed steps on where the
-  sensor moves (the ego-moved map), as it is where it stands still;
-- ``temporal_average``: the temporal-average baseline (the mean of the last
-  :data:`~lidarflow.baselines.TA_WINDOW` maps), the same for every ``k``.
-
-Beside the maps, which cells are rare (where movers go) for each ``k``, and the region of the
-frame just given where movers went (:class:`Experts`).
+simple predictors beside it say about the frames ``t + 1 .. t + K`` (:data:`EXPERTS`, in
+docs/guide/online.md), with the rare cells and the region where movers went (:class:`Experts`).
 """
 
 from __future__ import annotations
@@ -33,7 +23,10 @@ __all__ = ["EXPERTS", "SELDOM", "ExpertMaps", "Experts"]
 #: the mover metric's dynamic region (:data:`lidarflow.evaluate.dynamic.SHARE`), counted so far.
 SELDOM = 0.05
 
-#: The experts' names, in the order of their maps.
+#: The experts' names, in the order of their maps: the model's decided roll-out without the
+#: tracked objects; those objects alone, moved ``k`` times their velocity; the tracking
+#: baseline; the last map moved into the sensor frame ``k`` guessed steps on; the temporal
+#: average (the same for every ``k``).
 EXPERTS = ("model", "tracks", "tracker", "copy_last", "temporal_average")
 
 
@@ -51,9 +44,9 @@ class Experts:
 
 
 class ExpertMaps:
-    """The experts' maps after each engine step (:class:`Experts`); the engine must run a
-    tracker (its policy carries the tracked objects) and roll out ``horizon`` frames. The
-    counts of occupied and seen frames per cell follow the scene (moved by the ego motion)."""
+    """The experts' maps after each engine step (:class:`Experts`), from an engine that runs a
+    tracker and rolls out ``horizon`` frames. The counts of occupied and seen frames per cell
+    follow the scene (moved by the ego motion)."""
 
     def __init__(self, horizon: int) -> None:
         self.horizon = horizon
@@ -66,8 +59,7 @@ class ExpertMaps:
 
     @property
     def nbytes(self) -> int:
-        """The bytes of the maps it keeps: the counts and, at most, the temporal average's
-        last :data:`TA_WINDOW` maps (float32)."""
+        """The bytes of the counts and, at most, the temporal average's maps."""
         if self._counts is None:
             return 0
         height, width = self._counts.shape[1:]
@@ -96,16 +88,12 @@ class ExpertMaps:
         now = np.stack([occupied, rare_now])  # moved alike, k steps on
         maps = np.empty((len(EXPERTS), horizon, *average.shape), np.float32)
         maps[0] = rollout.model_only[:horizon]
-        rare = np.empty((horizon, *average.shape), bool)
-        ahead = tracker.ahead(horizon)
-        for k in range(1, horizon + 1):
-            maps[1, k - 1] = tracks.at(k)
-            maps[2, k - 1] = ahead[k - 1]
-            moved = tracks.moved_to_sensor(now, k)
-            maps[3, k - 1] = moved[0]
-            maps[4, k - 1] = average
-            rare[k - 1] = moved[1] > 0.5
-        return Experts(maps, rare, region)
+        maps[1] = [tracks.at(k) for k in range(1, horizon + 1)]
+        maps[2] = tracker.ahead(horizon)
+        moved = np.stack([tracks.moved_to_sensor(now, k) for k in range(1, horizon + 1)])
+        maps[3] = moved[:, 0]
+        maps[4] = average
+        return Experts(maps, moved[:, 1] > 0.5, region)
 
     def _count(self, occupied: np.ndarray, visible: np.ndarray, motion: np.ndarray | None) -> None:
         if self._counts is None:

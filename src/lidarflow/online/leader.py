@@ -1,14 +1,10 @@
 """Which candidate decides: per horizon and kind of cell, the one that scored best lately.
 
-Candidates are decided maps of the frame ``t + k`` made at ``t`` (the experts' own and the
-stacked combination's). When ``t + k`` arrives each candidate is scored on it, the counts
-decaying by ``decay`` per frame, by three F1s: of all cells, of the *changed* cells (those of
-``t + k`` that differ from frame ``t``'s map) and the tolerant F1 in the region where movers
-went (cells within ``tolerance`` count as found, as the mover metric counts them; the region as
-the caller finds it). The pair ``(a, b)`` chosen, ``a`` deciding the common cells and ``b`` the
-rare ones (:mod:`lidarflow.online.experts`), maximises the margins of the map they make together
-over the simple predictors among the candidates: what a model must beat them on, scored on the
-stream itself.
+When frame ``t + k`` arrives, each candidate's decided map of it (made at ``t``) is scored by
+decayed counts of three F1s: of all cells, of the cells changed since frame ``t``, and the
+tolerant F1 in the region where movers went (as the mover metric counts it). The pair ``(a, b)``
+chosen, ``a`` deciding the common cells and ``b`` the rare ones, maximises the margins of the
+map they make together over the simple predictors among the candidates.
 """
 
 from __future__ import annotations
@@ -20,21 +16,16 @@ from lidarflow.online.stacking import f1_of
 
 __all__ = ["Leader"]
 
-# the counts kept per candidate: (kind, [tp, fp, fn]) for all cells and for changed cells, and
-# the rare cells' tolerant [right, wrong, found, missed]
-_ALL, _CHANGED = 0, 1
-
-
 #: How much more a loss against the simple predictors weighs than a win of the same size.
 LOSS_WEIGHT = 10.0
 
 
 class Leader:
     """The choice for one horizon among ``candidates`` decided maps, starting on ``first``.
-    With ``baselines`` (the candidates that are simple predictors, the one the tolerant F1 is
-    judged against first) the pair chosen maximises its margins over them, as a model is
-    judged (all-cell F1 over the best, changed-cell F1 over the best, tolerant F1 over the
-    first), each loss weighing :data:`LOSS_WEIGHT` times a win; without, the sum of the F1s."""
+    With ``baselines`` (the simple predictors among the candidates) the pair chosen maximises
+    its margins as a model is judged: all-cell and changed-cell F1 over the best of them,
+    tolerant F1 over the first, each loss weighing :data:`LOSS_WEIGHT` times a win. Without,
+    it maximises the sum of the F1s."""
 
     def __init__(
         self,
@@ -49,8 +40,8 @@ class Leader:
         self.reset()
 
     def reset(self) -> None:
-        self._f1 = np.zeros((self.candidates, 2, 2, 3))  # candidate, metric, kind, tp/fp/fn
-        self._tolerant = np.zeros((self.candidates, 4))
+        self._f1 = np.zeros((self.candidates, 2, 2, 3))  # candidate, all/changed, kind, tp/fp/fn
+        self._tolerant = np.zeros((self.candidates, 4))  # right, wrong, found, missed
         self.choice = (self.first, self.first)
 
     def state(self) -> dict[str, np.ndarray]:
@@ -63,10 +54,8 @@ class Leader:
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
         """Continue from :meth:`state`'s arrays (a ``ValueError`` where they do not fit)."""
-        for key, shape in (
-            ("f1_counts", self._f1.shape),
-            ("tolerant_counts", self._tolerant.shape),
-        ):
+        shapes = {"f1_counts": self._f1.shape, "tolerant_counts": self._tolerant.shape}
+        for key, shape in shapes.items():
             if key not in state or np.shape(state[key]) != shape:
                 raise ValueError(f"leader state: {key} missing or not of shape {shape}")
         choice = tuple(int(c) for c in np.asarray(state["choice"]).reshape(2))
@@ -92,8 +81,8 @@ class Leader:
         self._tolerant *= self.decay
         changed = occupied != before
         # the cells each count is over, as rows: (metric, kind) in _f1's order
-        masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).reshape(4, -1)
-        masks = masks.astype(np.float32)
+        masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).astype(np.float32)
+        masks = masks.reshape(4, -1)
         flat = decided.reshape(len(decided), -1).astype(np.float32)
         truth = occupied.reshape(-1).astype(np.float32)
         tp = (flat * truth) @ masks.T  # (C, 4)
@@ -114,8 +103,7 @@ class Leader:
         # F1 of all / changed cells for the pair (a common, b rare): counts of a's common
         # cells plus b's rare ones
         total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)
-        tp, fp, fn = total[..., 0], total[..., 1], total[..., 2]
-        f1 = f1_of(tp, fp + fn)  # (a, b, metric)
+        f1 = f1_of(total[..., 0], total[..., 1] + total[..., 2])  # (a, b, metric)
         right, wrong, found, missed = self._tolerant.T
         precision = _ratio(right, right + wrong)
         recall = _ratio(found, found + missed)

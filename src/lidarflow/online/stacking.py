@@ -1,29 +1,22 @@
-"""Experts' maps combined per cell by a logistic regression learned on the stream.
+"""Experts' maps combined per cell by a logistic regression learnt on the stream.
 
-For one horizon ``k``, each frame ``t`` brings ``E`` experts' probabilities of every cell of
-frame ``t + k`` (``(E, H, W)``, in [0, 1]) and a mask of the cells that are *rare*: seldom
-occupied before (a running occupancy rate under a bound, where movers go). The combined
+For one horizon ``k``, each frame ``t`` brings ``E`` experts' probabilities ``(E, H, W)`` in
+[0, 1] of frame ``t + k`` and a mask of its *rare* cells (where movers go). The combined
 probability of a cell is
 
     p = sigmoid(w . f),   f = [1, rare, l_1 .. l_E, rare * l_1 .. rare * l_E]
 
 with ``l_e`` the expert's logit (its probability clipped to ``[clip, 1 - clip]``, over the
-clip's logit, so in [-1, 1]): rare cells get weights of their own, so the combination can trust
-an expert on walls and not on movers, or the other way round.
+clip's logit, so in [-1, 1]): rare cells get weights of their own.
 
-When frame ``t + k`` arrives, its occupancy is the label of what was predicted for it: the
-experts' maps kept since ``t`` are scored and ``w`` takes one AdaGrad step on the mean log-loss
-over all cells (:meth:`HorizonStacking.learn`). Nothing predicted for ``t + k`` depends on a
-frame after ``t``: the weights used at ``t`` learned from labels that had arrived by ``t``.
+When frame ``t + k`` arrives, its occupancy labels the maps kept since ``t`` and ``w`` takes one
+AdaGrad step on the mean log-loss over all cells (:meth:`HorizonStacking.learn`): what is
+predicted for ``t + k`` depends on no frame after ``t``. The decision thresholds (one for rare
+cells, one for the rest) maximise the decayed F1 of all cells plus that of the rare cells; the
+decided map is the probability rescaled so that they fall on the metric's 0.4 (:func:`rescaled`).
 
-The decision: the combined probability is decided at the thresholds (one for rare cells, one
-for the rest) that maximise, on the pairs already learnt from (counted with a decay), the F1 of
-all cells plus the F1 of the rare cells; the decided map is the combined probability rescaled
-so that those thresholds fall on the metric's 0.4 (:func:`rescaled`).
-
-Cells where every expert says below ``clip`` have the same features (one vector per rare flag),
-so they are counted, not computed: the cost grows with the cells some expert finds possibly
-occupied, not with the grid.
+Cells where every expert says below ``clip`` share one feature vector per rare flag, so they are
+counted, not computed: the cost grows with the cells some expert finds possibly occupied.
 """
 
 from __future__ import annotations
@@ -53,9 +46,8 @@ class StackingConfig:
     rare_weight: float = 1.0
 
     def __post_init__(self) -> None:
-        if not 0 < self.clip < 0.5 or not 0 < self.decay <= 1 or self.bins < 2:
-            raise ValueError(f"invalid stacking configuration: {self}")
-        if self.learning_rate <= 0 or self.rare_weight < 0:
+        valid = 0 < self.clip < 0.5 and 0 < self.decay <= 1 and self.bins >= 2
+        if not valid or self.learning_rate <= 0 or self.rare_weight < 0:
             raise ValueError(f"invalid stacking configuration: {self}")
 
 
@@ -82,15 +74,12 @@ class HorizonStacking:
         self._limit = float(np.log((1 - self.config.clip) / self.config.clip))
         self.reset()
 
-    @property
-    def features(self) -> int:
-        return 2 + 2 * self.experts
-
     def reset(self) -> None:
         """Back to the start: the prior expert's logit alone, nothing counted."""
-        self.weights = np.zeros(self.features)
+        features = 2 + 2 * self.experts
+        self.weights = np.zeros(features)
         self.weights[2 + self.prior] = self._limit  # sigmoid(limit * l) is the expert's own p
-        self._squares = np.zeros(self.features)
+        self._squares = np.zeros(features)
         bins = self.config.bins
         # decayed counts per (rare, bin of the combined probability) of occupied and free cells
         self._occupied = np.zeros((2, bins))
@@ -122,18 +111,14 @@ class HorizonStacking:
         self.thresholds = np.array(state["thresholds"], np.float64).reshape(2)
         self.learned = int(state["learned"])
 
-    def _logits(self, probabilities: np.ndarray) -> np.ndarray:
-        clip = self.config.clip
-        p = np.clip(np.asarray(probabilities, np.float64), clip, 1 - clip)
-        return np.log(p / (1 - p)) / self._limit
-
     def _design(self, probabilities: np.ndarray, rare: np.ndarray) -> np.ndarray:
         """The features ``(F, N)`` of ``N`` cells: ``probabilities`` ``(E, N)``, ``rare``
         ``(N,)`` bool."""
-        logits = self._logits(probabilities)
+        clip = self.config.clip
+        p = np.clip(np.asarray(probabilities, np.float64), clip, 1 - clip)
+        logits = np.log(p / (1 - p)) / self._limit
         r = rare.astype(np.float64)
-        ones = np.ones_like(r)
-        return np.concatenate([ones[None], r[None], logits, logits * r[None]])
+        return np.concatenate([np.ones_like(r)[None], r[None], logits, logits * r[None]])
 
     def _split(
         self, probabilities: np.ndarray, rare: np.ndarray
@@ -143,35 +128,27 @@ class HorizonStacking:
         flat = probabilities.reshape(self.experts, -1)
         active = np.flatnonzero((flat > self.config.clip).any(axis=0))
         design = self._design(flat[:, active], rare.ravel()[active])
-        floor = np.zeros((self.experts, 2))
-        quiet = self._design(floor, np.array([False, True]))
+        quiet = self._design(np.zeros((self.experts, 2)), np.array([False, True]))
         return active, design, quiet
 
-    @staticmethod
-    def _laid_out(
-        active: np.ndarray, p: np.ndarray, quiet_p: np.ndarray, rare: np.ndarray
-    ) -> np.ndarray:
-        """The grid ``(H, W)`` of the ``active`` cells' ``p`` and the quiet cells' of their
-        kind (``quiet_p``: not rare, rare)."""
-        out = np.where(rare.ravel(), quiet_p[1], quiet_p[0])
-        out[active] = p
-        return out.reshape(rare.shape)
+    def _combined(
+        self, active: np.ndarray, design: np.ndarray, quiet: np.ndarray, rare: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The combined probability of the ``active`` cells, of the quiet ones (not rare, rare)
+        and the grid ``(H, W)`` of both."""
+        p, quiet_p = _sigmoid(self.weights @ design), _sigmoid(self.weights @ quiet)
+        grid = np.where(rare.ravel(), quiet_p[1], quiet_p[0])
+        grid[active] = p
+        return p, quiet_p, grid.reshape(rare.shape)
 
     def _decide(self, p: np.ndarray, rare: np.ndarray) -> np.ndarray:
-        """``p`` rescaled at the thresholds of each cell's kind (:func:`rescaled`)."""
         return rescaled(p, np.where(rare, self.thresholds[1], self.thresholds[0]))
 
-    def probability(self, probabilities: np.ndarray, rare: np.ndarray) -> np.ndarray:
-        """The combined probability ``(H, W)`` float64 of the experts' ``probabilities``
-        ``(E, H, W)`` with ``rare`` ``(H, W)`` bool."""
-        active, design, quiet = self._split(probabilities, rare)
-        quiet_p = _sigmoid(self.weights @ quiet)
-        return self._laid_out(active, _sigmoid(self.weights @ design), quiet_p, rare)
-
     def decided(self, probabilities: np.ndarray, rare: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The combined probability and the decided one (:func:`rescaled` at the thresholds of
-        the cell's kind), each ``(H, W)``."""
-        p = self.probability(probabilities, rare)
+        """The combined probability ``(H, W)`` float64 of the experts' ``probabilities``
+        ``(E, H, W)`` with ``rare`` ``(H, W)`` bool, and the decided one (:func:`rescaled` at
+        the thresholds of the cell's kind)."""
+        p = self._combined(*self._split(probabilities, rare), rare)[2]
         return p, self._decide(p, rare)
 
     def learn(
@@ -184,9 +161,8 @@ class HorizonStacking:
         target = np.asarray(occupied).ravel() > 0.5
         flat_rare = rare.ravel()
         active, design, quiet = self._split(probabilities, rare)
-        quiet_p = _sigmoid(self.weights @ quiet)
-        p = _sigmoid(self.weights @ design)
-        decided = self._decide(self._laid_out(active, p, quiet_p, rare), rare)
+        p, quiet_p, grid = self._combined(active, design, quiet, rare)
+        decided = self._decide(grid, rare)
         # every cell not active: its features are quiet[:, rare], its label free or occupied
         rest = np.ones(target.size, bool)
         rest[active] = False
@@ -240,14 +216,10 @@ def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) 
     # predicted occupied at threshold index i: the bins i .. bins - 1
     tp = np.cumsum(occupied[:, ::-1], axis=1)[:, ::-1]  # (2, bins)
     fp = np.cumsum(free[:, ::-1], axis=1)[:, ::-1]
-    positives = occupied.sum(axis=1)  # (2,)
-    fn = positives[:, None] - tp
+    wrong = fp + (occupied.sum(axis=1)[:, None] - tp)  # false positives and negatives
     # all cells: every pair (i common, j rare)
-    all_tp = tp[0][:, None] + tp[1][None, :]
-    all_wrong = (fp[0] + fn[0])[:, None] + (fp[1] + fn[1])[None, :]
-    f1_all = f1_of(all_tp, all_wrong)
-    f1_rare = f1_of(tp[1], fp[1] + fn[1])[None, :]
-    score = f1_all + rare_weight * f1_rare
+    f1_all = f1_of(tp[0][:, None] + tp[1][None, :], wrong[0][:, None] + wrong[1][None, :])
+    score = f1_all + rare_weight * f1_of(tp[1], wrong[1])[None, :]
     i, j = np.unravel_index(int(np.argmax(score)), score.shape)
     edges = np.arange(bins) / bins
     return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])

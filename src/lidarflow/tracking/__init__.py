@@ -1,7 +1,5 @@
-"""Following moving objects from frame to frame (:class:`Tracker`) and what it hands on.
-
-A room of its own, neither ``predict`` nor ``baselines``: the engine runs it at deployment
-beside the model and ``evaluate`` scores it as a baseline, and it is built from neither.
+"""Following moving objects from frame to frame (:class:`Tracker`) and what it hands on: run by
+the engine beside the model at deployment and scored by ``evaluate`` as a baseline.
 """
 
 from lidarflow.tracking.clusters import associate, cluster_labels, foreground

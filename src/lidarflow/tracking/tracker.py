@@ -1,33 +1,26 @@
-"""A classical tracker: background, clusters, constant-velocity motion.
+"""A classical tracker: background, clusters, constant-velocity motion; causal, pure NumPy.
 
-In ``tracking/``, not ``baselines/``: the engine runs it beside the model at deployment, and
-``evaluate`` scores it as one more baseline through the same :class:`~lidarflow.baselines.Method`.
+Each frame:
 
-Causal, one frame at a time, pure NumPy:
-
-1. **Background**: a per-cell running occupancy rate ``b`` (exponential, weight ``alpha`` for
-   the new frame, updated only where the cell is visible, so that a person walking in front of
-   a wall does not erase it). On a moving platform it lives in the world: each frame it is
-   moved into the new sensor frame by the ego motion first, as ``copy_last_ego`` moves its map.
-   A cell seen for the first time starts at its occupancy, so that the first frame, and the
-   walls a driving platform comes upon, are background at once rather than a crowd of movers.
-2. **Foreground**: the occupied cells whose background rate, the largest over their 3 x 3
-   neighbourhood, is under ``background_threshold`` (the neighbourhood absorbs the returns of a
-   wall that cross a cell edge, the edge flicker that dominates what changes on a still scanner).
-3. **Clusters**: foreground cells within ``link`` of each other (0.5 m: a person's two legs
-   are one object), connected components by a small union-find over the few foreground cells.
-4. **Association**: each track's centroid predicted one frame on, then greedily the nearest
-   (cluster, track) pairs within ``gate``; an unmatched cluster starts a track at rest; a track
-   missed more than ``max_missed`` frames in a row ends.
-5. **Motion**: per track a constant-velocity Kalman filter on the cluster's centroid, state
+1. **Background**: a per-cell running occupancy rate (weight ``alpha`` for the new frame),
+   updated only where the cell is visible, so a person in front of a wall does not erase it.
+   It lives in the world: each frame it is first moved into the new sensor frame by the ego
+   motion. A cell seen for the first time starts at its occupancy, so the first frame and the
+   walls a driving platform comes upon are background at once.
+2. **Foreground**: occupied cells whose background rate, the largest over their 3 x 3
+   neighbourhood, is under ``background_threshold`` (the neighbourhood absorbs a wall's returns
+   that cross a cell edge).
+3. **Clusters**: foreground cells within ``link`` of each other (a person's two legs are one).
+4. **Association**: greedily the nearest (track predicted one frame on, cluster) pairs within
+   ``gate``; an unmatched cluster starts a track at rest; a track missed more than
+   ``max_missed`` frames in a row ends.
+5. **Motion**: per track a constant-velocity Kalman filter on the centroid, state
    ``(x, y, vx, vy)`` in cells and cells per frame in the sensor frame (x forward, y left),
    re-expressed in each new sensor frame with the ego motion, so its velocity is the world's.
 
-The prediction ``k`` frames ahead (:meth:`Tracker.ahead`, native: no output fed back) is the
-background part of the current map unmoved and each track seen this frame as its cells shifted
-by ``k`` times its velocity (rounded to whole cells), occupied 1, the rest 0; on a moving
-platform the whole map is then moved into the sensor frame ``k`` guessed steps on (the last
-motion again, constant velocity, as ``copy_last_ego``).
+The prediction ``k`` frames ahead (:meth:`Tracker.ahead`) is the background part of the map
+unmoved and each track seen this frame as its cells shifted by ``k`` times its velocity, then
+the whole map moved into the sensor frame ``k`` guessed steps on (the last motion again).
 """
 
 from __future__ import annotations
@@ -48,15 +41,6 @@ __all__ = ["Tracker", "TrackerConfig"]
 @dataclass(frozen=True)
 class TrackerConfig:
     """The tracker's few parameters, lengths in metres (``res`` turns them into cells).
-
-    Defaults: ``link`` and ``gate`` from the geometry of people (legs under 0.5 m apart,
-    walking under ~1.5 m/s, so at 7.5-13 Hz under 0.2 m a frame; the gate allows for a missed
-    frame and a centroid that jumps as a leg is hidden); ``alpha`` a background time constant
-    of ~20 frames (2-3 s: someone standing that long becomes background), the threshold one
-    that a wall's edge flicker (~50 %) clears and a passer-by's first frames (``alpha`` each)
-    do not; the Kalman noises let the velocity settle within ~5 frames. Not yet tuned on the
-    development recordings: positive_1, datmo_overtakes and demo_stationary were only scored
-    with them (``docs/guide/conventions.md``).
 
     Attributes:
         alpha: weight of the new frame in the running background rate (1 / time constant in
@@ -115,9 +99,7 @@ class Tracker:
         self.config = config or TrackerConfig()
         self.res = res
         q, r = self.config.process_noise, self.config.measurement_noise
-        self._transition = np.array(
-            [[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]], np.float64
-        )
+        self._transition = np.eye(4) + np.eye(4, k=2)  # x += vx, y += vy
         # white acceleration over one frame, per axis [[1/4, 1/2], [1/2, 1]] q^2
         block = np.array([[0.25, 0.5], [0.5, 1.0]]) * q * q
         self._process = np.kron(block, np.eye(2))
@@ -157,12 +139,10 @@ class Tracker:
         only :meth:`tracks`, the engine, does not pay for the map)."""
         occupied = np.asarray(occupancy) > 0.5
         visible = (np.asarray(visibility) > 0.5) | occupied
-        moved = motion is not None and bool(np.any(np.asarray(motion) != 0))
-        if moved:
+        if motion is not None and np.any(np.asarray(motion) != 0):
             self._carry(np.asarray(motion, np.float64))
-        guessed = paced_motion(motion, pace)
-        self._motion = motion if guessed is None else guessed
-        self._motion = None if self._motion is None or not np.any(self._motion) else self._motion
+        guess = motion if pace is None else paced_motion(motion, pace)  # None without motion
+        self._motion = guess if guess is not None and np.any(guess) else None
         if self._background is None or self._seen is None:
             self._background = occupied.astype(np.float64)
             self._seen = visible.copy()
@@ -185,11 +165,10 @@ class Tracker:
         if self._static is None:
             raise RuntimeError("ahead() before any update()")
         tracks = self.tracks()
-        out = []
-        for k in range(1, horizon + 1):
-            image = (self._static | tracks.cells_at(k)).astype(np.float32)
-            out.append(tracks.moved_to_sensor(image, k))
-        return out
+        return [
+            tracks.moved_to_sensor(self._static | tracks.cells_at(k), k)
+            for k in range(1, horizon + 1)
+        ]
 
     def tracks(self, hold: int = 0) -> Tracks:
         """The objects tracked and seen in the last frame, frozen: what :class:`Tracks` moves
@@ -225,11 +204,12 @@ class Tracker:
         # each cluster's cells (row, col) in the sensor frame (x, y), in cells
         xy = [np.stack(cell_to_metric(g[:, 0], g[:, 1], h, w), axis=-1) for g in groups]
         centroids = np.array([p.mean(axis=0) for p in xy]).reshape(-1, 2)
-        for track in self._tracks:  # one frame on
+        for track in self._tracks:  # one frame on, unseen until a cluster continues it
             track.state = self._transition @ track.state
             track.covariance = (
                 self._transition @ track.covariance @ self._transition.T + self._process
             )
+            track.missed += 1
         predicted = np.array([t.state[:2] for t in self._tracks]).reshape(-1, 2)
         pairs = associate(predicted, centroids, cfg.gate / self.res)
         matched = {c for _, c in pairs}
@@ -237,10 +217,6 @@ class Tracker:
             self._correct(self._tracks[t], centroids[c])
             self._tracks[t].cells = groups[c]
             self._tracks[t].missed = 0
-        paired = {t for t, _ in pairs}
-        for i, track in enumerate(self._tracks):
-            if i not in paired:
-                track.missed += 1
         self._tracks = [t for t in self._tracks if t.missed <= cfg.max_missed]
         # a new object: at rest, its speed unknown up to a brisk walk (2 m/s at 10 Hz)
         speed = 0.2 / self.res

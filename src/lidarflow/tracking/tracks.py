@@ -1,10 +1,6 @@
-"""What the tracker hands on each frame: the objects it follows, frozen.
-
-:class:`Tracks` (:meth:`lidarflow.tracking.Tracker.tracks`) is what the engine lays over a
-model's decided map where its policy carries tracks (:class:`lidarflow.predict.engine.Engine`),
-moved ``k`` frames on by each object's velocity and the sensor's guessed motion;
-:class:`Track` is one object in metres and seconds, for the robot's own code
-(``Prediction.tracks``).
+"""What the tracker hands on each frame: the objects it follows, frozen (:class:`Tracks`, which
+the engine lays over a model's decided map), and each as a :class:`Track` in metres and seconds
+for the robot's own code (``Prediction.tracks``).
 """
 
 from __future__ import annotations
@@ -73,11 +69,10 @@ class Tracks:
     def metric(self, step_ns: int | None = None) -> tuple[Track, ...]:
         """Each object as a :class:`Track` (metres; metres per second given the stream's step
         ``step_ns``, nanoseconds)."""
-        per_second = None if not step_ns else 1e9 / step_ns
         out = []
         for state, cells in self.objects:
             frame_velocity = np.asarray(state[2:4], np.float64) * self.res
-            velocity = None if per_second is None else frame_velocity * per_second
+            velocity = frame_velocity * (1e9 / step_ns) if step_ns else None
             position = np.asarray(state[:2], np.float64) * self.res
             out.append(Track(position, velocity, frame_velocity, cells.copy()))
         return tuple(out)
@@ -88,10 +83,9 @@ class Tracks:
         h, w = self.shape
         out = np.zeros(self.shape, bool)
         for state, cells in self.objects:
-            velocity = state[2:]
-            d_row = int(np.rint(-k * velocity[0]))
-            d_col = int(np.rint(-k * velocity[1]))
-            r, c = cells[:, 0] + d_row, cells[:, 1] + d_col
+            # rows grow backwards (-x), columns rightwards (-y)
+            r = cells[:, 0] + int(np.rint(-k * state[2]))
+            c = cells[:, 1] + int(np.rint(-k * state[3]))
             inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
             out[r[inside], c[inside]] = True
         return out
