@@ -27,8 +27,7 @@ from lidarflow.evaluate.evaluation import score_one
 from lidarflow.evaluate.labels import read_labels
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.evaluate.model_method import ModelMethod
-from lidarflow.predict.engine import Engine
-from lidarflow.predict.learning import HeadLearning, LearningConfig
+from lidarflow.predict.learning import LearningConfig
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, read_json, stem, write_json
 from studies.movers import horizon_of
@@ -81,27 +80,29 @@ def labels_of(path: Path) -> Path | None:
 def learning_methods(model: ModelMethod, rates: list[float]) -> list[ModelMethod]:
     """The model again, its head learning on the stream at each Adam step size in ``rates``
     (``model_learning_RATE``), each on its own copy of the weights."""
+    policy = model.engine.policy.to_record()
     out = []
     for rate in rates:
-        backend = copy.deepcopy(model.backend)
-        method = ModelMethod(f"model_learning_{rate:g}", backend, decision=backend.decision)
-        learning = HeadLearning(backend, LearningConfig(rate=rate))
-        method.engine = Engine(backend, 0.1, model.engine.policy, learning=learning)
-        method.online = method.engine.decision
-        out.append(method)
+        name, backend = f"model_learning_{rate:g}", copy.deepcopy(model.backend)
+        out.append(ModelMethod(name, backend, decision=policy, learning=LearningConfig(rate)))
     return out
 
 
 def score(
-    path: Path, model: str | Path | None, combine: bool = True, rates: list[float] | None = None
+    path: Path,
+    model: str | Path | None,
+    combine: bool = True,
+    learn: bool = False,
+    rates: list[float] | None = None,
 ) -> dict[str, Any]:
     recording = load_any(path)
     horizon = horizon_of(recording)
-    # the model, and the model combined online last (model_combined), as evaluate --combine
-    methods, _ = methods_and_config([model], names=["model"], combine=horizon if combine else None)
-    combination = methods[-1] if combine else None
-    model_method = next(m for m in methods if getattr(m, "name", "") == "model")
-    methods += learning_methods(model_method, rates or [])
+    # the model and its variants (model_combined, model_learning, ...), as evaluate makes them
+    methods, _ = methods_and_config(
+        [model], names=["model"], combine=horizon if combine else None, learn=learn
+    )
+    by_name = {m.name: m for m in methods}
+    methods += learning_methods(by_name["model"], rates or [])
     labels = None
     label_file = labels_of(path)
     if label_file is not None:
@@ -113,23 +114,29 @@ def score(
     )
     keys = scored.horizon or {}
     out: dict[str, Any] = {"horizon": horizon, "seconds": time.perf_counter() - start}
-    out["warm_up"] = {m.name: curve.frames_until(m.name) for m in methods[-len(rates or []) - 1 :]}
+    ours = [m for m in methods if m.name.startswith("model")]
+    out["warm_up"] = {m.name: curve.frames_until(m.name) for m in ours}
     for key in KEYS:
         table = keys.get(f"horizon_{key}", {})
         out[key] = {m: [float(v[0]), float(v[-1])] for m, v in table.items()}
     if "legs" in scored.notes:
         legs = scored.notes["legs"]
         out["legs"] = {m: {k: [v[0], v[-1]] for k, v in legs[m].items()} for m in legs}
-    if combination is not None:
-        out["weights"] = combination.combination.weights()
-        out["chosen"] = combination.combination.chosen()
-    learnt = [m.engine.learning for m in methods if m.name.startswith("model_learning")]
-    out["learning"] = {
-        f"{learning.config.rate:g}": {"frames": learning.frames, "fallbacks": learning.fallbacks,
-                                      "loss": learning.loss, "shipped_loss": learning.shipped_loss}
-        for learning in learnt
-    }  # fmt: skip
+    if "model_combined" in by_name:
+        out["weights"] = by_name["model_combined"].combination.weights()
+        out["chosen"] = by_name["model_combined"].combination.chosen()
+    out["learning"] = {m.name: _learnt(m) for m in ours if _learnt(m)}
     return out
+
+
+def _learnt(method: Any) -> dict[str, Any] | None:
+    """What a method's head learnt on the recording (``None``: it does not learn)."""
+    engine = method.model.engine if hasattr(method, "combination") else method.engine
+    learning = engine.learning
+    if learning is None:
+        return None
+    return {"frames": learning.frames, "fallbacks": learning.fallbacks,
+            "loss": learning.loss, "shipped_loss": learning.shipped_loss}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -138,8 +145,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--fold-runs", type=Path, default=None, help="FOLDER/<recording>/run models")
     p.add_argument("--model", default=None, help="one model for every recording (default bundled)")
     p.add_argument("--no-combine", action="store_true", help="leave the combination out")
+    p.add_argument("--learn", action="store_true", help="also the model learning on the stream")
     p.add_argument("--learn-rates", nargs="*", type=float, default=[],
-                   help="also the model learning on the stream at these step sizes")  # fmt: skip
+                   help="also the model learning at these step sizes")  # fmt: skip
     args = parse(p, argv)
     out: Path = args.output
     results = {}
@@ -151,7 +159,7 @@ def main(argv: list[str] | None = None) -> None:
             model = args.model
             if args.fold_runs is not None:
                 model = args.fold_runs / stem(path) / "run"
-            result = score(path, model, not args.no_combine, args.learn_rates)
+            result = score(path, model, not args.no_combine, args.learn, args.learn_rates)
             results[stem(path)] = write_json(target, result) and read_json(target)
         show(stem(path), results[stem(path)])
     write_json(out / "summary.json", results)
