@@ -100,3 +100,32 @@ def test_models_it_does_not_know_stay_on_pytorch() -> None:
     assert not supports(net)
     with pytest.raises(ValueError, match="head-only"):
         HeadStepBackend(net)
+
+
+def test_the_bundled_head_read_without_pytorch_is_the_one_pytorch_loads() -> None:
+    """read_head takes the weights from the files alone (the core install's way to learn): the
+    same arrays, gain and capabilities as from the PyTorch model, so the same step."""
+    import json
+
+    from lidarflow.models.presets import bundled_model_dir, resolve_model
+    from lidarflow.models.weights import read_safetensors
+    from lidarflow.predict.headstep import read_head
+
+    folder = bundled_model_dir()
+    card = json.loads((folder / "model.json").read_text())
+    head = read_head(card, folder / "model.safetensors")
+    assert head is not None
+    numpy_only, reference = HeadStepBackend(head), HeadStepBackend(resolve_model(None)[0])
+    for (a, b), (c, d) in zip(numpy_only.layers, reference.layers, strict=True):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, d)
+    assert numpy_only.gain == reference.gain
+    assert numpy_only.capabilities == reference.capabilities
+    from safetensors.numpy import load_file
+
+    weights = folder / "model.safetensors"
+    ours, theirs = read_safetensors(weights), load_file(weights)
+    assert ours.keys() == theirs.keys()
+    assert all(np.array_equal(ours[k], theirs[k]) for k in ours)
+    flow_card = {"model": "flownet", "model_kwargs": {"flow_network": True}}
+    assert read_head(flow_card, folder / "model.safetensors") is None  # not a head-only model

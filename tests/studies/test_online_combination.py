@@ -1,6 +1,6 @@
 """The online combination's study runs end to end on a short simulated recording: it scores the
-model, the model combined and the model learning beside the baselines, keeps a recording's result, and tables the
-margins as evaluate judges them."""
+model, the model combined and the model learning beside the baselines, keeps a recording's
+result, and tables the margins as evaluate judges them."""
 
 from __future__ import annotations
 

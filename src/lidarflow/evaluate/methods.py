@@ -23,9 +23,8 @@ from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.report import ORACLE_SUFFIX
 from lidarflow.models.weights import describe_source
 from lidarflow.online.experts import EXPERTS
-from lidarflow.predict.backends import load_backend
+from lidarflow.predict.backends import learning_backend, load_backend
 from lidarflow.predict.decision import OnlineDecisionConfig
-from lidarflow.predict.headstep import HeadStepBackend
 from lidarflow.predict.learning import LearningConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD
 from lidarflow.tracking import Tracker, TrackerConfig
@@ -71,18 +70,17 @@ def methods_and_config(
         name = names[i] if names else None
         methods += _model_methods(
             source, name, {m.name for m in methods}, moving_threshold, online_config, res,
-            ego_oracle, online, models_used, device, threads,
+            ego_oracle, online, models_used, device, threads, learn,
         )  # fmt: skip
     # the tracker takes the motion too, but copy_last_ego stands beside ego-motion models only
     ego_models = any(isinstance(m, ModelMethod) and m.takes.motion for m in methods)
     if ego_models:
         methods[4:4] = [CopyLastEgo()] + ([CopyLastEgo(oracle=True)] if ego_oracle else [])
-    models = [m for m in methods if isinstance(m, ModelMethod) and m.name in models_used]
-    learners = [m for m in models if learn and isinstance(m.backend, HeadStepBackend)]
     if combine is not None:
+        models = [m for m in methods if isinstance(m, ModelMethod) and m.name in models_used]
+        learners = [m for m in methods if isinstance(m, ModelMethod) and m.engine.learning]
         methods += [_combined(m, combine, res) for m in models]
         methods += [_combined(m, combine, res, learning=True) for m in learners]
-    methods += [_learning(m, moving_threshold, online_config, res) for m in learners]
     config = _report_config(
         methods, ta_window, ta_threshold, moving_threshold, models_used, online_config, online
     )
@@ -95,26 +93,14 @@ def methods_and_config(
 
 def _combined(model: ModelMethod, horizon: int, res: float, learning: bool = False) -> Any:
     """``model`` combined online with the simple predictors ``horizon`` frames ahead
-    (``NAME_combined``); with ``learning`` its head learning too, on a copy of its weights
-    (``NAME_learning_combined``)."""
+    (``NAME_combined``); a ``model`` that learns (``NAME_learning``) learning as it did, on a
+    copy of its weights (``NAME_learning_combined``)."""
     policy = model.engine.policy.to_record()
     if not learning:
         return CombinedMethod(f"{model.name}_combined", model.backend, horizon, res, policy)
     backend = copy.deepcopy(model.backend)
-    name = f"{model.name}_learning_combined"
+    name = f"{model.name}_combined"
     return CombinedMethod(name, backend, horizon, res, policy, learning=LearningConfig())
-
-
-def _learning(
-    model: ModelMethod, moving_threshold: float, online_config: OnlineDecisionConfig, res: float
-) -> ModelMethod:
-    """``model`` again as ``NAME_learning``: its head learning on the stream, on a copy of its
-    weights (the model itself stays as shipped)."""
-    return ModelMethod(
-        f"{model.name}_learning", copy.deepcopy(model.backend), moving_threshold,
-        online_config=online_config, res=res, decision=model.engine.policy.to_record(),
-        learning=LearningConfig(),
-    )  # fmt: skip
 
 
 def _model_methods(
@@ -129,9 +115,11 @@ def _model_methods(
     models_used: dict[str, Any],
     device: str,
     threads: int | None,
+    learn: bool = False,
 ) -> list[Any]:
     """The methods of one model ``source`` (see :func:`methods_and_config`), named ``name`` or
-    after it (a name ``taken`` gets underscores), its record put in ``models_used``."""
+    after it (a name ``taken`` gets underscores), its record put in ``models_used``; with
+    ``learn`` also ``NAME_learning``, its head learning on a copy of its weights."""
     bundled = source is None or str(source) == "bundled"
     net, card = load_backend(None if bundled else source, threads=threads, device=device)
     name = name or ("bundled" if bundled else describe_source(source))
@@ -159,6 +147,13 @@ def _model_methods(
                 decision=own,
             )
         )
+    if learn:
+        learner = copy.deepcopy(learning_backend(net, None if bundled else source))
+        learning = ModelMethod(
+            name + "_learning", learner, moving_threshold, online_config=online_config,
+            res=res, decision=own, learning=LearningConfig(),
+        )  # fmt: skip
+        methods.append(learning)
     return methods
 
 

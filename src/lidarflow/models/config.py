@@ -12,6 +12,9 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+#: Logit given to cells that come into view in an occupancy model's rigidly warped output.
+OCCUPANCY_FILL_LOGIT = math.log(0.02 / 0.98)
+
 __all__ = [
     "DECISION_KEYS",
     "MAX_CHANNELS",

@@ -32,20 +32,16 @@ Motions are ``(dx, dy, dyaw)`` with ``dx, dy`` in *cells*
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import torch
 from torch import Tensor
 
-from lidarflow.models.config import Capabilities
+from lidarflow.models.config import OCCUPANCY_FILL_LOGIT, Capabilities
 from lidarflow.models.recurrent import RecurrentMapModel
 from lidarflow.ops.rigid import cell_grid, rigid_flow, rigid_warp, transform_cells
 from lidarflow.ops.warp import warp
 
 __all__ = ["OCCUPANCY_FILL_LOGIT", "EgoCompensated"]
-
-#: Logit given to cells that come into view in an occupancy model's rigidly warped output.
-OCCUPANCY_FILL_LOGIT = math.log(0.02 / 0.98)
 
 
 class EgoCompensated(RecurrentMapModel):

@@ -15,6 +15,8 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from lidarflow.errors import ModelError
 from lidarflow.models.config import ModelSpec
 
@@ -27,6 +29,7 @@ __all__ = [
     "decision_record",
     "describe_source",
     "load_trained",
+    "read_safetensors",
     "sha256",
     "upgrade_state",
 ]
@@ -49,6 +52,32 @@ def sha256(path: str | Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+#: safetensors' dtype names, as NumPy's (the ones lidarflow writes and a few more).
+_SAFETENSORS_DTYPES = {"F64": "<f8", "F32": "<f4", "F16": "<f2", "I64": "<i8", "I32": "<i4"}
+
+
+def read_safetensors(path: str | Path) -> dict[str, np.ndarray]:
+    """A ``.safetensors`` file's tensors as NumPy arrays, read without PyTorch or the
+    safetensors package (its format: an 8-byte little-endian header size, a JSON header of
+    each tensor's dtype, shape and byte range, then the bytes). ``ValueError`` for a file that
+    is not one, or a dtype NumPy has no name for here."""
+    data = Path(path).read_bytes()
+    try:
+        size = int.from_bytes(data[:8], "little")
+        header = json.loads(data[8 : 8 + size])
+        out = {}
+        for name, entry in header.items():
+            if name == "__metadata__":
+                continue
+            begin, end = (8 + size + offset for offset in entry["data_offsets"])
+            dtype = np.dtype(_SAFETENSORS_DTYPES[entry["dtype"]])
+            array = np.frombuffer(data[begin:end], dtype).reshape(entry["shape"])
+            out[name] = array.astype(dtype.newbyteorder("="))
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path}: not a safetensors file ({err!r})") from err
+    return out
 
 
 def upgrade_state(state: dict[str, Any]) -> dict[str, Any]:

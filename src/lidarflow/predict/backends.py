@@ -286,3 +286,33 @@ def load_backend(
         # numbers within 1e-5 (tests/predict/test_headstep.py).
         return HeadStepBackend(net, threads), card
     return TorchBackend(net, device, threads), card
+
+
+def learning_backend(backend: Any, source: str | Path | None) -> Any:
+    """The backend a model learns on (:mod:`lidarflow.predict.learning`): ``backend`` itself
+    where it runs a head's step in NumPy; for the bundled model on ONNX Runtime (the core
+    install), its head read from its own files, no PyTorch needed.
+
+    Raises:
+        PredictError: any other model (a flow model, an ONNX file, a model on a GPU).
+    """
+    from lidarflow.models.presets import BUNDLED, bundled_model_dir, is_bundled
+    from lidarflow.models.weights import sha256
+    from lidarflow.predict.headstep import HeadStepBackend, read_head
+
+    if isinstance(backend, HeadStepBackend):
+        return backend
+    if is_bundled(source) and isinstance(backend, OnnxBackend):
+        folder = bundled_model_dir()
+        weights = folder / "model.safetensors"
+        if BUNDLED.weights_sha256 and sha256(weights) != BUNDLED.weights_sha256:
+            raise ModelError(f"{weights}: checksum differs from the record; the file is damaged")
+        head = read_head(json.loads((folder / "model.json").read_text()), weights)
+        if head is not None:
+            learner = HeadStepBackend(head)
+            learner.decision = backend.decision
+            return learner
+    raise PredictError(
+        "learning on the stream needs a head-only model run in NumPy on the CPU (as the "
+        "bundled one is), not this one"
+    )

@@ -11,10 +11,11 @@ to step (:func:`lidarflow.geometry.rigid_sampler`), and the shift counted on the
 
 Generic over :class:`~lidarflow.models.config.HeadConfig` as it stands (memories, the
 constant-velocity input and moved memories, the hidden layer, the visibility and sub-cell
-inputs), with the weights read from the model; :func:`supports` says no to anything else (a
+inputs), with the weights read from the model (:func:`supports` says no to anything else: a
 flow network, a head of another kind, a config field this step does not know, a model not in
-float32 on the CPU), and :func:`~lidarflow.predict.backends.load_backend` then runs the model on
-PyTorch as before. tests/predict/test_headstep.py holds it to the PyTorch step within 1e-5.
+float32 on the CPU; :func:`~lidarflow.predict.backends.load_backend` then runs the model on
+PyTorch), or from its files without PyTorch (:func:`read_head`).
+tests/predict/test_headstep.py holds it to the PyTorch step within 1e-5.
 """
 
 from __future__ import annotations
@@ -27,10 +28,16 @@ import numpy as np
 
 from lidarflow.baselines import best_rigid_shift
 from lidarflow.geometry import Sampler, rigid_positions, rigid_sampler
-from lidarflow.models.config import Capabilities
+from lidarflow.models.config import (
+    OCCUPANCY_FILL_LOGIT,
+    Capabilities,
+    HeadConfig,
+    ModelSpec,
+)
+from lidarflow.models.weights import read_safetensors, upgrade_state
 from lidarflow.predict.step import StepInputs, StepOutput
 
-__all__ = ["HeadStepBackend", "HeadTrace", "supports"]
+__all__ = ["HeadStepBackend", "HeadTrace", "HeadWeights", "read_head", "supports"]
 
 #: The HeadConfig fields this step computes; a head with any other is left to PyTorch.
 KNOWN_FIELDS = frozenset(
@@ -78,10 +85,67 @@ def supports(model: Any) -> bool:
     )
 
 
-def _weights(conv: Any) -> tuple[np.ndarray, np.ndarray]:
-    """A 1x1 convolution as ``(weight (out, in), bias (out, 1))`` float32 arrays."""
-    weight = conv.weight.detach().float().cpu().numpy()
-    return weight[:, :, 0, 0].copy(), conv.bias.detach().float().cpu().numpy()[:, None].copy()
+_Layers = list[tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class HeadWeights:
+    """What the step of a head-only model is made of: its head's ``config``, ``ego`` (it is
+    ego-compensated) and ``poses_optional``, its 1x1 ``layers`` as ``(weight (out, in), bias
+    (out, 1))`` float32 arrays (the hidden layer first where it has one) and its ``gain``."""
+
+    config: HeadConfig
+    ego: bool
+    poses_optional: bool
+    layers: _Layers
+    gain: float
+
+    @property
+    def capabilities(self) -> Capabilities:
+        channels = 4 if self.config.subcell_input else 2
+        return Capabilities(channels, 5, False, True, self.ego, self.poses_optional)
+
+
+def _layer_arrays(weight: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 1x1 convolution's ``(out, in, 1, 1)`` weight and ``(out,)`` bias as one layer."""
+    weight = np.asarray(weight, np.float32)[:, :, 0, 0].copy()
+    return weight, np.asarray(bias, np.float32)[:, None].copy()
+
+
+def _from_model(model: Any) -> HeadWeights:
+    """A PyTorch head-only model's (:func:`supports`) weights as arrays."""
+    head, ego = _parts(model)  # type: ignore[misc]
+    convs = ([head.hidden] if head.config.hidden_channels else []) + [head.out]
+    layers = [_layer_arrays(c.weight.detach().cpu().numpy(), c.bias.detach().cpu().numpy())
+              for c in convs]  # fmt: skip
+    caps = model.capabilities
+    return HeadWeights(head.config, ego, caps.poses_optional, layers, float(head.gain.detach()))
+
+
+def read_head(card: dict[str, Any], weights: str | Any) -> HeadWeights | None:
+    """The head-only model a ``model.json`` ``card`` describes, with its ``.safetensors``
+    ``weights`` file read without PyTorch; ``None`` for any other kind of model. A
+    ``ValueError`` where the file does not hold that model's weights."""
+    try:
+        spec, _ = ModelSpec.from_kwargs(card["model"], dict(card.get("model_kwargs") or {}), True)
+    except (KeyError, TypeError, ValueError):
+        return None
+    head = spec.head
+    if spec.name != "flownet" or spec.flow is not None or head is None:
+        return None
+    if {f.name for f in dataclasses.fields(head)} != KNOWN_FIELDS:
+        return None
+    state = upgrade_state(read_safetensors(weights))
+    prefix = "inner.head." if spec.ego_motion else "head."
+    names = (["hidden"] if head.hidden_channels else []) + ["out"]
+    try:
+        layers = [
+            _layer_arrays(state[f"{prefix}{n}.weight"], state[f"{prefix}{n}.bias"]) for n in names
+        ]
+        gain = float(state[f"{prefix}gain"])
+    except KeyError as err:
+        raise ValueError(f"{weights}: no {err.args[0]} among the weights") from err
+    return HeadWeights(head, spec.ego_motion, spec.poses_optional, layers, gain)
 
 
 # OpenBLAS runs a matrix product on one thread below m * n * k = 65536 * 4; above it wakes a
@@ -139,24 +203,24 @@ class HeadStepBackend:
     is what the last step computed (:class:`HeadTrace`)."""
 
     def __init__(self, model: Any, threads: int | None = None) -> None:
-        parts = _parts(model)
-        if parts is None or not supports(model):
-            raise ValueError("HeadStepBackend runs a head-only flownet's step only (supports())")
-        head, self._ego = parts
-        c = self.config = head.config
+        if not isinstance(model, HeadWeights):
+            if not supports(model):
+                raise ValueError("HeadStepBackend runs a head-only flownet's step (supports())")
+            model = _from_model(model)
+            if threads:  # process-wide, as TorchBackend sets it (this step itself takes one)
+                import torch
+
+                torch.set_num_threads(threads)
+        c = self.config = model.config
+        self._ego = model.ego
         self.capabilities: Capabilities = model.capabilities
-        self.gain: float | None = float(head.gain.detach())
+        self.gain: float | None = model.gain
         self.decision: dict[str, Any] | None = None  # as TorchBackend: the policy is the card's
         self._decays = np.asarray(c.memory_decays, np.float32).reshape(-1, 1, 1)
-        if threads:  # process-wide, as TorchBackend sets it (this step itself takes one)
-            import torch
-
-            torch.set_num_threads(threads)
-        layers = [head.hidden] if c.hidden_channels else []
-        self.layers = [_weights(m) for m in [*layers, head.out]]
+        self.layers = [(w.copy(), b.copy()) for w, b in model.layers]
         self.trace: HeadTrace | None = None
-        self._state_channels = head.state_channels
-        self._fill = float(_fill_logit())
+        self._state_channels = len(c.memory_decays) + int(c.constant_velocity_input)
+        self._fill = float(OCCUPANCY_FILL_LOGIT)
         self._flow_key: tuple[float, ...] | None = None
         self._flow = np.zeros(0, np.float32)
 
@@ -261,8 +325,3 @@ def _forward(
         inputs.append(x)
     return _layer(*layers[-1], x), tuple(inputs)
 
-
-def _fill_logit() -> float:
-    from lidarflow.models.egomotion import OCCUPANCY_FILL_LOGIT
-
-    return OCCUPANCY_FILL_LOGIT

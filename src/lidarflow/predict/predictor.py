@@ -44,10 +44,9 @@ from lidarflow.motion.odometry import metres_to_cells, relative_motions
 from lidarflow.motion.pacing import StepClock
 from lidarflow.online.combination import Combination
 from lidarflow.online.stacking import StackingConfig
-from lidarflow.predict.backends import load_backend, recorded_grid
+from lidarflow.predict.backends import learning_backend, load_backend, recorded_grid
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecision, OnlineDecisionConfig
 from lidarflow.predict.engine import Engine, Frame
-from lidarflow.predict.headstep import HeadStepBackend
 from lidarflow.predict.learning import HeadLearning, LearningConfig
 from lidarflow.predict.moving import MOVING_THRESHOLD, moving_mask
 from lidarflow.predict.offsets import THRESHOLD
@@ -130,21 +129,6 @@ class Prediction:
         return moving_mask(self.occupancy, self.forward_flow, self.moving_threshold)
 
 
-def _cannot_learn(model: str | Path | None) -> Exception:
-    """Why ``model`` cannot learn here: the core install runs the bundled model on ONNX."""
-    from lidarflow.extras import INSTALL_TORCH, MissingExtraError, torch_available
-    from lidarflow.models.presets import is_bundled
-
-    if is_bundled(model) and not torch_available():
-        return MissingExtraError(
-            f"learning on the stream needs PyTorch to read the weights; add it with {INSTALL_TORCH}"
-        )
-    return PredictError(
-        "learning on the stream needs a head-only model run in NumPy on the CPU (as the bundled "
-        "one is where PyTorch is installed), not this one"
-    )
-
-
 class Predictor:
     """Stateful next-map predictor.
 
@@ -181,7 +165,7 @@ class Predictor:
         learn: the model's head keeps learning on the stream, each scan the label of the
             prediction made for it (:mod:`lidarflow.predict.learning`; a
             :class:`~lidarflow.predict.learning.LearningConfig` to configure it). Needs a
-            head-only model run in NumPy (the bundled one where PyTorch is installed).
+            head-only model such as the bundled one, run in NumPy on the CPU.
 
     What the combination and the head learnt can be saved and loaded (:meth:`save_learned`,
     :meth:`load_learned`); :meth:`reset` forgets it.
@@ -230,8 +214,7 @@ class Predictor:
         #: The head learning on the stream (``None`` without ``learn``), for a look inside.
         self.learning: HeadLearning | None = None
         if learn is not False:
-            if not isinstance(self.backend, HeadStepBackend):
-                raise _cannot_learn(model)
+            self.backend = learning_backend(self.backend, model)
             config = learn if isinstance(learn, LearningConfig) else None
             self.learning = HeadLearning(self.backend, config)
         try:
