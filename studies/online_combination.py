@@ -233,11 +233,32 @@ def table(folders: list[Path], methods: tuple[str, ...] = ("model", "model_combi
     return "\n".join(lines)
 
 
+def legs_table(folders: list[Path], methods: tuple[str, ...]) -> str:
+    """Markdown: per labelled recording and method, the labelled legs (or people) found within
+    0.3 m (recall) and the predicted dynamic cells near one (precision), at k = 1 and K, the
+    mean over ``folders`` (one per training seed)."""
+    runs = [read_json(folder / "summary.json") for folder in folders]
+    lines = ["| recording | method | recall k=1 | recall ~1 s | precision k=1 | precision ~1 s |",
+             "|---|---|---|---|---|---|"]  # fmt: skip
+    for name in runs[0]:
+        legs = [run[name]["legs"] for run in runs if "legs" in run.get(name, {})]
+        if not legs:
+            continue
+        for method in ("copy_last", "tracker", *methods):
+            cells = [np.mean([leg[method][key][at] for leg in legs])
+                     for key in ("recall", "precision") for at in (0, 1)]  # fmt: skip
+            lines.append(f"| {name} | {method} | " + " | ".join(f"{c:.3f}" for c in cells) + " |")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
     if sys.argv[1:2] == ["table"]:  # table FOLDER... [--methods NAME...]
         args = sys.argv[2:]
         shown = args[args.index("--methods") + 1 :] if "--methods" in args else []
         folders = args[: args.index("--methods")] if shown else args
         print(table([Path(f) for f in folders], *([tuple(shown)] if shown else [])))
+        if shown:
+            print()
+            print(legs_table([Path(f) for f in folders], tuple(shown)))
     else:
         main()

@@ -71,13 +71,13 @@ class HeadLearning:
 
     def learn(self, trace: HeadTrace, target: np.ndarray) -> None:
         """One step on the prediction ``trace`` made, against ``target`` ``(H, W)``, the
-        occupancy of the frame it predicted."""
-        y = np.asarray(target, np.float64).ravel()
-        p = trace.probability.astype(np.float64).ravel()
-        shipped = self._shipped_probability(trace).ravel()
-        if self._judge(_bce(p, y), _bce(shipped, y)):
+        occupancy (0 or 1) of the frame it predicted."""
+        occupied = np.asarray(target) > 0.5
+        p = trace.probability
+        shipped = self._shipped_probability(trace)
+        if self._judge(_bce(p, occupied), _bce(shipped, occupied)):
             return  # restored: this prediction came from the weights just dropped
-        grad = ((p - y) / y.size).reshape(trace.probability.shape)
+        grad = (p - occupied) / np.float32(p.size)
         if trace.sampler is not None:
             grad = trace.sampler.adjoint(grad)
         self._step(_backward(self.backend.layers, trace.inputs, grad.reshape(1, -1)))
@@ -88,7 +88,7 @@ class HeadLearning:
         residual = self.backend.residual(self.shipped, trace.inputs[0])
         residual = residual.reshape(1, *trace.probability.shape)
         logit = self.backend.moved_logit(residual, np.zeros_like(residual), trace.sampler)[0][0]
-        gain = np.float64(self.backend.gain)
+        gain = np.float32(self.backend.gain)
         return 1.0 / (1.0 + np.exp(-(gain * trace.weighed + logit)))
 
     def _judge(self, loss: float, shipped: float) -> bool:
@@ -146,23 +146,39 @@ class HeadLearning:
         self.loss, self.shipped_loss = (float(v) for v in state["losses"])
 
 
-def _bce(p: np.ndarray, y: np.ndarray) -> float:
-    """The mean binary cross-entropy of ``p`` against ``y``."""
-    p = np.clip(p, _EPS, 1.0 - _EPS)
-    return float(-np.mean(y * np.log(p) + (1.0 - y) * np.log(1.0 - p)))
+def _bce(p: np.ndarray, occupied: np.ndarray) -> float:
+    """The mean binary cross-entropy of the probabilities ``p`` against the 0/1 labels
+    ``occupied``: one log per cell, of the probability given to what happened."""
+    likely = np.clip(np.where(occupied, p, 1.0 - p), _EPS, None)
+    return float(-np.log(likely).mean(dtype=np.float64))
 
 
 def _backward(
     layers: _Layers, inputs: tuple[np.ndarray, ...], grad: np.ndarray
 ) -> list[np.ndarray]:
-    """The gradients ``[weight, bias, ...]`` of each layer, from ``grad`` ``(1, N)`` on the
-    last layer's output and each layer's input (a ReLU between layers, as
-    :func:`lidarflow.predict.headstep._forward`)."""
+    """The gradients ``[weight, bias, ...]`` of each layer (float64), from ``grad`` ``(1, N)``
+    on the last layer's output and each layer's input (a ReLU between layers, as
+    :func:`lidarflow.predict.headstep._forward`). The products run in float32, the layers'
+    precision, on one thread."""
     grads: list[np.ndarray] = []
+    grad = np.asarray(grad, np.float32)
     for i in range(len(layers) - 1, -1, -1):
-        weight = layers[i][0].astype(np.float64)
-        x = inputs[i].astype(np.float64)
-        grads[:0] = [grad @ x.T, grad.sum(axis=1, keepdims=True)]
+        x = inputs[i]
+        grads[:0] = [
+            _one_thread_product(grad, x.T).astype(np.float64),
+            grad.sum(axis=1, keepdims=True, dtype=np.float64),
+        ]
         if i:
-            grad = (weight.T @ grad) * (x > 0)
+            grad = layers[i][0].T @ grad
+            grad *= x > 0
     return grads
+
+
+def _one_thread_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for a short ``a`` ``(m, N)`` and ``b`` ``(N, n)``, summed over slices of ``N``
+    small enough that BLAS keeps to one thread (see ``headstep._layer``)."""
+    step = 8192
+    out = a[:, :step] @ b[:step]
+    for start in range(step, a.shape[1], step):
+        out += a[:, start : start + step] @ b[start : start + step]
+    return out
