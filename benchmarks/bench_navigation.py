@@ -17,7 +17,8 @@ source did, and the exact two-sided sign test's p-value on those).
 
 The small one takes ~5 minutes on 2 cores; the full one about 25 times that (``--workers``
 spreads episodes over processes; ``--log FILE`` keeps every finished episode, one JSON line
-each, and a rerun with the same log skips them, so a long run can stop and resume). Writes JSON
+each, and a rerun with the same log skips them, so a long run can stop and resume; ``--from-log``
+reports what a log holds without running anything). Writes JSON
 keyed by source, then crowd size (default ``benchmarks/results/navigation.json``), and a plot
 beside it (``.png``) where matplotlib is installed.
 """
@@ -178,16 +179,22 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1, help="processes")
     parser.add_argument("--json", type=Path, default=RESULTS / "navigation.json")
     parser.add_argument("--log", type=Path, help="JSON lines of finished episodes (resumable)")
+    parser.add_argument(
+        "--from-log", action="store_true",
+        help="run nothing: report the episodes the log holds (a run stopped part way)",
+    )  # fmt: skip
     args = parser.parse_args()
+    if args.from_log and args.log is None:
+        parser.error("--from-log needs --log")
     jobs = [(s, c, e) for c in args.crowds for e in range(args.episodes) for s in args.sources]
     logged = read_log(args.log)
-    todo = [job for job in jobs if job not in logged]
+    todo = [] if args.from_log else [job for job in jobs if job not in logged]
     if logged:
         print(f"{len(jobs) - len(todo)} of {len(jobs)} episodes already in {args.log}")
     start = time.perf_counter()
     outcomes = [(*job, logged[job]) for job in jobs if job in logged]
     log = None
-    if args.log:
+    if args.log and not args.from_log:
         torn = args.log.exists() and not args.log.read_bytes().endswith(b"\n")
         log = args.log.open("a")
         log.write("\n" if torn and args.log.stat().st_size else "")
@@ -226,6 +233,7 @@ def main() -> None:
         "walkers": "social",
         "workers": args.workers,
         "elapsed_s": round(elapsed, 1),
+        "from_log": args.from_log,
         "machine": machine(),
     }
     write_json(args.json, result)

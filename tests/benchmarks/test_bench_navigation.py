@@ -43,9 +43,9 @@ def test_bench_navigation_resumes_from_its_log(tmp_path):
     log = tmp_path / "episodes.jsonl"
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
 
-    def run(out: Path) -> subprocess.CompletedProcess:
+    def run(out: Path, *more: str) -> subprocess.CompletedProcess:
         args = ["--episodes", "2", "--crowds", "2", "--sources", "last_scan", "tracker",
-                "--json", str(out), "--log", str(log)]  # fmt: skip
+                "--json", str(out), "--log", str(log), *more]  # fmt: skip
         return subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "bench_navigation.py"), *args],
             cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
@@ -63,3 +63,9 @@ def test_bench_navigation_resumes_from_its_log(tmp_path):
         assert a[source] == b[source]
     rows = [json.loads(line) for line in log.read_text().splitlines()[-1:]]
     assert rows[0]["source"] in ("last_scan", "tracker")  # the rerun's line stands on its own
+    kept = log.read_bytes()
+    third = run(tmp_path / "c.json", "--from-log", "--episodes", "3")  # one more asked: not run
+    assert third.returncode == 0, third.stderr[-2000:]
+    assert log.read_bytes() == kept
+    c = json.loads((tmp_path / "c.json").read_text())
+    assert c["setup"]["from_log"] and c["last_scan"] == b["last_scan"]
