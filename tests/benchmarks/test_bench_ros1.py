@@ -28,5 +28,7 @@ def test_bench_ros1_runs_and_reports_every_figure(tmp_path):
     assert results["predictor"]["scans"] == 24  # 12 timed scans, before and after
     assert results["node"]["scans"] == results["end_to_end"]["scans"] == 12
     assert all(results[k]["median_ms"] > 0 for k in ("predictor", "node", "end_to_end"))
-    assert results["end_to_end"]["median_ms"] >= results["node"]["median_ms"]
+    # The node stops its clock after publish() returns, and the peer may have the grid by then:
+    # end to end holds the node's time less that overlap (CI saw 10.80 against 10.86 ms).
+    assert results["end_to_end"]["median_ms"] >= 0.9 * results["node"]["median_ms"]
     assert results["node_vs_predictor_median"] > 0
