@@ -51,7 +51,8 @@ def wilson(successes: int, n: int, z: float = 1.96) -> list[float] | None:
     p = successes / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return [max(0.0, centre - half), min(1.0, centre + half)]
+    # At p = 0 or 1 the bound equals p in exact arithmetic; rounding must not leave p outside.
+    return [min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half))]
 
 
 def bootstrap(values: list[float], rounds: int = 2000) -> list[float] | None:
@@ -231,8 +232,9 @@ def main() -> None:
         "sensor": config.sensor.name,
         "max_time_s": config.max_time,
         "walkers": "social",
-        "workers": args.workers,
-        "elapsed_s": round(elapsed, 1),
+        # A report from the log ran nothing: how the episodes were run is not known here.
+        "workers": None if args.from_log else args.workers,
+        "elapsed_s": None if args.from_log else round(elapsed, 1),
         "from_log": args.from_log,
         "machine": machine(),
     }

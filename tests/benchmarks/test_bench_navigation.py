@@ -69,3 +69,16 @@ def test_bench_navigation_resumes_from_its_log(tmp_path):
     assert log.read_bytes() == kept
     c = json.loads((tmp_path / "c.json").read_text())
     assert c["setup"]["from_log"] and c["last_scan"] == b["last_scan"]
+
+
+def test_wilson_interval_holds_the_rate_at_every_count():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from bench_navigation import wilson
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    for n in (1, 7, 100, 1000):
+        for k in range(n + 1):
+            low, high = wilson(k, n)
+            assert 0.0 <= low <= k / n <= high <= 1.0
+    assert wilson(0, 0) is None
