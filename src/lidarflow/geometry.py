@@ -24,6 +24,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from lidarflow.compiled import available, kernel
+
 __all__ = [
     "TOLERANCE",
     "FlowWarp",
@@ -147,9 +149,29 @@ def _corners(x: np.ndarray, y: np.ndarray, h: int, w: int) -> tuple[np.ndarray, 
     return index, np.where(inside, weight, 0.0)
 
 
+@kernel
+def _gather_loop(flat: np.ndarray, index: np.ndarray, weight: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_gathered_numpy` into ``out`` ``(C, N)``, one pass (the same sums, in order)."""
+    for j in range(out.shape[0]):
+        for i in range(out.shape[1]):
+            acc = flat[j, index[0, i]] * weight[0, i]
+            for k in range(1, 4):
+                acc += flat[j, index[k, i]] * weight[k, i]
+            out[j, i] = acc
+
+
 def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """``flat`` ``(C, H*W)`` read at the corners ``index, weight`` ``(4, N)``: ``(C, N)``, the
     weighted corners summed in their order, in ``flat``'s precision."""
+    if not available():
+        return _gathered_numpy(flat, index, weight)
+    out = np.empty((flat.shape[0], index.shape[1]), flat.dtype)
+    _gather_loop(np.ascontiguousarray(flat), index, weight, out)
+    return out
+
+
+def _gathered_numpy(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """:func:`_gathered` in NumPy (the reference)."""
     # np.take, in place: faster than fancy indexing along the second axis.
     out = np.take(flat, index[0], axis=1)
     out *= weight[0]

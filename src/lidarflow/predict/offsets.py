@@ -14,6 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lidarflow.compiled import available, kernel
 from lidarflow.geometry import warp_map
 
 __all__ = [
@@ -167,6 +168,50 @@ def _one_thread_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return out
 
 
+@kernel
+def _pair_hits_loop(
+    w: np.ndarray,
+    n: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    columns: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`_pair_hits_numpy` into ``out`` (zeros), cell by cell (the same comparisons)."""
+    for c in range(w.shape[0]):
+        free = 1.0 - w[c]
+        for i in range(a.shape[0]):
+            wa = w[c] * a[i]
+            for j in range(b.shape[0]):
+                if wa + free * b[j] >= n[c]:
+                    for m in range(columns.shape[1]):
+                        out[i, j, m] += columns[c, m]
+
+
+def _pair_hits(
+    w: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, columns: np.ndarray
+) -> np.ndarray:
+    """``(A, B, M)`` int64: per pair ``(a_i, b_j)``, the sum of each of ``columns`` ``(cells,
+    M)`` (bool) over the cells it predicts occupied (``w a_i + (1 - w) b_j >= n``)."""
+    if not available():
+        return _pair_hits_numpy(w, n, a, b, columns)
+    out = np.zeros((len(a), len(b), columns.shape[1]), np.int64)
+    _pair_hits_loop(w, n, a, b, columns.view(np.uint8), out)
+    return out
+
+
+def _pair_hits_numpy(
+    w: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, columns: np.ndarray
+) -> np.ndarray:
+    """:func:`_pair_hits` in NumPy (the reference)."""
+    hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
+    # Every column's counts of the pairs' hits in one product of 0/1 columns (integers, exact
+    # in float64): counting the (A, B, cells) cube once per column was most of this.
+    cube = hit.reshape(len(a) * len(b), len(w)).astype(np.float64)
+    summed = _one_thread_product(cube, columns.astype(np.float64))
+    return summed.astype(np.int64).reshape(len(a), len(b), -1)
+
+
 def pair_counts_within(
     need: np.ndarray,
     moved: np.ndarray,
@@ -203,13 +248,8 @@ def pair_counts_within(
         always = n <= w * a.min() + (1.0 - w) * b.min()
         some = ~always & (n <= w * a.max() + (1.0 - w) * b.max())
         w, n = w[some], n[some]
-        hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
-        # Every mask's counts of the pairs' hits in one product of 0/1 columns (integers, exact
-        # in float64): counting the (A, B, cells) cube once per mask and kind was most of this.
-        columns = np.stack([c[some] for pair in on for c in pair], axis=1).astype(np.float64)
-        cube = hit.reshape(len(a) * len(b), len(w)).astype(np.float64)
-        summed = _one_thread_product(cube, columns)
-        summed = summed.astype(np.int64).reshape(len(a), len(b), -1)
+        columns = np.stack([c[some] for pair in on for c in pair], axis=1)
+        summed = _pair_hits(w, n, a, b, columns)
         extra = [
             (
                 np.count_nonzero(always & t) + summed[..., 2 * i],

@@ -1,0 +1,76 @@
+"""The compiled kernels against their NumPy references, to the bit (integers: exactly)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarflow import compiled, geometry
+from lidarflow.predict import offsets
+
+pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba is not installed")
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("motion", [(0.3, -0.2, 0.05), (40.0, 0.0, 1.0), (0.0, 0.0, 0.0)])
+def test_gather_is_the_numpy_reference_to_the_bit(dtype, motion):
+    rng = np.random.default_rng(3)
+    sampler = geometry.Sampler(*geometry.rigid_positions(np.array(motion), 37, 23))
+    maps = rng.random((3, 37, 23)).astype(dtype)
+    weight = sampler._weight.astype(dtype)
+    reference = geometry._gathered_numpy(maps.reshape(3, -1), sampler._index, weight)
+    got = sampler(maps)
+    assert got.dtype == dtype
+    np.testing.assert_array_equal(got, reference.reshape(maps.shape))
+
+
+def test_gather_reads_a_strided_map_as_numpy_does():
+    maps = np.arange(2 * 6 * 8, dtype=np.float64).reshape(2, 6, 8)[:, :, ::2]  # not contiguous
+    sampler = geometry.Sampler(*geometry.rigid_positions(np.array([0.5, 0.25, 0.1]), 6, 4))
+    reference = geometry._gathered_numpy(
+        np.ascontiguousarray(maps).reshape(2, -1), sampler._index, sampler._weight
+    )
+    np.testing.assert_array_equal(sampler(maps), reference.reshape(maps.shape))
+
+
+@pytest.mark.parametrize("cells", [0, 1, 500])
+def test_pair_hits_count_as_the_numpy_reference(cells):
+    rng = np.random.default_rng(cells)
+    w, n = rng.random(cells), rng.normal(0.0, 2.0, cells)
+    a, b = np.linspace(-3, 3, 13), np.linspace(-2, 4, 31)
+    # ties on the threshold, where a different order of operations would flip a cell
+    if cells:
+        n[: cells // 2] = (w * a[4] + (1.0 - w) * b[7])[: cells // 2]
+    columns = rng.random((cells, 4)) < 0.4
+    got = offsets._pair_hits(w, n, a, b, columns)
+    expected = offsets._pair_hits_numpy(w, n, a, b, columns)
+    assert got.dtype == np.int64 and got.shape == (13, 31, 4)
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_kernel_hands_back_the_function_where_numba_is_off(monkeypatch):
+    monkeypatch.setattr(compiled, "numba", None)
+    assert not compiled.available()
+
+    def loop(x: float) -> float:
+        return x + 1.0
+
+    assert compiled.kernel(loop) is loop
+
+
+def test_align_moves_as_the_numpy_iterations_to_the_last_bits(monkeypatch):
+    from lidarflow.data import read_bag, sample_bag_path
+    from lidarflow.motion import icp
+
+    points = [icp.scan_points(scan) for scan in list(read_bag(sample_bag_path()))[:30]]
+    guesses = [np.zeros(3), np.array([0.05, -0.02, 0.01])]
+    pairs = [(points[i], points[i - j]) for i in range(3, 30) for j in (1, 3)]
+    got = [icp.align(c, p, g) for c, p in pairs for g in guesses]
+    monkeypatch.setattr(compiled, "numba", None)
+    expected = [icp.align(c, p, g) for c, p in pairs for g in guesses]
+    assert sum(e is not None for e in expected) > len(expected) // 2
+    for g, e in zip(got, expected, strict=True):
+        assert (g is None) == (e is None)
+        if e is not None:
+            np.testing.assert_allclose(g.motion, e.motion, rtol=0, atol=1e-12)
+            assert g.inliers == e.inliers
