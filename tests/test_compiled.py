@@ -33,19 +33,25 @@ def test_gather_reads_a_strided_map_as_numpy_does():
     np.testing.assert_array_equal(sampler(maps), reference.reshape(maps.shape))
 
 
-@pytest.mark.parametrize("cells", [0, 1, 500])
-def test_pair_hits_count_as_the_numpy_reference(cells):
+@pytest.mark.parametrize("cells", [0, 1, 500, 4000])
+def test_pair_counts_are_the_numpy_references(cells, monkeypatch):
     rng = np.random.default_rng(cells)
-    w, n = rng.random(cells), rng.normal(0.0, 2.0, cells)
+    moved = np.clip(rng.normal(0.5, 0.6, cells), 0.0, 1.0)
+    need = rng.normal(0.0, 2.0, cells)
     a, b = np.linspace(-3, 3, 13), np.linspace(-2, 4, 31)
-    # ties on the threshold, where a different order of operations would flip a cell
-    if cells:
-        n[: cells // 2] = (w * a[4] + (1.0 - w) * b[7])[: cells // 2]
-    columns = rng.random((cells, 4)) < 0.4
-    got = offsets._pair_hits(w, n, a, b, columns)
-    expected = offsets._pair_hits_numpy(w, n, a, b, columns)
-    assert got.dtype == np.int64 and got.shape == (13, 31, 4)
-    np.testing.assert_array_equal(got, expected)
+    # cells exactly on a pair's threshold, where another order of operations would flip them
+    need[: cells // 3] = (moved * a[4] + (1.0 - moved) * b[7])[: cells // 3]
+    need[cells // 3 : cells // 2] = a[5]
+    target, changed = rng.random(cells) < 0.3, rng.random(cells) < 0.2
+    got = offsets.pair_counts_within(need, moved, target, [None, changed], a, b)
+    monkeypatch.setattr(compiled, "numba", None)
+    expected = offsets.pair_counts_within(need, moved, target, [None, changed], a, b)
+    single = [offsets.pair_counts(need[m], moved[m], target[m], a, b)
+              for m in (np.ones(cells, bool), changed)]  # fmt: skip
+    for g, e, s in zip(got, expected, single, strict=True):
+        for x, y, z in zip(g, e, s, strict=True):
+            np.testing.assert_array_equal(x, y)
+            np.testing.assert_array_equal(x, z)
 
 
 def test_kernel_hands_back_the_function_where_numba_is_off(monkeypatch):

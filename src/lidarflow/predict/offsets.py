@@ -168,48 +168,88 @@ def _one_thread_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return out
 
 
-@kernel
-def _pair_hits_loop(
-    w: np.ndarray,
-    n: np.ndarray,
-    a: np.ndarray,
-    b: np.ndarray,
-    columns: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """:func:`_pair_hits_numpy` into ``out`` (zeros), cell by cell (the same comparisons)."""
-    for c in range(w.shape[0]):
-        free = 1.0 - w[c]
-        for i in range(a.shape[0]):
-            wa = w[c] * a[i]
-            for j in range(b.shape[0]):
-                if wa + free * b[j] >= n[c]:
-                    for m in range(columns.shape[1]):
-                        out[i, j, m] += columns[c, m]
-
-
 def _pair_hits(
     w: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, columns: np.ndarray
 ) -> np.ndarray:
     """``(A, B, M)`` int64: per pair ``(a_i, b_j)``, the sum of each of ``columns`` ``(cells,
     M)`` (bool) over the cells it predicts occupied (``w a_i + (1 - w) b_j >= n``)."""
-    if not available():
-        return _pair_hits_numpy(w, n, a, b, columns)
-    out = np.zeros((len(a), len(b), columns.shape[1]), np.int64)
-    _pair_hits_loop(w, n, a, b, columns.view(np.uint8), out)
-    return out
-
-
-def _pair_hits_numpy(
-    w: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, columns: np.ndarray
-) -> np.ndarray:
-    """:func:`_pair_hits` in NumPy (the reference)."""
     hit = w * a[:, None, None] + (1.0 - w) * b[None, :, None] >= n  # (A, B, cells)
     # Every column's counts of the pairs' hits in one product of 0/1 columns (integers, exact
     # in float64): counting the (A, B, cells) cube once per column was most of this.
     cube = hit.reshape(len(a) * len(b), len(w)).astype(np.float64)
     summed = _one_thread_product(cube, columns.astype(np.float64))
     return summed.astype(np.int64).reshape(len(a), len(b), -1)
+
+
+@kernel
+def _counts_loop(
+    need: np.ndarray,
+    moved: np.ndarray,
+    kinds: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`pair_counts_within`'s counts into ``out`` ``(K, A + 1 + B + 1 + 1 + A (B + 1))``
+    (zeros) for the 0/1 columns ``kinds`` ``(cells, K)``: per kind, the occupied cells by the
+    first offset of ``a`` (sorted) that predicts them, the free ones likewise by ``b``, the
+    fractional cells every pair predicts, then per ``a_i`` the fractional cells only some
+    pairs predict, by the first ``b_j`` that does (the counts are their running sums)."""
+    na, nb = len(a), len(b)
+    free_at, every_at, pairs_at = na + 1, na + nb + 2, na + nb + 3
+    for c in range(len(need)):
+        w, n = moved[c], need[c]
+        if w <= 0.0:
+            slot = free_at + np.searchsorted(b, n)
+        elif w >= 1.0:
+            slot = np.searchsorted(a, n)
+        elif n <= w * a[0] + (1.0 - w) * b[0]:
+            slot = every_at
+        elif n <= w * a[na - 1] + (1.0 - w) * b[nb - 1]:
+            free = 1.0 - w
+            for i in range(na):
+                # the pairs (a_i, b_j) that predict the cell are those from the first j on
+                # (rounding is monotone): found by bisection on the same expression
+                wa, low, high = w * a[i], 0, nb
+                while low < high:
+                    mid = (low + high) // 2
+                    if wa + free * b[mid] >= n:
+                        high = mid
+                    else:
+                        low = mid + 1
+                for k in range(kinds.shape[1]):
+                    out[k, pairs_at + i * (nb + 1) + low] += kinds[c, k]
+            continue
+        else:
+            continue
+        for k in range(kinds.shape[1]):
+            out[k, slot] += kinds[c, k]
+
+
+def _pair_counts_compiled(
+    need: np.ndarray,
+    moved: np.ndarray,
+    target: np.ndarray,
+    masks: list[np.ndarray | None],
+    a: np.ndarray,
+    b: np.ndarray,
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """:func:`pair_counts_within` by :func:`_counts_loop` (``a``, ``b`` sorted, not empty)."""
+    kinds = []
+    for mask in masks:
+        kinds += [target, np.ones_like(target)] if mask is None else [target & mask, mask]
+    columns = np.stack(kinds, axis=1).view(np.uint8)
+    na, nb = len(a), len(b)
+    out = np.zeros((len(kinds), na + nb + 3 + na * (nb + 1)), np.int64)
+    _counts_loop(need, moved, columns, a, b, out)
+    occupied = np.cumsum(out[:, :na], axis=1)
+    free = np.cumsum(out[:, na + 1 : na + nb + 1], axis=1)
+    pairs = np.cumsum(out[:, na + nb + 3 :].reshape(-1, na, nb + 1)[:, :, :nb], axis=2)
+    counts = occupied[:, :, None] + free[:, None, :] + out[:, na + nb + 2, None, None] + pairs
+    return [
+        (counts[2 * i], counts[2 * i + 1], int(np.count_nonzero(kinds[2 * i])))
+        for i in range(len(masks))
+    ]
 
 
 def pair_counts_within(
@@ -225,6 +265,12 @@ def pair_counts_within(
     and most of the work (which cells an offset can flip, sorted by ``need``) is the same."""
     need, moved, target = (np.ravel(x) for x in (need, moved, target))
     a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
+    ordered = len(a) and len(b) and (np.diff(a) > 0).all() and (np.diff(b) > 0).all()
+    if available() and ordered:
+        masks = [None if m is None else np.ravel(m).astype(bool) for m in masks]
+        return _pair_counts_compiled(
+            need.astype(np.float64), moved.astype(np.float64), target.astype(bool), masks, a, b
+        )
     free, occupied = moved <= 0.0, moved >= 1.0
     # Per side: the cells at most its largest offset (the rest flip under no pair), sorted by
     # need, and how many of them each offset predicts occupied.
