@@ -248,11 +248,11 @@ def resolve_device(name: str) -> str:
 
 def load_backend(
     source: str | Path | None, threads: int | None = None, device: str = "cpu"
-) -> tuple[TorchBackend | OnnxBackend, dict[str, Any]]:
+) -> tuple[Any, dict[str, Any]]:
     """The backend that runs ``source`` and its card (``model.json``'s record; for an ONNX file
-    what its marks say): an ``.onnx`` file on onnxruntime; ``None`` or ``"bundled"`` the bundled
-    model, on PyTorch where it is installed, else its ONNX export (the core install's); a run
-    folder or weights file on PyTorch.
+    what its marks say): an ``.onnx`` file on onnxruntime; a head-only model (the bundled one)
+    on the CPU in NumPy (:class:`~lidarflow.predict.headstep.HeadStepBackend`), the bundled
+    one read from its files without PyTorch; any other run folder or weights file on PyTorch.
 
     Raises:
         MissingExtraError: PyTorch weights, and PyTorch not installed.
@@ -261,6 +261,9 @@ def load_backend(
     from lidarflow.models.presets import bundled_onnx, is_bundled
 
     if is_bundled(source) and not torch_available():
+        head, card = _bundled_head()
+        if head is not None:  # the step torch's install runs too: the same numbers
+            return head, card
         path, card = bundled_onnx()
         return OnnxBackend(path, threads), card
     if source is not None and Path(source).suffix.lower() == ".onnx":
@@ -296,23 +299,33 @@ def learning_backend(backend: Any, source: str | Path | None) -> Any:
     Raises:
         PredictError: any other model (a flow model, an ONNX file, a model on a GPU).
     """
-    from lidarflow.models.presets import BUNDLED, bundled_model_dir, is_bundled
-    from lidarflow.models.weights import sha256
-    from lidarflow.predict.headstep import HeadStepBackend, read_head
+    from lidarflow.models.presets import is_bundled
+    from lidarflow.predict.headstep import HeadStepBackend
 
     if isinstance(backend, HeadStepBackend):
         return backend
     if is_bundled(source) and isinstance(backend, OnnxBackend):
-        folder = bundled_model_dir()
-        weights = folder / "model.safetensors"
-        if BUNDLED.weights_sha256 and sha256(weights) != BUNDLED.weights_sha256:
-            raise ModelError(f"{weights}: checksum differs from the record; the file is damaged")
-        head = read_head(json.loads((folder / "model.json").read_text()), weights)
-        if head is not None:
-            learner = HeadStepBackend(head)
+        learner, _ = _bundled_head()
+        if learner is not None:
             learner.decision = backend.decision
             return learner
     raise PredictError(
         "learning on the stream needs a head-only model run in NumPy on the CPU (as the "
         "bundled one is), not this one"
     )
+
+
+def _bundled_head() -> tuple[Any, dict[str, Any]]:
+    """The bundled model's head step read from its own files without PyTorch (checked against
+    the recorded checksum) and its card; ``(None, card)`` where it is not a head-only model."""
+    from lidarflow.models.presets import BUNDLED, bundled_model_dir
+    from lidarflow.models.weights import sha256
+    from lidarflow.predict.headstep import HeadStepBackend, read_head
+
+    folder = bundled_model_dir()
+    weights = folder / "model.safetensors"
+    if BUNDLED.weights_sha256 and sha256(weights) != BUNDLED.weights_sha256:
+        raise ModelError(f"{weights}: checksum differs from the record; the file is damaged")
+    card = json.loads((folder / "model.json").read_text())
+    head = read_head(card, weights)
+    return (None if head is None else HeadStepBackend(head)), {**card, "weights_path": str(weights)}
