@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["associate", "cluster_labels", "foreground"]
+from lidarflow.compiled import available, kernel
+from lidarflow.geometry import cell_to_metric
+
+__all__ = ["associate", "cluster_labels", "clusters", "foreground"]
 
 
 def foreground(occupancy: np.ndarray, background: np.ndarray, threshold: float) -> np.ndarray:
@@ -98,6 +101,125 @@ def _dense_labels(cells: np.ndarray, link: float) -> np.ndarray:
     return labels.astype(np.int64)
 
 
+def clusters(mask: np.ndarray, link: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """The clusters of :func:`cluster_labels` (``link`` >= 0 cells), as the tracker takes them:
+    ``(groups, centroids)``, per cluster in label order its cells ``(N_i, 2)`` ``(row, col)``
+    in row-major order, and ``(C, 2)`` float64 their centroids ``(x, y)`` in the sensor frame
+    (:func:`~lidarflow.geometry.cell_to_metric`, cells). Compiled where available (the groups
+    are then views into one array: read them, do not write), else in NumPy (the reference).
+
+    >>> groups, centroids = clusters(np.array([[1, 0, 0, 1, 0, 1]], bool), 2.0)
+    >>> [g.tolist() for g in groups], centroids.tolist()
+    ([[[0, 0]], [[0, 3], [0, 5]]], [[0.5, 2.5], [0.5, -1.5]])
+    """
+    mask = np.asarray(mask, bool)
+    if not available():
+        return _clusters_numpy(mask, link)
+    h, w = mask.shape
+    # the offsets reach no farther than the map (a huge link would only loop for nothing)
+    reach = min(int(np.floor(link)), max(h, w))
+    cells, starts, sums = _clusters_loop(np.ascontiguousarray(mask), float(link), reach)
+    groups = [cells[starts[i] : starts[i + 1]] for i in range(len(starts) - 1)]
+    # The sums are exact: halves (cell centres), far below 2**52; so is the reference's mean,
+    # its sum in any order, then the same one division.
+    return groups, sums / np.diff(starts)[:, None]
+
+
+def _clusters_numpy(mask: np.ndarray, link: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """:func:`clusters` in NumPy (the reference)."""
+    h, w = mask.shape
+    cells, labels = cluster_labels(mask, link)
+    groups = [cells[labels == i] for i in range(int(labels.max()) + 1 if len(labels) else 0)]
+    xy = [np.stack(cell_to_metric(g[:, 0], g[:, 1], h, w), axis=-1) for g in groups]
+    return groups, np.array([p.mean(axis=0) for p in xy]).reshape(-1, 2)
+
+
+@kernel
+def _clusters_loop(
+    mask: np.ndarray, link: float, reach: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`clusters` as ``(cells, starts, sums)``: the cells ``(N, 2)`` grouped by label
+    (row-major within each), cluster ``i`` at ``starts[i]:starts[i + 1]``, and per cluster the
+    sum of its cells' ``(x, y)``. Union-find over the half disc of offsets within ``link``
+    (:func:`cluster_labels`' pairs), each root its component's least index."""
+    h, w = mask.shape
+    index = np.full((h, w), -1, np.int64)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if mask[r, c]:
+                index[r, c] = n
+                n += 1
+    cells = np.empty((n, 2), np.int64)
+    parent = np.arange(n)
+    for r in range(h):
+        for c in range(w):
+            if index[r, c] >= 0:
+                cells[index[r, c], 0], cells[index[r, c], 1] = r, c
+    for i in range(n):
+        r, c = cells[i, 0], cells[i, 1]
+        for dr in range(0, min(reach, h - 1 - r) + 1):
+            for dc in range(max(-reach, -c), min(reach, w - 1 - c) + 1):
+                if (dr == 0 and dc <= 0) or dr * dr + dc * dc > link * link:
+                    continue
+                j = index[r + dr, c + dc]
+                if j >= 0:
+                    _union(parent, i, j)
+    return _grouped(cells, parent, h, w)
+
+
+@kernel
+def _union(parent: np.ndarray, i: int, j: int) -> None:
+    """Joins the sets of ``i`` and ``j``, the larger root under the smaller (so every root
+    stays its set's least index); path halving on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    while parent[j] != j:
+        parent[j] = parent[parent[j]]
+        j = parent[j]
+    if i < j:
+        parent[j] = i
+    elif j < i:
+        parent[i] = j
+
+
+@kernel
+def _grouped(
+    cells: np.ndarray, parent: np.ndarray, h: int, w: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_clusters_loop`'s outputs from the union-find ``parent`` of ``cells``: labels in
+    the order of each set's least index (the reference's ``np.unique`` of the roots)."""
+    n = len(cells)
+    labels = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        root = i
+        while parent[root] != root:
+            root = parent[root]
+        if root == i:
+            labels[i] = k
+            k += 1
+        else:  # the root is a smaller index, labelled already
+            labels[i] = labels[root]
+    starts = np.zeros(k + 1, np.int64)
+    for i in range(n):
+        starts[labels[i] + 1] += 1
+    for i in range(k):
+        starts[i + 1] += starts[i]
+    filled = starts[:k].copy()
+    out = np.empty((n, 2), np.int64)
+    sums = np.zeros((k, 2), np.float64)
+    for i in range(n):
+        label = labels[i]
+        out[filled[label]] = cells[i]
+        filled[label] += 1
+        # cell_to_metric's (height - 0.5 - row, width / 2 - 0.5 - col), res 1
+        sums[label, 0] += h - 0.5 - cells[i, 0]
+        sums[label, 1] += w / 2 - 0.5 - cells[i, 1]
+    return out, starts, sums
+
+
 def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[tuple[int, int]]:
     """Greedy nearest-neighbour pairs ``(track, cluster)`` between ``predicted`` ``(T, 2)`` and
     ``measured`` ``(C, 2)`` centroids, closest first, each used once, none farther than
@@ -108,6 +230,9 @@ def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[
     """
     if len(predicted) == 0 or len(measured) == 0:
         return []
+    if available():
+        predicted, measured = (np.asarray(a, np.float64) for a in (predicted, measured))
+        return sorted(map(tuple, _associate_loop(predicted, measured, float(gate)).tolist()))
     distance = np.linalg.norm(predicted[:, None, :] - measured[None, :, :], axis=2)
     pairs, used_t, used_c = [], set(), set()
     for flat in np.argsort(distance, axis=None, kind="stable"):
@@ -119,3 +244,29 @@ def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[
             used_t.add(t)
             used_c.add(c)
     return sorted(pairs)
+
+
+@kernel
+def _associate_loop(predicted: np.ndarray, measured: np.ndarray, gate: float) -> np.ndarray:
+    """:func:`associate`'s pairs ``(P, 2)`` (unsorted). The distances are NumPy's ``norm``:
+    ``sqrt(dx * dx + dy * dy)``, the square root correctly rounded in both; a stable sort
+    orders ties by their flat index as the reference's."""
+    t_n, c_n = len(predicted), len(measured)
+    distance = np.empty(t_n * c_n)
+    for t in range(t_n):
+        for c in range(c_n):
+            dx = predicted[t, 0] - measured[c, 0]
+            dy = predicted[t, 1] - measured[c, 1]
+            distance[t * c_n + c] = np.sqrt(dx * dx + dy * dy)
+    used_t, used_c = np.zeros(t_n, np.bool_), np.zeros(c_n, np.bool_)
+    pairs = np.empty((min(t_n, c_n), 2), np.int64)
+    k = 0
+    for flat in np.argsort(distance, kind="mergesort"):
+        if distance[flat] > gate:
+            break
+        t, c = flat // c_n, flat % c_n
+        if not used_t[t] and not used_c[c]:
+            pairs[k, 0], pairs[k, 1] = t, c
+            used_t[t], used_c[c] = True, True
+            k += 1
+    return pairs[:k]

@@ -1,4 +1,5 @@
-"""A classical tracker: background, clusters, constant-velocity motion; causal, pure NumPy.
+"""A classical tracker: background, clusters, constant-velocity motion; causal, NumPy (its
+per-cell loops compiled where :mod:`lidarflow.compiled` is available, to the same bits).
 
 Each frame:
 
@@ -30,9 +31,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidarflow.baselines.method import NOTHING_MORE, FrameInputs, Takes
-from lidarflow.geometry import cell_to_metric, rigid_moved
+from lidarflow.geometry import rigid_moved
 from lidarflow.motion.pacing import paced_motion
-from lidarflow.tracking.clusters import associate, cluster_labels, foreground
+from lidarflow.tracking.background import split
+from lidarflow.tracking.clusters import associate, clusters
 from lidarflow.tracking.tracks import Tracks
 
 __all__ = ["Tracker", "TrackerConfig"]
@@ -146,17 +148,15 @@ class Tracker:
         if self._background is None or self._seen is None:
             self._background = occupied.astype(np.float64)
             self._seen = visible.copy()
-        new = visible & ~self._seen
-        self._background[new] = occupied[new]
-        self._seen |= visible
-        threshold = self.config.background_threshold
-        moving = foreground(occupied, self._background, threshold)
-        # rare here but beside a wall (the 3 x 3 neighbourhood above): held, not tracked
-        self._held = occupied & ~moving & (self._background < threshold)
-        a = self.config.alpha
-        rate = (1 - a) * self._background + a * occupied
-        self._background = np.where(visible, rate, self._background)
-        self._static = occupied & ~moving
+        # held: rare here but beside a wall (the 3 x 3 neighbourhood): held, not tracked
+        moving, self._held, self._static, self._background = split(
+            occupied,
+            visible,
+            self._background,
+            self._seen,
+            self.config.alpha,
+            self.config.background_threshold,
+        )
         self._track(moving)
 
     def ahead(self, horizon: int) -> list[np.ndarray]:
@@ -188,7 +188,10 @@ class Tracker:
         dx, dy, yaw = motion
         c, s = np.cos(yaw), np.sin(yaw)
         turn = np.array([[c, s], [-s, c]])  # R^T: old-frame vectors in the new frame
-        both = np.kron(np.eye(2), turn)
+        # np.kron(np.eye(2), turn) without its cost: the same products, 1.0 * turn = turn and
+        # 0.0 * turn (its signed zeros) off the diagonal
+        both, off = np.zeros((4, 4)), 0.0 * turn
+        both[:2, :2], both[2:, 2:], both[:2, 2:], both[2:, :2] = turn, turn, off, off
         for track in self._tracks:
             track.state = np.concatenate(
                 [turn @ (track.state[:2] - [dx, dy]), turn @ track.state[2:]]
@@ -197,13 +200,9 @@ class Tracker:
 
     def _track(self, moving: np.ndarray) -> None:
         """Cluster the foreground cells and continue, start and end tracks."""
-        h, w = moving.shape
         cfg = self.config
-        cells, labels = cluster_labels(moving, cfg.link / self.res)
-        groups = [cells[labels == i] for i in range(int(labels.max()) + 1 if len(labels) else 0)]
-        # each cluster's cells (row, col) in the sensor frame (x, y), in cells
-        xy = [np.stack(cell_to_metric(g[:, 0], g[:, 1], h, w), axis=-1) for g in groups]
-        centroids = np.array([p.mean(axis=0) for p in xy]).reshape(-1, 2)
+        # each cluster's cells (row, col) and its centroid in the sensor frame (x, y), in cells
+        groups, centroids = clusters(moving, cfg.link / self.res)
         for track in self._tracks:  # one frame on, unseen until a cluster continues it
             track.state = self._transition @ track.state
             track.covariance = (

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarflow.compiled import available, kernel
 from lidarflow.geometry import rigid_moved
 
 __all__ = ["Track", "Tracks", "composed_motion"]
@@ -80,6 +81,19 @@ class Tracks:
     def cells_at(self, k: int) -> np.ndarray:
         """``(H, W)`` bool: every object's cells shifted by ``k`` times its velocity (rounded
         to whole cells), in the sensor frame of the last frame."""
+        # the tracker's int64 cells and float64 states only: NumPy does narrower types' sums
+        # and products in their own width
+        if not available() or not all(_wide(s, c) for s, c in self.objects):
+            return self._cells_at_numpy(k)
+        out = np.zeros(self.shape, bool)
+        for state, cells in self.objects:
+            # one call an object: packing them all first costs more than the calls
+            if not _cells_at_loop(cells, float(state[2]), float(state[3]), int(k), out):
+                return self._cells_at_numpy(k)  # a shift out of all bounds: as the reference
+        return out
+
+    def _cells_at_numpy(self, k: int) -> np.ndarray:
+        """:meth:`cells_at` in NumPy (the reference)."""
         h, w = self.shape
         out = np.zeros(self.shape, bool)
         for state, cells in self.objects:
@@ -105,3 +119,27 @@ class Tracks:
         if self.held is not None and k <= self.hold:
             cells |= self.held
         return self.moved_to_sensor(cells, k)
+
+
+def _wide(state: np.ndarray, cells: np.ndarray) -> bool:
+    """Whether an object is the tracker's kind: a float64 state and int64 cells."""
+    return getattr(state, "dtype", None) == np.float64 and getattr(cells, "dtype", None) == np.int64
+
+
+@kernel
+def _cells_at_loop(cells: np.ndarray, v_row: float, v_col: float, k: int, out: np.ndarray) -> bool:
+    """One object of :meth:`Tracks.cells_at` into ``out`` ``(H, W)``: ``cells`` ``(N, 2)``
+    shifted by the reference's ``rint(-k * v)`` (exact; the same int64 sums), those beyond the
+    map dropped. ``False`` (nothing written) where a shift is not a modest integer (NaN, or
+    beyond 2**31 cells), which the caller leaves to the reference."""
+    h, w = out.shape
+    # rows grow backwards (-x), columns rightwards (-y)
+    dr, dc = np.rint(-k * v_row), np.rint(-k * v_col)
+    if not (abs(dr) < 2.0**31 and abs(dc) < 2.0**31):
+        return False
+    shift_r, shift_c = np.int64(dr), np.int64(dc)
+    for j in range(len(cells)):
+        r, c = cells[j, 0] + shift_r, cells[j, 1] + shift_c
+        if 0 <= r < h and 0 <= c < w:
+            out[r, c] = True
+    return True
