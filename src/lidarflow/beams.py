@@ -5,12 +5,15 @@ A finite ``rho`` with ``range_min <= rho < range_max`` is a *return*; ``+inf`` o
 or ``rho < range_min`` are *unknown*. In a scan that writes no return as ``range_max``, readings
 just under it are no return too (``docs/guide/conventions.md#beams``).
 
-Pure NumPy; every function takes ranges ``(..., beams)``, one row a scan.
+NumPy, with :func:`return_masks` in one compiled pass where :mod:`lidarflow.compiled` is
+available; every function takes ranges ``(..., beams)``, one row a scan.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from lidarflow.compiled import available, kernel
 
 __all__ = [
     "NO_RETURN",
@@ -20,9 +23,11 @@ __all__ = [
     "UNKNOWN",
     "at_range_max",
     "beam_status",
+    "mask_thresholds",
     "return_masks",
     "ring_band",
     "ring_scans",
+    "scan_masks",
 ]
 
 UNKNOWN, RETURN, NO_RETURN = 0, 1, 2
@@ -79,7 +84,18 @@ def return_masks(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(is_return, no_return)`` masks of float ranges ``r`` by the module's rule.
     ``range_max`` is compared in ``r``'s dtype, so a reading stored as the message's float32
-    ``range_max`` is no return whatever that value's float64 neighbours."""
+    ``range_max`` is no return whatever that value's float64 neighbours; ``range_min`` as NumPy
+    compares it (a Python float in ``r``'s dtype). Compiled where available (float32 and
+    float64 ranges), the same masks."""
+    if available() and r.ndim and r.size and r.dtype in (np.float32, np.float64):
+        return _return_masks_compiled(r, range_min, range_max)
+    return _return_masks_numpy(r, range_min, range_max)
+
+
+def _return_masks_numpy(
+    r: np.ndarray, range_min: float, range_max: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`return_masks` in NumPy (the reference)."""
     # a range_max beyond float32 (pointcloud_to_laserscan's default, 1.8e308) casts to inf
     with np.errstate(invalid="ignore", over="ignore"):
         top = r.dtype.type(range_max)
@@ -88,3 +104,62 @@ def return_masks(
         beyond |= ring & (r >= r.dtype.type(range_max - ring_band(range_max)))
         # 0 is unknown even where range_min is 0 (drivers write invalid beams as 0)
         return (r >= range_min) & (r > 0) & ~beyond, beyond
+
+
+@kernel
+def scan_masks(
+    r: np.ndarray,
+    thresholds: np.ndarray,
+    is_return: np.ndarray,
+    beyond: np.ndarray,
+) -> None:
+    """:func:`_return_masks_numpy` of one scan ``r`` ``(beams,)`` into ``is_return``,
+    ``beyond``, compiled. ``thresholds`` (:func:`mask_thresholds`) are the values NumPy
+    compares with, rounded to the comparison's dtype, so that comparing in float64 is exact."""
+    low, top, ring_low, ring_count = thresholds[0], thresholds[1], thresholds[2], thresholds[3]
+    at_top = 0
+    for i in range(len(r)):
+        if r[i] == top:
+            at_top += 1
+    ring = at_top >= ring_count
+    for i in range(len(r)):
+        x = r[i]
+        out = x >= top or (ring and x >= ring_low)
+        beyond[i] = out
+        is_return[i] = x >= low and x > 0 and not out
+
+
+@kernel
+def _masks_loop(
+    r: np.ndarray, thresholds: np.ndarray, is_return: np.ndarray, beyond: np.ndarray
+) -> None:
+    """:func:`scan_masks` of every scan of ``r`` ``(scans, beams)``."""
+    for s in range(r.shape[0]):
+        scan_masks(r[s], thresholds, is_return[s], beyond[s])
+
+
+def mask_thresholds(dtype: np.dtype, range_min: float, range_max: float, beams: int) -> np.ndarray:
+    """``(low, top, ring_low, ring_count)`` float64 for :func:`scan_masks` of ``beams`` readings
+    of float ``dtype``: ``range_min`` as NumPy compares it with ``dtype`` (a Python float in
+    ``dtype``, a NumPy float64 in float64), ``range_max`` and the ring band's edge in
+    ``dtype``, and the readings at ``top`` that make a ring scan (``inf`` where ``top`` is not
+    finite)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        top = dtype.type(range_max)
+        ring_low = dtype.type(range_max - ring_band(range_max))
+        low = np.result_type(dtype, range_min).type(range_min)
+    ring_count = max(RING_MIN_BEAMS, RING_SHARE * beams) if np.isfinite(top) else np.inf
+    return np.array([low, top, ring_low, ring_count], np.float64)
+
+
+def _return_masks_compiled(
+    r: np.ndarray, range_min: float, range_max: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`return_masks` by :func:`_masks_loop` (``r`` float32 or float64, 1-D or more, not
+    empty)."""
+    thresholds = mask_thresholds(r.dtype, range_min, range_max, r.shape[-1])
+    flat = np.ascontiguousarray(r).reshape(-1, r.shape[-1])
+    is_return = np.empty(flat.shape, bool)
+    beyond = np.empty(flat.shape, bool)
+    _masks_loop(flat, thresholds, is_return, beyond)
+    return is_return.reshape(r.shape), beyond.reshape(r.shape)

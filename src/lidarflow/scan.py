@@ -1,8 +1,10 @@
 """LaserScan -> occupancy and visibility maps (design notes, section 2; grid and visibility
 rules in ``docs/guide/conventions.md``; beam validity in :mod:`lidarflow.beams`).
 
-Pure NumPy. The per-cell beam lookup depends only on the grid and the beam geometry, so it is
-cached per geometry: a scan then costs one gather and one comparison per cell.
+NumPy, or one compiled pass (:mod:`lidarflow.scan_loops`) where :mod:`lidarflow.compiled` is
+available, to the bit the same maps. The per-cell beam lookup depends only on the grid and the
+beam geometry, so it is cached per geometry: a scan then costs one gather and one comparison per
+cell.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from lidarflow.beams import return_masks
+from lidarflow import scan_loops
+from lidarflow.beams import mask_thresholds, return_masks
+from lidarflow.compiled import available
 from lidarflow.errors import ScanError
 from lidarflow.geometry import cell_to_metric
 
@@ -221,6 +225,8 @@ def rasterize_batch(
     """
     grid = grid or GridSpec()
     r = _check_ranges(ranges, geometry)
+    if _compiles(r):
+        return scan_loops.rasterized(r, _plan_of(r, geometry, grid))
     n = r.shape[0]
     occupancy = np.empty((n, *grid.shape), dtype=bool)
     visibility = np.empty((n, *grid.shape), dtype=bool)
@@ -232,6 +238,37 @@ def rasterize_batch(
 
 
 _CHUNK = 64
+
+
+def _compiles(r: np.ndarray) -> bool:
+    """Whether the compiled passes take ranges ``r`` (float32 or float64, a scan or more)."""
+    return available() and r.shape[0] > 0 and r.dtype in (np.float32, np.float64)
+
+
+def _no_return_reach(dtype: np.dtype, range_max: float) -> np.floating:
+    """How far a no-return beam sees: ``range_max`` inclusive, in ``dtype`` (hence the next
+    value up; a ``range_max`` beyond float32 reaches everywhere)."""
+    with np.errstate(over="ignore"):
+        return np.nextafter(dtype.type(range_max), dtype.type(math.inf))
+
+
+@lru_cache(maxsize=64)
+def _plan(grid: GridSpec, geometry: BeamGeometry, dtype: str, low: type) -> scan_loops.Plan:
+    """The compiled passes' :class:`~lidarflow.scan_loops.Plan` for ranges of ``dtype`` (``low``:
+    the type of ``geometry.range_min``, which NumPy compares in its own dtype where it is a NumPy
+    float: a geometry equal in value but not in type gets its own plan)."""
+    index, dist = _cell_lookup(grid, geometry)
+    kind = np.dtype(dtype)
+    thresholds = mask_thresholds(kind, geometry.range_min, geometry.range_max, geometry.count)
+    reach = float(_no_return_reach(kind, geometry.range_max))
+    return scan_loops.Plan(
+        grid.height, grid.width, grid.res, index, dist.astype(kind), *_beam_directions(geometry),
+        thresholds, reach,
+    )  # fmt: skip
+
+
+def _plan_of(r: np.ndarray, geometry: BeamGeometry, grid: GridSpec) -> scan_loops.Plan:
+    return _plan(grid, geometry, r.dtype.str, type(geometry.range_min))
 
 
 def _rasterize_chunk(
@@ -246,8 +283,7 @@ def _rasterize_chunk(
     # no-return reaches range_max (inclusive, hence nextafter), an unknown beam reaches nowhere,
     # and the extra last column is the "no beam covers this cell" sentinel.
     reach = np.full((n, geometry.count + 1), -1.0, dtype=dtype)
-    with np.errstate(over="ignore"):  # a range_max beyond float32 reaches everywhere
-        no_return_reach = np.nextafter(dtype.type(geometry.range_max), dtype.type(math.inf))
+    no_return_reach = _no_return_reach(dtype, geometry.range_max)
     reach[:, :-1] = np.where(is_return, r, np.where(beyond, no_return_reach, dtype.type(-1.0)))
     visibility = dist.astype(dtype, copy=False)[None, :] < reach[:, index]
 
@@ -307,6 +343,8 @@ def subcell_batch(
     grid = grid or GridSpec()
     r = _check_ranges(ranges, geometry)
     n, (height, width) = r.shape[0], grid.shape
+    if _compiles(r):
+        return scan_loops.subcells(r, _plan_of(r, geometry, grid), SUBCELL)
     is_return, _ = return_masks(r, geometry.range_min, geometry.range_max)
     u, v, row, col, inside = _return_cells(r, is_return, geometry, grid)
     frame = np.nonzero(inside)[0]

@@ -9,6 +9,7 @@ from collections import deque
 import numpy as np
 
 from lidarflow.baselines.method import NOTHING_MORE, FrameInputs, Takes
+from lidarflow.compiled import available, kernel
 
 __all__ = [
     "TA_THRESHOLD",
@@ -91,13 +92,22 @@ def shift_map(image: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
 def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3) -> tuple[int, int]:
     """The integer shift ``(d_col, d_row)`` within ``radius`` that best maps ``previous`` onto
     ``current`` (most overlapping occupied cells; ties prefer the smallest ``|d_col| + |d_row|``,
-    then the first in row-major ``(d_row, d_col)`` order).
+    then the first in row-major ``(d_row, d_col)`` order). Compiled where available (maps of
+    one 2-D shape), the same shift.
 
     >>> best_rigid_shift(np.tri(4), shift_map(np.tri(4), 1, 0))
     (1, 0)
     """
     prev = np.asarray(previous).astype(bool)
     cur = np.asarray(current).astype(bool)
+    if available() and prev.shape == cur.shape and cur.ndim == 2 and radius >= 0:
+        i = _shift_loop(prev, cur, radius)
+        return i % (2 * radius + 1) - radius, i // (2 * radius + 1) - radius
+    return _best_rigid_shift_numpy(prev, cur, radius)
+
+
+def _best_rigid_shift_numpy(prev: np.ndarray, cur: np.ndarray, radius: int) -> tuple[int, int]:
+    """:func:`best_rigid_shift` of bool maps in NumPy (the reference)."""
     side = 2 * radius + 1
     steps = np.arange(-radius, radius + 1)
     rows, cols = np.nonzero(prev)
@@ -114,6 +124,31 @@ def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3)
     # Overlaps are integers and sizes below 4 radius + 1: this orders by (overlap, -size).
     i = int(np.argmax(overlap * (4 * radius + 1) - size))
     return int(steps[i % side]), int(steps[i // side])
+
+
+@kernel
+def _shift_loop(prev: np.ndarray, cur: np.ndarray, radius: int) -> int:
+    """:func:`_best_rigid_shift_numpy`'s choice as a flat index ``(d_row + radius) * side +
+    d_col + radius`` over bool maps of one shape: the overlaps counted at ``prev``'s occupied
+    cells, the first of the largest ``overlap * (4 radius + 1) - |d_row| - |d_col|``."""
+    h, w = cur.shape
+    side = 2 * radius + 1
+    overlap = np.zeros(side * side, np.int64)
+    for r in range(h):
+        for c in range(w):
+            if not prev[r, c]:
+                continue
+            for i in range(max(0, radius - r), min(side, h - r + radius)):
+                rr = r + i - radius
+                for j in range(max(0, radius - c), min(side, w - c + radius)):
+                    if cur[rr, c + j - radius]:
+                        overlap[i * side + j] += 1
+    best, chosen = 0, 0
+    for k in range(side * side):
+        score = overlap[k] * (4 * radius + 1) - abs(k // side - radius) - abs(k % side - radius)
+        if k == 0 or score > best:
+            best, chosen = score, k
+    return chosen
 
 
 class ConstantVelocity:

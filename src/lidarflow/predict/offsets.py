@@ -71,8 +71,14 @@ def counts_all_and_changed(
 ) -> np.ndarray:
     """``(2, P, 3)``: :func:`counts` of each of ``predictions`` (bool maps) over all cells
     (first row) and over the ``changed`` ones (second), from one product of 0/1 columns
-    (integers, exact in float64): twenty-four counts a frame were as many passes over the map."""
+    (integers, exact in float64): twenty-four counts a frame were as many passes over the map.
+    Compiled where available (bool predictions), one pass, the same counts."""
     t, c = np.ravel(target).astype(bool), np.ravel(changed).astype(bool)
+    if available() and predictions and all(p.dtype == bool for p in predictions):
+        out = np.zeros((2, len(predictions), 3))
+        stacked = np.stack([np.ravel(p) for p in predictions])
+        _table_loop(stacked.view(np.uint8), t.view(np.uint8), c.view(np.uint8), out)
+        return out
     columns = np.stack([t, np.ones_like(t), t & c, c], axis=1).astype(np.float64)
     stacked = np.stack([np.ravel(p) for p in predictions]).astype(np.float64)
     product = _one_thread_product(stacked, columns)  # (P, [tp, predicted] x [all, changed])
@@ -81,6 +87,29 @@ def counts_all_and_changed(
     out[:, :, :2] = product.reshape(len(predictions), 2, 2).transpose(1, 0, 2)
     out[:, :, 2] = positives[:, None]
     return out
+
+
+@kernel
+def _table_loop(
+    predictions: np.ndarray, target: np.ndarray, changed: np.ndarray, out: np.ndarray
+) -> None:
+    """:func:`counts_all_and_changed`'s table into ``out`` ``(2, P, 3)`` for 0/1 (bool's bytes)
+    ``predictions`` ``(P, cells)``, ``target`` and ``changed`` ``(cells,)``: one pass a row."""
+    positives, changed_positives = 0, 0
+    for c in range(len(target)):
+        positives += target[c]
+        changed_positives += target[c] & changed[c]
+    for p in range(predictions.shape[0]):
+        tp, predicted, changed_tp, changed_predicted = 0, 0, 0, 0
+        for c in range(len(target)):
+            x = predictions[p, c]
+            predicted += x
+            tp += x & target[c]
+            changed_predicted += x & changed[c]
+            changed_tp += x & target[c] & changed[c]
+        out[0, p, 0], out[0, p, 1], out[0, p, 2] = tp, predicted, positives
+        out[1, p, 0], out[1, p, 1] = changed_tp, changed_predicted
+        out[1, p, 2] = changed_positives
 
 
 def moved_last_map(
