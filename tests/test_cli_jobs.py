@@ -147,7 +147,10 @@ def test_sigterm_stops_every_worker_and_leaves_nothing_half_written(tmp_path):
     finally:
         proc.kill()
     assert proc.returncode == 130 and err.strip().endswith("stopped by signal SIGTERM"), err
-    assert not _partials(out) and not list(out.glob("*.mcap"))
+    assert not _partials(out)
+    # A job may finish before the signal (compiled kernels make one fast): what is left whole.
+    for done in out.glob("*.mcap"):
+        assert len(read_bag(done, topic="/right_scan")) == 200, done
 
 
 def slow_write(task: tuple[str, float]) -> str:
