@@ -148,7 +148,7 @@ def _model_methods(
             )
         )
     if learn:
-        learner = copy.deepcopy(learning_backend(net, None if bundled else source))
+        learner = copy.deepcopy(learning_backend(net))
         learning = ModelMethod(
             name + "_learning", learner, moving_threshold, online_config=online_config,
             res=res, decision=own, learning=LearningConfig(),

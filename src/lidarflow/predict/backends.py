@@ -291,24 +291,18 @@ def load_backend(
     return TorchBackend(net, device, threads), card
 
 
-def learning_backend(backend: Any, source: str | Path | None) -> Any:
+def learning_backend(backend: Any) -> Any:
     """The backend a model learns on (:mod:`lidarflow.predict.learning`): ``backend`` itself
-    where it runs a head's step in NumPy; for the bundled model on ONNX Runtime (the core
-    install), its head read from its own files, no PyTorch needed.
+    where it runs a head's step in NumPy, as every head-only model on the CPU does (the bundled
+    one on the core install too, :func:`load_backend`).
 
     Raises:
         PredictError: any other model (a flow model, an ONNX file, a model on a GPU).
     """
-    from lidarflow.models.presets import is_bundled
     from lidarflow.predict.headstep import HeadStepBackend
 
     if isinstance(backend, HeadStepBackend):
         return backend
-    if is_bundled(source) and isinstance(backend, OnnxBackend):
-        learner, _ = _bundled_head()
-        if learner is not None:
-            learner.decision = backend.decision
-            return learner
     raise PredictError(
         "learning on the stream needs a head-only model run in NumPy on the CPU (as the "
         "bundled one is), not this one"

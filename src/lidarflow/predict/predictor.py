@@ -214,7 +214,7 @@ class Predictor:
         #: The head learning on the stream (``None`` without ``learn``), for a look inside.
         self.learning: HeadLearning | None = None
         if learn is not False:
-            self.backend = learning_backend(self.backend, model)
+            self.backend = learning_backend(self.backend)
             config = learn if isinstance(learn, LearningConfig) else None
             self.learning = HeadLearning(self.backend, config)
         try:
