@@ -115,6 +115,8 @@ for b in backends:
 try:
     from lidarflow import compiled
     compiled_kernels = compiled.available()
+    if hasattr(compiled, "wait"):  # kernels compiled in the background: all of them, first
+        compiled.wait()
 except ImportError:  # a tree without compiled kernels
     compiled_kernels = None
 # Complex in, written into one buffer: no new array a call, whose pages (over malloc's mmap

@@ -13,9 +13,7 @@ from lidarflow.scan import BeamGeometry, Scan
 
 # The machines are shared: a loaded core makes generating examples "too slow" and examples miss
 # deadlines, which says nothing about the code under test.
-settings.register_profile(
-    "shared", suppress_health_check=[HealthCheck.too_slow], deadline=None
-)
+settings.register_profile("shared", suppress_health_check=[HealthCheck.too_slow], deadline=None)
 settings.load_profile("shared")
 
 
@@ -77,6 +75,15 @@ def short(tmp_path) -> Path:
     """The sample's first 14 scans as a recording file: the smallest real input a command
     runs on."""
     return read_bag(sample_bag_path()).slice(0, 14).save(tmp_path / "short.npz")
+
+
+@pytest.fixture
+def compile_now(monkeypatch):
+    """The compiled kernels compile in their first caller, not in the background: a test that
+    compares a kernel with its NumPy reference gets the kernel on its first call."""
+    from lidarflow import compiled
+
+    monkeypatch.setattr(compiled, "background", False)
 
 
 def make_model_dir(folder, name: str = "flownet", seed: int = 0, **kwargs):

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import json
+import multiprocessing
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from lidarflow import compiled, geometry
 from lidarflow.predict import offsets
 
-pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba is not installed")
+pytestmark = [
+    pytest.mark.skipif(not compiled.available(), reason="numba is not installed"),
+    pytest.mark.usefixtures("compile_now"),
+]
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -52,6 +61,83 @@ def test_pair_counts_are_the_numpy_references(cells, monkeypatch):
         for x, y, z in zip(g, e, s, strict=True):
             np.testing.assert_array_equal(x, y)
             np.testing.assert_array_equal(x, z)
+
+
+@compiled.kernel
+def _doubled(x: np.ndarray) -> np.ndarray:
+    out = np.empty_like(x)
+    for i in range(len(x)):
+        out[i] = 2.0 * x[i]
+    return out
+
+
+@compiled.kernel
+def _uncompilable(x: np.ndarray) -> object:
+    return object()  # a Python object: not in what numba compiles
+
+
+@compiled.kernel
+def _halved(x: np.ndarray) -> np.ndarray:
+    return x / 2.0
+
+
+def _ready_in_a_forked_child() -> tuple[bool, bool]:
+    x = np.arange(4.0)
+    first = compiled.ready(_halved, x)  # one the parent never asked for
+    compiled.wait()
+    return first, compiled.ready(_halved, x)
+
+
+def test_a_kernel_compiles_in_the_background_while_its_caller_takes_the_reference(monkeypatch):
+    monkeypatch.setattr(compiled, "background", True)
+    monkeypatch.setattr(compiled, "_compiled", set())
+    monkeypatch.setattr(compiled, "_asked", set())
+    x = np.arange(3.0)
+    assert not compiled.ready(_doubled, x)  # asked: compiling starts, the reference serves
+    assert not compiled.ready(_uncompilable, x)
+    compiled.wait()
+    assert compiled.ready(_doubled, x)
+    np.testing.assert_array_equal(_doubled(x), 2.0 * x)
+    assert not compiled.ready(_uncompilable, x)  # it never will: the reference stays
+    assert "_uncompilable" in compiled.failed
+    # a fork waits for the compiling under way; the child compiles on a thread of its own
+    monkeypatch.setattr(compiled, "_asked", compiled._asked - {_doubled})
+    monkeypatch.setattr(compiled, "_compiled", set())
+    assert not compiled.ready(_doubled, x)
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply_async(_ready_in_a_forked_child).get(timeout=300) == (False, True)
+
+
+_FIRST_UPDATES = """
+import hashlib, json
+from lidarflow import compiled
+from lidarflow.data import read_bag, sample_bag_path
+from lidarflow.predict import Predictor
+predictor, digest, pending = Predictor(), hashlib.sha256(), []
+for scan in list(read_bag(sample_bag_path()))[:6]:
+    p = predictor.update(scan)
+    pending.append(compiled._jobs.unfinished_tasks)
+    digest.update(p.probability.tobytes() + p.occupied.tobytes())
+print(json.dumps({"digest": digest.hexdigest(), "pending": pending}))
+"""
+
+
+def _first_updates(tmp_path, mode: str) -> dict:
+    environment = {**os.environ, "LIDARFLOW_COMPILED": mode, "OMP_NUM_THREADS": "1"}
+    environment["NUMBA_CACHE_DIR"] = str(tmp_path / "empty_cache")  # a machine's first run
+    done = subprocess.run(
+        [sys.executable, "-c", _FIRST_UPDATES], env=environment, capture_output=True,
+        text=True, timeout=600, check=True,
+    )  # fmt: skip
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_first_run_predicts_while_the_kernels_compile_and_predicts_the_same(tmp_path):
+    """The first updates of a machine's first run do not wait for numba: the kernels compile
+    behind them, and the maps are those of the NumPy references."""
+    background, numpy = _first_updates(tmp_path, "1"), _first_updates(tmp_path, "0")
+    assert background["pending"][0] > 0
+    assert background["digest"] == numpy["digest"]
 
 
 def test_kernel_hands_back_the_function_where_numba_is_off(monkeypatch):

@@ -18,7 +18,10 @@ from lidarflow.baselines import best_rigid_shift
 from lidarflow.predict import offsets
 from lidarflow.scan import BeamGeometry, GridSpec, rasterize_batch, subcell_batch
 
-pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba is not installed")
+pytestmark = [
+    pytest.mark.skipif(not compiled.available(), reason="numba is not installed"),
+    pytest.mark.usefixtures("compile_now"),
+]
 
 FULL = BeamGeometry(720, -math.pi, 2 * math.pi / 720, 0.05, 8.0)  # 360 degrees, seam included
 PARTIAL = BeamGeometry(300, 1.0, -0.01, 0.05, 8.0)  # 172 degrees, sweeping clockwise

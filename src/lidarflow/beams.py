@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import available, kernel, ready
 
 __all__ = [
     "NO_RETURN",
@@ -88,7 +88,9 @@ def return_masks(
     compares it (a Python float in ``r``'s dtype). Compiled where available (float32 and
     float64 ranges), the same masks."""
     if available() and r.ndim and r.size and r.dtype in (np.float32, np.float64):
-        return _return_masks_compiled(r, range_min, range_max)
+        masks = _return_masks_compiled(r, range_min, range_max)
+        if masks is not None:
+            return masks
     return _return_masks_numpy(r, range_min, range_max)
 
 
@@ -154,12 +156,14 @@ def mask_thresholds(dtype: np.dtype, range_min: float, range_max: float, beams: 
 
 def _return_masks_compiled(
     r: np.ndarray, range_min: float, range_max: float
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray] | None:
     """:func:`return_masks` by :func:`_masks_loop` (``r`` float32 or float64, 1-D or more, not
-    empty)."""
+    empty); ``None`` while the loop is not compiled yet (:func:`lidarflow.compiled.ready`)."""
     thresholds = mask_thresholds(r.dtype, range_min, range_max, r.shape[-1])
     flat = np.ascontiguousarray(r).reshape(-1, r.shape[-1])
     is_return = np.empty(flat.shape, bool)
     beyond = np.empty(flat.shape, bool)
+    if not ready(_masks_loop, flat, thresholds, is_return, beyond):
+        return None
     _masks_loop(flat, thresholds, is_return, beyond)
     return is_return.reshape(r.shape), beyond.reshape(r.shape)

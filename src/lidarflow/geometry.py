@@ -24,7 +24,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import kernel, ready
 
 __all__ = [
     "TOLERANCE",
@@ -163,10 +163,11 @@ def _gather_loop(flat: np.ndarray, index: np.ndarray, weight: np.ndarray, out: n
 def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """``flat`` ``(C, H*W)`` read at the corners ``index, weight`` ``(4, N)``: ``(C, N)``, the
     weighted corners summed in their order, in ``flat``'s precision."""
-    if not available():
-        return _gathered_numpy(flat, index, weight)
     out = np.empty((flat.shape[0], index.shape[1]), flat.dtype)
-    _gather_loop(np.ascontiguousarray(flat), index, weight, out)
+    flat = np.ascontiguousarray(flat)
+    if not ready(_gather_loop, flat, index, weight, out):
+        return _gathered_numpy(flat, index, weight)
+    _gather_loop(flat, index, weight, out)
     return out
 
 

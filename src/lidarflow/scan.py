@@ -225,8 +225,8 @@ def rasterize_batch(
     """
     grid = grid or GridSpec()
     r = _check_ranges(ranges, geometry)
-    if _compiles(r):
-        return scan_loops.rasterized(r, _plan_of(r, geometry, grid))
+    if _compiles(r) and (maps := scan_loops.rasterized(r, _plan_of(r, geometry, grid))):
+        return maps
     n = r.shape[0]
     occupancy = np.empty((n, *grid.shape), dtype=bool)
     visibility = np.empty((n, *grid.shape), dtype=bool)
@@ -344,7 +344,9 @@ def subcell_batch(
     r = _check_ranges(ranges, geometry)
     n, (height, width) = r.shape[0], grid.shape
     if _compiles(r):
-        return scan_loops.subcells(r, _plan_of(r, geometry, grid), SUBCELL)
+        subcell = scan_loops.subcells(r, _plan_of(r, geometry, grid), SUBCELL)
+        if subcell is not None:
+            return subcell
     is_return, _ = return_masks(r, geometry.range_min, geometry.range_max)
     u, v, row, col, inside = _return_cells(r, is_return, geometry, grid)
     frame = np.nonzero(inside)[0]

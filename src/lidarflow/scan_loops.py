@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from lidarflow.beams import scan_masks
-from lidarflow.compiled import kernel
+from lidarflow.compiled import kernel, ready
 
 __all__ = ["Plan", "rasterized", "subcells"]
 
@@ -37,24 +37,32 @@ class Plan(NamedTuple):
     reach: float
 
 
-def rasterized(r: np.ndarray, plan: Plan) -> tuple[np.ndarray, np.ndarray]:
+def rasterized(r: np.ndarray, plan: Plan) -> tuple[np.ndarray, np.ndarray] | None:
     """:func:`lidarflow.scan.rasterize_batch` of ranges ``r`` ``(N, B)`` (float32 or float64,
-    ``N > 0``): ``(occupancy, visibility)`` ``(N, H, W)`` bool, the reference's to the bit."""
+    ``N > 0``): ``(occupancy, visibility)`` ``(N, H, W)`` bool, the reference's to the bit;
+    ``None`` while the loop is not compiled yet (:func:`lidarflow.compiled.ready`)."""
     n, shape = r.shape[0], (plan.height, plan.width)
     occupancy = np.empty((n, plan.height * plan.width), dtype=bool)
     visibility = np.empty((n, plan.height * plan.width), dtype=bool)
-    _raster_loop(
+    args = (
         r, plan.thresholds, plan.index, plan.dist, plan.cos, plan.sin, plan.reach, plan.height,
         plan.width / 2, plan.res, occupancy, visibility,
     )  # fmt: skip
+    if not ready(_raster_loop, *args):
+        return None
+    _raster_loop(*args)
     return occupancy.reshape(n, *shape), visibility.reshape(n, *shape)
 
 
-def subcells(r: np.ndarray, plan: Plan, subcell: int) -> np.ndarray:
+def subcells(r: np.ndarray, plan: Plan, subcell: int) -> np.ndarray | None:
     """:func:`lidarflow.scan.subcell_batch` of ranges ``r`` ``(N, B)`` (float32 or float64,
-    ``N > 0``) with ``subcell`` sub-cells a side: ``(N, 2, H, W)`` bool, the reference's."""
+    ``N > 0``) with ``subcell`` sub-cells a side: ``(N, 2, H, W)`` bool, the reference's;
+    ``None`` while the loop is not compiled yet (:func:`lidarflow.compiled.ready`)."""
     out = np.empty((r.shape[0], 2, plan.height, plan.width), dtype=bool)
-    _subcell_loop(r, plan.thresholds, plan.cos, plan.sin, plan.width / 2, plan.res, subcell, out)
+    args = (r, plan.thresholds, plan.cos, plan.sin, plan.width / 2, plan.res, subcell, out)
+    if not ready(_subcell_loop, *args):
+        return None
+    _subcell_loop(*args)
     return out
 
 

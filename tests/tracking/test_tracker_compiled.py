@@ -15,7 +15,10 @@ from lidarflow.tracking import Tracker, Tracks, associate
 from lidarflow.tracking.background import split
 from lidarflow.tracking.clusters import clusters
 
-pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba is not installed")
+pytestmark = [
+    pytest.mark.skipif(not compiled.available(), reason="numba is not installed"),
+    pytest.mark.usefixtures("compile_now"),
+]
 
 
 def _both(monkeypatch: pytest.MonkeyPatch, run: Callable[[], Any]) -> tuple[Any, Any]:

@@ -9,7 +9,7 @@ from collections import deque
 import numpy as np
 
 from lidarflow.baselines.method import NOTHING_MORE, FrameInputs, Takes
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import kernel, ready
 
 __all__ = [
     "TA_THRESHOLD",
@@ -100,7 +100,8 @@ def best_rigid_shift(previous: np.ndarray, current: np.ndarray, radius: int = 3)
     """
     prev = np.asarray(previous).astype(bool)
     cur = np.asarray(current).astype(bool)
-    if available() and prev.shape == cur.shape and cur.ndim == 2 and radius >= 0:
+    fits = prev.shape == cur.shape and cur.ndim == 2 and radius >= 0
+    if fits and ready(_shift_loop, prev, cur, radius):
         i = _shift_loop(prev, cur, radius)
         return i % (2 * radius + 1) - radius, i // (2 * radius + 1) - radius
     return _best_rigid_shift_numpy(prev, cur, radius)

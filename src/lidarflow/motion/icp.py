@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarflow.beams import RETURN, beam_status
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import kernel, ready
 from lidarflow.data.blocks import FrameBlocks
 from lidarflow.data.recording import Recording
 from lidarflow.scan import Scan
@@ -183,10 +183,11 @@ def align(
     if len(source) < _MIN_PAIRS or len(target) < 3:
         return None
     motion = np.zeros(3) if initial is None else np.asarray(initial, np.float64).reshape(3).copy()
-    if available():
-        if not _align_loop(source, target.points, target.bearings, target.normal,
-                           target.has_normal, target._window_x, target._window_y, motion,
-                           np.array(GATES), MAX_ITERATIONS, _MIN_PAIRS, _DAMPING):  # fmt: skip
+    args = (source, target.points, target.bearings, target.normal, target.has_normal,
+            target._window_x, target._window_y, motion, np.array(GATES), MAX_ITERATIONS,
+            _MIN_PAIRS, _DAMPING)  # fmt: skip
+    if ready(_align_loop, *args):
+        if not _align_loop(*args):
             return None
         return _alignment(target, source, motion)
     for iteration in range(MAX_ITERATIONS):

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import available, kernel, ready
 from lidarflow.geometry import warp_map
 
 __all__ = [
@@ -77,8 +77,10 @@ def counts_all_and_changed(
     if available() and predictions and all(p.dtype == bool for p in predictions):
         out = np.zeros((2, len(predictions), 3))
         stacked = np.stack([np.ravel(p) for p in predictions])
-        _table_loop(stacked.view(np.uint8), t.view(np.uint8), c.view(np.uint8), out)
-        return out
+        args = (stacked.view(np.uint8), t.view(np.uint8), c.view(np.uint8), out)
+        if ready(_table_loop, *args):
+            _table_loop(*args)
+            return out
     columns = np.stack([t, np.ones_like(t), t & c, c], axis=1).astype(np.float64)
     stacked = np.stack([np.ravel(p) for p in predictions]).astype(np.float64)
     product = _one_thread_product(stacked, columns)  # (P, [tp, predicted] x [all, changed])
@@ -262,14 +264,17 @@ def _pair_counts_compiled(
     masks: list[np.ndarray | None],
     a: np.ndarray,
     b: np.ndarray,
-) -> list[tuple[np.ndarray, np.ndarray, int]]:
-    """:func:`pair_counts_within` by :func:`_counts_loop` (``a``, ``b`` sorted, not empty)."""
+) -> list[tuple[np.ndarray, np.ndarray, int]] | None:
+    """:func:`pair_counts_within` by :func:`_counts_loop` (``a``, ``b`` sorted, not empty);
+    ``None`` while the loop is not compiled yet (:func:`lidarflow.compiled.ready`)."""
     kinds = []
     for mask in masks:
         kinds += [target, np.ones_like(target)] if mask is None else [target & mask, mask]
     columns = np.stack(kinds, axis=1).view(np.uint8)
     na, nb = len(a), len(b)
     out = np.zeros((len(kinds), na + nb + 3 + na * (nb + 1)), np.int64)
+    if not ready(_counts_loop, need, moved, columns, a, b, out):
+        return None
     _counts_loop(need, moved, columns, a, b, out)
     occupied = np.cumsum(out[:, :na], axis=1)
     free = np.cumsum(out[:, na + 1 : na + nb + 1], axis=1)
@@ -296,10 +301,16 @@ def pair_counts_within(
     a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
     ordered = len(a) and len(b) and (np.diff(a) > 0).all() and (np.diff(b) > 0).all()
     if available() and ordered:
-        masks = [None if m is None else np.ravel(m).astype(bool) for m in masks]
-        return _pair_counts_compiled(
-            need.astype(np.float64), moved.astype(np.float64), target.astype(bool), masks, a, b
+        counted = _pair_counts_compiled(
+            need.astype(np.float64),
+            moved.astype(np.float64),
+            target.astype(bool),
+            [None if m is None else np.ravel(m).astype(bool) for m in masks],
+            a,
+            b,
         )
+        if counted is not None:
+            return counted
     free, occupied = moved <= 0.0, moved >= 1.0
     # Per side: the cells at most its largest offset (the rest flip under no pair), sorted by
     # need, and how many of them each offset predicts occupied.

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import kernel, ready
 from lidarflow.tracking.clusters import foreground
 
 __all__ = ["split"]
@@ -32,16 +32,15 @@ def split(
     ``(1 - alpha) * rate + alpha * occupied`` where visible, the rate elsewhere (a new array).
     """
     kinds = (occupied.dtype, visible.dtype, background.dtype, seen.dtype)
-    if not available() or kinds != (np.bool_, np.bool_, np.float64, np.bool_):
-        # (other types: NumPy's own promotions, which the loop does not copy)
-        return _split_numpy(occupied, visible, background, seen, alpha, threshold)
     h, w = occupied.shape
     moving, held, static = (np.empty((h, w), bool) for _ in range(3))
     rate = np.empty((h, w), np.float64)
     keep = 1 - alpha  # as the reference forms it
-    _split_loop(
-        occupied, visible, background, seen, keep, alpha, threshold, moving, held, static, rate
-    )
+    args = (occupied, visible, background, seen, keep, alpha, threshold, moving, held, static, rate)
+    # (other types: NumPy's own promotions, which the loop does not copy)
+    if kinds != (np.bool_, np.bool_, np.float64, np.bool_) or not ready(_split_loop, *args):
+        return _split_numpy(occupied, visible, background, seen, alpha, threshold)
+    _split_loop(*args)
     return moving, held, static, rate
 
 

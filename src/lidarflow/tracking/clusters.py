@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import kernel, ready
 from lidarflow.geometry import cell_to_metric
 
 __all__ = ["associate", "cluster_labels", "clusters", "foreground"]
@@ -112,13 +112,13 @@ def clusters(mask: np.ndarray, link: float) -> tuple[list[np.ndarray], np.ndarra
     >>> [g.tolist() for g in groups], centroids.tolist()
     ([[[0, 0]], [[0, 3], [0, 5]]], [[0.5, 2.5], [0.5, -1.5]])
     """
-    mask = np.asarray(mask, bool)
-    if not available():
-        return _clusters_numpy(mask, link)
+    mask = np.ascontiguousarray(mask, bool)
     h, w = mask.shape
     # the offsets reach no farther than the map (a huge link would only loop for nothing)
     reach = min(int(np.floor(link)), max(h, w))
-    cells, starts, sums = _clusters_loop(np.ascontiguousarray(mask), float(link), reach)
+    if not ready(_clusters_loop, mask, float(link), reach):
+        return _clusters_numpy(mask, link)
+    cells, starts, sums = _clusters_loop(mask, float(link), reach)
     groups = [cells[starts[i] : starts[i + 1]] for i in range(len(starts) - 1)]
     # The sums are exact: halves (cell centres), far below 2**52; so is the reference's mean,
     # its sum in any order, then the same one division.
@@ -230,9 +230,9 @@ def associate(predicted: np.ndarray, measured: np.ndarray, gate: float) -> list[
     """
     if len(predicted) == 0 or len(measured) == 0:
         return []
-    if available():
-        predicted, measured = (np.asarray(a, np.float64) for a in (predicted, measured))
-        return sorted(map(tuple, _associate_loop(predicted, measured, float(gate)).tolist()))
+    wide = [np.asarray(a, np.float64) for a in (predicted, measured)]
+    if ready(_associate_loop, *wide, float(gate)):
+        return sorted(map(tuple, _associate_loop(*wide, float(gate)).tolist()))
     distance = np.linalg.norm(predicted[:, None, :] - measured[None, :, :], axis=2)
     pairs, used_t, used_c = [], set(), set()
     for flat in np.argsort(distance, axis=None, kind="stable"):

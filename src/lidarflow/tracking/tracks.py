@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidarflow.compiled import available, kernel
+from lidarflow.compiled import available, kernel, ready
 from lidarflow.geometry import rigid_moved
 
 __all__ = ["Track", "Tracks", "composed_motion"]
@@ -86,6 +86,10 @@ class Tracks:
         if not available() or not all(_wide(s, c) for s, c in self.objects):
             return self._cells_at_numpy(k)
         out = np.zeros(self.shape, bool)
+        if self.objects:
+            state, cells = self.objects[0]
+            if not ready(_cells_at_loop, cells, float(state[2]), float(state[3]), int(k), out):
+                return self._cells_at_numpy(k)
         for state, cells in self.objects:
             # one call an object: packing them all first costs more than the calls
             if not _cells_at_loop(cells, float(state[2]), float(state[3]), int(k), out):
