@@ -260,10 +260,13 @@ def load_backend(
     from lidarflow.extras import missing_extra, torch_available
     from lidarflow.models.presets import bundled_onnx, is_bundled
 
-    if is_bundled(source) and not torch_available():
+    if is_bundled(source) and device == "cpu":
+        # Read without PyTorch, with it installed too: the same step and numbers, and no
+        # second spent importing it before the first prediction.
         head, card = _bundled_head()
-        if head is not None:  # the step torch's install runs too: the same numbers
+        if head is not None:
             return head, card
+    if is_bundled(source) and not torch_available():
         path, card = bundled_onnx()
         return OnnxBackend(path, threads), card
     if source is not None and Path(source).suffix.lower() == ".onnx":
@@ -318,8 +321,10 @@ def _bundled_head() -> tuple[Any, dict[str, Any]]:
 
     folder = bundled_model_dir()
     weights = folder / "model.safetensors"
-    if BUNDLED.weights_sha256 and sha256(weights) != BUNDLED.weights_sha256:
+    checksum = sha256(weights)
+    if BUNDLED.weights_sha256 and checksum != BUNDLED.weights_sha256:
         raise ModelError(f"{weights}: checksum differs from the record; the file is damaged")
     card = json.loads((folder / "model.json").read_text())
     head = read_head(card, weights)
-    return (None if head is None else HeadStepBackend(head)), {**card, "weights_path": str(weights)}
+    card.update(weights_path=str(weights), weights_sha256=checksum)
+    return (None if head is None else HeadStepBackend(head)), card
