@@ -46,12 +46,8 @@ from lidarflow.evaluate.metrics import THRESHOLD, confusion
 from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.runner import evaluate_maps
 from lidarflow.models.presets import resolve_model
-from lidarflow.predict.offsets import (
-    f1_from_counts,
-    lookahead_terms,
-    moved_last_map,
-    pair_counts_within,
-)
+from lidarflow.predict.lookahead import f1_from_counts, lookahead_terms
+from lidarflow.predict.offsets import moved_last_map, pair_counts_within
 from lidarflow.scan import GridSpec
 from studies.harness import parse, parser, read_json, stem, write_json, write_summary
 
@@ -93,9 +89,9 @@ def collect(
     return {
         "pairs": np.array(pairs),
         "unmoved": np.array(unmoved),
-        "baselines": np.array(
-            [baselines[b] for b in ONLINE_BASELINES], float
-        ).transpose(1, 0, 2, 3),
+        "baselines": np.array([baselines[b] for b in ONLINE_BASELINES], float).transpose(
+            1, 0, 2, 3
+        ),
     }
 
 

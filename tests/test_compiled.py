@@ -166,3 +166,25 @@ def test_align_moves_as_the_numpy_iterations_to_the_last_bits(monkeypatch):
         if e is not None:
             np.testing.assert_allclose(g.motion, e.motion, rtol=0, atol=1e-12)
             assert g.inliers == e.inliers
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_best_candidate_is_the_numpy_reference_s(seed, monkeypatch):
+    from lidarflow.predict.lookahead import best_candidate
+
+    rng = np.random.default_rng(seed)
+    shape = (2, 2, 31, 13)
+    tp = rng.integers(0, 50, shape).astype(np.float64) * 0.98 ** rng.integers(0, 5)
+    predicted = tp + rng.integers(0, 80, shape)
+    if seed == 0:  # every candidate equal: the first
+        tp, predicted = np.zeros(shape), np.zeros(shape)
+    if seed == 1:  # ties on the binding term: the tie break, then the first
+        tp[:, :, ::2] = tp[:, :, :1]
+        predicted[:, :, ::2] = predicted[:, :, :1]
+    positives = rng.integers(0, 90, 2).astype(np.float64)
+    made = rng.integers(0, 500, (2, 3)).astype(np.float64)
+    baselines = rng.integers(0, 500, (2, 3, 3)).astype(np.float64)
+    args = (made, tp, predicted, positives, float(rng.uniform(1, 50)), baselines, 20.0, 1e-3)
+    got = best_candidate(*args)
+    monkeypatch.setattr(compiled, "numba", None)
+    assert got == best_candidate(*args)

@@ -52,11 +52,11 @@ from lidarflow.baselines import (
     Method,
     TemporalAverage,
 )
+from lidarflow.predict.lookahead import best_candidate, lookahead_terms
 from lidarflow.predict.offsets import (
     THRESHOLD,
     calibrated_logit,
     counts_all_and_changed,
-    lookahead_terms,
     moved_last_map,
     pair_counts_within,
 )
@@ -169,11 +169,13 @@ class OnlineDecision:
         return lookahead_terms(self._made, recent, self._weight, self._base, self.config.lookahead)
 
     def _choice(self) -> tuple[bool, tuple[float, float]]:
-        terms = self._terms()
         # Where the binding term cannot tell pairs apart (a model that never predicts a changed
-        # cell), the other one decides.
-        score = terms.min(axis=0) + _TIE_BREAK * terms.sum(axis=0)
-        m, i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+        # cell), the other one decides: the tie break.
+        best = best_candidate(
+            self._made, self._tp, self._predicted, self._positives, self._weight, self._base,
+            self.config.lookahead, _TIE_BREAK,
+        )  # fmt: skip
+        m, i, j = np.unravel_index(best, self._tp.shape[1:])
         return bool(m == UNMOVED), (float(self._a[i]), float(self._b[j]))
 
     def _score(self, target: np.ndarray) -> None:

@@ -24,8 +24,6 @@ __all__ = [
     "counts",
     "counts_all_and_changed",
     "decided_probability",
-    "f1_from_counts",
-    "lookahead_terms",
     "moved_last_map",
     "pair_counts",
     "pair_counts_within",
@@ -350,30 +348,3 @@ def pair_counts_within(
         predicted = _upto(oc, mask, o_ends)[:, None] + _upto(fc, mask, f_ends) + predicted_extra
         out.append((tp, predicted, int(np.count_nonzero(h))))
     return out
-
-
-def f1_from_counts(tp: np.ndarray, predicted: np.ndarray, positives: np.ndarray) -> np.ndarray:
-    """F1 from counts (arrays alike): ``2TP / (2TP + FP + FN) = 2TP / (predicted + positives)``,
-    1 where there is nothing to find and nothing predicted (as ``metrics.Counts.f1``)."""
-    denominator = predicted + positives
-    return np.where(denominator > 0, 2.0 * tp / np.maximum(denominator, 1e-12), 1.0)
-
-
-def lookahead_terms(
-    made: np.ndarray,
-    recent: np.ndarray,
-    weight: float,
-    baselines: np.ndarray,
-    lookahead: float,
-) -> np.ndarray:
-    """``(2, *pairs)``: the F1 and changed-cell F1 (first axis) less the best baseline's, if
-    ``lookahead`` more frames went as each candidate's recent ones did, after the decisions
-    made. Counts are ``(tp, predicted, positives)`` on the last axis, over all cells and over
-    the changed ones on the first: ``made`` ``(2, 3)`` and ``baselines`` ``(2, n, 3)`` over the
-    stream so far, ``recent`` ``(2, *pairs, 3)`` decayed, ``weight`` frames' worth of them.
-    With ``made`` zero it is each candidate's own recent margin."""
-    extra = (1,) * (recent.ndim - 2)
-    h = lookahead / weight  # the recent counts per frame, h frames of them
-    f1 = f1_from_counts(*np.moveaxis(made.reshape(2, *extra, 3) + h * recent, -1, 0))
-    best = f1_from_counts(*np.moveaxis(baselines, -1, 0)).max(axis=1)
-    return f1 - best.reshape(2, *extra)
