@@ -51,6 +51,9 @@ def test_pair_counts_are_the_numpy_references(cells, monkeypatch):
     # cells exactly on a pair's threshold, where another order of operations would flip them
     need[: cells // 3] = (moved * a[4] + (1.0 - moved) * b[7])[: cells // 3]
     need[cells // 3 : cells // 2] = a[5]
+    need[cells // 2 : cells // 2 + cells // 10] = a[-1]  # the largest offsets, and beyond
+    need[cells // 2 + cells // 10 : cells // 2 + cells // 5] = b[-1]
+    need[cells // 2 + cells // 5 : cells // 2 + cells // 4] = np.nextafter(b[-1], np.inf)
     target, changed = rng.random(cells) < 0.3, rng.random(cells) < 0.2
     got = offsets.pair_counts_within(need, moved, target, [None, changed], a, b)
     monkeypatch.setattr(compiled, "numba", None)

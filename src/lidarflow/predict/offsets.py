@@ -228,9 +228,15 @@ def _counts_loop(
     free_at, every_at, pairs_at = na + 1, na + nb + 2, na + nb + 3
     for c in range(len(need)):
         w, n = moved[c], need[c]
+        # (a cell beyond its side's largest offset flips under no pair: its slot, one past
+        # the side's offsets, is never read, so it is not counted at all)
         if w <= 0.0:
+            if n > b[nb - 1]:
+                continue
             slot = free_at + np.searchsorted(b, n)
         elif w >= 1.0:
+            if n > a[na - 1]:
+                continue
             slot = np.searchsorted(a, n)
         elif n <= w * a[0] + (1.0 - w) * b[0]:
             slot = every_at
@@ -255,6 +261,22 @@ def _counts_loop(
             out[k, slot] += kinds[c, k]
 
 
+@kernel
+def _running_sums(out: np.ndarray, na: int, nb: int, counts: np.ndarray) -> None:
+    """``counts`` ``(K, A, B)``: each pair's count from :func:`_counts_loop`'s ``out``, the
+    running sums of its occupied, free and some-pairs slots plus its every-pair slot."""
+    every_at, pairs_at = na + nb + 2, na + nb + 3
+    for k in range(out.shape[0]):
+        occupied = 0
+        for i in range(na):
+            occupied += out[k, i]
+            free, pairs = 0, 0
+            for j in range(nb):
+                free += out[k, na + 1 + j]
+                pairs += out[k, pairs_at + i * (nb + 1) + j]
+                counts[k, i, j] = occupied + free + out[k, every_at] + pairs
+
+
 def _pair_counts_compiled(
     need: np.ndarray,
     moved: np.ndarray,
@@ -271,13 +293,13 @@ def _pair_counts_compiled(
     columns = np.stack(kinds, axis=1).view(np.uint8)
     na, nb = len(a), len(b)
     out = np.zeros((len(kinds), na + nb + 3 + na * (nb + 1)), np.int64)
-    if not ready(_counts_loop, need, moved, columns, a, b, out):
+    counts = np.empty((len(kinds), na, nb), np.int64)
+    # both asked for at once, so that both compile from the first call on
+    if not all([ready(_counts_loop, need, moved, columns, a, b, out),
+                ready(_running_sums, out, na, nb, counts)]):  # fmt: skip
         return None
     _counts_loop(need, moved, columns, a, b, out)
-    occupied = np.cumsum(out[:, :na], axis=1)
-    free = np.cumsum(out[:, na + 1 : na + nb + 1], axis=1)
-    pairs = np.cumsum(out[:, na + nb + 3 :].reshape(-1, na, nb + 1)[:, :, :nb], axis=2)
-    counts = occupied[:, :, None] + free[:, None, :] + out[:, na + nb + 2, None, None] + pairs
+    _running_sums(out, na, nb, counts)
     return [
         (counts[2 * i], counts[2 * i + 1], int(np.count_nonzero(kinds[2 * i])))
         for i in range(len(masks))
@@ -300,10 +322,10 @@ def pair_counts_within(
     ordered = len(a) and len(b) and (np.diff(a) > 0).all() and (np.diff(b) > 0).all()
     if available() and ordered:
         counted = _pair_counts_compiled(
-            need.astype(np.float64),
-            moved.astype(np.float64),
-            target.astype(bool),
-            [None if m is None else np.ravel(m).astype(bool) for m in masks],
+            np.asarray(need, np.float64),
+            np.asarray(moved, np.float64),
+            np.asarray(target, bool),
+            [None if m is None else np.asarray(np.ravel(m), bool) for m in masks],
             a,
             b,
         )
