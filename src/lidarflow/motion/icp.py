@@ -23,6 +23,7 @@ from lidarflow.beams import RETURN, beam_status
 from lidarflow.compiled import kernel, ready
 from lidarflow.data.blocks import FrameBlocks
 from lidarflow.data.recording import Recording
+from lidarflow.motion.icp_loops import fit_loop, reference_loop
 from lidarflow.scan import Scan
 
 __all__ = [
@@ -111,6 +112,10 @@ class Reference:
 
     def __init__(self, points: np.ndarray) -> None:
         points = _checked(points)
+        if len(points) and ready(reference_loop, points, WINDOW, NORMAL_SPAN):
+            (self.points, self.bearings, self.normal, self.has_normal, self._window_x,
+             self._window_y) = reference_loop(points, WINDOW, NORMAL_SPAN)  # fmt: skip
+            return
         bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         order = np.argsort(bearings, kind="stable")  # scan_points' order, whatever was given
         self.points, self.bearings = points[order], bearings[order]
@@ -317,6 +322,13 @@ def fit(
 
 
 def _fit(target: Reference, source: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
+    args = (source, target.points, target.bearings, target.normal, target.has_normal,
+            target._window_x, target._window_y, motion, GATES[-1])  # fmt: skip
+    if ready(fit_loop, *args):
+        pairs, total = fit_loop(*args)
+        if pairs == 0:
+            return 0.0, float("inf")
+        return pairs / len(source), math.sqrt(total / pairs)
     moved, best, inliers = target.pair(source, motion, GATES[-1])
     if not inliers.any():
         return 0.0, float("inf")
