@@ -10,7 +10,8 @@ import pytest
 
 from lidarflow import compiled
 from lidarflow.data import read_bag, sample_bag_path
-from lidarflow.motion import icp
+from lidarflow.motion import correlative, correlative_loops, icp
+from tests.motion.test_correlative import _cases
 
 pytestmark = [
     pytest.mark.skipif(not compiled.available(), reason="numba is not installed"),
@@ -83,3 +84,42 @@ def test_align_keeps_its_motion_and_fits_to_the_last_bits(sample_points, monkeyp
             np.testing.assert_allclose(g.motion, e.motion, rtol=0, atol=1e-12)
             assert g.inliers == e.inliers
             np.testing.assert_allclose(g.rms, e.rms, rtol=0, atol=1e-12)
+
+
+def _map_pairs(sample_points: list[np.ndarray]) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    rng = np.random.default_rng(12)
+    pairs = [(name, p, c) for name, p, c in _cases()]
+    for i in (1, 7, 15):  # the sample's walls, moved and turned a little, with clutter
+        world = np.zeros((100, 100), bool)
+        cells = np.clip(np.rint(50 - sample_points[i] * 10).astype(int), 0, 99)
+        world[cells[:, 0], cells[:, 1]] = True
+        moved = np.roll(world, (i % 5 - 2, 3 - i % 7), axis=(0, 1))
+        pairs.append((f"sample {i}", world, moved ^ (rng.random(world.shape) < 0.01)))
+    odd = rng.random((37, 81)) < 0.05
+    pairs.append(("odd shape", odd, np.roll(odd, 2, axis=1)))
+    pairs.append(("a column view", odd[:, ::2], np.roll(odd, 1, axis=0)[:, ::2]))
+    return pairs
+
+
+def test_placements_are_the_numpy_ones_to_the_bit(sample_points):
+    for name, previous, current in _map_pairs(sample_points):
+        place = correlative._Placements(previous, current)
+        plain, dilated, cells, counts = correlative_loops.placements_loop(
+            previous, current, correlative._COS, correlative._SIN, correlative._PAD,
+            correlative.BLOCK,
+        )  # fmt: skip
+        np.testing.assert_array_equal(plain, place.plain, err_msg=name)
+        np.testing.assert_array_equal(dilated, place.dilated, err_msg=name)
+        np.testing.assert_array_equal(cells, place.cells, err_msg=name)
+        dead = (current.shape[0] + 3 * correlative._PAD) * place.width + correlative._PAD
+        np.testing.assert_array_equal(counts, (place.cells != dead).sum(axis=1), err_msg=name)
+
+
+@pytest.mark.parametrize("first_blocks", [1, correlative.FIRST_BLOCKS])
+def test_correlate_is_the_numpy_search_exactly(sample_points, first_blocks, monkeypatch):
+    monkeypatch.setattr(correlative, "FIRST_BLOCKS", first_blocks)
+    pairs = _map_pairs(sample_points)
+    got = [correlative.correlate(p, c) for _, p, c in pairs]
+    monkeypatch.setattr(compiled, "numba", None)
+    expected = [correlative.correlate(p, c) for _, p, c in pairs]
+    assert got == expected
