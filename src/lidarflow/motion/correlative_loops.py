@@ -32,21 +32,16 @@ def placements_loop(
     h, w = current.shape
     width, rows = w + 2 * pad, h + 4 * pad + 1
     grid = np.zeros((rows, width), np.uint8)
+    # dilated: the largest over shifts 0 ... block - 1 down and right, i.e. each occupied cell
+    # marks the block up and left of it (a sparse map: a few cells marked, not every cell read)
+    dilated = np.zeros((rows, width), np.uint8)
     for i in range(h):
         for j in range(w):
-            grid[pad + i, pad + j] = current[i, j]
-    down = grid.copy()  # the largest over rows i ... i + block - 1, then over columns
-    for i in range(rows):
-        for d in range(1, min(block, rows - i)):
-            for j in range(width):
-                if grid[i + d, j] > down[i, j]:
-                    down[i, j] = grid[i + d, j]
-    dilated = down.copy()
-    for i in range(rows):
-        for j in range(width):
-            for d in range(1, min(block, width - j)):
-                if down[i, j + d] > dilated[i, j]:
-                    dilated[i, j] = down[i, j + d]
+            if current[i, j]:
+                grid[pad + i, pad + j] = 1
+                for r in range(max(pad + i - block + 1, 0), pad + i + 1):
+                    for c in range(max(pad + j - block + 1, 0), pad + j + 1):
+                        dilated[r, c] = 1
     dead = (h + 3 * pad) * width + pad
     found_r, found_c = np.nonzero(previous)
     turns = len(cos)
