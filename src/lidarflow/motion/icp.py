@@ -112,6 +112,7 @@ class Reference:
 
     def __init__(self, points: np.ndarray) -> None:
         points = _checked(points)
+        # one compiled pass: below, NumPy's dozen small calls cost more than their work
         if len(points) and ready(reference_loop, points, WINDOW, NORMAL_SPAN):
             (self.points, self.bearings, self.normal, self.has_normal, self._window_x,
              self._window_y) = reference_loop(points, WINDOW, NORMAL_SPAN)  # fmt: skip
