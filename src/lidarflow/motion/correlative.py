@@ -21,7 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarflow.compiled import ready
 from lidarflow.geometry import transform_cells
+from lidarflow.motion.correlative_loops import correlate_loop
 
 __all__ = ["BLOCK", "MAX_SHIFT", "YAWS", "Correlation", "correlate"]
 
@@ -47,6 +49,9 @@ _BLOCKS = len(_CORNERS_A)
 _IN_A, _IN_B = (g.ravel() for g in np.meshgrid(np.arange(BLOCK), np.arange(BLOCK), indexing="ij"))
 _FINE_A, _FINE_B = _CORNERS_A[:, None] + _IN_A, _CORNERS_B[:, None] + _IN_B
 _RANK = _ORDER[_FINE_A + MAX_SHIFT] * _SPAN + _ORDER[_FINE_B + MAX_SHIFT]
+# each turn's cosine and sine as transform_cells takes them (one turn at a time), for the kernel
+_COS = np.array([np.cos(t) for t in YAWS.tolist()])
+_SIN = np.array([np.sin(t) for t in YAWS.tolist()])
 
 
 @dataclass(frozen=True)
@@ -128,6 +133,26 @@ def correlate(previous: np.ndarray, current: np.ndarray) -> Correlation | None:
     bool), or ``None`` where either map is empty."""
     if not previous.any() or not current.any():
         return None
+    args = (previous, current, _COS, _SIN, _CORNERS_A, _CORNERS_B, _FINE_A, _FINE_B, _RANK,
+            _PAD, BLOCK, FIRST_BLOCKS, _SPAN)  # fmt: skip
+    if ready(correlate_loop, *args):
+        k, a, b, score, still, *near = correlate_loop(*args).tolist()
+    else:
+        k, a, b, score, still, *near = _search(previous, current)
+    inner = 0 < k < len(YAWS) - 1
+    return Correlation(
+        k=k,
+        a=a,
+        b=b,
+        score=score,
+        still=still,
+        neighbours=(*near[:4], near[4] if inner else None, near[5] if inner else None),
+    )
+
+
+def _search(previous: np.ndarray, current: np.ndarray) -> list[int]:
+    """The search in NumPy: ``[k, a, b, score, still, up, down, left, right, before, after]``,
+    the turn's neighbours clamped to the ends of :data:`YAWS`."""
     place = _Placements(previous, current)
     corners = np.broadcast_to(place.offsets(_CORNERS_A, _CORNERS_B), (len(YAWS), _BLOCKS))
     bounds = place.scores(np.arange(len(YAWS)), corners, dilated=True).ravel().astype(np.int64)
@@ -141,16 +166,9 @@ def correlate(previous: np.ndarray, current: np.ndarray) -> Correlation | None:
         other, placement = _best_of(place, rest)
         if other > best:
             best, (k, a, b) = other, placement
-    turns = [k, k, k, k, max(k - 1, 0), min(k + 1, len(YAWS) - 1), len(YAWS) // 2]
-    near_a = np.array([a - 1, a + 1, a, a, a, a, 0])
-    near_b = np.array([b, b, b - 1, b + 1, b, b, 0])
-    near = place.scores(np.array(turns), place.offsets(near_a, near_b)[:, None])[:, 0].tolist()
-    inner = 0 < k < len(YAWS) - 1
-    return Correlation(
-        k=k,
-        a=a,
-        b=b,
-        score=best[0],
-        still=near[6],
-        neighbours=(*near[:4], near[4] if inner else None, near[5] if inner else None),
-    )
+    turns = [max(k - 1, 0), min(k + 1, len(YAWS) - 1)]
+    near_k = np.array([len(YAWS) // 2, k, k, k, k, *turns])
+    near_a = np.array([0, a - 1, a + 1, a, a, a, a])
+    near_b = np.array([0, b, b, b - 1, b + 1, b, b])
+    near = place.scores(near_k, place.offsets(near_a, near_b)[:, None])[:, 0].tolist()
+    return [k, a, b, best[0], *near]

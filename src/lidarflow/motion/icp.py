@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarflow.beams import RETURN, beam_status
-from lidarflow.compiled import kernel, ready
+from lidarflow.compiled import ready
 from lidarflow.data.blocks import FrameBlocks
 from lidarflow.data.recording import Recording
+from lidarflow.motion.icp_loops import align_loop, fit_loop, reference_loop
 from lidarflow.scan import Scan
 
 __all__ = [
@@ -111,6 +112,11 @@ class Reference:
 
     def __init__(self, points: np.ndarray) -> None:
         points = _checked(points)
+        # one compiled pass: below, NumPy's dozen small calls cost more than their work
+        if len(points) and ready(reference_loop, points, WINDOW, NORMAL_SPAN):
+            (self.points, self.bearings, self.normal, self.has_normal, self._window_x,
+             self._window_y) = reference_loop(points, WINDOW, NORMAL_SPAN)  # fmt: skip
+            return
         bearings = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         order = np.argsort(bearings, kind="stable")  # scan_points' order, whatever was given
         self.points, self.bearings = points[order], bearings[order]
@@ -186,8 +192,8 @@ def align(
     args = (source, target.points, target.bearings, target.normal, target.has_normal,
             target._window_x, target._window_y, motion, np.array(GATES), MAX_ITERATIONS,
             _MIN_PAIRS, _DAMPING)  # fmt: skip
-    if ready(_align_loop, *args):
-        if not _align_loop(*args):
+    if ready(align_loop, *args):
+        if not align_loop(*args):
             return None
         return _alignment(target, source, motion)
     for iteration in range(MAX_ITERATIONS):
@@ -207,73 +213,6 @@ def _alignment(target: Reference, source: np.ndarray, motion: np.ndarray) -> Ali
     if share < MIN_INLIERS:
         return None
     return Alignment(motion=motion, inliers=share, rms=rms)
-
-
-@kernel
-def _align_loop(
-    source: np.ndarray,
-    points: np.ndarray,
-    bearings: np.ndarray,
-    normal: np.ndarray,
-    has_normal: np.ndarray,
-    window_x: np.ndarray,
-    window_y: np.ndarray,
-    motion: np.ndarray,
-    gates: np.ndarray,
-    iterations: int,
-    min_pairs: int,
-    damping_share: float,
-) -> bool:
-    """:func:`align`'s iterations in one pass per iteration, ``motion`` updated in place;
-    False where too few returns pair up. The same pairing and step as ``Reference.pair`` and
-    :func:`_gauss_newton_step`, summed in another order (last bits may differ)."""
-    size, window = len(points), window_x.shape[1]
-    for iteration in range(iterations):
-        gate = gates[min(iteration, len(gates) - 1)]
-        cos, sin = math.cos(motion[2]), math.sin(motion[2])
-        a = b = c = d = e = f = g0 = g1 = g2 = 0.0
-        pairs = 0
-        for i in range(len(source)):
-            x = source[i, 0] * cos - source[i, 1] * sin + motion[0]
-            y = source[i, 0] * sin + source[i, 1] * cos + motion[1]
-            at = np.searchsorted(bearings, math.atan2(y, x) % (2 * math.pi))
-            nearest, closest = 0, np.inf
-            for k in range(window):
-                gap = (window_x[at, k] - x) ** 2 + (window_y[at, k] - y) ** 2
-                if gap < closest:
-                    nearest, closest = k, gap
-            best = (at + nearest - window // 2) % size
-            if closest >= gate * gate or not has_normal[best]:
-                continue
-            pairs += 1
-            n0, n1 = normal[best, 0], normal[best, 1]
-            lever = n1 * (x - motion[0]) - n0 * (y - motion[1])
-            r = (x - points[best, 0]) * n0 + (y - points[best, 1]) * n1
-            a += n0 * n0
-            b += n0 * n1
-            c += n0 * lever
-            d += n1 * n1
-            e += n1 * lever
-            f += lever * lever
-            g0 += n0 * r
-            g1 += n1 * r
-            g2 += lever * r
-        if pairs < min_pairs:
-            return False
-        damping = damping_share * (a + d + f) + 1e-12
-        a, d, f = a + damping, d + damping, f + damping
-        m0, m1, m2 = d * f - e * e, c * e - b * f, b * e - c * d
-        det = a * m0 + b * m1 + c * m2
-        m4, m5, m8 = a * f - c * c, b * c - a * e, a * d - b * b
-        s0 = -(m0 * g0 + m1 * g1 + m2 * g2) / det
-        s1 = -(m1 * g0 + m4 * g1 + m5 * g2) / det
-        s2 = -(m2 * g0 + m5 * g1 + m8 * g2) / det
-        motion[0] += s0
-        motion[1] += s1
-        motion[2] += s2
-        if math.hypot(s0, s1) < 1e-5 and abs(s2) < 1e-6 and iteration >= len(gates) - 1:
-            break
-    return True
 
 
 def _gauss_newton_step(
@@ -317,6 +256,13 @@ def fit(
 
 
 def _fit(target: Reference, source: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
+    args = (source, target.points, target.bearings, target.normal, target.has_normal,
+            target._window_x, target._window_y, motion, GATES[-1])  # fmt: skip
+    if ready(fit_loop, *args):
+        pairs, total = fit_loop(*args)
+        if pairs == 0:
+            return 0.0, float("inf")
+        return pairs / len(source), math.sqrt(total / pairs)
     moved, best, inliers = target.pair(source, motion, GATES[-1])
     if not inliers.any():
         return 0.0, float("inf")
