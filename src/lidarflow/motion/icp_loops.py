@@ -89,6 +89,33 @@ def reference_loop(
 
 
 @kernel
+def _paired(
+    px: float,
+    py: float,
+    cos: float,
+    sin: float,
+    motion: np.ndarray,
+    bearings: np.ndarray,
+    window_x: np.ndarray,
+    window_y: np.ndarray,
+    at: int,
+) -> tuple[float, float, int, int, float]:
+    """One return ``(px, py)`` moved by ``motion`` (``cos``, ``sin`` of its turn) and paired as
+    ``Reference.pair`` pairs it: ``(x, y)``, its place among the bearings (searched from the
+    previous return's, ``at``), the index of its nearest return and their squared distance."""
+    x = px * cos - py * sin + motion[0]
+    y = px * sin + py * cos + motion[1]
+    at = _slot(bearings, _bearing(x, y), at)
+    nearest, closest = 0, np.inf
+    window = window_x.shape[1]
+    for k in range(window):
+        gap = (window_x[at, k] - x) ** 2 + (window_y[at, k] - y) ** 2
+        if gap < closest:
+            nearest, closest = k, gap
+    return x, y, at, (at + nearest - window // 2) % len(bearings), closest
+
+
+@kernel
 def fit_loop(
     source: np.ndarray,
     points: np.ndarray,
@@ -103,19 +130,11 @@ def fit_loop(
     """``source`` moved by ``motion`` and paired as ``Reference.pair`` pairs them: how many
     pairs count (within ``gate``, on a surface) and the sum of their squared signed distances
     from the surface."""
-    size, window = len(points), window_x.shape[1]
     cos, sin = math.cos(motion[2]), math.sin(motion[2])
     pairs, total, at = 0, 0.0, 0
     for i in range(len(source)):
-        x = source[i, 0] * cos - source[i, 1] * sin + motion[0]
-        y = source[i, 0] * sin + source[i, 1] * cos + motion[1]
-        at = _slot(bearings, _bearing(x, y), at)
-        nearest, closest = 0, np.inf
-        for k in range(window):
-            gap = (window_x[at, k] - x) ** 2 + (window_y[at, k] - y) ** 2
-            if gap < closest:
-                nearest, closest = k, gap
-        best = (at + nearest - window // 2) % size
+        x, y, at, best, closest = _paired(source[i, 0], source[i, 1], cos, sin, motion,
+                                          bearings, window_x, window_y, at)  # fmt: skip
         if closest >= gate * gate or not has_normal[best]:
             continue
         pairs += 1
@@ -142,22 +161,14 @@ def align_loop(
     """``icp.align``'s iterations in one pass per iteration, ``motion`` updated in place;
     False where too few returns pair up. The same pairing and step as ``Reference.pair`` and
     ``icp._gauss_newton_step``, summed in another order (last bits may differ)."""
-    size, window = len(points), window_x.shape[1]
     for iteration in range(iterations):
         gate = gates[min(iteration, len(gates) - 1)]
         cos, sin = math.cos(motion[2]), math.sin(motion[2])
         a = b = c = d = e = f = g0 = g1 = g2 = 0.0
         pairs, at = 0, 0
         for i in range(len(source)):
-            x = source[i, 0] * cos - source[i, 1] * sin + motion[0]
-            y = source[i, 0] * sin + source[i, 1] * cos + motion[1]
-            at = _slot(bearings, _bearing(x, y), at)
-            nearest, closest = 0, np.inf
-            for k in range(window):
-                gap = (window_x[at, k] - x) ** 2 + (window_y[at, k] - y) ** 2
-                if gap < closest:
-                    nearest, closest = k, gap
-            best = (at + nearest - window // 2) % size
+            x, y, at, best, closest = _paired(source[i, 0], source[i, 1], cos, sin, motion,
+                                              bearings, window_x, window_y, at)  # fmt: skip
             if closest >= gate * gate or not has_normal[best]:
                 continue
             pairs += 1
