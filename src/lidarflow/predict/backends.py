@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -265,6 +266,8 @@ def load_backend(
         # second spent importing it before the first prediction.
         head, card = _bundled_head()
         if head is not None:
+            if threads and "torch" in sys.modules:  # as TorchBackend: the setting is the process's
+                sys.modules["torch"].set_num_threads(threads)
             return head, card
     if is_bundled(source) and not torch_available():
         path, card = bundled_onnx()

@@ -134,8 +134,8 @@ class Predictor:
 
     Args:
         model: a run folder or ``.safetensors`` file (PyTorch), an ``.onnx`` file (onnxruntime,
-            no PyTorch needed), or ``None`` for the bundled pretrained model (on PyTorch where it
-            is installed, else its ONNX export: :func:`~lidarflow.predict.backends.load_backend`).
+            no PyTorch needed), or ``None`` for the bundled pretrained model (its head step in
+            NumPy, read without PyTorch: :func:`~lidarflow.predict.backends.load_backend`).
         grid: the map grid (default: the one the model was trained on, as its model.json or
             the ONNX file's metadata says; else 100 x 100 at 0.1 m, the bundled model's).
         horizon: frames ahead to predict; beyond the first, predictions are fed back as input.
