@@ -20,7 +20,8 @@ localhost:
   while the node was busy.
 
 The peer publishes the sample's scans at their recorded pace (7.5 Hz); the node runs the bundled
-ONNX model (no PyTorch at run time) on one thread (``--threads 1``, ``OMP_NUM_THREADS=1``), the
+model as the Predictor's default does (its head step in NumPy, no PyTorch; ``--onnx``: its ONNX
+export on onnxruntime) on one thread (``--threads 1``, ``OMP_NUM_THREADS=1``), the
 Predictor here too. No busy process is added: the machine's load (``os.getloadavg``) before and
 after is recorded instead. The first ``--warmup`` scans are left out of every figure. Target
 (issue 45): node median <= 1.1x the Predictor's. Writes JSON (default
@@ -55,7 +56,7 @@ TOPIC = "/right_scan"  # the sample's `right_scan`
 
 
 def own_latency(
-    model: Path, scans: list, horizon: int, moving: bool, warmup: int, period_s: float = 0.0
+    model: Path | None, scans: list, horizon: int, moving: bool, warmup: int, period_s: float = 0.0
 ) -> list[float]:
     """Milliseconds per ``Predictor.update`` (and the moving cells, where the node makes them),
     on one thread: back to back, or with ``period_s`` a scan started every ``period_s`` seconds
@@ -77,7 +78,7 @@ def own_latency(
 
 
 def ros_loop(
-    model: Path, n: int, horizon: int, moving: bool, tmp: Path
+    model: Path | None, n: int, horizon: int, moving: bool, tmp: Path
 ) -> tuple[list, list, list]:
     """Per-scan milliseconds: the node's own, the Predictor's part of it, and the peer's scan
     sent -> last grid received."""
@@ -86,8 +87,9 @@ def ros_loop(
     topics = grid_topics(horizon, moving, occupancy=False)
     node = peer = None
     try:
-        node = start([sys.executable, "-m", "lidarflow", "ros2", "-m", str(model), "--topic",
-                      TOPIC, "--horizon", str(horizon), "-v", "--queue", "1000", "--threads", "1",
+        node = start([sys.executable, "-m", "lidarflow", "ros2",
+                      *([] if model is None else ["-m", str(model)]), "--topic", TOPIC,
+                      "--horizon", str(horizon), "-v", "--queue", "1000", "--threads", "1",
                       *(["--moving"] if moving else [])], env, tmp / "node.log")  # fmt: skip
         wait_for("publishing", tmp / "node.log", node)
         out = tmp / "peer.json"
@@ -122,12 +124,13 @@ def main() -> None:
     parser.add_argument("--horizon", type=int, default=1)
     parser.add_argument("--moving", action="store_true")
     parser.add_argument("--warmup", type=int, default=10)
+    parser.add_argument("--onnx", action="store_true", help="the bundled model's ONNX export")
     parser.add_argument("--json", type=Path, default=Path("benchmarks/results/ros2.json"))
     args = parser.parse_args()
 
     recording = read_bag(sample_bag_path())
     scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]
-    model, _ = bundled_onnx()
+    model = bundled_onnx()[0] if args.onnx else None
     load_before = os.getloadavg()
     period = float(np.median(np.diff(recording.stamps_ns))) / 1e9  # the peer's pace
     own_args = (model, scans, args.horizon, args.moving, args.warmup)
@@ -156,7 +159,8 @@ def main() -> None:
         "benchmark": "ros2",
         "scans": len(scans),
         "warmup_left_out": args.warmup,
-        "model": "bundled ONNX (onnxruntime, 1 thread)",
+        "model": "bundled, " + ("ONNX (onnxruntime, " if args.onnx else "NumPy head step (")
+                 + "1 thread)",
         "ros": "ROS 2 Jazzy wheels (rclpy, rmw_fastrtps_cpp), localhost",
         "horizon": args.horizon,
         "moving": args.moving,

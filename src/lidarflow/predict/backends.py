@@ -266,8 +266,9 @@ def load_backend(
         # second spent importing it before the first prediction.
         head, card = _bundled_head()
         if head is not None:
-            if threads and "torch" in sys.modules:  # as TorchBackend: the setting is the process's
-                sys.modules["torch"].set_num_threads(threads)
+            torch = sys.modules.get("torch")  # None where an import of it was blocked
+            if threads and torch is not None:  # as TorchBackend: the setting is the process's
+                torch.set_num_threads(threads)
             return head, card
     if is_bundled(source) and not torch_available():
         path, card = bundled_onnx()
