@@ -112,7 +112,7 @@ def test_a_kernel_compiles_in_the_background_while_its_caller_takes_the_referenc
 
 
 _FIRST_UPDATES = """
-import hashlib, json
+import hashlib, json, os
 from lidarflow import compiled
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.predict import Predictor
@@ -121,7 +121,8 @@ for scan in list(read_bag(sample_bag_path()))[:6]:
     p = predictor.update(scan)
     pending.append(compiled._jobs.unfinished_tasks)
     digest.update(p.probability.tobytes() + p.occupied.tobytes())
-print(json.dumps({"digest": digest.hexdigest(), "pending": pending}))
+print(json.dumps({"digest": digest.hexdigest(), "pending": pending}), flush=True)
+os._exit(0)  # no waiting at exit for the kernels still compiling
 """
 
 
@@ -141,6 +142,53 @@ def test_a_first_run_predicts_while_the_kernels_compile_and_predicts_the_same(tm
     background, numpy = _first_updates(tmp_path, "1"), _first_updates(tmp_path, "0")
     assert background["pending"][0] > 0
     assert background["digest"] == numpy["digest"]
+
+
+_ASK = """
+import json, numpy as np
+from lidarflow import compiled
+from lidarflow.predict.lookahead import _best_candidate_loop as loop
+args = (np.zeros((2, 3)), np.ones((2, 4)), np.ones((2, 4)), np.ones(2), 1.0, np.ones((2, 3, 3)),
+        20.0, 1e-3)
+asked = compiled.ready(loop, *args)
+if WAIT:
+    compiled.wait()
+print(json.dumps({"asked": asked, "hits": sum(loop.stats.cache_hits.values())}), flush=True)
+"""
+
+
+def test_a_run_that_ends_while_kernels_compile_finishes_them_for_the_next(tmp_path):
+    environment = {**os.environ, "LIDARFLOW_COMPILED": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
+    runs = [
+        subprocess.run(
+            [sys.executable, "-c", _ASK.replace("WAIT", wait)],
+            env=environment,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            check=True,
+        )
+        for wait in ("False", "True")
+    ]
+    first, second = (json.loads(r.stdout.strip().splitlines()[-1]) for r in runs)
+    assert first == {"asked": False, "hits": 0}  # it exits while compiling ...
+    assert "compiling the fast loops for the next runs" in runs[0].stderr
+    assert second == {"asked": False, "hits": 1}  # ... and the next run loads it from the cache
+    assert runs[1].stderr == ""
+
+
+def test_a_kernel_of_several_types_compiles_each_in_the_background(monkeypatch):
+    monkeypatch.setattr(compiled, "background", True)
+    monkeypatch.setattr(compiled, "_compiled", set())
+    monkeypatch.setattr(compiled, "_asked", set())
+    wide, narrow = np.arange(3.0), np.arange(3.0, dtype=np.float32)
+    assert not compiled.ready(_doubled, wide, variant="d")
+    compiled.wait()
+    assert compiled.ready(_doubled, wide, variant="d")
+    assert not compiled.ready(_doubled, narrow, variant="f")  # its own, in the background
+    compiled.wait()
+    assert compiled.ready(_doubled, narrow, variant="f")
+    np.testing.assert_array_equal(_doubled(narrow), 2 * narrow)
 
 
 def test_kernel_hands_back_the_function_where_numba_is_off(monkeypatch):

@@ -11,7 +11,9 @@ Compiling takes seconds, and a robot wants its first prediction at once. So a ke
 on a background thread when it is first asked for, for the types it was asked with, while its
 caller takes the NumPy reference; from the next call after that it runs compiled. Compiled code
 is cached on disk (numba's ``cache=True``: beside the module, or in the user's cache when that
-is read-only; ``NUMBA_CACHE_DIR`` moves it), so later runs load it in milliseconds.
+is read-only; ``NUMBA_CACHE_DIR`` moves it), so later runs load it in milliseconds; a process
+that ends while kernels compile finishes them first (a machine's first runs only). While they
+compile, some predictions are late: LLVM holds Python's lock for long stretches.
 :func:`wait` waits for the compiling to end (benchmarks, and before the process forks).
 
 ``LIDARFLOW_COMPILED=0`` turns the kernels off (the NumPy references run);
@@ -21,8 +23,10 @@ false).
 
 from __future__ import annotations
 
+import atexit
 import os
 import queue
+import sys
 import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -42,9 +46,10 @@ except ImportError:
 #: Whether a kernel compiles on a background thread (the default) or in its first caller.
 background = _MODE != "wait"
 
-_compiled: set[Any] = set()  # the kernels compiled (or loaded from the cache)
-_asked: set[Any] = set()  # the kernels asked for: compiling, compiled or failed
-_jobs: queue.Queue[tuple[Any, tuple[Any, ...]]] = queue.Queue()
+# A kernel, or (kernel, variant) for one that callers run on several types (see ready).
+_compiled: set[Any] = set()  # those compiled (or loaded from the cache)
+_asked: set[Any] = set()  # those asked for: compiling, compiled or failed
+_jobs: queue.Queue[tuple[Any, Any, tuple[Any, ...]]] = queue.Queue()
 _worker: threading.Thread | None = None
 _lock = threading.Lock()
 #: The kernels that failed to compile in the background (name: why); their callers take the
@@ -66,19 +71,22 @@ def kernel(function: F) -> F:
     return numba.njit(cache=True, nogil=True)(function)  # type: ignore[no-any-return]
 
 
-def ready(loop: Callable[..., Any], *args: Any) -> bool:
+def ready(loop: Callable[..., Any], *args: Any, variant: Any = None) -> bool:
     """Whether the caller should run the kernel ``loop`` on ``args`` now. False without numba;
     in the background mode, false until ``loop`` is compiled: the first call starts compiling it
-    for the types of ``args`` and the caller takes its NumPy reference meanwhile. A later call
-    with other types compiles those in the caller, as numba does."""
+    for the types of ``args`` and the caller takes its NumPy reference meanwhile. A kernel that
+    callers run on arrays of several types names the type as ``variant`` (a dtype, say), so
+    that each compiles in the background; a later call with other types and the same variant
+    compiles in the caller, as numba does."""
     if numba is None:
         return False
-    if loop in _compiled or not background:
+    key = loop if variant is None else (loop, variant)
+    if key in _compiled or not background:
         return True
     with _lock:
-        if loop not in _asked:
-            _asked.add(loop)
-            _jobs.put((loop, tuple(numba.typeof(a) for a in args)))
+        if key not in _asked:
+            _asked.add(key)
+            _jobs.put((key, loop, tuple(numba.typeof(a) for a in args)))
             _start_worker()
     return False
 
@@ -87,6 +95,18 @@ def wait() -> None:
     """Return when every kernel asked for so far is compiled (or failed to: its caller keeps
     taking the NumPy reference)."""
     _jobs.join()
+
+
+def _finish_at_exit() -> None:
+    """A process that ends while kernels compile finishes them first, so that they are cached
+    for the next run (a machine's first runs only): else a run shorter than the compiling would
+    leave every later one to start it again."""
+    if _jobs.unfinished_tasks:
+        sys.stderr.write(
+            "lidarflow: compiling the fast loops for the next runs before exiting (a machine's "
+            "first runs only; LIDARFLOW_COMPILED=0 turns them off)\n"
+        )
+        wait()
 
 
 def _start_worker() -> None:
@@ -98,10 +118,10 @@ def _start_worker() -> None:
 
 def _compile_jobs() -> None:
     while True:
-        loop, signature = _jobs.get()
+        key, loop, signature = _jobs.get()
         try:
             loop.compile(signature)
-            _compiled.add(loop)
+            _compiled.add(key)
         except Exception as err:  # one that cannot compile leaves its caller the reference
             failed[getattr(loop, "__name__", repr(loop))] = f"{type(err).__name__}: {err}"
         finally:
@@ -119,3 +139,4 @@ def _after_fork_in_child() -> None:
 if numba is not None:
     # A fork while numba compiles would leave the child its compiler lock held by no thread.
     os.register_at_fork(before=wait, after_in_child=_after_fork_in_child)
+    atexit.register(_finish_at_exit)

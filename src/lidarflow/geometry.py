@@ -165,7 +165,7 @@ def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.nda
     weighted corners summed in their order, in ``flat``'s precision."""
     out = np.empty((flat.shape[0], index.shape[1]), flat.dtype)
     flat = np.ascontiguousarray(flat)
-    if not ready(_gather_loop, flat, index, weight, out):
+    if not ready(_gather_loop, flat, index, weight, out, variant=flat.dtype.char):
         return _gathered_numpy(flat, index, weight)
     _gather_loop(flat, index, weight, out)
     return out
