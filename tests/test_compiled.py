@@ -172,9 +172,8 @@ def test_a_run_that_ends_while_kernels_compile_finishes_them_for_the_next(tmp_pa
     ]
     first, second = (json.loads(r.stdout.strip().splitlines()[-1]) for r in runs)
     assert first == {"asked": False, "hits": 0}  # it exits while compiling ...
-    assert "compiling the fast loops for the next runs" in runs[0].stderr
     assert second == {"asked": False, "hits": 1}  # ... and the next run loads it from the cache
-    assert runs[1].stderr == ""
+    assert runs[0].stderr == runs[1].stderr == ""  # (said on a terminal only)
 
 
 def test_a_kernel_of_several_types_compiles_each_in_the_background(monkeypatch):

@@ -100,12 +100,13 @@ def wait() -> None:
 def _finish_at_exit() -> None:
     """A process that ends while kernels compile finishes them first, so that they are cached
     for the next run (a machine's first runs only): else a run shorter than the compiling would
-    leave every later one to start it again."""
+    leave every later one to start it again. A terminal is told why it waits."""
     if _jobs.unfinished_tasks:
-        sys.stderr.write(
-            "lidarflow: compiling the fast loops for the next runs before exiting (a machine's "
-            "first runs only; LIDARFLOW_COMPILED=0 turns them off)\n"
-        )
+        if sys.stderr.isatty():
+            sys.stderr.write(
+                "lidarflow: compiling the fast loops for the next runs before exiting (a "
+                "machine's first runs only; LIDARFLOW_COMPILED=0 turns them off)\n"
+            )
         wait()
 
 
