@@ -153,11 +153,13 @@ args = (np.zeros((2, 3)), np.ones((2, 4)), np.ones((2, 4)), np.ones(2), 1.0, np.
 asked = compiled.ready(loop, *args)
 if WAIT:
     compiled.wait()
+else:
+    compiled.finish()  # what a command that ran to its end does
 print(json.dumps({"asked": asked, "hits": sum(loop.stats.cache_hits.values())}), flush=True)
 """
 
 
-def test_a_run_that_ends_while_kernels_compile_finishes_them_for_the_next(tmp_path):
+def test_a_command_that_ends_while_kernels_compile_finishes_them_for_the_next(tmp_path):
     environment = {**os.environ, "LIDARFLOW_COMPILED": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
     runs = [
         subprocess.run(
@@ -171,7 +173,7 @@ def test_a_run_that_ends_while_kernels_compile_finishes_them_for_the_next(tmp_pa
         for wait in ("False", "True")
     ]
     first, second = (json.loads(r.stdout.strip().splitlines()[-1]) for r in runs)
-    assert first == {"asked": False, "hits": 0}  # it exits while compiling ...
+    assert first == {"asked": False, "hits": 0}  # it ends while compiling ...
     assert second == {"asked": False, "hits": 1}  # ... and the next run loads it from the cache
     assert runs[0].stderr == runs[1].stderr == ""  # (said on a terminal only)
 
@@ -238,3 +240,18 @@ def test_the_best_candidate_is_the_numpy_reference_s(seed, monkeypatch):
     got = best_candidate(*args)
     monkeypatch.setattr(compiled, "numba", None)
     assert got == best_candidate(*args)
+
+
+def test_a_command_run_to_its_end_finishes_the_compiling_and_an_error_does_not(
+    short, monkeypatch, capsys
+):
+    from lidarflow.cli import main
+
+    finished = []
+    monkeypatch.setattr(compiled, "finish", lambda: finished.append(True))
+    with pytest.raises(SystemExit) as done:
+        main(["info", str(short)])
+    assert done.value.code in (0, None) and finished == [True]
+    with pytest.raises(SystemExit) as failed:
+        main(["info", str(short.parent / "missing.bag")])
+    assert failed.value.code != 0 and finished == [True]

@@ -11,9 +11,9 @@ Compiling takes seconds, and a robot wants its first prediction at once. So a ke
 on a background thread when it is first asked for, for the types it was asked with, while its
 caller takes the NumPy reference; from the next call after that it runs compiled. Compiled code
 is cached on disk (numba's ``cache=True``: beside the module, or in the user's cache when that
-is read-only; ``NUMBA_CACHE_DIR`` moves it), so later runs load it in milliseconds; a process
-that ends while kernels compile finishes them first (a machine's first runs only). While they
-compile, some predictions are late: LLVM holds Python's lock for long stretches.
+is read-only; ``NUMBA_CACHE_DIR`` moves it), so later runs load it in milliseconds; a command
+that ends while kernels compile finishes them first (:func:`finish`). While they
+compile, some predictions are late: the compiling thread shares Python's lock.
 :func:`wait` waits for the compiling to end (benchmarks, and before the process forks).
 
 ``LIDARFLOW_COMPILED=0`` turns the kernels off (the NumPy references run);
@@ -23,7 +23,6 @@ false).
 
 from __future__ import annotations
 
-import atexit
 import os
 import queue
 import sys
@@ -31,7 +30,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["available", "background", "failed", "kernel", "ready", "wait"]
+__all__ = ["available", "background", "failed", "finish", "kernel", "ready", "wait"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -97,10 +96,11 @@ def wait() -> None:
     _jobs.join()
 
 
-def _finish_at_exit() -> None:
-    """A process that ends while kernels compile finishes them first, so that they are cached
-    for the next run (a machine's first runs only): else a run shorter than the compiling would
-    leave every later one to start it again. A terminal is told why it waits."""
+def finish() -> None:
+    """Wait for the kernels still compiling, so that they are cached for the next run: what a
+    command that ran to its end calls before it exits (a machine's first runs only; a terminal
+    is told why it waits). Without it a first run shorter than the compiling would leave every
+    later one to start it again. Not on an interrupt: stopping stays prompt."""
     if _jobs.unfinished_tasks:
         if sys.stderr.isatty():
             sys.stderr.write(
@@ -140,4 +140,3 @@ def _after_fork_in_child() -> None:
 if numba is not None:
     # A fork while numba compiles would leave the child its compiler lock held by no thread.
     os.register_at_fork(before=wait, after_in_child=_after_fork_in_child)
-    atexit.register(_finish_at_exit)

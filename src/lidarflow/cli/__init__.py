@@ -77,6 +77,10 @@ def main(argv: list[str] | None = None) -> None:
         typer.echo("lidarflow: interrupted", err=True)
         sys.exit(130)
     except SystemExit as done:
+        if done.code in (0, None):  # ran to its end: what compiles is kept for the next run
+            from lidarflow.compiled import finish
+
+            finish()
         # typer turns Ctrl-C into a silent exit 130 (KeyboardInterrupt -> Exit(130) -> here), so
         # say so, with what the command added about it (train: how to resume)
         interrupt = getattr(done.__context__, "__cause__", None)
