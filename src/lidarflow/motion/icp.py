@@ -130,6 +130,12 @@ class Reference:
         )[: n + 1]
         self._window_x, self._window_y = (np.ascontiguousarray(windows[:, i]) for i in (0, 1))
 
+    @property
+    def _arrays(self) -> tuple[np.ndarray, ...]:
+        """What the compiled loops pair with, in their order (:func:`reference_loop`'s)."""
+        return (self.points, self.bearings, self.normal, self.has_normal, self._window_x,
+                self._window_y)  # fmt: skip
+
     def __len__(self) -> int:
         return len(self.points)
 
@@ -189,9 +195,8 @@ def align(
     if len(source) < _MIN_PAIRS or len(target) < 3:
         return None
     motion = np.zeros(3) if initial is None else np.asarray(initial, np.float64).reshape(3).copy()
-    args = (source, target.points, target.bearings, target.normal, target.has_normal,
-            target._window_x, target._window_y, motion, np.array(GATES), MAX_ITERATIONS,
-            _MIN_PAIRS, _DAMPING)  # fmt: skip
+    args = (source, *target._arrays, motion, np.array(GATES), MAX_ITERATIONS, _MIN_PAIRS,
+            _DAMPING)  # fmt: skip
     if ready(align_loop, *args):
         if not align_loop(*args):
             return None
@@ -256,8 +261,7 @@ def fit(
 
 
 def _fit(target: Reference, source: np.ndarray, motion: np.ndarray) -> tuple[float, float]:
-    args = (source, target.points, target.bearings, target.normal, target.has_normal,
-            target._window_x, target._window_y, motion, GATES[-1])  # fmt: skip
+    args = (source, *target._arrays, motion, GATES[-1])
     if ready(fit_loop, *args):
         pairs, total = fit_loop(*args)
         if pairs == 0:
