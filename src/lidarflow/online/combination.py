@@ -94,26 +94,20 @@ class Combination:
         experts = self.experts.of(tracker, step, rollout, occupancy, visibility)
         maps = experts.maps
         occupied = np.asarray(occupancy) > 0.5
+        kept = _quantised(maps)
         probability, decided = [], []
         for k in range(self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
                 stored, rare, before = waiting[0]
-                past = stored.astype(np.float64) / 255.0
-                stacked = stack.learn(past, rare, occupied)  # as decided before this step
-                candidates = np.concatenate([_with_unions(past), stacked[None]]) >= DECIDED
+                stacked = stack.learn(stored, rare, occupied)  # as decided before this step
+                candidates = _candidates_decided(stored, stacked)
                 leader.score(candidates, rare, experts.region, occupied, before)
             rare = experts.rare[k]
-            # the candidates in the order of CANDIDATES: each expert's own and the unions
-            # (decided at 0.4), then the stacked combination's
-            p, d = stack.decided(maps[:, k], rare)
-            own = _with_unions(maps[:, k])
-            p, d = np.concatenate([own, p[None]]), np.concatenate([own, d[None]])
-            a, b = leader.choice
-            probability.append(np.where(rare, p[b], p[a]))
-            decided.append(np.where(rare, d[b], d[a]))
-            quantised = np.rint(np.clip(maps[:, k], 0.0, 1.0) * 255).astype(np.uint8)
-            waiting.append((quantised, rare.copy(), occupied))
+            p, d = _chosen(stack, leader.choice, maps[:, k], rare)
+            probability.append(p)
+            decided.append(d)
+            waiting.append((kept[k], rare.copy(), occupied))
         return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
 
     @property
@@ -156,8 +150,59 @@ class Combination:
         self.forget_pending()
 
 
-def _with_unions(experts: np.ndarray) -> np.ndarray:
-    """The candidates' maps but the stacked one's ``(C - 1, H, W)``: the ``experts``'
-    ``(E, H, W)``, then their unions (:data:`UNIONS`)."""
-    unions = [np.maximum(experts[i], experts[j]) for i, j in _UNIONS]
-    return np.concatenate([experts, np.stack(unions)])
+#: The index of the stacked combination among the candidates.
+_STACKED = CANDIDATES.index("stacked")
+
+#: The smallest quantised probability ``q`` decided occupied (``q / 255 >= DECIDED``).
+_DECIDED_LEVEL = int(np.argmax(np.arange(256) / 255.0 >= DECIDED))
+
+
+def _quantised(maps: np.ndarray) -> list[np.ndarray]:
+    """The experts' maps ``(E, K, H, W)`` kept until their labels come: per horizon ``(E, H,
+    W)`` uint8, ``q = rint(255 p)`` (``p`` clipped to [0, 1]), each its own array."""
+    scaled = np.clip(maps, 0.0, 1.0)
+    scaled *= 255
+    np.rint(scaled, out=scaled)
+    kept = np.empty((maps.shape[1], maps.shape[0], *maps.shape[2:]), np.uint8)
+    kept[...] = np.moveaxis(scaled, 1, 0)
+    return [np.ascontiguousarray(one) for one in kept]
+
+
+def _candidates_decided(experts: np.ndarray, stacked: np.ndarray) -> np.ndarray:
+    """The candidates' decided maps ``(C, H, W)`` bool in the order of :data:`CANDIDATES`:
+    of the quantised ``experts`` ``(E, H, W)`` uint8 (``p = q / 255``) and their unions at
+    :data:`DECIDED`, and of the ``stacked`` decided probability ``(H, W)``."""
+    out = np.empty((len(CANDIDATES), *experts.shape[1:]), bool)
+    np.greater_equal(experts, _DECIDED_LEVEL, out=out[: len(experts)])
+    for n, (i, j) in enumerate(_UNIONS, start=len(experts)):
+        np.logical_or(out[i], out[j], out=out[n])  # the larger is decided if either is
+    np.greater_equal(stacked, DECIDED, out=out[_STACKED])
+    return out
+
+
+def _chosen(
+    stack: HorizonStacking, choice: tuple[int, int], experts: np.ndarray, rare: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The probability and decided maps ``(H, W)`` of the candidates ``choice`` (deciding the
+    common and the ``rare`` cells) of the experts' maps ``(E, H, W)``; the stacked
+    combination's computed only where chosen."""
+    stacked = stack.decided(experts, rare) if _STACKED in choice else None
+    (p_common, d_common), (p_rare, d_rare) = (
+        _candidate(experts, stacked, index) for index in choice
+    )
+    return np.where(rare, p_rare, p_common), np.where(rare, d_rare, d_common)
+
+
+def _candidate(
+    experts: np.ndarray, stacked: tuple[np.ndarray, np.ndarray] | None, index: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate ``index``'s probability and decided map: an expert's own map (decided at
+    :data:`DECIDED` as it is), a union's (the larger), or ``stacked``'s."""
+    if index < len(EXPERTS):
+        return experts[index], experts[index]
+    if index < _STACKED:
+        i, j = _UNIONS[index - len(EXPERTS)]
+        union = np.maximum(experts[i], experts[j])
+        return union, union
+    assert stacked is not None
+    return stacked

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarflow.compiled import ready
 from lidarflow.geometry import TOLERANCE, near
+from lidarflow.online.loops import score_counts_loop
 from lidarflow.online.stacking import f1_of
 
-__all__ = ["Leader"]
+__all__ = ["Leader", "score_counts"]
 
 #: How much more a loss against the simple predictors weighs than a win of the same size.
 LOSS_WEIGHT = 10.0
@@ -79,24 +81,9 @@ class Leader:
         the tolerant F1 inside ``region`` (where movers went); then choose anew."""
         self._f1 *= self.decay
         self._tolerant *= self.decay
-        changed = occupied != before
-        # the cells each count is over, as rows: (metric, kind) in _f1's order
-        masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).astype(np.float32)
-        masks = masks.reshape(4, -1)
-        flat = decided.reshape(len(decided), -1).astype(np.float32)
-        truth = occupied.reshape(-1).astype(np.float32)
-        tp = (flat * truth) @ masks.T  # (C, 4)
-        predicted = flat @ masks.T
-        true = masks @ truth  # (4,)
-        counts = np.stack([tp, predicted - tp, true - tp], axis=-1)  # (C, 4, 3)
-        self._f1 += counts.reshape(len(decided), 2, 2, 3)
-        truth_rare = occupied & region
-        guess = decided & region
-        right = np.count_nonzero(guess & near(truth_rare, self.tolerance), axis=(1, 2))
-        found = np.count_nonzero(truth_rare & near(guess, self.tolerance), axis=(1, 2))
-        true_rare = np.count_nonzero(truth_rare)
-        guessed = np.count_nonzero(guess, axis=(1, 2))
-        self._tolerant += np.stack([right, guessed - right, found, true_rare - found], axis=1)
+        f1, tolerant = score_counts(decided, rare, region, occupied, before, self.tolerance)
+        self._f1 += f1.reshape(self._f1.shape)
+        self._tolerant += tolerant
         self.choice = self._best()
 
     def _best(self) -> tuple[int, int]:
@@ -121,6 +108,45 @@ class Leader:
             score = sum(m + LOSS_WEIGHT * np.minimum(m, 0.0) for m in margins)
         a, b = np.unravel_index(int(np.argmax(score)), score.shape)
         return int(a), int(b)
+
+
+def score_counts(
+    decided: np.ndarray,
+    rare: np.ndarray,
+    region: np.ndarray,
+    occupied: np.ndarray,
+    before: np.ndarray,
+    radius: int = TOLERANCE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's counts of the candidates' ``decided`` maps ``(C, H, W)`` bool against the
+    map that came (``occupied`` ``(H, W)`` bool), as :meth:`Leader.score` adds them: ``(C, 4,
+    3)`` true positives, false positives and false negatives over the common cells, the
+    ``rare`` ones, and the same among those changed since ``before``; and ``(C, 4)`` the
+    tolerant F1's right, wrong, found and missed cells inside ``region``, a cell near another
+    within ``radius`` (:func:`lidarflow.geometry.near`). float64 holding integers; compiled
+    where available, the same counts."""
+    args = tuple(np.ascontiguousarray(a, bool) for a in (decided, rare, region, occupied, before))
+    if radius >= 0 and ready(score_counts_loop, *args, radius):
+        return score_counts_loop(*args, radius)  # type: ignore[no-any-return]
+    decided, rare, region, occupied, before = args
+    changed = occupied != before
+    # the cells each count is over, as rows: (metric, kind) in Leader._f1's order
+    masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).astype(np.float32)
+    masks = masks.reshape(4, -1)
+    flat = decided.reshape(len(decided), -1).astype(np.float32)
+    truth = occupied.reshape(-1).astype(np.float32)
+    tp = (flat * truth) @ masks.T  # (C, 4), exact: float32 holds counts up to 2**24
+    predicted = flat @ masks.T
+    true = masks @ truth  # (4,)
+    counts = np.stack([tp, predicted - tp, true - tp], axis=-1)  # (C, 4, 3)
+    truth_rare = occupied & region
+    guess = decided & region
+    right = np.count_nonzero(guess & near(truth_rare, radius), axis=(1, 2))
+    found = np.count_nonzero(truth_rare & near(guess, radius), axis=(1, 2))
+    true_rare = np.count_nonzero(truth_rare)
+    guessed = np.count_nonzero(guess, axis=(1, 2))
+    tolerant = np.stack([right, guessed - right, found, true_rare - found], axis=1)
+    return counts.astype(np.float64), tolerant.astype(np.float64)
 
 
 def _ratio(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -25,6 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarflow.compiled import ready
+from lidarflow.online.loops import active_loop
+
 __all__ = ["HorizonStacking", "StackingConfig", "f1_of", "rescaled"]
 
 #: The metric's threshold: a decided probability counts as occupied at or above it.
@@ -72,6 +75,11 @@ class HorizonStacking:
             raise ValueError(f"prior expert {prior} is not one of {experts}")
         self.experts, self.config, self.prior = experts, config or StackingConfig(), prior
         self._limit = float(np.log((1 - self.config.clip) / self.config.clip))
+        # the two cells that stand for all quiet ones (not rare, rare): their features
+        self._quiet = self._design(np.zeros((experts, 2)), np.array([False, True]))
+        # a quantised probability q is over the clip where q > this (q / 255 > clip)
+        levels = np.arange(256) / 255.0
+        self._quantised_clip = np.uint8(np.count_nonzero(levels <= self.config.clip) - 1)
         self.reset()
 
     def reset(self) -> None:
@@ -120,58 +128,67 @@ class HorizonStacking:
         r = rare.astype(np.float64)
         return np.concatenate([np.ones_like(r)[None], r[None], logits, logits * r[None]])
 
-    def _split(
-        self, probabilities: np.ndarray, rare: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The flat cells some expert finds possibly occupied (``active``), the design of those,
-        and the design of the two cells that stand for all others (not rare, rare)."""
-        flat = probabilities.reshape(self.experts, -1)
-        active = np.flatnonzero((flat > self.config.clip).any(axis=0))
-        design = self._design(flat[:, active], rare.ravel()[active])
-        quiet = self._design(np.zeros((self.experts, 2)), np.array([False, True]))
-        return active, design, quiet
+    def _split(self, probabilities: np.ndarray, rare: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The flat cells some expert finds possibly occupied (``active``) and their design.
+        ``probabilities`` ``(E, H, W)`` float, or uint8 quantised (``p = q / 255``)."""
+        flat = np.asarray(probabilities).reshape(self.experts, -1)
+        if flat.dtype != np.uint8 and flat.dtype.kind != "f":
+            flat = flat.astype(np.float64)  # compared as the float it stands for
+        if flat.dtype == np.uint8:
+            active = active_cells(flat, self._quantised_clip)
+            values = flat[:, active].astype(np.float64) / 255.0
+        else:
+            active = active_cells(flat, flat.dtype.type(self.config.clip))  # as `flat > clip`
+            values = flat[:, active]
+        return active, self._design(values, rare.ravel()[active])
 
-    def _combined(
-        self, active: np.ndarray, design: np.ndarray, quiet: np.ndarray, rare: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The combined probability of the ``active`` cells, of the quiet ones (not rare, rare)
-        and the grid ``(H, W)`` of both."""
-        p, quiet_p = _sigmoid(self.weights @ design), _sigmoid(self.weights @ quiet)
-        grid = np.where(rare.ravel(), quiet_p[1], quiet_p[0])
-        grid[active] = p
-        return p, quiet_p, grid.reshape(rare.shape)
+    def _combined(self, design: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The combined probability of the cells of ``design`` and of the quiet ones (not
+        rare, rare)."""
+        return _sigmoid(self.weights @ design), _sigmoid(self.weights @ self._quiet)
 
     def _decide(self, p: np.ndarray, rare: np.ndarray) -> np.ndarray:
         return rescaled(p, np.where(rare, self.thresholds[1], self.thresholds[0]))
 
     def decided(self, probabilities: np.ndarray, rare: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The combined probability ``(H, W)`` float64 of the experts' ``probabilities``
-        ``(E, H, W)`` with ``rare`` ``(H, W)`` bool, and the decided one (:func:`rescaled` at
-        the thresholds of the cell's kind)."""
-        p = self._combined(*self._split(probabilities, rare), rare)[2]
-        return p, self._decide(p, rare)
+        ``(E, H, W)`` (float, or uint8 quantised: ``p = q / 255``) with ``rare`` ``(H, W)``
+        bool, and the decided one (:func:`rescaled` at the thresholds of the cell's kind)."""
+        rare = np.asarray(rare, bool)
+        active, design = self._split(probabilities, rare)
+        p, quiet_p = self._combined(design)
+        decided = self._decided_grid(active, p, quiet_p, rare)
+        return _grid(active, p, quiet_p, rare), decided
+
+    def _decided_grid(
+        self, active: np.ndarray, p: np.ndarray, quiet_p: np.ndarray, rare: np.ndarray
+    ) -> np.ndarray:
+        """The decided grid ``(H, W)``: the ``active`` cells' ``p`` and the quiet ones'
+        ``quiet_p`` (not rare, rare) rescaled, cell by cell as the whole grid would be."""
+        quiet = self._decide(quiet_p, np.array([False, True]))
+        return _grid(active, self._decide(p, rare.ravel()[active]), quiet, rare)
 
     def learn(
         self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray
     ) -> np.ndarray:
         """One step on a pair whose label has arrived: the experts' ``probabilities``
-        ``(E, H, W)`` and ``rare`` mask as they were predicted, and the map that came
-        (``occupied`` ``(H, W)``, nonzero where occupied). Returns the decided probability
-        ``(H, W)`` the combination gave that pair before the step, as :meth:`decided`."""
+        ``(E, H, W)`` (float, or uint8 quantised: ``p = q / 255``) and ``rare`` mask as they
+        were predicted, and the map that came (``occupied`` ``(H, W)``, nonzero where
+        occupied). Returns the decided probability ``(H, W)`` the combination gave that pair
+        before the step, as :meth:`decided`."""
         target = np.asarray(occupied).ravel() > 0.5
+        rare = np.asarray(rare, bool)
         flat_rare = rare.ravel()
-        active, design, quiet = self._split(probabilities, rare)
-        p, quiet_p, grid = self._combined(active, design, quiet, rare)
-        decided = self._decide(grid, rare)
-        # every cell not active: its features are quiet[:, rare], its label free or occupied
-        rest = np.ones(target.size, bool)
-        rest[active] = False
-        cell = 2 * flat_rare[rest].astype(int) + target[rest]
-        counts = np.bincount(cell, minlength=4).reshape(2, 2).astype(np.float64)  # [rare, occ]
+        active, design = self._split(probabilities, rare)
+        p, quiet_p = self._combined(design)
+        decided = self._decided_grid(active, p, quiet_p, rare)
+        # every cell not active: its features are quiet[:, rare], its label free or occupied;
+        # counted as all cells less the active ones
         y = target[active].astype(np.float64)
+        counts = _kinds(flat_rare, target) - _kinds(flat_rare[active], target[active])
         gradient = design @ (p - y)
         for kind in (0, 1):
-            gradient += quiet[:, kind] * (
+            gradient += self._quiet[:, kind] * (
                 counts[kind, 0] * quiet_p[kind] + counts[kind, 1] * (quiet_p[kind] - 1)
             )
         gradient /= target.size
@@ -230,6 +247,34 @@ def f1_of(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
     elementwise; 0 where there is nothing either way."""
     denominator = 2 * tp + wrong
     return np.where(denominator > 0, 2 * tp / np.where(denominator > 0, denominator, 1.0), 0.0)
+
+
+def active_cells(flat: np.ndarray, level: np.generic) -> np.ndarray:
+    """The indices of the columns of ``flat`` ``(E, N)`` where some value is above ``level``
+    (a scalar of ``flat``'s type): ``np.flatnonzero((flat > level).any(axis=0))``, compiled
+    where available."""
+    if ready(active_loop, flat, level, variant=(flat.dtype.str, flat.flags.c_contiguous)):
+        return active_loop(flat, level)  # type: ignore[no-any-return]
+    return np.flatnonzero((flat > level).any(axis=0))
+
+
+def _grid(
+    active: np.ndarray, values: np.ndarray, quiet: np.ndarray, rare: np.ndarray
+) -> np.ndarray:
+    """The grid ``(H, W)`` of ``rare``'s shape holding ``values`` at the flat ``active``
+    cells and ``quiet`` (not rare, rare) elsewhere."""
+    grid = np.where(rare.ravel(), quiet[1], quiet[0])
+    grid[active] = values
+    return grid.reshape(rare.shape)
+
+
+def _kinds(rare: np.ndarray, occupied: np.ndarray) -> np.ndarray:
+    """The cells ``(2, 2)`` float64 per kind (common, rare) and label (free, occupied) of the
+    flat bool ``rare`` and ``occupied``."""
+    both = np.count_nonzero(rare & occupied)
+    rare_cells, occupied_cells = np.count_nonzero(rare), np.count_nonzero(occupied)
+    common = rare.size - rare_cells - occupied_cells + both
+    return np.array([[common, occupied_cells - both], [rare_cells - both, both]], np.float64)
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
