@@ -17,15 +17,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lidarflow.compiled import ready
 from lidarflow.online.experts import EXPERTS, ExpertMaps
 from lidarflow.online.leader import Leader
+from lidarflow.online.loops import quantised_loop
 from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
 if TYPE_CHECKING:
     from lidarflow.predict.engine import Rollout, Step
     from lidarflow.tracking import Tracker
 
-__all__ = ["CANDIDATES", "Combination", "Combined"]
+__all__ = ["CANDIDATES", "Combination", "Combined", "quantised"]
 
 #: The experts laid over each other (the larger probability).
 UNIONS = (("model", "tracks"), ("copy_last", "tracks"))
@@ -94,7 +96,6 @@ class Combination:
         experts = self.experts.of(tracker, step, rollout, occupancy, visibility)
         maps = experts.maps
         occupied = np.asarray(occupancy) > 0.5
-        kept = _quantised(maps)
         probability, decided = [], []
         for k in range(self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
@@ -107,7 +108,7 @@ class Combination:
             p, d = _chosen(stack, leader.choice, maps[:, k], rare)
             probability.append(p)
             decided.append(d)
-            waiting.append((kept[k], rare.copy(), occupied))
+            waiting.append((quantised(maps[:, k]), rare.copy(), occupied))
         return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
 
     @property
@@ -157,15 +158,13 @@ _STACKED = CANDIDATES.index("stacked")
 _DECIDED_LEVEL = int(np.argmax(np.arange(256) / 255.0 >= DECIDED))
 
 
-def _quantised(maps: np.ndarray) -> list[np.ndarray]:
-    """The experts' maps ``(E, K, H, W)`` kept until their labels come: per horizon ``(E, H,
-    W)`` uint8, ``q = rint(255 p)`` (``p`` clipped to [0, 1]), each its own array."""
-    scaled = np.clip(maps, 0.0, 1.0)
-    scaled *= 255
-    np.rint(scaled, out=scaled)
-    kept = np.empty((maps.shape[1], maps.shape[0], *maps.shape[2:]), np.uint8)
-    kept[...] = np.moveaxis(scaled, 1, 0)
-    return [np.ascontiguousarray(one) for one in kept]
+def quantised(maps: np.ndarray) -> np.ndarray:
+    """The experts' maps ``(E, H, W)`` float32 (finite) as they are kept until their labels
+    come: ``(E, H, W)`` uint8, ``q = rint(255 p)`` (``p`` clipped to [0, 1]). Compiled where
+    available, the same bits."""
+    if ready(quantised_loop, maps):
+        return quantised_loop(maps)  # type: ignore[no-any-return]
+    return np.rint(np.clip(maps, 0.0, 1.0) * 255).astype(np.uint8)
 
 
 def _candidates_decided(experts: np.ndarray, stacked: np.ndarray) -> np.ndarray:

@@ -14,7 +14,13 @@ import numpy as np
 
 from lidarflow.compiled import kernel
 
-__all__ = ["active_loop", "score_counts_loop"]
+__all__ = [
+    "active_loop",
+    "decision_counts_loop",
+    "quantised_loop",
+    "score_counts_loop",
+    "thresholds_loop",
+]
 
 
 # A cell's code in score_counts_loop: the bits of what it is.
@@ -131,3 +137,89 @@ def active_loop(flat: np.ndarray, level: float) -> np.ndarray:
                 found += 1
                 break
     return out[:found].copy()
+
+
+@kernel
+def quantised_loop(maps: np.ndarray) -> np.ndarray:
+    """``combination.quantised``: the float32 maps ``(E, H, W)`` (finite) as uint8
+    ``rint(255 clip(p, 0, 1))``, in float32 as NumPy computes it."""
+    experts, h, w = maps.shape
+    out = np.empty((experts, h, w), np.uint8)
+    zero, one, scale = np.float32(0.0), np.float32(1.0), np.float32(255.0)
+    for e in range(experts):
+        for r in range(h):
+            for c in range(w):
+                p = min(max(maps[e, r, c], zero), one)
+                out[e, r, c] = np.uint8(np.rint(p * scale))
+    return out
+
+
+@kernel
+def decision_counts_loop(
+    occupied_counts: np.ndarray,
+    free_counts: np.ndarray,
+    decay: float,
+    p: np.ndarray,
+    occupied: np.ndarray,
+    rare: np.ndarray,
+    quiet_p: np.ndarray,
+    quiet_counts: np.ndarray,
+) -> None:
+    """``HorizonStacking._count``'s counting in place: the decayed counts ``(2, bins)`` of
+    occupied and free cells per kind and bin of the probability, times ``decay``, plus the
+    cells ``p``, ``occupied``, ``rare`` ``(N,)`` and the quiet ones (``quiet_p`` ``(2,)``,
+    ``quiet_counts`` ``(2, 2)``: per kind, free then occupied), in the reference's order."""
+    bins = occupied_counts.shape[1]
+    added = np.zeros((2, 2, bins), np.int64)  # occupied?, kind, bin
+    for i in range(len(p)):
+        index = min(int(p[i] * bins), bins - 1)
+        added[1 if occupied[i] else 0, 1 if rare[i] else 0, index] += 1
+    for kind in range(2):
+        for index in range(bins):
+            occupied_counts[kind, index] *= decay
+            occupied_counts[kind, index] += added[1, kind, index]
+            free_counts[kind, index] *= decay
+            free_counts[kind, index] += added[0, kind, index]
+    for kind in range(2):
+        index = min(int(quiet_p[kind] * bins), bins - 1)
+        free_counts[kind, index] += quiet_counts[kind, 0]
+        occupied_counts[kind, index] += quiet_counts[kind, 1]
+
+
+@kernel
+def thresholds_loop(
+    occupied: np.ndarray, free: np.ndarray, totals: np.ndarray, rare_weight: float
+) -> tuple[int, int]:
+    """``stacking.best_thresholds``' choice: the bin indices ``(common, rare)`` whose pair
+    scores best (the first of equals, or the first NaN, as ``np.argmax``), from the counts
+    ``(2, bins)`` and ``totals`` ``(2,)``, the occupied counts summed as NumPy sums them."""
+    bins = occupied.shape[1]
+    tp = np.empty((2, bins))
+    wrong = np.empty((2, bins))
+    for kind in range(2):
+        tp_sum, fp_sum = occupied[kind, bins - 1], free[kind, bins - 1]
+        for index in range(bins - 1, -1, -1):  # a running sum from the top bin, as cumsum
+            if index < bins - 1:
+                tp_sum += occupied[kind, index]
+                fp_sum += free[kind, index]
+            tp[kind, index] = tp_sum
+            wrong[kind, index] = fp_sum + (totals[kind] - tp_sum)
+    rare_f1 = np.empty(bins)
+    for j in range(bins):
+        rare_f1[j] = rare_weight * _f1(tp[1, j], wrong[1, j])
+    best, chosen_common, chosen_rare = -np.inf, 0, 0
+    for i in range(bins):
+        for j in range(bins):
+            score = _f1(tp[0, i] + tp[1, j], wrong[0, i] + wrong[1, j]) + rare_f1[j]
+            if score != score:  # NaN: np.argmax's answer
+                return i, j
+            if score > best or (i == 0 and j == 0):
+                best, chosen_common, chosen_rare = score, i, j
+    return chosen_common, chosen_rare
+
+
+@kernel
+def _f1(tp: float, wrong: float) -> float:
+    """``stacking.f1_of`` of one count."""
+    denominator = 2 * tp + wrong
+    return 2 * tp / denominator if denominator > 0 else 0.0

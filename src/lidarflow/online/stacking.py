@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarflow.compiled import ready
-from lidarflow.online.loops import active_loop
+from lidarflow.online.loops import active_loop, decision_counts_loop, thresholds_loop
 
 __all__ = ["HorizonStacking", "StackingConfig", "f1_of", "rescaled"]
 
@@ -76,10 +76,12 @@ class HorizonStacking:
         self.experts, self.config, self.prior = experts, config or StackingConfig(), prior
         self._limit = float(np.log((1 - self.config.clip) / self.config.clip))
         # the two cells that stand for all quiet ones (not rare, rare): their features
-        self._quiet = self._design(np.zeros((experts, 2)), np.array([False, True]))
-        # a quantised probability q is over the clip where q > this (q / 255 > clip)
+        self._quiet = self._design(self._logits(np.zeros((experts, 2))), np.array([False, True]))
+        # quantised probabilities q (p = q / 255): over the clip where q > this, and the logit
+        # of each
         levels = np.arange(256) / 255.0
         self._quantised_clip = np.uint8(np.count_nonzero(levels <= self.config.clip) - 1)
+        self._quantised_logits = self._logits(levels)
         self.reset()
 
     def reset(self) -> None:
@@ -119,12 +121,15 @@ class HorizonStacking:
         self.thresholds = np.array(state["thresholds"], np.float64).reshape(2)
         self.learned = int(state["learned"])
 
-    def _design(self, probabilities: np.ndarray, rare: np.ndarray) -> np.ndarray:
-        """The features ``(F, N)`` of ``N`` cells: ``probabilities`` ``(E, N)``, ``rare``
-        ``(N,)`` bool."""
+    def _logits(self, probabilities: np.ndarray) -> np.ndarray:
+        """The experts' scaled logits of ``probabilities`` (float64 of any shape)."""
         clip = self.config.clip
         p = np.clip(np.asarray(probabilities, np.float64), clip, 1 - clip)
-        logits = np.log(p / (1 - p)) / self._limit
+        return np.log(p / (1 - p)) / self._limit  # type: ignore[no-any-return]
+
+    def _design(self, logits: np.ndarray, rare: np.ndarray) -> np.ndarray:
+        """The features ``(F, N)`` of ``N`` cells: the experts' ``logits`` ``(E, N)``, ``rare``
+        ``(N,)`` bool."""
         r = rare.astype(np.float64)
         return np.concatenate([np.ones_like(r)[None], r[None], logits, logits * r[None]])
 
@@ -134,13 +139,13 @@ class HorizonStacking:
         flat = np.asarray(probabilities).reshape(self.experts, -1)
         if flat.dtype != np.uint8 and flat.dtype.kind != "f":
             flat = flat.astype(np.float64)  # compared as the float it stands for
-        if flat.dtype == np.uint8:
+        if flat.dtype == np.uint8:  # the logit of each of the 256 levels, looked up
             active = active_cells(flat, self._quantised_clip)
-            values = flat[:, active].astype(np.float64) / 255.0
+            logits = self._quantised_logits[flat[:, active]]
         else:
             active = active_cells(flat, flat.dtype.type(self.config.clip))  # as `flat > clip`
-            values = flat[:, active]
-        return active, self._design(values, rare.ravel()[active])
+            logits = self._logits(flat[:, active])
+        return active, self._design(logits, rare.ravel()[active])
 
     def _combined(self, design: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The combined probability of the cells of ``design`` and of the quiet ones (not
@@ -165,8 +170,9 @@ class HorizonStacking:
     ) -> np.ndarray:
         """The decided grid ``(H, W)``: the ``active`` cells' ``p`` and the quiet ones'
         ``quiet_p`` (not rare, rare) rescaled, cell by cell as the whole grid would be."""
-        quiet = self._decide(quiet_p, np.array([False, True]))
-        return _grid(active, self._decide(p, rare.ravel()[active]), quiet, rare)
+        kinds = np.concatenate([rare.ravel()[active], [False, True]])
+        decided = self._decide(np.concatenate([p, quiet_p]), kinds)
+        return _grid(active, decided[:-2], decided[-2:], rare)
 
     def learn(
         self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray
@@ -207,18 +213,22 @@ class HorizonStacking:
         quiet_counts: np.ndarray,
     ) -> None:
         """Add one pair's cells to the decision statistics and choose the thresholds anew."""
-        bins = self.config.bins
-        self._occupied *= self.config.decay
-        self._free *= self.config.decay
-        index = np.minimum((p * bins).astype(int), bins - 1)
-        kind = rare.astype(int)
-        cell = kind * bins + index
-        self._occupied += np.bincount(cell[occupied], minlength=2 * bins).reshape(2, bins)
-        self._free += np.bincount(cell[~occupied], minlength=2 * bins).reshape(2, bins)
-        quiet_index = np.minimum((quiet_p * bins).astype(int), bins - 1)
-        for k in (0, 1):
-            self._free[k, quiet_index[k]] += quiet_counts[k, 0]
-            self._occupied[k, quiet_index[k]] += quiet_counts[k, 1]
+        args = (self._occupied, self._free, self.config.decay, p, occupied, rare, quiet_p,
+                quiet_counts)  # fmt: skip
+        if ready(decision_counts_loop, *args):
+            decision_counts_loop(*args)
+        else:
+            bins = self.config.bins
+            self._occupied *= self.config.decay
+            self._free *= self.config.decay
+            index = np.minimum((p * bins).astype(int), bins - 1)
+            cell = rare.astype(int) * bins + index
+            self._occupied += np.bincount(cell[occupied], minlength=2 * bins).reshape(2, bins)
+            self._free += np.bincount(cell[~occupied], minlength=2 * bins).reshape(2, bins)
+            quiet_index = np.minimum((quiet_p * bins).astype(int), bins - 1)
+            for k in (0, 1):
+                self._free[k, quiet_index[k]] += quiet_counts[k, 0]
+                self._occupied[k, quiet_index[k]] += quiet_counts[k, 1]
         self.thresholds = best_thresholds(self._occupied, self._free, self.config.rare_weight)
 
 
@@ -230,16 +240,30 @@ def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) 
     bins = occupied.shape[1]
     if not occupied.any():  # nothing occupied yet: no threshold beats the metric's own
         return np.array([DECIDED, DECIDED])
+    occupied, free = np.asarray(occupied, np.float64), np.asarray(free, np.float64)
+    totals = occupied.sum(axis=1)
+    if ready(thresholds_loop, occupied, free, totals, float(rare_weight)):
+        i, j = thresholds_loop(occupied, free, totals, float(rare_weight))
+    else:
+        i, j = _best_pair(occupied, free, totals, rare_weight)
+    edges = np.arange(bins) / bins
+    return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])
+
+
+def _best_pair(
+    occupied: np.ndarray, free: np.ndarray, totals: np.ndarray, rare_weight: float
+) -> tuple[int, int]:
+    """:func:`best_thresholds`' bin indices (common, rare), from the counts and ``totals``
+    (``occupied.sum(axis=1)``)."""
     # predicted occupied at threshold index i: the bins i .. bins - 1
     tp = np.cumsum(occupied[:, ::-1], axis=1)[:, ::-1]  # (2, bins)
     fp = np.cumsum(free[:, ::-1], axis=1)[:, ::-1]
-    wrong = fp + (occupied.sum(axis=1)[:, None] - tp)  # false positives and negatives
+    wrong = fp + (totals[:, None] - tp)  # false positives and negatives
     # all cells: every pair (i common, j rare)
     f1_all = f1_of(tp[0][:, None] + tp[1][None, :], wrong[0][:, None] + wrong[1][None, :])
     score = f1_all + rare_weight * f1_of(tp[1], wrong[1])[None, :]
     i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-    edges = np.arange(bins) / bins
-    return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])
+    return int(i), int(j)
 
 
 def f1_of(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
