@@ -96,7 +96,8 @@ class Combination:
         experts = self.experts.of(tracker, step, rollout, occupancy, visibility)
         maps = experts.maps
         occupied = np.asarray(occupancy) > 0.5
-        probability, decided = [], []
+        probability = np.empty(experts.rare.shape, np.float32)
+        decided = np.empty(experts.rare.shape, np.float32)
         for k in range(self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
@@ -105,11 +106,9 @@ class Combination:
                 candidates = _candidates_decided(stored, stacked)
                 leader.score(candidates, rare, experts.region, occupied, before)
             rare = experts.rare[k]
-            p, d = _chosen(stack, leader.choice, maps[:, k], rare)
-            probability.append(p)
-            decided.append(d)
+            probability[k], decided[k] = _chosen(stack, leader.choice, maps[:, k], rare)
             waiting.append((quantised(maps[:, k]), rare.copy(), occupied))
-        return Combined(np.stack(probability).astype(np.float32), np.stack(decided))
+        return Combined(probability, decided)
 
     @property
     def nbytes(self) -> int:

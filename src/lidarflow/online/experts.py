@@ -90,10 +90,13 @@ class ExpertMaps:
         maps[0] = rollout.model_only[:horizon]
         maps[1] = [tracks.at(k) for k in range(1, horizon + 1)]
         maps[2] = tracker.ahead(horizon)
-        moved = np.stack([tracks.moved_to_sensor(now, k) for k in range(1, horizon + 1)])
-        maps[3] = moved[:, 0]
+        rare = np.empty((horizon, *average.shape), bool)
+        for k in range(horizon):  # written in place, not stacked first
+            moved = tracks.moved_to_sensor(now, k + 1)
+            maps[3, k] = moved[0]
+            rare[k] = moved[1] > 0.5
         maps[4] = average
-        return Experts(maps, moved[:, 1] > 0.5, region)
+        return Experts(maps, rare, region)
 
     def _count(self, occupied: np.ndarray, visible: np.ndarray, motion: np.ndarray | None) -> None:
         if self._counts is None:

@@ -126,8 +126,9 @@ def score_counts(
     within ``radius`` (:func:`lidarflow.geometry.near`). float64 holding integers; compiled
     where available, the same counts."""
     args = tuple(np.ascontiguousarray(a, bool) for a in (decided, rare, region, occupied, before))
-    if radius >= 0 and ready(score_counts_loop, *args, radius):
-        return score_counts_loop(*args, radius)  # type: ignore[no-any-return]
+    as_bytes = tuple(a.view(np.uint8) for a in args)  # 0 or 1: the loop adds them
+    if radius >= 0 and ready(score_counts_loop, *as_bytes, radius):
+        return score_counts_loop(*as_bytes, radius)  # type: ignore[no-any-return]
     decided, rare, region, occupied, before = args
     changed = occupied != before
     # the cells each count is over, as rows: (metric, kind) in Leader._f1's order

@@ -16,8 +16,10 @@ from lidarflow.compiled import kernel
 
 __all__ = [
     "active_loop",
+    "decided_grid_loop",
     "decision_counts_loop",
     "quantised_loop",
+    "quiet_kinds_loop",
     "score_counts_loop",
     "thresholds_loop",
 ]
@@ -37,55 +39,58 @@ def score_counts_loop(
     radius: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``leader.score_counts`` of ``decided`` ``(C, H, W)`` and the masks ``(H, W)``, all
-    bool and C-contiguous, ``radius >= 0``: the counts ``(C, 4, 3)`` (tp, fp, fn per row:
-    common, rare, common changed, rare changed) and the tolerant ones ``(C, 4)`` (right,
-    wrong, found, missed), float64 holding integers. A cell is near another within the
-    Euclidean ``radius``, as :func:`lidarflow.geometry.near` dilates."""
+    bool viewed as uint8 (0 or 1) and C-contiguous, ``radius >= 0``: the counts ``(C, 4, 3)``
+    (tp, fp, fn per row: common, rare, common changed, rare changed) and the tolerant ones
+    ``(C, 4)`` (right, wrong, found, missed), float64 holding integers. A cell is near another
+    within the Euclidean ``radius``, as :func:`lidarflow.geometry.near` dilates."""
     candidates, h, w = decided.shape
-    # each cell coded by what it is; the counts of each code, of all cells and per candidate
-    # of those it decides occupied, make every count but the found ones
+    # each cell coded by what it is; the counts of each code among the cells a candidate
+    # decides occupied make every count but the found ones
     code = np.empty((h, w), np.uint8)
+    flat = code.reshape(h * w)
+    rare_, region_ = rare.reshape(h * w), region.reshape(h * w)
+    occupied_, before_ = occupied.reshape(h * w), before.reshape(h * w)
+    for i in range(h * w):
+        flat[i] = (
+            rare_[i] * _RARE
+            + (occupied_[i] ^ before_[i]) * _CHANGED
+            + occupied_[i] * _OCCUPIED
+            + region_[i] * _REGION
+        )
+    true = np.zeros(4)
     true_rare = []  # the true cells of the tolerant F1, (row, column)
-    for r in range(h):
-        for c in range(w):
-            code[r, c] = (
-                rare[r, c] * _RARE
-                + (occupied[r, c] != before[r, c]) * _CHANGED
-                + occupied[r, c] * _OCCUPIED
-                + region[r, c] * _REGION
-            )
-            if occupied[r, c] and region[r, c]:
-                true_rare.append((r, c))
+    for i in range(h * w):
+        if occupied_[i]:
+            _add_rows(true, flat[i])
+            if region_[i]:
+                true_rare.append((i // w, i % w))
     for r, c in true_rare:  # mark the cells near a true one
         for dr in range(max(-radius, -r), min(radius, h - 1 - r) + 1):
             for dc in range(max(-radius, -c), min(radius, w - 1 - c) + 1):
                 if dr * dr + dc * dc <= radius * radius:
                     code[r + dr, c + dc] |= _NEAR_TRUE
-    flat = code.reshape(h * w)
-    every = np.zeros(32)
-    for i in range(h * w):
-        every[flat[i]] += 1.0
-    true = _rows(every, _OCCUPIED)
     counts = np.zeros((candidates, 4, 3))
     tolerant = np.zeros((candidates, 4))
+    tp, predicted = np.zeros(4), np.zeros(4)
     for n in range(candidates):
         mine = decided[n]
         mine_flat = mine.reshape(h * w)
-        coded = np.zeros(32)
+        tp[:] = 0.0
+        predicted[:] = 0.0
+        right, guessed = 0.0, 0.0
         for i in range(h * w):
             if mine_flat[i]:
-                coded[flat[i]] += 1.0
-        tp, predicted = _rows(coded, _OCCUPIED), _rows(coded, 0)
+                _add_rows(predicted, flat[i])
+                if flat[i] & _OCCUPIED:
+                    _add_rows(tp, flat[i])
+                if flat[i] & _REGION:
+                    guessed += 1.0
+                    if flat[i] & _NEAR_TRUE:
+                        right += 1.0
         for m in range(4):
             counts[n, m, 0] = tp[m]
             counts[n, m, 1] = predicted[m] - tp[m]
             counts[n, m, 2] = true[m] - tp[m]
-        right, guessed = 0.0, 0.0
-        for k in range(32):
-            if k & _REGION:
-                guessed += coded[k]
-                if k & _NEAR_TRUE:
-                    right += coded[k]
         found = 0.0
         for r, c in true_rare:
             if _any_near(mine, region, r, c, radius):
@@ -98,17 +103,13 @@ def score_counts_loop(
 
 
 @kernel
-def _rows(counts: np.ndarray, having: int) -> np.ndarray:
-    """The cells counted by code in ``counts`` ``(32,)`` with the bits ``having``, per row of
-    the leader's F1 counts: common, rare, common changed, rare changed."""
-    out = np.zeros(4)
-    for k in range(32):
-        if k & having == having:
-            kind = k & _RARE
-            out[kind] += counts[k]
-            if k & _CHANGED:
-                out[2 + kind] += counts[k]
-    return out
+def _add_rows(rows: np.ndarray, code: int) -> None:
+    """Count a cell of ``code`` in ``rows`` ``(4,)``: the leader's rows (common, rare, common
+    changed, rare changed) it belongs to."""
+    kind = code & _RARE
+    rows[kind] += 1.0
+    if code & _CHANGED:
+        rows[2 + kind] += 1.0
 
 
 @kernel
@@ -128,15 +129,67 @@ def active_loop(flat: np.ndarray, level: float) -> np.ndarray:
     """``stacking.active_cells``: the indices (int64, rising) of the columns of ``flat``
     ``(E, N)`` where some value is above ``level``, compared in ``flat``'s type."""
     experts, cells = flat.shape
-    out = np.empty(cells, np.int64)
-    found = 0
-    for i in range(cells):
-        for e in range(experts):
-            if flat[e, i] > level:
-                out[found] = i
-                found += 1
-                break
-    return out[:found].copy()
+    above = np.zeros(cells, np.bool_)
+    for e in range(experts):
+        for i in range(cells):
+            above[i] |= flat[e, i] > level
+    return np.flatnonzero(above)
+
+
+@kernel
+def quiet_kinds_loop(rare: np.ndarray, occupied: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """``stacking._quiet_kinds``: the cells ``(2, 2)`` float64 per kind (common, rare) and
+    label (free, occupied) of ``rare`` and ``occupied`` ``(N,)`` (bool viewed as uint8) but
+    the flat ``active`` ones."""
+    both, rare_cells, occupied_cells = 0, 0, 0
+    for i in range(len(rare)):
+        both += rare[i] & occupied[i]
+        rare_cells += rare[i]
+        occupied_cells += occupied[i]
+    cells = len(rare) - len(active)
+    for i in active:
+        both -= rare[i] & occupied[i]
+        rare_cells -= rare[i]
+        occupied_cells -= occupied[i]
+    out = np.empty((2, 2))
+    out[0, 0] = cells - rare_cells - occupied_cells + both
+    out[0, 1] = occupied_cells - both
+    out[1, 0] = rare_cells - both
+    out[1, 1] = both
+    return out
+
+
+@kernel
+def decided_grid_loop(
+    active: np.ndarray,
+    p: np.ndarray,
+    quiet_p: np.ndarray,
+    rare: np.ndarray,
+    thresholds: np.ndarray,
+    decided: float,
+) -> np.ndarray:
+    """``HorizonStacking._decided_grid``: the flat grid float32 of ``rare`` ``(N,)`` (bool)
+    holding the ``active`` cells' ``p`` and elsewhere ``quiet_p`` (not rare, rare), each
+    rescaled at the ``thresholds`` (common, rare) of its kind as ``stacking.rescaled`` does
+    onto ``decided``."""
+    common = _rescaled(quiet_p[0], thresholds[0], decided)
+    rare_one = _rescaled(quiet_p[1], thresholds[1], decided)
+    out = np.empty(len(rare), np.float32)
+    for i in range(len(rare)):
+        out[i] = rare_one if rare[i] else common
+    for n in range(len(active)):
+        kind = 1 if rare[active[n]] else 0
+        out[active[n]] = _rescaled(p[n], thresholds[kind], decided)
+    return out
+
+
+@kernel
+def _rescaled(p: float, threshold: float, decided: float) -> np.float32:
+    """``stacking.rescaled`` of one probability."""
+    t = min(max(threshold, 1e-6), 1 - 1e-6)
+    low = p * (decided / t)
+    high = decided + (p - t) * ((1 - decided) / (1 - t))
+    return np.float32(low if p < t else high)
 
 
 @kernel

@@ -26,7 +26,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarflow.compiled import ready
-from lidarflow.online.loops import active_loop, decision_counts_loop, thresholds_loop
+from lidarflow.online.loops import (
+    active_loop,
+    decided_grid_loop,
+    decision_counts_loop,
+    quiet_kinds_loop,
+    thresholds_loop,
+)
 
 __all__ = ["HorizonStacking", "StackingConfig", "f1_of", "rescaled"]
 
@@ -170,7 +176,11 @@ class HorizonStacking:
     ) -> np.ndarray:
         """The decided grid ``(H, W)``: the ``active`` cells' ``p`` and the quiet ones'
         ``quiet_p`` (not rare, rare) rescaled, cell by cell as the whole grid would be."""
-        kinds = np.concatenate([rare.ravel()[active], [False, True]])
+        flat_rare = rare.ravel()
+        args = (active, p, quiet_p, flat_rare, self.thresholds, DECIDED)
+        if ready(decided_grid_loop, *args):
+            return decided_grid_loop(*args).reshape(rare.shape)  # type: ignore[no-any-return]
+        kinds = np.concatenate([flat_rare[active], [False, True]])
         decided = self._decide(np.concatenate([p, quiet_p]), kinds)
         return _grid(active, decided[:-2], decided[-2:], rare)
 
@@ -191,7 +201,7 @@ class HorizonStacking:
         # every cell not active: its features are quiet[:, rare], its label free or occupied;
         # counted as all cells less the active ones
         y = target[active].astype(np.float64)
-        counts = _kinds(flat_rare, target) - _kinds(flat_rare[active], target[active])
+        counts = _quiet_kinds(flat_rare, target, active)
         gradient = design @ (p - y)
         for kind in (0, 1):
             gradient += self._quiet[:, kind] * (
@@ -290,6 +300,15 @@ def _grid(
     grid = np.where(rare.ravel(), quiet[1], quiet[0])
     grid[active] = values
     return grid.reshape(rare.shape)
+
+
+def _quiet_kinds(rare: np.ndarray, occupied: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """The cells ``(2, 2)`` float64 per kind (common, rare) and label (free, occupied) of the
+    flat bool ``rare`` and ``occupied`` but the ``active`` ones. Compiled where available."""
+    args = (rare.view(np.uint8), occupied.view(np.uint8), active)
+    if ready(quiet_kinds_loop, *args):
+        return quiet_kinds_loop(*args)  # type: ignore[no-any-return]
+    return _kinds(rare, occupied) - _kinds(rare[active], occupied[active])
 
 
 def _kinds(rare: np.ndarray, occupied: np.ndarray) -> np.ndarray:
