@@ -18,6 +18,7 @@ __all__ = [
     "active_loop",
     "decided_grid_loop",
     "decision_counts_loop",
+    "quantised_design_loop",
     "quantised_loop",
     "quiet_kinds_loop",
     "score_counts_loop",
@@ -134,6 +135,29 @@ def active_loop(flat: np.ndarray, level: float) -> np.ndarray:
         for i in range(cells):
             above[i] |= flat[e, i] > level
     return np.flatnonzero(above)
+
+
+@kernel
+def quantised_design_loop(
+    flat: np.ndarray, active: np.ndarray, logits: np.ndarray, rare: np.ndarray
+) -> np.ndarray:
+    """``HorizonStacking._split``'s design ``(2 + 2 E, n)``, in Fortran order as NumPy's is,
+    of the ``active`` cells of the quantised maps ``flat`` ``(E, N)`` uint8: 1, rare, the
+    experts' ``logits`` (per level, ``(256,)``) and those times rare (``rare`` ``(N,)``
+    bool)."""
+    experts = flat.shape[0]
+    # laid out as NumPy's own design is (cells outer): a matrix product sums in an order
+    # that follows the layout
+    out = np.empty((len(active), 2 + 2 * experts))
+    for n in range(len(active)):
+        r = 1.0 if rare[active[n]] else 0.0
+        out[n, 0] = 1.0
+        out[n, 1] = r
+        for e in range(experts):
+            logit = logits[flat[e, active[n]]]
+            out[n, 2 + e] = logit
+            out[n, 2 + experts + e] = logit * r
+    return out.T
 
 
 @kernel

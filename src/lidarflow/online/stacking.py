@@ -30,6 +30,7 @@ from lidarflow.online.loops import (
     active_loop,
     decided_grid_loop,
     decision_counts_loop,
+    quantised_design_loop,
     quiet_kinds_loop,
     thresholds_loop,
 )
@@ -147,6 +148,9 @@ class HorizonStacking:
             flat = flat.astype(np.float64)  # compared as the float it stands for
         if flat.dtype == np.uint8:  # the logit of each of the 256 levels, looked up
             active = active_cells(flat, self._quantised_clip)
+            args = (flat, active, self._quantised_logits, rare.ravel())
+            if ready(quantised_design_loop, *args):
+                return active, quantised_design_loop(*args)
             logits = self._quantised_logits[flat[:, active]]
         else:
             active = active_cells(flat, flat.dtype.type(self.config.clip))  # as `flat > clip`
