@@ -1,11 +1,15 @@
 """Compiled loops of the online combination (:mod:`lidarflow.compiled`): the leader's counts
-of each candidate's decided map, the cells some expert finds possibly occupied, and the
-stacking's choice of thresholds.
+of each candidate's decided map, the stacking's passes over the grid (the cells some expert
+finds possibly occupied, their design, the quiet cells' counts, the decided grid), its decision
+counts and choice of thresholds, and the quantising of the kept maps.
 
 Each does its NumPy reference's arithmetic in its order (``leader.score_counts``,
-``stacking.HorizonStacking._split``, ``stacking.best_thresholds``), so the results are
-bit-identical; the callers take a loop only where :func:`lidarflow.compiled.ready` says so.
-The loops share this module: numba's disk cache sees a change to a loop's own file only.
+``stacking.active_cells``, ``HorizonStacking._split``, ``stacking._quiet_kinds``,
+``HorizonStacking._decided_grid`` and ``_count``, ``stacking.best_thresholds``,
+``combination.quantised``), so the results are bit-identical; the logarithms, exponentials and
+matrix products stay NumPy's. The callers take a loop only where
+:func:`lidarflow.compiled.ready` says so. The loops share this module: numba's disk cache sees
+a change to a loop's own file only.
 """
 
 from __future__ import annotations
