@@ -1,6 +1,6 @@
 """The online combination's compiled loops against their NumPy references, to the bit: the
 leader's counts, the stacking's active cells, design, quiet counts, decided grid, decision
-counts and thresholds, and the kept maps' quantising."""
+counts and thresholds, the kept maps' quantising, and the leader's choice of a pair."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from lidarflow import compiled
 from lidarflow.online import stacking
 from lidarflow.online.combination import quantised
-from lidarflow.online.leader import score_counts
+from lidarflow.online.leader import Leader, score_counts
 
 pytestmark = [
     pytest.mark.skipif(not compiled.available(), reason="numba is not installed"),
@@ -114,3 +114,19 @@ def test_quantising_is_the_numpy_reference(monkeypatch):
     maps[0, 0, :16] = levels[0, :, :30]  # the halves between levels: rounded to even
     for k in range(maps.shape[1]):
         _assert_same(*_both(monkeypatch, lambda k=k: [quantised(maps[:, k])]))
+
+
+@pytest.mark.parametrize("baselines", [(3, 4, 2), (), (1,)])
+def test_the_leaders_choice_is_the_numpy_references(baselines, monkeypatch):
+    """Counts of every size, ties among them (integers), and none at all."""
+    rng = np.random.default_rng(len(baselines))
+    for trial in range(60):
+        leader = Leader(8, first=5, baselines=baselines)
+        if trial % 3 == 0:
+            leader._f1 = rng.integers(0, 4, leader._f1.shape).astype(np.float64)
+            leader._tolerant = rng.integers(0, 4, leader._tolerant.shape).astype(np.float64)
+        elif trial % 3 == 1:
+            leader._f1 = rng.random(leader._f1.shape) * 1e3
+            leader._tolerant = rng.random(leader._tolerant.shape) * 50
+        got, expected = _both(monkeypatch, leader._best)
+        assert got == expected

@@ -13,7 +13,7 @@ import numpy as np
 
 from lidarflow.compiled import ready
 from lidarflow.geometry import TOLERANCE, near
-from lidarflow.online.loops import score_counts_loop
+from lidarflow.online.loops import best_pair_loop, score_counts_loop
 from lidarflow.online.stacking import f1_of
 
 __all__ = ["Leader", "score_counts"]
@@ -87,6 +87,11 @@ class Leader:
         self.choice = self._best()
 
     def _best(self) -> tuple[int, int]:
+        baselines = np.array(self.baselines, np.int64)
+        args = (self._f1, self._tolerant, self.first, baselines, LOSS_WEIGHT)
+        if ready(best_pair_loop, *args):
+            a, b = best_pair_loop(*args)
+            return int(a), int(b)
         # F1 of all / changed cells for the pair (a common, b rare): counts of a's common
         # cells plus b's rare ones
         total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)

@@ -1,13 +1,14 @@
 """Compiled loops of the online combination (:mod:`lidarflow.compiled`): the leader's counts
 of each candidate's decided map, the stacking's passes over the grid (the cells some expert
 finds possibly occupied, their design, the quiet cells' counts, the decided grid), its decision
-counts and choice of thresholds, and the quantising of the kept maps.
+counts and choice of thresholds, the quantising of the kept maps, and the leader's choice of
+the pair.
 
 Each does its NumPy reference's arithmetic in its order (``leader.score_counts``,
 ``stacking.active_cells``, ``HorizonStacking._split``, ``stacking._quiet_kinds``,
 ``HorizonStacking._decided_grid`` and ``_count``, ``stacking.best_thresholds``,
-``combination.quantised``), so the results are bit-identical; the logarithms, exponentials and
-matrix products stay NumPy's. The callers take a loop only where
+``combination.quantised``, ``Leader._best``), so the results are bit-identical; the
+logarithms, exponentials and matrix products stay NumPy's. The callers take a loop only where
 :func:`lidarflow.compiled.ready` says so. The loops share this module: numba's disk cache sees
 a change to a loop's own file only.
 """
@@ -20,6 +21,7 @@ from lidarflow.compiled import kernel
 
 __all__ = [
     "active_loop",
+    "best_pair_loop",
     "decided_grid_loop",
     "decision_counts_loop",
     "quantised_design_loop",
@@ -304,3 +306,59 @@ def _f1(tp: float, wrong: float) -> float:
     """``stacking.f1_of`` of one count."""
     denominator = 2 * tp + wrong
     return 2 * tp / denominator if denominator > 0 else 0.0
+
+
+@kernel
+def best_pair_loop(
+    f1_counts: np.ndarray,
+    tolerant_counts: np.ndarray,
+    first: int,
+    baselines: np.ndarray,
+    loss_weight: float,
+) -> tuple[int, int]:
+    """``Leader._best``: the pair (common, rare) of the highest score from the decayed
+    ``f1_counts`` ``(C, 2, 2, 3)`` and ``tolerant_counts`` ``(C, 4)``, judged against the
+    candidates ``baselines`` (int64, copy-last first; empty: the sum of the F1s)."""
+    n = f1_counts.shape[0]
+    f1 = np.empty((n, n, 2))
+    for a in range(n):
+        for b in range(n):
+            for m in range(2):
+                tp = f1_counts[a, m, 0, 0] + f1_counts[b, m, 1, 0]
+                fp = f1_counts[a, m, 0, 1] + f1_counts[b, m, 1, 1]
+                fn = f1_counts[a, m, 0, 2] + f1_counts[b, m, 1, 2]
+                f1[a, b, m] = _f1(tp, fp + fn)
+    tolerant = np.empty(n)
+    for b in range(n):
+        right, wrong, found, missed = tolerant_counts[b]
+        precision = _share(right, right + wrong)
+        recall = _share(found, found + missed)
+        tolerant[b] = _share(2 * precision * recall, precision + recall)
+    if not (f1 != 0).any() and not (tolerant != 0).any():
+        return first, first
+    best0, best1 = -np.inf, -np.inf
+    for i in baselines:
+        best0, best1 = max(best0, f1[i, i, 0]), max(best1, f1[i, i, 1])
+    top, chosen_a, chosen_b = -np.inf, 0, 0
+    for a in range(n):
+        for b in range(n):
+            if len(baselines) == 0:
+                score = (f1[a, b, 0] + f1[a, b, 1]) + tolerant[b]
+            else:
+                m0 = f1[a, b, 0] - best0
+                m1 = f1[a, b, 1] - best1
+                m2 = tolerant[b] - tolerant[baselines[0]]
+                score = ((m0 + loss_weight * min(m0, 0.0)) + (m1 + loss_weight * min(m1, 0.0))) + (
+                    m2 + loss_weight * min(m2, 0.0)
+                )
+            if score != score:  # NaN: np.argmax's answer
+                return a, b
+            if score > top or (a == 0 and b == 0):
+                top, chosen_a, chosen_b = score, a, b
+    return chosen_a, chosen_b
+
+
+@kernel
+def _share(a: float, b: float) -> float:
+    """``leader._ratio`` of one pair."""
+    return a / b if b > 0 else 0.0
