@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from lidarflow.predict.engine import Rollout, Step
     from lidarflow.tracking import Tracker
 
-__all__ = ["CANDIDATES", "Combination", "Combined", "quantised"]
+__all__ = ["CANDIDATES", "Combination", "Combined", "candidate_maps", "quantised"]
 
 #: The experts laid over each other (the larger probability).
 UNIONS = (("model", "tracks"), ("copy_last", "tracks"))
@@ -164,6 +164,19 @@ def quantised(maps: np.ndarray) -> np.ndarray:
     if ready(quantised_loop, maps):
         return quantised_loop(maps)  # type: ignore[no-any-return]
     return np.rint(np.clip(maps, 0.0, 1.0) * 255).astype(np.uint8)
+
+
+def candidate_maps(stack: HorizonStacking, experts: np.ndarray, rare: np.ndarray) -> np.ndarray:
+    """Every candidate's decided map ``(C, H, W)`` bool, in the order of :data:`CANDIDATES`,
+    of the experts' maps ``(E, H, W)`` for one horizon with its ``rare`` cells, as
+    :meth:`Combination.step` would output each if it were chosen (``stack``: that horizon's
+    stacking, as it is now)."""
+    out = np.empty((len(CANDIDATES), *experts.shape[1:]), bool)
+    np.greater_equal(experts, DECIDED, out=out[: len(experts)])
+    for n, (i, j) in enumerate(_UNIONS, start=len(experts)):
+        np.logical_or(out[i], out[j], out=out[n])
+    np.greater_equal(stack.decided(experts, rare)[1], DECIDED, out=out[_STACKED])
+    return out
 
 
 def _candidates_decided(experts: np.ndarray, stacked: np.ndarray) -> np.ndarray:

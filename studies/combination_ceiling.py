@@ -1,0 +1,299 @@
+"""How far can the online combination's choice go with the experts it has?
+
+Per development fold (its model held out), the combination streams the recording as `evaluate
+--horizon K` does; every frame, each candidate's decided map 1 and K ahead is kept
+(``capture``). Offline (``table``), each fixed choice of two candidates, one deciding the
+common cells and one the rest, is scored with the horizon tables' metric: on the combination's
+own split (the tracker's rare cells) and on the cells where movers went so far (its causal
+mover region). Three choices are compared with the combination as it ran:
+
+- **in hindsight**: the pair best on the recording itself (an optimistic ceiling: it is chosen
+  on the frames it is scored on);
+- **left out**: the pair best on the six other recordings (the mean of their margins, losses
+  weighed ten times, as the leader weighs them), scored on the held-out one;
+- **online**: what the combination decided, learning on the stream.
+
+    PYTHONPATH=src:. python -m studies.combination_ceiling capture -o runs/ceiling/s0 \
+        --fold-runs runs/movers/s0
+    PYTHONPATH=src:. python -m studies.combination_ceiling table runs/ceiling/s0 runs/ceiling/s1
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarflow.data.sources import load_any
+from lidarflow.evaluate.evaluation import score_one
+from lidarflow.evaluate.methods import methods_and_config
+from lidarflow.evaluate.runner import recording_inputs
+from lidarflow.evaluate.stream import mover_region
+from lidarflow.geometry import near
+from lidarflow.online.combination import CANDIDATES, Combination, candidate_maps
+from lidarflow.online.experts import ExpertMaps, Experts
+from lidarflow.online.leader import LOSS_WEIGHT
+from lidarflow.scan import GridSpec
+from studies.harness import development, parse, parser, read_json, stem, write_json
+from studies.movers import horizon_of
+from studies.online_combination import BASELINES
+
+#: The splits of the cells a pair is chosen for: the combination's own, and the region.
+SPLITS = ("rare", "region")
+
+
+class KeptExperts(ExpertMaps):
+    """The experts, the last frame's kept."""
+
+    last: Experts
+
+    def of(self, *args: Any, **kwargs: Any) -> Experts:
+        self.last = super().of(*args, **kwargs)
+        return self.last
+
+
+class Recorded(Combination):
+    """The combination, each frame's candidates 1 and ``K`` ahead (decided, bit-packed), its
+    rare cells and its causal mover region kept."""
+
+    def __init__(self, horizon: int) -> None:
+        super().__init__(horizon)
+        self.experts = KeptExperts(horizon)
+        self.frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def step(self, *args: Any, **kwargs: Any) -> Any:
+        out = super().step(*args, **kwargs)
+        experts = self.experts.last
+        ks = (0, self.horizon - 1)
+        candidates = [
+            candidate_maps(self.stacks[k], experts.maps[:, k], experts.rare[k]) for k in ks
+        ]
+        self.frames.append(
+            (
+                np.packbits(np.stack(candidates), axis=-1),
+                np.packbits(experts.rare[list(ks)], axis=-1),
+                np.packbits(experts.region, axis=-1),
+            )
+        )
+        return out
+
+
+def capture(path: Path, model: Path | None, target: Path) -> dict[str, Any]:
+    """Stream ``path`` with ``model`` (``None``: the bundled one) combined; write the
+    candidates, the truths, evaluate's mover region and every method's decided maps 1 and K
+    ahead to ``target`` (npz). Returns evaluate's horizon tables of the stream."""
+    recording = load_any(path)
+    horizon = horizon_of(recording)
+    methods, _ = methods_and_config([model], names=["model"], combine=horizon)
+    combined = next(m for m in methods if m.name == "model_combined")
+    combined.combination = recorded = Recorded(horizon)
+    ahead: dict[str, dict[int, np.ndarray]] = {}
+
+    def keep(_name: str, method: str, t: int, predicted: Any) -> None:
+        p = np.asarray(predicted)
+        ahead.setdefault(method, {})[t] = np.packbits(np.stack([p[0], p[-1]]) >= 0.4, axis=-1)
+
+    grid = GridSpec()
+    scored = score_one(path.name, recording, methods, grid, 10, horizon, on_ahead=keep)
+    inputs = recording_inputs(recording, grid, methods)
+    region = mover_region(recording, grid, inputs)
+    frames = range(len(inputs.occupancy))
+    occupied = np.stack([np.asarray(inputs.occupancy[t], bool) for t in frames])
+    shape = occupied.shape[1:]
+    regions = np.stack([region(t) if region else np.zeros(shape, bool) for t in frames])
+    frames_scored = sorted(ahead["copy_last"])
+    arrays = {
+        "horizon": np.array(horizon),
+        "scored": np.array(frames_scored),
+        "occupied": np.packbits(occupied, axis=-1),
+        "region": np.packbits(regions, axis=-1),
+        "candidates": np.stack([f[0] for f in recorded.frames]),
+        "rare": np.stack([f[1] for f in recorded.frames]),
+        "causal_region": np.stack([f[2] for f in recorded.frames]),
+        **{f"method/{m}": np.stack([by_t[t] for t in frames_scored]) for m, by_t in ahead.items()},
+    }
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_suffix(".partial.npz")
+    np.savez_compressed(partial, **arrays)
+    partial.replace(target)
+    return scored.horizon or {}
+
+
+class Capture:
+    """A captured fold, unpacked: the frames scored, the truths, the regions."""
+
+    def __init__(self, path: Path) -> None:
+        z = np.load(path)
+        self.name, self.horizon = path.stem, int(z["horizon"])
+        width = 8 * z["occupied"].shape[-1]
+
+        def bits(a: np.ndarray) -> np.ndarray:
+            return np.unpackbits(a, axis=-1, count=width).astype(bool)
+
+        self.scored = z["scored"]
+        self.occupied, self.region = bits(z["occupied"]), bits(z["region"])
+        self.candidates = bits(z["candidates"])[self.scored]  # (T, 2, C, H, W)
+        self.rare = bits(z["rare"])[self.scored]  # (T, 2, H, W)
+        self.causal_region = bits(z["causal_region"])[self.scored]  # (T, H, W)
+        self.methods = {k[7:]: bits(z[k]) for k in z.files if k.startswith("method/")}
+
+    def metrics(self, decided: np.ndarray, at: int) -> np.ndarray:
+        """F1, changed-cell F1 and tolerant mover F1 of ``decided`` ``(T, H, W)`` for the
+        frames 1 (``at`` 0) or K (``at`` 1) ahead of the scored ones, as the horizon tables
+        count them (summed over the frames)."""
+        k = 1 if at == 0 else self.horizon
+        truth, before = self.occupied[self.scored + k], self.occupied[self.scored]
+        region = self.region[self.scored + k]
+        changed = before != truth
+        guess, true = decided & region, truth & region
+        right = np.count_nonzero(guess & near(true))
+        found = np.count_nonzero(true & near(guess))
+        guessed, present = np.count_nonzero(guess), np.count_nonzero(true)
+        precision, recall = _share(right, guessed), _share(found, present)
+        # as the mover metric: 1 with nothing to find nor predicted
+        tolerant = _share(2 * precision * recall, precision + recall) if guessed + present else 1.0
+        return np.array([_f1(decided, truth), _f1(decided & changed, truth & changed), tolerant])
+
+    def margins(self, decided: np.ndarray, at: int) -> np.ndarray:
+        """As the study judges: F1 and changed-cell F1 over the best baseline, tolerant mover
+        F1 over copy-last."""
+        base = {b: self.metrics(self.methods[b][:, at], at) for b in BASELINES if b in self.methods}
+        best = np.max(list(base.values()), axis=0)
+        got = self.metrics(decided, at)
+        return np.array([got[0] - best[0], got[1] - best[1], got[2] - base["copy_last"][2]])
+
+    def pairs(self, at: int) -> dict[str, np.ndarray]:
+        """Every fixed pair's margins ``(C, C, 3)`` (common, rest) per split."""
+        c = self.candidates[:, at]
+        splits = {"rare": self.rare[:, at], "region": self.causal_region}
+        out = {}
+        for split, mask in splits.items():
+            grid = np.empty((len(CANDIDATES), len(CANDIDATES), 3))
+            for a in range(len(CANDIDATES)):
+                for b in range(len(CANDIDATES)):
+                    grid[a, b] = self.margins(np.where(mask, c[:, b], c[:, a]), at)
+            out[split] = grid
+        return out
+
+
+def _f1(guess: np.ndarray, truth: np.ndarray) -> float:
+    tp = np.count_nonzero(guess & truth)
+    wrong = np.count_nonzero(guess ^ truth)
+    return 2 * tp / (2 * tp + wrong) if tp + wrong else 1.0
+
+
+def _share(a: float, b: float) -> float:
+    return a / b if b else 0.0
+
+
+def weighed(margins: np.ndarray) -> np.ndarray:
+    """The leader's score of margins ``(..., 3)``: their sum, each loss weighing
+    :data:`LOSS_WEIGHT` times more."""
+    return (margins + LOSS_WEIGHT * np.minimum(margins, 0.0)).sum(axis=-1)
+
+
+def summarise(folder: Path) -> dict[str, Any]:
+    """Per captured fold in ``folder`` and horizon: the model's, the online combination's and
+    every fixed pair's margins (cached in ``folder/pairs.json``)."""
+    cached = folder / "pairs.json"
+    if cached.exists():
+        return read_json(cached)
+    out: dict[str, Any] = {}
+    for path in sorted(folder.glob("*.npz")):
+        fold = Capture(path)
+        for at in (0, 1):
+            m = {
+                name: fold.margins(fold.methods[name][:, at], at).tolist()
+                for name in ("model", "model_combined")
+            }
+            pairs = {split: grid.tolist() for split, grid in fold.pairs(at).items()}
+            out.setdefault(fold.name, {})[str(at)] = {**m, **pairs, "K": fold.horizon}
+            print(f"{fold.name} at {'1' if at == 0 else 'K'}: done", flush=True)
+    write_json(cached, out)
+    return out
+
+
+def chosen(seeds: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per fold and horizon, the margins (mean over seeds) of the model, the online
+    combination, and the fixed pairs chosen in hindsight and left out, per split."""
+    folds = sorted(seeds[0])
+    rows: dict[str, Any] = {}
+    for at in ("0", "1"):
+        for split in SPLITS:
+            grids = {f: np.mean([np.array(s[f][at][split]) for s in seeds], 0) for f in folds}
+            for fold in folds:
+                grid = grids[fold]
+                hindsight = np.unravel_index(np.argmax(weighed(grid)), grid.shape[:2])
+                choices = {"hindsight": hindsight}
+                if len(folds) > 1:  # the pair best on the others
+                    others = np.mean([weighed(grids[f]) for f in folds if f != fold], axis=0)
+                    choices["left_out"] = np.unravel_index(np.argmax(others), others.shape)
+                row = rows.setdefault(f"{fold}@{at}", {})
+                for name, (a, b) in choices.items():
+                    row[f"{name}_{split}"] = {
+                        "margins": grid[a, b].tolist(),
+                        "pair": [CANDIDATES[a], CANDIDATES[b]],
+                    }
+        for fold in folds:
+            for name in ("model", "model_combined"):
+                margins = np.mean([s[fold][at][name] for s in seeds], axis=0)
+                rows[f"{fold}@{at}"][name] = {"margins": margins.tolist()}
+    return rows
+
+
+def table(folders: list[Path]) -> str:
+    seeds = [summarise(f) for f in folders]
+    rows = chosen(seeds)
+    fixed = [f"{n}_{s}" for n in ("left_out", "hindsight") for s in SPLITS]
+    columns = ["model", "model_combined", *fixed]
+    lines = ["| held-out | at | " + " | ".join(columns) + " |", "|---" * (len(columns) + 2) + "|"]
+    for key, row in rows.items():
+        fold, at = key.split("@")
+        cells = [_cell(row[c]) if c in row else "-" for c in columns]
+        lines.append(f"| {fold} | {'k=1' if at == '0' else '~1 s'} | " + " | ".join(cells) + " |")
+    lines += ["", "| choice | at | mean margins | worst fold | folds won |", "|---" * 5 + "|"]
+    for at in ("0", "1"):
+        for c in columns:
+            m = np.array([r[c]["margins"] for k, r in rows.items() if k.endswith(at) and c in r])
+            if not len(m):
+                continue
+            won = int((m > 0).all(axis=1).sum())
+            lines.append(
+                f"| {c} | {'k=1' if at == '0' else '~1 s'} | {_fmt(m.mean(0))} | "
+                f"{_fmt(m.min(0))} | {won}/{len(m)} |"
+            )
+    write_json(folders[0].parent / "ceiling.json", rows)
+    return "\n".join(lines)
+
+
+def _cell(entry: dict[str, Any]) -> str:
+    pair = f" ({'/'.join(entry['pair'])})" if "pair" in entry else ""
+    return _fmt(np.array(entry["margins"])) + pair
+
+
+def _fmt(m: np.ndarray) -> str:
+    return f"{m[0]:+.4f} / {m[1]:+.3f} / {m[2]:+.3f}"
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "table":
+        print(table([Path(a) for a in argv[1:]]))
+        return
+    if argv and argv[0] == "capture":
+        argv = argv[1:]
+    p = parser("combination_ceiling", __doc__)
+    p.add_argument("--fold-runs", type=Path, required=True, help="FOLDER/<recording>/run models")
+    p.add_argument("--recordings", nargs="*", type=Path, default=None)
+    args = parse(p, argv)
+    for path in args.recordings or development():
+        target = args.output / f"{stem(path)}.npz"
+        if not target.exists():
+            capture(path, args.fold_runs / stem(path) / "run", target)
+        print(f"{stem(path)}: captured", flush=True)
+
+
+if __name__ == "__main__":
+    main()

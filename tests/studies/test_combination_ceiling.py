@@ -1,0 +1,55 @@
+"""The combination's ceiling study on a short simulated recording: what it keeps scores as
+evaluate's horizon tables do, and every fixed pair is tabled beside the combination as it ran."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidarflow.online.combination import CANDIDATES
+from lidarflow.sim import SimConfig, write_simulation
+from studies import combination_ceiling as study
+from studies.online_combination import KEYS
+
+
+def test_the_kept_maps_score_as_evaluate_and_the_pairs_are_tabled(tmp_path):
+    recording = tmp_path / "static.npz"  # 15 Hz: K = 15 needs 10 + 15 + 1 frames at least
+    write_simulation(recording, 40, 7, SimConfig(scenario="static"))
+    out = tmp_path / "s0"
+    tables = study.capture(recording, None, out / "static.npz")
+    fold = study.Capture(out / "static.npz")
+    for at in (0, 1):
+        for method in ("model", "model_combined", "copy_last", "tracker"):
+            got = fold.metrics(fold.methods[method][:, at], at)
+            expected = [tables[f"horizon_{key}"][method][-at] for key in KEYS]
+            np.testing.assert_allclose(got, expected, atol=1e-12, err_msg=method)
+        pairs = fold.pairs(at)
+        assert set(pairs) == set(study.SPLITS)
+        assert pairs["rare"].shape == (len(CANDIDATES), len(CANDIDATES), 3)
+        # a pair of one candidate is that candidate whatever the split
+        same = CANDIDATES.index("copy_last")
+        np.testing.assert_allclose(pairs["rare"][same, same], pairs["region"][same, same])
+    table = study.table([out])
+    assert "| static | k=1 |" in table and "| hindsight_region | ~1 s |" in table
+
+
+def test_the_pair_left_out_is_the_best_on_the_other_recordings():
+    """On ``a`` the pair (3, 3) is best, on the two others (1, 2): left out, ``a`` gets (1, 2)
+    and its own margins there; in hindsight, (3, 3)."""
+    n = len(CANDIDATES)
+
+    def grid(best):
+        g = np.full((n, n, 3), -0.1)
+        g[best] = 0.05
+        return g.tolist()
+
+    def fold(best):
+        entry = {"model": [0.0, 0.0, 0.0], "model_combined": [0.0, 0.0, 0.0], "K": 8}
+        return {at: {**entry, "rare": grid(best), "region": grid(best)} for at in ("0", "1")}
+
+    seeds = [{"a": fold((3, 3)), "b": fold((1, 2)), "c": fold((1, 2))}]
+    rows = study.chosen(seeds)
+    a = rows["a@0"]
+    assert a["hindsight_rare"]["pair"] == [CANDIDATES[3], CANDIDATES[3]]
+    assert a["left_out_rare"]["pair"] == [CANDIDATES[1], CANDIDATES[2]]
+    assert a["left_out_rare"]["margins"] == [-0.1, -0.1, -0.1]
+    assert rows["b@1"]["left_out_region"]["pair"] == [CANDIDATES[1], CANDIDATES[2]]
