@@ -13,13 +13,19 @@ mover region). Three choices are compared with the combination as it ran:
   weighed ten times, as the leader weighs them), scored on the held-out one;
 - **online**: what the combination decided, learning on the stream.
 
+``halves`` asks what a chooser that has already seen a robot's recording could do: the pair
+best on the first half of a recording, scored on the second half, beside the model and the
+combination on the second half (all judged against the baselines on the second half).
+
     PYTHONPATH=src:. python -m studies.combination_ceiling capture -o runs/ceiling/s0 \
         --fold-runs runs/movers/s0
     PYTHONPATH=src:. python -m studies.combination_ceiling table runs/ceiling/s0 runs/ceiling/s1
+    PYTHONPATH=src:. python -m studies.combination_ceiling halves runs/ceiling/s0 runs/ceiling/s1
 """
 
 from __future__ import annotations
 
+import copy
 import sys
 from pathlib import Path
 from typing import Any
@@ -139,6 +145,17 @@ class Capture:
         self.causal_region = bits(z["causal_region"])[self.scored]  # (T, H, W)
         self.methods = {k[7:]: bits(z[k]) for k in z.files if k.startswith("method/")}
 
+    def half(self, which: int) -> Capture:
+        """The same capture, its scored frames cut to the first (``which`` 0) or the second
+        half."""
+        cut = len(self.scored) // 2
+        part = slice(None, cut) if which == 0 else slice(cut, None)
+        out = copy.copy(self)
+        out.scored, out.candidates = self.scored[part], self.candidates[part]
+        out.rare, out.causal_region = self.rare[part], self.causal_region[part]
+        out.methods = {name: maps[part] for name, maps in self.methods.items()}
+        return out
+
     def metrics(self, decided: np.ndarray, at: int) -> np.ndarray:
         """F1, changed-cell F1 and tolerant mover F1 of ``decided`` ``(T, H, W)`` for the
         frames 1 (``at`` 0) or K (``at`` 1) ahead of the scored ones, as the horizon tables
@@ -215,6 +232,51 @@ def summarise(folder: Path) -> dict[str, Any]:
     return out
 
 
+def summarise_halves(folder: Path) -> dict[str, Any]:
+    """:func:`summarise` on each half of every captured recording apart (``folder/halves.json``):
+    ``{fold: {at: {"first": ..., "second": ...}}}``."""
+    cached = folder / "halves.json"
+    if cached.exists():
+        return read_json(cached)
+    out: dict[str, Any] = {}
+    for path in sorted(folder.glob("*.npz")):
+        whole = Capture(path)
+        for at in (0, 1):
+            for which, name in enumerate(("first", "second")):
+                fold = whole.half(which)
+                m = {
+                    n: fold.margins(fold.methods[n][:, at], at).tolist()
+                    for n in ("model", "model_combined")
+                }
+                pairs = {split: grid.tolist() for split, grid in fold.pairs(at).items()}
+                out.setdefault(whole.name, {}).setdefault(str(at), {})[name] = {**m, **pairs}
+            print(f"{whole.name} halves at {'1' if at == 0 else 'K'}: done", flush=True)
+    write_json(cached, out)
+    return out
+
+
+def warm(halves: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per fold and horizon, on the second half of each recording (mean over seeds): the
+    model, the online combination, and the pair best on the first half (as a chooser that has
+    seen the first half would take it)."""
+    rows: dict[str, Any] = {}
+    for fold in sorted(halves[0]):
+        for at in ("0", "1"):
+            row = rows.setdefault(f"{fold}@{at}", {})
+            for name in ("model", "model_combined"):
+                margins = np.mean([h[fold][at]["second"][name] for h in halves], axis=0)
+                row[name] = {"margins": margins.tolist()}
+            for split in SPLITS:
+                first = np.mean([np.array(h[fold][at]["first"][split]) for h in halves], 0)
+                second = np.mean([np.array(h[fold][at]["second"][split]) for h in halves], 0)
+                a, b = np.unravel_index(np.argmax(weighed(first)), first.shape[:2])
+                row[f"warm_{split}"] = {
+                    "margins": second[a, b].tolist(),
+                    "pair": [CANDIDATES[a], CANDIDATES[b]],
+                }
+    return rows
+
+
 def chosen(seeds: list[dict[str, Any]]) -> dict[str, Any]:
     """Per fold and horizon, the margins (mean over seeds) of the model, the online
     combination, and the fixed pairs chosen in hindsight and left out, per split."""
@@ -243,11 +305,17 @@ def chosen(seeds: list[dict[str, Any]]) -> dict[str, Any]:
     return rows
 
 
-def table(folders: list[Path]) -> str:
-    seeds = [summarise(f) for f in folders]
-    rows = chosen(seeds)
-    fixed = [f"{n}_{s}" for n in ("left_out", "hindsight") for s in SPLITS]
-    columns = ["model", "model_combined", *fixed]
+def table(folders: list[Path], halves: bool = False) -> str:
+    """Markdown: per fold and horizon, then aggregated, the margins of each choice (mean over
+    the seeds' ``folders``); with ``halves``, on the second half of each recording
+    (:func:`warm`). Writes ``ceiling.json`` (or ``warm.json``) beside the folders."""
+    if halves:
+        rows = warm([summarise_halves(f) for f in folders])
+        columns = ["model", "model_combined", *(f"warm_{s}" for s in SPLITS)]
+    else:
+        rows = chosen([summarise(f) for f in folders])
+        fixed = [f"{n}_{s}" for n in ("left_out", "hindsight") for s in SPLITS]
+        columns = ["model", "model_combined", *fixed]
     lines = ["| held-out | at | " + " | ".join(columns) + " |", "|---" * (len(columns) + 2) + "|"]
     for key, row in rows.items():
         fold, at = key.split("@")
@@ -264,7 +332,7 @@ def table(folders: list[Path]) -> str:
                 f"| {c} | {'k=1' if at == '0' else '~1 s'} | {_fmt(m.mean(0))} | "
                 f"{_fmt(m.min(0))} | {won}/{len(m)} |"
             )
-    write_json(folders[0].parent / "ceiling.json", rows)
+    write_json(folders[0].parent / ("warm.json" if halves else "ceiling.json"), rows)
     return "\n".join(lines)
 
 
@@ -279,8 +347,8 @@ def _fmt(m: np.ndarray) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] == "table":
-        print(table([Path(a) for a in argv[1:]]))
+    if argv and argv[0] in ("table", "halves"):
+        print(table([Path(a) for a in argv[1:]], halves=argv[0] == "halves"))
         return
     if argv and argv[0] == "capture":
         argv = argv[1:]

@@ -30,6 +30,10 @@ def test_the_kept_maps_score_as_evaluate_and_the_pairs_are_tabled(tmp_path):
         np.testing.assert_allclose(pairs["rare"][same, same], pairs["region"][same, same])
     table = study.table([out])
     assert "| static | k=1 |" in table and "| hindsight_region | ~1 s |" in table
+    first, second = fold.half(0), fold.half(1)
+    np.testing.assert_array_equal(np.concatenate([first.scored, second.scored]), fold.scored)
+    assert len(second.methods["model"]) == len(second.scored)
+    assert "| warm_region | k=1 |" in study.table([out], halves=True)
 
 
 def test_the_pair_left_out_is_the_best_on_the_other_recordings():
