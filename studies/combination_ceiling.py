@@ -11,7 +11,8 @@ mover region). Three choices are compared with the combination as it ran:
   on the frames it is scored on);
 - **left out**: the pair best on the six other recordings (the mean of their margins, losses
   weighed ten times, as the leader weighs them), scored on the held-out one;
-- **online**: what the combination decided, learning on the stream.
+- **online**: what the combination decided, learning on the stream; and its leader replayed
+  over the kept candidates with either split (:meth:`Capture.replay`).
 
 ``halves`` asks what a chooser that has already seen a robot's recording could do: the pair
 best on the first half of a recording, scored on the second half, beside the model and the
@@ -40,7 +41,7 @@ from lidarflow.evaluate.stream import mover_region
 from lidarflow.geometry import near
 from lidarflow.online.combination import CANDIDATES, Combination, candidate_maps
 from lidarflow.online.experts import ExpertMaps, Experts
-from lidarflow.online.leader import LOSS_WEIGHT
+from lidarflow.online.leader import LOSS_WEIGHT, Leader
 from lidarflow.scan import GridSpec
 from studies.harness import development, parse, parser, read_json, stem, write_json
 from studies.movers import horizon_of
@@ -132,12 +133,8 @@ class Capture:
 
     def __init__(self, path: Path) -> None:
         z = np.load(path)
-        self.name, self.horizon = path.stem, int(z["horizon"])
-        width = 8 * z["occupied"].shape[-1]
-
-        def bits(a: np.ndarray) -> np.ndarray:
-            return np.unpackbits(a, axis=-1, count=width).astype(bool)
-
+        self.path, self.name, self.horizon = path, path.stem, int(z["horizon"])
+        bits = _unpacked
         self.scored = z["scored"]
         self.occupied, self.region = bits(z["occupied"]), bits(z["region"])
         self.candidates = bits(z["candidates"])[self.scored]  # (T, 2, C, H, W)
@@ -181,6 +178,30 @@ class Capture:
         got = self.metrics(decided, at)
         return np.array([got[0] - best[0], got[1] - best[1], got[2] - base["copy_last"][2]])
 
+    def replay(self, at: int, split: str) -> np.ndarray:
+        """The combination's leader replayed over every frame's kept candidates, deciding the
+        cells ``split`` (:data:`SPLITS`) apart: its decided maps of the scored frames
+        ``(T, H, W)``. The candidates it scores are those output (the experts' maps decided
+        as they are, not as kept in eight bits), so the rare split is close to, not the same
+        as, the combination as it ran."""
+        z = np.load(self.path)
+        candidates = _unpacked(z["candidates"])[:, at]
+        masks = _unpacked(z["rare"])[:, at] if split == "rare" else _unpacked(z["causal_region"])
+        region = _unpacked(z["causal_region"])
+        k = 1 if at == 0 else self.horizon
+        simple = tuple(CANDIDATES.index(n) for n in ("copy_last", "temporal_average", "tracker"))
+        leader = Leader(len(CANDIDATES), CANDIDATES.index("model"), baselines=simple)
+        out = np.empty(candidates.shape[:1] + candidates.shape[2:], bool)
+        for t in range(len(candidates)):
+            if t >= k:  # frame t labels what was predicted k frames before
+                past = t - k
+                leader.score(
+                    candidates[past], masks[past], region[t], self.occupied[t], self.occupied[past]
+                )
+            a, b = leader.choice
+            out[t] = np.where(masks[t], candidates[t, b], candidates[t, a])
+        return out[self.scored]
+
     def pairs(self, at: int) -> dict[str, np.ndarray]:
         """Every fixed pair's margins ``(C, C, 3)`` (common, rest) per split."""
         c = self.candidates[:, at]
@@ -193,6 +214,11 @@ class Capture:
                     grid[a, b] = self.margins(np.where(mask, c[:, b], c[:, a]), at)
             out[split] = grid
         return out
+
+
+def _unpacked(a: np.ndarray) -> np.ndarray:
+    """Bit-packed maps of the study's grid (:class:`GridSpec`'s default) as bool."""
+    return np.unpackbits(a, axis=-1, count=GridSpec().width).astype(bool)
 
 
 def _f1(guess: np.ndarray, truth: np.ndarray) -> float:
@@ -228,6 +254,24 @@ def summarise(folder: Path) -> dict[str, Any]:
             pairs = {split: grid.tolist() for split, grid in fold.pairs(at).items()}
             out.setdefault(fold.name, {})[str(at)] = {**m, **pairs, "K": fold.horizon}
             print(f"{fold.name} at {'1' if at == 0 else 'K'}: done", flush=True)
+    write_json(cached, out)
+    return out
+
+
+def summarise_replays(folder: Path) -> dict[str, Any]:
+    """Per captured fold and horizon, the margins of the leader replayed with each split
+    (:meth:`Capture.replay`; cached in ``folder/replays.json``)."""
+    cached = folder / "replays.json"
+    if cached.exists():
+        return read_json(cached)
+    out: dict[str, Any] = {}
+    for path in sorted(folder.glob("*.npz")):
+        fold = Capture(path)
+        for at in (0, 1):
+            out.setdefault(fold.name, {})[str(at)] = {
+                f"replay_{split}": fold.margins(fold.replay(at, split), at).tolist()
+                for split in SPLITS
+            }
     write_json(cached, out)
     return out
 
@@ -299,7 +343,9 @@ def chosen(seeds: list[dict[str, Any]]) -> dict[str, Any]:
                         "pair": [CANDIDATES[a], CANDIDATES[b]],
                     }
         for fold in folds:
-            for name in ("model", "model_combined"):
+            for name in ("model", "model_combined", *(f"replay_{s}" for s in SPLITS)):
+                if name not in seeds[0][fold][at]:
+                    continue
                 margins = np.mean([s[fold][at][name] for s in seeds], axis=0)
                 rows[f"{fold}@{at}"][name] = {"margins": margins.tolist()}
     return rows
@@ -313,8 +359,13 @@ def table(folders: list[Path], halves: bool = False) -> str:
         rows = warm([summarise_halves(f) for f in folders])
         columns = ["model", "model_combined", *(f"warm_{s}" for s in SPLITS)]
     else:
-        rows = chosen([summarise(f) for f in folders])
-        fixed = [f"{n}_{s}" for n in ("left_out", "hindsight") for s in SPLITS]
+        seeds = [summarise(f) for f in folders]
+        for seed, folder in zip(seeds, folders, strict=True):
+            for fold, by_at in summarise_replays(folder).items():
+                for at, replays in by_at.items():
+                    seed[fold][at].update(replays)
+        rows = chosen(seeds)
+        fixed = [f"{n}_{s}" for n in ("replay", "left_out", "hindsight") for s in SPLITS]
         columns = ["model", "model_combined", *fixed]
     lines = ["| held-out | at | " + " | ".join(columns) + " |", "|---" * (len(columns) + 2) + "|"]
     for key, row in rows.items():

@@ -30,6 +30,11 @@ def test_the_kept_maps_score_as_evaluate_and_the_pairs_are_tabled(tmp_path):
         np.testing.assert_allclose(pairs["rare"][same, same], pairs["region"][same, same])
     table = study.table([out])
     assert "| static | k=1 |" in table and "| hindsight_region | ~1 s |" in table
+    for at in (0, 1):  # the leader replayed on the rare split is the combination, nearly
+        replayed = fold.margins(fold.replay(at, "rare"), at)
+        ran = fold.margins(fold.methods["model_combined"][:, at], at)
+        assert fold.replay(at, "region").shape == fold.methods["model"][:, at].shape
+        np.testing.assert_allclose(replayed, ran, atol=0.01)
     first, second = fold.half(0), fold.half(1)
     np.testing.assert_array_equal(np.concatenate([first.scored, second.scored]), fold.scored)
     assert len(second.methods["model"]) == len(second.scored)
