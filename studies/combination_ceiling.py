@@ -2,10 +2,11 @@
 
 Per development fold (its model held out), the combination streams the recording as `evaluate
 --horizon K` does; every frame, each candidate's decided map 1 and K ahead is kept
-(``capture``). Offline (``table``), each fixed choice of two candidates, one deciding the
-common cells and one the rest, is scored with the horizon tables' metric: on the combination's
-own split (the tracker's rare cells) and on the cells where movers went so far (its causal
-mover region). Three choices are compared with the combination as it ran:
+(``capture``: :mod:`studies.combination_capture`). Offline (``table``), each fixed choice of
+two candidates, one deciding the common cells and one the rest, is scored with the horizon
+tables' metric: on the combination's own split (the tracker's rare cells) and on the cells
+where movers went so far (its causal mover region). Three choices are compared with the
+combination as it ran:
 
 - **in hindsight**: the pair best on the recording itself (an optimistic ceiling: it is chosen
   on the frames it is scored on);
@@ -28,104 +29,22 @@ from __future__ import annotations
 
 import copy
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lidarflow.data.sources import load_any
-from lidarflow.evaluate.evaluation import score_one
-from lidarflow.evaluate.methods import methods_and_config
-from lidarflow.evaluate.runner import recording_inputs
-from lidarflow.evaluate.stream import mover_region
 from lidarflow.geometry import near
-from lidarflow.online.combination import CANDIDATES, Combination, candidate_maps
-from lidarflow.online.experts import ExpertMaps, Experts
+from lidarflow.online.combination import CANDIDATES
 from lidarflow.online.leader import LOSS_WEIGHT, Leader
 from lidarflow.scan import GridSpec
+from studies.combination_capture import capture
 from studies.harness import development, parse, parser, read_json, stem, write_json
-from studies.movers import horizon_of
 from studies.online_combination import BASELINES
 
 #: The splits of the cells a pair is chosen for: the combination's own, and the region.
 SPLITS = ("rare", "region")
-
-
-class KeptExperts(ExpertMaps):
-    """The experts, the last frame's kept."""
-
-    last: Experts
-
-    def of(self, *args: Any, **kwargs: Any) -> Experts:
-        self.last = super().of(*args, **kwargs)
-        return self.last
-
-
-class Recorded(Combination):
-    """The combination, each frame's candidates 1 and ``K`` ahead (decided, bit-packed), its
-    rare cells and its causal mover region kept."""
-
-    def __init__(self, horizon: int) -> None:
-        super().__init__(horizon)
-        self.experts = KeptExperts(horizon)
-        self.frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-
-    def step(self, *args: Any, **kwargs: Any) -> Any:
-        out = super().step(*args, **kwargs)
-        experts = self.experts.last
-        ks = (0, self.horizon - 1)
-        candidates = [
-            candidate_maps(self.stacks[k], experts.maps[:, k], experts.rare[k]) for k in ks
-        ]
-        self.frames.append(
-            (
-                np.packbits(np.stack(candidates), axis=-1),
-                np.packbits(experts.rare[list(ks)], axis=-1),
-                np.packbits(experts.region, axis=-1),
-            )
-        )
-        return out
-
-
-def capture(path: Path, model: Path | None, target: Path) -> dict[str, Any]:
-    """Stream ``path`` with ``model`` (``None``: the bundled one) combined; write the
-    candidates, the truths, evaluate's mover region and every method's decided maps 1 and K
-    ahead to ``target`` (npz). Returns evaluate's horizon tables of the stream."""
-    recording = load_any(path)
-    horizon = horizon_of(recording)
-    methods, _ = methods_and_config([model], names=["model"], combine=horizon)
-    combined = next(m for m in methods if m.name == "model_combined")
-    combined.combination = recorded = Recorded(horizon)
-    ahead: dict[str, dict[int, np.ndarray]] = {}
-
-    def keep(_name: str, method: str, t: int, predicted: Any) -> None:
-        p = np.asarray(predicted)
-        ahead.setdefault(method, {})[t] = np.packbits(np.stack([p[0], p[-1]]) >= 0.4, axis=-1)
-
-    grid = GridSpec()
-    scored = score_one(path.name, recording, methods, grid, 10, horizon, on_ahead=keep)
-    inputs = recording_inputs(recording, grid, methods)
-    region = mover_region(recording, grid, inputs)
-    frames = range(len(inputs.occupancy))
-    occupied = np.stack([np.asarray(inputs.occupancy[t], bool) for t in frames])
-    shape = occupied.shape[1:]
-    regions = np.stack([region(t) if region else np.zeros(shape, bool) for t in frames])
-    frames_scored = sorted(ahead["copy_last"])
-    arrays = {
-        "horizon": np.array(horizon),
-        "scored": np.array(frames_scored),
-        "occupied": np.packbits(occupied, axis=-1),
-        "region": np.packbits(regions, axis=-1),
-        "candidates": np.stack([f[0] for f in recorded.frames]),
-        "rare": np.stack([f[1] for f in recorded.frames]),
-        "causal_region": np.stack([f[2] for f in recorded.frames]),
-        **{f"method/{m}": np.stack([by_t[t] for t in frames_scored]) for m, by_t in ahead.items()},
-    }
-    target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_suffix(".partial.npz")
-    np.savez_compressed(partial, **arrays)
-    partial.replace(target)
-    return scored.horizon or {}
 
 
 class Capture:
@@ -237,66 +156,71 @@ def weighed(margins: np.ndarray) -> np.ndarray:
     return (margins + LOSS_WEIGHT * np.minimum(margins, 0.0)).sum(axis=-1)
 
 
-def summarise(folder: Path) -> dict[str, Any]:
-    """Per captured fold in ``folder`` and horizon: the model's, the online combination's and
-    every fixed pair's margins (cached in ``folder/pairs.json``)."""
-    cached = folder / "pairs.json"
-    if cached.exists():
-        return read_json(cached)
-    out: dict[str, Any] = {}
-    for path in sorted(folder.glob("*.npz")):
-        fold = Capture(path)
-        for at in (0, 1):
-            m = {
-                name: fold.margins(fold.methods[name][:, at], at).tolist()
-                for name in ("model", "model_combined")
-            }
-            pairs = {split: grid.tolist() for split, grid in fold.pairs(at).items()}
-            out.setdefault(fold.name, {})[str(at)] = {**m, **pairs, "K": fold.horizon}
-            print(f"{fold.name} at {'1' if at == 0 else 'K'}: done", flush=True)
-    write_json(cached, out)
+def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """``path``'s JSON where it exists, else ``compute()`` written there."""
+    if path.exists():
+        return read_json(path)
+    out = compute()
+    write_json(path, out)
     return out
+
+
+def _scores(fold: Capture, at: int) -> dict[str, Any]:
+    """The model's, the online combination's and every fixed pair's margins at ``at``."""
+    names = ("model", "model_combined")
+    out = {name: fold.margins(fold.methods[name][:, at], at).tolist() for name in names}
+    return {**out, **{split: grid.tolist() for split, grid in fold.pairs(at).items()}}
+
+
+def summarise(folder: Path) -> dict[str, Any]:
+    """Per captured fold in ``folder`` and horizon (``"0"``: 1 ahead, ``"1"``: K): the model's,
+    the online combination's and every fixed pair's margins (cached in ``folder/pairs.json``)."""
+
+    def compute() -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for path in sorted(folder.glob("*.npz")):
+            fold = Capture(path)
+            for at in (0, 1):
+                out.setdefault(fold.name, {})[str(at)] = {**_scores(fold, at), "K": fold.horizon}
+                print(f"{fold.name} at {'1' if at == 0 else 'K'}: done", flush=True)
+        return out
+
+    return _cached(folder / "pairs.json", compute)
 
 
 def summarise_replays(folder: Path) -> dict[str, Any]:
     """Per captured fold and horizon, the margins of the leader replayed with each split
     (:meth:`Capture.replay`; cached in ``folder/replays.json``)."""
-    cached = folder / "replays.json"
-    if cached.exists():
-        return read_json(cached)
-    out: dict[str, Any] = {}
-    for path in sorted(folder.glob("*.npz")):
-        fold = Capture(path)
-        for at in (0, 1):
-            out.setdefault(fold.name, {})[str(at)] = {
-                f"replay_{split}": fold.margins(fold.replay(at, split), at).tolist()
-                for split in SPLITS
-            }
-    write_json(cached, out)
-    return out
+
+    def compute() -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for path in sorted(folder.glob("*.npz")):
+            fold = Capture(path)
+            for at in (0, 1):
+                out.setdefault(fold.name, {})[str(at)] = {
+                    f"replay_{split}": fold.margins(fold.replay(at, split), at).tolist()
+                    for split in SPLITS
+                }
+        return out
+
+    return _cached(folder / "replays.json", compute)
 
 
 def summarise_halves(folder: Path) -> dict[str, Any]:
     """:func:`summarise` on each half of every captured recording apart (``folder/halves.json``):
     ``{fold: {at: {"first": ..., "second": ...}}}``."""
-    cached = folder / "halves.json"
-    if cached.exists():
-        return read_json(cached)
-    out: dict[str, Any] = {}
-    for path in sorted(folder.glob("*.npz")):
-        whole = Capture(path)
-        for at in (0, 1):
-            for which, name in enumerate(("first", "second")):
-                fold = whole.half(which)
-                m = {
-                    n: fold.margins(fold.methods[n][:, at], at).tolist()
-                    for n in ("model", "model_combined")
-                }
-                pairs = {split: grid.tolist() for split, grid in fold.pairs(at).items()}
-                out.setdefault(whole.name, {}).setdefault(str(at), {})[name] = {**m, **pairs}
-            print(f"{whole.name} halves at {'1' if at == 0 else 'K'}: done", flush=True)
-    write_json(cached, out)
-    return out
+
+    def compute() -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for path in sorted(folder.glob("*.npz")):
+            whole = Capture(path)
+            for at in (0, 1):
+                halves = {n: _scores(whole.half(i), at) for i, n in enumerate(("first", "second"))}
+                out.setdefault(whole.name, {})[str(at)] = halves
+                print(f"{whole.name} halves at {'1' if at == 0 else 'K'}: done", flush=True)
+        return out
+
+    return _cached(folder / "halves.json", compute)
 
 
 def warm(halves: list[dict[str, Any]]) -> dict[str, Any]:

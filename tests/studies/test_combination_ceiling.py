@@ -8,6 +8,7 @@ import numpy as np
 from lidarflow.online.combination import CANDIDATES
 from lidarflow.sim import SimConfig, write_simulation
 from studies import combination_ceiling as study
+from studies.combination_capture import capture
 from studies.online_combination import KEYS
 
 
@@ -15,7 +16,7 @@ def test_the_kept_maps_score_as_evaluate_and_the_pairs_are_tabled(tmp_path):
     recording = tmp_path / "static.npz"  # 15 Hz: K = 15 needs 10 + 15 + 1 frames at least
     write_simulation(recording, 40, 7, SimConfig(scenario="static"))
     out = tmp_path / "s0"
-    tables = study.capture(recording, None, out / "static.npz")
+    tables = capture(recording, None, out / "static.npz")
     fold = study.Capture(out / "static.npz")
     for at in (0, 1):
         for method in ("model", "model_combined", "copy_last", "tracker"):
