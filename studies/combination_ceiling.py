@@ -15,6 +15,10 @@ combination as it ran:
 - **online**: what the combination decided, learning on the stream; and its leader replayed
   over the kept candidates with either split (:meth:`Capture.replay`).
 
+Writes OUT/<recording>.npz per recording (kept ones are not captured again); ``table`` and
+``halves`` cache their scores beside them (``pairs.json``, ``replays.json``, ``halves.json``)
+and write ``ceiling.json`` or ``warm.json`` beside the seeds' folders.
+
 ``halves`` asks what a chooser that has already seen a robot's recording could do: the pair
 best on the first half of a recording, scored on the second half, beside the model and the
 combination on the second half (all judged against the baselines on the second half).

@@ -12,7 +12,9 @@ import studies
 from studies import harness
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = {"harness", "scoring", "folds", "people", "sensor_views"}  # parts studies share
+SHARED = {  # parts studies share
+    "harness", "scoring", "folds", "people", "sensor_views", "combination_capture",
+}
 STUDIES = sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if m.name not in SHARED)
 
 
