@@ -12,9 +12,8 @@ import studies
 from studies import harness
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = {  # parts studies share
-    "harness", "scoring", "folds", "people", "sensor_views", "combination_capture",
-}
+# parts studies share
+SHARED = {"harness", "scoring", "folds", "people", "sensor_views", "combination_capture"}
 STUDIES = sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if m.name not in SHARED)
 
 
