@@ -60,6 +60,9 @@ def test_once_per_common_value_evaluates_the_rest_on_their_own():
 
     np.testing.assert_array_equal(offsets.once_per_common_value(square, x), x * x)
     assert [s.tolist() for s in seen] == [[2.0], [3.0, 5.0]]
+    seen.clear()  # most elements unlike the first: all at once
+    np.testing.assert_array_equal(offsets.once_per_common_value(square, x[2:]), x[2:] ** 2)
+    assert [s.tolist() for s in seen] == [x[2:].tolist()]
 
 
 def _decision_inputs(seed: int, cells: int, maps: int):

@@ -45,11 +45,12 @@ def once_per_common_value(
 ) -> np.ndarray:
     """``elementwise(x)``, shape kept, for a function of each element alone (ufuncs, no
     reductions, ``+0`` and ``-0`` alike), evaluated once for all the elements equal to ``x``'s
-    first and on the others one by one: the same values, to the bit.
+    first and on the others one by one (on all at once where those are fewer than half): the
+    same values, to the bit.
 
-    Why: a model's probability map holds one value on most cells (those far from every return,
-    the corner among them), and the logarithms and exponentials of the decision on every cell
-    were a third of its time.
+    Why: without poses a model's probability map holds one value on most cells (those far from
+    every return, the corner among them), and the logarithms and exponentials of the decision
+    on every cell were a third of its time.
 
     >>> once_per_common_value(np.exp, np.array([[0.0, 0.0], [1.0, 0.0]])).tolist()
     [[1.0, 1.0], [2.718281828459045, 1.0]]
@@ -57,8 +58,11 @@ def once_per_common_value(
     flat = np.ravel(x)
     if flat.size == 0:
         return elementwise(x)
+    differ = flat != flat[0]
+    if np.count_nonzero(differ) > flat.size // 2:  # (a map moved by poses: gathering costs more)
+        return elementwise(x)
+    others = np.flatnonzero(differ)
     first = elementwise(flat[:1])  # through the same ufunc loops as the others
-    others = np.flatnonzero(flat != flat[0])
     out = np.empty(flat.shape, first.dtype)
     out[:] = first
     out[others] = elementwise(flat[others])
