@@ -286,17 +286,14 @@ def _counts_loop(
         elif n <= w * a[0] + (1.0 - w) * b[0]:
             slot = every_at
         elif n <= w * a[na - 1] + (1.0 - w) * b[nb - 1]:
-            free = 1.0 - w
+            free, low = 1.0 - w, nb
             for i in range(na):
                 # the pairs (a_i, b_j) that predict the cell are those from the first j on
-                # (rounding is monotone): found by bisection on the same expression
-                wa, low, high = w * a[i], 0, nb
-                while low < high:
-                    mid = (low + high) // 2
-                    if wa + free * b[mid] >= n:
-                        high = mid
-                    else:
-                        low = mid + 1
+                # (rounding is monotone), and that j does not grow with i (a increasing): found
+                # by stepping down from a_(i-1)'s on the same expression
+                wa = w * a[i]
+                while low > 0 and wa + free * b[low - 1] >= n:
+                    low -= 1
                 for k in range(kinds.shape[1]):
                     out[k, pairs_at + i * (nb + 1) + low] += kinds[c, k]
             continue
