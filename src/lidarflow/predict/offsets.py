@@ -119,7 +119,7 @@ def counts_all_and_changed(
     t, c = np.ravel(target).astype(bool), np.ravel(changed).astype(bool)
     if available() and predictions and all(p.dtype == bool for p in predictions):
         out = np.zeros((2, len(predictions), 3))
-        stacked = np.stack([np.ravel(p) for p in predictions])
+        stacked = np.array([np.ravel(p) for p in predictions])  # (np.stack: 2.5x the time)
         args = (stacked.view(np.uint8), t.view(np.uint8), c.view(np.uint8), out)
         if ready(_table_loop, *args):
             _table_loop(*args)
