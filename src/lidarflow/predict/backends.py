@@ -19,7 +19,7 @@ import numpy as np
 from lidarflow.errors import ModelError, PredictError, ScanError
 from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import check_decision_offset
-from lidarflow.predict.offsets import calibrated_logit
+from lidarflow.predict.offsets import calibrated_logit, sigmoid32
 from lidarflow.predict.step import StepInputs, StepOutput
 from lidarflow.scan import GridSpec
 
@@ -225,7 +225,7 @@ class OnnxBackend:
         probability, out, *next_state = self.session.run(None, feeds)
         if self._baked_offset:
             logit = calibrated_logit(probability) - self._baked_offset
-            probability = (1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
+            probability = sigmoid32(logit)
         return StepOutput(probability, out, next_state)
 
 

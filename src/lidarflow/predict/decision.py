@@ -58,7 +58,8 @@ from lidarflow.predict.offsets import (
     calibrated_logit,
     counts_all_and_changed,
     moved_last_map,
-    pair_counts_within,
+    pair_counts_each,
+    sigmoid32,
 )
 
 __all__ = [
@@ -193,9 +194,10 @@ class OnlineDecision:
         need, moved = pending.need[pending.map], pending.moved[pending.map]
         made = moved * a + (1.0 - moved) * b >= need
         changed = pending.last != target
-        for m, (need_m, moved_m) in enumerate(zip(pending.need, pending.moved, strict=True)):
-            # all cells (k = 0) and the changed ones (k = 1) in one pass
-            both = pair_counts_within(need_m, moved_m, target, [None, changed], self._a, self._b)
+        # per map tried: all cells (k = 0) and the changed ones (k = 1) in one pass
+        each = pair_counts_each(pending.need, pending.moved, target, [None, changed], self._a,
+                                self._b)  # fmt: skip
+        for m, both in enumerate(each):
             for k, (tp, predicted, _) in enumerate(both):
                 self._tp[k, m] += tp
                 self._predicted[k, m] += predicted
@@ -263,8 +265,7 @@ class OnlineDecision:
         chosen = UNMOVED if self.unmoved else MOVED
         a, b = self.offsets
         logit, moved = logits[chosen], maps[chosen]
-        out = 1.0 / (1.0 + np.exp(-(logit + b + (a - b) * moved)))
-        return out.astype(np.float32)
+        return sigmoid32(logit + b + (a - b) * moved)
 
 
 @dataclass(frozen=True)

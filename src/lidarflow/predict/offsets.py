@@ -5,7 +5,8 @@ Counting every pair is cheap because a cell's decision depends on one offset alo
 moved map is fractional there: a free cell is predicted occupied iff ``b >= threshold_logit -
 logit``, an occupied one iff ``a >= ...``, so one sorted search per offset grid counts all pairs;
 only the few fractional cells are counted pair by pair. NumPy only: the ONNX Predictor runs
-without PyTorch.
+without PyTorch. The logits the offsets shift are :mod:`lidarflow.predict.logits`' (its names
+are given here too).
 """
 
 from __future__ import annotations
@@ -16,6 +17,13 @@ import numpy as np
 
 from lidarflow.compiled import available, kernel, ready
 from lidarflow.geometry import warp_map
+from lidarflow.predict.logits import (
+    LOGIT_LIMIT,
+    calibrated_logit,
+    decided_probability,
+    once_per_common_value,
+    sigmoid32,
+)
 
 __all__ = [
     "LOGIT_LIMIT",
@@ -25,32 +33,16 @@ __all__ = [
     "counts_all_and_changed",
     "decided_probability",
     "moved_last_map",
+    "once_per_common_value",
     "pair_counts",
+    "pair_counts_each",
     "pair_counts_within",
+    "sigmoid32",
 ]
 
 #: The project's decision threshold: a cell is predicted occupied where its probability is at
 #: least this (design notes §1 and §5).
 THRESHOLD = 0.4
-#: float32 probabilities saturate near 0 and 1; logits beyond this are far from every offset's
-#: threshold anyway.
-LOGIT_LIMIT = 15.0
-
-
-def calibrated_logit(probability: np.ndarray) -> np.ndarray:
-    """``log(p / (1 - p))`` in float64, within :data:`LOGIT_LIMIT`: a calibrated probability's
-    logit, which the decision offsets shift."""
-    p = np.clip(np.asarray(probability, np.float64), 1e-12, 1.0 - 1e-12)
-    return np.clip(np.log(p) - np.log1p(-p), -LOGIT_LIMIT, LOGIT_LIMIT)
-
-
-def decided_probability(probability: np.ndarray, offset: float) -> np.ndarray:
-    """``sigmoid(logit(p) + offset)`` float32: the probability a fixed decision offset
-    thresholds at 0.4 (``p`` itself for offset 0)."""
-    if offset == 0.0:
-        return np.asarray(probability, np.float32)
-    out = 1.0 / (1.0 + np.exp(-(calibrated_logit(probability) + offset)))
-    return out.astype(np.float32)
 
 
 def counts(predicted: np.ndarray, target: np.ndarray, mask: np.ndarray) -> tuple[int, int, int]:
@@ -74,7 +66,7 @@ def counts_all_and_changed(
     t, c = np.ravel(target).astype(bool), np.ravel(changed).astype(bool)
     if available() and predictions and all(p.dtype == bool for p in predictions):
         out = np.zeros((2, len(predictions), 3))
-        stacked = np.stack([np.ravel(p) for p in predictions])
+        stacked = np.array([np.ravel(p) for p in predictions])  # (np.stack: 2.5x the time)
         args = (stacked.view(np.uint8), t.view(np.uint8), c.view(np.uint8), out)
         if ready(_table_loop, *args):
             _table_loop(*args)
@@ -241,17 +233,14 @@ def _counts_loop(
         elif n <= w * a[0] + (1.0 - w) * b[0]:
             slot = every_at
         elif n <= w * a[na - 1] + (1.0 - w) * b[nb - 1]:
-            free = 1.0 - w
+            free, low = 1.0 - w, nb
             for i in range(na):
                 # the pairs (a_i, b_j) that predict the cell are those from the first j on
-                # (rounding is monotone): found by bisection on the same expression
-                wa, low, high = w * a[i], 0, nb
-                while low < high:
-                    mid = (low + high) // 2
-                    if wa + free * b[mid] >= n:
-                        high = mid
-                    else:
-                        low = mid + 1
+                # (rounding is monotone), and that j does not grow with i (a increasing): found
+                # by stepping down from a_(i-1)'s on the same expression
+                wa = w * a[i]
+                while low > 0 and wa + free * b[low - 1] >= n:
+                    low -= 1
                 for k in range(kinds.shape[1]):
                     out[k, pairs_at + i * (nb + 1) + low] += kinds[c, k]
             continue
@@ -278,31 +267,72 @@ def _running_sums(out: np.ndarray, na: int, nb: int, counts: np.ndarray) -> None
 
 
 def _pair_counts_compiled(
-    need: np.ndarray,
-    moved: np.ndarray,
+    needs: list[np.ndarray],
+    moveds: list[np.ndarray],
     target: np.ndarray,
     masks: list[np.ndarray | None],
     a: np.ndarray,
     b: np.ndarray,
-) -> list[tuple[np.ndarray, np.ndarray, int]] | None:
-    """:func:`pair_counts_within` by :func:`_counts_loop` (``a``, ``b`` sorted, not empty);
-    ``None`` while the loop is not compiled yet (:func:`lidarflow.compiled.ready`)."""
+) -> list[list[tuple[np.ndarray, np.ndarray, int]]] | None:
+    """:func:`pair_counts_each` by :func:`_counts_loop` (``a``, ``b`` sorted, not empty; flat
+    maps); ``None`` while the loop is not compiled yet (:func:`lidarflow.compiled.ready`). The
+    masks' columns are the same for every map: built once."""
     kinds = []
     for mask in masks:
         kinds += [target, np.ones_like(target)] if mask is None else [target & mask, mask]
-    columns = np.stack(kinds, axis=1).view(np.uint8)
+    # (cells, K) as the kernel reads it, a transposed view: np.stack along axis 1 cost more
+    # than the loop itself
+    columns = np.array(kinds).T.view(np.uint8)
+    positives = [int(np.count_nonzero(kinds[2 * i])) for i in range(len(masks))]
     na, nb = len(a), len(b)
     out = np.zeros((len(kinds), na + nb + 3 + na * (nb + 1)), np.int64)
-    counts = np.empty((len(kinds), na, nb), np.int64)
-    # both asked for at once, so that both compile from the first call on
-    if not all([ready(_counts_loop, need, moved, columns, a, b, out),
-                ready(_running_sums, out, na, nb, counts)]):  # fmt: skip
-        return None
-    _counts_loop(need, moved, columns, a, b, out)
-    _running_sums(out, na, nb, counts)
+    counted = []
+    for need, moved in zip(needs, moveds, strict=True):
+        counts = np.empty((len(kinds), na, nb), np.int64)
+        # both asked for at once, so that both compile from the first call on
+        if not all([ready(_counts_loop, need, moved, columns, a, b, out),
+                    ready(_running_sums, out, na, nb, counts)]):  # fmt: skip
+            return None
+        out[:] = 0
+        _counts_loop(need, moved, columns, a, b, out)
+        _running_sums(out, na, nb, counts)
+        counted.append(
+            [(counts[2 * i], counts[2 * i + 1], positives[i]) for i in range(len(masks))]
+        )
+    return counted
+
+
+def pair_counts_each(
+    needs: list[np.ndarray],
+    moveds: list[np.ndarray],
+    target: np.ndarray,
+    masks: list[np.ndarray | None],
+    occupied_offsets: np.ndarray,
+    free_offsets: np.ndarray,
+) -> list[list[tuple[np.ndarray, np.ndarray, int]]]:
+    """:func:`pair_counts_within` of each ``(need, moved)`` of ``needs`` and ``moveds`` (the
+    maps a decision tries: one list per map), the same ``target`` and ``masks`` for all: what
+    only the target and masks decide is done once."""
+    if len(needs) != len(moveds):
+        raise ValueError(f"need as many needs as moved maps, got {len(needs)} and {len(moveds)}")
+    target = np.ravel(target)
+    a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
+    # (a[1:] > a[:-1]: np.diff(a) > 0 without its overhead, the same for every float)
+    ordered = len(a) and len(b) and (a[1:] > a[:-1]).all() and (b[1:] > b[:-1]).all()
+    if available() and ordered:
+        counted = _pair_counts_compiled(
+            [np.asarray(np.ravel(n), np.float64) for n in needs],
+            [np.asarray(np.ravel(m), np.float64) for m in moveds],
+            np.asarray(target, bool),
+            [None if m is None else np.asarray(np.ravel(m), bool) for m in masks],
+            a,
+            b,
+        )
+        if counted is not None:
+            return counted
     return [
-        (counts[2 * i], counts[2 * i + 1], int(np.count_nonzero(kinds[2 * i])))
-        for i in range(len(masks))
+        _pair_counts_numpy(np.ravel(n), np.ravel(m), target, masks, a, b)
+        for n, m in zip(needs, moveds, strict=True)
     ]
 
 
@@ -316,21 +346,21 @@ def pair_counts_within(
 ) -> list[tuple[np.ndarray, np.ndarray, int]]:
     """:func:`pair_counts` over the cells of each of ``masks`` (bool, ``None``: all cells), in
     one pass: the online decision counts every frame over all cells and over the changed ones,
-    and most of the work (which cells an offset can flip, sorted by ``need``) is the same."""
-    need, moved, target = (np.ravel(x) for x in (need, moved, target))
-    a, b = np.asarray(occupied_offsets, np.float64), np.asarray(free_offsets, np.float64)
-    ordered = len(a) and len(b) and (np.diff(a) > 0).all() and (np.diff(b) > 0).all()
-    if available() and ordered:
-        counted = _pair_counts_compiled(
-            np.asarray(need, np.float64),
-            np.asarray(moved, np.float64),
-            np.asarray(target, bool),
-            [None if m is None else np.asarray(np.ravel(m), bool) for m in masks],
-            a,
-            b,
-        )
-        if counted is not None:
-            return counted
+    and most of the work (which cells an offset can flip, sorted by ``need``) is the same.
+    Compiled where available (offsets increasing), the same counts."""
+    return pair_counts_each([need], [moved], target, masks, occupied_offsets, free_offsets)[0]
+
+
+def _pair_counts_numpy(
+    need: np.ndarray,
+    moved: np.ndarray,
+    target: np.ndarray,
+    masks: list[np.ndarray | None],
+    a: np.ndarray,
+    b: np.ndarray,
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """:func:`pair_counts_within` in NumPy (the reference) over flat maps, ``a`` and ``b``
+    float64."""
     free, occupied = moved <= 0.0, moved >= 1.0
     # Per side: the cells at most its largest offset (the rest flip under no pair), sorted by
     # need, and how many of them each offset predicts occupied.
