@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidarflow import compiled
-from lidarflow.predict import offsets
+from lidarflow.predict import logits, offsets
 
 pytestmark = pytest.mark.usefixtures("compile_now")
 
@@ -36,16 +36,16 @@ def _maps(seed: int, shape: tuple[int, ...] = (23, 17)) -> np.ndarray:
 )
 def test_calibrated_logit_and_sigmoid_are_the_plain_chains(p):
     q = np.clip(np.asarray(p, np.float64), 1e-12, 1.0 - 1e-12)
-    logit = np.clip(np.log(q) - np.log1p(-q), -offsets.LOGIT_LIMIT, offsets.LOGIT_LIMIT)
-    got = offsets.calibrated_logit(p)
+    logit = np.clip(np.log(q) - np.log1p(-q), -logits.LOGIT_LIMIT, logits.LOGIT_LIMIT)
+    got = logits.calibrated_logit(p)
     assert got.shape == logit.shape and got.dtype == np.float64
     np.testing.assert_array_equal(got, logit)
     shifted = logit + 0.3 + (1.2 - 0.3) * (np.asarray(p) > 0.5)
-    decided = offsets.sigmoid32(shifted)
+    decided = logits.sigmoid32(shifted)
     assert decided.dtype == np.float32
     np.testing.assert_array_equal(decided, (1.0 / (1.0 + np.exp(-shifted))).astype(np.float32))
     np.testing.assert_array_equal(
-        offsets.decided_probability(p, -0.6),
+        logits.decided_probability(p, -0.6),
         (1.0 / (1.0 + np.exp(-(logit - 0.6)))).astype(np.float32),
     )
 
@@ -58,10 +58,10 @@ def test_once_per_common_value_evaluates_the_rest_on_their_own():
         seen.append(v.copy())
         return v * v
 
-    np.testing.assert_array_equal(offsets.once_per_common_value(square, x), x * x)
+    np.testing.assert_array_equal(logits.once_per_common_value(square, x), x * x)
     assert [s.tolist() for s in seen] == [[2.0], [3.0, 5.0]]
     seen.clear()  # most elements unlike the first: all at once
-    np.testing.assert_array_equal(offsets.once_per_common_value(square, x[2:]), x[2:] ** 2)
+    np.testing.assert_array_equal(logits.once_per_common_value(square, x[2:]), x[2:] ** 2)
     assert [s.tolist() for s in seen] == [x[2:].tolist()]
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from lidarflow.errors import ModelError, PredictError, ScanError
 from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import check_decision_offset
-from lidarflow.predict.offsets import calibrated_logit, sigmoid32
+from lidarflow.predict.logits import calibrated_logit, sigmoid32
 from lidarflow.predict.step import StepInputs, StepOutput
 from lidarflow.scan import GridSpec
 

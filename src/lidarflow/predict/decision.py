@@ -52,14 +52,13 @@ from lidarflow.baselines import (
     Method,
     TemporalAverage,
 )
+from lidarflow.predict.logits import calibrated_logit, sigmoid32
 from lidarflow.predict.lookahead import best_candidate, lookahead_terms
 from lidarflow.predict.offsets import (
     THRESHOLD,
-    calibrated_logit,
     counts_all_and_changed,
     moved_last_map,
     pair_counts_each,
-    sigmoid32,
 )
 
 __all__ = [

@@ -41,7 +41,8 @@ from lidarflow.motion.pacing import paced_motion
 from lidarflow.motion.scanmatch import ScanOdometry, checked_motion
 from lidarflow.predict.decision import DecisionPolicy
 from lidarflow.predict.learning import HeadLearning
-from lidarflow.predict.offsets import decided_probability, moved_last_map
+from lidarflow.predict.logits import decided_probability
+from lidarflow.predict.offsets import moved_last_map
 from lidarflow.predict.step import Backend, StepInputs
 from lidarflow.scan import takes_subcell
 from lidarflow.tracking import Tracker, Tracks

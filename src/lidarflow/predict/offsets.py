@@ -5,8 +5,7 @@ Counting every pair is cheap because a cell's decision depends on one offset alo
 moved map is fractional there: a free cell is predicted occupied iff ``b >= threshold_logit -
 logit``, an occupied one iff ``a >= ...``, so one sorted search per offset grid counts all pairs;
 only the few fractional cells are counted pair by pair. NumPy only: the ONNX Predictor runs
-without PyTorch. The logits the offsets shift are :mod:`lidarflow.predict.logits`' (its names
-are given here too).
+without PyTorch. The logits the offsets shift are :mod:`lidarflow.predict.logits`'.
 """
 
 from __future__ import annotations
@@ -17,27 +16,15 @@ import numpy as np
 
 from lidarflow.compiled import available, kernel, ready
 from lidarflow.geometry import warp_map
-from lidarflow.predict.logits import (
-    LOGIT_LIMIT,
-    calibrated_logit,
-    decided_probability,
-    once_per_common_value,
-    sigmoid32,
-)
 
 __all__ = [
-    "LOGIT_LIMIT",
     "THRESHOLD",
-    "calibrated_logit",
     "counts",
     "counts_all_and_changed",
-    "decided_probability",
     "moved_last_map",
-    "once_per_common_value",
     "pair_counts",
     "pair_counts_each",
     "pair_counts_within",
-    "sigmoid32",
 ]
 
 #: The project's decision threshold: a cell is predicted occupied where its probability is at
