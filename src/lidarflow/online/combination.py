@@ -103,7 +103,7 @@ class Combination:
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
                 stored, rare, before = waiting[0]
                 stacked = stack.learn(stored, rare, occupied)  # as decided before this step
-                candidates = _candidates_decided(stored, stacked)
+                candidates = _candidates_decided(stored, _DECIDED_LEVEL, stacked)
                 leader.score(candidates, rare, experts.region, occupied, before)
             rare = experts.rare[k]
             probability[k], decided[k] = _chosen(stack, leader.choice, maps[:, k], rare)
@@ -171,20 +171,16 @@ def candidate_maps(stack: HorizonStacking, experts: np.ndarray, rare: np.ndarray
     of the experts' maps ``(E, H, W)`` for one horizon with its ``rare`` cells, as
     :meth:`Combination.step` would output each if it were chosen (``stack``: that horizon's
     stacking, as it is now)."""
-    out = np.empty((len(CANDIDATES), *experts.shape[1:]), bool)
-    np.greater_equal(experts, DECIDED, out=out[: len(experts)])
-    for n, (i, j) in enumerate(_UNIONS, start=len(experts)):
-        np.logical_or(out[i], out[j], out=out[n])
-    np.greater_equal(stack.decided(experts, rare)[1], DECIDED, out=out[_STACKED])
-    return out
+    return _candidates_decided(experts, DECIDED, stack.decided(experts, rare)[1])
 
 
-def _candidates_decided(experts: np.ndarray, stacked: np.ndarray) -> np.ndarray:
-    """The candidates' decided maps ``(C, H, W)`` bool in the order of :data:`CANDIDATES`:
-    of the quantised ``experts`` ``(E, H, W)`` uint8 (``p = q / 255``) and their unions at
-    :data:`DECIDED`, and of the ``stacked`` decided probability ``(H, W)``."""
+def _candidates_decided(experts: np.ndarray, level: float | int, stacked: np.ndarray) -> np.ndarray:
+    """The candidates' decided maps ``(C, H, W)`` bool in the order of :data:`CANDIDATES`: of
+    the ``experts`` ``(E, H, W)`` and their unions, occupied at or above ``level`` (``DECIDED``
+    for probabilities, ``_DECIDED_LEVEL`` for the kept uint8 maps), and of the ``stacked``
+    decided probability ``(H, W)``."""
     out = np.empty((len(CANDIDATES), *experts.shape[1:]), bool)
-    np.greater_equal(experts, _DECIDED_LEVEL, out=out[: len(experts)])
+    np.greater_equal(experts, level, out=out[: len(experts)])
     for n, (i, j) in enumerate(_UNIONS, start=len(experts)):
         np.logical_or(out[i], out[j], out=out[n])  # the larger is decided if either is
     np.greater_equal(stacked, DECIDED, out=out[_STACKED])
