@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from lidarflow.geometry import near
+from lidarflow.evaluate.metrics import confusion
+from lidarflow.evaluate.movers import TolerantCounts
 from lidarflow.online.combination import CANDIDATES
 from lidarflow.online.leader import LOSS_WEIGHT, Leader
 from lidarflow.scan import GridSpec
@@ -84,14 +85,14 @@ class Capture:
         truth, before = self.occupied[self.scored + k], self.occupied[self.scored]
         region = self.region[self.scored + k]
         changed = before != truth
-        guess, true = decided & region, truth & region
-        right = np.count_nonzero(guess & near(true))
-        found = np.count_nonzero(true & near(guess))
-        guessed, present = np.count_nonzero(guess), np.count_nonzero(true)
-        precision, recall = _share(right, guessed), _share(found, present)
-        # as the mover metric: 1 with nothing to find nor predicted
-        tolerant = _share(2 * precision * recall, precision + recall) if guessed + present else 1.0
-        return np.array([_f1(decided, truth), _f1(decided & changed, truth & changed), tolerant])
+        # the horizon tables' own counts, summed over the frames at once
+        return np.array(
+            [
+                confusion(decided, truth).f1,
+                confusion(decided, truth, changed).f1,
+                TolerantCounts.of(decided, truth, region).f1,
+            ]
+        )
 
     def margins(self, decided: np.ndarray, at: int) -> np.ndarray:
         """As the study judges: F1 and changed-cell F1 over the best baseline, tolerant mover
@@ -142,16 +143,6 @@ class Capture:
 def _unpacked(a: np.ndarray) -> np.ndarray:
     """Bit-packed maps of the study's grid (:class:`GridSpec`'s default) as bool."""
     return np.unpackbits(a, axis=-1, count=GridSpec().width).astype(bool)
-
-
-def _f1(guess: np.ndarray, truth: np.ndarray) -> float:
-    tp = np.count_nonzero(guess & truth)
-    wrong = np.count_nonzero(guess ^ truth)
-    return 2 * tp / (2 * tp + wrong) if tp + wrong else 1.0
-
-
-def _share(a: float, b: float) -> float:
-    return a / b if b else 0.0
 
 
 def weighed(margins: np.ndarray) -> np.ndarray:
