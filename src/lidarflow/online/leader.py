@@ -39,6 +39,7 @@ class Leader:
     ) -> None:
         self.candidates, self.first, self.decay = candidates, first, decay
         self.tolerance, self.baselines = tolerance, baselines
+        self._baselines = np.array(baselines, np.int64)  # as the compiled choice takes them
         self.reset()
 
     def reset(self) -> None:
@@ -87,8 +88,7 @@ class Leader:
         self.choice = self._best()
 
     def _best(self) -> tuple[int, int]:
-        baselines = np.array(self.baselines, np.int64)
-        args = (self._f1, self._tolerant, self.first, baselines, LOSS_WEIGHT)
+        args = (self._f1, self._tolerant, self.first, self._baselines, LOSS_WEIGHT)
         if ready(best_pair_loop, *args):
             a, b = best_pair_loop(*args)
             return int(a), int(b)
