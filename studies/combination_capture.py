@@ -18,6 +18,7 @@ from lidarflow.evaluate.stream import mover_region
 from lidarflow.online.combination import Combination, candidate_maps
 from lidarflow.online.experts import ExpertMaps, Experts
 from lidarflow.scan import GridSpec
+from studies.harness import write_arrays
 from studies.movers import horizon_of
 
 __all__ = ["Recorded", "capture"]
@@ -93,8 +94,5 @@ def capture(path: Path, model: Path | None, target: Path) -> dict[str, Any]:
         "causal_region": np.stack([f[2] for f in recorded.frames]),
         **{f"method/{m}": np.stack([by_t[t] for t in frames_scored]) for m, by_t in ahead.items()},
     }
-    target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_suffix(".partial.npz")
-    np.savez_compressed(partial, **arrays)
-    partial.replace(target)
+    write_arrays(target, arrays)  # a killed capture leaves no file the tables would read
     return scored.horizon or {}

@@ -17,9 +17,9 @@ import os
 import shlex
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 # The tracker since issue 44; reports made before it lack it and are judged by the three.
 BASELINES = ("copy_last", "temporal_average", "constant_velocity", "tracker")
@@ -121,11 +121,23 @@ def _plain(value: Any) -> Any:
 def write_atomic(path: Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file beside it, so that a killed study
     leaves the previous file or the new one, never half of one."""
+    return _replaced(path, lambda handle: handle.write(text.encode()))
+
+
+def write_arrays(path: Path, arrays: dict[str, Any]) -> Path:
+    """``arrays`` (NumPy's) to ``path`` as a compressed npz, atomically as
+    :func:`write_atomic`."""
+    import numpy as np  # here: the studies that only read reports need none
+
+    return _replaced(path, lambda handle: np.savez_compressed(handle, **arrays))
+
+
+def _replaced(path: Path, write: Callable[[BinaryIO], object]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
+        with os.fdopen(fd, "wb") as handle:
+            write(handle)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -82,6 +82,21 @@ def test_write_atomic_leaves_the_old_file_when_killed(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == [target]  # no temporary left beside it
 
 
+def test_write_arrays_reads_back_and_a_killed_write_leaves_nothing(tmp_path, monkeypatch):
+    import numpy as np
+
+    target = harness.write_arrays(tmp_path / "a.npz", {"x": np.arange(3)})
+    assert np.load(target)["x"].tolist() == [0, 1, 2]
+
+    def killed(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez_compressed", killed)
+    with pytest.raises(KeyboardInterrupt):
+        harness.write_arrays(tmp_path / "b.npz", {"x": np.arange(3)})
+    assert list(tmp_path.iterdir()) == [target]  # neither b.npz nor its temporary
+
+
 def test_verdict_and_judged_follow_the_rule():
     base = {b: {"f1": 0.5, "changed_f1": 0.2, "ap": 0.5} for b in harness.BASELINES}
     methods = {**base, "m": {"f1": 0.6, "changed_f1": 0.1, "ap": 0.6}}
