@@ -193,6 +193,29 @@ def test_where_the_flow_moves_what_stays_the_unmoved_map_is_chosen():
     assert not decision.unmoved and decision.margins().shape[0] == 1
 
 
+@pytest.mark.parametrize("gain", [4.0, None])
+def test_apply_decides_as_the_update_with_the_same_choice(gain):
+    # A roll-out's step re-decides with the choice the last update made: the same map, within
+    # a float32 rounding, on fractional maps (a fed-back probability) as on 0/1 ones.
+    rng = np.random.default_rng(3)
+    decision = OnlineDecision(0.3, OnlineDecisionConfig(min_frames=2), gain)
+    for t in range(8):
+        probability = rng.random((12, 14), np.float32)
+        occupancy = rng.random((12, 14)) < 0.3
+        moved = np.roll(occupancy, t % 3, axis=1).astype(np.float32)
+        decided = decision.update(probability, occupancy, np.ones_like(occupancy), moved)
+        np.testing.assert_array_max_ulp(
+            decision.apply(probability, occupancy, moved), decided, maxulp=1
+        )
+        fed = rng.random((12, 14), np.float32)  # a fed-back probability as the last map
+        logits, maps = decision._candidates(probability, fed, moved)
+        for unmoved in (False, True) if gain else (False,):  # either choice, made or not
+            decision.unmoved = unmoved
+            np.testing.assert_array_max_ulp(
+                decision.apply(probability, fed, moved), decision._decided(logits, maps), maxulp=1
+            )
+
+
 def test_reset_forgets_the_stream_and_a_new_shape_needs_one():
     maps, logits, moved = _stream(14, seed=2)
     decision = OnlineDecision(0.6, OnlineDecisionConfig(min_frames=2))

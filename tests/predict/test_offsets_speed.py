@@ -44,9 +44,29 @@ def test_calibrated_logit_and_sigmoid_are_the_plain_chains(p):
     decided = logits.sigmoid32(shifted)
     assert decided.dtype == np.float32
     np.testing.assert_array_equal(decided, (1.0 / (1.0 + np.exp(-shifted))).astype(np.float32))
-    np.testing.assert_array_equal(
-        logits.decided_probability(p, -0.6),
-        (1.0 / (1.0 + np.exp(-(logit - 0.6)))).astype(np.float32),
+    chain = (1.0 / (1.0 + np.exp(-(logit - 0.6)))).astype(np.float32)
+    np.testing.assert_array_max_ulp(logits.decided_probability(p, -0.6), chain, maxulp=1)
+
+
+def test_shifted_probability_is_the_chain_within_a_rounding():
+    rng = np.random.default_rng(7)
+    p = np.concatenate(
+        [
+            rng.random(4000, np.float32),
+            np.float32([0.0, 1.0, 1e-30, 1e-7, 0.5, 1.0 - 6e-8, 0.99999994]),
+            rng.random(100, np.float32) * np.float32(1e-6),  # beyond the logit's limits
+        ]
+    )
+    shift = rng.uniform(-20.0, 20.0, p.shape)
+    shift[::5] = 0.0
+    chain = logits.sigmoid32(logits.calibrated_logit(p) + shift)
+    got = logits.shifted_probability(p, shift)
+    assert got.dtype == np.float32
+    np.testing.assert_array_max_ulp(got, chain, maxulp=1)
+    # most cells to the bit: the rounding differs only where float64 sits on a float32 tie
+    assert np.count_nonzero(got != chain) <= p.size // 1000
+    np.testing.assert_array_max_ulp(
+        logits.shifted_probability(p, 1.5), logits.sigmoid32(logits.calibrated_logit(p) + 1.5)
     )
 
 

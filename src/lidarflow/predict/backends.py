@@ -19,7 +19,7 @@ import numpy as np
 from lidarflow.errors import ModelError, PredictError, ScanError
 from lidarflow.models.config import Capabilities
 from lidarflow.models.weights import check_decision_offset
-from lidarflow.predict.logits import calibrated_logit, sigmoid32
+from lidarflow.predict.logits import shifted_probability
 from lidarflow.predict.step import StepInputs, StepOutput
 from lidarflow.scan import GridSpec
 
@@ -224,8 +224,7 @@ class OnnxBackend:
                 feeds["next_motion"] = n.reshape(1, 3)
         probability, out, *next_state = self.session.run(None, feeds)
         if self._baked_offset:
-            logit = calibrated_logit(probability) - self._baked_offset
-            probability = sigmoid32(logit)
+            probability = shifted_probability(probability, -self._baked_offset)
         return StepOutput(probability, out, next_state)
 
 

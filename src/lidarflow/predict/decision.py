@@ -52,7 +52,7 @@ from lidarflow.baselines import (
     Method,
     TemporalAverage,
 )
-from lidarflow.predict.logits import calibrated_logit, sigmoid32
+from lidarflow.predict.logits import calibrated_logit, shifted_probability, sigmoid32
 from lidarflow.predict.lookahead import best_candidate, lookahead_terms
 from lidarflow.predict.offsets import (
     THRESHOLD,
@@ -242,19 +242,25 @@ class OnlineDecision:
     ) -> np.ndarray:
         """``probability`` re-decided with the current choice (:attr:`offsets`, :attr:`unmoved`),
         nothing scored: for the predictions a roll-out feeds back (``occupancy`` may then be a
-        fed-back probability map)."""
-        return self._decided(*self._candidates(probability, occupancy, moved, every=False))
+        fed-back probability map). The same as :meth:`update`'s decided map within a float32
+        rounding (:func:`~lidarflow.predict.logits.shifted_probability`)."""
+        a, b = self.offsets
+        split = np.clip(np.asarray(moved, np.float64), 0.0, 1.0)
+        shift: np.ndarray | float = 0.0
+        if self.unmoved:  # g * O^t + r, split by O^t
+            last = np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)
+            shift, split = self.gain * (last - split), last  # type: ignore[operator]
+        return shifted_probability(probability, shift + b + (a - b) * split)
 
     def _candidates(
-        self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray, every: bool = True
+        self, probability: np.ndarray, occupancy: np.ndarray, moved: np.ndarray
     ) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """The head's logit (no offset) and the map splitting occupied from free cells, for
-        the moved map and (with a gain) the unmoved one; not ``every``: the unmoved one only
-        where it is the current choice (a roll-out's step decides with that alone)."""
+        the moved map and (with a gain) the unmoved one."""
         moved = np.clip(np.asarray(moved, np.float64), 0.0, 1.0)
         logit = calibrated_logit(probability)
         logits, maps = [logit], [moved]
-        if self.gain is not None and (every or self.unmoved):
+        if self.gain is not None:
             last = np.clip(np.asarray(occupancy, np.float64), 0.0, 1.0)
             logits.append(logit + self.gain * (last - moved))  # g * O^t + r
             maps.append(last)

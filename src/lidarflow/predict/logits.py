@@ -15,12 +15,15 @@ __all__ = [
     "calibrated_logit",
     "decided_probability",
     "once_per_common_value",
+    "shifted_probability",
     "sigmoid32",
 ]
 
 #: float32 probabilities saturate near 0 and 1; logits beyond this are far from every offset's
 #: threshold anyway.
 LOGIT_LIMIT = 15.0
+# The probabilities whose logits are +-LOGIT_LIMIT.
+_LOWEST, _HIGHEST = 1.0 / (1.0 + np.exp(LOGIT_LIMIT)), 1.0 / (1.0 + np.exp(-LOGIT_LIMIT))
 
 
 def once_per_common_value(
@@ -78,4 +81,19 @@ def decided_probability(probability: np.ndarray, offset: float) -> np.ndarray:
     thresholds at 0.4 (``p`` itself for offset 0)."""
     if offset == 0.0:
         return np.asarray(probability, np.float32)
-    return sigmoid32(calibrated_logit(probability) + offset)
+    return shifted_probability(probability, offset)
+
+
+def shifted_probability(probability: np.ndarray, shift: np.ndarray | float) -> np.ndarray:
+    """``sigmoid32(calibrated_logit(probability) + shift)`` within a float32 rounding, by
+    ``p e^s / (p e^s + 1 - p)`` with ``p`` clipped to the probabilities of the logit's limits:
+    one exponential a cell where that chain takes three (a roll-out's every step decides its
+    whole map so). ``1 - p`` is exact for a float32 ``p`` above 0.5 in float64, so there is no
+    cancellation near 1.
+
+    >>> float(shifted_probability(np.array([0.5], np.float32), np.log(3.0))[0])
+    0.75
+    """
+    p = np.clip(np.asarray(probability, np.float64), _LOWEST, _HIGHEST)
+    scaled = p * once_per_common_value(np.exp, np.asarray(shift, np.float64))
+    return (scaled / (scaled + (1.0 - p))).astype(np.float32)  # type: ignore[no-any-return]
