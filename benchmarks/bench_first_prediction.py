@@ -15,7 +15,7 @@ compiling at the first prediction, and the slowest update after the first
 Each round runs the four once, in turn; medians over ``--rounds``. One thread, no poses (scan
 matching runs). Writes JSON (default ``benchmarks/results/first_prediction.json``).
 
-    python benchmarks/bench_first_prediction.py [--rounds 3] [--scans 100]
+    python benchmarks/bench_first_prediction.py [--rounds 3] [--scans 100] [--ways ...]
 """
 
 from __future__ import annotations
@@ -75,14 +75,23 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--scans", type=int, default=100)
     parser.add_argument(
+        "--ways", nargs="+", choices=list(WAYS), default=list(WAYS),
+        help="the ways timed (later_run reads the cache first_run leaves: it needs first_run)",
+    )  # fmt: skip
+    parser.add_argument(
         "--json", type=Path, default=REPO / "benchmarks" / "results" / "first_prediction.json"
     )
     args = parser.parse_args()
-    runs: dict[str, list[dict[str, Any]]] = {way: [] for way in WAYS}
+    if "later_run" in args.ways and "first_run" not in args.ways:
+        parser.error("later_run reads the cache first_run leaves: name first_run too")
+    if "numpy" not in args.ways:
+        parser.error("numpy is the reference the others are divided by: name it too")
+    ways = {way: WAYS[way] for way in WAYS if way in args.ways}
+    runs: dict[str, list[dict[str, Any]]] = {way: [] for way in ways}
     load = [os.getloadavg()[0]]
     for r in range(args.rounds):
         with tempfile.TemporaryDirectory() as folder:
-            for way, (mode, cache) in WAYS.items():
+            for way, (mode, cache) in ways.items():
                 # a fresh cache: a folder of its own; the later run reads the first run's
                 where = Path(folder) / ("first_run" if cache == "kept" else way)
                 runs[way].append(run_once(mode, where, args.scans))

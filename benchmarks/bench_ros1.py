@@ -1,8 +1,9 @@
 """Latency of the live ROS 1 node (`lidarflow ros1`) beside the Predictor's own, machine loaded.
 
-In one run, with one busy process (a Python loop) beside everything: the Predictor's own
-latency per scan (``update`` on the bundled sample's scans in this process, no poses, as the
-node gets them; timed before and after the ROS run, the two pooled), and the ROS loop's:
+In one run, with one busy process (a Python loop) beside everything (unless ``--no-load``):
+the Predictor's own latency per scan (``update`` on the bundled sample's scans in this process,
+no poses, as the node gets them; timed before and after the ROS run, the two pooled), and the
+ROS loop's:
 
 - ``node``: the node's own timestamps, scan callback entered (the message deserialised) to its
   last grid published (handed to rospy), from its per-scan debug log: what the target is about,
@@ -16,7 +17,7 @@ bundled model exported to ONNX (no PyTorch at run time), one thread. The first `
 scans are left out of every figure. Target (issue 37): node <= 1.5x the Predictor, median and
 p99. Writes JSON (default ``benchmarks/results/ros1.json``).
 
-    python benchmarks/bench_ros1.py [--scans 243] [--horizon 1] [--moving]
+    python benchmarks/bench_ros1.py [--scans 243] [--horizon 1] [--moving] [--no-load]
 """
 
 from __future__ import annotations
@@ -139,6 +140,11 @@ def main() -> None:
     parser.add_argument("--horizon", type=int, default=1)
     parser.add_argument("--moving", action="store_true")
     parser.add_argument("--warmup", type=int, default=10)
+    parser.add_argument(
+        "--no-load", dest="load", action="store_false",
+        help="no busy process beside the node (a quiet machine; the figures are then not "
+             "those of the recorded run)",
+    )  # fmt: skip
     parser.add_argument("--json", type=Path, default=Path("benchmarks/results/ros1.json"))
     args = parser.parse_args()
     from lidarflow.models.presets import resolve_model
@@ -147,7 +153,10 @@ def main() -> None:
 
     recording = read_bag(sample_bag_path())
     scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]
-    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+    busy = None
+    if args.load:
+        loop = [sys.executable, "-c", "while True: pass"]
+        busy = subprocess.Popen(loop, start_new_session=True)
     try:
         with tempfile.TemporaryDirectory() as folder:
             tmp = Path(folder)
@@ -158,7 +167,8 @@ def main() -> None:
             node_ms, e2e_ms = ros_loop(model, len(scans), args.horizon, args.moving, tmp)
             after = own_latency(model, scans, args.horizon, args.moving, args.warmup)
     finally:
-        stop(busy, signal.SIGKILL)
+        if busy is not None:
+            stop(busy, signal.SIGKILL)
     own = stats(before + after)
     node, e2e = stats(node_ms[args.warmup :]), stats(e2e_ms[args.warmup :])
     ratios = {f"{name}_vs_predictor_{q}": figures[f"{q}_ms"] / own[f"{q}_ms"]
@@ -175,7 +185,8 @@ def main() -> None:
         "model": "bundled, exported to ONNX (onnxruntime, 1 thread)",
         "horizon": args.horizon,
         "moving": args.moving,
-        "load": "one busy process (a Python loop) beside the node, roscore and the peer",
+        "load": "one busy process (a Python loop) beside the node, roscore and the peer"
+        if args.load else "none added (--no-load)",
         "machine": machine(),
         "measures": {
             "predictor": "Predictor.update per scan in one process (before and after the ROS "

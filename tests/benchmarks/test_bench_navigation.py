@@ -19,7 +19,7 @@ KEYS = ("episodes", "success_rate", "collision_rate", "min_distance_m", "time_s"
 def test_bench_navigation_writes_every_source_and_crowd(tmp_path):
     out = tmp_path / "navigation.json"
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
-    args = ["--episodes", "1", "--crowds", "0", "2", "--json", str(out)]
+    args = ["--episodes", "1", "--crowds", "0", "2", "--workers", "2", "--json", str(out)]
     done = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "bench_navigation.py"), *args],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,

@@ -6,8 +6,9 @@ wall clock every process on the machine shares); the data of the first ``--keep`
 each topic are kept whole. With ``--publish BAG`` it also plays the bag's scans itself, at
 ``--rate`` times their recorded pace, noting when each went out, so that a benchmark gets the
 latency from the scan sent to its grids received. It prints ``ready`` once every grid topic is
-connected, and writes its JSON when ``--count`` grids came on every grid topic, or nothing came
-for ``--idle`` seconds, or after ``--timeout`` seconds.
+connected, and writes its JSON when ``--count`` grids came on every grid topic, or every scan
+seen has its grids and none came for ``--settle`` seconds, or nothing came for ``--idle``
+seconds, or after ``--timeout`` seconds.
 
     /usr/bin/python3 ros1_peer.py --out OUT.json --scan-topic /scan --grids /lidarflow/predicted
 """
@@ -36,6 +37,10 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=1.0)
     parser.add_argument("--limit", type=int, default=0, help="publish only the first N scans")
     parser.add_argument("--idle", type=float, default=10.0)
+    parser.add_argument(
+        "--settle", type=float, default=2.0,
+        help="seconds without grids after which a peer whose every scan has its grids ends",
+    )  # fmt: skip
     parser.add_argument("--timeout", type=float, default=120.0)
     args = parser.parse_args()
 
@@ -91,6 +96,10 @@ def main() -> None:
     while time.monotonic() - start < args.timeout and time.monotonic() - last[0] < args.idle:
         with lock:
             if args.count and all(len(g) >= args.count for g in grids.values()):
+                break
+            # every scan seen has its grids and none came for a while: the scans have ended
+            answered = scans and all(len(g) >= len(scans) for g in grids.values())
+            if answered and time.monotonic() - last[0] >= args.settle:
                 break
         time.sleep(0.05)
     with lock:

@@ -289,13 +289,14 @@ def test_a_model_without_an_occupancy_head_is_refused(random_flownet_dir):
 def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_flownet_dir):
     import json
 
-    from lidarflow.data import sample_bag_path
+    from lidarflow.data import read_bag, sample_bag_path
     from tests.conftest import make_model_dir
     from tests.test_cli import run
 
     model = make_model_dir(tmp_path / "head", occupancy_head=True, decision_offset=-3.0)
     out = tmp_path / "e.json"
-    argv = ["evaluate", str(sample_bag_path()), "-m", str(model), "--online-decision"]
+    part = read_bag(sample_bag_path()).slice(0, 80).save(tmp_path / "part.npz")
+    argv = ["evaluate", str(part), "-m", str(model), "--online-decision"]
     code, text, err = run([*argv, "--json", str(out), "--ta-window", "8"], capsys)
     assert code == 0, err
     report = json.loads(out.read_text())
@@ -304,8 +305,9 @@ def test_evaluate_online_decision_on_the_command_line(tmp_path, capsys, random_f
     # It measures itself against the temporal average the report scores.
     decided = report["config"]["online_decision"]
     assert decided["decay"] == 0.98 and decided["ta_window"] == 8
-    code, _, err = run(["evaluate", str(sample_bag_path()), "-m", str(random_flownet_dir),
-                        "--online-decision"], capsys)  # fmt: skip
+    code, _, err = run(
+        ["evaluate", str(part), "-m", str(random_flownet_dir), "--online-decision"], capsys
+    )
     assert code == 1 and "occupancy head" in err and len(err.strip().splitlines()) == 1
 
 
