@@ -10,8 +10,9 @@
 #      install with the ros2 extra (ROS 2 Jazzy's wheels from PyPI), which the ROS 2 node's tests
 #      (tests/live/test_ros2_node.py) run the node and its peers with; a venv of its own, as its
 #      message packages would shadow ROS 1's in .venv;
-#   4. ruff, then the whole suite. LIDARFLOW_REQUIRE_ROS=1 makes the ROS tests (ROS 1 and ROS 2)
-#      and the npm client's fail rather than skip, so the suite never passes by skipping them.
+#   4. ruff, then the whole suite on two workers (pytest-xdist). LIDARFLOW_REQUIRE_ROS=1 makes
+#      the ROS tests (ROS 1 and ROS 2) and the npm client's fail rather than skip, so the suite
+#      never passes by skipping them.
 # Any failure stops it with a non-zero exit, pytest's 5 ("no tests collected") included.
 # `--fast` (first argument): the fast tier, for a developer's loop: the tests not marked `slow`
 # (under 2 minutes); CI runs everything. Other arguments go to pytest.
@@ -61,4 +62,7 @@ python3 -m venv .venv-ros2
 .venv-ros2/bin/pip install -q -e ".[ros2]"
 .venv/bin/ruff check .
 export LIDARFLOW_REQUIRE_ROS=1
-exec .venv/bin/python -m pytest ${tier[@]+"${tier[@]}"} "$@"
+# Two workers, one a core of the 2-core machines CI runs on, each at one thread (PyTorch's and
+# NumPy's own threads beside a second worker only wait on each other).
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
+exec .venv/bin/python -m pytest -n 2 ${tier[@]+"${tier[@]}"} "$@"

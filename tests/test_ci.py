@@ -80,7 +80,8 @@ def test_lint_then_the_whole_suite_with_the_ros_tests_required(checkout):
     assert code == 0, log
     ruff = next(i for i, line in enumerate(log) if line.startswith("ruff check ."))
     pytest_line = log[-1]
-    assert pytest_line.startswith("python -m pytest -k x ") and "REQUIRE_ROS=1" in pytest_line
+    # on two workers (pytest-xdist), the ROS tests required
+    assert pytest_line.startswith("python -m pytest -n 2 -k x ") and "REQUIRE_ROS=1" in pytest_line
     assert ruff < len(log) - 1
     assert any(line.startswith('pip install -q -e .[dev]') for line in log)
     assert any(line.startswith("pip install -q -e .[ros2]") for line in log)  # .venv-ros2
@@ -89,7 +90,7 @@ def test_lint_then_the_whole_suite_with_the_ros_tests_required(checkout):
 def test_the_fast_tier_leaves_out_the_slow_tests(checkout):
     code, log = run_script(checkout, ["scripts/test.sh", "--fast", "-x"])
     assert code == 0, log
-    assert log[-1].startswith("python -m pytest -m not slow -x ")
+    assert log[-1].startswith("python -m pytest -n 2 -m not slow -x ")
 
 
 @pytest.mark.parametrize(("failing", "status"), [("ruff", 1), ("pip", 2), ("python", 5)])
