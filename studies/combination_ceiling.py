@@ -102,19 +102,22 @@ class Capture:
         got = self.metrics(decided, at)
         return np.array([got[0] - best[0], got[1] - best[1], got[2] - base["copy_last"][2]])
 
-    def replay(self, at: int, split: str) -> np.ndarray:
-        """The combination's leader replayed over every frame's kept candidates, deciding the
-        cells ``split`` (:data:`SPLITS`) apart: its decided maps of the scored frames
-        ``(T, H, W)``. The candidates it scores are those output (the experts' maps decided
-        as they are, not as kept in eight bits), so the rare split is close to, not the same
-        as, the combination as it ran."""
+    def replay(self, at: int, split: str, extra: np.ndarray | None = None) -> np.ndarray:
+        """The combination's leader replayed over every frame's kept candidates (and ``extra``
+        ones ``(frames, E, H, W)`` bool after them), deciding the cells ``split``
+        (:data:`SPLITS`) apart: its decided maps of the scored frames ``(T, H, W)``. The
+        candidates it scores are those output (the experts' maps decided as they are, not as
+        kept in eight bits), so the rare split is close to, not the same as, the combination
+        as it ran."""
         z = np.load(self.path)
         candidates = _unpacked(z["candidates"])[:, at]
+        if extra is not None:
+            candidates = np.concatenate([candidates, extra[: len(candidates)]], axis=1)
         masks = _unpacked(z["rare"])[:, at] if split == "rare" else _unpacked(z["causal_region"])
         region = _unpacked(z["causal_region"])
         k = 1 if at == 0 else self.horizon
         simple = tuple(CANDIDATES.index(n) for n in ("copy_last", "temporal_average", "tracker"))
-        leader = Leader(len(CANDIDATES), CANDIDATES.index("model"), baselines=simple)
+        leader = Leader(candidates.shape[1], CANDIDATES.index("model"), baselines=simple)
         out = np.empty(candidates.shape[:1] + candidates.shape[2:], bool)
         for t in range(len(candidates)):
             if t >= k:  # frame t labels what was predicted k frames before
@@ -299,8 +302,8 @@ def table(folders: list[Path], halves: bool = False) -> str:
                 continue
             won = int((m > 0).all(axis=1).sum())
             lines.append(
-                f"| {c} | {'k=1' if at == '0' else '~1 s'} | {_fmt(m.mean(0))} | "
-                f"{_fmt(m.min(0))} | {won}/{len(m)} |"
+                f"| {c} | {'k=1' if at == '0' else '~1 s'} | {margins_text(m.mean(0))} | "
+                f"{margins_text(m.min(0))} | {won}/{len(m)} |"
             )
     write_json(folders[0].parent / ("warm.json" if halves else "ceiling.json"), rows)
     return "\n".join(lines)
@@ -308,10 +311,11 @@ def table(folders: list[Path], halves: bool = False) -> str:
 
 def _cell(entry: dict[str, Any]) -> str:
     pair = f" ({'/'.join(entry['pair'])})" if "pair" in entry else ""
-    return _fmt(np.array(entry["margins"])) + pair
+    return margins_text(np.array(entry["margins"])) + pair
 
 
-def _fmt(m: np.ndarray) -> str:
+def margins_text(m: np.ndarray) -> str:
+    """Margins ``(3,)`` as the tables print them: all-cell / changed / tolerant mover."""
     return f"{m[0]:+.4f} / {m[1]:+.3f} / {m[2]:+.3f}"
 
 

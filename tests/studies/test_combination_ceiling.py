@@ -8,6 +8,7 @@ import numpy as np
 from lidarflow.online.combination import CANDIDATES
 from lidarflow.sim import SimConfig, write_simulation
 from studies import combination_ceiling as study
+from studies import still_candidate
 from studies.combination_capture import capture
 from studies.online_combination import KEYS
 
@@ -63,3 +64,24 @@ def test_the_pair_left_out_is_the_best_on_the_other_recordings():
     assert a["left_out_rare"]["pair"] == [CANDIDATES[1], CANDIDATES[2]]
     assert a["left_out_rare"]["margins"] == [-0.1, -0.1, -0.1]
     assert rows["b@1"]["left_out_region"]["pair"] == [CANDIDATES[1], CANDIDATES[2]]
+
+
+def test_a_ninth_candidate_is_replayed_and_tabled(tmp_path):
+    recording = tmp_path / "static.npz"
+    write_simulation(recording, 40, 7, SimConfig(scenario="static"))
+    capture(recording, None, tmp_path / "s0" / "static.npz")
+    fold = study.Capture(tmp_path / "s0" / "static.npz")
+    z = np.load(fold.path)
+    kept = study._unpacked(z["candidates"])
+    for at in (0, 1):
+        # a copy of a candidate already there changes no choice: ties go to the first
+        copy = kept[:, at, CANDIDATES.index("tracker")][:, None]
+        for split in study.SPLITS:
+            np.testing.assert_array_equal(
+                fold.replay(at, split, copy), fold.replay(at, split), err_msg=split
+            )
+    seeds = still_candidate.main([str(tmp_path / "s0"), "-o", str(tmp_path / "out")])
+    row = seeds[0]["static@1"]
+    assert set(row["hindsight"]) == set(study.SPLITS)
+    assert {"replay_still_rare", "replay_region", "model_combined"} <= set(row)
+    assert "| static | ~1 s |" in (tmp_path / "out" / "summary.md").read_text()
