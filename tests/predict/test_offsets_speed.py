@@ -68,6 +68,12 @@ def test_shifted_probability_is_the_chain_within_a_rounding():
     np.testing.assert_array_max_ulp(
         logits.shifted_probability(p, 1.5), logits.sigmoid32(logits.calibrated_logit(p) + 1.5)
     )
+    for far in (-1e4, -800.0, 800.0, 1e4):  # saturated as the chain, no overflow
+        with np.errstate(over="raise"):
+            got = logits.shifted_probability(p, far)
+        with np.errstate(over="ignore"):  # the chain's exp(1e4) overflows, to the right 0
+            chain = logits.sigmoid32(logits.calibrated_logit(p) + far)
+        np.testing.assert_array_equal(got, chain)
 
 
 def test_once_per_common_value_evaluates_the_rest_on_their_own():

@@ -24,6 +24,7 @@ __all__ = [
 LOGIT_LIMIT = 15.0
 # The probabilities whose logits are +-LOGIT_LIMIT.
 _LOWEST, _HIGHEST = 1.0 / (1.0 + np.exp(LOGIT_LIMIT)), 1.0 / (1.0 + np.exp(-LOGIT_LIMIT))
+_EXP_LIMIT = 700.0
 
 
 def once_per_common_value(
@@ -95,5 +96,7 @@ def shifted_probability(probability: np.ndarray, shift: np.ndarray | float) -> n
     0.75
     """
     p = np.clip(np.asarray(probability, np.float64), _LOWEST, _HIGHEST)
-    scaled = p * once_per_common_value(np.exp, np.asarray(shift, np.float64))
+    # beyond +-700 the answer is 0 or 1 already, and exp(710) would overflow
+    shift = np.clip(np.asarray(shift, np.float64), -_EXP_LIMIT, _EXP_LIMIT)
+    scaled = p * once_per_common_value(np.exp, shift)
     return (scaled / (scaled + (1.0 - p))).astype(np.float32)  # type: ignore[no-any-return]
