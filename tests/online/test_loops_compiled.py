@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidarflow import compiled
-from lidarflow.online import stacking
+from lidarflow.online import loops, stacking
 from lidarflow.online.combination import quantised
 from lidarflow.online.leader import Leader, score_counts
 
@@ -130,3 +130,17 @@ def test_the_leaders_choice_is_the_numpy_references(baselines, monkeypatch):
             leader._tolerant = rng.random(leader._tolerant.shape) * 50
         got, expected = _both(monkeypatch, leader._best)
         assert got == expected
+
+
+def test_the_first_best_of_a_grid_is_where_argmax_finds_it():
+    # the choice both the thresholds and the leader's pair end in: the first of equals, the
+    # first NaN, as np.argmax
+    rng = np.random.default_rng(10)
+    grids = [rng.integers(0, 3, (n, m)).astype(np.float64) for n, m in [(4, 5), (8, 8), (1, 6)]]
+    grids += [np.zeros((3, 3)), np.full((2, 4), -np.inf), rng.random((5, 5))]
+    with_nan = rng.random((6, 6))
+    with_nan[[2, 4], [3, 1]] = np.nan
+    grids.append(with_nan)
+    for grid in grids:
+        expected = np.unravel_index(np.argmax(grid), grid.shape)
+        assert loops._first_best(grid) == tuple(int(i) for i in expected)

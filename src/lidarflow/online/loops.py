@@ -290,15 +290,26 @@ def thresholds_loop(
     rare_f1 = np.empty(bins)
     for j in range(bins):
         rare_f1[j] = rare_weight * _f1(tp[1, j], wrong[1, j])
-    best, chosen_common, chosen_rare = -np.inf, 0, 0
+    scores = np.empty((bins, bins))
     for i in range(bins):
         for j in range(bins):
-            score = _f1(tp[0, i] + tp[1, j], wrong[0, i] + wrong[1, j]) + rare_f1[j]
+            scores[i, j] = _f1(tp[0, i] + tp[1, j], wrong[0, i] + wrong[1, j]) + rare_f1[j]
+    return _first_best(scores)
+
+
+@kernel
+def _first_best(scores: np.ndarray) -> tuple[int, int]:
+    """The index ``(i, j)`` of ``scores``' largest, as ``np.argmax`` finds it: the first of
+    equals, or the first NaN."""
+    best, chosen_i, chosen_j = -np.inf, 0, 0
+    for i in range(scores.shape[0]):
+        for j in range(scores.shape[1]):
+            score = scores[i, j]
             if score != score:  # NaN: np.argmax's answer
                 return i, j
             if score > best or (i == 0 and j == 0):
-                best, chosen_common, chosen_rare = score, i, j
-    return chosen_common, chosen_rare
+                best, chosen_i, chosen_j = score, i, j
+    return chosen_i, chosen_j
 
 
 @kernel
@@ -339,23 +350,19 @@ def best_pair_loop(
     best0, best1 = -np.inf, -np.inf
     for i in baselines:
         best0, best1 = max(best0, f1[i, i, 0]), max(best1, f1[i, i, 1])
-    top, chosen_a, chosen_b = -np.inf, 0, 0
+    scores = np.empty((n, n))
     for a in range(n):
         for b in range(n):
             if len(baselines) == 0:
-                score = (f1[a, b, 0] + f1[a, b, 1]) + tolerant[b]
+                scores[a, b] = (f1[a, b, 0] + f1[a, b, 1]) + tolerant[b]
             else:
                 m0 = f1[a, b, 0] - best0
                 m1 = f1[a, b, 1] - best1
                 m2 = tolerant[b] - tolerant[baselines[0]]
-                score = ((m0 + loss_weight * min(m0, 0.0)) + (m1 + loss_weight * min(m1, 0.0))) + (
-                    m2 + loss_weight * min(m2, 0.0)
-                )
-            if score != score:  # NaN: np.argmax's answer
-                return a, b
-            if score > top or (a == 0 and b == 0):
-                top, chosen_a, chosen_b = score, a, b
-    return chosen_a, chosen_b
+                scores[a, b] = (
+                    (m0 + loss_weight * min(m0, 0.0)) + (m1 + loss_weight * min(m1, 0.0))
+                ) + (m2 + loss_weight * min(m2, 0.0))
+    return _first_best(scores)
 
 
 @kernel
