@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from studies.combination_ceiling import Capture, margins_text
 from studies.harness import DEVELOPMENT, parse, parser, stem, write_summary
 
 PRIOR = 0.05  # the occupancy the coarsest context starts from
@@ -154,8 +155,6 @@ def fold_scores(cap: Any, at: int, probability: np.ndarray) -> dict[str, Any]:
 
 def seed_scores(folder: Path, prior_weight: float) -> dict[str, dict[str, Any]]:
     """``{fold: {"0"/"1": fold_scores, "K": horizon}}`` for every capture in ``folder``."""
-    from studies.combination_ceiling import Capture
-
     out: dict[str, dict[str, Any]] = {}
     for path in sorted(folder.glob("*.npz")):
         cap = Capture(path)
@@ -186,10 +185,6 @@ def mean_over_seeds(seeds: list[dict[str, dict[str, Any]]]) -> dict[str, Any]:
     return rows
 
 
-def _fmt(m: Sequence[float]) -> str:
-    return f"{m[0]:+.4f} / {m[1]:+.3f} / {m[2]:+.3f}"
-
-
 def markdown(rows: dict[str, Any]) -> str:
     """Per fold and horizon, then aggregated: margins (all-cell / changed / tolerant mover);
     the spread between seeds of the mover margin: the expert's (alone and region), the
@@ -202,10 +197,11 @@ def markdown(rows: dict[str, Any]) -> str:
         spread = f"{max(ptp['alone'], ptp['region']):.3f} / {ptp['model_combined']:.3f} / "
         spread += f"{ptp['region_in_combined']:.3f}"
         th = "/".join(str(t) for t in r["thresholds"])
-        cells = [_fmt(r["alone"]["margins"]), f"{_fmt(r['region']['margins'])} ({th})"]
-        cells += [_fmt(r[c]["margins"]) for c in ("copy_last", "model_combined")]
+        cells = [margins_text(r["alone"]["margins"])]
+        cells.append(f"{margins_text(r['region']['margins'])} ({th})")
+        cells += [margins_text(r[c]["margins"]) for c in ("copy_last", "model_combined")]
         th = "/".join(str(t) for t in r["thresholds_in_combined"])
-        cells.append(f"{_fmt(r['region_in_combined']['margins'])} ({th})")
+        cells.append(f"{margins_text(r['region_in_combined']['margins'])} ({th})")
         lines.append(f"| {fold} | {r['K']} | " + " | ".join(cells) + f" | {spread} |")
     lines += ["", "| column | at | mean margins | worst fold | folds won |", "|---" * 5 + "|"]
     for at in ("0", "1"):
@@ -213,7 +209,7 @@ def markdown(rows: dict[str, Any]) -> str:
             m = np.array([r[c]["margins"] for key, r in rows.items() if key.endswith("@" + at)])
             won = int((m > 0).all(axis=1).sum())
             when = "k=1" if at == "0" else "~1 s"
-            lines.append(f"| {c} | {when} | {_fmt(m.mean(0))} | {_fmt(m.min(0))} | "
+            lines.append(f"| {c} | {when} | {margins_text(m.mean(0))} | {margins_text(m.min(0))} | "
                          f"{won}/{len(m)} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
