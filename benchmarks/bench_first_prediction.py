@@ -13,7 +13,8 @@ Also when every kernel asked for was compiled (``compiled_s``), how many were st
 compiling at the first prediction, and the slowest update after the first
 (``slowest_update_s``: while kernels compile, the compiling thread shares Python's lock).
 Each round runs the ways named (``--ways``; all four by default) once, in turn; medians over
-``--rounds``. One thread, no poses (scan matching runs). Writes JSON (default ``benchmarks/results/first_prediction.json``).
+``--rounds``. One thread, no poses (scan matching runs). Writes JSON (default
+``benchmarks/results/first_prediction.json``).
 
     python benchmarks/bench_first_prediction.py [--rounds 3] [--scans 100] [--ways ...]
 """
