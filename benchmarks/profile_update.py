@@ -12,9 +12,9 @@ recording is the bundled sample (``positive_2``) or one under ``../shared/data``
 
 from __future__ import annotations
 
+import argparse
 import cProfile
 import pstats
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -102,10 +102,27 @@ def profile(path: str, recording: str, frames: int = 150) -> None:
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "paths",
+        nargs="*",
+        default=["fixed@sample", "online@sample", "h8@sample", "noposes@sample"],
+        help=f"PATH@RECORDING, PATH one of {', '.join(PATHS)} (default: all four on the sample)",
+    )
+    parser.add_argument("--frames", type=int, default=150, help="scans per path (10 warm up)")
+    args = parser.parse_args()
+    specs = [spec.partition("@") for spec in args.paths]
+    unknown = [path for path, _, _ in specs if path not in PATHS]
+    if unknown:
+        parser.error(f"unknown path {unknown[0]!r}: choose from {', '.join(PATHS)}")
+    missing = [r for _, _, r in specs if r and r != "sample" and not (SHARED / r).exists()]
+    if missing:
+        parser.error(f"no recording {missing[0]!r} under {SHARED}")
+    if args.frames <= 10:
+        parser.error("--frames must be above 10 (the first 10 warm up)")
     torch.set_num_threads(1)
-    for spec in sys.argv[1:] or ["fixed@sample", "online@sample", "h8@sample", "noposes@sample"]:
-        path, _, recording = spec.partition("@")
-        profile(path, recording or "sample")
+    for path, _, recording in specs:
+        profile(path, recording or "sample", args.frames)
 
 
 if __name__ == "__main__":
