@@ -35,7 +35,8 @@ pooled over all workers): a machine twice as fast should give about the same
 
 Batched (``--batch``; ``--batch`` without values or ``--no-batch`` skips it): scans/s for ``B``
 streams, the model's PyTorch step on a batch of ``B`` (every tree) and, where the tree has it,
-``B`` streams of the NumPy head step one after another. Writes JSON (default
+``B`` streams of the NumPy head step one after another, each ``B`` over at least
+``--batch-scans`` scans. Writes JSON (default
 ``benchmarks/results/step.json``) with the medians, the ratios of both current variants to the
 reference, and the load (``uptime``) before and after.
 
@@ -332,7 +333,15 @@ def main() -> None:
         "--batch", type=int, nargs="*", default=[1, 8, 64], help="no values: skip batched"
     )
     parser.add_argument("--no-batch", dest="batch", action="store_const", const=[])
-    parser.add_argument("--batch-steps", type=int, default=5)
+    parser.add_argument(
+        "--batch-steps", type=int, default=5, help="steps per batch size, at the least"
+    )
+    parser.add_argument(
+        "--batch-scans",
+        type=int,
+        default=320,
+        help="scans each batch size is timed over, at the least (B = 1 over 5 steps was noise)",
+    )
     parser.add_argument("--json", type=Path, default=Path("benchmarks/results/step.json"))
     args = parser.parse_args()
     current = args.current.resolve()
@@ -379,7 +388,8 @@ def main() -> None:
         for n in args.threads:
             for bsize in args.batch:
                 for v in variants:
-                    got = workers[v, n].ask(f"batched {bsize} {args.batch_steps}")
+                    steps = max(args.batch_steps, -(-args.batch_scans // bsize))
+                    got = workers[v, n].ask(f"batched {bsize} {steps}")
                     batched[f"{v}/threads={n}/B={bsize}"] = got
         pooled = [t for w in workers for t in times[w][WORKLOAD]]
         workload_ms = float(np.median(pooled))
@@ -438,6 +448,7 @@ def main() -> None:
             for v, (_, env, backends) in variants.items()
         },
         "scans_per_setting": rounds * args.chunk,
+        "batch_scans": args.batch_scans,
         "rollout_horizon": ROLLOUT,
         "machine": machine(),
         "load_before": load_before,
