@@ -1,15 +1,16 @@
 """Closed loop: does a robot that plans on lidarflow's predicted maps get through people better?
 
-The same sampling local planner (:mod:`lidarflow.sim.local_planner`) drives a 0.3 m
-differential-drive robot across an open 12 x 12 m hall to a goal 6-10 m away through social
-walkers (:mod:`lidarflow.sim.navigation`), with its obstacles from each of four sources
-(:mod:`lidarflow.sim.obstacles`): ``last_scan``, ``lidarflow`` (the bundled model's maps 1 s
-ahead), ``tracker`` and ``true_future`` (the ceiling). Episode ``seed`` of a crowd size is the
-same scene for every source. Per source and crowd size: success rate and collision rate (95 %
-Wilson intervals), the smallest robot-person centre distance (mean over episodes with people)
-and the time to goal (mean over successes), both with 95 % bootstrap intervals of the mean.
-Beside the last scan, each other source's collisions are compared episode by episode on the
-same scenes (``vs_last_scan``: the scenes where only the last scan collided, where only the
+The same sampling local planner (:mod:`lidarflow.sim.local_planner`) drives a 0.3 m differential-
+drive robot across an open 12 x 12 m hall to a goal 6-10 m away through social walkers
+(:mod:`lidarflow.sim.navigation`), with its obstacles from each of four sources
+(:mod:`lidarflow.sim.obstacles`): ``last_scan``, ``lidarflow`` (the bundled model's maps 1 s ahead),
+``tracker`` and ``true_future`` (the ceiling); ``lidarflow_combined`` on request (the bundled model
+combined online with the simple predictors, learning from each episode's scans). Episode ``seed`` of
+a crowd size is the same scene for every source. Per source and crowd size: success rate and
+collision rate (95 % Wilson intervals), the smallest robot-person centre distance (mean over
+episodes with people) and the time to goal (mean over successes), both with 95 % bootstrap intervals
+of the mean. Beside the last scan, each other source's collisions are compared episode by episode on
+the same scenes (``vs_last_scan``: the scenes where only the last scan collided, where only the
 source did, and the exact two-sided sign test's p-value on those).
 
     python benchmarks/bench_navigation.py                  # small: crowds 0 4 8, 10 episodes
@@ -41,6 +42,10 @@ from lidarflow.sim.navigation import NavConfig, Outcome, run_episode
 from lidarflow.sim.obstacles import SOURCES, make_source
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: The sources a Predictor makes: the bundled model, and the same combined online with the
+#: simple predictors (``Predictor(combine=True)``, reset with every episode as the other).
+PREDICTED = ("lidarflow", "lidarflow_combined")
+CHOICES = (*SOURCES, "lidarflow_combined")
 _PREDICTORS: dict[tuple[Any, int], Predictor] = {}  # one per process, reset every episode
 
 
@@ -80,12 +85,15 @@ def episode(job: tuple[str, int, int]) -> tuple[str, int, int, Outcome]:
     name, walkers, seed = job
     config = NavConfig(walkers=walkers)
     predictor = None
-    if name == "lidarflow":
-        key = (config.grid, config.horizon)
+    if name in PREDICTED:
+        combine = name == "lidarflow_combined"
+        key = (config.grid, config.horizon, combine)
         if key not in _PREDICTORS:
-            _PREDICTORS[key] = Predictor(grid=config.grid, horizon=config.horizon)
+            _PREDICTORS[key] = Predictor(grid=config.grid, horizon=config.horizon, combine=combine)
         predictor = _PREDICTORS[key]
-    source = make_source(name, config.grid, config.horizon, predictor)
+    source = make_source(
+        "lidarflow" if name in PREDICTED else name, config.grid, config.horizon, predictor
+    )
     return name, walkers, seed, run_episode(source, seed, config)
 
 
@@ -176,7 +184,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=10, help="seeded episodes per cell")
     parser.add_argument("--crowds", type=int, nargs="+", default=[0, 4, 8], help="walkers")
-    parser.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES)
+    parser.add_argument(
+        "--sources", nargs="+", default=list(SOURCES), choices=CHOICES,
+        help=f"of {', '.join(CHOICES)} (default: the first four)",
+    )  # fmt: skip
     parser.add_argument("--workers", type=int, default=1, help="processes")
     parser.add_argument("--json", type=Path, default=RESULTS / "navigation.json")
     parser.add_argument("--log", type=Path, help="JSON lines of finished episodes (resumable)")
