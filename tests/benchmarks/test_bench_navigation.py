@@ -82,3 +82,23 @@ def test_wilson_interval_holds_the_rate_at_every_count():
             low, high = wilson(k, n)
             assert 0.0 <= low <= k / n <= high <= 1.0
     assert wilson(0, 0) is None
+
+
+@pytest.mark.slow
+def test_the_combined_source_plans_on_a_combining_predictor_of_its_own():
+    """``lidarflow_combined`` runs the bundled model with the online combination, in a
+    Predictor apart from the plain source's (sharing one would mix the two)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import bench_navigation as bench
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    bench._PREDICTORS.clear()
+    name, walkers, seed, outcome = bench.episode(("lidarflow_combined", 2, 0))
+    assert (name, walkers, seed) == ("lidarflow_combined", 2, 0)
+    assert outcome.success or outcome.collision or outcome.time_s > 0
+    (combined,) = bench._PREDICTORS.values()
+    assert combined.combination is not None and combined.combination.horizon == combined.horizon
+    bench.episode(("lidarflow", 2, 0))
+    plain = [p for p in bench._PREDICTORS.values() if p is not combined]
+    assert len(plain) == 1 and plain[0].combination is None
