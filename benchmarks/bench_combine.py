@@ -1,14 +1,14 @@
 """What learning on the stream costs: `Predictor.update` per scan with ``combine=True`` (the
 online combination) and with ``learn=True`` (the head learning), each as a ratio to the same
-Predictor without either, measured in the same run (one thread, the bundled
-model, the sample recording's scans, no poses: the motion matched from the scans), at
-``--horizon`` 1 and K. Runs alternate between the two in rounds so that load on a shared
-machine falls on both alike; the medians and the ratio of medians are written to JSON
-(default ``benchmarks/results/combine.json``), beside the memory the combination holds.
-Variants alternate in rounds, after an untimed pass of each and the kernels compiled;
-``ratio`` is the combination's, ``learn_ratio`` the head's.
+Predictor without either, measured in the same run (one thread, the bundled model, the sample
+recording's scans; no poses, the motion matched from the scans, or with ``--poses`` a slow
+drive's, as ``bench_predict.py`` gives them), at ``--horizon`` 1 and K. Runs alternate between
+the two in rounds so that load on a shared machine falls on both alike; the medians and the
+ratio of medians are written to JSON (default ``benchmarks/results/combine.json``), beside the
+memory the combination holds. Variants alternate in rounds, after an untimed pass of each and
+the kernels compiled; ``ratio`` is the combination's, ``learn_ratio`` the head's.
 
-    python benchmarks/bench_combine.py [--scans 150] [--rounds 3] [--horizons 1 8]
+    python benchmarks/bench_combine.py [--scans 150] [--rounds 3] [--horizons 1 8] [--poses]
 """
 
 from __future__ import annotations
@@ -20,20 +20,24 @@ from pathlib import Path
 import numpy as np
 import torch
 from _output import machine, write_json
+from bench_predict import drive
 
 from lidarflow import compiled
 from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.predict import Predictor
 
 
-def per_scan_ms(predictor: Predictor, scans: list, warm: int = 10) -> list[float]:
+def per_scan_ms(
+    predictor: Predictor, scans: list, poses: np.ndarray | None = None, warm: int = 10
+) -> list[float]:
     predictor.reset()
-    for scan in scans[:warm]:
-        predictor.update(scan)
+    pose = (lambda i: None) if poses is None else (lambda i: poses[i])
+    for i, scan in enumerate(scans[:warm]):
+        predictor.update(scan, pose(i))
     times = []
-    for scan in scans[warm:]:
+    for i, scan in enumerate(scans[warm:], warm):
         start = time.perf_counter()
-        predictor.update(scan)
+        predictor.update(scan, pose(i))
         times.append((time.perf_counter() - start) * 1e3)
     return times
 
@@ -43,6 +47,7 @@ def main() -> None:
     parser.add_argument("--scans", type=int, default=150)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--horizons", type=int, nargs="+", default=[1, 8])
+    parser.add_argument("--poses", action="store_true", help="a slow drive's poses with the scans")
     parser.add_argument(
         "-o", "--output", type=Path, default=Path("benchmarks/results/combine.json")
     )
@@ -50,22 +55,25 @@ def main() -> None:
     torch.set_num_threads(1)
     recording = read_bag(sample_bag_path())
     scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]
+    poses = drive(len(scans)) if args.poses else None
+    extra = {"check_odometry": False} if args.poses else {}  # the drive is not the scans'
     result: dict = {"machine": machine(), "scans": len(scans), "threads": 1, "horizons": {}}
+    result["poses"] = "a slow drive's (bench_predict.drive)" if args.poses else None
     for horizon in args.horizons:
         predictors = {
-            "plain": Predictor(horizon=horizon, threads=1),
-            "combined": Predictor(horizon=horizon, threads=1, combine=True),
-            "learning": Predictor(horizon=horizon, threads=1, learn=True),
+            "plain": Predictor(horizon=horizon, threads=1, **extra),
+            "combined": Predictor(horizon=horizon, threads=1, combine=True, **extra),
+            "learning": Predictor(horizon=horizon, threads=1, learn=True, **extra),
         }
         # An untimed pass first: a fresh install compiles its kernels in the background while
         # the NumPy references serve, and that must not fall inside the timed rounds.
         for predictor in predictors.values():
-            per_scan_ms(predictor, scans)
+            per_scan_ms(predictor, scans, poses)
         compiled.wait()
         times: dict[str, list[float]] = {name: [] for name in predictors}
         for _ in range(args.rounds):
             for name, predictor in predictors.items():
-                times[name] += per_scan_ms(predictor, scans)
+                times[name] += per_scan_ms(predictor, scans, poses)
         medians = {k: float(np.median(v)) for k, v in times.items()}
         result["horizons"][str(horizon)] = {
             "median_ms": medians,

@@ -27,3 +27,16 @@ def test_bench_combine_runs_and_reports_every_predictor(tmp_path):
         assert entry["median_ms"]["plain"] > 0 and entry["ratio"] > 0 and entry["learn_ratio"] > 0
     # K = 3 keeps 1 + 2 + 3 frames of five experts' maps waiting: more than K = 1's one
     assert horizons["3"]["combination_bytes"] > horizons["1"]["combination_bytes"] > 0
+
+
+def test_bench_combine_with_poses_says_so(tmp_path):
+    out = tmp_path / "combine.json"
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1"}
+    args = ["--scans", "14", "--rounds", "1", "--horizons", "2", "--poses", "-o", str(out)]
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_combine.py"), *args],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert result["poses"] and result["horizons"]["2"]["ratio"] > 0
