@@ -245,3 +245,24 @@ def test_cluster_labels_all_against_all_is_the_offset_search(monkeypatch) -> Non
         monkeypatch.undo()
         assert np.array_equal(dense[0], searched[0])
         assert np.array_equal(dense[1], searched[1])
+
+
+def test_tracks_at_is_computed_once_per_k_read_only_and_as_computed_afresh():
+    """A roll-out and the combination's experts both ask ``Tracks.at(k)``: the second gets the
+    first's array, which nobody can change, equal to one made afresh."""
+    from lidarflow.tracking.tracks import Tracks
+
+    state, cells = np.array([50.0, 50.0, 1.0, -1.0]), np.array([[50, 50], [51, 50]], np.int64)
+    held = np.zeros((100, 100), bool)
+    held[10, 10] = True
+
+    def tracks() -> Tracks:
+        return Tracks((100, 100), [(state, cells)], np.array([1.0, 0.5, 0.05]), held, hold=2)
+
+    once = tracks()
+    first = once.at(2)
+    assert once.at(2) is first and not first.flags.writeable
+    with pytest.raises(ValueError):
+        first[0, 0] = 1.0
+    for k in (1, 2, 3):  # held cells up to hold only, each k its own motion
+        np.testing.assert_array_equal(once.at(k), tracks().at(k))

@@ -5,7 +5,7 @@ for the robot's own code (``Prediction.tracks``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -66,6 +66,8 @@ class Tracks:
     held: np.ndarray | None = None
     hold: int = 0
     res: float = 0.1
+    # at(k) once per k: a roll-out and the online combination's experts both ask for it
+    _at: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def metric(self, step_ns: int | None = None) -> tuple[Track, ...]:
         """Each object as a :class:`Track` (metres; metres per second given the stream's step
@@ -117,12 +119,16 @@ class Tracks:
         return image.astype(np.float32)
 
     def at(self, k: int) -> np.ndarray:
-        """``(H, W)`` float32: the objects ``k`` frames on (and the held cells up to ``hold``),
-        in the sensor frame then."""
-        cells = self.cells_at(k)
-        if self.held is not None and k <= self.hold:
-            cells |= self.held
-        return self.moved_to_sensor(cells, k)
+        """``(H, W)`` float32, read-only: the objects ``k`` frames on (and the held cells up to
+        ``hold``), in the sensor frame then."""
+        if k not in self._at:
+            cells = self.cells_at(k)
+            if self.held is not None and k <= self.hold:
+                cells |= self.held
+            moved = self.moved_to_sensor(cells, k)
+            moved.setflags(write=False)
+            self._at[k] = moved
+        return self._at[k]
 
 
 def _wide(state: np.ndarray, cells: np.ndarray) -> bool:
