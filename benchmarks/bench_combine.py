@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,17 +28,15 @@ from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.predict import Predictor
 
 
-def per_scan_ms(
-    predictor: Predictor, scans: list, poses: np.ndarray | None = None, warm: int = 10
-) -> list[float]:
+def per_scan_ms(predictor: Predictor, scans: list, poses: Sequence, warm: int = 10) -> list[float]:
+    """Each scan's update time after ``warm`` untimed ones, with its pose (``None``: none)."""
     predictor.reset()
-    pose = (lambda i: None) if poses is None else (lambda i: poses[i])
-    for i, scan in enumerate(scans[:warm]):
-        predictor.update(scan, pose(i))
+    for scan, pose in zip(scans[:warm], poses[:warm], strict=True):
+        predictor.update(scan, pose)
     times = []
-    for i, scan in enumerate(scans[warm:], warm):
+    for scan, pose in zip(scans[warm:], poses[warm:], strict=True):
         start = time.perf_counter()
-        predictor.update(scan, pose(i))
+        predictor.update(scan, pose)
         times.append((time.perf_counter() - start) * 1e3)
     return times
 
@@ -55,7 +54,7 @@ def main() -> None:
     torch.set_num_threads(1)
     recording = read_bag(sample_bag_path())
     scans = [recording.scan(i) for i in range(min(args.scans, len(recording)))]
-    poses = drive(len(scans)) if args.poses else None
+    poses = drive(len(scans)) if args.poses else [None] * len(scans)  # as bench_predict's
     extra = {"check_odometry": False} if args.poses else {}  # the drive is not the scans'
     result: dict = {"machine": machine(), "scans": len(scans), "threads": 1, "horizons": {}}
     result["poses"] = "a slow drive's (bench_predict.drive)" if args.poses else None

@@ -46,7 +46,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 #: simple predictors (``Predictor(combine=True)``, reset with every episode as the other).
 PREDICTED = ("lidarflow", "lidarflow_combined")
 CHOICES = (*SOURCES, "lidarflow_combined")
-_PREDICTORS: dict[tuple[Any, int], Predictor] = {}  # one per process, reset every episode
+# one per process and (grid, horizon, combine), reset every episode
+_PREDICTORS: dict[tuple[Any, int, bool], Predictor] = {}
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float] | None:
