@@ -25,7 +25,10 @@ def machine() -> dict[str, Any]:
 
 
 def write_json(path: Path, result: dict[str, Any]) -> None:
-    """Write ``result`` to ``path`` (folders made as needed) and say so."""
+    """Write ``result`` to ``path`` (folders made as needed), whole or not at all (a killed
+    benchmark leaves the previous file), and say so."""
+    from lidarflow.atomic import write_text
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=2))
+    write_text(path, json.dumps(result, indent=2))
     print(f"wrote {path}")
