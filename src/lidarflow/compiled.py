@@ -4,8 +4,9 @@ Each kernel is a plain Python loop that :func:`kernel` hands to numba; every cal
 NumPy reference beside it and takes the kernel only where :func:`ready` says so, so an install
 without numba gives the same outputs at NumPy's speed. The kernels do the reference's
 arithmetic in its order (no fast-math, no fused multiply-add), so outputs are bit-identical
-(point-to-line ICP's sums alone differ, in the last bits); the tests compare each against its
-reference.
+but for the last bits of point-to-line ICP's sums and of bearings (NumPy's SIMD builds round
+``arctan2`` apart from the C library's ``atan2`` the kernels call); the tests compare each
+against its reference.
 
 Compiling takes seconds, and a robot wants its first prediction at once. So a kernel compiles
 on a background thread when it is first asked for, for the types it was asked with, while its
