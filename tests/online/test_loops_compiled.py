@@ -45,6 +45,13 @@ def test_the_leaders_counts_are_the_numpy_references(shape, radius, monkeypatch)
     region[0, :] = occupied[0, :] = True  # true cells on the edge: the near ones clipped
     args = (decided, rare, region, occupied, before, radius)
     _assert_same(*_both(monkeypatch, lambda: score_counts(*args)))
+    # a small region (the reference counts inside its bounding box), and none
+    small = np.zeros(shape, bool)
+    patch = small[shape[0] // 2 :, 1 : 2 + shape[1] // 3]
+    patch[...] = rng.random(patch.shape) < 0.5
+    for other in (small, np.zeros(shape, bool)):
+        some = (decided, rare, other, occupied, before, radius)
+        _assert_same(*_both(monkeypatch, lambda some=some: score_counts(*some)))
 
 
 def _quantised_maps(rng, experts=5, shape=(30, 20)):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidarflow.compiled import ready
-from lidarflow.geometry import TOLERANCE, near
+from lidarflow.geometry import TOLERANCE, near, near_counts
 from lidarflow.online.loops import best_pair_loop, score_counts_loop
 from lidarflow.online.stacking import f1_of
 
@@ -136,21 +136,20 @@ def score_counts(
         return score_counts_loop(*as_bytes, radius)  # type: ignore[no-any-return]
     decided, rare, region, occupied, before = args
     changed = occupied != before
-    # the cells each count is over, as rows: (metric, kind) in Leader._f1's order
-    masks = np.stack([~rare, rare, ~rare & changed, rare & changed]).astype(np.float32)
-    masks = masks.reshape(4, -1)
+    truth_rare = occupied & region
+    # the cells counts are over, as rows: (metric, kind) in Leader._f1's order, then the region
+    # and its cells near a true one there
+    rows = [~rare, rare, ~rare & changed, rare & changed, region, near(truth_rare, radius) & region]
+    masks = np.stack(rows).reshape(len(rows), -1).astype(np.float32)
     flat = decided.reshape(len(decided), -1).astype(np.float32)
     truth = occupied.reshape(-1).astype(np.float32)
-    tp = (flat * truth) @ masks.T  # (C, 4), exact: float32 holds counts up to 2**24
-    predicted = flat @ masks.T
-    true = masks @ truth  # (4,)
-    counts = np.stack([tp, predicted - tp, true - tp], axis=-1)  # (C, 4, 3)
-    truth_rare = occupied & region
-    guess = decided & region
-    right = np.count_nonzero(guess & near(truth_rare, radius), axis=(1, 2))
-    found = np.count_nonzero(truth_rare & near(guess, radius), axis=(1, 2))
+    predicted = flat @ masks.T  # (C, 6), exact: float32 holds counts up to 2**24
+    tp = flat @ (masks[:4] * truth).T
+    true = masks[:4] @ truth  # (4,)
+    counts = np.stack([tp, predicted[:, :4] - tp, true - tp], axis=-1)  # (C, 4, 3)
+    guessed, right = predicted[:, 4], predicted[:, 5]
+    found = near_counts(decided & region, truth_rare, radius)  # true cells with a guess near
     true_rare = np.count_nonzero(truth_rare)
-    guessed = np.count_nonzero(guess, axis=(1, 2))
     tolerant = np.stack([right, guessed - right, found, true_rare - found], axis=1)
     return counts.astype(np.float64), tolerant.astype(np.float64)
 
