@@ -33,6 +33,19 @@ def test_gather_is_the_numpy_reference_to_the_bit(dtype, motion):
     np.testing.assert_array_equal(got, reference.reshape(maps.shape))
 
 
+def test_corners_are_the_numpy_reference_to_the_bit(monkeypatch):
+    rng = np.random.default_rng(4)
+    # inside, on the edges and whole cells, beyond them, and far beyond
+    x = np.concatenate([rng.uniform(-3, 26, 400), np.arange(-2.0, 25.0), [-0.0, 22.0, 1e9]])
+    y = np.concatenate([rng.uniform(-3, 40, 400), np.arange(-2.0, 25.0), [-1e9, 36.0, -0.0]])
+    got = geometry._corners(x, y, 37, 23)
+    monkeypatch.setattr(compiled, "numba", None)
+    expected = geometry._corners(x, y, 37, 23)
+    for g, e in zip(got, expected, strict=True):
+        assert g.dtype == e.dtype
+        np.testing.assert_array_equal(g, e)
+
+
 def test_gather_reads_a_strided_map_as_numpy_does():
     maps = np.arange(2 * 6 * 8, dtype=np.float64).reshape(2, 6, 8)[:, :, ::2]  # not contiguous
     sampler = geometry.Sampler(*geometry.rigid_positions(np.array([0.5, 0.25, 0.1]), 6, 4))

@@ -143,11 +143,31 @@ def _corners(x: np.ndarray, y: np.ndarray, h: int, w: int) -> tuple[np.ndarray, 
     """``(index (4, N), weight (4, N))``: the flat index of the four cells each position
     ``(x, y)`` ``(N,)`` reads on an ``(h, w)`` map (clipped into it) and their bilinear weights,
     zero outside the map. Elementwise: a position's numbers do not depend on the others."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    index, weight = np.empty((4, len(x)), np.intp), np.empty((4, len(x)))
+    if ready(_corners_loop, x, y, h, w, index, weight):
+        _corners_loop(x, y, h, w, index, weight)
+        return index, weight
     xi, yi = np.floor(x) + _CORNER_COLS, np.floor(y) + _CORNER_ROWS
     weight = (1.0 - np.abs(x - xi)) * (1.0 - np.abs(y - yi))
     inside = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
     index = np.clip(yi, 0, h - 1).astype(np.intp) * w + np.clip(xi, 0, w - 1).astype(np.intp)
     return index, np.where(inside, weight, 0.0)
+
+
+@kernel
+def _corners_loop(
+    x: np.ndarray, y: np.ndarray, h: int, w: int, index: np.ndarray, weight: np.ndarray
+) -> None:
+    """:func:`_corners` into ``index, weight`` ``(4, N)``, one pass (the same arithmetic)."""
+    for i in range(len(x)):
+        fx, fy = np.floor(x[i]), np.floor(y[i])
+        for k in range(4):
+            xi, yi = fx + (k % 2), fy + (k // 2)  # _CORNER_COLS, _CORNER_ROWS
+            inside = xi >= 0 and xi <= w - 1 and yi >= 0 and yi <= h - 1
+            row, col = min(max(yi, 0.0), h - 1.0), min(max(xi, 0.0), w - 1.0)
+            index[k, i] = np.intp(row) * w + np.intp(col)
+            weight[k, i] = (1.0 - abs(x[i] - xi)) * (1.0 - abs(y[i] - yi)) if inside else 0.0
 
 
 @kernel
