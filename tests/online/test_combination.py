@@ -83,3 +83,26 @@ def test_seldom_is_the_mover_metrics_share():
     from lidarflow.online.experts import SELDOM
 
     assert SELDOM == SHARE
+
+
+def test_by_default_it_decides_the_frames_after_the_first_and_the_model_the_first(
+    sample_recording,
+):
+    """The default (``combine=None``) with a horizon above 1: frame 1 ahead is the model's own
+    prediction, frames 2.. the combination's; one frame ahead, or ``combine=False``, no
+    combination at all."""
+    frames = maps(sample_recording, 40)
+    default = Predictor(horizon=3)
+    plain = Predictor(horizon=3, combine=False)
+    every = Predictor(horizon=3, combine=True)
+    assert default.combined_from == 2 and default.combination is not None
+    assert plain.combination is None and Predictor().combination is None
+    differs = False
+    for a, b, c in zip(run(default, frames), run(plain, frames), run(every, frames), strict=True):
+        np.testing.assert_array_equal(a.probability, b.probability)
+        np.testing.assert_array_equal(a.occupied, b.occupied)
+        np.testing.assert_array_equal(a.horizon[0], b.horizon[0])
+        np.testing.assert_array_equal(a.horizon[1:], c.horizon[1:])
+        np.testing.assert_array_equal(a.horizon_occupied[1:], c.horizon_occupied[1:])
+        differs |= not np.array_equal(a.horizon_occupied[1:], b.horizon_occupied[1:])
+    assert differs  # the combination did decide something the model alone would not

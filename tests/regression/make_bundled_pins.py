@@ -91,7 +91,7 @@ def main(argv: list[str]) -> None:
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE
     ).stdout.strip()
     arrays: dict[str, np.ndarray] = {"commit": np.asarray(commit)}
-    predictor = Predictor(MODELS[model], horizon=HORIZON, threads=1)
+    predictor = Predictor(MODELS[model], horizon=HORIZON, threads=1, combine=False)
     for name, source, frames in STREAMS:
         pinned = run_stream(stream_recording(source, frames), predictor)
         for key, value in pinned.items():

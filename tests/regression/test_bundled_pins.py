@@ -61,7 +61,8 @@ def pins(model) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def predictor(model) -> Predictor:
-    return Predictor(MODELS[model], horizon=HORIZON, threads=1)
+    # the model's own maps: the online combination, the default from k = 2, is tested apart
+    return Predictor(MODELS[model], horizon=HORIZON, threads=1, combine=False)
 
 
 def _stream(recording, predictor: Predictor) -> dict[str, np.ndarray]:

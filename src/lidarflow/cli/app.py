@@ -98,12 +98,13 @@ MovingOpt = Annotated[
     ),
 ]
 CombineOpt = Annotated[
-    bool,
+    bool | None,
     typer.Option(
-        "--combine",
-        help="Predict with the online combination: the model, its tracked objects, the "
-        "tracker, the last map and the temporal average weighed per horizon by the scans "
-        "that arrive.",
+        "--combine/--no-combine",
+        help="The online combination (the model, its tracked objects, the tracker, the last "
+        "map and the temporal average, weighed per horizon by the scans that arrive) decides "
+        "every frame ahead; --no-combine: none. Default: the frames 2..--horizon, for a "
+        "model that lays tracked objects over its map (the bundled one).",
     ),
 ]
 LearnOpt = Annotated[

@@ -50,7 +50,7 @@ def live(
         int, typer.Option(help="Port to serve on (0: any free one).", min=0, max=65535)
     ] = DEFAULT_PORT,
     threads: ThreadsOpt = DEFAULT_THREADS,
-    combine: CombineOpt = False,
+    combine: CombineOpt = None,
     learn: LearnOpt = False,
 ) -> None:
     """Play SOURCE scan by scan at its recorded pace, predict each with the model and serve

@@ -44,7 +44,7 @@ class EvaluateSettings:
     horizon: int
     report_dir: Path | None
     gif_frames: int
-    combine: bool = False
+    combine: bool | None = None  # None: as predict runs the model by default
     learn: bool = False
 
 
@@ -59,6 +59,7 @@ def build_methods(settings: EvaluateSettings) -> tuple[list[Any], dict[str, Any]
         list(s.sources), s.ta_window, s.ta_threshold, s.moving_threshold, s.ego_oracle,
         s.online_decision, s.spec.res, device=s.device, threads=s.threads or None,
         combine=s.horizon if s.combine else None, learn=s.learn,
+        combined_ahead=None if s.combine is False else s.horizon,
     )  # fmt: skip
 
 
@@ -115,7 +116,7 @@ class PredictSettings:
     online_decision: bool | None
     groups: frozenset[str]
     force: bool
-    combine: bool = False
+    combine: bool | None = None  # None: the Predictor's default
     learn: bool = False
 
 

@@ -143,7 +143,7 @@ class PredictOptions:
             "online as it streams (the bundled model does).",
         ),
     ] = False
-    combine: CombineOpt = False
+    combine: CombineOpt = None
     learn: LearnOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None

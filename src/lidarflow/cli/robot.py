@@ -66,7 +66,7 @@ class NodeOptions:
             "over the --horizon frames, in the scan's frame, for a local planner.",
         ),
     ] = False
-    combine: CombineOpt = False
+    combine: CombineOpt = None
     learn: LearnOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None

@@ -131,13 +131,15 @@ class EvaluateOptions:
         ),
     ] = False
     combine: Annotated[
-        bool,
+        bool | None,
         typer.Option(
-            "--combine",
-            help="Also score each model combined online with the simple predictors, learning "
-            "from the scans that arrive (NAME_combined).",
+            "--combine/--no-combine",
+            help="Also score each model combined online with the simple predictors at every "
+            "frame ahead (NAME_combined); --no-combine: the models' frames 2..--horizon without "
+            "the combination, which decides them by default (as in predict) for a model that "
+            "lays tracked objects over its map.",
         ),
-    ] = False
+    ] = None
     learn: Annotated[
         bool,
         typer.Option(

@@ -21,7 +21,6 @@ from lidarflow.baselines import FrameInputs, Method
 from lidarflow.data.blocks import Frames
 from lidarflow.errors import EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion
-from lidarflow.evaluate.model_method import ModelMethod
 from lidarflow.evaluate.movers import MoverScore
 from lidarflow.evaluate.peer_metrics import SSIM_WINDOW, ssim, wmse
 
@@ -134,13 +133,9 @@ def rolled_forward(
 ) -> np.ndarray:
     """``method``'s predictions ``(K, H, W)`` 1..``horizon`` frames ahead of the frame it was
     just given (with ``visibility`` and ``given``; ``prediction``: what ``update`` returned),
-    leaving ``method`` as it was: a model's roll-out
-    (:meth:`lidarflow.predict.engine.Engine.roll`), a method's own ``ahead(horizon)`` (the
-    tracker), else its decided prediction fed back to a copy of it with the same visibility
-    and motion."""
-    if isinstance(method, ModelMethod):
-        assert method.last is not None
-        return np.stack(method.engine.roll(method.last, horizon).decided)
+    leaving ``method`` as it was: a method's own ``ahead(horizon)`` (a model's,
+    :meth:`~lidarflow.evaluate.model_method.ModelMethod.ahead`; the tracker's), else its
+    decided prediction fed back to a copy of it with the same visibility and motion."""
     native = getattr(method, "ahead", None)
     if callable(native):  # predicts k ahead itself (the tracker moves each object k steps)
         return np.stack(native(horizon))

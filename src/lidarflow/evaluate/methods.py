@@ -45,16 +45,19 @@ def methods_and_config(
     threads: int | None = None,
     combine: int | None = None,
     learn: bool = False,
+    combined_ahead: int | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
-    """The baselines plus the methods of each model source (``None`` or ``"bundled"``: the
-    bundled model, else named by ``names`` or its folder or file), and the report's
-    configuration of them. An ego-motion model brings ``copy_last_ego``; ``ego_oracle`` adds
-    the variants that know the true next pose, ``online`` each model's other decision rule
-    (``NAME_online`` or ``NAME_fixed``), ``combine`` each model combined online with the simple
-    predictors that many frames ahead (``NAME_combined``), ``learn`` each head-only model run
-    in NumPy with its head learning on the stream (``NAME_learning``, on a copy of its
-    weights). PyTorch models run on ``device``, each on ``threads`` CPU threads (``None``: the
-    backend's default)."""
+    """The baselines plus the methods of each model source (``None`` or ``"bundled"``: the bundled
+    model, else named by ``names`` or its folder or file), and the report's configuration of
+    them. An ego-motion model brings ``copy_last_ego``; ``ego_oracle`` adds the variants that
+    know the true next pose, ``online`` each model's other decision rule (``NAME_online`` or
+    ``NAME_fixed``), ``combine`` each model combined online with the simple predictors that many
+    frames ahead (``NAME_combined``), ``learn`` each head-only model run in NumPy with its head
+    learning on the stream (``NAME_learning``, on a copy of its weights). ``combined_ahead``
+    ``K``: each model (and ``NAME_learning``) as the Predictor runs it by default, the online
+    combination deciding its frames ``2 .. K`` ahead where its policy lays tracked objects
+    (:class:`~lidarflow.evaluate.model_method.ModelMethod`). PyTorch models run on ``device``,
+    each on ``threads`` CPU threads (``None``: the backend's default)."""
     if moving_threshold is None:
         moving_threshold = MOVING_THRESHOLD
     methods: list[Any] = [
@@ -70,7 +73,7 @@ def methods_and_config(
         name = names[i] if names else None
         methods += _model_methods(
             source, name, {m.name for m in methods}, moving_threshold, online_config, res,
-            ego_oracle, online, models_used, device, threads, learn,
+            ego_oracle, online, models_used, device, threads, learn, combined_ahead,
         )  # fmt: skip
     # the tracker takes the motion too, but copy_last_ego stands beside ego-motion models only
     ego_models = any(isinstance(m, ModelMethod) and m.takes.motion for m in methods)
@@ -86,6 +89,9 @@ def methods_and_config(
     )
     if combine is not None:
         config["combined"] = {"horizon": combine, "experts": list(EXPERTS)}
+    ahead = [m.name for m in methods if isinstance(m, ModelMethod) and m.combination is not None]
+    if ahead:  # their frames 2..K: the online combination's, as the Predictor's by default
+        config["combined_from_k2"] = {"horizon": combined_ahead, "methods": ahead}
     if learn:
         config["learning"] = dataclasses.asdict(LearningConfig())
     return methods, config
@@ -116,6 +122,7 @@ def _model_methods(
     device: str,
     threads: int | None,
     learn: bool = False,
+    combined_ahead: int | None = None,
 ) -> list[Any]:
     """The methods of one model ``source`` (see :func:`methods_and_config`), named ``name`` or
     after it (a name ``taken`` gets underscores), its record put in ``models_used``; with
@@ -127,8 +134,9 @@ def _model_methods(
         name += "_"
     own = card["decision"]  # the decision policy the model ships with
     method = ModelMethod(
-        name, net, moving_threshold, online_config=online_config, res=res, decision=own
-    )
+        name, net, moving_threshold, online_config=online_config, res=res, decision=own,
+        combined_ahead=combined_ahead,
+    )  # fmt: skip
     keys = ("model", "weights_path", "weights_sha256", "grid")
     models_used[name] = {k: card.get(k) for k in keys}
     methods = [method]
@@ -151,7 +159,7 @@ def _model_methods(
         learner = copy.deepcopy(learning_backend(net))
         learning = ModelMethod(
             name + "_learning", learner, moving_threshold, online_config=online_config,
-            res=res, decision=own, learning=LearningConfig(),
+            res=res, decision=own, learning=LearningConfig(), combined_ahead=combined_ahead,
         )  # fmt: skip
         methods.append(learning)
     return methods

@@ -9,6 +9,7 @@ import numpy as np
 
 from lidarflow.baselines import NOTHING_MORE, FrameInputs, Takes
 from lidarflow.errors import EvaluateError
+from lidarflow.online.combination import Combination
 from lidarflow.predict.backends import TorchBackend
 from lidarflow.predict.decision import DecisionPolicy, OnlineDecisionConfig
 from lidarflow.predict.engine import Backend, Engine, Frame, Step
@@ -30,7 +31,10 @@ class ModelMethod:
     re-decides with the offsets that did best so far: ``None`` as the policy says,
     ``True`` / ``False`` always / never, a config always with it (default ``online_config``).
     With ``learning`` the head learns on the stream (:mod:`lidarflow.predict.learning`; a
-    head-only model run in NumPy), from its shipped weights again at every recording."""
+    head-only model run in NumPy), from its shipped weights again at every recording. With
+    ``combined_ahead`` ``K`` above 1 and a policy that lays tracked objects (the bundled
+    model's), the online combination decides its frames ``2 .. K`` ahead (:meth:`ahead`), as
+    the Predictor does by default; the first stays the model's own."""
 
     def __init__(
         self,
@@ -44,6 +48,7 @@ class ModelMethod:
         device: str = "cpu",
         decision: dict[str, Any] | None = None,
         learning: LearningConfig | None = None,
+        combined_ahead: int | None = None,
     ) -> None:
         self.name = name
         self.backend: Backend = model if hasattr(model, "run") else TorchBackend(model, device)
@@ -70,6 +75,11 @@ class ModelMethod:
         self.last: Step | None = None
         self._occupancy: np.ndarray | None = None
         self._moving: np.ndarray | None = None
+        #: The online combination deciding frames 2.. ahead (``None``: the model's roll-out).
+        self.combination: Combination | None = None
+        if combined_ahead is not None and combined_ahead > 1 and policy.tracks:
+            self.combination = Combination(combined_ahead)
+        self._ahead: np.ndarray | None = None
 
     @property
     def backward_flow(self) -> np.ndarray | None:
@@ -96,7 +106,20 @@ class ModelMethod:
         self.engine.reset()
         if self.engine.learning is not None:
             self.engine.learning.reset()
-        self.last = self._occupancy = self._moving = None
+        self.last = self._occupancy = self._moving = self._ahead = None
+        if self.combination is not None:
+            self.combination.reset()
+
+    def ahead(self, horizon: int) -> np.ndarray:
+        """``(horizon, H, W)``: the decided maps ``1 .. horizon`` frames after the last one
+        given: the model's roll-out, from frame 2 the combination's where it combines."""
+        if self.last is None:
+            raise RuntimeError("ahead() before any update()")
+        if self._ahead is None:
+            return np.stack(self.engine.roll(self.last, horizon).decided)
+        if horizon > len(self._ahead):
+            raise ValueError(f"{self.name} combined {len(self._ahead)} ahead, asked {horizon}")
+        return self._ahead[:horizon]
 
     def update(
         self, occupancy: np.ndarray, visibility: np.ndarray, given: FrameInputs = NOTHING_MORE
@@ -119,4 +142,11 @@ class ModelMethod:
         )
         self.last = self.engine.step(frame)
         self._occupancy, self._moving = occupancy, None
+        if self.combination is not None:
+            assert self.engine.tracker is not None  # the policy lays tracked objects
+            rollout = self.engine.roll(self.last, self.combination.horizon)
+            combined = self.combination.step(
+                self.engine.tracker, self.last, rollout, occupancy, visibility
+            )
+            self._ahead = np.concatenate([rollout.decided[:1], combined.decided[1:]])
         return self.last.decided

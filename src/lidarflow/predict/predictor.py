@@ -161,7 +161,10 @@ class Predictor:
             its tracked objects, the tracker, the ego-moved last map and the temporal average
             weighed per horizon ``1 .. horizon`` by the scans that arrive (a
             :class:`~lidarflow.online.stacking.StackingConfig` to configure it). Then
-            ``Prediction.probability`` and ``horizon`` are the combination's.
+            ``Prediction.probability`` and ``horizon`` are the combination's. ``None`` (the
+            default): the combination decides the frames ``2 .. horizon`` and the model the
+            first, for a model whose policy lays tracked objects over its map (the bundled
+            one) and a horizon above 1; otherwise off. ``False``: off.
         learn: the model's head keeps learning on the stream, each scan the label of the
             prediction made for it (:mod:`lidarflow.predict.learning`; a
             :class:`~lidarflow.predict.learning.LearningConfig` to configure it). Needs a
@@ -183,7 +186,7 @@ class Predictor:
         scan_odometry: bool = True,
         online_decision: bool | OnlineDecisionConfig | None = None,
         decision: DecisionPolicy | None = None,
-        combine: bool | StackingConfig = False,
+        combine: bool | StackingConfig | None = None,
         learn: bool | LearningConfig = False,
     ) -> None:
         if horizon < 1:
@@ -207,6 +210,11 @@ class Predictor:
         self.decision = decision.with_online(online_decision)
         #: The online combination (``None`` without ``combine``), for a look inside.
         self.combination: Combination | None = None
+        #: The first frame ahead the combination decides (1: all of them; see ``combine``).
+        self.combined_from = 1
+        if combine is None:  # measured: docs/research/online_combination ("sixteen robots")
+            combine = horizon > 1 and self.decision.tracks
+            self.combined_from = 2
         if combine is not False:
             config = combine if isinstance(combine, StackingConfig) else None
             self.combination = Combination(horizon, config)
@@ -343,7 +351,9 @@ class Predictor:
             combined = self.combination.step(
                 self.engine.tracker, step, ahead, occupancy, visibility
             )
-            probability, decided = combined.probability, combined.decided
+            first = self.combined_from - 1  # the frames ahead before it: the model's own
+            probability = np.concatenate([probability[:first], combined.probability[first:]])
+            decided = np.concatenate([decided[:first], combined.decided[first:]])
         flow = step.flow
         return Prediction(
             probability=probability[0],
