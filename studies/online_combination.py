@@ -131,7 +131,7 @@ def score(
 
 def _learnt(method: Any) -> dict[str, Any] | None:
     """What a method's head learnt on the recording (``None``: it does not learn)."""
-    engine = method.model.engine if hasattr(method, "combination") else method.engine
+    engine = getattr(method, "model", method).engine  # a CombinedMethod wraps its model
     learning = engine.learning
     if learning is None:
         return None

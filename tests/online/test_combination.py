@@ -106,3 +106,15 @@ def test_by_default_it_decides_the_frames_after_the_first_and_the_model_the_firs
         np.testing.assert_array_equal(a.horizon_occupied[1:], c.horizon_occupied[1:])
         differs |= not np.array_equal(a.horizon_occupied[1:], b.horizon_occupied[1:])
     assert differs  # the combination did decide something the model alone would not
+
+
+def test_the_flags_choose_every_frame_none_or_the_default_and_not_both(capsys, tmp_path):
+    from lidarflow.cli.app import combine_choice
+    from tests.test_cli import run
+
+    assert combine_choice(False, False) is None
+    assert combine_choice(True, False) is True and combine_choice(False, True) is False
+    code, _, err = run(
+        ["predict", "in.bag", "-o", str(tmp_path / "o.mcap"), "--combine", "--no-combine"], capsys
+    )
+    assert code != 0 and "--combine or --no-combine, not both" in err

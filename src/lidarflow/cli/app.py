@@ -98,15 +98,28 @@ MovingOpt = Annotated[
     ),
 ]
 CombineOpt = Annotated[
-    bool | None,
+    bool,
     typer.Option(
-        "--combine/--no-combine",
-        help="The online combination (the model, its tracked objects, the tracker, the last "
-        "map and the temporal average, weighed per horizon by the scans that arrive) decides "
-        "every frame ahead; --no-combine: none. Default: the frames 2..--horizon, for a "
-        "model that lays tracked objects over its map (the bundled one).",
+        "--combine",
+        help="The online combination (the model and the simple predictors weighed by the scans "
+        "that arrive) decides every frame ahead; by default the frames 2..--horizon.",
     ),
 ]
+NoCombineOpt = Annotated[
+    bool,
+    typer.Option(
+        "--no-combine", help="The model alone at every frame ahead, without the combination."
+    ),
+]
+
+
+def combine_choice(combine: bool, no_combine: bool) -> bool | None:
+    """``Predictor``'s ``combine`` from the two flags: ``None`` (its default) for neither."""
+    if combine and no_combine:
+        raise typer.BadParameter("give --combine or --no-combine, not both")
+    return True if combine else (False if no_combine else None)
+
+
 LearnOpt = Annotated[
     bool,
     typer.Option(

@@ -12,9 +12,11 @@ from lidarflow.cli.app import (
     CombineOpt,
     LearnOpt,
     ModelOpt,
+    NoCombineOpt,
     ThreadsOpt,
     TopicOpt,
     app,
+    combine_choice,
     load_input,
     progress_bar,
 )
@@ -50,7 +52,8 @@ def live(
         int, typer.Option(help="Port to serve on (0: any free one).", min=0, max=65535)
     ] = DEFAULT_PORT,
     threads: ThreadsOpt = DEFAULT_THREADS,
-    combine: CombineOpt = None,
+    combine: CombineOpt = False,
+    no_combine: NoCombineOpt = False,
     learn: LearnOpt = False,
 ) -> None:
     """Play SOURCE scan by scan at its recorded pace, predict each with the model and serve
@@ -61,10 +64,11 @@ def live(
     from lidarflow.live.replay import Served, replay
     from lidarflow.predict import Predictor
 
+    combined = combine_choice(combine, no_combine)
     recording = load_input(source, topic)
     check_horizon(len(recording), horizon, 0, str(source))
     predictor = Predictor(
-        model, horizon=horizon, threads=threads or None, combine=combine, learn=learn
+        model, horizon=horizon, threads=threads or None, combine=combined, learn=learn
     )
     scan_topic = "/" + (recording.meta.get("topic") or "scan").lstrip("/")
     frame_id = recording.meta.get("frame_id") or "laser"

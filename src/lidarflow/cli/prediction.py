@@ -20,11 +20,13 @@ from lidarflow.cli.app import (
     ModelOpt,
     ModelResOpt,
     MovingOpt,
+    NoCombineOpt,
     OdomOpt,
     ThreadsOpt,
     TopicOpt,
     app,
     bundled_model_available,
+    combine_choice,
     completed_grid,
     eval_progress,
     load_input,
@@ -143,7 +145,8 @@ class PredictOptions:
             "online as it streams (the bundled model does).",
         ),
     ] = False
-    combine: CombineOpt = None
+    combine: CombineOpt = False
+    no_combine: NoCombineOpt = False
     learn: LearnOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
@@ -194,7 +197,8 @@ def predict(options: PredictOptions) -> None:
     threshold = MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold
     settings = PredictSettings(
         o.topic, o.odom_topic, o.model, model_grid(o.model, o.grid, o.res), o.horizon,
-        o.threads, threshold, False if o.fixed_decision else None, groups, o.force, o.combine,
+        o.threads, threshold, False if o.fixed_decision else None, groups, o.force,
+        combine_choice(o.combine, o.no_combine),
         o.learn,
     )  # fmt: skip
     tasks = [PredictTask(i, out, settings) for i, out in zip(o.inputs, outputs, strict=True)]

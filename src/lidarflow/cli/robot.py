@@ -20,8 +20,10 @@ from lidarflow.cli.app import (
     ModelOpt,
     ModelResOpt,
     MovingOpt,
+    NoCombineOpt,
     ThreadsOpt,
     app,
+    combine_choice,
     model_grid,
 )
 from lidarflow.cli.options import command_options
@@ -66,7 +68,8 @@ class NodeOptions:
             "over the --horizon frames, in the scan's frame, for a local planner.",
         ),
     ] = False
-    combine: CombineOpt = None
+    combine: CombineOpt = False
+    no_combine: NoCombineOpt = False
     learn: LearnOpt = False
     grid: ModelGridOpt = None
     res: ModelResOpt = None
@@ -169,7 +172,7 @@ def _live_step(options: NodeOptions) -> LiveStep:
         horizon=o.horizon,
         threads=o.threads or None,
         moving_threshold=MOVING_THRESHOLD if o.moving_threshold is None else o.moving_threshold,
-        combine=o.combine,
+        combine=combine_choice(o.combine, o.no_combine),
         learn=o.learn,
     )
     if o.moving and not predictor.backend.capabilities.flow:

@@ -25,6 +25,7 @@ from lidarflow.cli.app import (
     TopicOpt,
     app,
     bundled_model_available,
+    combine_choice,
     refuse_existing,
     use_threads,
 )
@@ -131,15 +132,21 @@ class EvaluateOptions:
         ),
     ] = False
     combine: Annotated[
-        bool | None,
+        bool,
         typer.Option(
-            "--combine/--no-combine",
+            "--combine",
             help="Also score each model combined online with the simple predictors at every "
-            "frame ahead (NAME_combined); --no-combine: the models' frames 2..--horizon without "
-            "the combination, which decides them by default (as in predict) for a model that "
-            "lays tracked objects over its map.",
+            "frame ahead (NAME_combined).",
         ),
-    ] = None
+    ] = False
+    no_combine: Annotated[
+        bool,
+        typer.Option(
+            "--no-combine",
+            help="Score the models' frames 2..--horizon without the online combination, which "
+            "decides them by default (as in predict).",
+        ),
+    ] = False
     learn: Annotated[
         bool,
         typer.Option(
@@ -248,7 +255,8 @@ def _settings(o: EvaluateOptions, sources: list[Path | None]) -> EvaluateSetting
     return EvaluateSettings(
         tuple(sources), o.ta_window, o.ta_threshold, o.moving_threshold, o.ego_oracle,
         o.online_decision, GridSpec(o.grid, o.grid, o.res), resolve_device(o.device), o.threads,
-        o.warmup, o.horizon, None, o.gif_frames, o.combine, o.learn,
+        o.warmup, o.horizon, None, o.gif_frames,
+        combine_choice(o.combine, o.no_combine), o.learn,
     )  # fmt: skip
 
 
