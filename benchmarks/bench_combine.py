@@ -1,12 +1,13 @@
-"""What learning on the stream costs: `Predictor.update` per scan with ``combine=True`` (the
-online combination) and with ``learn=True`` (the head learning), each as a ratio to the same
-Predictor without either, measured in the same run (one thread, the bundled model, the sample
+"""What learning on the stream costs: `Predictor.update` per scan by default (the online
+combination deciding the frames 2..K), with ``combine=True`` (it deciding every frame) and with
+``learn=True`` (the head learning), each as a ratio to the same Predictor with the model alone
+(``combine=False``), measured in the same run (one thread, the bundled model, the sample
 recording's scans; no poses, the motion matched from the scans, or with ``--poses`` a slow
-drive's, as ``bench_predict.py`` gives them), at ``--horizon`` 1 and K. Runs alternate between
-the two in rounds so that load on a shared machine falls on both alike; the medians and the
-ratio of medians are written to JSON (default ``benchmarks/results/combine.json``), beside the
-memory the combination holds. Variants alternate in rounds, after an untimed pass of each and
-the kernels compiled; ``ratio`` is the combination's, ``learn_ratio`` the head's.
+drive's, as ``bench_predict.py`` gives them), at ``--horizon`` 1 and K. Variants alternate in
+rounds, after an untimed pass of each and the kernels compiled, so that load on a shared
+machine falls on all alike; the medians and the ratios of medians are written to JSON (default
+``benchmarks/results/combine.json``), beside the memory the combination holds: ``ratio`` is
+the combination's on every frame, ``default_ratio`` the default's, ``learn_ratio`` the head's.
 
     python benchmarks/bench_combine.py [--scans 150] [--rounds 3] [--horizons 1 8] [--poses]
 """
@@ -60,9 +61,11 @@ def main() -> None:
     result["poses"] = "a slow drive's (bench_predict.drive)" if args.poses else None
     for horizon in args.horizons:
         predictors = {
-            "plain": Predictor(horizon=horizon, threads=1, **extra),
+            # the model alone; the default (the combination from frame 2 on); it on every frame
+            "plain": Predictor(horizon=horizon, threads=1, combine=False, **extra),
+            "default": Predictor(horizon=horizon, threads=1, **extra),
             "combined": Predictor(horizon=horizon, threads=1, combine=True, **extra),
-            "learning": Predictor(horizon=horizon, threads=1, learn=True, **extra),
+            "learning": Predictor(horizon=horizon, threads=1, combine=False, learn=True, **extra),
         }
         # An untimed pass first: a fresh install compiles its kernels in the background while
         # the NumPy references serve, and that must not fall inside the timed rounds.
@@ -78,6 +81,7 @@ def main() -> None:
             "median_ms": medians,
             "p99_ms": {k: float(np.percentile(v, 99)) for k, v in times.items()},
             "ratio": medians["combined"] / medians["plain"],
+            "default_ratio": medians["default"] / medians["plain"],
             "learn_ratio": medians["learning"] / medians["plain"],
             "combination_bytes": predictors["combined"].combination.nbytes,
         }

@@ -44,7 +44,7 @@ from lidarflow.sim.obstacles import SOURCES, make_source
 RESULTS = Path(__file__).resolve().parent / "results"
 #: The sources a Predictor makes: the bundled model, and the same combined online with the
 #: simple predictors (``Predictor(combine=True)``, reset with every episode as the other).
-PREDICTED = ("lidarflow", "lidarflow_combined")
+PREDICTED = ("lidarflow", "lidarflow_combined")  # the model alone; every frame combined
 CHOICES = (*SOURCES, "lidarflow_combined")
 # one per process and (grid, horizon, combine), reset every episode
 _PREDICTORS: dict[tuple[Any, int, bool], Predictor] = {}
@@ -87,7 +87,7 @@ def episode(job: tuple[str, int, int]) -> tuple[str, int, int, Outcome]:
     config = NavConfig(walkers=walkers)
     predictor = None
     if name in PREDICTED:
-        combine = name == "lidarflow_combined"
+        combine = name == "lidarflow_combined"  # else the model alone, as its results were made
         key = (config.grid, config.horizon, combine)
         if key not in _PREDICTORS:
             _PREDICTORS[key] = Predictor(grid=config.grid, horizon=config.horizon, combine=combine)
