@@ -106,6 +106,11 @@ def test_by_default_it_decides_the_frames_after_the_first_and_the_model_the_firs
         np.testing.assert_array_equal(a.horizon_occupied[1:], c.horizon_occupied[1:])
         differs |= not np.array_equal(a.horizon_occupied[1:], b.horizon_occupied[1:])
     assert differs  # the combination did decide something the model alone would not
+    # it learns nothing for the frame it leaves to the model
+    assert default.combination.first == 2 and default.combination.stacks[0].learned == 0
+    assert every.combination.stacks[0].learned > 0
+    with pytest.raises(ValueError, match="first <= horizon"):
+        Combination(3, first=4)
 
 
 def test_the_flags_choose_every_frame_none_or_the_default_and_not_both(capsys, tmp_path):

@@ -78,7 +78,7 @@ class ModelMethod:
         #: The online combination deciding frames 2.. ahead (``None``: the model's roll-out).
         self.combination: Combination | None = None
         if combined_ahead is not None and combined_ahead > 1 and policy.tracks:
-            self.combination = Combination(combined_ahead)
+            self.combination = Combination(combined_ahead, first=2)
         self._ahead: np.ndarray | None = None
 
     @property
@@ -148,5 +148,5 @@ class ModelMethod:
             combined = self.combination.step(
                 self.engine.tracker, self.last, rollout, occupancy, visibility
             )
-            self._ahead = np.concatenate([rollout.decided[:1], combined.decided[1:]])
+            self._ahead = np.concatenate([rollout.decided[:1], combined.decided])
         return self.last.decided

@@ -40,21 +40,22 @@ _UNIONS = [(EXPERTS.index(a), EXPERTS.index(b)) for a, b in UNIONS]
 
 @dataclass(frozen=True)
 class Combined:
-    """The combination's output for frames ``t + 1 .. t + K``: ``probability`` ``(K, H, W)``
-    and ``decided`` ``(K, H, W)``, rescaled so that 0.4 decides as the chosen candidate does."""
+    """The combination's output for the frames ``t + first .. t + K`` it decides:
+    ``probability`` and ``decided`` ``(K - first + 1, H, W)``, rescaled so that 0.4 decides as
+    the chosen candidate does."""
 
     probability: np.ndarray
     decided: np.ndarray
 
 
 class Combination:
-    """The online combination for the frames ``1 .. horizon`` ahead, starting as the model
-    alone."""
+    """The online combination for the frames ``first .. horizon`` ahead, starting as the model
+    alone (the frames before ``first`` are left to the model: nothing is learnt for them)."""
 
-    def __init__(self, horizon: int, config: StackingConfig | None = None) -> None:
-        if horizon < 1:
-            raise ValueError(f"horizon must be >= 1, got {horizon}")
-        self.horizon = horizon
+    def __init__(self, horizon: int, config: StackingConfig | None = None, first: int = 1) -> None:
+        if horizon < 1 or not 1 <= first <= horizon:
+            raise ValueError(f"need 1 <= first <= horizon, got first {first}, horizon {horizon}")
+        self.horizon, self.first = horizon, first
         self.experts = ExpertMaps(horizon)
         config = config or StackingConfig()
         first = EXPERTS.index("model")
@@ -96,9 +97,9 @@ class Combination:
         experts = self.experts.of(tracker, step, rollout, occupancy, visibility)
         maps = experts.maps
         occupied = np.asarray(occupancy) > 0.5
-        probability = np.empty(experts.rare.shape, np.float32)
-        decided = np.empty(experts.rare.shape, np.float32)
-        for k in range(self.horizon):
+        shape = (self.horizon - self.first + 1, *occupied.shape)
+        probability, decided = np.empty(shape, np.float32), np.empty(shape, np.float32)
+        for k in range(self.first - 1, self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
                 stored, rare, before = waiting[0]
@@ -106,7 +107,8 @@ class Combination:
                 candidates = _candidates_decided(stored, _DECIDED_LEVEL, stacked)
                 leader.score(candidates, rare, experts.region, occupied, before)
             rare = experts.rare[k]
-            probability[k], decided[k] = _chosen(stack, leader.choice, maps[:, k], rare)
+            j = k + 1 - self.first
+            probability[j], decided[j] = _chosen(stack, leader.choice, maps[:, k], rare)
             waiting.append((quantised(maps[:, k]), rare.copy(), occupied))
         return Combined(probability, decided)
 

@@ -217,7 +217,7 @@ class Predictor:
             self.combined_from = 2
         if combine is not False:
             config = combine if isinstance(combine, StackingConfig) else None
-            self.combination = Combination(horizon, config)
+            self.combination = Combination(horizon, config, self.combined_from)
             self.decision = dataclasses.replace(self.decision, tracks=True)  # an expert
         #: The head learning on the stream (``None`` without ``learn``), for a look inside.
         self.learning: HeadLearning | None = None
@@ -352,8 +352,8 @@ class Predictor:
                 self.engine.tracker, step, ahead, occupancy, visibility
             )
             first = self.combined_from - 1  # the frames ahead before it: the model's own
-            probability = np.concatenate([probability[:first], combined.probability[first:]])
-            decided = np.concatenate([decided[:first], combined.decided[first:]])
+            probability = np.concatenate([probability[:first], combined.probability])
+            decided = np.concatenate([decided[:first], combined.decided])
         flow = step.flow
         return Prediction(
             probability=probability[0],
