@@ -85,16 +85,14 @@ class ExpertMaps:
         occupied_count, seen = self._counts
         region = (occupied_count > 0) & (occupied_count < SELDOM * seen)
         rare_now = tracker.background < tracker.config.background_threshold
-        now = np.stack([occupied, rare_now])  # moved alike, k steps on
         maps = np.empty((len(EXPERTS), horizon, *average.shape), np.float32)
         maps[0] = rollout.model_only[:horizon]
         maps[1] = [tracks.at(k) for k in range(1, horizon + 1)]
-        maps[2] = tracker.ahead(horizon)
         rare = np.empty((horizon, *average.shape), bool)
-        for k in range(horizon):  # written in place, not stacked first
-            moved = tracks.moved_to_sensor(now, k + 1)
-            maps[3, k] = moved[0]
-            rare[k] = moved[1] > 0.5
+        # the tracker's maps, and the last map and its rare cells moved alike: one pass a k
+        for k, moved in enumerate(tracker.ahead(horizon, beside=np.stack([occupied, rare_now]))):
+            maps[2, k], maps[3, k] = moved[0], moved[1]
+            rare[k] = moved[2] > 0.5
         maps[4] = average
         return Experts(maps, rare, region)
 
