@@ -140,9 +140,11 @@ def score_counts(
     # the cells counts are over, as rows: (metric, kind) in Leader._f1's order, then the region
     # and its cells near a true one there
     rows = [~rare, rare, ~rare & changed, rare & changed, region, near(truth_rare, radius) & region]
-    masks = np.stack(rows).reshape(len(rows), -1).astype(np.float32)
-    flat = decided.reshape(len(decided), -1).astype(np.float32)
-    truth = occupied.reshape(-1).astype(np.float32)
+    # only the cells guessed or true add to any count
+    support = np.flatnonzero(decided.any(axis=0) | occupied)
+    masks = np.stack(rows).reshape(len(rows), -1)[:, support].astype(np.float32)
+    flat = decided.reshape(len(decided), -1)[:, support].astype(np.float32)
+    truth = occupied.reshape(-1)[support].astype(np.float32)
     predicted = flat @ masks.T  # (C, 6), exact: float32 holds counts up to 2**24
     tp = flat @ (masks[:4] * truth).T
     true = masks[:4] @ truth  # (4,)
