@@ -3,8 +3,8 @@ combination deciding the frames 2..K), with ``combine=True`` (it deciding every 
 ``learn=True`` (the head learning), each as a ratio to the same Predictor with the model alone
 (``combine=False``), measured in the same run (one thread, the bundled model, the sample
 recording's scans; no poses, the motion matched from the scans, or with ``--poses`` a slow
-drive's, as ``bench_predict.py`` gives them), at ``--horizon`` 1 and K. Variants alternate in
-rounds, after an untimed pass of each and the kernels compiled, so that load on a shared
+drive's, as ``bench_predict.py`` gives them), at ``--horizon`` 1 and K. The variants take
+each scan in turn, after an untimed pass and the kernels compiled, so that load on a shared
 machine falls on all alike; the medians and the ratios of medians are written to JSON (default
 ``benchmarks/results/combine.json``), beside the memory the combination holds: ``ratio`` is
 the combination's on every frame, ``default_ratio`` the default's, ``learn_ratio`` the head's.
@@ -29,16 +29,21 @@ from lidarflow.data import read_bag, sample_bag_path
 from lidarflow.predict import Predictor
 
 
-def per_scan_ms(predictor: Predictor, scans: list, poses: Sequence, warm: int = 10) -> list[float]:
-    """Each scan's update time after ``warm`` untimed ones, with its pose (``None``: none)."""
-    predictor.reset()
-    for scan, pose in zip(scans[:warm], poses[:warm], strict=True):
-        predictor.update(scan, pose)
-    times = []
-    for scan, pose in zip(scans[warm:], poses[warm:], strict=True):
-        start = time.perf_counter()
-        predictor.update(scan, pose)
-        times.append((time.perf_counter() - start) * 1e3)
+def per_scan_ms(
+    predictors: dict[str, Predictor], scans: list, poses: Sequence, warm: int = 10
+) -> dict[str, list[float]]:
+    """Each predictor's update time per scan after ``warm`` untimed ones, from a reset, with
+    the scan's pose (``None``: none). The predictors take each scan in turn, so that a change
+    of the machine's speed falls on all of them alike."""
+    for predictor in predictors.values():
+        predictor.reset()
+    times: dict[str, list[float]] = {name: [] for name in predictors}
+    for i, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
+        for name, predictor in predictors.items():
+            start = time.perf_counter()
+            predictor.update(scan, pose)
+            if i >= warm:
+                times[name].append((time.perf_counter() - start) * 1e3)
     return times
 
 
@@ -69,13 +74,12 @@ def main() -> None:
         }
         # An untimed pass first: a fresh install compiles its kernels in the background while
         # the NumPy references serve, and that must not fall inside the timed rounds.
-        for predictor in predictors.values():
-            per_scan_ms(predictor, scans, poses)
+        per_scan_ms(predictors, scans, poses)
         compiled.wait()
         times: dict[str, list[float]] = {name: [] for name in predictors}
         for _ in range(args.rounds):
-            for name, predictor in predictors.items():
-                times[name] += per_scan_ms(predictor, scans, poses)
+            for name, some in per_scan_ms(predictors, scans, poses).items():
+                times[name] += some
         medians = {k: float(np.median(v)) for k, v in times.items()}
         result["horizons"][str(horizon)] = {
             "median_ms": medians,
