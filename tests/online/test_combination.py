@@ -86,7 +86,7 @@ def test_seldom_is_the_mover_metrics_share():
 
 
 def test_by_default_it_decides_the_frames_after_the_first_and_the_model_the_first(
-    sample_recording,
+    sample_recording, tmp_path
 ):
     """The default (``combine=None``) with a horizon above 1: frame 1 ahead is the model's own
     prediction, frames 2.. the combination's; one frame ahead, or ``combine=False``, no
@@ -111,6 +111,11 @@ def test_by_default_it_decides_the_frames_after_the_first_and_the_model_the_firs
     assert every.combination.stacks[0].learned > 0
     with pytest.raises(ValueError, match="first <= horizon"):
         Combination(3, first=4)
+    # what the default learnt saves and loads as the combination's on every frame does
+    other = Predictor(horizon=3)
+    other.load_learned(default.save_learned(tmp_path / "default.npz"))
+    learnt = default.combination.state()
+    assert all(np.array_equal(other.combination.state()[k], learnt[k]) for k in learnt)
 
 
 def test_the_flags_choose_every_frame_none_or_the_default_and_not_both(capsys, tmp_path):
