@@ -240,17 +240,3 @@ def test_a_samplers_adjoint_is_its_transpose() -> None:
     x, g = rng.random((13, 11)), rng.random((13, 11))
     assert np.sum(sampler(x) * g) == pytest.approx(np.sum(x * sampler.adjoint(g)), rel=1e-12)
 
-
-@settings(max_examples=60)
-@given(
-    st.integers(1, 9), st.integers(1, 9), st.integers(0, 3), st.integers(1, 3), st.integers(0, 99)
-)
-def test_near_counts_counts_the_cells_near_each_map(h, w, radius, maps, seed):
-    rng = np.random.default_rng(seed)
-    masks = rng.random((maps, h, w)) < rng.random((maps, 1, 1))
-    cells = rng.random((h, w)) < 0.4
-    expected = np.count_nonzero(cells & geometry.near(masks, radius), axis=(1, 2))
-    np.testing.assert_array_equal(geometry.near_counts(masks, cells, radius), expected)
-    span = range(-radius, radius + 1)
-    disc = {(a, b) for a in span for b in span if a * a + b * b <= radius * radius}
-    assert sorted(map(tuple, geometry.disc(radius).tolist())) == sorted(disc)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion, summed
-from lidarflow.geometry import TOLERANCE, near
+from lidarflow.nearby import TOLERANCE, near
 
 __all__ = ["BINS", "TOLERANCE", "MoverScore", "TolerantCounts", "near", "roc_auc"]
 

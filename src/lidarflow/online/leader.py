@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidarflow.compiled import ready
-from lidarflow.geometry import TOLERANCE, near, near_counts
+from lidarflow.nearby import TOLERANCE, near, near_counts
 from lidarflow.online.loops import best_pair_loop, score_counts_loop
 from lidarflow.online.stacking import f1_of
 
@@ -128,7 +128,7 @@ def score_counts(
     3)`` true positives, false positives and false negatives over the common cells, the
     ``rare`` ones, and the same among those changed since ``before``; and ``(C, 4)`` the
     tolerant F1's right, wrong, found and missed cells inside ``region``, a cell near another
-    within ``radius`` (:func:`lidarflow.geometry.near`). float64 holding integers; compiled
+    within ``radius`` (:func:`lidarflow.nearby.near`). float64 holding integers; compiled
     where available, the same counts."""
     args = tuple(np.ascontiguousarray(a, bool) for a in (decided, rare, region, occupied, before))
     as_bytes = tuple(a.view(np.uint8) for a in args)  # 0 or 1: the loop adds them

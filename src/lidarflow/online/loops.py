@@ -49,7 +49,7 @@ def score_counts_loop(
     bool viewed as uint8 (0 or 1) and C-contiguous, ``radius >= 0``: the counts ``(C, 4, 3)``
     (tp, fp, fn per row: common, rare, common changed, rare changed) and the tolerant ones
     ``(C, 4)`` (right, wrong, found, missed), float64 holding integers. A cell is near another
-    within the Euclidean ``radius``, as :func:`lidarflow.geometry.near` dilates."""
+    within the Euclidean ``radius``, as :func:`lidarflow.nearby.near` dilates."""
     candidates, h, w = decided.shape
     # each cell coded by what it is; the counts of each code among the cells a candidate
     # decides occupied make every count but the found ones
