@@ -148,5 +148,6 @@ class ModelMethod:
             combined = self.combination.step(
                 self.engine.tracker, self.last, rollout, occupancy, visibility
             )
-            self._ahead = np.concatenate([rollout.decided[:1], combined.decided])
+            before = self.combination.first - 1  # the frames ahead it leaves to the model
+            self._ahead = np.concatenate([rollout.decided[:before], combined.decided])
         return self.last.decided

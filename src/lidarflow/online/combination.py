@@ -58,12 +58,12 @@ class Combination:
         self.horizon, self.first = horizon, first
         self.experts = ExpertMaps(horizon)
         config = config or StackingConfig()
-        first = EXPERTS.index("model")
-        self.stacks = [HorizonStacking(len(EXPERTS), config, first) for _ in range(horizon)]
+        model = EXPERTS.index("model")
+        self.stacks = [HorizonStacking(len(EXPERTS), config, model) for _ in range(horizon)]
         # the simple predictors among the candidates, copy-last first (the tolerant F1's judge)
         simple = tuple(CANDIDATES.index(n) for n in ("copy_last", "temporal_average", "tracker"))
         self.leaders = [
-            Leader(len(CANDIDATES), first, config.decay, baselines=simple) for _ in range(horizon)
+            Leader(len(CANDIDATES), model, config.decay, baselines=simple) for _ in range(horizon)
         ]
         self._waiting: list[deque[tuple[np.ndarray, ...]]] = [
             deque(maxlen=k) for k in range(1, horizon + 1)

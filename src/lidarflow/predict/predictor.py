@@ -210,14 +210,12 @@ class Predictor:
         self.decision = decision.with_online(online_decision)
         #: The online combination (``None`` without ``combine``), for a look inside.
         self.combination: Combination | None = None
-        #: The first frame ahead the combination decides (1: all of them; see ``combine``).
-        self.combined_from = 1
+        first = 1  # the first frame ahead the combination decides
         if combine is None:  # measured: docs/research/online_combination ("sixteen robots")
-            combine = horizon > 1 and self.decision.tracks
-            self.combined_from = 2
+            combine, first = horizon > 1 and self.decision.tracks, 2
         if combine is not False:
             config = combine if isinstance(combine, StackingConfig) else None
-            self.combination = Combination(horizon, config, self.combined_from)
+            self.combination = Combination(horizon, config, first)
             self.decision = dataclasses.replace(self.decision, tracks=True)  # an expert
         #: The head learning on the stream (``None`` without ``learn``), for a look inside.
         self.learning: HeadLearning | None = None
@@ -318,6 +316,12 @@ class Predictor:
             )
         return occupancy, visibility
 
+    @property
+    def combined_from(self) -> int | None:
+        """The first frame ahead the online combination decides (1: all of them; ``None``:
+        it does not combine)."""
+        return None if self.combination is None else self.combination.first
+
     def update(self, item: Scan | tuple[np.ndarray, np.ndarray], pose: Any = None) -> Prediction:
         """Feed one scan (or its ``(occupancy, visibility)`` maps, for a model without
         ``subcell_input``: the bundled one has it) and predict what comes next; ``pose``
@@ -351,9 +355,9 @@ class Predictor:
             combined = self.combination.step(
                 self.engine.tracker, step, ahead, occupancy, visibility
             )
-            first = self.combined_from - 1  # the frames ahead before it: the model's own
-            probability = np.concatenate([probability[:first], combined.probability])
-            decided = np.concatenate([decided[:first], combined.decided])
+            before = self.combination.first - 1  # the frames ahead before it: the model's own
+            probability = np.concatenate([probability[:before], combined.probability])
+            decided = np.concatenate([decided[:before], combined.decided])
         flow = step.flow
         return Prediction(
             probability=probability[0],
