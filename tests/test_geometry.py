@@ -239,4 +239,3 @@ def test_a_samplers_adjoint_is_its_transpose() -> None:
     sampler = Sampler(*rigid_positions(np.array([2.3, -1.6, 0.2]), 13, 11))
     x, g = rng.random((13, 11)), rng.random((13, 11))
     assert np.sum(sampler(x) * g) == pytest.approx(np.sum(x * sampler.adjoint(g)), rel=1e-12)
-

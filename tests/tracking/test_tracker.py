@@ -266,3 +266,21 @@ def test_tracks_at_is_computed_once_per_k_read_only_and_as_computed_afresh():
         first[0, 0] = 1.0
     for k in (1, 2, 3):  # held cells up to hold only, each k its own motion
         np.testing.assert_array_equal(once.at(k), tracks().at(k))
+
+
+def test_maps_moved_beside_the_prediction_are_moved_as_the_tracks_move_them():
+    """``ahead(beside=...)``: the prediction first, as without them, then each map of the last
+    frame moved ``k`` guessed steps on, as the tracks move a map; on a moving platform."""
+    tracker = Tracker(res=0.1)
+    motion = np.array([0.7, 0.2, 0.03])
+    for t in range(6):
+        tracker.update(_walker(t, 1, 0), SEEN, FrameInputs(motion=None if t == 0 else motion))
+    rng = np.random.default_rng(0)
+    beside = rng.random((2, *SEEN.shape)) < np.array([0.05, 0.7])[:, None, None]
+    alone, both = tracker.ahead(3), tracker.ahead(3, beside=beside)
+    tracks = tracker.tracks()
+    for k, (a, b) in enumerate(zip(alone, both, strict=True), start=1):
+        assert b.shape == (3, *SEEN.shape)
+        np.testing.assert_array_equal(b[0], a)
+        np.testing.assert_array_equal(b[1:], tracks.moved_to_sensor(beside, k))
+    assert not np.array_equal(both[0][1], beside[0])  # the platform moved: so did the maps
