@@ -231,6 +231,23 @@ def test_a_sparse_map_moved_around_its_cells_is_the_dense_move_to_the_bit() -> N
         assert np.array_equal(first, dense) and np.array_equal(second, dense)
 
 
+@pytest.mark.parametrize("numba_off", [False, True])
+def test_a_bool_map_moves_as_its_float64_copy_to_the_bit(numba_off, monkeypatch) -> None:
+    """Bool maps are sampled as they are (a corner adds its weight or nothing): the same
+    float64 numbers as their float64 copies, dense and sparse, one map or a stack, compiled or
+    in NumPy."""
+    if numba_off:
+        monkeypatch.setattr(geometry, "ready", lambda *args, **kwargs: False)
+    rng = np.random.default_rng(5)
+    for share in (0.01, 0.3, 0.9):
+        maps = rng.random((3, 31, 24)) < share
+        for motion in ([0.4, -1.7, 0.2], [3.0, 0.5, -0.6], [0.0, 0.0, 0.0]):
+            for image in (maps, maps[1]):
+                got = rigid_moved(image, np.array(motion), 0.1)
+                assert got.dtype == np.float64
+                assert np.array_equal(got, rigid_moved(image.astype(np.float64), motion, 0.1))
+
+
 def test_a_samplers_adjoint_is_its_transpose() -> None:
     """<S x, g> = <x, S^T g> for a rigid move, cells leaving the map included."""
     from lidarflow.geometry import Sampler, rigid_positions

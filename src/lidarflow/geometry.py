@@ -180,8 +180,9 @@ def _gather_loop(flat: np.ndarray, index: np.ndarray, weight: np.ndarray, out: n
 
 def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """``flat`` ``(C, H*W)`` read at the corners ``index, weight`` ``(4, N)``: ``(C, N)``, the
-    weighted corners summed in their order, in ``flat``'s precision."""
-    out = np.empty((flat.shape[0], index.shape[1]), flat.dtype)
+    weighted corners summed in their order, in the precision of ``flat`` times ``weight`` (a
+    bool map's sums are the same as its float64 copy's: a corner adds its weight or 0)."""
+    out = np.empty((flat.shape[0], index.shape[1]), np.result_type(flat, weight))
     flat = np.ascontiguousarray(flat)
     if not ready(_gather_loop, flat, index, weight, out, variant=flat.dtype.char):
         return _gathered_numpy(flat, index, weight)
@@ -191,12 +192,12 @@ def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.nda
 
 def _gathered_numpy(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """:func:`_gathered` in NumPy (the reference)."""
-    # np.take, in place: faster than fancy indexing along the second axis.
-    out = np.take(flat, index[0], axis=1)
-    out *= weight[0]
+    # np.take: faster than fancy indexing along the second axis; a bool map's corners are
+    # gathered as bytes, an eighth of its float64 copy's
+    out = np.multiply(np.take(flat, index[0], axis=1), weight[0])
+    corner = np.empty_like(out)
     for k in range(1, 4):
-        corner = np.take(flat, index[k], axis=1)
-        corner *= weight[k]
+        np.multiply(np.take(flat, index[k], axis=1), weight[k], out=corner)
         out += corner
     return out
 
@@ -241,8 +242,10 @@ class Sampler:
                 weight32.setflags(write=False)
                 self._weight32 = weight32
             weight = self._weight32
-        else:
-            maps, weight = maps.astype(np.float64, copy=False), self._weight
+        else:  # bool maps as they are: the same sums as their float64 copies'
+            weight = self._weight
+            if maps.dtype != np.bool_:
+                maps = maps.astype(np.float64, copy=False)
         flat = maps.reshape(-1, maps.shape[-2] * maps.shape[-1])
         return _gathered(flat, self._index, weight).reshape(maps.shape)
 
@@ -366,7 +369,9 @@ def rigid_moved(image: np.ndarray, motion: np.ndarray, res: float = 1.0) -> np.n
     >>> np.argwhere(rigid_moved(image, np.array([1.0, 0.0, 0.0]))).tolist()  # 1 row closer
     [[2, 1]]
     """
-    image = np.asarray(image, np.float64)
+    image = np.asarray(image)
+    if image.dtype != np.bool_:  # a bool map is sampled as it is, to the same numbers
+        image = image.astype(np.float64, copy=False)
     h, w = image.shape[-2:]
     occupied = np.count_nonzero(image)
     if not occupied:  # nothing to move (often so for the carried objects)

@@ -284,3 +284,8 @@ def test_maps_moved_beside_the_prediction_are_moved_as_the_tracks_move_them():
         np.testing.assert_array_equal(b[0], a)
         np.testing.assert_array_equal(b[1:], tracks.moved_to_sensor(beside, k))
     assert not np.array_equal(both[0][1], beside[0])  # the platform moved: so did the maps
+    # from a later frame on: the same maps, the earlier ones left out
+    later = tracker.ahead(3, beside=beside, first=2)
+    assert len(later) == 2
+    for a, b in zip(later, both[1:], strict=True):
+        np.testing.assert_array_equal(a, b)

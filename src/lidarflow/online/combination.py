@@ -56,7 +56,7 @@ class Combination:
         if horizon < 1 or not 1 <= first <= horizon:
             raise ValueError(f"need 1 <= first <= horizon, got first {first}, horizon {horizon}")
         self.horizon, self.first = horizon, first
-        self.experts = ExpertMaps(horizon)
+        self.experts = ExpertMaps(horizon, first)
         config = config or StackingConfig()
         model = EXPERTS.index("model")
         self.stacks = [HorizonStacking(len(EXPERTS), config, model) for _ in range(horizon)]
@@ -106,10 +106,10 @@ class Combination:
                 stacked = stack.learn(stored, rare, occupied)  # as decided before this step
                 candidates = _candidates_decided(stored, _DECIDED_LEVEL, stacked)
                 leader.score(candidates, rare, experts.region, occupied, before)
-            rare = experts.rare[k]
             j = k + 1 - self.first
-            probability[j], decided[j] = _chosen(stack, leader.choice, maps[:, k], rare)
-            waiting.append((quantised(maps[:, k]), rare.copy(), occupied))
+            rare = experts.rare[j]
+            probability[j], decided[j] = _chosen(stack, leader.choice, maps[:, j], rare)
+            waiting.append((quantised(maps[:, j]), rare.copy(), occupied))
         return Combined(probability, decided)
 
     @property

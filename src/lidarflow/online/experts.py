@@ -32,11 +32,11 @@ EXPERTS = ("model", "tracks", "tracker", "copy_last", "temporal_average")
 
 @dataclass(frozen=True)
 class Experts:
-    """The experts' maps for ``t + 1 .. t + K`` ``(E, K, H, W)``, their ``rare`` cells
-    ``(K, H, W)`` bool in the sensor frame then (the tracker's background under its threshold),
-    and the ``region`` ``(H, W)`` bool of frame ``t`` where movers went, as the mover metric
-    finds it but counted up to ``t``: occupied at least once, and in under :data:`SELDOM` of
-    the frames that saw it."""
+    """The experts' maps for ``t + first .. t + K`` ``(E, K - first + 1, H, W)``, their
+    ``rare`` cells ``(K - first + 1, H, W)`` bool in the sensor frame then (the tracker's
+    background under its threshold), and the ``region`` ``(H, W)`` bool of frame ``t`` where
+    movers went, as the mover metric finds it but counted up to ``t``: occupied at least once,
+    and in under :data:`SELDOM` of the frames that saw it."""
 
     maps: np.ndarray
     rare: np.ndarray
@@ -44,12 +44,13 @@ class Experts:
 
 
 class ExpertMaps:
-    """The experts' maps after each engine step (:class:`Experts`), from an engine that runs a
-    tracker and rolls out ``horizon`` frames. The counts of occupied and seen frames per cell
-    follow the scene (moved by the ego motion)."""
+    """The experts' maps of the frames ``first .. horizon`` ahead after each engine step
+    (:class:`Experts`), from an engine that runs a tracker and rolls out ``horizon`` frames.
+    The counts of occupied and seen frames per cell follow the scene (moved by the ego
+    motion)."""
 
-    def __init__(self, horizon: int) -> None:
-        self.horizon = horizon
+    def __init__(self, horizon: int, first: int = 1) -> None:
+        self.horizon, self.first = horizon, first
         self._average = TemporalAverage()  # its defaults decide at 0.4: the mean as it is
         self._counts: np.ndarray | None = None  # (2, H, W): frames occupied, frames seen
 
@@ -75,7 +76,7 @@ class ExpertMaps:
     ) -> Experts:
         """The experts for the frame just stepped: its ``step`` and ``rollout`` ``K`` ahead
         by an engine that runs ``tracker``, its ``occupancy`` and ``visibility``."""
-        tracks, horizon = step.tracks, self.horizon
+        tracks, horizon, first = step.tracks, self.horizon, self.first
         if tracks is None or len(rollout.model_only) < horizon:
             raise ValueError(f"need a step with tracked objects and a roll-out {horizon} ahead")
         occupied = np.asarray(occupancy) > 0.5
@@ -85,12 +86,14 @@ class ExpertMaps:
         occupied_count, seen = self._counts
         region = (occupied_count > 0) & (occupied_count < SELDOM * seen)
         rare_now = tracker.background < tracker.config.background_threshold
-        maps = np.empty((len(EXPERTS), horizon, *average.shape), np.float32)
-        maps[0] = rollout.model_only[:horizon]
-        maps[1] = [tracks.at(k) for k in range(1, horizon + 1)]
-        rare = np.empty((horizon, *average.shape), bool)
+        frames = horizon - first + 1
+        maps = np.empty((len(EXPERTS), frames, *average.shape), np.float32)
+        maps[0] = rollout.model_only[first - 1 : horizon]
+        maps[1] = [tracks.at(k) for k in range(first, horizon + 1)]
+        rare = np.empty((frames, *average.shape), bool)
         # the tracker's maps, and the last map and its rare cells moved alike: one pass a k
-        for k, moved in enumerate(tracker.ahead(horizon, beside=np.stack([occupied, rare_now]))):
+        beside = np.stack([occupied, rare_now])
+        for k, moved in enumerate(tracker.ahead(horizon, beside, first)):
             maps[2, k], maps[3, k] = moved[0], moved[1]
             rare[k] = moved[2] > 0.5
         maps[4] = average

@@ -159,15 +159,17 @@ class Tracker:
         )
         self._track(moving)
 
-    def ahead(self, horizon: int, beside: np.ndarray | None = None) -> list[np.ndarray]:
-        """The maps predicted 1..``horizon`` frames after the last one given, each ``(H, W)``
-        float32 in [0, 1] (see the module docstring). With ``beside`` ``(C, H, W)`` bool, maps
-        of the last frame moved alike in the same pass: each item is then ``(1 + C, H, W)``,
-        the prediction first."""
+    def ahead(
+        self, horizon: int, beside: np.ndarray | None = None, first: int = 1
+    ) -> list[np.ndarray]:
+        """The maps predicted ``first``..``horizon`` frames after the last one given, each
+        ``(H, W)`` float32 in [0, 1] (see the module docstring). With ``beside`` ``(C, H, W)``
+        bool, maps of the last frame moved alike in the same pass: each item is then
+        ``(1 + C, H, W)``, the prediction first."""
         if self._static is None:
             raise RuntimeError("ahead() before any update()")
         tracks, out = self.tracks(), []
-        for k in range(1, horizon + 1):
+        for k in range(first, horizon + 1):
             mine = self._static | tracks.cells_at(k)
             both = mine if beside is None else np.concatenate([mine[None], beside])
             out.append(tracks.moved_to_sensor(both, k))

@@ -113,7 +113,9 @@ class Tracks:
     def moved_to_sensor(self, image: np.ndarray, k: int) -> np.ndarray:
         """``image`` ``(H, W)`` of the last frame moved into the sensor frame ``k`` guessed
         steps on (unchanged on a still sensor): float32 in [0, 1]."""
-        image = np.asarray(image, np.float32)
+        image = np.asarray(image)
+        if image.dtype != np.bool_:  # a bool map is moved as it is, to the same numbers
+            image = image.astype(np.float32)
         if self.motion is not None:
             image = np.clip(rigid_moved(image, composed_motion(self.motion, k)), 0.0, 1.0)
         return image.astype(np.float32)
