@@ -42,7 +42,7 @@ import numpy as np
 from lidarflow.evaluate.metrics import confusion
 from lidarflow.evaluate.movers import TolerantCounts
 from lidarflow.online.combination import CANDIDATES
-from lidarflow.online.leader import LOSS_WEIGHT, Leader
+from lidarflow.online.leader import LOSS_WEIGHT, Arrived, Leader
 from lidarflow.scan import GridSpec
 from studies.combination_capture import capture
 from studies.harness import development, parse, parser, read_json, stem, write_json
@@ -122,9 +122,8 @@ class Capture:
         for t in range(len(candidates)):
             if t >= k:  # frame t labels what was predicted k frames before
                 past = t - k
-                leader.score(
-                    candidates[past], masks[past], region[t], self.occupied[t], self.occupied[past]
-                )
+                arrived = Arrived(self.occupied[t], region[t])
+                leader.score(candidates[past], masks[past], self.occupied[past], arrived)
             a, b = leader.choice
             out[t] = np.where(masks[t], candidates[t, b], candidates[t, a])
         return out[self.scored]

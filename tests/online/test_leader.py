@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarflow.online.leader import Leader
+from lidarflow.online.leader import Arrived, Leader
 
 SHAPE = (30, 30)
 
@@ -28,7 +28,7 @@ def test_it_starts_on_its_first_and_moves_to_the_candidates_that_score_best():
         # candidate 0 right on the common cells only, candidate 1 on the rare ones only
         zero = np.where(rare, noise, occupied)
         one = np.where(rare, occupied, noise)
-        leader.score(np.stack([zero, one, noise]), rare, rare, occupied, before)
+        leader.score(np.stack([zero, one, noise]), rare, before, Arrived(occupied, rare))
     assert leader.choice == (0, 1)
 
 
@@ -36,7 +36,7 @@ def test_its_counts_go_back_as_they_were():
     rng = np.random.default_rng(1)
     leader = Leader(2)
     for before, occupied, rare in stream(rng, 3):
-        leader.score(np.stack([occupied, before]), rare, rare, occupied, before)
+        leader.score(np.stack([occupied, before]), rare, before, Arrived(occupied, rare))
     other = Leader(2)
     other.load_state(leader.state())
     assert other.choice == leader.choice

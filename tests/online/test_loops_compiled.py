@@ -10,7 +10,7 @@ import pytest
 from lidarflow import compiled
 from lidarflow.online import loops, stacking
 from lidarflow.online.combination import quantised
-from lidarflow.online.leader import Leader, score_counts
+from lidarflow.online.leader import Arrived, Leader, score_counts
 
 pytestmark = [
     pytest.mark.skipif(not compiled.available(), reason="numba is not installed"),
@@ -43,15 +43,19 @@ def test_the_leaders_counts_are_the_numpy_references(shape, radius, monkeypatch)
     occupied = rng.random(shape) < 0.2
     before = occupied ^ (rng.random(shape) < 0.1)
     region[0, :] = occupied[0, :] = True  # true cells on the edge: the near ones clipped
-    args = (decided, rare, region, occupied, before, radius)
-    _assert_same(*_both(monkeypatch, lambda: score_counts(*args)))
+    _assert_same(
+        *_both(
+            monkeypatch,
+            lambda: score_counts(decided, rare, before, Arrived(occupied, region), radius),
+        )
+    )
     # a small region (the reference counts inside its bounding box), and none
     small = np.zeros(shape, bool)
     patch = small[shape[0] // 2 :, 1 : 2 + shape[1] // 3]
     patch[...] = rng.random(patch.shape) < 0.5
     for other in (small, np.zeros(shape, bool)):
-        some = (decided, rare, other, occupied, before, radius)
-        _assert_same(*_both(monkeypatch, lambda some=some: score_counts(*some)))
+        arrived = (decided, rare, before, Arrived(occupied, other), radius)
+        _assert_same(*_both(monkeypatch, lambda some=arrived: score_counts(*some)))
 
 
 def _quantised_maps(rng, experts=5, shape=(30, 20)):

@@ -19,7 +19,7 @@ import numpy as np
 
 from lidarflow.compiled import ready
 from lidarflow.online.experts import EXPERTS, ExpertMaps
-from lidarflow.online.leader import Leader
+from lidarflow.online.leader import Arrived, Leader
 from lidarflow.online.loops import quantised_loop
 from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
@@ -99,13 +99,14 @@ class Combination:
         occupied = np.asarray(occupancy) > 0.5
         shape = (self.horizon - self.first + 1, *occupied.shape)
         probability, decided = np.empty(shape, np.float32), np.empty(shape, np.float32)
+        arrived = Arrived(occupied, experts.region)  # one label for every horizon's leader
         for k in range(self.first - 1, self.horizon):
             stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
             if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
                 stored, rare, before = waiting[0]
                 stacked = stack.learn(stored, rare, occupied)  # as decided before this step
                 candidates = _candidates_decided(stored, _DECIDED_LEVEL, stacked)
-                leader.score(candidates, rare, experts.region, occupied, before)
+                leader.score(candidates, rare, before, arrived)
             j = k + 1 - self.first
             rare = experts.rare[j]
             probability[j], decided[j] = _chosen(stack, leader.choice, maps[:, j], rare)

@@ -16,10 +16,28 @@ from lidarflow.nearby import TOLERANCE, near, near_counts
 from lidarflow.online.loops import best_pair_loop, score_counts_loop
 from lidarflow.online.stacking import f1_of
 
-__all__ = ["Leader", "score_counts"]
+__all__ = ["Arrived", "Leader", "score_counts"]
 
 #: How much more a loss against the simple predictors weighs than a win of the same size.
 LOSS_WEIGHT = 10.0
+
+
+class Arrived:
+    """The frame whose map came, as the leaders of every horizon score against it: its
+    ``occupied`` cells and the ``region`` where movers went, ``(H, W)`` bool. The region's cells
+    near one of its occupied ones are found once (:meth:`near_truth`)."""
+
+    def __init__(self, occupied: np.ndarray, region: np.ndarray) -> None:
+        self.occupied = np.ascontiguousarray(occupied, bool)
+        self.region = np.ascontiguousarray(region, bool)
+        self._near: dict[int, np.ndarray] = {}
+
+    def near_truth(self, radius: int) -> np.ndarray:
+        """The region's cells within ``radius`` of an occupied cell of the region
+        (:func:`lidarflow.nearby.near`)."""
+        if radius not in self._near:
+            self._near[radius] = near(self.occupied & self.region, radius) & self.region
+        return self._near[radius]
 
 
 class Leader:
@@ -69,20 +87,15 @@ class Leader:
         self.choice = (choice[0], choice[1])
 
     def score(
-        self,
-        decided: np.ndarray,
-        rare: np.ndarray,
-        region: np.ndarray,
-        occupied: np.ndarray,
-        before: np.ndarray,
+        self, decided: np.ndarray, rare: np.ndarray, before: np.ndarray, arrived: Arrived
     ) -> None:
-        """Count the candidates' ``decided`` maps ``(C, H, W)`` bool against the map that came
-        (``occupied`` ``(H, W)`` bool): F1 on the common and the ``rare`` cells apart, of all
-        cells and of those changed since the map they were predicted from (``before``), and
-        the tolerant F1 inside ``region`` (where movers went); then choose anew."""
+        """Count the candidates' ``decided`` maps ``(C, H, W)`` bool against the frame that
+        ``arrived``: F1 on the common and the ``rare`` cells apart, of all cells and of those
+        changed since the map they were predicted from (``before``), and the tolerant F1 inside
+        its region (where movers went); then choose anew."""
         self._f1 *= self.decay
         self._tolerant *= self.decay
-        f1, tolerant = score_counts(decided, rare, region, occupied, before, self.tolerance)
+        f1, tolerant = score_counts(decided, rare, before, arrived, self.tolerance)
         self._f1 += f1.reshape(self._f1.shape)
         self._tolerant += tolerant
         self.choice = self._best()
@@ -118,18 +131,18 @@ class Leader:
 def score_counts(
     decided: np.ndarray,
     rare: np.ndarray,
-    region: np.ndarray,
-    occupied: np.ndarray,
     before: np.ndarray,
+    arrived: Arrived,
     radius: int = TOLERANCE,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One frame's counts of the candidates' ``decided`` maps ``(C, H, W)`` bool against the
-    map that came (``occupied`` ``(H, W)`` bool), as :meth:`Leader.score` adds them: ``(C, 4,
-    3)`` true positives, false positives and false negatives over the common cells, the
-    ``rare`` ones, and the same among those changed since ``before``; and ``(C, 4)`` the
-    tolerant F1's right, wrong, found and missed cells inside ``region``, a cell near another
-    within ``radius`` (:func:`lidarflow.nearby.near`). float64 holding integers; compiled
-    where available, the same counts."""
+    frame that ``arrived``, as :meth:`Leader.score` adds them: ``(C, 4, 3)`` true positives,
+    false positives and false negatives over the common cells, the ``rare`` ones, and the same
+    among those changed since ``before``; and ``(C, 4)`` the tolerant F1's right, wrong, found
+    and missed cells inside its region, a cell near another within ``radius``
+    (:func:`lidarflow.nearby.near`). float64 holding integers; compiled where available, the
+    same counts."""
+    region, occupied = arrived.region, arrived.occupied
     args = tuple(np.ascontiguousarray(a, bool) for a in (decided, rare, region, occupied, before))
     as_bytes = tuple(a.view(np.uint8) for a in args)  # 0 or 1: the loop adds them
     if radius >= 0 and ready(score_counts_loop, *as_bytes, radius):
@@ -139,7 +152,7 @@ def score_counts(
     truth_rare = occupied & region
     # the cells counts are over, as rows: (metric, kind) in Leader._f1's order, then the region
     # and its cells near a true one there
-    rows = [~rare, rare, ~rare & changed, rare & changed, region, near(truth_rare, radius) & region]
+    rows = [~rare, rare, ~rare & changed, rare & changed, region, arrived.near_truth(radius)]
     # only the cells guessed or true add to any count
     support = np.flatnonzero(decided.any(axis=0) | occupied)
     masks = np.stack(rows).reshape(len(rows), -1)[:, support].astype(np.float32)
