@@ -4,8 +4,9 @@ The same sampling local planner (:mod:`lidarflow.sim.local_planner`) drives a 0.
 drive robot across an open 12 x 12 m hall to a goal 6-10 m away through social walkers
 (:mod:`lidarflow.sim.navigation`), with its obstacles from each of four sources
 (:mod:`lidarflow.sim.obstacles`): ``last_scan``, ``lidarflow`` (the bundled model's maps 1 s ahead),
-``tracker`` and ``true_future`` (the ceiling); ``lidarflow_combined`` on request (the bundled model
-combined online with the simple predictors, learning from each episode's scans). Episode ``seed`` of
+``tracker`` and ``true_future`` (the ceiling); on request ``lidarflow_default`` (the Predictor's
+default: the model's first frame, the online combination's frames after it) and
+``lidarflow_combined`` (the combination on every frame), each learning from its episode's scans. Episode ``seed`` of
 a crowd size is the same scene for every source. Per source and crowd size: success rate and
 collision rate (95 % Wilson intervals), the smallest robot-person centre distance (mean over
 episodes with people) and the time to goal (mean over successes), both with 95 % bootstrap intervals
@@ -42,12 +43,13 @@ from lidarflow.sim.navigation import NavConfig, Outcome, run_episode
 from lidarflow.sim.obstacles import SOURCES, make_source
 
 RESULTS = Path(__file__).resolve().parent / "results"
-#: The sources a Predictor makes: the bundled model, and the same combined online with the
-#: simple predictors (``Predictor(combine=True)``, reset with every episode as the other).
-PREDICTED = ("lidarflow", "lidarflow_combined")  # the model alone; every frame combined
-CHOICES = (*SOURCES, "lidarflow_combined")
+#: The sources a Predictor makes, by its ``combine``: the bundled model alone (as its results
+#: were first made), the default (the online combination from frame 2 on) and the combination
+#: on every frame; each reset with every episode.
+PREDICTED = {"lidarflow": False, "lidarflow_default": None, "lidarflow_combined": True}
+CHOICES = (*SOURCES, "lidarflow_default", "lidarflow_combined")
 # one per process and (grid, horizon, combine), reset every episode
-_PREDICTORS: dict[tuple[Any, int, bool], Predictor] = {}
+_PREDICTORS: dict[tuple[Any, int, bool | None], Predictor] = {}
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float] | None:
@@ -87,7 +89,7 @@ def episode(job: tuple[str, int, int]) -> tuple[str, int, int, Outcome]:
     config = NavConfig(walkers=walkers)
     predictor = None
     if name in PREDICTED:
-        combine = name == "lidarflow_combined"  # else the model alone, as its results were made
+        combine = PREDICTED[name]
         key = (config.grid, config.horizon, combine)
         if key not in _PREDICTORS:
             _PREDICTORS[key] = Predictor(grid=config.grid, horizon=config.horizon, combine=combine)
