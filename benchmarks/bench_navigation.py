@@ -1,18 +1,18 @@
 """Closed loop: does a robot that plans on lidarflow's predicted maps get through people better?
 
-The same sampling local planner (:mod:`lidarflow.sim.local_planner`) drives a 0.3 m differential-
-drive robot across an open 12 x 12 m hall to a goal 6-10 m away through social walkers
-(:mod:`lidarflow.sim.navigation`), with its obstacles from each of four sources
-(:mod:`lidarflow.sim.obstacles`): ``last_scan``, ``lidarflow`` (the bundled model's maps 1 s ahead),
-``tracker`` and ``true_future`` (the ceiling); on request ``lidarflow_default`` (the Predictor's
-default: the model's first frame, the online combination's frames after it) and
-``lidarflow_combined`` (the combination on every frame), each learning from its episode's scans. Episode ``seed`` of
-a crowd size is the same scene for every source. Per source and crowd size: success rate and
-collision rate (95 % Wilson intervals), the smallest robot-person centre distance (mean over
-episodes with people) and the time to goal (mean over successes), both with 95 % bootstrap intervals
-of the mean. Beside the last scan, each other source's collisions are compared episode by episode on
-the same scenes (``vs_last_scan``: the scenes where only the last scan collided, where only the
-source did, and the exact two-sided sign test's p-value on those).
+The same sampling local planner (:mod:`lidarflow.sim.local_planner`) drives a 0.3 m
+differential-drive robot across an open 12 x 12 m hall to a goal 6-10 m away through social
+walkers (:mod:`lidarflow.sim.navigation`), with its obstacles from each of four sources
+(:mod:`lidarflow.sim.obstacles`): ``last_scan``, ``lidarflow`` (the bundled model's maps 1 s
+ahead), ``tracker`` and ``true_future`` (the ceiling); on request ``lidarflow_default`` (the
+Predictor's default: the model's first frame, the online combination's frames after it) and
+``lidarflow_combined`` (the combination on every frame), each learning from its episode's scans.
+Episode ``seed`` of a crowd size is the same scene for every source. Per source and crowd size:
+success rate and collision rate (95 % Wilson intervals), the smallest robot-person centre
+distance (mean over episodes with people) and the time to goal (mean over successes), both with
+95 % bootstrap intervals of the mean. Beside the last scan, each other source's collisions are
+compared episode by episode on the same scenes (``vs_last_scan``: the scenes where only the last
+scan collided, where only the source did, and the exact two-sided sign test's p-value on those).
 
     python benchmarks/bench_navigation.py                  # small: crowds 0 4 8, 10 episodes
     python benchmarks/bench_navigation.py --episodes 100 --crowds 0 2 4 6 8 10 12   # the full one

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from lidarflow.online.leader import Arrived, Leader
+import lidarflow.online.leader as leader_module
+from lidarflow.online.leader import Arrived, Leader, score_counts, score_counts_each
 
 SHAPE = (30, 30)
 
@@ -41,3 +43,27 @@ def test_its_counts_go_back_as_they_were():
     other.load_state(leader.state())
     assert other.choice == leader.choice
     np.testing.assert_array_equal(other.state()["f1_counts"], leader.state()["f1_counts"])
+
+
+@pytest.mark.usefixtures("compile_now")
+@pytest.mark.parametrize("compiled", [True, False])
+def test_horizons_scored_together_count_as_each_alone(compiled, monkeypatch):
+    """Several horizons' candidates against one frame: the counts each would get alone, also
+    where one horizon guesses cells no other does (the NumPy pass counts over their union)."""
+    if not compiled:
+        monkeypatch.setattr(leader_module, "ready", lambda *args, **kwargs: False)
+    rng = np.random.default_rng(2)
+    occupied, region = rng.random(SHAPE) < 0.1, rng.random(SHAPE) < 0.4
+    arrived = Arrived(occupied, region)
+    share = np.array([0.0, 0.05, 0.3])[None, :, None, None]
+    decided = rng.random((4, 3, *SHAPE)) < share
+    decided[2, 1, :5] = True  # cells only this horizon's candidate guesses
+    rare = rng.random((4, *SHAPE)) < 0.5
+    before = occupied ^ (rng.random((4, *SHAPE)) < 0.1)
+    f1, tolerant = score_counts_each(decided, rare, before, arrived)
+    assert f1.shape == (4, 3, 4, 3) and tolerant.shape == (4, 3, 4)
+    for k in range(4):
+        alone = score_counts(decided[k], rare[k], before[k], Arrived(occupied, region))
+        np.testing.assert_array_equal(f1[k], alone[0])
+        np.testing.assert_array_equal(tolerant[k], alone[1])
+    assert f1[2, 1].sum() > f1[1, 1].sum()  # the extra guesses were counted

@@ -19,7 +19,7 @@ import numpy as np
 
 from lidarflow.compiled import ready
 from lidarflow.online.experts import EXPERTS, ExpertMaps
-from lidarflow.online.leader import Arrived, Leader
+from lidarflow.online.leader import Arrived, Leader, score_counts_each
 from lidarflow.online.loops import quantised_loop
 from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
 
@@ -98,20 +98,36 @@ class Combination:
         maps = experts.maps
         occupied = np.asarray(occupancy) > 0.5
         shape = (self.horizon - self.first + 1, *occupied.shape)
+        self._learn(occupied, experts.region)
         probability, decided = np.empty(shape, np.float32), np.empty(shape, np.float32)
-        arrived = Arrived(occupied, experts.region)  # one label for every horizon's leader
         for k in range(self.first - 1, self.horizon):
-            stack, leader, waiting = self.stacks[k], self.leaders[k], self._waiting[k]
-            if len(waiting) == k + 1:  # the oldest was made k + 1 frames ago: for this frame
-                stored, rare, before = waiting[0]
-                stacked = stack.learn(stored, rare, occupied)  # as decided before this step
-                candidates = _candidates_decided(stored, _DECIDED_LEVEL, stacked)
-                leader.score(candidates, rare, before, arrived)
             j = k + 1 - self.first
             rare = experts.rare[j]
-            probability[j], decided[j] = _chosen(stack, leader.choice, maps[:, j], rare)
-            waiting.append((quantised(maps[:, j]), rare.copy(), occupied))
+            choice = self.leaders[k].choice
+            probability[j], decided[j] = _chosen(self.stacks[k], choice, maps[:, j], rare)
+            self._waiting[k].append((quantised(maps[:, j]), rare.copy(), occupied))
         return Combined(probability, decided)
+
+    def _learn(self, occupied: np.ndarray, region: np.ndarray) -> None:
+        """Learn from the frame that came (``occupied``, its mover ``region``) as the label of
+        the oldest predictions waiting (those made ``k`` frames before, for each ``k``): each
+        horizon's stacking takes a step, its leader scores every candidate's map."""
+        ks = range(self.first - 1, self.horizon)
+        labelled = [k for k in ks if len(self._waiting[k]) == k + 1]  # made k + 1 frames ago
+        if not labelled:
+            return
+        candidates, rares, befores = [], [], []
+        for k in labelled:
+            stored, rare, before = self._waiting[k][0]
+            stacked = self.stacks[k].learn(stored, rare, occupied)  # as decided before the step
+            candidates.append(_candidates_decided(stored, _DECIDED_LEVEL, stacked))
+            rares.append(rare)
+            befores.append(before)
+        counts = score_counts_each(
+            np.stack(candidates), np.stack(rares), np.stack(befores), Arrived(occupied, region)
+        )
+        for k, f1, tolerant in zip(labelled, *counts, strict=True):
+            self.leaders[k].add(f1, tolerant)
 
     @property
     def nbytes(self) -> int:

@@ -16,7 +16,7 @@ from lidarflow.nearby import TOLERANCE, near, near_counts
 from lidarflow.online.loops import best_pair_loop, score_counts_loop
 from lidarflow.online.stacking import f1_of
 
-__all__ = ["Arrived", "Leader", "score_counts"]
+__all__ = ["Arrived", "Leader", "score_counts", "score_counts_each"]
 
 #: How much more a loss against the simple predictors weighs than a win of the same size.
 LOSS_WEIGHT = 10.0
@@ -93,9 +93,13 @@ class Leader:
         ``arrived``: F1 on the common and the ``rare`` cells apart, of all cells and of those
         changed since the map they were predicted from (``before``), and the tolerant F1 inside
         its region (where movers went); then choose anew."""
+        self.add(*score_counts(decided, rare, before, arrived, self.tolerance))
+
+    def add(self, f1: np.ndarray, tolerant: np.ndarray) -> None:
+        """Add one frame's counts (:func:`score_counts`' pair), the older ones decayed; then
+        choose anew."""
         self._f1 *= self.decay
         self._tolerant *= self.decay
-        f1, tolerant = score_counts(decided, rare, before, arrived, self.tolerance)
         self._f1 += f1.reshape(self._f1.shape)
         self._tolerant += tolerant
         self.choice = self._best()
@@ -142,30 +146,57 @@ def score_counts(
     and missed cells inside its region, a cell near another within ``radius``
     (:func:`lidarflow.nearby.near`). float64 holding integers; compiled where available, the
     same counts."""
+    f1, tolerant = score_counts_each(decided[None], rare[None], before[None], arrived, radius)
+    return f1[0], tolerant[0]
+
+
+def score_counts_each(
+    decided: np.ndarray,
+    rare: np.ndarray,
+    before: np.ndarray,
+    arrived: Arrived,
+    radius: int = TOLERANCE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`score_counts` of ``K`` horizons' candidates against the one frame that
+    ``arrived`` (each made from another frame): ``decided`` ``(K, C, H, W)``, ``rare`` and
+    ``before`` ``(K, H, W)`` bool; the counts ``(K, C, 4, 3)`` and ``(K, C, 4)``, in one pass
+    on the NumPy path."""
     region, occupied = arrived.region, arrived.occupied
-    args = tuple(np.ascontiguousarray(a, bool) for a in (decided, rare, region, occupied, before))
-    as_bytes = tuple(a.view(np.uint8) for a in args)  # 0 or 1: the loop adds them
-    if radius >= 0 and ready(score_counts_loop, *as_bytes, radius):
-        return score_counts_loop(*as_bytes, radius)  # type: ignore[no-any-return]
-    decided, rare, region, occupied, before = args
-    changed = occupied != before
+    decided, rare, before = (np.ascontiguousarray(a, bool) for a in (decided, rare, before))
+    shared = (region.view(np.uint8), occupied.view(np.uint8))  # 0 or 1: the loop adds them
+    each = [
+        (d.view(np.uint8), r.view(np.uint8), b.view(np.uint8))
+        for d, r, b in zip(decided, rare, before, strict=True)
+    ]
+    if each and radius >= 0 and ready(score_counts_loop, *each[0][:2], *shared, each[0][2], radius):
+        out = [score_counts_loop(d, r, *shared, b, radius) for d, r, b in each]
+        return np.stack([f1 for f1, _ in out]), np.stack([tolerant for _, tolerant in out])
+    horizons, candidates = decided.shape[:2]
     truth_rare = occupied & region
+    # only the cells some horizon's candidate guessed, or true, add to any count
+    support = np.flatnonzero(decided.any(axis=(0, 1)) | occupied)
+    kind = rare.reshape(horizons, -1)[:, support]
+    changed = occupied.reshape(-1)[support] != before.reshape(horizons, -1)[:, support]
     # the cells counts are over, as rows: (metric, kind) in Leader._f1's order, then the region
     # and its cells near a true one there
-    rows = [~rare, rare, ~rare & changed, rare & changed, region, arrived.near_truth(radius)]
-    # only the cells guessed or true add to any count
-    support = np.flatnonzero(decided.any(axis=0) | occupied)
-    masks = np.stack(rows).reshape(len(rows), -1)[:, support].astype(np.float32)
-    flat = decided.reshape(len(decided), -1)[:, support].astype(np.float32)
+    masks = np.empty((horizons, 6, len(support)), np.float32)
+    masks[:, 0], masks[:, 1] = ~kind, kind
+    masks[:, 2], masks[:, 3] = ~kind & changed, kind & changed
+    masks[:, 4] = region.reshape(-1)[support]
+    masks[:, 5] = arrived.near_truth(radius).reshape(-1)[support]
+    flat = decided.reshape(horizons, candidates, -1)[:, :, support].astype(np.float32)
     truth = occupied.reshape(-1)[support].astype(np.float32)
-    predicted = flat @ masks.T  # (C, 6), exact: float32 holds counts up to 2**24
-    tp = flat @ (masks[:4] * truth).T
-    true = masks[:4] @ truth  # (4,)
-    counts = np.stack([tp, predicted[:, :4] - tp, true - tp], axis=-1)  # (C, 4, 3)
-    guessed, right = predicted[:, 4], predicted[:, 5]
-    found = near_counts(decided & region, truth_rare, radius)  # true cells with a guess near
+    # exact: float32 holds counts up to 2**24, so the products' order does not matter
+    predicted = flat @ masks.transpose(0, 2, 1)  # (K, C, 6)
+    tp = flat @ (masks[:, :4] * truth).transpose(0, 2, 1)  # (K, C, 4)
+    true = (masks[:, :4] @ truth)[:, None]  # (K, 1, 4)
+    counts = np.stack([tp, predicted[..., :4] - tp, true - tp], axis=-1)  # (K, C, 4, 3)
+    guessed, right = predicted[..., 4], predicted[..., 5]
+    # true cells with a guess near
+    found = near_counts((decided & region).reshape(-1, *region.shape), truth_rare, radius)
+    found = found.reshape(horizons, candidates)
     true_rare = np.count_nonzero(truth_rare)
-    tolerant = np.stack([right, guessed - right, found, true_rare - found], axis=1)
+    tolerant = np.stack([right, guessed - right, found, true_rare - found], axis=-1)
     return counts.astype(np.float64), tolerant.astype(np.float64)
 
 
