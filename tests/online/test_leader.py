@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 import lidarflow.online.leader as leader_module
-from lidarflow.online.leader import Arrived, Leader, score_counts, score_counts_each
+from lidarflow.online.leader import (
+    Arrived,
+    Leader,
+    choose_each,
+    score_counts,
+    score_counts_each,
+)
 
 SHAPE = (30, 30)
 
@@ -67,3 +73,24 @@ def test_horizons_scored_together_count_as_each_alone(compiled, monkeypatch):
         np.testing.assert_array_equal(f1[k], alone[0])
         np.testing.assert_array_equal(tolerant[k], alone[1])
     assert f1[2, 1].sum() > f1[1, 1].sum()  # the extra guesses were counted
+
+
+@pytest.mark.usefixtures("compile_now")
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("baselines", [(), (1, 3)])
+def test_leaders_choosing_together_choose_as_each_alone(compiled, baselines, monkeypatch):
+    """Several horizons' leaders choose in one pass what each chooses alone, a leader with
+    nothing counted yet keeping its first."""
+    if not compiled:
+        monkeypatch.setattr(leader_module, "ready", lambda *args, **kwargs: False)
+    rng = np.random.default_rng(5)
+    leaders = [Leader(4, first=2, baselines=baselines) for _ in range(4)]
+    for k, leader in enumerate(leaders[1:], start=1):
+        for before, occupied, rare in stream(rng, 2 + k):
+            decided = rng.random((4, *SHAPE)) < np.array([0.02, 0.1, 0.2, 0.05])[:, None, None]
+            decided[k] |= occupied
+            leader.add(*score_counts(decided, rare, before, Arrived(occupied, rare)), choose=False)
+    alone = [leader._best() for leader in leaders]
+    choose_each(leaders)
+    assert [leader.choice for leader in leaders] == alone
+    assert alone[0] == (2, 2) and len(set(alone)) > 1

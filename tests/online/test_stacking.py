@@ -8,11 +8,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from lidarflow.online import stacking
 from lidarflow.online.stacking import (
     DECIDED,
     HorizonStacking,
     StackingConfig,
     best_thresholds,
+    best_thresholds_each,
     rescaled,
 )
 
@@ -83,6 +85,24 @@ def test_the_thresholds_maximise_the_f1s_they_are_chosen_by():
     common, rare = best_thresholds(occupied, free, 1.0)
     assert 0.3 < common <= 0.7 and 0.05 < rare <= 0.2
     np.testing.assert_array_equal(best_thresholds(np.zeros((2, 4)), np.ones((2, 4)), 1.0), DECIDED)
+
+
+@pytest.mark.usefixtures("compile_now")
+@pytest.mark.parametrize("compiled", [True, False])
+def test_thresholds_chosen_together_are_each_chosen_alone(compiled, monkeypatch):
+    """Several horizons' thresholds in one pass: each as :func:`best_thresholds` alone, also
+    for counts with nothing occupied yet."""
+    if not compiled:
+        monkeypatch.setattr(stacking, "ready", lambda *args, **kwargs: False)
+    rng = np.random.default_rng(4)
+    occupied = rng.random((5, 2, 40)) * rng.integers(0, 3, (5, 2, 40))
+    free = rng.random((5, 2, 40)) * 50
+    occupied[3] = 0.0
+    together = best_thresholds_each(occupied, free, 0.7)
+    assert together.shape == (5, 2)
+    for k in range(5):
+        np.testing.assert_array_equal(together[k], best_thresholds(occupied[k], free[k], 0.7))
+    np.testing.assert_array_equal(together[3], DECIDED)
 
 
 def test_a_state_goes_back_and_a_wrong_one_is_refused():

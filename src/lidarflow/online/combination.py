@@ -19,9 +19,14 @@ import numpy as np
 
 from lidarflow.compiled import ready
 from lidarflow.online.experts import EXPERTS, ExpertMaps
-from lidarflow.online.leader import Arrived, Leader, score_counts_each
+from lidarflow.online.leader import Arrived, Leader, choose_each, score_counts_each
 from lidarflow.online.loops import quantised_loop
-from lidarflow.online.stacking import DECIDED, HorizonStacking, StackingConfig
+from lidarflow.online.stacking import (
+    DECIDED,
+    HorizonStacking,
+    StackingConfig,
+    choose_thresholds,
+)
 
 if TYPE_CHECKING:
     from lidarflow.predict.engine import Rollout, Step
@@ -119,7 +124,8 @@ class Combination:
         candidates, rares, befores = [], [], []
         for k in labelled:
             stored, rare, before = self._waiting[k][0]
-            stacked = self.stacks[k].learn(stored, rare, occupied)  # as decided before the step
+            # as decided before the step; the thresholds chosen below, every horizon's at once
+            stacked = self.stacks[k].learn(stored, rare, occupied, choose=False)
             candidates.append(_candidates_decided(stored, _DECIDED_LEVEL, stacked))
             rares.append(rare)
             befores.append(before)
@@ -127,7 +133,9 @@ class Combination:
             np.stack(candidates), np.stack(rares), np.stack(befores), Arrived(occupied, region)
         )
         for k, f1, tolerant in zip(labelled, *counts, strict=True):
-            self.leaders[k].add(f1, tolerant)
+            self.leaders[k].add(f1, tolerant, choose=False)
+        choose_thresholds([self.stacks[k] for k in labelled])
+        choose_each([self.leaders[k] for k in labelled])
 
     @property
     def nbytes(self) -> int:

@@ -16,7 +16,7 @@ from lidarflow.nearby import TOLERANCE, near, near_counts
 from lidarflow.online.loops import best_pair_loop, score_counts_loop
 from lidarflow.online.stacking import f1_of
 
-__all__ = ["Arrived", "Leader", "score_counts", "score_counts_each"]
+__all__ = ["Arrived", "Leader", "choose_each", "score_counts", "score_counts_each"]
 
 #: How much more a loss against the simple predictors weighs than a win of the same size.
 LOSS_WEIGHT = 10.0
@@ -95,41 +95,78 @@ class Leader:
         its region (where movers went); then choose anew."""
         self.add(*score_counts(decided, rare, before, arrived, self.tolerance))
 
-    def add(self, f1: np.ndarray, tolerant: np.ndarray) -> None:
+    def add(self, f1: np.ndarray, tolerant: np.ndarray, choose: bool = True) -> None:
         """Add one frame's counts (:func:`score_counts`' pair), the older ones decayed; then
-        choose anew."""
+        choose anew (``choose=False``: left to the caller, :func:`choose_each`)."""
         self._f1 *= self.decay
         self._tolerant *= self.decay
         self._f1 += f1.reshape(self._f1.shape)
         self._tolerant += tolerant
-        self.choice = self._best()
+        if choose:
+            self.choice = self._best()
 
     def _best(self) -> tuple[int, int]:
-        args = (self._f1, self._tolerant, self.first, self._baselines, LOSS_WEIGHT)
-        if ready(best_pair_loop, *args):
-            a, b = best_pair_loop(*args)
-            return int(a), int(b)
-        # F1 of all / changed cells for the pair (a common, b rare): counts of a's common
-        # cells plus b's rare ones
-        total = self._f1[:, :, 0][:, None] + self._f1[:, :, 1][None, :]  # (a, b, metric, 3)
-        f1 = f1_of(total[..., 0], total[..., 1] + total[..., 2])  # (a, b, metric)
-        right, wrong, found, missed = self._tolerant.T
-        precision = _ratio(right, right + wrong)
-        recall = _ratio(found, found + missed)
-        tolerant = _ratio(2 * precision * recall, precision + recall)  # (b,)
-        if not f1.any() and not tolerant.any():
-            return (self.first, self.first)
-        if not self.baselines:
-            score = f1.sum(axis=-1) + tolerant[None, :]
-        else:  # margins over the simple predictors, as a model is judged, losses weighed more
-            alone = np.arange(self.candidates)
-            best = f1[alone, alone][list(self.baselines)].max(axis=0)  # (metric,)
-            margins = [f1[..., 0] - best[0], f1[..., 1] - best[1]]
-            reference = self.baselines[0]  # the tolerant F1 is judged against the first
-            margins.append(np.broadcast_to(tolerant[None, :] - tolerant[reference], f1.shape[:2]))
-            score = sum(m + LOSS_WEIGHT * np.minimum(m, 0.0) for m in margins)
-        a, b = np.unravel_index(int(np.argmax(score)), score.shape)
-        return int(a), int(b)
+        return _best_of([self])[0]
+
+
+def choose_each(leaders: list[Leader]) -> None:
+    """Each of ``leaders`` (alike: the same candidates, first and baselines) chooses its pair
+    anew from its counts, all in one NumPy pass."""
+    for leader, pair in zip(leaders, _best_of(leaders), strict=True):
+        leader.choice = pair
+
+
+def _best_of(leaders: list[Leader]) -> list[tuple[int, int]]:
+    """The pair each of ``leaders`` (alike) would choose from its counts now."""
+    if not leaders:
+        return []
+    one = leaders[0]
+    assert all(
+        (x.candidates, x.first, x.baselines) == (one.candidates, one.first, one.baselines)
+        for x in leaders
+    )
+    counts = [(x._f1, x._tolerant, one.first, one._baselines, LOSS_WEIGHT) for x in leaders]
+    if ready(best_pair_loop, *counts[0]):
+        pairs = [best_pair_loop(*c) for c in counts]
+    else:
+        f1 = np.stack([x._f1 for x in leaders])
+        pairs = _best_pairs(f1, np.stack([x._tolerant for x in leaders]), one.first, one.baselines)
+    return [(int(a), int(b)) for a, b in pairs]
+
+
+def _best_pairs(
+    f1_counts: np.ndarray, tolerant_counts: np.ndarray, first: int, baselines: tuple[int, ...]
+) -> list[tuple[int, int]]:
+    """The pair (common, rare) each of ``K`` leaders chooses from its decayed counts
+    ``(K, C, 2, 2, 3)`` and ``(K, C, 4)`` (see :class:`Leader`)."""
+    # F1 of all / changed cells for the pair (a common, b rare): counts of a's common cells plus
+    # b's rare ones
+    total = (
+        f1_counts[:, :, :, 0][:, :, None] + f1_counts[:, :, :, 1][:, None, :]
+    )  # (K, a, b, metric, 3)
+    f1 = f1_of(total[..., 0], total[..., 1] + total[..., 2])  # (K, a, b, metric)
+    right, wrong, found, missed = np.moveaxis(tolerant_counts, -1, 0)  # each (K, b)
+    precision = _ratio(right, right + wrong)
+    recall = _ratio(found, found + missed)
+    tolerant = _ratio(2 * precision * recall, precision + recall)  # (K, b)
+    if not baselines:
+        score = f1.sum(axis=-1) + tolerant[:, None, :]
+    else:  # margins over the simple predictors, as a model is judged, losses weighed more
+        alone = np.arange(f1.shape[1])
+        best = f1[:, alone, alone][:, list(baselines)].max(axis=1)[
+            :, None, None
+        ]  # (K, 1, 1, metric)
+        margins = [f1[..., 0] - best[..., 0], f1[..., 1] - best[..., 1]]
+        reference = tolerant[:, baselines[0], None, None]  # the tolerant F1 against the first
+        margins.append(np.broadcast_to(tolerant[:, None, :] - reference, f1.shape[:3]))
+        score = sum(m + LOSS_WEIGHT * np.minimum(m, 0.0) for m in margins)
+    chosen = np.argmax(score.reshape(len(score), -1), axis=1)
+    a, b = np.unravel_index(chosen, score.shape[1:])
+    nothing = ~f1.reshape(len(f1), -1).any(axis=1) & ~tolerant.any(axis=1)
+    return [
+        (first, first) if none else (int(i), int(j))
+        for none, i, j in zip(nothing, a, b, strict=True)
+    ]
 
 
 def score_counts(

@@ -35,7 +35,15 @@ from lidarflow.online.loops import (
     thresholds_loop,
 )
 
-__all__ = ["HorizonStacking", "StackingConfig", "f1_of", "rescaled"]
+__all__ = [
+    "HorizonStacking",
+    "StackingConfig",
+    "best_thresholds",
+    "best_thresholds_each",
+    "choose_thresholds",
+    "f1_of",
+    "rescaled",
+]
 
 #: The metric's threshold: a decided probability counts as occupied at or above it.
 DECIDED = 0.4
@@ -189,13 +197,18 @@ class HorizonStacking:
         return _grid(active, decided[:-2], decided[-2:], rare)
 
     def learn(
-        self, probabilities: np.ndarray, rare: np.ndarray, occupied: np.ndarray
+        self,
+        probabilities: np.ndarray,
+        rare: np.ndarray,
+        occupied: np.ndarray,
+        choose: bool = True,
     ) -> np.ndarray:
         """One step on a pair whose label has arrived: the experts' ``probabilities``
         ``(E, H, W)`` (float, or uint8 quantised: ``p = q / 255``) and ``rare`` mask as they
         were predicted, and the map that came (``occupied`` ``(H, W)``, nonzero where
-        occupied). Returns the decided probability ``(H, W)`` the combination gave that pair
-        before the step, as :meth:`decided`."""
+        occupied); then the thresholds chosen anew (``choose=False``: left to the caller,
+        :func:`choose_thresholds`). Returns the decided probability ``(H, W)`` the combination
+        gave that pair before the step, as :meth:`decided`."""
         target = np.asarray(occupied).ravel() > 0.5
         rare = np.asarray(rare, bool)
         flat_rare = rare.ravel()
@@ -216,6 +229,8 @@ class HorizonStacking:
         self.weights -= self.config.learning_rate * gradient / (np.sqrt(self._squares) + 1e-12)
         self._count(p, y > 0.5, flat_rare[active], quiet_p, counts)
         self.learned += 1
+        if choose:
+            choose_thresholds([self])
         return decided
 
     def _count(
@@ -226,7 +241,7 @@ class HorizonStacking:
         quiet_p: np.ndarray,
         quiet_counts: np.ndarray,
     ) -> None:
-        """Add one pair's cells to the decision statistics and choose the thresholds anew."""
+        """Add one pair's cells to the decision statistics."""
         args = (self._occupied, self._free, self.config.decay, p, occupied, rare, quiet_p,
                 quiet_counts)  # fmt: skip
         if ready(decision_counts_loop, *args):
@@ -243,7 +258,19 @@ class HorizonStacking:
             for k in (0, 1):
                 self._free[k, quiet_index[k]] += quiet_counts[k, 0]
                 self._occupied[k, quiet_index[k]] += quiet_counts[k, 1]
-        self.thresholds = best_thresholds(self._occupied, self._free, self.config.rare_weight)
+
+
+def choose_thresholds(stacks: list[HorizonStacking]) -> None:
+    """Each of ``stacks`` (of one ``rare_weight``) chooses its thresholds anew from its
+    decision statistics (:func:`best_thresholds`), all in one NumPy pass."""
+    if not stacks:
+        return
+    weight = stacks[0].config.rare_weight
+    assert all(stack.config.rare_weight == weight for stack in stacks)
+    occupied = np.stack([stack._occupied for stack in stacks])
+    free = np.stack([stack._free for stack in stacks])
+    for stack, thresholds in zip(stacks, best_thresholds_each(occupied, free, weight), strict=True):
+        stack.thresholds = thresholds
 
 
 def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) -> np.ndarray:
@@ -251,33 +278,41 @@ def best_thresholds(occupied: np.ndarray, free: np.ndarray, rare_weight: float) 
     cells plus ``rare_weight`` times the rare cells' F1, from counts ``(2, bins)`` of occupied
     and free cells per kind (0 common, 1 rare) and bin of the probability. A cell at or above
     the threshold's bin counts as predicted occupied."""
-    bins = occupied.shape[1]
-    if not occupied.any():  # nothing occupied yet: no threshold beats the metric's own
-        return np.array([DECIDED, DECIDED])
+    return best_thresholds_each(occupied[None], free[None], rare_weight)[0]
+
+
+def best_thresholds_each(occupied: np.ndarray, free: np.ndarray, rare_weight: float) -> np.ndarray:
+    """:func:`best_thresholds` of ``K`` pairs of counts ``(K, 2, bins)``: ``(K, 2)``."""
     occupied, free = np.asarray(occupied, np.float64), np.asarray(free, np.float64)
-    totals = occupied.sum(axis=1)
-    if ready(thresholds_loop, occupied, free, totals, float(rare_weight)):
-        i, j = thresholds_loop(occupied, free, totals, float(rare_weight))
+    bins = occupied.shape[-1]
+    totals = occupied.sum(axis=-1)  # (K, 2)
+    args = [(o, f, t, float(rare_weight)) for o, f, t in zip(occupied, free, totals, strict=True)]
+    if args and ready(thresholds_loop, *args[0]):
+        chosen = np.array([thresholds_loop(*a) for a in args], np.intp).reshape(-1, 2)
     else:
-        i, j = _best_pair(occupied, free, totals, rare_weight)
-    edges = np.arange(bins) / bins
-    return np.array([max(edges[i], 0.5 / bins), max(edges[j], 0.5 / bins)])
+        chosen = _best_pairs(occupied, free, totals, rare_weight)
+    edges = np.maximum(np.arange(bins) / bins, 0.5 / bins)
+    out = edges[chosen]
+    out[~occupied.any(axis=(1, 2))] = DECIDED  # nothing occupied yet: the metric's own
+    return out  # type: ignore[no-any-return]
 
 
-def _best_pair(
+def _best_pairs(
     occupied: np.ndarray, free: np.ndarray, totals: np.ndarray, rare_weight: float
-) -> tuple[int, int]:
-    """:func:`best_thresholds`' bin indices (common, rare), from the counts and ``totals``
-    (``occupied.sum(axis=1)``)."""
+) -> np.ndarray:
+    """:func:`best_thresholds_each`' bin indices ``(K, 2)`` (common, rare), from the counts and
+    ``totals`` (``occupied.sum(axis=-1)``)."""
     # predicted occupied at threshold index i: the bins i .. bins - 1
-    tp = np.cumsum(occupied[:, ::-1], axis=1)[:, ::-1]  # (2, bins)
-    fp = np.cumsum(free[:, ::-1], axis=1)[:, ::-1]
-    wrong = fp + (totals[:, None] - tp)  # false positives and negatives
+    tp = np.cumsum(occupied[..., ::-1], axis=-1)[..., ::-1]  # (K, 2, bins)
+    fp = np.cumsum(free[..., ::-1], axis=-1)[..., ::-1]
+    wrong = fp + (totals[..., None] - tp)  # false positives and negatives
     # all cells: every pair (i common, j rare)
-    f1_all = f1_of(tp[0][:, None] + tp[1][None, :], wrong[0][:, None] + wrong[1][None, :])
-    score = f1_all + rare_weight * f1_of(tp[1], wrong[1])[None, :]
-    i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-    return int(i), int(j)
+    f1_all = f1_of(
+        tp[:, 0, :, None] + tp[:, 1, None, :], wrong[:, 0, :, None] + wrong[:, 1, None, :]
+    )
+    score = f1_all + rare_weight * f1_of(tp[:, 1], wrong[:, 1])[:, None, :]
+    flat = np.argmax(score.reshape(len(score), -1), axis=1)
+    return np.stack(np.unravel_index(flat, score.shape[1:]), axis=1)
 
 
 def f1_of(tp: np.ndarray, wrong: np.ndarray) -> np.ndarray:
