@@ -105,14 +105,12 @@ class Combination:
         shape = (self.horizon - self.first + 1, *occupied.shape)
         self._learn(occupied, experts.region)
         probability, decided = np.empty(shape, np.float32), np.empty(shape, np.float32)
-        kept = quantised(maps)  # every horizon's in one pass
         for k in range(self.first - 1, self.horizon):
             j = k + 1 - self.first
             rare = experts.rare[j]
             choice = self.leaders[k].choice
             probability[j], decided[j] = _chosen(self.stacks[k], choice, maps[:, j], rare)
-            # copies, so that a frame's maps leave with the last horizon that holds them
-            self._waiting[k].append((np.ascontiguousarray(kept[:, j]), rare.copy(), occupied))
+            self._waiting[k].append((quantised(maps[:, j]), rare.copy(), occupied))
         return Combined(probability, decided)
 
     def _learn(self, occupied: np.ndarray, region: np.ndarray) -> None:
@@ -187,12 +185,11 @@ _DECIDED_LEVEL = int(np.argmax(np.arange(256) / 255.0 >= DECIDED))
 
 
 def quantised(maps: np.ndarray) -> np.ndarray:
-    """The experts' maps ``(..., H, W)`` float32 (finite) as they are kept until their labels
-    come: uint8 of the same shape, ``q = rint(255 p)`` (``p`` clipped to [0, 1]). Compiled
-    where available, the same bits."""
-    stack = maps.reshape(-1, *maps.shape[-2:]) if maps.flags.c_contiguous else None
-    if stack is not None and ready(quantised_loop, stack):
-        return quantised_loop(stack).reshape(maps.shape)  # type: ignore[no-any-return]
+    """The experts' maps ``(E, H, W)`` float32 (finite) as they are kept until their labels
+    come: ``(E, H, W)`` uint8, ``q = rint(255 p)`` (``p`` clipped to [0, 1]). Compiled where
+    available, the same bits."""
+    if ready(quantised_loop, maps):
+        return quantised_loop(maps)  # type: ignore[no-any-return]
     return np.rint(np.clip(maps, 0.0, 1.0) * 255).astype(np.uint8)
 
 
