@@ -140,10 +140,9 @@ def _best_pairs(
     """The pair (common, rare) each of ``K`` leaders chooses from its decayed counts
     ``(K, C, 2, 2, 3)`` and ``(K, C, 4)`` (see :class:`Leader`)."""
     # F1 of all / changed cells for the pair (a common, b rare): counts of a's common cells plus
-    # b's rare ones
-    total = (
-        f1_counts[:, :, :, 0][:, :, None] + f1_counts[:, :, :, 1][:, None, :]
-    )  # (K, a, b, metric, 3)
+    # b's rare ones, (K, a, b, metric, 3)
+    common, rare = f1_counts[:, :, :, 0], f1_counts[:, :, :, 1]
+    total = common[:, :, None] + rare[:, None, :]
     f1 = f1_of(total[..., 0], total[..., 1] + total[..., 2])  # (K, a, b, metric)
     right, wrong, found, missed = np.moveaxis(tolerant_counts, -1, 0)  # each (K, b)
     precision = _ratio(right, right + wrong)
@@ -153,10 +152,8 @@ def _best_pairs(
         score = f1.sum(axis=-1) + tolerant[:, None, :]
     else:  # margins over the simple predictors, as a model is judged, losses weighed more
         alone = np.arange(f1.shape[1])
-        best = f1[:, alone, alone][:, list(baselines)].max(axis=1)[
-            :, None, None
-        ]  # (K, 1, 1, metric)
-        margins = [f1[..., 0] - best[..., 0], f1[..., 1] - best[..., 1]]
+        best = f1[:, alone, alone][:, list(baselines)].max(axis=1)  # (K, metric)
+        margins = [f1[..., m] - best[:, m, None, None] for m in (0, 1)]
         reference = tolerant[:, baselines[0], None, None]  # the tolerant F1 against the first
         margins.append(np.broadcast_to(tolerant[:, None, :] - reference, f1.shape[:3]))
         score = sum(m + LOSS_WEIGHT * np.minimum(m, 0.0) for m in margins)
