@@ -139,7 +139,7 @@ class Predicted:
 def predict_input(task: PredictTask) -> Predicted:
     """Read ``task.input``, predict every scan of it and write ``task.output``."""
     from lidarflow.cli.app import load_input
-    from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
+    from lidarflow.cli.scorable import refuse_without_returns, warn_unknown_beams
     from lidarflow.data.sources import is_recording_file
     from lidarflow.evaluate.horizon import check_horizon
     from lidarflow.outputs.job import predict_to_bag

@@ -37,7 +37,7 @@ def convert(
     --grid/--res; here those are the grid every scan is checked on and which the recording's
     meta records.
     """
-    from lidarflow.cli.useless import refuse_without_returns, warn_unknown_beams
+    from lidarflow.cli.scorable import refuse_without_returns, warn_unknown_beams
     from lidarflow.data.info import stamps_problem
     from lidarflow.scan import GridSpec
 

@@ -182,7 +182,7 @@ def evaluate(options: EvaluateOptions) -> None:
     --horizon). -o writes every number as JSON."""
     from lidarflow.cli.jobs import resolve_jobs
     from lidarflow.cli.per_input import methods_kept
-    from lidarflow.cli.useless import read_scorable
+    from lidarflow.cli.scorable import read_scorable
 
     o = options
     output = _checked_output(o)
@@ -264,7 +264,7 @@ def _say_report(
     report: dict[str, Any], config: dict[str, Any], output: Path | None, report_dir: Path | None
 ) -> None:
     """Each recording's scores, the overall ones, and what was written."""
-    from lidarflow.cli.useless import warn_nothing_scored
+    from lidarflow.cli.scorable import warn_nothing_scored
     from lidarflow.evaluate.summary import format_overall, format_recording
 
     for entry in report["recordings"]:

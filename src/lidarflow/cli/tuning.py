@@ -67,7 +67,7 @@ def choose_offset(
 
     A larger offset predicts more changed cells at some cost in calibration; a model that
     chooses offsets online uses the fixed one for its first frames."""
-    from lidarflow.cli.useless import read_scorable
+    from lidarflow.cli.scorable import read_scorable
     from lidarflow.evaluate.offsets import choose_offset as choose
     from lidarflow.evaluate.offsets import decided_online, score_offsets, with_offset
     from lidarflow.models.weights import check_decision_offset
@@ -120,7 +120,7 @@ def _head_model_card(model: Path | None) -> dict[str, Any]:
 def _refuse_nothing_scored(recordings: list[dict[str, Any]]) -> None:
     """Warn of each recording on which nothing was scored; an :class:`EvaluateError` where
     that is every one."""
-    from lidarflow.cli.useless import nothing_scored, warn_nothing_scored
+    from lidarflow.cli.scorable import nothing_scored, warn_nothing_scored
     from lidarflow.errors import EvaluateError
 
     for entry in recordings:
