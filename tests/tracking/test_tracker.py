@@ -12,6 +12,7 @@ from lidarflow.baselines import FrameInputs
 from lidarflow.tracking import (
     Tracker,
     TrackerConfig,
+    Tracks,
     associate,
     cluster_labels,
     composed_motion,
@@ -289,3 +290,25 @@ def test_maps_moved_beside_the_prediction_are_moved_as_the_tracks_move_them():
     assert len(later) == 2
     for a, b in zip(later, both[1:], strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.usefixtures("compile_now")
+@pytest.mark.parametrize("numba_off", [False, True])
+def test_a_bool_map_is_moved_as_its_float32_copy_to_the_bit(numba_off, monkeypatch):
+    """``Tracks.moved_to_sensor`` moves bool maps without the float copy's clip: the same
+    float32 numbers, at any motion, dense or sparse, one map or a stack."""
+    if numba_off:
+        import lidarflow.geometry as geometry
+
+        monkeypatch.setattr(geometry, "ready", lambda *args, **kwargs: False)
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        motion = rng.normal(0.0, [3.0, 3.0, 0.3])
+        tracks = Tracks((H, W), [], motion)
+        share = rng.choice([0.01, 0.2, 0.9])
+        maps = rng.random((2, H, W)) < share
+        for image, k in ((maps[0], int(rng.integers(1, 9))), (maps, 1)):
+            got = tracks.moved_to_sensor(image, k)
+            assert got.dtype == np.float32
+            np.testing.assert_array_equal(got, tracks.moved_to_sensor(image.astype(np.float32), k))
+            assert got.min() >= 0.0 and got.max() <= 1.0

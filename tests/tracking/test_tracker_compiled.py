@@ -157,8 +157,8 @@ def _objects() -> list[tuple[np.ndarray, np.ndarray]]:
 
 @pytest.mark.parametrize("k", [0, 1, 2, 3, 8])
 def test_the_shifted_cells_are_the_reference(monkeypatch, k):
-    tracks = Tracks((20, 20), _objects(), None)
-    _same(*_both(monkeypatch, lambda: tracks.cells_at(k)))
+    # fresh Tracks each time: they keep what they computed
+    _same(*_both(monkeypatch, lambda: Tracks((20, 20), _objects(), None).cells_at(k)))
     _same(*_both(monkeypatch, lambda: Tracks((20, 20), [], None).cells_at(k)))
 
 
@@ -166,15 +166,14 @@ def test_the_shifted_cells_of_odd_objects_go_as_the_reference(monkeypatch):
     narrow = [(s, c.astype(np.int32)) for s, c in _objects()]  # summed in int32 by NumPy
     far = [(np.array([0.0, 0.0, 1e10, 0.0]), np.array([[3, 3]]))]  # beyond 2**31: reference
     for objects in (narrow, far, _objects() + far):
-        tracks = Tracks((20, 20), objects, None)
-        _same(*_both(monkeypatch, lambda t=tracks: t.cells_at(2)))
+        _same(*_both(monkeypatch, lambda o=objects: Tracks((20, 20), o, None).cells_at(2)))
 
 
 @pytest.mark.parametrize("speed, error", [(np.nan, ValueError), (1e300, OverflowError)])
 def test_the_shifted_cells_fail_as_the_reference(monkeypatch, speed, error):
-    tracks = Tracks((20, 20), [(np.array([0.0, 0.0, speed, 0.0]), np.array([[3, 3]]))], None)
+    objects = [(np.array([0.0, 0.0, speed, 0.0]), np.array([[3, 3]]))]
     for use_numpy in (False, True):
         with monkeypatch.context() as m, pytest.raises(error):
             if use_numpy:
                 m.setattr(compiled, "numba", None)
-            tracks.cells_at(1)
+            Tracks((20, 20), objects, None).cells_at(1)

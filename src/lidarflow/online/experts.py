@@ -93,7 +93,7 @@ class ExpertMaps:
         rare = np.empty((frames, *average.shape), bool)
         # the tracker's maps, and the last map and its rare cells moved alike: one pass a k
         beside = np.stack([occupied, rare_now])
-        for k, moved in enumerate(tracker.ahead(horizon, beside, first)):
+        for k, moved in enumerate(tracker.ahead(horizon, beside, first, tracks)):
             maps[2, k], maps[3, k] = moved[0], moved[1]
             rare[k] = moved[2] > 0.5
         maps[4] = average

@@ -160,15 +160,20 @@ class Tracker:
         self._track(moving)
 
     def ahead(
-        self, horizon: int, beside: np.ndarray | None = None, first: int = 1
+        self,
+        horizon: int,
+        beside: np.ndarray | None = None,
+        first: int = 1,
+        tracks: Tracks | None = None,
     ) -> list[np.ndarray]:
         """The maps predicted ``first``..``horizon`` frames after the last one given, each
         ``(H, W)`` float32 in [0, 1] (see the module docstring). With ``beside`` ``(C, H, W)``
         bool, maps of the last frame moved alike in the same pass: each item is then
-        ``(1 + C, H, W)``, the prediction first."""
+        ``(1 + C, H, W)``, the prediction first. ``tracks``: :meth:`tracks` of the last frame
+        where the caller has them (what they computed is reused)."""
         if self._static is None:
             raise RuntimeError("ahead() before any update()")
-        tracks, out = self.tracks(), []
+        tracks, out = tracks if tracks is not None else self.tracks(), []
         for k in range(first, horizon + 1):
             mine = self._static | tracks.cells_at(k)
             both = mine if beside is None else np.concatenate([mine[None], beside])

@@ -66,8 +66,12 @@ class Tracks:
     held: np.ndarray | None = None
     hold: int = 0
     res: float = 0.1
-    # at(k) once per k: a roll-out and the online combination's experts both ask for it
+    # at(k) and cells_at(k) once per k: a roll-out, the tracking baseline's map and the online
+    # combination's experts all ask for them
     _at: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
+    _cells: dict[int, np.ndarray] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def metric(self, step_ns: int | None = None) -> tuple[Track, ...]:
         """Each object as a :class:`Track` (metres; metres per second given the stream's step
@@ -81,8 +85,15 @@ class Tracks:
         return tuple(out)
 
     def cells_at(self, k: int) -> np.ndarray:
-        """``(H, W)`` bool: every object's cells shifted by ``k`` times its velocity (rounded
-        to whole cells), in the sensor frame of the last frame."""
+        """``(H, W)`` bool, read-only: every object's cells shifted by ``k`` times its velocity
+        (rounded to whole cells), in the sensor frame of the last frame."""
+        if k not in self._cells:
+            cells = self._shifted_cells(k)
+            cells.setflags(write=False)
+            self._cells[k] = cells
+        return self._cells[k]
+
+    def _shifted_cells(self, k: int) -> np.ndarray:
         # the tracker's int64 cells and float64 states only: NumPy does narrower types' sums
         # and products in their own width
         if not available() or not all(_wide(s, c) for s, c in self.objects):
@@ -114,11 +125,15 @@ class Tracks:
         """``image`` ``(H, W)`` of the last frame moved into the sensor frame ``k`` guessed
         steps on (unchanged on a still sensor): float32 in [0, 1]."""
         image = np.asarray(image)
-        if image.dtype != np.bool_:  # a bool map is moved as it is, to the same numbers
-            image = image.astype(np.float32)
-        if self.motion is not None:
-            image = np.clip(rigid_moved(image, composed_motion(self.motion, k)), 0.0, 1.0)
-        return image.astype(np.float32)
+        binary = image.dtype == np.bool_  # moved as it is, to the same numbers
+        if self.motion is None:
+            return image.astype(np.float32)
+        moved = rigid_moved(
+            image if binary else image.astype(np.float32), composed_motion(self.motion, k)
+        )
+        # a bool map's moved cells are sums of bilinear weights: in [0, 1] but for float64's
+        # last bits above 1, which float32 rounds away, so its clip changes nothing
+        return (moved if binary else np.clip(moved, 0.0, 1.0)).astype(np.float32)
 
     def at(self, k: int) -> np.ndarray:
         """``(H, W)`` float32, read-only: the objects ``k`` frames on (and the held cells up to
@@ -126,7 +141,7 @@ class Tracks:
         if k not in self._at:
             cells = self.cells_at(k)
             if self.held is not None and k <= self.hold:
-                cells |= self.held
+                cells = cells | self.held
             moved = self.moved_to_sensor(cells, k)
             moved.setflags(write=False)
             self._at[k] = moved
