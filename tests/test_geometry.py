@@ -231,6 +231,7 @@ def test_a_sparse_map_moved_around_its_cells_is_the_dense_move_to_the_bit() -> N
         assert np.array_equal(first, dense) and np.array_equal(second, dense)
 
 
+@pytest.mark.usefixtures("compile_now")
 @pytest.mark.parametrize("numba_off", [False, True])
 def test_a_bool_map_moves_as_its_float64_copy_to_the_bit(numba_off, monkeypatch) -> None:
     """Bool maps are sampled as they are (a corner adds its weight or nothing): the same
