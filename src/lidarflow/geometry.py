@@ -190,6 +190,12 @@ def _gathered(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.nda
     return out
 
 
+def _exact(maps: np.ndarray) -> np.ndarray:
+    """``maps`` as sampled in float64: a bool map as it is (its sums are its float64 copy's,
+    each corner adding its weight or nothing), any other as float64."""
+    return maps if maps.dtype == np.bool_ else maps.astype(np.float64, copy=False)
+
+
 def _gathered_numpy(flat: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """:func:`_gathered` in NumPy (the reference)."""
     # np.take: faster than fancy indexing along the second axis; a bool map's corners are
@@ -242,10 +248,8 @@ class Sampler:
                 weight32.setflags(write=False)
                 self._weight32 = weight32
             weight = self._weight32
-        else:  # bool maps as they are: the same sums as their float64 copies'
-            weight = self._weight
-            if maps.dtype != np.bool_:
-                maps = maps.astype(np.float64, copy=False)
+        else:
+            maps, weight = _exact(maps), self._weight
         flat = maps.reshape(-1, maps.shape[-2] * maps.shape[-1])
         return _gathered(flat, self._index, weight).reshape(maps.shape)
 
@@ -369,9 +373,7 @@ def rigid_moved(image: np.ndarray, motion: np.ndarray, res: float = 1.0) -> np.n
     >>> np.argwhere(rigid_moved(image, np.array([1.0, 0.0, 0.0]))).tolist()  # 1 row closer
     [[2, 1]]
     """
-    image = np.asarray(image)
-    if image.dtype != np.bool_:  # a bool map is sampled as it is, to the same numbers
-        image = image.astype(np.float64, copy=False)
+    image = _exact(np.asarray(image))
     h, w = image.shape[-2:]
     occupied = np.count_nonzero(image)
     if not occupied:  # nothing to move (often so for the carried objects)

@@ -148,6 +148,5 @@ class ModelMethod:
             combined = self.combination.step(
                 self.engine.tracker, self.last, rollout, occupancy, visibility
             )
-            before = self.combination.first - 1  # the frames ahead it leaves to the model
-            self._ahead = np.concatenate([rollout.decided[:before], combined.decided])
+            self._ahead = self.combination.joined(rollout.decided, combined.decided)
         return self.last.decided

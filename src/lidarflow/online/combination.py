@@ -137,6 +137,12 @@ class Combination:
         choose_thresholds([self.stacks[k] for k in labelled])
         choose_each([self.leaders[k] for k in labelled])
 
+    def joined(self, model: np.ndarray, combined: np.ndarray) -> np.ndarray:
+        """The frames ``1 .. K`` ahead ``(K, H, W)``: the model's own ``model`` ``(K, H, W)``
+        before :attr:`first`, then the combination's ``combined`` (a field of
+        :class:`Combined`)."""
+        return np.concatenate([model[: self.first - 1], combined])
+
     @property
     def nbytes(self) -> int:
         """The bytes of the arrays it holds: the maps waiting for their label, what it

@@ -24,19 +24,21 @@ LOSS_WEIGHT = 10.0
 
 class Arrived:
     """The frame whose map came, as the leaders of every horizon score against it: its
-    ``occupied`` cells and the ``region`` where movers went, ``(H, W)`` bool. The region's cells
-    near one of its occupied ones are found once (:meth:`near_truth`)."""
+    ``occupied`` cells, the ``region`` where movers went and ``movers``, its occupied cells
+    there, ``(H, W)`` bool. The region's cells near one of the movers are found once
+    (:meth:`near_truth`)."""
 
     def __init__(self, occupied: np.ndarray, region: np.ndarray) -> None:
         self.occupied = np.ascontiguousarray(occupied, bool)
         self.region = np.ascontiguousarray(region, bool)
+        self.movers = self.occupied & self.region
         self._near: dict[int, np.ndarray] = {}
 
     def near_truth(self, radius: int) -> np.ndarray:
-        """The region's cells within ``radius`` of an occupied cell of the region
+        """The region's cells within ``radius`` of one of the :attr:`movers`
         (:func:`lidarflow.nearby.near`)."""
         if radius not in self._near:
-            self._near[radius] = near(self.occupied & self.region, radius) & self.region
+            self._near[radius] = near(self.movers, radius) & self.region
         return self._near[radius]
 
 
@@ -206,7 +208,6 @@ def score_counts_each(
         out = [score_counts_loop(d, r, *shared, b, radius) for d, r, b in each]
         return np.stack([f1 for f1, _ in out]), np.stack([tolerant for _, tolerant in out])
     horizons, candidates = decided.shape[:2]
-    truth_rare = occupied & region
     # only the cells some horizon's candidate guessed, or true, add to any count
     support = np.flatnonzero(decided.any(axis=(0, 1)) | occupied)
     kind = rare.reshape(horizons, -1)[:, support]
@@ -227,10 +228,10 @@ def score_counts_each(
     counts = np.stack([tp, predicted[..., :4] - tp, true - tp], axis=-1)  # (K, C, 4, 3)
     guessed, right = predicted[..., 4], predicted[..., 5]
     # true cells with a guess near
-    found = near_counts((decided & region).reshape(-1, *region.shape), truth_rare, radius)
+    found = near_counts((decided & region).reshape(-1, *region.shape), arrived.movers, radius)
     found = found.reshape(horizons, candidates)
-    true_rare = np.count_nonzero(truth_rare)
-    tolerant = np.stack([right, guessed - right, found, true_rare - found], axis=-1)
+    movers = np.count_nonzero(arrived.movers)
+    tolerant = np.stack([right, guessed - right, found, movers - found], axis=-1)
     return counts.astype(np.float64), tolerant.astype(np.float64)
 
 

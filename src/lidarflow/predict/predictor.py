@@ -355,9 +355,8 @@ class Predictor:
             combined = self.combination.step(
                 self.engine.tracker, step, ahead, occupancy, visibility
             )
-            before = self.combination.first - 1  # the frames ahead before it: the model's own
-            probability = np.concatenate([probability[:before], combined.probability])
-            decided = np.concatenate([decided[:before], combined.decided])
+            probability = self.combination.joined(probability, combined.probability)
+            decided = self.combination.joined(decided, combined.decided)
         flow = step.flow
         return Prediction(
             probability=probability[0],
