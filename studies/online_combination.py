@@ -4,7 +4,8 @@ recording, one step and about one second ahead, on all cells and on movers?
 Per recording: the baselines, the model (a fold's, held out, or any ``--model``) and the model
 combined online with them (``NAME_combined``), scored by `lidarflow evaluate --horizon K` in
 one pass (K the scans in about one second). Writes OUT/<recording>.json per recording
-(resumable: kept ones are read back) and OUT/summary.json; prints per recording and method
+(resumable: kept ones are read back; ``verdicts``: evaluate's, with their margins' intervals)
+and OUT/summary.json; prints per recording and method
 F1, changed-cell F1 and tolerant mover F1 at k = 1 and K (the horizon tables: every k over the
 same frames)::
 
@@ -23,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from lidarflow.data.sources import load_any
-from lidarflow.evaluate.evaluation import score_one
+from lidarflow.evaluate.evaluation import report_of, score_one
 from lidarflow.evaluate.labels import read_labels
 from lidarflow.evaluate.methods import methods_and_config
 from lidarflow.evaluate.model_method import ModelMethod
@@ -114,6 +115,8 @@ def score(
     )
     keys = scored.horizon or {}
     out: dict[str, Any] = {"horizon": horizon, "seconds": time.perf_counter() - start}
+    # evaluate's verdicts, with their margins' intervals over the frames (studies.verdict_noise)
+    out["verdicts"] = report_of([(path.name, scored)], {})["recordings"][0]["against_baselines"]
     ours = [m for m in methods if m.name.startswith("model")]
     out["warm_up"] = {m.name: curve.frames_until(m.name) for m in ours}
     for key in KEYS:

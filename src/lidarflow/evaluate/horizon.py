@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from array import array
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -90,6 +91,8 @@ class HorizonScore:
         self.changed = [Counts() for _ in range(horizon)]
         self.region = region
         self.movers = [MoverScore() for _ in range(horizon)]
+        # the tolerant counts K ahead, frame by frame (the verdict's margin there, its interval)
+        self.last_mover_rows = array("i")
         self.wmse = np.zeros(horizon)
         self.ssim = np.zeros(horizon) if min(shape) >= SSIM_WINDOW else None
         self.frames = 0
@@ -103,7 +106,9 @@ class HorizonScore:
             changed = np.asarray(occupancy[t], bool) != np.asarray(truth, bool)
             self.changed[k] = self.changed[k] + confusion(decided >= THRESHOLD, truth, changed)
             if self.region is not None:
-                self.movers[k].add(decided, truth, self.region(t + 1 + k))
+                tolerant = self.movers[k].add(decided, truth, self.region(t + 1 + k))
+                if k == len(self.movers) - 1:
+                    self.last_mover_rows.extend(tolerant.row())
         self.wmse += wmse(predicted, truths)
         if self.ssim is not None:
             self.ssim += ssim(predicted, truths)

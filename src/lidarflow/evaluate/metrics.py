@@ -51,6 +51,10 @@ class Counts:
         denom = self.tp + self.fp + self.fn
         return self.tp / denom if denom else 1.0
 
+    def row(self) -> tuple[int, int, int]:
+        """``(tp, fp, fn)``."""
+        return self.tp, self.fp, self.fn
+
     def to_dict(self) -> dict[str, float | int]:
         return {
             "f1": self.f1,

@@ -14,7 +14,7 @@ import numpy as np
 from lidarflow.evaluate.metrics import THRESHOLD, Counts, confusion, summed
 from lidarflow.nearby import TOLERANCE, near
 
-__all__ = ["BINS", "TOLERANCE", "MoverScore", "TolerantCounts", "near", "roc_auc"]
+__all__ = ["BINS", "TOLERANCE", "MoverScore", "TolerantCounts", "near", "roc_auc", "tolerant_f1"]
 
 #: Bins of the probability for the AUC.
 BINS = 200
@@ -45,10 +45,11 @@ class TolerantCounts:
     @property
     def f1(self) -> float:
         """Harmonic mean of precision and recall; 1.0 with nothing to find nor predicted."""
-        if not (self.right + self.wrong + self.found + self.missed):
-            return 1.0
-        p, r = self.precision, self.recall
-        return 2 * p * r / (p + r) if p + r else 0.0
+        return float(tolerant_f1(self.right, self.wrong, self.found, self.missed))
+
+    def row(self) -> tuple[int, int, int, int]:
+        """The counts in :func:`tolerant_f1`'s order."""
+        return self.right, self.wrong, self.found, self.missed
 
     @classmethod
     def of(
@@ -61,6 +62,24 @@ class TolerantCounts:
         right = int(np.count_nonzero(p & near(t, radius)))
         found = int(np.count_nonzero(t & near(p, radius)))
         return cls(right, int(np.count_nonzero(p)) - right, found, int(np.count_nonzero(t)) - found)
+
+
+def tolerant_f1(
+    right: np.ndarray, wrong: np.ndarray, found: np.ndarray, missed: np.ndarray
+) -> np.ndarray:
+    """:attr:`TolerantCounts.f1` of counts (arrays alike), elementwise: the harmonic mean of
+    ``right / (right + wrong)`` and ``found / (found + missed)`` (each 0 without a cell), 1
+    where nothing was predicted nor true.
+
+    >>> tolerant_f1(np.array([3, 0]), np.array([1, 0]), np.array([2, 0]), np.array([2, 0]))
+    array([0.6, 1. ])
+    """
+    right, wrong, found, missed = (np.asarray(v, np.float64) for v in (right, wrong, found, missed))
+    predicted, true = right + wrong, found + missed
+    p = np.divide(right, predicted, out=np.zeros_like(right), where=predicted > 0)
+    r = np.divide(found, true, out=np.zeros_like(found), where=true > 0)
+    f1 = np.divide(2 * p * r, p + r, out=np.zeros_like(p), where=p + r > 0)
+    return np.where(predicted + true > 0, f1, 1.0)
 
 
 def roc_auc(positives: np.ndarray, negatives: np.ndarray) -> float:
@@ -99,9 +118,10 @@ class MoverScore:
         target: np.ndarray,
         region: np.ndarray,
         threshold: float = THRESHOLD,
-    ) -> None:
+    ) -> TolerantCounts:
         """Score one predicted map ``probability`` ``(H, W)`` against the true map ``target``
-        inside ``region`` (bool, the target frame's dynamic region)."""
+        inside ``region`` (bool, the target frame's dynamic region); returns the frame's
+        tolerant counts."""
         p = np.asarray(probability, np.float64)
         y = np.asarray(target, bool)
         region = np.asarray(region, bool)
@@ -111,7 +131,8 @@ class MoverScore:
             )
         decided = p >= threshold
         self.exact = self.exact + confusion(decided, y, region)
-        self.tolerant = self.tolerant + TolerantCounts.of(decided, y, region)
+        tolerant = TolerantCounts.of(decided, y, region)
+        self.tolerant = self.tolerant + tolerant
         inside, truth = np.clip(p[region], 0.0, 1.0), y[region]
         bins = np.minimum(np.floor(inside * BINS), BINS).astype(int)
         self.positives += np.bincount(bins[truth], minlength=BINS + 1)
@@ -121,6 +142,7 @@ class MoverScore:
         self.soft_union += float((inside + truth - both).sum())
         self.cells += int(region.sum())
         self.frames += 1
+        return tolerant
 
     def __add__(self, other: MoverScore) -> MoverScore:
         return summed(self, other)

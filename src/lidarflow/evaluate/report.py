@@ -7,6 +7,7 @@ import operator
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
+from lidarflow.evaluate.resampling import LEVEL, add_intervals, within_noise
 from lidarflow.evaluate.scoring import Scorer
 
 __all__ = [
@@ -69,6 +70,7 @@ def build_report(
         if undefined:
             entry["undefined"] = undefined
         entry["against_baselines"] = against_baselines(entry["methods"], undefined, no_verdict)
+        add_intervals(entry["against_baselines"], scorers)
         recordings.append(entry)
     overall_scorers = {
         name: functools.reduce(operator.add, (sc[name] for _, sc in per_recording if name in sc))
@@ -195,6 +197,9 @@ def add_horizon_verdict(entry: dict[str, Any]) -> None:
             continue
         margin = None if nothing else float(scores[name][-1] - scores["copy_last"][-1])
         verdict["mover_f1_horizon_margin"] = margin
+        if margin is not None and "intervals" in verdict:
+            interval = entry.get("horizon_mover_f1_tolerant_interval", {}).get(name)
+            verdict["intervals"]["mover_f1_horizon"] = interval
         if margin is not None and margin <= 0 and verdict["wins"] is not None:
             verdict["wins"] = False
 
@@ -235,9 +240,28 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
         lines.append(
             f"{name} against the best baseline: F1 {v['f1_margin']:+.4f} ({v['f1_baseline']}), "
             f"changed-cell F1 {v['changed_f1_margin']:+.4f} ({v['changed_f1_baseline']})"
-            f"{movers}: {verdict}{won}"
+            f"{movers}: {verdict}{won}{_noise_note(v)}"
         )
     return "\n".join(lines)
+
+
+#: The margins' names in the verdict's line.
+_MARGIN_NAMES = {
+    "f1": "F1",
+    "changed_f1": "changed-cell F1",
+    "mover_f1": "tolerant mover F1",
+    "mover_f1_horizon": "tolerant mover F1 at the horizon",
+}
+
+
+def _noise_note(verdict: Mapping[str, Any]) -> str:
+    """``"; within the noise ...: F1 -0.0012..+0.0034, ..."`` for the margins whose interval
+    over the frames holds 0, else ``""``."""
+    ties = within_noise(verdict) if verdict.get("wins") is not None else []
+    if not ties:
+        return ""
+    spans = ", ".join(f"{_MARGIN_NAMES[n]} {low:+.4f}..{high:+.4f}" for n, low, high in ties)
+    return f"; within the noise ({LEVEL:.0%} interval over the frames holds 0): {spans}"
 
 
 def gaps_note(entry: Mapping[str, Any]) -> str:

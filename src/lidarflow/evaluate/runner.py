@@ -20,6 +20,7 @@ from lidarflow.baselines import FrameInputs, Method
 from lidarflow.data.blocks import Frames
 from lidarflow.data.recording import Recording
 from lidarflow.evaluate.horizon import HorizonScore, rolled_forward, scored_frames
+from lidarflow.evaluate.resampling import mover_interval
 from lidarflow.evaluate.scoring import Scorer
 from lidarflow.evaluate.stream import (
     WARMUP,
@@ -247,6 +248,13 @@ class _Ahead:
         for name, score in self.scores.items():
             for key, values in score.means().items():
                 out.setdefault(key, {})[name] = values
+        copy_last = self.scores["copy_last"]
+        if copy_last.region is not None:  # the verdict's margin at K over copy-last, its interval
+            out["mover_f1_tolerant_interval"] = {
+                name: mover_interval(score.last_mover_rows, copy_last.last_mover_rows)
+                for name, score in self.scores.items()
+                if name != "copy_last"
+            }
         return out
 
 

@@ -8,6 +8,7 @@ averaged over the frames scored (as SOGMP averages over its test frames).
 
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,14 +49,22 @@ class Scorer:
     ssim_sum: float = 0.0
     ssim_frames: int = 0
     movers: MoverScore = field(default_factory=MoverScore)
+    # each frame's counts in order, for the margins' intervals (.resampling): (tp, fp, fn) a
+    # frame, and the movers' TolerantCounts.row(); int32, 40 bytes a frame
+    counts_rows: array = field(default_factory=lambda: array("i"))
+    changed_rows: array = field(default_factory=lambda: array("i"))
+    mover_rows: array = field(default_factory=lambda: array("i"))
 
     def add(self, probability: np.ndarray, current: np.ndarray, target: np.ndarray) -> None:
         """Score one predicted map against the true next map ``target``; ``current`` is the
         map the prediction was made from (for the changed-cell mask)."""
         target = target.astype(bool)
         predicted = probability >= THRESHOLD
-        self.counts = self.counts + confusion(predicted, target)
-        self.changed = self.changed + confusion(predicted, target, current.astype(bool) != target)
+        counts = confusion(predicted, target)
+        changed = confusion(predicted, target, current.astype(bool) != target)
+        self.counts, self.changed = self.counts + counts, self.changed + changed
+        self.counts_rows.extend(counts.row())
+        self.changed_rows.extend(changed.row())
         # Bin index = floor(p * BINS), so "p >= k / BINS" is exactly "bin >= k".
         bins = np.clip(np.floor(np.asarray(probability, np.float64) * BINS), 0, BINS).astype(int)
         self.positives += np.bincount(bins[target], minlength=BINS + 1)
@@ -69,7 +78,7 @@ class Scorer:
 
     def add_movers(self, probability: np.ndarray, target: np.ndarray, region: np.ndarray) -> None:
         """Score one predicted map inside the target frame's dynamic ``region``."""
-        self.movers.add(probability, target, region)
+        self.mover_rows.extend(self.movers.add(probability, target, region).row())
 
     def add_moving(self, predicted: np.ndarray, truth: np.ndarray) -> None:
         """Score one frame's moving-cell mask ``(H, W)`` against the true moving cells."""

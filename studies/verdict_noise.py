@@ -1,0 +1,140 @@
+"""How much of `evaluate`'s verdict is noise? Each development recording scored by the default
+(``lidarflow evaluate REC --horizon K``, K its scans in about one second, one thread), and each
+verdict margin beside its interval over the recording's frames
+(:mod:`lidarflow.evaluate.resampling`: a paired block bootstrap, 90 %).
+
+The bundled model saw these recordings in training, so its margins are in-sample; what the
+study reads is the intervals' width, which the recording, the metric and the baselines set::
+
+    PYTHONPATH=src:. python -m studies.verdict_noise -o runs/verdict_noise
+
+Keeps OUT/<recording>.json (the evaluation, skipped where it exists) and writes
+OUT/summary.{json,md}: per recording the margins and intervals at k = 1 and at K.
+
+``folds DIR...`` reads instead :mod:`studies.online_combination`'s folders (one per training
+seed, fold heads held out) and tables the default's margins: the model's at k = 1, the
+combination's tolerant mover margin at K (OUT/folds.{json,md})::
+
+    PYTHONPATH=src:. python -m studies.verdict_noise folds runs/oc_s0 runs/oc_s1
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from studies.harness import development, parse, parser, read_json, stem, write_atomic, write_json
+from studies.movers import horizon_of
+
+#: The verdict's margins, as ``intervals`` names them, and their column titles.
+MARGINS = {
+    "f1": "F1",
+    "changed_f1": "changed-cell F1",
+    "mover_f1": "tolerant mover F1",
+    "mover_f1_horizon": "tolerant mover F1 at K",
+}
+_MARGIN_KEYS = {
+    "f1": "f1_margin",
+    "changed_f1": "changed_f1_margin",
+    "mover_f1": "mover_f1_margin",
+    "mover_f1_horizon": "mover_f1_horizon_margin",
+}
+
+
+def evaluate(recording: Path, out: Path) -> Path:
+    """``lidarflow evaluate`` of ``recording`` at its K, one thread, into OUT/<stem>.json."""
+    from lidarflow.data import load_any
+
+    path = out / f"{stem(recording)}.json"
+    if path.exists():
+        return path
+    horizon = horizon_of(load_any(recording))
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    command = [sys.executable, "-m", "lidarflow", "evaluate", str(recording)]
+    command += ["--horizon", str(horizon), "--threads", "1", "-o", str(path)]
+    subprocess.run(command, check=True, env=env, stdout=subprocess.DEVNULL)
+    return path
+
+
+def rows(report: dict[str, Any], model: str = "bundled") -> dict[str, Any]:
+    """The recording's margins and intervals of ``model``'s verdict, and the verdict."""
+    entry = report["recordings"][0]
+    verdict = entry["against_baselines"][model]
+    intervals = verdict.get("intervals", {})
+    out: dict[str, Any] = {
+        "wins": verdict["wins"],
+        "horizon": len(entry["horizon_f1"]["copy_last"]),
+    }
+    for name, key in _MARGIN_KEYS.items():
+        out[name] = {"margin": verdict.get(key), "interval": intervals.get(name)}
+    return out
+
+
+def table(summary: dict[str, dict[str, Any]]) -> str:
+    """The summary as Markdown: each margin with its interval, ``*`` where it holds 0."""
+    head = "| recording | K | " + " | ".join(MARGINS.values()) + " | verdict |"
+    lines = [head, "|" + "---|" * (len(MARGINS) + 3)]
+    for name, row in summary.items():
+        cells = []
+        for key in MARGINS:
+            margin, interval = row[key]["margin"], row[key]["interval"]
+            if margin is None or interval is None:
+                cells.append("-")
+                continue
+            tie = "*" if interval[0] <= 0 <= interval[1] else ""
+            cells.append(f"{margin:+.4f} ({interval[0]:+.4f}..{interval[1]:+.4f}){tie}")
+        verdict = {True: "wins", False: "loses", None: "undecided"}[row["wins"]]
+        lines.append(f"| {name} | {row['horizon']} | " + " | ".join(cells) + f" | {verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+def default_rows(result: dict[str, Any]) -> dict[str, Any]:
+    """The default's margins and intervals from an :mod:`studies.online_combination` result:
+    the model's (it decides frame 1) at k = 1, the combination's at K."""
+    model, combined = result["verdicts"]["model"], result["verdicts"]["model_combined"]
+    out: dict[str, Any] = {"horizon": result["horizon"]}
+    for name, key in _MARGIN_KEYS.items():
+        verdict = combined if name == "mover_f1_horizon" else model
+        out[name] = {"margin": verdict.get(key), "interval": verdict["intervals"].get(name)}
+    out["wins"] = all(
+        row["margin"] is None or row["margin"] > 0 for name, row in out.items() if name in MARGINS
+    )
+    return out
+
+
+def fold_table(folders: Sequence[Path]) -> dict[str, dict[str, Any]]:
+    """``{"<recording> s<i>": default_rows}`` over the recordings of every seed's folder."""
+    out = {}
+    for i, folder in enumerate(folders):
+        for path in sorted(folder.glob("*.json")):
+            if path.name != "summary.json":
+                out[f"{path.stem} s{i}"] = default_rows(read_json(path))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    p = parser("verdict_noise", __doc__)
+    p.add_argument("folds", nargs="*", type=Path, help="'folds' and online_combination folders")
+    args = parse(p, argv)
+    out: Path = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    if args.folds:
+        if str(args.folds[0]) != "folds":
+            p.error("the positional arguments are: folds DIR...")
+        summary, name = fold_table(args.folds[1:]), "folds"
+    else:
+        summary, name = {}, "summary"
+        for recording in development():
+            print(f"{recording.name} ...", flush=True)
+            summary[stem(recording)] = rows(read_json(evaluate(recording, out)))
+    write_json(out / f"{name}.json", summary)
+    write_atomic(out / f"{name}.md", table(summary))
+    print(table(summary))
+
+
+if __name__ == "__main__":
+    main()
