@@ -27,7 +27,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from studies.harness import development, parse, parser, read_json, stem, write_atomic, write_json
+from studies.harness import (
+    DEVELOPMENT,
+    development,
+    parse,
+    parser,
+    read_json,
+    stem,
+    write_atomic,
+    write_json,
+)
 from studies.movers import horizon_of
 
 #: The verdict's margins, as ``intervals`` names them, and their column titles.
@@ -107,12 +116,16 @@ def default_rows(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def fold_table(folders: Sequence[Path]) -> dict[str, dict[str, Any]]:
-    """``{"<recording> s<i>": default_rows}`` over the recordings of every seed's folder."""
+    """``{"<recording> s<i>": default_rows}``, recording by recording (the development ones in
+    their order, then the others), a row per seed's folder."""
+    found = {p.stem for f in folders for p in f.glob("*.json") if p.name != "summary.json"}
+    known = [stem(name) for name in DEVELOPMENT]
+    order = sorted(found, key=lambda n: (known.index(n) if n in known else len(known), n))
     out = {}
-    for i, folder in enumerate(folders):
-        for path in sorted(folder.glob("*.json")):
-            if path.name != "summary.json":
-                out[f"{path.stem} s{i}"] = default_rows(read_json(path))
+    for name in order:
+        for i, folder in enumerate(folders):
+            if (folder / f"{name}.json").exists():
+                out[f"{name} s{i}"] = default_rows(read_json(folder / f"{name}.json"))
     return out
 
 

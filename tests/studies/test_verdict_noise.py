@@ -25,3 +25,34 @@ def test_each_margin_stands_beside_its_interval_and_an_evaluation_is_kept(tmp_pa
     kept = (out / "walkers.json").stat().st_mtime_ns
     study.main(["-o", str(out)])  # the evaluation is kept, not run again
     assert (out / "walkers.json").stat().st_mtime_ns == kept
+
+
+def test_the_folds_table_takes_the_model_one_step_ahead_and_the_combination_at_k(tmp_path):
+    from studies.harness import write_json
+
+    def verdict(margin, interval):
+        keys = ("f1", "changed_f1", "mover_f1")
+        return {f"{k}_margin": margin for k in keys} | {"intervals": dict.fromkeys(keys, interval)}
+
+    combined = verdict(-0.5, [-1.0, 1.0])
+    combined["mover_f1_horizon_margin"] = -0.02
+    combined["intervals"]["mover_f1_horizon"] = [-0.05, 0.01]
+    result = {
+        "horizon": 8,
+        "verdicts": {"model": verdict(0.01, [0.005, 0.02]), "model_combined": combined},
+    }
+    folders = [tmp_path / "s0", tmp_path / "s1"]
+    for folder in folders:
+        for name in ("general_tracking_moving_1", "positive_2", "positive_1"):
+            write_json(folder / f"{name}.json", result)
+        write_json(folder / "summary.json", {})
+    rows = study.fold_table(folders)
+    assert list(rows) == [  # the development recordings' order, each seed in turn
+        "positive_1 s0", "positive_1 s1", "positive_2 s0", "positive_2 s1",
+        "general_tracking_moving_1 s0", "general_tracking_moving_1 s1",
+    ]  # fmt: skip
+    row = rows["positive_1 s0"]
+    assert row["f1"] == {"margin": 0.01, "interval": [0.005, 0.02]}  # the model's, k = 1
+    assert row["mover_f1_horizon"] == {"margin": -0.02, "interval": [-0.05, 0.01]}  # combined, K
+    assert row["wins"] is False
+    assert "-0.0200 (-0.0500..+0.0100)* | loses |" in study.table(rows)
