@@ -8,21 +8,18 @@ study reads is the intervals' width, which the recording, the metric and the bas
 
     PYTHONPATH=src:. python -m studies.verdict_noise -o runs/verdict_noise
 
-Keeps OUT/<recording>.json (the evaluation, skipped where it exists) and writes
+Writes OUT/<recording>.json (the evaluation; kept, so a rerun skips it) and
 OUT/summary.{json,md}: per recording the margins and intervals at k = 1 and at K.
 
 ``folds DIR...`` reads instead :mod:`studies.online_combination`'s folders (one per training
 seed, fold heads held out) and tables the default's margins: the model's at k = 1, the
-combination's tolerant mover margin at K (OUT/folds.{json,md})::
+combination's tolerant mover margin at K; writes OUT/folds.{json,md}::
 
     PYTHONPATH=src:. python -m studies.verdict_noise folds runs/oc_s0 runs/oc_s1
 """
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -55,17 +52,27 @@ _MARGIN_KEYS = {
 
 
 def evaluate(recording: Path, out: Path) -> Path:
-    """``lidarflow evaluate`` of ``recording`` at its K, one thread, into OUT/<stem>.json."""
+    """`lidarflow evaluate`'s report of ``recording`` at its K (the bundled model as the
+    Predictor runs it, one thread) into OUT/<stem>.json; kept where it exists."""
     from lidarflow.data import load_any
+    from lidarflow.evaluate.evaluation import evaluate_and_report
+    from lidarflow.evaluate.methods import methods_and_config
+    from lidarflow.evaluate.stream import WARMUP
+    from lidarflow.scan import GridSpec
 
     path = out / f"{stem(recording)}.json"
     if path.exists():
         return path
-    horizon = horizon_of(load_any(recording))
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    command = [sys.executable, "-m", "lidarflow", "evaluate", str(recording)]
-    command += ["--horizon", str(horizon), "--threads", "1", "-o", str(path)]
-    subprocess.run(command, check=True, env=env, stdout=subprocess.DEVNULL)
+    data = load_any(recording)
+    horizon = horizon_of(data)
+    methods, config = methods_and_config(
+        [None], names=["bundled"], threads=1, combined_ahead=horizon
+    )
+    config.update({"warmup": WARMUP, "grid": GridSpec().to_dict()})
+    named = [(str(recording), data)]
+    write_json(
+        path, evaluate_and_report(named, methods, GridSpec(), WARMUP, config, horizon=horizon)
+    )
     return path
 
 
