@@ -139,3 +139,50 @@ def test_closing_with_a_client_that_never_sent_its_request_logs_nothing(caplog):
         with caplog.at_level(logging.DEBUG, logger="asyncio"):
             front.close(0.1)
     assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
+
+
+def _message_frame(log_time: int) -> bytes:
+    """A server's binary "message data" frame (subscription 1) logged at ``log_time``."""
+    payload = bytes([1]) + struct.pack("<IQ", 1, log_time) + b"msg"
+    return bytes([0x82, len(payload)]) + payload
+
+
+def test_closing_waits_for_the_last_scan_even_when_the_sdk_pauses_longer_than_the_quiet():
+    # A fake SDK writes one scan's two messages, pauses 0.4 s (a loaded machine's scheduler),
+    # then writes the last scan's two: silence alone (0.05 s) would have stopped it before.
+    import threading
+    import time
+
+    from lidarflow.live.front import Front
+
+    backend = socket.create_server(("127.0.0.1", 0))
+    done = threading.Event()
+
+    def sdk():
+        conn, _ = backend.accept()
+        with conn:
+            while b"\r\n\r\n" not in conn.recv(4096):
+                pass
+            conn.sendall(b"HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\n\r\n")
+            conn.sendall(_message_frame(5) * 2)
+            time.sleep(0.4)
+            conn.sendall(_message_frame(7) * 2)
+            done.wait(10)
+
+    threading.Thread(target=sdk, daemon=True).start()
+    front = Front("127.0.0.1", 0)
+    front.start(backend.getsockname()[1])
+    received = bytearray()
+    with socket.create_connection(("127.0.0.1", front.port), timeout=10) as client:
+        client.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n\r\n")
+        while received.count(_message_frame(5)) < 2:
+            received += client.recv(4096)
+        start = time.monotonic()
+        front.wait_relayed(7, 2, quiet_s=0.05, within_s=5.0)
+        waited = time.monotonic() - start
+        while received.count(_message_frame(7)) < 2:  # relayed, so they arrive
+            received += client.recv(4096)
+        done.set()
+        front.close(0.5)
+    backend.close()
+    assert 0.25 < waited < 3.0  # the pause, not the whole budget

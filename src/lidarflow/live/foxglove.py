@@ -121,6 +121,7 @@ class LiveServer:
             PackedElementField(name=GRID_FIELD, offset=0, type=PackedElementFieldNumericType.Int8)
         ]
         self._closed = False
+        self._last_sent = (-1, 0)  # the last publish's log time and the messages it logged
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -154,7 +155,7 @@ class LiveServer:
             return
         self._closed = True
         # the SDK drops at stop() what it has not yet written: let it write first
-        self._front.wait_quiet(QUIET_S, DRAIN_S)
+        self._front.wait_relayed(*self._last_sent, QUIET_S, DRAIN_S)
         for channel in self._channels():
             channel.close()
         self._server.stop()
@@ -173,19 +174,24 @@ class LiveServer:
         if self._closed:
             raise PredictError("the live server is closed: nothing can be published")
         at = log_time_ns if log_time_ns is not None else scan.stamp_ns or time.time_ns()
-        if self._scan.has_sinks():
-            self._scan.log(self._laser_scan(scan), log_time=at)
         if len(prediction.horizon) != self.horizon:
             raise PredictError(
                 f"a prediction {len(prediction.horizon)} frames ahead, but the server was made "
                 f"for {self.horizon}: give it the Predictor's horizon"
             )
+        sent = 0
+        if self._scan.has_sinks():
+            self._scan.log(self._laser_scan(scan), log_time=at)
+            sent += 1
         watched = {topic for topic, channel in self._grids.items() if channel.has_sinks()}
         for out in prediction_grids(prediction, watched):
             self._grids[out.topic].log(self._grid_message(out), log_time=at)
+            sent += 1
         flow = prediction.forward_flow
         if self._flow is not None and flow is not None and self._flow.has_sinks():
             self._flow.log(self._flow_image(flow, prediction.stamp_ns or at), log_time=at)
+            sent += 1
+        self._last_sent = (at, sent)
 
     def publish_frame(self, frame: LiveFrame) -> None:
         """:meth:`publish` as a sink of :class:`~lidarflow.live.step.LiveStep` (the ROS node's

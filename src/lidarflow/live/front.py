@@ -32,6 +32,10 @@ REQUEST_TIMEOUT_S = 10.0
 #: answer) before the front closes the socket anyway.
 LINGER_S = 1.0
 CLOSE_OPCODE = 0x8
+BINARY_OPCODE = 0x2
+#: The first byte of the protocol's binary "message data" (then subscription id u32, log time
+#: u64, little-endian, and the message).
+MESSAGE_DATA = 0x01
 #: The close frame's payload where the SDK sends none: 1001 "going away", and why.
 GOING_AWAY = struct.pack("!H", 1001) + b"server stopped"
 _PROTOCOL_HEADER = b"sec-websocket-protocol:"
@@ -96,6 +100,8 @@ class Front:
         self._server: asyncio.base_events.Server | None = None
         self._backend = 0
         self._last_from_sdk = time.monotonic()
+        # the newest log time among the messages relayed, and how many were relayed with it
+        self._newest: tuple[int, int] = (-1, 0)
 
     def start(self, backend_port: int) -> None:
         """Relay to the SDK server on ``127.0.0.1:backend_port`` from now on."""
@@ -110,6 +116,19 @@ class Front:
         deadline = time.monotonic() + within_s
         while (now := time.monotonic()) < deadline and now - self._last_from_sdk < quiet_s:
             time.sleep(min(quiet_s, deadline - now) / 4)
+
+    def wait_relayed(self, log_time: int, messages: int, quiet_s: float, within_s: float) -> None:
+        """Wait (``within_s`` at most in all) until ``messages`` messages logged at
+        ``log_time`` (or any logged later) were relayed, then :meth:`wait_quiet`: the SDK's
+        writer may pause longer than ``quiet_s`` on a loaded machine before it writes the last
+        scan, which silence alone would take for the end."""
+        deadline = time.monotonic() + within_s
+        while time.monotonic() < deadline:
+            newest, count = self._newest
+            if newest > log_time or (newest == log_time and count >= messages):
+                break
+            time.sleep(min(quiet_s / 4, max(deadline - time.monotonic(), 0.0)))
+        self.wait_quiet(quiet_s, max(deadline - time.monotonic(), 0.0))
 
     def close(self, drain_s: float) -> None:
         """Take no more connections; wait (``drain_s`` at most) for those open to end, which
@@ -143,10 +162,19 @@ class Front:
                 size = int.from_bytes(extended, "big") if extended else size
                 mask = await src.readexactly(4 if head[1] & 0x80 else 0)
                 payload = await src.readexactly(size)
+                if head[0] & 0x0F == BINARY_OPCODE and size >= 13 and payload[0] == MESSAGE_DATA:
+                    self._relayed(int.from_bytes(payload[5:13], "little"))
                 if head[0] & 0x0F == CLOSE_OPCODE and size == 0:
                     head, payload = bytes([head[0], len(GOING_AWAY)]), GOING_AWAY
                 dst.write(head + extended + mask + payload)
                 await dst.drain()
+
+    def _relayed(self, log_time: int) -> None:
+        newest, count = self._newest
+        if log_time > newest:
+            self._newest = (log_time, 1)
+        elif log_time == newest:
+            self._newest = (newest, count + 1)
 
     async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
