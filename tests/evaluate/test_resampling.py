@@ -184,3 +184,32 @@ def test_the_horizon_keeps_the_frames_counts_k_ahead_only():
     assert len(rows) == score.frames == 10
     assert tuple(rows.sum(0)) == score.movers[-1].tolerant.row()
     assert tuple(rows.sum(0)) != score.movers[0].tolerant.row()  # k = 3, not k = 1
+
+
+def test_a_loss_within_the_noise_is_counted_apart_in_the_overall_line():
+    from lidarflow.evaluate.report import count_recordings_won
+    from lidarflow.evaluate.resampling import lost_within_noise
+
+    def verdict(wins, mover, interval):
+        return {
+            "wins": wins, "f1_margin": 0.01, "changed_f1_margin": 0.1, "mover_f1_margin": mover,
+            "intervals": {"f1": [0.005, 0.02], "changed_f1": [0.05, 0.2], "mover_f1": interval},
+        }  # fmt: skip
+
+    tie = verdict(False, -0.01, [-0.05, 0.03])  # lost on movers, within the noise
+    real = verdict(False, -0.04, [-0.08, -0.01])  # lost beyond it
+    won = verdict(True, 0.02, [-0.01, 0.05])  # a win, however unsure, is no loss
+    assert [lost_within_noise(v) for v in (tie, real, won)] == [True, False, False]
+    beyond_f1 = verdict(False, -0.01, [-0.05, 0.03]) | {"f1_margin": -0.01}  # F1's is beyond
+    beyond_f1["intervals"]["f1"] = [-0.02, -0.001]
+    assert not lost_within_noise(beyond_f1)
+    report = {
+        "recordings": [{"against_baselines": {"m": v}} for v in (tie, real, won)],
+        "against_baselines": {"m": {"wins": False, "f1_margin": 0.0, "f1_baseline": "copy_last",
+                                    "changed_f1_margin": 0.0, "changed_f1_baseline": "copy_last"}},
+    }  # fmt: skip
+    count_recordings_won(report)
+    overall = report["against_baselines"]["m"]
+    assert (overall["recordings_won"], overall["recordings_lost_within_noise"]) == (1, 1)
+    line = format_comparison(report["against_baselines"])
+    assert line.endswith("loses; won 1 of 3 recordings (1 more lost only within the noise)")

@@ -7,7 +7,7 @@ import operator
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
-from lidarflow.evaluate.resampling import LEVEL, add_intervals, within_noise
+from lidarflow.evaluate.resampling import LEVEL, add_intervals, lost_within_noise, within_noise
 from lidarflow.evaluate.scoring import Scorer
 
 __all__ = [
@@ -205,7 +205,8 @@ def add_horizon_verdict(entry: dict[str, Any]) -> None:
 
 
 def count_recordings_won(report: dict[str, Any]) -> None:
-    """Set the overall verdicts' ``recordings_won``, ``recordings`` and
+    """Set the overall verdicts' ``recordings_won``, ``recordings_lost_within_noise``
+    (:func:`~lidarflow.evaluate.resampling.lost_within_noise`), ``recordings`` and
     ``recordings_undecided`` from the recordings' verdicts."""
     for name, verdict in report.get("against_baselines", {}).items():
         verdicts = [
@@ -214,6 +215,7 @@ def count_recordings_won(report: dict[str, Any]) -> None:
             if name in e.get("against_baselines", {})
         ]
         verdict["recordings_won"] = sum(v["wins"] is True for v in verdicts)
+        verdict["recordings_lost_within_noise"] = sum(lost_within_noise(v) for v in verdicts)
         verdict["recordings"] = len(verdicts)
         undecided = sum(v["wins"] is None for v in verdicts)
         verdict.pop("recordings_undecided", None)
@@ -228,6 +230,8 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
         won = ""
         if "recordings_won" in v:
             won = f"; won {v['recordings_won']} of {v['recordings']} recordings"
+            if v.get("recordings_lost_within_noise"):
+                won += f" ({v['recordings_lost_within_noise']} more lost only within the noise)"
             if v.get("recordings_undecided"):
                 won += f" ({v['recordings_undecided']} undecided)"
         verdict = {True: "wins", False: "loses", None: "undecided (nothing to find)"}[v["wins"]]

@@ -31,6 +31,7 @@ __all__ = [
     "add_intervals",
     "all_cell_f1",
     "draw_starts",
+    "lost_within_noise",
     "margin_interval",
     "mover_interval",
     "resampled_sums",
@@ -137,6 +138,27 @@ def within_noise(verdict: Mapping[str, Any]) -> list[tuple[str, float, float]]:
         for name, interval in verdict.get("intervals", {}).items()
         if interval is not None and interval[0] <= 0.0 <= interval[1]
     ]
+
+
+#: Each interval's margin in a verdict.
+_MARGINS = {
+    "f1": "f1_margin",
+    "changed_f1": "changed_f1_margin",
+    "mover_f1": "mover_f1_margin",
+    "mover_f1_horizon": "mover_f1_horizon_margin",
+}
+
+
+def lost_within_noise(verdict: Mapping[str, Any]) -> bool:
+    """Whether ``verdict`` is a loss whose every margin at or below 0 has an interval that
+    holds 0: a loss the frames cannot tell from a win."""
+    if verdict.get("wins") is not False:
+        return False
+    tied = {name for name, _, _ in within_noise(verdict)}
+    failing = {
+        name for name, key in _MARGINS.items() if verdict.get(key) is not None and verdict[key] <= 0
+    }
+    return bool(failing) and failing <= tied
 
 
 def _listed(interval: tuple[float, float] | None) -> list[float] | None:
