@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from lidarflow.evaluate.resampling import MARGIN_KEYS
 from studies.harness import (
     DEVELOPMENT,
     development,
@@ -42,12 +43,6 @@ MARGINS = {
     "changed_f1": "changed-cell F1",
     "mover_f1": "tolerant mover F1",
     "mover_f1_horizon": "tolerant mover F1 at K",
-}
-_MARGIN_KEYS = {
-    "f1": "f1_margin",
-    "changed_f1": "changed_f1_margin",
-    "mover_f1": "mover_f1_margin",
-    "mover_f1_horizon": "mover_f1_horizon_margin",
 }
 
 
@@ -85,7 +80,7 @@ def rows(report: dict[str, Any], model: str = "bundled") -> dict[str, Any]:
         "wins": verdict["wins"],
         "horizon": len(entry["horizon_f1"]["copy_last"]),
     }
-    for name, key in _MARGIN_KEYS.items():
+    for name, key in MARGIN_KEYS.items():
         out[name] = {"margin": verdict.get(key), "interval": intervals.get(name)}
     return out
 
@@ -113,7 +108,7 @@ def default_rows(result: dict[str, Any]) -> dict[str, Any]:
     the model's (it decides frame 1) at k = 1, the combination's at K."""
     model, combined = result["verdicts"]["model"], result["verdicts"]["model_combined"]
     out: dict[str, Any] = {"horizon": result["horizon"]}
-    for name, key in _MARGIN_KEYS.items():
+    for name, key in MARGIN_KEYS.items():
         verdict = combined if name == "mover_f1_horizon" else model
         out[name] = {"margin": verdict.get(key), "interval": verdict["intervals"].get(name)}
     out["wins"] = all(

@@ -28,8 +28,10 @@ from lidarflow.predict.lookahead import f1_from_counts
 __all__ = [
     "DRAWS",
     "LEVEL",
+    "MARGIN_KEYS",
     "add_intervals",
     "all_cell_f1",
+    "counts_interval",
     "draw_starts",
     "lost_within_noise",
     "margin_interval",
@@ -98,12 +100,16 @@ def margin_interval(
     return float(low), float(high)
 
 
+def counts_interval(rows: Sequence[int], baseline_rows: Sequence[int]) -> list[float] | None:
+    """:func:`margin_interval` of F1 (all cells, or the changed ones), ``[low, high]``, from each
+    frame's :class:`~lidarflow.evaluate.metrics.Counts` (flat, ``tp, fp, fn`` a frame)."""
+    return _flat_interval(rows, baseline_rows, 3, all_cell_f1)
+
+
 def mover_interval(rows: Sequence[int], copy_last_rows: Sequence[int]) -> list[float] | None:
     """:func:`margin_interval` of the tolerant mover F1 over copy-last's, ``[low, high]``, from
     each frame's :class:`~lidarflow.evaluate.movers.TolerantCounts` (flat, four a frame)."""
-    return _listed(
-        margin_interval(np.reshape(rows, (-1, 4)), np.reshape(copy_last_rows, (-1, 4)), tolerant_f1)
-    )
+    return _flat_interval(rows, copy_last_rows, 4, tolerant_f1)
 
 
 def add_intervals(compared: Mapping[str, dict[str, Any]], scorers: Mapping[str, Scorer]) -> None:
@@ -111,23 +117,17 @@ def add_intervals(compared: Mapping[str, dict[str, Any]], scorers: Mapping[str, 
     ``scorers``, one recording's) its margins' intervals: ``intervals`` ``{"f1",
     "changed_f1", "mover_f1"}`` -> ``[low, high]``, ``None`` where the margin is ``None``."""
     for name, verdict in compared.items():
-        mine, f1_base = scorers[name], scorers[verdict["f1_baseline"]]
-        changed_base = scorers[verdict["changed_f1_baseline"]]
-        intervals: dict[str, list[float] | None] = {
-            "f1": _listed(margin_interval(
-                np.reshape(mine.counts_rows, (-1, 3)),
-                np.reshape(f1_base.counts_rows, (-1, 3)), all_cell_f1,
-            )),
-            "changed_f1": _listed(margin_interval(
-                np.reshape(mine.changed_rows, (-1, 3)),
-                np.reshape(changed_base.changed_rows, (-1, 3)), all_cell_f1,
-            )),
-            "mover_f1": None,
-        }  # fmt: skip
-        if verdict.get("mover_f1_margin") is not None:
-            copy_last = scorers["copy_last"].mover_rows
-            intervals["mover_f1"] = mover_interval(mine.mover_rows, copy_last)
-        verdict["intervals"] = intervals
+        mine = scorers[name]
+        f1_base, changed_base = (
+            scorers[verdict[k]] for k in ("f1_baseline", "changed_f1_baseline")
+        )
+        verdict["intervals"] = {
+            "f1": counts_interval(mine.counts_rows, f1_base.counts_rows),
+            "changed_f1": counts_interval(mine.changed_rows, changed_base.changed_rows),
+            "mover_f1": None
+            if verdict.get("mover_f1_margin") is None
+            else mover_interval(mine.mover_rows, scorers["copy_last"].mover_rows),
+        }
 
 
 def within_noise(verdict: Mapping[str, Any]) -> list[tuple[str, float, float]]:
@@ -141,7 +141,7 @@ def within_noise(verdict: Mapping[str, Any]) -> list[tuple[str, float, float]]:
 
 
 #: Each interval's margin in a verdict.
-_MARGINS = {
+MARGIN_KEYS = {
     "f1": "f1_margin",
     "changed_f1": "changed_f1_margin",
     "mover_f1": "mover_f1_margin",
@@ -156,10 +156,17 @@ def lost_within_noise(verdict: Mapping[str, Any]) -> bool:
         return False
     tied = {name for name, _, _ in within_noise(verdict)}
     failing = {
-        name for name, key in _MARGINS.items() if verdict.get(key) is not None and verdict[key] <= 0
+        name
+        for name, key in MARGIN_KEYS.items()
+        if verdict.get(key) is not None and verdict[key] <= 0
     }
     return bool(failing) and failing <= tied
 
 
-def _listed(interval: tuple[float, float] | None) -> list[float] | None:
+def _flat_interval(
+    rows: Sequence[int], baseline_rows: Sequence[int], width: int, f1: Callable[..., np.ndarray]
+) -> list[float] | None:
+    interval = margin_interval(
+        np.reshape(rows, (-1, width)), np.reshape(baseline_rows, (-1, width)), f1
+    )
     return None if interval is None else list(interval)
