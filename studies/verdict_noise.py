@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from lidarflow.evaluate.resampling import MARGIN_KEYS
+from lidarflow.evaluate.resampling import MARGINS
 from studies.harness import (
     DEVELOPMENT,
     development,
@@ -36,14 +36,6 @@ from studies.harness import (
     write_json,
 )
 from studies.movers import horizon_of
-
-#: The verdict's margins, as ``intervals`` names them, and their column titles.
-MARGINS = {
-    "f1": "F1",
-    "changed_f1": "changed-cell F1",
-    "mover_f1": "tolerant mover F1",
-    "mover_f1_horizon": "tolerant mover F1 at K",
-}
 
 
 def evaluate(recording: Path, out: Path) -> Path:
@@ -80,14 +72,16 @@ def rows(report: dict[str, Any], model: str = "bundled") -> dict[str, Any]:
         "wins": verdict["wins"],
         "horizon": len(entry["horizon_f1"]["copy_last"]),
     }
-    for name, key in MARGIN_KEYS.items():
+    for name, (key, _) in MARGINS.items():
         out[name] = {"margin": verdict.get(key), "interval": intervals.get(name)}
     return out
 
 
 def table(summary: dict[str, dict[str, Any]]) -> str:
     """The summary as Markdown: each margin with its interval, ``*`` where it holds 0."""
-    head = "| recording | K | " + " | ".join(MARGINS.values()) + " | verdict |"
+    head = (
+        "| recording | K | " + " | ".join(title for _, title in MARGINS.values()) + " | verdict |"
+    )
     lines = [head, "|" + "---|" * (len(MARGINS) + 3)]
     for name, row in summary.items():
         cells = []
@@ -108,7 +102,7 @@ def default_rows(result: dict[str, Any]) -> dict[str, Any]:
     the model's (it decides frame 1) at k = 1, the combination's at K."""
     model, combined = result["verdicts"]["model"], result["verdicts"]["model_combined"]
     out: dict[str, Any] = {"horizon": result["horizon"]}
-    for name, key in MARGIN_KEYS.items():
+    for name, (key, _) in MARGINS.items():
         verdict = combined if name == "mover_f1_horizon" else model
         out[name] = {"margin": verdict.get(key), "interval": verdict["intervals"].get(name)}
     out["wins"] = all(

@@ -7,7 +7,13 @@ import operator
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
-from lidarflow.evaluate.resampling import LEVEL, add_intervals, lost_within_noise, within_noise
+from lidarflow.evaluate.resampling import (
+    LEVEL,
+    MARGINS,
+    add_intervals,
+    lost_within_noise,
+    within_noise,
+)
 from lidarflow.evaluate.scoring import Scorer
 
 __all__ = [
@@ -249,22 +255,13 @@ def format_comparison(compared: Mapping[str, Mapping[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-#: The margins' names in the verdict's line.
-_MARGIN_NAMES = {
-    "f1": "F1",
-    "changed_f1": "changed-cell F1",
-    "mover_f1": "tolerant mover F1",
-    "mover_f1_horizon": "tolerant mover F1 at the horizon",
-}
-
-
 def _noise_note(verdict: Mapping[str, Any]) -> str:
     """``"; within the noise ...: F1 -0.0012..+0.0034, ..."`` for the margins whose interval
     over the frames holds 0, else ``""``."""
     ties = within_noise(verdict) if verdict.get("wins") is not None else []
     if not ties:
         return ""
-    spans = ", ".join(f"{_MARGIN_NAMES[n]} {low:+.4f}..{high:+.4f}" for n, low, high in ties)
+    spans = ", ".join(f"{MARGINS[n][1]} {low:+.4f}..{high:+.4f}" for n, low, high in ties)
     return f"; within the noise ({LEVEL:.0%} interval over the frames holds 0): {spans}"
 
 

@@ -28,7 +28,7 @@ from lidarflow.predict.lookahead import f1_from_counts
 __all__ = [
     "DRAWS",
     "LEVEL",
-    "MARGIN_KEYS",
+    "MARGINS",
     "add_intervals",
     "all_cell_f1",
     "counts_interval",
@@ -140,12 +140,13 @@ def within_noise(verdict: Mapping[str, Any]) -> list[tuple[str, float, float]]:
     ]
 
 
-#: Each interval's margin in a verdict.
-MARGIN_KEYS = {
-    "f1": "f1_margin",
-    "changed_f1": "changed_f1_margin",
-    "mover_f1": "mover_f1_margin",
-    "mover_f1_horizon": "mover_f1_horizon_margin",
+#: The verdict's margins by the names ``intervals`` gives them: the verdict's key, and the
+#: margin's name for a reader.
+MARGINS = {
+    "f1": ("f1_margin", "F1"),
+    "changed_f1": ("changed_f1_margin", "changed-cell F1"),
+    "mover_f1": ("mover_f1_margin", "tolerant mover F1"),
+    "mover_f1_horizon": ("mover_f1_horizon_margin", "tolerant mover F1 at the horizon"),
 }
 
 
@@ -157,7 +158,7 @@ def lost_within_noise(verdict: Mapping[str, Any]) -> bool:
     tied = {name for name, _, _ in within_noise(verdict)}
     failing = {
         name
-        for name, key in MARGIN_KEYS.items()
+        for name, (key, _) in MARGINS.items()
         if verdict.get(key) is not None and verdict[key] <= 0
     }
     return bool(failing) and failing <= tied
