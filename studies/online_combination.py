@@ -125,6 +125,8 @@ def score(
     if "legs" in scored.notes:
         legs = scored.notes["legs"]
         out["legs"] = {m: {k: [v[0], v[-1]] for k, v in legs[m].items()} for m in legs}
+        spans = scored.notes["legs_intervals"]  # over copy-last's, k = 1 and K
+        out["legs_intervals"] = {m: {k: [v[0], v[-1]] for k, v in spans[m].items()} for m in spans}
     if "model_combined" in by_name:
         out["weights"] = by_name["model_combined"].combination.weights()
         out["chosen"] = by_name["model_combined"].combination.chosen()

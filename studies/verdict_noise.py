@@ -13,7 +13,9 @@ OUT/summary.{json,md}: per recording the margins and intervals at k = 1 and at K
 
 ``folds DIR...`` reads instead :mod:`studies.online_combination`'s folders (one per training
 seed, fold heads held out) and tables the default's margins: the model's at k = 1, the
-combination's tolerant mover margin at K; writes OUT/folds.{json,md}::
+combination's tolerant mover margin at K; writes OUT/folds.{json,md}, and where the recordings
+have labelled legs or people OUT/legs.{json,md} (recall over copy-last's, precision less
+copy-last's, with their intervals)::
 
     PYTHONPATH=src:. python -m studies.verdict_noise folds runs/oc_s0 runs/oc_s1
 """
@@ -108,7 +110,60 @@ def default_rows(result: dict[str, Any]) -> dict[str, Any]:
     out["wins"] = all(
         row["margin"] is None or row["margin"] > 0 for name, row in out.items() if name in MARGINS
     )
+    out["legs"] = legs_rows(result)
     return out
+
+
+def legs_rows(result: dict[str, Any]) -> dict[str, Any] | None:
+    """The default's labelled legs (or people) against copy-last's, from an
+    :mod:`studies.online_combination` result with labels: at k = 1 the model's, at K the
+    combination's recall over copy-last's and precision less copy-last's, each with its
+    interval; ``None`` without labels."""
+    if "legs_intervals" not in result:
+        return None
+    legs, spans, out = result["legs"], result["legs_intervals"], {}
+    for at, method in ((0, "model"), (1, "model_combined")):
+        mine, copy = legs[method], legs["copy_last"]
+        recall, copy_recall = mine["recall"][at], copy["recall"][at]
+        precision, copy_precision = mine["precision"][at], copy["precision"][at]
+        out["k=1" if at == 0 else "K"] = {
+            "recall_ratio": {
+                "value": recall / copy_recall if recall is not None and copy_recall else None,
+                "interval": spans[method]["recall_ratio"][at],
+            },
+            "precision_margin": {
+                "value": None
+                if None in (precision, copy_precision)
+                else precision - copy_precision,
+                "interval": spans[method]["precision_margin"][at],
+            },
+        }
+    return out
+
+
+def legs_table(rows: dict[str, dict[str, Any]]) -> str:
+    """:func:`legs_rows` as Markdown: ``*`` where the interval holds the target's bound (a
+    recall 1.5x copy-last's, a precision no lower)."""
+    lines = [
+        "| recording | at | recall / copy-last's | precision - copy-last's |",
+        "|---|---|---|---|",
+    ]
+    for name, row in rows.items():
+        for at, cells in row.items():
+            texts = []
+            for key, bound, spec in (
+                ("recall_ratio", 1.5, ".2f"),
+                ("precision_margin", 0.0, "+.3f"),
+            ):
+                value, interval = cells[key]["value"], cells[key]["interval"]
+                if value is None or interval is None:
+                    texts.append("-")
+                    continue
+                holds = "*" if interval[0] <= bound <= interval[1] else ""
+                low, high = (format(v, spec) for v in interval)
+                texts.append(f"{format(value, spec)} ({low}..{high}){holds}")
+            lines.append(f"| {name} | {at} | {texts[0]} | {texts[1]} |")
+    return "\n".join(lines) + "\n"
 
 
 def fold_table(folders: Sequence[Path]) -> dict[str, dict[str, Any]]:
@@ -135,6 +190,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         if str(args.folds[0]) != "folds":
             p.error("the positional arguments are: folds DIR...")
         summary, name = fold_table(args.folds[1:]), "folds"
+        legs = {n: row["legs"] for n, row in summary.items() if row.get("legs")}
+        if legs:
+            write_json(out / "legs.json", legs)
+            write_atomic(out / "legs.md", legs_table(legs))
+            print(legs_table(legs))
     else:
         summary, name = {}, "summary"
         for recording in development():

@@ -184,3 +184,31 @@ def test_evaluate_refuses_a_bad_label_file_in_one_line(short, tmp_path, capsys):
     legs = _short_legs(short, tmp_path)
     code, _, err = _run([*EVALUATE, str(short), "--legs", str(legs), "--legs", str(legs)], capsys)
     assert code == 2 and "one --legs per recording" in err
+
+
+def test_the_legs_intervals_compare_each_method_with_copy_last_on_the_same_frames():
+    # a leg on CELL at every frame 1..40; copy-last finds it every other frame, "m" always,
+    # "same" exactly as copy-last: recall 2x copy-last's, then 1x, precision alike
+    everywhere = np.ones(GRID.shape, bool)
+    score = LabelScore({t: np.array([CENTRE]) for t in range(1, 41)}, GRID, 1, lambda t: everywhere)
+    found = np.zeros(GRID.shape, np.float32)
+    found[CELL] = 1.0
+    for t in range(40):
+        score.add("copy_last", t, found if t % 2 else np.zeros_like(found))
+        score.add("same", t, found if t % 2 else np.zeros_like(found))
+        score.add("m", t, found)
+    intervals = score.intervals()
+    assert set(intervals) == {"same", "m"}
+    assert intervals["same"] == {"recall_ratio": [[1.0, 1.0]], "precision_margin": [[0.0, 0.0]]}
+    low, high = intervals["m"]["recall_ratio"][0]
+    assert 1.5 < low <= 2.0 <= high < 2.5  # 2x, give or take the frames drawn
+    assert intervals["m"]["precision_margin"] == [[0.0, 0.0]]  # every cell it decides is a leg
+    rows = np.array(list(score.frames["m"][0].values()))
+    assert (
+        tuple(rows.sum(0))
+        == (40, 40, 40, 40)
+        == tuple(
+            getattr(score.counts["m"][0], f) for f in ("found", "labelled", "near", "predicted")
+        )
+    )
+    assert LabelScore({}, GRID, 1, lambda t: everywhere).intervals() == {}

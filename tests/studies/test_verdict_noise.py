@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from lidarflow.sim import SimConfig, write_simulation
 from studies import verdict_noise as study
 from studies.harness import read_json
@@ -56,3 +58,23 @@ def test_the_folds_table_takes_the_model_one_step_ahead_and_the_combination_at_k
     assert row["mover_f1_horizon"] == {"margin": -0.02, "interval": [-0.05, 0.01]}  # combined, K
     assert row["wins"] is False
     assert "-0.0200 (-0.0500..+0.0100)* | loses |" in study.table(rows)
+
+
+def test_the_legs_table_marks_where_the_interval_holds_the_targets_bound():
+    legs = {"recall": [0.4, 0.3], "precision": [0.5, 0.2]}
+    copy = {"recall": [0.4, 0.1], "precision": [0.5, 0.25]}
+    spans = {
+        "recall_ratio": [[0.9, 1.1], [2.0, 4.5]],
+        "precision_margin": [[-0.1, 0.1], [-0.2, 0.01]],
+    }
+    result = {
+        "legs": {"model": legs, "model_combined": legs, "copy_last": copy},
+        "legs_intervals": {"model": spans, "model_combined": spans},
+    }
+    rows = study.legs_rows(result)
+    assert rows["K"]["recall_ratio"]["value"] == pytest.approx(3.0)  # 0.3 / 0.1
+    assert rows["K"]["precision_margin"]["value"] == pytest.approx(-0.05)
+    text = study.legs_table({"positive_1 s0": rows})
+    assert "| positive_1 s0 | k=1 | 1.00 (0.90..1.10) | +0.000 (-0.100..+0.100)* |" in text
+    assert "| positive_1 s0 | K | 3.00 (2.00..4.50) | -0.050 (-0.200..+0.010)* |" in text
+    assert study.legs_rows({"legs": {}}) is None

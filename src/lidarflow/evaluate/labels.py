@@ -23,6 +23,7 @@ from lidarflow.data.blocks import Frames
 from lidarflow.data.recording import Recording
 from lidarflow.errors import BagError, EvaluateError
 from lidarflow.evaluate.metrics import THRESHOLD, summed
+from lidarflow.evaluate.resampling import paired_interval
 from lidarflow.evaluate.runner import Hooks
 from lidarflow.scan import GridSpec, cell_centres
 
@@ -266,6 +267,8 @@ class LabelScore:
     horizon: int
     region: Callable[[int], np.ndarray]
     counts: dict[str, list[LabelCounts]] = field(default_factory=dict)
+    # each labelled frame's counts, per method and step: {t: (found, labelled, near, predicted)}
+    frames: dict[str, list[dict[int, tuple[int, int, int, int]]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.region = functools.lru_cache(maxsize=self.horizon + 1)(self.region)
@@ -275,11 +278,40 @@ class LabelScore:
         against frame ``t + k``'s labels, where it has some."""
         predicted = np.asarray(predicted).reshape(-1, *self.grid.shape)
         counts = self.counts.setdefault(method, [LabelCounts() for _ in range(self.horizon)])
+        frames = self.frames.setdefault(method, [{} for _ in range(self.horizon)])
         for k, output in enumerate(predicted[: self.horizon]):
             labels = self.positions.get(t + 1 + k)
             if labels is not None:
                 one = label_counts(output >= THRESHOLD, labels, self.region(t + 1 + k), self.grid)
                 counts[k] = counts[k] + one
+                frames[k][t] = (one.found, one.labelled, one.near, one.predicted)
+
+    def intervals(self, baseline: str = "copy_last") -> dict[str, dict[str, list[Any]]]:
+        """Each other method's recall over ``baseline``'s (a ratio) and precision less its,
+        their :func:`~lidarflow.evaluate.resampling.paired_interval` over the labelled frames
+        both scored, per step: ``{method: {"recall_ratio": [[low, high] | None, ...],
+        "precision_margin": [...]}}``; ``{}`` without the baseline."""
+        if baseline not in self.frames:
+            return {}
+        out = {}
+        for method, frames in self.frames.items():
+            if method in (baseline, CEILING):
+                continue
+            pairs = [
+                _paired_rows(mine, theirs)
+                for mine, theirs in zip(frames, self.frames[baseline], strict=True)
+            ]
+            out[method] = {
+                name: [
+                    None if (i := paired_interval(*pair, compare)) is None else list(i)
+                    for pair in pairs
+                ]
+                for name, compare in (
+                    ("recall_ratio", _recall_ratio),
+                    ("precision_margin", _precision_margin),
+                )
+            }
+        return out
 
     def summary(self) -> dict[str, dict[str, list[Any]]]:
         """``{method: {"recall": [k = 1..K], "precision", "labelled", "frames"}}``."""
@@ -292,6 +324,29 @@ class LabelScore:
             }
             for method, counts in self.counts.items()
         }
+
+
+def _paired_rows(
+    mine: Mapping[int, tuple[int, ...]], theirs: Mapping[int, tuple[int, ...]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both methods' rows ``(F, 4)`` on the frames both scored, in time order."""
+    common = sorted(mine.keys() & theirs.keys())
+    return (np.array([mine[t] for t in common]).reshape(-1, 4),
+            np.array([theirs[t] for t in common]).reshape(-1, 4))  # fmt: skip
+
+
+def _recall_ratio(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    """Per draw: recall (found / labelled) over the baseline's; NaN where it found none."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (mine[:, 0] / mine[:, 1]) / (theirs[:, 0] / theirs[:, 1])
+    return np.where(np.isfinite(ratio), ratio, np.nan)
+
+
+def _precision_margin(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    """Per draw: precision (near / predicted) less the baseline's; NaN where either predicted
+    nothing in the region."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return mine[:, 2] / mine[:, 3] - theirs[:, 2] / theirs[:, 3]
 
 
 def with_labels(
@@ -333,6 +388,7 @@ def _then(first: Callable[..., None] | None, second: Callable[..., None]) -> Cal
 def labels_entry(labels: Labels, score: LabelScore) -> dict[str, Any]:
     """A recording's report keys: ``legs``, ``legs_kind`` and any ``legs_unmatched``."""
     entry: dict[str, Any] = {"legs": score.summary(), "legs_kind": labels.kind}
+    entry["legs_intervals"] = score.intervals()
     if labels.unmatched:
         entry["legs_unmatched"] = labels.unmatched
     return entry

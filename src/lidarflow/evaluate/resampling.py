@@ -36,6 +36,7 @@ __all__ = [
     "lost_within_noise",
     "margin_interval",
     "mover_interval",
+    "paired_interval",
     "resampled_sums",
     "within_noise",
 ]
@@ -76,6 +77,33 @@ def resampled_sums(rows: np.ndarray, starts: np.ndarray, block: int) -> np.ndarr
     return (running[starts + lengths] - running[starts]).sum(axis=1)
 
 
+def paired_interval(
+    rows: np.ndarray,
+    baseline_rows: np.ndarray,
+    compare: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    level: float = LEVEL,
+    draws: int = DRAWS,
+    seed: int = 0,
+) -> tuple[float, float] | None:
+    """The central ``level`` interval of ``compare(sums, baseline_sums)`` (each ``(draws,
+    C)``, one value a draw; NaN where a draw cannot say) over frames resampled alike for both
+    (see the module). ``rows`` and ``baseline_rows`` ``(F, C)``: each frame's counts. ``None``
+    without a frame, or where no draw could say."""
+    rows, baseline_rows = np.asarray(rows, np.int64), np.asarray(baseline_rows, np.int64)
+    if rows.shape != baseline_rows.shape or rows.ndim != 2:
+        raise ValueError(f"rows {rows.shape} and baseline rows {baseline_rows.shape} differ")
+    if not len(rows):
+        return None
+    starts, block = draw_starts(len(rows), draws, seed)
+    values = compare(
+        resampled_sums(rows, starts, block), resampled_sums(baseline_rows, starts, block)
+    )
+    if np.isnan(values).all():
+        return None
+    low, high = np.nanquantile(values, [(1 - level) / 2, (1 + level) / 2])
+    return float(low), float(high)
+
+
 def margin_interval(
     rows: np.ndarray,
     baseline_rows: np.ndarray,
@@ -84,20 +112,14 @@ def margin_interval(
     draws: int = DRAWS,
     seed: int = 0,
 ) -> tuple[float, float] | None:
-    """The central ``level`` interval of ``f1`` of a method's summed counts less ``f1`` of the
-    baseline's, over frames resampled alike for both (see the module). ``rows`` and
-    ``baseline_rows`` ``(F, C)``: each frame's counts, in the order ``f1`` takes them (for
-    instance ``(tp, fp, fn)`` with :func:`all_cell_f1`). ``None`` without a frame."""
-    rows, baseline_rows = np.asarray(rows, np.int64), np.asarray(baseline_rows, np.int64)
-    if rows.shape != baseline_rows.shape or rows.ndim != 2:
-        raise ValueError(f"rows {rows.shape} and baseline rows {baseline_rows.shape} differ")
-    if not len(rows):
-        return None
-    starts, block = draw_starts(len(rows), draws, seed)
-    mine, theirs = resampled_sums(rows, starts, block), resampled_sums(baseline_rows, starts, block)
-    margins = f1(*mine.T) - f1(*theirs.T)
-    low, high = np.quantile(margins, [(1 - level) / 2, (1 + level) / 2])
-    return float(low), float(high)
+    """:func:`paired_interval` of ``f1`` of a method's summed counts less ``f1`` of the
+    baseline's; ``rows`` in the order ``f1`` takes them (for instance ``(tp, fp, fn)`` with
+    :func:`all_cell_f1`)."""
+
+    def margin(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+        return f1(*mine.T) - f1(*theirs.T)
+
+    return paired_interval(rows, baseline_rows, margin, level, draws, seed)
 
 
 def counts_interval(rows: Sequence[int], baseline_rows: Sequence[int]) -> list[float] | None:
