@@ -203,7 +203,7 @@ def test_the_legs_intervals_compare_each_method_with_copy_last_on_the_same_frame
     low, high = intervals["m"]["recall_ratio"][0]
     assert 1.5 < low <= 2.0 <= high < 2.5  # 2x, give or take the frames drawn
     assert intervals["m"]["precision_margin"] == [[0.0, 0.0]]  # every cell it decides is a leg
-    rows = np.array(list(score.frames["m"][0].values()))
+    rows = np.array([c.row() for c in score.frames["m"][0].values()])
     assert (
         tuple(rows.sum(0))
         == (40, 40, 40, 40)

@@ -204,6 +204,10 @@ class LabelCounts:
     def precision(self) -> float | None:
         return self.near / self.predicted if self.predicted else None
 
+    def row(self) -> tuple[int, int, int, int]:
+        """``(found, labelled, near, predicted)``: a frame's counts as the intervals take them."""
+        return self.found, self.labelled, self.near, self.predicted
+
 
 def label_counts(
     decided: np.ndarray,
@@ -266,9 +270,8 @@ class LabelScore:
     grid: GridSpec
     horizon: int
     region: Callable[[int], np.ndarray]
-    counts: dict[str, list[LabelCounts]] = field(default_factory=dict)
-    # each labelled frame's counts, per method and step: {t: (found, labelled, near, predicted)}
-    frames: dict[str, list[dict[int, tuple[int, int, int, int]]]] = field(default_factory=dict)
+    # each labelled frame's counts, per method and step: {t: counts}
+    frames: dict[str, list[dict[int, LabelCounts]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.region = functools.lru_cache(maxsize=self.horizon + 1)(self.region)
@@ -277,14 +280,20 @@ class LabelScore:
         """Score ``method``'s outputs ``(K, H, W)`` (or one ``(H, W)``) made after frame ``t``
         against frame ``t + k``'s labels, where it has some."""
         predicted = np.asarray(predicted).reshape(-1, *self.grid.shape)
-        counts = self.counts.setdefault(method, [LabelCounts() for _ in range(self.horizon)])
         frames = self.frames.setdefault(method, [{} for _ in range(self.horizon)])
         for k, output in enumerate(predicted[: self.horizon]):
             labels = self.positions.get(t + 1 + k)
             if labels is not None:
-                one = label_counts(output >= THRESHOLD, labels, self.region(t + 1 + k), self.grid)
-                counts[k] = counts[k] + one
-                frames[k][t] = (one.found, one.labelled, one.near, one.predicted)
+                region = self.region(t + 1 + k)
+                frames[k][t] = label_counts(output >= THRESHOLD, labels, region, self.grid)
+
+    @property
+    def counts(self) -> dict[str, list[LabelCounts]]:
+        """Every method's counts per step, summed over its labelled frames."""
+        return {
+            method: [sum(per_frame.values(), LabelCounts()) for per_frame in frames]
+            for method, frames in self.frames.items()
+        }
 
     def intervals(self, baseline: str = "copy_last") -> dict[str, dict[str, list[Any]]]:
         """Each other method's recall over ``baseline``'s (a ratio) and precision less its,
@@ -295,22 +304,15 @@ class LabelScore:
             return {}
         out = {}
         for method, frames in self.frames.items():
-            if method in (baseline, CEILING):
-                continue
-            pairs = [
-                _paired_rows(mine, theirs)
-                for mine, theirs in zip(frames, self.frames[baseline], strict=True)
-            ]
-            out[method] = {
-                name: [
-                    None if (i := paired_interval(*pair, compare)) is None else list(i)
-                    for pair in pairs
+            if method not in (baseline, CEILING):
+                pairs = [
+                    _paired_rows(a, b) for a, b in zip(frames, self.frames[baseline], strict=True)
                 ]
-                for name, compare in (
-                    ("recall_ratio", _recall_ratio),
-                    ("precision_margin", _precision_margin),
-                )
-            }
+                out[method] = {
+                    name: [None if (i := paired_interval(*pair, compare)) is None else list(i)
+                           for pair in pairs]
+                    for name, compare in _COMPARED.items()
+                }  # fmt: skip
         return out
 
     def summary(self) -> dict[str, dict[str, list[Any]]]:
@@ -327,12 +329,13 @@ class LabelScore:
 
 
 def _paired_rows(
-    mine: Mapping[int, tuple[int, ...]], theirs: Mapping[int, tuple[int, ...]]
+    mine: Mapping[int, LabelCounts], theirs: Mapping[int, LabelCounts]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Both methods' rows ``(F, 4)`` on the frames both scored, in time order."""
+    """Both methods' :meth:`LabelCounts.row` ``(F, 4)`` on the frames both scored, in time
+    order."""
     common = sorted(mine.keys() & theirs.keys())
-    return (np.array([mine[t] for t in common]).reshape(-1, 4),
-            np.array([theirs[t] for t in common]).reshape(-1, 4))  # fmt: skip
+    rows = [np.array([one[t].row() for t in common]).reshape(-1, 4) for one in (mine, theirs)]
+    return rows[0], rows[1]
 
 
 def _recall_ratio(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
@@ -347,6 +350,9 @@ def _precision_margin(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
     nothing in the region."""
     with np.errstate(divide="ignore", invalid="ignore"):
         return mine[:, 2] / mine[:, 3] - theirs[:, 2] / theirs[:, 3]
+
+
+_COMPARED = {"recall_ratio": _recall_ratio, "precision_margin": _precision_margin}
 
 
 def with_labels(
@@ -386,9 +392,9 @@ def _then(first: Callable[..., None] | None, second: Callable[..., None]) -> Cal
 
 
 def labels_entry(labels: Labels, score: LabelScore) -> dict[str, Any]:
-    """A recording's report keys: ``legs``, ``legs_kind`` and any ``legs_unmatched``."""
-    entry: dict[str, Any] = {"legs": score.summary(), "legs_kind": labels.kind}
-    entry["legs_intervals"] = score.intervals()
+    """A recording's report keys: ``legs``, ``legs_intervals``, ``legs_kind`` and any
+    ``legs_unmatched``."""
+    entry = {"legs": score.summary(), "legs_intervals": score.intervals(), "legs_kind": labels.kind}
     if labels.unmatched:
         entry["legs_unmatched"] = labels.unmatched
     return entry
