@@ -22,11 +22,11 @@ copy-last's, with their intervals)::
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from lidarflow.evaluate.resampling import MARGINS
+from lidarflow.evaluate.resampling import MARGINS, holds
 from studies.harness import (
     DEVELOPMENT,
     development,
@@ -69,13 +69,18 @@ def rows(report: dict[str, Any], model: str = "bundled") -> dict[str, Any]:
     """The recording's margins and intervals of ``model``'s verdict, and the verdict."""
     entry = report["recordings"][0]
     verdict = entry["against_baselines"][model]
-    intervals = verdict.get("intervals", {})
-    out: dict[str, Any] = {
-        "wins": verdict["wins"],
-        "horizon": len(entry["horizon_f1"]["copy_last"]),
-    }
+    out = _margins(lambda name: verdict)
+    out.update(wins=verdict["wins"], horizon=len(entry["horizon_f1"]["copy_last"]))
+    return out
+
+
+def _margins(verdict_of: Callable[[str], dict[str, Any]]) -> dict[str, Any]:
+    """``{name: {"margin", "interval"}}`` of each of :data:`MARGINS`, read from the verdict
+    ``verdict_of(name)``."""
+    out = {}
     for name, (key, _) in MARGINS.items():
-        out[name] = {"margin": verdict.get(key), "interval": intervals.get(name)}
+        verdict = verdict_of(name)
+        out[name] = {"margin": verdict.get(key), "interval": verdict.get("intervals", {}).get(name)}
     return out
 
 
@@ -92,7 +97,7 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
             if margin is None or interval is None:
                 cells.append("-")
                 continue
-            tie = "*" if interval[0] <= 0 <= interval[1] else ""
+            tie = "*" if holds(interval) else ""
             cells.append(f"{margin:+.4f} ({interval[0]:+.4f}..{interval[1]:+.4f}){tie}")
         verdict = {True: "wins", False: "loses", None: "undecided"}[row["wins"]]
         lines.append(f"| {name} | {row['horizon']} | " + " | ".join(cells) + f" | {verdict} |")
@@ -103,10 +108,8 @@ def default_rows(result: dict[str, Any]) -> dict[str, Any]:
     """The default's margins and intervals from an :mod:`studies.online_combination` result:
     the model's (it decides frame 1) at k = 1, the combination's at K."""
     model, combined = result["verdicts"]["model"], result["verdicts"]["model_combined"]
-    out: dict[str, Any] = {"horizon": result["horizon"]}
-    for name, (key, _) in MARGINS.items():
-        verdict = combined if name == "mover_f1_horizon" else model
-        out[name] = {"margin": verdict.get(key), "interval": verdict["intervals"].get(name)}
+    out = _margins(lambda name: combined if name == "mover_f1_horizon" else model)
+    out["horizon"] = result["horizon"]
     out["wins"] = all(
         row["margin"] is None or row["margin"] > 0 for name, row in out.items() if name in MARGINS
     )
@@ -159,9 +162,9 @@ def legs_table(rows: dict[str, dict[str, Any]]) -> str:
                 if value is None or interval is None:
                     texts.append("-")
                     continue
-                holds = "*" if interval[0] <= bound <= interval[1] else ""
+                mark = "*" if holds(interval, bound) else ""
                 low, high = (format(v, spec) for v in interval)
-                texts.append(f"{format(value, spec)} ({low}..{high}){holds}")
+                texts.append(f"{format(value, spec)} ({low}..{high}){mark}")
             lines.append(f"| {name} | {at} | {texts[0]} | {texts[1]} |")
     return "\n".join(lines) + "\n"
 

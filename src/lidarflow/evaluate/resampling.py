@@ -33,6 +33,7 @@ __all__ = [
     "all_cell_f1",
     "counts_interval",
     "draw_starts",
+    "holds",
     "lost_within_noise",
     "margin_interval",
     "mover_interval",
@@ -152,13 +153,19 @@ def add_intervals(compared: Mapping[str, dict[str, Any]], scorers: Mapping[str, 
         }
 
 
+def holds(interval: Sequence[float] | None, value: float = 0.0) -> bool:
+    """Whether ``interval`` ``[low, high]`` holds ``value``, ends included: a margin whose
+    interval holds 0 is a tie, the frames being what they are."""
+    return interval is not None and interval[0] <= value <= interval[1]
+
+
 def within_noise(verdict: Mapping[str, Any]) -> list[tuple[str, float, float]]:
-    """The margins of ``verdict`` whose interval holds 0 (a tie, the frames being what they
-    are): ``(name, low, high)``, names as in ``intervals``, in their order."""
+    """The margins of ``verdict`` whose interval :func:`holds` 0: ``(name, low, high)``, names
+    as in ``intervals``, in their order."""
     return [
         (name, interval[0], interval[1])
         for name, interval in verdict.get("intervals", {}).items()
-        if interval is not None and interval[0] <= 0.0 <= interval[1]
+        if holds(interval)
     ]
 
 
